@@ -1,0 +1,99 @@
+"""Pipeline stages: Prefect-free functions that read inputs from the store and publish new versions.
+
+Each stage module ``hadal.stages.<name>`` defines
+
+* ``Params`` — a pydantic model, its section of :class:`hadal.config.PipelineConfig`;
+* ``PRODUCTS`` — the product names it publishes; ``UPSTREAM`` — the products it reads;
+* ``run(ctx: StageContext) -> dict[str, ProductVersion]`` — do the work and publish.
+
+The Prefect tasks in ``tasks/`` are thin wrappers around ``run``; the flow in ``flows/`` calls them
+in :data:`STAGE_ORDER`. Data flows one way: raw → ingest → derive → grid → suitability/match → landing → report.
+"""
+
+from __future__ import annotations
+
+import importlib
+import logging
+from collections.abc import Iterable, Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+from types import ModuleType
+from typing import TYPE_CHECKING, Any, Protocol, TypeVar
+
+from hadal.errors import StageError
+
+if TYPE_CHECKING:
+    from hadal.config import PipelineConfig
+    from hadal.dive import Dive
+    from hadal.store import ProductStore, ProductVersion
+
+T = TypeVar("T")
+
+#: Stages in execution order. Only stages whose module defines ``run`` are part of the pipeline.
+STAGE_ORDER: tuple[str, ...] = ("ingest", "derive", "grid", "suitability", "match", "landing", "report")
+
+
+class Progress(Protocol):
+    def track(self, it: Iterable[T], description: str, total: int | None = None) -> Iterator[T]: ...
+
+
+class NullProgress:
+    """Progress reporter that reports nothing (library default)."""
+
+    def track(self, it: Iterable[T], description: str, total: int | None = None) -> Iterator[T]:
+        yield from it
+
+
+@dataclass
+class StageContext:
+    """Everything a stage needs: the dive, its raw directory, the store, the configuration."""
+
+    dive: Dive
+    raw_dir: Path
+    store: ProductStore
+    config: PipelineConfig
+    progress: Progress = field(default_factory=NullProgress)
+    log: logging.Logger = field(default_factory=lambda: logging.getLogger("hadal"))
+
+    @property
+    def dive_id(self) -> str:
+        return self.dive.dive_id
+
+    def upstream(self, product: str) -> ProductVersion:
+        """Latest published version of an upstream product, or a clear :class:`StageError`."""
+        if not self.store.has(self.dive_id, product):
+            raise StageError(
+                f"dive {self.dive_id!r} has no {product!r} product yet; run the stage that makes it first "
+                f"(hadal stage {producer_of(product)} {self.raw_dir})"
+            )
+        return self.store.latest(self.dive_id, product)
+
+    def params(self, stage: str) -> dict[str, Any]:
+        section = self.config.section(stage)
+        return section.model_dump(mode="json") if section is not None else {}
+
+
+def stage_module(name: str) -> ModuleType:
+    if name not in STAGE_ORDER:
+        raise StageError(f"unknown stage {name!r}; stages are: {', '.join(available_stages())}")
+    return importlib.import_module(f"hadal.stages.{name}")
+
+
+def available_stages() -> list[str]:
+    """Stages that are implemented (define ``run``), in execution order."""
+    out = []
+    for n in STAGE_ORDER:
+        try:
+            mod = importlib.import_module(f"hadal.stages.{n}")
+        except ModuleNotFoundError:
+            continue
+        if callable(getattr(mod, "run", None)):
+            out.append(n)
+    return out
+
+
+def producer_of(product: str) -> str:
+    for n in available_stages():
+        if product in getattr(stage_module(n), "PRODUCTS", ()):
+            return n
+    return "?"

@@ -1,0 +1,7 @@
+"""Stage `match` (being implemented)."""
+
+from pydantic import BaseModel, ConfigDict
+
+
+class Params(BaseModel):
+    model_config = ConfigDict(extra="forbid")

@@ -1,0 +1,346 @@
+"""Versioned, immutable product store.
+
+Layout::
+
+    <root>/<dive>/<product>/v001/          one immutable version
+                               manifest.json
+                               <product files>
+    <root>/<dive>/<product>/.staging-*/    a version being written (never visible to readers)
+    <root>/<dive>/<product>/.lock          advisory lock taken while a version number is chosen
+
+A version is *published* by writing everything into a staging directory beside the versions,
+hashing the files, writing ``manifest.json`` last and then renaming the staging directory to the
+next free ``vNNN`` under an exclusive lock. ``rename(2)`` of a directory is atomic on POSIX, so a
+reader either sees a complete version or none; a process killed mid-publish leaves only a
+``.staging-*`` directory, which readers ignore and :meth:`ProductStore.clean_staging` removes.
+
+The manifest records the input files with their SHA-256, the parameters, the code version, the
+creation time and the upstream product versions (provenance).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import datetime as _dt
+import fcntl
+import hashlib
+import json
+import os
+import re
+import shutil
+import subprocess
+import time
+import uuid
+from collections.abc import Iterator, Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from hadal import __version__
+from hadal.errors import StoreError
+
+NAME_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]{0,63}$")
+VERSION_RE = re.compile(r"^v(\d{3,})$")
+MANIFEST = "manifest.json"
+_HASH_CHUNK = 1 << 20
+
+
+def validate_name(name: str, what: str = "name") -> str:
+    """Return ``name`` if it is a safe dive/product name, else raise :class:`StoreError`.
+
+    Allowed: 1-64 characters of letters, digits, ``.``, ``_`` and ``-``, not starting with a dot
+    or dash, and not ``..``-like (no path separators, no traversal).
+    """
+    if not isinstance(name, str) or not NAME_RE.match(name) or ".." in name:
+        raise StoreError(
+            f"invalid {what} {name!r}: use 1-64 letters, digits, '.', '_' or '-', starting with a letter or digit"
+        )
+    return name
+
+
+def sha256_file(path: str | os.PathLike[str]) -> str:
+    """SHA-256 hex digest of a file, read in 1 MiB chunks."""
+    h = hashlib.sha256()
+    with open(path, "rb") as fh:
+        while chunk := fh.read(_HASH_CHUNK):
+            h.update(chunk)
+    return h.hexdigest()
+
+
+def code_version() -> str:
+    """hadal's version plus the git commit of the source tree when it is a checkout (``+g<sha>[.dirty]``)."""
+    src = Path(__file__).resolve().parent
+    try:
+        sha = subprocess.run(
+            ["git", "-C", str(src), "rev-parse", "--short=12", "HEAD"],
+            capture_output=True, text=True, timeout=5, check=True,
+        ).stdout.strip()
+        dirty = subprocess.run(
+            ["git", "-C", str(src), "status", "--porcelain", "--untracked-files=no", "--", "."],
+            capture_output=True, text=True, timeout=5, check=True,
+        ).stdout.strip()
+    except (OSError, subprocess.SubprocessError):
+        return __version__
+    return f"{__version__}+g{sha}{'.dirty' if dirty else ''}" if sha else __version__
+
+
+@dataclass(frozen=True)
+class ProductVersion:
+    """One published, immutable version of a product."""
+
+    dive: str
+    product: str
+    version: int
+    path: Path
+
+    @property
+    def label(self) -> str:
+        return f"v{self.version:03d}"
+
+    @property
+    def manifest_path(self) -> Path:
+        return self.path / MANIFEST
+
+    def manifest(self) -> dict[str, Any]:
+        with open(self.manifest_path, encoding="utf-8") as fh:
+            return json.load(fh)
+
+    def file(self, name: str) -> Path:
+        """Path of a file of this version; raises :class:`StoreError` when it is not there."""
+        p = self.path / name
+        if not p.is_file():
+            raise StoreError(f"{self.dive}/{self.product}/{self.label} has no file {name!r}")
+        return p
+
+    def ref(self) -> dict[str, Any]:
+        """Provenance reference recorded in downstream manifests."""
+        return {
+            "product": self.product,
+            "version": self.label,
+            "manifest_sha256": sha256_file(self.manifest_path),
+        }
+
+
+@dataclass
+class Draft:
+    """A version being written. Write files under :attr:`path`; the store publishes on success."""
+
+    path: Path
+    dive: str
+    product: str
+    parameters: dict[str, Any] = field(default_factory=dict)
+    inputs: list[Path] = field(default_factory=list)
+    upstream: list[ProductVersion] = field(default_factory=list)
+    extra: dict[str, Any] = field(default_factory=dict)
+    result: ProductVersion | None = None
+
+    def add_input(self, path: str | os.PathLike[str]) -> None:
+        """Record another input file (hashed at publish time)."""
+        self.inputs.append(Path(path))
+
+
+def _json_default(obj: Any) -> Any:
+    if isinstance(obj, Path):
+        return str(obj)
+    if isinstance(obj, (_dt.datetime, _dt.date)):
+        return obj.isoformat()
+    if hasattr(obj, "item"):  # numpy scalars
+        return obj.item()
+    if hasattr(obj, "tolist"):
+        return obj.tolist()
+    if hasattr(obj, "model_dump"):
+        return obj.model_dump(mode="json")
+    raise TypeError(f"not JSON serialisable: {type(obj).__name__}")
+
+
+class ProductStore:
+    """Immutable, versioned products under ``root`` (see module docstring)."""
+
+    def __init__(self, root: str | os.PathLike[str]):
+        self.root = Path(root)
+
+    # ---------------------------------------------------------------- reading
+    def product_dir(self, dive: str, product: str) -> Path:
+        return self.root / validate_name(dive, "dive id") / validate_name(product, "product name")
+
+    def dives(self) -> list[str]:
+        if not self.root.is_dir():
+            return []
+        return sorted(p.name for p in self.root.iterdir() if p.is_dir() and NAME_RE.match(p.name))
+
+    def products(self, dive: str) -> list[str]:
+        d = self.root / validate_name(dive, "dive id")
+        if not d.is_dir():
+            return []
+        return sorted(p.name for p in d.iterdir() if p.is_dir() and NAME_RE.match(p.name) and self.versions(dive, p.name))
+
+    def versions(self, dive: str, product: str) -> list[ProductVersion]:
+        """All published versions, oldest first. Staging directories are never listed."""
+        d = self.product_dir(dive, product)
+        if not d.is_dir():
+            return []
+        out = []
+        for p in d.iterdir():
+            m = VERSION_RE.match(p.name)
+            if m and p.is_dir() and (p / MANIFEST).is_file():
+                out.append(ProductVersion(dive, product, int(m.group(1)), p))
+        return sorted(out, key=lambda v: v.version)
+
+    def get(self, dive: str, product: str, version: int | str = "latest") -> ProductVersion:
+        """Resolve ``version`` (``"latest"``, ``"v003"``, ``"3"`` or ``3``) to a published version."""
+        versions = self.versions(dive, product)
+        if not versions:
+            raise StoreError(f"no published version of product {product!r} for dive {dive!r} in {self.root}")
+        if version in ("latest", None):
+            return versions[-1]
+        num = version
+        if isinstance(version, str):
+            m = re.fullmatch(r"v?(\d+)", version)
+            if not m:
+                raise StoreError(f"invalid version {version!r}: use 'latest', 'vNNN' or a number")
+            num = int(m.group(1))
+        for v in versions:
+            if v.version == num:
+                return v
+        raise StoreError(f"{dive}/{product} has no version {version!r} (have {', '.join(v.label for v in versions)})")
+
+    def latest(self, dive: str, product: str) -> ProductVersion:
+        return self.get(dive, product, "latest")
+
+    def has(self, dive: str, product: str) -> bool:
+        return bool(self.versions(dive, product))
+
+    # ---------------------------------------------------------------- writing
+    @contextlib.contextmanager
+    def publish(
+        self,
+        dive: str,
+        product: str,
+        *,
+        parameters: Mapping[str, Any] | None = None,
+        inputs: Sequence[str | os.PathLike[str]] = (),
+        upstream: Sequence[ProductVersion] = (),
+        extra: Mapping[str, Any] | None = None,
+    ) -> Iterator[Draft]:
+        """Context manager that publishes a new version atomically.
+
+        Usage::
+
+            with store.publish(dive, "ctd", parameters=p, upstream=[sensors]) as draft:
+                df.to_parquet(draft.path / "ctd.parquet")
+            draft.result  # -> ProductVersion
+
+        If the body raises, the staging directory is deleted and nothing is published.
+        """
+        pdir = self.product_dir(dive, product)
+        pdir.mkdir(parents=True, exist_ok=True)
+        staging = pdir / f".staging-{os.getpid()}-{uuid.uuid4().hex[:12]}"
+        staging.mkdir()
+        draft = Draft(
+            path=staging, dive=dive, product=product,
+            parameters=dict(parameters or {}), inputs=[Path(p) for p in inputs],
+            upstream=list(upstream), extra=dict(extra or {}),
+        )
+        try:
+            yield draft
+            self._write_manifest(draft)
+            draft.result = self._commit(pdir, staging, dive, product)
+        except BaseException:
+            shutil.rmtree(staging, ignore_errors=True)
+            raise
+
+    def _write_manifest(self, draft: Draft) -> None:
+        files = []
+        for p in sorted(draft.path.rglob("*")):
+            if p.is_file() and p.name != MANIFEST:
+                files.append({"name": str(p.relative_to(draft.path)), "bytes": p.stat().st_size, "sha256": sha256_file(p)})
+        if not files:
+            raise StoreError(f"refusing to publish an empty version of {draft.dive}/{draft.product}")
+        inputs = []
+        for p in draft.inputs:
+            if not p.is_file():
+                raise StoreError(f"input file {p} recorded for {draft.product} does not exist")
+            inputs.append({"path": str(p.resolve()), "bytes": p.stat().st_size, "sha256": sha256_file(p)})
+        manifest = {
+            "dive": draft.dive,
+            "product": draft.product,
+            "version": None,  # filled in on commit
+            "created_utc": _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds"),
+            "code_version": code_version(),
+            "parameters": draft.parameters,
+            "inputs": inputs,
+            "upstream": [u.ref() for u in draft.upstream],
+            "files": files,
+            **draft.extra,
+        }
+        tmp = draft.path / (MANIFEST + ".tmp")
+        with open(tmp, "w", encoding="utf-8") as fh:
+            json.dump(manifest, fh, indent=2, default=_json_default)
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp, draft.path / MANIFEST)
+
+    def _commit(self, pdir: Path, staging: Path, dive: str, product: str) -> ProductVersion:
+        _fsync_tree(staging)
+        with open(pdir / ".lock", "a+") as lock:
+            fcntl.flock(lock, fcntl.LOCK_EX)
+            try:
+                existing = [int(m.group(1)) for p in pdir.iterdir() if (m := VERSION_RE.match(p.name))]
+                number = max(existing, default=0) + 1
+                # record the final version inside the manifest before it becomes visible
+                mpath = staging / MANIFEST
+                manifest = json.loads(mpath.read_text(encoding="utf-8"))
+                manifest["version"] = f"v{number:03d}"
+                tmp = staging / (MANIFEST + ".tmp")
+                tmp.write_text(json.dumps(manifest, indent=2), encoding="utf-8")
+                os.replace(tmp, mpath)
+                target = pdir / f"v{number:03d}"
+                os.rename(staging, target)  # atomic; fails if target exists
+                _fsync_dir(pdir)
+            finally:
+                fcntl.flock(lock, fcntl.LOCK_UN)
+        return ProductVersion(dive, product, number, target)
+
+    def clean_staging(self, older_than_s: float = 3600.0) -> list[Path]:
+        """Remove abandoned ``.staging-*`` directories (e.g. from a killed run) older than ``older_than_s``."""
+        removed = []
+        if not self.root.is_dir():
+            return removed
+        now = time.time()
+        for p in self.root.glob("*/*/.staging-*"):
+            if p.is_dir() and now - p.stat().st_mtime > older_than_s:
+                shutil.rmtree(p, ignore_errors=True)
+                removed.append(p)
+        return removed
+
+    def verify(self, pv: ProductVersion) -> list[str]:
+        """Re-hash a version's files against its manifest; returns a list of problems (empty = intact)."""
+        problems = []
+        for f in pv.manifest().get("files", []):
+            p = pv.path / f["name"]
+            if not p.is_file():
+                problems.append(f"missing {f['name']}")
+            elif sha256_file(p) != f["sha256"]:
+                problems.append(f"checksum mismatch {f['name']}")
+        return problems
+
+
+def _fsync_dir(path: Path) -> None:
+    try:
+        fd = os.open(path, os.O_RDONLY)
+    except OSError:
+        return
+    try:
+        os.fsync(fd)
+    except OSError:
+        pass
+    finally:
+        os.close(fd)
+
+
+def _fsync_tree(path: Path) -> None:
+    for p in path.rglob("*"):
+        if p.is_file():
+            with open(p, "rb") as fh:
+                os.fsync(fh.fileno())
+    _fsync_dir(path)
