@@ -1,0 +1,45 @@
+# hadal — make demo: set up and process the bundled sample dive; make test: set up and run the tests.
+PYTHON ?= python3
+VENV   ?= .venv
+BIN    := $(VENV)/bin
+DIVE   ?= data/raw/haidou-challenger-deep
+STORE  ?= data/processed
+PYTEST_ARGS ?=
+export PREFECT_SERVER_ANALYTICS_ENABLED ?= false
+
+.PHONY: setup sysdeps demo test bench lint clean
+
+setup: $(VENV)/.installed
+
+# open3d needs the system library libusb-1.0 to import
+sysdeps:
+	@if ! ldconfig -p 2>/dev/null | grep -q 'libusb-1.0.so.0'; then \
+	  echo "installing libusb-1.0-0 (needed by open3d)"; \
+	  SUDO=$$( [ "$$(id -u)" = 0 ] || echo sudo ); \
+	  $$SUDO apt-get update -qq && $$SUDO apt-get install -y -qq libusb-1.0-0 >/dev/null; \
+	fi
+
+$(VENV)/.installed: pyproject.toml | sysdeps
+	@test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
+	@$(BIN)/python -m pip install -q --upgrade uv
+	$(BIN)/uv pip install --python $(BIN)/python -q -e '.[test]'
+	@touch $@
+
+$(DIVE)/dive.yaml: | setup
+	$(BIN)/hadal synth $(DIVE)
+
+demo: setup $(DIVE)/dive.yaml
+	$(BIN)/hadal run $(DIVE) --store $(STORE)
+	@echo "products: $(STORE)/$$(basename $(DIVE))/  (list them: $(BIN)/hadal products $$(basename $(DIVE)) --store $(STORE))"
+
+test: setup
+	$(BIN)/python -m pytest $(PYTEST_ARGS)
+
+bench: setup
+	@for b in bench/bench_*.py; do echo "== $$b"; $(BIN)/python $$b || exit 1; done
+
+lint: setup
+	$(BIN)/ruff check src flows tasks tests bench
+
+clean:
+	rm -rf $(VENV) .pytest_cache

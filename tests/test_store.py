@@ -1,0 +1,182 @@
+"""Product store: immutable versions, atomic publish, provenance, name validation, concurrency."""
+
+from __future__ import annotations
+
+import json
+import multiprocessing as mp
+import os
+import signal
+import subprocess
+import sys
+import textwrap
+import time
+from pathlib import Path
+
+import pytest
+
+from hadal.errors import StoreError
+from hadal.store import ProductStore, sha256_file, validate_name
+
+
+def _publish(store: ProductStore, text: str, product: str = "ctd", **kw):
+    with store.publish("dive-1", product, **kw) as draft:
+        (draft.path / "data.txt").write_text(text)
+    return draft.result
+
+
+def test_versions_are_numbered_and_immutable(tmp_path):
+    store = ProductStore(tmp_path)
+    v1 = _publish(store, "one", parameters={"bin_dbar": 10})
+    v2 = _publish(store, "two", parameters={"bin_dbar": 5})
+    assert (v1.label, v2.label) == ("v001", "v002")
+    assert [v.label for v in store.versions("dive-1", "ctd")] == ["v001", "v002"]
+    assert store.latest("dive-1", "ctd") == v2
+    assert store.get("dive-1", "ctd", "v001") == v1 == store.get("dive-1", "ctd", 1)
+    assert (v1.path / "data.txt").read_text() == "one"  # older version untouched
+    m = v2.manifest()
+    assert m["version"] == "v002" and m["parameters"] == {"bin_dbar": 5}
+    assert m["files"] == [{"name": "data.txt", "bytes": 3, "sha256": sha256_file(v2.path / "data.txt")}]
+    assert m["code_version"].startswith("0.")
+    assert store.verify(v2) == []
+
+
+def test_manifest_records_inputs_and_upstream(tmp_path):
+    store = ProductStore(tmp_path / "store")
+    raw = tmp_path / "raw.csv"
+    raw.write_text("a,b\n1,2\n")
+    up = _publish(store, "sensors", product="sensors", inputs=[raw])
+    down = _publish(store, "ctd", upstream=[up])
+    m_up, m_down = up.manifest(), down.manifest()
+    assert m_up["inputs"][0]["sha256"] == sha256_file(raw)
+    assert m_up["inputs"][0]["path"] == str(raw.resolve())
+    assert m_down["upstream"] == [{"product": "sensors", "version": "v001", "manifest_sha256": sha256_file(up.manifest_path)}]
+
+
+def test_failed_publish_leaves_nothing(tmp_path):
+    store = ProductStore(tmp_path)
+    _publish(store, "good")
+    with pytest.raises(RuntimeError):
+        with store.publish("dive-1", "ctd") as draft:
+            (draft.path / "half.txt").write_text("half written")
+            raise RuntimeError("boom")
+    assert [v.label for v in store.versions("dive-1", "ctd")] == ["v001"]
+    assert not list((tmp_path / "dive-1" / "ctd").glob(".staging-*"))
+
+
+def test_empty_version_refused(tmp_path):
+    store = ProductStore(tmp_path)
+    with pytest.raises(StoreError, match="empty"):
+        with store.publish("dive-1", "ctd"):
+            pass
+    assert store.versions("dive-1", "ctd") == []
+
+
+def test_missing_input_refused(tmp_path):
+    store = ProductStore(tmp_path)
+    with pytest.raises(StoreError, match="does not exist"):
+        _publish(store, "x", inputs=[tmp_path / "nope.bin"])
+    assert store.versions("dive-1", "ctd") == []
+
+
+@pytest.mark.parametrize("bad", ["../etc", "..", "a/b", "", ".hidden", "-x", "a" * 65, "dive 1", "x\x00y", "a..b"])
+def test_names_are_validated(tmp_path, bad):
+    with pytest.raises(StoreError):
+        validate_name(bad)
+    store = ProductStore(tmp_path)
+    with pytest.raises(StoreError):
+        with store.publish(bad, "ctd"):
+            pass
+    with pytest.raises(StoreError):
+        store.versions("dive-1", bad)
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_get_errors_are_clear(tmp_path):
+    store = ProductStore(tmp_path)
+    with pytest.raises(StoreError, match="no published version"):
+        store.latest("dive-1", "ctd")
+    _publish(store, "x")
+    with pytest.raises(StoreError, match="no version"):
+        store.get("dive-1", "ctd", "v009")
+    with pytest.raises(StoreError, match="invalid version"):
+        store.get("dive-1", "ctd", "newest")
+
+
+def test_staging_dirs_are_invisible_and_cleaned(tmp_path):
+    store = ProductStore(tmp_path)
+    _publish(store, "x")
+    stale = tmp_path / "dive-1" / "ctd" / ".staging-999-deadbeef"
+    stale.mkdir()
+    (stale / "partial.bin").write_bytes(b"\0" * 10)
+    (tmp_path / "dive-1" / "ctd" / "v007").mkdir()  # a version dir without manifest is not a version
+    assert [v.label for v in store.versions("dive-1", "ctd")] == ["v001"]
+    old = time.time() - 7200
+    os.utime(stale, (old, old))
+    assert store.clean_staging(older_than_s=3600) == [stale]
+    assert not stale.exists()
+
+
+def _worker(root: str, n: int, q) -> None:
+    store = ProductStore(root)
+    labels = []
+    for i in range(n):
+        with store.publish("dive-1", "ctd", parameters={"pid": os.getpid(), "i": i}) as d:
+            (d.path / "data.txt").write_text(f"{os.getpid()}-{i}")
+        labels.append(d.result.label)
+    q.put(labels)
+
+
+def test_concurrent_publishers_get_distinct_intact_versions(tmp_path):
+    ctx = mp.get_context("fork")
+    q = ctx.Queue()
+    procs = [ctx.Process(target=_worker, args=(str(tmp_path), 8, q)) for _ in range(3)]
+    for p in procs:
+        p.start()
+    labels = [label for _ in procs for label in q.get(timeout=60)]
+    for p in procs:
+        p.join(timeout=60)
+    assert len(labels) == len(set(labels)) == 24
+    versions = ProductStore(tmp_path).versions("dive-1", "ctd")
+    assert [v.version for v in versions] == list(range(1, 25))
+    for v in versions:
+        m = v.manifest()
+        assert m["version"] == v.label
+        assert (v.path / "data.txt").read_text() == f"{m['parameters']['pid']}-{m['parameters']['i']}"
+        assert ProductStore(tmp_path).verify(v) == []
+
+
+def test_kill_during_publish_leaves_no_partial_version(tmp_path):
+    """kill -9 while a large version is being written: no partial version is visible; the next publish works."""
+    script = textwrap.dedent(
+        f"""
+        import sys, time
+        from hadal.store import ProductStore
+        store = ProductStore({str(tmp_path)!r})
+        with store.publish("dive-1", "ctd") as d:
+            with open(d.path / "big.bin", "wb") as fh:
+                for _ in range(10_000):
+                    fh.write(b"x" * 65536)
+                    fh.flush()
+                    print("writing", flush=True)
+                    time.sleep(0.001)
+        """
+    )
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(Path(__file__).resolve().parents[1] / "src"), *sys.path])}
+    proc = subprocess.Popen([sys.executable, "-c", script], stdout=subprocess.PIPE, env=env)
+    assert proc.stdout is not None
+    proc.stdout.readline()  # it has started writing
+    time.sleep(0.2)
+    proc.send_signal(signal.SIGKILL)
+    proc.wait(timeout=30)
+    store = ProductStore(tmp_path)
+    assert store.versions("dive-1", "ctd") == []
+    assert list((tmp_path / "dive-1" / "ctd").glob(".staging-*"))  # debris stays hidden
+    v = _publish(store, "after")
+    assert v.label == "v001" and store.verify(v) == []
+
+
+def test_manifest_is_valid_json_with_created_time(tmp_path):
+    v = _publish(ProductStore(tmp_path), "x")
+    m = json.loads(v.manifest_path.read_text())
+    assert m["created_utc"].endswith("+00:00")
+    assert m["dive"] == "dive-1" and m["product"] == "ctd"
