@@ -133,7 +133,7 @@ def synth(
 def main() -> None:
     logging.basicConfig(level=os.environ.get("HADAL_LOG_LEVEL", "INFO"), format="%(levelname)s %(name)s: %(message)s")
     try:
-        app(standalone_mode=False)
+        rc = app(standalone_mode=False)
     except HadalError as exc:
         console.print(f"[red]error:[/] {exc}", highlight=False)
         sys.exit(2)
@@ -149,6 +149,7 @@ def main() -> None:
             exc.show()
             sys.exit(exc.exit_code)
         raise
+    sys.exit(rc if isinstance(rc, int) else 0)
 
 
 if __name__ == "__main__":

@@ -50,8 +50,9 @@ class LocalFrame:
 
 def geodesic_distance_m(lon1, lat1, lon2, lat2):
     """Distance on the WGS84 ellipsoid in metres (pyproj.Geod.inv)."""
+    lon1, lat1, lon2, lat2 = np.broadcast_arrays(*(np.asarray(v, float) for v in (lon1, lat1, lon2, lat2)))
     _, _, d = WGS84.inv(lon1, lat1, lon2, lat2)
-    return d
+    return float(d) if np.ndim(d) == 0 else np.asarray(d)
 
 
 def format_degmin(value_deg: float, axis: str, decimals: int = 3) -> str:

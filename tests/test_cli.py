@@ -1,0 +1,79 @@
+"""CLI: bad input gives one clear line and exit status 2, never a traceback."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def hadal(*args: str, cwd: Path | None = None) -> subprocess.CompletedProcess:
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(REPO / "src"), str(REPO)]), "HADAL_PROGRESS": "0",
+           "COLUMNS": "200"}
+    return subprocess.run([sys.executable, "-m", "hadal.cli", *args], capture_output=True, text=True,
+                          cwd=cwd or REPO, env=env, timeout=120)
+
+
+def assert_one_line_error(res: subprocess.CompletedProcess, *fragments: str) -> None:
+    assert res.returncode == 2, (res.stdout, res.stderr)
+    assert "Traceback" not in res.stderr
+    err_lines = [ln for ln in res.stderr.splitlines() if ln.startswith("error:")]
+    assert len(err_lines) == 1, res.stderr
+    for frag in fragments:
+        assert frag in err_lines[0], err_lines[0]
+
+
+def test_run_missing_directory(tmp_path):
+    assert_one_line_error(hadal("run", str(tmp_path / "nope")), "does not exist")
+
+
+def test_run_directory_without_dive_yaml(tmp_path):
+    assert_one_line_error(hadal("run", str(tmp_path)), "dive.yaml")
+
+
+@pytest.mark.parametrize(
+    "content,fragment",
+    [
+        ("dive_id: [unclosed", "not valid YAML"),
+        ("- a\n- b\n", "mapping"),
+        ("dive_id: ../escape\nlaunch: {latitude_deg: 1, longitude_deg: 2}\n", "dive_id"),
+        ("dive_id: d1\nlaunch: {latitude_deg: 100, longitude_deg: 2}\n", "latitude_deg"),
+        ("dive_id: d1\n", "launch"),
+        ("dive_id: d1\nlaunch: {latitude_deg: 1, longitude_deg: 2}\nbogus: 1\n", "bogus"),
+    ],
+)
+def test_run_bad_dive_yaml(tmp_path, content, fragment):
+    (tmp_path / "dive.yaml").write_text(content)
+    assert_one_line_error(hadal("run", str(tmp_path)), fragment)
+
+
+def test_bad_pipeline_config(tmp_path):
+    (tmp_path / "dive.yaml").write_text("dive_id: d1\nlaunch: {latitude_deg: 1, longitude_deg: 2}\n")
+    cfg = tmp_path / "cfg.yaml"
+    cfg.write_text("nonexistent_stage: {a: 1}\n")
+    assert_one_line_error(hadal("run", str(tmp_path), "--config", str(cfg)), "nonexistent_stage")
+    assert_one_line_error(hadal("run", str(tmp_path), "--config", str(tmp_path / "missing.yaml")), "does not exist")
+
+
+def test_unknown_stage(tmp_path):
+    (tmp_path / "dive.yaml").write_text("dive_id: d1\nlaunch: {latitude_deg: 1, longitude_deg: 2}\n")
+    assert_one_line_error(hadal("stage", "teleport", str(tmp_path)), "unknown stage")
+
+
+def test_products_path_traversal_and_empty(tmp_path):
+    assert_one_line_error(hadal("products", "../../etc", "--store", str(tmp_path)), "invalid dive id")
+    res = hadal("products", "d1", "--store", str(tmp_path))
+    assert res.returncode == 1 and "no products" in res.stderr
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_help_lists_commands():
+    res = hadal("--help")
+    assert res.returncode == 0
+    for cmd in ("run", "stage", "products", "synth"):
+        assert cmd in res.stdout
