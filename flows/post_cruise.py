@@ -7,10 +7,19 @@ import importlib
 from prefect import flow
 
 from hadal.pipeline import resolve_stages
+from tasks.stage import configured, published_exist
 
 
 def stage_tasks(names: list[str]):
     return [getattr(importlib.import_module(f"tasks.{n}"), n) for n in names]
+
+
+def run_stage_task(t, raw_dir: str, store_root: str | None, config_path: str | None, force: bool = False) -> dict[str, str]:
+    """Run one stage task with caching in the store; a cached result whose versions were removed re-runs."""
+    out = configured(t, store_root, force)(raw_dir, store_root, config_path)
+    if not force and not published_exist(out):
+        out = configured(t, store_root, True)(raw_dir, store_root, config_path)
+    return out
 
 
 @flow(name="post-cruise", log_prints=True)
@@ -19,13 +28,15 @@ def post_cruise(
     store_root: str | None = None,
     config_path: str | None = None,
     stages: list[str] | None = None,
+    force: bool = False,
 ) -> dict[str, str]:
     """Process one dive: run the selected stages (default all) in order, each publishing new product versions.
 
-    Returns ``{product: version directory}`` for everything published in this run.
+    Unchanged stages are cache hits (their published versions are reused); ``force`` re-runs them all.
+    Returns ``{product: version directory}`` for every stage that ran or was reused.
     """
     names = resolve_stages(stages)
     published: dict[str, str] = {}
     for t in stage_tasks(names):
-        published.update(t(raw_dir, store_root, config_path))
+        published.update(run_stage_task(t, raw_dir, store_root, config_path, force))
     return published

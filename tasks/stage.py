@@ -1,20 +1,177 @@
-"""Factory for the per-stage Prefect tasks (each ``tasks/<stage>.py`` is one line using it)."""
+"""Factory for the per-stage Prefect tasks (each ``tasks/<stage>.py`` is one line using it).
+
+Caching: a stage task's cache key is the SHA-256 of its *fingerprint* (:func:`stage_fingerprint`):
+
+* the stage name, dive id and store root;
+* hadal's code version (package version + SHA-256 of every ``hadal/**/*.py`` source file);
+* the stage's configuration section (``ctx.params(stage)``, canonical JSON);
+* for stages that read raw files (``ingest``, ``grid``: :data:`RAW_SOURCES`), the SHA-256 of those files
+  and of ``dive.yaml``; for every stage, the manifests (SHA-256) of the latest versions of its
+  ``UPSTREAM`` products.
+
+The task's result (``{product: version directory}``) is persisted under ``<store>/.prefect-results``
+(:func:`result_storage`), so re-running an unchanged stage returns the already-published versions
+instead of publishing duplicates, while a changed parameter, input file, upstream version or code
+re-runs it. Because ingest's output version then stays the same, an unchanged pipeline is a chain of
+cache hits. ``force=True`` (``hadal stage --force``) bypasses the cache (``refresh_cache``).
+
+Retries: I/O-bound stages (ingest, grid) retry on ``OSError`` only (:func:`retry_on_io_error`); a
+:class:`~hadal.errors.HadalError` (bad input, configuration) is never retried.
+"""
 
 from __future__ import annotations
 
+import functools
+import hashlib
+import json
+import os
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
 from prefect import task
 
-from hadal.pipeline import make_context, run_stage
+import hadal
+from hadal.errors import HadalError
+from hadal.pipeline import default_store_root, make_context, run_stage
 from hadal.progress import default_progress
+from hadal.stages import StageContext, stage_module
+from hadal.store import sha256_file
+
+#: raw source kinds (``dive.sources`` fields) read by the stages that read raw files
+RAW_SOURCES: dict[str, tuple[str, ...]] = {
+    "ingest": ("mcap", "csv", "cnv", "vehicle_config"),
+    "grid": ("multibeam", "laser"),
+}
+RESULTS_DIR = ".prefect-results"
+
+_hash_cache: dict[tuple[str, int, int], str] = {}
 
 
-def stage_task(name: str, *, retries: int = 0):
-    """A Prefect task running stage ``name`` on a raw dive; returns ``{product: version directory}``."""
+def _file_digest(path: Path) -> str:
+    """SHA-256 of a file, memoised on (path, size, mtime) so a process hashes each raw file once."""
+    st = path.stat()
+    key = (str(path), st.st_size, st.st_mtime_ns)
+    if key not in _hash_cache:
+        _hash_cache[key] = sha256_file(path)
+    return _hash_cache[key]
+
+
+@functools.lru_cache(maxsize=1)
+def code_digest() -> str:
+    """hadal's version + SHA-256 over its source files (catches uncommitted edits, unlike git HEAD)."""
+    root = Path(hadal.__file__).resolve().parent
+    h = hashlib.sha256(hadal.__version__.encode())
+    for p in sorted(root.rglob("*.py")):
+        h.update(str(p.relative_to(root)).encode())
+        h.update(p.read_bytes())
+    return f"{hadal.__version__}+{h.hexdigest()[:16]}"
+
+
+def raw_inputs(name: str, ctx: StageContext) -> list[Path]:
+    """Raw files stage ``name`` reads (``dive.yaml`` always; sources by :data:`RAW_SOURCES`)."""
+    from hadal.dive import resolve_source
+
+    files = [ctx.raw_dir / "dive.yaml"]
+    src = ctx.dive.sources
+    for kind in RAW_SOURCES.get(name, ()):
+        if kind == "vehicle_config":
+            if ctx.dive.vehicle_config:
+                files.append(resolve_source(ctx.raw_dir, ctx.dive.vehicle_config))
+            continue
+        entries = getattr(src, kind, None) or []
+        rels = entries.values() if isinstance(entries, dict) else entries
+        files.extend(resolve_source(ctx.raw_dir, r) for r in rels)
+    return files
+
+
+def stage_fingerprint(name: str, ctx: StageContext) -> dict[str, Any]:
+    """Everything a stage's output depends on (see module docstring); JSON-serialisable."""
+    mod = stage_module(name)
+    raw = {}
+    for f in raw_inputs(name, ctx):
+        raw[str(f)] = _file_digest(f) if f.is_file() else "missing"
+    upstream = {}
+    for product in getattr(mod, "UPSTREAM", ()):
+        if ctx.store.has(ctx.dive_id, product):
+            pv = ctx.store.latest(ctx.dive_id, product)
+            upstream[product] = f"{pv.label}:{sha256_file(pv.manifest_path)}"
+        else:
+            upstream[product] = "missing"
+    return {
+        "stage": name,
+        "dive": ctx.dive_id,
+        "store": str(Path(ctx.store.root).resolve()),
+        "code": code_digest(),
+        "params": ctx.params(name),
+        "raw": raw,
+        "upstream": upstream,
+    }
+
+
+def fingerprint_key(fp: dict[str, Any]) -> str:
+    return hashlib.sha256(json.dumps(fp, sort_keys=True, default=str).encode()).hexdigest()
+
+
+def cache_key(name: str) -> Callable[[Any, dict[str, Any]], str | None]:
+    """A Prefect ``cache_key_fn`` for stage ``name`` (task parameters: raw_dir, store_root, config_path)."""
+
+    def _key(context: Any, parameters: dict[str, Any]) -> str | None:
+        try:
+            ctx = make_context(parameters["raw_dir"], parameters.get("store_root"), parameters.get("config_path"))
+            return f"hadal-{name}-{fingerprint_key(stage_fingerprint(name, ctx))}"
+        except (HadalError, OSError):
+            return None  # the task itself will report the problem; never cache it
+
+    _key.__name__ = f"{name}_cache_key"
+    return _key
+
+
+def result_storage(store_root: str | os.PathLike[str] | None) -> Path:
+    """Where task results (cache records) are persisted: ``<store>/.prefect-results``."""
+    root = Path(store_root) if store_root is not None else default_store_root()
+    return (root / RESULTS_DIR).resolve()
+
+
+def retry_on_io_error(task_: Any, task_run: Any, state: Any) -> bool:
+    """Retry only transient I/O failures (``OSError`` that is not a hadal input/config error)."""
+    exc = getattr(state, "data", None)
+    if not isinstance(exc, BaseException):
+        try:
+            exc = state.result(raise_on_failure=False)
+        except Exception:  # noqa: BLE001 - an unreadable state is not worth a retry
+            return False
+    return isinstance(exc, OSError) and not isinstance(exc, HadalError)
+
+
+def stage_task(name: str, *, retries: int = 0, after: Callable[[str, dict[str, str]], None] | None = None):
+    """A Prefect task running stage ``name`` on a raw dive; returns ``{product: version directory}``.
+
+    ``after(name, published)`` runs inside the task after a fresh (non-cached) run, e.g. to publish
+    Prefect artifacts.
+    """
 
     def _run(raw_dir: str, store_root: str | None = None, config_path: str | None = None) -> dict[str, str]:
         ctx = make_context(raw_dir, store_root, config_path, progress=default_progress())
-        return {product: str(pv.path) for product, pv in run_stage(name, ctx).items()}
+        published = {product: str(pv.path) for product, pv in run_stage(name, ctx).items()}
+        if after is not None:
+            after(name, published)
+        return published
 
     _run.__name__ = _run.__qualname__ = name
     _run.__doc__ = f"Run the hadal stage {name!r} and publish its products."
-    return task(name=name, retries=retries, retry_delay_seconds=2)(_run)
+    return task(
+        name=name, retries=retries, retry_delay_seconds=2,
+        retry_condition_fn=retry_on_io_error if retries else None,
+        cache_key_fn=cache_key(name), persist_result=True,
+    )(_run)
+
+
+def configured(t: Any, store_root: str | None, force: bool = False) -> Any:
+    """``t`` with its result storage in the dive's store and, if ``force``, the cache bypassed."""
+    return t.with_options(result_storage=result_storage(store_root), refresh_cache=True if force else None)
+
+
+def published_exist(published: dict[str, str]) -> bool:
+    """True if every version directory of a (possibly cached) result still exists."""
+    return all(Path(p, "manifest.json").is_file() for p in published.values())

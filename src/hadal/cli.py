@@ -1,7 +1,10 @@
 """``hadal`` command line.
 
     hadal run RAW_DIR              run the whole post-cruise flow on a raw dive
-    hadal stage NAME RAW_DIR       re-run one stage, reusing the latest upstream products
+    hadal run --dives DIR...       several dives in parallel on Dask (--workers N, --scheduler ADDRESS)
+    hadal stage NAME RAW_DIR       re-run one stage, reusing the latest upstream products (--force)
+    hadal report DIVE              write the dive report (HTML) from the products in the store
+    hadal serve RAW_DIR --cron ..  deploy the post-cruise flow on a schedule (Prefect server)
     hadal products DIVE            list product versions in the store
     hadal synth DEST               write the seeded sample dive (Challenger Deep, Haidou-like)
 
@@ -38,7 +41,8 @@ def _store_root(store: Path | None) -> Path:
     return store if store is not None else default_store_root()
 
 
-def _run_flow(raw_dir: Path, store: Path | None, config: Path | None, stages: list[str] | None) -> dict[str, str]:
+def _run_flow(raw_dir: Path, store: Path | None, config: Path | None, stages: list[str] | None,
+              force: bool = False) -> dict[str, str]:
     from hadal.dive import load_dive
     from hadal.pipeline import make_context, resolve_stages
 
@@ -47,12 +51,55 @@ def _run_flow(raw_dir: Path, store: Path | None, config: Path | None, stages: li
     make_context(raw_dir, _store_root(store), config)
     names = resolve_stages(stages)
     os.environ.setdefault("PREFECT_SERVER_ANALYTICS_ENABLED", "false")
+    # the temporary server may need more than Prefect's default 20 s on a busy machine
+    os.environ.setdefault("PREFECT_SERVER_EPHEMERAL_STARTUP_TIMEOUT_SECONDS", "120")
     from flows.post_cruise import post_cruise
 
     console.print(f"[bold]hadal[/] {raw_dir} → stages: {', '.join(names)}")
     return post_cruise(
-        str(raw_dir), str(_store_root(store)), str(config) if config else None, names
+        str(raw_dir), str(_store_root(store)), str(config) if config else None, names, force
     )
+
+
+def _expand_dives(dirs: list[Path]) -> list[Path]:
+    """Batch inputs: a directory with dive.yaml is one dive; one without is searched for dive subdirectories."""
+    from hadal.errors import InputError
+
+    out: list[Path] = []
+    for d in dirs:
+        if not d.is_dir():
+            raise InputError(f"raw dive directory {d} does not exist")
+        if (d / "dive.yaml").is_file():
+            out.append(d)
+            continue
+        subs = sorted(p for p in d.iterdir() if (p / "dive.yaml").is_file())
+        if not subs:
+            raise InputError(f"{d} has no dive.yaml and no dive subdirectories")
+        out.extend(subs)
+    return out
+
+
+def _run_batch(raw_dirs: list[Path], store: Path | None, config: Path | None, workers: int,
+               scheduler: str | None, force: bool) -> dict:
+    from hadal.pipeline import make_context, resolve_stages
+
+    dives = _expand_dives(raw_dirs)
+    for d in dives:  # fail fast, in one line, before starting Prefect and Dask
+        make_context(d, _store_root(store), config)
+    names = resolve_stages(None)
+    if workers < 1:
+        from hadal.errors import ConfigError
+
+        raise ConfigError(f"--workers must be at least 1 (got {workers})")
+    os.environ.setdefault("PREFECT_SERVER_ANALYTICS_ENABLED", "false")
+    # the temporary server may need more than Prefect's default 20 s on a busy machine
+    os.environ.setdefault("PREFECT_SERVER_EPHEMERAL_STARTUP_TIMEOUT_SECONDS", "120")
+    from flows.batch import run_batch
+
+    where = f"scheduler {scheduler}" if scheduler else f"LocalCluster, {workers} worker(s)"
+    console.print(f"[bold]hadal[/] batch of {len(dives)} dive(s) on {where} → stages: {', '.join(names)}")
+    return run_batch([str(d) for d in dives], str(_store_root(store)), str(config) if config else None, names,
+                     workers=workers, scheduler=scheduler, force=force)
 
 
 def _print_published(published: dict[str, str]) -> None:
@@ -64,14 +111,34 @@ def _print_published(published: dict[str, str]) -> None:
     Console().print(table)
 
 
+ForceOpt = Annotated[bool, typer.Option("--force", help="re-run even if the inputs, parameters and code are unchanged")]
+
+
 @app.command()
 def run(
-    raw_dir: Annotated[Path, typer.Argument(help="raw dive directory containing dive.yaml")],
+    raw_dirs: Annotated[list[Path], typer.Argument(help="raw dive directory containing dive.yaml (several with --dives)")],
     store: StoreOpt = None,
     config: ConfigOpt = None,
+    dives: Annotated[bool, typer.Option("--dives", help="batch: process every DIR (or every dive directory inside it) in parallel on Dask")] = False,
+    workers: Annotated[int, typer.Option("--workers", help="batch: LocalCluster worker processes")] = 2,
+    scheduler: Annotated[str | None, typer.Option("--scheduler", help="batch: address of an existing dask scheduler (tcp://host:8786)")] = None,
+    force: ForceOpt = False,
 ) -> None:
-    """Run the full post-cruise flow on one dive."""
-    _print_published(_run_flow(raw_dir, store, config, None))
+    """Run the full post-cruise flow on one dive, or on several in parallel (--dives DIR...)."""
+    if not dives and len(raw_dirs) == 1:
+        _print_published(_run_flow(raw_dirs[0], store, config, None, force))
+        return
+    results = _run_batch(raw_dirs, store, config, workers, scheduler, force)
+    table = Table(title="batch")
+    for col in ("dive directory", "status", "products"):
+        table.add_column(col)
+    for raw, r in results.items():
+        table.add_row(raw, "ok" if r["ok"] else f"failed: {r.get('error', '')}", ", ".join(r.get("published", {})))
+    Console().print(table)
+    failed = [raw for raw, r in results.items() if not r["ok"]]
+    if failed:
+        console.print(f"[red]error:[/] {len(failed)} of {len(results)} dive(s) failed", highlight=False)
+        raise typer.Exit(1)
 
 
 @app.command()
@@ -80,9 +147,62 @@ def stage(
     raw_dir: Annotated[Path, typer.Argument(help="raw dive directory containing dive.yaml")],
     store: StoreOpt = None,
     config: ConfigOpt = None,
+    force: ForceOpt = False,
 ) -> None:
-    """Re-run one stage, reusing the latest upstream products."""
-    _print_published(_run_flow(raw_dir, store, config, [name]))
+    """Re-run one stage, reusing the latest upstream products (a cache hit if nothing changed; --force re-runs)."""
+    _print_published(_run_flow(raw_dir, store, config, [name], force))
+
+
+@app.command()
+def report(
+    dive: Annotated[str, typer.Argument(help="dive id (products are read from the store)")],
+    store: StoreOpt = None,
+    config: ConfigOpt = None,
+    out: Annotated[Path | None, typer.Option("--out", help="also copy report.html here (file or directory)")] = None,
+) -> None:
+    """Write the dive report (self-contained HTML with figures) from whichever products exist."""
+    import shutil
+
+    from hadal.config import load_config
+    from hadal.report import build_report, publish_report
+    from hadal.stages.report import options
+    from hadal.store import ProductStore, validate_name
+
+    validate_name(dive, "dive id")
+    p = load_config(config).report
+    st = ProductStore(_store_root(store))
+    rep = build_report(st, dive, options=options(p), best_sites=p.best_sites, title=p.title)
+    pv = publish_report(st, rep, parameters=p.model_dump(mode="json"))
+    html = pv.path / "report.html"
+    for note in rep.summary.get("notes", []):
+        console.print(f"note: {note}", highlight=False)
+    if out is not None:
+        dest = out / "report.html" if out.is_dir() else out
+        dest.parent.mkdir(parents=True, exist_ok=True)
+        shutil.copyfile(html, dest)
+        html = dest
+    print(html)
+
+
+@app.command()
+def serve(
+    raw_dir: Annotated[Path, typer.Argument(help="raw dive directory to process on the schedule")],
+    cron: Annotated[str, typer.Option("--cron", help="cron schedule, e.g. '0 3 * * *' (03:00 UTC daily)")],
+    name: Annotated[str, typer.Option("--name", help="deployment name")] = "hadal-post-cruise",
+    store: StoreOpt = None,
+    config: ConfigOpt = None,
+) -> None:
+    """Deploy the post-cruise flow on a cron schedule against a Prefect server (needs PREFECT_API_URL); blocks."""
+    from hadal.pipeline import make_context
+
+    make_context(raw_dir, _store_root(store), config)
+    from flows.serve import check_cron, require_api_url, serve_post_cruise
+
+    check_cron(cron)
+    api = require_api_url()
+    console.print(f"[bold]hadal[/] serving deployment 'post-cruise/{name}' ({cron}) on {api}; Ctrl-C to stop")
+    serve_post_cruise(str(raw_dir.resolve()), str(_store_root(store).resolve()),
+                      str(config.resolve()) if config else None, cron=cron, name=name)
 
 
 @app.command()
@@ -128,6 +248,20 @@ def synth(
 
     out = generate_dive(dest, seed=seed, small=small, progress=default_progress())
     console.print(f"sample dive written to {out}")
+
+
+@app.command("config")
+def config_cmd(
+    check: Annotated[Path | None, typer.Option("--check", help="validate this YAML instead of printing defaults")] = None,
+) -> None:
+    """Print the default pipeline configuration (commented YAML), or validate a file with --check."""
+    from hadal.config import default_yaml, load_config
+
+    if check is not None:
+        load_config(check)
+        console.print(f"{check}: valid")
+        return
+    print(default_yaml(), end="")
 
 
 def main() -> None:

@@ -1,5 +1,11 @@
-"""Product writers: CF/ACDD NetCDF and self-describing Parquet."""
+"""Product writers: CF/ACDD NetCDF and self-describing Parquet (``check_compliance`` in ``.compliance``)."""
 
-from hadal.products.io import write_netcdf, write_parquet
+from hadal.products.io import (
+    dive_attributes,
+    prepare_dataset,
+    read_parquet_metadata,
+    write_netcdf,
+    write_parquet,
+)
 
-__all__ = ["write_netcdf", "write_parquet"]
+__all__ = ["dive_attributes", "prepare_dataset", "read_parquet_metadata", "write_netcdf", "write_parquet"]

@@ -1,7 +1,393 @@
-"""Stage `derive` (being implemented)."""
+"""Stage ``derive``: sensors → seawater properties, depth and seafloor depth (``ctd``) and binned profiles (``profile``).
 
-from pydantic import BaseModel, ConfigDict
+Method: Ma et al. (2023) §3.2 (Eqs. 6-14) and §4.1.3. Reads the ``sensors`` product (``sensors.parquet``,
+CTD time base) and computes, per sample:
+
+* ``pressure_dbar``: CTD pressure where valid and unsaturated, else the high-range gauge, on one datum via
+  the gauge-CTD bias estimated on the deep overlap (default: the gauge's datum, the more accurate sensor;
+  :func:`hadal.depth.fuse_pressure`); ``pressure_source``;
+* PSS-78 salinity, EOS-80 density (Eq. 13), Chen-Millero sound speed (:mod:`hadal.seawater`);
+* ``depth_m``: hydrostatic integral (Eqs. 11-12) with gravity at the current depth (Eq. 14);
+  ``depth_fofonoff_millard_m`` (Eqs. 8-10) and ``depth_teos10_m`` (``gsw.z_from_p`` with the dynamic height
+  anomaly of the descent profile) as cross-checks — their differences go into the metadata and the log;
+* ``gravity_m_s2`` at the sample's depth; ``altitude_corrected_m`` (sound-speed corrected altimeter range);
+  ``seafloor_depth_m`` = depth + corrected altitude (Fig. 10); ``phase`` (descent/bottom/ascent).
+
+Publishes ``ctd`` (``ctd.parquet``) and ``profile`` (``profile.nc``, pressure-binned descent and ascent casts).
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING, Any, Literal
+
+import numpy as np
+import pandas as pd
+from pydantic import BaseModel, ConfigDict, Field, field_validator
+
+from hadal.depth import (
+    correct_altitude,
+    depth_teos10,
+    dynamic_height_anomaly,
+    fuse_pressure,
+    hydrostatic_depth,
+    seafloor_depth,
+    segment_phases,
+)
+from hadal.errors import InputError
+from hadal.profile import make_profile
+from hadal.seawater import (
+    density_eos80,
+    depth_fofonoff_millard,
+    gravity,
+    practical_salinity,
+    sound_speed_chen_millero,
+)
+
+if TYPE_CHECKING:
+    from hadal.stages import StageContext
+    from hadal.store import ProductVersion
+
+PRODUCTS = ("ctd", "profile")
+UPSTREAM = ("sensors",)
+
+REQUIRED_COLUMNS = ("time", "conductivity_s_m", "temperature_its90_degc")
+
+#: attributes of the columns this stage adds that the shared CF table does not define
+EXTRA_COLUMN_ATTRS: dict[str, dict[str, str]] = {
+    "pressure_source": {"long_name": "source of pressure_dbar",
+                        "comment": "ctd: SBE49 CTD pressure (plus the gauge-CTD bias on the gauge datum); "
+                                   "gauge: Keller gauge (minus the bias on the CTD datum); empty: no valid pressure"},
+    "phase": {"long_name": "dive phase", "comment": "descent, bottom or ascent (from the depth series)"},
+    "gravity_m_s2": {"units": "m s-2", "long_name": "gravitational acceleration at the sample depth (Eq. 14)"},
+}
 
 
 class Params(BaseModel):
+    """Seawater and depth parameters (section ``derive`` of config/pipeline.yaml)."""
+
     model_config = ConfigDict(extra="forbid")
+    latitude_deg: float | None = Field(None, ge=-90, le=90,
+                                       description="latitude for gravity/depth; default: the dive's launch latitude")
+    longitude_deg: float | None = Field(None, ge=-180, le=360,
+                                        description="longitude for TEOS-10 absolute salinity; default: launch")
+    depth_integration: Literal["trapezoid", "rectangle"] = Field(
+        "trapezoid", description="hydrostatic sum: trapezoid (1/(rho g) averaged over each interval) or "
+                                 "rectangle (Eq. 12 as printed, rho and g of the interval's end sample)")
+    accept_flags: list[int] = Field([1, 2, 3], description="QARTOD flags of sensor values that are used")
+    ctd_saturation_dbar: float = Field(10_500.0, gt=0, description="SBE49 pressure range (saturates here)")
+    saturation_margin_dbar: float = Field(5.0, ge=0, description="use the gauge from saturation - margin up")
+    gauge_bias_window_dbar: tuple[float, float] = Field(
+        (6000.0, 10_400.0), description="CTD pressure range where the gauge-CTD bias is estimated (median)")
+    min_bias_samples: int = Field(20, ge=1, description="fewer samples in the window: use the whole overlap")
+    pressure_datum: Literal["gauge", "ctd"] = Field(
+        "gauge", description="datum of pressure_dbar: gauge (CTD + bias where the CTD is used; the gauge is the "
+                             "more accurate sensor) or ctd (gauge - bias where the CTD saturates)")
+    nominal_sound_speed_m_s: float = Field(1500.0, gt=0, description="sound speed the altimeter assumes")
+    profile_bin_dbar: float = Field(10.0, gt=0, description="pressure bin size of profile.nc")
+    phase_smoothing_s: float = Field(60.0, gt=0, description="depth smoothing before the phase segmentation")
+    phase_speed_threshold_m_s: float = Field(0.2, gt=0, description="vertical speed separating transit/bottom")
+    phase_deep_fraction: float = Field(0.5, gt=0, lt=1, description="bottom phase only below this x max depth")
+
+    @field_validator("gauge_bias_window_dbar")
+    @classmethod
+    def _window(cls, v: tuple[float, float]) -> tuple[float, float]:
+        if not v[0] < v[1]:
+            raise ValueError("gauge_bias_window_dbar must be (low, high) with low < high")
+        return v
+
+
+def _flag_ok(df: pd.DataFrame, column: str, accept: list[int]) -> np.ndarray:
+    """True where ``column`` is finite and its ``<column>_qc`` flag (if present) is accepted."""
+    v = df[column].to_numpy(dtype=np.float64)
+    ok = np.isfinite(v)
+    qc = f"{column}_qc"
+    if qc in df.columns:
+        ok &= np.isin(df[qc].to_numpy(), accept)
+    return ok
+
+
+def derive_ctd(sensors: pd.DataFrame, latitude_deg: float, longitude_deg: float, p: Params,
+               frame: Any = None, launch_xy: tuple[float, float] = (0.0, 0.0)) -> tuple[pd.DataFrame, dict]:
+    """Pure science of the stage: the ``ctd`` table and its metadata from a ``sensors`` table.
+
+    ``frame`` (a :class:`hadal.geo.LocalFrame`) and ``launch_xy`` (the launch point in it) turn the
+    dead-reckoned offsets of the deepest point into longitude/latitude when given.
+    """
+    missing = [c for c in REQUIRED_COLUMNS if c not in sensors.columns]
+    if missing:
+        raise InputError(f"sensors table lacks required column(s) {', '.join(missing)}")
+    if "pressure_ctd_dbar" not in sensors.columns and "pressure_gauge_dbar" not in sensors.columns:
+        raise InputError("sensors table has neither pressure_ctd_dbar nor pressure_gauge_dbar")
+    if len(sensors) == 0:
+        raise InputError("sensors table is empty")
+    df = sensors.copy()
+    df["time"] = pd.to_datetime(df["time"], utc=True)
+    if not df["time"].is_monotonic_increasing:
+        df = df.sort_values("time", kind="stable").reset_index(drop=True)
+    n = len(df)
+    acc = list(p.accept_flags)
+    nan = np.full(n, np.nan)
+
+    # --- pressure fusion
+    pc = df["pressure_ctd_dbar"].to_numpy(np.float64) if "pressure_ctd_dbar" in df else nan
+    pg = df["pressure_gauge_dbar"].to_numpy(np.float64) if "pressure_gauge_dbar" in df else nan
+    fusion = fuse_pressure(
+        pc, pg,
+        ctd_ok=_flag_ok(df, "pressure_ctd_dbar", acc) if "pressure_ctd_dbar" in df else None,
+        gauge_ok=_flag_ok(df, "pressure_gauge_dbar", acc) if "pressure_gauge_dbar" in df else None,
+        ctd_saturation_dbar=p.ctd_saturation_dbar, saturation_margin_dbar=p.saturation_margin_dbar,
+        bias_window_dbar=tuple(p.gauge_bias_window_dbar), min_bias_samples=p.min_bias_samples,
+        datum=p.pressure_datum,
+    )
+    pres = fusion.pressure_dbar
+    if not np.isfinite(pres).any():
+        raise InputError("sensors table has no valid pressure (CTD and gauge both missing or flagged bad)")
+    df["pressure_dbar"] = pres
+    df["pressure_source"] = pd.array(fusion.source, dtype="string")
+
+    # --- seawater
+    tc_ok = _flag_ok(df, "conductivity_s_m", acc) & _flag_ok(df, "temperature_its90_degc", acc)
+    cond = np.where(tc_ok, df["conductivity_s_m"].to_numpy(np.float64), np.nan)
+    temp = np.where(tc_ok, df["temperature_its90_degc"].to_numpy(np.float64), np.nan)
+    sp = practical_salinity(cond, temp, pres)
+    rho = density_eos80(sp, temp, pres)
+    if not np.isfinite(rho).any():
+        raise InputError("sensors table has no valid conductivity/temperature: cannot compute density")
+    depth = hydrostatic_depth(pres, sp, temp, latitude_deg, integration=p.depth_integration, density_kg_m3=rho)
+    df["practical_salinity"] = sp
+    df["density_kg_m3"] = rho
+    df["gravity_m_s2"] = np.where(np.isfinite(depth), gravity(latitude_deg, depth), np.nan)
+    df["depth_m"] = depth
+    df["depth_fofonoff_millard_m"] = depth_fofonoff_millard(pres, latitude_deg)
+    sv = sound_speed_chen_millero(sp, temp, pres)
+    df["sound_speed_m_s"] = sv
+
+    # --- phases (needed for the descent profile of the TEOS-10 cross-check)
+    phase = segment_phases(df["time"], depth, smoothing_s=p.phase_smoothing_s,
+                           vertical_speed_threshold_m_s=p.phase_speed_threshold_m_s,
+                           deep_fraction=p.phase_deep_fraction)
+    df["phase"] = pd.array(phase, dtype="string")
+
+    # --- TEOS-10 depth with the dynamic height anomaly of the binned descent profile
+    teos_note = "dynamic height anomaly of the binned descent profile"
+    try:
+        prof = make_profile(df[["pressure_dbar", "phase", "practical_salinity", "temperature_its90_degc"]]
+                            .assign(temperature_its90_degc=temp), p.profile_bin_dbar, casts=("descent",))
+        pp = prof["pressure_dbar"].values
+        sp_b = prof["practical_salinity"].values[0]
+        t_b = prof["temperature_its90_degc"].values[0]
+        p_psi, psi = dynamic_height_anomaly(pp, sp_b, t_b, longitude_deg, latitude_deg)
+    except InputError:
+        p_psi = psi = None
+        teos_note = "no usable descent profile: standard ocean (dynamic height anomaly 0)"
+    df["depth_teos10_m"] = depth_teos10(pres, latitude_deg, p_psi, psi)
+
+    # --- altitude and seafloor depth
+    if "altitude_m" in df.columns:
+        alt_ok = _flag_ok(df, "altitude_m", acc) & (df["altitude_m"].to_numpy(np.float64) > 0)
+        alt = np.where(alt_ok, df["altitude_m"].to_numpy(np.float64), np.nan)
+        # water properties at the vehicle: hold the last valid T/S over short conductivity dropouts
+        sp_h = pd.Series(sp).ffill().bfill().to_numpy()
+        t_h = pd.Series(temp).ffill().bfill().to_numpy()
+        rho_h = pd.Series(rho).ffill().bfill().to_numpy()
+        df["altitude_corrected_m"] = correct_altitude(alt, sp_h, t_h, pres, density_kg_m3=rho_h,
+                                                      nominal_sound_speed_m_s=p.nominal_sound_speed_m_s,
+                                                      latitude_deg=latitude_deg)
+    else:
+        df["altitude_corrected_m"] = nan
+    df["seafloor_depth_m"] = seafloor_depth(depth, df["altitude_corrected_m"].to_numpy())
+
+    meta = _metadata(df, fusion, latitude_deg, longitude_deg, p, teos_note, frame, launch_xy)
+    return df, meta
+
+
+def _point(df: pd.DataFrame, i: int, frame: Any, launch_xy: tuple[float, float]) -> dict[str, Any]:
+    row = df.iloc[i]
+    out: dict[str, Any] = {"time": pd.Timestamp(row["time"]).isoformat(), "index": int(i)}
+    for c in ("depth_m", "pressure_dbar", "seafloor_depth_m", "altitude_corrected_m", "depth_fofonoff_millard_m",
+              "depth_teos10_m", "dr_east_m", "dr_north_m"):
+        if c in df.columns and np.isfinite(row[c]):
+            out[c] = round(float(row[c]), 3)
+    if frame is not None and "dr_east_m" in out and "dr_north_m" in out:
+        lon, lat = frame.to_lonlat(launch_xy[0] + out["dr_east_m"], launch_xy[1] + out["dr_north_m"])
+        out["longitude_deg"] = round(float(lon), 7)
+        out["latitude_deg"] = round(float(lat), 7)
+    return out
+
+
+def _stats(diff: np.ndarray) -> dict[str, float]:
+    d = diff[np.isfinite(diff)]
+    if d.size == 0:
+        return {}
+    return {"mean_m": round(float(d.mean()), 4), "min_m": round(float(d.min()), 4),
+            "max_m": round(float(d.max()), 4), "max_abs_m": round(float(np.abs(d).max()), 4)}
+
+
+def _metadata(df: pd.DataFrame, fusion: Any, lat: float, lon: float, p: Params, teos_note: str,
+              frame: Any, launch_xy: tuple[float, float]) -> dict[str, Any]:
+    depth = df["depth_m"].to_numpy()
+    i_deep = int(np.nanargmax(depth))
+    meta: dict[str, Any] = {
+        "latitude_deg": lat, "longitude_deg": lon,
+        "depth_method": f"hydrostatic integral, Eqs. 11-12 ({p.depth_integration}), EOS-80 density, "
+                        "gravity at the current depth (Eq. 14, McDougall & Barker 2011 sign)",
+        "teos10_depth": teos_note,
+        "gauge_bias_dbar": round(fusion.gauge_bias_dbar, 4),
+        "gauge_bias_samples": fusion.bias_samples,
+        "gauge_bias_mad_dbar": None if not np.isfinite(fusion.bias_mad_dbar) else round(fusion.bias_mad_dbar, 4),
+        "gauge_bias_window_dbar": list(p.gauge_bias_window_dbar),
+        "pressure_datum": p.pressure_datum,
+        "pressure_source_counts": {"ctd": fusion.n_ctd, "gauge": fusion.n_gauge,
+                                   "none": int(len(df) - fusion.n_ctd - fusion.n_gauge)},
+        "nominal_sound_speed_m_s": p.nominal_sound_speed_m_s,
+        "deepest_point": _point(df, i_deep, frame, launch_xy),
+    }
+    sf = df["seafloor_depth_m"].to_numpy()
+    if np.isfinite(sf).any():
+        meta["deepest_seafloor"] = _point(df, int(np.nanargmax(sf)), frame, launch_xy)
+    phases = {}
+    for ph in ("descent", "bottom", "ascent"):
+        sel = (df["phase"] == ph).to_numpy()
+        if sel.any():
+            t = df["time"][sel]
+            phases[ph] = {"start": t.iloc[0].isoformat(), "end": t.iloc[-1].isoformat(), "samples": int(sel.sum())}
+    meta["phases"] = phases
+    fm = df["depth_fofonoff_millard_m"].to_numpy()
+    te = df["depth_teos10_m"].to_numpy()
+    meta["depth_comparison"] = {
+        "hydrostatic_minus_fofonoff_millard": _stats(depth - fm),
+        "hydrostatic_minus_teos10": _stats(depth - te),
+        "teos10_minus_fofonoff_millard": _stats(te - fm),
+        "at_deepest_point": {"hydrostatic_m": round(float(depth[i_deep]), 3),
+                             "fofonoff_millard_m": round(float(fm[i_deep]), 3),
+                             "teos10_m": round(float(te[i_deep]), 3)},
+    }
+    return meta
+
+
+def comparison_table(meta: dict[str, Any]) -> str:
+    """The depth cross-check as a small text table (logged by the stage)."""
+    c = meta["depth_comparison"]
+    d = c["at_deepest_point"]
+    rows = [("hydrostatic (depth_m)", d["hydrostatic_m"], 0.0),
+            ("Fofonoff-Millard", d["fofonoff_millard_m"], d["hydrostatic_m"] - d["fofonoff_millard_m"]),
+            ("TEOS-10 + dyn. height", d["teos10_m"], d["hydrostatic_m"] - d["teos10_m"])]
+    lines = ["depth at the deepest point      depth (m)   hydrostatic - this (m)"]
+    lines += [f"  {n:<28s} {v:11.3f}   {dv:+10.3f}" for n, v, dv in rows]
+    for k, label in (("hydrostatic_minus_fofonoff_millard", "hydrostatic - F-M"),
+                     ("hydrostatic_minus_teos10", "hydrostatic - TEOS-10")):
+        s = c[k]
+        if s:
+            lines.append(f"  whole dive {label:<22s} mean {s['mean_m']:+.3f}  range [{s['min_m']:+.3f}, {s['max_m']:+.3f}]")
+    return "\n".join(lines)
+
+
+def run(ctx: StageContext) -> dict[str, ProductVersion]:
+    p: Params = ctx.config.derive
+    sensors = ctx.upstream("sensors")
+    path = sensors.file("sensors.parquet")
+    try:
+        table = pd.read_parquet(path)
+    except Exception as exc:  # unreadable upstream file: one-line error, not a traceback
+        raise InputError(f"{path}: cannot read sensors table ({type(exc).__name__}: {exc})") from None
+    lat = p.latitude_deg if p.latitude_deg is not None else ctx.dive.launch.latitude_deg
+    lon = p.longitude_deg if p.longitude_deg is not None else ctx.dive.launch.longitude_deg
+    frame = ctx.dive.frame()
+    launch_xy = tuple(float(v) for v in frame.to_xy(ctx.dive.launch.longitude_deg, ctx.dive.launch.latitude_deg))
+    try:
+        df, meta = derive_ctd(table, lat, lon, p, frame=frame, launch_xy=launch_xy)
+    except InputError as exc:
+        raise InputError(f"{path}: {exc}") from None
+    meta["latitude_source"] = "derive.latitude_deg parameter" if p.latitude_deg is not None else "dive launch"
+    meta["dive_id"] = ctx.dive_id
+    profile = make_profile(df, p.profile_bin_dbar)
+    _cast_times(profile, df)
+    ctx.log.info("derive: %d samples, gauge bias %+.3f dbar (%d samples), deepest %.2f m at %s\n%s",
+                 len(df), meta["gauge_bias_dbar"], meta["gauge_bias_samples"], meta["deepest_point"]["depth_m"],
+                 meta["deepest_point"]["time"], comparison_table(meta))
+
+    from hadal.products.io import read_parquet_metadata, write_netcdf, write_parquet
+
+    try:
+        _, sensor_fields = read_parquet_metadata(path)
+    except Exception:
+        sensor_fields = {}
+    fields = {c: {k: v for k, v in sensor_fields.get(c, {}).items() if k in ("units", "standard_name", "long_name")}
+              for c in sensors_columns(table)}
+    fields.update(EXTRA_COLUMN_ATTRS)
+    params = ctx.params("derive")
+    summary = {k: meta[k] for k in ("gauge_bias_dbar", "latitude_deg", "deepest_point", "depth_comparison")}
+    with ctx.store.publish(ctx.dive_id, "ctd", parameters=params, upstream=[sensors],
+                           extra={"summary": summary}) as draft:
+        write_parquet(df, draft.path / "ctd.parquet", fields=fields, metadata=meta, provenance_from=draft)
+    ctd = draft.result
+
+    _profile_attrs(profile, meta)
+    with ctx.store.publish(ctx.dive_id, "profile", parameters=params, upstream=[sensors, ctd],
+                           extra={"summary": {"bin_dbar": p.profile_bin_dbar,
+                                              "levels": int(profile.sizes["pressure_dbar"])}}) as draft:
+        write_netcdf(
+            profile, draft.path / "profile.nc",
+            title=f"Pressure-binned CTD profiles (descent and ascent) of dive {ctx.dive_id}",
+            summary=(f"Means in {p.profile_bin_dbar:g} dbar pressure bins of the dive's CTD samples, separately for "
+                     "the descent and ascent casts: temperature, conductivity, PSS-78 salinity, EOS-80 density, "
+                     "gravity, Chen-Millero sound speed, and hydrostatic / Fofonoff-Millard / TEOS-10 depths."),
+            keywords="CTD, salinity, density, depth, pressure, profile",
+            processing_level="L2 binned profile", provenance_from=draft,
+            dive_id=ctx.dive_id, latitude_used_deg=lat, gauge_bias_dbar=meta["gauge_bias_dbar"],
+        )
+    return {"ctd": ctd, "profile": draft.result}
+
+
+def _cast_times(ds: Any, df: pd.DataFrame) -> None:
+    """``time(cast)``: when the cast was at the sea surface (descent: its first sample, ascent: its last); the
+    casts' first and last sample times go into its ``comment`` (a CF ``time_bounds`` variable would need
+    attributes the product writer adds to every variable)."""
+    t = df["time"].dt.tz_convert("UTC").dt.tz_localize(None)
+    bounds = np.full((ds.sizes["cast"], 2), np.datetime64("NaT"), dtype="datetime64[ns]")
+    for k, cast in enumerate(ds["cast"].values):
+        sel = t[(df["phase"] == cast).to_numpy()]
+        if len(sel):
+            bounds[k] = [sel.min().to_datetime64(), sel.max().to_datetime64()]
+    surface = np.array([b[1] if c == "ascent" else b[0] for c, b in zip(ds["cast"].values, bounds, strict=True)],
+                       dtype="datetime64[ns]")
+    spans = "; ".join(f"{c}: {pd.Timestamp(b[0]).isoformat()} to {pd.Timestamp(b[1]).isoformat()}"
+                      for c, b in zip(ds["cast"].values, bounds, strict=True))
+    ds["time"] = ("cast", surface, {"standard_name": "time",
+                                    "long_name": "time of the cast at the sea surface (descent: first sample, "
+                                                 "ascent: last sample)", "comment": f"cast spans (UTC) {spans}"})
+
+
+def sensors_columns(table: pd.DataFrame) -> list[str]:
+    return [str(c) for c in table.columns]
+
+
+_PROFILE_ATTRS: dict[str, dict[str, str]] = {
+    "temperature_its90_degc": {"standard_name": "sea_water_temperature", "units": "degree_C",
+                               "long_name": "mean CTD temperature (ITS-90)"},
+    "conductivity_s_m": {"standard_name": "sea_water_electrical_conductivity", "units": "S m-1",
+                         "long_name": "mean CTD conductivity"},
+    "practical_salinity": {"standard_name": "sea_water_practical_salinity", "units": "1",
+                           "long_name": "mean practical salinity (PSS-78)"},
+    "density_kg_m3": {"standard_name": "sea_water_density", "units": "kg m-3",
+                      "long_name": "mean in situ density (EOS-80, Eq. 13)"},
+    "gravity_m_s2": {"units": "m s-2", "long_name": "mean gravitational acceleration (Eq. 14)"},
+    "sound_speed_m_s": {"standard_name": "speed_of_sound_in_sea_water", "units": "m s-1",
+                        "long_name": "mean sound speed (Chen-Millero)"},
+    "depth_m": {"standard_name": "depth", "units": "m", "positive": "down",
+                "long_name": "mean depth, hydrostatic integral (Eqs. 11-12)"},
+    "depth_fofonoff_millard_m": {"standard_name": "depth", "units": "m", "positive": "down",
+                                 "long_name": "mean depth, Fofonoff-Millard (Eqs. 8-10)"},
+    "depth_teos10_m": {"standard_name": "depth", "units": "m", "positive": "down",
+                       "long_name": "mean depth, TEOS-10 with dynamic height anomaly"},
+}
+
+
+def _profile_attrs(ds: Any, meta: dict[str, Any]) -> None:
+    for name, attrs in _PROFILE_ATTRS.items():
+        if name in ds:
+            ds[name].attrs.update(attrs)
+            ds[name].attrs["cell_methods"] = "pressure_dbar: mean"
+    # the profile's nominal position (the latitude used for gravity/depth, the launch longitude)
+    ds.coords["lat"] = np.float64(meta["latitude_deg"])
+    ds.coords["lon"] = np.float64(meta["longitude_deg"])

@@ -1,7 +1,143 @@
-"""Stage `landing` (being implemented)."""
+"""Stage `landing`: landing-site analysis of the 10 mm laser grids (Sangekar et al. §III-IV).
 
-from pydantic import BaseModel, ConfigDict
+Reads ``laser_grids`` (one ``submap_NN.nc`` per submap, variable ``elevation_m`` on (y, x), NaN unmapped)
+and publishes ``landing``:
+
+* ``landing_sites.parquet`` — every candidate site for every heading with its costs, landing coordinate
+  and ``is_best`` (the lowest-cost site of each submap);
+* ``submap_NN_maps.nc`` — slope, protrusion height, exclusion per heading and the final site;
+* ``landing_summary.json`` — the paper's Table V for the dive, plus the per-submap final sites;
+* ``figures/`` — Figs. 13, 18, 19 and 21 of the dive's best submap, Fig. 19 of every submap, Fig. 25.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import xarray as xr
+from pydantic import BaseModel, ConfigDict, Field
+
+from hadal.errors import InputError, StageError
+from hadal.landing.sites import SITE_FIELDS, analyse_submap, mapped_length_m, results_table
+from hadal.landing.vehicle import Vehicle
+from hadal.products import dive_attributes, write_netcdf, write_parquet
+
+PRODUCTS = ("landing",)
+UPSTREAM = ("laser_grids",)
 
 
 class Params(BaseModel):
+    """Landing-site analysis parameters (defaults = Sangekar et al.)."""
+
     model_config = ConfigDict(extra="forbid")
+    vehicle: Vehicle = Field(default_factory=Vehicle, description="vehicle geometry and forces (Table II)")
+    heading_step_deg: float = Field(5.0, gt=0, le=90, description="landing headings -90..90° in these steps")
+    min_site_radius_m: float = Field(0.3, gt=0, description="reject sites whose inscribed circle is smaller (m)")
+    min_protrusion_height_m: float = Field(0.005, ge=0, description="protrusions below this are noise (m)")
+    exclusion_step_m: float = Field(0.005, gt=0, description="distance step of the Fig. 15 table (m)")
+    local_slope_window_m: float = Field(0.03, gt=0, description="window of the local slope map (m, >= 3 cells)")
+    block_m: float = Field(2.5, gt=0, description="block size of the FFT protrusion analysis (m)")
+    block_margin_m: float = Field(1.0, ge=0, description="overlap margin of each block (m)")
+    filter_order: int = Field(3, ge=1, le=10, description="Butterworth low-pass order (Eq. 10)")
+    edge_correction: bool = Field(False, description="normalised low-pass next to gaps (the paper zero-fills)")
+    rectangle_resolution_m: float = Field(0.02, gt=0, description="resampling step for the inscribed rectangle (m)")
+    fill_holes_max_m2: float = Field(0.01, ge=0, description="fill interior unmapped holes up to this area (m²)")
+    workers: int = Field(1, ge=1, le=64, description="headings analysed in parallel threads")
+    figures: bool = Field(True, description="write PNG figures into the product")
+
+
+def _read_submap(path: Path) -> xr.DataArray:
+    try:
+        with xr.open_dataset(path, engine="h5netcdf") as ds:
+            if "elevation_m" not in ds:
+                raise InputError(f"{path.name}: no variable 'elevation_m' (have {', '.join(map(str, ds.data_vars))})")
+            da = ds["elevation_m"].load()
+    except InputError:
+        raise
+    except Exception as exc:  # truncated / not NetCDF
+        raise InputError(f"{path.name}: cannot read laser grid ({type(exc).__name__}: {exc})") from None
+    if set(da.dims) != {"y", "x"}:
+        raise InputError(f"{path.name}: elevation_m must be on (y, x), got {da.dims}")
+    return da
+
+
+def run(ctx) -> dict:
+    """Analyse every laser submap and publish the ``landing`` product."""
+    p: Params = ctx.config.landing
+    laser = ctx.upstream("laser_grids")
+    files = sorted(f for f in laser.path.glob("submap_*.nc") if not f.name.endswith("_maps.nc"))
+    if not files:
+        raise StageError(f"{ctx.dive_id}/laser_grids/{laser.label} has no submap_NN.nc files")
+    headings = np.linspace(-90.0, 90.0, int(round(180.0 / p.heading_step_deg)) + 1)
+    all_sites: list[pd.DataFrame] = []
+    finals: list[dict] = []
+    mapped_area = 0.0
+    transect = 0.0
+    outlines: dict[str, np.ndarray] = {}
+    best_overall: tuple[float, str] | None = None
+    with ctx.store.publish(ctx.dive_id, "landing", parameters=ctx.params("landing"), upstream=[laser]) as draft:
+        figdir = draft.path / "figures"
+        if p.figures:
+            figdir.mkdir()
+        best_res = None
+        for f in ctx.progress.track(files, "landing sites", total=len(files)):
+            name = f.stem
+            grid = _read_submap(f)
+            if not np.isfinite(grid.values).any():
+                ctx.log.warning("landing: %s has no mapped cells; skipped", name)
+                continue
+            res = analyse_submap(
+                grid, p.vehicle, headings_deg=headings, min_site_radius_m=p.min_site_radius_m,
+                min_protrusion_height_m=p.min_protrusion_height_m, exclusion_step_m=p.exclusion_step_m,
+                local_slope_window_m=p.local_slope_window_m, block_m=p.block_m, block_margin_m=p.block_margin_m,
+                filter_order=p.filter_order, edge_correction=p.edge_correction,
+                rectangle_resolution_m=p.rectangle_resolution_m, fill_holes_max_m2=p.fill_holes_max_m2,
+                workers=p.workers,
+            )
+            ctx.log.info("landing: %s %d candidate sites in %.1f s", name, len(res.sites), res.timings_s["total"])
+            mapped = np.isfinite(res.elevation_m)
+            mapped_area += float(mapped.sum()) * res.cell_m**2
+            rows_, cols_ = np.nonzero(mapped)
+            transect += mapped_length_m(mapped, res.cell_m)
+            step = max(1, int(len(rows_) // 4000))
+            outlines[name] = np.column_stack([res.x_m[cols_[::step]], res.y_m[rows_[::step]]])
+            sites = res.sites.copy()
+            sites.insert(0, "submap", name)
+            all_sites.append(sites)
+            ds = res.to_dataset()
+            write_netcdf(ds, draft.path / f"{name}_maps.nc", title=f"Landing-site maps, {ctx.dive_id} {name}",
+                         summary="Slope, protrusion height, C_G exclusion per landing heading and the selected landing "
+                                 "site (Sangekar et al.).", submap=name, **dive_attributes(ctx.dive))
+            if res.best is not None:
+                finals.append({"submap": name, **res.best})
+                if best_overall is None or res.best["c_s"] < best_overall[0]:
+                    best_overall = (float(res.best["c_s"]), name)
+            if p.figures:
+                from hadal.landing import figures as fg
+
+                fg.figure_sites(res, figdir / f"fig19_sites_{name}.png")
+                if best_overall is not None and best_overall[1] == name:
+                    best_res = res  # only the dive's best submap is kept for the detailed figures
+        sites_df = pd.concat(all_sites, ignore_index=True) if all_sites else pd.DataFrame(columns=["submap", *SITE_FIELDS])
+        table = results_table(sites_df, mapped_area, transect)
+        meta = {"dive_id": ctx.dive_id, "critical_slope_deg": p.vehicle.critical_slope_deg,
+                "critical_height_m": p.vehicle.critical_height_m, "table_v": table,
+                "method": "Sangekar et al., Autonomous landing of underwater vehicles using high resolution bathymetry"}
+        write_parquet(sites_df, draft.path / "landing_sites.parquet", fields=SITE_FIELDS, metadata=meta)
+        finals_df = pd.DataFrame(finals)
+        (draft.path / "landing_summary.json").write_text(
+            json.dumps({"table_v": table, "final_sites": finals_df.to_dict(orient="records")}, indent=2, default=float),
+            encoding="utf-8")
+        if p.figures:
+            from hadal.landing import figures as fg
+
+            fg.figure_transect(finals_df, outlines, figdir / "fig25_transect.png")
+            fg.figure_costs_vs_heading(sites_df, figdir / "fig21_costs_vs_heading.png", f"{ctx.dive_id}: all submaps")
+            if best_res is not None and best_overall is not None:
+                res = best_res
+                fg.figure_slope_exclusion(res, figdir / f"fig13_slope_{best_overall[1]}.png")
+                fg.figure_protrusion_exclusion(res, figdir / f"fig18_protrusions_{best_overall[1]}.png")
+    return {"landing": draft.result}

@@ -1,7 +1,100 @@
-"""Stage `suitability` (being implemented)."""
+"""Stage `suitability`: per-block terrain standard deviation and entropy of the reference DTM, proposed matching region.
 
-from pydantic import BaseModel, ConfigDict
+Reads the ``dtm`` product, computes TERCOM paper Eqs. (1)-(5) on an ``n_blocks_y x n_blocks_x`` block
+grid (44 x 60 in the paper, §4.1.2; see :mod:`hadal.suitability`) and proposes a matching region
+around the launch point (Fig. 7). Publishes ``suitability`` (``suitability.nc``).
+"""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import xarray as xr
+from pydantic import BaseModel, ConfigDict, Field
+
+from hadal.errors import InputError
+from hadal.products import write_netcdf
+from hadal.stages import StageContext
+from hadal.store import ProductVersion
+
+PRODUCTS = ("suitability",)
+UPSTREAM = ("dtm",)
 
 
 class Params(BaseModel):
+    """Terrain suitability (TERCOM paper §3.1, §4.1.2): block std/entropy and the matching region."""
+
     model_config = ConfigDict(extra="forbid")
+    n_blocks_y: int = Field(44, ge=1, description="blocks south-north (paper: 44); reduced if the DTM is too small")
+    n_blocks_x: int = Field(60, ge=1, description="blocks west-east (paper: 60); reduced if the DTM is too small")
+    min_valid_fraction: float = Field(0.5, gt=0, le=1, description="minimum fraction of valid cells for a block to be evaluated")
+    region_size_x_m: float = Field(5800.0, gt=0, description="matching-region width west-east in metres (paper: 5.8 km)")
+    region_size_y_m: float = Field(3700.0, gt=0, description="matching-region height south-north in metres (paper: 3.7 km)")
+    region_search_radius_m: float = Field(
+        0.0, ge=0, description="0: region centred on the launch point; >0: best-scoring window centred within this radius"
+    )
+
+
+def open_dtm(pv: ProductVersion) -> xr.Dataset:
+    """Load ``dtm.nc`` fully into memory with a clear error on unreadable files."""
+    path = pv.file("dtm.nc")
+    try:
+        with xr.open_dataset(path, engine="h5netcdf") as ds:
+            return ds.load()
+    except (OSError, ValueError) as exc:
+        raise InputError(f"{path}: cannot read the DTM ({str(exc).splitlines()[0] if str(exc) else type(exc).__name__})") from None
+
+
+def build_suitability(dtm: xr.Dataset, frame, launch_lat_deg: float, launch_lon_deg: float, p: Params) -> xr.Dataset:
+    """Block statistics + lat/lon + proposed region, ready to write."""
+    from hadal.matching.mapgrid import MapGrid
+    from hadal.suitability import propose_region, suitability_map
+
+    g = MapGrid.from_any(dtm, name="dtm.nc")
+    ny, nx = g.shape
+    nby, nbx = min(p.n_blocks_y, ny // 2), min(p.n_blocks_x, nx // 2)
+    suit = suitability_map(g, nby, nbx, min_valid_fraction=p.min_valid_fraction)
+    lx, ly = (float(v) for v in frame.to_xy(launch_lon_deg, launch_lat_deg))
+    region = propose_region(suit, lx, ly, p.region_size_x_m, p.region_size_y_m, p.region_search_radius_m)
+    xx, yy = np.meshgrid(suit["x"].values, suit["y"].values)
+    lon, lat = frame.to_lonlat(xx, yy)
+    suit["lat"] = (("y", "x"), np.asarray(lat), {"standard_name": "latitude", "units": "degrees_north"})
+    suit["lon"] = (("y", "x"), np.asarray(lon), {"standard_name": "longitude", "units": "degrees_east"})
+    suit["in_region"] = (("y", "x"), region.contains(xx, yy).astype(np.int8),
+                         {"long_name": "block centre inside the proposed matching region", "flag_values": np.array([0, 1], np.int8),
+                          "flag_meanings": "outside inside"})
+    suit["crs"] = ((), np.int32(0), {"grid_mapping_name": "transverse_mercator", "crs_wkt": frame.crs.to_wkt(),
+                                     "proj4": frame.crs.srs,
+                                     "latitude_of_projection_origin": frame.origin_latitude_deg,
+                                     "longitude_of_central_meridian": frame.origin_longitude_deg,
+                                     "scale_factor_at_central_meridian": 1.0, "false_easting": 0.0, "false_northing": 0.0})
+    for v in ("std_m", "entropy", "entropy_deficit", "n_valid", "in_region"):
+        suit[v].attrs["grid_mapping"] = "crs"
+        suit[v].attrs["coordinates"] = "lat lon"
+    suit.attrs.update({
+        "proposed_region": json.dumps(region.as_dict()),
+        "launch_x_east_m": lx, "launch_y_north_m": ly,
+        "map_frame_origin_latitude_deg": frame.origin_latitude_deg,
+        "map_frame_origin_longitude_deg": frame.origin_longitude_deg,
+        "method": "TERCOM paper (Challenger Deep) Eqs. 1-5, §4.1.2; variance normaliser m(n-1) as written; p_ij from depth positive down",
+    })
+    if (nby, nbx) != (p.n_blocks_y, p.n_blocks_x):
+        suit.attrs["comment"] = f"block grid reduced from {p.n_blocks_y} x {p.n_blocks_x} to {nby} x {nbx}: DTM has only {ny} x {nx} cells"
+    return suit
+
+
+def run(ctx: StageContext) -> dict[str, ProductVersion]:
+    p: Params = ctx.config.suitability
+    dtm_pv = ctx.upstream("dtm")
+    dtm = open_dtm(dtm_pv)
+    suit = build_suitability(dtm, ctx.dive.frame(), ctx.dive.launch.latitude_deg, ctx.dive.launch.longitude_deg, p)
+    ctx.log.info("suitability: %d x %d blocks, region %s", suit.sizes["y"], suit.sizes["x"], suit.attrs["proposed_region"])
+    with ctx.store.publish(ctx.dive_id, "suitability", parameters=ctx.params("suitability"), upstream=[dtm_pv]) as draft:
+        write_netcdf(
+            suit, draft.path / "suitability.nc",
+            title=f"Terrain suitability for matching, dive {ctx.dive_id}",
+            summary="Per-block terrain elevation standard deviation and topographic entropy of the reference DTM, "
+                    "with the proposed terrain-matching region (TERCOM paper §3.1, §4.1.2).",
+        )
+    return {"suitability": draft.result}

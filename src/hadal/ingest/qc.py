@@ -1,0 +1,156 @@
+"""QARTOD quality-control flags for the sensor table, computed with ``ioos_qc.qartod``.
+
+Flags (IOOS QARTOD manual, 2020): 1 good, 2 not evaluated, 3 suspect, 4 bad, 9 missing. Per variable the
+gross-range, spike and flat-line tests of ``ioos_qc`` are run and aggregated with
+``ioos_qc.qartod.qartod_compare`` (worst flag wins); a NaN value is flag 9 whatever the tests say
+(no data after alignment: gap, dropout, outside the sensor's time span).
+
+The SBE49's pressure sensor saturates at 10 500 dbar: pressure_ctd_dbar at or above the saturation value
+is flagged 4 by running the gross-range test with a fail span whose upper end is the largest double below
+the saturation value (``ioos_qc`` flags values strictly outside the span).
+
+Deviation from ``ioos_qc.qartod.flat_line_test`` (flat line only; gross range and spike are the library's):
+the library (a) converts its time thresholds to a sample count with the median sampling interval rounded
+to whole seconds, which is 0 s for a 16 Hz CTD, and (b) materialises an ``n x window`` strided masked array
+(a 16 Hz dive of 10 h with a 300 s window would need ~22 GB). :func:`flat_line_flags` implements the same
+definition - point ``j`` is flagged when the range of the ``count + 1`` samples ending at ``j`` (NaN ignored)
+is below ``tolerance``, ``count = threshold_s / median_dt``, no flag before the first full window - with
+O(n) rolling max/min. ``tests/test_ingest_units_align_qc.py`` checks it against ``ioos_qc`` flag for flag.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+from ioos_qc import qartod
+from pydantic import BaseModel, ConfigDict, Field, model_validator
+
+__all__ = ["VariableQC", "DEFAULT_QC", "qc_flags", "qc_table", "flat_line_flags"]
+
+GOOD, NOT_EVALUATED, SUSPECT, BAD, MISSING = 1, 2, 3, 4, 9
+
+
+class VariableQC(BaseModel):
+    """QARTOD test configuration of one variable (units: the variable's)."""
+
+    model_config = ConfigDict(extra="forbid")
+    fail_span: tuple[float, float] | None = None
+    suspect_span: tuple[float, float] | None = None
+    #: values at or above this are flagged 4 (sensor saturation, e.g. SBE49 10 500 dbar)
+    saturation: float | None = None
+    spike_suspect: float | None = None
+    spike_fail: float | None = None
+    flat_line_suspect_s: float | None = None
+    flat_line_fail_s: float | None = None
+    flat_line_tolerance: float = 0.0
+    #: reject the whole input (InputError) when more than this fraction of finite values is outside the
+    #: fail span: a unit mistake (mS/cm logged as S/m) rather than bad samples
+    max_fail_fraction: float = Field(0.5, ge=0, le=1)
+
+    @model_validator(mode="after")
+    def _spans(self) -> VariableQC:
+        if self.fail_span and self.suspect_span:
+            lo, hi = sorted(self.fail_span)
+            slo, shi = sorted(self.suspect_span)
+            if slo < lo or shi > hi:
+                raise ValueError("suspect_span must lie inside fail_span")
+        return self
+
+
+def _q(**kw: Any) -> VariableQC:
+    return VariableQC(**kw)
+
+
+#: default thresholds (hadal vehicle; full-ocean-depth, 16 Hz CTD)
+DEFAULT_QC: dict[str, VariableQC] = {
+    "conductivity_s_m": _q(fail_span=(0.0, 7.0), suspect_span=(2.0, 6.5), spike_suspect=0.05, spike_fail=0.2,
+                           flat_line_suspect_s=60, flat_line_fail_s=300, flat_line_tolerance=1e-6),
+    "temperature_its90_degc": _q(fail_span=(-2.5, 40.0), suspect_span=(-2.0, 35.0), spike_suspect=0.5,
+                                 spike_fail=2.0, flat_line_suspect_s=60, flat_line_fail_s=300,
+                                 flat_line_tolerance=1e-6),
+    "pressure_ctd_dbar": _q(fail_span=(-10.0, 11_000.0), saturation=10_500.0, spike_suspect=5.0, spike_fail=20.0,
+                            flat_line_suspect_s=60, flat_line_fail_s=300, flat_line_tolerance=1e-6),
+    "pressure_gauge_dbar": _q(fail_span=(-10.0, 12_000.0), spike_suspect=5.0, spike_fail=20.0),
+    "altitude_m": _q(fail_span=(0.0, 150.0), suspect_span=(0.0, 100.0), spike_suspect=10.0, spike_fail=50.0),
+    "heading_deg": _q(fail_span=(0.0, 360.0)),
+    "pitch_deg": _q(fail_span=(-90.0, 90.0), suspect_span=(-45.0, 45.0), spike_suspect=10.0, spike_fail=30.0),
+    "roll_deg": _q(fail_span=(-180.0, 180.0), suspect_span=(-45.0, 45.0), spike_suspect=10.0, spike_fail=30.0),
+    "dr_east_m": _q(fail_span=(-100_000.0, 100_000.0)),
+    "dr_north_m": _q(fail_span=(-100_000.0, 100_000.0)),
+    "speed_m_s": _q(fail_span=(0.0, 10.0), suspect_span=(0.0, 3.0), spike_suspect=0.5, spike_fail=2.0),
+}
+
+
+def qc_flags(values: np.ndarray, time_ns: np.ndarray, cfg: VariableQC) -> np.ndarray:
+    """QARTOD flags (uint8) of one variable; see the module docstring."""
+    x = np.asarray(values, dtype=np.float64)
+    results = []
+    if cfg.fail_span is not None or cfg.saturation is not None:
+        lo, hi = sorted(cfg.fail_span) if cfg.fail_span else (-np.inf, np.inf)
+        if cfg.saturation is not None:
+            hi = min(hi, float(np.nextafter(cfg.saturation, -np.inf)))
+        sus = None
+        if cfg.suspect_span is not None:
+            slo, shi = sorted(cfg.suspect_span)
+            sus = (max(slo, lo), min(shi, hi))
+        results.append(np.ma.filled(qartod.gross_range_test(inp=x, fail_span=(lo, hi), suspect_span=sus), MISSING))
+    if cfg.spike_suspect is not None and x.size >= 3:
+        results.append(np.ma.filled(qartod.spike_test(inp=x, suspect_threshold=cfg.spike_suspect,
+                                                      fail_threshold=cfg.spike_fail), NOT_EVALUATED))
+    if cfg.flat_line_suspect_s is not None and x.size >= 3:
+        t = np.asarray(time_ns, dtype=np.int64)
+        dt = float(np.median(np.diff(t))) / 1e9 if t.size > 1 else 0.0
+        if dt > 0:
+            n_sus = max(int(cfg.flat_line_suspect_s / dt), 1)
+            n_fail = max(int((cfg.flat_line_fail_s or cfg.flat_line_suspect_s) / dt), n_sus)
+            results.append(flat_line_flags(x, n_sus, n_fail, cfg.flat_line_tolerance))
+    if results:
+        flags = np.asarray(qartod.qartod_compare(results), dtype=np.uint8)
+    else:
+        flags = np.full(x.size, NOT_EVALUATED, dtype=np.uint8)
+    flags[~np.isfinite(x)] = MISSING
+    return flags
+
+
+def flat_line_flags(x: np.ndarray, suspect_count: int, fail_count: int, tolerance: float) -> np.ndarray:
+    """ioos_qc's flat-line test in samples, O(n): see the module docstring (flags 1, 3, 4, 9)."""
+    import pandas as pd
+
+    x = np.asarray(x, dtype=np.float64)
+    flags = np.full(x.size, GOOD, dtype=np.uint8)
+    s = pd.Series(np.where(np.isfinite(x), x, np.nan))
+    for count, flag in ((suspect_count, SUSPECT), (fail_count, BAD)):
+        if count >= x.size:
+            continue
+        r = s.rolling(count + 1, min_periods=1)
+        rng = (r.max() - r.min()).to_numpy()
+        hit = np.zeros(x.size, dtype=bool)
+        with np.errstate(invalid="ignore"):
+            hit[count:] = rng[count:] < tolerance
+        flags[hit] = flag
+    flags[~np.isfinite(x)] = MISSING
+    return flags
+
+
+def fail_fraction(values: np.ndarray, cfg: VariableQC) -> float:
+    """Fraction of the finite values outside the fail span (0 when there are none)."""
+    x = np.asarray(values, dtype=np.float64)
+    x = x[np.isfinite(x)]
+    if x.size == 0 or cfg.fail_span is None:
+        return 0.0
+    lo, hi = sorted(cfg.fail_span)
+    return float(np.count_nonzero((x < lo) | (x > hi)) / x.size)
+
+
+def qc_table(columns: dict[str, np.ndarray], time_ns: np.ndarray, config: dict[str, VariableQC]
+             ) -> tuple[dict[str, np.ndarray], dict[str, dict[str, int]]]:
+    """Flags for every variable in ``columns`` (``<var>_qc``) and per-variable flag counts."""
+    flags, counts = {}, {}
+    for var, x in columns.items():
+        cfg = config.get(var, VariableQC())
+        f = qc_flags(x, time_ns, cfg)
+        flags[f"{var}_qc"] = f
+        vals, n = np.unique(f, return_counts=True)
+        counts[var] = {str(int(k)): int(c) for k, c in zip(vals, n, strict=True)}
+    return flags, counts

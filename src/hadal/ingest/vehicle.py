@@ -1,0 +1,176 @@
+"""Vehicle channel/column mapping (``vehicle.yaml``): which MCAP topic / CSV column holds which variable, in
+which unit and time format. Nothing about a particular vehicle is hard-coded in the readers.
+
+Example (abridged from ``hadal/data/vehicles/haidou.yaml``)::
+
+    vehicle: haidou
+    time_base: ctd
+    sensors:
+      ctd:
+        required: true
+        mcap:
+          topic: /haidou/ctd
+          time: {field: log_time, format: unix_ns}
+          fields:
+            conductivity_s_m: {field: cond, units: S/m}
+            temperature_its90_degc: {field: temp, units: degC_its90}
+            pressure_ctd_dbar: {field: pres, units: dbar}
+        csv:
+          source: ctd                       # key of dive.yaml sources.csv
+          time: {field: time, format: iso8601}
+          fields:
+            conductivity_s_m: {field: conductivity_mS_cm, units: mS/cm}
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Literal
+
+import yaml
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+
+from hadal.errors import ConfigError
+from hadal.ingest.units import CANONICAL_UNITS, check_unit
+
+__all__ = ["FieldMap", "TimeSpec", "McapSource", "CsvSource", "SensorConfig", "VehicleConfig",
+           "load_vehicle_config", "default_vehicle_config_path"]
+
+#: time formats understood by :func:`hadal.ingest.csv_reader.parse_time` (or any strftime pattern with '%')
+TIME_FORMATS = ("unix_ns", "unix_ms", "unix_s", "iso8601")
+
+
+class FieldMap(BaseModel):
+    """One source field/column and the unit it is logged in."""
+
+    model_config = ConfigDict(extra="forbid")
+    field: str = Field(min_length=1)
+    units: str
+
+
+class TimeSpec(BaseModel):
+    """Where the sample time is: an MCAP ``log_time`` (ns) or a field/column, and its format."""
+
+    model_config = ConfigDict(extra="forbid")
+    field: str = "log_time"
+    format: str = "unix_ns"
+
+    @field_validator("format")
+    @classmethod
+    def _fmt(cls, v: str) -> str:
+        if v not in TIME_FORMATS and "%" not in v:
+            raise ValueError(f"time format {v!r} is not one of {', '.join(TIME_FORMATS)} or a strftime pattern")
+        return v
+
+
+class _Source(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+    time: TimeSpec = Field(default_factory=TimeSpec)
+    fields: dict[str, FieldMap]
+    #: optional boolean field/column: samples where it is false become NaN (e.g. altimeter ``valid``)
+    valid_field: str | None = None
+
+    @field_validator("fields")
+    @classmethod
+    def _vars(cls, v: dict[str, FieldMap]) -> dict[str, FieldMap]:
+        if not v:
+            raise ValueError("at least one field mapping is required")
+        for var, fm in v.items():
+            try:
+                check_unit(var, fm.units)
+            except ConfigError as exc:
+                raise ValueError(str(exc)) from None
+        return v
+
+
+class McapSource(_Source):
+    topic: str = Field(min_length=1)
+
+
+class CsvSource(_Source):
+    #: key of the dive's ``sources.csv`` mapping
+    source: str = Field(min_length=1)
+    delimiter: str = ","
+    time: TimeSpec = Field(default_factory=lambda: TimeSpec(field="time", format="iso8601"))
+
+
+class SensorConfig(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+    required: bool = False
+    mcap: McapSource | None = None
+    csv: CsvSource | None = None
+
+    @model_validator(mode="after")
+    def _some_source(self) -> SensorConfig:
+        if self.mcap is None and self.csv is None:
+            raise ValueError("a sensor needs an 'mcap' or a 'csv' mapping")
+        if self.mcap and self.csv and set(self.mcap.fields) != set(self.csv.fields):
+            raise ValueError("the 'mcap' and 'csv' mappings must give the same variables")
+        return self
+
+    def variables(self) -> list[str]:
+        src = self.mcap or self.csv
+        assert src is not None
+        return list(src.fields)
+
+
+class VehicleConfig(BaseModel):
+    """A vehicle's sensors; ``time_base`` names the sensor whose sample times define the table (the CTD)."""
+
+    model_config = ConfigDict(extra="forbid")
+    vehicle: str = "unknown"
+    time_base: str = "ctd"
+    sensors: dict[str, SensorConfig]
+
+    @model_validator(mode="after")
+    def _check(self) -> VehicleConfig:
+        if self.time_base not in self.sensors:
+            raise ValueError(f"time_base sensor {self.time_base!r} is not among the sensors")
+        seen: dict[str, str] = {}
+        for name, s in self.sensors.items():
+            for var in s.variables():
+                if var in seen:
+                    raise ValueError(f"variable {var!r} mapped by both {seen[var]!r} and {name!r}")
+                seen[var] = name
+        return self
+
+    def variables(self) -> list[str]:
+        """Mapped variables in the canonical column order."""
+        mapped = {v for s in self.sensors.values() for v in s.variables()}
+        return [v for v in CANONICAL_UNITS if v in mapped]
+
+    def sensor_of(self, variable: str) -> str:
+        for name, s in self.sensors.items():
+            if variable in s.variables():
+                return name
+        raise KeyError(variable)
+
+
+def default_vehicle_config_path() -> Path:
+    """The packaged sample vehicle mapping (``hadal/data/vehicles/haidou.yaml``)."""
+    return Path(__file__).resolve().parents[1] / "data" / "vehicles" / "haidou.yaml"
+
+
+def load_vehicle_config(path: str | Path) -> VehicleConfig:
+    """Read and validate a vehicle YAML; any problem is a one-line :class:`ConfigError` naming the file."""
+    p = Path(path)
+    if not p.is_file():
+        raise ConfigError(f"vehicle config {p} does not exist")
+    try:
+        data = yaml.safe_load(p.read_text(encoding="utf-8"))
+    except (yaml.YAMLError, UnicodeDecodeError) as exc:
+        first = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        raise ConfigError(f"{p}: not valid YAML ({first})") from None
+    if not isinstance(data, dict):
+        raise ConfigError(f"{p}: expected a mapping with 'sensors' at the top level")
+    try:
+        return VehicleConfig.model_validate(data)
+    except ValidationError as exc:
+        e = exc.errors()[0]
+        loc = ".".join(str(x) for x in e.get("loc", ()))
+        msg = str(e.get("msg", "")).removeprefix("Value error, ")
+        more = f" (+{len(exc.errors()) - 1} more)" if len(exc.errors()) > 1 else ""
+        raise ConfigError(f"{p}: invalid vehicle config at {loc or '<top>'}: {msg}{more}") from None
+
+
+SourceKind = Literal["mcap", "csv"]

@@ -1,0 +1,97 @@
+"""Slope maps by least-squares plane fits (Sangekar et al. §III-B2, Figs. 13c, 16a, 18a).
+
+* :func:`local_slope_deg` — per-cell slope of the plane fitted over a small square window, with the
+  x, y, z moments summed by box filters (NaN-aware: each window uses only its mapped cells). This is the
+  slope map used to find protrusion candidates (slope > θc, Fig. 16b).
+* :func:`plane_gradient_from_sums` — the footprint-mean slope (Fig. 13c) from window sums computed
+  elsewhere (FFT correlation with the rotated vehicle footprint, see :mod:`hadal.landing.exclusion`).
+* :func:`footprint_slope_reference_deg` — a direct per-cell plane fit (np.linalg.lstsq) over the
+  footprint, used by tests and the benchmark as the straightforward reference implementation.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy import ndimage as ndi
+
+
+def local_slope_deg(z: np.ndarray, cell_m: float, window_px: int = 3, min_fraction: float = 0.5) -> np.ndarray:
+    """Slope (degrees) of the least-squares plane z = c + a x + b y fitted over a ``window_px`` square
+    window around every cell. Moments Σ1, Σx, Σy, Σz, Σxx, Σxy, Σyy, Σxz, Σyz of the mapped cells are
+    box-filtered (``scipy.ndimage.uniform_filter``) so the whole map costs a handful of passes; windows
+    with fewer than ``min_fraction`` mapped cells, or unmapped centres, give NaN.
+
+    ``z``: elevation (m) on a regular grid (rows = y, columns = x), NaN = unmapped; ``cell_m``: cell size (m).
+    """
+    z = np.asarray(z, dtype=float)
+    w = int(window_px)
+    if w < 2:
+        raise ValueError("window_px must be >= 2")
+    valid = np.isfinite(z)
+    if not valid.any():
+        return np.full(z.shape, np.nan)
+    zref = float(np.nanmean(z))
+    m = valid.astype(float)
+    zz = np.where(valid, z - zref, 0.0)
+    ny, nx = z.shape
+    # coordinates relative to each window's centre are obtained from global index moments:
+    # Σu = Σx - X n, Σuu = Σxx - 2 X Σx + X² n, ... (indices are small, float64 is exact enough)
+    Y, X = np.mgrid[0:ny, 0:nx].astype(float)
+
+    def box(a: np.ndarray) -> np.ndarray:
+        return ndi.uniform_filter(a, size=w, mode="constant", cval=0.0) * (w * w)
+
+    n = box(m)
+    sx, sy, sz = box(m * X), box(m * Y), box(zz)
+    sxx, syy, sxy = box(m * X * X), box(m * Y * Y), box(m * X * Y)
+    sxz, syz = box(X * zz), box(Y * zz)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        mx, my, mz = sx / n, sy / n, sz / n
+        cxx = sxx / n - mx * mx
+        cyy = syy / n - my * my
+        cxy = sxy / n - mx * my
+        cxz = sxz / n - mx * mz
+        cyz = syz / n - my * mz
+        det = cxx * cyy - cxy * cxy
+        a = (cyy * cxz - cxy * cyz) / det
+        b = (cxx * cyz - cxy * cxz) / det
+        slope = np.degrees(np.arctan(np.hypot(a, b) / cell_m))
+    ok = valid & (n >= min_fraction * w * w) & (det > 1e-9)
+    return np.where(ok, slope, np.nan)
+
+
+def plane_gradient_from_sums(
+    s_uz: np.ndarray, s_vz: np.ndarray, s_uu: float, s_vv: float, s_uv: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """Gradient (a, b) of the least-squares plane z = c + a u + b v over a *fully mapped*, point-symmetric
+    window (Σu = Σv = 0), from the window sums Σuz, Σvz and the window constants Σuu, Σvv, Σuv
+    (u = column offset, v = row offset, in cells; a, b in metres per cell)."""
+    det = s_uu * s_vv - s_uv * s_uv
+    a = (s_vv * s_uz - s_uv * s_vz) / det
+    b = (s_uu * s_vz - s_uv * s_uz) / det
+    return a, b
+
+
+def footprint_slope_reference_deg(
+    z: np.ndarray, cell_m: float, footprint: np.ndarray, cells: np.ndarray
+) -> np.ndarray:
+    """Straightforward reference: for each (row, col) in ``cells`` fit z = c + a x + b y by
+    ``np.linalg.lstsq`` over the mapped cells under the boolean ``footprint`` (odd-sized, centred)
+    and return the slope in degrees (NaN where fewer than 3 mapped cells)."""
+    z = np.asarray(z, dtype=float)
+    ky, kx = footprint.shape
+    oy, ox = np.nonzero(footprint)
+    oy = oy - ky // 2
+    ox = ox - kx // 2
+    out = np.full(len(cells), np.nan)
+    for k, (r, c) in enumerate(np.asarray(cells)):
+        rr, cc = r + oy, c + ox
+        inside = (rr >= 0) & (rr < z.shape[0]) & (cc >= 0) & (cc < z.shape[1])
+        zz = z[rr[inside], cc[inside]]
+        ok = np.isfinite(zz)
+        if ok.sum() < 3:
+            continue
+        A = np.column_stack([np.ones(ok.sum()), ox[inside][ok] * cell_m, oy[inside][ok] * cell_m])
+        coef = np.linalg.lstsq(A, zz[ok], rcond=None)[0]
+        out[k] = np.degrees(np.arctan(np.hypot(coef[1], coef[2])))
+    return out

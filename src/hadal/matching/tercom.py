@@ -1,0 +1,535 @@
+"""TERCOM: batch terrain-contour matching of a measured depth profile against a reference map.
+
+TERCOM paper (tercom-challenger-deep.md) §3.3 and §4.2. For every candidate position of the track on
+the map (the whole map, at the map resolution, as in §4.2: "the whole region was searched ... the
+search interval was equivalent to the map resolution") the measured seafloor depths ``d_M(i)`` are
+compared with the map depths ``d_BT(x, y, i)`` under the track:
+
+* Eq. (15) ``COR(x, y) = 1/N sum d_M(i) d_BT(x, y, i)``      (maximised)
+* Eq. (16) ``MAD(x, y) = 1/N sum |d_M(i) - d_BT(x, y, i)|``  (minimised)
+* Eq. (17) ``MSD(x, y) = 1/N sum [d_M(i) - d_BT(x, y, i)]^2`` (minimised; the paper's choice)
+
+Implementation (FFT route). The track is given relative to its start; its samples are snapped to the
+map grid relative to the start (**nearest-cell sampling**: sample ``i`` falls in cell
+``start + round(track_i / h)``, an error of at most half a cell). Then, with ``V`` the map validity
+mask, ``D`` the map (0 where invalid) and sparse sample masks ``C`` (count of samples per cell),
+``S1`` (sum of ``d_M``), ``S2`` (sum of ``d_M^2``) built on the track's footprint, every sum over the
+samples at every offset is a 2-D cross-correlation of a map layer with a mask (``*`` = correlation):
+
+    N      = V * C          sum d_M    = V * S1       sum d_M^2 = V * S2
+    sum d_BT = D * C        sum d_BT^2 = D^2 * C      sum d_M d_BT = D * S1
+
+so ``MSD = (sum d_BT^2 - 2 sum d_M d_BT + sum d_M^2)/N`` costs a handful of FFTs for all offsets
+(``scipy.fft.rfft2``; map-layer transforms are computed once and reused for every heading). Only
+samples on valid map cells count (``N`` per offset); offsets where fewer than ``min_valid_fraction``
+of the samples lie on valid cells (NaN cells or the track leaving the map) are infeasible (NaN). All
+depths are centred on the map mean first, so the float64 FFT sums do not cancel catastrophically.
+
+Options beyond the paper:
+
+* ``estimate_bias``: a constant depth bias ``b`` (map minus measured; §4.2 notes the multibeam map is
+  "several metres deeper than the actual depth") estimated at every offset. For MSD the optimum is
+  closed form, ``b = mean(d_BT - d_M)`` and ``MSD_b = MSD - b^2``. For MAD the same per-offset mean is
+  used (the exact L1 optimum, the median, has no correlation form); for COR the bias-free form is the
+  cross-covariance ``mean(d_M d_BT) - mean(d_M) mean(d_BT)``.
+* ``headings_deg``: small heading errors of the dead-reckoned track, tried by rotating the track about
+  its start (e.g. ``np.arange(-9, 9.01, 0.5)``: 37 headings); the best (heading, offset) wins.
+* MAD has no FFT identity (|.| is not bilinear); it is evaluated by a vectorised direct sum over the
+  samples (one array slice per sample), which is O(samples x offsets): restrict it with ``region``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+import scipy.fft as sfft
+from scipy import ndimage
+
+from hadal.errors import InputError
+from hadal.matching.mapgrid import MapGrid
+
+CRITERIA = ("msd", "mad", "cor")
+
+
+@dataclass
+class TercomResult:
+    """Best match of a track on the map.
+
+    ``start_x_m/start_y_m``: map position of the track's first sample; the matched track is
+    ``R(heading) (track - track[0]) + start`` (:meth:`apply`). ``surface`` is the criterion on the map
+    grid (``surface[row, col]`` = value with the track start at cell ``(row, col)``) for the best
+    heading; ``surface_all_headings`` the best value over all headings at each cell.
+    """
+
+    criterion: str
+    start_x_m: float
+    start_y_m: float
+    start_row: int
+    start_col: int
+    heading_deg: float
+    score: float
+    bias_m: float
+    n_samples: int
+    n_valid: int
+    surface: np.ndarray
+    surface_all_headings: np.ndarray
+    bias_surface: np.ndarray | None
+    x_m: np.ndarray
+    y_m: np.ndarray
+    heading_scores: dict[float, float]
+    second_score: float
+    second_x_m: float
+    second_y_m: float
+    separation_ratio: float
+    mismatch: bool
+    sigma_x_m: float
+    sigma_y_m: float
+    track_start_xy: tuple[float, float]
+    warnings: list[str] = field(default_factory=list)
+    scale: float = 1.0
+
+    @property
+    def sigma_m(self) -> float:
+        """Radial 1-sigma position uncertainty, ``sqrt(sigma_x^2 + sigma_y^2)``."""
+        return float(np.hypot(self.sigma_x_m, self.sigma_y_m))
+
+    def apply(self, track_xy) -> np.ndarray:
+        """Map positions (x_east_m, y_north_m) of track points given in the same relative frame as the input track."""
+        p = np.asarray(track_xy, float).reshape(-1, 2) - np.asarray(self.track_start_xy)
+        p = _rotate(p, self.heading_deg) * self.scale
+        return p + np.array([self.start_x_m, self.start_y_m])
+
+
+def _rotate(p: np.ndarray, heading_err_deg: float) -> np.ndarray:
+    """Rotate relative east/north offsets clockwise (a heading increase) by ``heading_err_deg``."""
+    if heading_err_deg == 0:
+        return p
+    a = np.deg2rad(heading_err_deg)
+    c, s = np.cos(a), np.sin(a)
+    # heading is clockwise from north: east' = e cos + n sin, north' = -e sin + n cos
+    return np.column_stack([p[:, 0] * c + p[:, 1] * s, -p[:, 0] * s + p[:, 1] * c])
+
+
+def _validate_inputs(profile_depth, track_xy) -> tuple[np.ndarray, np.ndarray]:
+    d = np.asarray(profile_depth, float).ravel()
+    t = np.asarray(track_xy, float)
+    if t.ndim != 2 or t.shape[1] != 2:
+        raise InputError(f"track_xy must be an (N, 2) array of x_east_m, y_north_m; got shape {t.shape}")
+    if t.shape[0] != d.size:
+        raise InputError(f"profile has {d.size} depths but the track has {t.shape[0]} points")
+    if d.size < 3:
+        raise InputError(f"measured profile has {d.size} samples; TERCOM needs at least 3")
+    if not (np.isfinite(d).all() and np.isfinite(t).all()):
+        raise InputError("measured profile or track contains NaN/inf; drop those samples first")
+    return d, t
+
+
+@dataclass
+class _Masks:
+    rows: np.ndarray  # relative cell rows of the samples
+    cols: np.ndarray
+
+
+def _snap(track_rel: np.ndarray, h: float) -> tuple[np.ndarray, np.ndarray]:
+    return np.rint(track_rel[:, 1] / h).astype(np.int64), np.rint(track_rel[:, 0] / h).astype(np.int64)
+
+
+class _FFTCorrelator:
+    """Cross-correlations of fixed map layers with sample masks over all start cells of the map.
+
+    Map layers are zero-padded (so circular correlation never wraps onto a feasible offset) and
+    transformed once. Mask transforms are *pruned*: a mask is non-zero only in its first ``mr`` rows
+    (the track's footprint), so the row transforms run on those rows only and the column transform
+    zero-pads (``n=L0``). Inverse transforms run the column pass on everything and the row pass only
+    on the rows of the output window. Several spectra are transformed in one batched call.
+    """
+
+    def __init__(self, layers: dict[str, np.ndarray], pad_lo: tuple[int, int], pad_hi: tuple[int, int]):
+        ny, nx = next(iter(layers.values())).shape
+        self.ny, self.nx = ny, nx
+        self.pad_lo = pad_lo
+        shape = (ny + pad_lo[0] + pad_hi[0], nx + pad_lo[1] + pad_hi[1])
+        self.fshape = (sfft.next_fast_len(shape[0], real=True), sfft.next_fast_len(shape[1], real=True))
+        self.F: dict[str, np.ndarray] = {}
+        for k, a in layers.items():
+            p = np.zeros(self.fshape)
+            p[pad_lo[0] : pad_lo[0] + ny, pad_lo[1] : pad_lo[1] + nx] = a
+            self.F[k] = sfft.rfft2(p, workers=-1)
+        self.F32 = {k: v.astype(np.complex64) for k, v in self.F.items()}
+
+    def masks_fft(self, rows, cols, weights: list, dtype=np.float64) -> list[np.ndarray]:
+        """Conjugated FFTs of sparse masks with samples at relative (rows, cols) >= 0, one per weight vector."""
+        mr = int(rows.max()) + 1
+        m = np.zeros((len(weights), mr, self.fshape[1]), dtype)
+        for k, w in enumerate(weights):
+            np.add.at(m[k], (rows, cols), w)
+        f = sfft.rfft(m, axis=-1, workers=-1)
+        f = sfft.fft(f, n=self.fshape[0], axis=-2, workers=-1, overwrite_x=True)
+        np.conjugate(f, out=f)
+        return list(f)
+
+    def inverse(self, specs: list[np.ndarray], rmin: int, cmin: int) -> list[np.ndarray]:
+        """Back-transform spectra and cut out the start-cell grid: out[r, c] = sum_a layer[r + rmin + a] mask[a]."""
+        r0, c0 = self.pad_lo[0] + rmin, self.pad_lo[1] + cmin
+        x = sfft.ifft(specs, axis=-2, workers=-1, overwrite_x=True)[:, r0 : r0 + self.ny]
+        out = sfft.irfft(x, n=self.fshape[1], axis=-1, workers=-1)
+        return list(out[:, :, c0 : c0 + self.nx])
+
+
+def _sums_all_offsets(corr: _FFTCorrelator, rows, cols, d, want_cor: bool, single: bool = False):
+    """N, sum r, sum r^2 (r = d_BT - d_M) [and sum d_M d_BT, sum d_M, sum d_BT] for every start cell."""
+    rmin, cmin = int(rows.min()), int(cols.min())
+    rr, cc = rows - rmin, cols - cmin
+    dt = np.float32 if single else np.float64
+    FC, FS1, FS2 = corr.masks_fft(rr, cc, [np.ones_like(d), d, d * d], dt)
+    F = corr.F32 if single else corr.F
+    specs = np.empty((6 if want_cor else 3,) + FC.shape, FC.dtype)
+    tmp = np.empty_like(FC)
+    np.multiply(F["V"], FC, out=specs[0])
+    np.multiply(F["D"], FC, out=specs[1])
+    specs[1] -= np.multiply(F["V"], FS1, out=tmp)
+    np.multiply(F["D2"], FC, out=specs[2])
+    specs[2] -= np.multiply(F["D"], FS1, out=tmp)
+    specs[2] -= tmp
+    specs[2] += np.multiply(F["V"], FS2, out=tmp)
+    if want_cor:
+        np.multiply(F["D"], FS1, out=specs[3])
+        np.multiply(F["V"], FS1, out=specs[4])
+        np.multiply(F["D"], FC, out=specs[5])
+    out = corr.inverse(specs, rmin, cmin)
+    n = np.rint(out[0])
+    extra = tuple(out[3:6]) if want_cor else None
+    return n, out[1].astype(np.float64, copy=False), out[2].astype(np.float64, copy=False), extra
+
+
+def _mad_direct(D: np.ndarray, V: np.ndarray, rows, cols, d, bias: np.ndarray | None, region_rc) -> np.ndarray:
+    """Eq. (16) by direct summation over samples, vectorised over the start cells of ``region_rc``."""
+    ny, nx = D.shape
+    r0, r1, c0, c1 = region_rc
+    out = np.zeros((r1 - r0, c1 - c0))
+    for ri, ci, di in zip(rows.tolist(), cols.tolist(), d.tolist(), strict=True):
+        # map cells (r + ri, c + ci) for start cells r in [r0, r1), c in [c0, c1): clip to the map
+        a0, a1 = max(r0 + ri, 0), min(r1 + ri, ny)
+        b0, b1 = max(c0 + ci, 0), min(c1 + ci, nx)
+        if a1 <= a0 or b1 <= b0:
+            continue
+        sl = (slice(a0 - ri - r0, a1 - ri - r0), slice(b0 - ci - c0, b1 - ci - c0))
+        res = D[a0:a1, b0:b1] - di
+        if bias is not None:
+            res = res - bias[r0:r1, c0:c1][sl]
+        out[sl] += np.where(V[a0:a1, b0:b1], np.abs(res), 0.0)
+    return out
+
+
+def tercom(
+    profile_depth,
+    track_xy,
+    dtm,
+    criterion: str = "msd",
+    *,
+    estimate_bias: bool = True,
+    headings_deg: Sequence[float] = (0.0,),
+    region: tuple[float, float, float, float] | None = None,
+    min_valid_fraction: float = 0.95,
+    exclusion_radius_m: float | None = None,
+    mismatch_ratio: float = 1.2,
+    precision: str = "double",
+    verify_headings: int = 3,
+    scales: Sequence[float] = (1.0,),
+    progress=None,
+) -> TercomResult:
+    """Exhaustive TERCOM search (TERCOM paper Eqs. 15-17, §4.2) of a measured profile over the whole map.
+
+    Parameters
+    ----------
+    profile_depth : measured seafloor depths ``d_M`` in metres, positive down (N,).
+    track_xy : (N, 2) dead-reckoned positions (x_east_m, y_north_m) of the samples, any origin; the
+        track is matched relative to its first sample.
+    dtm : the reference map (``dtm`` Dataset with ``depth_m(y, x)``, a DataArray or a :class:`MapGrid`).
+    criterion : ``"msd"`` (Eq. 17, minimised), ``"mad"`` (Eq. 16, minimised) or ``"cor"`` (Eq. 15, maximised).
+    estimate_bias : estimate a constant map-minus-measured depth bias at every offset (module docstring).
+    headings_deg : heading errors (degrees, clockwise) to try by rotating the track about its start.
+    region : ``(x_min, x_max, y_min, y_max)`` in map metres restricting the *start* position; default whole map.
+    min_valid_fraction : minimum fraction of samples on valid map cells for an offset to be feasible.
+    exclusion_radius_m : neighbourhood of the best match outside which the second distinct local
+        optimum is sought (default ``max(5 cells, 100 m)``).
+    mismatch_ratio : for MSD/MAD warn of a possible mismatch when ``second / best < mismatch_ratio``
+        (for COR when ``best / second < mismatch_ratio`` on centred values).
+    precision : ``"double"`` (float64 FFTs throughout) or ``"mixed"``: every heading is screened with
+        float32 FFTs (about 2x faster; with 2 km of relief the MSD error is up to ~0.1 m^2), then for
+        the ``verify_headings`` best-screened headings the MSD is recomputed exactly (float64, direct
+        sum over the samples) at the 64 lowest cells of each, and the best of those is returned: the
+        reported fix, score and bias are double precision, the surfaces keep float32 accuracy
+        elsewhere. For COR/MAD the verified headings are recomputed with float64 FFTs.
+    scales : along-track scale factors of the dead-reckoned track to try (DVL/speed scale error),
+        applied about the start together with every heading; ``heading_scores`` then holds the best
+        value over the scales for each heading and ``scale`` the best factor.
+    """
+    criterion = criterion.lower()
+    if precision not in ("double", "mixed"):
+        raise InputError(f"precision must be 'double' or 'mixed', got {precision!r}")
+    if criterion not in CRITERIA:
+        raise InputError(f"unknown TERCOM criterion {criterion!r}; use one of {', '.join(CRITERIA)}")
+    d, t = _validate_inputs(profile_depth, track_xy)
+    g = MapGrid.from_any(dtm)
+    h = g.resolution_m
+    ny, nx = g.shape
+    headings = [float(a) for a in headings_deg] or [0.0]
+    scale_list = [float(f) for f in scales] or [1.0]
+    if min(scale_list) <= 0:
+        raise InputError(f"track scale factors must be > 0, got {scale_list}")
+    poses = [(a, f) for a in headings for f in scale_list]
+    if not 0 < min_valid_fraction <= 1:
+        raise InputError(f"min_valid_fraction must be in (0, 1], got {min_valid_fraction}")
+
+    V = np.isfinite(g.depth_m)
+    ref = float(np.nanmean(g.depth_m))
+    D = np.where(V, g.depth_m - ref, 0.0)
+    dc = d - ref
+    rel = t - t[0]
+    snapped = [_snap(_rotate(rel, a) * f, h) for a, f in poses]
+    rmin = min(int(r.min()) for r, _ in snapped)
+    rmax = max(int(r.max()) for r, _ in snapped)
+    cmin = min(int(c.min()) for _, c in snapped)
+    cmax = max(int(c.max()) for _, c in snapped)
+    pad_lo = (max(0, -rmin), max(0, -cmin))
+    pad_hi = (max(0, rmax), max(0, cmax))
+    corr = _FFTCorrelator({"V": V.astype(float), "D": D, "D2": D * D}, pad_lo, pad_hi)
+
+    if region is not None:
+        x0, x1, y0, y1 = region
+        c0 = int(np.clip(np.ceil(g.col_of(x0) - 1e-9), 0, nx))
+        c1 = int(np.clip(np.floor(g.col_of(x1) + 1e-9) + 1, 0, nx))
+        r0 = int(np.clip(np.ceil(g.row_of(y0) - 1e-9), 0, ny))
+        r1 = int(np.clip(np.floor(g.row_of(y1) + 1e-9) + 1, 0, ny))
+        if r1 <= r0 or c1 <= c0:
+            raise InputError(f"matching region {region} does not overlap the map")
+    else:
+        r0, r1, c0, c1 = 0, ny, 0, nx
+    in_region = np.zeros((ny, nx), bool)
+    in_region[r0:r1, c0:c1] = True
+
+    sign = -1.0 if criterion == "cor" else 1.0  # internally minimise
+    n_req = max(int(np.ceil(min_valid_fraction * d.size - 1e-9)), 1)
+
+    def evaluate(k: int, single: bool):
+        rows, cols = snapped[k]
+        n, s_r, s_r2, extra = _sums_all_offsets(corr, rows, cols, dc, criterion == "cor", single)
+        feasible = (n >= n_req) & in_region
+        with np.errstate(invalid="ignore", divide="ignore"):
+            nn = np.where(feasible, n, np.nan)
+            bias = s_r / nn if estimate_bias else None
+            if criterion == "msd":
+                val = s_r2 / nn
+                if estimate_bias:
+                    val -= bias * bias
+                np.maximum(val, 0.0, out=val)  # NaN (infeasible) propagates
+            elif criterion == "mad":
+                val = np.full((ny, nx), np.nan)
+                sub = _mad_direct(D, V, rows, cols, dc, bias, (r0, r1, c0, c1))
+                val[r0:r1, c0:c1] = sub / nn[r0:r1, c0:c1]
+            else:
+                s_db, s_d, s_b = extra
+                if estimate_bias:  # cross-covariance of the two profiles
+                    val = s_db / nn - (s_d / nn) * (s_b / nn)
+                else:  # Eq. (15) with the un-centred depths: d = dc + ref, b = D + ref
+                    val = (s_db + ref * (s_d + s_b)) / nn + ref * ref
+        key = sign * val
+        key[~np.isfinite(key)] = np.inf
+        return val, key, bias, n
+
+    def _exact_msd(k: int, flat: np.ndarray):
+        """MSD, valid count and bias at cells ``flat`` for pose ``k``, exactly (float64 direct gather)."""
+        rows, cols = snapped[k]
+        rc, cc_ = np.unravel_index(flat, (ny, nx))
+        rr, cc = rc[:, None] + rows[None, :], cc_[:, None] + cols[None, :]
+        inside = (rr >= 0) & (rr < ny) & (cc >= 0) & (cc < nx)
+        rr, cc = np.clip(rr, 0, ny - 1), np.clip(cc, 0, nx - 1)
+        ok = inside & V[rr, cc]
+        nn = ok.sum(axis=1)
+        res = np.where(ok, D[rr, cc] - dc[None, :], 0.0)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            b = res.sum(axis=1) / nn if estimate_bias else np.zeros(len(flat))
+            msd = np.maximum((res * res).sum(axis=1) / nn - b * b, 0.0)
+        return np.where(nn >= n_req, msd, np.nan), nn, b
+
+    def _exact_msd_at_candidates(k: int, val, key, bias, n, m: int = 64) -> np.ndarray:
+        """Recompute MSD exactly at the ``m`` lowest screened cells of pose ``k``; patch the surfaces in place."""
+        kf = key.ravel()
+        flat = np.argpartition(kf, min(m, kf.size - 1))[:m] if kf.size > m else np.arange(kf.size)
+        flat = flat[np.isfinite(kf[flat])]
+        msd, nn, b = _exact_msd(k, flat)
+        feas = np.isfinite(msd)
+        val.flat[flat] = np.where(feas, msd, np.nan)
+        key.flat[flat] = np.where(feas, msd, np.inf)
+        n.flat[flat] = nn
+        if bias is not None:
+            bias.flat[flat] = b
+        return flat
+
+    mixed = precision == "mixed" and len(poses) > verify_headings
+    all_best = np.full((ny, nx), np.inf)
+    all_pose = np.zeros((ny, nx), np.int32)
+    heading_scores: dict[float, float] = {}
+    screened: list[tuple[float, int]] = []
+    kept: list[tuple[float, int, tuple]] = []
+    best = None
+    it = range(len(poses))
+    if progress is not None:
+        it = progress.track(it, "TERCOM headings", total=len(poses))
+
+    def note_score(k: int, v: float) -> None:
+        a = poses[k][0]
+        old = heading_scores.get(a, float("nan"))
+        if not np.isfinite(old) or (np.isfinite(v) and sign * v < sign * old):
+            heading_scores[a] = v
+
+    for k in it:
+        val, key, bias, n = evaluate(k, single=mixed)
+        idx = int(np.argmin(key))
+        better = key < all_best
+        all_best[better] = key[better]
+        all_pose[better] = k
+        if not np.isfinite(key.flat[idx]):
+            note_score(k, float("nan"))
+            continue
+        note_score(k, float(val.flat[idx]))
+        screened.append((float(key.flat[idx]), k))
+        if mixed and criterion == "msd":  # keep the screened surfaces of the best few headings
+            kept.append((float(key.flat[idx]), k, (val, key, bias, n)))
+            kept.sort(key=lambda e: e[0])
+            del kept[verify_headings:]
+        if not mixed and (best is None or key.flat[idx] < best[0]):
+            best = (float(key.flat[idx]), k, idx, val, bias, n)
+    if mixed:  # verify the best-screened headings in double precision; the best of those wins
+        surfaces = {k: arrays for _, k, arrays in kept}
+        for _, k in sorted(screened)[:verify_headings]:
+            if criterion == "msd":
+                val, key, bias, n = surfaces[k]
+                flat = _exact_msd_at_candidates(k, val, key, bias, n)
+                idx = int(flat[np.argmin(key.flat[flat])])
+            else:
+                val, key, bias, n = evaluate(k, single=False)
+                idx = int(np.argmin(key))
+            note_score(k, float(val.flat[idx]))
+            if np.isfinite(key.flat[idx]) and (best is None or key.flat[idx] < best[0]):
+                best = (float(key.flat[idx]), k, idx, val, bias, n)
+    if best is None:
+        raise InputError(
+            f"no feasible TERCOM offset: the {d.size}-sample track (extent {np.ptp(t[:, 0]):.0f} x {np.ptp(t[:, 1]):.0f} m) "
+            f"does not fit on valid cells of the {ny} x {nx} map with min_valid_fraction={min_valid_fraction}"
+        )
+    _, k_best, idx, surf, bias_surf, n_surf = best
+    a_best, f_best = poses[k_best]
+    r, c = divmod(idx, nx)
+    score = float(surf[r, c])
+    bias_m = float(bias_surf[r, c]) if bias_surf is not None else 0.0
+    all_best_val = np.where(np.isfinite(all_best), sign * all_best, np.nan)
+
+    # second distinct optimum: best local optimum outside the exclusion neighbourhood
+    excl = exclusion_radius_m if exclusion_radius_m is not None else max(5 * h, 100.0)
+    key_all = np.where(np.isfinite(all_best), all_best, np.inf)
+    local = key_all == ndimage.minimum_filter(key_all, size=3, mode="constant", cval=np.inf)
+    rr, cc = np.mgrid[0:ny, 0:nx]
+    far = np.hypot((rr - r) * h, (cc - c) * h) > excl
+    cand = local & far & np.isfinite(key_all)
+    warnings: list[str] = []
+    if cand.any() and mixed and criterion == "msd":
+        # float32 screening can be off by ~0.1 m^2 on high-relief maps: re-check the best candidates exactly
+        cf = np.flatnonzero(cand)
+        cf = cf[np.argsort(key_all.flat[cf])[:32]]
+        exact = np.array([_exact_msd(int(all_pose.flat[f]), np.array([f]))[0][0] for f in cf])
+        all_best_val.flat[cf] = exact
+        key_all.flat[cf] = np.where(np.isfinite(exact), exact, np.inf)
+    if cand.any():
+        j = int(np.argmin(np.where(cand, key_all, np.inf)))
+        r2, c2 = divmod(j, nx)
+        second = float(all_best_val[r2, c2])
+        sx, sy = float(g.x_m[c2]), float(g.y_m[r2])
+        if criterion == "cor":
+            ratio = (score / second) if (estimate_bias and second > 0) else float("nan")
+        else:
+            ratio = second / score if score > 0 else float("inf")
+        mismatch = bool(np.isfinite(ratio) and ratio < mismatch_ratio)
+        if mismatch:
+            warnings.append(
+                f"possible mismatch: second distinct {criterion.upper()} optimum {second:.4g} at "
+                f"({sx:.0f}, {sy:.0f}) m is within a factor {mismatch_ratio} of the best {score:.4g} "
+                f"({np.hypot(sx - g.x_m[c], sy - g.y_m[r]):.0f} m away)"
+            )
+    else:
+        second, sx, sy, ratio, mismatch = float("nan"), float("nan"), float("nan"), float("inf"), False
+    n_valid = int(n_surf[r, c])
+    if n_valid < d.size:
+        warnings.append(f"{d.size - n_valid} of {d.size} samples fall on invalid map cells at the best offset")
+    nb = surf[max(r - 1, 0) : r + 2, max(c - 1, 0) : c + 2]
+    if r in (0, ny - 1) or c in (0, nx - 1) or not np.isfinite(nb).all():
+        warnings.append("best offset lies on the edge of the feasible search region; the true position may be outside it")
+
+    sig_x, sig_y = _likelihood_sigma(surf if criterion == "msd" else None, r, c, score, n_valid, h)
+    return TercomResult(
+        criterion=criterion, start_x_m=float(g.x_m[c]), start_y_m=float(g.y_m[r]), start_row=r, start_col=c,
+        heading_deg=a_best, score=score, bias_m=bias_m, n_samples=int(d.size), n_valid=n_valid,
+        surface=surf, surface_all_headings=all_best_val, bias_surface=bias_surf, x_m=g.x_m, y_m=g.y_m,
+        heading_scores=heading_scores, second_score=second, second_x_m=sx, second_y_m=sy,
+        separation_ratio=float(ratio), mismatch=mismatch, sigma_x_m=sig_x, sigma_y_m=sig_y,
+        track_start_xy=(float(t[0, 0]), float(t[0, 1])), warnings=warnings, scale=f_best,
+    )
+
+
+def _likelihood_sigma(msd: np.ndarray | None, r: int, c: int, msd_min: float, n: int, h: float) -> tuple[float, float]:
+    """1-sigma fix uncertainty (x, y) in metres from the MSD surface read as a Gaussian likelihood.
+
+    ``L(offset) ∝ exp(-N (MSD - MSD_min) / (2 s^2))`` with the noise variance ``s^2`` estimated by
+    ``MSD_min`` (floored at 1e-4 m^2); the weighted covariance of the start positions over the
+    surface, plus the ``h^2/12`` quantisation of a search at map resolution. Samples along a track are
+    correlated, so this is a lower bound; for COR/MAD only the quantisation term is reported.
+    """
+    q = h * h / 12.0
+    if msd is None:
+        return float(np.sqrt(q)), float(np.sqrt(q))
+    s2 = max(msd_min, 1e-4)
+    with np.errstate(invalid="ignore", over="ignore"):
+        ll = -n * (msd - msd_min) / (2 * s2)
+    ll = np.where(np.isfinite(ll), ll, -np.inf)
+    w = np.exp(ll - ll.max())
+    w /= w.sum()
+    rr, cc = np.mgrid[0 : msd.shape[0], 0 : msd.shape[1]]
+    vy = float((w * ((rr - r) * h) ** 2).sum())
+    vx = float((w * ((cc - c) * h) ** 2).sum())
+    return float(np.sqrt(vx + q)), float(np.sqrt(vy + q))
+
+
+def tercom_direct(profile_depth, track_xy, dtm, starts_rc, criterion: str = "msd", *, estimate_bias: bool = True,
+                  heading_deg: float = 0.0, min_valid_fraction: float = 0.95, scale: float = 1.0) -> np.ndarray:
+    """Reference implementation: Eqs. (15)-(17) evaluated offset by offset with a plain NumPy loop.
+
+    Same sampling convention as :func:`tercom` (nearest cell relative to the start). ``starts_rc`` is
+    an (K, 2) array of start (row, col) cells. Slow - used by the tests and the benchmark as the peer.
+    """
+    d, t = _validate_inputs(profile_depth, track_xy)
+    g = MapGrid.from_any(dtm)
+    rows, cols = _snap(_rotate(t - t[0], heading_deg) * scale, g.resolution_m)
+    ny, nx = g.shape
+    out = np.full(len(starts_rc), np.nan)
+    for k, (r, c) in enumerate(np.asarray(starts_rc, int)):
+        rr, cc = rows + r, cols + c
+        inside = (rr >= 0) & (rr < ny) & (cc >= 0) & (cc < nx)
+        dbt = np.full(d.size, np.nan)
+        dbt[inside] = g.depth_m[rr[inside], cc[inside]]
+        ok = np.isfinite(dbt)
+        if ok.sum() < max(np.ceil(min_valid_fraction * d.size - 1e-9), 1):
+            continue
+        dm, db = d[ok], dbt[ok]
+        b = np.mean(db - dm) if estimate_bias else 0.0
+        if criterion == "msd":
+            out[k] = np.mean((dm - (db - b)) ** 2)
+        elif criterion == "mad":
+            out[k] = np.mean(np.abs(dm - (db - b)))
+        elif estimate_bias:
+            out[k] = np.mean(dm * db) - np.mean(dm) * np.mean(db)
+        else:
+            out[k] = np.mean(dm * db)
+    return out

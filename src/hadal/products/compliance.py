@@ -1,0 +1,115 @@
+"""Run the IOOS compliance-checker (CF-1.8 and ACDD-1.3) on a product file.
+
+``compliance-checker`` is an optional (test) dependency; it is imported only when you call
+:func:`check_compliance`. Usage::
+
+    from hadal.products.compliance import check_compliance
+    rep = check_compliance("data/processed/<dive>/dtm/v001/dtm.nc")
+    assert rep.ok, rep.describe()
+
+Two findings are *documented exceptions* (``Finding.allowed``), not defects of the writer:
+
+* ACDD "variable missing standard_name" for quantities the CF Standard Name Table has no entry for
+  (:data:`hadal.products.cf.NO_CF_STANDARD_NAME`: gravity, topographic entropy, MSD, scores, ...).
+  Inventing a standard name would instead fail CF §3.3.
+* ACDD "geospatial_vertical_extents_match: Could not find vertical variable" for 2-D seafloor grids
+  (DTM, suitability, landing maps): their vertical extent is the range of the seafloor depth
+  *field*, which CF does not model as a vertical coordinate.
+* ACDD "geospatial_vertical_* not present" for products with no vertical information at all (e.g. the
+  MSD surface over candidate horizontal positions); :func:`hadal.products.io.write_netcdf` writes the
+  vertical attributes whenever the data have a vertical coordinate or a depth field.
+"""
+
+from __future__ import annotations
+
+import re
+import warnings
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from hadal.errors import InputError
+from hadal.products.cf import has_no_cf_standard_name
+
+DEFAULT_CHECKERS = ("cf:1.8", "acdd:1.3")
+PRIORITY = {3: "high", 2: "medium", 1: "low"}
+
+
+@dataclass(frozen=True)
+class Finding:
+    checker: str
+    priority: str
+    name: str
+    messages: tuple[str, ...]
+    allowed: bool = False
+
+    def __str__(self) -> str:
+        tag = " (documented exception)" if self.allowed else ""
+        return f"[{self.checker} {self.priority}] {self.name}: {'; '.join(self.messages)}{tag}"
+
+
+@dataclass
+class ComplianceReport:
+    path: Path
+    findings: list[Finding] = field(default_factory=list)
+    errors: dict[str, str] = field(default_factory=dict)  # check that raised -> exception text
+
+    @property
+    def failures(self) -> list[Finding]:
+        """Findings that are not documented exceptions (any priority)."""
+        return [f for f in self.findings if not f.allowed]
+
+    @property
+    def ok(self) -> bool:
+        """No checker errors and no failed check other than the documented exceptions."""
+        return not self.errors and not self.failures
+
+    def describe(self) -> str:
+        lines = [f"{self.path}:"]
+        lines += [f"  ERROR in {k}: {v}" for k, v in self.errors.items()]
+        lines += [f"  {f}" for f in self.findings]
+        return "\n".join(lines)
+
+
+def _allowed(checker: str, name: str, msgs: list[str]) -> bool:
+    if checker.startswith("acdd") and name.startswith("variable ") and msgs == ["standard_name"]:
+        m = re.match(r'variable "([^"]+)"', name)
+        return bool(m and has_no_cf_standard_name(m.group(1)))
+    if checker.startswith("acdd") and name == "Global Attributes":
+        return all(re.fullmatch(r"geospatial_(bounds_)?vertical_\w+ not present", m) for m in msgs)
+    if checker.startswith("acdd") and name == "geospatial_vertical_extents_match":
+        return all(m.startswith("Could not find vertical variable") for m in msgs)
+    return False
+
+
+def check_compliance(path: str | Path, checkers: tuple[str, ...] = DEFAULT_CHECKERS) -> ComplianceReport:
+    """Run the compliance-checker suites ``checkers`` on ``path`` and collect every failed check."""
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(f"{path} does not exist")
+    try:
+        from compliance_checker.runner import CheckSuite
+    except ImportError:  # pragma: no cover - optional dependency
+        raise InputError("compliance-checker is not installed (pip install compliance-checker)") from None
+    suite = CheckSuite()
+    suite.load_all_available_checkers()
+    report = ComplianceReport(path)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        ds = suite.load_dataset(str(path))
+        try:
+            groups = suite.run_all(ds, list(checkers), skip_checks=[])
+        finally:
+            close = getattr(ds, "close", None)
+            if close:
+                close()
+    for checker, (results, errors) in groups.items():
+        for check, (exc, _tb) in (errors or {}).items():
+            report.errors[f"{checker}:{check}"] = f"{type(exc).__name__}: {exc}"
+        for r in results:
+            value = r.value
+            failed = (value[0] != value[1]) if isinstance(value, tuple) else not value
+            if failed:
+                msgs = [str(m) for m in r.msgs]
+                report.findings.append(Finding(checker, PRIORITY.get(r.weight, str(r.weight)), str(r.name),
+                                               tuple(msgs), _allowed(checker, str(r.name), msgs)))
+    return report

@@ -1,0 +1,68 @@
+"""Dive report: summary numbers, paper-style figures (matplotlib Agg + cmocean) and a self-contained HTML page.
+
+Prefect-free. :func:`build_report` reads whichever products of a dive exist (missing ones are listed in the
+report, not fatal); :func:`publish_report` writes ``report.html``, ``summary.json`` and ``figures/*.png`` as a
+new version of the ``report`` product. The stage ``hadal.stages.report`` and ``hadal report DIVE`` call it.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from typing import Any
+
+from hadal.report.figures import FigureOptions, FigureResult, make_figures
+from hadal.report.html import render_html, summary_markdown, summary_rows
+from hadal.report.load import REPORT_INPUTS, DiveProducts, load_products
+from hadal.report.summary import dive_summary
+from hadal.store import ProductStore, ProductVersion
+
+__all__ = ["REPORT_INPUTS", "DiveProducts", "FigureOptions", "Report", "build_report", "dive_summary",
+           "load_products", "make_figures", "publish_report", "render_html", "summary_markdown", "summary_rows"]
+
+
+@dataclass
+class Report:
+    dive: str
+    html: str
+    summary: dict[str, Any]
+    figures: list[FigureResult] = field(default_factory=list)
+    upstream: list[ProductVersion] = field(default_factory=list)
+
+
+def _provenance(dp: DiveProducts) -> list[dict[str, Any]]:
+    rows = []
+    for product, pv in dp.versions.items():
+        try:
+            m = pv.manifest()
+        except (OSError, ValueError):
+            m = {}
+        rows.append({"product": product, "version": pv.label, "created_utc": m.get("created_utc"),
+                     "code_version": m.get("code_version"), "path": str(pv.path)})
+    return rows
+
+
+def build_report(store: ProductStore, dive: str, *, launch: dict[str, float] | None = None,
+                 options: FigureOptions | None = None, best_sites: int = 5, title: str | None = None) -> Report:
+    """Load the dive's products, compute the summary and figures, render the HTML (nothing is written)."""
+    dp = load_products(store, dive)
+    dp.launch = launch
+    summary = dive_summary(dp, launch=launch, best_sites=best_sites)
+    figures = make_figures(dp, options)
+    summary["figures"] = {f.key: ("ok" if f.png is not None else f"skipped: {f.skipped}") for f in figures}
+    html = render_html(dp, summary, figures, _provenance(dp), title=title)
+    return Report(dive=dive, html=html, summary=summary, figures=figures, upstream=list(dp.versions.values()))
+
+
+def publish_report(store: ProductStore, report: Report, parameters: dict[str, Any] | None = None) -> ProductVersion:
+    """Publish ``report`` as a new version of ``<dive>/report`` (report.html, summary.json, figures/*.png)."""
+    with store.publish(report.dive, "report", parameters=parameters or {}, upstream=report.upstream) as draft:
+        (draft.path / "report.html").write_text(report.html, encoding="utf-8")
+        (draft.path / "summary.json").write_text(json.dumps(report.summary, indent=2, default=str), encoding="utf-8")
+        figdir = draft.path / "figures"
+        figdir.mkdir()
+        for f in report.figures:
+            if f.png is not None:
+                (figdir / f"{f.key}.png").write_bytes(f.png)
+    assert draft.result is not None
+    return draft.result

@@ -1,0 +1,495 @@
+"""Report figures, modelled on the method papers, drawn with matplotlib's Agg canvas and cmocean maps.
+
+Each ``fig_*`` function takes the loaded :class:`~hadal.report.load.DiveProducts` and returns a
+:class:`FigureResult`: a PNG (bytes) and caption, or ``png=None`` with the reason it was skipped (missing
+product or column). Figures are built on ``matplotlib.figure.Figure`` objects directly (no pyplot global
+state), so they are safe in threads (Dask/Prefect workers).
+
+=====================  =====================================================================
+function               paper figure
+=====================  =====================================================================
+fig_ctd_profiles       TERCOM Fig. 8: conductivity, temperature, salinity, density, gravity vs depth
+fig_depth_time         TERCOM Fig. 9: calibrated vehicle depth during the whole dive
+fig_seafloor_depth     TERCOM Fig. 10: vehicle depth + altitude → seafloor depth
+fig_dtm                reference DTM (multibeam) with the matched track
+fig_suitability        TERCOM Figs. 5-6: block elevation standard deviation and information entropy
+fig_msd_surface        TERCOM Fig. 16: MSD over the candidate positions, minimum marked
+fig_matched_depth      TERCOM Fig. 16: measured vs reference depth along the matched track
+fig_matched_track      TERCOM Fig. 17: matched track on the reference map, launch (x), deepest point (*)
+fig_landing_map        landing paper Figs. 19/25: elevation of the best submap and the selected site
+=====================  =====================================================================
+"""
+
+from __future__ import annotations
+
+import io
+import json
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+import pandas as pd
+import xarray as xr
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.figure import Figure
+
+from hadal.report.load import DiveProducts
+
+try:  # cmocean is a dependency; fall back to matplotlib maps if it is broken
+    import cmocean.cm as cmo
+
+    CMAPS = {"depth": cmo.deep, "temp": cmo.thermal, "salt": cmo.haline, "dens": cmo.dense, "cond": cmo.tempo,
+             "grav": cmo.amp, "std": cmo.matter, "entropy": cmo.tempo, "msd": cmo.rain, "elev": cmo.deep_r}
+except Exception:  # pragma: no cover
+    CMAPS = {k: "viridis" for k in ("depth", "temp", "salt", "dens", "cond", "grav", "std", "entropy", "msd", "elev")}
+
+PHASE_COLOURS = {"descent": "#1f77b4", "bottom": "#2ca02c", "ascent": "#d62728"}
+
+
+@dataclass
+class FigureResult:
+    key: str
+    title: str
+    section: str
+    caption: str
+    png: bytes | None = None
+    skipped: str | None = None
+
+
+@dataclass
+class FigureOptions:
+    dpi: int = 110
+    width_in: float = 10.0
+    max_points: int = 20000
+
+
+def _png(fig: Figure, dpi: int) -> bytes:
+    FigureCanvasAgg(fig)
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=dpi, bbox_inches="tight")
+    return buf.getvalue()
+
+
+def _thin(df: pd.DataFrame, n: int) -> pd.DataFrame:
+    step = max(1, int(np.ceil(len(df) / max(1, n))))
+    return df.iloc[::step]
+
+
+def _phases(df: pd.DataFrame) -> list[tuple[str, pd.DataFrame]]:
+    if "phase" not in df:
+        return [("all", df)]
+    out = [(str(ph), g) for ph, g in df.groupby(df["phase"].astype(str), sort=False)]
+    order = {"descent": 0, "bottom": 1, "ascent": 2}
+    return sorted(out, key=lambda t: order.get(t[0], 9))
+
+
+def _time(df: pd.DataFrame) -> pd.Series:
+    return pd.to_datetime(df["time"], utc=True).dt.tz_localize(None)
+
+
+def _need(df: pd.DataFrame | None, cols: tuple[str, ...], what: str) -> str | None:
+    if df is None:
+        return f"no {what}"
+    miss = [c for c in cols if c not in df.columns]
+    return f"{what} has no column(s) {', '.join(miss)}" if miss else None
+
+
+# ------------------------------------------------------------------------------------------ CTD / depth
+CTD_PANELS = (
+    ("conductivity_s_m", "conductivity (S/m)", "(a) conductivity"),
+    ("temperature_its90_degc", "temperature ITS-90 (°C)", "(b) temperature"),
+    ("practical_salinity", "practical salinity", "(c) salinity"),
+    ("density_kg_m3", "in situ density (kg/m³)", "(d) density"),
+    ("gravity_m_s2", "gravity (m/s²)", "(e) gravity"),
+)
+
+
+def fig_ctd_profiles(dp: DiveProducts, opt: FigureOptions) -> FigureResult:
+    r = FigureResult("fig08_ctd_profiles", "Water-column profiles", "Water column",
+                     "Measured conductivity and temperature, and the salinity, density and gravity derived from them, "
+                     "against depth for the descent and ascent (cf. TERCOM paper Fig. 8).")
+    df = dp.ctd
+    zcol = "depth_m" if df is not None and "depth_m" in df else "pressure_dbar"
+    if (why := _need(df, (zcol,), "ctd product")) is not None:
+        r.skipped = why
+        return r
+    panels = [p for p in CTD_PANELS if p[0] in df.columns]
+    if not panels:
+        r.skipped = "ctd product has none of " + ", ".join(p[0] for p in CTD_PANELS)
+        return r
+    missing = [p[0] for p in CTD_PANELS if p[0] not in df.columns]
+    d = _thin(df, opt.max_points)
+    fig = Figure(figsize=(opt.width_in, opt.width_in * 0.55))
+    axes = fig.subplots(1, len(panels), sharey=True, squeeze=False)[0]
+    for ax, (col, label, title) in zip(axes, panels, strict=True):
+        for ph, g in _phases(d):
+            ax.plot(g[col], g[zcol], ".", ms=1.2, color=PHASE_COLOURS.get(ph, "k"), label=ph, rasterized=True)
+        ax.set_xlabel(label)
+        ax.set_title(title, fontsize=9)
+        ax.grid(alpha=0.3)
+        ax.tick_params(labelsize=8)
+    axes[0].set_ylabel("depth (m)" if zcol == "depth_m" else "pressure (dbar)")
+    axes[0].invert_yaxis()
+    axes[-1].legend(fontsize=7, markerscale=6, loc="lower left")
+    if missing:
+        r.caption += f" Not available: {', '.join(missing)}."
+    r.png = _png(fig, opt.dpi)
+    return r
+
+
+def fig_depth_time(dp: DiveProducts, opt: FigureOptions) -> FigureResult:
+    r = FigureResult("fig09_depth_time", "Vehicle depth during the dive", "Dive",
+                     "Calibrated vehicle depth (hydrostatic integral of the fused pressure) during the whole dive, "
+                     "coloured by phase; the deepest sample is marked (cf. TERCOM paper Fig. 9).")
+    df = dp.ctd
+    if (why := _need(df, ("time", "depth_m"), "ctd product")) is not None:
+        r.skipped = why
+        return r
+    d = _thin(df, opt.max_points)
+    fig = Figure(figsize=(opt.width_in, opt.width_in * 0.4))
+    ax = fig.subplots()
+    for ph, g in _phases(d):
+        ax.plot(_time(g), g["depth_m"], lw=1.2, color=PHASE_COLOURS.get(ph, "k"), label=ph)
+    i = int(pd.to_numeric(df["depth_m"], errors="coerce").idxmax())
+    ax.plot(_time(df.loc[[i]]), [df.loc[i, "depth_m"]], "*", color="gold", mec="k", ms=14,
+            label=f"max {df.loc[i, 'depth_m']:.1f} m")
+    ax.invert_yaxis()
+    ax.set_ylabel("depth (m)")
+    ax.set_xlabel("time (UTC)")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8)
+    fig.autofmt_xdate()
+    r.png = _png(fig, opt.dpi)
+    return r
+
+
+def fig_seafloor_depth(dp: DiveProducts, opt: FigureOptions) -> FigureResult:
+    r = FigureResult("fig10_seafloor_depth", "Seafloor depth from depth and altitude", "Dive",
+                     "(a) vehicle depth, (b) altitude above the seafloor (single-beam altimeter, sound-speed corrected) "
+                     "and (c) seafloor depth = depth + altitude, near the bottom (cf. TERCOM paper Fig. 10).")
+    df = dp.ctd
+    alt = "altitude_corrected_m" if df is not None and "altitude_corrected_m" in df else "altitude_m"
+    if (why := _need(df, ("time", "depth_m", alt, "seafloor_depth_m"), "ctd product")) is not None:
+        r.skipped = why
+        return r
+    d = df[np.isfinite(pd.to_numeric(df["seafloor_depth_m"], errors="coerce"))]
+    if "phase" in d and (d["phase"].astype(str) == "bottom").any():
+        d = d[d["phase"].astype(str) == "bottom"]
+    if d.empty:
+        r.skipped = "no valid seafloor depth samples (altimeter out of range for the whole dive)"
+        return r
+    d = _thin(d, opt.max_points)
+    t = _time(d)
+    fig = Figure(figsize=(opt.width_in, opt.width_in * 0.6))
+    axes = fig.subplots(3, 1, sharex=True)
+    for ax, col, lab, c in ((axes[0], "depth_m", "(a) depth (m)", "#1f77b4"), (axes[1], alt, "(b) altitude (m)", "#ff7f0e"),
+                            (axes[2], "seafloor_depth_m", "(c) seafloor depth (m)", "#2ca02c")):
+        ax.plot(t, d[col], ".", ms=1.5, color=c, rasterized=True)
+        ax.set_ylabel(lab, fontsize=8)
+        ax.grid(alpha=0.3)
+    axes[0].invert_yaxis()
+    axes[2].invert_yaxis()
+    axes[2].set_xlabel("time (UTC)")
+    fig.autofmt_xdate()
+    r.png = _png(fig, opt.dpi)
+    return r
+
+
+# ------------------------------------------------------------------------------------------ maps
+def _xy_extent(ds: xr.Dataset) -> list[float]:
+    x, y = ds["x"].values, ds["y"].values
+    dx = float(np.median(np.diff(x))) if x.size > 1 else 1.0
+    dy = float(np.median(np.diff(y))) if y.size > 1 else 1.0
+    return [x[0] - dx / 2, x[-1] + dx / 2, y[0] - dy / 2, y[-1] + dy / 2]
+
+
+def _map(ax, ds: xr.Dataset, var: str, cmap, label: str, fig: Figure, km: bool = True, frame: str = "map frame"):
+    s = 1e-3 if km else 1.0
+    ext = [e * s for e in _xy_extent(ds)]
+    im = ax.imshow(ds[var].values, origin="lower", extent=ext, cmap=cmap, aspect="equal", interpolation="nearest")
+    fig.colorbar(im, ax=ax, label=label, shrink=0.85)
+    unit = "km" if km else "m"
+    ax.set_xlabel(f"x east ({unit}, {frame})")
+    ax.set_ylabel(f"y north ({unit}, {frame})")
+    return im
+
+
+def _launch_xy(dp: DiveProducts) -> tuple[float, float] | None:
+    """Launch point in the map frame: from fix.json, else the dive's launch projected with the map-frame
+    origin recorded in the DTM/suitability attributes."""
+    la = (dp.fix or {}).get("launch")
+    if isinstance(la, dict) and la.get("x_east_m") is not None and la.get("y_north_m") is not None:
+        return float(la["x_east_m"]), float(la["y_north_m"])
+    if dp.launch and dp.launch.get("lat") is not None:
+        for ds in (dp.dtm, dp.suitability, dp.msd):
+            if ds is not None and "map_frame_origin_latitude_deg" in ds.attrs:
+                from hadal.geo import LocalFrame
+
+                fr = LocalFrame(float(ds.attrs["map_frame_origin_latitude_deg"]),
+                                float(ds.attrs["map_frame_origin_longitude_deg"]))
+                x, y = fr.to_xy(dp.launch["lon"], dp.launch["lat"])
+                return float(x), float(y)
+    return None
+
+
+def _deep_xy(dp: DiveProducts) -> tuple[float, float] | None:
+    dpnt = (dp.fix or {}).get("deepest_point")
+    if isinstance(dpnt, dict) and dpnt.get("x_east_m") is not None:
+        return float(dpnt["x_east_m"]), float(dpnt["y_north_m"])
+    return None
+
+
+def _grid_ok(ds: xr.Dataset | None, var: str, what: str) -> str | None:
+    if ds is None:
+        return f"no {what}"
+    if var not in ds or not {"x", "y"} <= set(ds[var].dims):
+        return f"{what} has no {var}(y, x)"
+    return None
+
+
+def fig_dtm(dp: DiveProducts, opt: FigureOptions) -> FigureResult:
+    r = FigureResult("dtm_map", "Reference terrain (multibeam DTM)", "Terrain",
+                     "Reference DTM gridded from the ship's multibeam soundings (depth positive down) with the matched "
+                     "bottom track, when available.")
+    if (why := _grid_ok(dp.dtm, "depth_m", "dtm product")) is not None:
+        r.skipped = why
+        return r
+    fig = Figure(figsize=(opt.width_in * 0.75, opt.width_in * 0.6))
+    ax = fig.subplots()
+    _map(ax, dp.dtm, "depth_m", CMAPS["depth"], "depth (m)", fig)
+    if dp.track is not None and {"x_east_m", "y_north_m"} <= set(dp.track.columns):
+        tr = _thin(dp.track, opt.max_points)
+        ax.plot(tr["x_east_m"] * 1e-3, tr["y_north_m"] * 1e-3, "-", color="w", lw=1.5, label="matched track")
+        ax.legend(fontsize=8, loc="upper right")
+    r.png = _png(fig, opt.dpi)
+    return r
+
+
+def _region(ds: xr.Dataset) -> dict | None:
+    reg = ds.attrs.get("proposed_region")
+    if isinstance(reg, str):
+        try:
+            reg = json.loads(reg)
+        except ValueError:
+            return None
+    return reg if isinstance(reg, dict) and {"x_min_m", "x_max_m", "y_min_m", "y_max_m"} <= set(reg) else None
+
+
+def fig_suitability(dp: DiveProducts, opt: FigureOptions) -> FigureResult:
+    r = FigureResult("fig05_06_suitability", "Terrain suitability for matching", "Terrain",
+                     "(left) terrain elevation standard deviation and (right) topographic information entropy per block "
+                     "(cf. TERCOM paper Figs. 5-6); dashed: proposed matching region, x: launch point.")
+    ds = dp.suitability
+    if ds is None:
+        r.skipped = "no suitability product"
+        return r
+    panels = [(v, lab, cm) for v, lab, cm in (("std_m", "elevation std (m)", CMAPS["std"]),
+                                              ("entropy", "information entropy", CMAPS["entropy"]))
+              if _grid_ok(ds, v, "suitability") is None]
+    if not panels:
+        r.skipped = "suitability product has neither std_m(y, x) nor entropy(y, x)"
+        return r
+    fig = Figure(figsize=(opt.width_in, opt.width_in * 0.4))
+    axes = fig.subplots(1, len(panels), squeeze=False)[0]
+    reg = _region(ds)
+    launch = _launch_xy(dp)
+    for ax, (v, lab, cm) in zip(axes, panels, strict=True):
+        _map(ax, ds, v, cm, lab, fig)
+        if reg:
+            xs = np.array([reg["x_min_m"], reg["x_max_m"], reg["x_max_m"], reg["x_min_m"], reg["x_min_m"]]) * 1e-3
+            ys = np.array([reg["y_min_m"], reg["y_min_m"], reg["y_max_m"], reg["y_max_m"], reg["y_min_m"]]) * 1e-3
+            ax.plot(xs, ys, "--", color="k", lw=1.2)
+        if launch:
+            ax.plot(launch[0] * 1e-3, launch[1] * 1e-3, "x", color="r", ms=9, mew=2)
+    r.png = _png(fig, opt.dpi)
+    return r
+
+
+def _score_var(ds: xr.Dataset) -> str | None:
+    for v in ("score", "msd", "msd_m2"):
+        if v in ds and {"x", "y"} <= set(ds[v].dims):
+            return v
+    cands = [v for v in ds.data_vars if {"x", "y"} <= set(ds[v].dims) and v not in ("lat", "lon")]
+    return str(cands[0]) if cands else None
+
+
+def fig_msd_surface(dp: DiveProducts, opt: FigureOptions) -> FigureResult:
+    r = FigureResult("fig16_msd_surface", "TERCOM criterion surface", "Terrain matching",
+                     "Matching criterion (MSD) of the measured seafloor-depth profile for every start position of the "
+                     "track on the reference map; the minimum (white circle) is the TERCOM fix (cf. TERCOM paper §4.2, Fig. 16).")
+    ds = dp.msd
+    if ds is None:
+        r.skipped = "no match product (msd_surface.nc)"
+        return r
+    v = _score_var(ds)
+    if v is None:
+        r.skipped = "msd_surface.nc has no (y, x) criterion variable"
+        return r
+    crit = str(ds.attrs.get("criterion", "msd")).upper()
+    vals = ds[v].values.astype(float)
+    fig = Figure(figsize=(opt.width_in * 0.75, opt.width_in * 0.6))
+    ax = fig.subplots()
+    show = ds.copy()
+    finite = vals[np.isfinite(vals)]
+    if finite.size and crit != "COR" and finite.min() > 0:
+        show[v] = (ds[v].dims, np.log10(vals))
+        label = f"log10 {crit} ({ds[v].attrs.get('units', '')})"
+    else:
+        label = f"{crit} ({ds[v].attrs.get('units', '')})"
+    _map(ax, show, v, CMAPS["msd"], label, fig)
+    bx, by = ds.attrs.get("best_x_m"), ds.attrs.get("best_y_m")
+    if bx is None and finite.size:
+        iy, ix = np.unravel_index(np.nanargmin(vals) if crit != "COR" else np.nanargmax(vals), vals.shape)
+        bx, by = float(ds["x"][ix]), float(ds["y"][iy])
+    if bx is not None:
+        ax.plot(float(bx) * 1e-3, float(by) * 1e-3, "o", mfc="none", mec="w", ms=14, mew=2, label="best match")
+        ax.legend(fontsize=8, loc="upper right")
+    r.png = _png(fig, opt.dpi)
+    return r
+
+
+def fig_matched_depth(dp: DiveProducts, opt: FigureOptions) -> FigureResult:
+    r = FigureResult("fig16_matched_depth", "Measured vs reference depth along the matched track", "Terrain matching",
+                     "Seafloor depth measured by the vehicle and the reference-map depth at the matched positions "
+                     "(bias-corrected when the match estimated a bias), cf. TERCOM paper Fig. 16.")
+    tr = dp.track
+    if (why := _need(tr, ("seafloor_depth_m", "map_depth_m"), "matched track")) is not None:
+        r.skipped = why
+        return r
+    tr = _thin(tr, opt.max_points)
+    xaxis = _time(tr) if "time" in tr else np.arange(len(tr))
+    fig = Figure(figsize=(opt.width_in, opt.width_in * 0.4))
+    ax = fig.subplots()
+    ax.plot(xaxis, tr["seafloor_depth_m"], ".", ms=2, label="measured (depth + altitude)", color="#1f77b4")
+    ref = "map_depth_minus_bias_m" if "map_depth_minus_bias_m" in tr else "map_depth_m"
+    ax.plot(xaxis, tr[ref], "-", lw=1.5, label="reference map" + (" − bias" if ref != "map_depth_m" else ""), color="#d62728")
+    ax.invert_yaxis()
+    ax.set_ylabel("seafloor depth (m)")
+    ax.set_xlabel("time (UTC)" if "time" in tr else "sample")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8)
+    if "time" in tr:
+        fig.autofmt_xdate()
+    r.png = _png(fig, opt.dpi)
+    return r
+
+
+def fig_matched_track(dp: DiveProducts, opt: FigureOptions) -> FigureResult:
+    r = FigureResult("fig17_matched_track", "Matched track on the reference map", "Terrain matching",
+                     "Bottom track placed on the reference terrain by the match; x: launch point, *: deepest point "
+                     "(cf. TERCOM paper Fig. 17).")
+    tr = dp.track
+    if (why := _need(tr, ("x_east_m", "y_north_m"), "matched track")) is not None:
+        r.skipped = why
+        return r
+    fig = Figure(figsize=(opt.width_in * 0.75, opt.width_in * 0.6))
+    ax = fig.subplots()
+    pts = [tr["x_east_m"].to_numpy(float), tr["y_north_m"].to_numpy(float)]
+    launch, deep = _launch_xy(dp), _deep_xy(dp)
+    for p in (launch, deep):
+        if p:
+            pts[0] = np.append(pts[0], p[0])
+            pts[1] = np.append(pts[1], p[1])
+    if dp.dtm is not None and _grid_ok(dp.dtm, "depth_m", "dtm") is None:
+        pad = 600.0
+        sub = dp.dtm.sel(x=slice(np.nanmin(pts[0]) - pad, np.nanmax(pts[0]) + pad),
+                         y=slice(np.nanmin(pts[1]) - pad, np.nanmax(pts[1]) + pad))
+        if sub.sizes.get("x", 0) > 1 and sub.sizes.get("y", 0) > 1:
+            _map(ax, sub, "depth_m", CMAPS["depth"], "reference depth (m)", fig, km=False)
+            cs = ax.contour(sub["x"].values, sub["y"].values, sub["depth_m"].values, levels=8, colors="k",
+                            linewidths=0.5, alpha=0.6)
+            ax.clabel(cs, fontsize=6, fmt="%.0f")
+    t = _thin(tr, opt.max_points)
+    ax.plot(t["x_east_m"], t["y_north_m"], "-", color="w", lw=2.2)
+    ax.plot(t["x_east_m"], t["y_north_m"], "-", color="m", lw=1.2, label="matched track")
+    if launch:
+        ax.plot(*launch, "x", color="r", ms=11, mew=2.5, label="launch")
+    if deep:
+        ax.plot(*deep, "*", color="gold", mec="k", ms=16, label="deepest point")
+    ax.set_xlabel("x east (m, map frame)")
+    ax.set_ylabel("y north (m, map frame)")
+    ax.set_aspect("equal")
+    ax.legend(fontsize=8, loc="best")
+    r.png = _png(fig, opt.dpi)
+    return r
+
+
+# ------------------------------------------------------------------------------------------ landing
+def fig_landing_map(dp: DiveProducts, opt: FigureOptions) -> FigureResult:
+    r = FigureResult("landing_map", "Best landing site", "Landing sites",
+                     "Laser elevation of the submap holding the dive's lowest-cost landing site; hatched: cells where "
+                     "the vehicle's centre of gravity may not land at the site's heading (for every heading when "
+                     "there is no site); red: the selected site and its largest inscribed circle (cf. landing paper "
+                     "Figs. 19 and 25).")
+    if not dp.landing_maps:
+        r.skipped = "no landing product maps (submap_NN_maps.nc)"
+        return r
+    best = None
+    s = dp.landing_sites
+    if s is not None and {"submap", "c_s"} <= set(s.columns) and len(s):
+        if "is_best" in s:
+            s = s[s["is_best"].astype(bool)]
+        if len(s):
+            best = s.sort_values("c_s").iloc[0]
+    best_name = str(best["submap"]) if best is not None else None
+    path = next((p for p in dp.landing_maps if best_name and p.name == f"{best_name}_maps.nc"), None)
+    if path is None:  # the best site's submap has no maps file: show the first submap without a site
+        path, best = dp.landing_maps[0], None
+    try:
+        with xr.open_dataset(path, engine="h5netcdf") as ds:
+            ds = ds.load()
+    except Exception as exc:
+        r.skipped = f"{path.name} is unreadable ({type(exc).__name__})"
+        return r
+    if _grid_ok(ds, "elevation_m", path.name) is not None:
+        r.skipped = f"{path.name} has no elevation_m(y, x)"
+        return r
+    fig = Figure(figsize=(opt.width_in * 0.7, opt.width_in * 0.6))
+    ax = fig.subplots()
+    _map(ax, ds, "elevation_m", CMAPS["elev"], "elevation (m, positive up)", fig, km=False, frame="laser grid")
+    x, y = ds["x"].values, ds["y"].values
+    heading = float(best["heading_deg"]) if best is not None and "heading_deg" in best else None
+    if "exclusion" in ds:
+        ex = ds["exclusion"]
+        if "heading" in ex.dims:
+            ex = ex.sel(heading=heading, method="nearest") if heading is not None else (ex > 0).min(dim="heading")
+        extra = [d for d in ex.dims if d not in ("y", "x")]
+        ex = (ex > 0).max(dim=extra) if extra else ex > 0
+        ax.contourf(x, y, np.asarray(ex.transpose("y", "x").values, float), levels=[0.5, 1.5], colors="none",
+                    hatches=["///"])
+    if "final_site" in ds and {"y", "x"} <= set(ds["final_site"].dims) and float(ds["final_site"].max()) > 0:
+        ax.contourf(x, y, np.asarray(ds["final_site"].transpose("y", "x").values, float), levels=[0.5, 1.5],
+                    colors=["red"], alpha=0.45)
+    title = path.name.replace("_maps.nc", "")
+    if best is not None and {"x_m", "y_m"} <= set(best.index):
+        ax.plot(float(best["x_m"]), float(best["y_m"]), "*", color="red", mec="k", ms=14)
+        if "radius_m" in best.index:
+            t = np.linspace(0, 2 * np.pi, 100)
+            rad = float(best["radius_m"])
+            ax.plot(float(best["x_m"]) + rad * np.cos(t), float(best["y_m"]) + rad * np.sin(t), "-", color="red", lw=1.5)
+        title += f": best site, cost {float(best['c_s']):.3f}" + (f", heading {heading:.0f}°" if heading is not None else "")
+    else:
+        title += ": no landing site found" if best_name is None else f" (maps of the best submap {best_name} missing)"
+    ax.set_title(title, fontsize=9)
+    r.png = _png(fig, opt.dpi)
+    return r
+
+
+FIGURES: tuple[Callable[[DiveProducts, FigureOptions], FigureResult], ...] = (
+    fig_depth_time, fig_ctd_profiles, fig_seafloor_depth, fig_dtm, fig_suitability,
+    fig_msd_surface, fig_matched_depth, fig_matched_track, fig_landing_map,
+)
+
+
+def make_figures(dp: DiveProducts, opt: FigureOptions | None = None) -> list[FigureResult]:
+    """All report figures; a figure that fails to draw is skipped with the reason (never fails the report)."""
+    opt = opt or FigureOptions()
+    out = []
+    for fn in FIGURES:
+        try:
+            out.append(fn(dp, opt))
+        except Exception as exc:  # defensive: unexpected product content must not sink the whole report
+            name = fn.__name__.removeprefix("fig_")
+            out.append(FigureResult(name, name.replace("_", " "), "Other", "",
+                                    skipped=f"could not draw ({type(exc).__name__}: {exc})"))
+    return out

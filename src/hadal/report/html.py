@@ -1,0 +1,166 @@
+"""Self-contained HTML dive report: summary tables, figures embedded as base64 PNG, provenance."""
+
+from __future__ import annotations
+
+import base64
+import datetime as _dt
+import html
+from collections.abc import Iterable, Mapping
+from pathlib import Path
+from typing import Any
+
+from hadal import __version__
+from hadal.report.figures import FigureResult
+from hadal.report.load import DiveProducts
+
+CSS = """
+body{font-family:-apple-system,Segoe UI,Helvetica,Arial,sans-serif;margin:2em auto;max-width:1100px;color:#222;padding:0 1em}
+h1{border-bottom:3px solid #08306b;padding-bottom:.2em}h2{color:#08306b;margin-top:1.6em;border-bottom:1px solid #ccc}
+table{border-collapse:collapse;margin:.6em 0;font-size:.92em}td,th{border:1px solid #ccc;padding:.25em .6em;text-align:left}
+th{background:#eef3fa}figure{margin:1.2em 0}figure img{max-width:100%;border:1px solid #ddd}
+figcaption{font-size:.9em;color:#444;margin-top:.3em}.note{background:#fff7e0;border-left:4px solid #f0b400;padding:.4em .8em;margin:.3em 0}
+.warn{background:#fdecea;border-left:4px solid #d93025;padding:.4em .8em;margin:.3em 0}.muted{color:#777;font-size:.85em}
+"""
+
+
+def _e(v: Any) -> str:
+    return html.escape(str(v))
+
+
+def _fmt(v: Any, nd: int = 1) -> str:
+    if v is None:
+        return "—"
+    if isinstance(v, float):
+        return f"{v:,.{nd}f}"
+    return str(v)
+
+
+def _hms(seconds: float | None) -> str:
+    if seconds is None:
+        return "—"
+    s = int(round(seconds))
+    return f"{s // 3600} h {s % 3600 // 60:02d} min"
+
+
+def _table(rows: Iterable[tuple[str, Any]]) -> str:
+    body = "".join(f"<tr><th>{_e(k)}</th><td>{_e(v)}</td></tr>" for k, v in rows)
+    return f"<table>{body}</table>"
+
+
+def _records_table(records: list[Mapping[str, Any]], nd: int = 3) -> str:
+    if not records:
+        return "<p class='muted'>none</p>"
+    cols = list(records[0].keys())
+    head = "".join(f"<th>{_e(c)}</th>" for c in cols)
+    rows = "".join("<tr>" + "".join(f"<td>{_e(_fmt(r.get(c), nd))}</td>" for c in cols) + "</tr>" for r in records)
+    return f"<table><tr>{head}</tr>{rows}</table>"
+
+
+def summary_rows(s: Mapping[str, Any]) -> list[tuple[str, str]]:
+    """The headline numbers as (label, text) rows (also used for the Prefect markdown artifact)."""
+    rows: list[tuple[str, str]] = [("dive", s.get("dive", "?"))]
+    if "start_utc" in s:
+        rows.append(("recording", f"{s['start_utc']} → {s['end_utc']} ({_hms(s.get('duration_s'))})"))
+    ph = s.get("phase_durations_s") or {}
+    if ph:
+        rows.append(("phases", ", ".join(f"{k} {_hms(v)}" for k, v in ph.items())))
+    if "max_depth_m" in s:
+        rows.append(("maximum vehicle depth", f"{s['max_depth_m']:,.1f} m" + (f" at {s['max_depth_time_utc']}" if s.get("max_depth_time_utc") else "")))
+    if "max_seafloor_depth_m" in s:
+        rows.append(("maximum seafloor depth (depth + altitude)", f"{s['max_seafloor_depth_m']:,.1f} m"))
+    dpnt = s.get("deepest_point")
+    if dpnt:
+        rows.append(("deepest point (matched)", f"{dpnt['position_degmin']} ({dpnt['lat']:.5f}°, {dpnt['lon']:.5f}°)"))
+    if "launch" in s:
+        rows.append(("launch point", s["launch"]["position_degmin"]))
+    if "matched_start" in s:
+        rows.append(("matched start of the bottom track", s["matched_start"]["position_degmin"]))
+    if s.get("drift_m") is not None:
+        rows.append(("horizontal drift launch → bottom", f"{s['drift_m']:,.0f} m"))
+    m = s.get("match") or {}
+    if m:
+        q = []
+        if m.get("score") is not None:
+            q.append(f"{(m.get('criterion') or 'msd').upper()} {m['score']:.3g}")
+        if m.get("uncertainty_radial_m") is not None:
+            q.append(f"±{m['uncertainty_radial_m']:.0f} m (radial)")
+        if m.get("separation_ratio") is not None:
+            q.append(f"2nd/best {m['separation_ratio']:.2f}")
+        if m.get("rms_depth_residual_m") is not None:
+            q.append(f"RMS depth residual {m['rms_depth_residual_m']:.1f} m")
+        if m.get("bias_m") is not None:
+            q.append(f"bias {m['bias_m']:.1f} m")
+        if m.get("mismatch"):
+            q.append("POSSIBLE MISMATCH")
+        rows.append(("match quality", ", ".join(q) or "—"))
+    if s.get("best_landing_sites"):
+        b = s["best_landing_sites"][0]
+        txt = f"{b.get('submap', '?')}: cost {_fmt(b.get('c_s'), 3)}"
+        if b.get("slope_deg") is not None:
+            txt += f", slope {_fmt(b.get('slope_deg'), 1)}°"
+        if b.get("heading_deg") is not None:
+            txt += f", heading {_fmt(b.get('heading_deg'), 0)}°"
+        rows.append(("best landing site", txt))
+    for key, label, unit in (("temperature_its90_degc_range", "temperature", "°C"),
+                             ("practical_salinity_range", "practical salinity", ""),
+                             ("density_kg_m3_range", "in situ density", "kg/m³")):
+        if key in s:
+            lo, hi = s[key]
+            rows.append((label, f"{lo:.3f} – {hi:.3f} {unit}".strip()))
+    return [(k, str(v)) for k, v in rows]
+
+
+def summary_markdown(s: Mapping[str, Any]) -> str:
+    lines = [f"# Dive report: {s.get('dive', '?')}", "", "| quantity | value |", "|---|---|"]
+    lines += [f"| {k} | {v} |" for k, v in summary_rows(s)]
+    if s.get("missing_products"):
+        lines += ["", "Missing products: " + ", ".join(s["missing_products"])]
+    return "\n".join(lines) + "\n"
+
+
+def render_html(dp: DiveProducts, summary: Mapping[str, Any], figures: list[FigureResult],
+                provenance: list[dict[str, Any]], title: str | None = None) -> str:
+    """The complete report as one HTML string (no external resources)."""
+    now = _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds")
+    title = title or f"Dive report — {dp.dive}"
+    parts = [f"<!DOCTYPE html><html lang='en'><head><meta charset='utf-8'><title>{_e(title)}</title>",
+             f"<style>{CSS}</style></head><body>", f"<h1>{_e(title)}</h1>",
+             f"<p class='muted'>generated {now} by hadal {__version__}</p>", "<h2>Summary</h2>",
+             _table(summary_rows(summary))]
+    warns = list((summary.get("match") or {}).get("warnings") or [])
+    for w in warns:
+        parts.append(f"<div class='warn'>match: {_e(w)}</div>")
+    if dp.notes:
+        parts.append("<h2>Missing or unreadable inputs</h2>")
+        parts += [f"<div class='note'>{_e(n)}</div>" for n in dp.notes]
+    sections: dict[str, list[FigureResult]] = {}
+    for f in figures:
+        sections.setdefault(f.section, []).append(f)
+    for section, figs in sections.items():
+        parts.append(f"<h2>{_e(section)}</h2>")
+        for f in figs:
+            if f.png is None:
+                parts.append(f"<div class='note'><b>{_e(f.title)}</b>: figure skipped — {_e(f.skipped)}</div>")
+                continue
+            b64 = base64.b64encode(f.png).decode("ascii")
+            parts.append(f"<figure id='{_e(f.key)}'><img alt='{_e(f.title)}' src='data:image/png;base64,{b64}'>"
+                         f"<figcaption><b>{_e(f.title)}.</b> {_e(f.caption)}</figcaption></figure>")
+        if section == "Landing sites":
+            parts.append("<h3>Best landing sites (lowest cost per submap)</h3>")
+            parts.append(_records_table(summary.get("best_landing_sites") or []))
+    if (summary.get("best_landing_sites") or dp.landing_figures) and "Landing sites" not in sections:
+        parts.append("<h2>Landing sites</h2>" + _records_table(summary.get("best_landing_sites") or []))
+    if dp.landing_figures:
+        parts.append("<h3>Figures of the landing stage</h3>")
+        for p in dp.landing_figures:
+            b64 = base64.b64encode(Path(p).read_bytes()).decode("ascii")
+            parts.append(f"<figure><img alt='{_e(p.name)}' src='data:image/png;base64,{b64}'>"
+                         f"<figcaption>{_e(p.name)} (landing product)</figcaption></figure>")
+    if summary.get("landing_table_v"):
+        tv = summary["landing_table_v"]
+        parts.append("<h3>Landing analysis summary (landing paper Table V)</h3>")
+        parts.append(_table((k, _fmt(v, 2)) for k, v in tv.items()) if isinstance(tv, Mapping) else f"<pre>{_e(tv)}</pre>")
+    parts.append("<h2>Provenance</h2>")
+    parts.append(_records_table(provenance))
+    parts.append("</body></html>")
+    return "\n".join(parts)

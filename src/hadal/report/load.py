@@ -1,0 +1,134 @@
+"""Read whichever products of a dive exist, defensively, for the report.
+
+Every product is optional: a missing product, an unreadable file or a missing column becomes a *note*
+(shown in the report) instead of an exception. :func:`load_products` raises only when the dive has no
+product at all.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import pandas as pd
+import xarray as xr
+
+from hadal.errors import StageError
+from hadal.store import ProductStore, ProductVersion
+
+#: (product, stage that makes it) in pipeline order; the report reads all of them when present.
+REPORT_INPUTS: tuple[tuple[str, str], ...] = (
+    ("sensors", "ingest"), ("ctd", "derive"), ("profile", "derive"), ("dtm", "grid"),
+    ("laser_grids", "grid"), ("suitability", "suitability"), ("match", "match"), ("landing", "landing"),
+)
+
+
+@dataclass
+class DiveProducts:
+    """The products of one dive that the report could read (``None`` where absent)."""
+
+    dive: str
+    versions: dict[str, ProductVersion] = field(default_factory=dict)
+    notes: list[str] = field(default_factory=list)
+    sensors: pd.DataFrame | None = None
+    ctd: pd.DataFrame | None = None
+    profile: xr.Dataset | None = None
+    dtm: xr.Dataset | None = None
+    suitability: xr.Dataset | None = None
+    msd: xr.Dataset | None = None
+    track: pd.DataFrame | None = None
+    fix: dict[str, Any] | None = None
+    landing_sites: pd.DataFrame | None = None
+    landing_summary: dict[str, Any] | None = None
+    landing_figures: list[Path] = field(default_factory=list)
+    landing_maps: list[Path] = field(default_factory=list)
+    launch: dict[str, float] | None = None  # {"lat", "lon"} of the dive's launch point, when known
+
+    @property
+    def missing(self) -> list[str]:
+        return [p for p, _ in REPORT_INPUTS if p not in self.versions]
+
+    def note(self, text: str) -> None:
+        if text not in self.notes:
+            self.notes.append(text)
+
+
+def _read_parquet(pv: ProductVersion, name: str, dp: DiveProducts) -> pd.DataFrame | None:
+    path = pv.path / name
+    if not path.is_file():
+        dp.note(f"{pv.product}/{pv.label} has no {name}")
+        return None
+    try:
+        return pd.read_parquet(path)
+    except Exception as exc:  # corrupt/truncated file: report it, do not fail the report
+        dp.note(f"{pv.product}/{pv.label}/{name} is unreadable ({type(exc).__name__})")
+        return None
+
+
+def _read_netcdf(pv: ProductVersion, name: str, dp: DiveProducts) -> xr.Dataset | None:
+    path = pv.path / name
+    if not path.is_file():
+        dp.note(f"{pv.product}/{pv.label} has no {name}")
+        return None
+    try:
+        with xr.open_dataset(path, engine="h5netcdf") as ds:
+            return ds.load()
+    except Exception as exc:
+        dp.note(f"{pv.product}/{pv.label}/{name} is unreadable ({type(exc).__name__})")
+        return None
+
+
+def _read_json(pv: ProductVersion, name: str, dp: DiveProducts) -> dict[str, Any] | None:
+    path = pv.path / name
+    if not path.is_file():
+        dp.note(f"{pv.product}/{pv.label} has no {name}")
+        return None
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, ValueError) as exc:
+        dp.note(f"{pv.product}/{pv.label}/{name} is unreadable ({type(exc).__name__})")
+        return None
+    return data if isinstance(data, dict) else None
+
+
+def latest_versions(store: ProductStore, dive: str) -> dict[str, ProductVersion]:
+    """Latest version of every report input product that exists."""
+    return {p: store.latest(dive, p) for p, _ in REPORT_INPUTS if store.has(dive, p)}
+
+
+def load_products(store: ProductStore, dive: str) -> DiveProducts:
+    """Load every available product of ``dive``; raise :class:`StageError` when there is none."""
+    versions = latest_versions(store, dive)
+    if not versions:
+        raise StageError(
+            f"dive {dive!r} has no products in {store.root}; run the pipeline first (hadal run RAW_DIR --store {store.root})"
+        )
+    dp = DiveProducts(dive=dive, versions=versions)
+    for product, stage in REPORT_INPUTS:
+        if product not in versions:
+            dp.note(f"product {product!r} is missing (stage {stage} has not run): its figures are skipped")
+    if "sensors" in versions:
+        dp.sensors = _read_parquet(versions["sensors"], "sensors.parquet", dp)
+    if "ctd" in versions:
+        dp.ctd = _read_parquet(versions["ctd"], "ctd.parquet", dp)
+    if "profile" in versions:
+        dp.profile = _read_netcdf(versions["profile"], "profile.nc", dp)
+    if "dtm" in versions:
+        dp.dtm = _read_netcdf(versions["dtm"], "dtm.nc", dp)
+    if "suitability" in versions:
+        dp.suitability = _read_netcdf(versions["suitability"], "suitability.nc", dp)
+    if "match" in versions:
+        pv = versions["match"]
+        dp.fix = _read_json(pv, "fix.json", dp)
+        dp.msd = _read_netcdf(pv, "msd_surface.nc", dp)
+        dp.track = _read_parquet(pv, "matched_track.parquet", dp)
+    if "landing" in versions:
+        pv = versions["landing"]
+        dp.landing_sites = _read_parquet(pv, "landing_sites.parquet", dp)
+        if (pv.path / "landing_summary.json").is_file():
+            dp.landing_summary = _read_json(pv, "landing_summary.json", dp)
+        dp.landing_figures = sorted((pv.path / "figures").glob("*.png")) if (pv.path / "figures").is_dir() else []
+        dp.landing_maps = sorted(pv.path.glob("submap_*_maps.nc"))
+    return dp

@@ -1,0 +1,131 @@
+"""Dive summary numbers for the report (TERCOM paper §4.2.1-§4.3 quantities, landing-site table).
+
+Every value is taken from a product when that product has it and is ``None`` otherwise; the source of
+each number is recorded next to it so the report can say where it came from.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from hadal.geo import format_position, geodesic_distance_m
+from hadal.report.load import DiveProducts
+
+
+def _f(v: Any) -> float | None:
+    try:
+        x = float(v)
+    except (TypeError, ValueError):
+        return None
+    return x if math.isfinite(x) else None
+
+
+def _phase_durations(ctd: pd.DataFrame) -> dict[str, float]:
+    """Seconds spent in each phase (descent/bottom/ascent), TERCOM paper §4.2.1 (3 h 35 min descent...)."""
+    if "phase" not in ctd or "time" not in ctd:
+        return {}
+    t = pd.to_datetime(ctd["time"], utc=True)
+    out = {}
+    for ph, grp in t.groupby(ctd["phase"].astype(str)):
+        if len(grp) > 1:
+            out[str(ph)] = float((grp.max() - grp.min()).total_seconds())
+    order = {"descent": 0, "bottom": 1, "ascent": 2}
+    return dict(sorted(out.items(), key=lambda kv: order.get(kv[0], 9)))
+
+
+def dive_summary(dp: DiveProducts, launch: dict[str, float] | None = None, best_sites: int = 5) -> dict[str, Any]:
+    """Headline numbers: max depth (and when), deepest point position, drift, match quality, best landing sites.
+
+    ``launch`` (``{"lat": ..., "lon": ...}``) comes from the dive description when available, else from
+    ``fix.json``. Drift is the geodesic distance from the launch point to the matched start of the bottom
+    track (TERCOM paper §4.3: 533 m).
+    """
+    s: dict[str, Any] = {"dive": dp.dive, "products": {p: v.label for p, v in dp.versions.items()},
+                         "missing_products": dp.missing, "notes": list(dp.notes)}
+    fix = dp.fix or {}
+    # ---- depth
+    ctd = dp.ctd
+    if ctd is not None and "depth_m" in ctd and len(ctd):
+        d = pd.to_numeric(ctd["depth_m"], errors="coerce")
+        if d.notna().any():
+            i = int(d.idxmax())
+            s["max_depth_m"] = float(d.loc[i])
+            s["max_depth_source"] = "ctd.depth_m (hydrostatic)"
+            if "time" in ctd:
+                s["max_depth_time_utc"] = pd.Timestamp(ctd.loc[i, "time"]).isoformat()
+        if "seafloor_depth_m" in ctd:
+            sf = pd.to_numeric(ctd["seafloor_depth_m"], errors="coerce")
+            if sf.notna().any():
+                s["max_seafloor_depth_m"] = float(sf.max())
+        for col in ("pressure_dbar", "temperature_its90_degc", "practical_salinity", "density_kg_m3"):
+            if col in ctd:
+                v = pd.to_numeric(ctd[col], errors="coerce")
+                if v.notna().any():
+                    s[f"{col}_range"] = [float(v.min()), float(v.max())]
+        s["phase_durations_s"] = _phase_durations(ctd)
+        if "time" in ctd:
+            t = pd.to_datetime(ctd["time"], utc=True)
+            s["start_utc"], s["end_utc"] = t.min().isoformat(), t.max().isoformat()
+            s["duration_s"] = float((t.max() - t.min()).total_seconds())
+    # ---- deepest point position (matched) and drift
+    deep = fix.get("deepest_point") if isinstance(fix.get("deepest_point"), dict) else None
+    if deep and _f(deep.get("lat")) is not None and _f(deep.get("lon")) is not None:
+        s["deepest_point"] = {"lat": _f(deep["lat"]), "lon": _f(deep["lon"]),
+                              "depth_m": _f(deep.get("depth_m")), "seafloor_depth_m": _f(deep.get("seafloor_depth_m")),
+                              "position_degmin": deep.get("position_degmin") or format_position(deep["lat"], deep["lon"]),
+                              "source": "match fix.json"}
+    elif dp.track is not None and {"lat", "lon", "depth_m"} <= set(dp.track.columns) and len(dp.track):
+        i = int(pd.to_numeric(dp.track["depth_m"], errors="coerce").idxmax())
+        r = dp.track.loc[i]
+        s["deepest_point"] = {"lat": float(r["lat"]), "lon": float(r["lon"]), "depth_m": float(r["depth_m"]),
+                              "position_degmin": format_position(float(r["lat"]), float(r["lon"])),
+                              "source": "match matched_track.parquet"}
+    if launch is None and isinstance(fix.get("launch"), dict):
+        launch = {"lat": _f(fix["launch"].get("lat")), "lon": _f(fix["launch"].get("lon"))}
+    if launch and launch.get("lat") is not None and launch.get("lon") is not None:
+        s["launch"] = {"lat": launch["lat"], "lon": launch["lon"],
+                       "position_degmin": format_position(launch["lat"], launch["lon"])}
+    start = fix.get("start") if isinstance(fix.get("start"), dict) else None
+    if start and _f(start.get("lat")) is not None:
+        s["matched_start"] = {"lat": _f(start["lat"]), "lon": _f(start["lon"]),
+                              "position_degmin": start.get("position_degmin") or format_position(start["lat"], start["lon"])}
+    if _f(fix.get("drift_m")) is not None:
+        s["drift_m"] = _f(fix["drift_m"])
+    elif "launch" in s and "matched_start" in s:
+        s["drift_m"] = float(geodesic_distance_m(s["launch"]["lon"], s["launch"]["lat"],
+                                                 s["matched_start"]["lon"], s["matched_start"]["lat"]))
+    # ---- match quality
+    if fix:
+        unc = fix.get("uncertainty_m") if isinstance(fix.get("uncertainty_m"), dict) else {}
+        second = fix.get("second_optimum") if isinstance(fix.get("second_optimum"), dict) else {}
+        s["match"] = {
+            "criterion": fix.get("criterion"), "score": _f(fix.get("score")), "bias_m": _f(fix.get("bias_m")),
+            "uncertainty_radial_m": _f(unc.get("radial")), "separation_ratio": _f(second.get("separation_ratio")),
+            "mismatch": bool(fix.get("mismatch")) if fix.get("mismatch") is not None else None,
+            "n_samples": fix.get("n_samples"), "warnings": list(fix.get("warnings") or []),
+        }
+    if dp.track is not None and {"seafloor_depth_m", "map_depth_m"} <= set(dp.track.columns):
+        diff = pd.to_numeric(dp.track["map_depth_m"], errors="coerce") - pd.to_numeric(dp.track["seafloor_depth_m"], errors="coerce")
+        if "map_depth_minus_bias_m" in dp.track:
+            diff = pd.to_numeric(dp.track["map_depth_minus_bias_m"], errors="coerce") - pd.to_numeric(dp.track["seafloor_depth_m"], errors="coerce")
+        diff = diff[np.isfinite(diff)]
+        if len(diff):
+            s.setdefault("match", {})["rms_depth_residual_m"] = float(np.sqrt(np.mean(diff**2)))
+    # ---- landing
+    sites = dp.landing_sites
+    if sites is not None and len(sites):
+        best = sites[sites["is_best"].astype(bool)] if "is_best" in sites else sites
+        if "c_s" in best:
+            best = best.sort_values("c_s")
+        keep = [c for c in ("submap", "heading_deg", "x_m", "y_m", "radius_m", "slope_deg", "roughness_m", "c_s")
+                if c in best.columns]
+        s["best_landing_sites"] = [{k: (v.item() if hasattr(v, "item") else v) for k, v in row.items()}
+                                   for row in best[keep].head(best_sites).to_dict(orient="records")]
+        s["n_candidate_sites"] = int(len(sites))
+    if dp.landing_summary and isinstance(dp.landing_summary.get("table_v"), dict):
+        s["landing_table_v"] = dp.landing_summary["table_v"]
+    return s

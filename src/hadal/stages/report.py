@@ -1,0 +1,48 @@
+"""Stage `report`: the dive report (summary, paper-style figures, self-contained HTML) from whichever
+products exist. Missing upstream products are listed in the report; a dive with no product at all is a
+clear :class:`~hadal.errors.StageError`. Science-free: see :mod:`hadal.report`.
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+from pydantic import BaseModel, ConfigDict, Field
+
+from hadal.stages import StageContext
+
+if TYPE_CHECKING:
+    from hadal.report import FigureOptions
+    from hadal.store import ProductVersion
+
+PRODUCTS = ("report",)
+#: every product the report can use; all optional (hadal.report.load.REPORT_INPUTS)
+UPSTREAM = ("sensors", "ctd", "profile", "dtm", "laser_grids", "suitability", "match", "landing")
+
+
+class Params(BaseModel):
+    """Dive report (HTML with embedded figures, also published as Prefect artifacts inside a flow)."""
+
+    model_config = ConfigDict(extra="forbid")
+    dpi: int = Field(110, ge=50, le=400, description="figure resolution (dots per inch)")
+    figure_width_in: float = Field(10.0, gt=2, le=30, description="figure width in inches")
+    max_points: int = Field(20000, ge=100, description="time series are thinned to at most this many points per figure")
+    best_sites: int = Field(5, ge=1, le=100, description="number of best landing sites listed")
+    title: str | None = Field(None, description="report title (default: 'Dive report — <dive id>')")
+
+
+def options(p: Params) -> FigureOptions:
+    from hadal.report import FigureOptions
+
+    return FigureOptions(dpi=p.dpi, width_in=p.figure_width_in, max_points=p.max_points)
+
+
+def run(ctx: StageContext) -> dict[str, ProductVersion]:
+    from hadal.report import build_report, publish_report
+
+    p: Params = ctx.config.report
+    launch = {"lat": ctx.dive.launch.latitude_deg, "lon": ctx.dive.launch.longitude_deg}
+    rep = build_report(ctx.store, ctx.dive_id, launch=launch, options=options(p), best_sites=p.best_sites, title=p.title)
+    for note in rep.summary.get("notes", []):
+        ctx.log.info("report: %s", note)
+    return {"report": publish_report(ctx.store, rep, parameters=ctx.params("report"))}

@@ -1,0 +1,291 @@
+"""Byte-deterministic writers for the raw dive directory (docs/architecture.md "Raw dive directory").
+
+No wall-clock time goes into any file: gzip members have mtime 0 and no file name, the MCAP writer gets
+no metadata records, NetCDF/Parquet carry only data-derived attributes.
+"""
+
+from __future__ import annotations
+
+import gzip
+import json
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import xarray as xr
+from mcap.writer import CompressionType, Writer
+
+from hadal.synth.sensors import KELLER_MAX_DBAR, SBE49_MAX_DBAR
+
+#: MCAP topics, schema names and JSON Schemas of the five channels (architecture.md "MCAP channels").
+_STAMP = {"type": "number", "description": "sample time, seconds since the Unix epoch (UTC)"}
+CHANNELS: dict[str, dict] = {
+    "ctd": {
+        "topic": "/haidou/ctd", "schema_name": "haidou.Ctd",
+        "schema": {
+            "$schema": "https://json-schema.org/draft/2020-12/schema", "title": "haidou.Ctd",
+            "description": "Sea-Bird SBE49 FastCAT sample (16 Hz)", "type": "object",
+            "properties": {
+                "stamp": _STAMP,
+                "cond": {"type": "number", "description": "conductivity, S/m"},
+                "temp": {"type": "number", "description": "in-situ temperature, degC ITS-90"},
+                "pres": {"type": "number", "maximum": SBE49_MAX_DBAR,
+                         "description": f"sea pressure, dbar (sensor range 0-{SBE49_MAX_DBAR:g}; saturates above)"},
+            },
+            "required": ["stamp", "cond", "temp", "pres"], "additionalProperties": False,
+        },
+    },
+    "keller": {
+        "topic": "/haidou/keller", "schema_name": "haidou.Keller",
+        "schema": {
+            "$schema": "https://json-schema.org/draft/2020-12/schema", "title": "haidou.Keller",
+            "description": "Keller PA-33X pressure gauge sample (4 Hz)", "type": "object",
+            "properties": {
+                "stamp": _STAMP,
+                "pressure": {"type": "number", "minimum": 0, "maximum": KELLER_MAX_DBAR,
+                             "description": "sea pressure, dbar (range 0-12000, 0.01 %FS accuracy)"},
+            },
+            "required": ["stamp", "pressure"], "additionalProperties": False,
+        },
+    },
+    "altimeter": {
+        "topic": "/haidou/altimeter", "schema_name": "haidou.Altimeter",
+        "schema": {
+            "$schema": "https://json-schema.org/draft/2020-12/schema", "title": "haidou.Altimeter",
+            "description": "400 kHz single-beam altimeter (2 Hz); range assumes 1500 m/s sound speed",
+            "type": "object",
+            "properties": {
+                "stamp": _STAMP,
+                "range": {"type": ["number", "null"], "minimum": 0, "maximum": 100,
+                          "description": "range to the seafloor, m (0.3 m resolution); null on dropout or beyond 100 m"},
+                "valid": {"type": "boolean", "description": "true when range holds a bottom detection"},
+            },
+            "required": ["stamp", "range", "valid"], "additionalProperties": False,
+        },
+    },
+    "attitude": {
+        "topic": "/haidou/attitude", "schema_name": "haidou.Attitude",
+        "schema": {
+            "$schema": "https://json-schema.org/draft/2020-12/schema", "title": "haidou.Attitude",
+            "description": "vehicle attitude (10 Hz)", "type": "object",
+            "properties": {
+                "stamp": _STAMP,
+                "heading": {"type": "number", "minimum": 0, "maximum": 360, "description": "heading, deg true"},
+                "pitch": {"type": "number", "description": "pitch, deg (bow up positive)"},
+                "roll": {"type": "number", "description": "roll, deg (starboard down positive)"},
+            },
+            "required": ["stamp", "heading", "pitch", "roll"], "additionalProperties": False,
+        },
+    },
+    "dr": {
+        "topic": "/haidou/dr", "schema_name": "haidou.DeadReckoning",
+        "schema": {
+            "$schema": "https://json-schema.org/draft/2020-12/schema", "title": "haidou.DeadReckoning",
+            "description": "dead-reckoned position relative to the launch point (1 Hz)", "type": "object",
+            "properties": {
+                "stamp": _STAMP,
+                "east": {"type": "number", "description": "east of the launch point, m"},
+                "north": {"type": "number", "description": "north of the launch point, m"},
+                "speed": {"type": "number", "minimum": 0, "description": "speed over ground estimate, m/s"},
+            },
+            "required": ["stamp", "east", "north", "speed"], "additionalProperties": False,
+        },
+    },
+}
+CHANNEL_ORDER = ("ctd", "keller", "altimeter", "attitude", "dr")
+
+
+def _stamps(t_unix_ms: np.ndarray) -> list[str]:
+    s, ms = np.divmod(t_unix_ms, 1000)
+    return [f"{a}.{b:03d}" for a, b in zip(s.tolist(), ms.tolist(), strict=True)]
+
+
+def payloads(name: str, ch: dict[str, np.ndarray], t0_unix_ms: int) -> list[bytes]:
+    """JSON message bodies (compact, fixed decimals) of one channel."""
+    st = _stamps(ch["t_ms"] + t0_unix_ms)
+    if name == "ctd":
+        rows = zip(st, ch["cond"].tolist(), ch["temp"].tolist(), ch["pres"].tolist(), strict=True)
+        return [f'{{"stamp":{s},"cond":{c:.5f},"temp":{t:.4f},"pres":{p:.3f}}}'.encode() for s, c, t, p in rows]
+    if name == "keller":
+        return [f'{{"stamp":{s},"pressure":{p:.2f}}}'.encode() for s, p in zip(st, ch["pressure"].tolist(), strict=True)]
+    if name == "altimeter":
+        out = []
+        for s, r, v in zip(st, ch["range"].tolist(), ch["valid"].tolist(), strict=True):
+            out.append((f'{{"stamp":{s},"range":{r:.1f},"valid":true}}' if v
+                        else f'{{"stamp":{s},"range":null,"valid":false}}').encode())
+        return out
+    if name == "attitude":
+        rows = zip(st, ch["heading"].tolist(), ch["pitch"].tolist(), ch["roll"].tolist(), strict=True)
+        return [f'{{"stamp":{s},"heading":{h:.2f},"pitch":{p:.2f},"roll":{r:.2f}}}'.encode() for s, h, p, r in rows]
+    if name == "dr":
+        rows = zip(st, ch["east"].tolist(), ch["north"].tolist(), ch["speed"].tolist(), strict=True)
+        return [f'{{"stamp":{s},"east":{e:.3f},"north":{n:.3f},"speed":{v:.3f}}}'.encode() for s, e, n, v in rows]
+    raise KeyError(name)
+
+
+def write_mcap(path: Path, channels: dict[str, dict[str, np.ndarray]], t0_unix_ms: int, progress=None) -> dict:
+    """One MCAP file, JSON messages with jsonschema schemas, zstd chunks, messages in log_time order."""
+    times, chans, bodies = [], [], []
+    for k, name in enumerate(CHANNEL_ORDER):
+        ch = channels[name]
+        times.append((ch["t_ms"] + t0_unix_ms) * 1_000_000)
+        chans.append(np.full(len(ch["t_ms"]), k, dtype=np.int64))
+        bodies.extend(payloads(name, ch, t0_unix_ms))
+    t_ns = np.concatenate(times)
+    c = np.concatenate(chans)
+    seq = np.concatenate([np.arange(len(ch["t_ms"])) for ch in (channels[n] for n in CHANNEL_ORDER)])
+    order = np.lexsort((seq, c, t_ns))
+    counts = {}
+    with open(path, "wb") as fh:
+        w = Writer(fh, chunk_size=4 * 1024 * 1024, compression=CompressionType.ZSTD)
+        w.start(profile="", library="hadal.synth")
+        ids = []
+        for name in CHANNEL_ORDER:
+            spec = CHANNELS[name]
+            sid = w.register_schema(name=spec["schema_name"], encoding="jsonschema",
+                                    data=json.dumps(spec["schema"], indent=None, sort_keys=False).encode())
+            ids.append(w.register_channel(topic=spec["topic"], message_encoding="json", schema_id=sid,
+                                          metadata={"vehicle": "Haidou"}))
+        add = w.add_message
+        t_l = t_ns[order].tolist()
+        c_l = c[order].tolist()
+        s_l = seq[order].tolist()
+        o_l = order.tolist()
+        it = range(len(o_l))
+        if progress is not None:
+            it = progress.track(it, "writing MCAP", total=len(o_l))
+        for i in it:
+            add(channel_id=ids[c_l[i]], log_time=t_l[i], publish_time=t_l[i], sequence=s_l[i], data=bodies[o_l[i]])
+        w.finish()
+    for name in CHANNEL_ORDER:
+        counts[CHANNELS[name]["topic"]] = int(len(channels[name]["t_ms"]))
+    return counts
+
+
+def _iso_ms(t_unix_ms: np.ndarray) -> np.ndarray:
+    return np.char.add(np.datetime_as_string(t_unix_ms.astype("datetime64[ms]"), unit="ms"), "Z")
+
+
+def write_csvs(csv_dir: Path, channels: dict[str, dict[str, np.ndarray]], t0_unix_ms: int) -> dict[str, str]:
+    """The CSV variants (other units and time format, architecture.md "CSV variants"). Returns {key: relpath}."""
+    csv_dir.mkdir(parents=True, exist_ok=True)
+    files = {}
+
+    def emit(fname: str, header: str, lines) -> None:
+        with open(csv_dir / fname, "w", encoding="utf-8", newline="\n") as fh:
+            fh.write(header + "\n")
+            fh.write("\n".join(lines))
+            fh.write("\n")
+
+    ch = channels["ctd"]
+    t = _iso_ms(ch["t_ms"] + t0_unix_ms).tolist()
+    emit("ctd.csv", "time,conductivity_mS_cm,temperature_ITS90,pressure_dbar",
+         (f"{a},{c * 10:.4f},{b:.4f},{p:.3f}" for a, c, b, p in
+          zip(t, ch["cond"].tolist(), ch["temp"].tolist(), ch["pres"].tolist(), strict=True)))
+    files["ctd"] = "csv/ctd.csv"
+    ch = channels["keller"]
+    t = _iso_ms(ch["t_ms"] + t0_unix_ms).tolist()
+    emit("keller.csv", "time,pressure_bar",
+         (f"{a},{p / 10:.3f}" for a, p in zip(t, ch["pressure"].tolist(), strict=True)))
+    files["gauge"] = "csv/keller.csv"
+    ch = channels["altimeter"]
+    t = _iso_ms(ch["t_ms"] + t0_unix_ms).tolist()
+    emit("altimeter.csv", "time,altitude_m",
+         (f"{a},{r:.1f}" if v else f"{a}," for a, r, v in
+          zip(t, ch["range"].tolist(), ch["valid"].tolist(), strict=True)))
+    files["altimeter"] = "csv/altimeter.csv"
+    ch = channels["attitude"]
+    t = _iso_ms(ch["t_ms"] + t0_unix_ms).tolist()
+    emit("attitude.csv", "time,heading_deg,pitch_deg,roll_deg",
+         (f"{a},{h:.2f},{p:.2f},{r:.2f}" for a, h, p, r in
+          zip(t, ch["heading"].tolist(), ch["pitch"].tolist(), ch["roll"].tolist(), strict=True)))
+    files["attitude"] = "csv/attitude.csv"
+    ch = channels["dr"]
+    t = _iso_ms(ch["t_ms"] + t0_unix_ms).tolist()
+    emit("dr.csv", "time,east_m,north_m,speed_m_s",
+         (f"{a},{e:.3f},{n:.3f},{v:.3f}" for a, e, n, v in
+          zip(t, ch["east"].tolist(), ch["north"].tolist(), ch["speed"].tolist(), strict=True)))
+    files["dr"] = "csv/dr.csv"
+    return files
+
+
+def write_gzip_text(path: Path, text: str, level: int = 6) -> None:
+    """gzip with no file name and mtime 0 (byte-deterministic)."""
+    with open(path, "wb") as raw, gzip.GzipFile(filename="", mode="wb", fileobj=raw, mtime=0,
+                                                compresslevel=level) as gz:
+        gz.write(text.encode("ascii"))
+
+
+def soundings_text(lon: np.ndarray, lat: np.ndarray, depth: np.ndarray) -> str:
+    """``longitude_deg latitude_deg depth_m`` lines (7 decimals ~1 cm, depth to cm)."""
+    cols = [(np.asarray(lon, float), 7), (np.asarray(lat, float), 7), (np.asarray(depth, float), 2)]
+    if len(cols[0][0]) and all(np.isfinite(v).all() and v.min() >= 1.0 and v.max() < 1e6 for v, _ in cols):
+        return _fixed_point_lines(cols)
+    fmt = "{:.7f} {:.7f} {:.2f}\n".format
+    return "".join(map(fmt, np.asarray(lon, float).tolist(), np.asarray(lat, float).tolist(),
+                       np.asarray(depth, float).tolist()))
+
+
+def _fixed_point_lines(cols: list[tuple[np.ndarray, int]]) -> str:
+    """Vectorised ``%.Nf`` formatting of positive columns (space separated, one row per line).
+
+    Same text as Python's formatting (round half to even on the scaled value may differ from the
+    decimal rounding of ``format`` in the last digit for exact ties; values here are noisy floats).
+    """
+    n = len(cols[0][0])
+    parts: list[np.ndarray] = []  # (n, w) uint8 blocks
+    masks: list[np.ndarray] = []
+    for k, (v, dec) in enumerate(cols):
+        iv = np.round(v * 10**dec).astype(np.int64)
+        n_int = max(int(np.floor(np.log10(max(int(iv.max()) // 10**dec, 1)))) + 1, 1)
+        width = n_int + 1 + dec
+        block = np.empty((n, width), np.uint8)
+        rest = iv.copy()
+        for j in range(width - 1, -1, -1):
+            if j == n_int:
+                block[:, j] = ord(".")
+                continue
+            rest, d = np.divmod(rest, 10)
+            block[:, j] = d + ord("0")
+        # leading zeros of the integer part are dropped (but keep one digit before the point)
+        ipart = iv // 10**dec
+        ndig = np.maximum(np.floor(np.log10(np.maximum(ipart, 1))).astype(int) + 1, 1)
+        keep = np.arange(width)[None, :] >= (n_int - ndig)[:, None]
+        parts.append(block)
+        masks.append(keep)
+        sep = np.full((n, 1), ord("\n" if k == len(cols) - 1 else " "), np.uint8)
+        parts.append(sep)
+        masks.append(np.ones((n, 1), bool))
+    mat = np.concatenate(parts, axis=1)
+    msk = np.concatenate(masks, axis=1)
+    return mat[msk].tobytes().decode("ascii")
+
+
+def write_ply(path: Path, xyz: np.ndarray, comment: str) -> None:
+    """Binary little-endian PLY, float64 x y z."""
+    xyz = np.ascontiguousarray(xyz, dtype="<f8")
+    header = ("ply\nformat binary_little_endian 1.0\n"
+              f"comment {comment}\n"
+              f"element vertex {len(xyz)}\n"
+              "property double x\nproperty double y\nproperty double z\nend_header\n")
+    with open(path, "wb") as fh:
+        fh.write(header.encode("ascii"))
+        fh.write(xyz.tobytes())
+
+
+def write_terrain(path: Path, x: np.ndarray, y: np.ndarray, depth: np.ndarray, attrs: dict) -> None:
+    """truth/terrain.nc: depth_m (y, x) positive down, ascending cell-centre coordinates (map frame, m)."""
+    ds = xr.Dataset(
+        {"depth_m": (("y", "x"), depth.astype(np.float32),
+                     {"units": "m", "standard_name": "sea_floor_depth_below_sea_surface",
+                      "long_name": "true seafloor depth (positive down)", "positive": "down"})},
+        coords={"x": ("x", x, {"units": "m", "long_name": "x (east) in the dive's map frame", "axis": "X"}),
+                "y": ("y", y, {"units": "m", "long_name": "y (north) in the dive's map frame", "axis": "Y"})},
+        attrs=attrs,
+    )
+    ds.to_netcdf(path, engine="h5netcdf",
+                 encoding={"depth_m": {"zlib": True, "complevel": 4, "shuffle": True, "chunksizes": (295, 397)}})
+
+
+def write_track(path: Path, df: pd.DataFrame) -> None:
+    df.to_parquet(path, index=False, engine="pyarrow", compression="zstd")

@@ -1,0 +1,170 @@
+"""grid_points: check values, agreement with scipy, numerical exactness, bad input."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.stats import binned_statistic_2d
+
+from hadal.errors import HadalError, InputError
+from hadal.grid import grid_points, make_grid_spec, robust_outlier_mask
+from hadal.grid import points as P
+
+# Hand-made check values: 1 m cells, bounds (0, 0, 2, 2) -> 2 x 2 cells.
+#   cell (y=0, x=0): z = 1, 2, 6      mean 3, median 2, std sqrt(7), min 1, max 6
+#   cell (y=0, x=1): z = 10           mean 10, median 10, std NaN (n=1)
+#   cell (y=1, x=0): empty            NaN, count 0
+#   cell (y=1, x=1): z = 4, 8         mean 6, median 6, std sqrt(8)
+#   the point (2.0, 2.0) lies on the upper-right edge and belongs to cell (1, 1).
+CHECK_POINTS = [(0.1, 0.1, 1.0), (0.5, 0.9, 2.0), (0.99, 0.0, 6.0), (1.5, 0.5, 10.0), (1.2, 1.7, 4.0), (2.0, 2.0, 8.0)]
+CHECK = {
+    "mean": [[3.0, 10.0], [np.nan, 6.0]],
+    "median": [[2.0, 10.0], [np.nan, 6.0]],
+    "count": [[3, 1], [0, 2]],
+    "std": [[np.sqrt(7.0), np.nan], [np.nan, np.sqrt(8.0)]],
+    "min": [[1.0, 10.0], [np.nan, 4.0]],
+    "max": [[6.0, 10.0], [np.nan, 8.0]],
+}
+
+
+@pytest.mark.parametrize("stats", [P.STATISTICS, ("count", "mean", "std")])
+def test_check_values(stats):
+    x, y, z = np.array(CHECK_POINTS).T
+    ds = grid_points(x, y, z, 1.0, bounds=(0, 0, 2, 2), statistics=stats)
+    np.testing.assert_array_equal(ds.x, [0.5, 1.5])
+    np.testing.assert_array_equal(ds.y, [0.5, 1.5])
+    for s in stats:
+        np.testing.assert_allclose(ds[s].values, CHECK[s], rtol=1e-15, equal_nan=True, err_msg=s)
+    assert ds.attrs["n_points_used"] == 6 and ds.attrs["n_points_outside"] == 0
+
+
+def test_matches_scipy_binned_statistic():
+    rng = np.random.default_rng(3)
+    x, y = rng.uniform(-7.3, 12.1, 5000), rng.uniform(3.0, 9.0, 5000)
+    z = rng.normal(100, 5, 5000)
+    ds = grid_points(x, y, z, 0.7, statistics=("mean", "median", "count", "std", "min", "max"))
+    r = ds.attrs["resolution"]
+    xe = ds.attrs["grid_x0_edge"] + r * np.arange(ds.sizes["x"] + 1)
+    ye = ds.attrs["grid_y0_edge"] + r * np.arange(ds.sizes["y"] + 1)
+    assert np.all(np.diff(ds.x) > 0) and np.all(np.diff(ds.y) > 0)
+    for stat, ref in [("mean", "mean"), ("median", "median"), ("count", "count"), ("min", "min"), ("max", "max"),
+                      ("std", lambda v: np.std(v, ddof=1) if len(v) > 1 else np.nan)]:
+        exp = binned_statistic_2d(y, x, z, ref, bins=[ye, xe]).statistic
+        if stat != "count":
+            exp[binned_statistic_2d(y, x, z, "count", bins=[ye, xe]).statistic == 0] = np.nan
+        np.testing.assert_allclose(ds[stat].values, exp, rtol=1e-12, atol=1e-12, equal_nan=True, err_msg=stat)
+
+
+def test_empty_cells_nan_count_zero():
+    ds = grid_points([0.5, 9.5], [0.5, 9.5], [1.0, 2.0], 1.0)
+    assert ds.sizes == {"y": 10, "x": 10}
+    assert int(ds["count"].sum()) == 2 and int((ds["count"] == 0).sum()) == 98
+    assert np.isnan(ds["mean"].values).sum() == 98 and np.isnan(ds["median"].values).sum() == 98
+    assert ds["count"].dtype.kind == "i"
+
+
+def test_grid_origin_snaps_to_resolution():
+    ds = grid_points([12.3, 47.9], [-3.2, 5.5], [1, 2], 5.0)
+    assert ds.attrs["grid_x0_edge"] == 10.0 and ds.attrs["grid_y0_edge"] == -5.0
+    np.testing.assert_array_equal(ds.x, [12.5, 17.5, 22.5, 27.5, 32.5, 37.5, 42.5, 47.5])
+
+
+def test_chunked_moments_exact_at_hadal_depth(monkeypatch):
+    """Mean/std of 10 km depths with 1 mm spread, through many chunks and both threads: no cancellation."""
+    monkeypatch.setattr(P, "_CHUNK", 64)
+    rng = np.random.default_rng(5)
+    n = 20_000
+    cell = rng.integers(0, 4, n)
+    x = cell + 0.5
+    y = np.full(n, 0.5)
+    z = 10_000.0 + rng.normal(0, 1e-3, n)
+    for threads in (1, 2):
+        ds = grid_points(x, y, z, 1.0, bounds=(0, 0, 4, 1), statistics=("count", "mean", "std"), threads=threads)
+        for c in range(4):
+            v = z[cell == c]
+            assert ds["count"].values[0, c] == len(v)
+            assert ds["mean"].values[0, c] == pytest.approx(np.mean(v), abs=1e-11)
+            assert ds["std"].values[0, c] == pytest.approx(np.std(v, ddof=1), rel=1e-8)
+
+
+def test_fast_and_sorted_paths_agree():
+    rng = np.random.default_rng(9)
+    x, y, z = rng.uniform(0, 50, 3000), rng.uniform(0, 20, 3000), rng.normal(-1400, 0.3, 3000)
+    a = grid_points(x, y, z, 2.0, statistics=("count", "mean", "std"))
+    b = grid_points(x, y, z, 2.0, statistics=("count", "mean", "std", "median"))
+    for s in ("count", "mean", "std"):
+        np.testing.assert_allclose(a[s], b[s], rtol=1e-12, equal_nan=True)
+
+
+def test_nonfinite_points_dropped_and_counted():
+    x = np.array([0.5, np.nan, 1.5, 2.5, 0.2])
+    y = np.array([0.5, 0.5, np.inf, 0.5, 0.7])
+    z = np.array([1.0, 2.0, 3.0, -np.inf, 5.0])
+    for stats in (("count", "mean"), ("median", "count")):
+        ds = grid_points(x, y, z, 1.0, statistics=stats)
+        assert ds.attrs["n_points_nonfinite"] == 3 and ds.attrs["n_points_used"] == 2
+        assert ds.sizes["x"] == 1 and int(ds["count"].sum()) == 2
+
+
+def test_points_outside_bounds_counted():
+    ds = grid_points([0.5, 5.0, -0.1, 1.0], [0.5, 0.5, 0.5, 1.0], [1, 2, 3, 4], 1.0, bounds=(0, 0, 1, 1))
+    assert ds.attrs["n_points_outside"] == 2
+    assert int(ds["count"].sum()) == 2  # (1.0, 1.0) is on the upper-right edge: inside
+
+
+@pytest.mark.parametrize(
+    "kwargs, match",
+    [
+        ({"x": [], "y": [], "z": []}, "empty"),
+        ({"x": [np.nan, 1.0], "y": [1.0, np.inf], "z": [1.0, 2.0]}, "NaN/inf"),
+        ({"x": [1.0, 1.0, 1.0], "y": [0.0, 1.0, 2.0], "z": [1, 2, 3]}, "degenerate"),
+        ({"x": [0.0, 1.0], "y": [0.0, 1.0], "z": [1, 2], "resolution": 0}, "positive"),
+        ({"x": [0.0, 1.0], "y": [0.0, 1.0], "z": [1, 2], "resolution": -1.0}, "positive"),
+        ({"x": [0.0, 1.0], "y": [0.0, 1.0], "z": [1, 2], "resolution": float("nan")}, "positive"),
+        ({"x": [0.0, 1e6], "y": [0.0, 1e6], "z": [1, 2], "resolution": 0.01}, "exceeds the limit"),
+        ({"x": [0.0, 1.0], "y": [0.0, 1.0], "z": [1]}, "same length"),
+        ({"x": [0.0, 1.0], "y": [0.0, 1.0], "z": [1, 2], "bounds": (0, 0, 0, 1)}, "degenerate"),
+        ({"x": [0.0, 1.0], "y": [0.0, 1.0], "z": [1, 2], "statistics": ("mode",)}, "unknown"),
+    ],
+)
+def test_bad_input_clear_errors(kwargs, match):
+    kw = {"resolution": 1.0, **kwargs}
+    with pytest.raises(InputError, match=match) as ei:
+        grid_points(kw.pop("x"), kw.pop("y"), kw.pop("z"), kw.pop("resolution"), **kw)
+    assert "\n" not in str(ei.value) and isinstance(ei.value, HadalError)
+
+
+def test_max_cells_message_names_size():
+    with pytest.raises(InputError, match=r"1,000 x 1,000 = 1,000,000 cells"):
+        make_grid_spec(1.0, (0, 0, 1000, 1000), max_cells=999_999)
+
+
+def test_robust_outlier_mask_finds_spikes_only():
+    rng = np.random.default_rng(2)
+    idx = np.repeat(np.arange(50), 20)
+    z = rng.normal(0, 1, idx.size)
+    spikes = rng.choice(idx.size, 25, replace=False)
+    z[spikes] += rng.choice([-1, 1], 25) * rng.uniform(15, 50, 25)
+    m = robust_outlier_mask(idx, z, 3.5)
+    assert set(np.flatnonzero(m)) >= set(spikes)
+    assert m.sum() - 25 <= 10  # <= 1 % false positives: a 20-point MAD is itself noisy
+    # small cells are never judged
+    assert not robust_outlier_mask(np.array([0, 0]), np.array([0.0, 100.0])).any()
+
+
+def test_ill_conditioned_cells_recomputed_exactly(monkeypatch):
+    """Cells 10 km from the shift with 1 mm spread and quantised (identical) values: exact std."""
+    calls = []
+    orig = P._exact_cells
+    monkeypatch.setattr(P, "_exact_cells", lambda *a, **k: calls.append(1) or orig(*a, **k))
+    rng = np.random.default_rng(8)
+    n = 3000
+    cell = rng.integers(0, 3, n)
+    z = np.where(cell == 0, 0.0, 10_000.0) + rng.normal(0, 1e-3, n)
+    z[cell == 2] = 10_000.001  # identical values: std exactly 0
+    ds = grid_points(cell + 0.5, np.full(n, 0.5), z, 1.0, bounds=(0, 0, 3, 1), statistics=("count", "mean", "std"))
+    assert calls, "the exact second pass was not used"
+    for c in range(3):
+        v = z[cell == c]
+        assert ds["std"].values[0, c] == pytest.approx(np.std(v, ddof=1), rel=1e-12, abs=1e-11)
+        assert ds["mean"].values[0, c] == pytest.approx(np.mean(v), rel=1e-15)

@@ -1,0 +1,129 @@
+"""Stage ``grid`` end to end on a tiny synthetic raw dive: products, contract, CF/ACDD, bad input."""
+
+from __future__ import annotations
+
+import gzip
+
+import numpy as np
+import pytest
+import xarray as xr
+import yaml
+from pydantic import ValidationError
+
+from hadal.errors import InputError, StageError
+from hadal.geo import LocalFrame
+from hadal.pipeline import make_context, run_stage
+from hadal.stages import grid as grid_stage
+
+FRAME = LocalFrame(11.33, 142.2)
+
+
+def _write_ply(path, pts):
+    head = (f"ply\nformat binary_little_endian 1.0\nelement vertex {len(pts)}\n"
+            "property double x\nproperty double y\nproperty double z\nend_header\n").encode()
+    path.write_bytes(head + np.asarray(pts, "<f8").tobytes())
+
+
+@pytest.fixture
+def raw_dive(tmp_path):
+    rng = np.random.default_rng(0)
+    raw = tmp_path / "raw"
+    (raw / "multibeam").mkdir(parents=True)
+    (raw / "laser").mkdir()
+    for line in (1, 2):
+        n = 4000
+        x, y = rng.uniform(-1000, 1000, n), rng.uniform(-500 + 400 * line, -100 + 400 * line, n)
+        z = 8000 + 0.02 * x + rng.normal(0, 1.0, n)
+        lon, lat = FRAME.to_lonlat(x, y)
+        with gzip.open(raw / "multibeam" / f"em122_line{line:02d}.xyz.gz", "wt") as fh:
+            np.savetxt(fh, np.column_stack([lon, lat, z]), fmt="%.8f %.8f %.3f")
+    for k in (1, 2):
+        m = 20_000
+        pts = np.column_stack([rng.uniform(0, 1.0, m), rng.uniform(0, 0.4, m), -1400 + 0.001 * rng.normal(size=m)])
+        _write_ply(raw / "laser" / f"submap_{k:02d}.ply", pts)
+    dive = {
+        "dive_id": "T001", "platform": "test",
+        "launch": {"latitude_deg": 11.33, "longitude_deg": 142.2},
+        "map_frame": {"origin_latitude_deg": 11.33, "origin_longitude_deg": 142.2},
+        "sources": {"multibeam": ["multibeam/em122_line01.xyz.gz", "multibeam/em122_line02.xyz.gz"],
+                    "laser": ["laser/submap_01.ply", "laser/submap_02.ply"]},
+    }
+    (raw / "dive.yaml").write_text(yaml.safe_dump(dive))
+    return raw
+
+
+def _set_sources(raw, **sources):
+    d = yaml.safe_load((raw / "dive.yaml").read_text())
+    d["sources"] = sources
+    (raw / "dive.yaml").write_text(yaml.safe_dump(d))
+
+
+def test_stage_contract():
+    assert grid_stage.PRODUCTS == ("dtm", "laser_grids") and grid_stage.UPSTREAM == ()
+    p = grid_stage.Params()
+    assert p.dtm_resolution_m == 20.0 and p.laser_resolution_m == 0.01
+    with pytest.raises(ValidationError):
+        grid_stage.Params(dtm_resolution_m=0)
+
+
+def test_grid_stage_publishes_dtm_and_laser_grids(raw_dive, tmp_path):
+    ctx = make_context(raw_dive, tmp_path / "store")
+    out = run_stage("grid", ctx)
+    assert set(out) == {"dtm", "laser_grids"}
+    dtm = xr.open_dataset(out["dtm"].file("dtm.nc"), engine="h5netcdf")
+    for v in ("depth_m", "depth_median_m", "count", "depth_std_m", "uncertainty_m", "filled", "lat", "lon", "crs"):
+        assert v in dtm.variables, v
+    assert dtm["depth_m"].dims == ("y", "x") and dtm["lat"].dims == ("y", "x")
+    assert np.all(np.diff(dtm.x) > 0) and np.all(np.diff(dtm.y) > 0)
+    assert dtm.attrs["map_frame_origin_latitude_deg"] == 11.33 and dtm.attrs["resolution"] == 20.0
+    assert dtm.attrs["Conventions"].startswith("CF-1.8")
+    assert int(dtm["count"].sum()) == dtm.attrs["n_soundings_used"] <= 8000
+    xx = np.broadcast_to(dtm.x.values, dtm["depth_m"].shape)
+    err = (dtm["depth_m"] - (8000 + 0.02 * xx)).where(dtm["count"] > 0)
+    assert float(np.sqrt((err**2).mean())) < 1.0
+    man = out["dtm"].manifest()
+    assert len(man["inputs"]) == 2 and man["parameters"]["dtm_resolution_m"] == 20.0
+    names = sorted(f["name"] for f in out["laser_grids"].manifest()["files"])
+    assert names == ["submap_01.nc", "submap_02.nc"]
+    lg = xr.open_dataset(out["laser_grids"].file("submap_01.nc"), engine="h5netcdf")
+    assert {"elevation_m", "count", "elevation_std_m"} <= set(lg.data_vars)
+    assert lg.attrs["resolution"] == 0.01 and lg.sizes["x"] == 100
+    # default: the laser survey's own frame - no projection; the position attributes are the dive's
+    assert "crs" not in lg.variables and "local frame" in lg["x"].attrs["long_name"]
+    assert lg.attrs["dive_id"] == "T001"
+
+
+def test_products_pass_cf_acdd_compliance(raw_dive, tmp_path):
+    pytest.importorskip("compliance_checker")
+    from hadal.products.compliance import check_compliance
+
+    _set_sources(raw_dive, multibeam=["multibeam/em122_line01.xyz.gz"], laser=["laser/submap_01.ply"])
+    paths = []
+    for frame in ("local", "map"):  # laser grids in their own frame, and geolocated in the map frame
+        (raw_dive / "pipeline.yaml").write_text(f"grid: {{laser_frame: {frame}}}\n")
+        out = run_stage("grid", make_context(raw_dive, tmp_path / "store"))
+        paths.append(out["laser_grids"].file("submap_01.nc"))
+    assert "crs" in xr.open_dataset(paths[1], engine="h5netcdf").variables
+    for path in (out["dtm"].file("dtm.nc"), *paths):
+        rep = check_compliance(path)
+        assert rep.ok, rep.describe()
+
+
+def test_missing_and_bad_inputs_publish_nothing(raw_dive, tmp_path):
+    store = tmp_path / "store"
+    (raw_dive / "laser" / "submap_02.ply").write_bytes(b"ply\nformat binary_little_endian 1.0\n")
+    with pytest.raises(InputError, match="submap_02"):
+        run_stage("grid", make_context(raw_dive, store))
+    assert not (store / "T001").exists() or not any((store / "T001").glob("*/v*"))
+    _set_sources(raw_dive, multibeam=["multibeam/nope.xyz.gz"])
+    with pytest.raises(InputError, match="does not exist"):
+        run_stage("grid", make_context(raw_dive, store))
+    _set_sources(raw_dive)
+    with pytest.raises(StageError, match="no multibeam or laser"):
+        run_stage("grid", make_context(raw_dive, store))
+
+
+def test_multibeam_only_dive(raw_dive, tmp_path):
+    _set_sources(raw_dive, multibeam=["multibeam/em122_line01.xyz.gz"])
+    out = run_stage("grid", make_context(raw_dive, tmp_path / "store"))
+    assert set(out) == {"dtm"}

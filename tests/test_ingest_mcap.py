@@ -1,0 +1,135 @@
+"""MCAP reader: real ROS 2 CDR files, JSON channels of the sample-dive contract, damaged files."""
+
+from __future__ import annotations
+
+import sys
+import warnings
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from hadal.errors import InputError
+from hadal.ingest import mcap_info, read_mcap, read_mcap_tables
+
+sys.path.insert(0, str(Path(__file__).parent / "malformed"))
+from tiny_dive import TOPICS, messages, write_mcap  # noqa: E402
+
+REAL = {  # file -> {topic: (schema, count)}
+    "rosbag2_cdr_test_0.mcap": {"/test_topic": ("test_msgs/msg/BasicTypes", 3),
+                                "/array_topic": ("test_msgs/msg/Arrays", 4)},
+    "rosbag2_talker.mcap": {"/rosout": ("rcl_interfaces/msg/Log", 10),
+                            "/parameter_events": ("rcl_interfaces/msg/ParameterEvent", 0),
+                            "/topic": ("std_msgs/msg/String", 10)},
+    "rosbag2_test_bag_for_seek_0.mcap": {"topic1": ("test_msgs/BasicTypes", 5)},
+}
+
+
+@pytest.mark.parametrize("name", sorted(REAL))
+def test_real_ros2_files(shared_data, name):
+    path = shared_data / "mcap-real" / name
+    info = {c["topic"]: (c["schema"], c["messages"]) for c in mcap_info(path)}
+    assert info == REAL[name]
+    assert all(c["message_encoding"] == "cdr" and c["schema_encoding"] == "ros2msg" for c in mcap_info(path))
+    tables, report = read_mcap_tables(path)
+    assert report.messages_lost == 0 and not report.damaged
+    for topic, (_, n) in REAL[name].items():
+        assert len(tables[topic]) == n
+        assert np.all(np.diff(tables[topic]["log_time_ns"].to_numpy()) >= 0)
+
+
+def test_real_ros2_decoded_values(shared_data):
+    tables, _ = read_mcap_tables(shared_data / "mcap-real" / "rosbag2_talker.mcap")
+    assert tables["/topic"]["data"].tolist() == [f"Hello, world! {i}" for i in range(10)]
+    rosout = tables["/rosout"]
+    assert {"stamp.sec", "stamp.nanosec", "level", "msg"} <= set(rosout.columns)  # nested Time flattened
+    assert rosout["level"].eq(20).all()
+    seek, _ = read_mcap_tables(shared_data / "mcap-real" / "rosbag2_test_bag_for_seek_0.mcap")
+    assert seek["topic1"]["int32_value"].tolist() == [1, 2, 3, 4, 5]
+    cdr, _ = read_mcap(shared_data / "mcap-real" / "rosbag2_cdr_test_0.mcap", ["/array_topic"])
+    m = cdr["/array_topic"].messages[0]
+    assert m["string_values"] == ["Complex Hello1", "Complex Hello2", "Complex Hello3"]
+    assert m["basic_types_values"][0]["int32_value"] == 0  # nested message lists become dicts
+    assert m["int64_values_default"][1] == 9223372036854775807
+
+
+@pytest.fixture(scope="module")
+def tiny_mcap(tmp_path_factory):
+    msgs = messages(20.0)
+    p = tmp_path_factory.mktemp("mcap") / "haidou.mcap"
+    write_mcap(p, msgs, chunk_size=2048)
+    return p, msgs
+
+
+def test_json_channels_roundtrip(tiny_mcap):
+    p, msgs = tiny_mcap
+    data, report = read_mcap(p)
+    assert set(data) == set(TOPICS)
+    for topic, lst in msgs.items():
+        tp = data[topic]
+        assert tp.message_encoding == "json" and tp.schema_encoding == "jsonschema"
+        assert tp.log_time_ns.tolist() == [t for t, _ in lst]
+        assert tp.messages == [m for _, m in lst]
+    assert report.messages_read == report.messages_expected == sum(len(v) for v in msgs.values())
+    assert report.messages_lost == 0
+    only, rep2 = read_mcap(p, ["/haidou/keller"])
+    assert list(only) == ["/haidou/keller"] and rep2.messages_expected == len(msgs["/haidou/keller"])
+
+
+def test_truncated_mcap_recovers_intact_chunks(tiny_mcap, tmp_path):
+    p, msgs = tiny_mcap
+    total = sum(len(v) for v in msgs.values())
+    b = p.read_bytes()
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(b[: len(b) * 6 // 10])
+    with pytest.warns(UserWarning, match="unknown number of message"):
+        data, report = read_mcap(cut)
+    assert report.truncated and report.messages_lost is None and report.messages_expected is None
+    assert 0 < report.messages_read < total
+    # recovered messages are exact prefixes of each topic
+    for topic, tp in data.items():
+        assert tp.messages == [m for _, m in msgs[topic]][: len(tp.messages)]
+
+
+def test_corrupt_chunk_is_skipped_and_counted(tiny_mcap, tmp_path):
+    from mcap.reader import make_reader
+
+    p, msgs = tiny_mcap
+    total = sum(len(v) for v in msgs.values())
+    with open(p, "rb") as fh:
+        chunks = make_reader(fh).get_summary().chunk_indexes
+    assert len(chunks) > 3
+    ci = chunks[1]
+    b = bytearray(p.read_bytes())
+    mid = ci.chunk_start_offset + ci.chunk_length // 2
+    b[mid] ^= 0x5A
+    bad = tmp_path / "flip.mcap"
+    bad.write_bytes(bytes(b))
+    with pytest.warns(UserWarning, match="corrupt chunk"):
+        data, report = read_mcap(bad)
+    assert report.corrupt_chunks == 1 and not report.truncated
+    assert report.messages_expected == total
+    assert report.messages_lost == total - report.messages_read > 0
+    # messages after the corrupt chunk were recovered too
+    last = max(tp.log_time_ns.max() for tp in data.values())
+    assert last == max(t for lst in msgs.values() for t, _ in lst)
+
+
+def test_truncated_ros2_file(shared_data, tmp_path):
+    b = (shared_data / "mcap-real" / "rosbag2_talker.mcap").read_bytes()
+    cut = tmp_path / "talker_cut.mcap"
+    cut.write_bytes(b[: len(b) // 2])
+    with warnings.catch_warnings(record=True):
+        warnings.simplefilter("always")
+        _, report = read_mcap(cut)
+    assert report.truncated and report.messages_lost is None
+
+
+@pytest.mark.parametrize("content,match", [(b"", "empty"), (b"hello world, not mcap", "not an MCAP")])
+def test_not_mcap(tmp_path, content, match):
+    p = tmp_path / "x.mcap"
+    p.write_bytes(content)
+    with pytest.raises(InputError, match=match):
+        read_mcap(p)
+    with pytest.raises(InputError, match="does not exist"):
+        read_mcap(tmp_path / "nope.mcap")

@@ -1,0 +1,116 @@
+"""Stage `landing`: reads `laser_grids` from the store, publishes `landing` (parquet, NetCDF maps, figures)."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pandas as pd
+import pytest
+import xarray as xr
+from pydantic import ValidationError
+
+from hadal.config import PipelineConfig
+from hadal.dive import Dive
+from hadal.errors import InputError, StageError
+from hadal.products.io import read_parquet_metadata
+from hadal.stages import StageContext
+from hadal.stages import landing as stage
+from hadal.store import ProductStore
+
+DIVE = "test-landing"
+
+
+def _submap(ny: int, nx: int, cell: float, slope_deg: float, seed: int, x0: float = 0.0, y0: float = 0.0) -> xr.Dataset:
+    rng = np.random.default_rng(seed)
+    Y, X = np.mgrid[0:ny, 0:nx] * cell
+    z = math.tan(math.radians(slope_deg)) * Y - 1400.0 + 0.002 * rng.standard_normal((ny, nx))
+    for _ in range(4):  # rocks
+        cy, cx, r, h = rng.uniform(0, ny * cell), rng.uniform(0, nx * cell), rng.uniform(0.05, 0.12), rng.uniform(0.02, 0.25)
+        z = np.where((Y - cy) ** 2 + (X - cx) ** 2 <= r * r, z + h, z)
+    z[:, :3] = np.nan
+    z[ny // 2 : ny // 2 + 10, nx // 3 : nx // 2] = np.nan
+    return xr.Dataset(
+        {"elevation_m": (("y", "x"), z, {"units": "m", "positive": "up"})},
+        coords={"y": y0 + np.arange(ny) * cell, "x": x0 + np.arange(nx) * cell},
+    )
+
+
+def _ctx(tmp_path, **params) -> StageContext:
+    dive = Dive.model_validate({"dive_id": DIVE, "launch": {"latitude_deg": 30.0, "longitude_deg": 140.0}})
+    cfg = PipelineConfig(landing=stage.Params(**params))
+    return StageContext(dive=dive, raw_dir=tmp_path, store=ProductStore(tmp_path / "store"), config=cfg)
+
+
+def _publish_laser(ctx: StageContext, datasets: dict[str, xr.Dataset | bytes]) -> None:
+    with ctx.store.publish(DIVE, "laser_grids") as draft:
+        for name, ds in datasets.items():
+            if isinstance(ds, bytes):
+                (draft.path / f"{name}.nc").write_bytes(ds)
+            else:
+                ds.to_netcdf(draft.path / f"{name}.nc", engine="h5netcdf")
+
+
+def test_stage_publishes_sites_maps_and_figures(tmp_path):
+    ctx = _ctx(tmp_path, heading_step_deg=15.0)
+    _publish_laser(ctx, {"submap_01": _submap(300, 130, 0.02, 8.0, 1),
+                         "submap_02": _submap(300, 130, 0.02, 12.0, 2, y0=6.0)})
+    out = stage.run(ctx)
+    pv = out["landing"]
+    assert pv.product == "landing" and ctx.store.verify(pv) == []
+    df = pd.read_parquet(pv.file("landing_sites.parquet"))
+    for col in ("submap", "heading_deg", "x_m", "y_m", "radius_m", "p_s", "p_f", "p_r", "c_s", "is_best"):
+        assert col in df
+    assert set(df["submap"]) == {"submap_01", "submap_02"}
+    assert set(df["heading_deg"]) <= set(np.linspace(-90, 90, 13))
+    assert df.groupby("submap")["is_best"].sum().eq(1).all()
+    best1 = df[(df.submap == "submap_01") & df.is_best].iloc[0]
+    assert best1["slope_deg"] == pytest.approx(8.0, abs=0.5)
+    assert np.allclose(df["c_s"], (df["p_s"] + df["p_f"] + df["p_r"]) / 3)
+    meta, fields = read_parquet_metadata(pv.file("landing_sites.parquet"))
+    assert meta["table_v"]["number_of_sites"] == len(df)
+    assert meta["critical_slope_deg"] == pytest.approx(17.7, abs=0.01)
+    assert fields["c_s"]["long_name"].startswith("landing cost")
+    with xr.open_dataset(pv.file("submap_01_maps.nc"), engine="h5netcdf") as ds:
+        assert ds["exclusion"].shape == (13, 300, 130)
+        assert ds["protrusion_height_m"].attrs["units"] == "m"
+        assert int(ds["final_site"].sum()) > 0
+        assert ds.attrs["Conventions"].startswith("CF")
+    summary = json.loads(pv.file("landing_summary.json").read_text())
+    assert len(summary["final_sites"]) == 2
+    figs = sorted(p.name for p in (pv.path / "figures").glob("*.png"))
+    assert "fig25_transect.png" in figs and "fig21_costs_vs_heading.png" in figs
+    assert any(f.startswith("fig13_") for f in figs) and any(f.startswith("fig18_") for f in figs)
+    assert sum(f.startswith("fig19_") for f in figs) == 2
+    assert manifest_upstream(pv) == ["laser_grids"]
+
+
+def manifest_upstream(pv) -> list[str]:
+    return [u["product"] for u in pv.manifest()["upstream"]]
+
+
+def test_stage_needs_laser_grids(tmp_path):
+    ctx = _ctx(tmp_path)
+    with pytest.raises(StageError, match="laser_grids"):
+        stage.run(ctx)
+
+
+def test_stage_bad_input_publishes_nothing(tmp_path):
+    ctx = _ctx(tmp_path, figures=False, heading_step_deg=45.0)
+    _publish_laser(ctx, {"submap_01": _submap(120, 60, 0.02, 5.0, 3), "submap_02": b"\x89HDF\r\n truncated"})
+    with pytest.raises(InputError, match="submap_02"):
+        stage.run(ctx)
+    assert not ctx.store.has(DIVE, "landing")
+    assert not list((tmp_path / "store" / DIVE / "landing").glob(".staging-*"))
+    ctx2 = _ctx(tmp_path / "b", figures=False)
+    _publish_laser(ctx2, {"submap_01": xr.Dataset({"depth": (("y", "x"), np.zeros((5, 5)))})})
+    with pytest.raises(InputError, match="elevation_m"):
+        stage.run(ctx2)
+
+
+def test_params_in_pipeline_config():
+    cfg = PipelineConfig.model_validate({"landing": {"vehicle": {"length_m": 2.0}, "heading_step_deg": 10}})
+    assert cfg.landing.vehicle.length_m == 2.0 and cfg.landing.vehicle.width_m == 0.5
+    with pytest.raises(ValidationError):
+        PipelineConfig.model_validate({"landing": {"nonsense": 1}})

@@ -1,0 +1,232 @@
+"""Orchestration: cache keys, retries, cached flow re-runs, Dask batch of dives, cron deployment on a real server."""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from hadal.errors import InputError
+from hadal.pipeline import make_context
+from hadal.report.testing import publish_fake_products, write_fake_dive
+from hadal.store import ProductStore
+
+REPO = Path(__file__).resolve().parents[1]
+if str(REPO) not in sys.path:  # flows/ and tasks/ live at the repository root
+    sys.path.insert(0, str(REPO))
+
+from tasks.stage import fingerprint_key, retry_on_io_error, stage_fingerprint  # noqa: E402
+
+
+@pytest.fixture
+def fake(tmp_path):
+    store = tmp_path / "store"
+    publish_fake_products(ProductStore(store), "dive-a", products=("ctd",))
+    raw = write_fake_dive(tmp_path / "raw" / "dive-a", "dive-a")
+    return raw, store
+
+
+def _key(stage, raw, store, config=None):
+    return fingerprint_key(stage_fingerprint(stage, make_context(raw, store, config)))
+
+
+def test_cache_key_tracks_parameters_upstream_and_raw_files(fake, tmp_path):
+    raw, store = fake
+    k0 = _key("report", raw, store)
+    assert _key("report", raw, store) == k0  # deterministic
+    cfg = tmp_path / "cfg.yaml"
+    cfg.write_text("report: {dpi: 72}\n")
+    assert _key("report", raw, store, cfg) != k0  # a parameter changed
+    cfg.write_text("report: {}\n")
+    assert _key("report", raw, store, cfg) == k0  # defaults spelled out = same parameters
+    publish_fake_products(ProductStore(store), "dive-a", products=("dtm",))
+    k1 = _key("report", raw, store)
+    assert k1 != k0  # a new upstream product version
+    assert _key("report", raw, tmp_path / "other-store") != k1  # another store
+    # raw files: ingest hashes the files it reads
+    (raw / "csv").mkdir()
+    (raw / "csv" / "ctd.csv").write_text("time,pressure_dbar\n2018-10-06T23:00:00Z,1.0\n")
+    (raw / "dive.yaml").write_text((raw / "dive.yaml").read_text() + "sources: {csv: {ctd: csv/ctd.csv}}\n")
+    fp = stage_fingerprint("ingest", make_context(raw, store))
+    assert str(raw.resolve() / "csv" / "ctd.csv") in fp["raw"]
+    ki = fingerprint_key(fp)
+    (raw / "csv" / "ctd.csv").write_text("time,pressure_dbar\n2018-10-06T23:00:00Z,2.0\n")
+    assert _key("ingest", raw, store) != ki
+    assert _key("report", raw, store) != k1  # dive.yaml is an input of every stage
+
+
+def test_retry_condition_only_for_io_errors():
+    class S:
+        def __init__(self, exc):
+            self.data = exc
+
+    assert retry_on_io_error(None, None, S(OSError("NFS hiccup")))
+    assert not retry_on_io_error(None, None, S(InputError("truncated file")))
+    assert not retry_on_io_error(None, None, S(ValueError("bug")))
+
+
+@pytest.mark.prefect
+def test_flow_reuses_unchanged_stage_and_reruns_changed(fake, tmp_path, prefect_harness):
+    from flows.post_cruise import post_cruise
+
+    raw, store = fake
+    st = ProductStore(store)
+    out1 = post_cruise(str(raw), str(store), None, ["report"])
+    out2 = post_cruise(str(raw), str(store), None, ["report"])
+    assert out1 == out2 and [v.label for v in st.versions("dive-a", "report")] == ["v001"]  # cache hit
+    assert (store / ".prefect-results").is_dir()
+    cfg = tmp_path / "cfg.yaml"
+    cfg.write_text("report: {dpi: 60}\n")
+    out3 = post_cruise(str(raw), str(store), str(cfg), ["report"])
+    assert out3["report"].endswith("v002")  # parameter changed -> re-run
+    out4 = post_cruise(str(raw), str(store), str(cfg), ["report"], force=True)
+    assert out4["report"].endswith("v003")  # --force bypasses the cache
+    shutil.rmtree(out4["report"])  # a cached result whose version disappeared is re-run, not returned
+    out5 = post_cruise(str(raw), str(store), str(cfg), ["report"])
+    assert Path(out5["report"], "report.html").is_file()
+    # the report was published as Prefect artifacts
+    from prefect.client.orchestration import get_client
+    from prefect.client.schemas.filters import ArtifactFilter, ArtifactFilterKey
+
+    with get_client(sync_client=True) as client:
+        arts = client.read_artifacts(artifact_filter=ArtifactFilter(key=ArtifactFilterKey(any_=["dive-a-report"])))
+    assert arts and "dive-a" in arts[0].data
+
+
+@pytest.mark.prefect
+@pytest.mark.parametrize("processes", [False, pytest.param(True, marks=pytest.mark.slow)], ids=["threads", "processes"])
+def test_batch_two_dives_on_two_dask_workers(tmp_path, prefect_harness, processes):
+    """Two dives fanned out on a 2-worker LocalCluster (worker processes: slow, ~40 s on a busy 2-core box)."""
+    from flows.batch import run_batch
+
+    store = tmp_path / "store"
+    st = ProductStore(store)
+    raws = []
+    for d in ("dive-a", "dive-b"):
+        publish_fake_products(st, d, products=("ctd",))
+        raws.append(str(write_fake_dive(tmp_path / "raw" / d, d)))
+    bad = tmp_path / "raw" / "not-a-dive"
+    bad.mkdir()
+    out = run_batch([*raws, str(bad)], str(store), None, ["report"], workers=2, processes=processes)
+    for raw, d in zip(raws, ("dive-a", "dive-b"), strict=True):
+        assert out[raw]["ok"], out[raw]
+        assert Path(out[raw]["published"]["report"]).parent == store / d / "report"
+        assert st.versions(d, "report")
+    assert not out[str(bad)]["ok"] and "dive.yaml" in out[str(bad)]["error"]
+
+
+# ------------------------------------------------------------------------------------------ CLI
+def cli(monkeypatch, capsys, *args: str) -> tuple[int, str, str]:
+    """Run ``hadal ARGS`` in-process (a subprocess would pay hadal's import time per call)."""
+    from hadal import cli as hcli
+
+    monkeypatch.setattr(sys, "argv", ["hadal", *args])
+    with pytest.raises(SystemExit) as exc:
+        hcli.main()
+    out = capsys.readouterr()
+    return int(exc.value.code or 0), out.out, out.err
+
+
+def one_line_error(res: tuple[int, str, str], fragment: str) -> None:
+    rc, _, err = res
+    assert rc == 2, err
+    assert "Traceback" not in err
+    lines = [ln for ln in err.splitlines() if ln.startswith("error:")]
+    assert len(lines) == 1 and fragment in " ".join(err.split()), err
+
+
+def test_cli_serve_and_batch_errors(tmp_path, monkeypatch, capsys):
+    from prefect.settings import PREFECT_API_URL, temporary_settings
+
+    raw = write_fake_dive(tmp_path / "raw", "dive-a")
+    monkeypatch.setenv("COLUMNS", "250")
+    monkeypatch.delenv("PREFECT_API_URL", raising=False)
+    with temporary_settings(restore_defaults={PREFECT_API_URL}):
+        one_line_error(cli(monkeypatch, capsys, "serve", str(raw), "--cron", "0 3 * * *", "--store", str(tmp_path)),
+                       "needs a Prefect server")
+    one_line_error(cli(monkeypatch, capsys, "serve", str(raw), "--cron", "every day"), "invalid cron")
+    one_line_error(cli(monkeypatch, capsys, "run", "--dives", str(tmp_path / "nothing")), "does not exist")
+    (tmp_path / "empty").mkdir()
+    one_line_error(cli(monkeypatch, capsys, "run", "--dives", str(tmp_path / "empty")), "no dive.yaml")
+    one_line_error(cli(monkeypatch, capsys, "run", "--dives", str(raw), "--workers", "0", "--store",
+                       str(tmp_path / "s")), "--workers")
+
+
+# ------------------------------------------------------------------------------------------ serve
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def _post(url: str, body: dict) -> list:
+    import httpx
+
+    r = httpx.post(url, json=body, timeout=10)
+    r.raise_for_status()
+    return r.json()
+
+
+@pytest.mark.slow
+def test_serve_creates_scheduled_runs_on_a_real_server(tmp_path):
+    """`hadal serve` registers a cron deployment; the server's scheduler creates Scheduled runs for it."""
+    import httpx
+
+    port = _free_port()
+    api = f"http://127.0.0.1:{port}/api"
+    home = tmp_path / "prefect-home"
+    env = {**os.environ, "PREFECT_HOME": str(home), "PREFECT_API_URL": api, "PREFECT_SERVER_ANALYTICS_ENABLED": "false",
+           "PREFECT_SERVER_SERVICES_SCHEDULER_LOOP_SECONDS": "2", "PREFECT_SERVER_UI_ENABLED": "false",
+           "PREFECT_LOGGING_LEVEL": "WARNING",
+           "PYTHONPATH": os.pathsep.join([str(REPO / "src"), str(REPO)]), "HADAL_PROGRESS": "0"}
+    server_env = {k: v for k, v in env.items() if k != "PREFECT_API_URL"}
+    prefect = str(Path(sys.executable).with_name("prefect"))
+    server = subprocess.Popen([prefect, "server", "start", "--host", "127.0.0.1", "--port", str(port), "--no-ui"],
+                              env=server_env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, cwd=tmp_path)
+    procs = [server]
+    try:
+        deadline = time.monotonic() + 75
+        while time.monotonic() < deadline:
+            try:
+                if httpx.get(f"{api}/health", timeout=2).status_code == 200:
+                    break
+            except httpx.HTTPError:
+                pass
+            assert server.poll() is None, server.stderr.read().decode()[-2000:]
+            time.sleep(0.5)
+        else:
+            pytest.fail("prefect server did not start")
+        store = tmp_path / "store"
+        raw = write_fake_dive(tmp_path / "raw", "dive-a")
+        serve = subprocess.Popen([sys.executable, "-m", "hadal.cli", "serve", str(raw), "--cron", "0 3 * * *",
+                                  "--name", "nightly", "--store", str(store)], env=env, cwd=REPO,
+                                 stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+        procs.append(serve)
+        runs: list = []
+        while time.monotonic() < deadline + 45 and not runs:
+            assert serve.poll() is None, serve.stderr.read().decode()[-2000:]
+            deps = _post(f"{api}/deployments/filter", {"deployments": {"name": {"any_": ["nightly"]}}})
+            if deps:
+                runs = _post(f"{api}/flow_runs/filter", {
+                    "deployments": {"id": {"any_": [deps[0]["id"]]}},
+                    "flow_runs": {"state": {"type": {"any_": ["SCHEDULED"]}}}})
+            time.sleep(1)
+        assert runs, "no scheduled flow run appeared for the deployment"
+        assert deps[0]["schedules"][0]["schedule"]["cron"] == "0 3 * * *"
+        assert json.loads(json.dumps(deps[0]["parameters"]))["raw_dir"] == str(raw.resolve())
+        assert all(r["state"]["type"] == "SCHEDULED" for r in runs)
+    finally:
+        for p in reversed(procs):
+            p.terminate()
+        for p in reversed(procs):
+            try:
+                p.wait(timeout=15)
+            except subprocess.TimeoutExpired:
+                p.kill()
