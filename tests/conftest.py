@@ -34,3 +34,31 @@ def prefect_harness():
 
     with prefect_test_harness(server_startup_timeout=120):
         yield
+
+
+@pytest.fixture(scope="session")
+def small_dive(tmp_path_factory) -> Path:
+    """The seeded small sample dive (``hadal synth --small``), generated once per test session (~10 s).
+
+    Set ``HADAL_SAMPLE_SMALL`` to an existing one to skip generation while iterating.
+    """
+    pre = os.environ.get("HADAL_SAMPLE_SMALL")
+    if pre and (Path(pre) / "truth.json").is_file():
+        return Path(pre)
+    from hadal.synth import generate_dive
+
+    return generate_dive(tmp_path_factory.mktemp("sample") / "haidou-small", small=True)
+
+
+@pytest.fixture(scope="session")
+def small_run(small_dive, tmp_path_factory):
+    """Every stage run on the small sample dive (Prefect-free), once per session: ``(ctx, products)``."""
+    import warnings
+
+    from hadal.pipeline import make_context, run_pipeline
+
+    ctx = make_context(small_dive, tmp_path_factory.mktemp("store"))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        products = run_pipeline(ctx)
+    return ctx, products

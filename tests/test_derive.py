@@ -219,23 +219,11 @@ def test_latitude_override_and_rectangle_rule(tmp_path, synth):
     assert meta["latitude_source"] == "derive.latitude_deg parameter"
 
 
-def test_sample_dive_if_present(tmp_path):
+def test_sample_dive_true_depth(small_run):
     """Acceptance on the synthetic sample dive (``hadal synth``, pressure from TEOS-10 ``gsw.p_from_z`` with
-    dynamic height) when one has been written to /tmp/hadal-sample-small: true depth within 1 m at ~10 900 m."""
-    import shutil
-
-    src = Path("/tmp/hadal-sample-small")
-    if not (src / "dive.yaml").is_file() or not (src / "truth" / "track.parquet").is_file():
-        pytest.skip("no sample dive at /tmp/hadal-sample-small (write one with: hadal synth --small ...)")
-    from hadal.stages import ingest
-
-    if not callable(getattr(ingest, "run", None)):
-        pytest.skip("ingest stage not implemented yet")
-    raw = tmp_path / "raw"  # a private copy: the sample may be rewritten while the test runs
-    shutil.copytree(src, raw, ignore=shutil.ignore_patterns("multibeam", "laser"))
-    ctx = make_context(raw, tmp_path / "store")
-    run_stage("ingest", ctx)
-    out = run_stage("derive", ctx)
+    dynamic height): true depth within 1 m at ~10 900 m, the deepest point reported."""
+    ctx, out = small_run
+    raw = ctx.raw_dir
     df = pd.read_parquet(out["ctd"].file("ctd.parquet"))
     truth = pd.read_parquet(raw / "truth" / "track.parquet")
     t0 = pd.Timestamp(df["time"].iloc[0])

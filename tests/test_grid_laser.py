@@ -77,12 +77,11 @@ def test_bad_clouds():
     assert ds.attrs["n_points_nonfinite"] == 10 and int(ds["count"].sum()) == 1990
 
 
-@pytest.mark.skipif(not Path("/tmp/hadal-sample-small/truth.json").is_file(), reason="sample dive absent")
-def test_sample_dive_laser_submap_against_truth():
+def test_sample_dive_laser_submap_against_truth(small_dive):
     """The sample submap: 10 mm grid inside the true elevation range, its swath gap and hole unmapped."""
     from hadal.grid import read_point_cloud
 
-    raw = Path("/tmp/hadal-sample-small")
+    raw = small_dive
     truth = json.loads((raw / "truth.json").read_text())["laser"]["submaps"][0]
     ds = grid_laser(read_point_cloud(raw / truth["file"]))
     assert ds.attrs["n_points_input"] == truth["n_points"]

@@ -20,7 +20,6 @@ from hadal.grid import (
     rmse_against,
 )
 
-SAMPLE_SMALL = Path("/tmp/hadal-sample-small")
 
 
 def _terrain(x, y):
@@ -166,8 +165,7 @@ def _section_with(d, key):
     return None
 
 
-@pytest.mark.skipif(not (SAMPLE_SMALL / "truth.json").is_file(), reason="sample dive /tmp/hadal-sample-small absent")
-def test_sample_dive_round_trip():
+def test_sample_dive_round_trip(small_dive):
     """Grid the sample dive's soundings and compare with truth/terrain.nc against the injected noise.
 
     truth.json records the sounding noise (fraction of depth), the spike fraction and a constant bias
@@ -178,7 +176,7 @@ def test_sample_dive_round_trip():
     from hadal.dive import load_dive, resolve_source
     from hadal.stages.grid import Params, make_dtm
 
-    dive, raw = load_dive(SAMPLE_SMALL)
+    dive, raw = load_dive(small_dive)
     mb = _section_with(json.loads((raw / "truth.json").read_text()), "bias_m")
     assert mb is not None and "noise_sigma_fraction_of_depth" in mb, "truth.json has no multibeam section"
     files = [resolve_source(raw, f) for f in dive.sources.multibeam]

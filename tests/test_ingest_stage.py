@@ -22,8 +22,6 @@ from hadal.store import ProductStore, sha256_file
 sys.path.insert(0, str(Path(__file__).parent / "malformed"))
 from tiny_dive import T0, truth, write_dive  # noqa: E402
 
-SAMPLE = Path("/tmp/hadal-sample-small")
-
 
 def _run(raw: Path, store: Path, **params):
     dive, rdir = load_dive(raw)
@@ -104,15 +102,14 @@ def test_versions_and_reproducibility(runs, tmp_path):
     pd.testing.assert_frame_equal(df1, df2)
 
 
-def test_sample_dive(tmp_path):
-    if not (SAMPLE / "dive.yaml").is_file():
-        pytest.skip(f"sample dive not generated at {SAMPLE}")
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        pv, df, meta, _ = _run(SAMPLE, tmp_path / "store")
+def test_sample_dive(small_run):
+    ctx, out = small_run
+    path = out["sensors"].file("sensors.parquet")
+    meta, _ = read_parquet_metadata(path)
+    df = pd.read_parquet(path)
     from hadal.ingest import mcap_info
 
-    n_ctd = next(c["messages"] for c in mcap_info(SAMPLE / "logs" / "haidou.mcap") if c["topic"] == "/haidou/ctd")
+    n_ctd = next(c["messages"] for c in mcap_info(ctx.raw_dir / "logs" / "haidou.mcap") if c["topic"] == "/haidou/ctd")
     assert len(df) == n_ctd > 1000  # the CTD is the time base (16 Hz full dive; reduced rate in the small one)
     assert meta["time_base_rate_hz"] > 0
     assert df["time"].is_monotonic_increasing and df["time"].is_unique

@@ -12,7 +12,7 @@ import pytest
 import xarray as xr
 
 from hadal.errors import InputError
-from hadal.matching import MapGrid, tercom, tercom_direct
+from hadal.matching import MapGrid, refine_tercom, tercom, tercom_direct
 from hadal.matching.testing import AnalyticTerrain, wiggly_track
 
 H = 20.0
@@ -174,26 +174,21 @@ def test_map_validation():
     assert g.y_m[0] == 0 and g.depth_m[0, 0] == 6.0
 
 
-SAMPLE = Path(os.environ.get("HADAL_SAMPLE_DIR", "/tmp/hadal-sample-small"))
-
-
-@pytest.mark.skipif(not (SAMPLE / "truth" / "terrain.nc").is_file(), reason="sample dive with truth not generated")
-def test_sample_dive_truth_terrain_and_dr_recover_bottom_start():
+def test_sample_dive_truth_terrain_and_dr_recover_bottom_start(small_dive):
     """Sample dive: true seafloor depths (+ noise) along the bottom phase, the vehicle's own dead reckoning
-    (csv/dr.csv: heading bias, scale error, correlated noise) and the true terrain as a map 4.74 m too deep:
-    matching the first 2 km of the bottom track (the stage's default ``segment_m``: the DR error grows
-    along the track - 2.6 % scale error, 1.6 deg heading bias, correlated velocity noise) with the
-    heading search (+-9 deg) recovers the start of the bottom track within one map cell."""
-    truth = json.loads((SAMPLE / "truth.json").read_text())
+    (csv/dr.csv: heading bias, scale error, correlated velocity noise) and the true terrain as a map 4.74 m
+    too deep: the whole bottom track, coarse search with headings +-9 deg, then the sub-cell refinement
+    (heading, scale), recovers the start of the bottom track within one map cell (20 m)."""
+    truth = json.loads((small_dive / "truth.json").read_text())
     st = truth["bottom_track_start"]
-    with xr.open_dataset(SAMPLE / "truth" / "terrain.nc") as ds:
+    with xr.open_dataset(small_dive / "truth" / "terrain.nc") as ds:
         lx, ly = truth["launch"]["x_east_m"], truth["launch"]["y_north_m"]
         ds = ds.sel(x=slice(lx - 3000, lx + 3000), y=slice(ly - 2500, ly + 3500)).load()  # keep the test fast
     g = MapGrid.from_any(ds["depth_m"] + 4.74)
-    trk = pd.read_parquet(SAMPLE / "truth" / "track.parquet")
+    trk = pd.read_parquet(small_dive / "truth" / "track.parquet")
     bottom = trk[trk["phase"] == "bottom"].sort_values("time")
     bottom = bottom.assign(time=bottom["time"].dt.as_unit("ns"))
-    dr = pd.read_csv(SAMPLE / "csv" / "dr.csv")
+    dr = pd.read_csv(small_dive / "csv" / "dr.csv")
     dr["time"] = pd.to_datetime(dr["time"], utc=True).dt.as_unit("ns")
     m = pd.merge_asof(bottom, dr.sort_values("time"), on="time", direction="nearest")
     from hadal.matching.fix import resample_along_track
@@ -201,11 +196,37 @@ def test_sample_dive_truth_terrain_and_dr_recover_bottom_start():
     rng = np.random.default_rng(0)
     meas = m["seafloor_depth_m"].to_numpy() + rng.normal(0, 0.5, len(m))
     prof = resample_along_track(m["east_m"], m["north_m"], meas, g.resolution_m)
-    k = prof.along_m <= 2000.0
-    r = tercom(prof.depth_m[k], prof.track_xy[k], g, headings_deg=np.arange(-9, 9.01, 0.5), precision="mixed")
-    start = r.apply(m[["east_m", "north_m"]].to_numpy()[:1])[0]
-    assert max(abs(start[0] - st["x_east_m"]), abs(start[1] - st["y_north_m"])) <= g.resolution_m
-    assert r.bias_m > 0 and not r.mismatch
+    r = tercom(prof.depth_m, prof.track_xy, g, headings_deg=np.arange(-9, 9.01, 0.5), precision="mixed",
+               min_valid_fraction=0.8)
+    rr = refine_tercom(prof.depth_m, prof.track_xy, g, r, heading_bounds_deg=(-9.25, 9.25))
+    start = rr.apply(m[["east_m", "north_m"]].to_numpy()[:1])[0]
+    assert np.hypot(start[0] - st["x_east_m"], start[1] - st["y_north_m"]) <= g.resolution_m
+    assert rr.score <= r.score and rr.bias_m == pytest.approx(4.74, abs=1.0) and not r.mismatch
+    assert rr.scale == pytest.approx(1 / (1 + truth["dr_error"]["scale_error"]), abs=0.01)
+
+
+def test_refinement_recovers_sub_cell_offset_heading_and_scale():
+    """A track rotated by 1.3 deg and stretched by 2 % at a sub-cell offset: the coarse search can only
+    snap to cells and steps; the refinement recovers the pose (bilinear map, Nelder-Mead)."""
+    rng = np.random.default_rng(3)
+    t = AnalyticTerrain.random(5, relief_m=200.0)
+    g = MapGrid.from_any(*t.grid(160, 160, H))
+    tr = wiggly_track(120, 1800.0, seed=11)
+    true_start = np.array([1013.7, 1207.3])
+    a, sc = np.deg2rad(1.3), 0.98
+    rel = tr - tr[0]
+    rot = np.column_stack([rel[:, 0] * np.cos(a) + rel[:, 1] * np.sin(a), -rel[:, 0] * np.sin(a) + rel[:, 1] * np.cos(a)])
+    true = rot * sc + true_start
+    prof = t(true[:, 0], true[:, 1]) - 3.0 + rng.normal(0, 0.2, len(tr))
+    r = tercom(prof, tr, g, headings_deg=np.arange(-3, 3.01, 0.5))
+    rr = refine_tercom(prof, tr, g, r, heading_bounds_deg=(-3.25, 3.25), scale_bounds=(0.95, 1.05))
+    coarse_err = np.hypot(r.start_x_m - true_start[0], r.start_y_m - true_start[1])
+    fine_err = np.hypot(rr.start_x_m - true_start[0], rr.start_y_m - true_start[1])
+    assert fine_err < 2.0 and fine_err < coarse_err
+    assert rr.heading_deg == pytest.approx(1.3, abs=0.1) and rr.scale == pytest.approx(0.98, abs=0.002)
+    assert rr.bias_m == pytest.approx(3.0, abs=0.2) and rr.refinement["seeds"] >= 1
+    with pytest.raises(InputError, match="MSD only"):
+        refine_tercom(prof, tr, g, tercom(prof, tr, g, "cor"))
 
 
 def test_real_etopo5_terrain_recovers_offset(shared_data):

@@ -41,6 +41,24 @@ def _store_root(store: Path | None) -> Path:
     return store if store is not None else default_store_root()
 
 
+class _NoHadalTracebacks(logging.Filter):
+    """Prefect logs a failed flow run's exception *with its traceback*; a HadalError is a one-line report for the
+    user (printed by :func:`main`), so drop the traceback from such records (other exceptions keep theirs)."""
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        if record.exc_info and isinstance(record.exc_info[1], HadalError):
+            record.exc_info = None
+            record.exc_text = None
+        return True
+
+
+def _quiet_prefect_tracebacks() -> None:
+    for name in ("prefect.flow_runs", "prefect.task_runs"):
+        lg = logging.getLogger(name)
+        if not any(isinstance(f, _NoHadalTracebacks) for f in lg.filters):
+            lg.addFilter(_NoHadalTracebacks())
+
+
 def _run_flow(raw_dir: Path, store: Path | None, config: Path | None, stages: list[str] | None,
               force: bool = False) -> dict[str, str]:
     from hadal.dive import load_dive
@@ -54,6 +72,8 @@ def _run_flow(raw_dir: Path, store: Path | None, config: Path | None, stages: li
     # the temporary server may need more than Prefect's default 20 s on a busy machine
     os.environ.setdefault("PREFECT_SERVER_EPHEMERAL_STARTUP_TIMEOUT_SECONDS", "120")
     from flows.post_cruise import post_cruise
+
+    _quiet_prefect_tracebacks()
 
     console.print(f"[bold]hadal[/] {raw_dir} → stages: {', '.join(names)}")
     return post_cruise(
@@ -95,6 +115,8 @@ def _run_batch(raw_dirs: list[Path], store: Path | None, config: Path | None, wo
     # the temporary server may need more than Prefect's default 20 s on a busy machine
     os.environ.setdefault("PREFECT_SERVER_EPHEMERAL_STARTUP_TIMEOUT_SECONDS", "120")
     from flows.batch import run_batch
+
+    _quiet_prefect_tracebacks()
 
     where = f"scheduler {scheduler}" if scheduler else f"LocalCluster, {workers} worker(s)"
     console.print(f"[bold]hadal[/] batch of {len(dives)} dive(s) on {where} → stages: {', '.join(names)}")
@@ -266,10 +288,12 @@ def config_cmd(
 
 def main() -> None:
     logging.basicConfig(level=os.environ.get("HADAL_LOG_LEVEL", "INFO"), format="%(levelname)s %(name)s: %(message)s")
+    for noisy in ("httpx", "httpcore"):  # one line per Prefect API request otherwise
+        logging.getLogger(noisy).setLevel(logging.WARNING)
     try:
         rc = app(standalone_mode=False)
     except HadalError as exc:
-        console.print(f"[red]error:[/] {exc}", highlight=False)
+        console.print(f"[red]error:[/] {exc}", highlight=False, soft_wrap=True)  # one line, even at 80 columns
         sys.exit(2)
     except typer.Exit as exc:
         sys.exit(exc.exit_code)

@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import contextlib
 import datetime as _dt
+import errno
 import fcntl
 import hashlib
 import json
@@ -233,9 +234,15 @@ class ProductStore:
         If the body raises, the staging directory is deleted and nothing is published.
         """
         pdir = self.product_dir(dive, product)
-        pdir.mkdir(parents=True, exist_ok=True)
+        # directories this publish creates are removed again if it fails: a failed run leaves the store as it was
+        created = [d for d in (pdir, pdir.parent, self.root) if not d.exists()]
         staging = pdir / f".staging-{os.getpid()}-{uuid.uuid4().hex[:12]}"
-        staging.mkdir()
+        try:
+            pdir.mkdir(parents=True, exist_ok=True)
+            staging.mkdir(parents=True)  # parents: a concurrent failed publish may have just removed pdir
+        except OSError as exc:
+            _remove_empty(created)
+            raise _store_error(exc, dive, product) from exc
         draft = Draft(
             path=staging, dive=dive, product=product,
             parameters=dict(parameters or {}), inputs=[Path(p) for p in inputs],
@@ -245,8 +252,11 @@ class ProductStore:
             yield draft
             self._write_manifest(draft)
             draft.result = self._commit(pdir, staging, dive, product)
-        except BaseException:
+        except BaseException as exc:
             shutil.rmtree(staging, ignore_errors=True)
+            _remove_empty(created)
+            if _is_storage_error(exc):
+                raise _store_error(exc, dive, product) from exc
             raise
 
     def _write_manifest(self, draft: Draft) -> None:
@@ -323,6 +333,34 @@ class ProductStore:
             elif sha256_file(p) != f["sha256"]:
                 problems.append(f"checksum mismatch {f['name']}")
         return problems
+
+
+#: write failures that are about the store's storage (not the inputs): reported as a one-line StoreError
+_STORAGE_ERRNOS = frozenset({errno.ENOSPC, errno.EDQUOT, errno.EFBIG, errno.EROFS})
+
+
+def _is_storage_error(exc: BaseException) -> bool:
+    """ENOSPC & co., also from libraries (pyarrow, HDF5) that only put the OS message in the text."""
+    if not isinstance(exc, OSError):
+        return False
+    return exc.errno in _STORAGE_ERRNOS or any(os.strerror(e) in str(exc) for e in _STORAGE_ERRNOS)
+
+
+def _store_error(exc: OSError, dive: str, product: str) -> StoreError:
+    where = f" ({exc.filename})" if getattr(exc, "filename", None) else ""
+    text = str(exc)
+    reason = (exc.strerror or next((os.strerror(e) for e in _STORAGE_ERRNOS if os.strerror(e) in text), None)
+              or (text.splitlines()[0] if text else type(exc).__name__))
+    return StoreError(f"cannot write {dive}/{product}: {reason}{where}; nothing was published")
+
+
+def _remove_empty(dirs: Sequence[Path]) -> None:
+    """rmdir the given directories (innermost first) where they are empty; never raises."""
+    for d in dirs:
+        try:
+            d.rmdir()
+        except OSError:
+            pass
 
 
 def _fsync_dir(path: Path) -> None:

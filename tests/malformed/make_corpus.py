@@ -190,6 +190,27 @@ CASES: list[Case] = [
     Case("csv_nan_inf", "'nan' and 'inf' in dr.csv", lambda d: (_csv_only(d), _edit_csv(
         d, "dr.csv", lambda L: L[:3] + [L[3].rsplit(",", 3)[0] + ",inf,nan,0.5"] + L[4:])),
          check=lambda df, m: m["non_finite_values"].get("dr_east_m") == 1 and _flag(df, "dr_east_m", 1)),
+    Case("csv_extra_column", "an unmapped extra column in ctd.csv: ignored",
+         lambda d: (_csv_only(d), _edit_csv(d, "ctd.csv", lambda L: [L[0] + ",oxygen_ml_l"] + [x + ",5.1" for x in L[1:]])),
+         check=lambda df, m: len(df) == 320 and "oxygen_ml_l" not in df.columns),
+    Case("csv_renamed_column", "keller.csv header says pressure_dbar instead of pressure_bar",
+         lambda d: (_csv_only(d), _edit_csv(d, "keller.csv", lambda L: ["time,pressure_dbar"] + L[1:])),
+         "InputError", "missing column.*pressure_bar"),
+    Case("csv_mixed_units", "keller.csv logged in dbar but declared bar: out-of-range detection",
+         lambda d: (_csv_only(d), _edit_csv(d, "keller.csv", lambda L: L[:1] + [
+             f"{x.split(',')[0]},{float(x.split(',')[1]) * 10:.3f}" for x in L[1:]])),
+         "InputError", "outside the plausible range"),
+    Case("csv_duplicated_time", "every ctd.csv row twice: duplicates dropped and counted",
+         lambda d: (_csv_only(d), _edit_csv(d, "ctd.csv", lambda L: L[:1] + [x for x in L[1:] for _ in (0, 1)])),
+         check=lambda df, m: m["alignment"]["ctd"]["duplicates"] == 320 and len(df) == 320 and df["time"].is_unique),
+    Case("csv_gigantic_values", "1e308 temperatures in ctd.csv: flagged bad (4)",
+         lambda d: (_csv_only(d), _edit_csv(d, "ctd.csv", lambda L: L[:1] + [
+             (",".join(x.split(",")[:2] + ["1e308"] + x.split(",")[3:]) if i % 40 == 5 else x) for i, x in enumerate(L[1:])])),
+         check=lambda df, m: int((df["temperature_its90_degc_qc"] == 4).sum()) == 8),
+    Case("csv_pressure_spike", "one CTD pressure spike of +3000 dbar in ctd.csv: flagged",
+         lambda d: (_csv_only(d), _edit_csv(d, "ctd.csv", lambda L: L[:1] + [
+             (",".join(x.split(",")[:3] + [str(float(x.split(",")[3]) - 3000.0)]) if i == 100 else x) for i, x in enumerate(L[1:])])),
+         check=lambda df, m: int(df["pressure_ctd_dbar_qc"].iloc[100]) in (3, 4)),
     Case("csv_missing_optional_file", "dive.yaml lists no altimeter CSV",
          lambda d: _dive_yaml(d, sources={"mcap": [], "csv": {k: f"csv/{f}" for k, f in
                                                               [("ctd", "ctd.csv"), ("gauge", "keller.csv"),

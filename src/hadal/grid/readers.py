@@ -335,6 +335,7 @@ def _read_netcdf_grid(p: Path, variable: str | None) -> xr.DataArray:
     fill = da.attrs.get("_FillValue")
     if fill is not None:
         da = da.where(da != fill)
+    da = da.where(np.isfinite(da))  # inf cells are nodata, as in GeoTIFFs
     if da.sizes["x"] > 1 and float(da.x[1] - da.x[0]) < 0:
         da = da.isel(x=slice(None, None, -1))
     if da.sizes["y"] > 1 and float(da.y[1] - da.y[0]) < 0:

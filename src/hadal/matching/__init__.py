@@ -1,13 +1,14 @@
 """Terrain matching: TERCOM coarse search (COR/MAD/MSD), MRF fine matching, geographic fix.
 
 * :func:`tercom` -- exhaustive FFT-based TERCOM over the whole map (TERCOM paper Eqs. 15-17, §4.2);
-  :func:`tercom_direct` is the per-offset reference loop.
+  :func:`tercom_direct` is the per-offset reference loop; :func:`refine_tercom` the sub-cell
+  (bilinear, heading, scale) refinement of an MSD fix.
 * :func:`mrf_refine` -- MRF fine matching of a gridded real-time terrain patch (MRF paper Eqs. 4-14).
 * :mod:`hadal.matching.fix` -- measured profile from ``ctd.parquet``, matched track, ``fix.json`` content.
 """
 
 from hadal.matching.mapgrid import MapGrid
 from hadal.matching.mrf import MrfResult, mrf_refine
-from hadal.matching.tercom import TercomResult, tercom, tercom_direct
+from hadal.matching.tercom import TercomResult, refine_tercom, tercom, tercom_direct
 
-__all__ = ["MapGrid", "MrfResult", "TercomResult", "mrf_refine", "tercom", "tercom_direct"]
+__all__ = ["MapGrid", "MrfResult", "TercomResult", "mrf_refine", "refine_tercom", "tercom", "tercom_direct"]

@@ -14,6 +14,7 @@ import numpy as np
 import pandas as pd
 
 from hadal.errors import InputError
+from hadal.products.io import json_clean  # noqa: F401  (re-exported: fix.json writer)
 from hadal.geo import LocalFrame, format_position, geodesic_distance_m
 from hadal.matching.tercom import TercomResult
 
@@ -94,21 +95,6 @@ def matched_track(bottom: pd.DataFrame, res: TercomResult, frame: LocalFrame, ma
     return out
 
 
-def json_clean(obj):
-    """Replace NaN/inf by None and numpy scalars by Python ones so ``json.dumps`` writes strict JSON."""
-    if isinstance(obj, dict):
-        return {k: json_clean(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [json_clean(v) for v in obj]
-    if isinstance(obj, (np.integer,)):
-        return int(obj)
-    if isinstance(obj, (float, np.floating)):
-        return float(obj) if np.isfinite(obj) else None
-    if isinstance(obj, np.bool_):
-        return bool(obj)
-    return obj
-
-
 def fix_summary(res: TercomResult, track: pd.DataFrame, frame: LocalFrame, launch_lat_deg: float, launch_lon_deg: float) -> dict:
     """fix.json content: start and deepest point in lat/lon and degrees-minutes, drift, uncertainty, warnings."""
     first = track.iloc[0]  # the first bottom sample, placed on the map by the match
@@ -127,7 +113,8 @@ def fix_summary(res: TercomResult, track: pd.DataFrame, frame: LocalFrame, launc
             "comment": "matched position of the first bottom-phase sample",
         },
         "profile_start": {"x_east_m": res.start_x_m, "y_north_m": res.start_y_m,
-                          "comment": "best TERCOM offset: map cell of the first along-track profile point"},
+                          "comment": "map position of the first along-track profile point (TERCOM cell, or refined)"},
+        "refinement": res.refinement,
         "best_offset_m": {"east": res.start_x_m - res.track_start_xy[0] - lx,
                           "north": res.start_y_m - res.track_start_xy[1] - ly,
                           "comment": "map position of the track start minus launch point plus dead-reckoned start"},

@@ -89,6 +89,7 @@ class TercomResult:
     track_start_xy: tuple[float, float]
     warnings: list[str] = field(default_factory=list)
     scale: float = 1.0
+    refinement: dict | None = None
 
     @property
     def sigma_m(self) -> float:
@@ -533,3 +534,152 @@ def tercom_direct(profile_depth, track_xy, dtm, starts_rc, criterion: str = "msd
         else:
             out[k] = np.mean(dm * db)
     return out
+
+
+def refine_tercom(
+    profile_depth,
+    track_xy,
+    dtm,
+    coarse: TercomResult,
+    *,
+    n_seeds: int = 12,
+    heading_bounds_deg: tuple[float, float] | None = None,
+    scale_bounds: tuple[float, float] = (0.95, 1.05),
+    min_valid_fraction: float = 0.8,
+    jackknife_blocks: int = 4,
+) -> TercomResult:
+    """Continuous refinement of a coarse TERCOM (MSD) fix: sub-cell start, heading and track scale.
+
+    **Deviation from the paper, and why.** §4.2 stops at the map resolution: the track is snapped to
+    whole cells and the best cell wins. On steep terrain the half-cell snapping error (up to 10 m at
+    20 m cells) is worth metres of depth, and a dead-reckoned track with a heading bias and a speed
+    scale error of a few per cent never fits the grid exactly, so the best *snapped* offset can lie a
+    cell or two from the truth while a wrong heading fits the quantised samples better. Here each of
+    the ``n_seeds`` best distinct local minima of the coarse all-heading surface seeds a Nelder-Mead
+    search of the Eq. (17) MSD (bias estimated in closed form, as in the coarse search) with the map
+    sampled **bilinearly** at the un-snapped track positions, over (start x, start y, heading, scale)
+    within the given bounds; the lowest refined MSD wins. Positions are then continuous (no longer
+    cell centres) and the track-scale and heading estimates are no longer limited to the search steps.
+
+    The returned result is a copy of ``coarse`` with ``start_x_m``, ``start_y_m``, ``heading_deg``,
+    ``scale``, ``score``, ``bias_m`` and ``n_valid`` replaced and ``refinement`` describing the step
+    (seeds tried, coarse values, the winning seed's rank). Only MSD is refined.
+
+    Uncertainty: the MSD-likelihood sigma of the coarse search ignores the dead-reckoning error *along*
+    the track (a random walk the rigid pose cannot follow), which dominates on steep terrain. A
+    delete-a-block jackknife adds it: the fit is repeated ``jackknife_blocks`` times, each time without
+    one contiguous block of the track, and the spread of the start positions,
+    ``var_J = (J-1)/J sum (x_k - mean x)^2``, is added in quadrature to ``sigma_x_m/sigma_y_m``.
+    """
+    from dataclasses import replace
+
+    from scipy.optimize import minimize
+
+    if coarse.criterion != "msd":
+        raise InputError(f"sub-cell refinement is implemented for MSD only, not {coarse.criterion.upper()}")
+    d, t = _validate_inputs(profile_depth, track_xy)
+    g = MapGrid.from_any(dtm)
+    h = g.resolution_m
+    rel = t - t[0]
+    n_req = max(int(np.ceil(min_valid_fraction * d.size - 1e-9)), 1)
+    hb = heading_bounds_deg or (coarse.heading_deg - 1.0, coarse.heading_deg + 1.0)
+    sb = scale_bounds
+
+    def cost(p, keep=None):
+        x0, y0, a, s = p
+        if not (hb[0] <= a <= hb[1] and sb[0] <= s <= sb[1]):
+            return np.inf
+        q = _rotate(rel, a) * s
+        m = g.sample_bilinear(q[:, 0] + x0, q[:, 1] + y0)
+        r = m - d
+        ok = np.isfinite(r)
+        if keep is not None:
+            ok &= keep
+            if ok.sum() < min_valid_fraction * keep.sum():
+                return np.inf
+        elif ok.sum() < n_req:
+            return np.inf
+        r = r[ok]
+        return float(np.mean((r - r.mean()) ** 2))
+
+    # seeds: distinct local minima of the best-over-headings surface, each with its best coarse heading
+    surf = np.where(np.isfinite(coarse.surface_all_headings), coarse.surface_all_headings, np.inf)
+    local = (surf == ndimage.minimum_filter(surf, size=5, mode="constant", cval=np.inf)) & np.isfinite(surf)
+    flat = np.flatnonzero(local)
+    flat = flat[np.argsort(surf.flat[flat], kind="stable")[:n_seeds]]
+    headings = sorted(coarse.heading_scores) or [coarse.heading_deg]
+    seeds = [(coarse.start_x_m, coarse.start_y_m, coarse.heading_deg, coarse.scale)]
+    for f in flat:
+        r, c = divmod(int(f), g.shape[1])
+        x0, y0 = float(g.x_m[c]), float(g.y_m[r])
+        if (x0, y0) == seeds[0][:2]:
+            continue
+        a = min(headings, key=lambda a: cost((x0, y0, a, coarse.scale)))
+        seeds.append((x0, y0, a, coarse.scale))
+    # free parameters: start x/y always; heading and scale only where their bounds leave room
+    free_a, free_s = hb[1] > hb[0], sb[1] > sb[0]
+    steps = [h, h] + ([max(0.25 * (hb[1] - hb[0]), 0.1)] if free_a else []) + ([max(0.25 * (sb[1] - sb[0]), 0.002)] if free_s else [])
+
+    def full(v, s0):
+        a = v[2] if free_a else float(np.clip(s0[2], *hb))
+        sc = v[2 + free_a] if free_s else float(np.clip(s0[3], *sb))
+        return (v[0], v[1], a, sc)
+
+    def fit(s0, keep=None):
+        x = [s0[0], s0[1]] + ([float(np.clip(s0[2], *hb))] if free_a else []) + ([float(np.clip(s0[3], *sb))] if free_s else [])
+        x = np.array(x, float)
+        lo = np.array([-np.inf, -np.inf] + ([hb[0]] if free_a else []) + ([sb[0]] if free_s else []))
+        hi = np.array([np.inf, np.inf] + ([hb[1]] if free_a else []) + ([sb[1]] if free_s else []))
+        simplex = [x]
+        for i, st in enumerate(steps):
+            v = x.copy()
+            v[i] = x[i] + st if x[i] + st <= hi[i] else x[i] - st
+            v[i] = max(v[i], lo[i])
+            simplex.append(v)
+        o = minimize(lambda v: cost(full(v, s0), keep), x, method="Nelder-Mead",
+                     options={"initial_simplex": np.array(simplex), "xatol": 0.05, "fatol": 1e-4, "maxiter": 800})
+        return float(o.fun), np.array(full(o.x, s0))
+
+    best = None
+    for rank, s0 in enumerate(seeds):
+        fun, pose = fit(s0)
+        if np.isfinite(fun) and (best is None or fun < best[0]):
+            best = (fun, pose, rank)
+    if best is None:
+        return replace(coarse, warnings=[*coarse.warnings, "sub-cell refinement found no feasible pose; coarse fix kept"])
+    score, (x0, y0, a, s), rank = best
+    q = _rotate(rel, a) * s
+    m = g.sample_bilinear(q[:, 0] + x0, q[:, 1] + y0)
+    ok = np.isfinite(m - d)
+    bias = float(np.mean((m - d)[ok]))
+    warnings = list(coarse.warnings)
+    # delete-a-block jackknife of the start position (DR random walk the rigid pose cannot follow)
+    jk = []
+    if jackknife_blocks >= 2 and d.size >= 4 * jackknife_blocks:
+        block = np.minimum((np.arange(d.size) * jackknife_blocks) // d.size, jackknife_blocks - 1)
+        for k in range(jackknife_blocks):
+            fun, pose = fit((x0, y0, a, s), keep=block != k)
+            if np.isfinite(fun):
+                jk.append(pose[:2])
+    if len(jk) >= 2:
+        jk = np.array(jk)
+        var_j = (len(jk) - 1) / len(jk) * ((jk - jk.mean(axis=0)) ** 2).sum(axis=0)
+        jx, jy = (float(v) for v in np.sqrt(var_j))
+    else:
+        jx = jy = float("nan")
+    sig_x = float(np.hypot(coarse.sigma_x_m, jx)) if np.isfinite(jx) else coarse.sigma_x_m
+    sig_y = float(np.hypot(coarse.sigma_y_m, jy)) if np.isfinite(jy) else coarse.sigma_y_m
+    moved = float(np.hypot(x0 - coarse.start_x_m, y0 - coarse.start_y_m))
+    if rank > 0:
+        warnings.append(f"sub-cell refinement moved the fix {moved:.0f} m from the coarse optimum "
+                        f"(seed {rank} of {len(seeds)} fitted better)")
+    return replace(
+        coarse, start_x_m=float(x0), start_y_m=float(y0), heading_deg=float(a), scale=float(s), score=score,
+        bias_m=bias, n_valid=int(ok.sum()), warnings=warnings, sigma_x_m=sig_x, sigma_y_m=sig_y,
+        refinement={"jackknife_sigma_m": {"east": jx, "north": jy, "blocks": jackknife_blocks},
+                    "method": "Nelder-Mead on the bilinear MSD (Eq. 17) over start x/y, heading, scale",
+                    "coarse": {"x_east_m": coarse.start_x_m, "y_north_m": coarse.start_y_m,
+                               "heading_deg": coarse.heading_deg, "scale": coarse.scale, "score": coarse.score},
+                    "seeds": len(seeds), "winning_seed": rank, "moved_m": moved,
+                    "heading_bounds_deg": list(hb), "scale_bounds": list(sb)},
+    )

@@ -191,6 +191,21 @@ def read_parquet_metadata(path: str | Path) -> tuple[dict[str, Any], dict[str, d
     return table_meta, cols
 
 
+def json_clean(obj):
+    """Replace NaN/inf by None and numpy scalars by Python ones so ``json.dumps`` writes strict JSON."""
+    if isinstance(obj, dict):
+        return {k: json_clean(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [json_clean(v) for v in obj]
+    if isinstance(obj, (np.integer,)):
+        return int(obj)
+    if isinstance(obj, (float, np.floating)):
+        return float(obj) if np.isfinite(obj) else None
+    if isinstance(obj, np.bool_):
+        return bool(obj)
+    return obj
+
+
 def _json_default(obj: Any) -> Any:
     if isinstance(obj, (np.integer, np.floating, np.bool_)):
         return obj.item()
@@ -315,6 +330,13 @@ def _prepare_variable(name: str, var: xr.Variable, *, is_coord: bool, is_dim_coo
         enc.setdefault("units", "seconds since 1970-01-01T00:00:00Z")
         enc.setdefault("calendar", "standard")
         enc.setdefault("dtype", "f8")
+        if var.size and np.isnat(np.asarray(var.values)).all():
+            # xarray cannot encode an all-NaT variable (it derives a reference date from the data and fails
+            # with a TypeError): write the CF encoding ourselves, every value missing
+            var = xr.Variable(var.dims, np.full(var.shape, np.nan), var.attrs)
+            attrs["units"], attrs["calendar"] = enc.pop("units"), enc.pop("calendar")
+            enc.pop("dtype", None)
+            enc["_FillValue"] = np.nan
     if not is_flag and not is_time and "units" not in attrs and np.issubdtype(var.dtype, np.number):
         u = units_from_name(name)
         if u is not None:

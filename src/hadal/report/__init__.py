@@ -15,6 +15,7 @@ from hadal.report.figures import FigureOptions, FigureResult, make_figures
 from hadal.report.html import render_html, summary_markdown, summary_rows
 from hadal.report.load import REPORT_INPUTS, DiveProducts, load_products
 from hadal.report.summary import dive_summary
+from hadal.products.io import json_clean
 from hadal.store import ProductStore, ProductVersion
 
 __all__ = ["REPORT_INPUTS", "DiveProducts", "FigureOptions", "Report", "build_report", "dive_summary",
@@ -58,7 +59,8 @@ def publish_report(store: ProductStore, report: Report, parameters: dict[str, An
     """Publish ``report`` as a new version of ``<dive>/report`` (report.html, summary.json, figures/*.png)."""
     with store.publish(report.dive, "report", parameters=parameters or {}, upstream=report.upstream) as draft:
         (draft.path / "report.html").write_text(report.html, encoding="utf-8")
-        (draft.path / "summary.json").write_text(json.dumps(report.summary, indent=2, default=str), encoding="utf-8")
+        (draft.path / "summary.json").write_text(
+            json.dumps(json_clean(report.summary), indent=2, default=str, allow_nan=False), encoding="utf-8")
         figdir = draft.path / "figures"
         figdir.mkdir()
         for f in report.figures:

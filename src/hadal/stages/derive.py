@@ -124,6 +124,9 @@ def derive_ctd(sensors: pd.DataFrame, latitude_deg: float, longitude_deg: float,
     df["time"] = pd.to_datetime(df["time"], utc=True)
     if not df["time"].is_monotonic_increasing:
         df = df.sort_values("time", kind="stable").reset_index(drop=True)
+    dup = df["time"].duplicated(keep="first").to_numpy()
+    if dup.any():  # repeated samples (the ingest contract says unique times): keep the first, count the rest
+        df = df.loc[~dup].reset_index(drop=True)
     n = len(df)
     acc = list(p.accept_flags)
     nan = np.full(n, np.nan)
@@ -198,6 +201,7 @@ def derive_ctd(sensors: pd.DataFrame, latitude_deg: float, longitude_deg: float,
     df["seafloor_depth_m"] = seafloor_depth(depth, df["altitude_corrected_m"].to_numpy())
 
     meta = _metadata(df, fusion, latitude_deg, longitude_deg, p, teos_note, frame, launch_xy)
+    meta["duplicate_times_dropped"] = int(dup.sum())
     return df, meta
 
 

@@ -121,7 +121,7 @@ def run(ctx) -> dict:
                 fg.figure_sites(res, figdir / f"fig19_sites_{name}.png")
                 if best_overall is not None and best_overall[1] == name:
                     best_res = res  # only the dive's best submap is kept for the detailed figures
-        sites_df = pd.concat(all_sites, ignore_index=True) if all_sites else pd.DataFrame(columns=["submap", *SITE_FIELDS])
+        sites_df = pd.concat(all_sites, ignore_index=True) if all_sites else pd.DataFrame(columns=list(SITE_FIELDS))
         table = results_table(sites_df, mapped_area, transect)
         meta = {"dive_id": ctx.dive_id, "critical_slope_deg": p.vehicle.critical_slope_deg,
                 "critical_height_m": p.vehicle.critical_height_m, "table_v": table,

@@ -49,8 +49,8 @@ class Params(BaseModel):
     estimate_bias: bool = Field(True, description="estimate a constant map-minus-measured depth bias at every offset")
     resample_spacing_m: float | None = Field(None, gt=0, description="along-track profile spacing in metres (default: map resolution)")
     segment_m: float | None = Field(
-        2000.0, gt=0,
-        description="match the first segment_m metres of the bottom track only (DR error grows along the track); null = whole track as in the paper",
+        None, gt=0,
+        description="match only the first segment_m metres of the bottom track (DR error grows along the track); null = the whole track, as in the paper",
     )
     heading_range_deg: float = Field(
         9.0, ge=0, le=45, description="search DR heading errors in +-this range (0: translation only, as in the paper)"
@@ -63,8 +63,14 @@ class Params(BaseModel):
     min_valid_fraction: float = Field(0.8, gt=0, le=1, description="minimum fraction of profile samples on valid map cells")
     dtm_smooth_sigma_cells: float | None = Field(
         None, ge=0,
-        description="normalised Gaussian convolution of the DTM before TERCOM (fills holes, suppresses sounding noise); null = 2 cells when > 10 % of the DTM is empty, else none; 0 = never",
+        description="normalised Gaussian convolution of the DTM before matching (fills holes, suppresses sounding noise); null = 2 cells when > 10 % of the DTM is empty, else 1; 0 = never",
     )
+    refine: bool = Field(
+        True,
+        description="refine the MSD fix below the map resolution (bilinear map, continuous start/heading/scale; a deviation from the paper, see hadal.matching.refine_tercom)",
+    )
+    refine_scale_range: float = Field(0.05, ge=0, lt=0.5, description="refinement: DR track scale searched within 1 +- this")
+    refine_seeds: int = Field(12, ge=1, le=100, description="refinement: number of distinct coarse minima refined")
     exclusion_radius_m: float | None = Field(None, gt=0, description="neighbourhood excluded when looking for the second optimum (default max(5 cells, 100 m))")
     mismatch_ratio: float = Field(1.2, ge=1, description="warn when second-best / best MSD is below this ratio")
     mrf: bool = Field(False, description="refine the TERCOM fix with MRF fine matching of the gridded bottom track (needs 2-D coverage)")
@@ -148,7 +154,7 @@ def surface_dataset(res, frame, criterion: str) -> xr.Dataset:
 
 
 def run(ctx: StageContext) -> dict[str, ProductVersion]:
-    from hadal.matching import MapGrid, tercom
+    from hadal.matching import MapGrid, refine_tercom, tercom
     from hadal.matching.fix import fix_summary, json_clean, matched_track, profile_from_ctd
     from hadal.matching.mrf import mrf_refine
     from hadal.stages.suitability import open_dtm
@@ -158,7 +164,7 @@ def run(ctx: StageContext) -> dict[str, ProductVersion]:
     upstream = [dtm_pv, ctd_pv]
     g_raw = MapGrid.from_any(open_dtm(dtm_pv), name=str(dtm_pv.path / "dtm.nc"))
     empty = float(np.mean(~np.isfinite(g_raw.depth_m)))
-    sigma = p.dtm_smooth_sigma_cells if p.dtm_smooth_sigma_cells is not None else (2.0 if empty > 0.10 else 0.0)
+    sigma = p.dtm_smooth_sigma_cells if p.dtm_smooth_sigma_cells is not None else (2.0 if empty > 0.10 else 1.0)
     g = g_raw.filled(sigma, smooth_all=True) if sigma > 0 else g_raw
     ctd = read_ctd(ctd_pv)
     frame = ctx.dive.frame()
@@ -184,6 +190,15 @@ def run(ctx: StageContext) -> dict[str, ProductVersion]:
         region=region, min_valid_fraction=p.min_valid_fraction, exclusion_radius_m=p.exclusion_radius_m,
         mismatch_ratio=p.mismatch_ratio, precision=p.precision, scales=_scales(p), progress=ctx.progress,
     )
+    if p.refine and p.criterion == "msd":
+        hs, sc = _headings(p), _scales(p)
+        res = refine_tercom(
+            prof.depth_m[used], prof.track_xy[used], g, res, n_seeds=p.refine_seeds,
+            heading_bounds_deg=(float(hs.min()) - p.heading_step_deg / 2, float(hs.max()) + p.heading_step_deg / 2)
+            if hs.size > 1 else (0.0, 0.0),
+            scale_bounds=(min(float(sc.min()), 1 - p.refine_scale_range), max(float(sc.max()), 1 + p.refine_scale_range)),
+            min_valid_fraction=p.min_valid_fraction,
+        )
     track = matched_track(bottom, res, frame, map_depth=g_raw.sample_bilinear)
     launch = ctx.dive.launch
     fix = fix_summary(res, track, frame, launch.latitude_deg, launch.longitude_deg)

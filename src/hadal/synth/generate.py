@@ -29,9 +29,10 @@ from hadal.synth.water import WaterColumn
 GENERATOR = "hadal.synth"
 FORMAT_VERSION = 1
 
-#: Multibeam survey designs: full ~3 soundings per 20 m cell, small ~0.4.
+#: Multibeam survey designs: full ~3 soundings per 20 m cell, small ~1.3 (sparser maps leave too many
+#: empty cells for a fix within one cell; see hadal.stages.match).
 FULL_MB = _mb.MultibeamModel(n_lines=9, ping_spacing_m=30.0, beams_per_ping=600, swath_half_width_m=6000.0)
-SMALL_MB = _mb.MultibeamModel(n_lines=5, ping_spacing_m=60.0, beams_per_ping=300, swath_half_width_m=6000.0)
+SMALL_MB = _mb.MultibeamModel(n_lines=5, ping_spacing_m=20.0, beams_per_ping=300, swath_half_width_m=6000.0)
 
 
 class _NullProgress:

@@ -47,7 +47,8 @@ class SensorErrors:
     keller_offset_dbar: float
     compass_bias_deg: float
     dr_scale_error: float
-    dr_velocity_noise_m_s: float = 0.008
+    # DVL bottom-track velocity noise, correlated over 300 s (a few mm/s at 10 m altitude)
+    dr_velocity_noise_m_s: float = 0.003
     ctd_pressure_noise_dbar: float = 0.1
     ctd_temperature_noise_degc: float = 0.001
     ctd_conductivity_noise_s_m: float = 0.00015

@@ -1,0 +1,233 @@
+"""Reliability report: run every malformed-input case through the code path a user hits and count the outcomes.
+
+Usage::
+
+    PYTHONPATH=src python tests/reliability_report.py [WORKDIR]
+
+builds both corpora (``tests/malformed/make_corpus.py``: ingest logs; ``tests/malformed/make_corpus_readers.py``:
+soundings, point clouds, rasters, dive.yaml, pipeline.yaml, vehicle.yaml, corrupt upstream products), runs each
+case as ``hadal stage <stage> DIR --store S`` does (dive + config validation, then the stage; Prefect left out)
+against a fresh store, and prints per reader family:
+
+* ``tried``     cases run;
+* ``handled``   a one-line :class:`hadal.errors.HadalError` of the expected class and message with the store
+                byte-for-byte unchanged, or published/returned data that flag the defect (the case's check);
+* ``tracebacks`` any other exception (goal 0);
+* ``lost``      product versions that no longer verify (:meth:`ProductStore.verify`) or vanished, new versions
+                that do not verify, and leftover staging directories (goal 0).
+
+Exit status 1 when there is a traceback, a lost product or an unhandled case. ``tests/test_reliability.py``
+runs it.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import logging
+import re
+import shutil
+import sys
+import tempfile
+import traceback
+import warnings
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+HERE = Path(__file__).resolve().parent
+sys.path.insert(0, str(HERE / "malformed"))
+
+import make_corpus  # noqa: E402
+import make_corpus_readers  # noqa: E402
+
+
+# ---------------------------------------------------------------------------------------------- store state
+def snapshot(root: Path) -> dict[str, str]:
+    """Every path under ``root`` (hidden ones too) -> ``"dir"`` or the file's SHA-256."""
+    out: dict[str, str] = {}
+    if not root.exists():
+        return out
+    for p in sorted(root.rglob("*")):
+        rel = p.relative_to(root).as_posix()
+        out[rel] = "dir" if p.is_dir() else hashlib.sha256(p.read_bytes()).hexdigest()
+    return out
+
+
+def intact_versions(root: Path) -> dict[str, bool]:
+    """``dive/product/vNNN`` -> whether the version verifies against its manifest."""
+    from hadal.store import ProductStore
+
+    st = ProductStore(root)
+    out = {}
+    for dive in st.dives():
+        for product in st.products(dive):
+            for pv in st.versions(dive, product):
+                try:
+                    ok = not st.verify(pv)
+                except Exception:  # unreadable manifest
+                    ok = False
+                out[f"{dive}/{product}/{pv.label}"] = ok
+    return out
+
+
+def lost_products(before: dict[str, bool], after: dict[str, bool], root: Path) -> list[str]:
+    """Versions intact before and now broken or gone, new versions that are broken, staging leftovers."""
+    lost = [k for k, ok in before.items() if ok and not after.get(k, False)]
+    lost += [k for k, ok in after.items() if k not in before and not ok]
+    lost += [p.relative_to(root).as_posix() for p in root.glob("*/*/.staging-*")] if root.exists() else []
+    return lost
+
+
+# ---------------------------------------------------------------------------------------------- cases
+@dataclass
+class Item:
+    """One corpus case, whatever generator it comes from."""
+
+    name: str
+    reader: str
+    directory: Path
+    run: Callable[[Path], Any]          # store root -> result (raises on a detected problem)
+    error: str | None
+    match: str
+    check: Callable[[Any], bool] | None
+    prepare: Callable[[Path], None] = lambda store: None
+
+
+def ingest_items(dest: Path) -> list[Item]:
+    from hadal.config import PipelineConfig
+    from hadal.pipeline import make_context, run_stage
+
+    def runner(case: make_corpus.Case, d: Path) -> Callable[[Path], Any]:
+        def run(store: Path) -> Any:
+            cfg = PipelineConfig.model_validate({"ingest": {"source": case.source}})
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                return run_stage("ingest", make_context(d, store, cfg))
+        return run
+
+    def checker(case: make_corpus.Case) -> Callable[[Any], bool] | None:
+        if case.check is None:
+            return None
+
+        def check(res: Any) -> bool:
+            import pandas as pd
+
+            from hadal.products import read_parquet_metadata
+
+            path = res["sensors"].file("sensors.parquet")
+            return bool(case.check(pd.read_parquet(path), read_parquet_metadata(path)[0]))
+        return check
+
+    reader = {"mcap": "mcap", "csv": "csv", "cnv": "cnv", "vehicle": "vehicle_yaml", "dive": "dive_yaml"}
+    return [Item(c.name, reader[c.name.split("_")[0]], d, runner(c, d), c.error, c.match, checker(c))
+            for c, d in make_corpus.build_corpus(dest)]
+
+
+def reader_items(dest: Path) -> list[Item]:
+    return [Item(c.name, c.reader, d, (lambda store, c=c, d=d: make_corpus_readers.run_user_path(c, d, store)),
+                 c.error, c.match, c.check, (lambda store, d=d: make_corpus_readers.publish_upstream(d, store)))
+            for c, d in make_corpus_readers.build_corpus(dest)]
+
+
+def all_items(dest: Path) -> list[Item]:
+    return ingest_items(Path(dest) / "ingest") + reader_items(Path(dest) / "readers")
+
+
+# ---------------------------------------------------------------------------------------------- running
+@dataclass
+class Outcome:
+    name: str
+    reader: str
+    handled: bool
+    traceback: str | None = None
+    lost: list[str] = field(default_factory=list)
+    detail: str = ""
+
+
+def run_item(item: Item, store: Path) -> Outcome:
+    """Run one case against a fresh ``store``; never raises."""
+    from hadal.errors import HadalError
+
+    if store.exists():
+        shutil.rmtree(store)
+    item.prepare(store)
+    before_tree, before = snapshot(store), intact_versions(store)
+    out = Outcome(item.name, item.reader, handled=False)
+    try:
+        res = item.run(store)
+    except HadalError as exc:
+        msg = str(exc)
+        problems = []
+        if item.error is None:
+            problems.append(f"unexpected {type(exc).__name__}")
+        elif type(exc).__name__ != item.error:
+            problems.append(f"{type(exc).__name__} instead of {item.error}")
+        if "\n" in msg or not msg:
+            problems.append("message is not one line")
+        if not re.search(item.match, msg):
+            problems.append(f"message does not match {item.match!r}")
+        if snapshot(store) != before_tree:
+            problems.append("store changed")
+        out.handled = not problems
+        out.detail = f"{type(exc).__name__}: {msg}" + (f"  [{'; '.join(problems)}]" if problems else "")
+    except Exception as exc:  # noqa: BLE001 - counting them is the point
+        out.traceback = "".join(traceback.format_exception(exc))
+        out.detail = f"TRACEBACK {type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''}"
+    else:
+        try:
+            ok = item.error is None and item.check is not None and bool(item.check(res))
+        except Exception as exc:  # noqa: BLE001
+            ok = False
+            out.detail = f"check raised {type(exc).__name__}: {exc}"
+        out.handled = ok
+        out.detail = out.detail or ("published, flagged" if ok else f"expected {item.error}, got a result")
+    out.lost = lost_products(before, intact_versions(store), store)
+    return out
+
+
+def run_all(items: list[Item], work: Path) -> list[Outcome]:
+    return [run_item(it, Path(work) / "stores" / it.name) for it in items]
+
+
+def table(outcomes: list[Outcome]) -> tuple[str, dict[str, int]]:
+    readers = sorted({o.reader for o in outcomes})
+    rows = []
+    tot = {"tried": 0, "handled": 0, "tracebacks": 0, "lost": 0}
+    for r in readers + ["TOTAL"]:
+        sel = [o for o in outcomes if r == "TOTAL" or o.reader == r]
+        row = {"tried": len(sel), "handled": sum(o.handled for o in sel),
+               "tracebacks": sum(o.traceback is not None for o in sel), "lost": sum(len(o.lost) for o in sel)}
+        if r == "TOTAL":
+            tot = row
+        rows.append((r, row))
+    w = max(len(r) for r, _ in rows)
+    lines = [f"{'reader':<{w}}  {'tried':>6} {'handled':>8} {'tracebacks':>11} {'lost':>5}"]
+    for r, row in rows:
+        if r == "TOTAL":
+            lines.append("-" * len(lines[0]))
+        lines.append(f"{r:<{w}}  {row['tried']:>6} {row['handled']:>8} {row['tracebacks']:>11} {row['lost']:>5}")
+    return "\n".join(lines), tot
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = sys.argv[1:] if argv is None else argv
+    logging.getLogger("hadal").setLevel(logging.ERROR)  # the stages' warnings are expected here
+    work = Path(argv[0]) if argv else Path(tempfile.mkdtemp(prefix="hadal-reliability-"))
+    outcomes = run_all(all_items(work / "corpus"), work)
+    text, tot = table(outcomes)
+    bad = [o for o in outcomes if not o.handled or o.traceback or o.lost]
+    for o in bad:
+        print(f"! {o.name}: {o.detail}{'  lost: ' + ', '.join(o.lost) if o.lost else ''}")
+        if o.traceback:
+            print(o.traceback)
+    print(text)
+    print(f"inputs tried {tot['tried']}, handled {tot['handled']}, tracebacks {tot['tracebacks']} (goal 0), "
+          f"products lost {tot['lost']} (goal 0)")
+    if not argv:
+        shutil.rmtree(work, ignore_errors=True)
+    return 0 if not bad else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())
