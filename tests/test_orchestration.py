@@ -100,6 +100,33 @@ def test_flow_reuses_unchanged_stage_and_reruns_changed(fake, tmp_path, prefect_
     assert arts and "dive-a" in arts[0].data
 
 
+def test_cruise_directory_flow_processes_new_dives_and_reuses_unchanged(tmp_path, prefect_harness):
+    """`hadal serve CRUISE_DIR` deploys post-cruise-new-dives: each run discovers the dives present,
+    processes the new ones and reuses (cache hit) the unchanged ones; a broken dive does not stop the others."""
+    from flows.serve import deployment_target, post_cruise_new_dives
+
+    store = tmp_path / "store"
+    cruise = tmp_path / "cruise"
+    st = ProductStore(store)
+    for d in ("dive-a", "dive-b"):
+        publish_fake_products(st, d, products=("ctd",))
+        write_fake_dive(cruise / d, d)
+    fl, params = deployment_target(str(cruise), str(store), None, ["report"])
+    assert fl is post_cruise_new_dives and params["cruise_dir"] == str(cruise)
+    assert deployment_target(str(cruise / "dive-a"), str(store), None)[1]["raw_dir"] == str(cruise / "dive-a")
+    first = post_cruise_new_dives(str(cruise), str(store), None, ["report"])
+    assert all(r["ok"] for r in first.values()) and len(first) == 2
+    publish_fake_products(st, "dive-c", products=("ctd",))
+    write_fake_dive(cruise / "dive-c", "dive-c")
+    (cruise / "broken").mkdir()
+    (cruise / "broken" / "dive.yaml").write_text("dive_id: [unclosed\n")
+    second = post_cruise_new_dives(str(cruise), str(store), None, ["report"])
+    assert not second[str(cruise / "broken")]["ok"] and "YAML" in second[str(cruise / "broken")]["error"]
+    for d in ("dive-a", "dive-b", "dive-c"):
+        assert second[str(cruise / d)]["ok"]
+        assert [v.label for v in st.versions(d, "report")] == ["v001"], d  # new: made once; old: cache hit
+
+
 @pytest.mark.prefect
 @pytest.mark.parametrize("processes", [False, pytest.param(True, marks=pytest.mark.slow)], ids=["threads", "processes"])
 def test_batch_two_dives_on_two_dask_workers(tmp_path, prefect_harness, processes):

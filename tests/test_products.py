@@ -265,23 +265,11 @@ def test_write_parquet_rejects_non_dataframe(tmp_path):
         write_parquet([1, 2], tmp_path / "x.parquet")  # type: ignore[arg-type]
 
 
-@pytest.mark.slow
-def test_real_products_of_the_small_sample_dive_are_compliant(tmp_path):
-    """Every NetCDF file the implemented stages publish for the small sample dive passes CF + ACDD."""
-    synth = pytest.importorskip("hadal.synth", reason="sample-dive generator not available yet")
-    import warnings
-
-    from hadal.errors import HadalError
-    from hadal.pipeline import make_context, resolve_stages, run_stage
-
-    raw = synth.generate_dive(tmp_path / "raw", small=True)
-    ctx = make_context(raw, tmp_path / "store")
-    for stage in resolve_stages(None):
-        try:
-            run_stage(stage, ctx)
-        except HadalError as exc:  # another stage's problem on the small dive: check what was published
-            warnings.warn(f"stage {stage} failed on the small sample dive: {exc}", stacklevel=1)
-    files = sorted((tmp_path / "store").rglob("v*/*.nc"))
-    assert {f.name for f in files} >= {"dtm.nc", "profile.nc"}
+def test_real_products_of_the_small_sample_dive_are_compliant(small_run):
+    """Every NetCDF file the pipeline publishes for the small sample dive passes CF + ACDD."""
+    ctx, out = small_run
+    files = sorted(f for pv in out.values() for f in pv.path.rglob("*.nc"))
+    assert {f.name for f in files} >= {"dtm.nc", "profile.nc", "suitability.nc", "msd_surface.nc"}
+    assert any(f.name.startswith("submap_") for f in files)
     bad = [rep.describe() for rep in map(check_compliance, files) if not rep.ok]
     assert not bad, "\n".join(bad)

@@ -83,20 +83,9 @@ def _run_flow(raw_dir: Path, store: Path | None, config: Path | None, stages: li
 
 def _expand_dives(dirs: list[Path]) -> list[Path]:
     """Batch inputs: a directory with dive.yaml is one dive; one without is searched for dive subdirectories."""
-    from hadal.errors import InputError
+    from hadal.dive import find_dives
 
-    out: list[Path] = []
-    for d in dirs:
-        if not d.is_dir():
-            raise InputError(f"raw dive directory {d} does not exist")
-        if (d / "dive.yaml").is_file():
-            out.append(d)
-            continue
-        subs = sorted(p for p in d.iterdir() if (p / "dive.yaml").is_file())
-        if not subs:
-            raise InputError(f"{d} has no dive.yaml and no dive subdirectories")
-        out.extend(subs)
-    return out
+    return find_dives(*dirs)
 
 
 def _run_batch(raw_dirs: list[Path], store: Path | None, config: Path | None, workers: int,
@@ -208,21 +197,29 @@ def report(
 
 @app.command()
 def serve(
-    raw_dir: Annotated[Path, typer.Argument(help="raw dive directory to process on the schedule")],
+    raw_dir: Annotated[Path, typer.Argument(help="a raw dive directory, or a cruise directory whose new dives are processed on each run")],
     cron: Annotated[str, typer.Option("--cron", help="cron schedule, e.g. '0 3 * * *' (03:00 UTC daily)")],
     name: Annotated[str, typer.Option("--name", help="deployment name")] = "hadal-post-cruise",
     store: StoreOpt = None,
     config: ConfigOpt = None,
 ) -> None:
     """Deploy the post-cruise flow on a cron schedule against a Prefect server (needs PREFECT_API_URL); blocks."""
+    from hadal.config import load_config
+    from hadal.errors import InputError
     from hadal.pipeline import make_context
 
-    make_context(raw_dir, _store_root(store), config)
+    if (raw_dir / "dive.yaml").is_file():
+        make_context(raw_dir, _store_root(store), config)
+    elif raw_dir.is_dir():  # a cruise directory: its dives are discovered at every run
+        load_config(config)
+    else:
+        raise InputError(f"raw directory {raw_dir} does not exist")
     from flows.serve import check_cron, require_api_url, serve_post_cruise
 
     check_cron(cron)
     api = require_api_url()
-    console.print(f"[bold]hadal[/] serving deployment 'post-cruise/{name}' ({cron}) on {api}; Ctrl-C to stop")
+    kind = "post-cruise" if (raw_dir / "dive.yaml").is_file() else "post-cruise-new-dives"
+    console.print(f"[bold]hadal[/] serving deployment '{kind}/{name}' ({cron}) on {api}; Ctrl-C to stop")
     serve_post_cruise(str(raw_dir.resolve()), str(_store_root(store).resolve()),
                       str(config.resolve()) if config else None, cron=cron, name=name)
 

@@ -123,3 +123,20 @@ def _first_error(exc: ValidationError) -> str:
     n = len(exc.errors())
     more = f" (+{n - 1} more)" if n > 1 else ""
     return f"{loc}: {e.get('msg')}{more}"
+
+
+def find_dives(*dirs: str | Path, allow_empty: bool = False) -> list[Path]:
+    """Dive directories named by ``dirs``: one with ``dive.yaml`` is a dive; one without is searched one
+    level down for dive subdirectories (a cruise directory). Sorted within each directory."""
+    out: list[Path] = []
+    for d in (Path(x) for x in dirs):
+        if not d.is_dir():
+            raise InputError(f"raw dive directory {d} does not exist")
+        if (d / DIVE_FILE).is_file():
+            out.append(d)
+            continue
+        subs = sorted(p for p in d.iterdir() if (p / DIVE_FILE).is_file())
+        if not subs and not allow_empty:
+            raise InputError(f"{d} has no {DIVE_FILE} and no dive subdirectories")
+        out.extend(subs)
+    return out
