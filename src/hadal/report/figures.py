@@ -32,6 +32,7 @@ import pandas as pd
 import xarray as xr
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
+from matplotlib.patches import Rectangle
 
 from hadal.report.load import DiveProducts
 
@@ -444,33 +445,54 @@ def fig_landing_map(dp: DiveProducts, opt: FigureOptions) -> FigureResult:
     if _grid_ok(ds, "elevation_m", path.name) is not None:
         r.skipped = f"{path.name} has no elevation_m(y, x)"
         return r
-    fig = Figure(figsize=(opt.width_in * 0.7, opt.width_in * 0.6))
-    ax = fig.subplots()
-    _map(ax, ds, "elevation_m", CMAPS["elev"], "elevation (m, positive up)", fig, km=False, frame="laser grid")
     x, y = ds["x"].values, ds["y"].values
     heading = float(best["heading_deg"]) if best is not None and "heading_deg" in best else None
+    ex = None
     if "exclusion" in ds:
         ex = ds["exclusion"]
         if "heading" in ex.dims:
             ex = ex.sel(heading=heading, method="nearest") if heading is not None else (ex > 0).min(dim="heading")
         extra = [d for d in ex.dims if d not in ("y", "x")]
         ex = (ex > 0).max(dim=extra) if extra else ex > 0
-        ax.contourf(x, y, np.asarray(ex.transpose("y", "x").values, float), levels=[0.5, 1.5], colors="none",
-                    hatches=["///"])
+        ex = np.asarray(ex.transpose("y", "x").values, float)
+    site = None
     if "final_site" in ds and {"y", "x"} <= set(ds["final_site"].dims) and float(ds["final_site"].max()) > 0:
-        ax.contourf(x, y, np.asarray(ds["final_site"].transpose("y", "x").values, float), levels=[0.5, 1.5],
-                    colors=["red"], alpha=0.45)
+        site = np.asarray(ds["final_site"].transpose("y", "x").values, float)
+    has_best = best is not None and {"x_m", "y_m"} <= set(best.index)
+    # a submap is a long strip (25 m x 1.5 m): the whole strip on top, a zoom on the site below
+    fig = Figure(figsize=(opt.width_in, opt.width_in * 0.62), layout="constrained")
+    ax_all, ax = fig.subplots(2, 1, height_ratios=[1, 3])
+    ext = _xy_extent(ds)
+    for a_ in (ax_all, ax):
+        im = a_.imshow(ds["elevation_m"].values, origin="lower", extent=ext, cmap=CMAPS["elev"], aspect="equal",
+                       interpolation="nearest")
+        if ex is not None:
+            a_.contourf(x, y, ex, levels=[0.5, 1.5], colors="none", hatches=["///"])
+        if site is not None:
+            a_.contourf(x, y, site, levels=[0.5, 1.5], colors=["red"], alpha=0.45)
+        if has_best:
+            a_.plot(float(best["x_m"]), float(best["y_m"]), "*", color="red", mec="k", ms=14 if a_ is ax else 8)
+    ax_all.tick_params(labelsize=7)
+    ax_all.set_ylabel("y (m)", fontsize=7)
+    if has_best:
+        bx, by = float(best["x_m"]), float(best["y_m"])
+        rad = float(best["radius_m"]) if "radius_m" in best.index else 0.3
+        half = max(1.5, 4 * rad)
+        ax.set_xlim(max(ext[0], bx - half), min(ext[1], bx + half))
+        ax_all.add_patch(Rectangle((bx - half, ext[2]), 2 * half, ext[3] - ext[2], fill=False, ec="red", lw=1))
+        t = np.linspace(0, 2 * np.pi, 100)
+        ax.plot(bx + rad * np.cos(t), by + rad * np.sin(t), "-", color="red", lw=1.5, label="largest inscribed circle")
+        ax.legend(fontsize=7, loc="upper right")
+    ax.set_xlabel("x east (m, laser grid)")
+    ax.set_ylabel("y north (m, laser grid)")
+    fig.colorbar(im, ax=[ax_all, ax], label="elevation (m, positive up)", orientation="horizontal", shrink=0.6,
+                 aspect=40)
     title = path.name.replace("_maps.nc", "")
-    if best is not None and {"x_m", "y_m"} <= set(best.index):
-        ax.plot(float(best["x_m"]), float(best["y_m"]), "*", color="red", mec="k", ms=14)
-        if "radius_m" in best.index:
-            t = np.linspace(0, 2 * np.pi, 100)
-            rad = float(best["radius_m"])
-            ax.plot(float(best["x_m"]) + rad * np.cos(t), float(best["y_m"]) + rad * np.sin(t), "-", color="red", lw=1.5)
+    if has_best:
         title += f": best site, cost {float(best['c_s']):.3f}" + (f", heading {heading:.0f}°" if heading is not None else "")
     else:
         title += ": no landing site found" if best_name is None else f" (maps of the best submap {best_name} missing)"
-    ax.set_title(title, fontsize=9)
+    ax_all.set_title(title, fontsize=9)
     r.png = _png(fig, opt.dpi)
     return r
 
