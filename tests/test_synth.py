@@ -93,7 +93,7 @@ def test_layout_follows_the_contract(sample, truth):
     fixed = {"dive.yaml", "truth.json", "truth/terrain.nc", "truth/track.parquet", "logs/haidou.mcap",
              *(f"csv/{n}.csv" for n in CSV_COLUMNS)}
     assert fixed <= set(files)
-    extra = set(files) - fixed - {"vehicle.yaml"}
+    extra = set(files) - fixed - {"vehicle.yaml", "pipeline.yaml"}
     assert all(re.fullmatch(r"multibeam/em122_line\d\d\.xyz\.gz|laser/submap_\d\d\.ply", f) for f in extra), extra
     assert len([f for f in files if f.startswith("multibeam/")]) == truth["multibeam"]["n_lines"] >= 2
     assert [f for f in files if f.startswith("laser/")] == ["laser/submap_01.ply"]  # small: one submap

@@ -146,6 +146,8 @@ def _generate(out: Path, seed: int, small: bool, progress) -> None:
 
     vehicle_rel = _copy_vehicle(out)
     _write_dive_yaml(out, seed, small, vehicle_rel, csv_files, mb_files, laser_files)
+    if small:
+        _write_pipeline_yaml(out, rates)
     truth = _truth(seed, small, frame, ter, track, water, err, rates, counts, mb, n_sound, laser_truth,
                    terrain_info, launch_xy, start_xy, deep_xy)
     (out / "truth.json").write_text(json.dumps(truth, indent=2) + "\n", encoding="utf-8")
@@ -246,6 +248,16 @@ def _write_dive_yaml(out: Path, seed: int, small: bool, vehicle_rel, csv_files, 
                   "Ground truth in truth.json and truth/ (never read by the pipeline).")
     with open(out / "dive.yaml", "w", encoding="utf-8") as fh:
         yaml.safe_dump(d, fh, sort_keys=False, allow_unicode=True, width=100)
+
+
+def _write_pipeline_yaml(out: Path, rates: dict[str, float]) -> None:
+    """Dive-level configuration of the small sample: its sensors are logged at reduced rates, so the
+    ingest's interpolation gap limits are set to 1.5 sampling intervals (the defaults suit the full rates)."""
+    sensor_of = {"gauge": "keller", "altimeter": "altimeter", "attitude": "attitude", "position": "dr"}
+    gaps = {k: max(2.0, 1.5 / rates[v]) for k, v in sensor_of.items()}
+    text = ("# small sample dive: sensors logged at reduced rates -> gap limits of 1.5 sampling intervals\n"
+            + yaml.safe_dump({"ingest": {"max_gap_s": gaps}}, sort_keys=False))
+    (out / "pipeline.yaml").write_text(text, encoding="utf-8")
 
 
 def _iso(t_s: float) -> str:
