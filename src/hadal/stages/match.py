@@ -25,6 +25,7 @@ with enough valid cells, and the MSD would favour smoother (filled) areas. Produ
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 from typing import Literal
 
 import numpy as np
@@ -71,6 +72,10 @@ class Params(BaseModel):
     )
     refine_scale_range: float = Field(0.05, ge=0, lt=0.5, description="refinement: DR track scale searched within 1 +- this")
     refine_seeds: int = Field(12, ge=1, le=100, description="refinement: number of distinct coarse minima refined")
+    dr_error_fraction: float = Field(
+        0.01, ge=0, lt=1,
+        description="dead-reckoning error per distance travelled (1 sigma), for the fix uncertainty: the start is carried from where the terrain fixes the track",
+    )
     exclusion_radius_m: float | None = Field(None, gt=0, description="neighbourhood excluded when looking for the second optimum (default max(5 cells, 100 m))")
     mismatch_ratio: float = Field(1.2, ge=1, description="warn when second-best / best MSD is below this ratio")
     mrf: bool = Field(False, description="refine the TERCOM fix with MRF fine matching of the gridded bottom track (needs 2-D coverage)")
@@ -99,6 +104,20 @@ def read_ctd(pv: ProductVersion) -> pd.DataFrame:
         return pd.read_parquet(path)
     except Exception as exc:  # pyarrow raises several types on truncated/corrupt files
         raise InputError(f"{path}: cannot read the CTD table ({type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''})") from None
+
+
+def information_distance_m(res, track_xy: np.ndarray, along_m: np.ndarray, g) -> float:
+    """Along-track distance from the start to where the terrain fixes the match: the centroid of the
+    profile points weighted by the squared map gradient at their matched positions (flat stretches carry no
+    position information, so the start is carried there by dead reckoning)."""
+    xy = res.apply(track_xy)
+    gy, gx = np.gradient(np.where(np.isfinite(g.depth_m), g.depth_m, np.nanmean(g.depth_m)), g.resolution_m)
+    from hadal.matching.mapgrid import MapGrid
+
+    w = (MapGrid(gx, g.x_m, g.y_m, g.resolution_m).sample_bilinear(xy[:, 0], xy[:, 1]) ** 2
+         + MapGrid(gy, g.x_m, g.y_m, g.resolution_m).sample_bilinear(xy[:, 0], xy[:, 1]) ** 2)
+    w = np.where(np.isfinite(w), w, 0.0)
+    return float(np.sum(w * along_m) / np.sum(w)) if np.sum(w) > 0 else float(along_m[-1] / 2)
 
 
 def grid_track_patch(xy: np.ndarray, depth: np.ndarray, g, margin_cells: int = 3):
@@ -199,9 +218,19 @@ def run(ctx: StageContext) -> dict[str, ProductVersion]:
             scale_bounds=(min(float(sc.min()), 1 - p.refine_scale_range), max(float(sc.max()), 1 + p.refine_scale_range)),
             min_valid_fraction=p.min_valid_fraction,
         )
+    sigma_lik_jk = (res.sigma_x_m, res.sigma_y_m)
+    d_info = information_distance_m(res, prof.track_xy[used], prof.along_m[used], g)
+    sigma_dr = p.dr_error_fraction * d_info / np.sqrt(2.0)  # per axis
+    res = replace(res, sigma_x_m=float(np.hypot(res.sigma_x_m, sigma_dr)), sigma_y_m=float(np.hypot(res.sigma_y_m, sigma_dr)))
     track = matched_track(bottom, res, frame, map_depth=g_raw.sample_bilinear)
     launch = ctx.dive.launch
     fix = fix_summary(res, track, frame, launch.latitude_deg, launch.longitude_deg)
+    fix["uncertainty_m"]["components"] = {
+        "match_radial": float(np.hypot(*sigma_lik_jk)), "dead_reckoning_radial": float(sigma_dr * np.sqrt(2.0)),
+        "information_distance_m": d_info, "dr_error_fraction": p.dr_error_fraction,
+        "comment": "match: MSD likelihood (+ jackknife when refined); dead reckoning: dr_error_fraction x the along-track "
+                   "distance from the start to the terrain-information centroid (gradient^2-weighted) of the track",
+    }
     fix["profile"] = {"n_raw_bottom_samples": prof.n_raw, "n_profile_points": int(prof.depth_m.size),
                       "spacing_m": p.resample_spacing_m or g.resolution_m, "track_length_m": float(prof.along_m[-1]),
                       "n_points_matched": int(used.sum()), "matched_length_m": float(prof.along_m[used][-1])}
