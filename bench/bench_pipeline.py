@@ -89,7 +89,7 @@ def main() -> None:
     ap.add_argument("--small", action="store_true", help="use the small sample dive for the single-dive timings")
     ap.add_argument("--dives", type=int, default=4, help="dives in the batch (small sample dives)")
     ap.add_argument("--skip-batch", action="store_true")
-    ap.add_argument("--batch-skip", default="match", help="comma-separated stages not run on small dives (batch, and --small)")
+    ap.add_argument("--batch-skip", default="", help="comma-separated stages not run on small dives (batch, and --small)")
     ap.add_argument("--repeat", type=int, default=2, help="repeats of the warm direct and forced flow runs (best of)")
     args = ap.parse_args()
 
