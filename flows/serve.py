@@ -14,13 +14,14 @@ schedule. See docs/operations.md.
 from __future__ import annotations
 
 import os
+from pathlib import Path
 
 from typing import Any
 
 from prefect import flow
 
 from hadal.dive import DIVE_FILE, find_dives
-from hadal.errors import ConfigError
+from hadal.errors import ConfigError, StageError
 
 DEFAULT_NAME = "hadal-post-cruise"
 
@@ -33,9 +34,10 @@ def post_cruise_new_dives(
     stages: list[str] | None = None,
 ) -> dict[str, dict[str, Any]]:
     """Run ``post-cruise`` on every dive directory in ``cruise_dir`` (new dives are processed, unchanged
-    ones are cache hits). A failing dive is reported and does not stop the others.
+    ones are cache hits). A failing dive does not stop the others, but the run then ends Failed (so a
+    scheduled run shows red) with the failed dives and their errors in the message.
 
-    Returns ``{dive_dir: {"ok": True, "published": {...}}`` or ``{"ok": False, "error": "..."}}``.
+    Returns ``{dive_dir: {"ok": True, "published": {...}}}`` when every dive succeeded.
     """
     from flows.post_cruise import post_cruise
 
@@ -48,6 +50,10 @@ def post_cruise_new_dives(
         except Exception as exc:  # noqa: BLE001 - one bad dive must not stop the cruise
             results[str(d)] = {"ok": False, "error": str(exc).splitlines()[0] if str(exc) else type(exc).__name__}
         print(f"{d.name}: {'ok' if results[str(d)]['ok'] else results[str(d)]['error']}")
+    failed = {k: v["error"] for k, v in results.items() if not v["ok"]}
+    if failed:
+        raise StageError(f"{len(failed)} of {len(results)} dive(s) failed: "
+                         + "; ".join(f"{Path(k).name}: {e}" for k, e in failed.items()))
     return results
 
 

@@ -100,6 +100,7 @@ def test_flow_reuses_unchanged_stage_and_reruns_changed(fake, tmp_path, prefect_
     assert arts and "dive-a" in arts[0].data
 
 
+@pytest.mark.prefect
 def test_cruise_directory_flow_processes_new_dives_and_reuses_unchanged(tmp_path, prefect_harness):
     """`hadal serve CRUISE_DIR` deploys post-cruise-new-dives: each run discovers the dives present,
     processes the new ones and reuses (cache hit) the unchanged ones; a broken dive does not stop the others."""
@@ -120,11 +121,11 @@ def test_cruise_directory_flow_processes_new_dives_and_reuses_unchanged(tmp_path
     write_fake_dive(cruise / "dive-c", "dive-c")
     (cruise / "broken").mkdir()
     (cruise / "broken" / "dive.yaml").write_text("dive_id: [unclosed\n")
-    second = post_cruise_new_dives(str(cruise), str(store), None, ["report"])
-    assert not second[str(cruise / "broken")]["ok"] and "YAML" in second[str(cruise / "broken")]["error"]
-    for d in ("dive-a", "dive-b", "dive-c"):
-        assert second[str(cruise / d)]["ok"]
-        assert [v.label for v in st.versions(d, "report")] == ["v001"], d  # new: made once; old: cache hit
+    state = post_cruise_new_dives(str(cruise), str(store), None, ["report"], return_state=True)
+    assert state.is_failed() and "1 of 4 dive(s) failed: broken:" in state.message and "YAML" in state.message
+    for d in ("dive-a", "dive-b"):  # unchanged: cache hits, nothing new published
+        assert [v.label for v in st.versions(d, "report")] == ["v001"], d
+    assert [v.label for v in st.versions("dive-c", "report")] == ["v001"]  # the new dive was processed
 
 
 @pytest.mark.prefect

@@ -130,13 +130,19 @@ def find_dives(*dirs: str | Path, allow_empty: bool = False) -> list[Path]:
     level down for dive subdirectories (a cruise directory). Sorted within each directory."""
     out: list[Path] = []
     for d in (Path(x) for x in dirs):
-        if not d.is_dir():
+        if not d.exists():
             raise InputError(f"raw dive directory {d} does not exist")
+        if not d.is_dir():
+            raise InputError(f"{d} is a file, not a raw dive directory")
         if (d / DIVE_FILE).is_file():
             out.append(d)
             continue
-        subs = sorted(p for p in d.iterdir() if (p / DIVE_FILE).is_file())
+        try:
+            subs = sorted(p for p in d.iterdir() if (p / DIVE_FILE).is_file())
+        except OSError as exc:
+            raise InputError(f"cannot list {d}: {exc.strerror or exc}") from None
         if not subs and not allow_empty:
             raise InputError(f"{d} has no {DIVE_FILE} and no dive subdirectories")
         out.extend(subs)
-    return out
+    seen: set[Path] = set()  # a dive named twice (DIR and DIR/dive) is processed once
+    return [p for p in out if not (p.resolve() in seen or seen.add(p.resolve()))]

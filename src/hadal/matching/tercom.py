@@ -542,11 +542,15 @@ def refine_tercom(
     dtm,
     coarse: TercomResult,
     *,
+    estimate_bias: bool = True,
     n_seeds: int = 12,
     heading_bounds_deg: tuple[float, float] | None = None,
     scale_bounds: tuple[float, float] = (0.95, 1.05),
+    region: tuple[float, float, float, float] | None = None,
     min_valid_fraction: float = 0.8,
-    jackknife_blocks: int = 4,
+    exclusion_radius_m: float | None = None,
+    mismatch_ratio: float = 1.2,
+    jackknife_blocks: int = 8,
 ) -> TercomResult:
     """Continuous refinement of a coarse TERCOM (MSD) fix: sub-cell start, heading and track scale.
 
@@ -554,16 +558,18 @@ def refine_tercom(
     whole cells and the best cell wins. On steep terrain the half-cell snapping error (up to 10 m at
     20 m cells) is worth metres of depth, and a dead-reckoned track with a heading bias and a speed
     scale error of a few per cent never fits the grid exactly, so the best *snapped* offset can lie a
-    cell or two from the truth while a wrong heading fits the quantised samples better. Here each of
-    the ``n_seeds`` best distinct local minima of the coarse all-heading surface seeds a Nelder-Mead
-    search of the Eq. (17) MSD (bias estimated in closed form, as in the coarse search) with the map
-    sampled **bilinearly** at the un-snapped track positions, over (start x, start y, heading, scale)
-    within the given bounds; the lowest refined MSD wins. Positions are then continuous (no longer
-    cell centres) and the track-scale and heading estimates are no longer limited to the search steps.
+    cell or two from the truth while a wrong heading fits the quantised samples better. Here the coarse
+    optimum and each of the ``n_seeds`` best distinct local minima of the coarse all-heading surface
+    seed a Nelder-Mead search of the Eq. (17) MSD (bias estimated in closed form when
+    ``estimate_bias``, as in the coarse search) with the map sampled **bilinearly** at the un-snapped
+    track positions, over (start x, start y, heading, scale) within the bounds (and the start inside
+    ``region``); the lowest refined MSD wins. The second distinct optimum, the separation ratio and the
+    mismatch flag are then recomputed from the refined seeds (best one farther than
+    ``exclusion_radius_m``, default ``max(5 cells, 100 m)``, from the winner).
 
-    The returned result is a copy of ``coarse`` with ``start_x_m``, ``start_y_m``, ``heading_deg``,
-    ``scale``, ``score``, ``bias_m`` and ``n_valid`` replaced and ``refinement`` describing the step
-    (seeds tried, coarse values, the winning seed's rank). Only MSD is refined.
+    The returned result is a copy of ``coarse`` with the pose, ``score``, ``bias_m``, ``n_valid``, the
+    second optimum and the warnings replaced and ``refinement`` describing the step (coarse values,
+    seeds, the winning seed's rank, jackknife). The surfaces stay those of the coarse search.
 
     Uncertainty: the MSD-likelihood sigma of the coarse search ignores the dead-reckoning error *along*
     the track (a random walk the rigid pose cannot follow), which dominates on steep terrain. A
@@ -577,21 +583,29 @@ def refine_tercom(
 
     if coarse.criterion != "msd":
         raise InputError(f"sub-cell refinement is implemented for MSD only, not {coarse.criterion.upper()}")
+    if not 0 < min_valid_fraction <= 1:
+        raise InputError(f"min_valid_fraction must be in (0, 1], got {min_valid_fraction}")
     d, t = _validate_inputs(profile_depth, track_xy)
     g = MapGrid.from_any(dtm)
     h = g.resolution_m
     rel = t - t[0]
     n_req = max(int(np.ceil(min_valid_fraction * d.size - 1e-9)), 1)
-    hb = heading_bounds_deg or (coarse.heading_deg - 1.0, coarse.heading_deg + 1.0)
-    sb = scale_bounds
+    hb = tuple(heading_bounds_deg) if heading_bounds_deg is not None else (coarse.heading_deg - 1.0, coarse.heading_deg + 1.0)
+    sb = tuple(scale_bounds)
+    if hb[0] > hb[1] or sb[0] > sb[1] or sb[0] <= 0:
+        raise InputError(f"invalid refinement bounds: heading {hb}, scale {sb}")
+    reg = region if region is not None else (-np.inf, np.inf, -np.inf, np.inf)
+
+    def residuals(p):
+        x0, y0, a, sc = p
+        q = _rotate(rel, a) * sc
+        return g.sample_bilinear(q[:, 0] + x0, q[:, 1] + y0) - d
 
     def cost(p, keep=None):
-        x0, y0, a, s = p
-        if not (hb[0] <= a <= hb[1] and sb[0] <= s <= sb[1]):
+        x0, y0, a, sc = p
+        if not (hb[0] <= a <= hb[1] and sb[0] <= sc <= sb[1] and reg[0] <= x0 <= reg[1] and reg[2] <= y0 <= reg[3]):
             return np.inf
-        q = _rotate(rel, a) * s
-        m = g.sample_bilinear(q[:, 0] + x0, q[:, 1] + y0)
-        r = m - d
+        r = residuals(p)
         ok = np.isfinite(r)
         if keep is not None:
             ok &= keep
@@ -600,9 +614,9 @@ def refine_tercom(
         elif ok.sum() < n_req:
             return np.inf
         r = r[ok]
-        return float(np.mean((r - r.mean()) ** 2))
+        return float(np.mean((r - r.mean()) ** 2)) if estimate_bias else float(np.mean(r * r))
 
-    # seeds: distinct local minima of the best-over-headings surface, each with its best coarse heading
+    # seeds: the coarse optimum, then distinct local minima of the best-over-headings surface
     surf = np.where(np.isfinite(coarse.surface_all_headings), coarse.surface_all_headings, np.inf)
     local = (surf == ndimage.minimum_filter(surf, size=5, mode="constant", cval=np.inf)) & np.isfinite(surf)
     flat = np.flatnonzero(local)
@@ -614,72 +628,105 @@ def refine_tercom(
         x0, y0 = float(g.x_m[c]), float(g.y_m[r])
         if (x0, y0) == seeds[0][:2]:
             continue
-        a = min(headings, key=lambda a: cost((x0, y0, a, coarse.scale)))
+        a = min(headings, key=lambda a, x0=x0, y0=y0: cost((x0, y0, float(np.clip(a, *hb)), float(np.clip(coarse.scale, *sb)))))
         seeds.append((x0, y0, a, coarse.scale))
-    # free parameters: start x/y always; heading and scale only where their bounds leave room
-    free_a, free_s = hb[1] > hb[0], sb[1] > sb[0]
-    steps = [h, h] + ([max(0.25 * (hb[1] - hb[0]), 0.1)] if free_a else []) + ([max(0.25 * (sb[1] - sb[0]), 0.002)] if free_s else [])
 
-    def full(v, s0):
-        a = v[2] if free_a else float(np.clip(s0[2], *hb))
-        sc = v[2 + free_a] if free_s else float(np.clip(s0[3], *sb))
-        return (v[0], v[1], a, sc)
+    # free parameters: start x/y always; heading and scale only where their bounds leave room. Simplex
+    # steps never exceed half the bounded range (else the simplex collapses onto the bound).
+    free = [True, True, hb[1] > hb[0], sb[1] > sb[0]]
+    lo = np.array([reg[0], reg[2], hb[0], sb[0]])
+    hi = np.array([reg[1], reg[3], hb[1], sb[1]])
+    base_step = np.array([h, h, max(0.25 * (hb[1] - hb[0]), 0.1), max(0.25 * (sb[1] - sb[0]), 0.002)])
+    idx = [i for i in range(4) if free[i]]
 
     def fit(s0, keep=None):
-        x = [s0[0], s0[1]] + ([float(np.clip(s0[2], *hb))] if free_a else []) + ([float(np.clip(s0[3], *sb))] if free_s else [])
-        x = np.array(x, float)
-        lo = np.array([-np.inf, -np.inf] + ([hb[0]] if free_a else []) + ([sb[0]] if free_s else []))
-        hi = np.array([np.inf, np.inf] + ([hb[1]] if free_a else []) + ([sb[1]] if free_s else []))
+        full0 = np.array([s0[0], s0[1], np.clip(s0[2], *hb), np.clip(s0[3], *sb)], float)
+        x = full0[idx].copy()
+        steps = []
+        for j, i in enumerate(idx):
+            st = base_step[i]
+            if np.isfinite(hi[i] - lo[i]):
+                narrow = (hi[i] - lo[i]) < 2 * st
+                st = min(st, 0.5 * (hi[i] - lo[i]))
+                if i >= 2 and narrow and (x[j] <= lo[i] or x[j] >= hi[i]):
+                    x[j] = 0.5 * (lo[i] + hi[i])  # a narrow range: start inside it, not on its bound
+            steps.append(st)
         simplex = [x]
-        for i, st in enumerate(steps):
+        for j, i in enumerate(idx):
             v = x.copy()
-            v[i] = x[i] + st if x[i] + st <= hi[i] else x[i] - st
-            v[i] = max(v[i], lo[i])
+            v[j] = x[j] + steps[j] if x[j] + steps[j] <= hi[i] else x[j] - steps[j]
             simplex.append(v)
-        o = minimize(lambda v: cost(full(v, s0), keep), x, method="Nelder-Mead",
-                     options={"initial_simplex": np.array(simplex), "xatol": 0.05, "fatol": 1e-4, "maxiter": 800})
-        return float(o.fun), np.array(full(o.x, s0))
 
-    best = None
-    for rank, s0 in enumerate(seeds):
-        fun, pose = fit(s0)
-        if np.isfinite(fun) and (best is None or fun < best[0]):
-            best = (fun, pose, rank)
-    if best is None:
+        def unpack(v):
+            p = full0.copy()
+            p[idx] = v
+            return p
+
+        o = minimize(lambda v: cost(unpack(v), keep), x, method="Nelder-Mead",
+                     options={"initial_simplex": np.array(simplex), "xatol": 0.05, "fatol": 1e-4, "maxiter": 800})
+        return float(o.fun), unpack(o.x)
+
+    fits = [(*fit(s0), rank) for rank, s0 in enumerate(seeds)]
+    fits = [f for f in fits if np.isfinite(f[0])]
+    if not fits:
         return replace(coarse, warnings=[*coarse.warnings, "sub-cell refinement found no feasible pose; coarse fix kept"])
-    score, (x0, y0, a, s), rank = best
-    q = _rotate(rel, a) * s
-    m = g.sample_bilinear(q[:, 0] + x0, q[:, 1] + y0)
-    ok = np.isfinite(m - d)
-    bias = float(np.mean((m - d)[ok]))
-    warnings = list(coarse.warnings)
+    score, pose, rank = min(fits, key=lambda f: f[0])
+    x0, y0, a, sc = (float(v) for v in pose)
+    res = residuals(pose)
+    ok = np.isfinite(res)
+    bias = float(np.mean(res[ok])) if estimate_bias else 0.0
+    n_valid = int(ok.sum())
+
+    # second distinct optimum among the refined seeds
+    excl = exclusion_radius_m if exclusion_radius_m is not None else max(5 * h, 100.0)
+    others = [f for f in fits if np.hypot(f[1][0] - x0, f[1][1] - y0) > excl]
+    warnings = [w for w in coarse.warnings if "fall on invalid map cells" not in w and "possible mismatch" not in w]
+    if others:
+        s2, p2, _ = min(others, key=lambda f: f[0])
+        second, sx, sy = float(s2), float(p2[0]), float(p2[1])
+        ratio = second / score if score > 0 else float("inf")
+        mismatch = bool(ratio < mismatch_ratio)
+        if mismatch:
+            warnings.append(f"possible mismatch: second distinct MSD optimum {second:.4g} at ({sx:.0f}, {sy:.0f}) m is "
+                            f"within a factor {mismatch_ratio} of the best {score:.4g} ({np.hypot(sx - x0, sy - y0):.0f} m away)")
+    else:
+        second, sx, sy, ratio, mismatch = coarse.second_score, coarse.second_x_m, coarse.second_y_m, float("nan"), coarse.mismatch
+    if n_valid < d.size:
+        warnings.append(f"{d.size - n_valid} of {d.size} samples fall on invalid map cells at the refined fix")
+    moved = float(np.hypot(x0 - coarse.start_x_m, y0 - coarse.start_y_m))
+    if moved > h:
+        warnings.append(f"sub-cell refinement moved the fix {moved:.0f} m from the coarse optimum"
+                        + (f" (seed {rank} of {len(seeds)} fitted better)" if rank > 0 else ""))
+    at_bound = [name for name, i in (("heading", 2), ("scale", 3)) if free[i] and (np.isclose(pose[i], lo[i]) or np.isclose(pose[i], hi[i]))]
+    if at_bound:
+        warnings.append(f"refined {' and '.join(at_bound)} on the search bound; widen heading_range_deg / refine_scale_range")
+
     # delete-a-block jackknife of the start position (DR random walk the rigid pose cannot follow)
     jk = []
     if jackknife_blocks >= 2 and d.size >= 4 * jackknife_blocks:
         block = np.minimum((np.arange(d.size) * jackknife_blocks) // d.size, jackknife_blocks - 1)
         for k in range(jackknife_blocks):
-            fun, pose = fit((x0, y0, a, s), keep=block != k)
+            fun, p_k = fit(pose, keep=block != k)
             if np.isfinite(fun):
-                jk.append(pose[:2])
+                jk.append(p_k[:2])
+    jx = jy = float("nan")
     if len(jk) >= 2:
         jk = np.array(jk)
         var_j = (len(jk) - 1) / len(jk) * ((jk - jk.mean(axis=0)) ** 2).sum(axis=0)
         jx, jy = (float(v) for v in np.sqrt(var_j))
-    else:
-        jx = jy = float("nan")
     sig_x = float(np.hypot(coarse.sigma_x_m, jx)) if np.isfinite(jx) else coarse.sigma_x_m
     sig_y = float(np.hypot(coarse.sigma_y_m, jy)) if np.isfinite(jy) else coarse.sigma_y_m
-    moved = float(np.hypot(x0 - coarse.start_x_m, y0 - coarse.start_y_m))
-    if rank > 0:
-        warnings.append(f"sub-cell refinement moved the fix {moved:.0f} m from the coarse optimum "
-                        f"(seed {rank} of {len(seeds)} fitted better)")
     return replace(
-        coarse, start_x_m=float(x0), start_y_m=float(y0), heading_deg=float(a), scale=float(s), score=score,
-        bias_m=bias, n_valid=int(ok.sum()), warnings=warnings, sigma_x_m=sig_x, sigma_y_m=sig_y,
-        refinement={"jackknife_sigma_m": {"east": jx, "north": jy, "blocks": jackknife_blocks},
-                    "method": "Nelder-Mead on the bilinear MSD (Eq. 17) over start x/y, heading, scale",
+        coarse, start_x_m=x0, start_y_m=y0, heading_deg=a, scale=sc, score=score, bias_m=bias, n_valid=n_valid,
+        start_row=int(np.clip(np.rint(g.row_of(y0)), 0, g.shape[0] - 1)),
+        start_col=int(np.clip(np.rint(g.col_of(x0)), 0, g.shape[1] - 1)),
+        second_score=second, second_x_m=sx, second_y_m=sy, separation_ratio=float(ratio), mismatch=mismatch,
+        sigma_x_m=sig_x, sigma_y_m=sig_y, warnings=warnings,
+        refinement={"method": "Nelder-Mead on the bilinear MSD (Eq. 17) over start x/y, heading, scale",
                     "coarse": {"x_east_m": coarse.start_x_m, "y_north_m": coarse.start_y_m,
-                               "heading_deg": coarse.heading_deg, "scale": coarse.scale, "score": coarse.score},
+                               "heading_deg": coarse.heading_deg, "scale": coarse.scale, "score": coarse.score,
+                               "separation_ratio": coarse.separation_ratio},
                     "seeds": len(seeds), "winning_seed": rank, "moved_m": moved,
-                    "heading_bounds_deg": list(hb), "scale_bounds": list(sb)},
+                    "heading_bounds_deg": list(hb), "scale_bounds": list(sb),
+                    "jackknife_sigma_m": {"east": jx, "north": jy, "blocks": int(len(jk))}},
     )

@@ -5,16 +5,23 @@ dead-reckoned ``dr_east_m``/``dr_north_m`` relative to the launch point), builds
 resampled at about the map resolution, runs the exhaustive TERCOM search (TERCOM paper §3.3, §4.2;
 :func:`hadal.matching.tercom`) and publishes ``match``.
 
-Deviations from the paper's set-up, both configurable: by default the DR track's heading error is
-searched (+-9 deg, 0.5 deg steps) and only the first ``segment_m`` = 2 km of the bottom track are
-matched. The dead reckoning has no velocity reference during the descent and accumulates heading-bias,
-scale and random-walk errors along the bottom track, so a rigid fit of the whole track spreads those
-errors and can move the *start* by several cells (on the sample dive: 160 m for the whole 3.5 km
-track, 7 m for the first 2 km). ``segment_m: null`` and ``heading_range_deg: 0`` give the paper's
-translation-only whole-track match. The DTM is low-passed by a normalised Gaussian convolution
-(``dtm_smooth_sigma_cells``; by default 2 cells = 40 m when more than 10 % of the DTM is empty) before matching: a sparse multibeam DTM (the sample
-dive's has ~0.4 soundings per cell, 10 m noise, 60 % empty cells) otherwise leaves no track position
-with enough valid cells, and the MSD would favour smoother (filled) areas. Products:
+Deviations from the paper's set-up, all configurable:
+
+* the DR track's heading error is searched (+-9 deg, 0.5 deg steps; ``heading_range_deg: 0`` gives the
+  paper's translation-only search);
+* the MSD fix is refined below the map resolution (``refine``, :func:`hadal.matching.refine_tercom`):
+  bilinear map, continuous start, heading and DR scale (+-``refine_scale_range``). The dead reckoning
+  has heading-bias, scale and random-walk errors, and a search snapped to 20 m cells lets a wrong heading
+  fit the quantised samples better (on the sample dive the coarse start was 195 m off, the refined
+  one 16 m). ``refine: false`` keeps the cell-resolution result;
+* the DTM is low-passed by a normalised Gaussian convolution (``dtm_smooth_sigma_cells``; by default
+  1 cell, 2 cells when more than 10 % of the DTM is empty) before matching: it fills small holes and
+  halves the sounding noise of a multibeam DTM with a few soundings per cell;
+* ``segment_m`` can restrict the match to the start of the bottom track (default: the whole track).
+
+The fix uncertainty combines the MSD likelihood, a jackknife over track blocks and a dead-reckoning term
+(``dr_error_fraction`` x the distance from the start to the track's terrain-information centroid; a
+conservative bound: the refinement already removes part of the DR heading/scale error). Products:
 
 * ``msd_surface.nc`` -- the criterion on the map grid (track start at each cell), the per-offset bias;
 * ``matched_track.parquet`` -- the bottom samples placed on the map, lat/lon in degrees;
@@ -111,7 +118,7 @@ def information_distance_m(res, track_xy: np.ndarray, along_m: np.ndarray, g) ->
     profile points weighted by the squared map gradient at their matched positions (flat stretches carry no
     position information, so the start is carried there by dead reckoning)."""
     xy = res.apply(track_xy)
-    gy, gx = np.gradient(np.where(np.isfinite(g.depth_m), g.depth_m, np.nanmean(g.depth_m)), g.resolution_m)
+    gy, gx = np.gradient(g.depth_m, g.resolution_m)  # NaN next to holes: those points carry no weight
     from hadal.matching.mapgrid import MapGrid
 
     w = (MapGrid(gx, g.x_m, g.y_m, g.resolution_m).sample_bilinear(xy[:, 0], xy[:, 1]) ** 2
@@ -212,7 +219,8 @@ def run(ctx: StageContext) -> dict[str, ProductVersion]:
     if p.refine and p.criterion == "msd":
         hs, sc = _headings(p), _scales(p)
         res = refine_tercom(
-            prof.depth_m[used], prof.track_xy[used], g, res, n_seeds=p.refine_seeds,
+            prof.depth_m[used], prof.track_xy[used], g, res, estimate_bias=p.estimate_bias, n_seeds=p.refine_seeds,
+            region=region, exclusion_radius_m=p.exclusion_radius_m, mismatch_ratio=p.mismatch_ratio,
             heading_bounds_deg=(float(hs.min()) - p.heading_step_deg / 2, float(hs.max()) + p.heading_step_deg / 2)
             if hs.size > 1 else (0.0, 0.0),
             scale_bounds=(min(float(sc.min()), 1 - p.refine_scale_range), max(float(sc.max()), 1 + p.refine_scale_range)),
