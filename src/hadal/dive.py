@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import datetime as _dt
 from pathlib import Path
+from typing import Any, Literal
 
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
@@ -48,15 +49,76 @@ class MapFrame(BaseModel):
         return LocalFrame(self.origin_latitude_deg, self.origin_longitude_deg)
 
 
-class Sources(BaseModel):
-    """Raw files of the dive, relative to the dive directory."""
+class SourceFile(BaseModel):
+    """One raw file with optional reading hints (every hint defaults to detection from the file's content).
+
+    In ``dive.yaml`` an entry is either a plain path string or a mapping with ``path`` and hints.
+    """
 
     model_config = ConfigDict(extra="forbid")
-    mcap: list[str] = Field(default_factory=list)
-    csv: dict[str, str] = Field(default_factory=dict)
-    cnv: list[str] = Field(default_factory=list)
-    multibeam: list[str] = Field(default_factory=list)
-    laser: list[str] = Field(default_factory=list)
+    path: str = Field(min_length=1, description="path relative to the dive directory")
+    format: str | None = Field(None, description="file format, overriding detection (a hadal.formats kind, e.g. "
+                                                 "'xyz', 'gsf', 'kmall', 'em_all', 'geotiff', 'netcdf_grid', 'ply')")
+    z_positive: Literal["down", "up"] | None = Field(
+        None, description="vertical values are depths (down) or elevations (up); default: detected")
+    crs: str | None = Field(None, description="CRS of x/y (e.g. 'EPSG:4326', 'EPSG:32654') or 'local' for a local "
+                                              "metric frame; default: from the file, else detected")
+    variable: str | None = Field(None, description="NetCDF variable holding the grid (default: the first 2-D one)")
+    columns: list[str] | None = Field(
+        None, description="xyz text: column names in file order, using x/lon, y/lat, z/depth/elevation")
+
+    def __str__(self) -> str:  # so a SourceFile prints (and resolves) like the plain path it names
+        return self.path
+
+
+def _as_source_files(v: Any) -> Any:
+    if isinstance(v, (str, dict)):
+        v = [v]
+    if isinstance(v, list):
+        return [{"path": x} if isinstance(x, str) else x for x in v]
+    return v
+
+
+class Sources(BaseModel):
+    """Raw files of the dive, relative to the dive directory (see ``docs/dive-directory.md``)."""
+
+    model_config = ConfigDict(extra="forbid")
+    mcap: list[str] = Field(default_factory=list, description="vehicle logs in MCAP (JSON or ROS 2 CDR messages)")
+    csv: dict[str, str] = Field(default_factory=dict,
+                                description="vehicle logs as CSV: name -> file (the vehicle mapping says which "
+                                            "sensor reads which name)")
+    cnv: list[SourceFile] = Field(
+        default_factory=list, description="Sea-Bird CTD casts: .cnv (also .gz/.bz2/.xz) or raw .hex")
+    multibeam: list[SourceFile] = Field(
+        default_factory=list, description="multibeam soundings: xyz text (also .gz/.bz2/.xz), GSF, Kongsberg "
+                                          ".kmall/.all, Reson .s7k")
+    prior_grid: list[SourceFile] = Field(
+        default_factory=list, description="gridded prior bathymetry (GeoTIFF, NetCDF CF/COARDS, GMT .grd): the "
+                                          "reference DTM when the dive has no multibeam soundings")
+    laser: list[SourceFile] = Field(
+        default_factory=list, description="laser bathymetry: point clouds (PLY, PCD, LAS/LAZ, xyz) or rasters "
+                                          "(GeoTIFF, NetCDF)")
+
+    @field_validator("cnv", "multibeam", "prior_grid", "laser", mode="before")
+    @classmethod
+    def _file_lists(cls, v: Any) -> Any:
+        return _as_source_files(v)
+
+    @field_validator("mcap", mode="before")
+    @classmethod
+    def _mcap_list(cls, v: Any) -> Any:
+        return [v] if isinstance(v, str) else v
+
+    def kinds(self) -> list[str]:
+        """Source kinds with at least one file, in declaration order."""
+        return [k for k in type(self).model_fields if getattr(self, k)]
+
+    def files(self, kind: str) -> list[SourceFile]:
+        """Entries of one kind as :class:`SourceFile` (``csv`` values become entries too)."""
+        entries = getattr(self, kind)
+        if isinstance(entries, dict):
+            return [SourceFile(path=v) for v in entries.values()]
+        return [e if isinstance(e, SourceFile) else SourceFile(path=e) for e in entries]
 
 
 class Dive(BaseModel):
@@ -66,8 +128,11 @@ class Dive(BaseModel):
     dive_id: str
     platform: str = "unknown"
     vehicle_config: str | None = None
-    launch: Launch
-    map_frame: MapFrame | None = None
+    launch: Launch | None = Field(
+        None, description="launch position (and time): origin of the dead-reckoned track; needed by the stages "
+                          "that use it (match, and derive/suitability when no other position is known)")
+    map_frame: MapFrame | None = Field(
+        None, description="origin of the local transverse-Mercator map frame (default: the launch point)")
     sources: Sources = Field(default_factory=Sources)
     notes: str = ""
 
@@ -81,11 +146,25 @@ class Dive(BaseModel):
         except StoreError as exc:
             raise ValueError(str(exc)) from None
 
-    def frame(self) -> LocalFrame:
-        """The map frame; defaults to one centred on the launch point."""
+    def frame(self, stage: str | None = None) -> LocalFrame:
+        """The map frame; defaults to one centred on the launch point. Without either, a one-line
+        :class:`ConfigError` naming ``stage`` (the stage that needs a frame)."""
         if self.map_frame is not None:
             return self.map_frame.frame()
-        return LocalFrame(self.launch.latitude_deg, self.launch.longitude_deg)
+        if self.launch is not None:
+            return LocalFrame(self.launch.latitude_deg, self.launch.longitude_deg)
+        who = f"stage {stage!r} needs" if stage else "this needs"
+        raise ConfigError(f"dive {self.dive_id!r}: {who} a map frame, but dive.yaml has neither 'map_frame' nor "
+                          "'launch' (add one, or run 'hadal init DIR --launch LAT,LON --force')")
+
+    def require_launch(self, stage: str, why: str = "") -> Launch:
+        """The launch position, or a one-line :class:`ConfigError` naming the stage that needs it."""
+        if self.launch is None:
+            because = f" ({why})" if why else ""
+            raise ConfigError(f"dive {self.dive_id!r}: stage {stage!r} needs the launch position{because}, but "
+                              "dive.yaml has no 'launch' (add launch: {latitude_deg: .., longitude_deg: ..}, or "
+                              "run 'hadal init DIR --launch LAT,LON --force')")
+        return self.launch
 
 
 def load_dive(raw_dir: str | Path) -> tuple[Dive, Path]:
@@ -109,8 +188,9 @@ def load_dive(raw_dir: str | Path) -> tuple[Dive, Path]:
     return dive, raw.resolve()
 
 
-def resolve_source(raw_dir: Path, rel: str) -> Path:
-    """Resolve a source path relative to the dive directory, refusing paths that escape it."""
+def resolve_source(raw_dir: Path, rel: str | SourceFile) -> Path:
+    """Resolve a source path (or :class:`SourceFile`) relative to the dive directory, refusing paths that escape it."""
+    rel = rel.path if isinstance(rel, SourceFile) else rel
     p = (raw_dir / rel).resolve()
     if raw_dir.resolve() not in p.parents and p != raw_dir.resolve():
         raise ConfigError(f"source path {rel!r} escapes the dive directory {raw_dir}")
