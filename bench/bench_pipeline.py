@@ -73,7 +73,7 @@ def _warm_worker() -> bool:
 
     import hadal.pipeline  # noqa: F401
     import hadal.report  # noqa: F401
-    import tasks.stage  # noqa: F401
+    import hadal.tasks.stage  # noqa: F401
 
     return True
 
@@ -95,8 +95,8 @@ def main() -> None:
 
     from prefect.testing.utilities import prefect_test_harness
 
-    from flows.batch import run_batch
-    from flows.post_cruise import post_cruise
+    from hadal.flows.batch import run_batch
+    from hadal.flows.post_cruise import post_cruise
     from hadal.pipeline import make_context, run_pipeline
 
     work = Path(tempfile.mkdtemp(prefix="hadal-bench-"))

@@ -15,9 +15,9 @@ from typing import Any
 from prefect import flow
 from prefect.futures import PrefectFuture
 
-from flows.post_cruise import stage_tasks
-from hadal.pipeline import resolve_stages
-from tasks.stage import configured
+from hadal.flows.post_cruise import stage_tasks
+from hadal.pipeline import make_context, stage_plan
+from hadal.tasks.stage import configured
 
 
 def dask_runner(workers: int = 2, scheduler: str | None = None, threads_per_worker: int = 1, processes: bool = True):
@@ -40,13 +40,14 @@ def post_cruise_batch(
     force: bool = False,
 ) -> dict[str, dict[str, Any]]:
     """Run the selected stages on every dive; returns ``{raw_dir: {"ok": bool, "published"|"error": ...}}``."""
-    names = resolve_stages(stages)
-    tasks = [configured(t, store_root, force) for t in stage_tasks(names)]
     chains: dict[str, list[PrefectFuture]] = {}
+    planned: dict[str, list[str]] = {}
     for raw in raw_dirs:
+        names = [ps.name for ps in stage_plan(make_context(raw, store_root, config_path), stages) if ps.run]
+        planned[raw] = names
         prev: PrefectFuture | None = None
         futs = []
-        for t in tasks:
+        for t in (configured(t, store_root, force) for t in stage_tasks(names)):
             fut = t.submit(raw, store_root, config_path, wait_for=[prev] if prev is not None else None)
             futs.append(fut)
             prev = fut
@@ -55,7 +56,7 @@ def post_cruise_batch(
     for raw, futs in chains.items():
         published: dict[str, str] = {}
         error = None
-        for name, fut in zip(names, futs, strict=True):
+        for name, fut in zip(planned[raw], futs, strict=True):
             fut.wait()
             state = fut.state
             if state.is_completed():

@@ -39,7 +39,7 @@ def post_cruise_new_dives(
 
     Returns ``{dive_dir: {"ok": True, "published": {...}}}`` when every dive succeeded.
     """
-    from flows.post_cruise import post_cruise
+    from hadal.flows.post_cruise import post_cruise
 
     results: dict[str, dict[str, Any]] = {}
     dives = find_dives(cruise_dir, allow_empty=True)
@@ -107,7 +107,7 @@ def deployment_target(raw_dir: str, store_root: str | None, config_path: str | N
     """``(flow, parameters)`` to deploy for ``raw_dir``: one dive, or a cruise directory of dives."""
     from pathlib import Path
 
-    from flows.post_cruise import post_cruise
+    from hadal.flows.post_cruise import post_cruise
 
     common = {"store_root": store_root, "config_path": config_path, "stages": stages}
     if (Path(raw_dir) / DIVE_FILE).is_file():
@@ -115,7 +115,7 @@ def deployment_target(raw_dir: str, store_root: str | None, config_path: str | N
     return post_cruise_new_dives, {"cruise_dir": raw_dir, **common}
 
 
-if __name__ == "__main__":  # python -m flows.serve RAW_DIR CRON
+if __name__ == "__main__":  # python -m hadal.flows.serve RAW_DIR CRON
     import sys
 
     serve_post_cruise(sys.argv[1], os.environ.get("HADAL_STORE"), None, cron=sys.argv[2])

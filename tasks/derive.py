@@ -1,5 +1,5 @@
 """Prefect task for the `derive` stage (science in `hadal.stages.derive`)."""
 
-from tasks.stage import stage_task
+from hadal.tasks.stage import stage_task
 
 derive = stage_task("derive", retries=0)

@@ -1,5 +1,5 @@
 """Prefect task for the `ingest` stage (science in `hadal.stages.ingest`)."""
 
-from tasks.stage import stage_task
+from hadal.tasks.stage import stage_task
 
 ingest = stage_task("ingest", retries=2)

@@ -1,5 +1,5 @@
 """Prefect task for the `match` stage (science in `hadal.stages.match`)."""
 
-from tasks.stage import stage_task
+from hadal.tasks.stage import stage_task
 
 match = stage_task("match", retries=0)

@@ -11,7 +11,7 @@ import logging
 import re
 from pathlib import Path
 
-from tasks.stage import stage_task
+from hadal.tasks.stage import stage_task
 
 log = logging.getLogger("hadal.report")
 

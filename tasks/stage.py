@@ -5,7 +5,7 @@ Caching: a stage task's cache key is the SHA-256 of its *fingerprint* (:func:`st
 * the stage name, dive id and store root;
 * hadal's code version (package version + SHA-256 of every ``hadal/**/*.py`` source file);
 * the stage's configuration section (``ctx.params(stage)``, canonical JSON);
-* for stages that read raw files (``ingest``, ``grid``: :data:`RAW_SOURCES`), the SHA-256 of those files
+* for stages that read raw files (``INPUTS.reads_raw``: ``ingest``, ``grid``), the SHA-256 of those files
   and of ``dive.yaml``; for every stage, the manifests (SHA-256) of the latest versions of its
   ``UPSTREAM`` products.
 
@@ -33,16 +33,11 @@ from prefect import task
 
 import hadal
 from hadal.errors import HadalError
-from hadal.pipeline import default_store_root, make_context, run_stage
+from hadal.pipeline import default_store_root, make_context, run_stage, should_run
 from hadal.progress import default_progress
 from hadal.stages import StageContext, stage_module
 from hadal.store import sha256_file
 
-#: raw source kinds (``dive.sources`` fields) read by the stages that read raw files
-RAW_SOURCES: dict[str, tuple[str, ...]] = {
-    "ingest": ("mcap", "csv", "cnv", "vehicle_config"),
-    "grid": ("multibeam", "laser"),
-}
 RESULTS_DIR = ".prefect-results"
 
 _hash_cache: dict[tuple[str, int, int], str] = {}
@@ -69,19 +64,19 @@ def code_digest() -> str:
 
 
 def raw_inputs(name: str, ctx: StageContext) -> list[Path]:
-    """Raw files stage ``name`` reads (``dive.yaml`` always; sources by :data:`RAW_SOURCES`)."""
+    """Raw files stage ``name`` reads: ``dive.yaml`` always; the files of its ``INPUTS.raw_any`` source kinds
+    when it reads raw data (``INPUTS.reads_raw``), and the vehicle mapping for ``ingest``."""
     from hadal.dive import resolve_source
+    from hadal.plan import stage_inputs
 
     files = [ctx.raw_dir / "dive.yaml"]
-    src = ctx.dive.sources
-    for kind in RAW_SOURCES.get(name, ()):
-        if kind == "vehicle_config":
-            if ctx.dive.vehicle_config:
-                files.append(resolve_source(ctx.raw_dir, ctx.dive.vehicle_config))
-            continue
-        entries = getattr(src, kind, None) or []
-        rels = entries.values() if isinstance(entries, dict) else entries
-        files.extend(resolve_source(ctx.raw_dir, r) for r in rels)
+    inp = stage_inputs(name)
+    if not inp.reads_raw:
+        return files
+    if name == "ingest" and ctx.dive.vehicle_config:
+        files.append(resolve_source(ctx.raw_dir, ctx.dive.vehicle_config))
+    for kind in inp.raw_any:
+        files.extend(resolve_source(ctx.raw_dir, e) for e in ctx.dive.sources.files(kind))
     return files
 
 
@@ -153,6 +148,8 @@ def stage_task(name: str, *, retries: int = 0, after: Callable[[str, dict[str, s
 
     def _run(raw_dir: str, store_root: str | None = None, config_path: str | None = None) -> dict[str, str]:
         ctx = make_context(raw_dir, store_root, config_path, progress=default_progress())
+        if not should_run(name, ctx):  # the upstream content cannot support it (logged with the reason)
+            return {}
         published = {product: str(pv.path) for product, pv in run_stage(name, ctx).items()}
         if after is not None:
             after(name, published)

@@ -1,5 +1,5 @@
 """Prefect task for the `suitability` stage (science in `hadal.stages.suitability`)."""
 
-from tasks.stage import stage_task
+from hadal.tasks.stage import stage_task
 
 suitability = stage_task("suitability", retries=0)

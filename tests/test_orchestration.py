@@ -22,7 +22,7 @@ REPO = Path(__file__).resolve().parents[1]
 if str(REPO) not in sys.path:  # flows/ and tasks/ live at the repository root
     sys.path.insert(0, str(REPO))
 
-from tasks.stage import fingerprint_key, retry_on_io_error, stage_fingerprint  # noqa: E402
+from hadal.tasks.stage import fingerprint_key, retry_on_io_error, stage_fingerprint  # noqa: E402
 
 
 @pytest.fixture
@@ -74,7 +74,7 @@ def test_retry_condition_only_for_io_errors():
 
 @pytest.mark.prefect
 def test_flow_reuses_unchanged_stage_and_reruns_changed(fake, tmp_path, prefect_harness):
-    from flows.post_cruise import post_cruise
+    from hadal.flows.post_cruise import post_cruise
 
     raw, store = fake
     st = ProductStore(store)
@@ -104,7 +104,7 @@ def test_flow_reuses_unchanged_stage_and_reruns_changed(fake, tmp_path, prefect_
 def test_cruise_directory_flow_processes_new_dives_and_reuses_unchanged(tmp_path, prefect_harness):
     """`hadal serve CRUISE_DIR` deploys post-cruise-new-dives: each run discovers the dives present,
     processes the new ones and reuses (cache hit) the unchanged ones; a broken dive does not stop the others."""
-    from flows.serve import deployment_target, post_cruise_new_dives
+    from hadal.flows.serve import deployment_target, post_cruise_new_dives
 
     store = tmp_path / "store"
     cruise = tmp_path / "cruise"
@@ -132,7 +132,7 @@ def test_cruise_directory_flow_processes_new_dives_and_reuses_unchanged(tmp_path
 @pytest.mark.parametrize("processes", [False, pytest.param(True, marks=pytest.mark.slow)], ids=["threads", "processes"])
 def test_batch_two_dives_on_two_dask_workers(tmp_path, prefect_harness, processes):
     """Two dives fanned out on a 2-worker LocalCluster (worker processes: slow, ~40 s on a busy 2-core box)."""
-    from flows.batch import run_batch
+    from hadal.flows.batch import run_batch
 
     store = tmp_path / "store"
     st = ProductStore(store)

@@ -103,7 +103,7 @@ def test_layout_follows_the_contract(sample, truth):
 
 
 def test_same_seed_gives_identical_bytes(sample, tmp_path):
-    again = generate_dive(tmp_path / "again", small=True)
+    again = generate_dive(tmp_path / "dive", small=True)  # same directory name -> same default dive id
     assert _files(again) == _files(sample)
     for f in _files(sample):
         assert _sha(sample / f) == _sha(again / f), f"{f} differs between two runs with the same seed"

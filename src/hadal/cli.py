@@ -7,6 +7,9 @@
     hadal serve RAW_DIR --cron ..  deploy the post-cruise flow on a schedule (Prefect server)
     hadal products DIVE            list product versions in the store
     hadal synth DEST               write the seeded sample dive (Challenger Deep, Haidou-like)
+    hadal inspect FILE...          what each file is (by content) and what is in it (--json)
+    hadal init RAW_DIR             write a commented dive.yaml (+ vehicle.yaml) from the files found
+    hadal schema dive|vehicle|pipeline   JSON Schema of a configuration file (for editors)
 
 Problems with the input are reported as one line (``error: ...``) with exit status 2.
 """
@@ -71,7 +74,7 @@ def _run_flow(raw_dir: Path, store: Path | None, config: Path | None, stages: li
     os.environ.setdefault("PREFECT_SERVER_ANALYTICS_ENABLED", "false")
     # the temporary server may need more than Prefect's default 20 s on a busy machine
     os.environ.setdefault("PREFECT_SERVER_EPHEMERAL_STARTUP_TIMEOUT_SECONDS", "120")
-    from flows.post_cruise import post_cruise
+    from hadal.flows.post_cruise import post_cruise
 
     _quiet_prefect_tracebacks()
 
@@ -103,7 +106,7 @@ def _run_batch(raw_dirs: list[Path], store: Path | None, config: Path | None, wo
     os.environ.setdefault("PREFECT_SERVER_ANALYTICS_ENABLED", "false")
     # the temporary server may need more than Prefect's default 20 s on a busy machine
     os.environ.setdefault("PREFECT_SERVER_EPHEMERAL_STARTUP_TIMEOUT_SECONDS", "120")
-    from flows.batch import run_batch
+    from hadal.flows.batch import run_batch
 
     _quiet_prefect_tracebacks()
 
@@ -214,7 +217,7 @@ def serve(
         load_config(config)
     else:
         raise InputError(f"raw directory {raw_dir} does not exist")
-    from flows.serve import check_cron, require_api_url, serve_post_cruise
+    from hadal.flows.serve import check_cron, require_api_url, serve_post_cruise
 
     check_cron(cron)
     api = require_api_url()
@@ -260,27 +263,136 @@ def synth(
     dest: Annotated[Path, typer.Argument(help="directory to write the sample dive into")],
     seed: Annotated[int, typer.Option(help="random seed (same seed → identical files)")] = 20181006,
     small: Annotated[bool, typer.Option("--small", help="small, fast variant (tests)")] = False,
+    dive_id: Annotated[str | None, typer.Option("--dive-id", help="dive id (default: the directory's name)")] = None,
 ) -> None:
     """Write the seeded sample dive (Haidou in the Challenger Deep) with ground truth."""
     from hadal.progress import default_progress
+    from hadal.store import validate_name
     from hadal.synth import generate_dive
 
-    out = generate_dive(dest, seed=seed, small=small, progress=default_progress())
+    if dive_id is not None:
+        validate_name(dive_id, "dive id")
+    out = generate_dive(dest, seed=seed, small=small, progress=default_progress(), dive_id=dive_id)
     console.print(f"sample dive written to {out}")
 
 
 @app.command("config")
 def config_cmd(
-    check: Annotated[Path | None, typer.Option("--check", help="validate this YAML instead of printing defaults")] = None,
+    check: Annotated[Path | None, typer.Option(
+        "--check", help="validate instead of printing defaults: a pipeline YAML, or a dive directory (dive.yaml, "
+                        "vehicle.yaml, pipeline.yaml and the plan of the stages its data supports)")] = None,
 ) -> None:
-    """Print the default pipeline configuration (commented YAML), or validate a file with --check."""
+    """Print the default pipeline configuration (commented YAML), or validate a file or dive directory with --check."""
     from hadal.config import default_yaml, load_config
 
     if check is not None:
+        if check.is_dir():
+            _check_dive_dir(check)
+            return
         load_config(check)
         console.print(f"{check}: valid")
         return
     print(default_yaml(), end="")
+
+
+def _check_dive_dir(raw_dir: Path) -> None:
+    from hadal.ingest.vehicle import load_vehicle_config
+    from hadal.pipeline import make_context
+    from hadal.plan import check_plan, format_plan, plan_stages
+
+    ctx = make_context(raw_dir, None)
+    if ctx.dive.vehicle_config:
+        from hadal.dive import resolve_source
+
+        load_vehicle_config(resolve_source(ctx.raw_dir, ctx.dive.vehicle_config))
+    missing = [f"{kind}: {e.path}" for kind in ctx.dive.sources.kinds() for e in ctx.dive.sources.files(kind)
+               if not _source_exists(ctx.raw_dir, e)]
+    if missing:
+        from hadal.errors import ConfigError
+
+        raise ConfigError(f"{raw_dir}/dive.yaml lists missing source file(s): {', '.join(missing)}")
+    plan = plan_stages(ctx.dive)
+    check_plan(ctx.dive, plan)
+    console.print(f"{raw_dir}: valid (dive {ctx.dive_id!r}); plan:")
+    print(format_plan(plan))
+
+
+def _source_exists(raw_dir: Path, entry) -> bool:
+    from hadal.dive import resolve_source
+
+    return resolve_source(raw_dir, entry).is_file()
+
+
+@app.command()
+def inspect(
+    files: Annotated[list[Path], typer.Argument(help="files (or directories, searched recursively) to describe")],
+    as_json: Annotated[bool, typer.Option("--json", help="machine-readable output")] = False,
+) -> None:
+    """What each file is (detected from its content) and what is in it."""
+    from hadal.inspect import inspect_file, summary_line
+
+    paths: list[Path] = []
+    for f in files:
+        paths += sorted(p for p in f.rglob("*") if p.is_file()) if f.is_dir() else [f]
+    infos = [inspect_file(p) for p in paths]
+    if as_json:
+        from hadal.products.io import json_clean
+
+        print(json.dumps(json_clean(infos), indent=2, default=str, allow_nan=False))
+    else:
+        table = Table(title="hadal inspect")
+        for col in ("file", "kind", "dive source", "contents"):
+            table.add_column(col, overflow="fold")
+        for i in infos:
+            kind = i.get("kind", "?") + (f" ({i['compression']})" if i.get("compression") else "")
+            table.add_row(i["path"], kind, i.get("source") or "-", summary_line(i))
+        Console().print(table)
+    if any(i.get("kind") == "unreadable" for i in infos):
+        raise typer.Exit(2)
+
+
+@app.command()
+def init(
+    raw_dir: Annotated[Path, typer.Argument(help="raw dive directory to describe")],
+    dive_id: Annotated[str | None, typer.Option("--dive-id", help="dive id (default: the directory's name)")] = None,
+    launch: Annotated[str | None, typer.Option("--launch", help="launch position LAT,LON (decimal degrees)")] = None,
+    force: Annotated[bool, typer.Option("--force", help="overwrite an existing dive.yaml / vehicle.yaml")] = False,
+    dry_run: Annotated[bool, typer.Option("--dry-run", help="print and validate, write nothing")] = False,
+) -> None:
+    """Scan RAW_DIR, write a commented dive.yaml (and vehicle.yaml) and say what is still to be filled in."""
+    from hadal.dive_init import parse_latlon_pair, scan_dive_dir, write_init
+    from hadal.plan import format_plan
+    from hadal.store import validate_name
+
+    if dive_id is not None:
+        validate_name(dive_id, "dive id")
+    res = scan_dive_dir(raw_dir, dive_id=dive_id, launch=parse_latlon_pair(launch) if launch else None)
+    for line in res.mapped:
+        console.print(f"[green]mapped[/]   {line}", highlight=False)
+    for line in res.not_used:
+        console.print(f"[yellow]not used[/] {line}", highlight=False)
+    for line in res.todo:
+        console.print(f"[red]to do[/]    {line}", highlight=False)
+    if res.plan:
+        console.print("plan:", highlight=False)
+        console.print(format_plan(res.plan), highlight=False, markup=False)
+    if dry_run:
+        print(res.dive_yaml(), end="")
+        if res.vehicle_yaml:
+            print("# ---- vehicle.yaml\n" + res.vehicle_yaml, end="")
+        return
+    for p in write_init(res, force=force):
+        console.print(f"wrote {p}", highlight=False)
+
+
+@app.command()
+def schema(
+    what: Annotated[str, typer.Argument(help="dive, vehicle or pipeline")],
+) -> None:
+    """Print the JSON Schema of dive.yaml, vehicle.yaml or pipeline.yaml (for editors' YAML validation)."""
+    from hadal.schema_docs import json_schema
+
+    print(json.dumps(json_schema(what), indent=2))
 
 
 def main() -> None:

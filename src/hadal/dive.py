@@ -33,17 +33,17 @@ DIVE_FILE = "dive.yaml"
 
 class Launch(BaseModel):
     model_config = ConfigDict(extra="forbid")
-    time_utc: _dt.datetime | None = None
-    latitude_deg: float = Field(ge=-90, le=90)
-    longitude_deg: float = Field(ge=-180, le=180)
+    time_utc: _dt.datetime | None = Field(None, description="launch time (ISO-8601, UTC)")
+    latitude_deg: float = Field(ge=-90, le=90, description="launch latitude (decimal degrees, north positive)")
+    longitude_deg: float = Field(ge=-180, le=180, description="launch longitude (decimal degrees, east positive)")
 
 
 class MapFrame(BaseModel):
     """Origin of the local transverse-Mercator frame used by grids and matching."""
 
     model_config = ConfigDict(extra="forbid")
-    origin_latitude_deg: float = Field(ge=-90, le=90)
-    origin_longitude_deg: float = Field(ge=-180, le=180)
+    origin_latitude_deg: float = Field(ge=-90, le=90, description="latitude of the frame origin (degrees)")
+    origin_longitude_deg: float = Field(ge=-180, le=180, description="central meridian / origin longitude (degrees)")
 
     def frame(self) -> LocalFrame:
         return LocalFrame(self.origin_latitude_deg, self.origin_longitude_deg)
@@ -125,16 +125,19 @@ class Dive(BaseModel):
     """A raw dive directory's description (``dive.yaml``)."""
 
     model_config = ConfigDict(extra="forbid")
-    dive_id: str
-    platform: str = "unknown"
-    vehicle_config: str | None = None
+    dive_id: str = Field(description="unique id of the dive in the product store: 1-64 letters, digits, '.', '_' "
+                                      "or '-', starting with a letter or digit")
+    platform: str = Field("unknown", description="vehicle or ship name (product metadata)")
+    vehicle_config: str | None = Field(
+        None, description="vehicle channel mapping (vehicle.yaml) of the MCAP/CSV logs, relative to the dive "
+                          "directory; default: the packaged sample (Haidou) mapping")
     launch: Launch | None = Field(
         None, description="launch position (and time): origin of the dead-reckoned track; needed by the stages "
                           "that use it (match, and derive/suitability when no other position is known)")
     map_frame: MapFrame | None = Field(
         None, description="origin of the local transverse-Mercator map frame (default: the launch point)")
-    sources: Sources = Field(default_factory=Sources)
-    notes: str = ""
+    sources: Sources = Field(default_factory=Sources, description="the dive's raw files by kind")
+    notes: str = Field("", description="free text")
 
     @field_validator("dive_id")
     @classmethod
@@ -195,6 +198,33 @@ def resolve_source(raw_dir: Path, rel: str | SourceFile) -> Path:
     if raw_dir.resolve() not in p.parents and p != raw_dir.resolve():
         raise ConfigError(f"source path {rel!r} escapes the dive directory {raw_dir}")
     return p
+
+
+def dive_fingerprint(dive: Dive, raw_dir: Path) -> str:
+    """Content fingerprint of a raw dive directory: SHA-256 over ``dive.yaml`` and, for every source file, its
+    relative path, size and the first and last MiB (cheap on large logs, yet different for different dives)."""
+    import hashlib
+
+    h = hashlib.sha256()
+    try:
+        h.update((raw_dir / DIVE_FILE).read_bytes())
+    except OSError:
+        pass
+    for kind in type(dive.sources).model_fields:
+        for entry in dive.sources.files(kind):
+            h.update(f"{kind}:{entry.path}".encode())
+            try:
+                f = resolve_source(raw_dir, entry)
+                size = f.stat().st_size
+                h.update(str(size).encode())
+                with open(f, "rb") as fh:
+                    h.update(fh.read(1 << 20))
+                    if size > 2 << 20:
+                        fh.seek(-(1 << 20), 2)
+                        h.update(fh.read(1 << 20))
+            except (OSError, ConfigError):
+                h.update(b"missing")
+    return h.hexdigest()
 
 
 def _first_error(exc: ValidationError) -> str:

@@ -43,6 +43,8 @@ from hadal.errors import StoreError
 NAME_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]{0,63}$")
 VERSION_RE = re.compile(r"^v(\d{3,})$")
 MANIFEST = "manifest.json"
+#: per-dive record of the raw directory a dive id belongs to (``<root>/<dive>/dive.json``)
+DIVE_IDENTITY = "dive.json"
 _HASH_CHUNK = 1 << 20
 
 
@@ -52,7 +54,7 @@ def validate_name(name: str, what: str = "name") -> str:
     Allowed: 1-64 characters of letters, digits, ``.``, ``_`` and ``-``, not starting with a dot
     or dash, and not ``..``-like (no path separators, no traversal).
     """
-    if not isinstance(name, str) or not NAME_RE.match(name) or ".." in name:
+    if not isinstance(name, str) or not NAME_RE.fullmatch(name) or ".." in name:
         raise StoreError(
             f"invalid {what} {name!r}: use 1-64 letters, digits, '.', '_' or '-', starting with a letter or digit"
         )
@@ -210,6 +212,46 @@ class ProductStore:
 
     def has(self, dive: str, product: str) -> bool:
         return bool(self.versions(dive, product))
+
+    # ---------------------------------------------------------------- dive identity
+    def dive_identity(self, dive: str) -> dict[str, Any] | None:
+        """The recorded raw directory (``raw_dir``, ``fingerprint``) of ``dive``, or ``None``."""
+        f = self.root / validate_name(dive, "dive id") / DIVE_IDENTITY
+        try:
+            rec = json.loads(f.read_text(encoding="utf-8"))
+        except FileNotFoundError:
+            return None
+        except (OSError, ValueError) as exc:
+            raise StoreError(f"{f}: unreadable dive identity record ({exc}); remove it to re-claim the dive") from None
+        return rec if isinstance(rec, dict) else None
+
+    def claim_dive(self, dive: str, raw_dir: str | os.PathLike[str], fingerprint: str) -> None:
+        """Record that dive id ``dive`` belongs to ``raw_dir`` (content ``fingerprint``), or refuse.
+
+        A dive id already recorded for another directory is accepted only when the content fingerprint is the
+        same (the directory was moved or copied); otherwise a second raw directory with the same dive id would
+        mix its products with the first one's, so it is a one-line :class:`StoreError`.
+        """
+        raw = str(Path(raw_dir).resolve())
+        rec = self.dive_identity(dive)
+        if rec is not None and rec.get("raw_dir") != raw and rec.get("fingerprint") != fingerprint:
+            raise StoreError(
+                f"dive id {dive!r} in store {self.root} belongs to raw directory {rec.get('raw_dir')}; {raw} is a "
+                "different dive with the same id (give it another dive_id in its dive.yaml, or use another --store)")
+        if rec is not None and rec.get("raw_dir") == raw and rec.get("fingerprint") == fingerprint:
+            return
+        d = self.root / validate_name(dive, "dive id")
+        new = {"dive": dive, "raw_dir": raw, "fingerprint": fingerprint,
+               "claimed_utc": _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds"),
+               "previous": ([*rec.get("previous", []), {"raw_dir": rec.get("raw_dir"),
+                                                         "fingerprint": rec.get("fingerprint")}][-5:] if rec else [])}
+        try:
+            d.mkdir(parents=True, exist_ok=True)
+            tmp = d / f".{DIVE_IDENTITY}.{os.getpid()}.{uuid.uuid4().hex[:8]}"
+            tmp.write_text(json.dumps(new, indent=2), encoding="utf-8")
+            os.replace(tmp, d / DIVE_IDENTITY)
+        except OSError as exc:
+            raise _store_error(exc, dive, DIVE_IDENTITY) from None
 
     # ---------------------------------------------------------------- writing
     @contextlib.contextmanager

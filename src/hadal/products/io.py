@@ -463,10 +463,11 @@ def dive_attributes(dive: Any) -> dict[str, Any]:
     """Global attributes describing a dive (``hadal.dive.Dive``): pass them to :func:`write_netcdf`
     (``write_netcdf(ds, path, title=..., summary=..., **dive_attributes(ctx.dive))``) so products without
     latitude/longitude or time variables (laser grids, landing maps, profiles) still get a position and time."""
-    out: dict[str, Any] = {"dive_id": dive.dive_id, "platform_name": dive.platform,
-                           "launch_latitude_deg": dive.launch.latitude_deg,
-                           "launch_longitude_deg": dive.launch.longitude_deg}
-    if dive.launch.time_utc is not None:
+    out: dict[str, Any] = {"dive_id": dive.dive_id, "platform_name": dive.platform}
+    if dive.launch is not None:
+        out["launch_latitude_deg"] = dive.launch.latitude_deg
+        out["launch_longitude_deg"] = dive.launch.longitude_deg
+    if dive.launch is not None and dive.launch.time_utc is not None:
         out["launch_time_utc"] = pd.Timestamp(dive.launch.time_utc).isoformat()
     if dive.map_frame is not None:
         out["map_frame_origin_latitude_deg"] = dive.map_frame.origin_latitude_deg

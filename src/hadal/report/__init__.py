@@ -44,11 +44,16 @@ def _provenance(dp: DiveProducts) -> list[dict[str, Any]]:
 
 
 def build_report(store: ProductStore, dive: str, *, launch: dict[str, float] | None = None,
-                 options: FigureOptions | None = None, best_sites: int = 5, title: str | None = None) -> Report:
-    """Load the dive's products, compute the summary and figures, render the HTML (nothing is written)."""
+                 options: FigureOptions | None = None, best_sites: int = 5, title: str | None = None,
+                 skipped: list[dict[str, str]] | None = None) -> Report:
+    """Load the dive's products, compute the summary and figures, render the HTML (nothing is written).
+
+    ``skipped``: stages the dive's data does not support, ``[{"stage", "reason"}]`` (:func:`hadal.plan.skipped_stages`),
+    listed in the summary and the HTML."""
     dp = load_products(store, dive)
     dp.launch = launch
     summary = dive_summary(dp, launch=launch, best_sites=best_sites)
+    summary["skipped_stages"] = list(skipped or [])
     figures = make_figures(dp, options)
     summary["figures"] = {f.key: ("ok" if f.png is not None else f"skipped: {f.skipped}") for f in figures}
     html = render_html(dp, summary, figures, _provenance(dp), title=title)

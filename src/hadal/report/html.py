@@ -130,6 +130,10 @@ def render_html(dp: DiveProducts, summary: Mapping[str, Any], figures: list[Figu
     warns = list((summary.get("match") or {}).get("warnings") or [])
     for w in warns:
         parts.append(f"<div class='warn'>match: {_e(w)}</div>")
+    skipped = summary.get("skipped_stages") or []
+    if skipped:
+        parts.append("<h2>Stages not run on this dive</h2>")
+        parts.append(_table([(s["stage"], s["reason"]) for s in skipped]))
     if dp.notes:
         parts.append("<h2>Missing or unreadable inputs</h2>")
         parts += [f"<div class='note'>{_e(n)}</div>" for n in dp.notes]

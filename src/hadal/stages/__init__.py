@@ -4,6 +4,10 @@ Each stage module ``hadal.stages.<name>`` defines
 
 * ``Params`` — a pydantic model, its section of :class:`hadal.config.PipelineConfig`;
 * ``PRODUCTS`` — the product names it publishes; ``UPSTREAM`` — the products it reads;
+* ``INPUTS`` — a :class:`StageInputs`: the raw source kinds and upstream products it needs, from which
+  :mod:`hadal.plan` decides whether it runs on a dive (stages without their inputs are skipped with a reason);
+* optionally ``skip_reason(ctx) -> str | None`` — a check of the upstream *content* made just before the
+  stage would run (e.g. ``match`` needs an altimeter and dead reckoning in ``ctd``);
 * ``run(ctx: StageContext) -> dict[str, ProductVersion]`` — do the work and publish.
 
 The Prefect tasks in ``tasks/`` are thin wrappers around ``run``; the flow in ``flows/`` calls them
@@ -31,6 +35,30 @@ T = TypeVar("T")
 
 #: Stages in execution order. Only stages whose module defines ``run`` are part of the pipeline.
 STAGE_ORDER: tuple[str, ...] = ("ingest", "derive", "grid", "suitability", "match", "landing", "report")
+
+
+@dataclass(frozen=True)
+class StageInputs:
+    """What a stage needs to run on a dive (declared next to its ``Params``; used by :mod:`hadal.plan`).
+
+    * ``raw_any``: at least one of these ``dive.yaml`` source kinds must list a file (empty: no raw input);
+    * ``upstream``: products that must be published by an earlier stage (or already be in the store);
+    * ``optional_upstream``: products it uses when they exist (``report`` reads whatever is there);
+    * ``product_sources``: which raw kinds make which of its products (``grid``: ``dtm`` from multibeam or a
+      prior grid, ``laser_grids`` from laser files); products not named here are made whenever it runs;
+    * ``always``: run even without any input (``report``: it says what was skipped and why);
+    * ``needs_launch``: the dive's launch position is required (the plan is refused, naming the stage);
+    * ``reads_raw``: the stage reads the ``raw_any`` files themselves (ingest, grid), so they are part of its
+      cache fingerprint (``hadal.tasks.stage``); ``match`` only needs a vehicle log to exist.
+    """
+
+    raw_any: tuple[str, ...] = ()
+    upstream: tuple[str, ...] = ()
+    optional_upstream: tuple[str, ...] = ()
+    product_sources: dict[str, tuple[str, ...]] = field(default_factory=dict)
+    always: bool = False
+    needs_launch: bool = False
+    reads_raw: bool = False
 
 
 class Progress(Protocol):

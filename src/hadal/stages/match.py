@@ -42,11 +42,13 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from hadal.errors import InputError
 from hadal.products import write_netcdf, write_parquet
-from hadal.stages import StageContext
+from hadal.stages import StageContext, StageInputs
 from hadal.store import ProductVersion
 
 PRODUCTS = ("match",)
 UPSTREAM = ("dtm", "ctd")
+INPUTS = StageInputs(raw_any=("mcap", "csv"), upstream=("dtm", "ctd"), optional_upstream=("suitability",),
+                     needs_launch=True)
 
 
 class Params(BaseModel):
@@ -177,6 +179,32 @@ def surface_dataset(res, frame, criterion: str) -> xr.Dataset:
                      "map_frame_origin_latitude_deg": frame.origin_latitude_deg,
                      "map_frame_origin_longitude_deg": frame.origin_longitude_deg})
     return ds
+
+
+#: ``ctd`` columns the bottom track is made of (seafloor depth = depth + altitude, on the dead-reckoned track)
+TRACK_COLUMNS = ("seafloor_depth_m", "dr_east_m", "dr_north_m")
+
+
+def skip_reason(ctx: StageContext) -> str | None:
+    """Why ``match`` cannot run on this dive's ``ctd`` (no altimeter or no dead-reckoned track), or ``None``."""
+    import pyarrow.parquet as pq
+
+    if not ctx.store.has(ctx.dive_id, "ctd"):
+        return None  # run() reports the missing upstream product itself
+    path = ctx.store.latest(ctx.dive_id, "ctd").file("ctd.parquet")
+    try:
+        names = set(pq.read_schema(path).names)
+        missing = [c for c in TRACK_COLUMNS if c not in names]
+        if not missing:
+            tab = pq.read_table(path, columns=list(TRACK_COLUMNS))
+            missing = [c for c in TRACK_COLUMNS if not np.isfinite(tab[c].to_numpy(zero_copy_only=False)).any()]
+    except (OSError, ValueError):
+        return None  # unreadable: run() gives the one-line error
+    if missing:
+        what = {"seafloor_depth_m": "altimeter ranges (seafloor depth)", "dr_east_m": "a dead-reckoned track",
+                "dr_north_m": "a dead-reckoned track"}
+        return "the vehicle log has no " + " and no ".join(dict.fromkeys(what[c] for c in missing))
+    return None
 
 
 def run(ctx: StageContext) -> dict[str, ProductVersion]:

@@ -9,7 +9,7 @@ from typing import TYPE_CHECKING
 
 from pydantic import BaseModel, ConfigDict, Field
 
-from hadal.stages import StageContext
+from hadal.stages import StageContext, StageInputs
 
 if TYPE_CHECKING:
     from hadal.report import FigureOptions
@@ -18,6 +18,7 @@ if TYPE_CHECKING:
 PRODUCTS = ("report",)
 #: every product the report can use; all optional (hadal.report.load.REPORT_INPUTS)
 UPSTREAM = ("sensors", "ctd", "profile", "dtm", "laser_grids", "suitability", "match", "landing")
+INPUTS = StageInputs(optional_upstream=UPSTREAM, always=True)
 
 
 class Params(BaseModel):
@@ -41,8 +42,15 @@ def run(ctx: StageContext) -> dict[str, ProductVersion]:
     from hadal.report import build_report, publish_report
 
     p: Params = ctx.config.report
-    launch = {"lat": ctx.dive.launch.latitude_deg, "lon": ctx.dive.launch.longitude_deg}
-    rep = build_report(ctx.store, ctx.dive_id, launch=launch, options=options(p), best_sites=p.best_sites, title=p.title)
+    lp = ctx.dive.launch
+    launch = {"lat": lp.latitude_deg, "lon": lp.longitude_deg} if lp is not None else None
+    from hadal.plan import skipped_stages
+
+    skipped = skipped_stages(ctx)
+    rep = build_report(ctx.store, ctx.dive_id, launch=launch, options=options(p), best_sites=p.best_sites, title=p.title,
+                       skipped=skipped)
+    for s in skipped:
+        ctx.log.info("report: stage %s not run: %s", s["stage"], s["reason"])
     for note in rep.summary.get("notes", []):
         ctx.log.info("report: %s", note)
     return {"report": publish_report(ctx.store, rep, parameters=ctx.params("report"))}

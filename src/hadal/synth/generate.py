@@ -40,8 +40,21 @@ class _NullProgress:
         yield from it
 
 
-def generate_dive(dest: str | Path, *, seed: int = 20181006, small: bool = False, progress=None) -> Path:
+def default_dive_id(dest: str | Path) -> str:
+    """The dive id of a sample written to ``dest``: the directory's name made a valid id (letters, digits,
+    ``._-``), else the scenario's own id."""
+    import re
+
+    name = re.sub(r"[^A-Za-z0-9._-]+", "-", Path(dest).resolve().name).strip(".-_")[:64]
+    return name if name and name[0].isalnum() else sc.DIVE_ID
+
+
+def generate_dive(dest: str | Path, *, seed: int = 20181006, small: bool = False, progress=None,
+                  dive_id: str | None = None) -> Path:
     """Write the seeded sample dive into ``dest`` (created; a previous sample there is replaced) and return it.
+
+    ``dive_id`` defaults to the destination directory's name (:func:`default_dive_id`), so two samples in two
+    directories are two dives in one store.
 
     Same ``seed`` and ``small`` -> byte-identical files. ``small=True`` keeps the physics and the layout but
     decimates the sensors (CTD 2 Hz, others 1 Hz), thins the multibeam and writes one short laser submap.
@@ -56,7 +69,7 @@ def generate_dive(dest: str | Path, *, seed: int = 20181006, small: bool = False
     dest.parent.mkdir(parents=True, exist_ok=True)
     staging = Path(tempfile.mkdtemp(prefix=f".{dest.name}.synth-", dir=dest.parent))
     try:
-        _generate(staging, int(seed), bool(small), progress or _NullProgress())
+        _generate(staging, int(seed), bool(small), progress or _NullProgress(), dive_id or default_dive_id(dest))
         if dest.exists():
             shutil.rmtree(dest)
         staging.rename(dest)
@@ -82,7 +95,7 @@ def _steps(progress) -> Callable:
     return step
 
 
-def _generate(out: Path, seed: int, small: bool, progress) -> None:
+def _generate(out: Path, seed: int, small: bool, progress, dive_id: str) -> None:
     step = _steps(progress)
     r = _rngs(seed)
     r_terrain, r_track, r_track2, r_err, r_sens, r_mb, r_laser = (r[k] for k in RNG_STREAMS)
@@ -145,7 +158,7 @@ def _generate(out: Path, seed: int, small: bool, progress) -> None:
     _w.write_track(out / "truth" / "track.parquet", tdf)
 
     vehicle_rel = _copy_vehicle(out)
-    _write_dive_yaml(out, seed, small, vehicle_rel, csv_files, mb_files, laser_files)
+    _write_dive_yaml(out, seed, small, vehicle_rel, csv_files, mb_files, laser_files, dive_id)
     if small:
         _write_pipeline_yaml(out, rates)
     truth = _truth(seed, small, frame, ter, track, water, err, rates, counts, mb, n_sound, laser_truth,
@@ -231,9 +244,10 @@ def _copy_vehicle(out: Path) -> str | None:
     return None
 
 
-def _write_dive_yaml(out: Path, seed: int, small: bool, vehicle_rel, csv_files, mb_files, laser_files) -> None:
+def _write_dive_yaml(out: Path, seed: int, small: bool, vehicle_rel, csv_files, mb_files, laser_files,
+                     dive_id: str) -> None:
     d = {
-        "dive_id": sc.DIVE_ID + ("-small" if small else ""),
+        "dive_id": dive_id,
         "platform": sc.PLATFORM,
     }
     if vehicle_rel:

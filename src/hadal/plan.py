@@ -1,0 +1,157 @@
+"""Which stages a dive's data supports: the run plan.
+
+Every stage declares its inputs (:class:`hadal.stages.StageInputs`, module-level ``INPUTS`` next to its
+``Params``). :func:`plan_stages` walks the stages in order and, from the raw source kinds the dive lists
+and the products earlier stages will publish (or that are already in the store), decides for each one
+whether it runs or is skipped, and why. ``report`` always runs and lists the skipped stages.
+
+A stage may also define ``skip_reason(ctx) -> str | None``, a check of its upstream products' *content*
+made just before it would run (:func:`runtime_skip_reason`), e.g. ``match`` needs an altimeter and a
+dead-reckoned track in ``ctd``, which a CTD-only dive does not have.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import asdict, dataclass
+from typing import TYPE_CHECKING, Any
+
+from hadal.stages import STAGE_ORDER, StageInputs, stage_module
+
+if TYPE_CHECKING:
+    from hadal.dive import Dive
+    from hadal.stages import StageContext
+    from hadal.store import ProductStore
+
+_KIND_NAMES = {
+    "mcap": "MCAP vehicle log", "csv": "CSV vehicle log", "cnv": "Sea-Bird cast (.cnv/.hex)",
+    "multibeam": "multibeam soundings", "prior_grid": "prior bathymetry grid", "laser": "laser bathymetry",
+}
+
+
+@dataclass(frozen=True)
+class PlannedStage:
+    """One stage of the plan: ``run`` or not, the ``reason`` when skipped, the products it will make."""
+
+    name: str
+    run: bool
+    reason: str = ""
+    products: tuple[str, ...] = ()
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+
+def stage_inputs(name: str) -> StageInputs:
+    """The declared inputs of stage ``name`` (a stage without ``INPUTS`` needs nothing)."""
+    return getattr(stage_module(name), "INPUTS", StageInputs())
+
+
+def _kinds_text(kinds: Sequence[str]) -> str:
+    return " or ".join(_KIND_NAMES.get(k, k) for k in kinds)
+
+
+def plan_stages(dive: Dive, stages: Sequence[str] | None = None, store: ProductStore | None = None
+                ) -> list[PlannedStage]:
+    """The plan for ``dive``: every stage of ``stages`` (default all, in :data:`STAGE_ORDER`) with run/skip.
+
+    Products count as available when an earlier planned stage makes them or, with ``store``, when the
+    dive already has a published version (so ``hadal stage derive DIR`` runs on an earlier ingest).
+    """
+    from hadal.pipeline import resolve_stages
+
+    names = resolve_stages(stages)
+    present = set(dive.sources.kinds())
+    available: set[str] = set()
+    if store is not None:
+        available |= {p for p in _all_products() if store.has(dive.dive_id, p)}
+    out: list[PlannedStage] = []
+    for name in names:
+        inp = stage_inputs(name)
+        mod = stage_module(name)
+        produces = tuple(getattr(mod, "PRODUCTS", ()))
+        reason = ""
+        if inp.raw_any and not present.intersection(inp.raw_any):
+            reason = f"the dive lists no {_kinds_text(inp.raw_any)} in dive.yaml sources"
+        else:
+            missing = [u for u in inp.upstream if u not in available]
+            if missing:
+                reason = "needs " + "; ".join(_why_missing(u, out) for u in missing)
+        if reason and not inp.always:
+            out.append(PlannedStage(name, False, reason))
+            continue
+        made = tuple(p for p in produces
+                     if p not in inp.product_sources or present.intersection(inp.product_sources[p]))
+        available.update(made)
+        out.append(PlannedStage(name, True, "", made))
+    return out
+
+
+def _why_missing(product: str, plan: list[PlannedStage]) -> str:
+    maker = _producer(product)
+    sources = stage_inputs(maker).product_sources.get(product) if maker != "?" else None
+    if sources:
+        return f"{product} (made by {maker} from {_kinds_text(sources)}, which the dive does not list)"
+    if any(p.name == maker and not p.run for p in plan):
+        return f"{product} (stage {maker} is skipped)"
+    return f"{product} (run stage {maker} first)"
+
+
+def check_plan(dive: Dive, plan: list[PlannedStage]) -> None:
+    """Refuse, in one line naming them, a plan whose running stages need a launch position the dive lacks."""
+    from hadal.errors import ConfigError
+
+    if dive.launch is not None:
+        return
+    need = [ps.name for ps in plan if ps.run and stage_inputs(ps.name).needs_launch]
+    if need:
+        raise ConfigError(
+            f"dive {dive.dive_id!r}: dive.yaml has no 'launch', which stage(s) {', '.join(need)} need (the origin "
+            "of the dead-reckoned track); add launch: {latitude_deg: .., longitude_deg: ..} or run "
+            "'hadal init DIR --launch LAT,LON --force'")
+
+
+def _all_products() -> list[str]:
+    return [p for n in STAGE_ORDER for p in getattr(stage_module(n), "PRODUCTS", ())]
+
+
+def _producer(product: str) -> str:
+    for n in STAGE_ORDER:
+        if product in getattr(stage_module(n), "PRODUCTS", ()):
+            return n
+    return "?"
+
+
+def runtime_skip_reason(name: str, ctx: StageContext) -> str | None:
+    """The stage's own content check (``skip_reason(ctx)``) just before it runs; ``None`` = run it."""
+    fn = getattr(stage_module(name), "skip_reason", None)
+    return fn(ctx) if callable(fn) else None
+
+
+def skipped_stages(ctx: StageContext) -> list[dict[str, str]]:
+    """Stages that do not run on this dive, with the reason (static plan and content checks); for the report."""
+    out = []
+    for ps in plan_stages(ctx.dive, store=None):
+        if not ps.run:
+            out.append({"stage": ps.name, "reason": ps.reason})
+            continue
+        if ps.name == "report":
+            continue
+        try:
+            why = runtime_skip_reason(ps.name, ctx)
+        except Exception as exc:  # noqa: BLE001 - a report must not fail on a check; say what happened
+            why = f"could not be checked ({type(exc).__name__})"
+        if why:
+            out.append({"stage": ps.name, "reason": why})
+    return out
+
+
+def format_plan(plan: list[PlannedStage]) -> str:
+    """One line per stage: ``run`` with its products, or ``skip`` with the reason."""
+    lines = []
+    for ps in plan:
+        if ps.run:
+            lines.append(f"  run   {ps.name:<12s} -> {', '.join(ps.products) or '-'}")
+        else:
+            lines.append(f"  skip  {ps.name:<12s} ({ps.reason})")
+    return "\n".join(lines)

@@ -1,0 +1,93 @@
+"""Real dives in: every file of ../shared/data is recognised by `hadal inspect`, and a dive made of each file alone
+(after `hadal init`, the generated yaml unedited) runs the stages its data supports and publishes their products.
+
+Data is copied to a temporary directory; the tests skip cleanly when ../shared/data is absent.
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+import warnings
+from pathlib import Path
+
+import pytest
+import yaml
+
+from hadal.dive_init import scan_dive_dir, write_init
+from hadal.inspect import inspect_file
+
+#: shared file (relative to ../shared/data) -> products its dive must publish (report always)
+EXPECTED: dict[str, set[str]] = {
+    "ctd-real/seabird_sta0860.cnv": {"sensors", "ctd", "profile"},
+    "ctd-real/seabird_dPIRX010.cnv": {"sensors", "ctd", "profile"},
+    "ctd-real/sbs_19plus_V2_CTD-processing_example.cnv": {"sensors", "ctd", "profile"},
+    "ctd-real/oceissues644_02dk.cnv": {"sensors", "ctd", "profile"},
+    "ctd-real/pyctd_CTD_with_sigma_e00.cnv": {"sensors", "ctd", "profile"},
+    "formats-real/sbs_SBE19plus_01906398_2019_07_15_0033_cropped.cnv": {"sensors", "ctd", "profile"},
+    "formats-real/sbs_SBE19plus_01906398_2019_07_15_0033_cropped_binavg.cnv": {"sensors", "ctd", "profile"},
+    "formats-real/sbs_19plus_V2.hex": {"sensors", "ctd", "profile"},
+    "bathy-real/tut_bathy.nc": {"dtm", "suitability"},
+    "formats-real/gmt_depth_pixel.nc": {"dtm", "suitability"},
+    "bathy-real/LAD_Takuyo_B1_raster_100mm.tif": {"laser_grids", "landing"},
+    "bathy-real/0029_20160323_185603_EX1604_MB.gsf.mb121": {"dtm"},
+    "formats-real/kongsberg_em_driver_MRZ_versionF.kmall": {"dtm"},
+    "formats-real/mbsys_nbp1403-filtered-em120.all": {"dtm"},
+    "formats-real/mbsys_TN136HS.309.snipped.s7k": set(),  # no pings: recognised, said so, nothing to grid
+    "mcap-real/rosbag2_talker.mcap": set(),  # std_msgs/String only: nothing maps to a sensor
+    "mcap-real/rosbag2_cdr_test_0.mcap": set(),
+    "mcap-real/rosbag2_test_bag_for_seek_0.mcap": set(),
+}
+
+
+def _data_files(root: Path) -> list[Path]:
+    return sorted(f for f in root.rglob("*") if f.is_file() and f.suffix not in (".md", ".inf"))
+
+
+def test_every_shared_file_is_inspected(shared_data):
+    for f in _data_files(shared_data):
+        info = inspect_file(f)
+        assert info["kind"] not in ("unknown", "unreadable"), (f, info)
+        assert info.get("source") is not None, (f, info)
+        json.dumps(info, allow_nan=False)  # strict JSON for --json
+        rel = f.relative_to(shared_data).as_posix()
+        if EXPECTED.get(rel):
+            assert not info.get("error"), (rel, info["error"])
+
+
+def test_every_shared_file_is_listed_in_expected(shared_data):
+    names = {f.relative_to(shared_data).as_posix() for f in _data_files(shared_data)}
+    assert names - set(EXPECTED) == set(), "new shared files: add them to EXPECTED"
+
+
+@pytest.mark.parametrize("rel", sorted(EXPECTED))
+def test_init_then_run_each_real_file_alone(shared_data, tmp_path, rel):
+    from hadal.pipeline import make_context, run_pipeline
+
+    src = shared_data / rel
+    if not src.is_file():
+        pytest.skip(f"{rel} not in this copy of the shared data")
+    raw = tmp_path / ("dive-" + src.stem.replace(".", "-")[:40])
+    (raw / "raw").mkdir(parents=True)
+    shutil.copy(src, raw / "raw" / src.name)
+    res = scan_dive_dir(raw)
+    write_init(res)
+    dive_yaml = yaml.safe_load((raw / "dive.yaml").read_text())
+    assert dive_yaml["dive_id"] == raw.name
+    with pytest.raises(Exception, match="already exist"):
+        write_init(res)  # never overwrites without --force
+    ctx = make_context(raw, tmp_path / "store")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        run_pipeline(ctx)
+    published = set(ctx.store.products(ctx.dive_id))
+    assert EXPECTED[rel] | {"report"} <= published, (rel, published, res.not_used, res.todo)
+    summary = json.loads(ctx.store.latest(ctx.dive_id, "report").file("summary.json").read_text())
+    skipped = {s["stage"] for s in summary["skipped_stages"]}
+    from hadal.stages import STAGE_ORDER
+
+    ran = {n for n in STAGE_ORDER if n != "report"} - skipped
+    if EXPECTED[rel]:
+        assert ran, f"{rel}: the report says every stage was skipped"
+    else:
+        assert res.not_used, "a file that gives nothing must be reported as not used, with the reason"
