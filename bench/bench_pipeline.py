@@ -69,11 +69,11 @@ def prepare_store(store: Path, raw: Path, real: bool) -> None:
 
 
 def _warm_worker() -> bool:
+    import hadal.tasks.stage  # noqa: F401
     import matplotlib  # noqa: F401
 
     import hadal.pipeline  # noqa: F401
     import hadal.report  # noqa: F401
-    import hadal.tasks.stage  # noqa: F401
 
     return True
 
@@ -93,10 +93,10 @@ def main() -> None:
     ap.add_argument("--repeat", type=int, default=2, help="repeats of the warm direct and forced flow runs (best of)")
     args = ap.parse_args()
 
-    from prefect.testing.utilities import prefect_test_harness
-
     from hadal.flows.batch import run_batch
     from hadal.flows.post_cruise import post_cruise
+    from prefect.testing.utilities import prefect_test_harness
+
     from hadal.pipeline import make_context, run_pipeline
 
     work = Path(tempfile.mkdtemp(prefix="hadal-bench-"))

@@ -29,14 +29,19 @@ DEFAULT_RASTER = Path(__file__).resolve().parents[2] / "shared" / "data" / "bath
 
 
 def read_raster(path: Path, cell_m: float = 0.1) -> xr.DataArray:
-    import rasterio
+    """A laser-bathymetry raster via :func:`hadal.grid.readers.read_grid` (depth positive down, nodata 0 ->
+    NaN). The Takuyo raster's EPSG:4326 tag is wrong: its cells are ``cell_m`` in a local metric frame."""
+    import warnings
 
-    with rasterio.open(path) as ds:
-        d = ds.read(1).astype(float)
-        nodata = ds.nodata if ds.nodata is not None else 0.0
-    d[d == nodata] = np.nan
+    from hadal.grid.readers import read_grid
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        g = read_grid(path, crs="local")
+    d = np.asarray(g.values, float)
+    d[d == 0.0] = np.nan
     ny, nx = d.shape
-    return xr.DataArray(d, dims=("y", "x"), coords={"y": -(np.arange(ny) + 0.5) * cell_m, "x": (np.arange(nx) + 0.5) * cell_m},
+    return xr.DataArray(d, dims=("y", "x"), coords={"y": (np.arange(ny) + 0.5) * cell_m, "x": (np.arange(nx) + 0.5) * cell_m},
                         attrs={"units": "m", "positive": "down"})
 
 

@@ -12,12 +12,13 @@ from __future__ import annotations
 
 from typing import Any
 
+from hadal.flows.post_cruise import stage_tasks
+from hadal.tasks.stage import configured
 from prefect import flow
 from prefect.futures import PrefectFuture
 
-from hadal.flows.post_cruise import stage_tasks
+from hadal.errors import HadalError
 from hadal.pipeline import make_context, stage_plan
-from hadal.tasks.stage import configured
 
 
 def dask_runner(workers: int = 2, scheduler: str | None = None, threads_per_worker: int = 1, processes: bool = True):
@@ -42,8 +43,13 @@ def post_cruise_batch(
     """Run the selected stages on every dive; returns ``{raw_dir: {"ok": bool, "published"|"error": ...}}``."""
     chains: dict[str, list[PrefectFuture]] = {}
     planned: dict[str, list[str]] = {}
+    unplanned: dict[str, str] = {}
     for raw in raw_dirs:
-        names = [ps.name for ps in stage_plan(make_context(raw, store_root, config_path), stages) if ps.run]
+        try:
+            names = [ps.name for ps in stage_plan(make_context(raw, store_root, config_path), stages) if ps.run]
+        except HadalError as exc:  # this dive cannot be planned; the others still run
+            unplanned[raw] = str(exc)
+            continue
         planned[raw] = names
         prev: PrefectFuture | None = None
         futs = []
@@ -52,7 +58,10 @@ def post_cruise_batch(
             futs.append(fut)
             prev = fut
         chains[raw] = futs
-    results: dict[str, dict[str, Any]] = {}
+    results: dict[str, dict[str, Any]] = {raw: {"ok": False, "published": {}, "error": err}
+                                          for raw, err in unplanned.items()}
+    for raw, err in unplanned.items():
+        print(f"{raw}: {err}")
     for raw, futs in chains.items():
         published: dict[str, str] = {}
         error = None

@@ -33,7 +33,7 @@ from prefect import task
 
 import hadal
 from hadal.errors import HadalError
-from hadal.pipeline import default_store_root, make_context, run_stage, should_run
+from hadal.pipeline import default_store_root, make_context, pin_paths, run_stage, should_run
 from hadal.progress import default_progress
 from hadal.stages import StageContext, stage_module
 from hadal.store import sha256_file
@@ -88,11 +88,9 @@ def stage_fingerprint(name: str, ctx: StageContext) -> dict[str, Any]:
         raw[str(f)] = _file_digest(f) if f.is_file() else "missing"
     upstream = {}
     for product in getattr(mod, "UPSTREAM", ()):
-        if ctx.store.has(ctx.dive_id, product):
-            pv = ctx.store.latest(ctx.dive_id, product)
-            upstream[product] = f"{pv.label}:{sha256_file(pv.manifest_path)}"
-        else:
-            upstream[product] = "missing"
+        pv = ctx.pins.get(product) or (ctx.store.latest(ctx.dive_id, product)
+                                       if ctx.store.has(ctx.dive_id, product) else None)
+        upstream[product] = f"{pv.label}:{sha256_file(pv.manifest_path)}" if pv is not None else "missing"
     return {
         "stage": name,
         "dive": ctx.dive_id,
@@ -114,7 +112,11 @@ def cache_key(name: str) -> Callable[[Any, dict[str, Any]], str | None]:
     def _key(context: Any, parameters: dict[str, Any]) -> str | None:
         try:
             ctx = make_context(parameters["raw_dir"], parameters.get("store_root"), parameters.get("config_path"))
-            return f"hadal-{name}-{fingerprint_key(stage_fingerprint(name, ctx))}"
+            pin_paths(ctx, parameters.get("pins"))
+            fp = stage_fingerprint(name, ctx)
+            if parameters.get("failed") or parameters.get("failed_skips"):  # the report lists this run's failures
+                fp["failed"] = {"failed": parameters.get("failed"), "skips": parameters.get("failed_skips")}
+            return f"hadal-{name}-{fingerprint_key(fp)}"
         except (HadalError, OSError):
             return None  # the task itself will report the problem; never cache it
 
@@ -142,12 +144,20 @@ def retry_on_io_error(task_: Any, task_run: Any, state: Any) -> bool:
 def stage_task(name: str, *, retries: int = 0, after: Callable[[str, dict[str, str]], None] | None = None):
     """A Prefect task running stage ``name`` on a raw dive; returns ``{product: version directory}``.
 
+    ``pins`` (``{product: version directory}``) are the upstream versions the flow run found at its start or
+    published itself: the task reads those, never a concurrent run's newer ones. ``failed``/``failed_skips``:
+    stages that failed earlier in the run and those skipped because of them (the report lists them).
+
     ``after(name, published)`` runs inside the task after a fresh (non-cached) run, e.g. to publish
     Prefect artifacts.
     """
 
-    def _run(raw_dir: str, store_root: str | None = None, config_path: str | None = None) -> dict[str, str]:
+    def _run(raw_dir: str, store_root: str | None = None, config_path: str | None = None,
+             pins: dict[str, str] | None = None, failed: dict[str, str] | None = None,
+             failed_skips: dict[str, str] | None = None) -> dict[str, str]:
         ctx = make_context(raw_dir, store_root, config_path, progress=default_progress())
+        pin_paths(ctx, pins)
+        ctx.failed, ctx.failed_skips = dict(failed or {}), dict(failed_skips or {})
         if not should_run(name, ctx):  # the upstream content cannot support it (logged with the reason)
             return {}
         published = {product: str(pv.path) for product, pv in run_stage(name, ctx).items()}

@@ -43,7 +43,7 @@ def test_run_directory_without_dive_yaml(tmp_path):
         ("- a\n- b\n", "mapping"),
         ("dive_id: ../escape\nlaunch: {latitude_deg: 1, longitude_deg: 2}\n", "dive_id"),
         ("dive_id: d1\nlaunch: {latitude_deg: 100, longitude_deg: 2}\n", "latitude_deg"),
-        ("dive_id: d1\n", "launch"),
+        ("dive_id: d1\n", "no source files"),
         ("dive_id: d1\nlaunch: {latitude_deg: 1, longitude_deg: 2}\nbogus: 1\n", "bogus"),
     ],
 )

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import json
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -19,7 +18,6 @@ from hadal.grid import (
     grid_multibeam,
     rmse_against,
 )
-
 
 
 def _terrain(x, y):

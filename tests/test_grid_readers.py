@@ -53,7 +53,6 @@ def test_read_soundings_nan_kept_for_gridder(tmp_path):
         (b"142.2 11.33 8000\n142.2 abc 8001\n", "non-numeric"),
         (b"142.2 11.33\n142.3 11.34\n", "expected 3 columns"),
         (b"11.33 142.2 8000\n11.34 142.3 8000\n", "latitude out of"),
-        (b"142.2 11.33 -8000\n142.3 11.34 -8001\n", "positive down"),
     ],
 )
 def test_read_soundings_bad(tmp_path, content, match):
@@ -62,6 +61,15 @@ def test_read_soundings_bad(tmp_path, content, match):
     with pytest.raises(InputError, match=match) as ei:
         read_soundings(p)
     assert "\n" not in str(ei.value)
+
+
+def test_read_soundings_elevations_become_depths(tmp_path):
+    """All-negative values are elevations (positive up): converted to depth positive down and recorded."""
+    p = tmp_path / "elev.xyz"
+    p.write_bytes(b"142.2 11.33 -8000\n142.3 11.34 -8001\n")
+    df = read_soundings(p)
+    np.testing.assert_allclose(df["depth_m"], [8000, 8001])
+    assert (df.attrs["z_positive"], df.attrs["z_positive_from"]) == ("up", "values")
 
 
 def test_read_soundings_truncated_gzip_and_missing(tmp_path):
@@ -100,7 +108,7 @@ def test_point_cloud_bad(tmp_path):
     with pytest.raises(InputError, match="truncated|no points"):
         read_point_cloud(tmp_path / "trunc.ply")
     (tmp_path / "junk.ply").write_bytes(b"not a ply file at all")
-    with pytest.raises(InputError, match="no points"):
+    with pytest.raises(InputError, match="unsupported point cloud format"):  # content decides, not the name
         read_point_cloud(tmp_path / "junk.ply")
     (tmp_path / "x.obj").write_text("v 0 0 0\n")
     with pytest.raises(InputError, match="unsupported"):

@@ -61,9 +61,24 @@ def _set_sources(raw, **sources):
 def test_stage_contract():
     assert grid_stage.PRODUCTS == ("dtm", "laser_grids") and grid_stage.UPSTREAM == ()
     p = grid_stage.Params()
-    assert p.dtm_resolution_m == 20.0 and p.laser_resolution_m == 0.01
-    with pytest.raises(ValidationError):
-        grid_stage.Params(dtm_resolution_m=0)
+    assert p.dtm_resolution_m == "auto" and p.laser_resolution_m == "auto"
+    for bad in (0, -5, float("nan"), "fine"):
+        with pytest.raises(ValidationError):
+            grid_stage.Params(dtm_resolution_m=bad)
+
+
+@pytest.mark.parametrize("spacing_m, expected_m", [(10.0, 20.0), (3.0, 5.0), (0.05, 0.1), (40.0, 100.0), (230.0, 500.0)])
+def test_auto_resolution_is_twice_the_sounding_spacing(spacing_m, expected_m):
+    """Oracle: soundings on a regular lattice have nearest-neighbour distance = the lattice spacing; the cell is
+    the 1-2-5 value nearest (in log) to twice that, whatever the survey's position and orientation."""
+    from hadal.grid.multibeam import auto_resolution_m
+
+    i, j = np.meshgrid(np.arange(60), np.arange(40))
+    a = np.radians(30.0)
+    x, y = i.ravel() * spacing_m, j.ravel() * spacing_m
+    xr_, yr_ = 5e5 + x * np.cos(a) - y * np.sin(a), -3e5 + x * np.sin(a) + y * np.cos(a)
+    res, info = auto_resolution_m(xr_, yr_)
+    assert res == expected_m and info["nn_quantile_m"] == pytest.approx(spacing_m, rel=1e-6)
 
 
 def test_grid_stage_publishes_dtm_and_laser_grids(raw_dive, tmp_path):
@@ -82,7 +97,7 @@ def test_grid_stage_publishes_dtm_and_laser_grids(raw_dive, tmp_path):
     err = (dtm["depth_m"] - (8000 + 0.02 * xx)).where(dtm["count"] > 0)
     assert float(np.sqrt((err**2).mean())) < 1.0
     man = out["dtm"].manifest()
-    assert len(man["inputs"]) == 2 and man["parameters"]["dtm_resolution_m"] == 20.0
+    assert len(man["inputs"]) == 2 and man["parameters"]["dtm_resolution_m"] == "auto"
     names = sorted(f["name"] for f in out["laser_grids"].manifest()["files"])
     assert names == ["submap_01.nc", "submap_02.nc"]
     lg = xr.open_dataset(out["laser_grids"].file("submap_01.nc"), engine="h5netcdf")
@@ -119,7 +134,7 @@ def test_missing_and_bad_inputs_publish_nothing(raw_dive, tmp_path):
     with pytest.raises(InputError, match="does not exist"):
         run_stage("grid", make_context(raw_dive, store))
     _set_sources(raw_dive)
-    with pytest.raises(StageError, match="no multibeam or laser"):
+    with pytest.raises(StageError, match="no multibeam, prior_grid or laser"):
         run_stage("grid", make_context(raw_dive, store))
 
 

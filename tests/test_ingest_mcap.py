@@ -133,3 +133,61 @@ def test_not_mcap(tmp_path, content, match):
         read_mcap(p)
     with pytest.raises(InputError, match="does not exist"):
         read_mcap(tmp_path / "nope.mcap")
+
+
+def test_nested_fields_transforms_offset_and_ros_time():
+    """Mapping features for decoded ROS 2 messages: dotted fields, header.stamp time, transform, offset."""
+    from hadal.ingest.csv_reader import sensor_from_records
+    from hadal.ingest.vehicle import McapSource
+
+    t0 = 1538866800
+    msgs = [{"header": {"stamp": {"sec": t0 + i, "nanosec": 250_000_000}},
+             "fluid_pressure": 101325.0 + 1e4 * i,
+             "orientation": {"x": 0.0, "y": 0.0, "z": 0.0, "w": 1.0},  # identity in ENU: facing east
+             "twist": {"linear": {"x": 3.0, "y": 4.0}}} for i in range(5)]
+    m = McapSource.model_validate({
+        "topic": "/t", "time": {"field": "header.stamp", "format": "ros_time"},
+        "fields": {"pressure_gauge_dbar": {"field": "fluid_pressure", "units": "Pa", "offset": -10.1325},
+                   "heading_deg": {"field": ["orientation.x", "orientation.y", "orientation.z", "orientation.w"],
+                                   "units": "deg", "transform": "quaternion_to_heading_deg"},
+                   "speed_m_s": {"field": ["twist.linear.x", "twist.linear.y"], "units": "cm/s",
+                                 "transform": "vector_norm"}}})
+    s = sensor_from_records("nav", np.zeros(5, dtype=np.int64), msgs, m, "mcap:x.mcap")
+    assert s.time_ns.tolist() == [(t0 + i) * 10**9 + 250_000_000 for i in range(5)]
+    assert s.values["pressure_gauge_dbar"].tolist() == pytest.approx([0.0, 1.0, 2.0, 3.0, 4.0], abs=1e-9)
+    assert s.values["heading_deg"].tolist() == pytest.approx([90.0] * 5)
+    assert s.values["speed_m_s"].tolist() == pytest.approx([0.05] * 5)
+    formulas = [(c["variable"], c["formula"]) for c in s.conversions]
+    assert ("pressure_gauge_dbar", "x * 0.0001") in formulas and ("pressure_gauge_dbar", "x + -10.1325") in formulas
+    assert ("heading_deg", "quaternion_to_heading_deg") in formulas and ("speed_m_s", "vector_norm") in formulas
+    bad = McapSource.model_validate({"topic": "/t", "fields": {"altitude_m": {"field": "range.value", "units": "m"}}})
+    with pytest.raises(InputError, match="no field 'range.value'"):
+        sensor_from_records("alt", np.arange(5), msgs, bad, "mcap:x.mcap")
+
+
+def test_no_mapped_topic_is_one_line_input_error(tiny_mcap):
+    from hadal.ingest.build import read_mcap_sensors
+    from hadal.ingest.vehicle import VehicleConfig
+
+    p, _ = tiny_mcap
+    v = VehicleConfig.model_validate({"time_base": "g", "sensors": {"g": {"mcap": {
+        "topic": "/other/pressure", "fields": {"pressure_gauge_dbar": {"field": "p", "units": "dbar"}}}}}})
+    with pytest.raises(InputError) as exc:
+        read_mcap_sensors([p], v)
+    msg = str(exc.value)
+    assert "\n" not in msg and "nothing to ingest" in msg and "/other/pressure" in msg and "/haidou/ctd" in msg
+
+
+def test_csv_latlon_transform(tmp_path):
+    from hadal.ingest.csv_reader import read_sensor_csv
+    from hadal.ingest.vehicle import CsvSource
+
+    p = tmp_path / "gps.csv"
+    p.write_text("time,lat,lon\n2018-10-06T23:00:00Z,11.33,142.2\n2018-10-06T23:00:01Z,11.331,142.2\n")
+    m = CsvSource.model_validate({"source": "gps", "fields": {
+        "dr_north_m": {"field": ["lat", "lon"], "units": "m", "transform": "latlon_to_north_m"},
+        "dr_east_m": {"field": ["lat", "lon"], "units": "m", "transform": "latlon_to_east_m",
+                      "origin": [11.33, 142.19]}}})
+    s = read_sensor_csv(p, m, "gps")
+    assert s.values["dr_north_m"][0] == 0.0 and s.values["dr_north_m"][1] == pytest.approx(110.6, abs=0.5)
+    assert s.values["dr_east_m"][0] == pytest.approx(0.01 * 111_320 * np.cos(np.radians(11.33)), rel=2e-3)

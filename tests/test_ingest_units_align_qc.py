@@ -218,9 +218,15 @@ def test_sensor_from_records_bad_values():
 
     v = load_vehicle_config(default_vehicle_config_path())
     msgs = [{"pressure": 1.0}, {"pressure": None}, {"pressure": "oops"}, {"pressure": 4}, {}]
-    s = sensor_from_records("gauge", np.arange(5, dtype=np.int64) * 10**9, msgs, v.sensors["gauge"].mcap, "mcap:x")
-    np.testing.assert_array_equal(np.isnan(s.values["pressure_gauge_dbar"]), [False, True, True, False, True])
-    assert s.stats["bad_values"] == 1
+    with pytest.warns(UserWarning, match=r"rejected 1 of 5 gauge sample\(s\).*pressure: 1 \(string 1\)"):
+        s = sensor_from_records("gauge", np.arange(5, dtype=np.int64) * 10**9, msgs, v.sensors["gauge"].mcap,
+                                "mcap:x")
+    # the string sample is rejected (not coerced, not kept as NaN); null and a missing field are missing values
+    assert s.time_ns.tolist() == [0, 10**9, 3 * 10**9, 4 * 10**9]
+    np.testing.assert_array_equal(np.isnan(s.values["pressure_gauge_dbar"]), [False, True, False, True])
+    assert s.stats["bad_values"] == 1 and s.stats["rejected_samples"] == 1
+    assert s.stats["rejected_values"] == {"pressure": {"variable": "pressure_gauge_dbar", "count": 1,
+                                                       "types": {"string": 1}}}
     with pytest.raises(InputError, match="has no field 'pressure'"):
         sensor_from_records("gauge", np.arange(2, dtype=np.int64), [{"p": 1.0}, {"p": 2.0}],
                             v.sensors["gauge"].mcap, "mcap:x")

@@ -51,7 +51,9 @@ def test_real_depth_range_and_slope(takuyo, result):
 
 def test_real_protrusions_are_centimetric(result):
     h = result.protrusion_height_m
-    assert np.nanpercentile(np.abs(h), 50) < 0.01
+    # heights above the ground of the opening (a lower envelope at the vehicle scale): the seafloor texture
+    # reads a couple of cm, rocks much more
+    assert np.nanpercentile(np.abs(h), 50) < 0.03
     assert 0.01 < np.nanpercentile(h, 99.9) < 0.3
     assert result.protrusion_candidate.sum() > 0
 
@@ -76,9 +78,16 @@ def test_real_sites_and_best_heading(takuyo, result):
     diff = abs((best["heading_deg"] - strip_heading + 90) % 180 - 90)
     assert diff <= 30.0
     # the landing footprint lies entirely on mapped seafloor and under θc
-    i = int(np.argmin(np.abs(result.y_m - best["y_m"])))
-    j = int(np.argmin(np.abs(result.x_m - best["x_m"])))
-    rr, cc = footprint_offsets(1.7, 0.5, best["heading_deg"], 0.1)
+    # small grid: analysed on its own cells (no along-track re-gridding); row/col index the arrays
+    assert result.frame_rotation_deg == 0.0
+    i, j = int(best["row"]), int(best["col"])
+    xw, yw = result.to_world(result.x_m[j], result.y_m[i])
+    assert (float(xw), float(yw)) == pytest.approx((best["x_m"], best["y_m"]), abs=1e-9)
+    # the site lies on mapped input cells (world -> input grid)
+    gi = int(np.argmin(np.abs(takuyo["y"].values - best["y_m"])))
+    gj = int(np.argmin(np.abs(takuyo["x"].values - best["x_m"])))
+    assert np.isfinite(takuyo.values[gi, gj])
+    rr, cc = footprint_offsets(1.7, 0.5, best["heading_deg"] - result.frame_rotation_deg, 0.1)
     assert np.isfinite(result.elevation_m[i + rr, j + cc]).all()
     assert best["slope_deg"] <= Vehicle().critical_slope_deg
     assert -1382.0 < best["elevation_m"] < -1379.0

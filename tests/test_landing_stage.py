@@ -114,3 +114,22 @@ def test_params_in_pipeline_config():
     assert cfg.landing.vehicle.length_m == 2.0 and cfg.landing.vehicle.width_m == 0.5
     with pytest.raises(ValidationError):
         PipelineConfig.model_validate({"landing": {"nonsense": 1}})
+
+
+def test_stage_uses_laser_uncertainty_layers(tmp_path):
+    ctx = _ctx(tmp_path, figures=False, heading_step_deg=45.0)
+    ds = _submap(300, 130, 0.02, 8.0, 1)
+    ds["elevation_std_m"] = (("y", "x"), np.full((300, 130), 0.004))
+    ds["count"] = (("y", "x"), np.full((300, 130), 16, np.int32))
+    _publish_laser(ctx, {"submap_01": ds, "submap_02": _submap(300, 130, 0.02, 12.0, 2, y0=6.0)})
+    df = pd.read_parquet(stage.run(ctx)["landing"].file("landing_sites.parquet"))
+    p1 = df.loc[df.submap == "submap_01", "p_landable"]
+    assert len(p1) and p1.between(0, 1).all()
+    assert df.loc[df.submap == "submap_02", "p_landable"].isna().all()  # no uncertainty layers: not computed
+
+
+def test_params_bounded():
+    for bad in ({"block_m": 0}, {"filter_order": 0}, {"local_slope_window_m": 0}, {"heading_step_deg": 0.1},
+                {"vehicle": {"length_m": 1e6}}, {"vehicle": {"water_density_kg_m3": 1.0}}, {"workers": 0}):
+        with pytest.raises(ValidationError):
+            stage.Params(**bad)

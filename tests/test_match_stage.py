@@ -116,7 +116,15 @@ def test_match_stage_recovers_start_and_publishes_products(tmp_path):
         coarse = fix["refinement"]["coarse"]  # the surface is the cell-resolution search (paper §4.2)
         assert float(s["score"].sel(x=coarse["x_east_m"], y=coarse["y_north_m"])) == pytest.approx(coarse["score"], rel=1e-5)
         assert float(s["score"].min()) == pytest.approx(coarse["score"], rel=1e-5)
-    assert fix["refinement"]["seeds"] >= 1 and fix["refinement"]["jackknife_sigma_m"]["blocks"] >= 2
+    fix = json.loads(match_stage.run(_ctx(dive, store, tmp_path, posterior=True))["match"].file("fix.json").read_text())
+    assert geodesic_distance_m(fix["start"]["lon"], fix["start"]["lat"], tlon, tlat) < 1.5 * H
+    post = fix["posterior"]  # the posterior summary (issue 16): calibrated ellipse, mode mass, no flag here
+    assert not fix["mismatch"] and post["mass_outside_main_mode"] < 0.05 and post["mismatch_reasons"] == []
+    e1 = post["ellipse_1sigma"]
+    assert 0 < e1["semi_minor_m"] <= e1["semi_major_m"] and post["ellipse_2sigma"]["semi_major_m"] == pytest.approx(2 * e1["semi_major_m"])
+    assert fix["uncertainty_m"]["radial"] == pytest.approx(post["drms_m"])
+    assert post["refinement"]["loglik_map"] >= post["refinement"]["loglik_coarse_fix"]  # never worse than the coarse fix
+    assert len(fix["dead_reckoning_track"]["x_east_m"]) == len(fix["dead_reckoning_track"]["y_north_m"]) > 2
 
 
 def test_suitability_stage_and_region_search(tmp_path):
@@ -141,7 +149,7 @@ def test_suitability_stage_and_region_search(tmp_path):
 def test_match_stage_with_mrf_on_lawnmower_coverage(tmp_path):
     dive, store, truth = _world(tmp_path, track="lawnmower")
     # translation only, as MRF assumes; MRF refines the cell-resolution TERCOM fix, as the MRF paper proposes
-    ctx = _ctx(dive, store, tmp_path, mrf=True, heading_range_deg=0.0, refine=False)
+    ctx = _ctx(dive, store, tmp_path, mrf=True, heading_range_deg=0.0, refine=False, posterior=False)
     fix = json.loads(match_stage.run(ctx)["match"].file("fix.json").read_text())
     assert fix["mrf"]["applied"] and not fix["mrf"]["warnings"]
     e_tercom = np.hypot(fix["start"]["x_east_m"] - truth["start"][0], fix["start"]["y_north_m"] - truth["start"][1])

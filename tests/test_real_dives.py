@@ -15,6 +15,7 @@ import pytest
 import yaml
 
 from hadal.dive_init import scan_dive_dir, write_init
+from hadal.errors import InputError
 from hadal.inspect import inspect_file
 
 #: shared file (relative to ../shared/data) -> products its dive must publish (report always)
@@ -26,6 +27,8 @@ EXPECTED: dict[str, set[str]] = {
     "ctd-real/pyctd_CTD_with_sigma_e00.cnv": {"sensors", "ctd", "profile"},
     "formats-real/sbs_SBE19plus_01906398_2019_07_15_0033_cropped.cnv": {"sensors", "ctd", "profile"},
     "formats-real/sbs_SBE19plus_01906398_2019_07_15_0033_cropped_binavg.cnv": {"sensors", "ctd", "profile"},
+    "formats-real/sbs_SBE19plus_01906398_2019_07_15_0033_cropped_loopedit.cnv": {"sensors", "ctd", "profile"},
+    "formats-real/sbs_SBE19plus_01906398_2019_07_15_0033_cropped_loopedit_wildedit.cnv": {"sensors", "ctd", "profile"},
     "formats-real/sbs_19plus_V2.hex": {"sensors", "ctd", "profile"},
     "bathy-real/tut_bathy.nc": {"dtm", "suitability"},
     "formats-real/gmt_depth_pixel.nc": {"dtm", "suitability"},
@@ -77,6 +80,11 @@ def test_init_then_run_each_real_file_alone(shared_data, tmp_path, rel):
     with pytest.raises(Exception, match="already exist"):
         write_init(res)  # never overwrites without --force
     ctx = make_context(raw, tmp_path / "store")
+    if not EXPECTED[rel]:  # nothing in it can be processed: said by init, and a one-line error from run
+        assert res.not_used and not res.dive["sources"], (res.not_used, res.dive)
+        with pytest.raises(InputError, match="no source files"):
+            run_pipeline(ctx)
+        return
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         run_pipeline(ctx)
@@ -86,8 +94,88 @@ def test_init_then_run_each_real_file_alone(shared_data, tmp_path, rel):
     skipped = {s["stage"] for s in summary["skipped_stages"]}
     from hadal.stages import STAGE_ORDER
 
-    ran = {n for n in STAGE_ORDER if n != "report"} - skipped
-    if EXPECTED[rel]:
-        assert ran, f"{rel}: the report says every stage was skipped"
-    else:
-        assert res.not_used, "a file that gives nothing must be reported as not used, with the reason"
+    assert {n for n in STAGE_ORDER if n != "report"} - skipped, f"{rel}: the report says every stage was skipped"
+
+
+def _dive_of(tmp_path: Path, shared: Path, *rels: str) -> Path:
+    raw = tmp_path / "mixed"
+    raw.mkdir()
+    for rel in rels:
+        shutil.copy(shared / rel, raw / Path(rel).name)
+    write_init(scan_dive_dir(raw))
+    return raw
+
+
+def test_stage_failure_does_not_stop_the_others_and_the_report_says_so(shared_data, tmp_path):
+    """A cast and a corrupt sounding file: ingest/derive/report still publish; the run ends in one error."""
+    from hadal.errors import StageError
+    from hadal.pipeline import make_context, run_pipeline
+
+    raw = _dive_of(tmp_path, shared_data, "ctd-real/seabird_sta0860.cnv", "bathy-real/tut_bathy.nc")
+    (raw / "tut_bathy.nc").write_bytes((shared_data / "bathy-real/tut_bathy.nc").read_bytes()[:3000])
+    ctx = make_context(raw, tmp_path / "store")
+    with pytest.raises(StageError, match=r"1 stage\(s\) failed \(grid: .*tut_bathy.nc"):
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            run_pipeline(ctx)
+    assert {"sensors", "ctd", "profile", "report"} <= set(ctx.store.products(ctx.dive_id))
+    assert not ctx.store.has(ctx.dive_id, "dtm")
+    summary = json.loads(ctx.store.latest(ctx.dive_id, "report").file("summary.json").read_text())
+    why = {s["stage"]: s["reason"] for s in summary["skipped_stages"]}
+    assert why["grid"].startswith("failed:") and "grid failed" in why["suitability"]
+
+
+def test_cast_far_from_the_prior_grid(shared_data, tmp_path):
+    """A cast off Madagascar with a grid near Bermuda: init says so; suitability centres on the grid and says so."""
+    from hadal.pipeline import make_context, run_pipeline
+
+    raw = tmp_path / "far"
+    raw.mkdir()
+    for rel in ("ctd-real/seabird_sta0860.cnv", "bathy-real/tut_bathy.nc"):
+        shutil.copy(shared_data / rel, raw / Path(rel).name)
+    res = scan_dive_dir(raw)
+    assert any("lies outside tut_bathy.nc" in t for t in res.todo), res.todo
+    write_init(res)
+    ctx = make_context(raw, tmp_path / "store")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        run_pipeline(ctx)
+    import xarray as xr
+
+    with xr.open_dataset(ctx.store.latest(ctx.dive_id, "suitability").file("suitability.nc")) as s:
+        assert "outside the DTM" in s.attrs["region_centre_note"]
+
+
+def test_several_casts_and_a_hex_with_its_own_cnv(shared_data, tmp_path):
+    raw = tmp_path / "casts"
+    raw.mkdir()
+    for rel in ("ctd-real/seabird_sta0860.cnv", "ctd-real/oceissues644_02dk.cnv", "formats-real/sbs_19plus_V2.hex",
+                "ctd-real/sbs_19plus_V2_CTD-processing_example.cnv"):
+        shutil.copy(shared_data / rel, raw / Path(rel).name)
+    res = scan_dive_dir(raw)
+    assert "launch" not in res.dive  # casts 25°S and 69°N: each uses its own header position
+    assert sorted(res.dive["sources"]["cnv"]) == ["oceissues644_02dk.cnv", "sbs_19plus_V2_CTD-processing_example.cnv",
+                                                  "seabird_sta0860.cnv"]
+    assert any(n.startswith("sbs_19plus_V2.hex: the same cast as") for n in res.not_used), res.not_used
+
+
+def test_report_lists_every_cast(shared_data, tmp_path):
+    from hadal.pipeline import make_context, run_pipeline
+
+    raw = _dive_of(tmp_path, shared_data, "ctd-real/seabird_sta0860.cnv", "ctd-real/oceissues644_02dk.cnv",
+                   "ctd-real/seabird_dPIRX010.cnv")
+    ctx = make_context(raw, tmp_path / "store")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        run_pipeline(ctx)
+    summary = json.loads(ctx.store.latest(ctx.dive_id, "report").file("summary.json").read_text())
+    casts = summary["casts"]
+    assert len(casts) == 2  # the first cast makes `ctd`; the other two are listed with their own positions
+    # the casts in file order: oceissues644_02dk (566 dbar) makes ctd; dPIRX010 (~1014 dbar) and sta0860 (90 dbar)
+    from hadal.ingest.cnv import read_cnv
+
+    oracle = sorted(float(read_cnv(shared_data / "ctd-real" / f)[c].max()) for f, c in
+                    (("seabird_dPIRX010.cnv", "prDM"), ("seabird_sta0860.cnv", "prDM")))
+    assert sorted(c["max_pressure_dbar"] for c in casts) == pytest.approx(oracle, abs=0.01)
+    html = ctx.store.latest(ctx.dive_id, "report").file("report.html").read_text()
+    assert "Other casts of this dive" in html

@@ -35,7 +35,8 @@ def test_versions_are_numbered_and_immutable(tmp_path):
     assert (v1.path / "data.txt").read_text() == "one"  # older version untouched
     m = v2.manifest()
     assert m["version"] == "v002" and m["parameters"] == {"bin_dbar": 5}
-    assert m["files"] == [{"name": "data.txt", "bytes": 3, "sha256": sha256_file(v2.path / "data.txt")}]
+    assert m["files"] == [{"name": "data.txt", "bytes": 3, "mtime_ns": (v2.path / "data.txt").stat().st_mtime_ns,
+                           "sha256": sha256_file(v2.path / "data.txt")}]
     assert m["code_version"].startswith("0.")
     assert store.verify(v2) == []
 
@@ -180,3 +181,45 @@ def test_manifest_is_valid_json_with_created_time(tmp_path):
     m = json.loads(v.manifest_path.read_text())
     assert m["created_utc"].endswith("+00:00")
     assert m["dive"] == "dive-1" and m["product"] == "ctd"
+
+
+def test_tampered_upstream_is_refused(tmp_path):
+    """A product file changed after publishing (same size, new content or new mtime) is never used as is."""
+    import os
+
+    from hadal.stages import StageContext
+
+    store = ProductStore(tmp_path)
+    with store.publish("d1", "sensors") as draft:
+        (draft.path / "sensors.parquet").write_bytes(b"abcdef")
+    pv = draft.result
+    store.check_intact(pv)  # fast path: size + mtime as recorded
+    f = pv.path / "sensors.parquet"
+    st = f.stat()
+    f.write_bytes(b"abcdeX")  # same size, other content
+    os.utime(f, ns=(st.st_atime_ns, st.st_mtime_ns + 10**9))
+    with pytest.raises(StoreError, match="modified after it was published"):
+        ProductStore(tmp_path).check_intact(pv)
+    f.write_bytes(b"abcdef")  # restored content, new mtime: re-hashed and accepted
+    ProductStore(tmp_path).check_intact(pv)
+    (pv.path / "sensors.parquet").unlink()
+    ctx = StageContext(dive=None, raw_dir=tmp_path, store=ProductStore(tmp_path), config=None)  # type: ignore[arg-type]
+    ctx.pins["sensors"] = pv
+    with pytest.raises(StoreError, match="missing"):
+        ctx.upstream("sensors")
+
+
+def test_a_run_reads_the_versions_it_pinned(tmp_path):
+    """Two runs of one dive: the second run's newer upstream version does not leak into the first run."""
+    from hadal.stages import StageContext
+
+    store = ProductStore(tmp_path)
+    with store.publish("d1", "dtm") as draft:
+        (draft.path / "dtm.nc").write_bytes(b"run A")
+    mine = draft.result
+    ctx = StageContext(dive=None, raw_dir=tmp_path, store=store, config=None)  # type: ignore[arg-type]
+    ctx.pins["dtm"] = mine
+    with store.publish("d1", "dtm") as draft:  # a concurrent run publishes v002
+        (draft.path / "dtm.nc").write_bytes(b"run B")
+    assert store.latest("d1", "dtm").label == "v002"
+    assert ctx.upstream("dtm") == mine and ctx.upstream("dtm").label == "v001"

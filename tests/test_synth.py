@@ -165,7 +165,8 @@ def test_dive_yaml_loads_and_lists_every_source(sample):
     assert dive.launch.longitude_deg == pytest.approx(parse_degmin("142°12.583'E"), abs=1e-7)
     assert dive.launch.time_utc == dt.datetime(2018, 10, 6, 23, 0, tzinfo=dt.UTC)
     assert dive.map_frame is not None
-    listed = [*dive.sources.mcap, *dive.sources.csv.values(), *dive.sources.multibeam, *dive.sources.laser]
+    listed = [*dive.sources.mcap, *dive.sources.csv.values(), *(e.path for e in dive.sources.multibeam),
+              *(e.path for e in dive.sources.laser)]
     assert set(dive.sources.csv) == {"ctd", "gauge", "altimeter", "attitude", "dr"}
     for rel in listed:
         assert resolve_source(raw, rel).is_file(), rel

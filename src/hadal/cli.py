@@ -65,22 +65,25 @@ def _quiet_prefect_tracebacks() -> None:
 def _run_flow(raw_dir: Path, store: Path | None, config: Path | None, stages: list[str] | None,
               force: bool = False) -> dict[str, str]:
     from hadal.dive import load_dive
-    from hadal.pipeline import make_context, resolve_stages
+    from hadal.pipeline import claim_dive, make_context, stage_plan
 
     # validate everything cheap before starting Prefect, so bad input fails fast and in one line
     load_dive(raw_dir)
-    make_context(raw_dir, _store_root(store), config)
-    names = resolve_stages(stages)
-    os.environ.setdefault("PREFECT_SERVER_ANALYTICS_ENABLED", "false")
-    # the temporary server may need more than Prefect's default 20 s on a busy machine
-    os.environ.setdefault("PREFECT_SERVER_EPHEMERAL_STARTUP_TIMEOUT_SECONDS", "120")
+    ctx = make_context(raw_dir, _store_root(store), config)
+    plan = stage_plan(ctx, stages)  # the stages the dive's data supports (explicit ones that cannot run: error)
+    claim_dive(ctx, check_only=True)
+    names = [ps.name for ps in plan if ps.run]
+    for ps in plan:
+        if not ps.run:
+            console.print(f"[yellow]skip[/] {ps.name}: {ps.reason}", highlight=False)
+    _prefect_environment()
     from hadal.flows.post_cruise import post_cruise
 
     _quiet_prefect_tracebacks()
 
     console.print(f"[bold]hadal[/] {raw_dir} → stages: {', '.join(names)}")
     return post_cruise(
-        str(raw_dir), str(_store_root(store)), str(config) if config else None, names, force
+        str(raw_dir), str(_store_root(store)), str(config) if config else None, stages, force
     )
 
 
@@ -93,26 +96,29 @@ def _expand_dives(dirs: list[Path]) -> list[Path]:
 
 def _run_batch(raw_dirs: list[Path], store: Path | None, config: Path | None, workers: int,
                scheduler: str | None, force: bool) -> dict:
-    from hadal.pipeline import make_context, resolve_stages
+    from hadal.errors import ConfigError
+    from hadal.pipeline import claim_dive, make_context, stage_plan
 
-    dives = _expand_dives(raw_dirs)
-    for d in dives:  # fail fast, in one line, before starting Prefect and Dask
-        make_context(d, _store_root(store), config)
-    names = resolve_stages(None)
     if workers < 1:
-        from hadal.errors import ConfigError
-
         raise ConfigError(f"--workers must be at least 1 (got {workers})")
-    os.environ.setdefault("PREFECT_SERVER_ANALYTICS_ENABLED", "false")
-    # the temporary server may need more than Prefect's default 20 s on a busy machine
-    os.environ.setdefault("PREFECT_SERVER_EPHEMERAL_STARTUP_TIMEOUT_SECONDS", "120")
+    dives = _expand_dives(raw_dirs)
+    owner: dict[str, Path] = {}
+    for d in dives:  # fail fast, in one line, before starting Prefect and Dask
+        ctx = make_context(d, _store_root(store), config)
+        if ctx.dive_id in owner:
+            raise ConfigError(f"dive id {ctx.dive_id!r} is used by both {owner[ctx.dive_id]} and {d}; give each dive "
+                              "its own dive_id in its dive.yaml")
+        owner[ctx.dive_id] = d
+        stage_plan(ctx)
+        claim_dive(ctx, check_only=True)
+    _prefect_environment()
     from hadal.flows.batch import run_batch
 
     _quiet_prefect_tracebacks()
 
     where = f"scheduler {scheduler}" if scheduler else f"LocalCluster, {workers} worker(s)"
-    console.print(f"[bold]hadal[/] batch of {len(dives)} dive(s) on {where} → stages: {', '.join(names)}")
-    return run_batch([str(d) for d in dives], str(_store_root(store)), str(config) if config else None, names,
+    console.print(f"[bold]hadal[/] batch of {len(dives)} dive(s) on {where} → the stages each dive's data supports")
+    return run_batch([str(d) for d in dives], str(_store_root(store)), str(config) if config else None, None,
                      workers=workers, scheduler=scheduler, force=force)
 
 
@@ -184,18 +190,42 @@ def report(
 
     validate_name(dive, "dive id")
     p = load_config(config).report
+    dest = _report_destination(out) if out is not None else None  # checked before anything is published
     st = ProductStore(_store_root(store))
     rep = build_report(st, dive, options=options(p), best_sites=p.best_sites, title=p.title)
     pv = publish_report(st, rep, parameters=p.model_dump(mode="json"))
     html = pv.path / "report.html"
     for note in rep.summary.get("notes", []):
         console.print(f"note: {note}", highlight=False)
-    if out is not None:
-        dest = out / "report.html" if out.is_dir() else out
-        dest.parent.mkdir(parents=True, exist_ok=True)
-        shutil.copyfile(html, dest)
+    if dest is not None:
+        try:
+            shutil.copyfile(html, dest)
+        except OSError as exc:
+            from hadal.errors import InputError
+
+            raise InputError(f"report published as {html}, but copying it to {dest} failed "
+                             f"({exc.strerror or exc})") from None
         html = dest
     print(html)
+
+
+def _report_destination(out: Path) -> Path:
+    """Where ``--out`` puts report.html (a directory: inside it), created and checked writable, or a one-line error."""
+    import os
+
+    from hadal.errors import InputError
+
+    dest = out / "report.html" if out.is_dir() else out
+    blocker = next((a for a in (dest.parent, *dest.parent.parents) if a.exists()), None)
+    if blocker is not None and not blocker.is_dir():
+        raise InputError(f"--out {out}: {blocker} is not a directory")
+    try:
+        dest.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise InputError(f"--out {out}: cannot create {dest.parent} ({exc.strerror or exc})") from None
+    if not os.access(dest.parent, os.W_OK):
+        raise InputError(f"--out {out}: {dest.parent} is not writable")
+    return dest
 
 
 @app.command()
@@ -241,7 +271,10 @@ def products(
     rows = []
     for product in st.products(dive):
         for pv in st.versions(dive, product):
-            m = pv.manifest()
+            try:
+                m = pv.manifest()
+            except (OSError, ValueError):  # a damaged manifest is listed as such, not a traceback
+                m = {"created_utc": None, "code_version": "(unreadable manifest.json)"}
             rows.append({"product": product, "version": pv.label, "created_utc": m.get("created_utc"),
                          "code_version": m.get("code_version"), "path": str(pv.path)})
     if as_json:
@@ -298,7 +331,7 @@ def config_cmd(
 def _check_dive_dir(raw_dir: Path) -> None:
     from hadal.ingest.vehicle import load_vehicle_config
     from hadal.pipeline import make_context
-    from hadal.plan import check_plan, format_plan, plan_stages
+    from hadal.plan import check_plan, format_plan
 
     ctx = make_context(raw_dir, None)
     if ctx.dive.vehicle_config:
@@ -311,7 +344,9 @@ def _check_dive_dir(raw_dir: Path) -> None:
         from hadal.errors import ConfigError
 
         raise ConfigError(f"{raw_dir}/dive.yaml lists missing source file(s): {', '.join(missing)}")
-    plan = plan_stages(ctx.dive)
+    from hadal.pipeline import stage_plan
+
+    plan = stage_plan(ctx)  # also refuses a dive that lists nothing to process
     check_plan(ctx.dive, plan)
     console.print(f"{raw_dir}: valid (dive {ctx.dive_id!r}); plan:")
     print(format_plan(plan))
@@ -334,6 +369,8 @@ def inspect(
     paths: list[Path] = []
     for f in files:
         paths += sorted(p for p in f.rglob("*") if p.is_file()) if f.is_dir() else [f]
+        if f.is_dir() and not any(p.is_file() for p in f.rglob("*")):
+            console.print(f"{f}: a directory with no files in it", highlight=False)
     infos = [inspect_file(p) for p in paths]
     if as_json:
         from hadal.products.io import json_clean
@@ -366,7 +403,14 @@ def init(
 
     if dive_id is not None:
         validate_name(dive_id, "dive id")
-    res = scan_dive_dir(raw_dir, dive_id=dive_id, launch=parse_latlon_pair(launch) if launch else None)
+    pos = parse_latlon_pair(launch) if launch else None
+    existing = [raw_dir / "dive.yaml"] if (raw_dir / "dive.yaml").exists() else []
+    if existing and not (force or dry_run):  # say so before scanning (which may take a while on big files)
+        from hadal.errors import ConfigError
+
+        raise ConfigError(f"{', '.join(map(str, existing))} already exist(s); use --force to overwrite "
+                          "(or --dry-run to see what init would write)")
+    res = scan_dive_dir(raw_dir, dive_id=dive_id, launch=pos)
     for line in res.mapped:
         console.print(f"[green]mapped[/]   {line}", highlight=False)
     for line in res.not_used:
@@ -395,7 +439,212 @@ def schema(
     print(json.dumps(json_schema(what), indent=2))
 
 
+# ---------------------------------------------------------------------------------------------- process hygiene
+def _prefect_environment() -> None:
+    """Environment for the flows' temporary Prefect server, set up before Prefect is imported: a writable
+    PREFECT_HOME (checked: a one-line error instead of Prefect's tracebacks), and the server guarded so it never
+    outlives hadal (:func:`_guard_prefect_server`)."""
+    os.environ.setdefault("PREFECT_SERVER_ANALYTICS_ENABLED", "false")
+    # the temporary server may need more than Prefect's default 20 s on a busy machine
+    os.environ.setdefault("PREFECT_SERVER_EPHEMERAL_STARTUP_TIMEOUT_SECONDS", "120")
+    _check_prefect_home()
+    _guard_prefect_server()
+
+
+def _check_prefect_home() -> None:
+    """PREFECT_HOME (default ``~/.prefect``) must be a writable directory: the temporary server keeps its
+    database there. Refuse in one line (ConfigError, exit 2) rather than let Prefect fail with tracebacks."""
+    import tempfile
+
+    from hadal.errors import ConfigError
+
+    raw = os.environ.get("PREFECT_HOME")
+    home = Path(raw).expanduser() if raw else Path("~/.prefect").expanduser()
+    try:
+        home.mkdir(parents=True, exist_ok=True)
+        with tempfile.TemporaryFile(dir=home):
+            pass
+    except OSError as exc:
+        why = exc.strerror or type(exc).__name__
+        raise ConfigError(
+            f"Prefect's home directory {home} is not writable ({why}); the temporary Prefect server keeps its "
+            "database there: set PREFECT_HOME to a writable directory (e.g. PREFECT_HOME=$(mktemp -d))") from None
+
+
+#: run as the temporary Prefect server's main: the server stops by itself when the pipe from hadal reaches EOF,
+#: i.e. when hadal exits in any way (kill -9 included: the kernel closes hadal's end of the pipe)
+_SERVER_GUARD = """
+import os, runpy, signal, sys, threading, time
+fd = int(sys.argv.pop(1))
+def _watch():
+    try:
+        while os.read(fd, 4096):
+            pass
+    except OSError:
+        pass
+    os.kill(os.getpid(), signal.SIGTERM)
+    time.sleep(10)
+    os._exit(0)
+threading.Thread(target=_watch, daemon=True).start()
+sys.argv[0] = "uvicorn"
+runpy.run_module("uvicorn", run_name="__main__", alter_sys=True)
+"""
+
+_GUARD_PIPES: list[int] = []  # hadal's (write) ends of the servers' guard pipes, open for hadal's lifetime
+
+
+def _guard_prefect_server() -> None:
+    """Start Prefect's temporary server (``SubprocessASGIServer``) in its own process group - a Ctrl-C at the
+    terminal reaches hadal only, which then stops the server, instead of killing the server under a running
+    flow - and through :data:`_SERVER_GUARD`, so it exits when hadal dies, even by ``kill -9``."""
+    try:
+        from prefect.server.api import server as srv
+    except ImportError:  # a Prefect without the bundled server: nothing to guard
+        return
+    cls = getattr(srv, "SubprocessASGIServer", None)
+    if cls is None or getattr(cls, "_hadal_guarded", False):
+        return
+    original = cls._run_uvicorn_command
+    real = srv.subprocess
+
+    def run_guarded(self):
+        r, w = os.pipe()
+
+        class _Subprocess:  # the subprocess module, with a Popen that starts uvicorn through the guard
+            def __getattr__(self, name):
+                return getattr(real, name)
+
+            @staticmethod
+            def Popen(args, **kw):  # noqa: N802 - stands in for subprocess.Popen
+                args = list(args)
+                if args[1:3] == ["-m", "uvicorn"]:
+                    args = [args[0], "-c", _SERVER_GUARD, str(r), *args[3:]]
+                    kw["pass_fds"] = (*kw.get("pass_fds", ()), r)
+                kw.setdefault("process_group", 0)
+                return real.Popen(args, **kw)
+
+        srv.subprocess = _Subprocess()
+        try:
+            proc = original(self)
+        except BaseException:
+            os.close(w)
+            raise
+        finally:
+            srv.subprocess = real
+            os.close(r)
+        _GUARD_PIPES.append(w)
+        return proc
+
+    cls._run_uvicorn_command = run_guarded
+    cls._hadal_guarded = True
+
+
+class _Terminated(KeyboardInterrupt):
+    """SIGTERM/SIGHUP, raised in the main thread like a Ctrl-C so every path that cleans up on one runs."""
+
+    def __init__(self, signum: int):
+        super().__init__(signum)
+        self.signum = signum
+
+
+_SIGNALLED: list[int] = []  # the signal that interrupted this run (typer turns the KeyboardInterrupt into exit 130)
+
+
+def _raise_terminated(signum, _frame) -> None:
+    if _SIGNALLED:  # a second Ctrl-C: stop now (the server's guard still stops the server)
+        os._exit(130 if signum == 2 else 128 + signum)
+    _SIGNALLED.append(signum)
+    raise _Terminated(signum)
+
+
+def _install_signal_handlers() -> None:
+    import signal
+
+    for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
+        try:
+            signal.signal(sig, _raise_terminated)
+        except (ValueError, OSError):  # not the main thread / not settable
+            pass
+
+
+def _stop_children(timeout: float = 5.0) -> None:
+    """Stop Prefect's temporary server(s) and every remaining child process (Dask workers, ...); never raises."""
+    import signal
+
+    for sig in (signal.SIGINT, signal.SIGTERM):  # a second signal must not interrupt the clean-up
+        signal.signal(sig, signal.SIG_IGN)
+    srv_mod = sys.modules.get("prefect.server.api.server")
+    servers = list(getattr(getattr(srv_mod, "SubprocessASGIServer", None), "_instances", {}).values())
+    for srv in servers:
+        proc = getattr(srv, "server_process", None)
+        if proc is not None and proc.poll() is None:
+            try:
+                proc.terminate()
+            except OSError:
+                pass
+    for w in _GUARD_PIPES:  # EOF for the guards, too
+        try:
+            os.close(w)
+        except OSError:
+            pass
+    _GUARD_PIPES.clear()
+    try:
+        import psutil
+
+        kids = psutil.Process().children(recursive=True)
+        for k in kids:
+            try:
+                k.terminate()
+            except psutil.Error:
+                pass
+        _gone, alive = psutil.wait_procs(kids, timeout=timeout)
+        for k in alive:
+            try:
+                k.kill()
+            except psutil.Error:
+                pass
+        psutil.wait_procs(alive, timeout=timeout)
+    except Exception:  # psutil missing or the process table unreadable: the guards still stop the server
+        pass
+
+
+def _interrupted(exc: KeyboardInterrupt) -> None:
+    """One line, children stopped, exit 130 (Ctrl-C) or 128+signal; ``os._exit``: threads still running a
+    stage (Prefect's task runners) must not keep a killed run alive, and atexit handlers would only log
+    tracebacks about the server that is already gone. A half-written version stays a ``.staging-*``
+    directory, which readers never see and the next run removes."""
+    import signal
+
+    signum = getattr(exc, "signum", signal.SIGINT)
+    name = signal.Signals(signum).name
+    try:
+        console.print(f"[red]error:[/] interrupted ({name}); nothing half-written was published", highlight=False,
+                      soft_wrap=True)
+    except Exception:
+        pass
+    _stop_children()
+    for stream in (sys.stdout, sys.stderr):
+        try:
+            stream.flush()
+        except Exception:
+            pass
+    logging.disable(logging.CRITICAL)
+    os._exit(130 if signum == signal.SIGINT else 128 + signum)
+
+
 def main() -> None:
+    _install_signal_handlers()
+    try:
+        _main()
+    except KeyboardInterrupt as exc:
+        _interrupted(exc)
+    except SystemExit:
+        if _SIGNALLED:  # typer swallowed the interrupt (exit 130 without a word): say it, clean up
+            _interrupted(_Terminated(_SIGNALLED[0]))
+        raise
+
+
+def _main() -> None:
     logging.basicConfig(level=os.environ.get("HADAL_LOG_LEVEL", "INFO"), format="%(levelname)s %(name)s: %(message)s")
     for noisy in ("httpx", "httpcore"):  # one line per Prefect API request otherwise
         logging.getLogger(noisy).setLevel(logging.WARNING)
@@ -406,9 +655,9 @@ def main() -> None:
         sys.exit(2)
     except typer.Exit as exc:
         sys.exit(exc.exit_code)
-    except typer.Abort:
-        console.print("aborted")
-        sys.exit(130)
+    except typer.Abort as exc:  # click turns a KeyboardInterrupt into Abort
+        cause = exc.__cause__ or exc.__context__
+        _interrupted(cause if isinstance(cause, KeyboardInterrupt) else KeyboardInterrupt())
     except Exception as exc:  # click usage errors
         import click
 

@@ -21,7 +21,6 @@ import datetime as _dt
 from pathlib import Path
 from typing import Any, Literal
 
-import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 
 from hadal.errors import ConfigError, InputError
@@ -176,14 +175,12 @@ def load_dive(raw_dir: str | Path) -> tuple[Dive, Path]:
     f = raw / DIVE_FILE
     if not raw.is_dir():
         raise InputError(f"raw dive directory {raw} does not exist")
-    if not f.is_file():
-        raise InputError(f"{raw} has no {DIVE_FILE}; run 'hadal synth {raw}' for a sample dive or write one (see README)")
-    try:
-        data = yaml.safe_load(f.read_text(encoding="utf-8"))
-    except yaml.YAMLError as exc:
-        raise ConfigError(f"{f}: not valid YAML ({str(exc).splitlines()[0]})") from None
-    if not isinstance(data, dict):
-        raise ConfigError(f"{f}: expected a mapping at the top level")
+    if not f.exists():
+        raise InputError(f"{raw} has no {DIVE_FILE}; run 'hadal init {raw}' to describe your files (or 'hadal synth "
+                         f"{raw}' for a sample dive)")
+    from hadal.yamlfile import load_yaml_mapping
+
+    data = load_yaml_mapping(f, "dive description")
     try:
         dive = Dive.model_validate(data)
     except ValidationError as exc:

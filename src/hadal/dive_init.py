@@ -97,7 +97,7 @@ def _candidate_files(raw: Path) -> list[Path]:
 def xyz_role(info: dict[str, Any]) -> str:
     """``multibeam`` or ``laser`` for an xyz text file: geographic coordinates or a wide extent are soundings;
     a metric point set narrower than :data:`LASER_MAX_EXTENT_M` is a laser scan."""
-    if info.get("crs_kind") == "geographic" or "lon_range" in info or "longitude_range" in info:
+    if _crs_kind(info) == "geographic" or _lonlat_centre(info) is not None:
         return "multibeam"
     ext = _extent_m(info)
     return "laser" if ext is not None and ext < LASER_MAX_EXTENT_M else "multibeam"
@@ -109,14 +109,20 @@ def _extent_m(info: dict[str, Any]) -> float | None:
         if xr_ and yr_:
             return max(abs(xr_[1] - xr_[0]), abs(yr_[1] - yr_[0]))
     ext = info.get("extent")
-    if isinstance(ext, dict) and {"x_min", "x_max", "y_min", "y_max"} <= set(ext):
-        return max(ext["x_max"] - ext["x_min"], ext["y_max"] - ext["y_min"])
+    for a, b, c, d in (("x_min", "x_max", "y_min", "y_max"), ("xmin", "xmax", "ymin", "ymax")):
+        if isinstance(ext, dict) and {a, b, c, d} <= set(ext) and _finite(ext[a], ext[b], ext[c], ext[d]):
+            return max(ext[b] - ext[a], ext[d] - ext[c])
     return None
+
+
+def _crs_kind(info: dict[str, Any]) -> str | None:
+    crs = info.get("crs")
+    return crs.get("kind") if isinstance(crs, dict) else info.get("crs_kind")
 
 
 def grid_role(info: dict[str, Any]) -> str:
     """``laser`` for a metric raster with cells ≤ :data:`LASER_MAX_CELL_M`, else ``prior_grid``."""
-    if info.get("crs_kind") == "geographic":
+    if _crs_kind(info) == "geographic":
         return "prior_grid"
     res = info.get("resolution_m", info.get("resolution"))
     if isinstance(res, (list, tuple)):
@@ -127,14 +133,69 @@ def grid_role(info: dict[str, Any]) -> str:
         return "prior_grid"
 
 
+#: casts whose header positions are within this distance (km) share one launch position
+CASTS_TOGETHER_KM = 10.0
+
+
+def _spread_km(positions: list[tuple[float, float, Any]]) -> float:
+    """Largest distance (km) of a cast position from the first one (geodesic, WGS84)."""
+    from pyproj import Geod
+
+    g = Geod(ellps="WGS84")
+    lat0, lon0 = positions[0][0], positions[0][1]
+    return max((g.inv(lon0, lat0, lon, lat)[2] / 1000 for lat, lon, _ in positions[1:]), default=0.0)
+
+
+def _lon_in(lon: float, lo: float, hi: float) -> bool:
+    return any(lo <= lon + k <= hi for k in (-360.0, 0.0, 360.0))
+
+
+def _lonlat_box(info: dict[str, Any]) -> tuple[float, float, float, float] | None:
+    """(lon0, lon1, lat0, lat1) of a file's geographic extent, when its describer gives lon/lat ranges."""
+    lo, la = info.get("longitude_deg"), info.get("latitude_deg")
+    if isinstance(lo, (list, tuple)) and isinstance(la, (list, tuple)) and len(lo) == len(la) == 2 and _finite(*lo, *la):
+        return float(lo[0]), float(lo[1]), float(la[0]), float(la[1])
+    ext = info.get("extent")
+    if _crs_kind(info) == "geographic" and isinstance(ext, dict) and {"xmin", "xmax", "ymin", "ymax"} <= set(ext):
+        return float(ext["xmin"]), float(ext["xmax"]), float(ext["ymin"]), float(ext["ymax"])
+    return None
+
+
+def _finite(*v: Any) -> bool:
+    return all(isinstance(x, (int, float)) and math.isfinite(x) for x in v)
+
+
 def _lonlat_centre(info: dict[str, Any]) -> tuple[float, float] | None:
-    for lo_key, la_key in (("lon_range", "lat_range"), ("longitude_range", "latitude_range")):
+    """Centre (lon, lat) of a file's geographic extent, from whichever form its describer reports."""
+    for lo_key, la_key in (("longitude_deg", "latitude_deg"), ("lon_range", "lat_range"),
+                           ("longitude_range", "latitude_range")):
         lo, la = info.get(lo_key), info.get(la_key)
-        if lo and la and all(isinstance(v, (int, float)) and math.isfinite(v) for v in (*lo, *la)):
+        if isinstance(lo, (list, tuple)) and isinstance(la, (list, tuple)) and len(lo) == len(la) == 2 \
+                and _finite(*lo, *la):
             return (lo[0] + lo[1]) / 2, (la[0] + la[1]) / 2
-    ext = info.get("lonlat_extent") or info.get("geographic_extent")
-    if isinstance(ext, dict) and {"lon_min", "lon_max", "lat_min", "lat_max"} <= set(ext):
-        return (ext["lon_min"] + ext["lon_max"]) / 2, (ext["lat_min"] + ext["lat_max"]) / 2
+    ext = info.get("extent") or {}
+    if not isinstance(ext, dict):
+        return None
+    for keys in (("lon_min", "lon_max", "lat_min", "lat_max"), ("longitude_min", "longitude_max", "latitude_min",
+                                                                 "latitude_max")):
+        if set(keys) <= set(ext) and _finite(*(ext[k] for k in keys)):
+            return (ext[keys[0]] + ext[keys[1]]) / 2, (ext[keys[2]] + ext[keys[3]]) / 2
+    if not {"xmin", "xmax", "ymin", "ymax"} <= set(ext) or not _finite(*(ext[k] for k in ("xmin", "xmax", "ymin", "ymax"))):
+        return None
+    cx, cy = (ext["xmin"] + ext["xmax"]) / 2, (ext["ymin"] + ext["ymax"]) / 2
+    kind = _crs_kind(info)
+    if kind == "geographic":
+        return cx, cy
+    crs = info.get("crs") if isinstance(info.get("crs"), dict) else {}
+    if kind == "projected" and (crs.get("wkt") or crs.get("name")):
+        try:
+            from pyproj import CRS, Transformer
+
+            src = CRS.from_user_input(crs.get("wkt") or crs.get("name"))
+            lon, lat = Transformer.from_crs(src, "EPSG:4326", always_xy=True).transform(cx, cy)
+            return (float(lon), float(lat)) if _finite(lon, lat) else None
+        except Exception:  # noqa: BLE001 - an unusable CRS just gives no position
+            return None
     return None
 
 
@@ -151,6 +212,8 @@ def scan_dive_dir(raw_dir: str | Path, *, dive_id: str | None = None,
     cast_positions: list[tuple[float, float, str | None]] = []
     logs_mcap: list[Path] = []
     logs_csv: dict[str, Path] = {}
+    casts_seen: dict[tuple[Any, Any], tuple[str, str]] = {}
+    extents: list[tuple[str, float, float, float, float]] = []  # rel, lon0, lon1, lat0, lat1 of maps/soundings
     for p in _candidate_files(raw):
         rel = p.relative_to(raw).as_posix()
         info = inspect_file(p)
@@ -165,6 +228,20 @@ def scan_dive_dir(raw_dir: str | Path, *, dive_id: str | None = None,
         elif kind == "csv":
             logs_csv[_csv_key(p, logs_csv)] = p
         elif kind in ("cnv", "seabird_hex"):
+            key = (info.get("start_time_utc"), info.get("scans"))
+            if key[0] and key[1] and key in casts_seen:  # e.g. a .hex and SeaSoft's .cnv conversion of it
+                other, other_kind = casts_seen[key]
+                if kind == "cnv" and other_kind == "seabird_hex":  # keep SeaSoft's conversion, drop the raw file
+                    sources["cnv"].remove(other)
+                    res.mapped = [m for m in res.mapped if not m.startswith(f"{other}:")]
+                    res.not_used.append(f"{other}: the same cast as {rel} (same start time and {key[1]} scans); "
+                                        "the .cnv is used")
+                    casts_seen[key] = (rel, kind)
+                else:
+                    res.not_used.append(f"{rel}: the same cast as {other} (same start time and {key[1]} scans)")
+                    continue
+            else:
+                casts_seen[key] = (rel, kind)
             sources["cnv"].append(rel)
             res.mapped.append(f"{rel}: Sea-Bird cast ({kind}) -> sources.cnv")
             lat, lon = info.get("latitude_deg"), info.get("longitude_deg")
@@ -187,20 +264,35 @@ def scan_dive_dir(raw_dir: str | Path, *, dive_id: str | None = None,
         c = _lonlat_centre(info)
         if c is not None:
             centres.append(c)
-    _map_vehicle_logs(res, sources, logs_mcap, logs_csv, raw)
+            if (box := _lonlat_box(info)) is not None:
+                extents.append((rel, *box))
+    _map_vehicle_logs(res, sources, logs_mcap, logs_csv, raw, launch)
 
     did = dive_id or sanitise_dive_id(raw.resolve().name)
     dive: dict[str, Any] = {"dive_id": did, "platform": "unknown"}
-    if res.vehicle_yaml is not None:
+    if (raw / VEHICLE_FILE).is_file():
+        dive["vehicle_config"] = VEHICLE_FILE
+        res.mapped.append(f"{VEHICLE_FILE}: the existing mapping is used and kept (--force replaces it with the "
+                          "suggested one)")
+    elif res.vehicle_yaml is not None:
         dive["vehicle_config"] = VEHICLE_FILE
     if launch is not None:
         dive["launch"] = {"latitude_deg": launch[0], "longitude_deg": launch[1]}
-    elif cast_positions:
+    elif cast_positions and _spread_km(cast_positions) <= CASTS_TOGETHER_KM:
         lat, lon, t = cast_positions[0]
         dive["launch"] = {"latitude_deg": round(lat, 6), "longitude_deg": round(lon, 6)}
         if t:
             dive["launch"]["time_utc"] = t
         res.mapped.append("launch: the position in the Sea-Bird header of " + sources["cnv"][0])
+    elif cast_positions:
+        res.mapped.append(f"launch: not set, the casts are {_spread_km(cast_positions):.0f} km apart; each cast "
+                          "uses the position in its own header")
+    pos = (dive["launch"]["latitude_deg"], dive["launch"]["longitude_deg"]) if "launch" in dive else None
+    for rel, lon0, lon1, lat0, lat1 in extents if pos is not None else ():
+        if not (lat0 <= pos[0] <= lat1 and _lon_in(pos[1], lon0, lon1)):
+            res.todo.append(f"the launch/cast position ({pos[0]:.4f}, {pos[1]:.4f}) lies outside {rel} "
+                            f"(lon {lon0:.4f}..{lon1:.4f}, lat {lat0:.4f}..{lat1:.4f}): check that they belong to "
+                            "one dive")
     if centres:
         lon_c = sum(c[0] for c in centres) / len(centres)
         lat_c = sum(c[1] for c in centres) / len(centres)
@@ -221,42 +313,40 @@ def _csv_key(p: Path, taken: dict[str, Path]) -> str:
 
 
 def _map_vehicle_logs(res: InitResult, sources: dict[str, Any], mcaps: list[Path], csvs: dict[str, Path],
-                      raw: Path) -> None:
+                      raw: Path, launch: tuple[float, float] | None) -> None:
+    """Suggest the vehicle mapping (:func:`hadal.ingest.suggest.suggest_vehicle`) and list the logs it uses."""
     if not mcaps and not csvs:
         return
+    from hadal.ingest.suggest import render_vehicle_yaml, suggest_vehicle
+
+    rel = {str(p): p.relative_to(raw).as_posix() for p in (*mcaps, *csvs.values())}
     try:
-        from hadal.ingest.suggest import render_vehicle_yaml, suggest_vehicle
-    except ImportError:  # pragma: no cover - the suggestion module ships with hadal
-        res.not_used += [f"{p.relative_to(raw).as_posix()}: no vehicle-mapping suggester" for p in (*mcaps, *csvs.values())]
-        return
-    try:
-        sug = suggest_vehicle(mcaps, csvs)
+        sug = suggest_vehicle(mcaps, csvs, launch=launch)
     except InputError as exc:
         res.not_used.append(f"vehicle logs: {exc}")
         return
-    vehicle = getattr(sug, "vehicle", None)
-    for line in getattr(sug, "mapped", []) or []:
-        res.mapped.append(str(line))
-    for line in getattr(sug, "unmapped", []) or []:
-        res.not_used.append(str(line))
-    for line in getattr(sug, "todo", []) or []:
-        res.todo.append(str(line))
-    if not vehicle or not vehicle.get("sensors"):
-        for p in (*mcaps, *csvs.values()):
-            res.not_used.append(f"{p.relative_to(raw).as_posix()}: no channel maps to a hadal sensor variable")
-        return
-    used_topics = {s["mcap"]["topic"] for s in vehicle["sensors"].values() if s.get("mcap")}
-    used_csv = {s["csv"]["source"] for s in vehicle["sensors"].values() if s.get("csv")}
-    used_mcap_files = set(getattr(sug, "mcap_files", None) or [str(p) for p in mcaps]) if used_topics else set()
+    for m in sug.mapped:
+        unit = f" [{m.get('units')}]" if m.get("units") else ""
+        how = f" via {m['transform']}" if m.get("transform") else ""
+        res.mapped.append(f"{rel.get(str(m.get('file')), m.get('file'))}: {m.get('source')}.{m.get('field')}{unit}{how} "
+                          f"-> {m.get('variable')} ({m.get('why', '')})".replace(" ()", ""))
+    for u in sug.unmapped:
+        res.not_used.append(f"{rel.get(str(u.get('file')), u.get('file'))}: {u.get('source')}"
+                            f"{'.' + str(u['field']) if u.get('field') else ''}: {u.get('reason', '')}")
+    res.todo += [str(c) for c in sug.checks]
+    used_mcap = {str(Path(f)) for f in sug.mcap_used}
     for p in mcaps:
-        rel = p.relative_to(raw).as_posix()
-        (sources["mcap"].append(rel) if str(p) in used_mcap_files
-         else res.not_used.append(f"{rel}: no channel maps to a hadal sensor variable"))
+        if str(p) in used_mcap and sug.ok:
+            sources["mcap"].append(rel[str(p)])
+        else:
+            res.not_used.append(f"{rel[str(p)]}: no channel maps to a hadal sensor variable")
     for key, p in csvs.items():
-        rel = p.relative_to(raw).as_posix()
-        (sources["csv"].__setitem__(key, rel) if key in used_csv
-         else res.not_used.append(f"{rel}: no column maps to a hadal sensor variable"))
-    res.vehicle_yaml = render_vehicle_yaml(sug)
+        if key in sug.csv_used and sug.ok:
+            sources["csv"][key] = rel[str(p)]
+        else:
+            res.not_used.append(f"{rel[str(p)]}: no column maps to a hadal sensor variable")
+    if sug.ok:
+        res.vehicle_yaml = render_vehicle_yaml(sug)
 
 
 def _todo(res: InitResult) -> None:
@@ -316,9 +406,11 @@ def render_dive_yaml(res: InitResult) -> str:
 
 
 def write_init(res: InitResult, *, force: bool = False) -> list[Path]:
-    """Write ``dive.yaml`` (and ``vehicle.yaml``) into the dive directory; refuses to overwrite without ``force``."""
+    """Write ``dive.yaml`` (and ``vehicle.yaml``) into the dive directory; refuses to overwrite ``dive.yaml``
+    without ``force``. A ``vehicle.yaml`` the user already has is kept (and used) unless ``force``."""
     targets = [(res.raw_dir / DIVE_FILE, res.dive_yaml())]
-    if res.vehicle_yaml is not None:
+    keep_vehicle = (res.raw_dir / VEHICLE_FILE).exists() and not force
+    if res.vehicle_yaml is not None and not keep_vehicle:
         targets.append((res.raw_dir / VEHICLE_FILE, res.vehicle_yaml))
     existing = [p for p, _ in targets if p.exists()]
     if existing and not force:

@@ -2,9 +2,16 @@
 
 :func:`detect` returns a :class:`FileKind`: the ``kind`` (one of :data:`KINDS`), the compression wrapper
 (``gzip``/``bz2``/``xz`` or ``None``) and the dive source kind it belongs to (:data:`SOURCE_OF`:
-``mcap``, ``csv``, ``cnv``, ``multibeam``, ``prior_grid``, ``laser`` or ``None``). The extension is only a
-tie-breaker where the content is ambiguous (a NetCDF grid may be a prior map or a laser raster; an
-``x y z`` text file may be soundings or a laser point cloud).
+``mcap``, ``csv``, ``cnv``, ``multibeam``, ``prior_grid``, ``laser`` or ``None``), plus two finer facts the
+readers dispatch on: ``text`` (the decompressed content is text) and ``points`` (numeric text rows of at least
+three columns, readable as x y z whatever the kind). The extension is only a tie-breaker where the content is
+ambiguous (a NetCDF grid may be a prior map or a laser raster; an ``x y z`` text file may be soundings or a
+laser point cloud).
+
+This module is the one place that sniffs content and undoes gzip/bz2/xz: every reader asks :func:`detect`
+what a file is (mapping the kind to its own vocabulary; a ``SourceFile.format`` hint overrides it there), and
+reads through :func:`open_binary` / :func:`read_bytes` under :func:`decompress_errors`, so a damaged stream is
+the same one-line :class:`InputError` everywhere.
 
 Signatures (public format documentation):
 
@@ -23,6 +30,7 @@ Signatures (public format documentation):
 from __future__ import annotations
 
 import bz2
+import contextlib
 import gzip
 import lzma
 import re
@@ -51,6 +59,7 @@ KINDS: dict[str, str] = {
     "pcd": "PCD point cloud",
     "las": "LAS/LAZ point cloud",
     "yaml": "YAML document",
+    "empty": "empty (0 bytes)",
     "unknown": "not a format hadal reads",
 }
 
@@ -58,12 +67,18 @@ KINDS: dict[str, str] = {
 SOURCE_OF: dict[str, str | None] = {
     "mcap": "mcap", "csv": "csv", "cnv": "cnv", "seabird_hex": "cnv", "xyz": "multibeam", "gsf": "multibeam",
     "kmall": "multibeam", "em_all": "multibeam", "s7k": "multibeam", "geotiff": "prior_grid",
-    "netcdf": "prior_grid", "ply": "laser", "pcd": "laser", "las": "laser", "yaml": None, "unknown": None,
+    "netcdf": "prior_grid", "ply": "laser", "pcd": "laser", "las": "laser", "yaml": None, "empty": None,
+    "unknown": None,
 }
 
 _HEAD_BYTES = 65536
 _COMPRESSION = ((b"\x1f\x8b", "gzip"), (b"BZh", "bz2"), (b"\xfd7zXZ\x00", "xz"))
 _OPENERS = {"gzip": gzip.open, "bz2": bz2.open, "xz": lzma.open}
+_DECOMPRESSORS = {"gzip": gzip.decompress, "bz2": bz2.decompress, "xz": lzma.decompress}
+#: what a damaged gzip/bz2/xz stream raises (``gzip.BadGzipFile`` is an ``OSError``)
+DECOMPRESS_ERRORS = (OSError, EOFError, lzma.LZMAError, zlib.error, ValueError)
+#: the multibeam kinds :func:`detect` recognises in binary content (xyz soundings are text)
+SWATH_KINDS = ("gsf", "kmall", "em_all", "s7k")
 #: Kongsberg EM .all datagram types seen first in files (installation, runtime, position, clock, XYZ 88 ...)
 _EM_ALL_TYPES = set(b"IiRPCAXDhUNfkFHnGSJ01") | {0x30, 0x31, 0x33, 0x41, 0x42, 0x43, 0x44, 0x45, 0x47, 0x48,
                                                   0x49, 0x4E, 0x50, 0x52, 0x53, 0x55, 0x57, 0x58, 0x59, 0x66,
@@ -80,6 +95,10 @@ class FileKind:
     compression: str | None = None
     source: str | None = None
     description: str = ""
+    #: the (decompressed) content is text
+    text: bool = False
+    #: numeric text rows of >= 3 columns (x y z ...), at least two of them: readable as points or soundings
+    points: bool = False
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
@@ -101,9 +120,57 @@ def open_binary(path: str | Path):
     return _OPENERS[comp](p, "rb") if comp else open(p, "rb")
 
 
-def read_head(path: str | Path, n: int = _HEAD_BYTES) -> tuple[bytes, str | None]:
-    """The first ``n`` decompressed bytes of a file and its compression. A corrupt compressed stream
-    is an :class:`InputError`."""
+def _first_line(exc: BaseException) -> str:
+    return str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+
+
+@contextlib.contextmanager
+def decompress_errors(path: str | Path, compression: str | None, what: str = ""):
+    """Turn a failure while reading (through :func:`open_binary`) into a one-line :class:`InputError` naming the
+    file: ``corrupt or truncated gzip file (...)`` for a damaged gzip/bz2/xz stream (``what``, e.g. ``"CNV"``,
+    makes it ``gzip-compressed CNV file``), ``cannot read (...)`` for a plain file. InputErrors pass through."""
+    try:
+        yield
+    except InputError:
+        raise
+    except DECOMPRESS_ERRORS as exc:
+        if compression is None:
+            msg = str(exc).splitlines()[0] if str(exc) else ""
+            raise InputError(f"{path}: cannot read ({type(exc).__name__}: {msg})") from None
+        kind = f"{compression}-compressed {what}" if what else compression
+        raise InputError(f"{path}: corrupt or truncated {kind} file ({_first_line(exc)})") from None
+
+
+def read_bytes(path: str | Path, what: str = "", *, text: bool = False) -> tuple[bytes, str | None]:
+    """A file's whole content, decompressed when its first bytes are a gzip/bz2/xz magic (whatever the
+    name), and the compression found. Every failure is a one-line :class:`InputError` naming the file and
+    ``what`` it should be (e.g. ``"CNV"``): ``CNV file does not exist``, ``cannot read CNV file (...)``, or
+    :func:`decompress_errors`' ``corrupt or truncated gzip-compressed CNV file (...)``. ``text``: the content
+    must be text, so blank content is ``CNV file is empty`` and a NUL byte in the first 4 KiB is
+    ``not a CNV file (binary content)``."""
+    p = Path(path)
+    label = f"{what} file" if what else "file"
+    if not p.is_file():
+        raise InputError(f"{p}: {label} does not exist")
+    try:
+        raw = p.read_bytes()
+    except OSError as exc:
+        raise InputError(f"{p}: cannot read {label} ({exc.strerror or exc})") from None
+    comp = compression_of(raw)
+    if comp is not None:
+        with decompress_errors(p, comp, what):
+            raw = _DECOMPRESSORS[comp](raw)
+    if text and not raw.strip():
+        raise InputError(f"{p}: {label} is empty")
+    if text and b"\x00" in raw[:4096]:
+        raise InputError(f"{p}: not a {label} (binary content)")
+    return raw, comp
+
+
+def read_head(path: str | Path, n: int = _HEAD_BYTES, *, strict: bool = True) -> tuple[bytes, str | None]:
+    """The first ``n`` decompressed bytes of a file and its compression. A stream that breaks off (truncated)
+    gives what came before it; a corrupt one is an :class:`InputError` unless ``strict`` is false, where it
+    too ends the head (a reader then reports the damage when it reads the whole file)."""
     p = Path(path)
     with open(p, "rb") as fh:
         raw = fh.read(n)
@@ -112,17 +179,24 @@ def read_head(path: str | Path, n: int = _HEAD_BYTES) -> tuple[bytes, str | None
         return raw, None
     try:
         with _OPENERS[comp](p, "rb") as fh:
-            return _read_up_to(fh, n), comp
-    except (OSError, EOFError, lzma.LZMAError, zlib.error, ValueError) as exc:
+            return _read_up_to(fh, n, strict), comp
+    except DECOMPRESS_ERRORS as exc:
+        if not strict:
+            return b"", comp
         raise InputError(f"{p}: corrupt {comp} stream ({exc})") from None
 
 
-def _read_up_to(fh: Any, n: int) -> bytes:
+def _read_up_to(fh: Any, n: int, strict: bool = True) -> bytes:
+    """Up to ``n`` bytes in small pieces: a stream that breaks off loses only the piece it broke in."""
     out = bytearray()
     while len(out) < n:
         try:
-            b = fh.read(n - len(out))
+            b = fh.read(min(1024, n - len(out)))
         except EOFError:  # truncated stream: what came before is still the file's head
+            break
+        except DECOMPRESS_ERRORS:
+            if strict:
+                raise
             break
         if not b:
             break
@@ -130,9 +204,10 @@ def _read_up_to(fh: Any, n: int) -> bytes:
     return bytes(out)
 
 
-def detect(path: str | Path) -> FileKind:
+def detect(path: str | Path, *, strict: bool = True) -> FileKind:
     """Detect what a file is from its content. Missing/unreadable files are a one-line :class:`InputError`;
-    an unrecognised file is kind ``unknown`` (not an error)."""
+    an unrecognised file is kind ``unknown`` (not an error). ``strict=False`` (readers): a corrupt compressed
+    stream is sniffed from what decompressed before the damage instead of raising (see :func:`read_head`)."""
     p = Path(path)
     if p.is_symlink() and not p.exists():
         raise InputError(f"{p}: broken symbolic link")
@@ -143,16 +218,30 @@ def detect(path: str | Path) -> FileKind:
     if not p.is_file():
         raise InputError(f"{p}: not a regular file (a FIFO, socket or device)")
     try:
-        head, comp = read_head(p)
+        if p.stat().st_size == 0:  # nothing to sniff: say so rather than "not a format hadal reads"
+            return FileKind(str(p), "empty", None, None, KINDS["empty"], False, False)
+        head, comp = read_head(p, strict=strict)
     except PermissionError:
         raise InputError(f"{p}: permission denied") from None
     except OSError as exc:
         raise InputError(f"{p}: cannot read ({exc.strerror or exc})") from None
-    kind = _sniff(head, p.name.lower())
-    return FileKind(str(p), kind, comp, SOURCE_OF.get(kind), KINDS[kind])
+    return sniff(head, p.name, p, comp)
 
 
-def _sniff(head: bytes, name: str) -> str:
+def sniff(head: bytes, name: str = "", path: str | Path = "", compression: str | None = None) -> FileKind:
+    """:func:`detect` on a file's (decompressed) first bytes already in hand; ``name`` is the tie-breaker."""
+    text = _as_text(head) if head else None
+    kind = _sniff(head, text, name.lower())
+    points = text is not None and kind in ("xyz", "csv", "unknown") and _points(_data_rows(_lines(text)))
+    return FileKind(str(path), kind, compression, SOURCE_OF.get(kind), KINDS[kind], text is not None, points)
+
+
+def is_text(head: bytes) -> bool:
+    """The first bytes look like text: no NUL in the first 4 KiB, >= 95 % printable (Latin-1/UTF-8 allowed)."""
+    return _as_text(head) is not None
+
+
+def _sniff(head: bytes, text: str | None, name: str) -> str:
     if not head:
         return "unknown"
     if head.startswith(b"\x89MCAP"):
@@ -168,25 +257,25 @@ def _sniff(head: bytes, name: str) -> str:
     binary = _binary_kind(head)
     if binary:
         return binary
-    text = _as_text(head)
-    if text is None:
-        return "unknown"
+    if text is None:  # a binary PCD still has a text header
+        return "pcd" if _is_pcd(_lines(head[:1024].decode("latin-1"))[:15]) else "unknown"
     return _text_kind(text, name)
 
 
 def _binary_kind(head: bytes) -> str | None:
     if len(head) >= 8 and head[4:5] == b"#" and head[5:8].isalpha() and head[5:8].isupper():
-        (size,) = struct.unpack("<I", head[:4])
+        (size,) = struct.unpack("<I", head[:4])  # KMALL: u32 numBytesDgm, then "#" + 3 capital letters
         if 8 <= size < 2**26:
             return "kmall"
     if len(head) >= 8 and head[4:8] == b"\xff\xff\x00\x00":  # s7k DRF: u16 version, u16 offset, u32 0x0000FFFF
         return "s7k"
-    if len(head) >= 16 and head[8:13] == b"GSF-v":
+    if len(head) >= 16 and b"GSF-v" in head[8:16]:  # big-endian size, record id 1 (header), "GSF-v03.xx"
         return "gsf"
     if len(head) >= 8 and head[4] == 0x02 and head[5] in _EM_ALL_TYPES:
-        le, be = struct.unpack("<I", head[:4])[0], struct.unpack(">I", head[:4])[0]
-        if 8 <= le < 2**24 or 8 <= be < 2**24:
-            return "em_all"
+        for order in "<>":  # u32 length, STX 0x02, type, u16 model ... ETX 0x03, u16 checksum
+            n = struct.unpack(order + "I", head[:4])[0]
+            if 8 <= n < 2**24 and (len(head) < n + 4 or head[n + 1] == 0x03):
+                return "em_all"
     return None
 
 
@@ -203,13 +292,26 @@ def _as_text(head: bytes) -> str | None:
 _DOCUMENT_SUFFIXES = (".md", ".rst", ".html", ".htm", ".json", ".inf", ".xml", ".py", ".sh")
 
 
+def _lines(text: str) -> list[str]:
+    """Stripped lines, whatever the line ends."""
+    return [ln.strip() for ln in text.replace("\r\n", "\n").replace("\r", "\n").split("\n")]
+
+
+def _is_pcd(stripped: list[str]) -> bool:
+    first = stripped[0] if stripped else ""
+    return first.startswith(("# .PCD", "VERSION")) or (
+        any(s.startswith("VERSION") for s in stripped[:12]) and any(s.startswith("FIELDS") for s in stripped[:15]))
+
+
+_CNV_HEADER = re.compile(r"^#\s*(?:name\s+\d+\s*=|nquan\b)")
+
+
 def _text_kind(text: str, name: str) -> str:
-    lines = text.replace("\r\n", "\n").replace("\r", "\n").split("\n")
-    stripped = [ln.strip() for ln in lines]
+    stripped = _lines(text)
     if "*END*" in (s.upper() for s in stripped):
         end = next(i for i, s in enumerate(stripped) if s.upper() == "*END*")
         header = stripped[:end]
-        if any(s.startswith("# name ") for s in header) or any(s.startswith("# nquan") for s in header):
+        if any(_CNV_HEADER.match(s) for s in header):
             return "cnv"
         after = [s for s in stripped[end + 1:end + 20] if s]
         if after and all(_HEX_LINE.match(s) for s in after):
@@ -217,14 +319,12 @@ def _text_kind(text: str, name: str) -> str:
         if any(s.startswith("* Sea-Bird") or s.startswith("*Sea-Bird") for s in header):
             return "seabird_hex" if not after else "cnv"
     first = stripped[0] if stripped else ""
-    if first.startswith("# .PCD") or first.startswith("VERSION") or (
-            first.startswith("#") and any(s.startswith("VERSION") for s in stripped[:5])
-            and any(s.startswith("FIELDS") for s in stripped[:15])):
+    if _is_pcd(stripped):
         return "pcd"
     if first.startswith("%YAML") or first == "---" or (":" in first and not _numeric_row(first)
                                                        and name.endswith((".yaml", ".yml"))):
         return "yaml"
-    data = [s for s in stripped[:200] if s and not s.startswith(("#", "%", "//"))]
+    data = _data_rows(stripped)
     if not data or (name.endswith(_DOCUMENT_SUFFIXES) and not _numeric_row(data[-1])):
         return "unknown"
     numeric = [s for s in data if _numeric_row(s)]
@@ -239,6 +339,17 @@ def _text_kind(text: str, name: str) -> str:
     if ("," in data[0] or ";" in data[0] or "\t" in data[0]) and len(data) >= 2:
         return "csv"
     return "unknown"
+
+
+def _data_rows(stripped: list[str]) -> list[str]:
+    """The non-empty, non-comment lines among the first 200."""
+    return [s for s in stripped[:200] if s and not s.startswith(("#", "%", "//"))]
+
+
+def _points(data: list[str]) -> bool:
+    """Numeric rows of >= 3 columns, at least two, are >= 80 % of the rows after the first (maybe a header)."""
+    wide = [s for s in data if _numeric_row(s) and len(_split(s)) >= 3]
+    return len(wide) >= 2 and len(wide) >= 0.8 * len(data[1:])
 
 
 def _split(row: str) -> list[str]:

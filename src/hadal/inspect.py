@@ -26,11 +26,11 @@ DESCRIBERS: dict[str, tuple[str, ...]] = {
     "kmall": ("hadal.grid.sonar:describe_multibeam",),
     "em_all": ("hadal.grid.sonar:describe_multibeam",),
     "s7k": ("hadal.grid.sonar:describe_multibeam",),
-    "geotiff": ("hadal.grid.prior:describe_grid", "hadal.grid.readers:describe_grid"),
-    "netcdf": ("hadal.grid.prior:describe_grid", "hadal.grid.readers:describe_grid"),
-    "ply": ("hadal.grid.readers:describe_point_cloud", "hadal.grid.laser:describe_point_cloud"),
-    "pcd": ("hadal.grid.readers:describe_point_cloud", "hadal.grid.laser:describe_point_cloud"),
-    "las": ("hadal.grid.readers:describe_point_cloud", "hadal.grid.laser:describe_point_cloud"),
+    "geotiff": ("hadal.grid.describe:describe_grid",),
+    "netcdf": ("hadal.grid.describe:describe_grid",),
+    "ply": ("hadal.grid.describe:describe_point_cloud",),
+    "pcd": ("hadal.grid.describe:describe_point_cloud",),
+    "las": ("hadal.grid.describe:describe_point_cloud",),
 }
 
 
@@ -71,6 +71,14 @@ def inspect_file(path: str | Path) -> dict[str, Any]:
     except Exception as exc:  # noqa: BLE001 - inspect reports every file; an unexpected failure is one line too
         out["error"] = f"{p}: cannot be read ({type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''})"
     else:
+        if fk.kind in ("geotiff", "netcdf"):  # a raster is a prior map or laser bathymetry by its cell size
+            from hadal.dive_init import grid_role
+
+            out["source"] = grid_role(info or {})
+        elif fk.kind == "xyz":
+            from hadal.dive_init import xyz_role
+
+            out["source"] = xyz_role(info or {})
         for k, v in (info or {}).items():  # the detector's fields stay; a describer's own "kind" becomes "format"
             if k in _RESERVED:
                 if k == "kind" and "format" not in info:

@@ -13,9 +13,17 @@ from pathlib import Path
 
 from hadal.config import PipelineConfig, load_config
 from hadal.dive import load_dive
-from hadal.errors import StageError
+from hadal.errors import HadalError, InputError, StageError
 from hadal.plan import PlannedStage, check_plan, plan_stages, runtime_skip_reason
-from hadal.stages import STAGE_ORDER, NullProgress, Progress, StageContext, available_stages, stage_module
+from hadal.stages import (
+    STAGE_ORDER,
+    NullProgress,
+    Progress,
+    StageContext,
+    available_stages,
+    producer_of,
+    stage_module,
+)
 from hadal.store import ProductStore, ProductVersion
 
 DIVE_CONFIG_FILE = "pipeline.yaml"
@@ -47,11 +55,12 @@ def make_context(
     )
 
 
-def claim_dive(ctx: StageContext) -> None:
-    """Record (or check) that the dive id belongs to this raw directory (:meth:`ProductStore.claim_dive`)."""
+def claim_dive(ctx: StageContext, *, check_only: bool = False) -> None:
+    """Record (or, ``check_only``, just check) that the dive id belongs to this raw directory
+    (:meth:`ProductStore.claim_dive`)."""
     from hadal.dive import dive_fingerprint
 
-    ctx.store.claim_dive(ctx.dive_id, ctx.raw_dir, dive_fingerprint(ctx.dive, ctx.raw_dir))
+    ctx.store.claim_dive(ctx.dive_id, ctx.raw_dir, dive_fingerprint(ctx.dive, ctx.raw_dir), check_only=check_only)
 
 
 def run_stage(name: str, ctx: StageContext) -> dict[str, ProductVersion]:
@@ -59,9 +68,11 @@ def run_stage(name: str, ctx: StageContext) -> dict[str, ProductVersion]:
     mod = stage_module(name)
     if not callable(getattr(mod, "run", None)):
         raise StageError(f"stage {name!r} is not implemented in this version of hadal")
-    claim_dive(ctx)
+    claim_dive(ctx, check_only=True)  # refuse another directory's dive id before any work
     ctx.log.info("stage %s: start", name)
     out = mod.run(ctx)
+    if out:
+        claim_dive(ctx)
     for product, pv in out.items():
         ctx.log.info("stage %s: published %s/%s/%s", name, pv.dive, product, pv.label)
     return out
@@ -87,6 +98,9 @@ def stage_plan(ctx: StageContext, stages: Sequence[str] | None = None) -> list[P
     A stage named explicitly in ``stages`` that the data cannot support is an error (saying why); in a
     whole-dive run (``stages`` empty) such stages are skipped and logged.
     """
+    if not ctx.dive.sources.kinds() and not stages:
+        raise InputError(f"{ctx.raw_dir}/dive.yaml lists no source files: nothing to process (hadal init "
+                         f"{ctx.raw_dir} lists what it finds there)")
     plan = plan_stages(ctx.dive, stages, store=ctx.store if stages else None)
     check_plan(ctx.dive, plan)
     if stages:
@@ -106,13 +120,64 @@ def should_run(name: str, ctx: StageContext) -> bool:
     return True
 
 
+def blocked_by_failure(name: str, failed: dict[str, str]) -> str | None:
+    """Why stage ``name`` cannot run after the stages in ``failed`` (``{stage: error}``) failed in this run:
+    one of its upstream products comes from a failed stage (its older versions would mix runs). ``None``: run."""
+    from hadal.plan import stage_inputs
+
+    for product in stage_inputs(name).upstream:
+        maker = producer_of(product)
+        if maker in failed:
+            return f"needs {product}, but stage {maker} failed in this run"
+    return None
+
+
 def run_pipeline(ctx: StageContext, stages: Sequence[str] | None = None) -> dict[str, ProductVersion]:
-    """Run the stages the dive's data supports (of ``stages``, default all) in order; see :func:`stage_plan`."""
+    """Run the stages the dive's data supports (of ``stages``, default all) in order; see :func:`stage_plan`.
+
+    A stage that fails with a :class:`HadalError` does not stop the stages that do not depend on it; the report
+    still runs and lists the failure (:attr:`StageContext.failed`), and the run then raises one
+    :class:`StageError` naming every failed stage."""
     results: dict[str, ProductVersion] = {}
-    for ps in stage_plan(ctx, stages):
+    plan = stage_plan(ctx, stages)
+    for stale in ctx.store.clean_staging():  # left by a killed run more than an hour ago
+        ctx.log.info("removed abandoned staging directory %s", stale)
+    ctx.pin_existing(all_products())  # this run reads what it found at its start or published itself
+    for ps in plan:
         if not ps.run:
             ctx.log.info("stage %s skipped: %s", ps.name, ps.reason)
             continue
-        if should_run(ps.name, ctx):
-            results.update(run_stage(ps.name, ctx))
+        if (why := blocked_by_failure(ps.name, ctx.failed)) is not None:
+            ctx.log.warning("stage %s skipped: %s", ps.name, why)
+            ctx.failed_skips[ps.name] = why
+            continue
+        if not should_run(ps.name, ctx):
+            continue
+        try:
+            out = run_stage(ps.name, ctx)
+        except HadalError as exc:
+            ctx.log.error("stage %s failed: %s", ps.name, exc)
+            ctx.failed[ps.name] = str(exc)
+            continue
+        ctx.pins.update(out)
+        results.update(out)
+    raise_failures(ctx.failed)
     return results
+
+
+def raise_failures(failed: dict[str, str]) -> None:
+    """One :class:`StageError` naming every failed stage and its one-line error (nothing when none failed)."""
+    if failed:
+        raise StageError(f"{len(failed)} stage(s) failed ({'; '.join(f'{k}: {v}' for k, v in failed.items())}); "
+                         "the other stages ran and the report lists the failures")
+
+
+def all_products() -> list[str]:
+    """Every product any stage publishes, in stage order."""
+    return [p for n in STAGE_ORDER for p in getattr(stage_module(n), "PRODUCTS", ())]
+
+
+def pin_paths(ctx: StageContext, pins: dict[str, str] | None) -> None:
+    """Pin the versions named by ``{product: version directory}`` (a flow passes them between its tasks)."""
+    for product, path in (pins or {}).items():
+        ctx.pins[product] = ctx.store.version_at(path)

@@ -80,8 +80,8 @@ def plan_stages(dive: Dive, stages: Sequence[str] | None = None, store: ProductS
         if reason and not inp.always:
             out.append(PlannedStage(name, False, reason))
             continue
-        made = tuple(p for p in produces
-                     if p not in inp.product_sources or present.intersection(inp.product_sources[p]))
+        made = tuple(p for p in produces if p not in inp.optional_products
+                     and (p not in inp.product_sources or present.intersection(inp.product_sources[p])))
         available.update(made)
         out.append(PlannedStage(name, True, "", made))
     return out
@@ -98,9 +98,17 @@ def _why_missing(product: str, plan: list[PlannedStage]) -> str:
 
 
 def check_plan(dive: Dive, plan: list[PlannedStage]) -> None:
-    """Refuse, in one line naming them, a plan whose running stages need a launch position the dive lacks."""
+    """Refuse, in one line naming them, a plan whose running stages need a map frame or a launch position the
+    dive lacks."""
     from hadal.errors import ConfigError
 
+    if dive.map_frame is None and dive.launch is None:
+        need = [ps.name for ps in plan if ps.run and set(ps.products) & set(stage_inputs(ps.name).frame_for)]
+        if need:
+            raise ConfigError(
+                f"dive {dive.dive_id!r}: stage(s) {', '.join(need)} need a map frame, but dive.yaml has neither "
+                "'map_frame' nor 'launch' (hadal init takes it from lon/lat data; for projected x/y data add their "
+                "crs to the source entry, or give --launch LAT,LON)")
     if dive.launch is not None:
         return
     need = [ps.name for ps in plan if ps.run and stage_inputs(ps.name).needs_launch]
@@ -112,7 +120,9 @@ def check_plan(dive: Dive, plan: list[PlannedStage]) -> None:
 
 
 def _all_products() -> list[str]:
-    return [p for n in STAGE_ORDER for p in getattr(stage_module(n), "PRODUCTS", ())]
+    from hadal.pipeline import all_products
+
+    return all_products()
 
 
 def _producer(product: str) -> str:
@@ -129,9 +139,14 @@ def runtime_skip_reason(name: str, ctx: StageContext) -> str | None:
 
 
 def skipped_stages(ctx: StageContext) -> list[dict[str, str]]:
-    """Stages that do not run on this dive, with the reason (static plan and content checks); for the report."""
-    out = []
+    """Stages that did not run on this dive, with the reason: failed in this run (``ctx.failed``), skipped because
+    of a failure, or not supported by the data (static plan and content checks); for the report."""
+    out = [{"stage": name, "reason": f"failed: {err}"} for name, err in ctx.failed.items()]
+    out += [{"stage": name, "reason": why} for name, why in ctx.failed_skips.items()]
+    done = set(ctx.failed) | set(ctx.failed_skips)
     for ps in plan_stages(ctx.dive, store=None):
+        if ps.name in done:
+            continue
         if not ps.run:
             out.append({"stage": ps.name, "reason": ps.reason})
             continue

@@ -161,6 +161,7 @@ class ProductStore:
 
     def __init__(self, root: str | os.PathLike[str]):
         self.root = Path(root)
+        self._intact: set[tuple[str, int, int]] = set()  # files check_intact found unchanged
 
     # ---------------------------------------------------------------- reading
     def product_dir(self, dive: str, product: str) -> Path:
@@ -225,8 +226,11 @@ class ProductStore:
             raise StoreError(f"{f}: unreadable dive identity record ({exc}); remove it to re-claim the dive") from None
         return rec if isinstance(rec, dict) else None
 
-    def claim_dive(self, dive: str, raw_dir: str | os.PathLike[str], fingerprint: str) -> None:
+    def claim_dive(self, dive: str, raw_dir: str | os.PathLike[str], fingerprint: str, *, check_only: bool = False
+                   ) -> None:
         """Record that dive id ``dive`` belongs to ``raw_dir`` (content ``fingerprint``), or refuse.
+        ``check_only``: refuse a conflicting directory but write nothing (before a stage runs; the record is
+        written after it published, so a failed stage leaves the store as it was).
 
         A dive id already recorded for another directory is accepted only when the content fingerprint is the
         same (the directory was moved or copied); otherwise a second raw directory with the same dive id would
@@ -238,7 +242,7 @@ class ProductStore:
             raise StoreError(
                 f"dive id {dive!r} in store {self.root} belongs to raw directory {rec.get('raw_dir')}; {raw} is a "
                 "different dive with the same id (give it another dive_id in its dive.yaml, or use another --store)")
-        if rec is not None and rec.get("raw_dir") == raw and rec.get("fingerprint") == fingerprint:
+        if check_only or (rec is not None and rec.get("raw_dir") == raw and rec.get("fingerprint") == fingerprint):
             return
         d = self.root / validate_name(dive, "dive id")
         new = {"dive": dive, "raw_dir": raw, "fingerprint": fingerprint,
@@ -305,7 +309,9 @@ class ProductStore:
         files = []
         for p in sorted(draft.path.rglob("*")):
             if p.is_file() and p.name != MANIFEST:
-                files.append({"name": str(p.relative_to(draft.path)), "bytes": p.stat().st_size, "sha256": sha256_file(p)})
+                st = p.stat()
+                files.append({"name": str(p.relative_to(draft.path)), "bytes": st.st_size, "mtime_ns": st.st_mtime_ns,
+                              "sha256": sha256_file(p)})
         if not files:
             raise StoreError(f"refusing to publish an empty version of {draft.dive}/{draft.product}")
         inputs = []
@@ -334,7 +340,12 @@ class ProductStore:
 
     def _commit(self, pdir: Path, staging: Path, dive: str, product: str) -> ProductVersion:
         _fsync_tree(staging)
-        with open(pdir / ".lock", "a+") as lock:
+        try:
+            lock_fh = open(pdir / ".lock", "a+")  # noqa: SIM115 - closed by the with below
+        except OSError as exc:  # e.g. .lock is a directory, or the store is read-only
+            raise StoreError(f"cannot lock {pdir / '.lock'} to publish {dive}/{product} "
+                             f"({exc.strerror or exc}); nothing was published") from None
+        with lock_fh as lock:
             fcntl.flock(lock, fcntl.LOCK_EX)
             try:
                 existing = [int(m.group(1)) for p in pdir.iterdir() if (m := VERSION_RE.match(p.name))]
@@ -360,10 +371,51 @@ class ProductStore:
             return removed
         now = time.time()
         for p in self.root.glob("*/*/.staging-*"):
-            if p.is_dir() and now - p.stat().st_mtime > older_than_s:
+            try:
+                stale = p.is_dir() and now - p.stat().st_mtime > older_than_s
+            except OSError:  # removed meanwhile by its own (finishing or failing) publish
+                continue
+            if stale:
                 shutil.rmtree(p, ignore_errors=True)
                 removed.append(p)
         return removed
+
+    def check_intact(self, pv: ProductVersion) -> None:
+        """Refuse (one-line :class:`StoreError`) a version whose files changed since they were published.
+
+        Fast path: a file whose size and mtime equal the manifest's record is trusted; otherwise it is re-hashed
+        against the manifest's SHA-256. Results are remembered per (file, size, mtime) in this store object.
+        """
+        try:
+            entries = pv.manifest().get("files", [])
+        except (OSError, ValueError) as exc:
+            raise StoreError(f"{pv.dive}/{pv.product}/{pv.label}: unreadable manifest ({exc}); re-run the stage "
+                             "that makes it") from None
+        for f in entries:
+            p = pv.path / str(f.get("name", ""))
+            try:
+                st = p.stat()
+            except OSError:
+                raise StoreError(f"{pv.dive}/{pv.product}/{pv.label}: file {f.get('name')!r} of its manifest is "
+                                 "missing; re-run the stage that makes it") from None
+            key = (str(p), st.st_size, st.st_mtime_ns)
+            if key in self._intact:
+                continue
+            ok = st.st_size == f.get("bytes") and (st.st_mtime_ns == f.get("mtime_ns")
+                                                   or sha256_file(p) == f.get("sha256"))
+            if not ok:
+                raise StoreError(f"{pv.dive}/{pv.product}/{pv.label}: file {f.get('name')!r} was modified after it "
+                                 "was published (size or SHA-256 differs from its manifest); re-run the stage "
+                                 "that makes it")
+            self._intact.add(key)
+
+    def version_at(self, path: str | os.PathLike[str]) -> ProductVersion:
+        """The published version whose directory is ``path`` (``<root>/<dive>/<product>/vNNN``)."""
+        p = Path(path)
+        m = VERSION_RE.match(p.name)
+        if not m or not (p / MANIFEST).is_file():
+            raise StoreError(f"{p} is not a published product version")
+        return ProductVersion(p.parent.parent.name, p.parent.name, int(m.group(1)), p)
 
     def verify(self, pv: ProductVersion) -> list[str]:
         """Re-hash a version's files against its manifest; returns a list of problems (empty = intact)."""
@@ -394,6 +446,58 @@ def _store_error(exc: OSError, dive: str, product: str) -> StoreError:
     reason = (exc.strerror or next((os.strerror(e) for e in _STORAGE_ERRNOS if os.strerror(e) in text), None)
               or (text.splitlines()[0] if text else type(exc).__name__))
     return StoreError(f"cannot write {dive}/{product}: {reason}{where}; nothing was published")
+
+
+#: space kept free on the store's file system beyond a write's own size (manifest, lock, other writers)
+FREE_SPACE_RESERVE = 4 << 20
+
+
+def free_bytes(path: str | os.PathLike[str]) -> int | None:
+    """Bytes an unprivileged writer may still use on the file system holding ``path`` (its nearest existing
+    parent); ``None`` when it cannot be told (then no check is made)."""
+    p = Path(path)
+    while not p.exists() and p != p.parent:
+        p = p.parent
+    try:
+        st = os.statvfs(p)
+    except OSError:
+        return None
+    return st.f_bavail * st.f_frsize
+
+
+def ensure_free_space(path: str | os.PathLike[str], nbytes: int, what: str = "") -> None:
+    """Raise ``OSError(ENOSPC)`` (reported by :meth:`ProductStore.publish` as a one-line :class:`StoreError`)
+    when writing ``nbytes`` more at ``path`` would leave less than :data:`FREE_SPACE_RESERVE` on its file
+    system, before a byte is written."""
+    free = free_bytes(path)
+    need = int(nbytes) + FREE_SPACE_RESERVE
+    if free is not None and free < need:
+        raise OSError(errno.ENOSPC, f"{os.strerror(errno.ENOSPC)}: {what or Path(path).name} needs "
+                                    f"{_mib(need)} (with reserve), {_mib(free)} free", str(path))
+
+
+def _mib(n: float) -> str:
+    return f"{n / 2**20:.1f} MiB"
+
+
+def write_bytes_checked(path: str | os.PathLike[str], data: bytes | memoryview, what: str = "") -> None:
+    """Write ``data`` to a new file ``path`` after checking the free space; on any failure the partial file
+    is removed and the ``OSError`` (ENOSPC, ...) re-raised - plain ``os.write``, so a full disk is an error,
+    never a crash."""
+    ensure_free_space(path, len(data), what)
+    mv = memoryview(data).cast("B")
+    fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
+    try:
+        try:
+            pos = 0
+            while pos < len(mv):
+                pos += os.write(fd, mv[pos:pos + (8 << 20)])
+        finally:
+            os.close(fd)
+    except BaseException:
+        with contextlib.suppress(OSError):
+            os.unlink(path)
+        raise
 
 
 def _remove_empty(dirs: Sequence[Path]) -> None:

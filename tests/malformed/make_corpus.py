@@ -228,15 +228,209 @@ CASES: list[Case] = [
     Case("cnv_truncated_header", "a .cnv source without its '*END*' line",
          lambda d: ((d / "ctd.cnv").write_text("* Sea-Bird SBE 9 Data File:\n# nquan = 1\n# name 0 = prDM: Pressure [db]\n"),
                     _dive_yaml(d, sources={"mcap": [], "cnv": ["ctd.cnv"]})), "InputError", "no '\\*END\\*' line", source="cnv"),
-    Case("cnv_binned_no_time", "a pressure-binned .cnv cast has no time channel",
+    Case("cnv_binned_no_time", "a pressure-binned .cnv cast has no time channel: ingested as a profile (NaT times)",
          lambda d: ((d / "ctd.cnv").write_text(
              "* Sea-Bird SBE 9 Data File:\n# nquan = 3\n# name 0 = prDM: Pressure, Digiquartz [db]\n"
              "# name 1 = t090C: Temperature [ITS-90, deg C]\n# name 2 = c0S/m: Conductivity [S/m]\n"
              "# interval = decibars: 1\n# start_time = Oct 06 2018 23:00:00\n*END*\n"
              "      1.000    20.0000   5.000000\n      2.000    19.9000   4.990000\n"),
-                    _dive_yaml(d, sources={"mcap": [], "cnv": ["ctd.cnv"]})), "InputError", "no time channel", source="cnv"),
+                    _dive_yaml(d, sources={"mcap": [], "cnv": ["ctd.cnv"]})),
+         check=lambda df, m: m["time_base"] == "none (pressure-binned cast)" and bool(df["time"].isna().all())
+         and len(df) == 2, source="cnv"),
     Case("dive_no_sources", "dive.yaml lists neither MCAP nor CSV",
          lambda d: _dive_yaml(d, sources={"mcap": [], "csv": {}}), "InputError", "neither MCAP, CSV nor .cnv"),
+]
+
+
+# ---------------------------------------------------------------------------------------------- round 2 (issue 14)
+def _every(k: int, value):
+    """Field setter: ``value(v)`` on every k-th message (from the 3rd), the value kept elsewhere."""
+    return lambda i, v: value(v) if i % k == 3 else v
+
+
+def _write_channels(d: Path, chans: list[tuple[str, str, bytes, list[tuple[int, dict]]]], rest: bool = True) -> None:
+    """MCAP whose channels are given as (topic, schema name, schema data, messages); ``rest``: the other
+    tiny-dive topics as usual."""
+    from mcap.writer import CompressionType, Writer
+    from tiny_dive import REPO, TOPICS
+
+    msgs = messages(DURATION_S)
+    p = d / "logs" / "haidou.mcap"
+    with open(p, "wb") as fh:
+        w = Writer(fh, chunk_size=2048, compression=CompressionType.ZSTD)
+        w.start()
+        todo = []
+        for topic, sname, sdata, lst in chans:
+            sid = w.register_schema(sname, "jsonschema", sdata)
+            todo.append((w.register_channel(topic, "json", sid), lst))
+        if rest:
+            for topic, (_, sf) in TOPICS.items():
+                if topic == "/haidou/ctd":
+                    continue
+                sid = w.register_schema(topic.rsplit("/", 1)[-1], "jsonschema", (REPO / "schemas" / "mcap" / sf).read_bytes())
+                todo.append((w.register_channel(topic, "json", sid), msgs[topic]))
+        merged = sorted(((t, cid, m) for cid, lst in todo for t, m in lst), key=lambda x: (x[0], x[1]))
+        for t, cid, m in merged:
+            w.add_message(cid, t, json.dumps(m).encode(), t)
+        w.finish()
+
+
+def _ctd_schema() -> bytes:
+    from tiny_dive import REPO
+
+    return (REPO / "schemas" / "mcap" / "haidou_ctd.json").read_bytes()
+
+
+def _ctd_two_channels(d: Path) -> None:
+    """The CTD split over two channels of one topic (same schema), 10 messages recorded on both."""
+    ctd = messages(DURATION_S)["/haidou/ctd"]
+    a = [x for i, x in enumerate(ctd) if i % 2 == 0] + [x for i, x in enumerate(ctd) if i % 2 == 1][:10]
+    b = [x for i, x in enumerate(ctd) if i % 2 == 1]
+    _write_channels(d, [("/haidou/ctd", "ctd", _ctd_schema(), a), ("/haidou/ctd", "ctd", _ctd_schema(), b)])
+
+
+def _ctd_two_schemas(d: Path) -> None:
+    ctd = messages(DURATION_S)["/haidou/ctd"]
+    other = json.dumps({"title": "ctd_v2", "type": "object", "properties": {"cond": {"type": "number"}}}).encode()
+    _write_channels(d, [("/haidou/ctd", "ctd", _ctd_schema(), ctd[::2]), ("/haidou/ctd", "ctd_v2", other, ctd[1::2])])
+
+
+def _shift_topic(topic: str, fn) -> Callable[[dict], dict]:
+    def f(msgs: dict) -> dict:
+        msgs[topic] = [(fn(i, t), m) for i, (t, m) in enumerate(msgs[topic])]
+        return msgs
+    return f
+
+
+def _shift_all(fn) -> Callable[[dict], dict]:
+    def f(msgs: dict) -> dict:
+        return {k: [(fn(i, t), m) for i, (t, m) in enumerate(v)] for k, v in msgs.items()}
+    return f
+
+
+_YEAR_NS = 365 * 86_400 * 10**9
+_BAD_FLAG = -9.990e-29
+
+
+def _cnv_timeS(d: Path, bad_rows=(5, 17)) -> None:
+    rows = []
+    for i in range(40):
+        ts = _BAD_FLAG if i in bad_rows else 0.5 * i
+        rows.append(f"{100.0 + i:11.3f}{2.5 - 0.001 * i:11.4f}{3.25 + 1e-4 * i:11.6f}{ts:11.3e}")
+    (d / "ctd.cnv").write_text(
+        "* Sea-Bird SBE 9 Data File:\n# nquan = 4\n# nvalues = 40\n# name 0 = prDM: Pressure, Digiquartz [db]\n"
+        "# name 1 = t090C: Temperature [ITS-90, deg C]\n# name 2 = c0S/m: Conductivity [S/m]\n"
+        "# name 3 = timeS: Time, Elapsed [seconds]\n# interval = seconds: 0.5\n"
+        "# start_time = Oct 06 2018 23:00:00\n# bad_flag = -9.990e-29\n*END*\n" + "\n".join(rows) + "\n")
+    _dive_yaml(d, sources={"mcap": [], "cnv": ["ctd.cnv"]})
+
+
+def _csv_shift_times(name: str, seconds: float) -> Callable[[list[str]], list[str]]:
+    def f(lines: list[str]) -> list[str]:
+        out = lines[:1]
+        for x in lines[1:]:
+            t, rest = x.split(",", 1)
+            ts = pd.Timestamp(t) + pd.Timedelta(seconds=seconds)
+            out.append(ts.strftime("%Y-%m-%dT%H:%M:%S.%fZ") + "," + rest)
+        return out
+    return f
+
+
+def _csv_cells(name: str, col: int, every: int, text: str) -> Callable[[list[str]], list[str]]:
+    def f(lines: list[str]) -> list[str]:
+        out = lines[:1]
+        for i, x in enumerate(lines[1:]):
+            parts = x.split(",")
+            if i % every == 3:
+                parts[col] = text
+            out.append(",".join(parts))
+        return out
+    return f
+
+
+def _rej(m: dict, sensor: str) -> int:
+    return int((m.get("rejected_samples") or {}).get(sensor, {}).get("samples", 0))
+
+
+def _ctd_rows(n_rejected: int) -> Callable[[pd.DataFrame, dict], bool]:
+    """320 CTD samples less the rejected ones, the rest of the table intact."""
+    return lambda df, m: len(df) == 320 - n_rejected and _rej(m, "ctd") == n_rejected
+
+
+CASES += [
+    # class 2: type confusion (a value that is not a number rejects its sample, counted per field)
+    Case("mcap_json_bool_value", "CTD temp is JSON true in every 40th message: those samples rejected, counted",
+         lambda d: _rewrite_mcap(d, _set_field("/haidou/ctd", "temp", _every(40, lambda v: True))),
+         check=lambda df, m: _ctd_rows(8)(df, m)
+         and m["rejected_samples"]["ctd"]["fields"] == {"temp": {"variable": "temperature_its90_degc", "count": 8}}
+         and not (df["temperature_its90_degc"] == 1.0).any() and any("not a number" in w for w in m["warnings"])),
+    Case("mcap_json_array_value", "CTD pres is a one-element array [x] in every 20th message: rejected, no 2-D array",
+         lambda d: _rewrite_mcap(d, _set_field("/haidou/ctd", "pres", _every(20, lambda v: [v]))),
+         check=_ctd_rows(16)),
+    Case("mcap_json_object_value", "gauge pressure is an object in every 10th message: rejected",
+         lambda d: _rewrite_mcap(d, _set_field("/haidou/keller", "pressure", _every(10, lambda v: {"value": v}))),
+         check=lambda df, m: _rej(m, "gauge") == 8 and len(df) == 320
+         and m["read_stats"]["gauge"]["rejected_values"]["pressure"]["types"] == {"object": 8}),
+    Case("mcap_json_string_number", "CTD cond is a string \"3.25\" in every 40th message: rejected, not coerced",
+         lambda d: _rewrite_mcap(d, _set_field("/haidou/ctd", "cond", _every(40, lambda v: str(v)))),
+         check=_ctd_rows(8)),
+    Case("mcap_json_all_bool", "every CTD temp is a boolean: nothing usable from the time base",
+         lambda d: _rewrite_mcap(d, _set_field("/haidou/ctd", "temp", lambda i, v: i % 2 == 0)),
+         "InputError", r"time-base sensor .ctd. \(.*320 sample\(s\) rejected for a value that is not a number"),
+    Case("mcap_json_bool_time", "the altimeter's 'stamp' mapped as a unix_s time is true in some messages",
+         lambda d: (_vehicle(d, edit=lambda y: y["sensors"]["altimeter"]["mcap"].update(
+             time={"field": "stamp", "format": "unix_s"})),
+             _rewrite_mcap(d, _set_field("/haidou/altimeter", "stamp", _every(10, lambda v: True)))),
+         check=lambda df, m: m["read_stats"]["altimeter"]["bad_times"] == 4
+         and m["read_stats"]["altimeter"]["bad_time_types"] == {"bool": 4}),
+    Case("csv_bool_cells", "'true' in ctd.csv temperature cells: rows rejected and counted per column",
+         lambda d: (_csv_only(d), _edit_csv(d, "ctd.csv", _csv_cells("ctd.csv", 2, 40, "true"))),
+         check=lambda df, m: len(df) == 312 and m["rejected_samples"]["ctd"]["fields"]["temperature_ITS90"]["count"] == 8),
+    Case("csv_array_cells", "'[1.5]' in keller.csv pressure cells: rows rejected",
+         lambda d: (_csv_only(d), _edit_csv(d, "keller.csv", _csv_cells("keller.csv", 1, 10, '"[1.5]"'))),
+         check=lambda df, m: _rej(m, "gauge") == 8),
+    # class 3: two channels on one topic
+    Case("mcap_duplicate_channel_same_schema", "CTD on two channels of one topic (same schema), 10 messages on both: "
+         "merged, duplicates dropped and counted",
+         _ctd_two_channels,
+         check=lambda df, m: len(df) == 320 and m["mcap"][0]["duplicates_dropped"] == 10
+         and m["mcap"][0]["messages_lost"] == 0 and m["alignment"]["ctd"]["duplicates"] == 0),
+    Case("mcap_duplicate_channel_other_schema", "CTD topic on two channels with different schemas: refused",
+         _ctd_two_schemas, "InputError", r"topic /haidou/ctd is recorded on 2 channels with different schemas.*ctd_v2"),
+    # class 4: time sanity
+    Case("mcap_log_time_ms", "log_time written in milliseconds (data dated 1970)",
+         lambda d: _rewrite_mcap(d, _shift_all(lambda i, t: t // 10**6)), "InputError",
+         "outside the plausible range.*log_time looks like milliseconds"),
+    Case("mcap_dated_2108", "every log time 90 years late (2108)",
+         lambda d: _rewrite_mcap(d, _shift_all(lambda i, t: t + 90 * _YEAR_NS)), "InputError",
+         "outside the plausible range"),
+    Case("mcap_some_times_2100", "5 gauge messages dated 2100: dropped, counted and flagged",
+         lambda d: _rewrite_mcap(d, _shift_topic("/haidou/keller", lambda i, t: t + 82 * _YEAR_NS if i % 16 == 5 else t)),
+         check=lambda df, m: m["time_checks"]["implausible"]["gauge"]["dropped"] == 5
+         and any("plausible range" in n for n in m["notes"])),
+    Case("mcap_year_after_launch", "the logs are dated one year after dive.yaml's launch time",
+         lambda d: _rewrite_mcap(d, _shift_all(lambda i, t: t + _YEAR_NS)), "InputError", "launch window"),
+    Case("mcap_gauge_one_hour_off", "the gauge's log times are 1 h late: 0 % overlap with the CTD, warned",
+         lambda d: _rewrite_mcap(d, _shift_topic("/haidou/keller", lambda i, t: t + 3600 * 10**9)),
+         check=lambda df, m: m["time_checks"]["overlap"]["gauge"]["overlap"] == 0.0
+         and abs(m["time_checks"]["overlap"]["gauge"]["offset_s"] - 3600) < 1
+         and any("overlaps the ctd time base by only 0%" in w and "+1 h 00 min" in w for w in m["warnings"])
+         and bool((df["pressure_gauge_dbar_qc"] == 9).all())),
+    Case("csv_gauge_one_hour_off", "keller.csv times 1 h late (time zone): 0 % overlap, warned",
+         lambda d: (_csv_only(d), _edit_csv(d, "keller.csv", _csv_shift_times("keller.csv", 3600))),
+         check=lambda df, m: m["time_checks"]["overlap"]["gauge"]["overlap"] == 0.0
+         and any("time zone" in n for n in m["notes"])),
+    Case("csv_unix_s_is_ms", "dr.csv times given as unix_s but written in milliseconds",
+         lambda d: (_csv_only(d), _vehicle(d, edit=lambda y: y["sensors"]["position"]["csv"].update(
+             time={"field": "time", "format": "unix_s"})),
+             _edit_csv(d, "dr.csv", lambda L: L[:1] + [
+                 f"{int(pd.Timestamp(x.split(',')[0]).value // 10**6)}," + x.split(",", 1)[1] for x in L[1:]])),
+         "InputError", "looks like milliseconds"),
+    Case("cnv_timeS_bad_flag", "two .cnv scans whose timeS is bad_flag: dropped, no row dated 1726",
+         _cnv_timeS, check=lambda df, m: len(df) == 38 and df["time"].min().year == 2018
+         and m["read_stats"]["ctd"]["bad_times"] == 2, source="cnv"),
+    Case("cnv_all_timeS_bad_flag", "every .cnv timeS is bad_flag",
+         lambda d: _cnv_timeS(d, bad_rows=range(40)), "InputError", "bad_flag or not a number", source="cnv"),
 ]
 
 

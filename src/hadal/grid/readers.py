@@ -10,7 +10,6 @@
 
 from __future__ import annotations
 
-import gzip
 import io
 import math
 import warnings
@@ -21,6 +20,7 @@ import pandas as pd
 import xarray as xr
 
 from hadal.errors import InputError
+from hadal.formats import detect, read_bytes
 
 SOUNDING_COLUMNS = ("longitude_deg", "latitude_deg", "depth_m")
 
@@ -38,124 +38,186 @@ def _require_file(path: str | Path, what: str) -> Path:
     return p
 
 
-def _open_text(p: Path):
-    """Text handle; gzip is decompressed fully up front so truncation is reported as such."""
-    if p.suffix == ".gz":
-        try:
-            with gzip.open(p, "rb") as fh:
-                data = fh.read()
-        except (EOFError, OSError, gzip.BadGzipFile) as exc:
-            raise InputError(f"{p}: corrupt or truncated gzip file ({exc})") from None
-        return io.StringIO(data.decode("utf-8", errors="replace"))
-    return open(p, encoding="utf-8", errors="replace")
+def read_soundings(path: str | Path, *, columns=SOUNDING_COLUMNS, check_ranges: bool = True,
+                   hints=None) -> pd.DataFrame:
+    """Read an xyz text soundings file into a DataFrame (default columns lon, lat, depth positive down).
 
-
-def read_soundings(path: str | Path, *, columns=SOUNDING_COLUMNS, check_ranges: bool = True) -> pd.DataFrame:
-    """Read a sounding text file into a DataFrame with ``columns`` (default lon, lat, depth positive down).
-
-    Accepts whitespace- or comma-separated values, an optional header line (non-numeric first row)
-    and ``#`` comments. Rows with too few fields or non-numeric values, an empty file, longitudes or
-    latitudes out of range, or depths that are all negative (elevations?) raise :class:`InputError`.
-    NaN values are kept (the gridder drops and counts them).
+    A thin wrapper of the streaming xyz reader :func:`hadal.grid.sonar.iter_multibeam` (whitespace-, comma- or
+    semicolon-separated, optional header naming the columns, ``#`` comments, plain/gzip/bz2/xz by content):
+    elevations (header name, declared ``hints.z_positive='up'``, or a negative median) are converted to depth
+    positive down; projected x/y come back as ``x_m, y_m, depth_m``. ``columns`` renames the three output
+    columns. Truncated or corrupt files, non-numeric values and longitudes/latitudes out of range raise
+    :class:`InputError`; NaN values are kept (the gridder drops and counts them). ``attrs`` records the reader.
+    For binary swath formats use :func:`hadal.grid.sonar.read_multibeam`.
     """
-    p = _require_file(path, "soundings")
-    with _open_text(p) as fh:
-        text = fh.read()
-    first = next((t for ln in io.StringIO(text) if (t := ln.strip()) and not t.startswith("#")), None)
-    last = None
-    end = len(text)
-    while first is not None and end > 0:  # last data line, scanning back from the end
-        start = text.rfind("\n", 0, end - 1) + 1
-        t = text[start:end].strip()
-        if t and not t.startswith("#"):
-            last = t
-            break
-        end = start
-    if first is None:
-        raise InputError(f"{p}: no soundings (file has no data lines)")
-    sep = "," if "," in first else r"\s+"
-    toks = lambda line: [t for t in (line.split(",") if sep == "," else line.split()) if t.strip() != ""]  # noqa: E731
-    header = 0 if any(_not_number(t) for t in toks(first)) else None
-    ncols = len(columns)
-    if len(toks(first)) < ncols:
-        raise InputError(f"{p}: expected {ncols} columns ({', '.join(columns)}), found {len(toks(first))}")
-    if len(toks(last)) < ncols and last is not first:
-        raise InputError(f"{p}: last line {last[:60]!r} has fewer than {ncols} values (truncated file?)")
-    try:
-        df = pd.read_csv(io.StringIO(text), sep=sep, header=header, comment="#", skipinitialspace=True,
-                         engine="c")
-    except (pd.errors.ParserError, pd.errors.EmptyDataError, ValueError) as exc:
-        raise InputError(f"{p}: cannot parse soundings ({str(exc).splitlines()[0]})") from None
-    if df.shape[1] < ncols:
-        raise InputError(f"{p}: expected {ncols} columns ({', '.join(columns)}), found {df.shape[1]}")
-    if len(df) == 0:
-        raise InputError(f"{p}: no soundings (header only)")
-    df = df.iloc[:, :ncols].copy()
-    df.columns = list(columns)
-    for c in columns:
-        if df[c].dtype.kind not in "fi":
-            conv = pd.to_numeric(df[c], errors="coerce")
-            bad = conv.isna() & df[c].notna()
-            if bad.any():
-                i = int(np.flatnonzero(bad.to_numpy())[0])
-                raise InputError(f"{p}: non-numeric {c} {df[c].iloc[i]!r} on data row {i + 1}")
-            df[c] = conv
-    df = df.astype(np.float64)
-    if check_ranges and columns == SOUNDING_COLUMNS:
-        lon, lat, dep = (df[c].to_numpy() for c in columns)
-        with np.errstate(invalid="ignore"):
-            if np.any(np.abs(lat) > 90):
-                raise InputError(f"{p}: latitude out of [-90, 90] (max |lat| {np.nanmax(np.abs(lat)):g}); "
-                                 "columns must be longitude latitude depth")
-            if np.any((lon < -180) | (lon > 360)):
-                raise InputError(f"{p}: longitude out of [-180, 360] ({np.nanmin(lon):g}..{np.nanmax(lon):g})")
-            if np.nanmedian(dep) < 0 if np.isfinite(dep).any() else False:
-                raise InputError(f"{p}: depths are negative (median {np.nanmedian(dep):g} m); depth_m must be "
-                                 "positive down - convert elevations first")
+    from hadal.grid.sonar import _iter_xyz, _require, sniff_multibeam
+
+    p = _require(path)
+    sn = sniff_multibeam(p)
+    if sn["format"] not in ("xyz", "unknown"):
+        raise InputError(f"{p}: is a {sn['format']} file, not xyz text (read it with hadal.grid.sonar.read_multibeam)")
+    info: dict = {"path": str(p), "compression": sn["compression"]}
+    parts = [c for c in _iter_xyz(p, sn["compression"], hints, 1_000_000, info, check_ranges=check_ranges)]
+    df = parts[0] if len(parts) == 1 else pd.concat(parts, ignore_index=True)
+    del parts
+    if columns != SOUNDING_COLUMNS and df.columns[0] == SOUNDING_COLUMNS[0]:
+        df.columns = list(columns)
+    df.attrs.update(info)
     return df
 
 
-def _not_number(tok: str) -> bool:
-    try:
-        float(tok)
-    except ValueError:
-        return True
-    return False
+# ------------------------------------------------------------------ content sniffing (grids, point clouds)
+#: ``SourceFile.format`` hints accepted by :func:`read_grid` / :func:`read_point_cloud`, and what they mean
+FORMAT_ALIASES = {
+    "geotiff": "geotiff", "tif": "geotiff", "tiff": "geotiff", "gtiff": "geotiff", "gdal": "gdal",
+    "netcdf": "netcdf", "netcdf_grid": "netcdf", "nc": "netcdf", "cdf": "netcdf", "coards": "netcdf",
+    "gmt": "netcdf", "gmt_grd": "netcdf", "grd": "netcdf",
+    "ply": "ply", "pcd": "pcd", "las": "las", "laz": "las", "xyz": "xyz", "pts": "xyz", "txt": "xyz",
+}
+_GRID_KINDS = ("geotiff", "netcdf", "gdal")
+_CLOUD_KINDS = ("ply", "pcd", "las", "xyz")
 
 
-def read_point_cloud(path: str | Path) -> np.ndarray:
-    """Read a point cloud as an ``(N, 3)`` float64 array of x, y, z (PLY/PCD via open3d, LAS/LAZ via laspy)."""
+def sniff_kind(path: str | Path) -> str:
+    """What a grid or point-cloud file is, from its content (:func:`hadal.formats.detect`), not its name.
+
+    ``geotiff``, ``netcdf``, ``ply``, ``las`` (also LAZ), ``pcd``, ``xyz`` (numeric text rows of >= 3
+    columns, also gzip/bz2/xz-compressed), ``text`` (other text) or ``unknown`` (other binary: left to GDAL,
+    which identifies its own formats by content). The library readers read plain files only, so compressed
+    content is ``xyz``, ``text`` or ``unknown``.
+    """
+    fk = detect(path)  # a corrupt compressed stream: "corrupt gzip stream" InputError
+    if fk.kind in _GRID_KINDS + _CLOUD_KINDS and fk.kind != "xyz" and fk.compression is None:
+        return fk.kind
+    return "xyz" if fk.points else "text" if fk.text else "unknown"
+
+
+def _kind_of(p: Path, fmt: str | None) -> str:
+    if fmt is None:
+        return sniff_kind(p)
+    k = FORMAT_ALIASES.get(str(fmt).lower())
+    if k is None:
+        raise InputError(f"{p}: unknown format hint {fmt!r} (use one of {', '.join(sorted(set(FORMAT_ALIASES)))})")
+    return k
+
+
+def reader_of(kind: str) -> str:
+    """The library (and version) that reads a file of ``kind`` (for manifests and ``hadal inspect``)."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    def v(*names: str) -> str:
+        for n in names:
+            try:
+                return version(n)
+            except PackageNotFoundError:
+                continue
+        return "?"
+
+    if kind in ("geotiff", "gdal"):
+        import rasterio
+
+        return f"rasterio {rasterio.__version__} (GDAL {rasterio.__gdal_version__})"
+    if kind == "netcdf":
+        return f"xarray {v('xarray')} (netCDF4 {v('netCDF4', 'netcdf4')})"
+    if kind in ("ply", "pcd"):
+        return f"open3d {v('open3d', 'open3d-cpu')}"
+    if kind == "las":
+        return f"laspy {v('laspy')}"
+    if kind == "xyz":
+        return f"pandas {v('pandas')} (text columns)"
+    return "?"
+
+
+def read_point_cloud(path: str | Path, *, format: str | None = None, columns: list[str] | None = None,
+                     ) -> np.ndarray:
+    """Read a point cloud as an ``(N, 3)`` float64 array of x, y, z.
+
+    The format is detected from the content (:func:`sniff_kind`), not the name; ``format`` overrides
+    (``ply``, ``pcd``, ``las``/``laz``, ``xyz``). PLY/PCD are read with open3d, LAS/LAZ with laspy (LAZ
+    needs a laspy LAZ backend such as ``lazrs``), xyz text (whitespace/comma separated, optional header,
+    ``#`` comments, gzip/bz2/xz) with pandas; ``columns`` names the text columns (``x``/``lon``/``easting``,
+    ``y``/``lat``/``northing``, ``z``/``depth``/``elevation``; default: the first three). z is returned as
+    stored (the caller applies the sign convention).
+    """
     p = _require_file(path, "point cloud")
-    suf = p.suffix.lower()
-    if suf in (".ply", ".pcd", ".xyz", ".pts"):
+    kind = _kind_of(p, format)
+    if kind in ("ply", "pcd"):
         import open3d as o3d
 
         with _quiet_open3d(o3d):
-            pc = o3d.io.read_point_cloud(str(p), format="auto")
+            pc = o3d.io.read_point_cloud(str(p), format=kind)
         pts = np.asarray(pc.points, dtype=np.float64)
         if len(pts) == 0:
-            raise InputError(f"{p}: no points read (truncated or not a {suf[1:].upper()} point cloud)")
-        if suf == ".ply":
+            raise InputError(f"{p}: no points read (truncated or not a {kind.upper()} point cloud)")
+        if kind == "ply":
             _check_ply_count(p, len(pts))
         return pts
-    if suf in (".las", ".laz"):
+    if kind == "las":
         import laspy
 
         try:
             las = laspy.read(str(p))
         except laspy.errors.LaspyException as exc:
             msg = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
-            if suf == ".laz" and "backend" in msg.lower():
-                msg += " (install a LAZ backend: pip install lazrs)"
-            raise InputError(f"{p}: cannot read {suf[1:].upper()} ({msg})") from None
-        except (OSError, ValueError) as exc:
-            raise InputError(f"{p}: cannot read {suf[1:].upper()} ({exc})") from None
+            if "backend" in msg.lower() or "laz" in msg.lower():
+                msg += " (LAZ needs a backend: pip install lazrs)"
+            raise InputError(f"{p}: cannot read LAS/LAZ ({msg})") from None
+        except (OSError, ValueError, EOFError) as exc:
+            raise InputError(f"{p}: cannot read LAS/LAZ ({str(exc).splitlines()[0] if str(exc) else exc!r})") from None
         pts = np.column_stack([np.asarray(las.x, np.float64), np.asarray(las.y, np.float64),
                                np.asarray(las.z, np.float64)])
         if len(pts) == 0:
             raise InputError(f"{p}: LAS file has no points")
         return pts
-    raise InputError(f"{p}: unsupported point cloud format {suf!r} (use .ply, .pcd, .las or .laz)")
+    if kind == "xyz":
+        return _read_xyz_cloud(p, columns)
+    if kind in _GRID_KINDS:
+        raise InputError(f"{p}: is a {kind} raster, not a point cloud")
+    raise InputError(f"{p}: unsupported point cloud format (content is not PLY, PCD, LAS/LAZ or xyz text; "
+                     f"extension {p.suffix or 'none'!r})")
+
+
+_X_NAMES = ("x", "lon", "longitude", "longitude_deg", "easting", "east", "e")
+_Y_NAMES = ("y", "lat", "latitude", "latitude_deg", "northing", "north", "n")
+_Z_NAMES = ("z", "depth", "depth_m", "elevation", "elevation_m", "height", "h", "altitude")
+
+
+def _read_xyz_cloud(p: Path, columns: list[str] | None) -> np.ndarray:
+    from hadal.grid.sonar import _not_number
+
+    text = read_bytes(p, "point cloud")[0].decode("utf-8", errors="replace")
+    first = next((t for ln in io.StringIO(text) if (t := ln.strip()) and not t.startswith(("#", "//"))), None)
+    if first is None:
+        raise InputError(f"{p}: no points (file has no data lines)")
+    sep = "," if "," in first else ";" if ";" in first else r"\s+"
+    header = 0 if any(_not_number(t) for t in first.replace(",", " ").replace(";", " ").split()) else None
+    try:
+        df = pd.read_csv(io.StringIO(text), sep=sep, header=header, comment="#", skipinitialspace=True,
+                         engine="c" if sep != r"\s+" else "c")
+    except (pd.errors.ParserError, pd.errors.EmptyDataError, ValueError) as exc:
+        raise InputError(f"{p}: cannot parse xyz text ({str(exc).splitlines()[0]})") from None
+    names = [str(c).strip().lower() for c in (columns or (df.columns if header == 0 else []))]
+    if columns is not None and len(columns) > df.shape[1]:
+        raise InputError(f"{p}: {len(columns)} column names given but the file has {df.shape[1]} columns")
+
+    def pick(cands, default):
+        for c in cands:
+            if c in names:
+                return names.index(c)
+        return default
+
+    idx = [pick(_X_NAMES, 0), pick(_Y_NAMES, 1), pick(_Z_NAMES, 2)] if names else [0, 1, 2]
+    if df.shape[1] < 3 or max(idx) >= df.shape[1]:
+        raise InputError(f"{p}: expected at least 3 columns (x y z), found {df.shape[1]}")
+    sub = df.iloc[:, idx].apply(pd.to_numeric, errors="coerce")
+    bad = sub.isna().any(axis=1) & df.iloc[:, idx].notna().all(axis=1)
+    if bad.any():
+        i = int(np.flatnonzero(bad.to_numpy())[0])
+        raise InputError(f"{p}: non-numeric value on data row {i + 1} ({df.iloc[i, idx].tolist()})")
+    pts = sub.to_numpy(np.float64)
+    if len(pts) == 0:
+        raise InputError(f"{p}: no points (header only)")
+    return pts
 
 
 def _quiet_open3d(o3d):
@@ -203,6 +265,221 @@ def _check_ply_count(p: Path, n_read: int) -> None:
         raise InputError(f"{p}: truncated PLY file ({size} bytes, header implies {expected})")
 
 
+# ------------------------------------------------------------------ truncation (grids)
+_NC_TYPE_SIZES = {1: 1, 2: 1, 3: 2, 4: 4, 5: 4, 6: 8, 7: 1, 8: 2, 9: 4, 10: 8, 11: 8}
+_NC_STREAMING = 0xFFFFFFFF
+
+
+def netcdf_classic_min_size(head: bytes) -> tuple[int, int]:
+    """``(header_bytes, min_file_bytes)`` of a netCDF classic / 64-bit offset / CDF-5 file from its header.
+
+    These formats store variables uncompressed at the ``begin`` offsets the header gives, so a complete file
+    is at least ``max(begin + size)`` over the variables (record variables: ``numrecs`` records of the
+    record size). Raises ``ValueError`` when ``head`` ends inside the header (itself truncated) or is not one.
+    """
+    import struct
+
+    if head[:3] != b"CDF" or head[3:4] not in (b"\x01", b"\x02", b"\x05"):
+        raise ValueError("not a netCDF classic file")
+    ver = head[3]
+    pos = 4
+    n_fmt = ">Q" if ver == 5 else ">I"
+    n_len = 8 if ver == 5 else 4
+
+    def take(n: int) -> bytes:
+        nonlocal pos
+        if pos + n > len(head):
+            raise ValueError("header ends early")
+        b = head[pos:pos + n]
+        pos += n
+        return b
+
+    def count() -> int:
+        return struct.unpack(n_fmt, take(n_len))[0]
+
+    def u32() -> int:
+        return struct.unpack(">I", take(4))[0]
+
+    def name() -> str:
+        n = count()
+        s = take(n)
+        take((-n) % 4)
+        return s.decode("utf-8", "replace")
+
+    def att_list() -> None:
+        tag, n = u32(), count()
+        if tag not in (0, 0x0C):
+            raise ValueError("bad attribute list tag")
+        for _ in range(n):
+            name()
+            t = u32()
+            m = count()
+            sz = m * _NC_TYPE_SIZES.get(t, 1)
+            take(sz + (-sz) % 4)
+
+    numrecs = count()
+    tag, ndims = u32(), count()
+    if tag not in (0, 0x0A):
+        raise ValueError("bad dimension list tag")
+    dims = []
+    for _ in range(ndims):
+        name()
+        dims.append(count())
+    att_list()
+    tag, nvars = u32(), count()
+    if tag not in (0, 0x0B):
+        raise ValueError("bad variable list tag")
+    off_fmt, off_len = (">I", 4) if ver == 1 else (">Q", 8)
+    vars_ = []
+    for _ in range(nvars):
+        name()
+        nd = count()
+        ids = [count() for _ in range(nd)]
+        att_list()
+        t = u32()
+        vsize = count()
+        begin = struct.unpack(off_fmt, take(off_len))[0]
+        shape = [dims[i] if i < len(dims) else 0 for i in ids]
+        is_rec = bool(ids) and shape[0] == 0
+        n = 1
+        for s in (shape[1:] if is_rec else shape):
+            n *= s
+        vars_.append((begin, n * _NC_TYPE_SIZES.get(t, 1), vsize, is_rec))
+    header = pos
+    rec_vars = [v for v in vars_ if v[3]]
+    recsize = sum(v[2] for v in rec_vars) if len(rec_vars) != 1 else rec_vars[0][1]
+    need = header
+    for begin, raw, _vsize, is_rec in vars_:
+        if is_rec:
+            if numrecs in (0, _NC_STREAMING if ver != 5 else 2**64 - 1):
+                continue
+            need = max(need, begin + (numrecs - 1) * recsize + raw)
+        else:
+            need = max(need, begin + raw)
+    return header, need
+
+
+def _hdf5_eof_address(p: Path) -> int | None:
+    """The end-of-file address an HDF5 superblock records (at 0, 512, 1024, ...), or None."""
+    size = p.stat().st_size
+    with open(p, "rb") as fh:
+        off = 0
+        while off + 64 <= size:
+            fh.seek(off)
+            sb = fh.read(96)
+            if sb[:8] == b"\x89HDF\r\n\x1a\n":
+                ver = sb[8]
+                if ver in (0, 1):
+                    so = sb[13]
+                    start = 24 + (4 if ver == 1 else 0)
+                    i = start + 2 * so  # base address, free-space address, then end-of-file address
+                else:
+                    so = sb[9]
+                    i = 12 + 2 * so  # base address, superblock extension address, then end-of-file address
+                if so not in (2, 4, 8) or i + so > len(sb):
+                    return None
+                base = int.from_bytes(sb[(start if ver in (0, 1) else 12):][:so], "little")
+                eof = int.from_bytes(sb[i:i + so], "little")
+                if eof == (1 << (8 * so)) - 1:  # undefined address
+                    return None
+                return (base or off) + eof  # relative to the base address (the superblock's, normally)
+            off = 512 if off == 0 else off * 2
+    return None
+
+
+def check_grid_truncation(p: Path) -> None:
+    """A one-line :class:`InputError` when a NetCDF grid is shorter than its own header says.
+
+    netCDF classic/64-bit offset/CDF-5: the header's variable offsets and sizes (data uncompressed); netCDF-4
+    (HDF5): the superblock's end-of-file address. Other files are not checked here.
+    """
+    size = p.stat().st_size
+    with open(p, "rb") as fh:
+        magic = fh.read(8)
+    if magic[:3] == b"CDF":
+        with open(p, "rb") as fh:
+            head = fh.read(1 << 20)
+        try:
+            header, need = netcdf_classic_min_size(head)
+        except ValueError as exc:
+            if str(exc) == "header ends early":
+                if len(head) < size:  # a huge header: read the whole file
+                    try:
+                        header, need = netcdf_classic_min_size(p.read_bytes())
+                    except ValueError:
+                        raise InputError(f"{p}: truncated: {size} bytes, the netCDF header itself is incomplete"
+                                         ) from None
+                else:
+                    raise InputError(f"{p}: truncated: {size} bytes, the netCDF header itself is incomplete"
+                                     ) from None
+            else:
+                return
+        if size < need:
+            raise InputError(f"{p}: truncated: {size} bytes, the header implies at least {need}")
+        return
+    eof = _hdf5_eof_address(p) if magic == b"\x89HDF\r\n\x1a\n" or size > 512 else None
+    if eof is not None and size < eof:
+        raise InputError(f"{p}: truncated: {size} bytes, the header implies at least {eof}")
+
+
+_TIFF_TYPES = {1: ("B", 1), 3: ("H", 2), 4: ("I", 4), 16: ("Q", 8), 13: ("I", 4)}
+
+
+def tiff_min_size(p: Path) -> int | None:
+    """The bytes a (Big)TIFF needs for its first image: ``max(offset + byte count)`` over its strips/tiles
+    (and the IFD itself), from the header; None when it is not a TIFF or the tags are not plain."""
+    import struct
+
+    size = p.stat().st_size
+    with open(p, "rb") as fh:
+        hdr = fh.read(16)
+        if hdr[:2] not in (b"II", b"MM"):
+            return None
+        e = "<" if hdr[:2] == b"II" else ">"
+        magic = struct.unpack(e + "H", hdr[2:4])[0]
+        if magic == 42:
+            ifd, big = struct.unpack(e + "I", hdr[4:8])[0], False
+        elif magic == 43:
+            ifd, big = struct.unpack(e + "Q", hdr[8:16])[0], True
+        else:
+            return None
+        cnt_fmt, cnt_len, ent_len = ("Q", 8, 20) if big else ("H", 2, 12)
+        if ifd + cnt_len > size:
+            return ifd + cnt_len
+        fh.seek(ifd)
+        n = struct.unpack(e + cnt_fmt, fh.read(cnt_len))[0]
+        need = ifd + cnt_len + n * ent_len
+        if need > size:
+            return need
+        raw = fh.read(n * ent_len)
+        tags: dict[int, list[int]] = {}
+        for k in range(n):
+            ent = raw[k * ent_len:(k + 1) * ent_len]
+            tag, typ = struct.unpack(e + "HH", ent[:4])
+            if tag not in (273, 279, 324, 325):
+                continue
+            if typ not in _TIFF_TYPES:
+                return None
+            c, sz = _TIFF_TYPES[typ]
+            count = struct.unpack(e + ("Q" if big else "I"), ent[4:12] if big else ent[4:8])[0]
+            field = ent[12:20] if big else ent[8:12]
+            if count * sz <= len(field):
+                data = field[:count * sz]
+            else:
+                off = struct.unpack(e + ("Q" if big else "I"), field)[0]
+                if off + count * sz > size:
+                    return off + count * sz
+                fh.seek(off)
+                data = fh.read(count * sz)
+            tags[tag] = list(struct.unpack(e + c * count, data))
+    for o_tag, c_tag in ((273, 279), (324, 325)):
+        if o_tag in tags and c_tag in tags and len(tags[o_tag]) == len(tags[c_tag]):
+            ends = [o + c for o, c in zip(tags[o_tag], tags[c_tag], strict=True) if c > 0]
+            if ends:
+                need = max(need, max(ends))
+    return need
+
+
 # ------------------------------------------------------------------ grids
 def looks_metric(x_extent: float, y_extent: float, relief_m: float) -> bool:
     """True when a grid tagged geographic is really in metres.
@@ -223,31 +500,81 @@ def looks_metric(x_extent: float, y_extent: float, relief_m: float) -> bool:
     return slope_deg_reading < 1e-5 and 1e-3 <= slope_m_reading <= 10
 
 
-def read_grid(path: str | Path, *, crs_kind: str | None = None, variable: str | None = None) -> xr.DataArray:
-    """Read a gridded surface (GeoTIFF via rasterio, NetCDF/GRD via xarray) as a 2-D DataArray ``z(y, x)``.
+def read_grid(path: str | Path, *, crs_kind: str | None = None, variable: str | None = None,
+              format: str | None = None, crs: str | None = None) -> xr.DataArray:
+    """Read a gridded surface as a 2-D DataArray ``z(y, x)`` (values as stored: the sign is the caller's).
 
-    Coordinates are cell centres, ascending; nodata becomes NaN. ``attrs["crs_kind"]`` is
-    ``"geographic"`` (x/y degrees), ``"projected"`` or ``"local_metric"`` (x/y metres, no usable CRS),
-    ``attrs["crs_wkt"]`` the source CRS if any, ``attrs["units"]`` the value units when known.
-    ``crs_kind`` overrides the detection. A raster tagged geographic whose extent/relief make no sense
-    in degrees (:func:`looks_metric`) is returned as ``local_metric`` with a :class:`GridCRSWarning`.
+    The format is detected from the content (:func:`sniff_kind`; ``format`` overrides): GeoTIFF and any
+    other GDAL raster (ESRI ASCII, Surfer, BAG ...) via rasterio; NetCDF COARDS/CF and GMT netCDF ``.grd``
+    (also GMT's old 1-D ``x_range``/``dimension``/``z`` layout) via xarray, falling back to GDAL. GMT's
+    native binary ``.grd`` formats are not readable by GDAL: a clear error says how to convert them.
+
+    Coordinates are the positions of the values, ascending: cell centres of pixel-registered grids
+    (GeoTIFF ``AREA_OR_POINT=Area``, GMT ``node_offset=1``), nodes of gridline-registered ones
+    (``attrs["registration"]``). Nodata/``_FillValue``/±inf become NaN. ``attrs``: ``crs_kind``
+    (``geographic`` x/y degrees, ``projected`` x/y in a CRS, ``local_metric`` metres with no usable CRS),
+    ``crs_wkt``, ``cell_size_x``/``cell_size_y``, ``units``, ``format``, ``reader``, ``registration``,
+    ``nodata``, ``nodata_fraction``, and the value's ``var_name``/``long_name``/``standard_name``/
+    ``positive`` when the file has them (for the sign detection of :mod:`hadal.grid.prior`).
+
+    ``crs_kind`` or ``crs`` (``'EPSG:32654'``, WKT, PROJ, or ``'local'``) override the file. Without them a
+    raster tagged geographic whose extent/relief make no sense in degrees (:func:`looks_metric`) is returned
+    as ``local_metric`` with a :class:`GridCRSWarning`. Every failure is a one-line :class:`InputError`.
     """
     p = _require_file(path, "grid")
     if crs_kind not in (None, "geographic", "projected", "local_metric"):
         raise InputError(f"crs_kind must be geographic, projected or local_metric, got {crs_kind!r}")
-    suf = p.suffix.lower()
-    if suf in (".tif", ".tiff", ".gtiff"):
+    kind = _kind_of(p, format)
+    if kind in _CLOUD_KINDS:
+        raise InputError(f"{p}: is a {kind} point cloud, not a grid")
+    if kind == "geotiff":
+        _check_tiff_truncation(p)
         da = _read_geotiff(p)
-    elif suf in (".nc", ".grd", ".nc4", ".cdf"):
-        da = _read_netcdf_grid(p, variable)
+    elif kind == "netcdf":
+        check_grid_truncation(p)  # classic netCDF is read zero-filled past a cut, as a valid-looking grid
+        try:
+            da = _read_netcdf_grid(p, variable)
+        except InputError as first:
+            # HDF5 that is not netCDF (e.g. BAG), or a layout xarray cannot map: GDAL's turn. A readable netCDF
+            # that lacks the asked-for variable or its coordinates stays an error (GDAL would silently give
+            # pixel indices as coordinates).
+            if variable is not None or not any(t in str(first) for t in ("cannot read NetCDF", "no 2-D variable")):
+                raise
+            try:
+                da = _read_geotiff(p)
+            except InputError:
+                raise first from None
     else:
-        raise InputError(f"{p}: unsupported grid format {suf!r} (use GeoTIFF or NetCDF)")
-    if not np.isfinite(da.values).any():
+        try:
+            da = _read_geotiff(p)
+        except InputError:
+            hint = (" (a GMT native binary grid? GDAL cannot read those: convert it with "
+                    "'gmt grdconvert IN.grd OUT.nc')" if p.suffix.lower() == ".grd" else "")
+            raise InputError(f"{p}: not a grid format hadal reads (GeoTIFF, NetCDF/GMT netCDF or another GDAL "
+                             f"raster){hint}") from None
+    if da.sizes["x"] < 2 or da.sizes["y"] < 2:
+        raise InputError(f"{p}: grid must be at least 2 x 2 cells, got {da.sizes['y']} x {da.sizes['x']}")
+    finite = np.isfinite(da.values)
+    if not finite.any():
         raise InputError(f"{p}: grid has no valid (non-nodata) cells")
+    da.attrs["nodata_fraction"] = float(1.0 - finite.mean())
     detected = da.attrs["crs_kind"]
+    if crs is not None:
+        if str(crs).lower() in ("local", "local_metric", "none"):
+            da.attrs.update(crs_kind="local_metric", crs_wkt="", crs_override=f"crs {crs!r} given in dive.yaml")
+        else:
+            from pyproj import CRS
+            from pyproj.exceptions import CRSError
+
+            try:
+                c = CRS.from_user_input(crs)
+            except CRSError as exc:
+                raise InputError(f"{p}: cannot use crs {crs!r} ({str(exc).splitlines()[0]})") from None
+            da.attrs.update(crs_kind="geographic" if c.is_geographic else "projected", crs_wkt=c.to_wkt(),
+                            crs_override=f"crs {crs!r} given in dive.yaml")
     if crs_kind is not None:
         da.attrs["crs_kind"] = crs_kind
-    elif detected == "geographic":
+    elif crs is None and detected == "geographic":
         xe = float(da.x[-1] - da.x[0]) + abs(float(da.attrs.get("cell_size_x", 0)))
         ye = float(da.y[-1] - da.y[0]) + abs(float(da.attrs.get("cell_size_y", 0)))
         relief = float(np.nanmax(da.values) - np.nanmin(da.values))
@@ -268,25 +595,42 @@ def read_grid(path: str | Path, *, crs_kind: str | None = None, variable: str | 
     return da
 
 
+def _check_tiff_truncation(p: Path) -> None:
+    need = tiff_min_size(p)
+    if need is not None and p.stat().st_size < need:
+        raise InputError(f"{p}: truncated: {p.stat().st_size} bytes, the header implies at least {need}")
+
+
 def _read_geotiff(p: Path) -> xr.DataArray:
+    """Band 1 of a GDAL raster (GeoTIFF or any format GDAL identifies) via rasterio."""
     import rasterio
     from rasterio.errors import RasterioError
 
     try:
-        with rasterio.open(p) as src:
-            if src.count < 1:
-                raise InputError(f"{p}: raster has no bands")
-            a = src.read(1).astype(np.float64)
-            nodata = src.nodata
-            t = src.transform
-            crs = src.crs
-            units = (src.units[0] if src.units and src.units[0] else None)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", rasterio.errors.NotGeoreferencedWarning)
+            with rasterio.open(p) as src:
+                if src.count < 1:
+                    raise InputError(f"{p}: raster has no bands")
+                a = src.read(1, masked=True).astype(np.float64).filled(np.nan)
+                nodata = src.nodata
+                t = src.transform
+                crs = src.crs
+                driver = src.driver
+                units = (src.units[0] if src.units and src.units[0] else None)
+                tags = {**src.tags(), **src.tags(1)}
+                desc = src.descriptions[0] if src.descriptions else None
+                georef = not t.is_identity
     except RasterioError as exc:
-        raise InputError(f"{p}: cannot read GeoTIFF ({str(exc).splitlines()[0]})") from None
+        raise InputError(f"{p}: cannot read raster ({str(exc).splitlines()[0]})") from None
+    except (OSError, ValueError, MemoryError) as exc:
+        raise InputError(f"{p}: cannot read raster ({str(exc).splitlines()[0] if str(exc) else type(exc).__name__})"
+                         ) from None
     if t.b != 0 or t.d != 0:
         raise InputError(f"{p}: rotated rasters are not supported")
-    if nodata is not None:
-        a[a == nodata] = np.nan
+    if not georef:  # pixel indices as coordinates would be a silently wrong cell size and position
+        raise InputError(f"{p}: raster has no georeferencing (no geotransform: cell size and origin unknown); give "
+                         "it one, e.g. a world file beside it or 'gdal_translate -a_ullr ULX ULY LRX LRY'")
     a[~np.isfinite(a)] = np.nan
     ny, nx = a.shape
     x = t.c + (np.arange(nx) + 0.5) * t.a
@@ -296,58 +640,198 @@ def _read_geotiff(p: Path) -> xr.DataArray:
     if t.e < 0:
         y, a = y[::-1], a[::-1, :]
     kind = "local_metric" if crs is None else ("geographic" if crs.is_geographic else "projected")
-    return xr.DataArray(
-        np.ascontiguousarray(a), dims=("y", "x"), coords={"x": x, "y": y}, name="z",
-        attrs={"crs_kind": kind, "crs_wkt": crs.to_wkt() if crs else "", "nodata": nodata if nodata is not None else "",
-               "cell_size_x": abs(t.a), "cell_size_y": abs(t.e), "units": units or "", "source": str(p)},
-    )
+    # GDAL shifts AREA_OR_POINT=Point rasters' transform by half a cell, so (i + 0.5) is the value's position
+    reg = "gridline" if str(tags.get("AREA_OR_POINT", "Area")).lower() == "point" else "pixel"
+    low = {k.lower(): v for k, v in tags.items()}
+    attrs = {"crs_kind": kind, "crs_wkt": crs.to_wkt() if crs else "", "nodata": nodata if nodata is not None else "",
+             "cell_size_x": abs(t.a), "cell_size_y": abs(t.e), "units": units or low.get("units", ""),
+             "source": str(p), "format": "GeoTIFF" if driver == "GTiff" else f"GDAL {driver}",
+             "reader": reader_of("geotiff"), "registration": reg, "var_name": "band 1"}
+    for k in ("positive", "standard_name", "long_name"):
+        if k in low:
+            attrs[k] = str(low[k])
+    if desc:
+        attrs.setdefault("long_name", str(desc))
+    return xr.DataArray(np.ascontiguousarray(a), dims=("y", "x"), coords={"x": x, "y": y}, name="z", attrs=attrs)
 
 
-_LON_NAMES = ("lon", "longitude", "x")
-_LAT_NAMES = ("lat", "latitude", "y")
+_X_DIM_NAMES = ("lon", "longitude", "x", "easting", "nav_lon", "long")
+_Y_DIM_NAMES = ("lat", "latitude", "y", "northing", "nav_lat")
+_PREFERRED_VARS = ("z", "elevation", "depth", "topo", "topography", "bathymetry", "bathy", "height", "band1",
+                   "altitude", "elev", "dem")
+_NOT_GRID_VARS = ("crs", "spatial_ref", "lat", "lon", "latitude", "longitude", "x", "y", "mask", "count",
+                  "uncertainty", "std", "tid", "source", "flags")
+
+
+def _axis_of(name: str, var: xr.DataArray | None) -> str | None:
+    a = var.attrs if var is not None else {}
+    sn = str(a.get("standard_name", "")).lower()
+    un = str(a.get("units", "")).lower()
+    ax = str(a.get("axis", "")).upper()
+    n = name.lower()
+    if ax == "X" or sn in ("longitude", "projection_x_coordinate", "grid_longitude") or un.startswith(
+            ("degree_e", "degrees_e")) or n in _X_DIM_NAMES:
+        return "x"
+    if ax == "Y" or sn in ("latitude", "projection_y_coordinate", "grid_latitude") or un.startswith(
+            ("degree_n", "degrees_n")) or n in _Y_DIM_NAMES:
+        return "y"
+    return None
 
 
 def _read_netcdf_grid(p: Path, variable: str | None) -> xr.DataArray:
+    """A 2-D variable of a NetCDF (COARDS/CF, GMT netCDF) file via xarray."""
     try:
-        ds = xr.open_dataset(p)
-    except (OSError, ValueError) as exc:
-        raise InputError(f"{p}: cannot read NetCDF ({str(exc).splitlines()[0]})") from None
+        ds = xr.open_dataset(p, decode_times=False)
+    except Exception as exc:  # noqa: BLE001 - xarray raises many kinds for non-netCDF/corrupt files
+        raise InputError(f"{p}: cannot read NetCDF ({str(exc).splitlines()[0] if str(exc) else type(exc).__name__})"
+                         ) from None
     with ds:
+        if variable is None and "z" in ds and ds["z"].ndim == 1 and "dimension" in ds and "x_range" in ds:
+            return _read_old_gmt(p, ds)
         if variable is not None:
             if variable not in ds:
                 raise InputError(f"{p}: no variable {variable!r} (have {', '.join(map(str, ds.data_vars))})")
             da = ds[variable]
         else:
-            cands = [v for v in ds.data_vars if ds[v].ndim == 2]
+            def squeezed_ndim(v):
+                return sum(s > 1 for s in ds[v].shape)
+
+            cands = [v for v in ds.data_vars if ds[v].ndim >= 2 and squeezed_ndim(v) == 2
+                     and str(v).lower() not in _NOT_GRID_VARS]
             if not cands:
-                raise InputError(f"{p}: no 2-D variable to read as a grid")
-            da = ds[cands[0]]
-        da = da.load()
-    ydim, xdim = da.dims
-    da = da.rename({ydim: "y", xdim: "x"}).astype(np.float64)
-    for d in ("x", "y"):
+                raise InputError(f"{p}: no 2-D variable to read as a grid (have {', '.join(map(str, ds.data_vars))})")
+            pref = [v for v in cands if str(v).lower() in _PREFERRED_VARS]
+            da = ds[(pref or cands)[0]]
+        try:
+            da = da.squeeze(drop=True).load()
+        except Exception as exc:  # noqa: BLE001 - truncated data blocks
+            raise InputError(f"{p}: cannot read variable {da.name!r} ({str(exc).splitlines()[0]})") from None
+        gm = str(da.attrs.get("grid_mapping", "") or da.encoding.get("grid_mapping", ""))
+        gm_attrs = dict(ds[gm].attrs) if gm and gm in ds else {}
+        if not gm_attrs:
+            for cand in ("crs", "spatial_ref", "transverse_mercator", "mercator"):
+                if cand in ds.variables and ("crs_wkt" in ds[cand].attrs or "spatial_ref" in ds[cand].attrs):
+                    gm_attrs = dict(ds[cand].attrs)
+                    break
+        gattrs = dict(ds.attrs)
+        with open(p, "rb") as fh:
+            magic = fh.read(4)
+        fmt = {b"CDF\x01": "netCDF classic", b"CDF\x02": "netCDF 64-bit offset", b"CDF\x05": "netCDF CDF-5",
+               b"\x89HDF": "netCDF-4 (HDF5)"}.get(magic, "netCDF")
+        if "GMT_version" in ds.attrs or "node_offset" in ds.attrs:
+            fmt += f", GMT grid ({ds.attrs.get('GMT_version', 'GMT')})"
+        conv = ds.attrs.get("Conventions")
+        if conv:
+            fmt += f", {conv}"
+    if da.ndim != 2:
+        raise InputError(f"{p}: variable {da.name!r} is not 2-D after dropping length-1 dimensions ({da.dims})")
+    var_name = str(da.name)
+    d0, d1 = (str(d) for d in da.dims)
+    ax0, ax1 = _axis_of(d0, da[d0] if d0 in da.coords else None), _axis_of(d1, da[d1] if d1 in da.coords else None)
+    if ax0 == "x" or ax1 == "y":
+        da = da.transpose(d1, d0)
+        d0, d1 = d1, d0
+    for d in (d0, d1):
         if d not in da.coords:
-            raise InputError(f"{p}: grid dimension {d} has no coordinate values")
-    xu = str(da["x"].attrs.get("units", "")).lower()
-    yu = str(da["y"].attrs.get("units", "")).lower()
+            raise InputError(f"{p}: grid dimension {d!r} has no coordinate values")
+    xv, yv = da[d1], da[d0]
+    xu, yu = str(xv.attrs.get("units", "")).lower(), str(yv.attrs.get("units", "")).lower()
     geographic = xu.startswith("degree") or yu.startswith("degree") or (
-        str(xdim).lower() in ("lon", "longitude") and str(ydim).lower() in ("lat", "latitude"))
-    fill = da.attrs.get("_FillValue")
-    if fill is not None:
-        da = da.where(da != fill)
-    da = da.where(np.isfinite(da))  # inf cells are nodata, as in GeoTIFFs
+        d1.lower() in ("lon", "longitude") and d0.lower() in ("lat", "latitude"))
+    vattrs = dict(da.attrs)
+    da = da.rename({d0: "y", d1: "x"}).astype(np.float64)
+    da = da.where(np.isfinite(da))  # inf cells are nodata, as in GeoTIFFs (_FillValue: masked by xarray)
     if da.sizes["x"] > 1 and float(da.x[1] - da.x[0]) < 0:
         da = da.isel(x=slice(None, None, -1))
     if da.sizes["y"] > 1 and float(da.y[1] - da.y[0]) < 0:
         da = da.isel(y=slice(None, None, -1))
-    dx = float(abs(da.x[1] - da.x[0])) if da.sizes["x"] > 1 else 0.0
-    dy = float(abs(da.y[1] - da.y[0])) if da.sizes["y"] > 1 else 0.0
-    units = str(da.attrs.get("units", ""))
+    cells = []
+    for d in ("x", "y"):
+        c = np.asarray(da[d].values, float)
+        if c.size > 1:
+            dc = np.diff(c)
+            step = (c[-1] - c[0]) / (c.size - 1)
+            if not np.all(np.isfinite(c)) or step <= 0 or np.max(np.abs(dc - step)) > 0.01 * step:
+                raise InputError(f"{p}: {d} coordinates are not regularly spaced (irregular grids are not supported)")
+            cells.append(float(step))
+        else:
+            cells.append(0.0)
+    crs_wkt, crs_note = "", ""
+    wkt = gm_attrs.get("crs_wkt") or gm_attrs.get("spatial_ref")
+    if wkt:
+        crs_wkt = str(wkt)
+    elif gm_attrs.get("grid_mapping_name"):
+        try:
+            from pyproj import CRS
+
+            crs_wkt = CRS.from_cf(gm_attrs).to_wkt()
+        except Exception:  # noqa: BLE001 - incomplete CF grid mapping
+            crs_wkt = ""
+    if crs_wkt:
+        from pyproj import CRS
+
+        try:
+            geographic = CRS.from_user_input(crs_wkt).is_geographic
+        except Exception:  # noqa: BLE001
+            crs_wkt = ""
+    if not crs_wkt and geographic:
+        crs_note = "no CRS in the file: geographic coordinates taken as WGS84 (EPSG:4326)"
+    kind = "geographic" if geographic else ("projected" if crs_wkt else "local_metric")
+    node_offset = vattrs.get("node_offset", gattrs.get("node_offset"))
+    if node_offset is not None:
+        try:
+            reg = "pixel" if int(np.asarray(node_offset).ravel()[0]) == 1 else "gridline"
+        except (TypeError, ValueError):
+            reg = "gridline"
+        reg_src = "node_offset attribute (GMT)"
+    else:
+        reg, reg_src = "gridline", "COARDS/CF coordinates are the values' positions"
     da = da.reset_coords(drop=True)
-    da.attrs = {"crs_kind": "geographic" if geographic else "projected", "crs_wkt": "", "cell_size_x": dx,
-                "cell_size_y": dy, "units": units, "source": str(p)}
+    attrs = {"crs_kind": kind, "crs_wkt": crs_wkt, "cell_size_x": cells[0], "cell_size_y": cells[1],
+             "units": str(vattrs.get("units", "")), "source": str(p), "format": fmt, "reader": reader_of("netcdf"),
+             "registration": reg, "registration_source": reg_src, "var_name": var_name, "nodata": ""}
+    if crs_note:
+        attrs["crs_note"] = crs_note
+    for k in ("positive", "standard_name", "long_name"):
+        if k in vattrs:
+            attrs[k] = str(vattrs[k])
+    da.attrs = attrs
     da.name = "z"
     return da
+
+
+def _read_old_gmt(p: Path, ds: xr.Dataset) -> xr.DataArray:
+    """GMT's pre-COARDS netCDF grid: 1-D ``z`` (rows from the north) with ``x_range``, ``y_range``,
+    ``spacing``, ``dimension`` and ``z`` attribute ``node_offset``."""
+    try:
+        nx, ny = (int(v) for v in np.asarray(ds["dimension"].values).ravel()[:2])
+        x0, x1 = (float(v) for v in np.asarray(ds["x_range"].values).ravel()[:2])
+        y0, y1 = (float(v) for v in np.asarray(ds["y_range"].values).ravel()[:2])
+        z = np.asarray(ds["z"].values, np.float64)
+        off = int(ds["z"].attrs.get("node_offset", 0))
+        zattrs = dict(ds["z"].attrs)
+    except Exception as exc:  # noqa: BLE001
+        raise InputError(f"{p}: malformed GMT netCDF grid ({exc})") from None
+    if z.size != nx * ny or nx < 2 or ny < 2:
+        raise InputError(f"{p}: GMT grid z has {z.size} values, dimension says {nx} x {ny}")
+    dx = (x1 - x0) / (nx - off if off else nx - 1)
+    dy = (y1 - y0) / (ny - off if off else ny - 1)
+    h = 0.5 if off else 0.0
+    x = x0 + (np.arange(nx) + h) * dx
+    y = y0 + (np.arange(ny) + h) * dy
+    a = z.reshape(ny, nx)[::-1, :]
+    a = np.where(np.isfinite(a), a, np.nan)
+    xu = str(ds["x_range"].attrs.get("units", "")).lower()
+    geographic = xu.startswith("degree") or (-360 <= x0 < x1 <= 360 and -90 <= y0 < y1 <= 90)
+    attrs = {"crs_kind": "geographic" if geographic else "local_metric", "crs_wkt": "", "cell_size_x": dx,
+             "cell_size_y": dy, "units": str(zattrs.get("units", "")), "source": str(p),
+             "format": "GMT netCDF (old 1-D layout)", "reader": reader_of("netcdf"),
+             "registration": "pixel" if off else "gridline", "registration_source": "node_offset attribute (GMT)",
+             "var_name": "z", "nodata": ""}
+    for k in ("positive", "standard_name", "long_name"):
+        if k in zattrs:
+            attrs[k] = str(zattrs[k])
+    return xr.DataArray(np.ascontiguousarray(a), dims=("y", "x"), coords={"x": x, "y": y}, name="z", attrs=attrs)
 
 
 # ------------------------------------------------------------------ GSF
@@ -363,6 +847,10 @@ def read_gsf(path: str | Path, *, include_flagged: bool = False) -> pd.DataFrame
     whereas libgsf's ``gsfSwathBathyPing`` stores latitude first, so the Python field named
     ``longitude`` holds the latitude; we read them swapped (checked on the Okeanos Explorer EX1604
     file: 8.71 N 167.48 E, Kwajalein).
+
+    ``attrs``: ``reader`` ("gsfpy <version>"), ``format``, ``pings``, ``beams_per_ping``, ``soundings``,
+    ``dropped`` (flagged or null beams), ``time_start``/``time_end`` (ISO 8601 UTC). A file with no swath
+    bathymetry ping, or one libgsf cannot read (truncated, corrupt), is a one-line :class:`InputError`.
     """
     p = _require_file(path, "GSF")
     try:
@@ -378,6 +866,8 @@ def read_gsf(path: str | Path, *, include_flagged: bool = False) -> pd.DataFrame
         f = open_gsf(p)
     except GsfException as exc:
         raise InputError(f"{p}: cannot open GSF ({exc.error_message})") from None
+    beams_max = dropped = 0
+    times: list[float] = []
     with f:
         k = 0
         while True:
@@ -391,6 +881,8 @@ def read_gsf(path: str | Path, *, include_flagged: bool = False) -> pd.DataFrame
             n = int(ping.number_beams)
             if n <= 0 or not ping.depth:
                 continue
+            beams_max = max(beams_max, n)
+            times.append(ping.ping_time.tv_sec + 1e-9 * ping.ping_time.tv_nsec)
             lat0, lon0 = float(ping.longitude), float(ping.latitude)  # swapped, see docstring
             depth = np.ctypeslib.as_array(ping.depth, shape=(n,)).astype(np.float64)
             across = np.ctypeslib.as_array(ping.across_track, shape=(n,)).astype(np.float64) \
@@ -411,8 +903,20 @@ def read_gsf(path: str | Path, *, include_flagged: bool = False) -> pd.DataFrame
             lats.append(la[keep])
             deps.append(depth[keep])
             pings.append(np.full(int(keep.sum()), k, dtype=np.int32))
+            dropped += n - int(keep.sum())
             k += 1
+    if k == 0:
+        raise InputError(f"{p}: GSF file contains no bathymetry pings")
     if not deps or sum(len(d) for d in deps) == 0:
         raise InputError(f"{p}: no valid soundings in the GSF file")
-    return pd.DataFrame({"longitude_deg": np.concatenate(lons), "latitude_deg": np.concatenate(lats),
-                         "depth_m": np.concatenate(deps), "ping": np.concatenate(pings)})
+    df = pd.DataFrame({"longitude_deg": np.concatenate(lons), "latitude_deg": np.concatenate(lats),
+                       "depth_m": np.concatenate(deps), "ping": np.concatenate(pings)})
+    import importlib.metadata as md
+
+    from hadal.grid.sonar import _iso
+
+    df.attrs.update({"reader": f"gsfpy {md.version('gsfpy')}", "format": "gsf", "pings": k,
+                     "beams_per_ping": beams_max, "soundings": len(df), "dropped": dropped,
+                     "crs_kind": "geographic", "z_positive": "down",
+                     "time_start": _iso(min(times)), "time_end": _iso(max(times))})
+    return df

@@ -18,7 +18,8 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-__all__ = ["clean_times", "align_linear", "align_nearest", "align_sensor"]
+__all__ = ["clean_times", "align_linear", "align_nearest", "align_sensor", "plausible_window", "time_unit_hint",
+           "overlap_stats", "out_of_range", "describe_offset", "iso_ns"]
 
 
 def clean_times(time_ns: np.ndarray, values: dict[str, np.ndarray]) -> tuple[np.ndarray, dict[str, np.ndarray], dict[str, int]]:
@@ -107,3 +108,89 @@ def align_sensor(base_ns: np.ndarray, t_ns: np.ndarray, values: dict[str, np.nda
         out[var] = a
         stats["missing_after_alignment"][var] = int(np.count_nonzero(~np.isfinite(a)))
     return out, stats
+
+
+# --------------------------------------------------------------------------------------------------------------
+# time sanity: plausible range, unit guesses, overlap with the time base
+# --------------------------------------------------------------------------------------------------------------
+
+#: earliest plausible sample time (ns since the Unix epoch): 1980-01-01T00:00:00Z
+PLAUSIBLE_START_NS = 315_532_800 * 1_000_000_000
+#: latest plausible sample time: now + this (ns)
+PLAUSIBLE_FUTURE_NS = 86_400 * 1_000_000_000
+_NAT = np.iinfo(np.int64).min
+
+#: unit -> ns per unit (for unit guesses)
+_UNITS = (("seconds", "unix_s", 1e9), ("milliseconds", "unix_ms", 1e6), ("microseconds", "unix_us", 1e3),
+          ("nanoseconds", "unix_ns", 1.0))
+
+
+def plausible_window() -> tuple[int, int]:
+    """(start, end) in ns since the epoch of plausible data times: 1980-01-01 .. now + 1 day."""
+    import time
+
+    return PLAUSIBLE_START_NS, time.time_ns() + PLAUSIBLE_FUTURE_NS
+
+
+def iso_ns(t: int) -> str:
+    """``YYYY-MM-DDTHH:MM:SSZ`` of ns since the epoch (any int64)."""
+    return str(np.datetime64(int(t), "ns").astype("datetime64[s]")) + "Z"
+
+
+def time_unit_hint(raw: np.ndarray | float, declared: str) -> str | None:
+    """A guess of the real unit of numeric times that are implausible in their ``declared`` unit
+    (``unix_ns``/``unix_ms``/``unix_s``): ``"looks like milliseconds since 1970 (unix_ms), not nanoseconds"``;
+    ``None`` when no unit makes the median value plausible. ``raw``: the numbers as logged."""
+    scale = {"unix_ns": 1.0, "unix_ms": 1e6, "unix_s": 1e9, "log_time": 1.0}.get(declared)
+    if scale is None:
+        return None
+    x = np.asarray(raw, dtype=np.float64).ravel()
+    x = x[np.isfinite(x)]
+    if x.size == 0:
+        return None
+    med = float(np.median(x))
+    lo, hi = plausible_window()
+    name_of = {s: n for n, _, s in _UNITS}
+    for name, fmt, s in _UNITS:
+        if s != scale and lo <= med * s <= hi:
+            return (f"looks like {name} since 1970 ({fmt}), not {name_of.get(scale, declared)}"
+                    f" (median {med:.6g} -> {iso_ns(int(med * s))})")
+    return None
+
+
+def out_of_range(t_ns: np.ndarray, lo: int, hi: int) -> np.ndarray:
+    """Mask of times outside [lo, hi] (NaT counts as outside)."""
+    t = np.asarray(t_ns, dtype=np.int64)
+    return (t < lo) | (t > hi) | (t == _NAT)
+
+
+def overlap_stats(base_ns: np.ndarray, t_ns: np.ndarray) -> dict[str, float]:
+    """How a sensor's time span overlaps the time base's: ``overlap`` (fraction of the time base's span
+    covered by the sensor's span, 0..1), ``offset_s`` (sensor start - time-base start) and
+    ``midpoint_offset_s`` (sensor span midpoint - time-base span midpoint). Both arrays sorted."""
+    b0, b1 = int(base_ns[0]), int(base_ns[-1])
+    s0, s1 = int(t_ns[0]), int(t_ns[-1])
+    span = b1 - b0
+    inter = max(0, min(b1, s1) - max(b0, s0))
+    if span > 0:
+        frac = inter / span
+    else:
+        frac = 1.0 if s0 <= b0 <= s1 else 0.0
+    return {"overlap": float(frac), "offset_s": (s0 - b0) / 1e9,
+            "midpoint_offset_s": ((s0 + s1) / 2 - (b0 + b1) / 2) / 1e9}
+
+
+def describe_offset(offset_s: float, hint: bool = True) -> str:
+    """``+1 h 00 min`` style text of an offset; a time-zone hint when it is close to whole hours."""
+    sign = "+" if offset_s >= 0 else "-"
+    a = abs(offset_s)
+    if a < 120:
+        txt = f"{sign}{a:.1f} s"
+    elif a < 2 * 86400:
+        txt = f"{sign}{int(a // 3600)} h {int(a % 3600 // 60):02d} min"
+    else:
+        txt = f"{sign}{a / 86400:.1f} days"
+    hours = a / 3600
+    if hint and 0.9 <= hours <= 14.5 and abs(hours - round(hours * 2) / 2) < 0.02:
+        txt += " (a whole number of hours: a time-zone or clock setting?)"
+    return txt

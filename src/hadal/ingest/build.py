@@ -18,13 +18,15 @@ import yaml
 
 from hadal.errors import InputError
 from hadal.ingest.align import align_sensor, clean_times
+from hadal.ingest.cnv import SEASOFT_BAD_SCAN
 from hadal.ingest.csv_reader import SensorSamples, read_sensor_csv, sensor_from_records
-from hadal.ingest.mcap_reader import read_mcap
+from hadal.ingest.mcap_reader import mcap_info, read_mcap
 from hadal.ingest.qc import VariableQC, fail_fraction, qc_table
 from hadal.ingest.units import CANONICAL_UNITS
 from hadal.ingest.vehicle import VehicleConfig
 
-__all__ = ["SENSOR_VARIABLES", "sensors_schema", "read_mcap_sensors", "read_csv_sensors", "read_cnv_sensors", "build_sensor_table",
+__all__ = ["SENSOR_VARIABLES", "sensors_schema", "read_mcap_sensors", "read_csv_sensors", "read_cnv_sensors", "read_cast", "cast_metadata",
+           "is_profile", "build_profile_table", "build_sensor_table",
            "validate_sensor_table"]
 
 #: the variables of ``sensors.parquet`` in column order (architecture.md)
@@ -33,12 +35,13 @@ SENSOR_VARIABLES: tuple[str, ...] = tuple(CANONICAL_UNITS)
 
 @lru_cache(maxsize=1)
 def _schema_path() -> Path:
-    here = Path(__file__).resolve()
-    for parent in here.parents:
-        p = parent / "schemas" / "sensors.yaml"
-        if p.is_file():
-            return p
-    raise InputError("schemas/sensors.yaml (the sensors product contract) was not found next to the hadal sources")
+    """``schemas/sensors.yaml``, shipped as package data of ``hadal.schemas`` (read with importlib.resources)."""
+    from importlib.resources import files
+
+    p = files("hadal.schemas") / "sensors.yaml"
+    if not p.is_file():
+        raise InputError("hadal.schemas/sensors.yaml (the sensors product contract) is missing from the installation")
+    return Path(str(p))
 
 
 @lru_cache(maxsize=1)
@@ -62,12 +65,42 @@ def field_metadata() -> dict[str, dict[str, str]]:
     return out
 
 
+def check_ros2_mapping(file: str, tp: Any, mapping: Any, sensor: str) -> None:
+    """Mapping validation against a ROS 2 (CDR) topic's schema: every field mapped to a numeric variable must be
+    a numeric primitive (``int*``/``uint*``/``float*``, or one element ``a.0`` of a numeric array); a ``bool``,
+    a ``string``, a whole array or a sub-message is a one-line :class:`InputError` naming the field, its ROS 2
+    type and the variable. A ``unix_*`` time field must be numeric too (``ros_time`` takes a ``Time``)."""
+    from hadal.ingest.mcap_reader import ROS2_NUMERIC, ros2_field_type
+
+    if mapping is None or tp.message_encoding != "cdr" or tp.schema_encoding != "ros2msg" or not tp.schema_data:
+        return
+    text = bytes(tp.schema_data).decode("utf-8", errors="replace")
+    checks = [(f, var) for var, fm in mapping.fields.items() for f in fm.inputs()]
+    if mapping.time.field != "log_time" and mapping.time.format.startswith("unix_"):
+        checks.append((mapping.time.field, f"time ({mapping.time.format})"))
+    for f, var in checks:
+        ftype = ros2_field_type(tp.schema_name, text, f)
+        if ftype is None:
+            continue  # not in the definition: the reader says "has no field"
+        base = ftype.split("<=", 1)[0]
+        if base in ROS2_NUMERIC:
+            continue
+        what = ("an array" if "[" in ftype else "a boolean" if base == "bool" else
+                "a string" if base in ("string", "wstring") or base.startswith("string") else "a sub-message")
+        hint = (f"; map one element ('{f}.0')" if "[" in ftype and ftype.split("[", 1)[0] in ROS2_NUMERIC
+                else "; map one of its numeric fields ('" + f + ".<field>')" if what == "a sub-message" else "")
+        raise InputError(f"{file}: vehicle config maps {sensor}'s {var} to field {f!r} of topic {tp.topic}, "
+                         f"which is {what} ({ftype}) in the ROS 2 schema {tp.schema_name}: only numeric fields "
+                         f"(int*, uint*, float*) can give a numeric variable{hint}")
+
+
 def read_mcap_sensors(paths: Sequence[str | Path], vehicle: VehicleConfig
                       ) -> tuple[dict[str, SensorSamples], list[dict[str, Any]]]:
     """Read every sensor with an ``mcap`` mapping from the MCAP files (their messages are concatenated).
 
     Returns the samples and one :class:`McapReport` dict per file. A required sensor whose topic is in
-    none of the files is an :class:`InputError`; an optional one is left out with a warning.
+    none of the files is an :class:`InputError`; an optional one is left out with a warning. Files holding
+    no message on any mapped topic are a one-line :class:`InputError` ("nothing to ingest").
     """
     topics = {s.mcap.topic: name for name, s in vehicle.sensors.items() if s.mcap is not None}
     per_topic: dict[str, list[tuple[np.ndarray, list[dict[str, Any]], str]]] = {}
@@ -76,10 +109,22 @@ def read_mcap_sensors(paths: Sequence[str | Path], vehicle: VehicleConfig
         data, report = read_mcap(p, topics, warn=True)
         reports.append(report.as_dict())
         for topic, tp in data.items():
+            check_ros2_mapping(Path(p).name, tp, vehicle.sensors[topics[topic]].mcap, topics[topic])
             if tp.messages:
                 per_topic.setdefault(topic, []).append((tp.log_time_ns, tp.messages, Path(p).name))
     out: dict[str, SensorSamples] = {}
     names = ", ".join(Path(p).name for p in paths)
+    if topics and paths and not per_topic:
+        # no mapped channel at all (e.g. a ROS talker bag of std_msgs/String): one clear line, nothing to ingest
+        have = sorted({c["topic"] for p in paths for c in mcap_info(p) if c["messages"]})
+        want = sorted(topics)
+        req = [n for n, s in vehicle.sensors.items() if s.required and s.mcap is not None]
+        raise InputError(
+            f"{names}: no messages on any of the vehicle config's MCAP topics ({', '.join(want[:6])}"
+            f"{', ...' if len(want) > 6 else ''}); the file(s) hold {', '.join(have[:8]) or 'no messages'}"
+            f"{', ...' if len(have) > 8 else ''} - nothing to ingest"
+            f"{' (missing required channel: ' + ', '.join(req) + ')' if req else ''}; check vehicle.yaml "
+            "(hadal init suggests one)")
     for name, s in vehicle.sensors.items():
         if s.mcap is None:
             if s.required:
@@ -117,23 +162,250 @@ def read_csv_sensors(files: Mapping[str, Path], vehicle: VehicleConfig) -> dict[
     return out
 
 
+#: header metadata of a cast carried into the table metadata (``cast``) of ``sensors`` / ``casts``
+CAST_ATTRS = ("source", "format", "compression", "instrument", "instrument_serial", "latitude_deg", "longitude_deg",
+              "position_source", "start_time_utc", "start_time_note", "nmea_utc", "interval", "binned", "bad_flag",
+              "bad_values", "processing", "sensors", "sensors_xml", "channel_latitude_deg", "user_header",
+              "nquan", "nvalues_declared", "nvalues", "truncated", "rows_dropped", "time_channels")
+
+
+def cast_metadata(attrs: Mapping[str, Any]) -> dict[str, Any]:
+    """The JSON-serialisable header metadata of a read cast (:data:`CAST_ATTRS` present in ``attrs``)."""
+    return {k: attrs.get(k) for k in CAST_ATTRS if k in attrs}
+
+
+def read_cast(path: str | Path, name: str = "ctd") -> tuple[SensorSamples, dict[str, Any]]:
+    """One Sea-Bird cast (.cnv, compressed or not, or raw .hex: :func:`hadal.ingest.cnv.read_seabird`) as the
+    CTD's samples and its header metadata. A cast without a time channel gives NaT times (a profile)."""
+    from hadal.ingest.cnv import cnv_sensor_samples, read_seabird
+
+    df = read_seabird(path)
+    try:
+        s = cnv_sensor_samples(df, name, allow_no_time=True)
+    except InputError as exc:
+        msg = str(exc)
+        raise InputError(msg if str(path) in msg else f"{path}: {msg}") from None
+    return s, cast_metadata(df.attrs)
+
+
+def is_profile(s: SensorSamples) -> bool:
+    """True for samples without a time base (pressure-binned cast: every time NaT)."""
+    return bool(len(s)) and bool(np.all(s.time_ns == np.iinfo(np.int64).min))
+
+
 def read_cnv_sensors(paths: Sequence[str | Path], vehicle: VehicleConfig) -> dict[str, SensorSamples]:
     """CTD casts from Sea-Bird ``.cnv`` files as the time-base sensor (the other sensors stay empty, flag 9).
-    Several files are concatenated (their times must not overlap; duplicates are dropped by alignment)."""
-    from hadal.ingest.cnv import cnv_sensor_samples, read_cnv
-
+    Several files are concatenated (their times must not overlap; duplicates are dropped by alignment);
+    casts without a time channel cannot be concatenated (ingest puts each in ``casts``)."""
     if not paths:
         raise InputError("no .cnv files to read")
-    parts = [cnv_sensor_samples(read_cnv(p), vehicle.time_base) for p in paths]
+    parts = [read_cast(p, vehicle.time_base)[0] for p in paths]
     if len(parts) == 1:
         return {vehicle.time_base: parts[0]}
+    if any(is_profile(x) for x in parts):
+        raise InputError(f"{', '.join(str(p) for p in paths)}: casts without a time channel cannot be merged "
+                         "into one time series")
     first = parts[0]
+    keys = list(first.values) + ([SEASOFT_BAD_SCAN] if SEASOFT_BAD_SCAN not in first.values
+                                 and any(SEASOFT_BAD_SCAN in x.values for x in parts) else [])
     merged = SensorSamples(
         vehicle.time_base, np.concatenate([x.time_ns for x in parts]),
-        {k: np.concatenate([x.values[k] for x in parts]) for k in first.values},
+        {k: np.concatenate([x.values.get(k, np.zeros(len(x))) for x in parts]) for k in keys},
         "+".join(x.source for x in parts), {"files": [x.stats for x in parts]},
         [c for x in parts for c in x.conversions])
     return {vehicle.time_base: merged}
+
+
+#: the variables a Sea-Bird cast provides, which SeaSoft's scan flags apply to
+SEASOFT_FLAGGED_VARIABLES = ("pressure_ctd_dbar", "temperature_its90_degc", "conductivity_s_m")
+
+
+def apply_seasoft_flags(flags: dict[str, np.ndarray], counts: dict[str, dict[str, int]], bad: np.ndarray | None,
+                        meta: dict[str, Any], source: str) -> None:
+    """QARTOD flag 4 (bad) on the CTD variables of the scans SeaSoft marked bad (``flag`` channel, see
+    :func:`hadal.ingest.cnv.seasoft_bad_scans`): the rows stay (nothing is deleted), missing values keep flag 9.
+    Updates ``flags``/``counts`` in place and records ``meta["seasoft_flags"]``."""
+    if bad is None:
+        return
+    b = np.asarray(bad, np.float64) > 0.5
+    for var in SEASOFT_FLAGGED_VARIABLES:
+        f = flags[f"{var}_qc"]
+        f[b & (f != 9)] = 4
+        vals, n = np.unique(f, return_counts=True)
+        counts[var] = {str(int(k)): int(c) for k, c in zip(vals, n, strict=True)}
+    meta["seasoft_flags"] = {"scans_flagged": int(b.sum()), "scans": int(b.size), "qartod_flag": 4,
+                             "variables": list(SEASOFT_FLAGGED_VARIABLES), "source": source,
+                             "rule": "scans whose SeaSoft 'flag' channel is non-zero or bad_flag (LoopEdit, "
+                                     "WildEdit ...) are flagged 4, not deleted"}
+    if b.any():
+        warnings.warn(f"{source}: {int(b.sum())} of {b.size} scans marked bad by SeaSoft (flag channel): "
+                      "QARTOD flag 4 on the CTD variables", stacklevel=3)
+
+
+def build_profile_table(samples: SensorSamples, qc: Mapping[str, VariableQC] | None = None
+                        ) -> tuple[pd.DataFrame, dict[str, Any]]:
+    """The ``sensors`` table of a cast without a time base (pressure-binned): one row per bin in file (pressure)
+    order, ``time`` all NaT (no time is invented), the CTD columns from the cast, every other variable NaN
+    (flag 9). QC: gross range as usual; the spike test runs on the sample (bin) index; the flat-line test needs
+    time and is not evaluated (it contributes flag 2, i.e. nothing, to the aggregate). Table metadata
+    ``time_base`` = :data:`hadal.ingest.cnv.NO_TIME_BASE`."""
+    from hadal.ingest.cnv import NO_TIME_BASE
+    from hadal.ingest.qc import DEFAULT_QC
+
+    qc = {**DEFAULT_QC, **(qc or {})}
+    n = len(samples)
+    if n < 2:
+        raise InputError(f"{samples.source}: only {n} sample(s) in the cast")
+    columns: dict[str, np.ndarray] = {}
+    meta: dict[str, Any] = {"time_base": NO_TIME_BASE, "time_base_rate_hz": None, "alignment": {}, "notes": [],
+                            "unit_conversions": list(samples.conversions), "non_finite_values": {},
+                            "read_stats": {samples.name: samples.stats}}
+    for var in SENSOR_VARIABLES:
+        v = samples.values.get(var)
+        if v is None:
+            columns[var] = np.full(n, np.nan)
+            continue
+        bad = np.isinf(v)
+        if bad.any():
+            meta["non_finite_values"][var] = int(bad.sum())
+            v = np.where(bad, np.nan, v)
+        cfg = qc.get(var)
+        if cfg is not None and (ff := fail_fraction(v, cfg)) > cfg.max_fail_fraction:
+            lo, hi = sorted(cfg.fail_span or (np.nan, np.nan))
+            raise InputError(f"{samples.source}: {ff:.0%} of {var} values are outside the plausible range "
+                             f"[{lo:g}, {hi:g}] {CANONICAL_UNITS[var]} - wrong units?")
+        columns[var] = v
+    meta["alignment"][samples.name] = {"source": samples.source, "samples": n, "method": "profile (no time base)"}
+    no_flat = {k: v.model_copy(update={"flat_line_suspect_s": None}) for k, v in qc.items()}
+    index_ns = np.arange(n, dtype=np.int64) * 1_000_000_000  # sample index (the spike test only uses order)
+    flags, counts = qc_table({v: columns[v] for v in SENSOR_VARIABLES}, index_ns, no_flat)
+    apply_seasoft_flags(flags, counts, samples.values.get(SEASOFT_BAD_SCAN), meta, samples.source)
+    meta["qc_counts"] = counts
+    meta["qc_note"] = ("profile without time: gross range as usual, spike test on the bin index, flat-line test "
+                       "not evaluated")
+    df = pd.DataFrame({"time": pd.Series(pd.NaT, index=range(n), dtype="datetime64[ns, UTC]")})
+    for var in SENSOR_VARIABLES:
+        df[var] = columns[var].astype(np.float64)
+    for var in SENSOR_VARIABLES:
+        df[f"{var}_qc"] = flags[f"{var}_qc"].astype(np.uint8)
+    validate_sensor_table(df, profile=True)
+    return df, meta
+
+
+#: a sensor whose time span covers less than this fraction of the time base's is warned about
+MIN_OVERLAP = 0.5
+#: data times expected within [launch - 1 day, launch + 30 days] when dive.yaml gives launch.time_utc
+LAUNCH_WINDOW_S = (86_400.0, 30 * 86_400.0)
+_TIME_SCALE = {"unix_ns": 1.0, "unix_ms": 1e6, "unix_s": 1e9}
+
+
+def rejected_summary(sensors: Mapping[str, SensorSamples], meta: dict[str, Any]) -> None:
+    """``meta["rejected_samples"]``: per sensor, the samples the readers rejected for a value that is not a
+    number, with the per-field counts (``{"ctd": {"samples": 3, "fields": {"temp": {...}}}}``)."""
+    out: dict[str, Any] = {}
+    for name, s in sensors.items():
+        st = s.stats if isinstance(s.stats, dict) else {}
+        parts = st.get("files") if isinstance(st.get("files"), list) else [st]
+        n = sum(int(x.get("rejected_samples", 0) or 0) for x in parts if isinstance(x, dict))
+        if n:
+            fields: dict[str, Any] = {}
+            for x in parts:
+                for f, d in (x.get("rejected_values") or {}).items():
+                    fields.setdefault(f, {"variable": d.get("variable"), "count": 0})["count"] += int(d["count"])
+            out[name] = {"samples": n, "source": s.source, "fields": fields}
+            meta.setdefault("notes", []).append(
+                f"{name}: {n} sample(s) rejected for a value that is not a number ("
+                + ", ".join(f"{f} {d['count']}" for f, d in fields.items()) + ")")
+    meta["rejected_samples"] = out
+
+
+class _TimeChecks:
+    """Time sanity of the sensor streams (see :func:`build_sensor_table`); fills ``meta["time_checks"]``."""
+
+    def __init__(self, meta: dict[str, Any], launch_ns: int | None, window_s: tuple[float, float]):
+        from hadal.ingest.align import iso_ns, plausible_window
+
+        self.meta, self.launch_ns = meta, launch_ns
+        self.lo, self.hi = plausible_window()
+        self.before_s, self.after_s = float(window_s[0]), float(window_s[1])
+        self.tc: dict[str, Any] = {"plausible_range": [iso_ns(self.lo), iso_ns(self.hi)], "implausible": {},
+                                   "launch_time": iso_ns(launch_ns) if launch_ns is not None else None,
+                                   "launch_window_s": [-self.before_s, self.after_s] if launch_ns is not None else None,
+                                   "outside_launch_window": {}, "overlap": {}}
+        meta["time_checks"] = self.tc
+
+    def _loud(self, text: str) -> None:
+        warnings.warn(text, stacklevel=4)
+        self.meta["notes"].append(text)
+
+    def plausible(self, name: str, s: SensorSamples, required: bool) -> SensorSamples:
+        """Drop (count, flag) sample times outside 1980 .. now + 1 day; InputError when they are >= half."""
+        from hadal.ingest.align import iso_ns, out_of_range, time_unit_hint
+
+        if len(s) == 0:
+            return s
+        bad = out_of_range(s.time_ns, self.lo, self.hi)
+        if not bad.any():
+            return s
+        n, tot = int(bad.sum()), len(s)
+        tb = s.time_ns[bad]
+        span = f"{iso_ns(int(tb.min()))} .. {iso_ns(int(tb.max()))}"
+        st = s.stats if isinstance(s.stats, dict) else {}
+        fmt, fld = st.get("time_format"), st.get("time_field")
+        hint = None
+        if fmt in _TIME_SCALE:
+            hint = time_unit_hint(tb / _TIME_SCALE[fmt], "log_time" if fld == "log_time" else fmt)
+        where = f"{fld!r} ({fmt})" if fld and fld != "log_time" else ("log_time" if fld == "log_time" else "time")
+        rng = f"{self.tc['plausible_range'][0][:10]} .. {self.tc['plausible_range'][1][:10]}"
+        if n * 2 >= tot:
+            raise InputError(f"{s.source}: {n} of {tot} {name} sample time(s) lie outside the plausible range {rng} "
+                             f"({span})" + (f"; {where} {hint}" if hint else "; check the time field/format in "
+                                            "the vehicle config and the logger clock"))
+        self.tc["implausible"][name] = {"dropped": n, "of": tot, "span": span, **({"hint": hint} if hint else {})}
+        self._loud(f"{s.source}: dropped {n} of {tot} {name} sample(s) dated outside the plausible range {rng} "
+                   f"({span})" + (f"; {where} {hint}" if hint else ""))
+        keep = ~bad
+        return SensorSamples(s.name, s.time_ns[keep], {k: v[keep] for k, v in s.values.items()}, s.source,
+                             {**st, "implausible_times": n}, s.conversions)
+
+    def launch_window(self, name: str, source: str, t: np.ndarray, is_base: bool, strict: bool) -> None:
+        from hadal.ingest.align import describe_offset, iso_ns
+
+        if self.launch_ns is None or t.size == 0:
+            return
+        lo = self.launch_ns - int(self.before_s * 1e9)
+        hi = self.launch_ns + int(self.after_s * 1e9)
+        out = (t < lo) | (t > hi)
+        if not out.any():
+            return
+        n = int(out.sum())
+        first, last = int(t[0]), int(t[-1])
+        off = describe_offset((first - self.launch_ns) / 1e9)
+        text = (f"{source}: {n} of {t.size} {name} sample(s) lie outside the dive's launch window "
+                f"({iso_ns(lo)} .. {iso_ns(hi)}: dive.yaml launch.time_utc {iso_ns(self.launch_ns)} "
+                f"-{self.before_s / 3600:g} h / +{self.after_s / 86400:g} days); the data span "
+                f"{iso_ns(first)} .. {iso_ns(last)}, starting {off} from the launch")
+        self.tc["outside_launch_window"][name] = {"samples": n, "of": int(t.size), "first": iso_ns(first),
+                                                  "last": iso_ns(last), "start_offset_s": (first - self.launch_ns) / 1e9}
+        if is_base and strict and n == t.size:
+            raise InputError(text + " - wrong launch time in dive.yaml or wrong logger clock/time format")
+        self._loud(text)
+
+    def overlap(self, name: str, source: str, base_name: str, base_t: np.ndarray, t: np.ndarray,
+                min_overlap: float) -> None:
+        from hadal.ingest.align import describe_offset, overlap_stats
+
+        if t.size == 0:
+            self.tc["overlap"][name] = {"overlap": 0.0, "offset_s": None, "samples": 0}
+            self._loud(f"{source}: no {name} samples left to align: its columns are empty (flag 9)")
+            return
+        st = overlap_stats(base_t, t)
+        self.tc["overlap"][name] = st
+        if st["overlap"] < min_overlap:
+            self._loud(f"{source}: {name} overlaps the {base_name} time base by only {st['overlap']:.0%} "
+                       f"(< {min_overlap:.0%}); its data start {describe_offset(st['offset_s'])} from the time "
+                       f"base's (midpoints {describe_offset(st['midpoint_offset_s'], False)} apart): base samples outside "
+                       f"its span get NaN (flag 9) - check its clock, time zone or time format")
 
 
 def build_sensor_table(
@@ -144,23 +416,44 @@ def build_sensor_table(
     default_max_gap_s: float = 2.0,
     qc: Mapping[str, VariableQC] | None = None,
     methods: Mapping[str, str] | None = None,
+    launch_ns: int | None = None,
+    launch_window_s: tuple[float, float] | None = None,
+    strict_launch: bool = True,
+    min_overlap: float = MIN_OVERLAP,
 ) -> tuple[pd.DataFrame, dict[str, Any]]:
     """Align all sensors on the time-base sensor's samples and add QARTOD flags.
 
     Steps: non-finite values (``inf``) -> NaN (counted); per sensor sort + de-duplicate times (counted);
     unit-mistake check (more than ``max_fail_fraction`` of a variable outside its fail span ->
     :class:`InputError`); alignment with per-sensor ``max_gap_s``; ``ioos_qc`` flags; schema validation.
+
+    Time sanity (:class:`_TimeChecks`, recorded in ``meta["time_checks"]``, loud ones also in ``meta["notes"]``
+    for the report and as warnings): sample times outside the plausible range (1980 .. now + 1 day) are
+    dropped and counted, or an :class:`InputError` with a unit guess ("log_time looks like milliseconds") when
+    they are half a sensor's samples or more; with ``launch_ns`` (dive.yaml ``launch.time_utc``) times outside
+    ``[launch - before, launch + after]`` (``launch_window_s``, default :data:`LAUNCH_WINDOW_S`) are flagged,
+    and a time base entirely outside it is an :class:`InputError` when ``strict_launch``; a sensor whose span
+    covers less than ``min_overlap`` of the time base's is a warning with the measured overlap and offset.
+    Samples rejected by the readers (non-numeric values) are summed up in ``meta["rejected_samples"]``.
     """
     from hadal.ingest.qc import DEFAULT_QC
 
     qc = {**DEFAULT_QC, **(qc or {})}
     base_name = vehicle.time_base
     if base_name not in sensors or len(sensors[base_name]) == 0:
-        raise InputError(f"no samples from the time-base sensor {base_name!r}: cannot build the sensor table")
+        st = sensors[base_name].stats if base_name in sensors else {}
+        why = ""
+        if isinstance(st, dict) and (st.get("rejected_samples") or st.get("bad_times")):
+            why = (f" ({sensors[base_name].source}: {st.get('rejected_samples', 0)} sample(s) rejected for a value "
+                   f"that is not a number, {st.get('bad_times', 0)} without a valid time)")
+        raise InputError(f"no samples from the time-base sensor {base_name!r}{why}: cannot build the sensor table")
     meta: dict[str, Any] = {"time_base": base_name, "alignment": {}, "unit_conversions": [], "non_finite_values": {},
-                            "read_stats": {}}
+                            "read_stats": {}, "notes": []}
+    tc = _TimeChecks(meta, launch_ns, launch_window_s or LAUNCH_WINDOW_S)
+    rejected_summary(sensors, meta)
     cleaned: dict[str, tuple[np.ndarray, dict[str, np.ndarray]]] = {}
     for name, s in sensors.items():
+        s = tc.plausible(name, s, required=name == base_name)
         vals = {}
         for var, v in s.values.items():
             bad = np.isinf(v)
@@ -187,6 +480,10 @@ def build_sensor_table(
     base_t, base_vals = cleaned[base_name]
     if base_t.size < 2:
         raise InputError(f"{sensors[base_name].source}: only {base_t.size} sample(s) from the time-base sensor")
+    for name, (t, _) in cleaned.items():
+        tc.launch_window(name, sensors[name].source, t, is_base=name == base_name, strict=strict_launch)
+        if name != base_name:
+            tc.overlap(name, sensors[name].source, base_name, base_t, t, min_overlap)
     dt = np.diff(base_t) / 1e9
     meta["time_base_rate_hz"] = float(1.0 / np.median(dt)) if np.median(dt) > 0 else None
     columns: dict[str, np.ndarray] = {}
@@ -212,6 +509,7 @@ def build_sensor_table(
         if var not in columns:
             columns[var] = np.full(n, np.nan)
     flags, counts = qc_table({v: columns[v] for v in SENSOR_VARIABLES}, base_t, qc)
+    apply_seasoft_flags(flags, counts, base_vals.get(SEASOFT_BAD_SCAN), meta, sensors[base_name].source)
     meta["qc_counts"] = counts
     df = pd.DataFrame({"time": pd.to_datetime(base_t, unit="ns", utc=True)})
     for var in SENSOR_VARIABLES:
@@ -222,16 +520,22 @@ def build_sensor_table(
     return df, meta
 
 
-def validate_sensor_table(df: pd.DataFrame) -> None:
+def validate_sensor_table(df: pd.DataFrame, *, profile: bool = False) -> None:
     """Validate ``df`` against ``schemas/sensors.yaml`` with pandera (column set, dtypes, unique increasing
-    time, QC flag values); a failure is an :class:`InputError` with the first problem."""
+    time, QC flag values); a failure is an :class:`InputError` with the first problem.
+
+    ``profile``: a cast without a time base — ``time`` must then be entirely NaT (same dtype), everything
+    else as the contract says."""
     import pandera.pandas as pa
 
     sch = sensors_schema()
     cols: dict[str, Any] = {}
     flag_values = [int(v) for v in sch["qc_flag_values"]]
     for name, c in sch["columns"].items():
-        if name == "time":
+        if name == "time" and profile:
+            cols[name] = pa.Column("datetime64[ns, UTC]", nullable=True,
+                                   checks=pa.Check(lambda s: bool(s.isna().all()), error="profile time not all NaT"))
+        elif name == "time":
             cols[name] = pa.Column("datetime64[ns, UTC]", nullable=False, unique=True,
                                    checks=pa.Check(lambda s: s.is_monotonic_increasing, error="time not increasing"))
         else:

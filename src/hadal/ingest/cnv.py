@@ -32,10 +32,16 @@ import numpy as np
 import pandas as pd
 
 from hadal.errors import InputError
+from hadal.formats import detect, read_bytes
+from hadal.ingest.csv_reader import check_line_lengths
 
 log = logging.getLogger(__name__)
 
-__all__ = ["read_cnv", "parse_latlon", "cnv_time_ns", "cnv_sensor_samples", "CNV_DEFAULT_BAD_FLAG"]
+__all__ = ["read_cnv", "read_seabird", "describe_cnv", "seabird_kind", "parse_latlon", "cnv_time_ns",
+           "cnv_sensor_samples", "CNV_DEFAULT_BAD_FLAG", "NO_TIME_BASE"]
+
+#: ``time_base`` recorded for a cast without a time channel (pressure-binned): its rows are in pressure order
+NO_TIME_BASE = "none (pressure-binned cast)"
 
 CNV_DEFAULT_BAD_FLAG = -9.990e-29
 _FIELD_WIDTH = 11  # SeaSoft writes every value in an 11-character field
@@ -48,6 +54,11 @@ _UNITS_RE = re.compile(r"\[([^\]]*)\]\s*(?:,.*)?$")
 _POS_RE = re.compile(r"^\*{1,2}\s*(?:NMEA\s+)?(lat(?:itude)?|lon(?:gitude)?|long)\b\s*[:=]\s*(.+)$", re.I)
 _TIME_FORMATS = ("%b %d %Y %H:%M:%S", "%b %d %Y %H:%M", "%d %b %Y %H:%M:%S")
 _RESERVED = {"nquan", "nvalues", "units", "interval", "start_time", "bad_flag"}
+# a SeaSoft processing line: '<module>_<key>...' with a lower-case module name ('datcnv_date = ...',
+# 'loopedit_surfaceSoak: minDepth = 5.0, ...', 'wfilter_action prDM = median, 21', 'file_type = ascii')
+_PROC_RE = re.compile(r"^#\s*([a-z][a-z0-9]*_[A-Za-z0-9_]+)(.*)$")
+# channel notes after the units: '[salt water, m], lat = 69.41', '[ml/l], WS = 2', 'minP = 0, minS = 0'
+_NOTE_RE = re.compile(r"([A-Za-z][A-Za-z0-9_ ]*?)\s*=\s*([^,]+)")
 
 
 def parse_latlon(text: str, *, is_latitude: bool) -> float | None:
@@ -115,10 +126,108 @@ def _unique_names(names: Sequence[str]) -> list[str]:
     return out
 
 
+def _processing_line(s: str) -> list[str] | None:
+    """``[key, value]`` of a SeaSoft processing line, or ``None`` when ``s`` is not one."""
+    m = _PROC_RE.match(s)
+    if not m:
+        return None
+    key, rest = m.group(1), m.group(2).strip()
+    if rest.startswith("="):
+        return [key, rest[1:].strip()]
+    if rest.startswith(":"):
+        return [key, rest[1:].strip()]
+    if "=" in rest:  # 'wfilter_action prDM = median, 21'
+        sub, val = rest.split("=", 1)
+        return [f"{key} {sub.strip()}".strip(), val.strip()]
+    return [key, rest]
+
+
+def _num(text: str | None) -> float | str | None:
+    if text is None:
+        return None
+    t = text.strip()
+    try:
+        v = float(t)
+    except ValueError:
+        return t
+    return v if math.isfinite(v) else t
+
+
+def _parse_sensors_xml(lines: list[str]) -> tuple[list[dict[str, Any]] | None, str | None]:
+    """The ``# <Sensors count=..>`` block (SeaSoft 7 .xmlcon copy) as one dict per ``<sensor Channel=..>``:
+    ``channel``, ``type`` (element name, e.g. ``TemperatureSensor``), ``sensor_id``, ``serial_number``,
+    ``calibration_date``, ``description`` (the ``<!-- Frequency 0, Temperature -->`` comment) and
+    ``coefficients`` (numeric leaves, nested ones as ``Coefficients[equation=1].G``). ``(None, error)``
+    when the block is not well-formed XML."""
+    import xml.etree.ElementTree as ET
+
+    text = "\n".join(lines)
+    try:
+        parser = ET.XMLParser(target=ET.TreeBuilder(insert_comments=True))
+        root = ET.fromstring(text, parser=parser)
+    except ET.ParseError as exc:
+        return None, f"sensor XML block is not well-formed ({exc})"
+    out: list[dict[str, Any]] = []
+    for sen in root.iter("sensor"):
+        ch = sen.get("Channel")
+        d: dict[str, Any] = {"channel": int(ch) if ch and ch.strip().isdigit() else ch, "type": None, "sensor_id": None,
+                             "serial_number": None, "calibration_date": None, "description": None,
+                             "coefficients": {}}
+        for child in sen:
+            if child.tag is ET.Comment:
+                d["description"] = (child.text or "").strip() or None
+                continue
+            d["type"] = child.tag
+            d["sensor_id"] = _num(child.get("SensorID"))
+
+            def walk(el: Any, prefix: str, d: dict[str, Any] = d) -> None:
+                for sub in el:
+                    if sub.tag is ET.Comment:
+                        continue
+                    tag = sub.tag
+                    if tag == "SerialNumber":
+                        d["serial_number"] = (sub.text or "").strip() or None
+                    elif tag == "CalibrationDate":
+                        d["calibration_date"] = (sub.text or "").strip() or None
+                    elif len(sub):
+                        label = tag + "".join(f"[{k}={v}]" for k, v in sub.attrib.items())
+                        walk(sub, f"{prefix}{label}.", d)
+                    else:
+                        d["coefficients"][prefix + tag] = _num(sub.text)
+
+            walk(child, "")
+        out.append(d)
+    return out, None
+
+
+def _channel_notes(long_name: str) -> dict[str, Any]:
+    """``key = value`` notes after a channel's units (``lat = 69.41``, ``WS = 2``), values numeric when they can be."""
+    i = long_name.rfind("]")
+    tail = long_name[i + 1:] if i >= 0 else ""
+    return {m.group(1).strip(): _num(m.group(2)) for m in _NOTE_RE.finditer(tail)}
+
+
+def _is_label_line(line: str) -> bool:
+    """A line of column labels right after ``*END*`` (no token is a number; some tools write one): not data."""
+    toks = line.split()
+    if not toks:
+        return False
+    for t in toks:
+        try:
+            float(t)
+            return False
+        except ValueError:
+            continue
+    return True
+
+
 def _parse_rows(lines: list[str], nquan: int, path: Path, first_line_no: int) -> tuple[np.ndarray, list[int]]:
     """Numeric rows; a line with the wrong token count is re-read as 11-character fields (SeaSoft columns
     can touch, e.g. ``-123.4567-99.12``); lines that still fail are dropped and their numbers returned."""
-    rows: list[list[float]] = []
+    # rows go into float64 blocks, not a list of Python floats (~4x the memory of the numbers)
+    blocks: list[np.ndarray] = []
+    block = np.empty((_ROW_BLOCK, nquan), dtype=np.float64)
+    n_in = 0
     bad: list[int] = []
     for i, line in enumerate(lines):
         if not line.strip():
@@ -132,11 +241,21 @@ def _parse_rows(lines: list[str], nquan: int, path: Path, first_line_no: int) ->
                 bad.append(first_line_no + i)
                 continue
         try:
-            rows.append([float(t) for t in toks])
+            block[n_in] = [float(t) for t in toks]
         except ValueError:
             bad.append(first_line_no + i)
-    arr = np.asarray(rows, dtype=np.float64).reshape(-1, nquan)
-    return arr, bad
+            continue
+        n_in += 1
+        if n_in == _ROW_BLOCK:
+            blocks.append(block)
+            block = np.empty((_ROW_BLOCK, nquan), dtype=np.float64)
+            n_in = 0
+    blocks.append(block[:n_in])
+    arr = blocks[0] if len(blocks) == 1 else np.concatenate(blocks)
+    return arr.reshape(-1, nquan), bad
+
+
+_ROW_BLOCK = 1 << 14
 
 
 def read_cnv(path: str | Path) -> pd.DataFrame:
@@ -164,13 +283,13 @@ def read_cnv(path: str | Path) -> pd.DataFrame:
     has no ``*END*`` line, no ``# name`` lines, or no readable data rows.
     """
     path = Path(path)
-    if not path.is_file():
-        raise InputError(f"{path}: CNV file does not exist")
-    raw = path.read_bytes()
+    raw, compression = read_bytes(path, "CNV")
     if not raw.strip():
         raise InputError(f"{path}: CNV file is empty")
-    text = raw.decode("latin-1")  # SeaSoft writes Windows-1252/Latin-1 (e.g. 'sigma-\xe900')
-    lines = text.replace("\r\n", "\n").replace("\r", "\n").split("\n")
+    check_line_lengths(raw, path, ".cnv header or data line")
+    # SeaSoft writes Windows-1252/Latin-1 (e.g. 'sigma-\xe900'); no whole-text copy kept beside the lines
+    lines = raw.decode("latin-1").replace("\r\n", "\n").replace("\r", "\n").split("\n")
+    del raw
     end = next((i for i, ln in enumerate(lines) if ln.strip().upper() == "*END*"), None)
     if end is None:
         raise InputError(f"{path}: not a Sea-Bird .cnv file (no '*END*' line after the header)")
@@ -184,6 +303,8 @@ def read_cnv(path: str | Path) -> pd.DataFrame:
     user: list[str] = []
     instr: list[str] = []
     comments: list[str] = []
+    xml_lines: list[str] = []
+    in_xml = False
     lat = lon = None
     lat_src = lon_src = None
     nmea_utc = None
@@ -209,8 +330,13 @@ def read_cnv(path: str | Path) -> pd.DataFrame:
             continue
         if not s.startswith("#"):
             continue
-        if re.match(r"^#\s*</?[A-Za-z!]", s):
-            continue  # XML sensor block (SeaSoft 7)
+        body = s[1:].strip()
+        if in_xml or re.match(r"^<Sensors\b", body):
+            in_xml = not body.startswith("</Sensors")
+            xml_lines.append(body)
+            continue
+        if re.match(r"^</?[A-Za-z!]", body):
+            continue  # other XML lines outside the sensor block
         m = _NAME_RE.match(s)
         if m:
             names[int(m.group(1))] = (m.group(2).strip(), m.group(3).strip())
@@ -225,6 +351,10 @@ def read_cnv(path: str | Path) -> pd.DataFrame:
             continue
         if re.match(r"^#\s*sensor\s+\d+\s*=", s):
             sensors.append(s.lstrip("#").strip())
+            continue
+        proc = _processing_line(s)
+        if proc is not None and proc[0].lower() not in _RESERVED:
+            processing.append(proc)
             continue
         m = _KV_RE.match(s)
         if m:
@@ -252,7 +382,13 @@ def read_cnv(path: str | Path) -> pd.DataFrame:
     short = [names.get(i, (f"col{i}", ""))[0] for i in range(nquan)]
     columns = _unique_names(short)
 
-    data, bad_lines = _parse_rows(lines[end + 1:], nquan, path, end + 2)
+    body_lines = lines[end + 1:]
+    first = next((k for k, ln in enumerate(body_lines) if ln.strip()), None)
+    column_labels = None
+    if first is not None and _is_label_line(body_lines[first]):
+        column_labels = body_lines[first].split()
+        body_lines = body_lines[:first] + [""] + body_lines[first + 1:]  # keep line numbers
+    data, bad_lines = _parse_rows(body_lines, nquan, path, end + 2)
     if bad_lines:
         warnings.warn(
             f"{path.name}: dropped {len(bad_lines)} unreadable data line(s) (first at line {bad_lines[0]})",
@@ -277,8 +413,11 @@ def read_cnv(path: str | Path) -> pd.DataFrame:
         nm, long = names.get(i, (f"col{i}", ""))
         um = _UNITS_RE.search(long)
         units = um.group(1).strip() if um else ""
+        notes = _channel_notes(long)
+        ch_lat = notes.get("lat", notes.get("latitude"))
         channels.append({"index": i, "name": nm, "column": columns[i], "long_name": long,
-                         "units": units, "span": spans.get(i)})
+                         "units": units, "span": spans.get(i), "notes": notes,
+                         "latitude_deg": float(ch_lat) if isinstance(ch_lat, float) and abs(ch_lat) <= 90 else None})
     start_iso, start_note = _parse_time(kv.get("start_time", ""))
     interval = None
     if "interval" in kv:
@@ -296,8 +435,16 @@ def read_cnv(path: str | Path) -> pd.DataFrame:
     if nvalues_declared is not None and nvalues_declared != data.shape[0] + len(bad_lines):
         warnings.warn(f"{path.name}: header declares nvalues = {nvalues_declared} but the file holds "
                       f"{data.shape[0] + len(bad_lines)} data rows (truncated or edited file)", stacklevel=2)
+    sensors_xml, xml_error = _parse_sensors_xml(xml_lines) if xml_lines else (None, None)
+    if xml_error:
+        warnings.warn(f"{path.name}: {xml_error}; kept as text in attrs['sensors_xml_text']", stacklevel=2)
+    serial = re.search(r"SerialNumber='([^']*)'", " ".join(instr))
+    channel_lat = {c["column"]: c["latitude_deg"] for c in channels if c["latitude_deg"] is not None}
+    time_cols = [c for c in ("timeS", "timeJ", "timeY", "timeK", "timeM", "timeH", "timeN", "timeQ")
+                 if c in columns]
     attrs: dict[str, Any] = {
         "source": str(path),
+        "compression": compression,
         "format": "Sea-Bird SeaSoft .cnv",
         "instrument": instr[0] if instr else None,
         "channels": channels,
@@ -313,6 +460,14 @@ def read_cnv(path: str | Path) -> pd.DataFrame:
         "bad_values": n_bad,
         "processing": processing,
         "sensors": sensors,
+        "sensors_xml": sensors_xml,
+        "sensors_xml_text": "\n".join(xml_lines) if xml_error else None,
+        "instrument_serial": serial.group(1) if serial else None,
+        "channel_latitude_deg": channel_lat,
+        "column_labels": column_labels,
+        "time_channels": time_cols,
+        "binned": bool((interval or {}).get("kind") in ("decibars", "meters", "scans")
+                       or any(k.startswith("binavg_") for k, _ in processing)),
         "user_header": user,
         "instrument_header": instr,
         "header_comments": comments,
@@ -334,6 +489,19 @@ CNV_TEMPERATURE = (("t090C", "degC_its90"), ("tv290C", "degC_its90"), ("t090", "
 CNV_CONDUCTIVITY = (("c0S/m", "S/m"), ("c0mS/cm", "mS/cm"), ("c0uS/cm", "uS/cm"))
 
 
+_NAT = np.iinfo(np.int64).min
+
+
+def _ns(x_ns: np.ndarray, origin: int = 0) -> np.ndarray:
+    """``origin + x`` as int64 ns; a NaN (bad_flag) or out-of-range time is NaT (int64 min), never a wrapped
+    integer (a ``timeS`` equal to bad_flag once gave a row dated 1726)."""
+    x = np.asarray(x_ns, dtype=np.float64) + float(origin)
+    out = np.full(x.shape, _NAT, dtype=np.int64)
+    ok = np.isfinite(x) & (np.abs(x) < 9.2e18)
+    out[ok] = np.round(np.asarray(x_ns, dtype=np.float64)[ok]).astype(np.int64) + origin
+    return out
+
+
 def cnv_time_ns(df: pd.DataFrame) -> tuple[np.ndarray, str]:
     """Sample times (int64 ns since the Unix epoch) of a :func:`read_cnv` frame and how they were found.
 
@@ -345,14 +513,12 @@ def cnv_time_ns(df: pd.DataFrame) -> tuple[np.ndarray, str]:
     path = a.get("source", "cnv")
     start = pd.Timestamp(a["start_time_utc"]) if a.get("start_time_utc") else None
     if "timeY" in df:
-        return (df["timeY"].to_numpy(dtype=np.float64) * 1e9).round().astype(np.int64), "timeY (Unix seconds)"
+        return _ns(df["timeY"].to_numpy(dtype=np.float64) * 1e9), "timeY (Unix seconds)"
     if start is not None and "timeS" in df:
-        return start.value + (df["timeS"].to_numpy(dtype=np.float64) * 1e9).round().astype(np.int64), \
-            "start_time + timeS"
+        return _ns(df["timeS"].to_numpy(dtype=np.float64) * 1e9, start.value), "start_time + timeS"
     if start is not None and "timeJ" in df:
         jan1 = pd.Timestamp(year=start.year, month=1, day=1, tz="UTC").value
-        return jan1 + ((df["timeJ"].to_numpy(dtype=np.float64) - 1.0) * 86400e9).round().astype(np.int64), \
-            "start year + timeJ"
+        return _ns((df["timeJ"].to_numpy(dtype=np.float64) - 1.0) * 86400e9, jan1), "start year + timeJ"
     iv = a.get("interval") or {}
     if start is not None and iv.get("kind") == "seconds" and iv.get("value", 0) > 0:
         dt_ns = int(round(iv["value"] * 1e9))
@@ -361,14 +527,42 @@ def cnv_time_ns(df: pd.DataFrame) -> tuple[np.ndarray, str]:
                      f"a pressure-binned cast cannot be put on a time base")
 
 
-def cnv_sensor_samples(df: pd.DataFrame, name: str = "ctd") -> Any:
+def has_time(df: pd.DataFrame) -> bool:
+    """Whether :func:`cnv_time_ns` can put the cast on a time base."""
+    try:
+        cnv_time_ns(df)
+    except InputError:
+        return False
+    return True
+
+
+def cnv_sensor_samples(df: pd.DataFrame, name: str = "ctd", *, allow_no_time: bool = False) -> Any:
     """A :func:`read_cnv` frame as the CTD's :class:`~hadal.ingest.csv_reader.SensorSamples` (primary
-    pressure/temperature/conductivity channels, converted to hadal units; conversions recorded)."""
+    pressure/temperature/conductivity channels, converted to hadal units; conversions recorded).
+
+    A cast without a time channel (pressure-binned) raises :class:`InputError` unless ``allow_no_time``:
+    then ``time_ns`` is ``None`` and ``stats["time"]`` is :data:`NO_TIME_BASE` (no time is invented)."""
     from hadal.ingest.csv_reader import SensorSamples
     from hadal.ingest.units import convert
 
     path = df.attrs.get("source", "cnv")
-    t, how = cnv_time_ns(df)
+    try:
+        t, how = cnv_time_ns(df)
+    except InputError:
+        if not allow_no_time:
+            raise
+        t, how = np.full(len(df), np.iinfo(np.int64).min, dtype=np.int64), NO_TIME_BASE
+    bad_t = t == _NAT
+    n_bad_t = int(bad_t.sum()) if how != NO_TIME_BASE else 0
+    if n_bad_t == len(df) and len(df):
+        raise InputError(f"{path}: every scan's time ({how}) is bad_flag or not a number: no time base")
+    if n_bad_t:
+        import warnings
+
+        warnings.warn(f"{Path(path).name}: dropped {n_bad_t} of {len(df)} scan(s) whose time ({how}) is bad_flag "
+                      "or not a number", stacklevel=2)
+        df = df.loc[~bad_t]
+        t = t[~bad_t]
     values, conversions, used = {}, [], {}
     for var, table in (("pressure_ctd_dbar", CNV_PRESSURE), ("temperature_its90_degc", CNV_TEMPERATURE),
                        ("conductivity_s_m", CNV_CONDUCTIVITY)):
@@ -381,5 +575,132 @@ def cnv_sensor_samples(df: pd.DataFrame, name: str = "ctd") -> Any:
         if rec:
             conversions.append({**rec, "sensor": name, "source": f"cnv:{Path(path).name}:{col[0]}"})
     stats = {"rows": int(len(df)), "time": how, "channels": used, "bad_values": int(df.attrs.get("bad_values", 0)),
-             "rows_dropped": len(df.attrs.get("rows_dropped", []))}
+             "rows_dropped": len(df.attrs.get("rows_dropped", [])), "bad_times": n_bad_t}
+    bad = seasoft_bad_scans(df)
+    if bad is not None:
+        # SeaSoft's scan flags (LoopEdit, WildEdit, ...): carried as a 0/1 pseudo-variable so that it follows the
+        # samples through sorting and de-duplication; ingest turns it into QARTOD flag 4 on the CTD variables
+        values[SEASOFT_BAD_SCAN] = bad.astype(np.float64)
+        stats["seasoft_flagged_scans"] = int(bad.sum())
+        stats["seasoft_flag_channel"] = str(next(c for c in df.columns if str(c).strip().lower() == "flag"))
     return SensorSamples(name, t, values, f"cnv:{Path(path).name}", stats, conversions)
+
+
+#: the :class:`SensorSamples` pseudo-variable of SeaSoft's scan flags (1.0 = scan marked bad)
+SEASOFT_BAD_SCAN = "seasoft_bad_scan"
+
+
+def seasoft_bad_scans(df: pd.DataFrame) -> np.ndarray | None:
+    """True for the scans SeaSoft marked bad in a .cnv's ``flag`` channel (LoopEdit/WildEdit/...: the flag
+    value is non-zero, normally ``bad_flag``, which :func:`read_cnv` turns into NaN); ``None`` without one.
+
+    A channel with the same non-zero value on every scan (seen: 222 throughout a binned cast) is not scan
+    marking: then only ``bad_flag`` scans count."""
+    col = next((c for c in df.columns if str(c).strip().lower() == "flag"), None)
+    if col is None:
+        return None
+    f = pd.to_numeric(df[col], errors="coerce").to_numpy(np.float64)
+    fin = np.isfinite(f)
+    nonzero = fin & (f != 0)
+    if fin.any() and nonzero[fin].all() and np.unique(f[fin]).size == 1:
+        return ~fin
+    return ~fin | nonzero
+
+
+# ------------------------------------------------------------------------------ .cnv / .hex dispatch, description
+def seabird_kind(path: str | Path) -> str:
+    """``'cnv'`` or ``'hex'`` from the content (:func:`hadal.formats.detect`, compressed files included): a .cnv
+    has ``# name N =`` header lines, a raw .hex has ``*END*`` followed by lines of hex digits. Anything else is
+    an :class:`InputError`."""
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(f"{path}: Sea-Bird file does not exist")
+    kind = {"cnv": "cnv", "seabird_hex": "hex"}.get(detect(path, strict=False).kind)
+    if kind is not None:
+        return kind
+    text = read_bytes(path, "Sea-Bird")[0].decode("latin-1")  # also says when a compressed stream is damaged
+    if not any(ln.strip().upper() == "*END*" for ln in text.replace("\r", "\n").split("\n")):
+        raise InputError(f"{path}: not a Sea-Bird .cnv or .hex file (no '*END*' line after the header)")
+    raise InputError(f"{path}: not a Sea-Bird .cnv or .hex file (no '# name N = ...' channel lines and no "
+                     "hex scan lines after '*END*')")
+
+
+def read_seabird(path: str | Path) -> pd.DataFrame:
+    """Read a Sea-Bird cast, .cnv or raw .hex, whatever its extension or compression (dispatch on content).
+
+    A .hex is converted by :func:`hadal.ingest.seabird_hex.read_hex` (imported only when needed) into a
+    frame shaped like :func:`read_cnv`'s (same column names and attrs)."""
+    path = Path(path)
+    kind = seabird_kind(path)
+    if kind == "cnv":
+        return read_cnv(path)
+    try:
+        from hadal.ingest.seabird_hex import read_hex  # type: ignore[import-not-found]
+    except ImportError:
+        raise InputError(f"{path}: raw Sea-Bird .hex file, but this hadal has no .hex converter "
+                         "(hadal.ingest.seabird_hex); convert it with SeaSoft DatCnv to .cnv") from None
+    try:
+        df = read_hex(path)
+    except InputError:
+        raise
+    except Exception as exc:  # a converter bug or an unreadable file: one line naming the file
+        raise InputError(f"{path}: cannot convert Sea-Bird .hex ({type(exc).__name__}: {exc})") from None
+    df.attrs.setdefault("source", str(path))
+    df.attrs.setdefault("format", "Sea-Bird raw .hex")
+    return df
+
+
+def describe_cnv(path: str | Path) -> dict[str, Any]:
+    """What a Sea-Bird cast holds, for ``hadal inspect`` (JSON-serialisable): format, compression,
+    instrument (and serial), channels with units, header position and start time, scans, pressure range,
+    binned profile or time series (and the time channel), SeaSoft processing steps, sensors (serial numbers,
+    calibration dates). Raises :class:`InputError` like :func:`read_seabird`."""
+    import warnings as _w
+
+    with _w.catch_warnings(record=True) as caught:
+        _w.simplefilter("always")
+        df = read_seabird(path)
+    a = df.attrs
+    p_col = next((c for c, _ in CNV_PRESSURE if c in df.columns), None)
+    prange = None
+    if p_col is not None and df[p_col].notna().any():
+        prange = [float(df[p_col].min()), float(df[p_col].max())]
+    try:
+        _, how = cnv_time_ns(df)
+        time_base = how
+    except InputError:
+        time_base = NO_TIME_BASE
+    steps: list[str] = []
+    for k, _ in a.get("processing") or []:
+        mod = k.split("_", 1)[0]
+        if mod != "file" and mod not in steps:
+            steps.append(mod)
+    sensors = [{k: x.get(k) for k in ("channel", "type", "serial_number", "calibration_date", "description")}
+               for x in (a.get("sensors_xml") or [])]
+    return {
+        "path": str(path),
+        "kind": "sea-bird-hex" if a.get("format") == "Sea-Bird raw .hex" else "sea-bird-cnv",
+        "format": a.get("format"),
+        "compression": a.get("compression"),
+        "instrument": a.get("instrument"),
+        "instrument_serial": a.get("instrument_serial"),
+        "channels": [{"column": c["column"], "long_name": c["long_name"], "units": c["units"]}
+                     for c in a.get("channels", [])],
+        "latitude_deg": a.get("latitude_deg"),
+        "longitude_deg": a.get("longitude_deg"),
+        "position_source": a.get("position_source"),
+        "start_time_utc": a.get("start_time_utc"),
+        "scans": int(len(df)),
+        "scans_declared": a.get("nvalues_declared"),
+        "truncated": a.get("truncated"),
+        "pressure_channel": p_col,
+        "pressure_range_dbar": prange,
+        "binned": bool(a.get("binned")),
+        "interval": a.get("interval"),
+        "time_base": time_base,
+        "profile": time_base == NO_TIME_BASE,
+        "processing_steps": steps,
+        "sensors": sensors,
+        "channel_latitude_deg": a.get("channel_latitude_deg") or {},
+        "warnings": [str(w.message) for w in caught],
+    }

@@ -1,6 +1,7 @@
 """Sensor CSV reader: configurable columns, units and time formats (``vehicle.yaml`` ``csv`` mappings).
 
-Rows with the wrong number of fields, an unparseable time or a non-numeric value in a mapped column are
+Files are read plain or gzip/bz2/xz-compressed (by content, :func:`hadal.formats.read_bytes`). Rows with the
+wrong number of fields, an unparseable time or a non-numeric value in a mapped column are
 *corrupt*: they are dropped, counted and reported with a warning. Empty cells are *missing* values (NaN,
 e.g. an altimeter dropout) and are kept.
 """
@@ -16,10 +17,13 @@ import numpy as np
 import pandas as pd
 
 from hadal.errors import InputError
-from hadal.ingest.units import convert
-from hadal.ingest.vehicle import CsvSource, McapSource
+from hadal.formats import read_bytes
+from hadal.ingest.align import time_unit_hint
+from hadal.ingest.units import CANONICAL_UNITS, TRANSFORMS, apply_transform, convert
+from hadal.ingest.vehicle import CsvSource, FieldMap, McapSource
 
-__all__ = ["parse_time", "read_sensor_csv", "SensorSamples", "sensor_from_records"]
+__all__ = ["describe_csv", "parse_time", "read_sensor_csv", "SensorSamples", "sensor_from_records", "field_getter",
+           "map_variable"]
 
 
 class SensorSamples:
@@ -28,8 +32,12 @@ class SensorSamples:
     def __init__(self, name: str, time_ns: np.ndarray, values: dict[str, np.ndarray], source: str,
                  stats: dict[str, Any], conversions: list[dict[str, Any]]):
         self.name = name
-        self.time_ns = np.asarray(time_ns, dtype=np.int64)
+        self.time_ns = np.asarray(time_ns, dtype=np.int64).reshape(-1)
         self.values = {k: np.asarray(v, dtype=np.float64) for k, v in values.items()}
+        for k, v in self.values.items():  # one finite-or-NaN number per sample, never a 2-D array
+            if v.shape != self.time_ns.shape:
+                raise InputError(f"{source}: {name} variable {k} has shape {v.shape} for {self.time_ns.size} "
+                                 "sample time(s): not one number per sample")
         self.source = source
         self.stats = stats
         self.conversions = conversions
@@ -58,6 +66,64 @@ def parse_time(values: Any, fmt: str) -> np.ndarray:
     return t.dt.as_unit("ns").to_numpy(dtype="datetime64[ns]").astype(np.int64)
 
 
+#: the longest line a text reader accepts: a row of a vehicle log or a .cnv data line is well under 1 KiB, so a
+#: line of 1 MiB is not a row (a file without newlines, a binary blob, a runaway writer) and is refused, before
+#: anything is parsed (pandas would hold it several times over)
+MAX_LINE_BYTES = 1 << 20
+_SCAN_BLOCK = 16 << 20
+
+
+def _newlines(raw: bytes):
+    """(block start, positions of b"\\n" in the block) for blocks of :data:`_SCAN_BLOCK` bytes: a scan costing
+    a few MiB whatever the file size."""
+    buf = np.frombuffer(raw, dtype=np.uint8)
+    for start in range(0, buf.size, _SCAN_BLOCK):
+        yield start, np.flatnonzero(buf[start:start + _SCAN_BLOCK] == 10) + start
+
+
+def check_line_lengths(raw: bytes, path: str | Path, what: str = "line", limit: int | None = None) -> None:
+    """One-line :class:`InputError` when a line of ``raw`` is longer than ``limit`` (default
+    :data:`MAX_LINE_BYTES`)."""
+    limit = MAX_LINE_BYTES if limit is None else limit
+
+    def too_long(a: int, n: int) -> bool:  # a line of n bytes at a; old-Mac '\\r' line ends are line ends too
+        if n <= limit:
+            return False
+        return raw.find(b"\r", a, a + n) < 0 or max(map(len, raw[a:a + n].split(b"\r"))) > limit
+
+    def refuse(line_no: int, n: int) -> None:
+        raise InputError(f"{path}: line {line_no} is {n:,} bytes long: not a {what} (the limit is {limit:,} bytes; "
+                         "is this really a text file with one record a line?)")
+
+    prev, line_no = -1, 1
+    for _start, nl in _newlines(raw):
+        ends = np.concatenate([[prev], nl])
+        lengths = np.diff(ends) - 1
+        for k in np.flatnonzero(lengths > limit):
+            if too_long(int(ends[k]) + 1, int(lengths[k])):
+                refuse(line_no + int(k), int(lengths[k]))
+        line_no += nl.size
+        if nl.size:
+            prev = int(nl[-1])
+    if too_long(prev + 1, len(raw) - 1 - prev):
+        refuse(line_no, len(raw) - 1 - prev)
+
+
+def count_nonblank_lines(raw: bytes) -> int:
+    """Lines of ``raw`` holding something other than white space (``str.splitlines`` on ``\\n``/``\\r\\n``)."""
+    n, prev = 0, -1
+    for _start, nl in _newlines(raw):
+        ends = np.concatenate([[prev], nl])
+        lengths = np.diff(ends) - 1
+        n += int((lengths > 8).sum())
+        for k in np.flatnonzero((lengths > 0) & (lengths <= 8)):  # short lines: maybe only blanks or '\\r'
+            a = int(ends[k]) + 1
+            n += bool(raw[a:a + int(lengths[k])].strip())
+        if nl.size:
+            prev = int(nl[-1])
+    return n + bool(raw[prev + 1:].strip())
+
+
 def _nat_mask(t: np.ndarray) -> np.ndarray:
     return t == np.iinfo(np.int64).min
 
@@ -69,20 +135,19 @@ def read_sensor_csv(path: str | Path, mapping: CsvSource, sensor: str = "sensor"
     has no usable row. Corrupt rows are dropped with a warning (count in ``stats["corrupt_rows"]``).
     """
     path = Path(path)
-    if not path.is_file():
-        raise InputError(f"{path}: CSV file does not exist")
-    raw = path.read_bytes()
-    if not raw.strip():
-        raise InputError(f"{path}: CSV file is empty")
-    text = raw.decode("utf-8", errors="replace")
-    n_lines = sum(1 for ln in text.splitlines() if ln.strip())
+    raw = read_bytes(path, "CSV", text=True)[0]
+    # no decoded copy of the whole text (and no list of its lines): a bounded line length, the non-blank lines
+    # counted in blocks, pandas reads the bytes itself
+    check_line_lengths(raw, path, "CSV row")
+    n_lines = count_nonblank_lines(raw)
     try:
-        df = pd.read_csv(io.StringIO(text), sep=mapping.delimiter, dtype=str, keep_default_na=False,
-                         on_bad_lines="skip", skipinitialspace=True, engine="c")
+        df = pd.read_csv(io.BytesIO(raw), sep=mapping.delimiter, dtype=str, keep_default_na=False,
+                         on_bad_lines="skip", skipinitialspace=True, engine="c", encoding="utf-8",
+                         encoding_errors="replace")
     except (pd.errors.ParserError, pd.errors.EmptyDataError, ValueError) as exc:
         raise InputError(f"{path}: not a readable CSV file ({str(exc).splitlines()[0]})") from None
     df.columns = [str(c).strip() for c in df.columns]
-    needed = [mapping.time.field] + [fm.field for fm in mapping.fields.values()]
+    needed = [mapping.time.field] + [f for fm in mapping.fields.values() for f in fm.inputs()]
     if mapping.valid_field:
         needed.append(mapping.valid_field)
     missing = [c for c in needed if c not in df.columns]
@@ -91,70 +156,363 @@ def read_sensor_csv(path: str | Path, mapping: CsvSource, sensor: str = "sensor"
                          f"vehicle config for sensor {sensor!r} (have: {', '.join(df.columns[:12])})")
     bad_shape = max(n_lines - 1 - len(df), 0)  # rows pandas skipped for a wrong field count
 
-    t = parse_time(df[mapping.time.field].str.strip(), mapping.time.format)
-    corrupt = _nat_mask(t)
+    tcol = df[mapping.time.field].str.strip()
+    t = parse_time(tcol, mapping.time.format)
+    bad_time = _nat_mask(t)
+    corrupt = bad_time.copy()
     values: dict[str, np.ndarray] = {}
     conversions = []
+    per_col: dict[str, dict[str, Any]] = {}
     for var, fm in mapping.fields.items():
-        col = df[fm.field].str.strip()
-        empty = col.isin(["", "nan", "NaN", "NA", "null", "None"])
-        num = pd.to_numeric(col.where(~empty, None), errors="coerce").to_numpy(dtype=np.float64)
-        corrupt |= np.isnan(num) & ~empty.to_numpy()
-        v, rec = convert(num, fm.units, var)
-        values[var] = v
-        if rec:
-            conversions.append({**rec, "sensor": sensor, "source": f"csv:{path.name}:{fm.field}"})
+        cols = []
+        for f in fm.inputs():
+            col = df[f].str.strip()
+            empty = col.isin(["", "nan", "NaN", "NA", "null", "None"])
+            num = pd.to_numeric(col.where(~empty, None), errors="coerce").to_numpy(dtype=np.float64)
+            bad = np.isnan(num) & ~empty.to_numpy()
+            if bad.any():  # 'true', '[1.5]', '{}', '3,2', 'abc': rejected (the row), never coerced
+                per_col[f] = {"variable": var, "count": int(bad.sum()),
+                              "examples": sorted({str(x)[:20] for x in col[bad].head(50)})[:3]}
+            corrupt |= bad
+            cols.append(num)
+        values[var], recs = map_variable(var, fm, cols, sensor, f"csv:{path.name}")
+        conversions.extend(recs)
     if mapping.valid_field:
         ok = df[mapping.valid_field].str.strip().str.lower().isin(["1", "true", "yes", "t"]).to_numpy()
         for var in values:
             values[var] = np.where(ok, values[var], np.nan)
     n_corrupt = int(corrupt.sum()) + bad_shape
+    hint = None
+    if bad_time.any() and mapping.time.format.startswith("unix_"):
+        hint = time_unit_hint(pd.to_numeric(tcol[bad_time], errors="coerce").to_numpy(np.float64),
+                              mapping.time.format)
     if n_corrupt:
-        warnings.warn(f"{path.name}: dropped {n_corrupt} corrupt row(s) of {n_lines - 1}", stacklevel=2)
+        parts = []
+        if bad_shape:
+            parts.append(f"{bad_shape} with a wrong number of fields")
+        if bad_time.any():
+            parts.append(f"{int(bad_time.sum())} with an unparseable time in {mapping.time.field!r} "
+                         f"({mapping.time.format}{'; it ' + hint if hint else ''})")
+        if per_col:
+            parts.append("non-numeric values: " + "; ".join(
+                f"{c}: {d['count']} (e.g. {', '.join(repr(x) for x in d['examples'])})" for c, d in per_col.items()))
+        warnings.warn(f"{path.name}: dropped {n_corrupt} corrupt row(s) of {n_lines - 1} ({'; '.join(parts)})",
+                      stacklevel=2)
     keep = ~corrupt
     if not keep.any():
-        raise InputError(f"{path}: no usable rows (all {len(df)} rows have an unparseable time or value)")
-    stats = {"rows": int(n_lines - 1), "corrupt_rows": n_corrupt}
+        raise InputError(f"{path}: no usable rows (all {len(df)} rows have an unparseable time or value"
+                         + (f"; time column {mapping.time.field!r} {hint}" if hint else "") + ")")
+    stats = {"rows": int(n_lines - 1), "corrupt_rows": n_corrupt, "bad_times": int(bad_time.sum()),
+             "wrong_field_count": bad_shape, "rejected_samples": int((corrupt & ~bad_time).sum()),
+             "rejected_values": per_col, "time_field": mapping.time.field, "time_format": mapping.time.format}
     return SensorSamples(sensor, t[keep], {k: v[keep] for k, v in values.items()}, f"csv:{path.name}",
                          stats, conversions)
+
+
+def field_getter(path: str) -> Any:
+    """Getter for a (dotted) field of a decoded message: ``"pres"``, ``"header.stamp.sec"``,
+    ``"position_covariance.0"``. A key containing the dots itself (a flat JSON key) is found first;
+    a missing field gives ``None``."""
+    parts = path.split(".")
+    if len(parts) == 1:
+        return lambda m: m.get(path)
+
+    def get(m: Any) -> Any:
+        v = m.get(path)
+        if v is not None:
+            return v
+        for p in parts:
+            if isinstance(m, dict):
+                m = m.get(p)
+            elif isinstance(m, (list, tuple)) and p.isdigit() and int(p) < len(m):
+                m = m[int(p)]
+            else:
+                return None
+            if m is None:
+                return None
+        return m
+    return get
+
+
+def _has_field(m: dict[str, Any], path: str) -> bool:
+    if path in m:
+        return True
+    parts = path.split(".")
+    for p in parts[:-1]:
+        m = m.get(p) if isinstance(m, dict) else None
+        if m is None:
+            return False
+    if isinstance(m, (list, tuple)):
+        return parts[-1].isdigit() and int(parts[-1]) < len(m)
+    return isinstance(m, dict) and parts[-1] in m
+
+
+_NUMBER_TYPES = (int, float, np.integer, np.floating)
+
+
+def _type_name(v: Any) -> str:
+    if isinstance(v, (bool, np.bool_)):
+        return "bool"
+    if isinstance(v, str):
+        return "string"
+    if isinstance(v, (list, tuple, np.ndarray)):
+        return "array"
+    if isinstance(v, dict):
+        return "object"
+    return type(v).__name__
+
+
+def _numeric(col: list[Any]) -> tuple[np.ndarray, np.ndarray, dict[str, int]]:
+    """Values -> float64; ``None``/null is a missing value (NaN). Anything that is not a number - a boolean,
+    a string (even ``"3.2"``), an array, an object - is *rejected*, never coerced: returns the values (NaN
+    where rejected), the rejected mask and the rejected count per JSON type (``{"bool": 3}``)."""
+    kinds = set(map(type, col))
+    if kinds <= {float, int, type(None)}:  # fast path: plain numbers and nulls (bool is its own type)
+        try:
+            return np.array(col, dtype=np.float64), np.zeros(len(col), dtype=bool), {}
+        except (OverflowError, TypeError, ValueError):
+            pass
+    arr = np.full(len(col), np.nan)
+    bad = np.zeros(len(col), dtype=bool)
+    types: dict[str, int] = {}
+    for i, v in enumerate(col):
+        if v is None:
+            continue
+        if isinstance(v, _NUMBER_TYPES) and not isinstance(v, (bool, np.bool_)):
+            try:
+                arr[i] = float(v)
+                continue
+            except (OverflowError, ValueError):
+                pass
+        bad[i] = True
+        k = _type_name(v)
+        types[k] = types.get(k, 0) + 1
+    return arr, bad, types
+
+
+def _rejected_text(per_field: dict[str, dict[str, Any]]) -> str:
+    """``temp: 3 (bool 2, array 1); pres: 1 (string 1)``"""
+    return "; ".join(f"{f}: {d['count']}" + (" (" + ", ".join(f"{k} {n}" for k, n in d["types"].items()) + ")"
+                                             if d.get("types") else "")
+                     for f, d in per_field.items())
+
+
+def _time_values(values: list[Any], fmt: str) -> tuple[list[Any], dict[str, int]]:
+    """Time field values of the right JSON type for ``fmt`` (numbers for unix_*, strings for iso8601 or a
+    strftime pattern); others (a boolean, a number-as-string, an array ...) become ``None`` (NaT), counted
+    by type."""
+    numeric = fmt.startswith("unix_")
+    out: list[Any] = []
+    types: dict[str, int] = {}
+    for v in values:
+        ok = v is None or ((isinstance(v, _NUMBER_TYPES) and not isinstance(v, (bool, np.bool_))) if numeric
+                           else isinstance(v, str))
+        if not ok:
+            k = _type_name(v)
+            types[k] = types.get(k, 0) + 1
+            v = None
+        out.append(v)
+    return out, types
+
+
+def _ros_time_ns(values: list[Any]) -> np.ndarray:
+    """ROS ``builtin_interfaces/Time`` sub-messages ({sec, nanosec}; ROS 1 {secs, nsecs}) -> int64 ns (NaT int)."""
+    out = np.full(len(values), np.iinfo(np.int64).min, dtype=np.int64)
+    for i, v in enumerate(values):
+        if isinstance(v, dict):
+            sec = v.get("sec", v.get("secs"))
+            ns = v.get("nanosec", v.get("nsecs", 0))
+            if isinstance(sec, (int, float)) and isinstance(ns, (int, float)) and not isinstance(sec, bool):
+                out[i] = int(sec) * 1_000_000_000 + int(ns)
+    return out
+
+
+def map_variable(var: str, fm: FieldMap, columns: list[np.ndarray], sensor: str, source: str
+                 ) -> tuple[np.ndarray, list[dict[str, Any]]]:
+    """One variable from its source column(s): transform (if any), unit conversion, offset.
+
+    Returns the canonical-unit values and the conversion records (for the product metadata)."""
+    records: list[dict[str, Any]] = []
+    where = f"{source}:{fm.label()}"
+    if fm.transform is not None:
+        x = apply_transform(fm.transform, columns, fm.origin)
+        t = TRANSFORMS[fm.transform][0]
+        records.append({"variable": var, "from": ", ".join(fm.inputs()), "to": t.unit or fm.units,
+                        "formula": fm.transform + (f" (origin {list(fm.origin)})" if fm.origin else ""),
+                        "sensor": sensor, "source": where})
+    else:
+        x = columns[0]
+    v, rec = convert(x, fm.units, var)
+    if rec:
+        records.append({**rec, "sensor": sensor, "source": where})
+    if fm.offset:
+        v = v + fm.offset
+        records.append({"variable": var, "from": CANONICAL_UNITS[var], "to": CANONICAL_UNITS[var],
+                        "formula": f"x + {fm.offset:.10g}", "sensor": sensor, "source": where})
+    return v, records
 
 
 def sensor_from_records(name: str, log_time_ns: np.ndarray, messages: list[dict[str, Any]],
                         mapping: McapSource, source: str) -> SensorSamples:
     """Build :class:`SensorSamples` from decoded MCAP messages with an ``mcap`` mapping.
 
-    Raises :class:`InputError` when a mapped field is absent from every message; a message lacking a
-    field or holding a non-numeric value gives NaN (``null`` = missing) and non-numeric values are counted
-    as ``stats["bad_values"]``.
+    Fields may be dotted paths into nested (ROS 2) messages; transforms, units and offsets are applied as
+    the mapping says (:func:`map_variable`). Raises :class:`InputError` when a mapped field is absent from
+    every message. A message lacking a field or holding ``null`` gives NaN (missing). A value that is not a
+    number (a JSON ``true``, ``"3.2"``, ``[3.2]``, an object) is never coerced: the whole sample (message) is
+    rejected, counted per field and type in ``stats["rejected_values"]`` (``stats["rejected_samples"]`` in
+    all) and warned about. A time field of the wrong type (or unparseable) rejects the sample too
+    (``stats["bad_times"]``).
     """
     n = len(messages)
+    where = f"{source}:{mapping.topic}"
+    time_types: dict[str, int] = {}
     if mapping.time.field == "log_time":
         t = parse_time(np.asarray(log_time_ns, dtype=np.int64), mapping.time.format)
     else:
-        t = parse_time([m.get(mapping.time.field) for m in messages], mapping.time.format)
-    values, conversions, bad = {}, [], 0
+        get = field_getter(mapping.time.field)
+        if n and not any(_has_field(m, mapping.time.field) for m in messages[:1000]):
+            raise InputError(f"{source}: topic {mapping.topic} has no time field {mapping.time.field!r}")
+        if mapping.time.format == "ros_time":
+            t = _ros_time_ns([get(m) for m in messages])
+        else:
+            tv, time_types = _time_values([get(m) for m in messages], mapping.time.format)
+            t = parse_time(tv, mapping.time.format)
+    values, conversions = {}, []
+    rejected = np.zeros(n, dtype=bool)
+    per_field: dict[str, dict[str, Any]] = {}
     for var, fm in mapping.fields.items():
-        col = [m.get(fm.field) for m in messages]
-        if n and all(c is None for c in col) and not any(fm.field in m for m in messages[:1000]):
-            raise InputError(f"{source}: topic {mapping.topic} has no field {fm.field!r} "
-                             f"(vehicle config maps it to {var})")
-        try:  # fast path: numbers and nulls (None -> NaN)
-            arr = np.array(col, dtype=np.float64)
-        except (TypeError, ValueError):  # strings, lists, ...: coerce and count the non-numeric values
-            ser = pd.Series(col, dtype=object)
-            ser = ser.where(~ser.map(lambda v: isinstance(v, bool)), None)  # a boolean is not a measurement
-            arr = pd.to_numeric(ser, errors="coerce").to_numpy(dtype=np.float64)
-            bad += int((~ser.isna().to_numpy() & np.isnan(arr)).sum())
-        v, rec = convert(arr, fm.units, var)
-        values[var] = v
-        if rec:
-            conversions.append({**rec, "sensor": name, "source": f"{source}:{mapping.topic}:{fm.field}"})
+        cols = []
+        for f in fm.inputs():
+            get = field_getter(f)
+            col = [get(m) for m in messages]
+            if n and all(c is None for c in col) and not any(_has_field(m, f) for m in messages[:1000]):
+                raise InputError(f"{source}: topic {mapping.topic} has no field {f!r} "
+                                 f"(vehicle config maps it to {var})")
+            arr, bad, types = _numeric(col)
+            if bad.any():
+                rejected |= bad
+                d = per_field.setdefault(f, {"variable": var, "count": 0, "types": {}})
+                d["count"] += int(bad.sum())
+                for k, c in types.items():
+                    d["types"][k] = d["types"].get(k, 0) + c
+            cols.append(arr)
+        values[var], recs = map_variable(var, fm, cols, name, where)
+        conversions.extend(recs)
     if mapping.valid_field:
-        ok = np.array([m.get(mapping.valid_field) is True or m.get(mapping.valid_field) == 1 for m in messages],
-                      dtype=bool)
+        get = field_getter(mapping.valid_field)
+        ok = np.array([(v := get(m)) is True or v == 1 for m in messages], dtype=bool)
         for var in values:
             values[var] = np.where(ok, values[var], np.nan)
     bad_t = _nat_mask(t)
-    keep = ~bad_t
-    stats = {"messages": n, "bad_values": bad, "bad_times": int(bad_t.sum())}
+    if per_field:
+        warnings.warn(f"{where}: rejected {int(rejected.sum())} of {n} {name} sample(s) holding a value that is not "
+                      f"a number ({_rejected_text(per_field)}); values are never coerced", stacklevel=2)
+    if bad_t.any():
+        why = (" (" + ", ".join(f"{k} {c}" for k, c in time_types.items()) + " where "
+               + ("a number" if mapping.time.format.startswith("unix_") else "a string") + " belongs)"
+               if time_types else "")
+        warnings.warn(f"{where}: dropped {int(bad_t.sum())} of {n} {name} sample(s) without a valid time in "
+                      f"{mapping.time.field!r} ({mapping.time.format}){why}", stacklevel=2)
+    keep = ~(bad_t | rejected)
+    stats = {"messages": n, "bad_values": int(sum(d["count"] for d in per_field.values())),
+             "bad_times": int(bad_t.sum()), "rejected_samples": int(rejected.sum()), "rejected_values": per_field,
+             "time_field": mapping.time.field, "time_format": mapping.time.format}
+    if time_types:
+        stats["bad_time_types"] = time_types
     return SensorSamples(name, t[keep], {k: v[keep] for k, v in values.items()}, source, stats, conversions)
+
+
+# --------------------------------------------------------------------------------------------------------------
+# describe: what is in a sensor CSV file (``hadal inspect``, ``hadal init``)
+# --------------------------------------------------------------------------------------------------------------
+
+_TIME_NAMES = ("time", "timestamp", "datetime", "date_time", "time_utc", "utc", "utc_time", "stamp", "t",
+               "time_s", "unix_time", "epoch", "log_time", "timestamp_ns", "time_ns", "time_ms")
+
+
+def _guess_time_format(values: list[str]) -> str | None:
+    """``iso8601`` / ``unix_s`` / ``unix_ms`` / ``unix_ns`` when every non-empty value parses as such."""
+    vals = [v.strip() for v in values if v and v.strip()]
+    if not vals:
+        return None
+    num = pd.to_numeric(pd.Series(vals), errors="coerce").to_numpy(dtype=np.float64)
+    if np.isfinite(num).all():
+        med = float(np.median(np.abs(num)))
+        # seconds since 1970 between ~1973 and ~2286, then ms and ns of the same span
+        for fmt, lo, hi in (("unix_s", 1e8, 1e10), ("unix_ms", 1e11, 1e13), ("unix_ns", 1e17, 1e19)):
+            if lo <= med < hi:
+                return fmt
+        return None
+    t = parse_time(vals, "iso8601")
+    if not _nat_mask(t).any():
+        return "iso8601"
+    return None
+
+
+def describe_csv(path: str | Path, *, sample_rows: int = 2000) -> dict[str, Any]:
+    """What is in a sensor CSV file, as a JSON-serialisable dict (``hadal inspect``, ``hadal init``).
+
+    Keys: ``path``, ``format`` (``"csv"``), ``size_bytes``, ``delimiter`` (sniffed among ``, ; TAB |``),
+    ``columns``, ``sample_row`` (the first data row, column -> text), ``first_values`` (first non-empty value
+    of each column), ``rows`` (data rows), ``numeric_columns``,
+    ``time_column`` / ``time_format`` (guessed from the name and the values: ``iso8601``, ``unix_s``,
+    ``unix_ms``, ``unix_ns``; ``None`` when no column looks like a time), ``start_time`` / ``end_time``
+    (ISO 8601 UTC), ``duration_s`` and ``rate_hz``. Raises :class:`InputError` when the file is missing, empty,
+    binary or has no header row.
+    """
+    import csv as _csv
+
+    path = Path(path)
+    text = read_bytes(path, "CSV", text=True)[0].decode("utf-8-sig", errors="replace")
+    lines = [ln for ln in text.splitlines() if ln.strip()]
+    head = "\n".join(lines[:50])
+    try:
+        delim = _csv.Sniffer().sniff(head, delimiters=",;\t|").delimiter
+    except _csv.Error:
+        counts = {d: lines[0].count(d) for d in ",;\t|"}
+        delim = max(counts, key=counts.__getitem__) if max(counts.values()) else ","
+    try:
+        df = pd.read_csv(io.StringIO(text), sep=delim, dtype=str, keep_default_na=False, on_bad_lines="skip",
+                         skipinitialspace=True, engine="c")
+    except (pd.errors.ParserError, pd.errors.EmptyDataError, ValueError) as exc:
+        raise InputError(f"{path}: not a readable CSV file ({str(exc).splitlines()[0]})") from None
+    columns = [str(c).strip() for c in df.columns]
+    df.columns = columns
+    if not columns or all(pd.to_numeric(pd.Series(columns), errors="coerce").notna()):
+        raise InputError(f"{path}: no header row (the first line holds numbers, not column names)")
+    sample = {c: str(v) for c, v in zip(columns, df.iloc[0].tolist(), strict=True)} if len(df) else {}
+    numeric, first_values = [], {}
+    head_df = df.head(sample_rows)
+    for c in columns:
+        col = df[c].str.strip()
+        filled = col[~col.isin(["", "nan", "NaN", "NA", "null", "None"])]
+        if len(filled):
+            first_values[c] = str(filled.iloc[0])
+            if pd.to_numeric(filled.head(sample_rows), errors="coerce").notna().mean() > 0.95:
+                numeric.append(c)
+    # the time column: a time-like name first, then any column whose values parse as times
+    by_name = sorted((c for c in columns if c.lower() in _TIME_NAMES), key=lambda c: _TIME_NAMES.index(c.lower()))
+    candidates = by_name + [c for c in columns if c not in by_name and c not in numeric] + \
+        [c for c in columns if c not in by_name and c in numeric]
+    tcol, tfmt = None, None
+    for c in candidates:
+        fmt = _guess_time_format(head_df[c].tolist())
+        if fmt is not None and (c in by_name or fmt == "iso8601" or c.lower().startswith(("time", "unix", "epoch"))):
+            tcol, tfmt = c, fmt
+            break
+    out: dict[str, Any] = {
+        "path": str(path), "format": "csv", "size_bytes": path.stat().st_size, "delimiter": delim, "columns": columns,
+        "sample_row": sample, "first_values": first_values, "rows": int(len(df)), "numeric_columns": numeric,
+        "time_column": tcol, "time_format": tfmt, "start_time": None, "end_time": None, "duration_s": None,
+        "rate_hz": None,
+    }
+    if tcol is not None:
+        t = parse_time(df[tcol].str.strip(), tfmt)
+        t = t[~_nat_mask(t)]
+        if t.size:
+            t0, t1 = int(t.min()), int(t.max())
+            iso = [str(np.datetime64(x, "ns").astype("datetime64[ms]")) + "Z" for x in (t0, t1)]
+            out.update(start_time=iso[0], end_time=iso[1], duration_s=(t1 - t0) / 1e9,
+                       rate_hz=(t.size - 1) / ((t1 - t0) / 1e9) if t1 > t0 else None)
+    return out

@@ -20,10 +20,11 @@ from __future__ import annotations
 
 import io
 import json
+import re
 import struct
 import warnings
 import zlib
-from collections.abc import Iterable
+from collections.abc import Iterable, Iterator
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
@@ -33,7 +34,8 @@ import pandas as pd
 
 from hadal.errors import InputError
 
-__all__ = ["McapReport", "McapTopic", "mcap_info", "read_mcap", "read_mcap_tables", "to_dict"]
+__all__ = ["McapReport", "McapTopic", "describe_mcap", "mcap_info", "read_mcap", "read_mcap_tables", "ros2_type_name",
+           "to_dict"]
 
 _RECORD_LIMIT = 256 * 2**20  # a record header claiming more than 256 MiB is treated as corruption
 
@@ -48,6 +50,12 @@ class McapTopic:
     message_encoding: str
     log_time_ns: np.ndarray
     messages: list[dict[str, Any]]
+    #: the schema record's data (ros2msg text / JSON Schema), for mapping validation
+    schema_data: bytes | None = None
+    #: the channel(s) read: several channels on one topic with one schema are merged (time order)
+    channel_ids: list[int] = field(default_factory=list)
+    #: exact duplicates (same log time and payload on two channels of the topic) dropped by the merge
+    duplicates_dropped: int = 0
 
 
 @dataclass
@@ -63,6 +71,7 @@ class McapReport:
     decode_errors: int = 0
     truncated: bool = False
     problem: str | None = None
+    duplicates_dropped: int = 0
 
     def as_dict(self) -> dict[str, Any]:
         return asdict(self)
@@ -174,7 +183,7 @@ def _parse_chunk(data: bytes) -> list[tuple[int, Any]]:
     return out
 
 
-def _stream_reader(fh: Any) -> Any:
+def _stream_reader(fh: Any, keep: frozenset[int] = frozenset()) -> Any:
     """``mcap.stream_reader.StreamReader`` (chunks emitted whole) that skips index/attachment/metadata records
     without parsing them: parsing every chunk's MessageIndex (one Python call per message) cost more than
     the messages themselves. Chunk CRCs are checked in :func:`_chunk_bytes`, so the reader's own CRC
@@ -183,7 +192,7 @@ def _stream_reader(fh: Any) -> Any:
     from mcap.stream_reader import StreamReader
 
     skip = {Opcode.MESSAGE_INDEX, Opcode.CHUNK_INDEX, Opcode.ATTACHMENT, Opcode.ATTACHMENT_INDEX,
-            Opcode.METADATA, Opcode.METADATA_INDEX, Opcode.SUMMARY_OFFSET}
+            Opcode.METADATA, Opcode.METADATA_INDEX, Opcode.SUMMARY_OFFSET} - set(keep)
 
     class _Reader(StreamReader):
         def _read_record(self, opcode: int, length: int) -> Any:  # mcap 1.x hook
@@ -193,6 +202,36 @@ def _stream_reader(fh: Any) -> Any:
             return super()._read_record(opcode, length)
 
     return _Reader(fh, emit_chunks=True, validate_crcs=False, record_size_limit=_RECORD_LIMIT)
+
+
+class _Walk:
+    """One sequential pass over an MCAP stream: its records in file order (chunks whole, see
+    :func:`_stream_reader`) until damaged framing ends the pass (``problem`` says where: what came before is
+    kept); :meth:`chunk` unpacks a chunk's records, or gives ``None`` for a damaged chunk (counted in
+    ``corrupt``) so that only that chunk is skipped."""
+
+    def __init__(self, fh: Any, keep: frozenset[int] = frozenset()):
+        self._fh, self._records = fh, _stream_reader(fh, keep).records
+        self.problem: str | None = None
+        self.corrupt = 0
+
+    def __iter__(self) -> Iterator[Any]:
+        while True:
+            try:
+                rec = next(self._records)
+            except StopIteration:
+                return
+            except Exception as exc:  # noqa: BLE001 - truncated/corrupted framing: keep what we have
+                self.problem = f"reading stopped at byte {self._fh.tell()}: {type(exc).__name__} {exc}".strip()
+                return
+            yield rec
+
+    def chunk(self, rec: Any) -> list[tuple[int, Any]] | None:
+        try:
+            return _parse_chunk(_chunk_bytes(rec))
+        except Exception:  # noqa: BLE001 - bad compression / CRC / framing: skip this chunk only
+            self.corrupt += 1
+            return None
 
 
 def _scan(path: Path, topics: set[str] | None) -> tuple[dict, dict, dict[int, list], dict[int, list], McapReport, Any]:
@@ -227,21 +266,11 @@ def _scan(path: Path, topics: set[str] | None) -> tuple[dict, dict, dict[int, li
             report.decode_errors += 1  # message of an unknown channel
 
     with open(path, "rb") as fh:
-        it = _stream_reader(fh).records
-        while True:
-            try:
-                rec = next(it)
-            except StopIteration:
-                break
-            except Exception as exc:  # noqa: BLE001 - truncated/corrupted framing: keep what we have
-                report.truncated = True
-                report.problem = f"reading stopped at byte {fh.tell()}: {type(exc).__name__} {exc}".strip()
-                break
+        walk = _Walk(fh)
+        for rec in walk:
             if isinstance(rec, Chunk):
-                try:
-                    inner = _parse_chunk(_chunk_bytes(rec))
-                except Exception:  # noqa: BLE001 - bad compression / CRC / framing: skip this chunk only
-                    report.corrupt_chunks += 1
+                inner = walk.chunk(rec)
+                if inner is None:
                     continue
                 for op, r in inner:
                     if op == _OP_MESSAGE:
@@ -265,6 +294,7 @@ def _scan(path: Path, topics: set[str] | None) -> tuple[dict, dict, dict[int, li
                 wanted.pop(rec.id, None)
             elif isinstance(rec, Statistics):
                 stats = rec
+    report.truncated, report.problem, report.corrupt_chunks = walk.problem is not None, walk.problem, walk.corrupt
     return schemas, channels, times, datas, report, stats
 
 
@@ -284,6 +314,57 @@ def _decode_json(datas: list[bytes]) -> tuple[list[Any], int]:
             out.append(None)
             bad += 1
     return out, bad
+
+
+def _schema_label(ch: Any, sch: Any) -> str:
+    if sch is None:
+        return f"channel {ch.id}: no schema ({ch.message_encoding})"
+    return f"channel {ch.id}: {sch.name or '(unnamed)'} [{sch.encoding}/{ch.message_encoding}]"
+
+
+def _check_same_schema(path: Path, topic: str, chans: list[tuple[int, Any, Any]]) -> None:
+    """Several channels on one topic are merged only when they carry the same schema (name, encoding,
+    definition) and message encoding; otherwise a one-line :class:`InputError` naming the two schemas."""
+    def key(ch: Any, sch: Any) -> tuple:
+        return (ch.message_encoding, getattr(sch, "name", None), getattr(sch, "encoding", None),
+                bytes(getattr(sch, "data", b"") or b""))
+
+    _, ch0, s0 = chans[0]
+    for _, ch, sc in chans[1:]:
+        if key(ch, sc) != key(ch0, s0):
+            same_name = (getattr(sc, "name", None) == getattr(s0, "name", None)
+                         and getattr(sc, "encoding", None) == getattr(s0, "encoding", None)
+                         and ch.message_encoding == ch0.message_encoding)
+            raise InputError(
+                f"{path}: topic {topic} is recorded on {len(chans)} channels with different schemas "
+                f"({_schema_label(ch0, s0)}; {_schema_label(ch, sc)}"
+                f"{' - same name, different definitions' if same_name else ''}): hadal cannot merge them; "
+                "re-record or split the topic (mcap filter) so that one topic has one schema")
+
+
+def _merge_channels(parts: list[tuple[list[int], list[bytes]]]) -> tuple[list[bytes], np.ndarray, int, int]:
+    """Messages of several channels of one topic as one stream: time-sorted (stable: file order within a
+    time), a message equal in log time and payload to one of an earlier channel dropped as an exact
+    duplicate. Returns (payloads, log times, messages before dropping, duplicates dropped)."""
+    seen: set[tuple[int, bytes]] = set()
+    t_all: list[int] = []
+    d_all: list[bytes] = []
+    n_raw = dups = 0
+    for times_c, datas_c in parts:
+        n_raw += len(datas_c)
+        mine: list[tuple[int, bytes]] = []
+        for lt, d in zip(times_c, datas_c, strict=True):
+            k = (lt, bytes(d))
+            if k in seen:
+                dups += 1
+                continue
+            mine.append(k)
+            t_all.append(lt)
+            d_all.append(d)
+        seen.update(mine)
+    t = np.asarray(t_all, dtype=np.int64)
+    order = np.argsort(t, kind="stable")
+    return [d_all[i] for i in order], t[order], n_raw, dups
 
 
 def read_mcap(path: str | Path, topics: Iterable[str] | None = None, *, warn: bool = True
@@ -307,12 +388,21 @@ def read_mcap(path: str | Path, topics: Iterable[str] | None = None, *, warn: bo
 
     out: dict[str, McapTopic] = {}
     ros2_factory = None
+    by_topic: dict[str, list[int]] = {}
     for cid, ch in sorted(channels.items()):
-        if tset is not None and ch.topic not in tset:
-            continue
+        if tset is None or ch.topic in tset:
+            by_topic.setdefault(ch.topic, []).append(cid)
+    for topic, cids in by_topic.items():
+        cid, ch = cids[0], channels[cids[0]]
         sch = schemas.get(ch.schema_id)
-        raw = datas.pop(cid, [])  # released once decoded (peak memory: one topic's payloads + all decoded)
-        t = np.asarray(times.get(cid, []), dtype=np.int64)
+        dups = 0
+        if len(cids) == 1:
+            raw = datas.pop(cid, [])  # released once decoded (peak memory: one topic's payloads + all decoded)
+            t = np.asarray(times.get(cid, []), dtype=np.int64)
+            n_raw = len(raw)
+        else:
+            _check_same_schema(path, topic, [(c, channels[c], schemas.get(channels[c].schema_id)) for c in cids])
+            raw, t, n_raw, dups = _merge_channels([(times.get(c, []), datas.pop(c, [])) for c in cids])
         enc = ch.message_encoding
         if enc == "json":
             msgs, bad = _decode_json(raw)
@@ -343,13 +433,22 @@ def read_mcap(path: str | Path, topics: Iterable[str] | None = None, *, warn: bo
             msgs = [msgs[i] for i in keep]
             t = t[np.asarray(keep, dtype=np.int64)] if keep else t[:0]
         report.decode_errors += bad
-        expected = per_chan.get(cid, 0) if per_chan is not None else None
-        report.topics[ch.topic] = {
+        expected = sum(per_chan.get(c, 0) for c in cids) if per_chan is not None else None
+        report.topics[topic] = {
             "channel_id": cid, "schema": getattr(sch, "name", None), "schema_encoding": getattr(sch, "encoding", None),
             "message_encoding": enc, "read": len(msgs), "expected": expected,
-            "lost": (expected - len(raw)) if expected is not None else None, "decode_errors": bad,
+            "lost": (expected - n_raw) if expected is not None else None, "decode_errors": bad,
         }
-        out[ch.topic] = McapTopic(ch.topic, getattr(sch, "name", None), getattr(sch, "encoding", None), enc, t, msgs)
+        if len(cids) > 1:
+            report.topics[topic].update(channel_ids=list(cids), duplicates_dropped=dups)
+            report.duplicates_dropped += dups
+            if warn:
+                warnings.warn(f"{path.name}: topic {topic} is recorded on {len(cids)} channels "
+                              f"({', '.join(str(c) for c in cids)}) with the same schema "
+                              f"{getattr(sch, 'name', None)!r}: merged in time order, {dups} exact duplicate "
+                              "message(s) dropped", stacklevel=2)
+        out[topic] = McapTopic(topic, getattr(sch, "name", None), getattr(sch, "encoding", None), enc, t, msgs,
+                               getattr(sch, "data", None), list(cids), dups)
 
     report.messages_read = sum(len(v.messages) for v in out.values())
     if total is not None and tset is None:
@@ -358,7 +457,7 @@ def read_mcap(path: str | Path, topics: Iterable[str] | None = None, *, warn: bo
         report.messages_expected = sum(n for cid, n in per_chan.items()
                                        if cid in channels and (tset is None or channels[cid].topic in tset))
     if report.messages_expected is not None:
-        report.messages_lost = max(report.messages_expected - report.messages_read, 0)
+        report.messages_lost = max(report.messages_expected - report.messages_read - report.duplicates_dropped, 0)
     elif report.truncated or report.corrupt_chunks:
         report.messages_lost = None  # unknown: no summary survived
     else:
@@ -372,6 +471,9 @@ def read_mcap(path: str | Path, topics: Iterable[str] | None = None, *, warn: bo
             what.append(f"{report.corrupt_chunks} corrupt chunk(s) skipped")
         if report.decode_errors:
             what.append(f"{report.decode_errors} undecodable message(s)")
+        if not what:
+            what.append(f"the summary counts {report.messages_expected} message(s) on these topics, "
+                        f"{report.messages_read} were found")
         warnings.warn(f"{path.name}: {lost} message(s) lost ({'; '.join(what)}); "
                       f"recovered {report.messages_read}", stacklevel=2)
     return out, report
@@ -427,3 +529,378 @@ def mcap_info(path: str | Path) -> list[dict[str, Any]]:
              "schema_encoding": getattr(schemas.get(c.schema_id), "encoding", None),
              "message_encoding": c.message_encoding, "messages": len(times.get(c.id, []))}
             for c in sorted(channels.values(), key=lambda c: c.id)]
+
+
+# --------------------------------------------------------------------------------------------------------------
+# describe: what is in an MCAP file (``hadal inspect``, ``hadal init``)
+# --------------------------------------------------------------------------------------------------------------
+
+
+def ros2_type_name(schema_name: str | None) -> str | None:
+    """``pkg/msg/Type`` for a ROS 2 schema name (``test_msgs/BasicTypes`` -> ``test_msgs/msg/BasicTypes``)."""
+    if not schema_name:
+        return None
+    parts = schema_name.split("/")
+    if len(parts) == 2:
+        return f"{parts[0]}/msg/{parts[1]}"
+    return schema_name
+
+
+def _iso(ns: int | None) -> str | None:
+    if ns is None:
+        return None
+    return str(np.datetime64(int(ns), "ns").astype("datetime64[ms]")) + "Z"
+
+
+def _preview(v: Any, depth: int = 0) -> Any:
+    """JSON-safe, abridged copy of a decoded message (lists cut to 8 items, long strings to 200 characters)."""
+    if isinstance(v, dict):
+        return {str(k): _preview(x, depth + 1) for k, x in v.items()} if depth < 8 else "{...}"
+    if isinstance(v, (list, tuple)):
+        out = [_preview(x, depth + 1) for x in list(v)[:8]]
+        return out + [f"... ({len(v)} items)"] if len(v) > 8 else out
+    if isinstance(v, float) and not np.isfinite(v):
+        return str(v)
+    if isinstance(v, (np.integer, np.floating)):
+        return _preview(v.item())
+    if isinstance(v, str) and len(v) > 200:
+        return v[:200] + "..."
+    if isinstance(v, (bytes, bytearray)):
+        return _preview(list(v), depth)
+    return v
+
+
+def field_names(msg: dict[str, Any], prefix: str = "") -> list[str]:
+    """Dotted names of the leaf fields of a decoded message (lists are leaves)."""
+    out: list[str] = []
+    for k, v in msg.items():
+        key = f"{prefix}{k}"
+        if isinstance(v, dict) and v:
+            out.extend(field_names(v, key + "."))
+        else:
+            out.append(key)
+    return out
+
+
+_ROS_FIELD = re.compile(r"^\s*([A-Za-z0-9_/]+(?:\[[^\]]*\])?(?:<=\d+)?)\s+([A-Za-z_][A-Za-z0-9_]*)"
+                                      r"(?:\s+[^#]*)?(?:#\s*(.*))?$")
+
+
+def _ros2msg_docs(schema_name: str, text: str) -> dict[str, str]:
+    """Comments of the fields of a ``ros2msg`` definition (with its dependencies), by dotted field path:
+    ``float64 pressure  # dbar`` -> ``{"pressure": "dbar"}``. Constants (``uint8 A=1``) are skipped."""
+    sections: dict[str, list[tuple[str, str, str]]] = {}
+    name = schema_name
+    for block in text.split("\n" + "=" * 80 + "\n"):
+        lines = block.strip("\n").splitlines()
+        if lines and lines[0].startswith("MSG: "):
+            name, lines = lines[0][5:].strip(), lines[1:]
+        fields = []
+        for ln in lines:
+            if not ln.strip() or ln.lstrip().startswith("#"):
+                continue
+            m = _ROS_FIELD.match(ln)
+            if not m or "=" in ln.split("#", 1)[0]:
+                continue
+            fields.append((m.group(1), m.group(2), (m.group(3) or "").strip()))
+        sections[name] = fields
+        name = ""
+
+    def resolve(t: str, pkg: str) -> str | None:
+        base = t.split("[", 1)[0].split("<=", 1)[0]
+        for cand in (base, base.replace("/", "/msg/", 1), f"{pkg}/{base}", f"{pkg}/msg/{base}"):
+            if cand in sections:
+                return cand
+        short = base.rsplit("/", 1)[-1]
+        for k in sections:
+            if k.rsplit("/", 1)[-1] == short and ("/" not in base or k.split("/")[0] == base.split("/")[0]):
+                return k
+        return None
+
+    out: dict[str, str] = {}
+
+    def walk(tname: str, prefix: str, depth: int) -> None:
+        pkg = tname.split("/", 1)[0]
+        for ftype, fname, comment in sections.get(tname, []):
+            path = f"{prefix}{fname}"
+            sub = resolve(ftype, pkg) if "[" not in ftype else None
+            if sub is not None and sub != tname and depth < 8:
+                walk(sub, path + ".", depth + 1)
+            elif comment:
+                out[path] = comment
+    root = schema_name if schema_name in sections else next(iter(sections), "")
+    walk(root, "", 0)
+    return out
+
+
+#: ROS 2 primitive types that decode to one number
+ROS2_NUMERIC = frozenset({"int8", "uint8", "int16", "uint16", "int32", "uint32", "int64", "uint64", "float32",
+                          "float64", "float", "double", "byte", "char", "octet"})
+
+
+def _ros2msg_sections(schema_name: str, text: str) -> dict[str, list[tuple[str, str]]]:
+    """``{type name: [(field type, field name), ...]}`` of a ``ros2msg`` definition and its dependencies."""
+    sections: dict[str, list[tuple[str, str]]] = {}
+    name = schema_name
+    for block in text.split("\n" + "=" * 80 + "\n"):
+        lines = block.strip("\n").splitlines()
+        if lines and lines[0].startswith("MSG: "):
+            name, lines = lines[0][5:].strip(), lines[1:]
+        fields = []
+        for ln in lines:
+            if not ln.strip() or ln.lstrip().startswith("#"):
+                continue
+            m = _ROS_FIELD.match(ln)
+            if not m or _is_constant(ln):
+                continue
+            fields.append((m.group(1), m.group(2)))
+        sections[name] = fields
+        name = ""
+    return sections
+
+
+def _is_constant(line: str) -> bool:
+    parts = line.split("#", 1)[0].split(None, 1)
+    return len(parts) == 2 and "=" in parts[1].split(None, 1)[0]
+
+
+def ros2_field_type(schema_name: str | None, text: str, path: str) -> str | None:
+    """The ROS 2 type of the (dotted) field ``path`` of a ``ros2msg`` schema: a primitive (``float64``,
+    ``bool``, ``string``), an array (``float64[9]``, ``float64[]``; ``a.0`` gives the element type) or a
+    message type (``builtin_interfaces/Time``); ``None`` when the field is not in the definition."""
+    sections = _ros2msg_sections(schema_name or "", text)
+    if not sections:
+        return None
+
+    def resolve(t: str, pkg: str) -> str | None:
+        base = t.split("[", 1)[0].split("<=", 1)[0]
+        for cand in (base, base.replace("/", "/msg/", 1), f"{pkg}/{base}", f"{pkg}/msg/{base}"):
+            if cand in sections:
+                return cand
+        short = base.rsplit("/", 1)[-1]
+        for k in sections:
+            if k.rsplit("/", 1)[-1] == short and ("/" not in base or k.split("/")[0] == base.split("/")[0]):
+                return k
+        return None
+
+    cur: str | None = schema_name if schema_name in sections else next(iter(sections))
+    ftype: str | None = None
+    for part in path.split("."):
+        if ftype is not None and "[" in ftype and part.isdigit():
+            ftype = ftype.split("[", 1)[0]  # element of an array
+            if ftype in ROS2_NUMERIC or ftype in ("bool", "string", "wstring"):
+                cur = None
+            else:
+                cur = resolve(ftype, (cur or "").split("/", 1)[0])
+            continue
+        if cur is None:
+            return None
+        hit = next((ft for ft, fn in sections.get(cur, []) if fn == part), None)
+        if hit is None:
+            return None
+        ftype = hit
+        base = hit.split("[", 1)[0].split("<=", 1)[0]
+        cur = None if ("[" in hit or base in ROS2_NUMERIC or base in ("bool", "string", "wstring")) \
+            else resolve(hit, cur.split("/", 1)[0])
+    return ftype
+
+
+def _jsonschema_docs(schema: Any, prefix: str = "", depth: int = 0) -> dict[str, str]:
+    """``units``/``unit`` or ``description`` of each property of a JSON Schema, by dotted field path."""
+    out: dict[str, str] = {}
+    if not isinstance(schema, dict) or depth > 8:
+        return out
+    for k, prop in (schema.get("properties") or {}).items():
+        if not isinstance(prop, dict):
+            continue
+        path = f"{prefix}{k}"
+        unit = prop.get("units", prop.get("unit"))
+        desc = prop.get("description")
+        text = "; ".join(str(x) for x in ((f"units: {unit}" if unit else None), desc) if x)
+        if text:
+            out[path] = text
+        out.update(_jsonschema_docs(prop, path + ".", depth + 1))
+    return out
+
+
+def _decode_first(enc: str, sch: Any, data: bytes, factory: list[Any]) -> tuple[Any, str | None]:
+    if enc == "json":
+        try:
+            return json.loads(data), None
+        except (ValueError, UnicodeDecodeError) as exc:
+            return None, f"invalid JSON: {exc}"
+    if enc == "cdr" and sch is not None and sch.encoding in ("ros2msg", "ros2idl"):
+        try:
+            if not factory:
+                from mcap_ros2.decoder import DecoderFactory
+
+                factory.append(DecoderFactory())
+            return to_dict(factory[0].decoder_for(enc, sch)(data)), None
+        except Exception as exc:  # noqa: BLE001 - broken definition or payload: describe, don't fail
+            return None, f"cannot decode ({type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''})"
+    return None, (f"message encoding {enc!r} (schema {getattr(sch, 'encoding', None)!r}) is not decoded by hadal "
+                  "(it reads 'json' and ROS 2 'cdr')")
+
+
+def describe_mcap(path: str | Path) -> dict[str, Any]:
+    """What is in an MCAP file, as a JSON-serialisable dict (``hadal inspect``, ``hadal init``).
+
+    One sequential pass with the same damage recovery as :func:`read_mcap` (intact chunks of a truncated or
+    corrupted file are kept). Keys: ``path``, ``format`` (``"mcap"``), ``size_bytes``, ``profile``, ``library``,
+    ``message_count``, ``start_time``/``end_time`` (ISO 8601 UTC) and ``duration_s``, ``chunks`` (``read``,
+    ``corrupt``, ``expected``/``lost`` when the summary survived, ``compression``), ``truncated``, ``problem``,
+    ``messages_expected``/``messages_lost`` (``None`` when unknown), ``summary`` (whether a summary section
+    was read), ``metadata`` (record names), ``attachments`` and ``channels``: one dict per channel with
+    ``id``, ``topic``, ``message_encoding``, ``schema_name``, ``schema_encoding``, ``message_type`` (ROS 2
+    ``pkg/msg/Type`` or the schema name), ``metadata``, ``message_count`` (read), ``messages_expected``,
+    ``first_log_time``/``last_log_time``, ``rate_hz``, ``fields`` (dotted names of the first decoded
+    message), ``first_message`` (abridged), ``field_docs`` (units/comments from the schema) and
+    ``decode_error``. Raises :class:`InputError` only when the file is missing, empty or not MCAP.
+    """
+    from mcap.opcode import Opcode
+    from mcap.records import (
+        Attachment,
+        Channel,
+        Chunk,
+        ChunkIndex,
+        Header,
+        Message,
+        Metadata,
+        Schema,
+        Statistics,
+    )
+
+    path = Path(path)
+    _open_check(path)
+    schemas: dict[int, Any] = {}
+    channels: dict[int, Any] = {}
+    count: dict[int, int] = {}
+    tmin: dict[int, int] = {}
+    tmax: dict[int, int] = {}
+    first: dict[int, bytes] = {}
+    header = None
+    stats = None
+    chunk_indexes = 0
+    chunks_read = attachments = 0
+    compression: set[str] = set()
+    metadata: list[str] = []
+
+    def add(cid: int, lt: int, data: bytes) -> None:
+        n = count.get(cid)
+        if n is None:
+            count[cid] = 1
+            tmin[cid] = tmax[cid] = lt
+            first[cid] = bytes(data)
+            return
+        count[cid] = n + 1
+        if lt < tmin[cid]:
+            tmin[cid] = lt
+        elif lt > tmax[cid]:
+            tmax[cid] = lt
+
+    keep = frozenset({Opcode.CHUNK_INDEX, Opcode.ATTACHMENT, Opcode.METADATA})
+    with open(path, "rb") as fh:
+        walk = _Walk(fh, keep)
+        for rec in walk:
+            if isinstance(rec, Chunk):
+                compression.add(rec.compression or "none")
+                inner = walk.chunk(rec)
+                if inner is None:
+                    continue
+                chunks_read += 1
+                for op, r in inner:
+                    if op == _OP_MESSAGE:
+                        add(*r)
+                    elif op == _OP_SCHEMA:
+                        schemas[r.id] = r
+                    else:
+                        channels[r.id] = r
+            elif isinstance(rec, Message):
+                add(rec.channel_id, rec.log_time, rec.data)
+            elif isinstance(rec, Schema):
+                schemas[rec.id] = rec
+            elif isinstance(rec, Channel):
+                channels[rec.id] = rec
+            elif isinstance(rec, Header):
+                header = rec
+            elif isinstance(rec, Statistics):
+                stats = rec
+            elif isinstance(rec, ChunkIndex):
+                chunk_indexes += 1
+            elif isinstance(rec, Metadata):
+                metadata.append(rec.name)
+            elif isinstance(rec, Attachment):
+                attachments += 1
+    truncated, problem, corrupt = walk.problem is not None, walk.problem, walk.corrupt
+    summary_read = stats is not None
+    if stats is None and (truncated or corrupt):
+        from mcap.reader import make_reader
+
+        try:  # a seeking reader finds the footer's summary when only the middle of the file is damaged
+            with open(path, "rb") as fh:
+                s = make_reader(fh).get_summary()
+            if s is not None:
+                stats = s.statistics
+                chunk_indexes = len(s.chunk_indexes)
+                summary_read = True
+                for sid, sc in s.schemas.items():
+                    schemas.setdefault(sid, sc)
+                for cid, c in s.channels.items():
+                    channels.setdefault(cid, c)
+        except Exception:  # noqa: BLE001 - no summary either
+            pass
+    per_chan = dict(stats.channel_message_counts) if stats is not None else None
+    factory: list[Any] = []
+    out_channels = []
+    for cid, ch in sorted(channels.items()):
+        sch = schemas.get(ch.schema_id)
+        enc = ch.message_encoding
+        sname = getattr(sch, "name", None)
+        senc = getattr(sch, "encoding", None)
+        is_ros = enc == "cdr" or (senc or "").startswith("ros")
+        msg, err = (None, None)
+        if cid in first:
+            msg, err = _decode_first(enc, sch, first[cid], factory)
+        docs: dict[str, str] = {}
+        try:
+            if senc == "jsonschema" and sch is not None and sch.data:
+                js = json.loads(sch.data)
+                docs = _jsonschema_docs(js)
+                if not sname:
+                    sname = js.get("title")
+            elif senc == "ros2msg" and sch is not None:
+                docs = _ros2msg_docs(sname or "", sch.data.decode("utf-8", errors="replace"))
+        except (ValueError, UnicodeDecodeError, AttributeError):
+            docs = {}
+        n = count.get(cid, 0)
+        span = (tmax[cid] - tmin[cid]) / 1e9 if n > 1 else None
+        out_channels.append({
+            "id": cid, "topic": ch.topic, "message_encoding": enc, "schema_name": sname, "schema_encoding": senc,
+            "message_type": ros2_type_name(sname) if is_ros else sname,
+            "metadata": dict(ch.metadata or {}), "message_count": n,
+            "messages_expected": int(per_chan.get(cid, 0)) if per_chan is not None else None,
+            "first_log_time": _iso(tmin.get(cid)), "last_log_time": _iso(tmax.get(cid)),
+            "first_log_time_ns": tmin.get(cid), "last_log_time_ns": tmax.get(cid),
+            "rate_hz": (n - 1) / span if span else None,
+            "fields": field_names(msg) if isinstance(msg, dict) else [],
+            "first_message": _preview(msg) if msg is not None else None,
+            "field_docs": docs, "decode_error": err,
+        })
+    total = sum(count.values())
+    expected = int(stats.message_count) if stats is not None else None
+    t0 = min(tmin.values()) if tmin else None
+    t1 = max(tmax.values()) if tmax else None
+    lost = max(expected - total, 0) if expected is not None else (0 if not (truncated or corrupt) else None)
+    return {
+        "path": str(path), "format": "mcap", "size_bytes": path.stat().st_size,
+        "profile": getattr(header, "profile", None), "library": getattr(header, "library", None),
+        "message_count": total, "start_time": _iso(t0), "end_time": _iso(t1),
+        "duration_s": (t1 - t0) / 1e9 if t0 is not None and t1 is not None else None,
+        "chunks": {"read": chunks_read, "corrupt": corrupt,
+                   "expected": chunk_indexes if summary_read else None,
+                   "lost": max(chunk_indexes - chunks_read, 0) if summary_read else None,
+                   "compression": sorted(compression)},
+        "truncated": truncated, "problem": problem, "summary": summary_read,
+        "messages_expected": expected, "messages_lost": lost,
+        "metadata": metadata, "attachments": attachments, "channels": out_channels,
+    }

@@ -34,16 +34,19 @@ GOOD, NOT_EVALUATED, SUSPECT, BAD, MISSING = 1, 2, 3, 4, 9
 class VariableQC(BaseModel):
     """QARTOD test configuration of one variable (units: the variable's)."""
 
-    model_config = ConfigDict(extra="forbid")
-    fail_span: tuple[float, float] | None = None
-    suspect_span: tuple[float, float] | None = None
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+    fail_span: tuple[float, float] | None = Field(None, description="values outside (low, high) are flagged 4 (finite)")
+    suspect_span: tuple[float, float] | None = Field(None, description="values outside (low, high) are flagged 3 "
+                                                                        "(finite, inside fail_span)")
     #: values at or above this are flagged 4 (sensor saturation, e.g. SBE49 10 500 dbar)
-    saturation: float | None = None
-    spike_suspect: float | None = None
-    spike_fail: float | None = None
-    flat_line_suspect_s: float | None = None
-    flat_line_fail_s: float | None = None
-    flat_line_tolerance: float = 0.0
+    saturation: float | None = Field(None, description="values at or above this are flagged 4 (sensor saturation)")
+    spike_suspect: float | None = Field(None, gt=0, description="spike test: suspect above this (variable's units)")
+    spike_fail: float | None = Field(None, gt=0, description="spike test: fail above this (variable's units)")
+    flat_line_suspect_s: float | None = Field(None, gt=0, le=31_536_000,
+                                              description="flat line longer than this (s, up to a year): suspect")
+    flat_line_fail_s: float | None = Field(None, gt=0, le=31_536_000,
+                                           description="flat line longer than this (s, up to a year): fail")
+    flat_line_tolerance: float = Field(0.0, ge=0, description="flat line: changes up to this count as flat")
     #: reject the whole input (InputError) when more than this fraction of finite values is outside the
     #: fail span: a unit mistake (mS/cm logged as S/m) rather than bad samples
     max_fail_fraction: float = Field(0.5, ge=0, le=1)

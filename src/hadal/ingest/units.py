@@ -19,7 +19,8 @@ import numpy as np
 
 from hadal.errors import ConfigError
 
-__all__ = ["CANONICAL_UNITS", "convert", "normalise_unit"]
+__all__ = ["CANONICAL_UNITS", "TRANSFORMS", "Transform", "apply_transform", "convert", "normalise_unit",
+           "quaternion_to_euler_deg", "unit_dimension"]
 
 #: variable -> canonical unit token
 CANONICAL_UNITS: dict[str, str] = {
@@ -77,6 +78,10 @@ _ALIASES: dict[str, str] = {
     "degc_its68": "degC_its68", "its-68": "degC_its68", "ipts-68": "degC_its68", "its68": "degC_its68",
     "degc_ipts68": "degC_its68", "its-68, deg c": "degC_its68",
     "k": "K", "kelvin": "K",
+    "pascal": "Pa", "pascals": "Pa", "decibars": "dbar", "bars": "bar", "millibar": "mbar", "hectopascal": "mbar",
+    "degrees_c": "degC_its90", "deg_c": "degC_its90", "celsius": "degC_its90", "degrees celsius": "degC_its90",
+    "degree_celsius": "degC_its90", "metres": "m", "meters": "m", "m_s": "m/s", "ms_cm": "mS/cm", "s_m": "S/m",
+    "us_cm": "uS/cm", "ms_m": "mS/m", "cm_s": "cm/s", "m/sec": "m/s", "radians": "rad", "deg_true": "deg",
 }
 
 _DIM_OF_VAR = {v: ("temperature" if u.startswith("degC") else _LINEAR[u][0]) for v, u in CANONICAL_UNITS.items()}
@@ -90,6 +95,13 @@ def normalise_unit(unit: str) -> str:
     if unit in _LINEAR or unit in _TEMPERATURE:
         return unit
     raise ConfigError(f"unknown unit {unit!r}; known: {', '.join(sorted(set(_ALIASES.values())))}")
+
+
+def unit_dimension(unit: str) -> str:
+    """Physical dimension of a unit (``conductivity``, ``temperature``, ``pressure``, ``length``, ``angle``,
+    ``speed``); :class:`ConfigError` for an unknown unit."""
+    u = normalise_unit(unit)
+    return "temperature" if u in _TEMPERATURE else _LINEAR[u][0]
 
 
 def check_unit(variable: str, unit: str) -> str:
@@ -123,3 +135,112 @@ def convert(values: Any, unit: str, variable: str) -> tuple[np.ndarray, dict[str
             return x - 273.15, {"variable": variable, "from": "K", "to": "degC (ITS-90)", "formula": "T - 273.15"}
     factor = _LINEAR[u][1] / _LINEAR[target][1]
     return x * factor, {"variable": variable, "from": u, "to": target, "formula": f"x * {factor:.10g}"}
+
+
+# --------------------------------------------------------------------------------------------------------------
+# Transforms: values computed from several source fields before the unit conversion (vehicle.yaml ``transform``)
+# --------------------------------------------------------------------------------------------------------------
+
+
+class Transform:
+    """A named, documented computation of one value from ``n_inputs`` source fields (``None``: any number >= 1).
+
+    ``unit``: the unit of the result (``None``: the unit of the inputs, given as the mapping's ``units``);
+    ``dimension``: the result's dimension (checked against the variable's)."""
+
+    def __init__(self, name: str, n_inputs: int | None, unit: str | None, dimension: str, doc: str):
+        self.name, self.n_inputs, self.unit, self.dimension, self.doc = name, n_inputs, unit, dimension, doc
+
+
+def quaternion_to_euler_deg(x, y, z, w, frame: str = "enu") -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Unit quaternion(s) -> marine (heading, pitch, roll) in degrees.
+
+    ``frame="enu"``: ROS REP 103 orientation of a FLU body (x forward, y left, z up) in an ENU world (x east,
+    y north, z up), as in ``sensor_msgs/Imu`` and ``nav_msgs/Odometry``. ``frame="ned"``: FRD body in a NED
+    world (many marine INS drivers). Results follow the hadal/CF conventions: heading clockwise from north in
+    [0, 360), pitch positive bow up, roll positive starboard down. The intrinsic Z-Y'-X'' (yaw, pitch, roll)
+    Tait-Bryan angles are taken from the normalised quaternion; a zero (unset) quaternion gives NaN.
+    """
+    q = [np.asarray(v, dtype=np.float64) for v in (x, y, z, w)]
+    n = np.sqrt(q[0] ** 2 + q[1] ** 2 + q[2] ** 2 + q[3] ** 2)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        qx, qy, qz, qw = (np.where(n > 1e-9, v / n, np.nan) for v in q)
+    roll = np.degrees(np.arctan2(2 * (qw * qx + qy * qz), 1 - 2 * (qx * qx + qy * qy)))
+    pitch = np.degrees(np.arcsin(np.clip(2 * (qw * qy - qz * qx), -1.0, 1.0)))
+    yaw = np.degrees(np.arctan2(2 * (qw * qz + qx * qy), 1 - 2 * (qy * qy + qz * qz)))
+    if frame == "enu":  # yaw counter-clockwise from east; FLU pitch positive nose down
+        return np.mod(90.0 - yaw, 360.0), -pitch, roll
+    if frame == "ned":
+        return np.mod(yaw, 360.0), pitch, roll
+    raise ValueError(f"unknown frame {frame!r}")
+
+
+def _quat(which: int, frame: str):
+    def f(inputs, **_):
+        return quaternion_to_euler_deg(*inputs, frame=frame)[which]
+    return f
+
+
+def _latlon(which: int):
+    def f(inputs, origin=None, **_):
+        from hadal.geo import LocalFrame
+
+        lat, lon = (np.asarray(v, dtype=np.float64) for v in inputs)
+        ok = np.isfinite(lat) & np.isfinite(lon) & (np.abs(lat) <= 90) & (np.abs(lon) <= 360)
+        out = np.full(lat.shape, np.nan)
+        if not ok.any():
+            return out
+        if origin is None:
+            i = int(np.argmax(ok))
+            origin = (float(lat[i]), float(lon[i]))
+        frame = LocalFrame(float(origin[0]), float(origin[1]))
+        xy = frame.to_xy(lon[ok], lat[ok])
+        out[ok] = xy[which]
+        return out
+    return f
+
+
+def _norm(inputs, **_):
+    arr = [np.asarray(v, dtype=np.float64) for v in inputs]
+    return np.sqrt(sum(a * a for a in arr))
+
+
+#: name -> (Transform, implementation(inputs: list[array], origin=...) -> array)
+TRANSFORMS: dict[str, tuple[Transform, Any]] = {
+    t.name: (t, f) for t, f in [
+        (Transform("quaternion_to_heading_deg", 4, "deg", "angle",
+                   "heading (deg clockwise from north) from an ENU/FLU quaternion [x, y, z, w] (ROS REP 103)"),
+         _quat(0, "enu")),
+        (Transform("quaternion_to_pitch_deg", 4, "deg", "angle",
+                   "pitch (deg, bow up positive) from an ENU/FLU quaternion [x, y, z, w] (ROS REP 103)"),
+         _quat(1, "enu")),
+        (Transform("quaternion_to_roll_deg", 4, "deg", "angle",
+                   "roll (deg, starboard down positive) from an ENU/FLU quaternion [x, y, z, w] (ROS REP 103)"),
+         _quat(2, "enu")),
+        (Transform("ned_quaternion_to_heading_deg", 4, "deg", "angle",
+                   "heading (deg clockwise from north) from a NED/FRD quaternion [x, y, z, w]"), _quat(0, "ned")),
+        (Transform("ned_quaternion_to_pitch_deg", 4, "deg", "angle",
+                   "pitch (deg, bow up positive) from a NED/FRD quaternion [x, y, z, w]"), _quat(1, "ned")),
+        (Transform("ned_quaternion_to_roll_deg", 4, "deg", "angle",
+                   "roll (deg, starboard down positive) from a NED/FRD quaternion [x, y, z, w]"), _quat(2, "ned")),
+        (Transform("latlon_to_east_m", 2, "m", "length",
+                   "metres east of `origin` [lat, lon] (default: the first valid fix) from [latitude, longitude] "
+                   "in degrees (transverse Mercator centred on the origin, as hadal.geo.LocalFrame)"), _latlon(0)),
+        (Transform("latlon_to_north_m", 2, "m", "length",
+                   "metres north of `origin` [lat, lon] (default: the first valid fix) from [latitude, longitude] "
+                   "in degrees (transverse Mercator centred on the origin, as hadal.geo.LocalFrame)"), _latlon(1)),
+        (Transform("vector_norm", None, None, "any",
+                   "Euclidean norm of the input components (e.g. speed from twist.linear.x and .y), "
+                   "in the mapping's `units`"), _norm),
+    ]
+}
+
+
+def apply_transform(name: str, inputs: list[Any], origin: tuple[float, float] | None = None) -> np.ndarray:
+    """Apply the transform ``name`` (:data:`TRANSFORMS`) to the input arrays."""
+    if name not in TRANSFORMS:
+        raise ConfigError(f"unknown transform {name!r}; known: {', '.join(TRANSFORMS)}")
+    t, f = TRANSFORMS[name]
+    if t.n_inputs is not None and len(inputs) != t.n_inputs:
+        raise ConfigError(f"transform {name} takes {t.n_inputs} fields, got {len(inputs)}")
+    return np.asarray(f(inputs, origin=origin), dtype=np.float64)

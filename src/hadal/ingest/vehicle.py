@@ -31,21 +31,66 @@ import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
 from hadal.errors import ConfigError
-from hadal.ingest.units import CANONICAL_UNITS, check_unit
+from hadal.ingest.units import CANONICAL_UNITS, TRANSFORMS, check_unit, normalise_unit
 
-__all__ = ["FieldMap", "TimeSpec", "McapSource", "CsvSource", "SensorConfig", "VehicleConfig",
+__all__ = ["TIME_FORMATS", "FieldMap", "TimeSpec", "McapSource", "CsvSource", "SensorConfig", "VehicleConfig",
            "load_vehicle_config", "default_vehicle_config_path"]
 
 #: time formats understood by :func:`hadal.ingest.csv_reader.parse_time` (or any strftime pattern with '%')
-TIME_FORMATS = ("unix_ns", "unix_ms", "unix_s", "iso8601")
+TIME_FORMATS = ("unix_ns", "unix_ms", "unix_s", "iso8601", "ros_time")
 
 
 class FieldMap(BaseModel):
-    """One source field/column and the unit it is logged in."""
+    """One source field/column and the unit it is logged in; optionally a ``transform`` of several fields
+    (``field`` is then the list of its inputs) and an ``offset`` added after the unit conversion."""
 
     model_config = ConfigDict(extra="forbid")
-    field: str = Field(min_length=1)
-    units: str
+    field: str | list[str] = Field(description="message field (dotted for nested ROS 2 fields: pose.position.x) or "
+                                               "CSV column; a list of them as the inputs of a 'transform'")
+    units: str = Field(description="unit the value is logged in (of the transform's result when there is one), "
+                                   "converted to the variable's unit")
+    transform: str | None = Field(None, description="computation from several fields: " + ", ".join(TRANSFORMS),
+                                  json_schema_extra={"examples": list(TRANSFORMS)})
+    #: added to the value after the conversion to the variable's unit (e.g. -10.1325 dbar: absolute -> sea pressure)
+    offset: float | None = Field(None, description="added after the unit conversion, in the variable's unit "
+                                                   "(-10.1325: absolute -> sea pressure in dbar)")
+    #: [latitude, longitude] of the origin of a ``latlon_to_*`` transform (default: the first valid fix)
+    origin: tuple[float, float] | None = Field(None, description="[latitude, longitude] origin of the latlon_to_* "
+                                                                 "transforms (default: the first valid fix)")
+
+    @model_validator(mode="after")
+    def _check_transform(self) -> FieldMap:
+        names = [self.field] if isinstance(self.field, str) else list(self.field)
+        if not names or any(not n for n in names):
+            raise ValueError("field names must not be empty")
+        if self.transform is None:
+            if not isinstance(self.field, str):
+                raise ValueError("a list of fields needs a 'transform' that combines them")
+            if self.origin is not None:
+                raise ValueError("'origin' only applies to the latlon_to_* transforms")
+            return self
+        if self.transform not in TRANSFORMS:
+            raise ValueError(f"unknown transform {self.transform!r}; known: {', '.join(TRANSFORMS)}")
+        t = TRANSFORMS[self.transform][0]
+        if t.n_inputs is not None and len(names) != t.n_inputs:
+            raise ValueError(f"transform {t.name} takes {t.n_inputs} fields ({t.doc}), got {len(names)}")
+        try:
+            unit = normalise_unit(self.units)
+        except ConfigError as exc:
+            raise ValueError(str(exc)) from None
+        if t.unit is not None and unit != t.unit:
+            raise ValueError(f"transform {t.name} gives {t.unit}; set units: {t.unit}")
+        if self.origin is not None and not t.name.startswith("latlon_"):
+            raise ValueError("'origin' only applies to the latlon_to_* transforms")
+        return self
+
+    def inputs(self) -> list[str]:
+        """The source field names (one, or a transform's inputs)."""
+        return [self.field] if isinstance(self.field, str) else list(self.field)
+
+    def label(self) -> str:
+        """``field`` or ``transform(a, b, ...)`` for messages and metadata."""
+        return self.field if isinstance(self.field, str) else f"{self.transform}({', '.join(self.field)})"
 
 
 class TimeSpec(BaseModel):
@@ -53,6 +98,7 @@ class TimeSpec(BaseModel):
 
     model_config = ConfigDict(extra="forbid")
     field: str = "log_time"
+    #: unix_ns | unix_ms | unix_s | iso8601 | ros_time (a {sec, nanosec} sub-message, MCAP only) | strftime pattern
     format: str = "unix_ns"
 
     @field_validator("format")
@@ -92,6 +138,13 @@ class CsvSource(_Source):
     source: str = Field(min_length=1)
     delimiter: str = ","
     time: TimeSpec = Field(default_factory=lambda: TimeSpec(field="time", format="iso8601"))
+
+    @field_validator("time")
+    @classmethod
+    def _csv_time(cls, v: TimeSpec) -> TimeSpec:
+        if v.format == "ros_time":
+            raise ValueError("time format 'ros_time' (a ROS sub-message) applies to MCAP sources only")
+        return v
 
 
 class SensorConfig(BaseModel):

@@ -30,7 +30,6 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.fft as sfft
 
-from hadal.landing.slope import plane_gradient_from_sums
 from hadal.landing.vehicle import Vehicle
 
 UNMAPPED = np.uint8(1)
@@ -183,15 +182,20 @@ class HeadingCorrelator:
         FuBc = (-1j * F1.imag).astype(np.complex64)  # conj of the imaginary spectrum of uB
         unmapped = self._corr(self.F_u, FB) > 0.5
         high = self._corr(self.F_h, FB) > 0.5 if self.high_any else np.zeros(self.shape, bool)
-        slope = np.full(self.shape, np.nan)
+        slope = np.full(self.shape, np.nan, np.float32)
         if need_slope or (need_slope is None and np.any(~(unmapped | high | self.static))):
             FvB = self._kernel_spectrum(rr, cc, w)
-            s_uz = self._corr(self.F_z, FuBc).astype(float)
-            s_vz = self._corr(self.F_z, np.conj(FvB)).astype(float)
+            s_uz = self._corr(self.F_z, FuBc)
+            s_vz = self._corr(self.F_z, np.conj(FvB))
             uu = float(np.sum(cc.astype(float) ** 2))
             vv = float(np.sum(rr.astype(float) ** 2))
             uv = float(np.sum(cc.astype(float) * rr))
-            a, b = plane_gradient_from_sums(s_uz, s_vz, uu, vv, uv)
-            slope = np.degrees(np.arctan(np.hypot(a + self.plane[1], b + self.plane[2]) / self.cell_m))
+            # single precision (the sums are small: the global plane was removed); gradient in m per cell
+            det = uu * vv - uv * uv
+            a = s_uz * np.float32(vv / det) - s_vz * np.float32(uv / det) + np.float32(self.plane[1])
+            b = s_vz * np.float32(uu / det) - s_uz * np.float32(uv / det) + np.float32(self.plane[2])
+            np.hypot(a, b, out=a)
+            a *= np.float32(1.0 / self.cell_m)
+            slope = np.degrees(np.arctan(a, out=a), out=a)
             slope[unmapped] = np.nan
         return HeadingMaps(heading_deg, (rr, cc), unmapped, high, slope)

@@ -137,10 +137,12 @@ def figure_sites(res: LandingResult, path: str | Path, heading_deg: float | None
     for _, s in sites.iterrows():
         best = bool(s.get("is_best", False))
         col = "#ffdd00" if best else "white"
-        ax[2].add_patch(Circle((s["x_m"], s["y_m"]), s["radius_m"], fill=False, ec=col, lw=0.8))
-        poly = _footprint_polygon(s["x_m"], s["y_m"], hd, res.vehicle.length_m, res.vehicle.width_m)
+        # the maps are in the analysis frame (rotated by res.frame_rotation_deg): draw at the site's cell
+        fx, fy = float(res.x_m[int(s["col"])]), float(res.y_m[int(s["row"])])
+        ax[2].add_patch(Circle((fx, fy), s["radius_m"], fill=False, ec=col, lw=0.8))
+        poly = _footprint_polygon(fx, fy, hd - res.frame_rotation_deg, res.vehicle.length_m, res.vehicle.width_m)
         ax[2].add_patch(Polygon(poly, closed=True, fill=False, ec=col, lw=1.2 if best else 0.6))
-        ax[2].annotate(f"{s['c_s']:.2f}", (s["x_m"], s["y_m"]), fontsize=6, color=col, ha="center", va="center")
+        ax[2].annotate(f"{s['c_s']:.2f}", (fx, fy), fontsize=6, color=col, ha="center", va="center")
     return _save(fig, path)
 
 

@@ -7,7 +7,7 @@ Euclidean distance transform) as the landing coordinate (Fig. 19c), reject group
 below 0.3 m, and cost every remaining candidate:
 
 * P_s = θ̄ / θc (Eq. 11), θ̄ the slope of the plane fitted over the footprint at the landing coordinate;
-* P_f = (5 - A_r/A_f)/4 clipped to [0, 1] (Eq. 12), A_r the largest rectangle of the vehicle's aspect
+* P_f = (5 - A_r/A_f)/4 clipped to [0, 1] ``[Landing Eq. 12]``, A_r the largest rectangle of the vehicle's aspect
   ratio, oriented along α, inscribed in the site;
 * P_r = R / R_max (Eqs. 13-14), R = mean |h - h̄| of the protrusion heights under the footprint and R_max
   the same for the worst admissible terrain of Fig. 20 (heights h(d) of Eq. 8 within b_u/2 of the centre,
@@ -21,9 +21,18 @@ Choices where the paper is silent or where we deviate (on purpose):
 * θ̄ of Eq. 11 is the slope of the plane fitted over the footprint at the landing coordinate — the "mean
   slope of the ground over the footprint" that the paper thresholds in Fig. 13c.
 * P_r is not clipped: terrain rougher than the Fig. 20 worst case gives P_r > 1 (the paper does not say).
-* Protrusion candidates are cells whose *local* slope (3-cell plane fit, Fig. 16a) exceeds θc and whose
-  height is at least 5 mm; interior holes up to 0.01 m² are filled with the nearest elevation first
-  (:func:`fill_small_holes`), larger gaps stay unmapped.
+* Protrusions higher than h_c ``[Landing Eq. 9]`` are *every* mapped cell whose height (above the ground of
+  :mod:`hadal.landing.protrusion`, which keeps the full height of any rock narrower than the vehicle
+  diagonal) exceeds h_c — not only steep cells, so flat rock tops count. The Eq. 8 discs ``[Landing Eq. 8]``
+  for lower protrusions use the paper's candidates: cells whose local slope (plane fit over a fixed
+  *physical* window, ``local_slope_window_m`` = 0.1 m by default, Fig. 16a) exceeds θc and whose height is at
+  least 5 mm. A window of a few cells (the old 3 cm) turns sub-resolution sensor noise into steep cells; 0.1 m
+  keeps the slope error under 6 mm noise at ~1°. Interior holes up to 0.01 m² are filled with the nearest
+  elevation first (:func:`fill_small_holes`), larger gaps stay unmapped.
+* A_r of Eq. 12 is exact on the grid (:func:`largest_aspect_rectangle_m2`), independent of the crop origin.
+* Inputs are checked for plausibility (units, cell size ≤ 0.2 × vehicle width, depth sign, elevations beyond
+  any ocean depth, implausible median slope) and options are bounded (:class:`AnalysisOptions`); candidates
+  with a non-finite cost are dropped, so the best site is never NaN.
 * α and α ± 180° give the same footprint, so -90° and 90° are analysed once and reported twice.
 """
 
@@ -33,14 +42,15 @@ import math
 import time
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 import pandas as pd
 import xarray as xr
+from pydantic import BaseModel, ConfigDict, Field, ValidationError
 from scipy import ndimage as ndi
 
-from hadal.errors import InputError
+from hadal.errors import ConfigError, InputError
 from hadal.landing.exclusion import (
     EXCLUSION_FLAGS,
     HIGH_PROTRUSION,
@@ -57,12 +67,16 @@ from hadal.landing.protrusion import protrusion_height_map
 from hadal.landing.slope import local_slope_deg
 from hadal.landing.vehicle import Vehicle
 
+ROUGHNESS_WINDOW_M = 0.3  # heights are averaged over this before R (Eq. 13): 3 cells of the coarsest allowed grid
+
 SITE_COLUMNS = [
     "heading_deg", "site_id", "row", "col", "x_m", "y_m", "radius_m", "area_m2", "slope_deg",
     "elevation_m", "roughness_m", "rect_area_m2", "rect_area_ratio", "p_s", "p_f", "p_r", "c_s",
 ]
 
 SITE_FIELDS: dict[str, dict[str, str]] = {
+    "p_landable": {"units": "1", "long_name": "probability that slope and protrusion tests hold under the per-cell "
+                                              "elevation uncertainty (NaN without uncertainty layers)"},
     "submap": {"long_name": "laser submap name"},
     "heading_deg": {"units": "degree", "long_name": "landing heading, clockwise from +y (north)"},
     "site_id": {"long_name": "8-connected group label within this heading"},
@@ -74,8 +88,9 @@ SITE_FIELDS: dict[str, dict[str, str]] = {
     "area_m2": {"units": "m2", "long_name": "area of the site (cells where C_G may land)"},
     "slope_deg": {"units": "degree", "long_name": "slope of the plane fitted over the footprint (Eq. 11)"},
     "elevation_m": {"units": "m", "long_name": "mean elevation over the footprint (positive up)"},
-    "roughness_m": {"units": "m", "long_name": "R, mean |h - mean h| over the footprint (Eq. 13)"},
-    "rect_area_m2": {"units": "m2", "long_name": "A_r, largest inscribed rectangle of the vehicle aspect ratio"},
+    "roughness_m": {"units": "m", "long_name": "R, mean |h - mean h| over the footprint of h averaged over the local-slope window (Eq. 13)"},
+    "rect_area_m2": {"units": "m2", "long_name": "A_r, largest inscribed rectangle of the vehicle aspect ratio "
+                     "(exact below 5 A_f; at or above it a lower bound >= 5 A_f, where P_f = 0 anyway)"},
     "rect_area_ratio": {"units": "1", "long_name": "A_r / A_f (Eq. 12)"},
     "p_s": {"units": "1", "long_name": "slope cost (Eq. 11)"},
     "p_f": {"units": "1", "long_name": "safety cost (Eq. 12)"},
@@ -108,13 +123,42 @@ class LandingResult:
     r_max_m: float
     timings_s: dict[str, float] = field(default_factory=dict)
     filled: np.ndarray | None = None  # interior holes filled before the analysis
+    # along-track frame: the arrays (x_m = across-track, y_m = along-track) are rotated by this compass angle;
+    # world (x, y) = (y_f sin φ + x_f cos φ, y_f cos φ - x_f sin φ). Sites and headings are in world terms.
+    frame_rotation_deg: float = 0.0
+    # input grid (x, y) and, per input cell, the frame cell it falls in (rows, cols, inside) when rotated
+    world_grid: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None
+
+    def to_world(self, xf: np.ndarray | float, yf: np.ndarray | float) -> tuple[np.ndarray, np.ndarray]:
+        """World (x, y) (m) of frame coordinates (``x_m``/``y_m`` of the arrays)."""
+        return _to_world(np.asarray(xf, float), np.asarray(yf, float), self.frame_rotation_deg)
 
     @property
     def critical_slope_deg(self) -> float:
         return self.vehicle.critical_slope_deg
 
     def to_dataset(self) -> xr.Dataset:
-        """CF-style dataset of the maps (slope, protrusion height, exclusion per heading, final site)."""
+        """CF-style dataset of the maps (slope, protrusion height, exclusion per heading, final site), on the
+        input grid (maps of an along-track frame are sampled back onto it, nearest frame cell)."""
+        ds = self._frame_dataset()
+        if self.world_grid is None:
+            return ds
+        xw, yw, fr, fc, inside = self.world_grid
+        out = xr.Dataset(coords={"y": ("y", yw, ds["y"].attrs | {"long_name": "y (north) in the laser frame"}),
+                                 "x": ("x", xw, ds["x"].attrs | {"long_name": "x (east) in the laser frame"}),
+                                 "heading": ds["heading"]}, attrs=ds.attrs)
+        out.attrs["frame_comment"] = (f"analysed in an along-track frame rotated by {self.frame_rotation_deg:.3f}° "
+                                      "(compass); maps sampled back onto the input grid; site row/col index the frame")
+        for name, da in ds.data_vars.items():
+            a = da.values
+            fill = np.nan if a.dtype.kind == "f" else 0
+            b = np.full(a.shape[:-2] + inside.shape, fill, dtype=a.dtype)
+            b[..., inside] = a[..., fr[inside], fc[inside]]
+            out[name] = (da.dims, b, da.attrs)
+            out[name].encoding.update(da.encoding)
+        return out
+
+    def _frame_dataset(self) -> xr.Dataset:
         y = xr.Variable("y", self.y_m, {"units": "m", "long_name": "y (north) in the laser frame", "axis": "Y"})
         x = xr.Variable("x", self.x_m, {"units": "m", "long_name": "x (east) in the laser frame", "axis": "X"})
         hd = xr.Variable("heading", self.headings_deg, {"units": "degree", "long_name": "landing heading, clockwise from +y"})
@@ -155,6 +199,10 @@ class LandingResult:
             "vehicle": self.vehicle.model_dump(),
             "n_candidate_sites": int(len(self.sites)),
             "best_site": {k: (float(v) if isinstance(v, (int, float, np.floating, np.integer)) else v) for k, v in best.items()},
+            "frame_rotation_deg": self.frame_rotation_deg,
+            "frame_comment": ("x/y are across/along-track in a frame rotated by frame_rotation_deg (compass); world "
+                              "x = y sin(φ) + x cos(φ), y = y cos(φ) - x sin(φ); sites are in world coordinates"
+                              if self.frame_rotation_deg else "x/y are the input grid's coordinates"),
             "method": "Sangekar et al., Autonomous landing of underwater vehicles using high resolution bathymetry, §III-IV",
         })
         return ds
@@ -172,41 +220,64 @@ def roughness_max_m(vehicle: Vehicle, cell_m: float) -> float:
 
 
 def largest_aspect_rectangle_m2(mask: np.ndarray, cell_m: float, heading_deg: float, length_m: float,
-                                width_m: float, resolution_m: float = 0.02) -> float:
-    """A_r (Eq. 12): area (m²) of the largest rectangle with the vehicle's aspect ratio, long side along
-    ``heading_deg``, inscribed in boolean ``mask`` (rows = y, cols = x, cell ``cell_m``).
+                                width_m: float, resolution_m: float | None = None,
+                                max_scale: float | None = None) -> float:
+    """A_r ``[Landing Eq. 12]``: area (m²) of the largest rectangle with the vehicle's aspect ratio, long side
+    along ``heading_deg``, inscribed in boolean ``mask`` (rows = y, cols = x, cell ``cell_m``), exact on the grid.
 
-    The mask is resampled (nearest) onto a grid aligned with the heading whose along-heading step is
-    ``length/width`` times its cross step, where such rectangles are squares; the largest square comes from
-    the chessboard distance transform (odd sides, so A_r is under-estimated by at most one step)."""
+    The rectangle is centred on a cell of the site, like the vehicle's C_G, and may not contain the centre of
+    any cell outside the site (the convention of the footprint erosion, Fig. 13b). For a centre p the largest
+    scale is s(p) = min over outside cells q of the rectangle norm max(|Δs|/(l/2), |Δt|/(w/2)) of q - p
+    (Δs along the heading, Δt across), i.e. the Chebyshev (L∞) distance in the rotated frame scaled by the
+    half sides, found for every p at once with a k-d tree; only the outside cells 8-adjacent to the site can
+    be nearest (the cell centres inside a convex rectangle wider than a cell are 8-connected). A_r =
+    max_p s(p)² l w. The result depends only on the site's cells, not on the crop or the grid origin; tests
+    check it against a brute-force erosion with the rotated footprint. ``max_scale``: stop as soon as a
+    rectangle of that scale (side / vehicle side) is found and return its area, a lower bound (the site uses
+    √5: P_f of Eq. 12 is 0 for every A_r ≥ 5 A_f). ``resolution_m`` is ignored (kept for old callers)."""
+    from scipy.spatial import cKDTree
+
     if not mask.any():
         return 0.0
+    m = np.pad(np.asarray(mask, bool), 1)
+    border = ndi.binary_dilation(m, np.ones((3, 3), bool)) & ~m
     a = math.radians(heading_deg)
-    dt = max(resolution_m, cell_m)
-    ds = dt * length_m / width_m
-    ny, nx = mask.shape
-    cy = np.array([-0.5, -0.5, ny - 0.5, ny - 0.5]) * cell_m
-    cx = np.array([-0.5, nx - 0.5, -0.5, nx - 0.5]) * cell_m
-    s = cx * math.sin(a) + cy * math.cos(a)
-    t = cx * math.cos(a) - cy * math.sin(a)
-    ns = int(math.ceil((s.max() - s.min()) / ds)) + 1
-    nt = int(math.ceil((t.max() - t.min()) / dt)) + 1
-    S, T = np.meshgrid(s.min() + ds * (np.arange(ns) + 0.5), t.min() + dt * (np.arange(nt) + 0.5), indexing="ij")
-    X = S * math.sin(a) + T * math.cos(a)
-    Y = S * math.cos(a) - T * math.sin(a)
-    samp = ndi.map_coordinates(mask.astype(np.uint8), [Y / cell_m, X / cell_m], order=0, cval=0, mode="constant")
-    samp = np.pad(samp, 1)
-    if not samp.any():
-        return 0.0
-    m = int(ndi.distance_transform_cdt(samp, metric="chessboard").max())
-    n = 2 * m - 1
-    return float((n * dt) * (n * ds))
+    sa, ca = math.sin(a), math.cos(a)
+    hl, hw = 0.5 * length_m / cell_m, 0.5 * width_m / cell_m
+
+    def frame(rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
+        r, c = rows.astype(float), cols.astype(float)
+        return np.column_stack([(c * sa + r * ca) / hl, (c * ca - r * sa) / hw])
+
+    tree = cKDTree(frame(*np.nonzero(border)))
+    pr, pc = np.nonzero(m)
+    best0 = 0.0
+    for k in (16, 4):  # coarse lattices first: a lower bound, and an early exit for very large sites
+        if pr.size <= 4 * k * k:
+            continue
+        # s is 1-Lipschitz in the rectangle norm, so s at the lattice point (r - r % k, c - c % k) plus the
+        # largest norm of an offset inside a k x k block bounds s(p) from above; exact s only where that bound
+        # reaches the best lattice value (lattice points inside the site are candidates themselves)
+        ar, ac = pr - pr % k, pc - pc % k
+        lat, inv = np.unique(ar * m.shape[1] + ac, return_inverse=True)
+        lr, lc = lat // m.shape[1], lat % m.shape[1]
+        d_lat, _ = tree.query(frame(lr, lc), k=1, p=np.inf)
+        best0 = max(best0, float(np.max(d_lat[m[lr, lc]], initial=0.0)))
+        if max_scale is not None and best0 >= max_scale:
+            return float(best0 * best0 * length_m * width_m)
+        oy, ox = np.mgrid[0:k, 0:k]
+        slack = float(np.max(np.maximum(np.abs(ox * sa + oy * ca) / hl, np.abs(ox * ca - oy * sa) / hw)))
+        sel = d_lat[inv.ravel()] + slack >= best0 - 1e-12
+        pr, pc = pr[sel], pc[sel]
+    d, _ = tree.query(frame(pr, pc), k=1, p=np.inf) if pr.size else (np.zeros(1), None)
+    best = max(best0, float(np.max(d)))
+    return float(best * best * length_m * width_m)
 
 
 @dataclass
 class _Ctx:
     z: np.ndarray
-    h: np.ndarray
+    h: np.ndarray  # heights used for the roughness R (averaged over the local-slope window)
     cell_m: float
     vehicle: Vehicle
     corr: HeadingCorrelator
@@ -245,20 +316,30 @@ def _analyse_heading(ctx: _Ctx, heading: float, want_labels: bool = False):
         core = dist >= ctx.min_radius_px
         cand: list[tuple[int, int, int, float]] = []  # (label, row, col, radius_px)
         if core.any():
-            cr, ccol = np.nonzero(core)
-            cl, cd = lab[cr, ccol], dist[cr, ccol]
-            o = np.lexsort((-cd, cl))  # by label, then largest distance first
-            starts = np.nonzero(np.r_[True, cl[o][1:] != cl[o][:-1]])[0]
-            ends = np.r_[starts[1:], o.size]
-            for a0, a1 in zip(starts, ends, strict=False):
-                seg = o[a0:a1]
-                dmax = cd[seg[0]]
-                ties = seg[cd[seg] >= dmax - 1e-9]
-                # several cells share the largest circle (e.g. along a corridor): take the one nearest
-                # to the middle of that ridge, a deterministic and central choice
-                my, mx = cr[ties].mean(), ccol[ties].mean()
-                q = ties[np.argmin((cr[ties] - my) ** 2 + (ccol[ties] - mx) ** 2)]
-                cand.append((int(cl[q]), int(cr[q]), int(ccol[q]), float(dmax)))
+            # per label: the largest distance, then among the cells sharing it (e.g. along a corridor) the one
+            # nearest to their mean position — a deterministic and central choice (linear time, no sort of
+            # all core cells)
+            coreobj = ndi.find_objects(np.where(core, lab, 0))
+            dmax = np.zeros(n + 1)
+            tr_, tc_ = [], []
+            for lid, sl in enumerate(coreobj, start=1):
+                if sl is None:
+                    continue
+                inl = (lab[sl] == lid) & core[sl]
+                dmax[lid] = dist[sl][inl].max()
+                r_, c_ = np.nonzero(inl & (dist[sl] >= dmax[lid] - 1e-9))
+                tr_.append(r_ + sl[0].start)
+                tc_.append(c_ + sl[1].start)
+            tr, tc = np.concatenate(tr_), np.concatenate(tc_)
+            tl = lab[tr, tc]
+            cnt = np.maximum(np.bincount(tl, minlength=n + 1), 1)
+            my = np.bincount(tl, tr, minlength=n + 1) / cnt
+            mx = np.bincount(tl, tc, minlength=n + 1) / cnt
+            d2 = (tr - my[tl]) ** 2 + (tc - mx[tl]) ** 2
+            o = np.lexsort((tc, tr, d2, tl))
+            first = o[np.r_[True, tl[o][1:] != tl[o][:-1]]]
+            for q in first:
+                cand.append((int(tl[q]), int(tr[q]), int(tc[q]), float(dmax[tl[q]])))
         if cand:
             areas = np.bincount(lab.ravel(), minlength=n + 1)
             objs = ndi.find_objects(lab)
@@ -272,14 +353,14 @@ def _analyse_heading(ctx: _Ctx, heading: float, want_labels: bool = False):
                 R = float(np.mean(np.abs(hs - hs.mean()))) if hs.size else float("nan")
                 theta = float(hm.slope_deg[i, j])
                 rect = largest_aspect_rectangle_m2(lab[objs[lid - 1]] == lid, ctx.cell_m, heading,
-                                                   v.length_m, v.width_m, ctx.rect_res_m)
+                                                   v.length_m, v.width_m, max_scale=math.sqrt(5.0))
                 ratio = rect / v.footprint_area_m2
                 p_s = theta / v.critical_slope_deg  # Eq. 11
                 p_f = float(np.clip(0.25 * (5.0 - ratio), 0.0, 1.0))  # Eq. 12
                 p_r = R / ctx.r_max_m  # Eq. 14
                 rows.append({
                     "heading_deg": float(heading), "site_id": lid, "row": int(i), "col": int(j),
-                    "x_m": ctx.x0 + j * ctx.cell_m, "y_m": ctx.y0 + i * ctx.cell_m,
+                    "x_m": ctx.x0 + j * ctx.cell_m, "y_m": ctx.y0 + i * ctx.cell_m,  # frame; world later
                     "radius_m": rad_px * ctx.cell_m, "area_m2": float(areas[lid]) * ctx.cell_m**2,
                     "slope_deg": theta, "elevation_m": float(np.nanmean(zs)), "roughness_m": R,
                     "rect_area_m2": rect, "rect_area_ratio": ratio,
@@ -315,7 +396,13 @@ def fill_small_holes(z: np.ndarray, cell_m: float, max_area_m2: float) -> tuple[
     return out, fill
 
 
-def _grid_arrays(grid: xr.DataArray) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
+_DEPTH_NAMES = ("depth", "sea_floor_depth", "sea_floor_depth_below_sea_surface", "depth_m", "bathymetry_depth")
+
+
+def _grid_arrays(grid: xr.DataArray, vehicle: Vehicle, max_cell_fraction: float
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
+    """Elevation (m, positive up), x, y (ascending) and the cell size, with plausibility checks: units,
+    regular square cells no larger than ``max_cell_fraction`` of the vehicle width, the sign of depth grids."""
     if not isinstance(grid, xr.DataArray):
         raise InputError(f"landing analysis needs an xarray.DataArray elevation grid, got {type(grid).__name__}")
     if set(grid.dims) != {"y", "x"}:
@@ -328,19 +415,164 @@ def _grid_arrays(grid: xr.DataArray) -> tuple[np.ndarray, np.ndarray, np.ndarray
     y = np.asarray(g["y"].values, float)
     if x.size < 3 or y.size < 3:
         raise InputError(f"elevation grid is too small ({y.size} x {x.size} cells)")
-    dx, dy = np.diff(x), np.diff(y)
     if not (np.all(np.isfinite(x)) and np.all(np.isfinite(y))):
         raise InputError("elevation grid has non-finite x/y coordinates")
+    for ax in ("x", "y"):
+        u = str(g[ax].attrs.get("units", "m")).strip().lower()
+        if u not in ("m", "meter", "meters", "metre", "metres"):
+            raise InputError(f"elevation grid coordinate {ax!r} has units {u!r}; the landing analysis needs metres")
+    dx, dy = np.diff(x), np.diff(y)
     cell = float(np.median(dx))
     if cell <= 0 or np.max(np.abs(dx - cell)) > 1e-3 * cell or np.max(np.abs(dy - cell)) > 1e-3 * cell:
         raise InputError("elevation grid must be regular with equal x and y spacing (metres)")
+    max_cell = max_cell_fraction * vehicle.width_m
+    if cell > max_cell * (1 + 1e-6):
+        raise InputError(f"grid cells of {cell:g} m are too coarse for a {vehicle.width_m:g} m wide vehicle "
+                         f"(at most {max_cell:g} m = {max_cell_fraction:g} × width); x/y in mm labelled m?")
     z = np.asarray(g.values, float)
-    if str(grid.attrs.get("positive", "up")).lower() == "down":
-        z = -z
     z = np.where(np.isfinite(z), z, np.nan)  # ±inf = unmapped
     if not np.isfinite(z).any():
         raise InputError("elevation grid has no mapped (finite) cells")
+    positive = str(grid.attrs.get("positive", "")).strip().lower()
+    names = {str(grid.name or "").lower(), str(grid.attrs.get("standard_name", "")).lower()}
+    if positive not in ("", "up", "down"):
+        raise InputError(f"elevation grid has positive={positive!r}; expected 'up' or 'down'")
+    if not positive:
+        if names & set(_DEPTH_NAMES) or "depth" in str(grid.attrs.get("long_name", "")).lower():
+            positive = "down"  # a depth variable without the attribute: depths are positive down
+        elif np.nanmin(z) > 50.0:
+            raise InputError(f"elevation grid {grid.name!r} is all > 50 m (min {np.nanmin(z):.1f}) and has no "
+                             "'positive' attribute: depths? set positive='down' (or 'up')")
+    if positive == "down":
+        z = -z
+    if np.nanmax(np.abs(z)) > 12_000.0:
+        raise InputError(f"elevation grid {grid.name!r} reaches {np.nanmax(np.abs(z)):.0f} m: deeper than any "
+                         "ocean (values in mm labelled m?)")
     return z, x, y, cell
+
+
+class AnalysisOptions(BaseModel):
+    """Bounded numeric options of :func:`analyse_submap` (validated; violations -> one-line ConfigError)."""
+
+    model_config = ConfigDict(extra="forbid")
+    min_site_radius_m: float = Field(0.3, gt=0, le=10)
+    min_protrusion_height_m: float = Field(0.005, ge=0, le=0.1)
+    exclusion_step_m: float = Field(0.005, ge=1e-4, le=0.05)
+    local_slope_window_m: float = Field(0.1, gt=0, le=1.0)
+    protrusion_method: Literal["opening", "butterworth"] = "opening"
+    protrusion_coarse_m: float = Field(0.05, gt=0, le=0.2)
+    block_m: float = Field(2.5, ge=0.5, le=50)
+    block_margin_m: float = Field(1.0, ge=0, le=10)
+    filter_order: int = Field(3, ge=1, le=10)
+    fill_holes_max_m2: float = Field(0.01, ge=0, le=1.0)
+    max_cell_fraction: float = Field(0.2, gt=0, le=0.2)
+    workers: int = Field(1, ge=1, le=64)
+
+
+def _options(**kw) -> AnalysisOptions:
+    try:
+        return AnalysisOptions(**kw)
+    except ValidationError as exc:
+        e = exc.errors()[0]
+        raise ConfigError(f"landing option {'.'.join(map(str, e['loc']))}={e.get('input')!r}: {e['msg']}") from None
+
+
+def _to_world(xf: np.ndarray, yf: np.ndarray, phi_deg: float) -> tuple[np.ndarray, np.ndarray]:
+    a = math.radians(phi_deg)
+    return yf * math.sin(a) + xf * math.cos(a), yf * math.cos(a) - xf * math.sin(a)
+
+
+def along_track_frame(z: np.ndarray, x: np.ndarray, y: np.ndarray, cell: float, min_gain: float = 1.3,
+                      min_cells: int = 250_000):
+    """Re-grid an oblique strip in its along-track frame: rows along the principal axis of the mapped cells
+    (compass angle φ), columns across, same cell size, each frame cell taking the nearest input cell (values
+    are never interpolated, so rock tops keep their height). Returns (z_f, x_f, y_f, φ) or None when the
+    frame would not shrink the grid by ``min_gain`` (an axis-aligned strip) or the grid has fewer than
+    ``min_cells`` cells (then the cost is negligible and the input cells are kept as they are)."""
+    if z.size < min_cells:
+        return None
+    rows, cols = np.nonzero(np.isfinite(z))
+    if rows.size < 10:
+        return None
+    px, py = x[cols], y[rows]
+    pts = np.column_stack([px - px.mean(), py - py.mean()])
+    _, vecs = np.linalg.eigh(np.cov(pts.T))
+    ax_ = vecs[:, 1]
+    phi = math.degrees(math.atan2(ax_[0], ax_[1]))
+    phi = (phi + 90.0) % 180.0 - 90.0
+    if abs(phi) < 1.0 or abs(abs(phi) - 90.0) < 1.0:
+        return None
+    a = math.radians(phi)
+    along = px * math.sin(a) + py * math.cos(a)
+    across = px * math.cos(a) - py * math.sin(a)
+    na = int(math.floor((along.max() - along.min()) / cell)) + 3
+    nc = int(math.floor((across.max() - across.min()) / cell)) + 3
+    if z.size < min_gain * na * nc:
+        return None
+    yf = along.min() - cell + cell * np.arange(na)
+    xf = across.min() - cell + cell * np.arange(nc)
+    xw, yw = _to_world(xf[None, :], yf[:, None], phi)
+    ci = np.rint((xw - x[0]) / cell).astype(np.int64)
+    ri = np.rint((yw - y[0]) / cell).astype(np.int64)
+    ok = (ci >= 0) & (ci < x.size) & (ri >= 0) & (ri < y.size)
+    zf = np.full((na, nc), np.nan)
+    zf[ok] = z[ri[ok], ci[ok]]
+    # inverse map: the frame cell of every input cell (for writing the maps back on the input grid)
+    Xw, Yw = np.meshgrid(x, y)
+    fa = np.rint((Xw * math.sin(a) + Yw * math.cos(a) - yf[0]) / cell).astype(np.int64)
+    fcn = np.rint((Xw * math.cos(a) - Yw * math.sin(a) - xf[0]) / cell).astype(np.int64)
+    inside = (fa >= 0) & (fa < na) & (fcn >= 0) & (fcn < nc)
+    return zf, xf, yf, phi, (ri, ci, ok), (x, y, np.clip(fa, 0, na - 1), np.clip(fcn, 0, nc - 1), inside)
+
+
+def _sigma_array(sig, grid: xr.DataArray, shape: tuple[int, int], default: float) -> np.ndarray | None:
+    if sig is None:
+        return None
+    if not isinstance(sig, xr.DataArray) or set(sig.dims) != {"y", "x"}:
+        raise InputError("elevation_sigma_m must be an xarray.DataArray on (y, x)")
+    s = np.asarray(sig.transpose("y", "x").sortby("y").sortby("x").values, float)
+    if s.shape != shape:
+        raise InputError(f"elevation_sigma_m has shape {s.shape}, the grid {shape}")
+    if np.any(s[np.isfinite(s)] < 0):
+        raise InputError("elevation_sigma_m has negative values")
+    return np.where(np.isfinite(s), s, default)
+
+
+def landability_probability(z: np.ndarray, h: np.ndarray, sigma: np.ndarray, row: int, col: int,
+                            heading_frame_deg: float, cell_m: float, vehicle: Vehicle) -> float:
+    """Probability that a site passes the slope test ``[Landing Eq. 2]`` and the protrusion test
+    ``[Landing Eq. 9]`` given independent Gaussian elevation errors of 1-σ ``sigma`` (m) per cell (analytic
+    propagation): P = Φ((tan θc - g)/σ_g) · Π_k Φ((h_c - h_k)/σ_k) over the footprint cells, g the gradient of the
+    least-squares plane over the footprint and σ_g its standard error (delta method through the weighted
+    normal equations); the ground under h is a vehicle-scale average, so σ_h ≈ σ of the cell."""
+    from scipy.special import log_ndtr
+
+    rr, cc = footprint_offsets(vehicle.length_m, vehicle.width_m, heading_frame_deg, cell_m)
+    i, j = row + rr, col + cc
+    zz, hh, ss = z[i, j], h[i, j], sigma[i, j]
+    ok = np.isfinite(zz) & np.isfinite(ss)
+    if ok.sum() < 3:
+        return float("nan")
+    u, v = cc[ok] * cell_m, rr[ok] * cell_m
+    u, v = u - u.mean(), v - v.mean()
+    A = np.column_stack([u, v])
+    M = A.T @ A
+    coef = np.linalg.lstsq(np.column_stack([np.ones(u.size), u, v]), zz[ok], rcond=None)[0]
+    g = np.array(coef[1:])
+    Minv = np.linalg.inv(M)
+    C = Minv @ ((A * (ss[ok] ** 2)[:, None]).T @ A) @ Minv
+    gn = float(np.hypot(*g))
+    var_g = float(g @ C @ g) / gn**2 if gn > 1e-9 else 0.5 * float(np.trace(C))
+    sg = math.sqrt(max(var_g, 1e-30))
+    logp = float(log_ndtr((math.tan(math.radians(vehicle.critical_slope_deg)) - gn) / sg))
+    hv = ok & np.isfinite(hh)
+    logp += float(np.sum(log_ndtr((vehicle.critical_height_m - hh[hv]) / np.maximum(ss[hv], 1e-9))))
+    return float(math.exp(logp))
+
+
+def slope_window_px(window_m: float, cell_m: float) -> int:
+    """Odd window (cells) of the local slope plane fit closest to ``window_m``, at least 3 cells."""
+    return max(3, 2 * int(math.floor(0.5 * window_m / cell_m + 1e-9)) + 1)
 
 
 def analyse_submap(
@@ -351,51 +583,97 @@ def analyse_submap(
     min_site_radius_m: float = 0.3,
     min_protrusion_height_m: float = 0.005,
     exclusion_step_m: float = 0.005,
-    local_slope_window_m: float = 0.03,
+    local_slope_window_m: float = 0.1,
+    protrusion_method: str = "opening",
+    protrusion_coarse_m: float = 0.05,
     block_m: float = 2.5,
     block_margin_m: float = 1.0,
     filter_order: int = 3,
     edge_correction: bool = False,
-    rectangle_resolution_m: float = 0.02,
+    rectangle_resolution_m: float | None = None,
     fill_holes_max_m2: float = 0.01,
+    max_cell_fraction: float = 0.2,
+    frame: str = "auto",
+    elevation_sigma_m: xr.DataArray | None = None,
+    default_sigma_m: float = 0.006,
     workers: int = 1,
     keep_heading_exclusion: bool = True,
 ) -> LandingResult:
     """Landing-site analysis of one bathymetry submap (Sangekar et al. §III-IV).
 
-    ``grid``: elevation (m, positive up; ``attrs['positive'] == 'down'`` is negated) on ``y``, ``x``
-    metric coordinates (regular, equal spacing, e.g. 10 mm), NaN = unmapped. ``headings_deg``: landing
-    headings (default -90° .. 90° in 5° steps). ``workers``: headings analysed in parallel threads.
-    Raises :class:`hadal.errors.InputError` on unusable grids.
+    ``grid``: elevation (m, positive up; ``attrs['positive'] == 'down'`` is negated; a depth-named variable
+    without the attribute is read as depth, an all-positive one refused) on ``y``, ``x`` metric coordinates
+    (regular, equal spacing no larger than ``max_cell_fraction`` × vehicle width), NaN = unmapped.
+    ``headings_deg``: landing headings (default -90° .. 90° in 5° steps). ``local_slope_window_m``: physical
+    size of the local-slope plane fit (rounded to an odd number of cells, at least 3). ``protrusion_method``:
+    ``"opening"`` (heights that see every rock narrower than the vehicle diagonal, see
+    :mod:`hadal.landing.protrusion`) or the paper's ``"butterworth"`` ``[Landing Eq. 10]``.
+    ``frame``: ``"auto"`` grids an oblique strip in its own along-track frame (:func:`along_track_frame`, nearest
+    cell, same cell size) so the cost follows the mapped area; ``"grid"`` keeps the input grid.
+    ``elevation_sigma_m``: per-cell 1-σ uncertainty of the elevation (m) on the grid's coordinates (e.g. the
+    laser grid's ``elevation_std_m / sqrt(count)``; NaN -> ``default_sigma_m``): each site then gets
+    ``p_landable``, the probability that its slope and protrusion tests hold (:func:`landability_probability`).
+    ``workers``: headings analysed in parallel threads. ``rectangle_resolution_m`` is ignored (A_r is exact).
+    Raises :class:`hadal.errors.InputError` on unusable grids, :class:`hadal.errors.ConfigError` on options
+    out of bounds.
     """
     vehicle = vehicle or Vehicle()
+    opt = _options(min_site_radius_m=min_site_radius_m, min_protrusion_height_m=min_protrusion_height_m,
+                   exclusion_step_m=exclusion_step_m, local_slope_window_m=local_slope_window_m,
+                   protrusion_method=protrusion_method, protrusion_coarse_m=protrusion_coarse_m, block_m=block_m,
+                   block_margin_m=block_margin_m, filter_order=filter_order, fill_holes_max_m2=fill_holes_max_m2,
+                   max_cell_fraction=max_cell_fraction, workers=workers)
     t_all = time.perf_counter()
     timings: dict[str, float] = {}
-    z, x, y, cell = _grid_arrays(grid)
-    z, filled = fill_small_holes(z, cell, fill_holes_max_m2)
+    z, x, y, cell = _grid_arrays(grid, vehicle, opt.max_cell_fraction)
+    sigma = _sigma_array(elevation_sigma_m, grid, z.shape, default_sigma_m)
+    z, filled = fill_small_holes(z, cell, opt.fill_holes_max_m2)
+    phi = 0.0
+    world = None
+    if frame == "auto":
+        fr = along_track_frame(z, x, y, cell)
+        if fr is not None:
+            z, x, y, phi, filled = fr[0], fr[1], fr[2], fr[3], None
+            world = fr[5]
+            if sigma is not None:
+                ri, ci, okf = fr[4]
+                sf = np.full(z.shape, np.nan)
+                sf[okf] = sigma[ri[okf], ci[okf]]
+                sigma = sf
+    elif frame != "grid":
+        raise ConfigError(f"landing option frame={frame!r}: expected 'auto' or 'grid'")
     heads = default_headings_deg() if headings_deg is None else np.asarray(headings_deg, float)
-    if heads.size == 0 or not np.all(np.isfinite(heads)):
+    if heads.ndim != 1 or heads.size == 0 or not np.all(np.isfinite(heads)):
         raise InputError("landing headings must be a non-empty list of finite angles")
     theta_c = vehicle.critical_slope_deg
     h_c = vehicle.critical_height_m
+    if opt.min_protrusion_height_m >= h_c:
+        raise ConfigError(f"min_protrusion_height_m {opt.min_protrusion_height_m} m must be below h_c {h_c:.3f} m")
 
     t = time.perf_counter()
-    win = max(3, int(round(local_slope_window_m / cell)))
+    win = slope_window_px(opt.local_slope_window_m, cell)
     slope_local = local_slope_deg(z, cell, win)
+    med = float(np.nanmedian(slope_local)) if np.isfinite(slope_local).any() else 0.0
+    if med > 60.0:
+        raise InputError(f"median local slope {med:.0f}° is implausible for a seafloor: elevations in mm "
+                         "labelled m (or x/y in a larger unit)?")
     timings["slope_map"] = time.perf_counter() - t
 
     t = time.perf_counter()
-    h = protrusion_height_map(z, cell, vehicle.diagonal_m, block_m=block_m, margin_m=block_margin_m,
-                              order=filter_order, edge_correction=edge_correction)
+    h = protrusion_height_map(z, cell, vehicle.diagonal_m, method=opt.protrusion_method, block_m=opt.block_m,
+                              margin_m=opt.block_margin_m, order=opt.filter_order, edge_correction=edge_correction,
+                              coarse_m=opt.protrusion_coarse_m)
     timings["protrusion_map"] = time.perf_counter() - t
 
     t = time.perf_counter()
     with np.errstate(invalid="ignore"):
-        candidate = (slope_local > theta_c) & (h >= min_protrusion_height_m)  # Fig. 16b, Fig. 18b
-        high = candidate & (h > h_c)  # Fig. 18d
-        small = candidate & ~high
+        # Eq. 9: nothing higher than h_c may touch the vehicle — every mapped cell counts (flat rock tops too)
+        high = np.isfinite(h) & (h > h_c)  # Fig. 18d
+        # Eq. 8 discs for the lower protrusion points: steep cells (Fig. 16b) at least min height high
+        small = (slope_local > theta_c) & (h >= opt.min_protrusion_height_m) & ~high
+        candidate = small | high
     radius = np.full(z.shape, np.nan)
-    radius[small] = vehicle.exclusion_distance_m(h[small], exclusion_step_m) / cell  # Fig. 15
+    radius[small] = vehicle.exclusion_distance_m(h[small], opt.exclusion_step_m) / cell  # Fig. 15
     small_excl = small_protrusion_exclusion(radius)  # Fig. 18c
     static = np.where(small_excl, SMALL_PROTRUSION, np.uint8(0)).astype(np.uint8)
     timings["small_protrusion_exclusion"] = time.perf_counter() - t
@@ -403,17 +681,24 @@ def analyse_submap(
     t = time.perf_counter()
     corr = HeadingCorrelator(z, cell, vehicle, high, static_excluded=small_excl)
     r_max = roughness_max_m(vehicle, cell)
-    ctx = _Ctx(z, h, cell, vehicle, corr, static, min_site_radius_m / cell, rectangle_resolution_m, r_max,
+    # R [Landing Eq. 13] from heights averaged over the local-slope window: white sensor noise below that
+    # scale is not roughness the vehicle feels (it raised C_s by ~30 % at 6 mm on the Takuyo raster)
+    hv = np.isfinite(h)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        rw = slope_window_px(ROUGHNESS_WINDOW_M, cell)
+        h_rough = np.where(hv, ndi.uniform_filter(np.where(hv, h, 0.0), rw, mode="constant")
+                           / ndi.uniform_filter(hv.astype(float), rw, mode="constant"), np.nan)
+    ctx = _Ctx(z, h_rough, cell, vehicle, corr, static, opt.min_site_radius_m / cell, 0.0, r_max,
                float(x[0]), float(y[0]))
     timings["prepare_headings"] = time.perf_counter() - t
 
     t = time.perf_counter()
     # α and α ± 180° give the same footprint (the paper's reason for -90..90): analyse each once
-    keys = [round(float(a) % 180.0, 9) for a in heads]
+    keys = [round((float(a) - phi) % 180.0, 9) for a in heads]
     uniq = list(dict.fromkeys(keys))
-    first = {k: float(heads[keys.index(k)]) for k in uniq}
-    if workers > 1 and len(uniq) > 1:
-        with ThreadPoolExecutor(max_workers=workers) as pool:
+    first = {k: float(heads[keys.index(k)]) - phi for k in uniq}  # frame headings
+    if opt.workers > 1 and len(uniq) > 1:
+        with ThreadPoolExecutor(max_workers=opt.workers) as pool:
             res_u = dict(zip(uniq, pool.map(lambda k: _analyse_heading(ctx, first[k]), uniq), strict=False))
     else:
         res_u = {k: _analyse_heading(ctx, first[k]) for k in uniq}
@@ -427,20 +712,30 @@ def analyse_submap(
     exclusion = np.stack([r[0] for r in results]) if keep_heading_exclusion else np.zeros((0,) + z.shape, np.uint8)
     rows = [row for r in results for row in r[1]]
     sites = pd.DataFrame(rows, columns=SITE_COLUMNS)
+    if phi and len(sites):
+        xw, yw = _to_world(sites["x_m"].to_numpy(float), sites["y_m"].to_numpy(float), phi)
+        sites["x_m"], sites["y_m"] = xw, yw
     best = None
     best_mask = np.zeros(z.shape, bool)
+    finite = np.isfinite(sites[["p_s", "p_f", "p_r", "c_s"]].to_numpy(float)).all(axis=1) if len(sites) else []
+    if len(sites) and not np.all(finite):  # never a NaN cost or a NaN "best"
+        sites = sites[finite].reset_index(drop=True)
+    if len(sites) and sigma is not None:
+        sites["p_landable"] = [
+            landability_probability(z, h, sigma, int(r.row), int(r.col), float(r.heading_deg) - phi, cell, vehicle)
+            for r in sites.itertuples()]
     if len(sites):
         order = np.lexsort((-sites["radius_m"].to_numpy(), sites["c_s"].to_numpy()))
         bi = int(order[0])
         sites["is_best"] = False
         sites.loc[bi, "is_best"] = True
         best = {k: (v.item() if hasattr(v, "item") else v) for k, v in sites.iloc[bi].to_dict().items()}
-        _, _, hm, labels = _analyse_heading(ctx, best["heading_deg"], want_labels=True)
+        _, _, hm, labels = _analyse_heading(ctx, best["heading_deg"] - phi, want_labels=True)
         best_mask = labels == int(best["site_id"])
         fp_slope = hm.slope_deg
     else:
         sites["is_best"] = pd.Series(dtype=bool)
-        fp_slope = corr.compute(float(heads[0]), need_slope=True).slope_deg
+        fp_slope = corr.compute(float(heads[0]) - phi, need_slope=True).slope_deg
     timings["selection"] = time.perf_counter() - t
     timings["total"] = time.perf_counter() - t_all
     return LandingResult(
@@ -448,6 +743,7 @@ def analyse_submap(
         slope_local_deg=slope_local, protrusion_height_m=h, protrusion_candidate=candidate,
         small_exclusion=small_excl, high_protrusion=high, exclusion=exclusion, sites=sites, best=best,
         footprint_slope_deg=fp_slope, best_site_mask=best_mask, r_max_m=r_max, timings_s=timings, filled=filled,
+        frame_rotation_deg=phi, world_grid=world,
     )
 
 

@@ -15,7 +15,26 @@ import numpy as np
 from scipy import ndimage as ndi
 
 
-def local_slope_deg(z: np.ndarray, cell_m: float, window_px: int = 3, min_fraction: float = 0.5) -> np.ndarray:
+def local_slope_deg(z: np.ndarray, cell_m: float, window_px: int = 3, min_fraction: float = 0.5,
+                    chunk_cells: int = 1_000_000) -> np.ndarray:
+    """Slope (degrees) of the least-squares plane over a ``window_px`` window around every cell (see
+    :func:`_local_slope_block`), computed in row chunks of about ``chunk_cells`` cells with a half-window
+    overlap (box filters are local, so the result is identical; memory stays bounded on large grids)."""
+    z = np.asarray(z, dtype=float)
+    ny, nx = z.shape
+    rows = max(int(window_px), chunk_cells // max(1, nx))
+    if ny <= rows:
+        return _local_slope_block(z, cell_m, window_px, min_fraction)
+    half = int(window_px) // 2 + 1
+    out = np.empty(z.shape)
+    for r0 in range(0, ny, rows):
+        r1 = min(ny, r0 + rows)
+        a0, a1 = max(0, r0 - half), min(ny, r1 + half)
+        out[r0:r1] = _local_slope_block(z[a0:a1], cell_m, window_px, min_fraction)[r0 - a0 : r1 - a0]
+    return out
+
+
+def _local_slope_block(z: np.ndarray, cell_m: float, window_px: int = 3, min_fraction: float = 0.5) -> np.ndarray:
     """Slope (degrees) of the least-squares plane z = c + a x + b y fitted over a ``window_px`` square
     window around every cell. Moments Σ1, Σx, Σy, Σz, Σxx, Σxy, Σyy, Σxz, Σyz of the mapped cells are
     box-filtered (``scipy.ndimage.uniform_filter``) so the whole map costs a handful of passes; windows

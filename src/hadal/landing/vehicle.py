@@ -23,16 +23,16 @@ class Vehicle(BaseModel):
 
     model_config = ConfigDict(extra="forbid", frozen=True)
 
-    length_m: float = Field(1.7, gt=0, description="l_u, length of the landing vehicle (m)")
-    width_m: float = Field(0.5, gt=0, description="b_u, width of the landing vehicle (m)")
-    height_m: float = Field(0.40, gt=0, description="h_u, height of the landing vehicle (m)")
-    mass_kg: float = Field(65.0, gt=0, description="mass; F_G = mass_kg * g (kg)")
-    buoyancy_mass_kg: float = Field(62.0, gt=0, description="displaced water mass; F_B = buoyancy_mass_kg * g (kg)")
-    cg_height_m: float = Field(0.25, ge=0, description="d_g, vertical distance from the skid to C_G (m)")
-    cg_cb_distance_m: float = Field(0.05, gt=0, description="d_m, vertical distance between C_G and C_B (m)")
-    gravity_m_s2: float = Field(9.81, gt=0, description="gravitational acceleration (m/s²)")
-    drag_coefficient: float = Field(1.2, gt=0, description="C_d for a rectangular shape (Eq. 6)")
-    water_density_kg_m3: float = Field(1025.0, gt=0, description="ρ, sea-water density (Eq. 6)")
+    length_m: float = Field(1.7, gt=0, le=20, description="l_u, length of the landing vehicle (m)")
+    width_m: float = Field(0.5, gt=0, le=10, description="b_u, width of the landing vehicle (m)")
+    height_m: float = Field(0.40, gt=0, le=10, description="h_u, height of the landing vehicle (m)")
+    mass_kg: float = Field(65.0, gt=0, le=1e5, description="mass; F_G = mass_kg * g (kg)")
+    buoyancy_mass_kg: float = Field(62.0, gt=0, le=1e5, description="displaced water mass; F_B = buoyancy_mass_kg * g (kg)")
+    cg_height_m: float = Field(0.25, ge=0, le=10, description="d_g, vertical distance from the skid to C_G (m)")
+    cg_cb_distance_m: float = Field(0.05, gt=0, le=10, description="d_m, vertical distance between C_G and C_B (m)")
+    gravity_m_s2: float = Field(9.81, ge=1.0, le=30.0, description="gravitational acceleration (m/s²)")
+    drag_coefficient: float = Field(1.2, gt=0, le=5.0, description="C_d for a rectangular shape (Eq. 6)")
+    water_density_kg_m3: float = Field(1025.0, ge=900.0, le=1300.0, description="ρ, sea-water density (Eq. 6)")
 
     @model_validator(mode="after")
     def _check(self) -> Vehicle:

@@ -29,9 +29,12 @@ Options beyond the paper:
 
 * ``estimate_bias``: a constant depth bias ``b`` (map minus measured; §4.2 notes the multibeam map is
   "several metres deeper than the actual depth") estimated at every offset. For MSD the optimum is
-  closed form, ``b = mean(d_BT - d_M)`` and ``MSD_b = MSD - b^2``. For MAD the same per-offset mean is
-  used (the exact L1 optimum, the median, has no correlation form); for COR the bias-free form is the
-  cross-covariance ``mean(d_M d_BT) - mean(d_M) mean(d_BT)``.
+  closed form, ``b = mean(d_BT - d_M)`` and ``MSD_b = MSD - b^2``. For MAD the L1 optimum, the
+  **median** residual, by a direct gather at every start cell (no correlation form; restrict with
+  ``region`` on large maps). For COR (**documented deviation**) the bias-free form is the **Pearson**
+  correlation ``cov(d_M, d_BT) / (sd(d_M) sd(d_BT))`` in [-1, 1] (the paper's Eq. 15 is dominated by
+  the mean depth and its scale by the relief, so it cannot rank offsets or give a separation ratio);
+  ``estimate_bias=False`` gives Eq. 15 as written.
 * ``headings_deg``: small heading errors of the dead-reckoned track, tried by rotating the track about
   its start (e.g. ``np.arange(-9, 9.01, 0.5)``: 37 headings); the best (heading, offset) wins.
 * MAD has no FFT identity (|.| is not bilinear); it is evaluated by a vectorised direct sum over the
@@ -186,7 +189,7 @@ def _sums_all_offsets(corr: _FFTCorrelator, rows, cols, d, want_cor: bool, singl
     dt = np.float32 if single else np.float64
     FC, FS1, FS2 = corr.masks_fft(rr, cc, [np.ones_like(d), d, d * d], dt)
     F = corr.F32 if single else corr.F
-    specs = np.empty((6 if want_cor else 3,) + FC.shape, FC.dtype)
+    specs = np.empty((8 if want_cor else 3,) + FC.shape, FC.dtype)
     tmp = np.empty_like(FC)
     np.multiply(F["V"], FC, out=specs[0])
     np.multiply(F["D"], FC, out=specs[1])
@@ -199,9 +202,11 @@ def _sums_all_offsets(corr: _FFTCorrelator, rows, cols, d, want_cor: bool, singl
         np.multiply(F["D"], FS1, out=specs[3])
         np.multiply(F["V"], FS1, out=specs[4])
         np.multiply(F["D"], FC, out=specs[5])
+        np.multiply(F["D2"], FC, out=specs[6])
+        np.multiply(F["V"], FS2, out=specs[7])
     out = corr.inverse(specs, rmin, cmin)
     n = np.rint(out[0])
-    extra = tuple(out[3:6]) if want_cor else None
+    extra = tuple(out[3:8]) if want_cor else None
     return n, out[1].astype(np.float64, copy=False), out[2].astype(np.float64, copy=False), extra
 
 
@@ -222,6 +227,33 @@ def _mad_direct(D: np.ndarray, V: np.ndarray, rows, cols, d, bias: np.ndarray | 
             res = res - bias[r0:r1, c0:c1][sl]
         out[sl] += np.where(V[a0:a1, b0:b1], np.abs(res), 0.0)
     return out
+
+
+def _mad_median_direct(D: np.ndarray, V: np.ndarray, rows, cols, d, region_rc, n_req: int, chunk: int = 8192):
+    """Eq. (16) with the median bias: per start cell ``b = median(d_BT - d_M)``, ``MAD = mean |d_BT - d_M - b|``.
+
+    Direct gather over the start cells of ``region_rc`` (chunked); returns ``(mad, bias)`` on the region."""
+    ny, nx = D.shape
+    r0, r1, c0, c1 = region_rc
+    rr0, cc0 = np.mgrid[r0:r1, c0:c1]
+    flat_r, flat_c = rr0.ravel(), cc0.ravel()
+    mad = np.full(flat_r.size, np.nan)
+    med = np.full(flat_r.size, np.nan)
+    for k in range(0, flat_r.size, chunk):
+        rr = flat_r[k : k + chunk, None] + rows[None, :]
+        cc = flat_c[k : k + chunk, None] + cols[None, :]
+        inside = (rr >= 0) & (rr < ny) & (cc >= 0) & (cc < nx)
+        rr, cc = np.clip(rr, 0, ny - 1), np.clip(cc, 0, nx - 1)
+        ok = inside & V[rr, cc]
+        res = np.where(ok, D[rr, cc] - d[None, :], np.nan)
+        feas = ok.sum(axis=1) >= n_req
+        with np.errstate(invalid="ignore"), __import__("warnings").catch_warnings():
+            __import__("warnings").simplefilter("ignore", RuntimeWarning)
+            m = np.nanmedian(np.where(feas[:, None], res, 0.0), axis=1)
+            a = np.nanmean(np.abs(res - m[:, None]), axis=1)
+        med[k : k + chunk] = np.where(feas, m, np.nan)
+        mad[k : k + chunk] = np.where(feas, a, np.nan)
+    return mad.reshape(r1 - r0, c1 - c0), med.reshape(r1 - r0, c1 - c0)
 
 
 def tercom(
@@ -329,12 +361,22 @@ def tercom(
                 np.maximum(val, 0.0, out=val)  # NaN (infeasible) propagates
             elif criterion == "mad":
                 val = np.full((ny, nx), np.nan)
-                sub = _mad_direct(D, V, rows, cols, dc, bias, (r0, r1, c0, c1))
-                val[r0:r1, c0:c1] = sub / nn[r0:r1, c0:c1]
+                if estimate_bias:  # the L1-optimal bias: the median residual at every offset
+                    sub, med = _mad_median_direct(D, V, rows, cols, dc, (r0, r1, c0, c1), n_req)
+                    bias = np.full((ny, nx), np.nan)
+                    bias[r0:r1, c0:c1] = med
+                    val[r0:r1, c0:c1] = np.where(feasible[r0:r1, c0:c1], sub, np.nan)
+                else:
+                    sub = _mad_direct(D, V, rows, cols, dc, None, (r0, r1, c0, c1))
+                    val[r0:r1, c0:c1] = sub / nn[r0:r1, c0:c1]
             else:
-                s_db, s_d, s_b = extra
-                if estimate_bias:  # cross-covariance of the two profiles
-                    val = s_db / nn - (s_d / nn) * (s_b / nn)
+                s_db, s_d, s_b, s_bb, s_dd = extra
+                if estimate_bias:  # Pearson correlation of the two profiles (documented deviation)
+                    cov = s_db / nn - (s_d / nn) * (s_b / nn)
+                    vb = s_bb / nn - (s_b / nn) ** 2
+                    vd = s_dd / nn - (s_d / nn) ** 2
+                    den = np.sqrt(np.maximum(vb, 0.0) * np.maximum(vd, 0.0))
+                    val = np.where(den > 1e-12 * max(float(np.nanmax(np.abs(vd))), 1e-300), cov / den, np.nan)
                 else:  # Eq. (15) with the un-centred depths: d = dc + ref, b = D + ref
                     val = (s_db + ref * (s_d + s_b)) / nn + ref * ref
         key = sign * val
@@ -528,9 +570,11 @@ def tercom_direct(profile_depth, track_xy, dtm, starts_rc, criterion: str = "msd
         if criterion == "msd":
             out[k] = np.mean((dm - (db - b)) ** 2)
         elif criterion == "mad":
-            out[k] = np.mean(np.abs(dm - (db - b)))
+            bm = np.median(db - dm) if estimate_bias else 0.0
+            out[k] = np.mean(np.abs(dm - (db - bm)))
         elif estimate_bias:
-            out[k] = np.mean(dm * db) - np.mean(dm) * np.mean(db)
+            sd, sb = np.std(dm), np.std(db)
+            out[k] = np.mean((dm - dm.mean()) * (db - db.mean())) / (sd * sb) if sd * sb > 0 else np.nan
         else:
             out[k] = np.mean(dm * db)
     return out

@@ -179,8 +179,18 @@ def write_parquet(
     schema_meta[b"hadal"] = text.encode()
     schema_meta[b"PANDAS_ATTRS"] = json.dumps({"hadal": block}, default=_json_default).encode()
     table = table.cast(pa.schema(new_fields, metadata=schema_meta))
-    pq.write_table(table, path, compression="zstd")
+    # encoded in memory (a few MiB: compressed), then written with a free-space check and plain os.write:
+    # a full disk is one OSError (ENOSPC) and no partial file
+    sink = pa.BufferOutputStream()
+    pq.write_table(table, sink, compression="zstd")
+    _write_file(path, sink.getvalue())
     return path
+
+
+def _write_file(path: Path, data: Any) -> None:
+    from hadal.store import write_bytes_checked
+
+    write_bytes_checked(path, memoryview(data), path.name)
 
 
 def read_parquet_metadata(path: str | Path) -> tuple[dict[str, Any], dict[str, dict[str, str]]]:
@@ -538,7 +548,8 @@ def discovery_attributes(ds: xr.Dataset, hints: Mapping[str, Any] | None = None)
 def _add_scalar_fallbacks(out: xr.Dataset, pool: Mapping[str, Any], now: pd.Timestamp) -> xr.Dataset:
     """Give position/time-less datasets (profiles, MSD surfaces) CF scalar coordinates: position from
     ``*latitude_deg``/``*longitude_deg`` attributes (launch point, map-frame origin), time from
-    ``time_coverage_start``/``*time_utc`` attributes, else the processing time (said so in long_name)."""
+    ``time_coverage_start``/``*time_utc`` attributes, else the processing time (said so in long_name) - unless
+    the attributes carry ``time_omitted`` (a cast without any time: no time rather than the processing time)."""
     names = {str(n) for n in out.variables}
     has_lat = any(_is_lat(n, out[n]) for n in names)
     has_lon = any(_is_lon(n, out[n]) for n in names)
@@ -551,6 +562,8 @@ def _add_scalar_fallbacks(out: xr.Dataset, pool: Mapping[str, Any], now: pd.Time
                 lon=xr.Variable((), lo, {"standard_name": "longitude", "units": "degrees_east",
                                          "long_name": "longitude of the product's reference position"}))
     if not any(np.issubdtype(out[n].dtype, np.datetime64) for n in names) and "time" not in names:
+        if pool.get("time_omitted"):  # the data have no time and the producer says none may be invented
+            return out
         t = _time_hint(pool)
         what = "reference time of the product (from its metadata)"
         if t is None:
@@ -665,6 +678,23 @@ def write_netcdf(ds: xr.Dataset, path: str | Path, *, title: str, summary: str, 
     path = Path(path)
     if not isinstance(ds, xr.Dataset):
         raise InputError(f"write_netcdf({path.name}): expected an xarray Dataset, got {type(ds).__name__}")
+    from hadal.store import ensure_free_space
+
+    # refuse early when even the uncompressed variables do not fit (a lower bound of the file size)
+    ensure_free_space(path, netcdf_size_lower_bound(ds), path.name)
     out = prepare_dataset(ds, path, title=title, summary=summary, **attrs)
-    out.to_netcdf(path, engine="h5netcdf")
+    # HDF5 never writes to the store: it encodes into memory, then the bytes are written with a free-space
+    # check and plain os.write. HDF5 writing into a file on a full disk crashes the process (h5netcdf/h5py
+    # close the file in __dealloc__ after a failed write: tracebacks, then a segfault), so it never does.
+    _write_file(path, out.to_netcdf(engine="h5netcdf"))
     return path
+
+
+def netcdf_size_lower_bound(ds: xr.Dataset) -> int:
+    """Bytes the NetCDF file of ``ds`` takes at least: the ``nbytes`` of its uncompressed variables."""
+    total = 0
+    for v in ds.variables.values():
+        enc = v.encoding
+        if not (enc.get("zlib") or enc.get("compression") or enc.get("compression_opts")):
+            total += int(v.nbytes)
+    return total

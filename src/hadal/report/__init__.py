@@ -11,11 +11,11 @@ import json
 from dataclasses import dataclass, field
 from typing import Any
 
+from hadal.products.io import json_clean
 from hadal.report.figures import FigureOptions, FigureResult, make_figures
 from hadal.report.html import render_html, summary_markdown, summary_rows
 from hadal.report.load import REPORT_INPUTS, DiveProducts, load_products
 from hadal.report.summary import dive_summary
-from hadal.products.io import json_clean
 from hadal.store import ProductStore, ProductVersion
 
 __all__ = ["REPORT_INPUTS", "DiveProducts", "FigureOptions", "Report", "build_report", "dive_summary",
@@ -45,19 +45,33 @@ def _provenance(dp: DiveProducts) -> list[dict[str, Any]]:
 
 def build_report(store: ProductStore, dive: str, *, launch: dict[str, float] | None = None,
                  options: FigureOptions | None = None, best_sites: int = 5, title: str | None = None,
-                 skipped: list[dict[str, str]] | None = None) -> Report:
+                 skipped: list[dict[str, str]] | None = None, pins: dict[str, ProductVersion] | None = None,
+                 expected: set[str] | None = None) -> Report:
     """Load the dive's products, compute the summary and figures, render the HTML (nothing is written).
 
     ``skipped``: stages the dive's data does not support, ``[{"stage", "reason"}]`` (:func:`hadal.plan.skipped_stages`),
-    listed in the summary and the HTML."""
-    dp = load_products(store, dive)
+    listed in the summary and the HTML. ``pins``: the versions a pipeline run used (default: the latest)."""
+    dp = load_products(store, dive, None if skipped is None else {s["stage"] for s in skipped}, pins, expected)
     dp.launch = launch
     summary = dive_summary(dp, launch=launch, best_sites=best_sites)
     summary["skipped_stages"] = list(skipped or [])
-    figures = make_figures(dp, options)
+    figures = _drop_skipped(make_figures(dp, options), skipped or [])
     summary["figures"] = {f.key: ("ok" if f.png is not None else f"skipped: {f.skipped}") for f in figures}
     html = render_html(dp, summary, figures, _provenance(dp), title=title)
     return Report(dive=dive, html=html, summary=summary, figures=figures, upstream=list(dp.versions.values()))
+
+
+#: what a figure's "skipped" reason names when it lacks a stage's products (report figures' own wording)
+_STAGE_TOKENS = {"grid": ("dtm", "laser_grids", "reference terrain"), "suitability": ("suitability",),
+                 "match": ("match", "matched track"), "landing": ("landing",), "derive": ("ctd", "profile"),
+                 "ingest": ("sensors",)}
+
+
+def _drop_skipped(figures: list[FigureResult], skipped: list[dict[str, str]]) -> list[FigureResult]:
+    """Leave out the placeholders of figures whose stage does not run on this dive (the report lists those
+    stages with the reason once, instead of one "figure skipped" note per figure)."""
+    tokens = tuple(f"no {t}" for s in skipped for t in _STAGE_TOKENS.get(s["stage"], ()))
+    return [f for f in figures if f.png is not None or not (f.skipped or "").startswith(tokens) or not tokens]
 
 
 def publish_report(store: ProductStore, report: Report, parameters: dict[str, Any] | None = None) -> ProductVersion:

@@ -33,6 +33,7 @@ import xarray as xr
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 from matplotlib.patches import Rectangle
+from matplotlib.ticker import MaxNLocator
 
 from hadal.report.load import DiveProducts
 
@@ -88,6 +89,11 @@ def _time(df: pd.DataFrame) -> pd.Series:
     return pd.to_datetime(df["time"], utc=True).dt.tz_localize(None)
 
 
+def _has_time(df: pd.DataFrame | None) -> bool:
+    """Whether the table has sample times (a pressure-binned cast has an all-NaT ``time``)."""
+    return df is not None and "time" in df and bool(pd.to_datetime(df["time"], utc=True).notna().any())
+
+
 def _need(df: pd.DataFrame | None, cols: tuple[str, ...], what: str) -> str | None:
     if df is None:
         return f"no {what}"
@@ -124,11 +130,16 @@ def fig_ctd_profiles(dp: DiveProducts, opt: FigureOptions) -> FigureResult:
     axes = fig.subplots(1, len(panels), sharey=True, squeeze=False)[0]
     for ax, (col, label, title) in zip(axes, panels, strict=True):
         for ph, g in _phases(d):
-            ax.plot(g[col], g[zcol], ".", ms=1.2, color=PHASE_COLOURS.get(ph, "k"), label=ph, rasterized=True)
+            if len(d) < 2000:  # a binned cast: few levels, draw them as a line with markers
+                ax.plot(g[col], g[zcol], ".-", ms=3, lw=0.8, color=PHASE_COLOURS.get(ph, "k"), label=ph)
+            else:
+                ax.plot(g[col], g[zcol], ".", ms=1.2, color=PHASE_COLOURS.get(ph, "k"), label=ph, rasterized=True)
         ax.set_xlabel(label)
         ax.set_title(title, fontsize=9)
         ax.grid(alpha=0.3)
         ax.tick_params(labelsize=8)
+        ax.ticklabel_format(axis="x", useOffset=False)  # an offset label would overlap the axis label
+        ax.xaxis.set_major_locator(MaxNLocator(3))
     axes[0].set_ylabel("depth (m)" if zcol == "depth_m" else "pressure (dbar)")
     axes[0].invert_yaxis()
     axes[-1].legend(fontsize=7, markerscale=6, loc="lower left")
@@ -146,22 +157,48 @@ def fig_depth_time(dp: DiveProducts, opt: FigureOptions) -> FigureResult:
     if (why := _need(df, ("time", "depth_m"), "ctd product")) is not None:
         r.skipped = why
         return r
+    if not _has_time(df):
+        return _depth_pressure(df, r, opt)
     d = _thin(df, opt.max_points)
     fig = Figure(figsize=(opt.width_in, opt.width_in * 0.4))
     ax = fig.subplots()
     for ph, g in _phases(d):
         ax.plot(_time(g), g["depth_m"], lw=1.2, color=PHASE_COLOURS.get(ph, "k"), label=ph)
-    i = int(pd.to_numeric(df["depth_m"], errors="coerce").idxmax())
-    ax.plot(_time(df.loc[[i]]), [df.loc[i, "depth_m"]], "*", color="gold", mec="k", ms=14,
-            label=f"max {df.loc[i, 'depth_m']:.1f} m")
-    ax.invert_yaxis()
-    ax.set_ylabel("depth (m)")
-    ax.set_xlabel("time (UTC)")
-    ax.grid(alpha=0.3)
-    ax.legend(fontsize=8)
+    _mark_deepest(ax, df, _time, "time (UTC)", ms=14)
     fig.autofmt_xdate()
     r.png = _png(fig, opt.dpi)
     return r
+
+
+def _depth_pressure(df: pd.DataFrame, r: FigureResult, opt: FigureOptions) -> FigureResult:
+    """A cast without times (pressure-binned): depth against pressure instead of time, with the
+    Fofonoff-Millard cross-check."""
+    if "pressure_dbar" not in df:
+        r.skipped = "ctd product has no times and no pressure_dbar"
+        return r
+    r.title = "Depth against pressure (cast without time channel)"
+    r.caption = ("The cast has no time channel (pressure-binned): depth from the hydrostatic integral (and "
+                 "Fofonoff-Millard, when present) against pressure; the deepest level is marked.")
+    fig = Figure(figsize=(opt.width_in * 0.6, opt.width_in * 0.45))
+    ax = fig.subplots()
+    ax.plot(df["pressure_dbar"], df["depth_m"], ".-", ms=3, lw=0.8, label="hydrostatic (depth_m)")
+    if "depth_fofonoff_millard_m" in df:
+        ax.plot(df["pressure_dbar"], df["depth_fofonoff_millard_m"], "--", lw=0.8, label="Fofonoff-Millard")
+    _mark_deepest(ax, df, lambda rows: rows["pressure_dbar"], "pressure (dbar)", ms=12)
+    r.png = _png(fig, opt.dpi)
+    return r
+
+
+def _mark_deepest(ax, df: pd.DataFrame, x_of: Callable[[pd.DataFrame], object], xlabel: str, *, ms: float) -> None:
+    """Star the deepest sample (at ``x_of(rows)``), depth increasing downwards, labels, grid and legend."""
+    i = int(pd.to_numeric(df["depth_m"], errors="coerce").idxmax())
+    ax.plot(x_of(df.loc[[i]]), [df.loc[i, "depth_m"]], "*", color="gold", mec="k", ms=ms,
+            label=f"max {df.loc[i, 'depth_m']:.1f} m")
+    ax.invert_yaxis()
+    ax.set_xlabel(xlabel)
+    ax.set_ylabel("depth (m)")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8)
 
 
 def fig_seafloor_depth(dp: DiveProducts, opt: FigureOptions) -> FigureResult:
@@ -172,6 +209,9 @@ def fig_seafloor_depth(dp: DiveProducts, opt: FigureOptions) -> FigureResult:
     alt = "altitude_corrected_m" if df is not None and "altitude_corrected_m" in df else "altitude_m"
     if (why := _need(df, ("time", "depth_m", alt, "seafloor_depth_m"), "ctd product")) is not None:
         r.skipped = why
+        return r
+    if not _has_time(df):
+        r.skipped = "cast without time channel (pressure-binned): no altimeter time series"
         return r
     d = df[np.isfinite(pd.to_numeric(df["seafloor_depth_m"], errors="coerce"))]
     if "phase" in d and (d["phase"].astype(str) == "bottom").any():
@@ -255,6 +295,10 @@ def fig_dtm(dp: DiveProducts, opt: FigureOptions) -> FigureResult:
     if (why := _grid_ok(dp.dtm, "depth_m", "dtm product")) is not None:
         r.skipped = why
         return r
+    if dp.dtm.attrs.get("dtm_source") == "prior_grid":
+        r.title = "Reference terrain (prior bathymetry grid)"
+        r.caption = ("Reference DTM resampled from the prior bathymetry grid onto the dive's map frame (depth "
+                     "positive down), with the matched bottom track when available.")
     fig = Figure(figsize=(opt.width_in * 0.75, opt.width_in * 0.6))
     ax = fig.subplots()
     _map(ax, dp.dtm, "depth_m", CMAPS["depth"], "depth (m)", fig)
@@ -284,6 +328,8 @@ def fig_suitability(dp: DiveProducts, opt: FigureOptions) -> FigureResult:
     if ds is None:
         r.skipped = "no suitability product"
         return r
+    if _launch_xy(dp) is None:
+        r.caption = r.caption.replace(", x: launch point.", ".")
     panels = [(v, lab, cm) for v, lab, cm in (("std_m", "elevation std (m)", CMAPS["std"]),
                                               ("entropy", "information entropy", CMAPS["entropy"]))
               if _grid_ok(ds, v, "suitability") is None]

@@ -65,14 +65,21 @@ def summary_rows(s: Mapping[str, Any]) -> list[tuple[str, str]]:
     if ph:
         rows.append(("phases", ", ".join(f"{k} {_hms(v)}" for k, v in ph.items())))
     if "max_depth_m" in s:
-        rows.append(("maximum vehicle depth", f"{s['max_depth_m']:,.1f} m" + (f" at {s['max_depth_time_utc']}" if s.get("max_depth_time_utc") else "")))
+        rows.append(("maximum depth (CTD cast)" if s.get("cast_only") else "maximum vehicle depth", f"{s['max_depth_m']:,.1f} m" + (f" at {s['max_depth_time_utc']}" if s.get("max_depth_time_utc") else "")))
     if "max_seafloor_depth_m" in s:
         rows.append(("maximum seafloor depth (depth + altitude)", f"{s['max_seafloor_depth_m']:,.1f} m"))
     dpnt = s.get("deepest_point")
     if dpnt:
         rows.append(("deepest point (matched)", f"{dpnt['position_degmin']} ({dpnt['lat']:.5f}°, {dpnt['lon']:.5f}°)"))
     if "launch" in s:
-        rows.append(("launch point", s["launch"]["position_degmin"]))
+        rows.append(("position (cast)" if s.get("cast_only") else "launch point", s["launch"]["position_degmin"]))
+    if s.get("dtm"):
+        t = s["dtm"]
+        res = f"{t['resolution_m']:g} m cells, " if t.get("resolution_m") else ""
+        snd = f", {t['soundings']:,.0f} soundings" if t.get("soundings") else ""
+        rows.append((f"reference DTM ({'prior grid' if t['source'] == 'prior_grid' else 'multibeam'})",
+                     f"{t['cells'][1]} x {t['cells'][0]} {res}depth {t['depth_range_m'][0]:,.1f} – "
+                     f"{t['depth_range_m'][1]:,.1f} m, {100 * t['mapped_fraction']:.0f} % mapped{snd}"))
     if "matched_start" in s:
         rows.append(("matched start of the bottom track", s["matched_start"]["position_degmin"]))
     if s.get("drift_m") is not None:
@@ -130,6 +137,9 @@ def render_html(dp: DiveProducts, summary: Mapping[str, Any], figures: list[Figu
     warns = list((summary.get("match") or {}).get("warnings") or [])
     for w in warns:
         parts.append(f"<div class='warn'>match: {_e(w)}</div>")
+    if summary.get("casts"):
+        parts.append("<h2>Other casts of this dive</h2>")
+        parts.append(_records_table(summary["casts"]))
     skipped = summary.get("skipped_stages") or []
     if skipped:
         parts.append("<h2>Stages not run on this dive</h2>")
@@ -149,7 +159,7 @@ def render_html(dp: DiveProducts, summary: Mapping[str, Any], figures: list[Figu
             b64 = base64.b64encode(f.png).decode("ascii")
             parts.append(f"<figure id='{_e(f.key)}'><img alt='{_e(f.title)}' src='data:image/png;base64,{b64}'>"
                          f"<figcaption><b>{_e(f.title)}.</b> {_e(f.caption)}</figcaption></figure>")
-        if section == "Landing sites":
+        if section == "Landing sites" and any(f.png is not None for f in figs):
             parts.append("<h3>Best landing sites (lowest cost per submap)</h3>")
             parts.append(_records_table(summary.get("best_landing_sites") or []))
     if (summary.get("best_landing_sites") or dp.landing_figures) and "Landing sites" not in sections:

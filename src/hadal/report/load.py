@@ -23,6 +23,8 @@ REPORT_INPUTS: tuple[tuple[str, str], ...] = (
     ("sensors", "ingest"), ("ctd", "derive"), ("profile", "derive"), ("dtm", "grid"),
     ("laser_grids", "grid"), ("suitability", "suitability"), ("match", "match"), ("landing", "landing"),
 )
+#: products made only when the data calls for them (external Sea-Bird casts): read when present, never "missing"
+REPORT_OPTIONAL: tuple[tuple[str, str], ...] = (("casts", "ingest"), ("cast_profiles", "derive"))
 
 
 @dataclass
@@ -45,6 +47,7 @@ class DiveProducts:
     landing_figures: list[Path] = field(default_factory=list)
     landing_maps: list[Path] = field(default_factory=list)
     launch: dict[str, float] | None = None  # {"lat", "lon"} of the dive's launch point, when known
+    casts: list[dict[str, Any]] = field(default_factory=list)  # external casts: casts.json + cast_profiles.json
 
     @property
     def missing(self) -> list[str]:
@@ -53,6 +56,19 @@ class DiveProducts:
     def note(self, text: str) -> None:
         if text not in self.notes:
             self.notes.append(text)
+
+
+def _table_notes(path: Path) -> list[str]:
+    """The ``notes`` a stage recorded in a Parquet product's table metadata (loud data problems: times out of
+    the dive's window, rejected samples, ...); none when the file or its metadata cannot be read."""
+    try:
+        from hadal.products.io import read_parquet_metadata
+
+        meta, _ = read_parquet_metadata(path)
+    except Exception:  # noqa: BLE001 - the table itself is read (and its problems noted) separately
+        return []
+    notes = meta.get("notes") if isinstance(meta, dict) else None
+    return [str(n) for n in notes] if isinstance(notes, list) else []
 
 
 def _read_parquet(pv: ProductVersion, name: str, dp: DiveProducts) -> pd.DataFrame | None:
@@ -93,24 +109,37 @@ def _read_json(pv: ProductVersion, name: str, dp: DiveProducts) -> dict[str, Any
     return data if isinstance(data, dict) else None
 
 
-def latest_versions(store: ProductStore, dive: str) -> dict[str, ProductVersion]:
-    """Latest version of every report input product that exists."""
-    return {p: store.latest(dive, p) for p, _ in REPORT_INPUTS if store.has(dive, p)}
+def latest_versions(store: ProductStore, dive: str, pins: dict[str, ProductVersion] | None = None
+                    ) -> dict[str, ProductVersion]:
+    """The version of every report input product that exists: the run's pinned one, else the latest."""
+    pins = pins or {}
+    return {p: pins.get(p) or store.latest(dive, p) for p, _ in (*REPORT_INPUTS, *REPORT_OPTIONAL)
+            if p in pins or store.has(dive, p)}
 
 
-def load_products(store: ProductStore, dive: str) -> DiveProducts:
-    """Load every available product of ``dive``; raise :class:`StageError` when there is none."""
-    versions = latest_versions(store, dive)
+def load_products(store: ProductStore, dive: str, skipped_stages: set[str] | None = None,
+                  pins: dict[str, ProductVersion] | None = None, expected: set[str] | None = None) -> DiveProducts:
+    """Load every available product of ``dive``.
+
+    ``skipped_stages``: stages the dive's data does not support (the report lists them with the reason, so
+    their missing products get no note here; ``expected``: the products the run's plan makes, the only ones
+    whose absence is noted). A dive with no product at all is a :class:`StageError` (any
+    source file makes ingest or grid run, so that means the pipeline has not run).
+    """
+    versions = latest_versions(store, dive, pins)
     if not versions:
         raise StageError(
             f"dive {dive!r} has no products in {store.root}; run the pipeline first (hadal run RAW_DIR --store {store.root})"
         )
     dp = DiveProducts(dive=dive, versions=versions)
     for product, stage in REPORT_INPUTS:
-        if product not in versions:
+        if product not in versions and stage not in (skipped_stages or set()) and (expected is None
+                                                                                   or product in expected):
             dp.note(f"product {product!r} is missing (stage {stage} has not run): its figures are skipped")
     if "sensors" in versions:
         dp.sensors = _read_parquet(versions["sensors"], "sensors.parquet", dp)
+        for n in _table_notes(versions["sensors"].path / "sensors.parquet"):
+            dp.note(f"ingest: {n}")
     if "ctd" in versions:
         dp.ctd = _read_parquet(versions["ctd"], "ctd.parquet", dp)
     if "profile" in versions:
@@ -124,11 +153,16 @@ def load_products(store: ProductStore, dive: str) -> DiveProducts:
         dp.fix = _read_json(pv, "fix.json", dp)
         dp.msd = _read_netcdf(pv, "msd_surface.nc", dp)
         dp.track = _read_parquet(pv, "matched_track.parquet", dp)
+    if "cast_profiles" in versions:
+        derived = _read_json(versions["cast_profiles"], "cast_profiles.json", dp) or {}
+        listed = (_read_json(versions["casts"], "casts.json", dp) or {}) if "casts" in versions else {}
+        info = {c.get("cast_id"): c for c in listed.get("casts", []) if isinstance(c, dict)}
+        dp.casts = [{**info.get(c.get("cast_id"), {}), **c} for c in derived.get("casts", []) if isinstance(c, dict)]
     if "landing" in versions:
         pv = versions["landing"]
         dp.landing_sites = _read_parquet(pv, "landing_sites.parquet", dp)
         if (pv.path / "landing_summary.json").is_file():
             dp.landing_summary = _read_json(pv, "landing_summary.json", dp)
         dp.landing_figures = sorted((pv.path / "figures").glob("*.png")) if (pv.path / "figures").is_dir() else []
-        dp.landing_maps = sorted(pv.path.glob("submap_*_maps.nc"))
+        dp.landing_maps = sorted(pv.path.glob("*_maps.nc"))
     return dp

@@ -29,6 +29,8 @@ def _phase_durations(ctd: pd.DataFrame) -> dict[str, float]:
     if "phase" not in ctd or "time" not in ctd:
         return {}
     t = pd.to_datetime(ctd["time"], utc=True)
+    if t.isna().all():  # a cast without time channel
+        return {}
     out = {}
     for ph, grp in t.groupby(ctd["phase"].astype(str)):
         if len(grp) > 1:
@@ -55,8 +57,10 @@ def dive_summary(dp: DiveProducts, launch: dict[str, float] | None = None, best_
             i = int(d.idxmax())
             s["max_depth_m"] = float(d.loc[i])
             s["max_depth_source"] = "ctd.depth_m (hydrostatic)"
-            if "time" in ctd:
+            if "time" in ctd and pd.notna(ctd.loc[i, "time"]):
                 s["max_depth_time_utc"] = pd.Timestamp(ctd.loc[i, "time"]).isoformat()
+            if "pressure_dbar" in ctd and pd.notna(ctd.loc[i, "pressure_dbar"]):
+                s["max_depth_pressure_dbar"] = float(ctd.loc[i, "pressure_dbar"])
         if "seafloor_depth_m" in ctd:
             sf = pd.to_numeric(ctd["seafloor_depth_m"], errors="coerce")
             if sf.notna().any():
@@ -67,10 +71,32 @@ def dive_summary(dp: DiveProducts, launch: dict[str, float] | None = None, best_
                 if v.notna().any():
                     s[f"{col}_range"] = [float(v.min()), float(v.max())]
         s["phase_durations_s"] = _phase_durations(ctd)
-        if "time" in ctd:
-            t = pd.to_datetime(ctd["time"], utc=True)
+        t = pd.to_datetime(ctd["time"], utc=True) if "time" in ctd else None
+        if t is not None and t.notna().any():
             s["start_utc"], s["end_utc"] = t.min().isoformat(), t.max().isoformat()
             s["duration_s"] = float((t.max() - t.min()).total_seconds())
+        elif t is not None:
+            s["time_base"] = "none (pressure-binned cast): CTD figures against pressure/depth"
+        track = [c for c in ("dr_east_m", "altitude_m") if c in ctd]
+        s["cast_only"] = not any(pd.to_numeric(ctd[c], errors="coerce").notna().any() for c in track)
+    # ---- external casts (Sea-Bird casts next to the dive's own CTD)
+    if dp.casts:
+        s["casts"] = [{"cast": c.get("cast_id"), "start_utc": c.get("start_time_utc"),
+                       "lat": _f(c.get("latitude_deg")), "lon": _f(c.get("longitude_deg")),
+                       "samples": c.get("samples", c.get("rows")),
+                       "max_depth_m": _f((c.get("deepest_point") or {}).get("depth_m")),
+                       "max_pressure_dbar": _f((c.get("deepest_point") or {}).get("pressure_dbar")),
+                       "latitude_source": c.get("latitude_source")} for c in dp.casts]
+    # ---- reference terrain
+    if dp.dtm is not None and "depth_m" in dp.dtm:
+        z = dp.dtm["depth_m"].values
+        fin = np.isfinite(z)
+        if fin.any():
+            s["dtm"] = {"source": str(dp.dtm.attrs.get("dtm_source", "multibeam")), "cells": [int(v) for v in z.shape],
+                        "resolution_m": _f(dp.dtm.attrs.get("resolution", dp.dtm.attrs.get("resolution_m"))),
+                        "depth_range_m": [float(np.nanmin(z)), float(np.nanmax(z))],
+                        "mapped_fraction": float(fin.mean()),
+                        "soundings": _f(dp.dtm.attrs.get("n_soundings_used"))}
     # ---- deepest point position (matched) and drift
     deep = fix.get("deepest_point") if isinstance(fix.get("deepest_point"), dict) else None
     if deep and _f(deep.get("lat")) is not None and _f(deep.get("lon")) is not None:

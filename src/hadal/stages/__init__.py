@@ -49,7 +49,9 @@ class StageInputs:
     * ``always``: run even without any input (``report``: it says what was skipped and why);
     * ``needs_launch``: the dive's launch position is required (the plan is refused, naming the stage);
     * ``reads_raw``: the stage reads the ``raw_any`` files themselves (ingest, grid), so they are part of its
-      cache fingerprint (``hadal.tasks.stage``); ``match`` only needs a vehicle log to exist.
+      cache fingerprint (``hadal.tasks.stage``); ``match`` only needs a vehicle log to exist;
+    * ``frame_for``: products whose making needs the dive's map frame (``map_frame`` or ``launch``);
+    * ``optional_products``: products made only when the data calls for them (not promised by the plan).
     """
 
     raw_any: tuple[str, ...] = ()
@@ -59,6 +61,8 @@ class StageInputs:
     always: bool = False
     needs_launch: bool = False
     reads_raw: bool = False
+    frame_for: tuple[str, ...] = ()
+    optional_products: tuple[str, ...] = ()
 
 
 class Progress(Protocol):
@@ -82,19 +86,46 @@ class StageContext:
     config: PipelineConfig
     progress: Progress = field(default_factory=NullProgress)
     log: logging.Logger = field(default_factory=lambda: logging.getLogger("hadal"))
+    #: product -> the version this run reads (found at the run's start or published by it); see upstream()
+    pins: dict[str, ProductVersion] = field(default_factory=dict)
+    #: stages that failed earlier in this run (``{stage: one-line error}``) and the stages skipped because of
+    #: them (``{stage: reason}``); the report lists both
+    failed: dict[str, str] = field(default_factory=dict)
+    failed_skips: dict[str, str] = field(default_factory=dict)
 
     @property
     def dive_id(self) -> str:
         return self.dive.dive_id
 
     def upstream(self, product: str) -> ProductVersion:
-        """Latest published version of an upstream product, or a clear :class:`StageError`."""
-        if not self.store.has(self.dive_id, product):
-            raise StageError(
-                f"dive {self.dive_id!r} has no {product!r} product yet; run the stage that makes it first "
-                f"(hadal stage {producer_of(product)} {self.raw_dir})"
-            )
-        return self.store.latest(self.dive_id, product)
+        """The upstream version this run uses, verified against its manifest, or a clear :class:`StageError`.
+
+        A run pins the versions it found at its start and those it published (:attr:`pins`), so two concurrent
+        runs of one dive never mix each other's inputs; without a pin it is the latest published version.
+        Files changed since they were published are a :class:`StoreError` (:meth:`ProductStore.check_intact`).
+        """
+        pv = self.pins.get(product)
+        if pv is None:
+            if not self.store.has(self.dive_id, product):
+                raise StageError(
+                    f"dive {self.dive_id!r} has no {product!r} product yet; run the stage that makes it first "
+                    f"(hadal stage {producer_of(product)} {self.raw_dir})"
+                )
+            pv = self.store.latest(self.dive_id, product)
+        self.store.check_intact(pv)
+        return pv
+
+    def optional_upstream(self, product: str) -> ProductVersion | None:
+        """:meth:`upstream` when the product exists (pinned or published), else ``None``."""
+        if product in self.pins or self.store.has(self.dive_id, product):
+            return self.upstream(product)
+        return None
+
+    def pin_existing(self, products: Iterable[str]) -> None:
+        """Pin the latest published version of each of ``products`` that exists (a run's start)."""
+        for product in products:
+            if product not in self.pins and self.store.has(self.dive_id, product):
+                self.pins[product] = self.store.latest(self.dive_id, product)
 
     def params(self, stage: str) -> dict[str, Any]:
         section = self.config.section(stage)

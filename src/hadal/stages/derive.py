@@ -18,12 +18,14 @@ Publishes ``ctd`` (``ctd.parquet``) and ``profile`` (``profile.nc``, pressure-bi
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any, Literal
+import json
+from typing import TYPE_CHECKING, Annotated, Any, Literal
 
 import numpy as np
 import pandas as pd
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
+from hadal.budget import check_memory, memory_limit_bytes
 from hadal.depth import (
     correct_altitude,
     depth_teos10,
@@ -34,7 +36,8 @@ from hadal.depth import (
     segment_phases,
 )
 from hadal.errors import InputError
-from hadal.profile import make_profile
+from hadal.ingest.cnv import NO_TIME_BASE
+from hadal.profile import PROFILE_VARIABLES, make_profile
 from hadal.seawater import (
     density_eos80,
     depth_fofonoff_millard,
@@ -42,13 +45,15 @@ from hadal.seawater import (
     practical_salinity,
     sound_speed_chen_millero,
 )
+from hadal.stages import StageInputs
 
 if TYPE_CHECKING:
     from hadal.stages import StageContext
     from hadal.store import ProductVersion
 
-PRODUCTS = ("ctd", "profile")
+PRODUCTS = ("ctd", "profile", "cast_profiles")
 UPSTREAM = ("sensors",)
+INPUTS = StageInputs(upstream=("sensors",), optional_upstream=("casts",), optional_products=("cast_profiles",))
 
 REQUIRED_COLUMNS = ("time", "conductivity_s_m", "temperature_its90_degc")
 
@@ -65,27 +70,38 @@ EXTRA_COLUMN_ATTRS: dict[str, dict[str, str]] = {
 class Params(BaseModel):
     """Seawater and depth parameters (section ``derive`` of config/pipeline.yaml)."""
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
     latitude_deg: float | None = Field(None, ge=-90, le=90,
-                                       description="latitude for gravity/depth; default: the dive's launch latitude")
+                                       description="latitude for gravity/depth; default: the dive's launch latitude, "
+                                                   "else the cast header's NMEA/user latitude, else 45 (warned, "
+                                                   "with the depth error it can cause, in the product metadata)")
     longitude_deg: float | None = Field(None, ge=-180, le=360,
-                                        description="longitude for TEOS-10 absolute salinity; default: launch")
+                                        description="longitude for TEOS-10 absolute salinity; default: launch, else "
+                                                    "the cast header, else 0")
     depth_integration: Literal["trapezoid", "rectangle"] = Field(
         "trapezoid", description="hydrostatic sum: trapezoid (1/(rho g) averaged over each interval) or "
                                  "rectangle (Eq. 12 as printed, rho and g of the interval's end sample)")
-    accept_flags: list[int] = Field([1, 2, 3], description="QARTOD flags of sensor values that are used")
-    ctd_saturation_dbar: float = Field(10_500.0, gt=0, description="SBE49 pressure range (saturates here)")
-    saturation_margin_dbar: float = Field(5.0, ge=0, description="use the gauge from saturation - margin up")
-    gauge_bias_window_dbar: tuple[float, float] = Field(
-        (6000.0, 10_400.0), description="CTD pressure range where the gauge-CTD bias is estimated (median)")
-    min_bias_samples: int = Field(20, ge=1, description="fewer samples in the window: use the whole overlap")
+    accept_flags: list[Annotated[int, Field(ge=1, le=9)]] = Field(
+        [1, 2, 3], description="QARTOD flags (1-9) of sensor values that are used")
+    ctd_saturation_dbar: float = Field(10_500.0, ge=100, le=20_000,
+                                       description="SBE49 pressure range (dbar, 100-20 000; saturates here)")
+    saturation_margin_dbar: float = Field(5.0, ge=0, le=1000,
+                                          description="use the gauge from saturation - margin up (dbar, 0-1000)")
+    gauge_bias_window_dbar: tuple[Annotated[float, Field(ge=-100, le=20_000)], Annotated[float, Field(ge=-100, le=20_000)]] = Field(
+        (6000.0, 10_400.0), description="CTD pressure range (dbar, -100 to 20 000) where the gauge-CTD bias is estimated (median)")
+    min_bias_samples: int = Field(20, ge=1, le=100_000_000, description="fewer samples in the window: use the whole overlap")
     pressure_datum: Literal["gauge", "ctd"] = Field(
         "gauge", description="datum of pressure_dbar: gauge (CTD + bias where the CTD is used; the gauge is the "
                              "more accurate sensor) or ctd (gauge - bias where the CTD saturates)")
-    nominal_sound_speed_m_s: float = Field(1500.0, gt=0, description="sound speed the altimeter assumes")
-    profile_bin_dbar: float = Field(10.0, gt=0, description="pressure bin size of profile.nc")
-    phase_smoothing_s: float = Field(60.0, gt=0, description="depth smoothing before the phase segmentation")
-    phase_speed_threshold_m_s: float = Field(0.2, gt=0, description="vertical speed separating transit/bottom")
+    nominal_sound_speed_m_s: float = Field(1500.0, ge=1300, le=1800,
+                                           description="sound speed the altimeter assumes (m/s, 1300-1800)")
+    profile_bin_dbar: float = Field(
+        10.0, ge=1e-4, le=1000, description="pressure bin size of profile.nc (dbar, 1e-4 to 1000; the bins' memory is "
+                                            "checked against resources.max_memory_gb)")
+    phase_smoothing_s: float = Field(60.0, gt=0, le=86_400,
+                                     description="depth smoothing before the phase segmentation (s, up to 1 day)")
+    phase_speed_threshold_m_s: float = Field(0.2, gt=0, le=10,
+                                             description="vertical speed separating transit/bottom (m/s, up to 10)")
     phase_deep_fraction: float = Field(0.5, gt=0, lt=1, description="bottom phase only below this x max depth")
 
     @field_validator("gauge_bias_window_dbar")
@@ -106,8 +122,36 @@ def _flag_ok(df: pd.DataFrame, column: str, accept: list[int]) -> np.ndarray:
     return ok
 
 
+def profile_memory_bytes(pressure_dbar: Any, bin_dbar: float, n_variables: int = len(PROFILE_VARIABLES),
+                         n_casts: int = 2) -> float:
+    """Bytes :func:`hadal.profile.make_profile` allocates for ``pressure_dbar`` in ``bin_dbar`` bins: per bin the
+    edges and per cast a count plus, per variable, a sum, a count, a mean and the product array (8 bytes each)."""
+    pr = np.asarray(pressure_dbar, dtype=np.float64)
+    pr = pr[np.isfinite(pr)]
+    if pr.size == 0:
+        return 0.0
+    n_bins = (float(pr.max()) - min(0.0, float(pr.min()))) / float(bin_dbar) + 2
+    return n_bins * 8.0 * (1 + n_casts * (1 + 4 * n_variables))
+
+
+def check_profile_memory(sensors: pd.DataFrame, p: Params, limit_bytes: float | None = None) -> None:
+    """Refuse (one-line ConfigError) a ``profile_bin_dbar`` whose bins would not fit the memory budget."""
+    cols = [c for c in ("pressure_ctd_dbar", "pressure_gauge_dbar") if c in sensors.columns]
+    if not cols:
+        return
+    pr = np.concatenate([pd.to_numeric(sensors[c], errors="coerce").to_numpy(np.float64) for c in cols])
+    need = profile_memory_bytes(pr, p.profile_bin_dbar)
+    fin = pr[np.isfinite(pr)]
+    span = f"{float(fin.max()) - min(0.0, float(fin.min())):.0f} dbar" if fin.size else "no pressure"
+    check_memory(f"the profile ({span} in {p.profile_bin_dbar:g} dbar bins)", need,
+                 memory_limit_bytes() if limit_bytes is None else limit_bytes,
+                 setting="derive.profile_bin_dbar", value=float(p.profile_bin_dbar),
+                 advice="use a larger derive.profile_bin_dbar or raise resources.max_memory_gb")
+
+
 def derive_ctd(sensors: pd.DataFrame, latitude_deg: float, longitude_deg: float, p: Params,
-               frame: Any = None, launch_xy: tuple[float, float] = (0.0, 0.0)) -> tuple[pd.DataFrame, dict]:
+               frame: Any = None, launch_xy: tuple[float, float] = (0.0, 0.0), *,
+               memory_limit_bytes: float | None = None) -> tuple[pd.DataFrame, dict]:
     """Pure science of the stage: the ``ctd`` table and its metadata from a ``sensors`` table.
 
     ``frame`` (a :class:`hadal.geo.LocalFrame`) and ``launch_xy`` (the launch point in it) turn the
@@ -120,11 +164,21 @@ def derive_ctd(sensors: pd.DataFrame, latitude_deg: float, longitude_deg: float,
         raise InputError("sensors table has neither pressure_ctd_dbar nor pressure_gauge_dbar")
     if len(sensors) == 0:
         raise InputError("sensors table is empty")
+    check_profile_memory(sensors, p, memory_limit_bytes)
     df = sensors.copy()
     df["time"] = pd.to_datetime(df["time"], utc=True)
-    if not df["time"].is_monotonic_increasing:
-        df = df.sort_values("time", kind="stable").reset_index(drop=True)
-    dup = df["time"].duplicated(keep="first").to_numpy()
+    no_time = bool(df["time"].isna().all())  # a pressure-binned cast: rows in pressure order, no times
+    if no_time:
+        pr = pd.to_numeric(df.get("pressure_ctd_dbar", df.get("pressure_gauge_dbar")), errors="coerce")
+        if not (pr.dropna().is_monotonic_increasing or pr.dropna().is_monotonic_decreasing):
+            df = df.iloc[np.argsort(pr.to_numpy(), kind="stable")].reset_index(drop=True)
+        dup = np.zeros(len(df), dtype=bool)
+    else:
+        if df["time"].isna().any():
+            raise InputError(f"sensors table has {int(df['time'].isna().sum())} missing time(s) among valid ones")
+        if not df["time"].is_monotonic_increasing:
+            df = df.sort_values("time", kind="stable").reset_index(drop=True)
+        dup = df["time"].duplicated(keep="first").to_numpy()
     if dup.any():  # repeated samples (the ingest contract says unique times): keep the first, count the rest
         df = df.loc[~dup].reset_index(drop=True)
     n = len(df)
@@ -166,9 +220,13 @@ def derive_ctd(sensors: pd.DataFrame, latitude_deg: float, longitude_deg: float,
     df["sound_speed_m_s"] = sv
 
     # --- phases (needed for the descent profile of the TEOS-10 cross-check)
-    phase = segment_phases(df["time"], depth, smoothing_s=p.phase_smoothing_s,
-                           vertical_speed_threshold_m_s=p.phase_speed_threshold_m_s,
-                           deep_fraction=p.phase_deep_fraction)
+    if no_time:  # a binned cast is one profile: descent when pressure increases down the file, else ascent
+        fin = pres[np.isfinite(pres)]
+        phase = np.full(n, "descent" if fin.size < 2 or fin[-1] >= fin[0] else "ascent", dtype=object)
+    else:
+        phase = segment_phases(df["time"], depth, smoothing_s=p.phase_smoothing_s,
+                               vertical_speed_threshold_m_s=p.phase_speed_threshold_m_s,
+                               deep_fraction=p.phase_deep_fraction)
     df["phase"] = pd.array(phase, dtype="string")
 
     # --- TEOS-10 depth with the dynamic height anomaly of the binned descent profile
@@ -202,12 +260,17 @@ def derive_ctd(sensors: pd.DataFrame, latitude_deg: float, longitude_deg: float,
 
     meta = _metadata(df, fusion, latitude_deg, longitude_deg, p, teos_note, frame, launch_xy)
     meta["duplicate_times_dropped"] = int(dup.sum())
+    if no_time:
+        meta["time_base"] = NO_TIME_BASE
+        meta["profile_note"] = ("no time channel: salinity, density, gravity and depth integrated in pressure "
+                                "order; phase from the pressure trend; no times, no phase durations")
     return df, meta
 
 
 def _point(df: pd.DataFrame, i: int, frame: Any, launch_xy: tuple[float, float]) -> dict[str, Any]:
     row = df.iloc[i]
-    out: dict[str, Any] = {"time": pd.Timestamp(row["time"]).isoformat(), "index": int(i)}
+    t = pd.Timestamp(row["time"])
+    out: dict[str, Any] = {"time": None if pd.isna(t) else t.isoformat(), "index": int(i)}
     for c in ("depth_m", "pressure_dbar", "seafloor_depth_m", "altitude_corrected_m", "depth_fofonoff_millard_m",
               "depth_teos10_m", "dr_east_m", "dr_north_m"):
         if c in df.columns and np.isfinite(row[c]):
@@ -253,8 +316,9 @@ def _metadata(df: pd.DataFrame, fusion: Any, lat: float, lon: float, p: Params, 
     for ph in ("descent", "bottom", "ascent"):
         sel = (df["phase"] == ph).to_numpy()
         if sel.any():
-            t = df["time"][sel]
-            phases[ph] = {"start": t.iloc[0].isoformat(), "end": t.iloc[-1].isoformat(), "samples": int(sel.sum())}
+            t = df["time"][sel].dropna()
+            phases[ph] = {"start": t.iloc[0].isoformat() if len(t) else None,
+                          "end": t.iloc[-1].isoformat() if len(t) else None, "samples": int(sel.sum())}
     meta["phases"] = phases
     fm = df["depth_fofonoff_millard_m"].to_numpy()
     te = df["depth_teos10_m"].to_numpy()
@@ -286,46 +350,166 @@ def comparison_table(meta: dict[str, Any]) -> str:
     return "\n".join(lines)
 
 
+#: latitude used when neither the parameter, the launch nor the cast header gives one
+FALLBACK_LATITUDE_DEG = 45.0
+
+
+def _latitude_error_m(pressure_dbar: float) -> float:
+    """Largest depth error at ``pressure_dbar`` from using 45° for a cast anywhere between equator and pole."""
+    p = np.array([pressure_dbar])
+    d45 = float(depth_fofonoff_millard(p, FALLBACK_LATITUDE_DEG)[0])
+    return max(abs(float(depth_fofonoff_millard(p, lat)[0]) - d45) for lat in (0.0, 90.0))
+
+
+def choose_position(p: Params, dive: Any, sensors_meta: dict[str, Any], *, header_first: bool = False
+                    ) -> dict[str, Any]:
+    """Latitude/longitude for gravity and depth, in order: ``derive.latitude_deg`` parameter, dive.yaml
+    launch, the cast header's NMEA/user position (``cast_latitude_deg`` in the sensors metadata), else 45°
+    with a warning (and the largest depth error that can cause at the deepest sample). ``header_first``
+    (an external cast, which need not be at the vehicle's launch point): the header before the launch."""
+    launch = getattr(dive, "launch", None)
+
+    def pick(axis: str, fallback: tuple[float, str]) -> tuple[float, str]:
+        key = f"{axis}_deg"
+        cast = sensors_meta.get(f"cast_{key}")
+        if getattr(p, key) is not None:
+            return getattr(p, key), f"derive.{key} parameter"
+        if cast is not None and (header_first or launch is None):
+            return float(cast), f"cast header (NMEA/user {axis})"
+        if launch is not None:
+            return getattr(launch, key), "dive launch"
+        return fallback
+
+    lat, lat_src = pick("latitude", (FALLBACK_LATITUDE_DEG,
+                                     "fallback 45 deg (no parameter, launch or cast header latitude)"))
+    lon, lon_src = pick("longitude", (0.0, "fallback 0 deg (only the TEOS-10 cross-check uses it)"))
+    return {"latitude_deg": float(lat), "longitude_deg": float(lon), "latitude_source": lat_src,
+            "longitude_source": lon_src, "fallback": lat_src.startswith("fallback")}
+
+
+def _frame(dive: Any) -> tuple[Any, tuple[float, float]]:
+    """The map frame and the launch point in it, or ``(None, (0, 0))`` without launch (DR positions omitted)."""
+    launch = getattr(dive, "launch", None)
+    if launch is None:
+        return None, (0.0, 0.0)
+    frame = dive.frame("derive")
+    return frame, tuple(float(v) for v in frame.to_xy(launch.longitude_deg, launch.latitude_deg))
+
+
+def derive_table(table: pd.DataFrame, sensors_meta: dict[str, Any], p: Params, dive: Any, log: Any,
+                 what: str, *, external_cast: bool = False, memory_limit_bytes: float | None = None
+                 ) -> tuple[pd.DataFrame, dict[str, Any], Any]:
+    """``derive_ctd`` + position choice + profile for one sensors-schema table (the dive's or a cast's)."""
+    pos = choose_position(p, dive, sensors_meta, header_first=external_cast)
+    frame, launch_xy = (None, (0.0, 0.0)) if external_cast else _frame(dive)
+    df, meta = derive_ctd(table, pos["latitude_deg"], pos["longitude_deg"], p, frame=frame, launch_xy=launch_xy,
+                          memory_limit_bytes=memory_limit_bytes)
+    meta.update({k: pos[k] for k in ("latitude_source", "longitude_source")})
+    if pos["fallback"]:
+        pmax = float(np.nanmax(df["pressure_dbar"].to_numpy()))
+        err = _latitude_error_m(pmax)
+        msg = (f"{what}: no latitude (no derive.latitude_deg, no dive.yaml launch, none in the cast header): "
+               f"using {FALLBACK_LATITUDE_DEG:g} deg; gravity and depth may be off by up to {err:.2f} m at "
+               f"{pmax:.0f} dbar ({100 * err / max(meta['deepest_point'].get('depth_m', 1.0), 1e-9):.2f} % of depth)")
+        meta["latitude_warning"] = msg
+        meta["latitude_depth_error_max_m"] = round(err, 3)
+        log.warning("derive: %s", msg)
+    if sensors_meta.get("time_base") == NO_TIME_BASE:
+        meta["time_base"] = NO_TIME_BASE
+    # the binned profile uses only accepted samples: a flag-4 value (QARTOD fail, SeaSoft-flagged scan) is no mean's
+    masked = {c: np.where(_flag_ok(df, c, list(p.accept_flags)), df[c].to_numpy(np.float64), np.nan)
+              for c in ("temperature_its90_degc", "conductivity_s_m") if c in df}
+    excluded = {c: int((np.isfinite(df[c].to_numpy(np.float64)) & ~np.isfinite(v)).sum()) for c, v in masked.items()}
+    if any(excluded.values()):
+        meta["profile_values_excluded_by_flag"] = excluded
+    prof = make_profile(df.assign(**masked), p.profile_bin_dbar)
+    if meta.get("time_base") != NO_TIME_BASE:
+        _cast_times(prof, df)
+    else:
+        _header_cast_time(prof, sensors_meta, meta)
+    return df, meta, prof
+
+
+def _header_cast_time(ds: Any, sensors_meta: dict[str, Any], meta: dict[str, Any]) -> None:
+    """``time(cast)`` of a cast without a time channel: the Sea-Bird header's ``start_time`` (``cast`` metadata
+    ``start_time_utc``) for every cast, recorded in ``meta["cast_time_source"]``. Without one the profile has no
+    time at all (none is invented: not the processing time)."""
+    start = (sensors_meta.get("cast") or {}).get("start_time_utc")
+    t = pd.Timestamp(start) if start else None
+    if t is None or pd.isna(t):
+        meta["cast_time_source"] = "none: no time channel and no start_time in the cast header (time omitted)"
+        ds.attrs["time_omitted"] = "no time channel and no start_time in the cast header: the cast has no time"
+        return
+    t = (t.tz_convert("UTC") if t.tzinfo else t).tz_localize(None)
+    meta["cast_start_time_utc"] = t.isoformat() + "Z"
+    meta["cast_time_source"] = "cast header start_time (no time channel)"
+    ds["time"] = ("cast", np.full(ds.sizes["cast"], np.datetime64(t, "ns")), {
+        "standard_name": "time", "long_name": "start time of the cast from the Sea-Bird header (# start_time); "
+                                              "the cast has no time channel, so the samples have no times"})
+
+
 def run(ctx: StageContext) -> dict[str, ProductVersion]:
     p: Params = ctx.config.derive
+    limit = memory_limit_bytes(ctx.config)
     sensors = ctx.upstream("sensors")
     path = sensors.file("sensors.parquet")
-    try:
-        table = pd.read_parquet(path)
-    except Exception as exc:  # unreadable upstream file: one-line error, not a traceback
-        raise InputError(f"{path}: cannot read sensors table ({type(exc).__name__}: {exc})") from None
-    lat = p.latitude_deg if p.latitude_deg is not None else ctx.dive.launch.latitude_deg
-    lon = p.longitude_deg if p.longitude_deg is not None else ctx.dive.launch.longitude_deg
-    frame = ctx.dive.frame()
-    launch_xy = tuple(float(v) for v in frame.to_xy(ctx.dive.launch.longitude_deg, ctx.dive.launch.latitude_deg))
-    try:
-        df, meta = derive_ctd(table, lat, lon, p, frame=frame, launch_xy=launch_xy)
-    except InputError as exc:
-        raise InputError(f"{path}: {exc}") from None
-    meta["latitude_source"] = "derive.latitude_deg parameter" if p.latitude_deg is not None else "dive launch"
-    meta["dive_id"] = ctx.dive_id
-    profile = make_profile(df, p.profile_bin_dbar)
-    _cast_times(profile, df)
-    ctx.log.info("derive: %d samples, gauge bias %+.3f dbar (%d samples), deepest %.2f m at %s\n%s",
-                 len(df), meta["gauge_bias_dbar"], meta["gauge_bias_samples"], meta["deepest_point"]["depth_m"],
-                 meta["deepest_point"]["time"], comparison_table(meta))
-
     from hadal.products.io import read_parquet_metadata, write_netcdf, write_parquet
 
     try:
-        _, sensor_fields = read_parquet_metadata(path)
-    except Exception:
-        sensor_fields = {}
+        table = pd.read_parquet(path)
+        sensors_meta, sensor_fields = read_parquet_metadata(path)
+    except Exception as exc:  # unreadable upstream file: one-line error, not a traceback
+        raise InputError(f"{path}: cannot read sensors table ({type(exc).__name__}: {exc})") from None
+    try:
+        df, meta, profile = derive_table(table, sensors_meta, p, ctx.dive, ctx.log, f"dive {ctx.dive_id}",
+                                         memory_limit_bytes=limit)
+    except InputError as exc:
+        raise InputError(f"{path}: {exc}") from None
+    meta["dive_id"] = ctx.dive_id
+    lat = meta["latitude_deg"]
+
+    # external casts ingested next to the vehicle logs ('casts' of the same ingest run): derived each
+    casts_pv = None
+    cast_results: list[tuple[str, pd.DataFrame, dict[str, Any], Any]] = []
+    listed = [c["cast_id"] for c in sensors_meta.get("external_casts") or []]
+    if listed and ctx.store.has(ctx.dive_id, "casts"):
+        casts_pv = ctx.upstream("casts")
+        for cid in listed:
+            cpath = casts_pv.path / f"{cid}.parquet"
+            try:
+                ctab = pd.read_parquet(cpath)
+                cmeta, _ = read_parquet_metadata(cpath)
+            except Exception as exc:
+                raise InputError(f"{cpath}: cannot read cast table ({type(exc).__name__}: {exc})") from None
+            cmeta = {**cmeta, "cast_latitude_deg": (cmeta.get("cast") or {}).get("latitude_deg"),
+                     "cast_longitude_deg": (cmeta.get("cast") or {}).get("longitude_deg")}
+            try:
+                cdf, cm, cprof = derive_table(ctab, cmeta, p, ctx.dive, ctx.log, f"cast {cid}",
+                                                 external_cast=True, memory_limit_bytes=limit)
+            except InputError as exc:
+                raise InputError(f"{cmeta.get('sources', [{}])[0].get('path', cpath)}: {exc}") from None
+            cm.update({"dive_id": ctx.dive_id, "cast_id": cid, "cast": cmeta.get("cast")})
+            cast_results.append((cid, cdf, cm, cprof))
+    elif listed:
+        ctx.log.warning("derive: sensors lists external casts %s but the dive has no 'casts' product", listed)
+
+    deep = meta["deepest_point"]
+    ctx.log.info("derive: %d samples, gauge bias %+.3f dbar (%d samples), deepest %.2f m at %s\n%s",
+                 len(df), meta["gauge_bias_dbar"], meta["gauge_bias_samples"], deep["depth_m"],
+                 deep.get("time") or f"{deep.get('pressure_dbar')} dbar", comparison_table(meta))
+
     fields = {c: {k: v for k, v in sensor_fields.get(c, {}).items() if k in ("units", "standard_name", "long_name")}
               for c in sensors_columns(table)}
     fields.update(EXTRA_COLUMN_ATTRS)
     params = ctx.params("derive")
     summary = {k: meta[k] for k in ("gauge_bias_dbar", "latitude_deg", "deepest_point", "depth_comparison")}
+    summary["latitude_source"] = meta["latitude_source"]
     with ctx.store.publish(ctx.dive_id, "ctd", parameters=params, upstream=[sensors],
                            extra={"summary": summary}) as draft:
         write_parquet(df, draft.path / "ctd.parquet", fields=fields, metadata=meta, provenance_from=draft)
     ctd = draft.result
 
+    is_prof = meta.get("time_base") == NO_TIME_BASE
     _profile_attrs(profile, meta)
     with ctx.store.publish(ctx.dive_id, "profile", parameters=params, upstream=[sensors, ctd],
                            extra={"summary": {"bin_dbar": p.profile_bin_dbar,
@@ -335,12 +519,46 @@ def run(ctx: StageContext) -> dict[str, ProductVersion]:
             title=f"Pressure-binned CTD profiles (descent and ascent) of dive {ctx.dive_id}",
             summary=(f"Means in {p.profile_bin_dbar:g} dbar pressure bins of the dive's CTD samples, separately for "
                      "the descent and ascent casts: temperature, conductivity, PSS-78 salinity, EOS-80 density, "
-                     "gravity, Chen-Millero sound speed, and hydrostatic / Fofonoff-Millard / TEOS-10 depths."),
+                     "gravity, Chen-Millero sound speed, and hydrostatic / Fofonoff-Millard / TEOS-10 depths."
+                     + ((" The cast has no time channel (pressure-binned): its time is the header start time."
+                         if "time" in profile.variables else
+                         " The cast has no time channel (pressure-binned) and no header start time: no times.")
+                        if is_prof else "")),
             keywords="CTD, salinity, density, depth, pressure, profile",
             processing_level="L2 binned profile", provenance_from=draft,
-            dive_id=ctx.dive_id, latitude_used_deg=lat, gauge_bias_dbar=meta["gauge_bias_dbar"],
+            dive_id=ctx.dive_id, latitude_used_deg=lat, latitude_source=meta["latitude_source"],
+            gauge_bias_dbar=meta["gauge_bias_dbar"],
         )
-    return {"ctd": ctd, "profile": draft.result}
+    out = {"ctd": ctd, "profile": draft.result}
+
+    if cast_results:
+        index = []
+        with ctx.store.publish(ctx.dive_id, "cast_profiles", parameters=params, upstream=[sensors, casts_pv],
+                               extra={"casts": [c[0] for c in cast_results]}) as draft:
+            for cid, cdf, cm, cprof in cast_results:
+                write_parquet(cdf, draft.path / f"{cid}.parquet", fields=fields, metadata=cm, provenance_from=draft)
+                _profile_attrs(cprof, cm)
+                write_netcdf(cprof, draft.path / f"{cid}.nc",
+                             title=f"Pressure-binned CTD profile of cast {cid} (dive {ctx.dive_id})",
+                             summary=(f"Means in {p.profile_bin_dbar:g} dbar pressure bins of an external Sea-Bird "
+                                      "cast of the dive: temperature, conductivity, PSS-78 salinity, EOS-80 density, "
+                                      "gravity, sound speed and depths."),
+                             keywords="CTD, salinity, density, depth, pressure, profile",
+                             processing_level="L2 binned profile", provenance_from=draft, dive_id=ctx.dive_id,
+                             cast_id=cid, latitude_used_deg=cm["latitude_deg"],
+                             latitude_source=cm["latitude_source"])
+                index.append({"cast_id": cid, "table": f"{cid}.parquet", "profile": f"{cid}.nc",
+                              "samples": int(len(cdf)), "time_base": cm.get("time_base", "time"),
+                              "latitude_deg": cm["latitude_deg"], "latitude_source": cm["latitude_source"],
+                              "latitude_warning": cm.get("latitude_warning"),
+                              "deepest_point": cm["deepest_point"]})
+            from hadal.products.io import json_clean
+
+            (draft.path / "cast_profiles.json").write_text(json.dumps(json_clean({"casts": index}), indent=2),
+                                                           encoding="utf-8")
+        out["cast_profiles"] = draft.result
+        ctx.log.info("derive: %d external cast(s) derived into 'cast_profiles'", len(index))
+    return out
 
 
 def _cast_times(ds: Any, df: pd.DataFrame) -> None:

@@ -1,24 +1,37 @@
-"""Stage ``grid``: multibeam soundings -> reference DTM (``dtm``), laser submaps -> 10 mm grids (``laser_grids``).
+"""Stage ``grid``: multibeam soundings or a prior grid -> reference DTM (``dtm``), laser inputs -> ``laser_grids``.
 
-Reads the raw files listed in ``dive.yaml`` (``sources.multibeam``: ``multibeam/em122_lineNN.xyz.gz``,
-``sources.laser``: ``laser/submap_NN.ply``); no upstream product. Science in :mod:`hadal.grid`.
+Reads the raw files listed in ``dive.yaml``; no upstream product. Science in :mod:`hadal.grid`.
+
+* ``dtm``: ``sources.multibeam`` soundings gridded at ``dtm_resolution_m`` (:func:`make_dtm`); without
+  soundings, the first ``sources.prior_grid`` (GeoTIFF, NetCDF COARDS/CF, GMT netCDF .grd, other GDAL
+  rasters) resampled onto the map frame at about its native resolution (:mod:`hadal.grid.prior`: CRS,
+  registration and elevation/depth sign handled and recorded in the attributes). With both, multibeam
+  wins: the prior grid is not used, or (``prior_fill``) fills the DTM's empty cells (``filled`` = 2).
+* ``laser_grids``: one ``<stem>.nc`` per ``sources.laser`` entry whatever its name (stems made unique),
+  the kind detected from the content: point clouds (PLY, PCD, LAS/LAZ, xyz text) gridded at
+  ``laser_resolution_m`` (:func:`hadal.grid.laser.grid_laser`), rasters (GeoTIFF, NetCDF) loaded at their
+  own resolution (:func:`hadal.grid.laser.laser_grid_from_raster`). ``elevation_m`` is positive up.
+
+Every bad input is a one-line :class:`InputError` naming the file, and nothing is published.
 """
 
 from __future__ import annotations
 
 from pathlib import Path
-from typing import TYPE_CHECKING, Literal
+from typing import TYPE_CHECKING, Annotated, Literal
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
+from hadal.budget import check_memory, memory_limit_bytes
 from hadal.dive import resolve_source
 from hadal.errors import InputError, StageError
-from hadal.grid.laser import G_RES_M, grid_laser
-from hadal.grid.multibeam import add_geo, grid_multibeam
+from hadal.grid.laser import grid_laser
+from hadal.grid.multibeam import add_geo, auto_resolution_m, grid_multibeam
 from hadal.grid.points import DEFAULT_MAX_CELLS
-from hadal.grid.readers import read_point_cloud, read_soundings
+from hadal.grid.readers import read_point_cloud
 from hadal.products.io import write_netcdf
+from hadal.stages import StageInputs
 
 if TYPE_CHECKING:
     from hadal.stages import StageContext
@@ -26,35 +39,90 @@ if TYPE_CHECKING:
 
 PRODUCTS = ("dtm", "laser_grids")
 UPSTREAM: tuple[str, ...] = ()
+INPUTS = StageInputs(raw_any=("multibeam", "prior_grid", "laser"),
+                     product_sources={"dtm": ("multibeam", "prior_grid"), "laser_grids": ("laser",)},
+                     reads_raw=True, frame_for=("dtm",))
 
 
 class Params(BaseModel):
     """Gridding parameters (section ``grid`` of config/pipeline.yaml)."""
 
-    model_config = ConfigDict(extra="forbid")
-    dtm_resolution_m: float = Field(20.0, gt=0, description="DTM cell size (m)")
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+    dtm_resolution_m: Annotated[float, Field(gt=0, le=100_000)] | Literal["auto"] = Field(
+        "auto", description="DTM cell size (m, > 0 up to 100 km; cells x layers are checked against resources.max_memory_gb), or 'auto': about twice the soundings' nearest-neighbour spacing, "
+                            "on a 1-2-5 series (hadal.grid.multibeam.auto_resolution_m; 20 m for the sample dive)")
     spike_removal: bool = Field(True, description="robust per-cell and nearest-neighbour spike tests")
-    spike_k: float = Field(3.5, gt=0, description="per-cell test: reject |z - median| > k * max(1.4826 MAD, sigma_0)")
-    spike_k_neighbourhood: float = Field(4.0, gt=0, description="nearest-neighbour test threshold (robust sigmas)")
-    spike_neighbours: int = Field(16, ge=4, description="soundings in the nearest-neighbour test")
-    spike_min_count: int = Field(5, ge=3, description="soundings a cell needs for the per-cell test")
-    spike_floor_m: float = Field(0.5, ge=0, description="lower bound of the data-driven noise floor sigma_0 (m)")
+    spike_k: float = Field(3.5, gt=0, le=100, description="per-cell test: reject |z - median| > k * max(1.4826 MAD, sigma_0)")
+    spike_k_neighbourhood: float = Field(4.0, gt=0, le=100, description="nearest-neighbour test threshold (robust sigmas)")
+    spike_neighbours: int = Field(16, ge=4, le=1000, description="soundings in the nearest-neighbour test (4-1000)")
+    spike_min_count: int = Field(5, ge=3, le=100_000, description="soundings a cell needs for the per-cell test")
+    spike_floor_m: float = Field(0.5, ge=0, le=1000, description="lower bound of the data-driven noise floor sigma_0 (m)")
     sor: bool = Field(False, description="also run open3d statistical outlier removal on the soundings")
-    sor_neighbors: int = Field(16, ge=2)
-    sor_std_ratio: float = Field(3.0, gt=0)
-    fill_max_cells: int = Field(4, ge=0, description="fill interior holes up to this many cells (0 = never)")
-    apriori_a_m: float = Field(0.5, ge=0, description="a-priori sounding sigma: constant part (m)")
-    apriori_b: float = Field(0.001, ge=0, description="a-priori sounding sigma: fraction of depth (EM122 class)")
-    prior_weight: float = Field(3.0, gt=0, description="pseudo-degrees of freedom of the a-priori sigma")
-    laser_resolution_m: float = Field(G_RES_M, gt=0, description="laser grid cell size (m), paper g_res = 10 mm")
-    laser_voxel_m: float | None = Field(None, gt=0, description="open3d voxel down-sampling before gridding (off)")
-    laser_sor_neighbors: int = Field(20, ge=0, description="open3d statistical outlier removal neighbours (0 = off; ~10 s per million points on 2 cores)")
-    laser_sor_std_ratio: float = Field(3.0, gt=0)
-    laser_surface_tol_m: float = Field(0.02, gt=0, description="SOR candidates within this of their cell's surface stay")
+    sor_neighbors: int = Field(16, ge=2, le=1000, description="open3d SOR neighbours (2-1000)")
+    sor_std_ratio: float = Field(3.0, gt=0, le=100, description="open3d SOR threshold (standard deviations)")
+    fill_max_cells: int = Field(4, ge=0, le=1_000_000, description="fill interior holes up to this many cells (0 = never)")
+    apriori_a_m: float = Field(0.5, ge=0, le=1000, description="a-priori sounding sigma: constant part (m)")
+    apriori_b: float = Field(0.001, ge=0, le=1, description="a-priori sounding sigma: fraction of depth (EM122 class)")
+    prior_weight: float = Field(3.0, gt=0, le=1e6, description="pseudo-degrees of freedom of the a-priori sigma")
+    laser_resolution_m: Annotated[float, Field(gt=0, le=100)] | Literal["auto"] = Field(
+        "auto", description="laser point-cloud grid cell size (m, > 0 up to 100 m; cells x layers are checked against resources.max_memory_gb), or 'auto': the paper's g_res = 10 mm when the "
+                            "points are at least that dense, else the points' nearest-neighbour spacing (90 % "
+                            "quantile; hadal.grid.laser.auto_resolution_m), recorded in the grid's "
+                            "resolution_choice attribute")
+    laser_voxel_m: float | None = Field(None, gt=0, le=100, description="open3d voxel down-sampling before gridding (m; off)")
+    laser_sor_neighbors: int = Field(20, ge=0, le=1000, description="open3d statistical outlier removal neighbours (0 = off; ~10 s per million points on 2 cores)")
+    laser_sor_std_ratio: float = Field(3.0, gt=0, le=100, description="laser SOR threshold (standard deviations)")
+    laser_surface_tol_m: float = Field(0.02, gt=0, le=100, description="SOR candidates within this (m) of their cell's surface stay")
     laser_frame: Literal["local", "map"] = Field(
         "local", description="'local': laser x/y are the laser survey's own frame (no geolocation, as the raw "
                              "contract says); 'map': they are the dive's map frame (grids get a CRS and lat/lon bounds)")
-    max_cells: int = Field(DEFAULT_MAX_CELLS, gt=0, description="refuse grids with more cells than this")
+    max_cells: int = Field(DEFAULT_MAX_CELLS, gt=0, le=10_000_000_000,
+                           description="refuse grids with more cells than this (the memory budget, resources.max_memory_gb, "
+                                       "is checked as well)")
+    prior_resolution_m: float | None = Field(
+        None, ge=0.001, le=100_000, description="cell size (m, 1 mm to 100 km) of a DTM made from a prior grid (default: the grid's native "
+                                "resolution, see hadal.grid.prior)")
+    prior_max_extent_km: float = Field(
+        2000.0, gt=0, le=40_000, description="geographic/projected prior grids are cropped to a square this wide (km) around "
+                                  "the map frame origin, where the dive's transverse-Mercator frame is accurate "
+                                  "(scale error ~1e-4 at 1000 km off its meridian, ~1e-3 at 3000 km); a crop logs a "
+                                  "WARNING and the dtm records the kept lon/lat bounds and the fraction of the source "
+                                  "area and depth range lost (prior_grid_kept_*, prior_grid_crop_*)")
+    prior_fill: bool = Field(
+        False, description="with multibeam soundings: fill the DTM's empty cells from the prior grid (filled = 2); "
+                           "default: the prior grid is not used (multibeam wins)")
+
+
+#: float64 (y, x) layers a multibeam DTM holds at its peak (mean, median, count, std, uncertainty, filled and the
+#: gridding/hole-filling intermediates)
+DTM_LAYERS = 10
+#: float64 (y, x) layers of a laser grid at its peak (mean, std, count, second moment, the SOR pass's moments)
+LASER_LAYERS = 8
+
+
+def grid_memory_bytes(x: np.ndarray, y: np.ndarray, resolution_m: float, layers: int) -> tuple[float, int, int]:
+    """``(bytes, nx, ny)`` of a grid at ``resolution_m`` covering the finite points ``x``, ``y``."""
+    ok = np.isfinite(x) & np.isfinite(y)
+    if not ok.any():
+        return 0.0, 0, 0
+    w = float(np.max(x[ok]) - np.min(x[ok]))
+    h = float(np.max(y[ok]) - np.min(y[ok]))
+    nx, ny = int(w // resolution_m) + 2, int(h // resolution_m) + 2
+    return float(nx) * float(ny) * layers * 8.0, nx, ny
+
+
+def check_grid_memory(what: str, x: np.ndarray, y: np.ndarray, resolution_m: float, layers: int,
+                      limit_bytes: float | None, setting: str, value, max_cells: int | None = None) -> None:
+    """Refuse (one-line ConfigError) a grid whose cells x layers x 8 bytes exceed the memory budget.
+
+    A grid over ``max_cells`` is left to the gridder's own cell-count refusal (an InputError, before it allocates).
+    """
+    need, nx, ny = grid_memory_bytes(x, y, resolution_m, layers)
+    if max_cells is not None and float(nx) * float(ny) > max_cells * 1.01:
+        return
+    check_memory(f"{what} ({nx:,} x {ny:,} cells x {layers} layers x 8 bytes)", need,
+                 memory_limit_bytes() if limit_bytes is None else limit_bytes, setting=setting, value=value,
+                 advice=f"use a coarser {setting} or raise resources.max_memory_gb")
 
 
 def _frame_attrs(ctx: StageContext) -> dict:
@@ -72,97 +140,375 @@ def _compress(ds) -> None:
                                    "chunksizes": (min(ny, 512), min(nx, 512))})
 
 
-def make_dtm(files: list[Path], frame, p: Params):
-    """Read sounding files, project them into ``frame`` and grid them (returns the DTM Dataset)."""
-    lon, lat, dep = [], [], []
-    for f in files:
-        df = read_soundings(f)
-        lon.append(df["longitude_deg"].to_numpy())
-        lat.append(df["latitude_deg"].to_numpy())
-        dep.append(df["depth_m"].to_numpy())
-    lon, lat, dep = np.concatenate(lon), np.concatenate(lat), np.concatenate(dep)
-    x, y = frame.to_xy(lon, lat)
+def make_dtm(files: list[Path], frame, p: Params, hints: list | None = None, readers: dict | None = None,
+             chunk_points: int = 1_000_000, *, memory_limit_bytes: float | None = None):
+    """Read multibeam sounding files, project them into ``frame`` and grid them (returns the DTM Dataset).
+
+    Each file is streamed through :func:`hadal.grid.sonar.iter_multibeam` (xyz text in any compression,
+    GSF, Kongsberg .kmall/.all, Reson .s7k; format detected from the content) with the reading hints of
+    its ``dive.yaml`` entry (``hints[i]``, a :class:`hadal.dive.SourceFile` or None). Chunks are projected
+    as they arrive and only x, y, depth are kept (:class:`hadal.grid.sonar.ColumnAccumulator`: ~1x). Projected soundings are
+    converted from their declared CRS (``crs:``) to the map frame; ``crs: local`` means they already are
+    in the dive's map frame. ``frame`` None: a frame centred on the first file's first soundings.
+    ``readers``, when given, receives ``{str(file): "reader (format ...)"}`` for the manifest; the same text
+    is in ``ds.attrs["multibeam_readers"]``.
+    """
+    from hadal.geo import LocalFrame
+    from hadal.grid.sonar import ColumnAccumulator, iter_multibeam
+
+    hints = list(hints) if hints is not None else [None] * len(files)
+    if len(hints) != len(files):
+        raise ValueError("make_dtm: hints must have one entry per file")
+    acc = ColumnAccumulator(3)
+    used: list[str] = []
+    for f, h in zip(files, hints, strict=True):
+        info: dict = {}
+        to_ll = None
+        for chunk in iter_multibeam(f, h, chunk_points=chunk_points, info=info):
+            z = chunk["depth_m"].to_numpy(np.float64)
+            if "longitude_deg" in chunk:
+                lon, lat = chunk["longitude_deg"].to_numpy(), chunk["latitude_deg"].to_numpy()
+                if frame is None:
+                    ok = np.isfinite(lon) & np.isfinite(lat)
+                    if ok.any():
+                        frame = LocalFrame(float(np.median(lat[ok])), float(np.median(lon[ok])))
+                if frame is None:
+                    continue
+                x, y = frame.to_xy(lon, lat)
+            else:
+                crs = info.get("crs")
+                xm, ym = chunk["x_m"].to_numpy(np.float64), chunk["y_m"].to_numpy(np.float64)
+                if crs is not None and str(crs).strip().lower() in ("local", "local_metric"):
+                    if frame is None:
+                        raise InputError(f"{f}: soundings are in the dive's local map frame (crs: local) but the "
+                                         "dive has no map_frame or launch")
+                    x, y = xm, ym
+                elif crs is None:
+                    raise InputError(f"{f}: soundings are projected x/y metres with no CRS; declare it in dive.yaml "
+                                     "(crs: 'EPSG:32654', or 'local' when they are in the dive's map frame)")
+                else:
+                    if to_ll is None:
+                        from pyproj import Transformer
+
+                        to_ll = Transformer.from_crs(crs, "EPSG:4326", always_xy=True)
+                    lon, lat = to_ll.transform(xm, ym)
+                    if frame is None:
+                        ok = np.isfinite(lon) & np.isfinite(lat)
+                        frame = LocalFrame(float(np.median(lat[ok])), float(np.median(lon[ok])))
+                    x, y = frame.to_xy(lon, lat)
+            acc.add(np.asarray(x, np.float64), np.asarray(y, np.float64), z)
+            del chunk, x, y, z
+        desc = f"{info.get('reader', '?')} ({info.get('format')}"
+        if info.get("compression"):
+            desc += f", {info['compression']}"
+        if info.get("crs_kind") == "projected":
+            desc += f", projected {info.get('crs') or ''}".rstrip()
+        if info.get("format") == "xyz" and info.get("z_positive") == "up":
+            desc += f", elevations negated ({info.get('z_positive_from')})"
+        if info.get("pings") is not None:
+            desc += f", {info['pings']} pings, {info.get('dropped', 0)} beams dropped"
+        desc += ")"
+        used.append(f"{Path(f).name}: {desc}")
+        if readers is not None:
+            readers[str(f)] = desc
+    if frame is None or acc.n == 0:
+        raise InputError(f"no soundings with positions in {', '.join(str(f) for f in files)}")
+    x, y, dep = acc.finish()
+    res_m, how = p.dtm_resolution_m, "grid.dtm_resolution_m"
+    if res_m == "auto":
+        res_m, stats = auto_resolution_m(x, y)
+        how = (f"auto: 2 x the 90th percentile ({stats['nn_quantile_m']:.3g} m) of the soundings' nearest-neighbour "
+               "distances, on the 1-2-5 series")
+    check_grid_memory("the DTM", x, y, float(res_m), DTM_LAYERS + (2 if p.prior_fill else 0), memory_limit_bytes,
+                      "grid.dtm_resolution_m",
+                      f"auto ({float(res_m):g} m)" if p.dtm_resolution_m == "auto" else float(res_m), p.max_cells)
     ds = grid_multibeam(
-        x, y, dep, p.dtm_resolution_m, remove_spikes=p.spike_removal, spike_k=p.spike_k,
+        x, y, dep, float(res_m), remove_spikes=p.spike_removal, spike_k=p.spike_k,
         spike_k_neighbourhood=p.spike_k_neighbourhood, spike_neighbours=p.spike_neighbours, spike_min_count=p.spike_min_count,
         spike_floor_m=p.spike_floor_m, sor=p.sor,
         sor_neighbors=p.sor_neighbors, sor_std_ratio=p.sor_std_ratio, fill_max_cells=p.fill_max_cells,
         apriori_a_m=p.apriori_a_m, apriori_b=p.apriori_b, prior_weight=p.prior_weight, max_cells=p.max_cells,
     )
     ds = add_geo(ds, frame)
+    ds.attrs["multibeam_readers"] = "; ".join(used)
+    ds.attrs["resolution_m"] = float(res_m)
+    ds.attrs["resolution_choice"] = how
     _compress(ds)
     return ds
+
+
+def _as_input_error(f: Path, exc: Exception) -> InputError:
+    """One line naming the file, whatever a reader library raised."""
+    msg = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+    return InputError(msg if str(f) in msg or f.name in msg else f"{f}: {msg}")
+
+
+def _existing(ctx: StageContext, entries, what: str) -> list[tuple[Path, object]]:
+    out = []
+    for sf in entries:
+        f = resolve_source(ctx.raw_dir, sf)
+        if not f.is_file():
+            raise InputError(f"{what} file {f} listed in dive.yaml does not exist")
+        out.append((f, sf))
+    return out
+
+
+def _hint(sf, name: str):
+    return getattr(sf, name, None)
+
+
+def _unique_stems(files: list[Path]) -> list[str]:
+    """Product file stems for the laser inputs: the file's stem, made unique (``scan``, ``scan_tif``,
+    ``scan_2`` ...) when two inputs share one, restricted to safe characters."""
+    import re
+
+    out: list[str] = []
+    for f in files:
+        stem = re.sub(r"[^A-Za-z0-9._-]+", "_", f.name.split(".")[0] or f.stem) or "laser"
+        name = stem
+        if name in out:
+            ext = re.sub(r"[^A-Za-z0-9]+", "", "".join(f.suffixes))
+            name = f"{stem}_{ext}" if ext else stem
+        k = 2
+        while name in out:
+            name = f"{stem}_{k}"
+            k += 1
+        out.append(name)
+    return out
+
+
+def _prior_dtm(ctx: StageContext, f: Path, sf, frame, p: Params):
+    from hadal.grid.prior import prior_dtm
+
+    try:
+        return prior_dtm(f, frame, z_positive_hint=_hint(sf, "z_positive"), crs=_hint(sf, "crs"),
+                         variable=_hint(sf, "variable"), format=_hint(sf, "format"),
+                         resolution_m=p.prior_resolution_m, max_extent_m=p.prior_max_extent_km * 1000.0,
+                         max_cells=p.max_cells)
+    except InputError as exc:
+        raise _as_input_error(f, exc) from None
+    except (OSError, ValueError, RuntimeError, KeyError, TypeError) as exc:
+        raise _as_input_error(f, exc) from None
+
+
+def _fill_from_prior(dtm, f: Path, sf, frame) -> int:
+    """Fill the multibeam DTM's empty cells from a prior grid (``filled`` = 2); returns the cells filled."""
+    from hadal.grid.prior import sample_depth
+
+    try:
+        empty = ~np.isfinite(dtm["depth_m"].values)
+        xx, yy = np.meshgrid(dtm["x"].values, dtm["y"].values)
+        v = sample_depth(f, frame, xx[empty], yy[empty], z_positive_hint=_hint(sf, "z_positive"),
+                         crs=_hint(sf, "crs"), variable=_hint(sf, "variable"), format=_hint(sf, "format"))
+    except InputError as exc:
+        raise _as_input_error(f, exc) from None
+    except (OSError, ValueError, RuntimeError, KeyError, TypeError) as exc:
+        raise _as_input_error(f, exc) from None
+    ok = np.isfinite(v)
+    idx = tuple(a[ok] for a in np.nonzero(empty))
+    for var in ("depth_m", "depth_median_m"):
+        if var in dtm:
+            a = dtm[var].values.copy()
+            a[idx] = v[ok]
+            dtm[var].values = a
+    if "filled" in dtm:
+        fl = dtm["filled"].values.copy()
+        fl[idx] = 2
+        dtm["filled"].values = fl
+        dtm["filled"].attrs.update({"flag_values": np.array([0, 1, 2], np.int8),
+                                    "flag_meanings": "measured interpolated prior_grid"})
+    return int(ok.sum())
+
+
+def _check_laser_memory(pts: np.ndarray, p: Params, limit_bytes: float | None) -> None:
+    """The laser grid's cells x layers against the budget; 'auto' is at least the paper's 10 mm, so the
+    (costly) automatic cell size is only computed when 10 mm cells would not fit."""
+    from hadal.grid.laser import G_RES_M
+    from hadal.grid.laser import auto_resolution_m as laser_auto_resolution_m
+
+    x, y = pts[:, 0], pts[:, 1]
+    if p.laser_resolution_m != "auto":
+        check_grid_memory("the laser grid", x, y, float(p.laser_resolution_m), LASER_LAYERS, limit_bytes,
+                          "grid.laser_resolution_m", float(p.laser_resolution_m), p.max_cells)
+        return
+    limit = memory_limit_bytes() if limit_bytes is None else limit_bytes
+    if grid_memory_bytes(x, y, G_RES_M, LASER_LAYERS)[0] <= limit:
+        return
+    res, _ = laser_auto_resolution_m(pts)
+    check_grid_memory("the laser grid", x, y, float(res), LASER_LAYERS, limit, "grid.laser_resolution_m",
+                      f"auto ({float(res):g} m)", p.max_cells)
+
+
+def _laser_grid(ctx: StageContext, f: Path, sf, p: Params, limit_bytes: float | None = None):
+    """One laser input (point cloud or raster, detected by content) -> a laser grid Dataset."""
+    import warnings
+
+    import xarray as xr
+
+    from hadal.grid.laser import laser_grid_from_raster
+    from hadal.grid.prior import z_positive
+    from hadal.grid.readers import _CLOUD_KINDS, _kind_of, read_grid, reader_of
+
+    try:
+        kind = _kind_of(f, _hint(sf, "format"))
+        if kind not in _CLOUD_KINDS and kind != "text":  # rasters (and other binaries: GDAL may know them)
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")  # a mislabelled CRS is expected for laser rasters; recorded
+                da = read_grid(f, variable=_hint(sf, "variable"), format=_hint(sf, "format"), crs=_hint(sf, "crs"))
+            pos, reason = z_positive(da, _hint(sf, "z_positive"))
+            frame = ctx.dive.frame("grid") if da.attrs["crs_kind"] == "geographic" else None
+            ds = laser_grid_from_raster(da, z_positive=pos, z_reason=reason, frame=frame)
+            return ds, da.attrs.get("reader", reader_of(kind)), "raster"
+        pts = read_point_cloud(f, format=_hint(sf, "format"), columns=_hint(sf, "columns"))
+        pos, reason = z_positive(xr.DataArray(pts[:, 2]), _hint(sf, "z_positive"))
+        if pos == "down":
+            pts = pts.copy()
+            pts[:, 2] = -pts[:, 2]
+        _check_laser_memory(pts, p, limit_bytes)
+        ds = grid_laser(pts, p.laser_resolution_m, voxel_size_m=p.laser_voxel_m,
+                        sor_neighbors=p.laser_sor_neighbors, sor_std_ratio=p.laser_sor_std_ratio,
+                        surface_tol_m=p.laser_surface_tol_m, max_cells=p.max_cells)
+        ds.attrs.update({"laser_input": "point cloud", "source_format": kind, "source_reader": reader_of(kind),
+                         "z_positive_source": pos, "z_sign_detection": reason, "z_sign_flipped": int(pos == "down")})
+        return ds, reader_of(kind), "point cloud"
+    except InputError as exc:
+        raise _as_input_error(f, exc) from None
+    except (OSError, ValueError, RuntimeError, KeyError, TypeError, MemoryError) as exc:
+        raise _as_input_error(f, exc) from None
 
 
 def run(ctx: StageContext) -> dict[str, ProductVersion]:
     p: Params = ctx.config.grid
     src = ctx.dive.sources
-    if not src.multibeam and not src.laser:
-        raise StageError(f"dive {ctx.dive_id!r} lists no multibeam or laser sources in dive.yaml; nothing to grid")
+    if not src.multibeam and not src.laser and not src.prior_grid:
+        raise StageError(f"dive {ctx.dive_id!r} lists no multibeam, prior_grid or laser sources in dive.yaml; "
+                         "nothing to grid")
     params = ctx.params("grid")
+    limit = memory_limit_bytes(ctx.config)
 
     # compute everything first, then publish: a bad laser file must not leave a lone new dtm version
-    dtm = mb_files = None
+    dtm = None
+    dtm_inputs: list[Path] = []
+    readers: dict[str, str] = {}
+    dtm_title = dtm_summary = dtm_keywords = ""
+    priors = _existing(ctx, src.prior_grid, "prior grid")
     if src.multibeam:
-        mb_files = [resolve_source(ctx.raw_dir, rel) for rel in src.multibeam]
-        for f in mb_files:
-            if not f.is_file():
-                raise InputError(f"multibeam file {f} listed in dive.yaml does not exist")
-        dtm = make_dtm(list(ctx.progress.track(mb_files, "reading multibeam", total=len(mb_files))),
-                       ctx.dive.frame(), p)
+        mb = _existing(ctx, src.multibeam, "multibeam")
+        mb_files = [f for f, _ in mb]
+        frame = ctx.dive.frame("grid")
+        dtm = make_dtm(list(ctx.progress.track(mb_files, "reading multibeam", total=len(mb_files))), frame, p,
+                       hints=[sf for _, sf in mb], readers=readers, memory_limit_bytes=limit)
+        dtm_inputs = list(mb_files)
         ctx.log.info("dtm: %d x %d cells at %g m, %d soundings (%d spikes removed, %d cells filled)",
-                     dtm.sizes["x"], dtm.sizes["y"], p.dtm_resolution_m, dtm.attrs["n_soundings_used"],
+                     dtm.sizes["x"], dtm.sizes["y"], dtm.attrs["resolution_m"], dtm.attrs["n_soundings_used"],
                      dtm.attrs["n_soundings_spikes"], dtm.attrs["n_cells_filled"])
+        dtm.attrs["dtm_source"] = "multibeam"
+        if priors:
+            names = ", ".join(f.name for f, _ in priors)
+            if p.prior_fill:
+                n = 0
+                for f, sf in priors:
+                    n += _fill_from_prior(dtm, f, sf, frame)
+                    readers[str(f)] = "prior grid fill"
+                dtm_inputs += [f for f, _ in priors]
+                dtm.attrs["prior_grid_use"] = f"multibeam wins; empty cells filled from {names} (filled = 2)"
+                dtm.attrs["n_cells_prior_filled"] = n
+                ctx.log.info("dtm: multibeam wins over the prior grid(s) %s; %d empty cells filled from them", names, n)
+            else:
+                dtm.attrs["prior_grid_use"] = f"ignored: multibeam soundings win ({names} not used; grid.prior_fill)"
+                ctx.log.info("dtm: multibeam soundings win; prior grid(s) %s not used (set grid.prior_fill to fill "
+                             "empty cells from them)", names)
+        dtm_title = f"Reference DTM of dive {ctx.dive_id} from multibeam soundings"
+        dtm_summary = ("Multibeam soundings projected into the dive's transverse-Mercator map frame and gridded "
+                       f"at {dtm.attrs['resolution_m']:g} m ({dtm.attrs['resolution_choice']}): per-cell mean/median/count/std after robust spike removal, "
+                       "standard uncertainty, small interior holes filled by harmonic interpolation (flagged).")
+        dtm_keywords = "bathymetry, multibeam, digital terrain model"
+    elif priors:
+        frame = ctx.dive.frame("grid")
+        f, sf = priors[0]
+        dtm = _prior_dtm(ctx, f, sf, frame, p)
+        dtm_inputs = [f]
+        readers[str(f)] = dtm.attrs.get("prior_grid_reader", "")
+        if len(priors) > 1:
+            rest = ", ".join(g.name for g, _ in priors[1:])
+            dtm.attrs["prior_grid_use"] = f"first listed prior grid {f.name} used; {rest} not used"
+            ctx.log.warning("dtm: %d prior grids listed; the first (%s) is the DTM, %s not used", len(priors),
+                            f.name, rest)
+        ctx.log.info("dtm: prior grid %s (%s, %s, %s registration) resampled to %d x %d cells at %g m; z %s (%s)",
+                     f.name, dtm.attrs["prior_grid_format"], dtm.attrs["prior_grid_crs"],
+                     dtm.attrs["prior_grid_registration"], dtm.sizes["x"], dtm.sizes["y"], dtm.attrs["resolution"],
+                     "elevation, negated" if dtm.attrs["z_sign_flipped"] else "depth", dtm.attrs["z_sign_detection"])
+        if dtm.attrs.get("prior_grid_cropped_to_m"):
+            a = dtm.attrs
+            ctx.log.warning(
+                "dtm: prior grid %s cropped to %g km around the map frame origin (grid.prior_max_extent_km): kept "
+                "lon %.4g..%.4g, lat %.4g..%.4g; %.1f%% of its area and %.1f%% of its depth range (%.0f..%.0f m, "
+                "kept %.0f..%.0f m) lost", f.name, a["prior_grid_cropped_to_m"] / 1000,
+                a.get("prior_grid_kept_lon_min", float("nan")), a.get("prior_grid_kept_lon_max", float("nan")),
+                a.get("prior_grid_kept_lat_min", float("nan")), a.get("prior_grid_kept_lat_max", float("nan")),
+                100 * a.get("prior_grid_crop_area_fraction_lost", float("nan")),
+                100 * a.get("prior_grid_crop_depth_range_lost_fraction", float("nan")),
+                a.get("prior_grid_source_depth_min_m", float("nan")), a.get("prior_grid_source_depth_max_m", float("nan")),
+                a.get("prior_grid_kept_depth_min_m", float("nan")), a.get("prior_grid_kept_depth_max_m", float("nan")))
+        dtm_title = f"Reference DTM of dive {ctx.dive_id} from the prior grid {f.name}"
+        dtm_summary = (f"Prior bathymetry grid {f.name} ({dtm.attrs['prior_grid_crs']}) resampled bilinearly onto "
+                       f"the dive's transverse-Mercator map frame at {dtm.attrs['resolution']:g} m (about its native "
+                       "resolution); depth positive down. No soundings: count, uncertainty and fill layers are "
+                       "absent.")
+        dtm_keywords = "bathymetry, prior grid, digital terrain model"
+    if dtm is not None:
+        _compress(dtm)
 
     grids = []
-    laser_files = [resolve_source(ctx.raw_dir, rel) for rel in src.laser]
-    names = [f.stem for f in laser_files]
-    if len(set(names)) != len(names):
-        raise InputError(f"laser sources of dive {ctx.dive_id!r} have duplicate file names: {names}")
-    for f in ctx.progress.track(laser_files, "gridding laser submaps", total=len(laser_files)):
-        if not f.is_file():
-            raise InputError(f"laser file {f} listed in dive.yaml does not exist")
-        try:
-            ds = grid_laser(read_point_cloud(f), p.laser_resolution_m, voxel_size_m=p.laser_voxel_m,
-                            sor_neighbors=p.laser_sor_neighbors, sor_std_ratio=p.laser_sor_std_ratio,
-                            surface_tol_m=p.laser_surface_tol_m,
-                            max_cells=p.max_cells)
-        except InputError as exc:
-            msg = str(exc)
-            raise InputError(msg if str(f) in msg else f"{f}: {msg}") from None
-        ds.attrs["submap"] = f.stem
-        if p.laser_frame == "map":
-            ds = add_geo(ds, ctx.dive.frame(), latlon=False)
+    laser = _existing(ctx, src.laser, "laser")
+    stems = _unique_stems([f for f, _ in laser])
+    for (f, sf), stem in zip(ctx.progress.track(laser, "gridding laser inputs", total=len(laser)), stems, strict=True):
+        ds, reader, what = _laser_grid(ctx, f, sf, p, limit)
+        readers[str(f)] = reader
+        ds.attrs["submap"] = stem
+        ds.attrs["source_file"] = f.name
+        if p.laser_frame == "map" and "source_crs_wkt" not in ds.attrs and "map frame" not in ds["x"].attrs.get(
+                "long_name", ""):
+            ds = add_geo(ds, ctx.dive.frame("grid"), latlon=False)
             ds["x"].attrs["long_name"] = "x (east) in the dive's map frame"
             ds["y"].attrs["long_name"] = "y (north) in the dive's map frame"
         _compress(ds)
-        grids.append((f, ds))
-        ctx.log.info("laser %s: %d x %d cells, %.0f%% mapped", f.stem, ds.sizes["x"], ds.sizes["y"],
-                     100 * ds.attrs["mapped_fraction"])
+        grids.append((f, stem, ds, what))
+        ctx.log.info("laser %s (%s %s): %d x %d cells at %g m, %.0f%% mapped", stem, what, f.name, ds.sizes["x"],
+                     ds.sizes["y"], ds.attrs["resolution"], 100 * ds.attrs["mapped_fraction"])
 
     out: dict[str, ProductVersion] = {}
     if dtm is not None:
-        with ctx.store.publish(ctx.dive_id, "dtm", parameters=params, inputs=mb_files,
-                               extra={"summary": {k: dtm.attrs[k] for k in dtm.attrs if k.startswith("n_")}}) as draft:
-            write_netcdf(
-                dtm, draft.path / "dtm.nc",
-                title=f"Reference DTM of dive {ctx.dive_id} from multibeam soundings",
-                summary=("Multibeam soundings projected into the dive's transverse-Mercator map frame and gridded "
-                         f"at {p.dtm_resolution_m:g} m: per-cell mean/median/count/std after robust spike removal, "
-                         "standard uncertainty, small interior holes filled by harmonic interpolation (flagged)."),
-                keywords="bathymetry, multibeam, digital terrain model",
-                processing_level="L3 gridded", provenance_from=draft, **_frame_attrs(ctx),
-            )
+        summary = {k: dtm.attrs[k] for k in dtm.attrs if k.startswith("n_")}
+        summary["dtm_source"] = dtm.attrs["dtm_source"]
+        summary.update({k: dtm.attrs[k] for k in dtm.attrs if k.startswith(("prior_grid_crop", "prior_grid_kept_",
+                                                                             "prior_grid_source_depth"))})
+        extra = {"summary": summary, "readers": {Path(k).name: v for k, v in readers.items()
+                                                 if Path(k) in dtm_inputs}}
+        if "prior_grid_use" in dtm.attrs:
+            extra["prior_grid_use"] = dtm.attrs["prior_grid_use"]
+        with ctx.store.publish(ctx.dive_id, "dtm", parameters=params, inputs=dtm_inputs, extra=extra) as draft:
+            write_netcdf(dtm, draft.path / "dtm.nc", title=dtm_title, summary=dtm_summary, keywords=dtm_keywords,
+                         processing_level="L3 gridded", provenance_from=draft, **_frame_attrs(ctx))
         out["dtm"] = draft.result
     if grids:
-        with ctx.store.publish(ctx.dive_id, "laser_grids", parameters=params, inputs=laser_files) as draft:
-            for f, ds in grids:
+        extra = {"readers": {f.name: readers[str(f)] for f, *_ in grids},
+                 "laser_grid_files": {f.name: f"{stem}.nc" for f, stem, *_ in grids}}
+        with ctx.store.publish(ctx.dive_id, "laser_grids", parameters=params, inputs=[f for f, _ in laser],
+                               extra=extra) as draft:
+            for f, stem, ds, what in grids:
+                if what == "raster":
+                    summary = (f"Laser bathymetry raster {f.name} ({ds.attrs['source_format']}) loaded at its own "
+                               f"{ds.attrs['resolution']:g} m resolution as elevation (positive up); NaN = unmapped; "
+                               "no per-cell point statistics.")
+                else:
+                    summary = (f"Laser point cloud {f.name} filtered with open3d and resampled to a uniform "
+                               f"{ds.attrs['resolution'] * 1000:g} mm lateral grid (Sangekar et al., SIII-A; "
+                               f"{ds.attrs.get('resolution_choice', 'grid.laser_resolution_m')}); cell mean "
+                               "elevation, count and std; NaN = unmapped.")
                 write_netcdf(
-                    ds, draft.path / f"{f.stem}.nc",
-                    title=f"Laser elevation grid {f.stem} of dive {ctx.dive_id}",
-                    summary=(f"Laser point cloud {f.name} filtered with open3d and resampled to a uniform "
-                             f"{p.laser_resolution_m * 1000:g} mm lateral grid (Sangekar et al., SIII-A); cell mean "
-                             "elevation, count and std; NaN = unmapped."),
+                    ds, draft.path / f"{stem}.nc",
+                    title=f"Laser elevation grid {stem} of dive {ctx.dive_id}", summary=summary,
                     keywords="bathymetry, laser, structured light, microbathymetry",
                     processing_level="L3 gridded", provenance_from=draft, **_frame_attrs(ctx),
                 )

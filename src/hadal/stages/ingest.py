@@ -5,56 +5,91 @@ when the dive names none), converts units explicitly, aligns every sensor onto t
 per-sensor gap limits, adds QARTOD flags (``ioos_qc``) and publishes one validated table following
 ``schemas/sensors.yaml``. Table metadata: dive id, vehicle, sources with SHA-256, unit conversions,
 alignment and QC statistics, MCAP damage reports (messages lost) and the warnings raised while reading.
+
+Sources: vehicle logs (MCAP, else CSV) make ``sensors`` when the dive has them; otherwise the first Sea-Bird
+cast of ``sources.cnv`` (``.cnv`` plain or gzip/bz2/xz-compressed, or raw ``.hex``, detected by content) does.
+``ingest.source`` overrides the choice; sources not used are listed in ``ignored_sources`` with a warning.
+Every cast not used for ``sensors`` is ingested on its own into ``casts``. A cast without a time channel
+(pressure-binned) is a *profile*: ``time`` is all NaT (no time is invented), table metadata ``time_base`` =
+``'none (pressure-binned cast)'``, rows in file (pressure) order, QC gross range as usual, spike test on
+the bin index, flat-line not evaluated. The cast header (position, processing, XML sensors) is carried in
+the metadata (``cast``, ``cast_latitude_deg``/``cast_longitude_deg``) for derive.
 """
 
 from __future__ import annotations
 
+import json
+import re
 import warnings
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Literal
+from typing import TYPE_CHECKING, Annotated, Any, Literal
 
+import pandas as pd
 from pydantic import BaseModel, ConfigDict, Field
 
 from hadal.dive import resolve_source
 from hadal.errors import InputError
 from hadal.ingest.build import (
+    build_profile_table,
     build_sensor_table,
     field_metadata,
+    is_profile,
+    read_cast,
     read_cnv_sensors,
     read_csv_sensors,
     read_mcap_sensors,
 )
 from hadal.ingest.qc import DEFAULT_QC, VariableQC
 from hadal.ingest.vehicle import default_vehicle_config_path, load_vehicle_config
+from hadal.stages import StageInputs
 from hadal.store import sha256_file
 
 if TYPE_CHECKING:
+    from hadal.ingest.csv_reader import SensorSamples
+    from hadal.ingest.vehicle import VehicleConfig
     from hadal.stages import StageContext
     from hadal.store import ProductVersion
 
-PRODUCTS = ("sensors",)
+PRODUCTS = ("sensors", "casts")
 UPSTREAM: tuple[str, ...] = ()
+INPUTS = StageInputs(raw_any=("mcap", "csv", "cnv"), product_sources={"casts": ("cnv",)}, reads_raw=True,
+                     optional_products=("casts",))
 
 
 class Params(BaseModel):
     """Raw log ingest, time alignment and QARTOD QC (section ``ingest`` of config/pipeline.yaml)."""
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
     source: Literal["auto", "mcap", "csv", "cnv"] = Field(
-        "auto", description="which raw logs to read: auto = MCAP when the dive lists one, else CSV, else "
-                            "Sea-Bird .cnv (CTD only; the other sensors' columns stay empty, flag 9)")
+        "auto", description="which raw logs make 'sensors': auto = MCAP when the dive lists one, else CSV, else "
+                            "the first Sea-Bird cast of sources.cnv (CTD only; the other sensors' columns stay "
+                            "empty, flag 9). Casts not used for 'sensors' are each ingested into the 'casts' "
+                            "product; vehicle logs not used are listed in the metadata (ignored_sources), warned")
+    merge_casts: bool = Field(
+        False, description="with source cnv: concatenate all casts of sources.cnv into one time series in 'sensors' "
+                           "(one instrument record split into files; every cast needs a time channel)")
     vehicle_config: str | None = Field(
         None, description="vehicle channel mapping (path relative to the dive directory); default: dive.yaml's "
                           "vehicle_config, else the packaged haidou mapping")
-    max_gap_s: dict[str, float] = Field(
+    max_gap_s: dict[str, Annotated[float, Field(gt=0, le=86_400)]] = Field(
         {"gauge": 2.0, "altimeter": 1.5, "attitude": 2.0, "position": 5.0},
         description="per sensor: no interpolation across gaps longer than this (s) -> NaN + flag 9 "
-                    "(raised to 1.5 sampling intervals, with a warning, when shorter than that)")
-    default_max_gap_s: float = Field(2.0, gt=0, description="gap limit of sensors not listed in max_gap_s")
+                    "(finite, > 0 and at most 86 400 s; raised to 1.5 sampling intervals, with a warning, when "
+                    "shorter than that)")
+    default_max_gap_s: float = Field(2.0, gt=0, le=86_400,
+                                     description="gap limit (s, > 0, at most 1 day) of sensors not listed in max_gap_s")
     qc: dict[str, VariableQC] = Field(
         default_factory=lambda: {k: v.model_copy() for k, v in DEFAULT_QC.items()},
         description="QARTOD thresholds per variable (ioos_qc gross range / spike / flat line; units of the "
                     "variable); pressure_ctd_dbar.saturation flags the SBE49 saturation (10 500 dbar) as bad")
+
+
+def _gap_limits(p: Params) -> dict[str, float]:
+    """``ingest.max_gap_s`` checked again where it is used (a constructed Params skips validation): finite, > 0."""
+    from hadal.budget import finite_positive
+
+    finite_positive("ingest.default_max_gap_s", p.default_max_gap_s)
+    return {k: finite_positive(f"ingest.max_gap_s.{k}", v) for k, v in p.max_gap_s.items()}
 
 
 def _vehicle_path(ctx: StageContext, p: Params) -> Path:
@@ -64,13 +99,82 @@ def _vehicle_path(ctx: StageContext, p: Params) -> Path:
         if not path.is_file():
             raise InputError(f"vehicle config {rel!r} named by the dive/pipeline config does not exist in {ctx.raw_dir}")
         return path
-    ctx.log.warning("dive %s names no vehicle_config; using the packaged haidou mapping", ctx.dive_id)
+    if ctx.dive.sources.mcap or ctx.dive.sources.csv:  # a cast-only dive needs no vehicle channel mapping
+        ctx.log.warning("dive %s names no vehicle_config; using the packaged haidou mapping", ctx.dive_id)
     return default_vehicle_config_path()
 
 
+def _cast_id(k: int, path: Path) -> str:
+    stem = path.name
+    for ext in (".gz", ".bz2", ".xz", ".cnv", ".hex", ".txt"):
+        if stem.lower().endswith(ext):
+            stem = stem[: -len(ext)]
+    stem = re.sub(r"[^A-Za-z0-9_-]+", "_", stem).strip("_") or "cast"
+    return f"cast{k:02d}_{stem}"
+
+
+def _cast_table(samples: SensorSamples, vehicle: VehicleConfig, p: Params, launch_ns: int | None = None
+                ) -> tuple[pd.DataFrame, dict[str, Any]]:
+    """A cast's own sensors-schema table: a profile (no time base) or a CTD-only time series."""
+    if is_profile(samples):
+        return build_profile_table(samples, p.qc)
+    return build_sensor_table({vehicle.time_base: samples}, vehicle, max_gap_s=_gap_limits(p),
+                              default_max_gap_s=p.default_max_gap_s, qc=p.qc, launch_ns=launch_ns,
+                              strict_launch=False)
+
+
+def _launch_ns(ctx: StageContext) -> int | None:
+    """dive.yaml ``launch.time_utc`` as ns since the epoch (a naive time is UTC); ``None`` when not given."""
+    launch = ctx.dive.launch
+    if launch is None or launch.time_utc is None:
+        return None
+    ts = pd.Timestamp(launch.time_utc)
+    ts = ts.tz_localize("UTC") if ts.tzinfo is None else ts.tz_convert("UTC")
+    return int(ts.value)
+
+
+def _coverage(df: pd.DataFrame) -> tuple[str | None, str | None]:
+    t = df["time"].dropna()
+    return (t.iloc[0].isoformat(), t.iloc[-1].isoformat()) if len(t) else (None, None)
+
+
+def _version(dist: str) -> str:
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version(dist)
+    except PackageNotFoundError:
+        return "?"
+
+
+def reader_of(path: Path) -> str:
+    """Which reader (library and version) reads a raw ingest file, for the manifest."""
+    from hadal import __version__
+    from hadal.errors import HadalError
+    from hadal.formats import detect
+
+    try:
+        fk = detect(path)
+    except HadalError:
+        return "?"
+    comp = f", {fk.compression}" if fk.compression else ""
+    if fk.kind == "mcap":
+        return f"mcap {_version('mcap')} + mcap-ros2-support {_version('mcap-ros2-support')} (ROS 2 CDR) / json"
+    if fk.kind == "cnv":
+        return f"hadal {__version__} SeaSoft .cnv reader{comp}"
+    if fk.kind == "seabird_hex":
+        return f"hadal {__version__} .hex decoder + seabirdscientific {_version('seabirdscientific')} conversions{comp}"
+    if fk.kind == "csv":
+        return f"pandas {_version('pandas')} read_csv{comp}"
+    if fk.kind == "yaml":
+        return f"PyYAML {_version('PyYAML')} (vehicle mapping)"
+    return fk.kind
+
+
 def run(ctx: StageContext) -> dict[str, ProductVersion]:
-    """Read, align, QC and publish ``sensors``; see the module docstring."""
+    """Read, align, QC and publish ``sensors`` (and ``casts``); see the module docstring."""
     from hadal.products import write_parquet
+    from hadal.products.io import json_clean
 
     p: Params = ctx.config.ingest
     vpath = _vehicle_path(ctx, p)
@@ -78,9 +182,16 @@ def run(ctx: StageContext) -> dict[str, ProductVersion]:
     src = ctx.dive.sources
     kind = p.source
     if kind == "auto":
-        kind = "mcap" if src.mcap else ("csv" if src.csv or not src.cnv else "cnv")
+        kind = "mcap" if src.mcap else ("csv" if src.csv else "cnv")
     inputs: list[Path] = [vpath]
     mcap_reports: list[dict[str, Any]] = []
+    ignored: list[dict[str, str]] = []
+    cast_meta: dict[str, Any] | None = None
+    cast_paths = [resolve_source(ctx.raw_dir, r) for r in src.cnv]
+    for q in cast_paths:
+        if not q.is_file():
+            raise InputError(f"{q}: Sea-Bird cast listed in dive.yaml sources.cnv does not exist")
+    external: list[tuple[str, Path, pd.DataFrame, dict[str, Any]]] = []  # casts not in sensors
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         if kind == "mcap":
@@ -90,28 +201,67 @@ def run(ctx: StageContext) -> dict[str, ProductVersion]:
             for q in paths:
                 if not q.is_file():
                     raise InputError(f"{q}: MCAP file listed in dive.yaml does not exist")
+            if src.csv:
+                ignored.append({"kind": "csv", "files": ", ".join(sorted(src.csv.values())),
+                                "why": f"ingest.source is {p.source!r}: the MCAP logs make sensors "
+                                       "(set ingest.source: csv to use the CSV logs instead)"})
             sensors, mcap_reports = read_mcap_sensors(paths, vehicle)
             inputs += paths
         elif kind == "cnv":
-            if not src.cnv:
-                raise InputError(f"dive {ctx.dive_id}: ingest.source is 'cnv' but dive.yaml lists no .cnv file")
-            paths = [resolve_source(ctx.raw_dir, r) for r in src.cnv]
-            sensors = read_cnv_sensors(paths, vehicle)
-            inputs += paths
+            if not cast_paths:
+                raise InputError(f"dive {ctx.dive_id}: ingest.source is 'cnv' but dive.yaml lists no .cnv file"
+                                 if p.source == "cnv" else
+                                 f"dive {ctx.dive_id}: dive.yaml lists neither MCAP, CSV nor .cnv sensor logs")
+            for k_, files in (("mcap", list(src.mcap)), ("csv", list(src.csv.values()))):
+                if files:
+                    ignored.append({"kind": k_, "files": ", ".join(files),
+                                    "why": "ingest.source is 'cnv': the Sea-Bird cast makes sensors"})
+            if p.merge_casts and len(cast_paths) > 1:
+                sensors = read_cnv_sensors(cast_paths, vehicle)
+                used = cast_paths
+            else:
+                s0, cast_meta = read_cast(cast_paths[0], vehicle.time_base)
+                sensors = {vehicle.time_base: s0}
+                used = cast_paths[:1]
+            inputs += used
         else:
             if not src.csv:
-                raise InputError(f"dive {ctx.dive_id}: dive.yaml lists neither MCAP, CSV nor .cnv sensor logs")
+                raise InputError(f"dive {ctx.dive_id}: ingest.source is 'csv' but dive.yaml lists no CSV file")
             files = {k: resolve_source(ctx.raw_dir, r) for k, r in src.csv.items()}
-            used = {s.csv.source for s in vehicle.sensors.values() if s.csv is not None}
-            files = {k: v for k, v in files.items() if k in used}
+            used_names = {s.csv.source for s in vehicle.sensors.values() if s.csv is not None}
+            unused = sorted(k for k in files if k not in used_names)
+            if unused:
+                ignored.append({"kind": "csv", "files": ", ".join(unused),
+                                "why": "no sensor of the vehicle mapping reads these sources.csv names"})
+            files = {k: v for k, v in files.items() if k in used_names}
+            if src.mcap:
+                ignored.append({"kind": "mcap", "files": ", ".join(src.mcap),
+                                "why": "ingest.source is 'csv': the CSV logs make sensors"})
             sensors = read_csv_sensors(files, vehicle)
             inputs += list(files.values())
-        df, meta = build_sensor_table(sensors, vehicle, max_gap_s=p.max_gap_s,
-                                      default_max_gap_s=p.default_max_gap_s, qc=p.qc)
+        base = sensors.get(vehicle.time_base)
+        if kind == "cnv" and base is not None and is_profile(base):
+            df, meta = build_profile_table(base, p.qc)
+        else:
+            df, meta = build_sensor_table(sensors, vehicle, max_gap_s=_gap_limits(p),
+                                          default_max_gap_s=p.default_max_gap_s, qc=p.qc,
+                                          launch_ns=_launch_ns(ctx), strict_launch=kind != "cnv")
+        # every cast not used for sensors is ingested on its own (never silently ignored)
+        in_sensors = set(inputs)
+        for k, q in enumerate(cast_paths):
+            if q in in_sensors:
+                continue
+            s_k, m_k = read_cast(q, vehicle.time_base)
+            t_k, tm_k = _cast_table(s_k, vehicle, p, _launch_ns(ctx))
+            tm_k["cast"] = m_k
+            external.append((_cast_id(k, q), q, t_k, tm_k))
     messages = [str(w.message) for w in caught]
     for m in messages:
         ctx.log.warning("ingest: %s", m)
+    for ig in ignored:
+        ctx.log.warning("ingest: %s logs not used (%s): %s", ig["kind"], ig["files"], ig["why"])
     lost = [r.get("messages_lost") for r in mcap_reports]
+    start, end = _coverage(df)
     meta.update({
         "dive_id": ctx.dive_id,
         "vehicle": vehicle.vehicle,
@@ -121,14 +271,46 @@ def run(ctx: StageContext) -> dict[str, ProductVersion]:
         "mcap": mcap_reports,
         "messages_lost": (None if any(x is None for x in lost) else sum(lost)) if mcap_reports else 0,
         "warnings": messages,
+        "ignored_sources": ignored,
+        "external_casts": [{"cast_id": c, "path": str(q)} for c, q, _, _ in external],
         "rows": int(len(df)),
-        "time_coverage_start": df["time"].iloc[0].isoformat(),
-        "time_coverage_end": df["time"].iloc[-1].isoformat(),
+        "time_coverage_start": start,
+        "time_coverage_end": end,
     })
+    if cast_meta is not None:
+        meta["cast"] = cast_meta
+        meta["cast_latitude_deg"] = cast_meta.get("latitude_deg")
+        meta["cast_longitude_deg"] = cast_meta.get("longitude_deg")
+    meta["readers"] = {q.name: reader_of(q) for q in inputs}
     with ctx.store.publish(ctx.dive_id, "sensors", parameters=ctx.params("ingest"), inputs=inputs,
                            extra={"ingest": {k: meta[k] for k in ("source_kind", "rows", "messages_lost",
-                                                                  "unit_conversions")}}) as draft:
+                                                                  "unit_conversions", "time_base", "readers")}}
+                           ) as draft:
         write_parquet(df, draft.path / "sensors.parquet", fields=field_metadata(), metadata=meta,
                       provenance_from=draft)
+    out = {"sensors": draft.result}
     ctx.log.info("ingest: %d rows from %s (%s), %d warning(s)", len(df), kind, vehicle.vehicle, len(messages))
-    return {"sensors": draft.result}
+    if external:
+        index = []
+        for cid, q, t_k, tm_k in external:
+            s0, e0 = _coverage(t_k)
+            tm_k.update({"dive_id": ctx.dive_id, "cast_id": cid, "source_kind": "cnv", "rows": int(len(t_k)),
+                         "sources": [{"path": str(q), "sha256": sha256_file(q), "bytes": q.stat().st_size}],
+                         "time_coverage_start": s0, "time_coverage_end": e0})
+            index.append({"cast_id": cid, "file": f"{cid}.parquet", "source": str(q), "rows": int(len(t_k)),
+                          "time_base": tm_k["time_base"], "latitude_deg": tm_k["cast"].get("latitude_deg"),
+                          "longitude_deg": tm_k["cast"].get("longitude_deg"),
+                          "start_time_utc": tm_k["cast"].get("start_time_utc"),
+                          "instrument": tm_k["cast"].get("instrument")})
+        with ctx.store.publish(ctx.dive_id, "casts", parameters=ctx.params("ingest"),
+                               inputs=[vpath] + [q for _, q, _, _ in external],
+                               extra={"casts": [c["cast_id"] for c in index]}) as draft:
+            for cid, _, t_k, tm_k in external:
+                write_parquet(t_k, draft.path / f"{cid}.parquet", fields=field_metadata(), metadata=tm_k,
+                              provenance_from=draft)
+            (draft.path / "casts.json").write_text(json.dumps(json_clean({"casts": index}), indent=2),
+                                                   encoding="utf-8")
+        out["casts"] = draft.result
+        ctx.log.info("ingest: %d external cast(s) in 'casts': %s", len(index),
+                     ", ".join(c["source"] for c in index))
+    return out

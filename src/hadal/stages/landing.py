@@ -1,11 +1,11 @@
 """Stage `landing`: landing-site analysis of the 10 mm laser grids (Sangekar et al. §III-IV).
 
-Reads ``laser_grids`` (one ``submap_NN.nc`` per submap, variable ``elevation_m`` on (y, x), NaN unmapped)
-and publishes ``landing``:
+Reads ``laser_grids`` (one ``<name>.nc`` per laser input, whatever its name - e.g. ``submap_NN.nc`` - with
+``elevation_m`` on (y, x) metres, NaN unmapped, at any regular square resolution) and publishes ``landing``:
 
 * ``landing_sites.parquet`` — every candidate site for every heading with its costs, landing coordinate
   and ``is_best`` (the lowest-cost site of each submap);
-* ``submap_NN_maps.nc`` — slope, protrusion height, exclusion per heading and the final site;
+* ``<name>_maps.nc`` — slope, protrusion height, exclusion per heading and the final site;
 * ``landing_summary.json`` — the paper's Table V for the dive, plus the per-submap final sites;
 * ``figures/`` — Figs. 13, 18, 19 and 21 of the dive's best submap, Fig. 19 of every submap, Fig. 25.
 """
@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
+from typing import Literal
 
 import numpy as np
 import pandas as pd
@@ -24,53 +25,71 @@ from hadal.errors import InputError, StageError
 from hadal.landing.sites import SITE_FIELDS, analyse_submap, mapped_length_m, results_table
 from hadal.landing.vehicle import Vehicle
 from hadal.products import dive_attributes, write_netcdf, write_parquet
+from hadal.stages import StageInputs
 
 PRODUCTS = ("landing",)
 UPSTREAM = ("laser_grids",)
+INPUTS = StageInputs(upstream=("laser_grids",))
 
 
 class Params(BaseModel):
-    """Landing-site analysis parameters (defaults = Sangekar et al.)."""
+    """Landing-site analysis parameters (defaults = Sangekar et al. where the paper is safe; every number bounded)."""
 
     model_config = ConfigDict(extra="forbid")
     vehicle: Vehicle = Field(default_factory=Vehicle, description="vehicle geometry and forces (Table II)")
-    heading_step_deg: float = Field(5.0, gt=0, le=90, description="landing headings -90..90° in these steps")
-    min_site_radius_m: float = Field(0.3, gt=0, description="reject sites whose inscribed circle is smaller (m)")
-    min_protrusion_height_m: float = Field(0.005, ge=0, description="protrusions below this are noise (m)")
-    exclusion_step_m: float = Field(0.005, gt=0, description="distance step of the Fig. 15 table (m)")
-    local_slope_window_m: float = Field(0.03, gt=0, description="window of the local slope map (m, >= 3 cells)")
-    block_m: float = Field(2.5, gt=0, description="block size of the FFT protrusion analysis (m)")
-    block_margin_m: float = Field(1.0, ge=0, description="overlap margin of each block (m)")
+    heading_step_deg: float = Field(5.0, ge=1.0, le=90, description="landing headings -90..90° in these steps")
+    min_site_radius_m: float = Field(0.3, gt=0, le=10, description="reject sites whose inscribed circle is smaller (m)")
+    min_protrusion_height_m: float = Field(0.005, ge=0, le=0.1, description="protrusions below this are noise (m)")
+    exclusion_step_m: float = Field(0.005, ge=1e-4, le=0.05, description="distance step of the Fig. 15 table (m)")
+    local_slope_window_m: float = Field(0.1, gt=0, le=1.0,
+                                        description="window of the local slope map (m; odd cells, >= 3)")
+    protrusion_method: Literal["opening", "butterworth"] = Field(
+        "opening", description="protrusion heights: opening (sees every rock narrower than the vehicle diagonal) "
+                               "or the paper's Butterworth low-pass (Eq. 10)")
+    protrusion_coarse_m: float = Field(0.05, gt=0, le=0.2, description="cell of the ground estimate of the opening (m)")
+    block_m: float = Field(2.5, ge=0.5, le=50, description="block size of the protrusion analysis (m)")
+    block_margin_m: float = Field(1.0, ge=0, le=10, description="overlap margin of each Butterworth block (m)")
     filter_order: int = Field(3, ge=1, le=10, description="Butterworth low-pass order (Eq. 10)")
     edge_correction: bool = Field(False, description="normalised low-pass next to gaps (the paper zero-fills)")
-    rectangle_resolution_m: float = Field(0.02, gt=0, description="resampling step for the inscribed rectangle (m)")
-    fill_holes_max_m2: float = Field(0.01, ge=0, description="fill interior unmapped holes up to this area (m²)")
+    rectangle_resolution_m: float = Field(0.02, gt=0, le=1.0, description="ignored: A_r (Eq. 12) is now exact")
+    fill_holes_max_m2: float = Field(0.01, ge=0, le=1.0, description="fill interior unmapped holes up to this area (m²)")
+    max_cell_fraction: float = Field(0.2, gt=0, le=0.2, description="refuse grid cells larger than this × vehicle width")
+    default_sigma_m: float = Field(0.006, ge=0, le=0.1, description="elevation 1-σ where a laser cell has < 2 points "
+                                   "(m; for the per-site landability probability)")
     workers: int = Field(1, ge=1, le=64, description="headings analysed in parallel threads")
     figures: bool = Field(True, description="write PNG figures into the product")
 
 
-def _read_submap(path: Path) -> xr.DataArray:
+def _read_submap(path: Path) -> tuple[xr.DataArray, xr.DataArray | None]:
+    """Elevation and, where the laser grid has ``elevation_std_m`` and ``count``, the 1-σ uncertainty of the
+    cell mean std/sqrt(count) (NaN where fewer than 2 points: the analysis uses its default sensor σ there)."""
+    sigma = None
     try:
         with xr.open_dataset(path, engine="h5netcdf") as ds:
             if "elevation_m" not in ds:
                 raise InputError(f"{path.name}: no variable 'elevation_m' (have {', '.join(map(str, ds.data_vars))})")
             da = ds["elevation_m"].load()
+            if "elevation_std_m" in ds and "count" in ds and set(ds["elevation_std_m"].dims) == {"y", "x"}:
+                n = ds["count"].load().astype(float)
+                sigma = (ds["elevation_std_m"].load() / np.sqrt(n.where(n >= 2))).transpose(*da.dims)
     except InputError:
         raise
     except Exception as exc:  # truncated / not NetCDF
         raise InputError(f"{path.name}: cannot read laser grid ({type(exc).__name__}: {exc})") from None
     if set(da.dims) != {"y", "x"}:
         raise InputError(f"{path.name}: elevation_m must be on (y, x), got {da.dims}")
-    return da
+    return da, sigma
 
 
 def run(ctx) -> dict:
     """Analyse every laser submap and publish the ``landing`` product."""
     p: Params = ctx.config.landing
     laser = ctx.upstream("laser_grids")
-    files = sorted(f for f in laser.path.glob("submap_*.nc") if not f.name.endswith("_maps.nc"))
+    # every grid of the product, whatever its name (laser inputs keep their file stems); only landing's own
+    # ``*_maps.nc`` outputs are skipped should they ever sit next to them
+    files = sorted(f for f in laser.path.glob("*.nc") if f.is_file() and not f.name.endswith("_maps.nc"))
     if not files:
-        raise StageError(f"{ctx.dive_id}/laser_grids/{laser.label} has no submap_NN.nc files")
+        raise StageError(f"{ctx.dive_id}/laser_grids/{laser.label} has no laser grids (*.nc)")
     headings = np.linspace(-90.0, 90.0, int(round(180.0 / p.heading_step_deg)) + 1)
     all_sites: list[pd.DataFrame] = []
     finals: list[dict] = []
@@ -85,17 +104,18 @@ def run(ctx) -> dict:
         best_res = None
         for f in ctx.progress.track(files, "landing sites", total=len(files)):
             name = f.stem
-            grid = _read_submap(f)
+            grid, sigma = _read_submap(f)
             if not np.isfinite(grid.values).any():
                 ctx.log.warning("landing: %s has no mapped cells; skipped", name)
                 continue
             res = analyse_submap(
                 grid, p.vehicle, headings_deg=headings, min_site_radius_m=p.min_site_radius_m,
                 min_protrusion_height_m=p.min_protrusion_height_m, exclusion_step_m=p.exclusion_step_m,
-                local_slope_window_m=p.local_slope_window_m, block_m=p.block_m, block_margin_m=p.block_margin_m,
+                local_slope_window_m=p.local_slope_window_m, protrusion_method=p.protrusion_method,
+                protrusion_coarse_m=p.protrusion_coarse_m, block_m=p.block_m, block_margin_m=p.block_margin_m,
                 filter_order=p.filter_order, edge_correction=p.edge_correction,
-                rectangle_resolution_m=p.rectangle_resolution_m, fill_holes_max_m2=p.fill_holes_max_m2,
-                workers=p.workers,
+                fill_holes_max_m2=p.fill_holes_max_m2, max_cell_fraction=p.max_cell_fraction, workers=p.workers,
+                elevation_sigma_m=sigma, default_sigma_m=p.default_sigma_m,
             )
             ctx.log.info("landing: %s %d candidate sites in %.1f s", name, len(res.sites), res.timings_s["total"])
             mapped = np.isfinite(res.elevation_m)
@@ -103,7 +123,7 @@ def run(ctx) -> dict:
             rows_, cols_ = np.nonzero(mapped)
             transect += mapped_length_m(mapped, res.cell_m)
             step = max(1, int(len(rows_) // 4000))
-            outlines[name] = np.column_stack([res.x_m[cols_[::step]], res.y_m[rows_[::step]]])
+            outlines[name] = np.column_stack(res.to_world(res.x_m[cols_[::step]], res.y_m[rows_[::step]]))
             sites = res.sites.copy()
             sites.insert(0, "submap", name)
             all_sites.append(sites)

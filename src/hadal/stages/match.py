@@ -19,7 +19,11 @@ Deviations from the paper's set-up, all configurable:
   halves the sounding noise of a multibeam DTM with a few soundings per cell;
 * ``segment_m`` can restrict the match to the start of the bottom track (default: the whole track).
 
-The fix uncertainty combines the MSD likelihood, a jackknife over track blocks and a dead-reckoning term
+By default (``posterior: true``) the reported fix is the point-mass posterior of
+:func:`hadal.matching.posterior_fix` (MAP start/heading/scale, posterior covariance and 1-/2-sigma ellipses,
+mass outside the main mode, mismatch reasons: ambiguous, short track, off the map / over holes, flat map);
+the paper's cell-resolution search still provides ``msd_surface.nc`` and ``refinement.coarse``. With
+``posterior: false`` the fix uncertainty combines the MSD likelihood, a jackknife over track blocks and a dead-reckoning term
 (``dr_error_fraction`` x the distance from the start to the track's terrain-information centroid; a
 conservative bound: the refinement already removes part of the DR heading/scale error). Products:
 
@@ -38,9 +42,10 @@ from typing import Literal
 import numpy as np
 import pandas as pd
 import xarray as xr
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, model_validator
 
-from hadal.errors import InputError
+from hadal.budget import check_memory, check_work, memory_limit_bytes, work_limit
+from hadal.errors import ConfigError, InputError
 from hadal.products import write_netcdf, write_parquet
 from hadal.stages import StageContext, StageInputs
 from hadal.store import ProductVersion
@@ -48,31 +53,33 @@ from hadal.store import ProductVersion
 PRODUCTS = ("match",)
 UPSTREAM = ("dtm", "ctd")
 INPUTS = StageInputs(raw_any=("mcap", "csv"), upstream=("dtm", "ctd"), optional_upstream=("suitability",),
-                     needs_launch=True)
+                     needs_launch=True, frame_for=("match",))
 
 
 class Params(BaseModel):
     """Terrain matching (TERCOM MSD search over the map, optional MRF fine matching)."""
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
     criterion: Literal["msd", "mad", "cor"] = Field("msd", description="TERCOM criterion (paper Eqs. 15-17); the paper uses MSD")
     estimate_bias: bool = Field(True, description="estimate a constant map-minus-measured depth bias at every offset")
-    resample_spacing_m: float | None = Field(None, gt=0, description="along-track profile spacing in metres (default: map resolution)")
+    resample_spacing_m: float | None = Field(None, ge=0.001, le=100_000, description="along-track profile spacing in metres (1 mm to 100 km; default: map resolution)")
     segment_m: float | None = Field(
-        None, gt=0,
+        None, gt=0, le=10_000_000,
         description="match only the first segment_m metres of the bottom track (DR error grows along the track); null = the whole track, as in the paper",
     )
     heading_range_deg: float = Field(
         9.0, ge=0, le=45, description="search DR heading errors in +-this range (0: translation only, as in the paper)"
     )
-    heading_step_deg: float = Field(0.5, gt=0, description="heading search step in degrees")
+    heading_step_deg: float = Field(
+        0.5, ge=1e-4, le=45, description="heading search step in degrees (1e-4 to 45, at most heading_range_deg; the "
+                                         "search's work and memory are checked against the resources section)")
     precision: Literal["double", "mixed"] = Field(
         "mixed", description="heading search: float32 screening of every heading + exact float64 check of the best 3 (mixed), or float64 throughout"
     )
     region: Literal["map", "suitability"] = Field("map", description="search the whole map or the suitability product's proposed region")
     min_valid_fraction: float = Field(0.8, gt=0, le=1, description="minimum fraction of profile samples on valid map cells")
     dtm_smooth_sigma_cells: float | None = Field(
-        None, ge=0,
+        None, ge=0, le=100,
         description="normalised Gaussian convolution of the DTM before matching (fills holes, suppresses sounding noise); null = 2 cells when > 10 % of the DTM is empty, else 1; 0 = never",
     )
     refine: bool = Field(
@@ -85,17 +92,38 @@ class Params(BaseModel):
         0.01, ge=0, lt=1,
         description="dead-reckoning error per distance travelled (1 sigma), for the fix uncertainty: the start is carried from where the terrain fixes the track",
     )
-    exclusion_radius_m: float | None = Field(None, gt=0, description="neighbourhood excluded when looking for the second optimum (default max(5 cells, 100 m))")
-    mismatch_ratio: float = Field(1.2, ge=1, description="warn when second-best / best MSD is below this ratio")
+    exclusion_radius_m: float | None = Field(None, gt=0, le=10_000_000, description="neighbourhood (m) excluded when looking for the second optimum (default max(5 cells, 100 m))")
+    mismatch_ratio: float = Field(1.2, ge=1, le=1000, description="warn when second-best / best MSD is below this ratio")
     mrf: bool = Field(False, description="refine the TERCOM fix with MRF fine matching of the gridded bottom track (needs 2-D coverage)")
     scale_range: float = Field(0.0, ge=0, lt=0.5, description="search DR scale errors 1 +- this range (0: none)")
-    scale_step: float = Field(0.01, gt=0, description="scale search step")
-    mrf_max_shift_cells: float = Field(1.5, gt=0, description="MRF shift search range per iteration, in map cells")
+    scale_step: float = Field(0.01, ge=1e-5, le=0.5, description="scale search step (1e-5 to 0.5, at most scale_range)")
+    mrf_max_shift_cells: float = Field(1.5, gt=0, le=100, description="MRF shift search range per iteration, in map cells")
+    posterior: bool = Field(
+        False,
+        description="report the point-mass posterior fix (MAP, covariance, ellipses, mass outside the main mode; hadal.matching.posterior) instead of the refined score minimum",
+    )
+    max_mass_outside: float = Field(0.05, gt=0, lt=1, description="posterior: flag a mismatch when more than this posterior mass lies outside the main mode")
+    mode_radius_cells: float = Field(3.0, gt=0, le=1000, description="posterior: radius of the main mode in map cells")
+    min_samples: int = Field(10, ge=3, le=10_000_000, description="posterior: flag profiles with fewer samples as too short")
+
+    @model_validator(mode="after")
+    def _steps(self) -> Params:
+        if self.heading_range_deg > 0 and self.heading_step_deg > self.heading_range_deg:
+            raise ValueError(f"heading_step_deg ({self.heading_step_deg:g}) is larger than heading_range_deg "
+                             f"({self.heading_range_deg:g}): the search would try only 0 deg; use a smaller step "
+                             "or heading_range_deg: 0")
+        if self.scale_range > 0 and self.scale_step > self.scale_range:
+            raise ValueError(f"scale_step ({self.scale_step:g}) is larger than scale_range ({self.scale_range:g}): "
+                             "the search would try only scale 1; use a smaller step or scale_range: 0")
+        return self
 
 
 def _headings(p: Params) -> np.ndarray:
     if p.heading_range_deg == 0:
         return np.array([0.0])
+    if not p.heading_step_deg > 0 or p.heading_step_deg > p.heading_range_deg:
+        raise ConfigError(f"match.heading_step_deg = {p.heading_step_deg:g} must be > 0 and at most "
+                          f"match.heading_range_deg = {p.heading_range_deg:g} (else only 0 deg is searched)")
     n = int(round(p.heading_range_deg / p.heading_step_deg))
     return np.round(np.arange(-n, n + 1) * p.heading_step_deg, 6)
 
@@ -103,8 +131,44 @@ def _headings(p: Params) -> np.ndarray:
 def _scales(p: Params) -> np.ndarray:
     if p.scale_range == 0:
         return np.array([1.0])
+    if not p.scale_step > 0 or p.scale_step > p.scale_range:
+        raise ConfigError(f"match.scale_step = {p.scale_step:g} must be > 0 and at most match.scale_range = "
+                          f"{p.scale_range:g} (else only scale 1 is searched)")
     n = int(round(p.scale_range / p.scale_step))
     return np.round(1.0 + np.arange(-n, n + 1) * p.scale_step, 6)
+
+
+#: float64 map-sized arrays the search holds besides the per-pose surfaces (smoothed map, FFT spectra, best
+#: surfaces, bias, region mask)
+MATCH_MAP_LAYERS = 32
+
+
+def check_search_budget(p: Params, n_cells: int, n_points: int, config=None) -> tuple[int, int]:
+    """Refuse (one-line ConfigError) a search whose (heading x scale poses) x (map offsets) evaluations or
+    memory (the posterior keeps a float32 score and count surface per pose) exceed the ``resources`` limits.
+    Returns ``(n_headings, n_scales)``."""
+    n_h, n_s = int(_search_size(p.heading_range_deg, p.heading_step_deg)), int(_search_size(p.scale_range,
+                                                                                              p.scale_step))
+    poses = float(n_h) * float(n_s)
+    setting, value = (("match.heading_step_deg", float(p.heading_step_deg)) if n_h >= n_s
+                      else ("match.scale_step", float(p.scale_step)))
+    what = f"the match search ({n_h:,} headings x {n_s:,} scales x {n_cells:,} map offsets, {n_points:,} profile points)"
+    check_work(what, poses * n_cells, work_limit(config), setting=setting, value=value,
+               advice=f"use a larger {setting}, a smaller range or a coarser DTM, or raise "
+                      "resources.max_match_evaluations")
+    need = float(n_cells) * 8.0 * (MATCH_MAP_LAYERS + (poses if p.criterion == "msd" else 3))
+    check_memory(what, need, memory_limit_bytes(config), setting=setting, value=value,
+                 advice=f"use a larger {setting}, a smaller range or a coarser DTM, or raise resources.max_memory_gb")
+    return n_h, n_s
+
+
+def _search_size(rng: float, step: float) -> float:
+    """Number of values of a symmetric ``+-rng`` search in ``step`` steps (1 for no search), without building it."""
+    if rng == 0:
+        return 1.0
+    if not step > 0 or step > rng:
+        raise ConfigError(f"match search step {step:g} must be > 0 and at most its range {rng:g}")
+    return 2.0 * round(rng / step) + 1.0
 
 
 def read_ctd(pv: ProductVersion) -> pd.DataFrame:
@@ -189,9 +253,10 @@ def skip_reason(ctx: StageContext) -> str | None:
     """Why ``match`` cannot run on this dive's ``ctd`` (no altimeter or no dead-reckoned track), or ``None``."""
     import pyarrow.parquet as pq
 
-    if not ctx.store.has(ctx.dive_id, "ctd"):
+    pv = ctx.optional_upstream("ctd")
+    if pv is None:
         return None  # run() reports the missing upstream product itself
-    path = ctx.store.latest(ctx.dive_id, "ctd").file("ctd.parquet")
+    path = pv.file("ctd.parquet")
     try:
         names = set(pq.read_schema(path).names)
         missing = [c for c in TRACK_COLUMNS if c not in names]
@@ -237,6 +302,7 @@ def run(ctx: StageContext) -> dict[str, ProductVersion]:
         used = prof.along_m <= p.segment_m
         if used.sum() < 10:  # too short to be unique: fall back to the whole track
             used[:] = True
+    check_search_budget(p, int(g.depth_m.size), int(used.sum()), ctx.config)
     ctx.log.info("match: %d bottom samples -> %d profile points (%d used), %d heading(s)",
                  prof.n_raw, prof.depth_m.size, int(used.sum()), _headings(p).size)
     res = tercom(
@@ -244,7 +310,7 @@ def run(ctx: StageContext) -> dict[str, ProductVersion]:
         region=region, min_valid_fraction=p.min_valid_fraction, exclusion_radius_m=p.exclusion_radius_m,
         mismatch_ratio=p.mismatch_ratio, precision=p.precision, scales=_scales(p), progress=ctx.progress,
     )
-    if p.refine and p.criterion == "msd":
+    if p.refine and p.criterion == "msd" and not p.posterior:
         hs, sc = _headings(p), _scales(p)
         res = refine_tercom(
             prof.depth_m[used], prof.track_xy[used], g, res, estimate_bias=p.estimate_bias, n_seeds=p.refine_seeds,
@@ -254,9 +320,23 @@ def run(ctx: StageContext) -> dict[str, ProductVersion]:
             scale_bounds=(min(float(sc.min()), 1 - p.refine_scale_range), max(float(sc.max()), 1 + p.refine_scale_range)),
             min_valid_fraction=p.min_valid_fraction,
         )
+    post = None
+    if p.criterion == "msd":
+        from hadal.matching.posterior import posterior_fix
+
+        dtm_ds = open_dtm(dtm_pv)
+        unc = dtm_ds["uncertainty_m"].transpose("y", "x").values if "uncertainty_m" in dtm_ds else None
+        post = posterior_fix(
+            prof.depth_m[used], prof.track_xy[used], g, headings_deg=_headings(p), scales=_scales(p), region=region,
+            uncertainty=unc, min_valid_fraction=min(p.min_valid_fraction, 0.5), mode_radius_cells=p.mode_radius_cells,
+            max_mass_outside=p.max_mass_outside, min_samples=p.min_samples,
+        )
+        if p.posterior:
+            res = post.to_tercom_result(res)
+    use_post = post is not None and p.posterior
     sigma_lik_jk = (res.sigma_x_m, res.sigma_y_m)
     d_info = information_distance_m(res, prof.track_xy[used], prof.along_m[used], g)
-    sigma_dr = p.dr_error_fraction * d_info / np.sqrt(2.0)  # per axis
+    sigma_dr = 0.0 if use_post else p.dr_error_fraction * d_info / np.sqrt(2.0)  # per axis
     res = replace(res, sigma_x_m=float(np.hypot(res.sigma_x_m, sigma_dr)), sigma_y_m=float(np.hypot(res.sigma_y_m, sigma_dr)))
     track = matched_track(bottom, res, frame, map_depth=g_raw.sample_bilinear)
     launch = ctx.dive.launch
@@ -264,9 +344,32 @@ def run(ctx: StageContext) -> dict[str, ProductVersion]:
     fix["uncertainty_m"]["components"] = {
         "match_radial": float(np.hypot(*sigma_lik_jk)), "dead_reckoning_radial": float(sigma_dr * np.sqrt(2.0)),
         "information_distance_m": d_info, "dr_error_fraction": p.dr_error_fraction,
-        "comment": "match: MSD likelihood (+ jackknife when refined); dead reckoning: dr_error_fraction x the along-track "
-                   "distance from the start to the terrain-information centroid (gradient^2-weighted) of the track",
+        "comment": ("posterior second moment about the MAP fix (point-mass grid over position x heading x scale, noise "
+                    "and effective sample size estimated from the residuals); no separate dead-reckoning term")
+        if use_post else
+        ("match: MSD likelihood (+ jackknife when refined); dead reckoning: dr_error_fraction x the along-track "
+         "distance from the start to the terrain-information centroid (gradient^2-weighted) of the track"),
     }
+    if post is not None:
+        fix["posterior"] = post.summary()
+        fix["posterior"]["used_for_fix"] = use_post
+        if use_post:
+            fix["mismatch_reasons"] = list(post.reasons)
+            # the report draws the ellipse about the matched start and the dead-reckoning-only track
+            e1, e2 = post.ellipse(1.0), post.ellipse(2.0)
+            fix["uncertainty_m"].update({"ellipse_1sigma": e1, "ellipse_2sigma": e2,
+                                         "covariance_m2": fix["posterior"]["covariance_m2"]})
+        else:
+            fix["posterior"]["comment"] = ("computed for the record; the reported fix is the refined score minimum "
+                                           "(match.posterior: false)")
+        dr_only = bottom[["dr_east_m", "dr_north_m"]].to_numpy(float)
+        lx, ly = fix["launch"]["x_east_m"], fix["launch"]["y_north_m"]
+        fix["dead_reckoning_track"] = {
+            "comment": "bottom track by dead reckoning only (launch point + DR offsets), map frame metres; "
+                       "every 10th sample and the last",
+            "x_east_m": [float(v) for v in (dr_only[::10, 0] + lx)] + [float(dr_only[-1, 0] + lx)],
+            "y_north_m": [float(v) for v in (dr_only[::10, 1] + ly)] + [float(dr_only[-1, 1] + ly)],
+        }
     fix["profile"] = {"n_raw_bottom_samples": prof.n_raw, "n_profile_points": int(prof.depth_m.size),
                       "spacing_m": p.resample_spacing_m or g.resolution_m, "track_length_m": float(prof.along_m[-1]),
                       "n_points_matched": int(used.sum()), "matched_length_m": float(prof.along_m[used][-1])}

@@ -24,10 +24,10 @@ INPUTS = StageInputs(optional_upstream=UPSTREAM, always=True)
 class Params(BaseModel):
     """Dive report (HTML with embedded figures, also published as Prefect artifacts inside a flow)."""
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
     dpi: int = Field(110, ge=50, le=400, description="figure resolution (dots per inch)")
     figure_width_in: float = Field(10.0, gt=2, le=30, description="figure width in inches")
-    max_points: int = Field(20000, ge=100, description="time series are thinned to at most this many points per figure")
+    max_points: int = Field(20000, ge=100, le=10_000_000, description="time series are thinned to at most this many points per figure")
     best_sites: int = Field(5, ge=1, le=100, description="number of best landing sites listed")
     title: str | None = Field(None, description="report title (default: 'Dive report — <dive id>')")
 
@@ -47,8 +47,13 @@ def run(ctx: StageContext) -> dict[str, ProductVersion]:
     from hadal.plan import skipped_stages
 
     skipped = skipped_stages(ctx)
+    for pv in ctx.pins.values():
+        ctx.store.check_intact(pv)
+    from hadal.plan import plan_stages
+
+    expected = {prod for ps in plan_stages(ctx.dive) if ps.run for prod in ps.products}
     rep = build_report(ctx.store, ctx.dive_id, launch=launch, options=options(p), best_sites=p.best_sites, title=p.title,
-                       skipped=skipped)
+                       skipped=skipped, pins=ctx.pins, expected=expected)
     for s in skipped:
         ctx.log.info("report: stage %s not run: %s", s["stage"], s["reason"])
     for note in rep.summary.get("notes", []):

@@ -15,35 +15,70 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from hadal.errors import InputError
 from hadal.products import write_netcdf
-from hadal.stages import StageContext
+from hadal.stages import StageContext, StageInputs
 from hadal.store import ProductVersion
 
 PRODUCTS = ("suitability",)
 UPSTREAM = ("dtm",)
+INPUTS = StageInputs(upstream=("dtm",), frame_for=("suitability",))
 
 
 class Params(BaseModel):
     """Terrain suitability (TERCOM paper §3.1, §4.1.2): block std/entropy and the matching region."""
 
-    model_config = ConfigDict(extra="forbid")
-    n_blocks_y: int = Field(44, ge=1, description="blocks south-north (paper: 44); reduced if the DTM is too small")
-    n_blocks_x: int = Field(60, ge=1, description="blocks west-east (paper: 60); reduced if the DTM is too small")
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+    n_blocks_y: int = Field(44, ge=1, le=10_000, description="blocks south-north (paper: 44); reduced if the DTM is too small")
+    n_blocks_x: int = Field(60, ge=1, le=10_000, description="blocks west-east (paper: 60); reduced if the DTM is too small")
     min_valid_fraction: float = Field(0.5, gt=0, le=1, description="minimum fraction of valid cells for a block to be evaluated")
-    region_size_x_m: float = Field(5800.0, gt=0, description="matching-region width west-east in metres (paper: 5.8 km)")
-    region_size_y_m: float = Field(3700.0, gt=0, description="matching-region height south-north in metres (paper: 3.7 km)")
+    region_size_x_m: float = Field(5800.0, gt=0, le=10_000_000, description="matching-region width west-east in metres (paper: 5.8 km)")
+    region_size_y_m: float = Field(3700.0, gt=0, le=10_000_000, description="matching-region height south-north in metres (paper: 3.7 km)")
     region_search_radius_m: float = Field(
-        0.0, ge=0, description="0: region centred on the launch point; >0: best-scoring window centred within this radius"
+        0.0, ge=0, le=10_000_000, description="(m) 0: region centred on the launch point; >0: best-scoring window centred within this radius"
     )
 
 
 def open_dtm(pv: ProductVersion) -> xr.Dataset:
-    """Load ``dtm.nc`` fully into memory with a clear error on unreadable files."""
+    """Load ``dtm.nc`` fully into memory with a clear error on unreadable files.
+
+    Works for DTMs from multibeam soundings and from prior grids alike (``attrs['dtm_source']``); only
+    ``depth_m(y, x)`` is required - a prior-grid DTM has no ``count``/``uncertainty_m`` layers.
+    """
     path = pv.file("dtm.nc")
     try:
         with xr.open_dataset(path, engine="h5netcdf") as ds:
-            return ds.load()
+            ds = ds.load()
     except (OSError, ValueError) as exc:
         raise InputError(f"{path}: cannot read the DTM ({str(exc).splitlines()[0] if str(exc) else type(exc).__name__})") from None
+    if "depth_m" not in ds or set(ds["depth_m"].dims) != {"y", "x"}:
+        raise InputError(f"{path}: not a DTM (no depth_m(y, x); have {', '.join(map(str, ds.data_vars))})")
+    return ds
+
+
+def region_centre(dive, dtm: xr.Dataset, frame) -> tuple[float, float, str]:
+    """Centre (lat, lon) of the proposed matching region: the launch point (TERCOM paper §4.1.2), else the
+    map-frame origin; when that lies outside the DTM (a cast taken far from the prior map), the DTM's centre,
+    with a note saying so."""
+    launch = dive.launch
+    lat, lon = ((launch.latitude_deg, launch.longitude_deg) if launch is not None
+                else (frame.origin_latitude_deg, frame.origin_longitude_deg))
+    x, y = (float(v) for v in frame.to_xy(lon, lat))
+    xs, ys = dtm["x"].values, dtm["y"].values
+    if xs.min() <= x <= xs.max() and ys.min() <= y <= ys.max():
+        return lat, lon, ""
+    cx, cy = float(xs.min() + xs.max()) / 2, float(ys.min() + ys.max()) / 2
+    clon, clat = (float(v) for v in frame.to_lonlat(cx, cy))
+    what = "launch point" if launch is not None else "map-frame origin"
+    dist_km = float(np.hypot(x - cx, y - cy)) / 1000
+    return clat, clon, (f"the {what} ({lat:.4f}, {lon:.4f}) is {dist_km:.0f} km from the DTM's centre, outside "
+                        "the DTM: the matching region is centred on the DTM instead")
+
+
+def _min_window(suit: xr.Dataset, dim: str, size_m: float) -> float:
+    """``size_m``, or two block widths along ``dim`` when the blocks are wider than half the window."""
+    c = suit[dim].values
+    block = float(np.median(np.diff(c))) if c.size > 1 else float(suit[f"{dim}_max"].values.max()
+                                                                   - suit[f"{dim}_min"].values.min())
+    return max(float(size_m), 2.0 * abs(block))
 
 
 def build_suitability(dtm: xr.Dataset, frame, launch_lat_deg: float, launch_lon_deg: float, p: Params) -> xr.Dataset:
@@ -56,7 +91,10 @@ def build_suitability(dtm: xr.Dataset, frame, launch_lat_deg: float, launch_lon_
     nby, nbx = min(p.n_blocks_y, ny // 2), min(p.n_blocks_x, nx // 2)
     suit = suitability_map(g, nby, nbx, min_valid_fraction=p.min_valid_fraction)
     lx, ly = (float(v) for v in frame.to_xy(launch_lon_deg, launch_lat_deg))
-    region = propose_region(suit, lx, ly, p.region_size_x_m, p.region_size_y_m, p.region_search_radius_m)
+    # a map coarser than the paper's 5.8 x 3.7 km window (a km-scale prior grid) gets a window of at least
+    # two blocks each way, so a region exists on any map that has blocks at all (recorded below)
+    sx, sy = _min_window(suit, "x", p.region_size_x_m), _min_window(suit, "y", p.region_size_y_m)
+    region = propose_region(suit, lx, ly, sx, sy, p.region_search_radius_m)
     xx, yy = np.meshgrid(suit["x"].values, suit["y"].values)
     lon, lat = frame.to_lonlat(xx, yy)
     suit["lat"] = (("y", "x"), np.asarray(lat), {"standard_name": "latitude", "units": "degrees_north"})
@@ -79,6 +117,9 @@ def build_suitability(dtm: xr.Dataset, frame, launch_lat_deg: float, launch_lon_
         "map_frame_origin_longitude_deg": frame.origin_longitude_deg,
         "method": "TERCOM paper (Challenger Deep) Eqs. 1-5, §4.1.2; variance normaliser m(n-1) as written; p_ij from depth positive down",
     })
+    if (sx, sy) != (p.region_size_x_m, p.region_size_y_m):
+        suit.attrs["region_size_note"] = (f"region window enlarged from {p.region_size_x_m:g} x {p.region_size_y_m:g} m "
+                                          f"to {sx:g} x {sy:g} m (two blocks of this map)")
     if (nby, nbx) != (p.n_blocks_y, p.n_blocks_x):
         suit.attrs["comment"] = f"block grid reduced from {p.n_blocks_y} x {p.n_blocks_x} to {nby} x {nbx}: DTM has only {ny} x {nx} cells"
     return suit
@@ -88,7 +129,13 @@ def run(ctx: StageContext) -> dict[str, ProductVersion]:
     p: Params = ctx.config.suitability
     dtm_pv = ctx.upstream("dtm")
     dtm = open_dtm(dtm_pv)
-    suit = build_suitability(dtm, ctx.dive.frame(), ctx.dive.launch.latitude_deg, ctx.dive.launch.longitude_deg, p)
+    frame = ctx.dive.frame("suitability")
+    lat, lon, note = region_centre(ctx.dive, dtm, frame)
+    if note:
+        ctx.log.warning("suitability: %s", note)
+    suit = build_suitability(dtm, frame, lat, lon, p)
+    if note:
+        suit.attrs["region_centre_note"] = note
     ctx.log.info("suitability: %d x %d blocks, region %s", suit.sizes["y"], suit.sizes["x"], suit.attrs["proposed_region"])
     with ctx.store.publish(ctx.dive_id, "suitability", parameters=ctx.params("suitability"), upstream=[dtm_pv]) as draft:
         write_netcdf(

@@ -159,8 +159,7 @@ def _generate(out: Path, seed: int, small: bool, progress, dive_id: str) -> None
 
     vehicle_rel = _copy_vehicle(out)
     _write_dive_yaml(out, seed, small, vehicle_rel, csv_files, mb_files, laser_files, dive_id)
-    if small:
-        _write_pipeline_yaml(out, rates)
+    _write_pipeline_yaml(out, rates, small)
     truth = _truth(seed, small, frame, ter, track, water, err, rates, counts, mb, n_sound, laser_truth,
                    terrain_info, launch_xy, start_xy, deep_xy)
     (out / "truth.json").write_text(json.dumps(truth, indent=2) + "\n", encoding="utf-8")
@@ -264,14 +263,18 @@ def _write_dive_yaml(out: Path, seed: int, small: bool, vehicle_rel, csv_files, 
         yaml.safe_dump(d, fh, sort_keys=False, allow_unicode=True, width=100)
 
 
-def _write_pipeline_yaml(out: Path, rates: dict[str, float]) -> None:
-    """Dive-level configuration of the small sample: its sensors are logged at reduced rates, so the
-    ingest's interpolation gap limits are set to 1.5 sampling intervals (the defaults suit the full rates)."""
-    sensor_of = {"gauge": "keller", "altimeter": "altimeter", "attitude": "attitude", "position": "dr"}
-    gaps = {k: max(2.0, 1.5 / rates[v]) for k, v in sensor_of.items()}
-    text = ("# small sample dive: sensors logged at reduced rates -> gap limits of 1.5 sampling intervals\n"
-            + yaml.safe_dump({"ingest": {"max_gap_s": gaps}}, sort_keys=False))
-    (out / "pipeline.yaml").write_text(text, encoding="utf-8")
+def _write_pipeline_yaml(out: Path, rates: dict[str, float], small: bool) -> None:
+    """Dive-level configuration of the sample: the DTM cell size of the paper's EM122 survey (20 m) pinned, so
+    the sample's results do not depend on the automatic choice; the small sample's sensors are logged at
+    reduced rates, so its ingest interpolation gap limits are 1.5 sampling intervals (the defaults suit the
+    full rates)."""
+    cfg: dict = {"grid": {"dtm_resolution_m": 20.0}}
+    text = "# sample dive: the TERCOM paper's 20 m DTM cells\n"
+    if small:
+        sensor_of = {"gauge": "keller", "altimeter": "altimeter", "attitude": "attitude", "position": "dr"}
+        cfg["ingest"] = {"max_gap_s": {k: max(2.0, 1.5 / rates[v]) for k, v in sensor_of.items()}}
+        text += "# small sample dive: sensors logged at reduced rates -> gap limits of 1.5 sampling intervals\n"
+    (out / "pipeline.yaml").write_text(text + yaml.safe_dump(cfg, sort_keys=False), encoding="utf-8")
 
 
 def _iso(t_s: float) -> str:

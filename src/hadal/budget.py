@@ -1,0 +1,136 @@
+"""Memory and work budget: stages estimate what a configuration will cost *before* allocating it.
+
+A parameter such as ``derive.profile_bin_dbar: 1e-4`` or ``match.heading_step_deg: 1e-5`` is valid on its
+own but would need tens of GiB or hours. Each stage computes the bytes (and, for searches, the number of
+evaluations) its configuration implies and calls :func:`check_memory` / :func:`check_work`, which raise a
+one-line :class:`hadal.errors.ConfigError` naming the setting, the estimate and the limit::
+
+    derive.profile_bin_dbar = 0.0001 would need 12.3 GiB for the profile (limit 11.7 GiB): use a larger
+    derive.profile_bin_dbar or raise resources.max_memory_gb
+
+The limits are the ``resources`` section of ``config/pipeline.yaml`` (:class:`Params`): by default
+``memory_fraction`` (0.5) of the machine's physical memory (psutil), or an explicit ``max_memory_gb``.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import TYPE_CHECKING, Any
+
+from pydantic import BaseModel, ConfigDict, Field
+
+from hadal.errors import ConfigError
+
+if TYPE_CHECKING:
+    from hadal.config import PipelineConfig
+
+GIB = 1024 ** 3
+
+#: default share of the machine's physical memory one stage may plan to allocate
+DEFAULT_MEMORY_FRACTION = 0.5
+#: default limit on the pose x offset evaluations of the terrain-matching search (about 10 min on 2 cores)
+DEFAULT_MAX_MATCH_EVALUATIONS = 2e10
+
+
+class Params(BaseModel):
+    """Memory and work limits every stage checks its configuration against before allocating."""
+
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+    max_memory_gb: float | None = Field(
+        None, gt=0, le=65_536,
+        description="memory (GiB) one stage may plan to allocate for its largest arrays; default: memory_fraction "
+                    "x the machine's physical memory")
+    memory_fraction: float = Field(
+        DEFAULT_MEMORY_FRACTION, gt=0, le=1,
+        description="share (0-1] of the machine's physical memory used when max_memory_gb is not set")
+    max_match_evaluations: float = Field(
+        DEFAULT_MAX_MATCH_EVALUATIONS, ge=1, le=1e15,
+        description="terrain matching: refuse searches with more (heading x scale poses) x (map offsets) "
+                    "evaluations than this (2e10: about 10 minutes on 2 cores)")
+
+
+def machine_memory_bytes() -> int:
+    """Physical memory of this machine (bytes); 8 GiB when psutil cannot tell."""
+    try:
+        import psutil
+
+        return int(psutil.virtual_memory().total)
+    except Exception:  # pragma: no cover - psutil missing or unsupported platform
+        return 8 * GIB
+
+
+def resources_of(config: Any) -> Params:
+    """The ``resources`` section of a :class:`hadal.config.PipelineConfig` (defaults when absent)."""
+    r = getattr(config, "resources", None)
+    return r if isinstance(r, Params) else Params()
+
+
+def memory_limit_bytes(config: PipelineConfig | Params | None = None) -> int:
+    """The memory budget (bytes) of one stage under ``config`` (a PipelineConfig or its ``resources``)."""
+    r = config if isinstance(config, Params) else resources_of(config)
+    if r.max_memory_gb is not None:
+        return int(r.max_memory_gb * GIB)
+    return int(r.memory_fraction * machine_memory_bytes())
+
+
+def work_limit(config: PipelineConfig | Params | None = None) -> float:
+    r = config if isinstance(config, Params) else resources_of(config)
+    return float(r.max_match_evaluations)
+
+
+def format_bytes(n: float) -> str:
+    """``12.3 GiB`` / ``512 MiB`` / ``3 KiB`` (binary units)."""
+    if not math.isfinite(n):
+        return "an unbounded amount of memory"
+    for unit, size in (("TiB", GIB * 1024), ("GiB", GIB), ("MiB", 1024 ** 2), ("KiB", 1024)):
+        if n >= size:
+            return f"{n / size:.3g} {unit}" if n / size < 1000 else f"{n / size:,.0f} {unit}"
+    return f"{int(n)} B"
+
+
+def _setting_text(setting: str | None, value: Any) -> str:
+    if setting is None:
+        return "this configuration"
+    return f"{setting} = {value:g}" if isinstance(value, float) else (f"{setting} = {value}" if value is not None
+                                                                      else setting)
+
+
+def check_memory(what: str, bytes_needed: float, limit_bytes: float, *, setting: str | None = None,
+                 value: Any = None, advice: str | None = None) -> None:
+    """Raise a one-line :class:`ConfigError` when ``bytes_needed`` exceeds ``limit_bytes``.
+
+    ``what`` names the allocation ("the profile", "the DTM (3,000 x 2,000 cells x 8 layers)"), ``setting`` /
+    ``value`` the configuration that caused it (``derive.profile_bin_dbar``, ``1e-4``), ``advice`` what to change
+    (default: the setting, or ``resources.max_memory_gb``).
+    """
+    if not (bytes_needed > limit_bytes) and math.isfinite(bytes_needed):
+        return
+    fix = advice or (f"change {setting} or raise resources.max_memory_gb" if setting
+                     else "raise resources.max_memory_gb")
+    msg = (f"{_setting_text(setting, value)} would need {format_bytes(bytes_needed)} for {what} "
+           f"(limit {format_bytes(limit_bytes)}): {fix}")
+    raise ConfigError(" ".join(msg.split()))
+
+
+def check_work(what: str, evaluations: float, limit: float, *, setting: str | None = None, value: Any = None,
+               advice: str | None = None) -> None:
+    """Raise a one-line :class:`ConfigError` when a search of ``evaluations`` steps exceeds ``limit``."""
+    if not (evaluations > limit) and math.isfinite(evaluations):
+        return
+    fix = advice or (f"change {setting} or raise resources.max_match_evaluations" if setting
+                     else "raise resources.max_match_evaluations")
+    ev = f"{evaluations:.3g}" if math.isfinite(evaluations) else "unbounded"
+    msg = (f"{_setting_text(setting, value)} would need {ev} evaluations for {what} "
+           f"(limit {limit:.3g}): {fix}")
+    raise ConfigError(" ".join(msg.split()))
+
+
+def finite_positive(name: str, value: Any) -> float:
+    """``value`` as a finite float > 0, else a one-line ConfigError naming ``name``."""
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        raise ConfigError(f"{name} must be a number, got {value!r}") from None
+    if not math.isfinite(v) or v <= 0:
+        raise ConfigError(f"{name} must be a finite number > 0, got {value!r}")
+    return v

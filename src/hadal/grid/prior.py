@@ -1,0 +1,369 @@
+"""Prior bathymetry grids (GeoTIFF, NetCDF COARDS/CF, GMT .grd) -> the reference DTM in the dive's map frame.
+
+:func:`prior_dtm` reads a grid with :func:`hadal.grid.readers.read_grid`, decides whether its values are
+elevations (positive up) or depths (:func:`z_positive`) and resamples it onto the dive's transverse-Mercator
+map frame (:func:`resample_to_frame`), giving the same layout as the multibeam ``dtm.nc``: ``depth_m``
+(positive down) on ``x``/``y`` metres, ``lat``/``lon``, ``crs``.
+
+**Resampling.** The target grid has square cells of (about) the source's native resolution - the smaller
+of its two cell sides in metres at the grid's centre (geodesic for lon/lat grids), rounded to 3
+significant digits - aligned on multiples of the resolution (as multibeam DTMs are). Every target cell
+centre is transformed exactly (pyproj) from the map frame into the grid's own CRS (lon/lat of its
+datum, or its projected x/y) and the value is **bilinear** in the source grid's index space. A target
+cell is NaN when any source value with a non-zero bilinear weight is NaN (no value is invented next to
+nodata) or when it lies outside the source's value domain: between the first and last nodes of a
+gridline-registered grid, plus half a cell (nearest value) at the edges of a pixel-registered one
+(GMT ``node_offset=1``, GeoTIFF ``AREA_OR_POINT=Area``). Longitudes are wrapped into the grid's range.
+Grids without a CRS (``local_metric``) are taken to be in the map frame already. Large geographic grids
+are cropped to ``max_extent_m`` around the map frame's origin (the transverse Mercator frame is exact
+near its meridian, not across an ocean basin; ``grid.prior_max_extent_km``, default 2000 km). A crop is
+never silent: the product records the kept lon/lat bounds, the fraction of the source's valid area and
+of its depth range outside the crop (:func:`crop_attrs`), and the ``grid`` stage logs a WARNING.
+
+**Sign** (:func:`z_positive`, first rule that decides): the ``z_positive`` hint of ``dive.yaml``; a CF
+``positive`` attribute; a CF ``standard_name`` (``*depth*`` -> down; ``height``/``altitude``/
+``*elevation*`` -> up); values all of one sign (all <= 0 -> elevations below sea level; all >= 0 ->
+depths); names and units (``depth``/``below`` -> down; ``elevation``/``topo``/``height``/``above`` ->
+up); otherwise (mixed signs, as in ETOPO/GEBCO grids with land) elevation. The decision and its reason
+are recorded in the product's attributes.
+
+Layers: a prior grid has no soundings, so ``count``, ``depth_median_m``, ``depth_std_m``, ``filled`` and
+``uncertainty_m`` are absent (the source states no uncertainty); ``attrs['layers_absent']`` says so.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import xarray as xr
+
+from hadal.errors import InputError
+from hadal.geo import LocalFrame
+from hadal.grid.points import DEFAULT_MAX_CELLS, make_grid_spec, to_dataset
+from hadal.grid.readers import read_grid
+
+#: default crop of geographic grids around the map frame origin (m, full width)
+DEFAULT_MAX_EXTENT_M = 2_000_000.0
+
+RESAMPLING = ("bilinear in the source grid's index space at the target cell centres (pyproj inverse transform "
+              "from the map frame); NaN where a contributing source value is NaN or outside the source's value "
+              "domain (pixel registration: nearest value within half a cell of the edge)")
+
+
+# ------------------------------------------------------------------ sign
+def z_positive(da: xr.DataArray, hint: str | None = None) -> tuple[str, str]:
+    """``("up" | "down", reason)``: whether a grid's values are elevations or depths (module docstring)."""
+    if hint is not None:
+        if hint not in ("up", "down"):
+            raise InputError(f"z_positive must be 'up' or 'down', got {hint!r}")
+        return hint, "z_positive given in dive.yaml"
+    a = da.attrs
+    pos = str(a.get("positive", "")).strip().lower()
+    if pos in ("up", "down"):
+        return pos, f"CF attribute positive={pos!r}"
+    sn = str(a.get("standard_name", "")).strip().lower()
+    if sn:
+        if "depth" in sn:
+            return "down", f"standard_name {sn!r}"
+        if sn in ("height", "altitude", "surface_altitude", "height_above_mean_sea_level",
+                  "height_above_reference_ellipsoid", "height_above_geopotential_datum") or "elevation" in sn:
+            return "up", f"standard_name {sn!r}"
+    v = da.values[np.isfinite(da.values)]
+    if v.size and np.all(v <= 0) and np.any(v < 0):
+        return "up", f"all values <= 0 ({v.min():g}..{v.max():g}): elevations below sea level"
+    if v.size and np.all(v >= 0) and np.any(v > 0):
+        return "down", f"all values >= 0 ({v.min():g}..{v.max():g}): depths"
+    words = " ".join(str(a.get(k, "")) for k in ("var_name", "long_name", "units")).lower()
+    if "depth" in words or "below" in words:
+        return "down", f"name/units {words.strip()!r}"
+    if any(w in words for w in ("elev", "topo", "height", "altitude", "above")):
+        return "up", f"name/units {words.strip()!r}"
+    return "up", "mixed signs: elevation (the GMT/ETOPO/GEBCO convention, land above 0)"
+
+
+# ------------------------------------------------------------------ geometry
+def source_crs(da: xr.DataArray):
+    """The grid's pyproj CRS (``None`` for ``local_metric``); geographic grids without one are WGS84."""
+    from pyproj import CRS
+
+    kind = da.attrs.get("crs_kind")
+    if kind == "local_metric":
+        return None
+    wkt = da.attrs.get("crs_wkt") or ""
+    if wkt:
+        c = CRS.from_user_input(wkt)
+        if kind == "geographic" and not c.is_geographic:
+            return CRS.from_epsg(4326)
+        return c
+    if kind == "geographic":
+        return CRS.from_epsg(4326)
+    raise InputError(f"{da.attrs.get('source', 'grid')}: projected grid without a CRS; give 'crs' in dive.yaml")
+
+
+def _cell_sizes(da: xr.DataArray) -> tuple[float, float]:
+    dx = float(da.attrs.get("cell_size_x") or abs(float(da.x[1] - da.x[0])))
+    dy = float(da.attrs.get("cell_size_y") or abs(float(da.y[1] - da.y[0])))
+    return dx, dy
+
+
+def native_resolution_m(da: xr.DataArray) -> float:
+    """Smaller cell side of the grid in metres at its centre, rounded to 3 significant digits."""
+    dx, dy = _cell_sizes(da)
+    crs = source_crs(da)
+    if crs is not None and crs.is_geographic:
+        from pyproj import Geod
+
+        g = Geod(ellps="WGS84")
+        lon_c, lat_c = float(da.x.mean()), float(da.y.mean())
+        lat_c = max(-89.0, min(89.0, lat_c))
+        _, _, sx = g.inv(lon_c, lat_c, lon_c + dx, lat_c)
+        _, _, sy = g.inv(lon_c, lat_c, lon_c, min(90.0, lat_c + dy))
+        r = min(sx, sy)
+    else:
+        f = 1.0
+        if crs is not None and crs.axis_info:
+            f = float(crs.axis_info[0].unit_conversion_factor or 1.0)
+        r = min(dx, dy) * f
+    if not (r > 0 and math.isfinite(r)):
+        raise InputError(f"{da.attrs.get('source', 'grid')}: cannot determine the grid's cell size")
+    return float(f"{r:.3g}")
+
+
+def _transformers(da: xr.DataArray, frame: LocalFrame | None):
+    """(map frame -> source, source -> map frame) coordinate functions."""
+    crs = source_crs(da)
+    if crs is None or frame is None:
+        ident = lambda x, y: (np.asarray(x, float), np.asarray(y, float))  # noqa: E731
+        return ident, ident
+    from pyproj import Transformer
+
+    inv = Transformer.from_crs(frame.crs, crs, always_xy=True)
+    fwd = Transformer.from_crs(crs, frame.crs, always_xy=True)
+    return inv.transform, fwd.transform
+
+
+def bilinear(da: xr.DataArray, xs: np.ndarray, ys: np.ndarray) -> np.ndarray:
+    """Values of ``da`` (ascending regular x/y) at source coordinates ``xs, ys`` (module docstring rules)."""
+    a = np.asarray(da.values, float)
+    x, y = np.asarray(da.x.values, float), np.asarray(da.y.values, float)
+    ny, nx = a.shape
+    dx, dy = (x[-1] - x[0]) / (nx - 1), (y[-1] - y[0]) / (ny - 1)
+    pixel = da.attrs.get("registration", "pixel") == "pixel"
+    h = 0.5 if pixel else 1e-6
+    xs = np.asarray(xs, float)
+    if da.attrs.get("crs_kind") == "geographic":
+        lo = x[0] - h * dx
+        xs = lo + np.mod(xs - lo, 360.0)
+    fi = (xs - x[0]) / dx
+    fj = (np.asarray(ys, float) - y[0]) / dy
+    inside = (fi >= -h) & (fi <= nx - 1 + h) & (fj >= -h) & (fj <= ny - 1 + h)
+    fi = np.clip(np.where(inside, fi, 0.0), 0, nx - 1)
+    fj = np.clip(np.where(inside, fj, 0.0), 0, ny - 1)
+    i0 = np.minimum(np.floor(fi).astype(np.int64), nx - 2)
+    j0 = np.minimum(np.floor(fj).astype(np.int64), ny - 2)
+    wx, wy = fi - i0, fj - j0
+    out = np.zeros(fi.shape)
+    bad = ~inside
+    for dj, di, w in ((0, 0, (1 - wx) * (1 - wy)), (0, 1, wx * (1 - wy)), (1, 0, (1 - wx) * wy), (1, 1, wx * wy)):
+        v = a[j0 + dj, i0 + di]
+        used = w > 1e-9
+        bad |= used & ~np.isfinite(v)
+        out += np.where(used & np.isfinite(v), w * v, 0.0)
+    out[bad] = np.nan
+    return out
+
+
+def resample_to_frame(da: xr.DataArray, frame: LocalFrame | None, resolution_m: float | None = None, *,
+                      max_extent_m: float | None = DEFAULT_MAX_EXTENT_M,
+                      max_cells: int = DEFAULT_MAX_CELLS) -> tuple[xr.Dataset, dict[str, Any]]:
+    """Resample a :func:`read_grid` array onto square cells of ``frame`` (``None``/local grid: identity).
+
+    Returns ``(Dataset with "z" (y, x) in the source's units and sign, info)``; ``info`` holds the
+    resolution, method and crop. All-NaN border rows/columns are cropped.
+    """
+    res = float(resolution_m) if resolution_m else native_resolution_m(da)
+    inv, fwd = _transformers(da, frame)
+    x, y = np.asarray(da.x.values, float), np.asarray(da.y.values, float)
+    dx, dy = _cell_sizes(da)
+    h = 0.5 if da.attrs.get("registration", "pixel") == "pixel" else 0.0
+    x0, x1, y0, y1 = x[0] - h * dx, x[-1] + h * dx, y[0] - h * dy, y[-1] + h * dy
+    t = np.linspace(0.0, 1.0, 257)
+    ox = np.concatenate([x0 + (x1 - x0) * t, np.full_like(t, x1), x1 - (x1 - x0) * t, np.full_like(t, x0)])
+    oy = np.concatenate([np.full_like(t, y0), y0 + (y1 - y0) * t, np.full_like(t, y1), y1 - (y1 - y0) * t])
+    fx, fy = fwd(ox, oy)
+    fx, fy = np.asarray(fx, float), np.asarray(fy, float)
+    ok = np.isfinite(fx) & np.isfinite(fy)
+    if not ok.any():
+        raise InputError(f"{da.attrs.get('source', 'grid')}: the grid's outline cannot be projected into the map frame")
+    bounds = [fx[ok].min(), fy[ok].min(), fx[ok].max(), fy[ok].max()]
+    cropped = False
+    if max_extent_m and frame is not None and da.attrs.get("crs_kind") != "local_metric":
+        half = max_extent_m / 2
+        nb = [max(bounds[0], -half), max(bounds[1], -half), min(bounds[2], half), min(bounds[3], half)]
+        cropped = nb != bounds
+        bounds = nb
+        if bounds[2] <= bounds[0] or bounds[3] <= bounds[1]:
+            raise InputError(f"{da.attrs.get('source', 'grid')}: the grid does not cover the dive's map frame "
+                             f"(origin {frame.origin_latitude_deg:g}, {frame.origin_longitude_deg:g}) within "
+                             f"{half / 1000:g} km")
+    try:
+        spec = make_grid_spec(res, bounds, max_cells=max_cells, snap=True)
+    except InputError as exc:
+        raise InputError(f"{da.attrs.get('source', 'grid')}: {exc} (set grid.prior_resolution_m coarser)") from None
+    xc, yc = spec.x, spec.y
+    z = np.empty((spec.ny, spec.nx))
+    step = max(1, 2_000_000 // max(1, spec.nx))
+    for r0 in range(0, spec.ny, step):
+        yy, xx = np.meshgrid(yc[r0:r0 + step], xc, indexing="ij")
+        sx, sy = inv(xx.ravel(), yy.ravel())
+        z[r0:r0 + step] = bilinear(da, np.asarray(sx), np.asarray(sy)).reshape(xx.shape)
+    valid = np.isfinite(z)
+    if not valid.any():
+        raise InputError(f"{da.attrs.get('source', 'grid')}: no valid grid values inside the map-frame area")
+    rows, cols = np.flatnonzero(valid.any(axis=1)), np.flatnonzero(valid.any(axis=0))
+    r0, r1, c0, c1 = rows[0], rows[-1] + 1, cols[0], cols[-1] + 1
+    spec = make_grid_spec(res, (spec.x0 + c0 * res, spec.y0 + r0 * res, spec.x0 + c1 * res, spec.y0 + r1 * res),
+                          max_cells=max_cells)
+    z = z[r0:r1, c0:c1]
+    if z.shape[0] < 2 or z.shape[1] < 2:
+        raise InputError(f"{da.attrs.get('source', 'grid')}: fewer than 2 x 2 valid cells at {res:g} m in the map frame")
+    ds = to_dataset(spec, {"z": z.ravel()})
+    info = {"resolution_m": res, "resampling": RESAMPLING, "cropped_to_m": float(max_extent_m) if cropped else 0.0,
+            "n_cells_valid": int(np.isfinite(z).sum())}
+    if cropped:
+        info["crop"] = _crop_loss(da, fwd, frame, bounds)
+    return ds, info
+
+
+def _crop_loss(da: xr.DataArray, fwd, frame: LocalFrame, bounds) -> dict[str, Any]:
+    """What a crop to ``bounds`` (map-frame x/y min, max) keeps of the source grid's valid values.
+
+    Source value positions (at most ~1e6, strided) are projected into the frame; a value is kept when it lies
+    inside the crop. Area weights: ``cos(latitude)`` per cell for geographic grids, equal otherwise. Returns the
+    kept values' lon/lat bounds, the fraction of the source's valid-value area outside the crop and the source
+    and kept z ranges (source units and sign).
+    """
+    ny, nx = da.sizes["y"], da.sizes["x"]
+    sy, sx = max(1, ny // 1000), max(1, nx // 1000)
+    xs, ys = np.asarray(da.x.values, float)[::sx], np.asarray(da.y.values, float)[::sy]
+    zz = np.asarray(da.values, float)[::sy, ::sx]
+    gx, gy = np.meshgrid(xs, ys)
+    ok = np.isfinite(zz)
+    fx, fy = fwd(gx[ok], gy[ok])
+    fx, fy = np.asarray(fx, float), np.asarray(fy, float)
+    kept = (np.isfinite(fx) & np.isfinite(fy) & (fx >= bounds[0]) & (fx <= bounds[2]) & (fy >= bounds[1])
+            & (fy <= bounds[3]))
+    geographic = da.attrs.get("crs_kind") == "geographic"
+    w = np.cos(np.radians(np.clip(gy[ok], -90, 90))) if geographic else np.ones(int(ok.sum()))
+    v = zz[ok]
+    out: dict[str, Any] = {"area_fraction_lost": float(1.0 - w[kept].sum() / w.sum()) if w.sum() > 0 else 0.0,
+                           "z_range_source": (float(v.min()), float(v.max()))}
+    if kept.any():
+        lon, lat = frame.to_lonlat(fx[kept], fy[kept])
+        out["kept_lonlat"] = (float(np.min(lon)), float(np.max(lon)), float(np.min(lat)), float(np.max(lat)))
+        out["z_range_kept"] = (float(v[kept].min()), float(v[kept].max()))
+    return out
+
+
+# ------------------------------------------------------------------ DTM
+def describe_crs(da: xr.DataArray) -> str:
+    c = source_crs(da) if da.attrs.get("crs_kind") != "local_metric" else None
+    if c is None:
+        return "local metric (no CRS)"
+    epsg = c.to_epsg()
+    return f"{c.name}" + (f" (EPSG:{epsg})" if epsg else "")
+
+
+def prior_dtm(path: str | Path, frame: LocalFrame, *, z_positive_hint: str | None = None, crs: str | None = None,
+              variable: str | None = None, format: str | None = None, resolution_m: float | None = None,
+              max_extent_m: float | None = DEFAULT_MAX_EXTENT_M, max_cells: int = DEFAULT_MAX_CELLS) -> xr.Dataset:
+    """A prior grid as a reference DTM in ``frame`` (module docstring): ``depth_m`` positive down + metadata."""
+    import warnings
+
+    from hadal.grid.multibeam import add_geo
+    from hadal.grid.readers import GridCRSWarning
+
+    p = Path(path)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", GridCRSWarning)
+        da = read_grid(p, variable=variable, format=format, crs=crs)
+    pos, reason = z_positive(da, z_positive_hint)
+    ds, info = resample_to_frame(da, frame, resolution_m, max_extent_m=max_extent_m, max_cells=max_cells)
+    z = ds["z"].values
+    depth = -z if pos == "up" else z
+    ds = ds.drop_vars("z")
+    ds["depth_m"] = (("y", "x"), depth, {
+        "standard_name": "sea_floor_depth_below_sea_surface", "units": "m", "positive": "down",
+        "long_name": f"depth from the prior grid {p.name}, resampled bilinearly onto the map frame"})
+    dx, dy = _cell_sizes(da)
+    unit = "degrees" if da.attrs["crs_kind"] == "geographic" else "m"
+    ds.attrs.update({
+        "dtm_source": "prior_grid",
+        "prior_grid_file": p.name,
+        "prior_grid_format": da.attrs.get("format", ""),
+        "prior_grid_reader": da.attrs.get("reader", ""),
+        "prior_grid_variable": da.attrs.get("var_name", ""),
+        "prior_grid_crs": describe_crs(da),
+        "prior_grid_crs_kind": da.attrs["crs_kind"],
+        "prior_grid_registration": da.attrs.get("registration", ""),
+        "prior_grid_cell_size": f"{dx:.8g} x {dy:.8g} {unit}",
+        "prior_grid_shape": f"{da.sizes['y']} x {da.sizes['x']}",
+        "prior_grid_nodata_fraction": float(da.attrs.get("nodata_fraction", 0.0)),
+        "z_positive_source": pos,
+        "z_sign_detection": reason,
+        "z_sign_flipped": int(pos == "up"),
+        "resampling": info["resampling"],
+        "n_cells_valid": info["n_cells_valid"],
+        "layers_absent": "count, depth_median_m, depth_std_m, filled, uncertainty_m: a prior grid has no "
+                         "soundings and states no uncertainty",
+    })
+    for k in ("crs_override", "crs_note"):
+        if k in da.attrs:
+            ds.attrs[f"prior_grid_{k}"] = da.attrs[k]
+    if caught:
+        ds.attrs["prior_grid_warning"] = str(caught[0].message)
+    if info["cropped_to_m"]:
+        ds.attrs.update(crop_attrs(info, pos))
+    return add_geo(ds, frame)
+
+
+def crop_attrs(info: dict[str, Any], pos: str) -> dict[str, Any]:
+    """Product attributes of a crop (:func:`resample_to_frame` ``info``; ``pos`` the source's z sign):
+    the crop width, the kept bounds (lon/lat), the fraction of the source's valid area and of its depth
+    range (positive down) that is outside the crop."""
+    c = info.get("crop", {})
+    out: dict[str, Any] = {"prior_grid_cropped_to_m": info["cropped_to_m"]}
+    if "area_fraction_lost" in c:
+        out["prior_grid_crop_area_fraction_lost"] = round(c["area_fraction_lost"], 4)
+    if "kept_lonlat" in c:
+        lo0, lo1, la0, la1 = c["kept_lonlat"]
+        out.update({"prior_grid_kept_lon_min": round(lo0, 5), "prior_grid_kept_lon_max": round(lo1, 5),
+                    "prior_grid_kept_lat_min": round(la0, 5), "prior_grid_kept_lat_max": round(la1, 5)})
+
+    def depth(r):
+        return tuple(sorted((-r[1], -r[0]))) if pos == "up" else tuple(r)
+
+    if "z_range_source" in c:
+        d0, d1 = depth(c["z_range_source"])
+        out["prior_grid_source_depth_min_m"], out["prior_grid_source_depth_max_m"] = d0, d1
+        if "z_range_kept" in c:
+            k0, k1 = depth(c["z_range_kept"])
+            out["prior_grid_kept_depth_min_m"], out["prior_grid_kept_depth_max_m"] = k0, k1
+            out["prior_grid_crop_depth_range_lost_fraction"] = round(
+                ((d1 - d0) - (k1 - k0)) / (d1 - d0), 4) if d1 > d0 else 0.0
+    return out
+
+
+def sample_depth(path_or_da, frame: LocalFrame, x_m, y_m, *, z_positive_hint: str | None = None,
+                 **read_kw) -> np.ndarray:
+    """Prior-grid depth (positive down, bilinear) at map-frame points ``x_m, y_m`` (NaN outside/nodata)."""
+    da = path_or_da if isinstance(path_or_da, xr.DataArray) else read_grid(path_or_da, **read_kw)
+    pos, _ = z_positive(da, z_positive_hint)
+    inv, _ = _transformers(da, frame)
+    xx, yy = np.broadcast_arrays(np.asarray(x_m, float), np.asarray(y_m, float))
+    sx, sy = inv(xx.ravel(), yy.ravel())
+    v = bilinear(da, np.asarray(sx), np.asarray(sy)).reshape(xx.shape)
+    return -v if pos == "up" else v

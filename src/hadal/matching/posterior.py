@@ -1,0 +1,637 @@
+"""Terrain-relative navigation as a posterior: point-mass-filter likelihood over position, heading, scale, bias.
+
+TERCOM (``tercom.py``, TERCOM paper Eqs. 15-17, §4.2) returns the offset of the best score; a score is
+not a probability. Here the MSD surfaces over offsets x headings x scales [TERCOM Eq. 17] are turned
+into a likelihood and a posterior, as point-mass filters for terrain-relative navigation do:
+
+**Measurement model.** The measured depth of sample ``i`` is ``d_i = z(p_i) - b + e_i`` with the
+track pose ``p_i = start + f R(a) (track_i - track_0)`` (heading error ``a``, scale ``f``), a constant
+depth bias ``b`` and ``e_i ~ N(0, s^2)`` where ``s^2 = s_p^2 + s_map^2`` is the profile noise plus the
+map error. With the MSD residual at an offset ``MSD_b = 1/N_v sum (d_BT - d_M - b_hat)^2`` [TERCOM
+Eq. 17, bias at its closed-form optimum] the log-likelihood, bias marginalised under a flat prior, is
+
+    ll = gamma * [ -N_v/2 log(2 pi s^2) - N_v MSD_b / (2 s^2) + 1/2 log(2 pi s^2 / N_v)
+                   + (N - N_v) * c_miss ],   c_miss = -1/2 log(2 pi (v_map + s^2)) - 1/2
+
+* ``N_v`` samples fall on valid map cells; a sample without a map depth (off the map, over a hole)
+  is not dropped but scored with the map's own depth distribution (variance ``v_map`` over the
+  search region): it carries no position information, but an offset cannot win by leaving the
+  map's difficult parts (without this a track 30 % off the map is "fixed" elsewhere on the map).
+* ``s^2`` is estimated from the data: the residual at the maximum-a-posteriori pose,
+  ``s^2 = N_v MSD_b / (N_v - 5)`` (five fitted parameters: x, y, heading, scale, bias), floored by the
+  DTM's ``uncertainty_m`` layer (mean square along the matched track) when it exists, and by a tiny
+  numeric floor.
+* ``gamma = N_eff / N_v``: the residuals along a track are correlated (map interpolation error and
+  dead-reckoning drift vary smoothly), so ``N_v`` samples do not carry ``N_v`` independent pieces of
+  information. ``N_eff = N_v (1 - rho) / (1 + rho)`` from the lag-1 autocorrelation ``rho`` of the
+  residuals at the MAP pose (an AR(1) equivalent sample size; ``rho <= 0``: ``N_eff = N_v``).
+
+**Coarse posterior (whole map).** The MSD of every start cell for every (heading, scale) pose comes
+from the FFT route of ``tercom.py`` [TERCOM Eq. 17] (nearest-cell sampling); the posterior over start
+cells is the likelihood marginalised over the poses (uniform prior on the searched grid). Its modes
+(local maxima) are ranked by the mass within ``mode_radius_cells`` of them.
+
+**Fine posterior (sub-cell, point-mass grid).** Around the main mode and the ``n_alt_modes`` next
+modes the same likelihood is evaluated with the map sampled **bilinearly** at the un-snapped track
+positions, on a grid of start offsets (``fine_step_cells``) x the poses that are plausible there.
+All windows use one ``s^2`` and one ``gamma`` (estimated at the fine MAP): seeds are compared under
+the same likelihood, by posterior mass, not by their lowest MSD. The windows' share of the coarse
+mass is redistributed among them by their fine mass; the mass outside them keeps the coarse values.
+The MAP is the fine grid's best point; a Nelder-Mead polish of it is kept only when it raises the
+same log-likelihood (so refinement never makes the posterior worse; the coarse cell centre and pose
+are on the fine grid, hence the fine MAP is never worse than the coarse fix).
+
+**Reported.** The MAP fix (start, heading, scale, bias), the posterior second moment about it
+(covariance ``C``; ``sigma_x_m``/``sigma_y_m``; radial DRMS ``sqrt(tr C)``, which a calibrated 2-D
+Gaussian error stays within 63 % of the time and within twice 98 %), the 1-sigma and 2-sigma ellipses
+(eigen-decomposition of ``C``; 39 % / 86 % content for a Gaussian), the posterior mass outside the
+main mode and the second mode. **Mismatch** (``mismatch=True`` and a reason in ``reasons``):
+
+* ``ambiguous``: more than ``max_mass_outside`` of the posterior outside the main mode;
+* ``short_track``: fewer than ``min_samples`` profile samples;
+* ``off_map``: fewer than ``min_valid_for_fix`` (50 %) of the samples on valid map cells at the fix
+  (between that and ``min_valid_at_fix``, 90 %, a warning only: missing samples are in the likelihood,
+  so a posterior that stays tight and unimodal on the rest is trusted);
+* ``no_terrain_information``: the map relief under the matched track (std) below
+  ``min_relief_to_noise`` x the noise ``s`` (a flat map).
+
+``mass_outside_main_mode`` is the posterior probability that the error exceeds ``mode_radius_cells``
+(3 cells); a broad posterior (weak terrain) and a competing mode both raise it. The DRMS is not used
+as a flag: a tiny mass far away inflates the second moment without making the fix wrong.
+"""
+
+from __future__ import annotations
+
+import warnings as _warnings
+from collections.abc import Sequence
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+from scipy import ndimage
+
+from hadal.errors import InputError
+from hadal.matching.mapgrid import MapGrid
+from hadal.matching.tercom import (
+    TercomResult,
+    _FFTCorrelator,
+    _rotate,
+    _snap,
+    _sums_all_offsets,
+    _validate_inputs,
+)
+
+N_PARAMS = 5  # x, y, heading, scale, bias
+GAUSS_1SIGMA_CONTENT = 1 - np.exp(-0.5)  # 2-D Gaussian mass inside the 1-sigma ellipse
+GAUSS_2SIGMA_CONTENT = 1 - np.exp(-2.0)
+
+
+@dataclass
+class PosteriorFix:
+    """Posterior of the track start (module docstring). Positions are map metres (x east, y north)."""
+
+    start_x_m: float
+    start_y_m: float
+    heading_deg: float
+    scale: float
+    bias_m: float
+    mean_x_m: float
+    mean_y_m: float
+    cov_m2: np.ndarray
+    mass_outside_main_mode: float
+    mode_radius_m: float
+    second_mode: dict | None
+    noise_sigma_m: float
+    map_sigma_m: float
+    n_eff: float
+    n_samples: int
+    n_valid: int
+    relief_to_noise: float
+    mismatch: bool
+    reasons: list[str]
+    warnings: list[str]
+    track_start_xy: tuple[float, float]
+    posterior_cells: np.ndarray  # marginal posterior over start cells (map grid), sums to 1
+    x_m: np.ndarray
+    y_m: np.ndarray
+    refinement: dict = field(default_factory=dict)
+    modes: list[dict] = field(default_factory=list)
+
+    @property
+    def sigma_x_m(self) -> float:
+        return float(np.sqrt(self.cov_m2[0, 0]))
+
+    @property
+    def sigma_y_m(self) -> float:
+        return float(np.sqrt(self.cov_m2[1, 1]))
+
+    @property
+    def sigma_m(self) -> float:
+        """Radial DRMS, ``sqrt(trace C)``."""
+        return float(np.sqrt(np.trace(self.cov_m2)))
+
+    @property
+    def valid_fraction(self) -> float:
+        return self.n_valid / self.n_samples if self.n_samples else 0.0
+
+    def ellipse(self, k: float = 1.0) -> dict:
+        """``k``-sigma ellipse of ``cov_m2``: semi-axes (m) and the major axis azimuth (deg clockwise from north)."""
+        w, v = np.linalg.eigh(self.cov_m2)
+        w = np.maximum(w, 0.0)
+        major = v[:, 1]
+        az = float(np.degrees(np.arctan2(major[0], major[1])) % 180.0)
+        content = float(1 - np.exp(-0.5 * k * k))
+        return {"semi_major_m": float(k * np.sqrt(w[1])), "semi_minor_m": float(k * np.sqrt(w[0])),
+                "azimuth_deg": az, "gaussian_content": content}
+
+    def mahalanobis(self, x_m: float, y_m: float) -> float:
+        e = np.array([x_m - self.start_x_m, y_m - self.start_y_m])
+        try:
+            return float(np.sqrt(e @ np.linalg.solve(self.cov_m2, e)))
+        except np.linalg.LinAlgError:
+            return float("inf")
+
+    def apply(self, track_xy) -> np.ndarray:
+        """Map positions of track points given in the input track's frame (as :meth:`TercomResult.apply`)."""
+        p = np.asarray(track_xy, float).reshape(-1, 2) - np.asarray(self.track_start_xy)
+        return _rotate(p, self.heading_deg) * self.scale + np.array([self.start_x_m, self.start_y_m])
+
+    def summary(self) -> dict:
+        """The ``posterior`` section of ``fix.json`` (JSON-ready, NaN left to ``json_clean``)."""
+        return {
+            "method": "point-mass posterior over start x/y x heading x scale (bias marginalised) from the MSD "
+                      "likelihood [TERCOM Eq. 17]; noise variance and effective sample size estimated from the residuals",
+            "map_fix": {"x_east_m": self.start_x_m, "y_north_m": self.start_y_m, "heading_error_deg": self.heading_deg,
+                        "track_scale": self.scale, "bias_m": self.bias_m},
+            "mean": {"x_east_m": self.mean_x_m, "y_north_m": self.mean_y_m},
+            "covariance_m2": [[float(self.cov_m2[0, 0]), float(self.cov_m2[0, 1])],
+                              [float(self.cov_m2[1, 0]), float(self.cov_m2[1, 1])]],
+            "covariance_comment": "second moment of the posterior about the MAP fix, east/north",
+            "drms_m": self.sigma_m,
+            "ellipse_1sigma": self.ellipse(1.0),
+            "ellipse_2sigma": self.ellipse(2.0),
+            "mass_outside_main_mode": self.mass_outside_main_mode,
+            "main_mode_radius_m": self.mode_radius_m,
+            "second_mode": self.second_mode,
+            "modes": self.modes,
+            "noise_sigma_m": self.noise_sigma_m,
+            "map_sigma_m": self.map_sigma_m,
+            "n_eff": self.n_eff,
+            "n_samples": self.n_samples,
+            "n_valid": self.n_valid,
+            "valid_fraction": self.valid_fraction,
+            "relief_to_noise": self.relief_to_noise,
+            "mismatch": self.mismatch,
+            "mismatch_reasons": list(self.reasons),
+            "refinement": self.refinement,
+        }
+
+    def to_tercom_result(self, coarse: TercomResult) -> TercomResult:
+        """``coarse`` (the paper's search, its surfaces) with the pose, sigma, mismatch and warnings of the posterior."""
+        g_rows = int(np.clip(np.rint((self.start_y_m - self.y_m[0]) / (self.x_m[1] - self.x_m[0])), 0, self.y_m.size - 1))
+        g_cols = int(np.clip(np.rint((self.start_x_m - self.x_m[0]) / (self.x_m[1] - self.x_m[0])), 0, self.x_m.size - 1))
+        sm = self.second_mode or {}
+        keep = [w for w in coarse.warnings if "possible mismatch" not in w and "fall on invalid map cells" not in w]
+        return replace(
+            coarse, start_x_m=self.start_x_m, start_y_m=self.start_y_m, start_row=g_rows, start_col=g_cols,
+            heading_deg=self.heading_deg, scale=self.scale, bias_m=self.bias_m, n_valid=self.n_valid,
+            sigma_x_m=self.sigma_x_m, sigma_y_m=self.sigma_y_m, mismatch=self.mismatch,
+            second_x_m=float(sm.get("x_east_m", np.nan)), second_y_m=float(sm.get("y_north_m", np.nan)),
+            warnings=keep + list(self.warnings),
+            refinement={"posterior": True, **self.refinement,
+                        "coarse": {"x_east_m": coarse.start_x_m, "y_north_m": coarse.start_y_m,
+                                   "heading_deg": coarse.heading_deg, "scale": coarse.scale, "score": coarse.score,
+                                   "separation_ratio": coarse.separation_ratio,
+                                   "comment": "the paper's cell-resolution TERCOM (MSD) search"}},
+        )
+
+
+# ------------------------------------------------------------------ likelihood helpers
+def _loglik(msd, n_valid, n_total: int, s2: float, v_map: float, gamma: float):
+    """Tempered log-likelihood of offsets from their bias-free MSD (module docstring)."""
+    with np.errstate(invalid="ignore", divide="ignore"):
+        nv = np.maximum(n_valid, 1.0)
+        ll = (-0.5 * nv * np.log(2 * np.pi * s2) - nv * msd / (2 * s2) + 0.5 * np.log(2 * np.pi * s2 / nv)
+              + (n_total - n_valid) * (-0.5 * np.log(2 * np.pi * (v_map + s2)) - 0.5))
+    ll = gamma * ll
+    return np.where(np.isfinite(ll), ll, -np.inf)
+
+
+def _n_eff(res: np.ndarray) -> float:
+    """AR(1) effective sample size of a residual sequence (NaNs dropped)."""
+    r = res[np.isfinite(res)]
+    n = r.size
+    if n < 4:
+        return float(max(n, 1))
+    r = r - r.mean()
+    den = float(r @ r)
+    if den <= 0:
+        return float(n)
+    rho = float(r[1:] @ r[:-1]) / den
+    rho = min(max(rho, 0.0), 0.95)
+    return float(max(n * (1 - rho) / (1 + rho), 2.0))
+
+
+def _s2_from(msd: float, nv: float, floor2: float) -> float:
+    dof = max(nv - N_PARAMS, 1.0)
+    return float(max(msd * nv / dof, floor2))
+
+
+def _bilinear_residuals(g: MapGrid, d: np.ndarray, rel: np.ndarray, pose, offsets_xy: np.ndarray) -> np.ndarray:
+    """(M, N) map depth minus measured depth with the start at each of ``offsets_xy`` (M, 2), NaN where no map."""
+    a, f = pose
+    q = _rotate(rel, a) * f
+    return g.sample_bilinear(offsets_xy[:, :1] + q[None, :, 0], offsets_xy[:, 1:2] + q[None, :, 1]) - d[None, :]
+
+
+def _msd_b(res: np.ndarray):
+    """Bias-free MSD, valid count and bias per row of a residual matrix (NaN = missing)."""
+    ok = np.isfinite(res)
+    nv = ok.sum(axis=-1).astype(float)
+    r = np.where(ok, res, 0.0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        b = r.sum(axis=-1) / nv
+        msd = np.maximum((r * r).sum(axis=-1) / nv - b * b, 0.0)
+    return np.where(nv > 0, msd, np.nan), nv, b
+
+
+# ------------------------------------------------------------------ main entry
+def posterior_fix(
+    profile_depth,
+    track_xy,
+    dtm,
+    *,
+    headings_deg: Sequence[float] = (0.0,),
+    scales: Sequence[float] = (1.0,),
+    region: tuple[float, float, float, float] | None = None,
+    uncertainty=None,
+    min_valid_fraction: float = 0.3,
+    mode_radius_cells: float = 3.0,
+    fine_step_cells: float = 0.25,
+    n_alt_modes: int = 3,
+    max_mass_outside: float = 0.05,
+    min_samples: int = 10,
+    min_valid_at_fix: float = 0.9,
+    min_relief_to_noise: float = 1.0,
+    min_valid_for_fix: float = 0.5,
+    polish: bool = True,
+) -> PosteriorFix:
+    """Posterior fix of a measured depth profile on a map (module docstring).
+
+    Parameters
+    ----------
+    profile_depth : measured seafloor depths ``d_M`` (m, positive down), (N,).
+    track_xy : (N, 2) dead-reckoned x_east_m, y_north_m of the samples (any origin; matched relative to the first).
+    dtm : reference map (``dtm`` Dataset with ``depth_m``, DataArray or :class:`MapGrid`). When a Dataset
+        carries ``uncertainty_m`` it is used as the map error unless ``uncertainty`` is given.
+    headings_deg, scales : the pose grid (heading errors in degrees clockwise; along-track scale factors).
+    region : ``(x_min, x_max, y_min, y_max)`` map metres restricting the start position.
+    uncertainty : per-cell map standard uncertainty (m) on the map grid (array, DataArray or MapGrid).
+    min_valid_fraction : offsets with fewer valid samples are impossible (prior zero).
+    """
+    d, t = _validate_inputs(profile_depth, track_xy)
+    import xarray as xr
+
+    if uncertainty is None and isinstance(dtm, xr.Dataset) and "uncertainty_m" in dtm:
+        uncertainty = np.asarray(dtm["uncertainty_m"].transpose("y", "x").values, float)
+    g = MapGrid.from_any(dtm)
+    h = g.resolution_m
+    ny, nx = g.shape
+    N = d.size
+    headings = [float(a) for a in headings_deg] or [0.0]
+    scale_list = [float(f) for f in scales] or [1.0]
+    if min(scale_list) <= 0:
+        raise InputError(f"track scale factors must be > 0, got {scale_list}")
+    poses = [(a, f) for a in headings for f in scale_list]
+    unc = None
+    if uncertainty is not None:
+        unc = uncertainty.depth_m if isinstance(uncertainty, MapGrid) else np.asarray(
+            getattr(uncertainty, "values", uncertainty), float)
+        if unc.shape != g.shape:
+            raise InputError(f"uncertainty layer shape {unc.shape} does not match the map {g.shape}")
+        unc = MapGrid(np.where(np.isfinite(unc), unc, np.nan), g.x_m, g.y_m, h)
+
+    V = np.isfinite(g.depth_m)
+    ref = float(np.nanmean(g.depth_m))
+    D = np.where(V, g.depth_m - ref, 0.0)
+    dc = d - ref
+    rel = t - t[0]
+
+    if region is not None:
+        x0, x1, y0, y1 = region
+        c0 = int(np.clip(np.ceil(g.col_of(x0) - 1e-9), 0, nx))
+        c1 = int(np.clip(np.floor(g.col_of(x1) + 1e-9) + 1, 0, nx))
+        r0 = int(np.clip(np.ceil(g.row_of(y0) - 1e-9), 0, ny))
+        r1 = int(np.clip(np.floor(g.row_of(y1) + 1e-9) + 1, 0, ny))
+        if r1 <= r0 or c1 <= c0:
+            raise InputError(f"matching region {region} does not overlap the map")
+    else:
+        r0, r1, c0, c1 = 0, ny, 0, nx
+    in_region = np.zeros((ny, nx), bool)
+    in_region[r0:r1, c0:c1] = True
+    zr = g.depth_m[r0:r1, c0:c1]
+    v_map = float(np.nanvar(zr)) if np.isfinite(zr).sum() > 1 else 0.0
+    n_req = max(int(np.ceil(min_valid_fraction * N - 1e-9)), 1)
+
+    # ---- coarse surfaces [TERCOM Eq. 17] for every pose (FFT route, nearest-cell sampling)
+    snapped = [_snap(_rotate(rel, a) * f, h) for a, f in poses]
+    rmin = min(int(r.min()) for r, _ in snapped)
+    rmax = max(int(r.max()) for r, _ in snapped)
+    cmin = min(int(c.min()) for _, c in snapped)
+    cmax = max(int(c.max()) for _, c in snapped)
+    corr = _FFTCorrelator({"V": V.astype(float), "D": D, "D2": D * D},
+                          (max(0, -rmin), max(0, -cmin)), (max(0, rmax), max(0, cmax)))
+    P = len(poses)
+    msd_all = np.full((P, ny, nx), np.nan, np.float32)
+    n_all = np.zeros((P, ny, nx), np.float32)
+    for k, (rows, cols) in enumerate(snapped):
+        n, s_r, s_r2, _ = _sums_all_offsets(corr, rows, cols, dc, False)
+        feas = (n >= n_req) & in_region
+        with np.errstate(invalid="ignore", divide="ignore"):
+            nn = np.where(feas, n, np.nan)
+            b = s_r / nn
+            msd = np.maximum(s_r2 / nn - b * b, 0.0)
+        msd_all[k] = msd
+        n_all[k] = np.where(feas, n, 0)
+    if not np.isfinite(msd_all).any():
+        raise InputError(f"no feasible offset: the {N}-sample track does not fit on valid cells of the {ny} x {nx} "
+                         f"map with min_valid_fraction={min_valid_fraction}")
+
+    # numeric floor of the noise: tiny against the profile's spread (a flat, noise-free map stays flat)
+    floor2 = max((1e-3 * float(np.std(d))) ** 2, 1e-6)
+
+    def map_sigma2_at(xy) -> float:
+        if unc is None:
+            return 0.0
+        u = unc.sample_bilinear(xy[:, 0], xy[:, 1])
+        u = u[np.isfinite(u)]
+        return float(np.mean(u * u)) if u.size else 0.0
+
+    # ---- noise variance and effective sample size at the coarse MAP (two passes)
+    full = n_all >= 0.9 * N
+    cand = np.where(full & np.isfinite(msd_all), msd_all, np.inf)
+    k0 = int(np.argmin(cand)) if np.isfinite(cand).any() else int(np.nanargmin(np.where(n_all > 0, msd_all, np.inf)))
+    kp, rc0 = divmod(k0, ny * nx)
+    s2 = _s2_from(float(msd_all.flat[k0]), float(n_all.flat[k0]), floor2)
+    gamma = 1.0
+
+    def coarse_post(s2_, gamma_):
+        ll = _loglik(msd_all, n_all, N, s2_, v_map, gamma_)
+        m = ll.max()
+        w = np.exp(ll - m)
+        pc = w.sum(axis=0)
+        return ll, pc / pc.sum()
+
+    def coarse_residuals(k, r, c):
+        rows, cols = snapped[k]
+        rr, cc = rows + r, cols + c
+        out = np.full(N, np.nan)
+        ins = (rr >= 0) & (rr < ny) & (cc >= 0) & (cc < nx)
+        out[ins] = g.depth_m[rr[ins], cc[ins]] - d[ins]
+        return out
+
+    for _ in range(2):
+        ll, pc = coarse_post(s2, gamma)
+        kbest = int(np.argmax(ll))
+        kp, rc = divmod(kbest, ny * nx)
+        r_, c_ = divmod(rc, nx)
+        res_c = coarse_residuals(kp, r_, c_)
+        gamma = _n_eff(res_c) / max(np.isfinite(res_c).sum(), 1)
+        s2 = _s2_from(float(msd_all[kp, r_, c_]), float(n_all[kp, r_, c_]), floor2)
+    ll, pc = coarse_post(s2, gamma)
+
+    # ---- coarse modes ranked by mass within the mode radius
+    R = float(mode_radius_cells)
+    Ri = int(np.ceil(R))
+    yy, xx = np.mgrid[-Ri : Ri + 1, -Ri : Ri + 1]
+    disk = (xx * xx + yy * yy) <= R * R + 1e-9
+    mass_r = ndimage.convolve(pc, disk.astype(float), mode="constant", cval=0.0)
+    peaks = (pc == ndimage.maximum_filter(pc, size=3, mode="constant", cval=0.0)) & (pc > 0)
+    pf = np.flatnonzero(peaks)
+    pf = pf[np.argsort(-mass_r.flat[pf], kind="stable")]
+    centres: list[tuple[int, int]] = []
+    for f in pf:
+        r_, c_ = divmod(int(f), nx)
+        if all((r_ - a) ** 2 + (c_ - b) ** 2 > (2 * R) ** 2 for a, b in centres):
+            centres.append((r_, c_))
+        if len(centres) >= 1 + n_alt_modes:
+            break
+    centres = [centres[0]] + [cc for cc in centres[1:] if mass_r[cc] > 1e-4]
+
+    # ---- fine windows (bilinear likelihood on a sub-cell grid of start offsets x plausible poses)
+    step = fine_step_cells * h
+    nh = int(np.ceil(R / fine_step_cells))
+    grid1 = np.arange(-nh, nh + 1) * step
+    oxy = np.array(np.meshgrid(grid1, grid1)).reshape(2, -1).T  # (M, 2) offsets about the window centre
+    win_mask = np.zeros((ny, nx), bool)
+    windows = []
+    for (rw, cw) in centres:
+        llw = ll[:, max(rw - Ri, 0) : rw + Ri + 1, max(cw - Ri, 0) : cw + Ri + 1].reshape(P, -1).max(axis=1)
+        pk = [k for k in range(P) if llw[k] > llw.max() - 12.0]
+        xc, yc = float(g.x_m[cw]), float(g.y_m[rw])
+        offs = oxy + np.array([xc, yc])
+        inr = ((offs[:, 0] >= g.x_m[c0] - 1e-6) & (offs[:, 0] <= g.x_m[c1 - 1] + 1e-6)
+               & (offs[:, 1] >= g.y_m[r0] - 1e-6) & (offs[:, 1] <= g.y_m[r1 - 1] + 1e-6))
+        msd_w = np.full((len(pk), len(offs)), np.nan)
+        nv_w = np.zeros((len(pk), len(offs)))
+        b_w = np.zeros((len(pk), len(offs)))
+        for j, k in enumerate(pk):
+            m, nv, b = _msd_b(_bilinear_residuals(g, d, rel, poses[k], offs))
+            ok = (nv >= n_req) & inr
+            msd_w[j] = np.where(ok, m, np.nan)
+            nv_w[j] = np.where(ok, nv, 0)
+            b_w[j] = b
+        windows.append({"rc": (rw, cw), "poses": pk, "offs": offs, "msd": msd_w, "nv": nv_w, "bias": b_w})
+        dd = (np.arange(ny)[:, None] - rw) ** 2 + (np.arange(nx)[None, :] - cw) ** 2
+        win_mask |= dd <= R * R + 1e-9
+
+    # fine s^2, gamma at the fine MAP of the main window (two passes)
+    w0 = windows[0]
+
+    def fine_ll(w, s2_, gamma_):
+        return _loglik(w["msd"], w["nv"], N, s2_, v_map, gamma_)
+
+    fl = w0["msd"]
+    fin = np.isfinite(fl) & (w0["nv"] >= 0.9 * N)
+    if not fin.any():
+        fin = np.isfinite(fl)
+    if not fin.any():  # no feasible fine point (bilinear needs both neighbours): fall back to the coarse likelihood
+        s2f, gammaf = s2, gamma
+    else:
+        jj = int(np.argmin(np.where(fin, fl, np.inf)))
+        s2f = _s2_from(float(fl.flat[jj]), float(w0["nv"].flat[jj]), floor2)
+        gammaf = gamma
+        for _ in range(2):
+            llf = fine_ll(w0, s2f, gammaf)
+            jj = int(np.argmax(llf))
+            j, mo = divmod(jj, llf.shape[1])
+            res_f = _bilinear_residuals(g, d, rel, poses[w0["poses"][j]], w0["offs"][mo : mo + 1])[0]
+            gammaf = _n_eff(res_f) / max(np.isfinite(res_f).sum(), 1)
+            xy_fix = _rotate(rel, poses[w0["poses"][j]][0]) * poses[w0["poses"][j]][1] + w0["offs"][mo]
+            s2f = max(_s2_from(float(fl.flat[jj]), float(w0["nv"].flat[jj]), floor2), map_sigma2_at(xy_fix) + floor2)
+
+    # window masses under the same fine likelihood
+    lls = [fine_ll(w, s2f, gammaf) for w in windows]
+    top = max(float(x.max()) for x in lls)
+    cell_frac = (step / h) ** 2
+    F = np.array([float(np.exp(x - top).sum()) * cell_frac for x in lls])
+    MW = float(pc[win_mask].sum())
+    if F.sum() > 0:
+        mw = MW * F / F.sum()
+    else:
+        mw = np.array([float(mass_r[w["rc"]]) for w in windows])
+    out_mask = ~win_mask
+    m_out_coarse = float(pc[out_mask].sum())
+    best_w = int(np.argmax(mw))
+    wb, llb = windows[best_w], lls[best_w]
+    jj = int(np.argmax(llb))
+    j, mo = divmod(jj, llb.shape[1])
+    k_map = wb["poses"][j]
+    a_map, f_map = poses[k_map]
+    x_map, y_map = (float(v) for v in wb["offs"][mo])
+    ll_grid = float(llb.flat[jj])
+
+    # coarse fix (cell centre, coarse pose) under the same fine likelihood: for the record
+    rc_c = windows[0]["rc"]
+    centre_idx = (len(grid1) * len(grid1)) // 2
+    kc = int(np.argmax(ll[:, rc_c[0], rc_c[1]]))
+    ll_coarse_pt = float(lls[0][windows[0]["poses"].index(kc), centre_idx]) if kc in windows[0]["poses"] else float("-inf")
+
+    # ---- Nelder-Mead polish under the same likelihood; kept only if better
+    polished = False
+    if polish and np.isfinite(ll_grid):
+        from scipy.optimize import minimize
+
+        ha = (min(headings), max(headings))
+        fa = (min(scale_list), max(scale_list))
+        xc, yc = float(g.x_m[wb["rc"][1]]), float(g.y_m[wb["rc"][0]])
+
+        def neg(p):
+            x0_, y0_, a_, f_ = p
+            if not (ha[0] <= a_ <= ha[1] and fa[0] <= f_ <= fa[1] and abs(x0_ - xc) <= R * h and abs(y0_ - yc) <= R * h):
+                return np.inf
+            m, nv, _ = _msd_b(_bilinear_residuals(g, d, rel, (a_, f_), np.array([[x0_, y0_]])))
+            if nv[0] < n_req:
+                return np.inf
+            return -float(_loglik(m, nv, N, s2f, v_map, gammaf)[0])
+
+        x0v = np.array([x_map, y_map, a_map, f_map])
+        da_ = max((ha[1] - ha[0]) / max(len(headings) - 1, 1), 0.1) if ha[1] > ha[0] else 0.0
+        df_ = max((fa[1] - fa[0]) / max(len(scale_list) - 1, 1), 0.002) if fa[1] > fa[0] else 0.0
+        simplex = [x0v.copy()]
+        for i, st in enumerate((step, step, da_ / 2, df_ / 2)):
+            v = x0v.copy()
+            v[i] += st if st > 0 else 0.0
+            if i >= 2 and st > 0 and not (ha if i == 2 else fa)[0] <= v[i] <= (ha if i == 2 else fa)[1]:
+                v[i] = x0v[i] - st
+            simplex.append(v)
+        free = [0, 1] + ([2] if da_ > 0 else []) + ([3] if df_ > 0 else [])
+        sim = np.array(simplex)[[0] + [i + 1 for i in free]][:, free]
+
+        def negf(v):
+            p = x0v.copy()
+            p[free] = v
+            return neg(p)
+
+        with _warnings.catch_warnings(), np.errstate(all="ignore"):
+            _warnings.simplefilter("ignore")
+            o = minimize(negf, x0v[free], method="Nelder-Mead",
+                         options={"initial_simplex": sim, "xatol": 0.02 * h, "fatol": 1e-3, "maxiter": 400})
+        if np.isfinite(o.fun) and -o.fun > ll_grid + 1e-9:
+            p = x0v.copy()
+            p[free] = o.x
+            x_map, y_map, a_map, f_map = (float(v) for v in p)
+            polished = True
+    ll_map = float(-neg(np.array([x_map, y_map, a_map, f_map]))) if polish else ll_grid
+    res_map = _bilinear_residuals(g, d, rel, (a_map, f_map), np.array([[x_map, y_map]]))[0]
+    if not np.isfinite(res_map).any():  # bilinear undefined at the fix (holes): use the coarse residuals
+        res_map = coarse_residuals(kp, *divmod(rc, nx))
+    okm = np.isfinite(res_map)
+    n_valid = int(okm.sum())
+    bias = float(np.mean(res_map[okm])) if n_valid else float("nan")
+
+    # ---- posterior moments about the MAP: fine windows (mixture) + coarse cells outside the windows
+    xhat = np.array([x_map, y_map])
+    S = np.zeros((2, 2))
+    mean = np.zeros(2)
+    modes = []
+    for w, x_ll, m_w in zip(windows, lls, mw, strict=True):
+        pw = np.exp(x_ll - x_ll.max()).sum(axis=0)
+        pw = pw / pw.sum() if pw.sum() > 0 else np.full(pw.size, 1.0 / pw.size)
+        e = w["offs"] - xhat
+        mu = (pw[:, None] * w["offs"]).sum(axis=0)
+        S += m_w * ((pw[:, None, None] * e[:, :, None] * e[:, None, :]).sum(axis=0) + np.eye(2) * step * step / 12)
+        mean += m_w * mu
+        modes.append({"x_east_m": float(mu[0]), "y_north_m": float(mu[1]), "mass": float(m_w)})
+    if m_out_coarse > 0:
+        rr, cc = np.nonzero(out_mask & (pc > 0))
+        pw = pc[rr, cc]
+        ex, ey = g.x_m[cc] - xhat[0], g.y_m[rr] - xhat[1]
+        S += np.array([[np.sum(pw * ex * ex), np.sum(pw * ex * ey)], [np.sum(pw * ex * ey), np.sum(pw * ey * ey)]])
+        S += m_out_coarse * np.eye(2) * h * h / 12
+        mean += np.array([np.sum(pw * g.x_m[cc]), np.sum(pw * g.y_m[rr])])
+    tot = float(mw.sum() + m_out_coarse)
+    S /= tot
+    mean /= tot
+    mass_out = float(1.0 - mw[best_w] / tot)
+    others = [m for i, m in enumerate(modes) if i != best_w]
+    # best coarse mode outside all windows
+    if m_out_coarse > 0:
+        mo_ = np.where(out_mask, mass_r, 0.0)
+        f2 = int(np.argmax(mo_))
+        r2, c2 = divmod(f2, nx)
+        others.append({"x_east_m": float(g.x_m[c2]), "y_north_m": float(g.y_m[r2]), "mass": float(mo_[r2, c2] / tot)})
+    second = max(others, key=lambda m: m["mass"]) if others else None
+    if second is not None:
+        second = {**second, "distance_m": float(np.hypot(second["x_east_m"] - x_map, second["y_north_m"] - y_map))}
+
+    # ---- terrain information and flags
+    s_f = float(np.sqrt(s2f))
+    xy_fix = _rotate(rel, a_map) * f_map + xhat
+    zf = g.sample_bilinear(xy_fix[:, 0], xy_fix[:, 1])
+    zf = zf[np.isfinite(zf)]
+    relief = float(np.std(zf)) if zf.size > 1 else 0.0
+    r2n = relief / s_f if s_f > 0 else float("inf")
+    reasons: list[str] = []
+    warns: list[str] = []
+    if N < min_samples:
+        reasons.append("short_track")
+        warns.append(f"possible mismatch: the profile has {N} samples (< {min_samples}); too short to fix the track uniquely")
+    vf = n_valid / N
+    if vf < min_valid_for_fix:
+        reasons.append("off_map")
+        warns.append(f"possible mismatch: {N - n_valid} of {N} samples ({100 * (1 - vf):.0f} %) have no map depth at the fix "
+                     "(track off the map or over holes): too little terrain information")
+    elif vf < min_valid_at_fix:
+        warns.append(f"{N - n_valid} of {N} samples ({100 * (1 - vf):.0f} %) have no map depth at the fix (track partly off "
+                     "the map or over holes); the posterior rests on the others")
+    if r2n < min_relief_to_noise:
+        reasons.append("no_terrain_information")
+        warns.append(f"possible mismatch: map relief under the track (std {relief:.3g} m) is only {r2n:.2g} x the "
+                     f"profile noise ({s_f:.3g} m): too little terrain information (flat map)")
+    if mass_out > max_mass_outside:
+        broad = second is None or second["mass"] < 0.5 * mass_out
+        reasons.append("ambiguous")
+        where = (f"; the next mode at ({second['x_east_m']:.0f}, {second['y_north_m']:.0f}) m holds {100 * second['mass']:.1f} %"
+                 if second else "")
+        what = "the posterior is spread over the map (too little terrain information)" if broad else "a second mode competes"
+        warns.append(f"possible mismatch: {100 * mass_out:.1f} % of the posterior mass lies more than "
+                     f"{mode_radius_cells:g} cells from the fix: {what}{where}")
+    if best_w != 0:
+        warns.append("the fine (bilinear) likelihood preferred a different coarse mode than the cell-resolution search")
+    refinement = {
+        "method": "point-mass grid (bilinear map, sub-cell step) + Nelder-Mead polish under the same likelihood",
+        "fine_step_m": step, "windows": len(windows), "winning_window": best_w,
+        "loglik_coarse_fix": ll_coarse_pt, "loglik_grid_map": ll_grid, "loglik_map": ll_map, "polished": polished,
+        "coarse_cell": {"x_east_m": float(g.x_m[rc_c[1]]), "y_north_m": float(g.y_m[rc_c[0]]),
+                        "heading_error_deg": poses[kc][0], "track_scale": poses[kc][1]},
+        "noise_sigma_coarse_m": float(np.sqrt(s2)), "tempering": float(gammaf),
+    }
+    return PosteriorFix(
+        start_x_m=x_map, start_y_m=y_map, heading_deg=a_map, scale=f_map, bias_m=bias,
+        mean_x_m=float(mean[0]), mean_y_m=float(mean[1]), cov_m2=S, mass_outside_main_mode=mass_out,
+        mode_radius_m=R * h, second_mode=second, noise_sigma_m=s_f,
+        map_sigma_m=float(np.sqrt(map_sigma2_at(xy_fix))), n_eff=float(gammaf * max(n_valid, 1)),
+        n_samples=N, n_valid=n_valid, relief_to_noise=r2n, mismatch=bool(reasons), reasons=reasons, warnings=warns,
+        track_start_xy=(float(t[0, 0]), float(t[0, 1])), posterior_cells=pc.astype(np.float32), x_m=g.x_m, y_m=g.y_m,
+        refinement=refinement, modes=modes,
+    )

@@ -1,0 +1,94 @@
+"""`hadal inspect`, `hadal init`, `hadal config --check DIR`, `hadal schema` as a user runs them (subprocesses),
+and `hadal init DIR && hadal run DIR` on a compressed real cast through the Prefect flow."""
+
+from __future__ import annotations
+
+import gzip
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+import yaml
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def hadal(*args: str, cwd: Path | None = None, timeout: int = 300) -> subprocess.CompletedProcess:
+    env = {**os.environ, "HADAL_PROGRESS": "none", "PREFECT_SERVER_ANALYTICS_ENABLED": "false"}
+    return subprocess.run([sys.executable, "-m", "hadal.cli", *args], capture_output=True, text=True, env=env,
+                          cwd=cwd, timeout=timeout)
+
+
+def _no_traceback(res: subprocess.CompletedProcess) -> None:
+    assert "Traceback" not in res.stderr + res.stdout, res.stderr[-2000:]
+
+
+def test_inspect_json_and_exit_codes(tmp_path):
+    good = tmp_path / "soundings.dat"
+    good.write_text("142.1 11.2 8123.5\n142.2 11.3 8124.0\n142.3 11.3 8125.5\n")
+    res = hadal("inspect", "--json", str(good), str(tmp_path / "missing.bin"))
+    _no_traceback(res)
+    assert res.returncode == 2  # one file could not be read
+    info = json.loads(res.stdout)
+    assert [i["kind"] for i in info] == ["xyz", "unreadable"]
+    assert info[0]["source"] == "multibeam" and "does not exist" in info[1]["error"]
+    res = hadal("inspect", str(good))
+    assert res.returncode == 0 and "xyz" in res.stdout
+
+
+def test_init_writes_validates_and_never_overwrites(tmp_path):
+    raw = tmp_path / "My Dive 3"
+    raw.mkdir()
+    (raw / "soundings.xyz").write_text("".join(f"{142 + i * 1e-3:.4f} {11 + j * 1e-3:.4f} {8000 + i + j}\n"
+                                               for i in range(20) for j in range(20)))
+    res = hadal("init", str(raw), "--dry-run")
+    _no_traceback(res)
+    assert res.returncode == 0 and not (raw / "dive.yaml").exists()
+    assert "dive_id: My-Dive-3" in res.stdout and "run   grid" in res.stderr
+    res = hadal("init", str(raw))
+    assert res.returncode == 0, res.stderr
+    d = yaml.safe_load((raw / "dive.yaml").read_text())
+    assert d["sources"] == {"multibeam": ["soundings.xyz"]}
+    assert d["map_frame"]["origin_latitude_deg"] == pytest.approx(11.0095, abs=1e-3)
+    again = hadal("init", str(raw))
+    assert again.returncode == 2 and "already exist" in again.stderr and len(again.stderr.strip().splitlines()) == 1
+    assert hadal("init", str(raw), "--force", "--dive-id", "d7").returncode == 0
+    assert yaml.safe_load((raw / "dive.yaml").read_text())["dive_id"] == "d7"
+    chk = hadal("config", "--check", str(raw))
+    assert chk.returncode == 0 and "run   grid" in chk.stdout and "skip  landing" in chk.stdout
+    bad = hadal("init", str(raw), "--force", "--launch", "95,10")
+    assert bad.returncode == 2 and "--launch" in bad.stderr
+
+
+def test_schema_command_and_field_reference_is_current():
+    res = hadal("schema", "dive")
+    s = json.loads(res.stdout)
+    assert {"dive_id", "launch", "sources"} <= set(s["properties"])
+    assert "SourceFile" in s["$defs"]
+    assert hadal("schema", "nonsense").returncode == 2
+    from hadal.schema_docs import render_doc
+
+    doc = (REPO / "docs" / "dive-directory.md").read_text()
+    assert render_doc(doc) == doc, "docs/dive-directory.md is stale: run python -m hadal.schema_docs"
+
+
+@pytest.mark.prefect
+def test_init_then_run_a_compressed_real_cast(shared_data, tmp_path):
+    """The acceptance path: `hadal init DIR && hadal run DIR`, generated yaml unedited, through Prefect."""
+    raw = tmp_path / "cast-dive"
+    raw.mkdir()
+    src = shared_data / "ctd-real" / "oceissues644_02dk.cnv"
+    (raw / "station12.dat").write_bytes(gzip.compress(src.read_bytes()))  # compressed, odd name
+    env_home = tmp_path / "prefect"
+    os.environ.setdefault("PREFECT_HOME", str(env_home))
+    assert hadal("init", str(raw)).returncode == 0
+    res = hadal("run", str(raw), "--store", str(tmp_path / "store"), timeout=600)
+    _no_traceback(res)
+    assert res.returncode == 0, res.stderr[-3000:]
+    listing = json.loads(hadal("products", "cast-dive", "--store", str(tmp_path / "store"), "--json").stdout)
+    assert {"sensors", "ctd", "profile", "report"} <= {r["product"] for r in listing}
+    summary = json.loads(next((tmp_path / "store" / "cast-dive" / "report").glob("v*/summary.json")).read_text())
+    assert {s["stage"] for s in summary["skipped_stages"]} == {"grid", "suitability", "match", "landing"}
