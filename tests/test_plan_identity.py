@@ -203,3 +203,22 @@ def test_fingerprint_changes_with_content(tmp_path):
     (a / "a.xyz").write_bytes(b"1 2 4\n")
     assert dive_fingerprint(d, a) != f1
     assert np.isscalar(len(f1)) and len(f1) == 64
+
+
+@pytest.mark.parametrize("make, match", [
+    (lambda d: (d / "a").symlink_to(d / "b") or (d / "b").symlink_to(d / "a"), "symbolic link loop"),
+    (lambda d: __import__("os").mkfifo(d / "a"), "not a regular file"),
+    (lambda d: (d / "a").mkdir(), "is a directory"),
+])
+def test_odd_source_files_are_one_line_errors_not_hangs(tmp_path, make, match):
+    """A source that is a symlink loop, a FIFO (reading it would block) or a directory: said as it is."""
+    from hadal.errors import InputError
+    from hadal.pipeline import make_context, run_stage
+
+    make(tmp_path)
+    (tmp_path / "dive.yaml").write_text(yaml.safe_dump({
+        "dive_id": "odd", "sources": {"multibeam": ["a"]},
+        "map_frame": {"origin_latitude_deg": 1.0, "origin_longitude_deg": 2.0}}))
+    with pytest.raises(InputError, match=match):
+        run_stage("grid", make_context(tmp_path, tmp_path / "store"))
+    assert not (tmp_path / "store").exists()

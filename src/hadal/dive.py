@@ -23,7 +23,7 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 
-from hadal.errors import ConfigError, InputError
+from hadal.errors import ConfigError, HadalError, InputError
 from hadal.geo import LocalFrame
 from hadal.store import validate_name
 
@@ -190,10 +190,26 @@ def load_dive(raw_dir: str | Path) -> tuple[Dive, Path]:
 
 def resolve_source(raw_dir: Path, rel: str | SourceFile) -> Path:
     """Resolve a source path (or :class:`SourceFile`) relative to the dive directory, refusing paths that escape it."""
+    import stat
+
     rel = rel.path if isinstance(rel, SourceFile) else rel
-    p = (raw_dir / rel).resolve()
+    try:
+        p = (raw_dir / rel).resolve()
+    except (RuntimeError, OSError) as exc:  # Python raises RuntimeError on a symbolic-link loop
+        raise InputError(f"{raw_dir / rel}: symbolic link loop or unresolvable path ({exc})") from None
     if raw_dir.resolve() not in p.parents and p != raw_dir.resolve():
         raise ConfigError(f"source path {rel!r} escapes the dive directory {raw_dir}")
+    try:
+        mode = p.stat().st_mode
+    except FileNotFoundError:
+        return p  # the caller says the listed file does not exist
+    except OSError as exc:
+        raise InputError(f"{p}: cannot be opened ({exc.strerror or exc})") from None
+    if stat.S_ISDIR(mode):
+        raise InputError(f"{p}: listed in dive.yaml as a source file, but it is a directory")
+    if not stat.S_ISREG(mode):  # reading a FIFO would block for ever
+        raise InputError(f"{p}: listed in dive.yaml as a source file, but it is not a regular file "
+                         "(a FIFO, socket or device)")
     return p
 
 
@@ -219,7 +235,7 @@ def dive_fingerprint(dive: Dive, raw_dir: Path) -> str:
                     if size > 2 << 20:
                         fh.seek(-(1 << 20), 2)
                         h.update(fh.read(1 << 20))
-            except (OSError, ConfigError):
+            except (OSError, HadalError):
                 h.update(b"missing")
     return h.hexdigest()
 

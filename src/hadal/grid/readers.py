@@ -835,7 +835,34 @@ def _read_old_gmt(p: Path, ds: xr.Dataset) -> xr.DataArray:
 
 
 # ------------------------------------------------------------------ GSF
-def read_gsf(path: str | Path, *, include_flagged: bool = False) -> pd.DataFrame:
+def read_gsf(path: str | Path, *, include_flagged: bool = False, isolate: bool = True) -> pd.DataFrame:
+    """Soundings of a GSF file as ``longitude_deg, latitude_deg, depth_m, ping`` (one row per beam).
+
+    libgsf is C code that can crash the process on a corrupt file (a fuzzed EX1604 file segfaults inside
+    ``gsfRead``), so by default it runs in a child process (``spawn``) and a crash becomes a one-line
+    :class:`InputError`; ``isolate=False`` reads in this process (:func:`_read_gsf_here`).
+    """
+    if not isolate:
+        return _read_gsf_here(path, include_flagged=include_flagged)
+    import concurrent.futures as cf
+    import multiprocessing as mp
+
+    p = _require_file(path, "GSF")
+    try:
+        with cf.ProcessPoolExecutor(max_workers=1, mp_context=mp.get_context("spawn")) as ex:
+            df, attrs = ex.submit(_read_gsf_child, str(p), include_flagged).result()
+    except cf.process.BrokenProcessPool:
+        raise InputError(f"{p}: the GSF library (libgsf) crashed reading this file: corrupt or truncated GSF") from None
+    df.attrs.update(attrs)
+    return df
+
+
+def _read_gsf_child(path: str, include_flagged: bool) -> tuple[pd.DataFrame, dict]:
+    df = _read_gsf_here(path, include_flagged=include_flagged)
+    return df, dict(df.attrs)
+
+
+def _read_gsf_here(path: str | Path, *, include_flagged: bool = False) -> pd.DataFrame:
     """Soundings of a GSF file as ``longitude_deg, latitude_deg, depth_m, ping`` (one row per beam).
 
     Uses UKHO's ``gsfpy`` (ctypes bindings of libgsf). Beam positions: the ping's position plus the
