@@ -586,36 +586,26 @@ _ROS_FIELD = re.compile(r"^\s*([A-Za-z0-9_/]+(?:\[[^\]]*\])?(?:<=\d+)?)\s+([A-Za
                                       r"(?:\s+[^#]*)?(?:#\s*(.*))?$")
 
 
+def _ros2msg_resolve(sections: dict[str, Any], t: str, pkg: str) -> str | None:
+    """The section name a field type ``t`` (of package ``pkg``) refers to: ``Foo``, ``pkg/Foo``, ``pkg/msg/Foo``."""
+    base = t.split("[", 1)[0].split("<=", 1)[0]
+    for cand in (base, base.replace("/", "/msg/", 1), f"{pkg}/{base}", f"{pkg}/msg/{base}"):
+        if cand in sections:
+            return cand
+    short = base.rsplit("/", 1)[-1]
+    for k in sections:
+        if k.rsplit("/", 1)[-1] == short and ("/" not in base or k.split("/")[0] == base.split("/")[0]):
+            return k
+    return None
+
+
 def _ros2msg_docs(schema_name: str, text: str) -> dict[str, str]:
     """Comments of the fields of a ``ros2msg`` definition (with its dependencies), by dotted field path:
     ``float64 pressure  # dbar`` -> ``{"pressure": "dbar"}``. Constants (``uint8 A=1``) are skipped."""
-    sections: dict[str, list[tuple[str, str, str]]] = {}
-    name = schema_name
-    for block in text.split("\n" + "=" * 80 + "\n"):
-        lines = block.strip("\n").splitlines()
-        if lines and lines[0].startswith("MSG: "):
-            name, lines = lines[0][5:].strip(), lines[1:]
-        fields = []
-        for ln in lines:
-            if not ln.strip() or ln.lstrip().startswith("#"):
-                continue
-            m = _ROS_FIELD.match(ln)
-            if not m or "=" in ln.split("#", 1)[0]:
-                continue
-            fields.append((m.group(1), m.group(2), (m.group(3) or "").strip()))
-        sections[name] = fields
-        name = ""
+    sections = _ros2msg_blocks(schema_name, text)
 
     def resolve(t: str, pkg: str) -> str | None:
-        base = t.split("[", 1)[0].split("<=", 1)[0]
-        for cand in (base, base.replace("/", "/msg/", 1), f"{pkg}/{base}", f"{pkg}/msg/{base}"):
-            if cand in sections:
-                return cand
-        short = base.rsplit("/", 1)[-1]
-        for k in sections:
-            if k.rsplit("/", 1)[-1] == short and ("/" not in base or k.split("/")[0] == base.split("/")[0]):
-                return k
-        return None
+        return _ros2msg_resolve(sections, t, pkg)
 
     out: dict[str, str] = {}
 
@@ -640,7 +630,13 @@ ROS2_NUMERIC = frozenset({"int8", "uint8", "int16", "uint16", "int32", "uint32",
 
 def _ros2msg_sections(schema_name: str, text: str) -> dict[str, list[tuple[str, str]]]:
     """``{type name: [(field type, field name), ...]}`` of a ``ros2msg`` definition and its dependencies."""
-    sections: dict[str, list[tuple[str, str]]] = {}
+    return {k: [(t, n) for t, n, _ in v] for k, v in _ros2msg_blocks(schema_name, text).items()}
+
+
+def _ros2msg_blocks(schema_name: str, text: str) -> dict[str, list[tuple[str, str, str]]]:
+    """``{type name: [(field type, field name, comment), ...]}`` of a ``ros2msg`` definition and the
+    ``MSG: <type>`` blocks of its dependencies (separated by a line of 80 ``=``); constants are skipped."""
+    sections: dict[str, list[tuple[str, str, str]]] = {}
     name = schema_name
     for block in text.split("\n" + "=" * 80 + "\n"):
         lines = block.strip("\n").splitlines()
@@ -651,12 +647,16 @@ def _ros2msg_sections(schema_name: str, text: str) -> dict[str, list[tuple[str, 
             if not ln.strip() or ln.lstrip().startswith("#"):
                 continue
             m = _ROS_FIELD.match(ln)
-            if not m or _is_constant(ln):
+            if not m or _is_constant(ln) or _CONSTANT.match(ln):
                 continue
-            fields.append((m.group(1), m.group(2)))
+            fields.append((m.group(1), m.group(2), (m.group(3) or "").strip()))
         sections[name] = fields
         name = ""
     return sections
+
+
+#: ``TYPE NAME = value`` (a constant written with spaces around '=')
+_CONSTANT = re.compile(r"^\s*\S+\s+[A-Za-z_][A-Za-z0-9_]*\s*=")
 
 
 def _is_constant(line: str) -> bool:
@@ -673,15 +673,7 @@ def ros2_field_type(schema_name: str | None, text: str, path: str) -> str | None
         return None
 
     def resolve(t: str, pkg: str) -> str | None:
-        base = t.split("[", 1)[0].split("<=", 1)[0]
-        for cand in (base, base.replace("/", "/msg/", 1), f"{pkg}/{base}", f"{pkg}/msg/{base}"):
-            if cand in sections:
-                return cand
-        short = base.rsplit("/", 1)[-1]
-        for k in sections:
-            if k.rsplit("/", 1)[-1] == short and ("/" not in base or k.split("/")[0] == base.split("/")[0]):
-                return k
-        return None
+        return _ros2msg_resolve(sections, t, pkg)
 
     cur: str | None = schema_name if schema_name in sections else next(iter(sections))
     ftype: str | None = None

@@ -93,6 +93,24 @@ class MapGrid:
         return MapGrid(out, self.x_m, self.y_m, self.resolution_m)
 
     # ---------------------------------------------------------------- coordinates
+    def region_window(self, region: tuple[float, float, float, float] | None) -> tuple[int, int, int, int]:
+        """Row/column bounds ``(r0, r1, c0, c1)`` (half-open) of the cells whose centres lie in ``region``
+        ``(x_min, x_max, y_min, y_max)`` (m); the whole map for ``None``. A region off the map is an
+        :class:`~hadal.errors.InputError`."""
+        ny, nx = self.shape
+        if region is None:
+            return 0, ny, 0, nx
+        x0, x1, y0, y1 = region
+        c0 = int(np.clip(np.ceil(self.col_of(x0) - 1e-9), 0, nx))
+        c1 = int(np.clip(np.floor(self.col_of(x1) + 1e-9) + 1, 0, nx))
+        r0 = int(np.clip(np.ceil(self.row_of(y0) - 1e-9), 0, ny))
+        r1 = int(np.clip(np.floor(self.row_of(y1) + 1e-9) + 1, 0, ny))
+        if r1 <= r0 or c1 <= c0:
+            from hadal.errors import InputError
+
+            raise InputError(f"matching region {region} does not overlap the map")
+        return r0, r1, c0, c1
+
     def col_of(self, x_m) -> np.ndarray:
         """Fractional column index of map x (cell centre = integer)."""
         return (np.asarray(x_m, float) - self.x_m[0]) / self.resolution_m

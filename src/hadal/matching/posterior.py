@@ -316,16 +316,7 @@ def posterior_fix(
     dc = d - ref
     rel = t - t[0]
 
-    if region is not None:
-        x0, x1, y0, y1 = region
-        c0 = int(np.clip(np.ceil(g.col_of(x0) - 1e-9), 0, nx))
-        c1 = int(np.clip(np.floor(g.col_of(x1) + 1e-9) + 1, 0, nx))
-        r0 = int(np.clip(np.ceil(g.row_of(y0) - 1e-9), 0, ny))
-        r1 = int(np.clip(np.floor(g.row_of(y1) + 1e-9) + 1, 0, ny))
-        if r1 <= r0 or c1 <= c0:
-            raise InputError(f"matching region {region} does not overlap the map")
-    else:
-        r0, r1, c0, c1 = 0, ny, 0, nx
+    r0, r1, c0, c1 = g.region_window(region)
     in_region = np.zeros((ny, nx), bool)
     in_region[r0:r1, c0:c1] = True
     zr = g.depth_m[r0:r1, c0:c1]
