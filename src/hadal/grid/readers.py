@@ -839,27 +839,36 @@ def read_gsf(path: str | Path, *, include_flagged: bool = False, isolate: bool =
     """Soundings of a GSF file as ``longitude_deg, latitude_deg, depth_m, ping`` (one row per beam).
 
     libgsf is C code that can crash the process on a corrupt file (a fuzzed EX1604 file segfaults inside
-    ``gsfRead``), so by default it runs in a child process (``spawn``) and a crash becomes a one-line
+    ``gsfRead``), so by default it runs in a child interpreter (``python -m hadal.grid._gsf_child``, a plain
+    subprocess, so it also works inside daemonic Dask workers) and a crash becomes a one-line
     :class:`InputError`; ``isolate=False`` reads in this process (:func:`_read_gsf_here`).
     """
     if not isolate:
         return _read_gsf_here(path, include_flagged=include_flagged)
-    import concurrent.futures as cf
-    import multiprocessing as mp
+    import json
+    import subprocess
+    import sys
+    import tempfile
 
     p = _require_file(path, "GSF")
     try:
-        with cf.ProcessPoolExecutor(max_workers=1, mp_context=mp.get_context("spawn")) as ex:
-            df, attrs = ex.submit(_read_gsf_child, str(p), include_flagged).result()
-    except cf.process.BrokenProcessPool:
-        raise InputError(f"{p}: the GSF library (libgsf) crashed reading this file: corrupt or truncated GSF") from None
-    df.attrs.update(attrs)
-    return df
-
-
-def _read_gsf_child(path: str, include_flagged: bool) -> tuple[pd.DataFrame, dict]:
-    df = _read_gsf_here(path, include_flagged=include_flagged)
-    return df, dict(df.attrs)
+        with tempfile.TemporaryDirectory(prefix="hadal-gsf-") as td:
+            out = Path(td) / "soundings.parquet"
+            proc = subprocess.run([sys.executable, "-m", "hadal.grid._gsf_child", str(p), str(out),
+                                   "1" if include_flagged else "0"], capture_output=True, text=True)
+            if proc.returncode == 0:
+                df = pd.read_parquet(out)
+                df.attrs.update(json.loads(out.with_suffix(".json").read_text(encoding="utf-8")))
+                return df
+    except OSError as exc:
+        raise InputError(f"{p}: cannot run the GSF reader ({exc.strerror or exc})") from None
+    last = (proc.stderr.strip().splitlines() or [""])[-1]
+    if proc.returncode == 2 and last:
+        raise InputError(last)
+    if proc.returncode < 0:
+        raise InputError(f"{p}: the GSF library (libgsf) crashed reading this file (signal {-proc.returncode}): "
+                         "corrupt or truncated GSF")
+    raise InputError(f"{p}: the GSF reader failed ({last or f'exit status {proc.returncode}'})")
 
 
 def _read_gsf_here(path: str | Path, *, include_flagged: bool = False) -> pd.DataFrame:
