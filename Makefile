@@ -7,7 +7,7 @@ STORE  ?= data/processed
 PYTEST_ARGS ?=
 export PREFECT_SERVER_ANALYTICS_ENABLED ?= false
 
-.PHONY: setup sysdeps demo test bench lint clean
+.PHONY: setup sysdeps demo test test-integration bench lint clean
 
 setup: $(VENV)/.installed
 
@@ -33,7 +33,11 @@ demo: setup $(DIVE)/dive.yaml
 	@echo "products: $(STORE)/$$(basename $(DIVE))/  (list them: $(BIN)/hadal products $$(basename $(DIVE)) --store $(STORE))"
 
 test: setup
-	$(BIN)/python -m pytest $(PYTEST_ARGS)
+	$(BIN)/python -m pytest -m "not integration" $(PYTEST_ARGS)
+
+# the long integration tier (CI runs it after `make test`)
+test-integration: setup
+	$(BIN)/python -m pytest -m integration $(PYTEST_ARGS)
 
 bench: setup
 	@for b in bench/bench_*.py; do echo "== $$b"; $(BIN)/python $$b || exit 1; done

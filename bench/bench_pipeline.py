@@ -1,6 +1,11 @@
 """End-to-end benchmark: sample dive through the pipeline, Prefect overhead, Dask batch scaling.
 
     PYTHONPATH=src:. .venv/bin/python bench/bench_pipeline.py [--small] [--dives 4] [--skip-batch]
+    .venv/bin/python bench/bench_pipeline.py --cli HEAD [--raw DIR] [--small]
+
+``--cli REV``: ``hadal run``/``hadal stage`` as a user runs them (fresh processes), this working tree against git
+revision ``REV`` in the same run: a cold full dive, an unchanged re-run with a temporary Prefect server and with a
+long-running one (``prefect server start``, started by the benchmark), and an unchanged single stage.
 
 Measured in the same run (so the ratios are meaningful on a shared machine):
 
@@ -166,5 +171,107 @@ def main() -> None:
         shutil.rmtree(work, ignore_errors=True)
 
 
+# ------------------------------------------------------------------------------------ the CLI, before/after
+def _snapshot(dest: Path, rev: str | None) -> Path:
+    """hadal's code (the working tree, or git ``rev`` via ``git archive``: nothing in the tree changes) under
+    ``dest``, with flows/ tasks/ schemas/ linked in as hadal.flows / hadal.tasks / hadal.schemas."""
+    import subprocess
+    import tarfile
+
+    dest.mkdir(parents=True)
+    parts = ["src", "flows", "tasks", "schemas"]
+    if rev:
+        tar = dest / "code.tar"
+        with open(tar, "wb") as fh:
+            subprocess.run(["git", "-C", str(REPO), "archive", rev, *parts], stdout=fh, check=True)
+        with tarfile.open(tar) as tf:
+            tf.extractall(dest, filter="data")
+    else:
+        for part in parts:
+            if (REPO / part).is_dir():
+                shutil.copytree(REPO / part, dest / part, ignore=shutil.ignore_patterns("__pycache__"))
+    for part in parts[1:]:
+        if (dest / part).is_dir():
+            (dest / "src" / "hadal" / part).symlink_to(dest / part)
+    return dest / "src"
+
+
+def cli_compare(args) -> None:
+    """``hadal run``/``hadal stage`` as a user runs them (a fresh process each), this tree vs git ``args.cli``."""
+    import subprocess
+
+    work = Path(tempfile.mkdtemp(prefix="hadal-bench-cli-"))
+    py = sys.executable
+    try:
+        codes = {"now": _snapshot(work / "code-now", None), args.cli: _snapshot(work / "code-old", args.cli)}
+        raw = Path(args.raw) if args.raw else make_dive(work / "raw" / "sample", args.small)[0]
+        srv_home = work / "prefect-server"
+        srv_home.mkdir()
+        port = 4000 + os.getpid() % 1000
+        server = subprocess.Popen([str(Path(py).with_name("prefect")), "server", "start", "--host", "127.0.0.1",
+                                   "--port", str(port)], env={**os.environ, "PREFECT_HOME": str(srv_home)},
+                                  stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        api = f"http://127.0.0.1:{port}/api"
+
+        def hadal(code: str, *argv: str, server_up: bool = False) -> float:
+            env = {**os.environ, "PYTHONPATH": str(codes[code]), "HADAL_PROGRESS": "0",
+                   "PREFECT_HOME": str(work / f"prefect-home-{code}-{'srv' if server_up else 'tmp'}")}
+            env.pop("PREFECT_API_URL", None)
+            if server_up:
+                env["PREFECT_API_URL"] = api
+            t0 = time.perf_counter()
+            res = subprocess.run([py, "-m", "hadal.cli", *argv], env=env, capture_output=True, text=True,
+                                 timeout=3600)
+            dt = time.perf_counter() - t0
+            if res.returncode != 0:
+                print(f"  ({code} hadal {' '.join(argv[:2])} exit {res.returncode}: {res.stderr.strip()[-300:]})")
+            return dt
+
+        rows: list[tuple[str, dict[str, float]]] = []
+
+        def both(label: str, fn) -> None:
+            vals = {code: fn(code) for code in codes}
+            rows.append((label, vals))
+            a, b = vals["now"], vals[args.cli]
+            print(f"{label:<46s} now {a:7.2f} s   {args.cli} {b:7.2f} s   speed-up {b / a:5.2f}x", flush=True)
+
+        def store(code: str) -> str:
+            return str(work / f"store-{code}")
+
+        print(f"dive {raw}; load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores (shared machine?)")
+        both("cold full dive, hadal run (temporary server)", lambda c: hadal(c, "run", str(raw), "--store", store(c)))
+        both("unchanged re-run, hadal run (temporary server)",
+             lambda c: hadal(c, "run", str(raw), "--store", store(c)))
+        both("unchanged re-run, hadal run (server up)",
+             lambda c: hadal(c, "run", str(raw), "--store", store(c), server_up=True))
+        both("unchanged stage, hadal stage landing (server up)",
+             lambda c: hadal(c, "stage", "landing", str(raw), "--store", store(c), server_up=True))
+        t_prefect = min(_timed_proc([py, "-c", "from prefect import flow; flow(lambda: 1)()"],
+                                    {**os.environ, "PREFECT_API_URL": api}) for _ in range(2))
+        t_import = min(_timed_proc([py, "-c", "import hadal.config"], {**os.environ, "PYTHONPATH": str(codes["now"])})
+                       for _ in range(2))
+        print(f"reference: a trivial Prefect flow run against the server, fresh process: {t_prefect:.2f} s; "
+              f"importing every stage (hadal.config): {t_import:.2f} s")
+        server.terminate()
+        server.wait(30)
+    finally:
+        shutil.rmtree(work, ignore_errors=True)
+
+
+def _timed_proc(cmd: list[str], env: dict[str, str]) -> float:
+    import subprocess
+
+    t0 = time.perf_counter()
+    subprocess.run(cmd, env=env, capture_output=True, timeout=600)
+    return time.perf_counter() - t0
+
+
 if __name__ == "__main__":
-    main()
+    if "--cli" in sys.argv:
+        ap = argparse.ArgumentParser(description="hadal run/stage through the CLI, this tree vs a git revision")
+        ap.add_argument("--cli", default="HEAD", help="git revision to compare with")
+        ap.add_argument("--raw", help="an existing sample dive directory (default: generate one)")
+        ap.add_argument("--small", action="store_true")
+        cli_compare(ap.parse_args())
+    else:
+        main()

@@ -3,7 +3,7 @@
 Each case runs in a fresh subprocess; its peak RSS (``resource.getrusage(RUSAGE_CHILDREN).ru_maxrss`` of that child)
 minus the interpreter+imports baseline is divided by the input size. Cases: a normal big vehicle CSV log (hadal's
 ``read_sensor_csv`` vs ``pandas.read_csv`` on the same file), a CSV whose one line is ``--line-mb`` long (hadal
-refuses it; pandas reads it), and a big .cnv (``read_cnv``).
+refuses it; pandas reads it), and a big .cnv (``read_cnv`` vs ``pandas.read_csv`` on its body; goal <= 2).
 
     python bench/bench_reader_memory.py [--mb 100] [--line-mb 300]
 """
@@ -41,6 +41,10 @@ CHILD = textwrap.dedent("""
             pd.read_csv(path)
         elif kind == "hadal_cnv":
             read_cnv(path)
+        elif kind == "pandas_cnv":  # peer: the .cnv body through pandas' C parser (header lines skipped)
+            with open(path, encoding="latin-1") as fh:
+                n_head = next(i for i, ln in enumerate(fh) if ln.strip() == "*END*") + 1
+            pd.read_csv(path, sep="\\\\s+", header=None, skiprows=n_head, encoding="latin-1")
     except HadalError as exc:
         err = str(exc)[:160]
     peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
@@ -103,7 +107,7 @@ def main() -> None:
         d = Path(tmp)
         cases = [("big.csv", _write_csv, a.mb, ("hadal_csv", "pandas_csv")),
                  ("longline.csv", _write_long_line, a.line_mb, ("hadal_csv", "pandas_csv")),
-                 ("big.cnv", _write_cnv, a.mb, ("hadal_cnv",))]
+                 ("big.cnv", _write_cnv, a.mb, ("hadal_cnv", "pandas_cnv"))]
         print(f"{'file':14} {'reader':11} {'MiB':>7} {'peak-base MiB':>14} {'ratio':>6} {'s':>6}  note")
         for name, make, mb, kinds in cases:
             p = d / name

@@ -12,8 +12,10 @@ of travel; 3-8 for ``short``), noise 0-2 % of the map relief, a depth bias (+-50
 (+-4 deg), scale error (+-3 %), a random-walk + velocity-bias drift, and a kind: ``clean``, ``drift``
 (velocity bias up to 2 %), ``holes`` (40-50 % of samples over NaN blobs), ``off_map`` (25-35 % off
 the map), ``flat`` (zero-relief map), ``short``. The fix searches headings -5..5 deg (1 deg) x scales
-0.97/1.00/1.03 over the whole map (:func:`hadal.matching.posterior.posterior_fix`); the paper's
-TERCOM (MSD, heading 0, cell resolution) runs on the same trials as the baseline.
+0.97/1.00/1.03 over the whole map (:func:`hadal.matching.posterior.posterior_fix`, with its joint
+dead-reckoning drift estimate: the tracks have no times, so the drift rate is per metre travelled, three
+segments, prior 0.5 %); the paper's TERCOM (MSD, heading 0, cell resolution) runs on the same trials as the
+baseline.
 
 Printed (goals from issue 16):
 * within one cell (radial error <= 1 cell) for tracks >= 50 cells at noise <= 1 % (clean + drift): goal >= 95 %;

@@ -1,24 +1,27 @@
 """Batch flow: process several dives in parallel on a Dask cluster (prefect-dask ``DaskTaskRunner``).
 
-Each dive's stages are chained (a stage waits for the previous one of the same dive); different dives
-run concurrently on the cluster's workers. By default a ``dask.distributed.LocalCluster`` with
-``workers`` single-threaded worker processes is started for the run; pass ``scheduler="tcp://host:8786"``
-to use an existing cluster (every worker must see the same raw directories and store, e.g. on a
+Each dive's stages start when the stages they read from are done (``grid`` beside ``ingest``/``derive``) and read
+the upstream versions pinned for that dive; different dives run concurrently on the cluster's workers. By
+default a ``dask.distributed.LocalCluster`` with ``workers`` single-threaded worker processes is started for the
+run; pass ``scheduler="tcp://host:8786"`` to use an existing cluster (every worker must see the same raw directories and store, e.g. on a
 shared filesystem, and have hadal installed). A failing dive does not stop the others: its error is
 returned in the result.
 """
 
 from __future__ import annotations
 
+import logging
+import time
 from typing import Any
 
-from hadal.flows.post_cruise import stage_tasks
-from hadal.tasks.stage import configured
+from hadal.flows.post_cruise import DiveRun, run_stage_graph
+from hadal.tasks.stage import route_hadal_logs
 from prefect import flow
-from prefect.futures import PrefectFuture
 
 from hadal.errors import HadalError
-from hadal.pipeline import make_context, stage_plan
+from hadal.pipeline import all_products, make_context, stage_plan
+
+log = logging.getLogger("hadal.batch")
 
 
 def dask_runner(workers: int = 2, scheduler: str | None = None, threads_per_worker: int = 1, processes: bool = True):
@@ -32,7 +35,7 @@ def dask_runner(workers: int = 2, scheduler: str | None = None, threads_per_work
                                           "processes": bool(processes), "dashboard_address": ":0"})
 
 
-@flow(name="post-cruise-batch", log_prints=True)
+@flow(name="post-cruise-batch")
 def post_cruise_batch(
     raw_dirs: list[str],
     store_root: str | None = None,
@@ -40,44 +43,48 @@ def post_cruise_batch(
     stages: list[str] | None = None,
     force: bool = False,
 ) -> dict[str, dict[str, Any]]:
-    """Run the selected stages on every dive; returns ``{raw_dir: {"ok": bool, "published"|"error": ...}}``."""
-    chains: dict[str, list[PrefectFuture]] = {}
-    planned: dict[str, list[str]] = {}
-    unplanned: dict[str, str] = {}
+    """Run the selected stages on every dive; returns ``{raw_dir: {"ok": bool, "published"|"error": ...,
+    "stages": [...]}}``.
+
+    Like the single-dive flow (:func:`hadal.flows.post_cruise.run_stage_graph`, shared): a stage starts when the
+    stages it reads from are done, and every stage of a dive reads the upstream versions the batch found at its
+    start or published itself for that dive (pins), never a concurrent run's newer ones (issue 14, class 9).
+    One line per finished dive (progress); a failing dive does not stop the others."""
+    route_hadal_logs()
+    runs: list[DiveRun] = []
+    results: dict[str, dict[str, Any]] = {}
     for raw in raw_dirs:
         try:
-            names = [ps.name for ps in stage_plan(make_context(raw, store_root, config_path), stages) if ps.run]
+            ctx = make_context(raw, store_root, config_path)
+            names = [ps.name for ps in stage_plan(ctx, stages) if ps.run]
         except HadalError as exc:  # this dive cannot be planned; the others still run
-            unplanned[raw] = str(exc)
+            results[raw] = {"ok": False, "published": {}, "error": str(exc), "stages": []}
+            _progress(f"{raw}: {exc}")
             continue
-        planned[raw] = names
-        prev: PrefectFuture | None = None
-        futs = []
-        for t in (configured(t, store_root, force) for t in stage_tasks(names)):
-            fut = t.submit(raw, store_root, config_path, wait_for=[prev] if prev is not None else None)
-            futs.append(fut)
-            prev = fut
-        chains[raw] = futs
-    results: dict[str, dict[str, Any]] = {raw: {"ok": False, "published": {}, "error": err}
-                                          for raw, err in unplanned.items()}
-    for raw, err in unplanned.items():
-        print(f"{raw}: {err}")
-    for raw, futs in chains.items():
-        published: dict[str, str] = {}
-        error = None
-        for name, fut in zip(planned[raw], futs, strict=True):
-            fut.wait()
-            state = fut.state
-            if state.is_completed():
-                published.update(fut.result())
-            else:
-                exc = state.result(raise_on_failure=False)
-                error = f"stage {name}: {exc}" if isinstance(exc, BaseException) else f"stage {name}: {state.name}"
-                break
-        results[raw] = {"ok": error is None, "published": published} if error is None else \
-            {"ok": False, "published": published, "error": error}
-        print(f"{raw}: {'ok' if error is None else error}")
-    return results
+        ctx.pin_existing(all_products())
+        runs.append(DiveRun(raw, names, {p: str(pv.path) for p, pv in ctx.pins.items()}))
+    total = len(runs)
+    finished: list[str] = []
+
+    def done(d: DiveRun) -> None:
+        finished.append(d.raw_dir)
+        n = len(finished)
+        error = "; ".join(f"stage {k}: {v}" for k, v in d.failed.items()) or None
+        results[d.raw_dir] = ({"ok": True, "published": dict(d.published), "stages": d.rows} if error is None else
+                              {"ok": False, "published": dict(d.published), "error": error, "stages": d.rows})
+        counts = {s: sum(1 for r in d.rows if r["status"] == s) for s in ("published", "reused", "failed")}
+        _progress(f"[{n}/{total}] {d.raw_dir}: {'ok' if error is None else 'FAILED ' + error} "
+              f"({counts['published']} published, {counts['reused']} reused, {counts['failed']} failed; "
+              f"{time.monotonic() - d.t0:.0f} s)")
+
+    run_stage_graph(runs, store_root, config_path, force, on_dive_done=done)
+    return {raw: results[raw] for raw in raw_dirs if raw in results}
+
+
+def _progress(line: str) -> None:
+    """One progress line: on stdout (also when Prefect's console logging is quiet) and in the flow run's log."""
+    print(line, flush=True)
+    log.info("%s", line)
 
 
 def run_batch(raw_dirs: list[str], store_root: str | None = None, config_path: str | None = None,

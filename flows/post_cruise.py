@@ -1,75 +1,227 @@
-"""The post-cruise flow: raw dive → ingest → derive → grid → suitability → match → landing → report."""
+"""The post-cruise flow: raw dive → ingest ‖ grid → derive ‖ suitability ‖ landing → match → report.
+
+Stages run as soon as the stages whose products they read are done (:func:`hadal.plan.stage_dependencies`), on
+Prefect's thread-pool task runner: ``grid`` does not wait for ``ingest``/``derive``, ``landing`` not for ``match``.
+Every stage reads the upstream versions the run found at its start or published itself (pins), never a concurrent
+run's newer ones. :func:`run_stage_graph` is shared with the Dask batch flow (``flows/batch.py``).
+"""
 
 from __future__ import annotations
 
+import datetime as _dt
 import importlib
+import logging
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
 
-from hadal.tasks.stage import configured, published_exist
-from prefect import flow
+from hadal.tasks.stage import configured, published_exist, route_hadal_logs
+from prefect import flow, tags
+from prefect.futures import as_completed
+from prefect.task_runners import ThreadPoolTaskRunner
 
 from hadal.errors import HadalError
 from hadal.pipeline import all_products, blocked_by_failure, make_context, raise_failures, stage_plan
+from hadal.plan import stage_dependencies
+
+log = logging.getLogger("hadal.flow")
+
+#: threads of the single-dive flow's task runner: at most three stages are ever ready together
+STAGE_THREADS = 4
 
 
 def stage_tasks(names: list[str]):
     return [getattr(importlib.import_module(f"hadal.tasks.{n}"), n) for n in names]
 
 
-def run_stage_task(t, raw_dir: str, store_root: str | None, config_path: str | None, force: bool = False,
-                   pins: dict[str, str] | None = None, **notes: dict[str, str] | None) -> dict[str, str]:
-    """Run one stage task with caching in the store; a cached result whose versions were removed re-runs.
-    ``notes``: ``failed``/``failed_skips`` of the run so far (for the report)."""
-    out = configured(t, store_root, force)(raw_dir, store_root, config_path, pins, **notes)
-    if not force and not published_exist(out):
-        out = configured(t, store_root, True)(raw_dir, store_root, config_path, pins, **notes)
-    return out
+class RunOutcome(dict):
+    """``{product: version directory}`` of a run, with :attr:`stages`: one row per stage (``stage``, ``status`` -
+    published / reused / skipped / failed -, ``seconds``, ``versions`` and ``reason``) for the closing table."""
+
+    def __init__(self, published: dict[str, str] | None = None, stages: list[dict[str, Any]] | None = None):
+        super().__init__(published or {})
+        self.stages = list(stages or [])
+
+    def __reduce__(self):  # results may be pickled (Dask, persisted results): keep the stage rows
+        return (RunOutcome, (dict(self), self.stages))
 
 
-@flow(name="post-cruise", log_prints=True)
+@dataclass
+class DiveRun:
+    """The bookkeeping of one dive inside :func:`run_stage_graph`."""
+
+    raw_dir: str
+    names: list[str]
+    pins: dict[str, str]
+    deps: dict[str, set[str]] = field(default_factory=dict)
+    waiting: list[str] = field(default_factory=list)
+    running: set[str] = field(default_factory=set)
+    published: dict[str, str] = field(default_factory=dict)
+    failed: dict[str, str] = field(default_factory=dict)
+    skips: dict[str, str] = field(default_factory=dict)
+    rows: list[dict[str, Any]] = field(default_factory=list)
+    unexpected: BaseException | None = None
+    t0: float = field(default_factory=time.monotonic)
+
+    def __post_init__(self) -> None:
+        self.deps = stage_dependencies(self.names)
+        self.waiting = list(self.names)
+
+    @property
+    def done(self) -> bool:
+        return not self.waiting and not self.running
+
+    def outcome(self) -> RunOutcome:
+        return RunOutcome(self.published, self.rows)
+
+
+def run_stage_graph(dives: list[DiveRun], store_root: str | None, config_path: str | None, force: bool,
+                    on_dive_done: Callable[[DiveRun], None] | None = None) -> None:
+    """Submit every dive's stages to the flow's task runner as soon as their upstream stages are done; record
+    each stage's outcome in its :class:`DiveRun`. A stage whose upstream failed in this run is skipped with the
+    reason; the report still runs (and lists the failures)."""
+    tasks = {n: t for d in dives for n, t in zip(d.names, stage_tasks(d.names), strict=True)}
+    running: dict[Any, tuple[DiveRun, str, float, bool]] = {}
+
+    def submit(d: DiveRun, name: str, forced: bool) -> None:
+        notes = {"failed": dict(d.failed), "failed_skips": dict(d.skips)} if name == "report" and d.failed else {}
+        fut = configured(tasks[name], store_root, forced).submit(d.raw_dir, store_root, config_path, dict(d.pins),
+                                                                 **notes)
+        running[fut] = (d, name, time.monotonic(), forced)
+        d.running.add(name)
+
+    while True:
+        for d in dives:  # submit every stage whose upstream stages are done
+            for name in list(d.waiting):
+                if d.deps[name] & (set(d.waiting) | d.running):
+                    continue
+                d.waiting.remove(name)
+                if (why := blocked_by_failure(name, d.failed)) is not None:
+                    print(f"stage {name} skipped: {why}")
+                    d.skips[name] = why
+                    d.rows.append({"stage": name, "status": "skipped", "seconds": 0.0, "versions": {},
+                                   "reason": why})
+                    continue
+                submit(d, name, force)
+        if not running:
+            break
+        fut = next(as_completed(list(running)))
+        d, name, t_submit, forced = running.pop(fut)
+        d.running.discard(name)
+        fut.wait()  # sets the future's final state (the done callback alone may leave it PENDING)
+        state = fut.state
+        seconds = time.monotonic() - t_submit
+        if state.is_completed():
+            out = fut.result()
+            if not forced and not published_exist(out):  # a cached result whose versions were removed: re-run
+                log.info("stage %s: cached versions are gone, re-running", name)
+                submit(d, name, True)
+                continue
+            reused = state.name == "Cached"
+            status = "reused" if reused else ("published" if out else "skipped")
+            versions = {p: Path(v).name for p, v in out.items()}
+            if reused:
+                log.info("stage %s: cache hit (inputs, parameters and code unchanged): reusing %s", name,
+                         ", ".join(f"{p}/{v}" for p, v in versions.items()) or "nothing")
+            d.pins.update(out)
+            d.published.update(out)
+            d.rows.append({"stage": name, "status": status, "seconds": round(seconds, 2), "versions": versions,
+                           "reason": "" if out or reused else "nothing to do (see the log)"})
+        else:
+            exc = state.result(raise_on_failure=False)
+            msg = str(exc).splitlines()[0] if isinstance(exc, BaseException) and str(exc) else state.name
+            d.failed[name] = msg
+            if isinstance(exc, BaseException) and not isinstance(exc, HadalError) and d.unexpected is None:
+                d.unexpected = exc
+            d.rows.append({"stage": name, "status": "failed", "seconds": round(seconds, 2), "versions": {},
+                           "reason": msg})
+        if d.done and on_dive_done is not None:
+            on_dive_done(d)
+
+
+def dive_tags(raw_dir: str | Path, dive_id: str, cruise: str | None = None) -> list[str]:
+    """Prefect tags of a dive's runs: ``dive:<id>`` and ``cruise:<name>`` (``metadata.cruise`` of dive.yaml, else
+    the name of the directory holding the dive directory)."""
+    cruise = cruise or Path(raw_dir).resolve().parent.name
+    return [f"dive:{dive_id}", f"cruise:{cruise}"]
+
+
+def _dive_info(raw_dir: str) -> tuple[str, str | None]:
+    from hadal.dive import load_dive
+
+    dive, _ = load_dive(raw_dir)
+    meta = getattr(dive, "metadata", None)
+    return dive.dive_id, getattr(meta, "cruise", None)
+
+
+def flow_run_name() -> str:
+    """``<dive>-<UTC time>`` for a run of :func:`post_cruise` (``<raw dir name>-<time>`` if dive.yaml is bad)."""
+    from prefect.runtime import flow_run
+
+    raw = str(flow_run.parameters.get("raw_dir", "dive"))
+    try:
+        dive = _dive_info(raw)[0]
+    except Exception:  # noqa: BLE001 - the flow itself reports a bad dive.yaml; a name is still needed
+        dive = Path(raw).name or "dive"
+    return f"{dive}-{_dt.datetime.now(_dt.UTC):%Y%m%dT%H%M%SZ}"
+
+
+def tag_flow_run(extra: list[str]) -> None:
+    """Add ``extra`` tags to the current flow run (deployments start runs with the deployment's tags only)."""
+    from prefect.context import FlowRunContext
+
+    ctx = FlowRunContext.get()
+    if ctx is None or ctx.flow_run is None or set(extra) <= set(ctx.flow_run.tags or ()):
+        return
+    try:
+        from prefect.client.orchestration import get_client
+
+        with get_client(sync_client=True) as client:
+            client.update_flow_run(ctx.flow_run.id, tags=sorted({*(ctx.flow_run.tags or ()), *extra}))
+    except Exception as exc:  # noqa: BLE001 - tags are a convenience
+        log.debug("could not tag the flow run: %s", exc)
+
+
+@flow(name="post-cruise", log_prints=True, flow_run_name=flow_run_name,
+      task_runner=ThreadPoolTaskRunner(max_workers=STAGE_THREADS))
 def post_cruise(
     raw_dir: str,
     store_root: str | None = None,
     config_path: str | None = None,
     stages: list[str] | None = None,
     force: bool = False,
-) -> dict[str, str]:
-    """Process one dive: run the selected stages (default: all the dive's data supports, :mod:`hadal.plan`) in
-    order, each publishing new product versions; skipped stages are logged with the reason (and listed by the
-    report).
+) -> RunOutcome:
+    """Process one dive: run the selected stages (default: all the dive's data supports, :mod:`hadal.plan`), each
+    as soon as the stages it reads from are done, each publishing new product versions; skipped stages are
+    logged with the reason (and listed by the report).
 
     Unchanged stages are cache hits (their published versions are reused); ``force`` re-runs them all.
-    Returns ``{product: version directory}`` for every stage that ran or was reused.
+    Returns ``{product: version directory}`` for every stage that ran or was reused (a :class:`RunOutcome`,
+    whose ``stages`` says per stage whether it published, reused, was skipped or failed, and its time).
     """
+    route_hadal_logs()
     ctx = make_context(raw_dir, store_root, config_path)
     plan = stage_plan(ctx, stages)
     for stale in ctx.store.clean_staging():  # left by a killed run more than an hour ago
         print(f"removed abandoned staging directory {stale}")
     ctx.pin_existing(all_products())  # the run reads what it found at its start or published itself
-    pins = {product: str(pv.path) for product, pv in ctx.pins.items()}
-    published: dict[str, str] = {}
-    failed: dict[str, str] = {}
-    skips: dict[str, str] = {}
-    unexpected: BaseException | None = None
+    meta = getattr(ctx.dive, "metadata", None)
+    dtags = dive_tags(ctx.raw_dir, ctx.dive_id, getattr(meta, "cruise", None))
+    tag_flow_run(dtags)
+    rows = []
     for ps in plan:
         if not ps.run:
             print(f"stage {ps.name} skipped: {ps.reason}")
-            continue
-        if (why := blocked_by_failure(ps.name, failed)) is not None:
-            print(f"stage {ps.name} skipped: {why}")
-            skips[ps.name] = why
-            continue
-        (t,) = stage_tasks([ps.name])
-        notes = {"failed": dict(failed), "failed_skips": dict(skips)} if ps.name == "report" and failed else {}
-        try:
-            out = run_stage_task(t, raw_dir, store_root, config_path, force, pins=dict(pins), **notes)
-        except Exception as exc:  # noqa: BLE001 - the stages that do not depend on it and the report still run
-            failed[ps.name] = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
-            if not isinstance(exc, HadalError) and unexpected is None:
-                unexpected = exc
-            continue
-        pins.update(out)
-        published.update(out)
-    if unexpected is not None:
-        raise unexpected
-    raise_failures(failed)
-    return published
+            rows.append({"stage": ps.name, "status": "skipped", "seconds": 0.0, "versions": {}, "reason": ps.reason})
+    d = DiveRun(raw_dir, [ps.name for ps in plan if ps.run], {p: str(pv.path) for p, pv in ctx.pins.items()})
+    d.rows = rows
+    with tags(*dtags):
+        run_stage_graph([d], store_root, config_path, force)
+    order = {ps.name: i for i, ps in enumerate(plan)}
+    d.rows.sort(key=lambda r: order.get(r["stage"], 99))
+    if d.unexpected is not None:
+        raise d.unexpected
+    raise_failures(d.failed)
+    return d.outcome()

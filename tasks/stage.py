@@ -6,8 +6,12 @@ Caching: a stage task's cache key is the SHA-256 of its *fingerprint* (:func:`st
 * hadal's code version (package version + SHA-256 of every ``hadal/**/*.py`` source file);
 * the stage's configuration section (``ctx.params(stage)``, canonical JSON);
 * for stages that read raw files (``INPUTS.reads_raw``: ``ingest``, ``grid``), the SHA-256 of those files
-  and of ``dive.yaml``; for every stage, the manifests (SHA-256) of the latest versions of its
-  ``UPSTREAM`` products.
+  and of ``dive.yaml`` (cached with each file's size, mtime, inode and ctime in the store:
+  :meth:`hadal.store.ProductStore.file_sha256`, so an unchanged re-run does not re-read ~280 MB of raw data);
+  for every stage, the manifests (SHA-256) of the pinned (else latest) versions of its ``UPSTREAM`` products.
+
+Inside a flow, hadal's log records go to the Prefect run (:func:`route_hadal_logs`), task runs are named after
+their stage, and each fresh run leaves a markdown artifact ``<dive>-stage-<stage>`` (:func:`stage_artifact`).
 
 The task's result (``{product: version directory}``) is persisted under ``<store>/.prefect-results``
 (:func:`result_storage`), so re-running an unchanged stage returns the already-published versions
@@ -21,46 +25,119 @@ Retries: I/O-bound stages (ingest, grid) retry on ``OSError`` only (:func:`retry
 
 from __future__ import annotations
 
-import functools
 import hashlib
 import json
+import logging
 import os
+import re
+import threading
+import time
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 from prefect import task
 
-import hadal
 from hadal.errors import HadalError
-from hadal.pipeline import default_store_root, make_context, pin_paths, run_stage, should_run
+from hadal.pipeline import code_digest, default_store_root, make_context, pin_paths, run_stage, should_run
 from hadal.progress import default_progress
 from hadal.stages import StageContext, stage_module
 from hadal.store import sha256_file
 
+__all__ = ["code_digest", "stage_fingerprint", "stage_task", "configured", "published_exist", "route_hadal_logs"]
+
 RESULTS_DIR = ".prefect-results"
 
-_hash_cache: dict[tuple[str, int, int], str] = {}
+
+# ---------------------------------------------------------------------------------------- logs into Prefect
+class PrefectRunLogHandler(logging.Handler):
+    """Sends hadal's log records (logger ``hadal`` and below) to the Prefect run they are logged in (its UI and
+    API), through Prefect's own :class:`~prefect.logging.handlers.APILogHandler`; records outside a flow or task
+    run are left to the other handlers."""
+
+    def __init__(self) -> None:
+        super().__init__(logging.INFO)
+        from prefect.logging.handlers import APILogHandler
+
+        self._api = APILogHandler()
+
+    def emit(self, record: logging.LogRecord) -> None:
+        from prefect.context import FlowRunContext, TaskRunContext
+
+        if TaskRunContext.get() is None and FlowRunContext.get() is None:
+            return
+        self._api.emit(record)
 
 
-def _file_digest(path: Path) -> str:
-    """SHA-256 of a file, memoised on (path, size, mtime) so a process hashes each raw file once."""
-    st = path.stat()
-    key = (str(path), st.st_size, st.st_mtime_ns)
-    if key not in _hash_cache:
-        _hash_cache[key] = sha256_file(path)
-    return _hash_cache[key]
+_ROUTE_LOCK = threading.Lock()
 
 
-@functools.lru_cache(maxsize=1)
-def code_digest() -> str:
-    """hadal's version + SHA-256 over its source files (catches uncommitted edits, unlike git HEAD)."""
-    root = Path(hadal.__file__).resolve().parent
-    h = hashlib.sha256(hadal.__version__.encode())
-    for p in sorted(root.rglob("*.py")):
-        h.update(str(p.relative_to(root)).encode())
-        h.update(p.read_bytes())
-    return f"{hadal.__version__}+{h.hexdigest()[:16]}"
+def route_hadal_logs() -> None:
+    """Attach :class:`PrefectRunLogHandler` to the ``hadal`` logger once per process (flow and Dask workers)."""
+    lg = logging.getLogger("hadal")
+    with _ROUTE_LOCK:
+        if not any(isinstance(h, PrefectRunLogHandler) for h in lg.handlers):
+            lg.addHandler(PrefectRunLogHandler())
+        if lg.getEffectiveLevel() > logging.INFO:  # e.g. a Dask worker: INFO still reaches the Prefect run
+            lg.setLevel(logging.INFO)
+
+
+class _ThreadWarnings(logging.Handler):
+    """Collects the WARNING+ records of hadal logged by one thread (one stage task) for its artifact."""
+
+    def __init__(self) -> None:
+        super().__init__(logging.WARNING)
+        self.thread = threading.get_ident()
+        self.records: list[logging.LogRecord] = []
+
+    def emit(self, record: logging.LogRecord) -> None:
+        if record.thread == self.thread:
+            self.records.append(record)
+
+
+def _artifact_key(dive: str, what: str) -> str:
+    return re.sub(r"[^a-z0-9-]+", "-", f"{dive}-{what}".lower()).strip("-")[:100]
+
+
+def stage_artifact(name: str, ctx: StageContext, published: dict[str, str], seconds: float,
+                   warnings: list[logging.LogRecord]) -> None:
+    """A markdown artifact ``<dive>-stage-<stage>`` for a fresh stage run: the versions it published (with sizes), its
+    time, and a table of the warnings it logged. No-op outside a Prefect task run."""
+    from prefect.artifacts import create_markdown_artifact
+    from prefect.context import TaskRunContext
+
+    if TaskRunContext.get() is None:
+        return
+    lines = [f"# {ctx.dive_id}: stage `{name}`", "", f"{seconds:.1f} s; published:", "",
+             "| product | version | files | MiB |", "|---|---|---|---|"]
+    for product, path in published.items():
+        try:
+            files = json.loads(Path(path, "manifest.json").read_text(encoding="utf-8")).get("files", [])
+        except (OSError, ValueError):
+            files = []
+        mib = sum(f.get("bytes", 0) for f in files) / 2**20
+        lines.append(f"| {product} | {Path(path).name} | {len(files)} | {mib:.1f} |")
+    if not published:
+        lines.append("| (nothing) | | | |")
+    lines += ["", f"## Warnings ({len(warnings)})", ""]
+    if warnings:
+        lines += ["| level | logger | message |", "|---|---|---|"]
+        for r in warnings[:200]:
+            msg = r.getMessage().replace("|", "\\|").replace("\n", " ")
+            lines.append(f"| {r.levelname} | {r.name} | {msg[:500]} |")
+    else:
+        lines.append("none")
+    create_markdown_artifact("\n".join(lines), key=_artifact_key(ctx.dive_id, f"stage-{name}"),
+                             description=f"hadal stage {name} on dive {ctx.dive_id}")
+
+
+def _run_ids() -> dict[str, str]:
+    from prefect.context import TaskRunContext
+
+    trc = TaskRunContext.get()
+    if trc is None:
+        return {}
+    return {"flow_run": str(trc.task_run.flow_run_id), "task_run": str(trc.task_run.id)}
 
 
 def raw_inputs(name: str, ctx: StageContext) -> list[Path]:
@@ -84,8 +161,8 @@ def stage_fingerprint(name: str, ctx: StageContext) -> dict[str, Any]:
     """Everything a stage's output depends on (see module docstring); JSON-serialisable."""
     mod = stage_module(name)
     raw = {}
-    for f in raw_inputs(name, ctx):
-        raw[str(f)] = _file_digest(f) if f.is_file() else "missing"
+    for f in raw_inputs(name, ctx):  # unchanged files are not re-read: ProductStore.file_sha256
+        raw[str(f)] = ctx.store.file_sha256(f) if f.is_file() else "missing"
     upstream = {}
     for product in getattr(mod, "UPSTREAM", ()):
         pv = ctx.pins.get(product) or (ctx.store.latest(ctx.dive_id, product)
@@ -155,12 +232,24 @@ def stage_task(name: str, *, retries: int = 0, after: Callable[[str, dict[str, s
     def _run(raw_dir: str, store_root: str | None = None, config_path: str | None = None,
              pins: dict[str, str] | None = None, failed: dict[str, str] | None = None,
              failed_skips: dict[str, str] | None = None) -> dict[str, str]:
+        route_hadal_logs()
         ctx = make_context(raw_dir, store_root, config_path, progress=default_progress())
         pin_paths(ctx, pins)
         ctx.failed, ctx.failed_skips = dict(failed or {}), dict(failed_skips or {})
         if not should_run(name, ctx):  # the upstream content cannot support it (logged with the reason)
             return {}
-        published = {product: str(pv.path) for product, pv in run_stage(name, ctx).items()}
+        collect = _ThreadWarnings()
+        hlog = logging.getLogger("hadal")
+        hlog.addHandler(collect)
+        t0 = time.monotonic()
+        try:
+            published = {product: str(pv.path) for product, pv in run_stage(name, ctx, _run_ids()).items()}
+        finally:
+            hlog.removeHandler(collect)
+        try:
+            stage_artifact(name, ctx, published, time.monotonic() - t0, collect.records)
+        except Exception as exc:  # noqa: BLE001 - an artifact must never fail a published stage
+            ctx.log.warning("stage %s: artifact not created (%s)", name, exc)
         if after is not None:
             after(name, published)
         return published
@@ -168,7 +257,7 @@ def stage_task(name: str, *, retries: int = 0, after: Callable[[str, dict[str, s
     _run.__name__ = _run.__qualname__ = name
     _run.__doc__ = f"Run the hadal stage {name!r} and publish its products."
     return task(
-        name=name, retries=retries, retry_delay_seconds=2,
+        name=name, task_run_name=name, retries=retries, retry_delay_seconds=2,
         retry_condition_fn=retry_on_io_error if retries else None,
         cache_key_fn=cache_key(name), persist_result=True,
     )(_run)

@@ -9,12 +9,19 @@ soundings, point clouds, rasters, dive.yaml, pipeline.yaml, vehicle.yaml, corrup
 case as ``hadal stage <stage> DIR --store S`` does (dive + config validation, then the stage; Prefect left out)
 against a fresh store, and prints per reader family:
 
-* ``tried``     cases run;
-* ``handled``   a one-line :class:`hadal.errors.HadalError` of the expected class and message with the store
-                byte-for-byte unchanged, or published/returned data that flag the defect (the case's check);
-* ``tracebacks`` any other exception (goal 0);
-* ``lost``      product versions that no longer verify (:meth:`ProductStore.verify`) or vanished, new versions
-                that do not verify, and leftover staging directories (goal 0).
+* ``tried``        cases run;
+* ``clean error``  a one-line :class:`hadal.errors.HadalError` of the expected class and message with the store
+                   byte-for-byte unchanged;
+* ``flagged``      published/returned data that flag the defect (the case's check, an oracle on the content);
+* ``traceback``    any other exception (goal 0);
+* ``silent-wrong`` a result where an error was due, or whose content fails the case's check (goal 0);
+* ``wrong error``  a HadalError of the wrong class or message, or one that changed the store (goal 0);
+* ``hang``         still running after :data:`CASE_TIMEOUT_S` (a watchdog alarm; goal 0);
+* ``over-memory``  a ``MemoryError`` under an address-space cap of :data:`CASE_MEMORY_BYTES` above the
+                   process's size at the start of the case (goal 0);
+* ``orphan``       child processes the case left running (goal 0);
+* ``lost``         product versions that no longer verify (:meth:`ProductStore.verify`) or vanished, new versions
+                   that do not verify, and leftover staging directories (goal 0).
 
 Exit status 1 when there is a traceback, a lost product or an unhandled case. ``tests/test_reliability.py``
 runs it.
@@ -22,12 +29,14 @@ runs it.
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import logging
 import re
 import shutil
 import sys
 import tempfile
+import threading
 import traceback
 import warnings
 from collections.abc import Callable
@@ -135,6 +144,14 @@ def all_items(dest: Path) -> list[Item]:
 
 
 # ---------------------------------------------------------------------------------------------- running
+#: outcome classes of one case; the first two are good, every other one is a defect (goal 0)
+STATUSES = ("clean_error", "flagged", "traceback", "silent_wrong", "wrong_error", "hang", "over_memory")
+#: a case that runs longer than this (seconds) is a hang
+CASE_TIMEOUT_S = 120.0
+#: a case may grow the process's address space by at most this much (bytes) before it is over-memory
+CASE_MEMORY_BYTES = 4 << 30
+
+
 @dataclass
 class Outcome:
     name: str
@@ -143,19 +160,91 @@ class Outcome:
     traceback: str | None = None
     lost: list[str] = field(default_factory=list)
     detail: str = ""
+    #: one of :data:`STATUSES`
+    status: str = "traceback"
+    #: child processes the case left running (pids)
+    orphans: list[int] = field(default_factory=list)
 
 
-def run_item(item: Item, store: Path) -> Outcome:
-    """Run one case against a fresh ``store``; never raises."""
+class _Hang(BaseException):
+    """Raised by the watchdog alarm in the case's thread (a BaseException: no ``except Exception`` eats it)."""
+
+
+@contextlib.contextmanager
+def _limits(timeout_s: float, memory_bytes: int):
+    """A wall-clock alarm (:class:`_Hang`) and an address-space cap (``MemoryError``) around one case, where the
+    platform allows (main thread, POSIX); the previous limits are restored after."""
+    import resource
+    import signal
+
+    main = threading.current_thread() is threading.main_thread() and hasattr(signal, "setitimer")
+    old_handler = None
+    if main:
+        def on_alarm(signum, frame):
+            raise _Hang()
+        old_handler = signal.signal(signal.SIGALRM, on_alarm)
+        signal.setitimer(signal.ITIMER_REAL, timeout_s)
+    old_as = resource.getrlimit(resource.RLIMIT_AS)
+    try:
+        vm = _vm_size_bytes()
+        if vm:
+            cap = vm + memory_bytes
+            hard = old_as[1]
+            resource.setrlimit(resource.RLIMIT_AS, (cap if hard == resource.RLIM_INFINITY else min(cap, hard), hard))
+    except (ValueError, OSError):
+        pass
+    try:
+        yield
+    finally:
+        if main:
+            signal.setitimer(signal.ITIMER_REAL, 0)
+            signal.signal(signal.SIGALRM, old_handler)
+        try:
+            resource.setrlimit(resource.RLIMIT_AS, old_as)
+        except (ValueError, OSError):
+            pass
+
+
+def _vm_size_bytes() -> int | None:
+    try:
+        for line in Path("/proc/self/status").read_text().splitlines():
+            if line.startswith("VmSize:"):
+                return int(line.split()[1]) * 1024
+    except OSError:
+        return None
+    return None
+
+
+def _children() -> set[int]:
+    try:
+        import psutil
+    except ImportError:
+        return set()
+    return {c.pid for c in psutil.Process().children(recursive=True) if c.is_running()
+            and c.status() != psutil.STATUS_ZOMBIE}
+
+
+def run_item(item: Item, store: Path, *, timeout_s: float = CASE_TIMEOUT_S,
+             memory_bytes: int = CASE_MEMORY_BYTES) -> Outcome:
+    """Run one case against a fresh ``store``; never raises. Counts the outcome class (:data:`STATUSES`), lost
+    products and orphaned child processes."""
     from hadal.errors import HadalError
 
     if store.exists():
         shutil.rmtree(store)
     item.prepare(store)
     before_tree, before = snapshot(store), intact_versions(store)
+    children_before = _children()
     out = Outcome(item.name, item.reader, handled=False)
     try:
-        res = item.run(store)
+        with _limits(timeout_s, memory_bytes):
+            res = item.run(store)
+    except _Hang:
+        out.status = "hang"
+        out.detail = f"HANG: still running after {timeout_s:g} s"
+    except MemoryError:
+        out.status = "over_memory"
+        out.detail = f"OVER MEMORY: needed more than {memory_bytes / 2**30:g} GiB"
     except HadalError as exc:
         msg = str(exc)
         problems = []
@@ -170,9 +259,11 @@ def run_item(item: Item, store: Path) -> Outcome:
         if snapshot(store) != before_tree:
             problems.append("store changed")
         out.handled = not problems
+        out.status = "clean_error" if not problems else "wrong_error"
         out.detail = f"{type(exc).__name__}: {msg}" + (f"  [{'; '.join(problems)}]" if problems else "")
     except Exception as exc:  # noqa: BLE001 - counting them is the point
         out.traceback = "".join(traceback.format_exception(exc))
+        out.status = "traceback"
         out.detail = f"TRACEBACK {type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''}"
     else:
         try:
@@ -181,8 +272,13 @@ def run_item(item: Item, store: Path) -> Outcome:
             ok = False
             out.detail = f"check raised {type(exc).__name__}: {exc}"
         out.handled = ok
+        # a result where an error was due, or one whose content fails the case's oracle check: silently wrong
+        out.status = "flagged" if ok else "silent_wrong"
         out.detail = out.detail or ("published, flagged" if ok else f"expected {item.error}, got a result")
     out.lost = lost_products(before, intact_versions(store), store)
+    out.orphans = sorted(_children() - children_before)
+    if out.orphans:
+        out.handled = False
     return out
 
 
@@ -190,23 +286,41 @@ def run_all(items: list[Item], work: Path) -> list[Outcome]:
     return [run_item(it, Path(work) / "stores" / it.name) for it in items]
 
 
+#: the report's columns: (header, counter of one reader's outcomes)
+COLUMNS: tuple[tuple[str, Callable[[list[Outcome]], int]], ...] = (
+    ("tried", len),
+    ("clean error", lambda sel: sum(o.status == "clean_error" for o in sel)),
+    ("flagged", lambda sel: sum(o.status == "flagged" for o in sel)),
+    ("traceback", lambda sel: sum(o.status == "traceback" for o in sel)),
+    ("silent-wrong", lambda sel: sum(o.status == "silent_wrong" for o in sel)),
+    ("wrong error", lambda sel: sum(o.status == "wrong_error" for o in sel)),
+    ("hang", lambda sel: sum(o.status == "hang" for o in sel)),
+    ("over-memory", lambda sel: sum(o.status == "over_memory" for o in sel)),
+    ("orphan", lambda sel: sum(len(o.orphans) for o in sel)),
+    ("lost", lambda sel: sum(len(o.lost) for o in sel)),
+)
+
+
 def table(outcomes: list[Outcome]) -> tuple[str, dict[str, int]]:
+    """The per-reader table and the totals (keys: the column headers, plus ``handled``/``tracebacks``)."""
     readers = sorted({o.reader for o in outcomes})
     rows = []
-    tot = {"tried": 0, "handled": 0, "tracebacks": 0, "lost": 0}
+    tot: dict[str, int] = {}
     for r in readers + ["TOTAL"]:
         sel = [o for o in outcomes if r == "TOTAL" or o.reader == r]
-        row = {"tried": len(sel), "handled": sum(o.handled for o in sel),
-               "tracebacks": sum(o.traceback is not None for o in sel), "lost": sum(len(o.lost) for o in sel)}
+        row = {name: int(f(sel)) for name, f in COLUMNS}
+        row["handled"] = sum(o.handled for o in sel)
+        row["tracebacks"] = row["traceback"]
         if r == "TOTAL":
             tot = row
         rows.append((r, row))
     w = max(len(r) for r, _ in rows)
-    lines = [f"{'reader':<{w}}  {'tried':>6} {'handled':>8} {'tracebacks':>11} {'lost':>5}"]
+    head = f"{'reader':<{w}}  " + " ".join(f"{name:>{max(len(name), 5)}}" for name, _ in COLUMNS)
+    lines = [head]
     for r, row in rows:
         if r == "TOTAL":
-            lines.append("-" * len(lines[0]))
-        lines.append(f"{r:<{w}}  {row['tried']:>6} {row['handled']:>8} {row['tracebacks']:>11} {row['lost']:>5}")
+            lines.append("-" * len(head))
+        lines.append(f"{r:<{w}}  " + " ".join(f"{row[name]:>{max(len(name), 5)}}" for name, _ in COLUMNS))
     return "\n".join(lines), tot
 
 
@@ -216,14 +330,16 @@ def main(argv: list[str] | None = None) -> int:
     work = Path(argv[0]) if argv else Path(tempfile.mkdtemp(prefix="hadal-reliability-"))
     outcomes = run_all(all_items(work / "corpus"), work)
     text, tot = table(outcomes)
-    bad = [o for o in outcomes if not o.handled or o.traceback or o.lost]
+    bad = [o for o in outcomes if not o.handled or o.traceback or o.lost or o.orphans]
     for o in bad:
         print(f"! {o.name}: {o.detail}{'  lost: ' + ', '.join(o.lost) if o.lost else ''}")
         if o.traceback:
             print(o.traceback)
     print(text)
-    print(f"inputs tried {tot['tried']}, handled {tot['handled']}, tracebacks {tot['tracebacks']} (goal 0), "
-          f"products lost {tot['lost']} (goal 0)")
+    print(f"inputs tried {tot['tried']}, handled {tot['handled']} (clean error {tot['clean error']}, flagged "
+          f"{tot['flagged']}); goal 0 in each of: tracebacks {tot['traceback']}, silent-wrong {tot['silent-wrong']}, "
+          f"wrong error {tot['wrong error']}, hangs {tot['hang']}, over-memory {tot['over-memory']}, "
+          f"orphan processes {tot['orphan']}, products lost {tot['lost']}")
     if not argv:
         shutil.rmtree(work, ignore_errors=True)
     return 0 if not bad else 1

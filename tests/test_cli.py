@@ -77,3 +77,32 @@ def test_help_lists_commands():
     assert res.returncode == 0
     for cmd in ("run", "stage", "products", "synth"):
         assert cmd in res.stdout
+
+
+def test_version_plain_and_usage_errors_are_one_line():
+    from hadal import __version__
+
+    res = hadal("--version")
+    assert res.returncode == 0 and res.stdout.strip() == f"hadal {__version__}"
+    res = hadal()
+    assert res.returncode == 0 and "Commands" in res.stdout and "Traceback" not in res.stderr
+    for args, frag in ((["runn"], "No such command"), (["run", "--bogus", "x"], "--bogus"),
+                       (["run"], "Missing argument"), (["stage", "grid"], "Missing argument")):
+        assert_one_line_error(hadal(*args), frag)
+
+
+def test_config_output_is_cached_per_code_version(tmp_path):
+    """`hadal config` (cached per code version) prints exactly what the generator makes; a cache file of another
+    code version is never used."""
+    env = {**os.environ, "HADAL_CACHE_DIR": str(tmp_path)}
+    (tmp_path / "pipeline-defaults-0.0.0+stale.yaml").write_text("stale: true\n")
+    first = subprocess.run([sys.executable, "-m", "hadal.cli", "config"], capture_output=True, text=True, env=env,
+                           cwd=REPO, timeout=300)
+    oracle = subprocess.run([sys.executable, "-c", "from hadal.config import default_yaml; "
+                             "print(default_yaml(), end='')"], capture_output=True, text=True, cwd=REPO, timeout=300)
+    assert first.returncode == 0 and first.stdout == oracle.stdout
+    cached = [f for f in tmp_path.glob("pipeline-defaults-*.yaml") if "stale" not in f.name]
+    assert len(cached) == 1 and cached[0].read_text() == oracle.stdout
+    second = subprocess.run([sys.executable, "-m", "hadal.cli", "config"], capture_output=True, text=True, env=env,
+                            cwd=REPO, timeout=300)
+    assert second.stdout == first.stdout

@@ -59,6 +59,7 @@ def test_init_writes_validates_and_never_overwrites(tmp_path):
     assert yaml.safe_load((raw / "dive.yaml").read_text())["dive_id"] == "d7"
     chk = hadal("config", "--check", str(raw))
     assert chk.returncode == 0 and "run   grid" in chk.stdout and "skip  landing" in chk.stdout
+    assert "lacks creator_name, creator_email, institution, project, license" in chk.stdout
     bad = hadal("init", str(raw), "--force", "--launch", "95,10")
     assert bad.returncode == 2 and "--launch" in bad.stderr
 
@@ -92,3 +93,32 @@ def test_init_then_run_a_compressed_real_cast(shared_data, tmp_path):
     assert {"sensors", "ctd", "profile", "report"} <= {r["product"] for r in listing}
     summary = json.loads(next((tmp_path / "store" / "cast-dive" / "report").glob("v*/summary.json")).read_text())
     assert {s["stage"] for s in summary["skipped_stages"]} == {"grid", "suitability", "match", "landing"}
+
+
+def test_init_writes_a_commented_acdd_metadata_stub(tmp_path):
+    """A new dive.yaml shows every discovery field with its ACDD meaning, commented out (no placeholder reaches a
+    product); uncommented as is it validates, and filling it in empties the `hadal config --check` list."""
+    from hadal.dive import Dive
+    from hadal.dive_init import METADATA_STUB, InitResult
+    from hadal.products import missing_acdd_fields
+    from hadal.products.metadata import ACDD_REQUIRED
+
+    res = InitResult(raw_dir=tmp_path, dive={"dive_id": "d1", "platform": "Haidou", "sources": {}})
+    text = res.dive_yaml()
+    assert yaml.safe_load(text) == res.dive  # the stub is comments only
+    lines = text.splitlines()
+    start = lines.index("# metadata:")
+    stub = [ln[2:] for ln in lines[start:] if ln.startswith("#   ") or ln == "# metadata:"]
+    for key in (*ACDD_REQUIRED, "creator_type", "naming_authority", "platform_vocabulary_name", "instruments"):
+        i = next(k for k, ln in enumerate(stub) if ln.strip().startswith(f"{key}:"))
+        if key != "instruments":
+            assert "ACDD" in stub[i - 1] and stub[i - 1].strip().startswith("#"), (key, stub[i - 1])
+    assert {k for k, _, _ in METADATA_STUB} >= set(ACDD_REQUIRED)
+    uncommented = yaml.safe_load("\n".join(stub))
+    dive = Dive.model_validate({**res.dive, **uncommented})
+    assert missing_acdd_fields(dive) == list(ACDD_REQUIRED)  # empty values: still listed, nothing invented
+    filled = {k: "x@y.org" if k.endswith("email") else "CC-BY-4.0" if k == "license" else "A" for k in ACDD_REQUIRED}
+    dive = Dive.model_validate({**res.dive, "metadata": {**uncommented["metadata"], **filled}})
+    assert missing_acdd_fields(dive) == []
+    res.dive["metadata"] = {"creator_name": "A"}  # a dive that has metadata gets no stub
+    assert "# metadata:" not in res.dive_yaml()

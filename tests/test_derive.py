@@ -254,3 +254,55 @@ def test_derive_ctd_without_gauge_or_altimeter(synth):
     out2, _ = derive.derive_ctd(df, LAT, LON, derive.Params())
     assert out2["practical_salinity"].iloc[100:111].isna().all()
     assert np.nanmax(np.abs(out2["depth_m"] - out["depth_m"])) < 0.05
+
+
+TEOS10 = {"absolute_salinity_g_kg": "sea_water_absolute_salinity",
+          "conservative_temperature_degc": "sea_water_conservative_temperature",
+          "potential_temperature_degc": "sea_water_potential_temperature", "sigma0_kg_m3": "sea_water_sigma_theta",
+          "buoyancy_frequency_squared_s2": "square_of_brunt_vaisala_frequency_in_sea_water"}
+
+
+def test_teos10_columns_in_ctd_and_profile(derived, synth):
+    """TEOS-10 next to EOS-80: values against gsw on the dive's own salinity/temperature, CF names in both."""
+    _, out = derived
+    df = pd.read_parquet(out["ctd"].file("ctd.parquet"))
+    _, cols = read_parquet_metadata(out["ctd"].file("ctd.parquet"))
+    for name, std in TEOS10.items():
+        assert cols[name]["standard_name"] == std and cols[name]["units"], name
+    p = df["pressure_dbar"].to_numpy()
+    sa = gsw.SA_from_SP(df["practical_salinity"].to_numpy(), p, LON, LAT)
+    ct = gsw.CT_from_t(sa, df["temperature_its90_degc"].to_numpy(), p)
+    assert np.nanmax(np.abs(df["absolute_salinity_g_kg"] - sa)) < 1e-12
+    assert np.nanmax(np.abs(df["conservative_temperature_degc"] - ct)) < 1e-12
+    assert np.nanmax(np.abs(df["sigma0_kg_m3"] - gsw.sigma0(sa, ct))) < 1e-12
+    # the synthetic column is stably stratified: N² > 0 nearly everywhere, ~1e-5 s-2 or less in the deep
+    n2 = df["buoyancy_frequency_squared_s2"].to_numpy()
+    assert np.isfinite(n2).mean() > 0.95 and (n2[np.isfinite(n2)] > 0).mean() > 0.95
+    ds = xr.open_dataset(out["profile"].file("profile.nc"), engine="h5netcdf")
+    for name, std in TEOS10.items():
+        assert ds[name].attrs["standard_name"] == std and ds[name].dims == ("cast", "pressure_dbar"), name
+    assert float(ds["sigma0_kg_m3"].isel(cast=0).max()) == pytest.approx(
+        float(np.nanmax(gsw.sigma0(sa, ct))), abs=0.01)
+
+
+def test_chain_parameters_in_manifest(tmp_path, synth):
+    raw = _raw_dive(tmp_path)
+    chain = {"wild_edit": True, "filter_temperature_s": 0.5, "align_conductivity_s": 0.5, "cell_thermal_mass": True,
+             "loop_edit": True, "loop_edit_min_velocity_m_s": 0.1, "profile_binning": "seabird"}
+    (raw / "pipeline.yaml").write_text(yaml.safe_dump({"derive": chain}))
+    ctx = make_context(raw, tmp_path / "store")
+    _publish_sensors(ctx, synth[0].iloc[::4].reset_index(drop=True))
+    out = run_stage("derive", ctx)
+    for prod in ("ctd", "profile"):
+        params = json.dumps(out[prod].manifest())
+        for k in chain:
+            assert f'"{k}"' in params, (prod, k)
+    meta, _ = read_parquet_metadata(out["ctd"].file("ctd.parquet"))
+    assert [s["step"] for s in meta["ctd_processing"]] == ["wild_edit", "filter", "align_ctd", "cell_thermal_mass",
+                                                           "loop_edit"]
+    df = pd.read_parquet(out["ctd"].file("ctd.parquet"))
+    # the bottom phase (slow, back and forth) is what LoopEdit removes
+    bad = df["loop_edit_bad"].to_numpy()
+    assert bad[(df["phase"] == "bottom").to_numpy()].mean() > 0.5 and bad[(df["phase"] == "descent").to_numpy()].mean() < 0.05
+    ds = xr.open_dataset(out["profile"].file("profile.nc"), engine="h5netcdf")
+    assert ds.attrs.get("binning") == "seabird BinAvg" and float(ds["pressure_dbar"][0]) == 10.0

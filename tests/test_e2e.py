@@ -37,6 +37,7 @@ def test_every_stage_published_a_verified_first_version(small_run):
         assert ctx.store.verify(pv) == [], name
         man = pv.manifest()
         assert man["code_version"] and man["parameters"] is not None, name
+        assert man["stage_run"]["stage"] in available_stages() and man["stage_run"]["seconds"] > 0, name
     # upstream lineage: match was computed from the dtm and ctd versions published in this run
     ups = {(u["product"], u["version"]) for u in out["match"].manifest()["upstream"]}
     assert {("dtm", "v001"), ("ctd", "v001")} <= ups

@@ -112,6 +112,7 @@ def test_kill9_mid_publish_leaves_no_partial_version(small_dive, store, tmp_path
     assert _all_intact(st, dive_id, "sensors") == ["v001", "v002"]
 
 
+@pytest.mark.integration
 def test_two_concurrent_stage_runs_get_two_intact_versions(small_dive, store, tmp_path):
     """Two ``ingest`` runs of the same dive, released together at the commit: v002 and v003, both intact."""
     dive_id = make_context(small_dive, store).dive_id

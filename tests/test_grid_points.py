@@ -7,7 +7,7 @@ import pytest
 from scipy.stats import binned_statistic_2d
 
 from hadal.errors import HadalError, InputError
-from hadal.grid import grid_points, make_grid_spec, robust_outlier_mask
+from hadal.grid import grid_points, make_grid_spec, reduce_cells, robust_outlier_mask
 from hadal.grid import points as P
 
 # Hand-made check values: 1 m cells, bounds (0, 0, 2, 2) -> 2 x 2 cells.
@@ -194,3 +194,116 @@ def test_compiled_kernel_matches_the_bincount_reference(check_inside):
         np.testing.assert_allclose(got[1], ref[1], rtol=1e-10, atol=1e-9)
         np.testing.assert_allclose(got[2], ref[2], rtol=1e-10, atol=1e-9)
         assert got[3:] == ref[3:] and got[3] == 20
+
+
+def _pandas_oracle(x, y, z, x0, y0, res, nx, ny, ddof=1):
+    """Independent per-cell statistics: cells by np.digitize on explicit edges (upper/right edge point in the
+    last cell, as binned_statistic_2d does), statistics by pandas groupby."""
+    import pandas as pd
+
+    ok = np.isfinite(x) & np.isfinite(y) & np.isfinite(z)
+    xe, ye = x0 + res * np.arange(nx + 1), y0 + res * np.arange(ny + 1)
+    ok &= (x >= xe[0]) & (x <= xe[-1]) & (y >= ye[0]) & (y <= ye[-1])
+    ix = np.clip(np.digitize(x[ok], xe) - 1, 0, nx - 1)
+    iy = np.clip(np.digitize(y[ok], ye) - 1, 0, ny - 1)
+    g = pd.Series(z[ok]).groupby(iy * nx + ix)
+    full = {}
+    for stat, s in (("count", g.count()), ("mean", g.mean()), ("median", g.median()), ("std", g.std(ddof=ddof)),
+                    ("min", g.min()), ("max", g.max())):
+        a = np.zeros(nx * ny, np.int64) if stat == "count" else np.full(nx * ny, np.nan)
+        a[s.index.to_numpy()] = s.to_numpy()
+        full[stat] = a.reshape(ny, nx)
+    return full
+
+
+def _jittered_points(rng, n, nx, ny, res, x0=0.0, y0=0.0):
+    """Points well inside random cells (no rounding question at cell edges), a Poisson count per cell
+    with a few crowded cells (> 24 points: the sort branch) and a few on the grid's upper/right edge."""
+    cx = rng.integers(0, nx, n)
+    cy = rng.integers(0, ny, n)
+    cx[: n // 20] = 3  # crowded cells
+    cy[: n // 20] = rng.integers(0, 3, n // 20)
+    x = x0 + (cx + 0.5 + rng.uniform(-0.45, 0.45, n)) * res
+    y = y0 + (cy + 0.5 + rng.uniform(-0.45, 0.45, n)) * res
+    x[-5:], y[-5:] = x0 + nx * res, y0 + ny * res
+    z = rng.normal(-8000.0, 3.0, n).round(2)  # ties: medians of equal middle values
+    return x, y, z
+
+
+@pytest.mark.parametrize("no_numba", [False, True])
+def test_all_statistics_match_pandas_groupby(monkeypatch, no_numba):
+    """The compiled partitioned path (and the NumPy reference without numba) against pandas, with NaN/inf
+    points, points outside explicit bounds, crowded cells, even and odd counts, tied values."""
+    if no_numba:
+        monkeypatch.setenv("HADAL_NO_NUMBA", "1")
+    elif P._partition_kernels() is None:
+        pytest.skip("numba not installed")
+    rng = np.random.default_rng(11)
+    nx, ny, res = 70, 40, 0.5
+    x, y, z = _jittered_points(rng, 60_000, nx, ny, res, x0=-10.0, y0=20.0)
+    x[100:110] = np.nan
+    z[110:120] = -np.inf
+    x[120:130] = -10.0 - 3.0  # outside
+    bounds = (-10.0, 20.0, -10.0 + nx * res, 20.0 + ny * res)
+    exp = _pandas_oracle(x, y, z, -10.0, 20.0, res, nx, ny)
+    for threads in (1, 2):
+        ds = grid_points(x, y, z, res, bounds=bounds, statistics=P.STATISTICS, threads=threads)
+        assert ds.attrs["n_points_nonfinite"] == 20 and ds.attrs["n_points_outside"] == 10
+        assert ds.attrs["n_points_used"] == 60_000 - 30
+        for s in P.STATISTICS:
+            np.testing.assert_allclose(ds[s].values, exp[s], rtol=1e-13, atol=1e-9, equal_nan=True, err_msg=s)
+        assert int(ds["count"].max()) > 24
+
+
+def test_reduce_cells_compiled_matches_reference_and_pandas():
+    import pandas as pd
+
+    if P._partition_kernels() is None:
+        pytest.skip("numba not installed")
+    rng = np.random.default_rng(12)
+    n, m = 50_000, 30_000
+    idx = rng.integers(0, m, n)
+    idx[:2000] = 17
+    z = rng.normal(10_000.0, 1e-3, n)
+    got = reduce_cells(idx, z, m, P.STATISTICS, ddof=1)
+    ref = P._reduce_cells_numpy(idx, z, m, P.STATISTICS, ddof=1)
+    g = pd.Series(z).groupby(idx)
+    for s in P.STATISTICS:
+        np.testing.assert_allclose(got[s], ref[s], rtol=1e-12, equal_nan=True, err_msg=s)
+        o = {"count": g.count(), "mean": g.mean(), "median": g.median(), "std": g.std(), "min": g.min(),
+             "max": g.max()}[s]
+        # pandas' one-pass (Welford) std carries ~eps * 10 km = 2e-12 absolute error here
+        np.testing.assert_allclose(got[s][o.index.to_numpy()], o.to_numpy(), rtol=1e-12, atol=1e-11, err_msg=s)
+    for c in rng.choice(np.unique(idx), 50):  # brute force, cell by cell
+        v = z[idx == c]
+        assert got["median"][c] == np.median(v) and got["mean"][c] == pytest.approx(np.mean(v), abs=2e-12)
+        if len(v) > 1:
+            assert got["std"][c] == pytest.approx(np.std(v, ddof=1), rel=1e-6, abs=1e-13)
+    # 10 km values with 1 micrometre-scale spread: the two-pass std has no cancellation
+    v = z[idx == 17]
+    assert got["std"][17] == pytest.approx(np.std(v, ddof=1), rel=1e-9)
+    assert got["mean"][17] == pytest.approx(np.mean(v), abs=1e-11)
+    with pytest.raises(InputError, match="cell indices"):
+        reduce_cells(np.full(5000, m), z[:5000], m)
+
+
+def test_random_order_takes_the_partitioned_path_with_the_same_result():
+    """Points in random order over a grid whose sums exceed the cache go through the partitioned kernels;
+    survey order through the single pass; both equal the pandas oracle (count/mean/std)."""
+    if P._partition_kernels() is None:
+        pytest.skip("numba not installed")
+    rng = np.random.default_rng(13)
+    nx, ny, res = 300, 200, 1.0
+    x, y, z = _jittered_points(rng, 200_000, nx, ny, res)
+    z = 10_000.0 + rng.normal(0, 1e-3, len(z))
+    spec = make_grid_spec(res, (0, 0, nx, ny))
+    order = np.lexsort((x, np.floor(y)))
+    assert P._scattered(x, y, spec) and not P._scattered(x[order], y[order], spec)
+    exp = _pandas_oracle(x, y, z, 0.0, 0.0, res, nx, ny)
+    for xs, ys, zs in ((x, y, z), (x[order], y[order], z[order])):
+        ds = grid_points(xs, ys, zs, res, bounds=(0, 0, nx, ny), statistics=("count", "mean", "std"))
+        np.testing.assert_array_equal(ds["count"].values, exp["count"])
+        np.testing.assert_allclose(ds["mean"].values, exp["mean"], rtol=1e-15, atol=1e-11, equal_nan=True)
+        np.testing.assert_allclose(ds["std"].values, exp["std"], rtol=1e-8, atol=1e-11, equal_nan=True)  # pandas: Welford
+        cnt, mean, m2, bad, out = P.cell_moments(xs, ys, zs, spec)
+        assert (m2[cnt == 0] == 0).all() and bad == 0 and out == 0

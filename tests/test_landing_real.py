@@ -35,7 +35,7 @@ def takuyo(shared_data) -> xr.DataArray:
 
 @pytest.fixture(scope="module")
 def result(takuyo):
-    return analyse_submap(takuyo)
+    return analyse_submap(takuyo, max_cell_fraction=0.2)  # 0.10 m cells: explicit override of the 1/10 rule
 
 
 def test_real_depth_range_and_slope(takuyo, result):

@@ -138,12 +138,12 @@ def takuyo(shared_data) -> xr.DataArray:
 
 def test_noise_robustness_real_raster(takuyo):
     """White noise of 2/4/6 mm (below the sensor's resolution): best site moves < 0.3 m, C_s within 10 %."""
-    base = analyse_submap(takuyo)
+    base = analyse_submap(takuyo, max_cell_fraction=0.2)
     assert base.best is not None
     rng = np.random.default_rng(15)
     for sd in (0.002, 0.004, 0.006):
         noisy = takuyo + sd * rng.standard_normal(takuyo.shape)
-        r = analyse_submap(noisy)
+        r = analyse_submap(noisy, max_cell_fraction=0.2)
         assert r.best is not None
         move = math.hypot(r.best["x_m"] - base.best["x_m"], r.best["y_m"] - base.best["y_m"])
         assert move < 0.3, (sd, move)
@@ -224,11 +224,11 @@ def test_depth_grid_sign():
 
 
 def test_coarse_but_allowed_cells_give_finite_costs(takuyo):
-    res = analyse_submap(takuyo.coarsen(x=1, y=1).mean(), headings_deg=[0.0, 45.0])
+    res = analyse_submap(takuyo.coarsen(x=1, y=1).mean(), headings_deg=[0.0, 45.0], max_cell_fraction=0.2)
     assert len(res.sites) == 0 or np.isfinite(res.sites[["p_s", "p_f", "p_r", "c_s"]].to_numpy()).all()
     cell = 0.1
     z = np.zeros((200, 60))
-    res = analyse_submap(grid(z, cell), headings_deg=[0.0])
+    res = analyse_submap(grid(z, cell), headings_deg=[0.0], max_cell_fraction=0.2)
     assert res.best is not None and np.isfinite(res.best["c_s"])
     assert not ((res.exclusion[0] & UNMAPPED) != 0).all()
 
@@ -295,7 +295,7 @@ def test_resolution_stability_100mm_vs_50mm(takuyo):
     mask = xr.DataArray(v.astype(float), dims=t.dims, coords=t.coords).interp(
         y=y, x=x, method="nearest", kwargs={"fill_value": 0.0})
     fine = lin.where(mask.values > 0.5)
-    a = analyse_submap(t).best
+    a = analyse_submap(t, max_cell_fraction=0.2).best
     b = analyse_submap(fine).best
     assert a is not None and b is not None
     assert abs(((a["heading_deg"] - b["heading_deg"]) + 90) % 180 - 90) <= 5.0
@@ -311,7 +311,7 @@ def test_noise_robustness_real_area_at_10mm(takuyo):
     v = np.isfinite(t.values)
     idx = ndi.distance_transform_edt(~v, return_distances=False, return_indices=True)
     filled = t.copy(data=t.values[idx[0], idx[1]])
-    b0 = analyse_submap(t).best
+    b0 = analyse_submap(t, max_cell_fraction=0.2).best
     yy = np.arange(b0["y_m"] - 3.0, b0["y_m"] + 3.0, 0.01)
     xx = np.arange(b0["x_m"] - 4.0, b0["x_m"] + 4.0, 0.01)
     lin = filled.interp(y=yy, x=xx, method="linear", kwargs={"fill_value": None})

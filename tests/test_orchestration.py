@@ -203,6 +203,7 @@ def _post(url: str, body: dict) -> list:
 
 
 @pytest.mark.slow
+@pytest.mark.integration
 def test_serve_creates_scheduled_runs_on_a_real_server(tmp_path):
     """`hadal serve` registers a cron deployment; the server's scheduler creates Scheduled runs for it."""
     import httpx
@@ -258,3 +259,58 @@ def test_serve_creates_scheduled_runs_on_a_real_server(tmp_path):
                 p.wait(timeout=15)
             except subprocess.TimeoutExpired:
                 p.kill()
+
+
+@pytest.mark.prefect
+def test_stage_graph_runs_independent_stages_concurrently_with_pins(tmp_path, prefect_harness, monkeypatch):
+    """The flow's scheduler (run_stage_graph) starts a stage as soon as the stages it reads from are done:
+    ingest and grid overlap, derive waits for ingest, landing for grid (not for match); each stage gets the pins of
+    what its upstream published; a failed stage skips its dependents, the others and the report still run.
+    Oracle: the dependency table of the stage docs (derive reads sensors, landing reads laser_grids)."""
+    import threading
+
+    from hadal.flows import post_cruise as pc
+    from prefect import flow, task
+    from prefect.task_runners import ThreadPoolTaskRunner
+
+    from hadal.errors import InputError
+
+    log: dict[str, dict] = {}
+    lock = threading.Lock()
+    makes = {"ingest": "sensors", "derive": "ctd", "grid": "laser_grids", "landing": "landing", "report": "report"}
+
+    def fake(name: str, fail: bool = False):
+        def run(raw_dir, store_root=None, config_path=None, pins=None, failed=None, failed_skips=None):
+            t0 = time.monotonic()
+            time.sleep(1.0)
+            with lock:
+                log[name] = {"t0": t0, "t1": time.monotonic(), "pins": dict(pins or {}), "failed": failed}
+            if fail:
+                raise InputError(f"{name} broke")
+            v = Path(store_root, "d", makes[name], "v001")
+            v.mkdir(parents=True)
+            (v / "manifest.json").write_text("{}")
+            return {makes[name]: str(v)}
+
+        return task(name=name)(run)
+
+    names = ["ingest", "derive", "grid", "landing", "report"]
+    monkeypatch.setattr(pc, "stage_tasks", lambda ns: [fake(n, fail=(n == "derive")) for n in ns])
+
+    @flow(task_runner=ThreadPoolTaskRunner(max_workers=4))
+    def graph():
+        d = pc.DiveRun("raw", names, {"dtm": "old-dtm"})
+        pc.run_stage_graph([d], str(tmp_path), None, False)
+        return d
+
+    d = graph()
+    assert log["grid"]["t0"] < log["ingest"]["t1"]  # concurrent: grid does not wait for ingest
+    assert log["derive"]["t0"] >= log["ingest"]["t1"]  # derive reads sensors
+    assert log["landing"]["t0"] >= log["grid"]["t1"] and log["landing"]["t0"] < log["derive"]["t1"] + 0.9
+    assert log["derive"]["pins"]["sensors"].endswith("sensors/v001") and log["derive"]["pins"]["dtm"] == "old-dtm"
+    assert log["report"]["t0"] >= max(log[n]["t1"] for n in ("ingest", "derive", "grid", "landing"))
+    assert log["report"]["failed"] == {"derive": "derive broke"}  # the report lists the failure
+    status = {r["stage"]: r["status"] for r in d.rows}
+    assert status == {"ingest": "published", "derive": "failed", "grid": "published", "landing": "published",
+                      "report": "published"}
+    assert d.failed == {"derive": "derive broke"}

@@ -222,3 +222,20 @@ def test_odd_source_files_are_one_line_errors_not_hangs(tmp_path, make, match):
     with pytest.raises(InputError, match=match):
         run_stage("grid", make_context(tmp_path, tmp_path / "store"))
     assert not (tmp_path / "store").exists()
+
+
+def test_stage_dependencies_follow_the_products_each_stage_reads():
+    """Oracle: the data flow of docs/architecture.md (derive reads sensors; suitability, match and landing read
+    the grid's products; match also ctd and suitability; report everything)."""
+    from hadal.plan import downstream_stages, stage_dependencies
+
+    deps = stage_dependencies(["ingest", "derive", "grid", "suitability", "match", "landing", "report"])
+    assert deps["ingest"] == set() and deps["grid"] == set()  # the two raw readers run side by side
+    assert deps["derive"] == {"ingest"}
+    assert deps["landing"] == {"grid"}  # landing does not wait for match
+    assert deps["match"] == {"derive", "grid", "suitability"}
+    assert deps["report"] == {"ingest", "derive", "grid", "suitability", "match", "landing"}
+    assert stage_dependencies(["derive", "landing"]) == {"derive": set(), "landing": set()}  # only the run's stages
+    assert downstream_stages("grid") == ["suitability", "match", "landing", "report"]
+    assert downstream_stages("derive") == ["match", "report"]
+    assert downstream_stages("report") == []

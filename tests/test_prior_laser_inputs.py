@@ -233,6 +233,11 @@ def test_laser_only_dive_takuyo_raster_grid_to_landing(shared_data, tmp_path):
     assert 0.10 < np.isfinite(v).mean() < 0.16
     assert "local metric" in lg.attrs["source_crs_override"]
     assert "rasterio" in out["laser_grids"].manifest()["readers"]["takuyo_b1.raster"]
+    # 0.1 m cells are 1/5 of the 0.5 m vehicle: refused by the 1/10 rule unless the user raises the limit
+    with pytest.raises(InputError, match="too coarse"):
+        run_stage("landing", ctx)
+    (raw / "pipeline.yaml").write_text("landing: {heading_step_deg: 10, figures: false, max_cell_fraction: 0.2}\n")
+    ctx = make_context(raw, tmp_path / "store")
     land = run_stage("landing", ctx)["landing"]
     import pandas as pd
 

@@ -273,3 +273,36 @@ def test_real_products_of_the_small_sample_dive_are_compliant(small_run):
     assert any(f.name.startswith("submap_") for f in files)
     bad = [rep.describe() for rep in map(check_compliance, files) if not rep.ok]
     assert not bad, "\n".join(bad)
+
+
+def test_small_sample_dive_products_are_geographic_strict_and_catalogued(small_run):
+    """Issue 18 on the real pipeline output: navigation for every sample, ctd lat/lon, DTM COG, strict JSON,
+    manifests with software versions, provenance paths relative to the raw directory, a valid STAC catalog."""
+    ctx, out = small_run
+    nav = pd.read_parquet(out["navigation"].file("navigation.parquet"))
+    ctd = pd.read_parquet(out["ctd"].file("ctd.parquet"))
+    assert len(nav) == len(ctd) and {"lat", "lon"} <= set(ctd.columns)
+    assert set(nav["position_source"].astype(str)) >= {"matched", "dead_reckoned"}
+    assert np.isfinite(nav[["lat", "lon", "position_uncertainty_m"]].to_numpy()).all()
+    tif = out["dtm"].file("dtm.tif")
+    rio_cogeo = pytest.importorskip("rio_cogeo.cogeo")
+    assert rio_cogeo.cog_validate(str(tif), quiet=True)[0]
+    def strict(c):
+        raise AssertionError(f"non-strict JSON constant {c}")
+
+    for f in ctx.store.root.rglob("*.json"):
+        json.loads(f.read_text(), parse_constant=strict)
+    raw = str(ctx.raw_dir)
+    for pv in out.values():
+        m = pv.manifest()
+        assert m["software"]["libraries"]["numpy"] == np.__version__
+        for f in pv.path.glob("*.nc"):
+            with xr.open_dataset(f) as ds:
+                prov = ds.attrs["hadal_provenance"]
+                assert raw not in prov and str(ctx.store.root) not in prov, f
+    with xr.open_dataset(out["dtm"].file("dtm.nc")) as ds:
+        assert "MULTIBEAM" in ds.attrs["instrument"].upper() and "CTD" not in ds.attrs["instrument"]
+    pytest.importorskip("pystac")
+    from hadal.products.stac import validate_store_catalog
+
+    assert validate_store_catalog(ctx.store.root) == []

@@ -82,6 +82,9 @@ def test_reliability_report(items, work, capsys):
     assert tot["tracebacks"] == 0, [o.detail for o in outcomes if o.traceback]
     assert tot["lost"] == 0, [(o.name, o.lost) for o in outcomes if o.lost]
     assert tot["handled"] == tot["tried"], [(o.name, o.detail) for o in outcomes if not o.handled]
+    for bad in ("silent-wrong", "wrong error", "hang", "over-memory", "orphan"):
+        assert tot[bad] == 0, (bad, [(o.name, o.detail) for o in outcomes if o.status not in ("clean_error",
+                                                                                             "flagged")])
 
 
 def test_report_counts_tracebacks_and_lost_products(tmp_path):
@@ -115,6 +118,52 @@ def test_report_counts_tracebacks_and_lost_products(tmp_path):
     assert any(x.startswith("d1/p/v00") for x in o.lost) and "d1/p/.staging-123-x" in o.lost
     before = intact_versions(tmp_path / "s2")
     assert lost_products(before, before, tmp_path / "s2") == ["d1/p/.staging-123-x"]
+
+
+def test_report_counts_hangs_memory_orphans_and_silent_wrong(tmp_path):
+    """The other bad columns are not vacuous either: a case that hangs, one that eats memory, one that leaves a
+    child process behind and one that returns a wrong result are each counted in their column."""
+    import time
+
+    import numpy as np
+    from reliability_report import Item
+
+    def hang(store: Path):
+        time.sleep(30)
+
+    def hog(store: Path):
+        return np.ones(int(3 * 2**30 // 8))  # 3 GiB under a 1 GiB cap
+
+    procs = []
+
+    def orphan(store: Path):
+        procs.append(subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"]))
+        from hadal.errors import InputError
+        raise InputError("bad input")
+
+    def wrong(store: Path):
+        return {"result": 1}
+
+    cases = {"hang": (hang, "InputError", None), "hog": (hog, "InputError", None),
+             "orphan": (orphan, "InputError", None), "wrong": (wrong, None, lambda res: res["result"] == 2),
+             "due": (wrong, "InputError", None)}
+    out = {}
+    for name, (fn, err, check) in cases.items():
+        out[name] = run_item(Item(name, "x", tmp_path, fn, err, "bad input", check), tmp_path / name,
+                             timeout_s=1.0, memory_bytes=1 << 30)
+    try:
+        assert out["hang"].status == "hang" and not out["hang"].handled
+        assert out["hog"].status == "over_memory" and not out["hog"].handled
+        assert out["orphan"].orphans == [procs[0].pid] and not out["orphan"].handled
+        assert out["wrong"].status == "silent_wrong" and out["due"].status == "silent_wrong"
+        text, tot = table(list(out.values()))
+        assert (tot["hang"], tot["over-memory"], tot["orphan"], tot["silent-wrong"], tot["clean error"]) == \
+            (1, 1, 1, 2, 1)
+        assert "silent-wrong" in text and "orphan" in text
+    finally:
+        for pr in procs:
+            pr.kill()
+            pr.wait()
 
 
 # ---------------------------------------------------------------------------------------------- real CLI
@@ -152,15 +201,25 @@ def test_cli_rejects_bad_configuration_in_one_line(items, tmp_path, name, comman
 @pytest.mark.prefect
 def test_cli_error_inside_the_flow_is_one_line_and_leaves_products_alone(items, tmp_path):
     """``hadal stage landing`` (Prefect flow) on a corrupt laser grid: the stage fails inside ``store.publish``;
-    the user sees one ``error:`` line and no traceback, and the product tree is unchanged (Prefect's own result
-    records under ``<store>/.prefect-results`` are orchestration state, not products)."""
+    the user sees one ``error:`` line and no traceback, and every product is unchanged and none is added but the
+    refreshed report that lists the failure (store-level state is not product data: Prefect's result records under
+    ``.prefect-results``, the hash cache ``.cache``, the STAC ``catalog.json``/item and the dive's ``dive.json``)."""
+
+    def products_only(tree: dict[str, str]) -> dict[str, str]:
+        def product_data(k: str) -> bool:
+            parts = k.split("/")
+            if parts[0] in (".prefect-results", ".cache", "catalog.json"):
+                return False
+            return len(parts) < 2 or parts[1] not in ("dive.json", "report", "stac-item.json")
+        return {k: v for k, v in tree.items() if product_data(k)}
+
     item = items["up_laser_truncated"]
     store = tmp_path / "store"
     item.prepare(store)
-    before = {k: v for k, v in snapshot(store).items() if not k.startswith(".prefect-results")}
+    before = products_only(snapshot(store))
     res = _hadal("stage", "landing", str(item.directory), "--store", str(store))
     line = _assert_one_line_error(res, item.match)
     assert "submap_01.nc" in line
-    after = {k: v for k, v in snapshot(store).items() if not k.startswith(".prefect-results")}
-    assert after == before
+    assert products_only(snapshot(store)) == before
+    assert not list(store.glob("*/landing"))  # no landing product, not even an empty one
     shutil.rmtree(store)

@@ -163,3 +163,86 @@ def test_cli_report_writes_html(tmp_path, full_store, monkeypatch, capsys):
     assert exc.value.code == 2
     err = capsys.readouterr().err
     assert "error:" in err and "no products" in " ".join(err.split()) and "Traceback" not in err
+
+
+def test_new_figures_are_drawn(full_report):
+    figs = {f.key: f for f in full_report.figures}
+    for key in ("overview_map", "ctd_ts_theta_n2", "fig16_matched_depth"):
+        assert figs[key].png is not None, (key, figs[key].skipped)
+    assert "residual" in figs["fig16_matched_depth"].caption
+
+
+def test_normal_refinement_is_a_note_and_real_problems_stay_warnings(full_store):
+    from hadal.report.html import is_real_warning
+
+    assert not is_real_warning("sub-cell refinement moved the fix 27 m from the coarse optimum")
+    assert is_real_warning("refined fix hit the search bound")
+    dp = load_products(ProductStore(full_store), "dive-a")
+    from hadal.report.html import render_html
+
+    html = render_html(dp, {"match": {"warnings": ["sub-cell refinement moved the fix 70 m from the coarse optimum",
+                                                   "posterior is ambiguous"]}}, [], [])
+    assert "<div class='note'>match: sub-cell refinement" in html
+    assert "<div class='warn'>match: posterior is ambiguous" in html
+
+
+def test_log_bin_mean_against_brute_force():
+    from hadal.report.ctd_figures import log_bin_mean
+
+    rng = np.random.default_rng(1)
+    z = rng.uniform(1, 10000, 3000)
+    v = rng.normal(size=z.size)
+    zb, vb = log_bin_mean(z, v, per_decade=4)
+    edges = 10 ** (np.arange(0, 17) / 4)
+    want = [(z[(z >= a) & (z < b)].mean(), v[(z >= a) & (z < b)].mean()) for a, b in zip(edges[:-1], edges[1:],
+                                                                                         strict=True)
+            if ((z >= a) & (z < b)).any()]
+    assert np.allclose(zb, [w[0] for w in want]) and np.allclose(vb, [w[1] for w in want])
+
+
+def test_report_html_in_headless_chromium(full_report, tmp_path):
+    """Every embedded figure decodes and the page logs no error, in a real browser (skipped without one)."""
+    from hadal.report.testing import browser_check, chromium
+
+    if chromium() is None:
+        pytest.skip("no chromium installed")
+    res = browser_check(full_report.html, tmp_path)
+    assert res["images"] >= sum(f.png is not None for f in full_report.figures)
+    assert res["broken"] == [] and res["errors"] == [], res
+    # the probe sees a broken image and a console error (it can fail)
+    bad = browser_check("<html><head></head><body><img alt='x' src='data:image/png;base64,AAAA'>"
+                        "<script>console.error('boom')</script></body></html>", tmp_path)
+    assert bad["broken"] == ["x"] and "boom" in bad["errors"]
+
+
+def test_teos10_profile_quantities_against_eos80_peer():
+    """θ and N² of the report's water-column figure against python-seawater (EOS-80), an independent peer."""
+    sw = pytest.importorskip("seawater")
+    from hadal.report.ctd_figures import teos10
+
+    p = np.arange(5.0, 6000.0, 10.0)
+    t = 2.0 + 26.0 * np.exp(-p / 400.0)
+    sp = 34.6 + 0.4 * np.exp(-((p - 150) / 120) ** 2) - 0.3 * np.exp(-((p - 700) / 300) ** 2)
+    d = teos10(pd.DataFrame({"pressure_dbar": p, "t": t, "SP": sp}), 11.3, 142.2)
+    theta_eos80 = sw.ptmp(sp, t * 1.00024, p, 0) / 1.00024  # ITS-90 <-> IPTS-68
+    assert np.max(np.abs(d["theta"] - theta_eos80)) < 5e-3
+    n2_eos80, _, _ = sw.bfrq(sp, t * 1.00024, p, 11.3)
+    n2 = d["N2"].to_numpy()[:-1]
+    strong = n2 > 1e-6
+    assert strong.sum() > 20
+    assert np.allclose(n2[strong], np.ravel(n2_eos80)[strong], rtol=0.05)
+
+
+def test_qc_flag_summary_counts_and_renders():
+    """The per-variable QARTOD summary: known flags in, known counts out (flagged share among non-missing)."""
+    import pandas as pd
+
+    from hadal.report.summary import qc_flag_table
+
+    ctd = pd.DataFrame({"practical_salinity_qc": [1, 1, 1, 4, 9, 9], "depth_m_qc": [1, 2, 3, 3, 1, 1],
+                        "depth_m": [1.0] * 6})
+    rows = {r["variable"]: r for r in qc_flag_table(ctd)}
+    assert set(rows) == {"practical_salinity", "depth_m"}
+    assert rows["practical_salinity"] == {"variable": "practical_salinity", "good": 3, "not evaluated": 0,
+                                          "suspect": 0, "fail": 1, "missing": 2, "flagged %": 25.0}
+    assert rows["depth_m"]["suspect"] == 2 and rows["depth_m"]["flagged %"] == pytest.approx(100 * 2 / 6, abs=1e-3)

@@ -223,3 +223,48 @@ def test_a_run_reads_the_versions_it_pinned(tmp_path):
         (draft.path / "dtm.nc").write_bytes(b"run B")
     assert store.latest("d1", "dtm").label == "v002"
     assert ctx.upstream("dtm") == mine and ctx.upstream("dtm").label == "v001"
+
+
+def test_file_hash_cache_is_the_sha256_and_sees_every_change(tmp_path, monkeypatch):
+    """ProductStore.file_sha256 equals hashlib's SHA-256 (oracle); an unchanged file is not re-read, by this
+    process nor by a new one (persisted in the store); a same-size rewrite with its old mtime restored is seen
+    (inode/ctime)."""
+    import hashlib
+
+    import hadal.store as hs
+
+    store = tmp_path / "store"
+    store.mkdir()
+    raw = tmp_path / "log.bin"
+    raw.write_bytes(b"abc" * 1000)
+    st = ProductStore(store)
+    assert st.file_sha256(raw) == hashlib.sha256(b"abc" * 1000).hexdigest()
+    reads = []
+    real = hs.sha256_file
+    monkeypatch.setattr(hs, "sha256_file", lambda p: reads.append(p) or real(p))
+    hs._PROCESS_HASHES.clear()  # a fresh process: only the store's cache file remains
+    assert ProductStore(store).file_sha256(raw) == hashlib.sha256(b"abc" * 1000).hexdigest()
+    assert reads == []  # served from <store>/.cache/file-sha256.json
+    old = raw.stat()
+    time.sleep(0.01)
+    raw.write_bytes(b"abd" * 1000)  # same size...
+    os.utime(raw, ns=(old.st_atime_ns, old.st_mtime_ns))  # ...and the old mtime
+    assert ProductStore(store).file_sha256(raw) == hashlib.sha256(b"abd" * 1000).hexdigest()
+    assert reads  # re-hashed
+
+
+def test_manifest_records_the_stage_run_time(tmp_path):
+    from hadal.store import STAGE_RUN
+
+    st = ProductStore(tmp_path / "s")
+    token = STAGE_RUN.set({"stage": "grid", "started_utc": "2026-01-01T00:00:00+00:00", "t0": time.monotonic() - 2})
+    try:
+        with st.publish("d1", "dtm") as draft:
+            (draft.path / "a.txt").write_text("x")
+    finally:
+        STAGE_RUN.reset(token)
+    run = draft.result.manifest()["stage_run"]
+    assert run["stage"] == "grid" and 2.0 <= run["seconds"] < 60 and "t0" not in run
+    with st.publish("d1", "dtm") as draft:  # outside a stage run: no record
+        (draft.path / "a.txt").write_text("y")
+    assert "stage_run" not in draft.result.manifest()

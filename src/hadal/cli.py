@@ -2,10 +2,11 @@
 
     hadal run RAW_DIR              run the whole post-cruise flow on a raw dive
     hadal run --dives DIR...       several dives in parallel on Dask (--workers N, --scheduler ADDRESS)
-    hadal stage NAME RAW_DIR       re-run one stage, reusing the latest upstream products (--force)
+    hadal stage NAME RAW_DIR       re-run one stage, reusing the latest upstream products (--force, --downstream)
     hadal report DIVE              write the dive report (HTML) from the products in the store
     hadal serve RAW_DIR --cron ..  deploy the post-cruise flow on a schedule (Prefect server)
     hadal products DIVE            list product versions in the store
+    hadal server start             a long-running local Prefect server (then export PREFECT_API_URL=...)
     hadal synth DEST               write the seeded sample dive (Challenger Deep, Haidou-like)
     hadal inspect FILE...          what each file is (by content) and what is in it (--json)
     hadal init RAW_DIR             write a commented dive.yaml (+ vehicle.yaml) from the files found
@@ -20,6 +21,7 @@ import json
 import logging
 import os
 import sys
+import threading
 from pathlib import Path
 from typing import Annotated
 
@@ -31,6 +33,25 @@ from hadal.errors import HadalError
 
 app = typer.Typer(add_completion=False, no_args_is_help=True, help="hadal: post-dive processing for deep-sea vehicles.")
 console = Console(stderr=True)
+# Imports stay inside the commands that need them (stages, Prefect, xarray, matplotlib take seconds to import):
+# the listing commands (--help, --version, products, config, inspect) answer in a fraction of a second
+# (bench/bench_cli.py).
+
+
+def _version_callback(value: bool) -> None:
+    if value:
+        from hadal import __version__
+
+        print(f"hadal {__version__}")
+        raise typer.Exit(0)
+
+
+@app.callback()
+def _root(
+    version: Annotated[bool, typer.Option("--version", help="print hadal's version and exit", is_eager=True,
+                                          callback=_version_callback)] = False,
+) -> None:
+    """hadal: post-dive processing for deep-sea vehicles."""
 
 StoreOpt = Annotated[
     Path | None, typer.Option("--store", help="product store root (default $HADAL_STORE or ./data/processed)")
@@ -39,9 +60,9 @@ ConfigOpt = Annotated[Path | None, typer.Option("--config", help="pipeline YAML 
 
 
 def _store_root(store: Path | None) -> Path:
-    from hadal.pipeline import default_store_root
-
-    return store if store is not None else default_store_root()
+    """``--store``, else ``$HADAL_STORE``, else ``./data/processed`` (as :func:`hadal.pipeline.default_store_root`,
+    without importing the pipeline)."""
+    return store if store is not None else Path(os.environ.get("HADAL_STORE", "data/processed"))
 
 
 class _NoHadalTracebacks(logging.Filter):
@@ -64,9 +85,12 @@ def _quiet_prefect_tracebacks() -> None:
 
 def _run_flow(raw_dir: Path, store: Path | None, config: Path | None, stages: list[str] | None,
               force: bool = False) -> dict[str, str]:
+    import time
+
     from hadal.dive import load_dive
     from hadal.pipeline import claim_dive, make_context, stage_plan
 
+    t0 = time.monotonic()
     # validate everything cheap before starting Prefect, so bad input fails fast and in one line
     load_dive(raw_dir)
     ctx = make_context(raw_dir, _store_root(store), config)
@@ -77,14 +101,35 @@ def _run_flow(raw_dir: Path, store: Path | None, config: Path | None, stages: li
         if not ps.run:
             console.print(f"[yellow]skip[/] {ps.name}: {ps.reason}", highlight=False)
     _prefect_environment()
-    from hadal.flows.post_cruise import post_cruise
+    from prefect import tags
+
+    from hadal.flows.post_cruise import dive_tags, post_cruise
 
     _quiet_prefect_tracebacks()
 
-    console.print(f"[bold]hadal[/] {raw_dir} → stages: {', '.join(names)}")
-    return post_cruise(
-        str(raw_dir), str(_store_root(store)), str(config) if config else None, stages, force
-    )
+    where = os.environ.get("PREFECT_API_URL") or "a temporary Prefect server (set PREFECT_API_URL to skip its start)"
+    console.print(f"[bold]hadal[/] {raw_dir} → stages: {', '.join(names)} (on {where})", highlight=False)
+    meta = getattr(ctx.dive, "metadata", None)
+    with tags(*dive_tags(ctx.raw_dir, ctx.dive_id, getattr(meta, "cruise", None))):
+        out = post_cruise(str(raw_dir), str(_store_root(store)), str(config) if config else None, stages, force)
+    _print_stage_table(out, time.monotonic() - t0)
+    return out
+
+
+def _print_stage_table(out: dict[str, str], seconds: float) -> None:
+    """The closing table: per stage published / reused (cache hit) / skipped / failed, with its time."""
+    rows = getattr(out, "stages", None)
+    if not rows:
+        return
+    table = Table(title=f"stages ({seconds:.1f} s in all)")
+    for col in ("stage", "status", "seconds", "versions / reason"):
+        table.add_column(col)
+    colour = {"published": "green", "reused": "cyan", "skipped": "yellow", "failed": "red"}
+    for r in rows:
+        what = ", ".join(f"{p}/{v}" for p, v in r.get("versions", {}).items()) or r.get("reason", "")
+        st = r.get("status", "")
+        table.add_row(r.get("stage", ""), f"[{colour.get(st, 'white')}]{st}[/]", f"{r.get('seconds', 0):.1f}", what)
+    Console().print(table)
 
 
 def _expand_dives(dirs: list[Path]) -> list[Path]:
@@ -111,6 +156,12 @@ def _run_batch(raw_dirs: list[Path], store: Path | None, config: Path | None, wo
         owner[ctx.dive_id] = d
         stage_plan(ctx)
         claim_dive(ctx, check_only=True)
+    if "HADAL_LOG_LEVEL" not in os.environ:  # quiet by default: one progress line per dive, warnings, errors
+        for h in logging.getLogger().handlers:
+            h.setLevel(logging.WARNING)
+        os.environ.setdefault("PREFECT_LOGGING_LEVEL", "WARNING")  # also in the Dask workers (inherited)
+        os.environ.setdefault("DASK_LOGGING__DISTRIBUTED", "warning")
+        logging.getLogger("distributed").setLevel(logging.WARNING)
     _prefect_environment()
     from hadal.flows.batch import run_batch
 
@@ -123,6 +174,8 @@ def _run_batch(raw_dirs: list[Path], store: Path | None, config: Path | None, wo
 
 
 def _print_published(published: dict[str, str]) -> None:
+    if getattr(published, "stages", None):  # a flow's outcome: its stage table (_print_stage_table) says it all
+        return
     table = Table(title="published products")
     table.add_column("product")
     table.add_column("version directory")
@@ -168,9 +221,37 @@ def stage(
     store: StoreOpt = None,
     config: ConfigOpt = None,
     force: ForceOpt = False,
+    downstream: Annotated[bool, typer.Option(
+        "--downstream", help="also re-run every stage that depends on it (directly or through other stages)")] = False,
 ) -> None:
-    """Re-run one stage, reusing the latest upstream products (a cache hit if nothing changed; --force re-runs)."""
-    _print_published(_run_flow(raw_dir, store, config, [name], force))
+    """Re-run one stage, reusing the latest upstream products (a cache hit if nothing changed; --force re-runs).
+
+    The report is refreshed after it (a cache hit when nothing changed). Without --downstream, the stages that
+    depend on NAME keep their products made from its previous version: the command says which ones are stale."""
+    from hadal.pipeline import resolve_stages
+    from hadal.plan import downstream_stages
+
+    (name,) = resolve_stages([name])  # unknown or unimplemented: one line
+    dependents = downstream_stages(name)
+    stages = [name, *dependents] if downstream else [name, *(["report"] if name != "report" else [])]
+    stages = _runnable_with(stages, raw_dir, store, config)
+    out = _run_flow(raw_dir, store, config, stages, force)
+    _print_published(out)
+    stale = [s for s in dependents if s != "report"]
+    rows = {r["stage"]: r for r in getattr(out, "stages", [])}
+    if not downstream and stale and rows.get(name, {}).get("status") == "published":
+        console.print(f"note: {', '.join(stale)} still use(s) the previous {name} products; "
+                      f"'hadal stage {name} {raw_dir} --downstream' re-runs them", highlight=False)
+
+
+def _runnable_with(stages: list[str], raw_dir: Path, store: Path | None, config: Path | None) -> list[str]:
+    """``stages`` less a trailing ``report`` the dive's plan would refuse (never the stage the user named)."""
+    from hadal.pipeline import make_context
+    from hadal.plan import plan_stages
+
+    ctx = make_context(raw_dir, _store_root(store), config)
+    ok = {ps.name for ps in plan_stages(ctx.dive, stages, store=ctx.store) if ps.run}
+    return [s for i, s in enumerate(stages) if i == 0 or s in ok]
 
 
 @app.command()
@@ -257,6 +338,37 @@ def serve(
                       str(config.resolve()) if config else None, cron=cron, name=name)
 
 
+server_app = typer.Typer(add_completion=False, no_args_is_help=True,
+                         help="a long-running local Prefect server (runs then skip the temporary server's start)")
+app.add_typer(server_app, name="server")
+
+
+@server_app.command("start")
+def server_start(
+    host: Annotated[str, typer.Option("--host", help="address to listen on (keep loopback: no authentication)")
+                    ] = "127.0.0.1",
+    port: Annotated[int, typer.Option("--port", help="port of the API and UI")] = 4200,
+) -> None:
+    """Run a Prefect server in the foreground (``prefect server start``); in another shell set the
+    PREFECT_API_URL it prints, and every hadal run uses it (no temporary server per run, runs in its UI)."""
+    import shutil
+
+    from hadal.errors import ConfigError
+
+    if not 1 <= port <= 65535:
+        raise ConfigError(f"--port must be 1-65535 (got {port})")
+    exe = shutil.which("prefect") or str(Path(sys.executable).with_name("prefect"))
+    if not Path(exe).is_file():
+        raise ConfigError("the 'prefect' command is not installed next to hadal (pip install prefect)")
+    _check_prefect_home()
+    console.print(f"Prefect server on http://{host}:{port}; in the shell that runs hadal:\n"
+                  f"  export PREFECT_API_URL=http://{host}:{port}/api", highlight=False)
+    os.environ.setdefault("PREFECT_SERVER_ANALYTICS_ENABLED", "false")
+    sys.stdout.flush()
+    sys.stderr.flush()
+    os.execv(exe, [exe, "server", "start", "--host", host, "--port", str(port)])
+
+
 @app.command()
 def products(
     dive: Annotated[str, typer.Argument(help="dive id")],
@@ -316,16 +428,53 @@ def config_cmd(
                         "vehicle.yaml, pipeline.yaml and the plan of the stages its data supports)")] = None,
 ) -> None:
     """Print the default pipeline configuration (commented YAML), or validate a file or dive directory with --check."""
-    from hadal.config import default_yaml, load_config
-
     if check is not None:
+        from hadal.config import load_config
+
         if check.is_dir():
             _check_dive_dir(check)
             return
         load_config(check)
         console.print(f"{check}: valid")
         return
-    print(default_yaml(), end="")
+    print(_default_yaml_cached(), end="")
+
+
+def _cache_dir() -> Path:
+    """``$HADAL_CACHE_DIR``, else ``$XDG_CACHE_HOME/hadal``, else ``~/.cache/hadal``."""
+    if os.environ.get("HADAL_CACHE_DIR"):
+        return Path(os.environ["HADAL_CACHE_DIR"]).expanduser()
+    return Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache").expanduser() / "hadal"
+
+
+def _default_yaml_cached() -> str:
+    """The default configuration (:func:`hadal.config.default_yaml`), cached per code version.
+
+    Generating it imports every stage's ``Params``, and the stage modules import their science (pandas, xarray,
+    numba, ...: seconds); the text depends only on hadal's source, so it is kept under :func:`_cache_dir` keyed
+    by :func:`hadal.pipeline.code_digest` (any edit of any hadal source file makes a new key). Best effort: an
+    unwritable cache only costs the import."""
+    from hadal.pipeline import code_digest
+
+    f = _cache_dir() / f"pipeline-defaults-{code_digest()}.yaml"
+    try:
+        return f.read_text(encoding="utf-8")
+    except (OSError, UnicodeError):
+        pass
+    from hadal.config import default_yaml
+
+    text = default_yaml()
+    code_digest.cache_clear()
+    if code_digest() != f.name[len("pipeline-defaults-"):-len(".yaml")]:  # edited meanwhile: do not cache
+        return text
+    try:
+        f.parent.mkdir(parents=True, exist_ok=True)
+        tmp = f.with_name(f".{f.name}.{os.getpid()}")
+        tmp.write_text(text, encoding="utf-8")
+        os.replace(tmp, f)
+    except OSError:
+        pass
+    return text
 
 
 def _check_dive_dir(raw_dir: Path) -> None:
@@ -350,6 +499,11 @@ def _check_dive_dir(raw_dir: Path) -> None:
     check_plan(ctx.dive, plan)
     console.print(f"{raw_dir}: valid (dive {ctx.dive_id!r}); plan:")
     print(format_plan(plan))
+    from hadal.products import missing_acdd_fields  # discovery metadata the products will lack
+
+    if missing := missing_acdd_fields(ctx.dive):
+        print(f"metadata: dive.yaml 'metadata' lacks {', '.join(missing)} (ACDD; the products leave them out and "
+              "list them in hadal_metadata_missing)")
 
 
 def _source_exists(raw_dir: Path, entry) -> bool:
@@ -547,13 +701,26 @@ class _Terminated(KeyboardInterrupt):
         self.signum = signum
 
 
+_INTERRUPT_LOCK = threading.Lock()  # one _interrupted() per process
 _SIGNALLED: list[int] = []  # the signal that interrupted this run (typer turns the KeyboardInterrupt into exit 130)
+
+
+#: seconds the main thread gets to unwind after a signal before the watchdog ends the run itself (the flow's task
+#: runner waits for its stage threads on the way out; a stage may take minutes)
+_UNWIND_S = 3.0
 
 
 def _raise_terminated(signum, _frame) -> None:
     if _SIGNALLED:  # a second Ctrl-C: stop now (the server's guard still stops the server)
         os._exit(130 if signum == 2 else 128 + signum)
     _SIGNALLED.append(signum)
+    def _watchdog() -> None:
+        import time
+
+        time.sleep(_UNWIND_S)
+        _interrupted(_Terminated(signum))
+
+    threading.Thread(target=_watchdog, name="hadal-interrupt-watchdog", daemon=True).start()
     raise _Terminated(signum)
 
 
@@ -572,7 +739,10 @@ def _stop_children(timeout: float = 5.0) -> None:
     import signal
 
     for sig in (signal.SIGINT, signal.SIGTERM):  # a second signal must not interrupt the clean-up
-        signal.signal(sig, signal.SIG_IGN)
+        try:
+            signal.signal(sig, signal.SIG_IGN)
+        except ValueError:  # not the main thread (the interrupt watchdog): the handler exits at once anyway
+            pass
     srv_mod = sys.modules.get("prefect.server.api.server")
     servers = list(getattr(getattr(srv_mod, "SubprocessASGIServer", None), "_instances", {}).values())
     for srv in servers:
@@ -615,6 +785,11 @@ def _interrupted(exc: KeyboardInterrupt) -> None:
     directory, which readers never see and the next run removes."""
     import signal
 
+    if not _INTERRUPT_LOCK.acquire(blocking=False):  # the watchdog or the main thread is already on it
+        while True:
+            import time
+
+            time.sleep(60)
     signum = getattr(exc, "signum", signal.SIGINT)
     name = signal.Signals(signum).name
     try:
@@ -659,13 +834,40 @@ def _main() -> None:
         cause = exc.__cause__ or exc.__context__
         _interrupted(cause if isinstance(cause, KeyboardInterrupt) else KeyboardInterrupt())
     except Exception as exc:  # click usage errors
-        import click
-
-        if isinstance(exc, click.ClickException):
-            exc.show()
-            sys.exit(exc.exit_code)
+        _click_error(exc)
         raise
     sys.exit(rc if isinstance(rc, int) else 0)
+
+
+def _click_exception_types() -> tuple[type[BaseException], ...]:
+    """click's exception classes: typer's vendored click (``typer._click``) and, if installed, click itself."""
+    types: list[type[BaseException]] = []
+    for mod in ("typer._click.exceptions", "click.exceptions"):
+        if mod.split(".")[0] == "click" and "click" not in sys.modules:
+            continue  # not the one typer used
+        try:
+            m = __import__(mod, fromlist=["ClickException"])
+        except ImportError:
+            continue
+        types.append(m.ClickException)
+    return tuple(types)
+
+
+def _click_error(exc: BaseException) -> None:
+    """A click usage error as one line (exit 2), plain ``hadal`` as its help (exit 0); returns for other errors."""
+    types = _click_exception_types()
+    if not types or not isinstance(exc, types):
+        return
+    if type(exc).__name__ == "NoArgsIsHelpError":  # plain 'hadal' or a group without arguments: its help
+        ctx = getattr(exc, "ctx", None)
+        print(ctx.get_help() if ctx is not None else "", end="\n")
+        sys.exit(0)
+    msg = " ".join(str(exc.format_message() if hasattr(exc, "format_message") else exc).split())
+    ctx = getattr(exc, "ctx", None)
+    where = f" ({ctx.command_path} --help for usage)" if ctx is not None else " (hadal --help for usage)"
+    code = getattr(exc, "exit_code", 2)
+    console.print(f"[red]error:[/] {msg}{where}", highlight=False, soft_wrap=True, markup=True)
+    sys.exit(2 if code in (1, 2) else code)
 
 
 if __name__ == "__main__":

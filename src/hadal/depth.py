@@ -13,7 +13,7 @@ height ``gsw.z_from_p`` with the dynamic height anomaly of the measured profile 
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Literal
+from typing import Any, Literal
 
 import numpy as np
 import pandas as pd
@@ -34,10 +34,21 @@ PA_PER_DBAR = 1.0e4
 Integration = Literal["trapezoid", "rectangle"]
 
 
-def _fill_by_index(values: np.ndarray, valid: np.ndarray) -> np.ndarray:
-    """Linear interpolation over the sample index of the invalid entries (edges held)."""
-    idx = np.arange(values.size)
-    return np.interp(idx, idx[valid], values[valid])
+#: samples per block of :func:`hydrostatic_depth` (the fixed point is solved block by block, carrying the depth)
+DEPTH_BLOCK = 1 << 16
+
+
+def _fill_density(rho: np.ndarray, valid: np.ndarray, good: np.ndarray) -> None:
+    """Linear interpolation over the sample index, in place, of ``rho`` where the pressure is ``valid`` but
+    the density is not ``good`` (edges held). Memory: one index array of the good samples."""
+    bad = np.flatnonzero(valid & ~good)
+    gi = np.flatnonzero(good)
+    k = np.searchsorted(gi, bad)
+    lo = gi[np.clip(k - 1, 0, gi.size - 1)]
+    hi = gi[np.clip(k, 0, gi.size - 1)]
+    span = (hi - lo).astype(np.float64)
+    w = np.where(span > 0, (bad - lo) / np.where(span > 0, span, 1.0), 0.0)
+    rho[bad] = rho[lo] + w * (rho[hi] - rho[lo])
 
 
 def hydrostatic_depth(
@@ -50,6 +61,7 @@ def hydrostatic_depth(
     density_kg_m3: ArrayLike | None = None,
     tolerance_m: float = 1e-9,
     max_iterations: int = 20,
+    start_depth_m: float | None = None,
 ) -> np.ndarray:
     """Depth (m, positive down) by integrating the hydrostatic equation along the sample series — Eqs. (11)-(12).
 
@@ -58,14 +70,17 @@ def hydrostatic_depth(
     (Eq. 14, :func:`hadal.seawater.gravity`) **at the depth reached so far** (``H_{k-1}``), not the
     Fofonoff-Millard column-mean gravity (that would cost ~5 m at 10 000 dbar).
 
-    * First sample: the series starts below the surface at ``p_0``; its offset is ``h_0 = p_0 / (ρ_0 g(0))``
-      (the water between the surface and the first sample is taken to have the first sample's density).
+    * First sample: without ``start_depth_m`` the series is taken to start below the surface at ``p_0`` with
+      ``h_0 = p_0 / (ρ_0 g(0))`` (the water above the first sample has the first sample's density: right for
+      a record starting near the surface, ~1 % of the depth wrong for one starting at 5000 dbar). With
+      ``start_depth_m`` (the depth of the first valid sample from a model of the overlying column,
+      :func:`overlying_column`) the sum starts there.
     * Non-monotonic pressure (the vehicle goes up and down, hovers near the seafloor): the increments are
       signed, so the sum telescopes — going down and back up to the same pressure through the same water
       returns to the same depth.
     * NaN pressure: the sample is skipped (its depth is NaN) and the next valid sample's increment is taken
       from the last valid pressure. NaN density (e.g. a conductivity dropout) at a valid pressure: the
-      density is interpolated over the sample index from its valid neighbours (held at the ends).
+      density is interpolated linearly over the sample index from its valid neighbours (held at the ends).
     * ``integration="rectangle"`` is Eq. (12) as printed (ρ and g of the interval's end sample, g at
       ``H_{k-1}``); ``"trapezoid"`` (default) averages ``1/(ρ g)`` of the two ends of each interval, i.e.
       second-order accurate in Δp. The rectangle rule is biased shallow by ½ Σ Δp Δ(1/ρg), which grows with
@@ -73,10 +88,13 @@ def hydrostatic_depth(
       and 0.24 m at 10 dbar steps (binned casts); the trapezoid removes it (``tests/test_depth.py``).
 
     ``g`` depends on the depth being computed, so the sum is solved by fixed-point iteration
-    (``H ← cumsum(h(g(H)))``, vectorised) started from the Fofonoff-Millard depth; the error shrinks by a
-    factor ~C3·H ≈ 2.5e-3 per iteration, so 3-4 iterations reach ``tolerance_m``. The sequential recursion
-    of Eq. (12) is the fixed point (``tests/test_depth.py`` checks both agree to 1e-8 m). With the trapezoid
-    rule the first interval (surface to ``p_0``) also averages ``g`` over its ends.
+    (``H ← H_0 + cumsum(h(g(H)))``, vectorised) started from the Fofonoff-Millard depth, block by block
+    (:data:`DEPTH_BLOCK` samples, the last depth carried into the next block); the error shrinks by a factor
+    ~C3·H ≈ 2.5e-3 per iteration, so 3-4 iterations reach ``tolerance_m``. The sequential recursion of
+    Eq. (12) is the fixed point (``tests/test_depth.py`` checks both agree to 1e-8 m). With the trapezoid rule
+    the first interval (surface to ``p_0``) also averages ``g`` over its ends. Memory: the output, the
+    density when it is not passed (and a filled copy when it has gaps), and per-block temporaries
+    (``bench/bench_depth_memory.py``: <= 3x the output).
 
     Parameters: ``pressure_dbar`` (1-D, time order), ``salinity`` (practical), ``temperature_its90_degc``,
     ``latitude_deg`` (scalar or per sample). ``density_kg_m3`` may be passed to reuse a computed density.
@@ -86,46 +104,81 @@ def hydrostatic_depth(
     p = np.asarray(pressure_dbar, dtype=np.float64)
     if p.ndim != 1:
         raise InputError(f"hydrostatic_depth: pressure must be a 1-D series, got shape {p.shape}")
+    if integration not in ("trapezoid", "rectangle"):
+        raise ValueError(f"integration must be 'trapezoid' or 'rectangle', not {integration!r}")
     out = np.full(p.shape, np.nan)
     valid = np.isfinite(p)
     if not valid.any():
         return out
     if density_kg_m3 is None:
-        rho = density_eos80(np.broadcast_to(salinity, p.shape), np.broadcast_to(temperature_its90_degc, p.shape), p)
+        rho = density_eos80(salinity, temperature_its90_degc, p)
+        if rho.shape != p.shape:
+            rho = np.broadcast_to(rho, p.shape).copy()
+        owned = True
     else:
-        rho = np.broadcast_to(np.asarray(density_kg_m3, dtype=np.float64), p.shape).copy()
+        rho = np.asarray(density_kg_m3, dtype=np.float64)
+        owned = False
+        if rho.shape != p.shape:
+            rho, owned = np.broadcast_to(rho, p.shape).copy(), True
     lat = np.asarray(latitude_deg, dtype=np.float64)
-    lv = lat if lat.ndim == 0 else np.broadcast_to(lat, p.shape)[valid]
-    if not np.all(np.isfinite(lv)):
+    lat_arr = None if lat.ndim == 0 else np.broadcast_to(lat, p.shape)
+    if not (np.isfinite(lat) if lat_arr is None else np.all(np.isfinite(lat_arr[valid]))):
         raise InputError("hydrostatic_depth: latitude is NaN/inf where pressure is valid")
-    pv, rv = p[valid], rho[valid]
-    rok = np.isfinite(rv) & (rv > 0)
-    if not rok.any():
+    with np.errstate(invalid="ignore"):
+        good = valid & np.isfinite(rho) & (rho > 0)
+    if not good.any():
         raise InputError("hydrostatic_depth: no valid density (salinity/temperature all NaN)")
-    if not rok.all():
-        rv = _fill_by_index(rv, rok)
-    if integration not in ("trapezoid", "rectangle"):
-        raise ValueError(f"integration must be 'trapezoid' or 'rectangle', not {integration!r}")
-    dp_pa = np.diff(pv, prepend=0.0) * PA_PER_DBAR  # first increment from the surface: h_0 = p_0/(ρ_0 g_0)
-    rho_g0 = rv * gravity(lv, 0.0)  # ρ g(φ, 0); g(φ, H) = g(φ, 0) (1 + C3 H), Eq. (14)
-    # start from the Fofonoff-Millard depth (within ~10 m): the fixed point then converges in 3-4 iterations
-    depth = depth_fofonoff_millard(pv, lv)
-    inv = np.empty(pv.size + 1)
-    for _ in range(max_iterations):
-        if integration == "rectangle":
-            h_prev = np.concatenate(([0.0], depth[:-1]))  # H_{i-1}
-            h = dp_pa / (rho_g0 * (1.0 + GRAV_C3_PER_M * h_prev))
-        else:
-            # 1/(ρ g) at both ends of each interval; the start of the first one is the surface (H = 0)
-            inv[0] = 1.0 / rho_g0.flat[0]
-            np.divide(1.0, rho_g0 * (1.0 + GRAV_C3_PER_M * depth), out=inv[1:])
-            h = (inv[:-1] + inv[1:]) * (0.5 * dp_pa)
-        new = np.cumsum(h)
-        change = float(np.max(np.abs(new - depth)))
-        depth = new
-        if change < tolerance_m:
-            break
-    out[valid] = depth
+    if np.count_nonzero(good) != np.count_nonzero(valid):
+        if not owned:
+            rho = rho.copy()
+        _fill_density(rho, valid, good)
+    del good
+    g0 = gravity(lat, 0.0)  # ρ g(φ, H) = ρ g(φ, 0) (1 + C3 H), Eq. (14)
+    prev: tuple[float, float, float] | None = None  # (pressure, depth, 1/(ρ g)) of the last valid sample
+    for a in range(0, p.size, DEPTH_BLOCK):
+        sl = slice(a, a + DEPTH_BLOCK)
+        v = valid[sl]
+        if not v.any():
+            continue
+        pv = p[sl][v]
+        rho_g0 = rho[sl][v] * (g0 if lat_arr is None else gravity(lat_arr[sl][v], 0.0))
+        lv = lat if lat_arr is None else lat_arr[sl][v]
+        if prev is None:
+            if start_depth_m is None:  # from the surface, the first sample's density above it
+                prev = (0.0, 0.0, 1.0 / float(rho_g0[0]))
+            else:
+                h0 = float(start_depth_m)
+                prev = (float(pv[0]), h0, 1.0 / float(rho_g0[0] * (1.0 + GRAV_C3_PER_M * h0)))
+        p_prev, h_prev0, inv_prev = prev
+        dp_pa = np.diff(pv, prepend=p_prev)
+        dp_pa *= PA_PER_DBAR
+        fm_prev = float(depth_fofonoff_millard(p_prev, lv if lat_arr is None else lv[0]))
+        depth = depth_fofonoff_millard(pv, lv) - fm_prev + h_prev0
+        inv = np.empty(pv.size + 1)
+        inv[0] = inv_prev
+        for _ in range(max_iterations):
+            if integration == "rectangle":
+                hp = np.concatenate(([h_prev0], depth[:-1]))  # H_{i-1}
+                hp *= GRAV_C3_PER_M
+                hp += 1.0
+                hp *= rho_g0
+                h = np.divide(dp_pa, hp, out=hp)
+            else:
+                np.multiply(depth, GRAV_C3_PER_M, out=inv[1:])
+                inv[1:] += 1.0
+                inv[1:] *= rho_g0
+                np.divide(1.0, inv[1:], out=inv[1:])
+                h = inv[:-1] + inv[1:]
+                h *= dp_pa
+                h *= 0.5
+            new = np.cumsum(h, out=h)
+            new += h_prev0
+            change = float(np.max(np.abs(new - depth)))
+            depth = new
+            if change < tolerance_m:
+                break
+        out[a:a + DEPTH_BLOCK][v] = depth
+        prev = (float(pv[-1]), float(depth[-1]), 1.0 / float(rho_g0[-1] * (1.0 + GRAV_C3_PER_M * depth[-1])))
     return out
 
 
@@ -183,69 +236,421 @@ def depth_teos10(pressure_dbar: ArrayLike, latitude_deg: ArrayLike, profile_pres
     return -np.asarray(gsw.z_from_p(p, latitude_deg, geo_strf_dyn_height=psi), dtype=np.float64)
 
 
+# ------------------------------------------------------------------------ a record not starting at the surface
+@dataclass(frozen=True)
+class OverlyingColumn:
+    """Depth of a record's first valid sample from a model of the water above it (:func:`overlying_column`)."""
+
+    pressure_dbar: float  # first valid sample
+    depth_m: float  # its depth
+    method: str  # "surface", "user profile", "record profile" or "standard ocean (TEOS-10)"
+    error_m: float  # estimated error of depth_m (m)
+    warning: str | None
+
+    @property
+    def start_depth_m(self) -> float | None:
+        """``start_depth_m`` for :func:`hydrostatic_depth` (``None`` for a record starting at the surface)."""
+        return None if self.method == "surface" else self.depth_m
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"first_pressure_dbar": round(self.pressure_dbar, 3), "first_depth_m": round(self.depth_m, 3),
+                "method": self.method, "estimated_error_m": round(self.error_m, 3), "warning": self.warning}
+
+
+def _warm_column_psi(pressure_dbar: float, latitude_deg: float) -> float:
+    """Dynamic height anomaly ψ (m² s⁻², p_ref 0) at ``pressure_dbar`` of a warm tropical column, the bound the
+    standard-ocean estimate is compared with: T = 3 + 28 exp(-z/600 m) °C, SP = 34.5 (warmer and fresher
+    than the observed tropical Pacific, so |ψ|/g bounds the standard ocean's error there: 6.7 m at 5000 dbar,
+    against 3.7 m for a Challenger-Deep-like column)."""
+    import gsw
+
+    p = np.linspace(0.0, max(float(pressure_dbar), 1.0), 400)
+    z = -np.asarray(gsw.z_from_p(p, latitude_deg))
+    t = 3.0 + 28.0 * np.exp(-z / 600.0)
+    sa = gsw.SA_from_SP(np.full_like(p, 34.5), p, 0.0, latitude_deg)
+    ct = gsw.CT_from_t(sa, t, p)
+    return float(gsw.geo_strf_dyn_height(sa, ct, p, p_ref=0.0)[-1])
+
+
+def _profile_depth(p_levels: np.ndarray, rho_levels: np.ndarray, p0: float, latitude_deg: float
+                   ) -> tuple[float, float]:
+    """(depth at ``p0``, |trapezoid - rectangle|) of a density profile by the hydrostatic integral from 0 dbar
+    (the top level's density held up to the surface)."""
+    pp = np.concatenate(([0.0], p_levels[p_levels < p0], [p0]))
+    rr = np.concatenate((rho_levels[:1], rho_levels[p_levels < p0], [np.interp(p0, p_levels, rho_levels)]))
+    d_t = hydrostatic_depth(pp, 35.0, 0.0, latitude_deg, density_kg_m3=rr)[-1]
+    d_r = hydrostatic_depth(pp, 35.0, 0.0, latitude_deg, density_kg_m3=rr, integration="rectangle")[-1]
+    return float(d_t), float(abs(d_t - d_r))
+
+
+def overlying_column(
+    pressure_dbar: ArrayLike,
+    salinity: ArrayLike,
+    temperature_its90_degc: ArrayLike,
+    latitude_deg: float,
+    *,
+    density_kg_m3: ArrayLike | None = None,
+    profile: tuple[ArrayLike, ArrayLike, ArrayLike] | None = None,
+    surface_dbar: float = 20.0,
+    bin_dbar: float = 10.0,
+) -> OverlyingColumn:
+    """The depth of a record's first valid sample when the record does not start at the surface (an upcast-only
+    file, a logger started at 5000 dbar), from a documented model of the overlying water, in this order:
+
+    1. ``surface``: the first sample is within ``surface_dbar`` of the surface: the first sample's density
+       above it (:func:`hydrostatic_depth` without ``start_depth_m``; < 1 mm at 20 dbar);
+    2. ``user profile``: ``profile = (pressure_dbar, practical salinity, ITS-90 temperature)`` (e.g. a cast or a
+       climatology at the site) reaching within ``surface_dbar`` of the surface and down to the first sample:
+       the hydrostatic integral of its EOS-80 density (Eqs. 11-13);
+    3. ``record profile``: the record's own later samples shallower than the first one (the ascent of a dive
+       whose logging started late, or the upcast itself), pressure-binned (``bin_dbar``), when they reach
+       within ``surface_dbar`` of the surface: the same integral;
+    4. ``standard ocean (TEOS-10)``: ``-gsw.z_from_p(p0, lat)`` (SA = 35.16504 g/kg, CT = 0 °C, dynamic height
+       anomaly 0). Real water is warmer, so this is too shallow by |ψ(p0)|/g; the error is estimated with the ψ
+       of a warm tropical column (:func:`_warm_column_psi`, 6.7 m at 5000 dbar) and a warning is returned.
+
+    The estimated error of 2-3 is the trapezoid-rectangle difference of the binned integral (the integration
+    error) — the water above may have changed between the profile and the record, which it does not include.
+    Using the first sample's in-situ density for the whole column instead (the compressed deep water for the
+    whole column) is ~1 % of the depth too shallow: -55 m at 10 950 m for a record starting at 5000 dbar
+    (``tests/test_depth_fusion.py``).
+    """
+    import gsw
+
+    p = np.asarray(pressure_dbar, dtype=np.float64)
+    rho = (density_eos80(salinity, temperature_its90_degc, p) if density_kg_m3 is None
+           else np.asarray(density_kg_m3, dtype=np.float64))
+    rho = np.broadcast_to(rho, p.shape)
+    ok = np.isfinite(p) & np.isfinite(rho) & (rho > 0)
+    if not ok.any():
+        raise InputError("overlying_column: no sample with a valid pressure and density")
+    i0 = int(np.flatnonzero(ok)[0])
+    p0 = float(p[i0])
+    g0 = float(gravity(latitude_deg, 0.0))
+    if p0 <= surface_dbar:
+        d0 = p0 * PA_PER_DBAR / (float(rho[i0]) * g0)
+        return OverlyingColumn(p0, d0, "surface", abs(d0) * 1e-3, None)
+
+    if profile is not None:
+        pp, ps, pt = (np.asarray(x, dtype=np.float64) for x in profile)
+        pp, ps, pt = np.broadcast_arrays(pp, ps, pt)
+        pr = density_eos80(ps, pt, pp)
+        m = np.isfinite(pp) & np.isfinite(pr)
+        order = np.argsort(pp[m], kind="stable")
+        pp, pr = pp[m][order], pr[m][order]
+        if pp.size >= 2 and pp[0] <= surface_dbar and pp[-1] >= p0 - bin_dbar:
+            d0, err = _profile_depth(pp, pr, p0, latitude_deg)
+            return OverlyingColumn(p0, d0, "user profile", err,
+                                   f"record starts at {p0:.0f} dbar: depth of the first sample from the supplied "
+                                   f"profile, {d0:.2f} m (estimated error {err:.2f} m plus any change of the "
+                                   "water since the profile)")
+    above = ok & (p < p0)
+    if above.any() and float(np.min(p[above])) <= surface_dbar:
+        k = np.floor(p[above] / bin_dbar).astype(np.int64)
+        cnt = np.bincount(k)
+        have = cnt > 0
+        lev = (np.bincount(k, weights=p[above])[have] / cnt[have])
+        rb = (np.bincount(k, weights=rho[above])[have] / cnt[have])
+        if lev.size >= 2 and float(np.max(np.diff(np.concatenate(([0.0], lev, [p0]))))) <= 50 * bin_dbar:
+            d0, err = _profile_depth(lev, rb, p0, latitude_deg)
+            return OverlyingColumn(p0, d0, "record profile", err,
+                                   f"record starts at {p0:.0f} dbar: depth of the first sample from the record's own "
+                                   f"shallower samples ({int(above.sum())} in {lev.size} bins), {d0:.2f} m "
+                                   f"(estimated error {err:.2f} m)")
+    d0 = float(-gsw.z_from_p(p0, latitude_deg))
+    err = abs(_warm_column_psi(p0, latitude_deg)) / float(gsw.grav(latitude_deg, p0))
+    return OverlyingColumn(p0, d0, "standard ocean (TEOS-10)", err,
+                           f"record starts at {p0:.0f} dbar and no profile covers the water above: the first "
+                           f"sample's depth is the TEOS-10 standard ocean's, {d0:.2f} m; estimated error up to "
+                           f"+{err:.2f} m (real water is warmer: deeper); supply a profile of the site to remove it")
+
+
 # ---------------------------------------------------------------------------------- pressure fusion
 @dataclass(frozen=True)
 class PressureFusion:
-    """Result of :func:`fuse_pressure`."""
+    """Result of :func:`fuse_pressure` (all pressures in dbar)."""
 
     pressure_dbar: np.ndarray
-    source: np.ndarray  # object array of "ctd" / "gauge" / "" (no pressure)
-    gauge_bias_dbar: float  # median(gauge - ctd) on the overlap (added to the CTD on the gauge datum)
-    bias_samples: int  # overlap samples used for the bias
-    bias_mad_dbar: float  # robust spread (1.4826 MAD) of gauge - ctd on the overlap
-    n_ctd: int
-    n_gauge: int
+    source: np.ndarray  # object array of "ctd" / "gauge" / "blend" / "" (no pressure)
+    gauge_bias_dbar: float  # fitted offset a of gauge = a + b * ctd (the gauge-CTD difference at 0 dbar)
+    bias_samples: int  # overlap samples used for the fit
+    bias_mad_dbar: float  # robust spread (1.4826 MAD) of the fit residual on the overlap
+    n_ctd: int  # samples where the (corrected) CTD is used alone
+    n_gauge: int  # samples where the gauge is used alone
+    gauge_gain: float = 1.0  # fitted gain b of gauge = a + b * ctd
+    fit_method: str = "none"
+    fit_rms_dbar: float = float("nan")  # RMS of the fit residual (after removing divergent samples)
+    lag_s: float = 0.0  # the gauge lags the CTD by this (s); removed by shifting the gauge
+    lag_note: str = "no time base: lag not estimated"
+    saturation_dbar: float = float("nan")  # CTD pressure from which it is not used (detected or nominal)
+    saturation_method: str = "nominal range"
+    divergent_samples: int = 0  # overlap samples where |gauge - fit(ctd)| exceeds the divergence limit
+    divergence_limit_dbar: float = float("nan")
+    n_blend: int = 0
+    blend_dbar: float = 0.0
+    switch_points: tuple[dict[str, Any], ...] = ()
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready summary for the product metadata (no arrays)."""
+        def r(x: float, n: int = 6) -> float | None:
+            return None if x is None or not np.isfinite(x) else round(float(x), n)
+
+        return {"fit_method": self.fit_method, "gain": r(self.gauge_gain, 9), "offset_dbar": r(self.gauge_bias_dbar, 4),
+                "fit_samples": self.bias_samples, "residual_mad_dbar": r(self.bias_mad_dbar, 4),
+                "residual_rms_dbar": r(self.fit_rms_dbar, 4), "lag_s": r(self.lag_s, 3), "lag_note": self.lag_note,
+                "ctd_saturation_dbar": r(self.saturation_dbar, 3), "saturation_method": self.saturation_method,
+                "divergent_samples": self.divergent_samples, "divergence_limit_dbar": r(self.divergence_limit_dbar, 3),
+                "blend_dbar": self.blend_dbar, "samples": {"ctd": self.n_ctd, "gauge": self.n_gauge,
+                                                           "blend": self.n_blend},
+                "switch_points": list(self.switch_points)}
+
+
+#: most overlap samples the robust fit uses (evenly spaced subsample beyond that)
+FIT_MAX_SAMPLES = 200_000
+
+
+def _robust_linear_fit(x: np.ndarray, y: np.ndarray, columns: int) -> tuple[np.ndarray, float]:
+    """Huber M-estimate of ``y = X @ beta`` (``X`` = ``[1, x_1, ...]``, ``x`` of shape (n, columns-1)) with
+    ``scipy.optimize.least_squares(loss="huber")``, the Huber scale 1.345 x the robust (MAD) spread of the
+    starting residual (Huber 1964; Holland & Welsch 1977). The start is the Theil-Sen line
+    (``scipy.stats.theilslopes``, Sen 1968) for one regressor, least squares otherwise.
+    Returns ``(beta, residual MAD spread)``."""
+
+    from scipy.optimize import least_squares
+
+    xm = np.column_stack([np.ones(y.size), x.reshape(y.size, columns - 1)])
+    scale = np.max(np.abs(xm), axis=0)
+    scale[scale == 0] = 1.0
+    xs = xm / scale  # conditioned columns
+    if columns == 2:  # start from Theil-Sen (breakdown point 29 %): a clipped CTD cannot drag the start
+        from scipy.stats import theilslopes
+
+        sub = _subsample(np.arange(y.size), 1500)
+        slope, icpt = theilslopes(y[sub], xm[sub, 1])[:2]
+        beta0 = np.array([icpt, slope]) * scale
+    else:
+        beta0 = np.linalg.lstsq(xs, y, rcond=None)[0]
+    r0 = y - xs @ beta0
+    mad = 1.4826 * float(np.median(np.abs(r0 - np.median(r0))))
+    f_scale = 1.345 * max(mad, 1e-6)
+    res = least_squares(lambda b: xs @ b - y, beta0, jac=lambda b: xs, loss="huber", f_scale=f_scale,
+                        method="trf", x_scale="jac")
+    beta = res.x / scale
+    r = y - xm @ beta
+    return beta, 1.4826 * float(np.median(np.abs(r - np.median(r))))
+
+
+def _subsample(idx: np.ndarray, n: int = FIT_MAX_SAMPLES) -> np.ndarray:
+    return idx if idx.size <= n else idx[np.linspace(0, idx.size - 1, n).astype(np.int64)]
+
+
+def _velocity_dbar_s(p: np.ndarray, t: np.ndarray, ok: np.ndarray, window_s: float) -> np.ndarray:
+    """dp/dt (dbar/s) of ``p`` where ``ok``, from a centred ``window_s`` moving mean (NaN elsewhere)."""
+    v = np.full(p.size, np.nan)
+    idx = np.flatnonzero(ok)
+    if idx.size < 3:
+        return v
+    s = pd.Series(p[idx], index=pd.to_datetime(t[idx], unit="s"))
+    sm = s.rolling(f"{max(window_s, 1e-3)}s", center=True, min_periods=1).mean().to_numpy()
+    v[idx] = np.gradient(sm, t[idx])
+    return v
 
 
 def fuse_pressure(
     pressure_ctd_dbar: ArrayLike,
     pressure_gauge_dbar: ArrayLike,
     *,
+    time_s: ArrayLike | None = None,
     ctd_ok: ArrayLike | None = None,
     gauge_ok: ArrayLike | None = None,
     ctd_saturation_dbar: float = 10_500.0,
     saturation_margin_dbar: float = 5.0,
-    bias_window_dbar: tuple[float, float] = (6000.0, 10_400.0),
+    bias_window_dbar: tuple[float, float] = (-100.0, 10_400.0),
     min_bias_samples: int = 20,
     datum: Literal["gauge", "ctd"] = "gauge",
+    fit: Literal["gain_offset", "offset"] = "gain_offset",
+    blend_dbar: float = 20.0,
+    estimate_lag: bool = True,
+    max_lag_s: float = 30.0,
+    velocity_window_s: float = 10.0,
+    flat_tolerance_dbar: float = 0.05,
+    min_flat_samples: int = 5,
+    divergence_sigma: float = 8.0,
+    divergence_floor_dbar: float = 2.0,
+    max_switch_points: int = 20,
 ) -> PressureFusion:
     """Fuse the CTD (SBE49, 0-10 500 dbar, ±0.1 %FS) and high-range gauge (Keller PA-33X, 0-12 000 dbar,
-    0.01 %FS) pressures into one series (paper §3.2.1, Tables 2-3).
+    0.01 %FS) pressures into one continuous series (paper §3.2.1, Tables 2-3).
 
-    The CTD pressure is used where it is valid (``ctd_ok``, e.g. QARTOD flag 1/2 from ingest) and below
-    ``ctd_saturation_dbar - saturation_margin_dbar``; elsewhere the gauge. The two are put on one datum with
-    ``bias = median(gauge - ctd)`` over the overlap where both are valid and the CTD reads inside
-    ``bias_window_dbar`` (deep, where both sensors see the same water); with fewer than ``min_bias_samples``
-    there the whole overlap is used, with none the bias is 0.
+    1. **Lag** (``time_s`` given, ``estimate_lag``): the gauge reading at ``t`` is the CTD's at ``t - τ``:
+       ``gauge - ctd ≈ a' + (b-1) ctd - b τ dp/dt`` to first order, so ``τ`` is the robust regression
+       coefficient of the difference on the CTD's vertical speed (moving mean over ``velocity_window_s``),
+       refined once on the shifted gauge; the gauge is then shifted by ``τ`` (linear interpolation in time).
+       It needs the speed to vary over the overlap (descent and ascent); otherwise ``τ = 0`` and ``lag_note``
+       says why. ``|τ| <= max_lag_s``.
+    2. **Gain and offset** (``fit="gain_offset"``): ``gauge = a + b · ctd`` by a Huber M-estimator
+       (:func:`_robust_linear_fit`, ``scipy.optimize.least_squares``) over the overlap where both are valid
+       and the CTD reads inside ``bias_window_dbar`` (the whole overlap when fewer than ``min_bias_samples``);
+       ``fit="offset"``: ``b = 1`` and ``a`` the median difference (the previous behaviour). A CTD gain error
+       of 5e-4 costs 5 dbar at 10 000 dbar, which a median offset turns into ~4 dbar at the surface and a
+       jump where the source switches (``tests/test_depth_fusion.py``).
+    3. **Saturation from the data**, not only ``ctd_saturation_dbar``: a *flat line* at the CTD's top
+       (``>= min_flat_samples`` samples within ``flat_tolerance_dbar`` of its maximum while the gauge moves
+       by more than 1 dbar) or *divergence* from the gauge at the top of the CTD's range (residual of the fit
+       above ``max(divergence_sigma · σ, divergence_floor_dbar)``, the CTD reading low) lowers the
+       saturation pressure to the CTD's clipping value; the CTD is not used from ``saturation - margin`` up.
+       The fit is redone without the divergent samples.
+    4. **Continuity**: on the gauge's datum (default; the more accurate sensor, 0.01 %FS) the CTD is mapped
+       with ``a + b · ctd``; below the switch pressure the series crosses over linearly from the corrected CTD
+       to the gauge over ``blend_dbar`` (weights in gauge pressure), so it has no step at the switch.
+       ``datum="ctd"``: the gauge is mapped onto the CTD with ``(gauge - a) / b`` instead.
 
-    ``datum="gauge"`` (default): the series is on the gauge's datum (CTD + bias where the CTD is used, gauge
-    where it saturates) because the gauge is the more accurate sensor (0.01 %FS = ±1.2 dbar against the
-    SBE49's 0.1 %FS = ±10.5 dbar): a constant CTD offset would otherwise go straight into every depth.
-    ``datum="ctd"``: CTD where valid, ``gauge - bias`` elsewhere (the CTD's datum). Either way the series
-    is continuous where the source switches.
+    The fit, its residual, the lag, the saturation found and the switch points (sample index, pressure,
+    from/to, the step the blend removed) are in the result (:meth:`PressureFusion.to_dict`).
     """
     pc = np.asarray(pressure_ctd_dbar, dtype=np.float64)
-    pg = np.asarray(pressure_gauge_dbar, dtype=np.float64)
-    if pc.shape != pg.shape:
-        raise InputError(f"fuse_pressure: CTD and gauge series differ in length ({pc.size} vs {pg.size})")
-    cok = np.isfinite(pc) & (np.ones_like(pc, bool) if ctd_ok is None else np.asarray(ctd_ok, bool))
-    gok = np.isfinite(pg) & (np.ones_like(pg, bool) if gauge_ok is None else np.asarray(gauge_ok, bool))
-    cok &= pc < ctd_saturation_dbar - saturation_margin_dbar
-    both = cok & gok
-    win = both & (pc >= bias_window_dbar[0]) & (pc <= bias_window_dbar[1])
-    use = win if win.sum() >= min_bias_samples else both
-    if use.any():
-        diff = pg[use] - pc[use]
-        bias = float(np.median(diff))
-        mad = float(1.4826 * np.median(np.abs(diff - bias)))
-    else:
-        bias, mad = 0.0, float("nan")
+    pg_raw = np.asarray(pressure_gauge_dbar, dtype=np.float64)
+    if pc.shape != pg_raw.shape:
+        raise InputError(f"fuse_pressure: CTD and gauge series differ in length ({pc.size} vs {pg_raw.size})")
     if datum not in ("gauge", "ctd"):
         raise ValueError(f"datum must be 'gauge' or 'ctd', not {datum!r}")
-    shift_ctd, shift_gauge = (bias, 0.0) if datum == "gauge" else (0.0, -bias)
-    fused = np.where(cok, pc + shift_ctd, np.where(gok, pg + shift_gauge, np.nan))
-    source = np.where(cok, "ctd", np.where(gok, "gauge", "")).astype(object)
-    return PressureFusion(fused, source, bias, int(use.sum()), mad, int(cok.sum()), int((~cok & gok).sum()))
+    if fit not in ("gain_offset", "offset"):
+        raise ValueError(f"fit must be 'gain_offset' or 'offset', not {fit!r}")
+    n = pc.size
+    cok = np.isfinite(pc) & (np.ones(n, bool) if ctd_ok is None else np.asarray(ctd_ok, bool))
+    gok = np.isfinite(pg_raw) & (np.ones(n, bool) if gauge_ok is None else np.asarray(gauge_ok, bool))
+    t = None if time_s is None else np.asarray(time_s, dtype=np.float64)
+    if t is not None and (t.shape != pc.shape or not np.all(np.isfinite(t))):
+        t = None
+
+    # --- 3a. saturation: nominal range, then a flat line at the CTD's top
+    sat, sat_method = float(ctd_saturation_dbar), "nominal range"
+    if cok.any():
+        top = float(np.max(pc[cok]))
+        flat = cok & (pc >= top - flat_tolerance_dbar)
+        if flat.sum() >= min_flat_samples and (gok & flat).any():
+            g_flat = pg_raw[gok & flat]
+            if float(g_flat.max() - g_flat.min()) > max(1.0, 20 * flat_tolerance_dbar) and top < sat:
+                sat, sat_method = top - flat_tolerance_dbar, f"flat line at {top:.3f} dbar (CTD clipping)"
+    usable = cok & (pc < sat - saturation_margin_dbar)
+
+    # --- 1. lag and 2. fit on the overlap
+    pg = pg_raw
+    lag, lag_note = 0.0, "no time base: lag not estimated" if t is None else "not estimated"
+    a, b, mad, rms, n_fit, method = 0.0, 1.0, float("nan"), float("nan"), 0, "none"
+    divergent = np.zeros(n, bool)
+    div_limit = float("nan")
+
+    def overlap(excl: np.ndarray) -> np.ndarray:
+        both = usable & gok & ~excl
+        win = both & (pc >= bias_window_dbar[0]) & (pc <= bias_window_dbar[1])
+        return np.flatnonzero(win if win.sum() >= min_bias_samples else both)
+
+    def do_fit(idx: np.ndarray, gauge: np.ndarray) -> tuple[float, float, float]:
+        if idx.size == 0:
+            return 0.0, 1.0, float("nan")
+        d = gauge[idx] - pc[idx]
+        if fit == "offset" or idx.size < max(min_bias_samples, 3) or np.ptp(pc[idx]) < 1.0:
+            off = float(np.median(d))
+            return off, 1.0, 1.4826 * float(np.median(np.abs(d - off)))
+        beta, s = _robust_linear_fit(pc[idx], gauge[idx], 2)
+        return float(beta[0]), float(beta[1]), s
+
+    gross = np.zeros(n, bool)  # far off a first robust line (a clipped CTD): kept out of the lag regression
+    idx0 = overlap(gross)
+    if idx0.size >= max(min_bias_samples, 3) and fit == "gain_offset" and np.ptp(pc[idx0]) >= 1.0:
+        a0, b0, s0 = do_fit(_subsample(idx0), pg)
+        gross = usable & gok & (np.abs(pg - (a0 + b0 * pc)) > max(divergence_sigma * s0, divergence_floor_dbar))
+    if t is not None and estimate_lag and (usable & gok).sum() >= max(min_bias_samples, 10):
+        w = _velocity_dbar_s(pc, t, usable, velocity_window_s)
+        idx = _subsample(overlap(~np.isfinite(w) | gross))
+        if idx.size >= 10 and np.std(w[idx]) > 0.05:
+            total = 0.0
+            for _ in range(3):
+                idx = idx[np.isfinite(pg[idx])]
+                if idx.size < 10:
+                    break
+                beta, _s = _robust_linear_fit(np.column_stack([pc[idx], w[idx]]), pg[idx] - pc[idx], 3)
+                step = -float(beta[2]) / (1.0 + float(beta[1]))
+                total = float(np.clip(total + step, -max_lag_s, max_lag_s))
+                gi = np.flatnonzero(gok)
+                pg = np.full(n, np.nan)
+                pg[gi] = np.interp(t[gi] + total, t[gi], pg_raw[gi], left=np.nan, right=np.nan)
+                if abs(step) < 1e-3:
+                    break
+            lag = total
+            lag_note = ("estimated by robust regression of gauge - ctd on the CTD's vertical speed; the gauge "
+                        f"is shifted by {lag:+.3f} s")
+            gok = gok & np.isfinite(pg)
+        else:
+            lag_note = "vertical speed does not vary enough on the overlap to separate lag from offset: lag 0"
+
+    idx = overlap(gross)
+    if idx.size:
+        a, b, mad = do_fit(_subsample(idx), pg)
+        method = "huber gain+offset" if fit == "gain_offset" and b != 1.0 else "median offset"
+        # --- 3b. divergence from the gauge (the CTD reading low at the top of its range: saturation)
+        both = usable & gok
+        r = np.where(both, pg - (a + b * pc), 0.0)
+        div_limit = max(divergence_sigma * (mad if np.isfinite(mad) else 0.0), divergence_floor_dbar)
+        divergent = both & (np.abs(r) > div_limit)
+        # the lowest CTD pressure from which >= 90 % of the overlap samples above it read low by more than
+        # the limit (divergence that persists to the top of the CTD's range, not an isolated spike)
+        bi = np.flatnonzero(both)
+        order = bi[np.argsort(pc[bi], kind="stable")[::-1]]
+        low = (divergent & (r > 0))[order]
+        frac = np.cumsum(low) / np.arange(1, order.size + 1)
+        ok_top = np.flatnonzero((frac >= 0.9) & low & (np.arange(order.size) + 1 >= min_flat_samples))
+        if ok_top.size and low[:min_flat_samples].all():
+            new_sat = float(pc[order[ok_top[-1]]])
+            if new_sat < sat:
+                sat, sat_method = new_sat, f"divergence from the gauge from {new_sat:.3f} dbar"
+                usable &= pc < sat - saturation_margin_dbar
+        if divergent.any():
+            idx = overlap(divergent)
+            if idx.size:
+                a, b, mad = do_fit(_subsample(idx), pg)
+        n_fit = int(idx.size)
+        rr = pg[idx] - (a + b * pc[idx])
+        rms = float(np.sqrt(np.mean(rr ** 2))) if rr.size else float("nan")
+
+    # --- 4. continuous series on one datum, crossing over below the switch pressure
+    ctd_on_gauge = a + b * pc
+    p_switch_g = a + b * (sat - saturation_margin_dbar)
+    wgt = np.where(usable, 1.0, 0.0)
+    both = usable & gok
+    if blend_dbar > 0 and both.any():
+        wgt[both] = np.clip((p_switch_g - pg[both]) / blend_dbar, 0.0, 1.0)
+    wgt[usable & ~gok] = 1.0
+    if datum == "gauge":
+        c_val, g_val = ctd_on_gauge, pg
+    else:
+        c_val, g_val = pc, (pg - a) / b
+    fused = np.where(wgt >= 1.0, c_val, np.where(wgt <= 0.0, g_val, wgt * c_val + (1.0 - wgt) * g_val))
+    has_g = gok
+    fused = np.where(usable | has_g, fused, np.nan)
+    source = np.full(n, "", dtype=object)
+    source[(wgt >= 1.0) & usable] = "ctd"
+    source[(wgt <= 0.0) & has_g] = "gauge"
+    source[(wgt > 0.0) & (wgt < 1.0)] = "blend"
+    # switch points: where the source changes between ctd and gauge (through a blend or not)
+    switches: list[dict[str, Any]] = []
+    lab = np.where(source == "ctd", 1, np.where(source == "gauge", 2, np.where(source == "blend", 3, 0)))
+    seen = np.flatnonzero(lab > 0)
+    if seen.size > 1:
+        ch = seen[1:][lab[seen[1:]] != lab[seen[:-1]]]
+        for i in ch[:max_switch_points]:
+            j = seen[np.searchsorted(seen, i) - 1]
+            step = float(c_val[i] - g_val[i]) if usable[i] and has_g[i] else float("nan")
+            switches.append({"index": int(i), "pressure_dbar": round(float(fused[i]), 3),
+                             "from": str(source[j]), "to": str(source[i]),
+                             "ctd_minus_gauge_dbar": None if not np.isfinite(step) else round(step, 4)})
+    return PressureFusion(
+        fused, source, float(a), n_fit, float(mad), int((source == "ctd").sum()), int((source == "gauge").sum()),
+        gauge_gain=float(b), fit_method=method, fit_rms_dbar=rms, lag_s=float(lag), lag_note=lag_note,
+        saturation_dbar=float(sat), saturation_method=sat_method, divergent_samples=int(divergent.sum()),
+        divergence_limit_dbar=div_limit, n_blend=int((source == "blend").sum()), blend_dbar=float(blend_dbar),
+        switch_points=tuple(switches))
 
 
 # ------------------------------------------------------------------------------------ altitude, phases

@@ -48,6 +48,45 @@ class MapFrame(BaseModel):
         return LocalFrame(self.origin_latitude_deg, self.origin_longitude_deg)
 
 
+class LaserFrame(BaseModel):
+    """Georeference of the laser survey's local frame (x, y metres): where its origin is and how it is turned."""
+
+    model_config = ConfigDict(extra="forbid")
+    origin_latitude_deg: float = Field(ge=-90, le=90, description="latitude of the laser frame's origin (degrees)")
+    origin_longitude_deg: float = Field(ge=-180, le=180, description="longitude of the laser frame's origin (degrees)")
+    heading_deg: float = Field(0.0, ge=-360, le=360, description="azimuth of the laser frame's +y axis, degrees "
+                                                                  "clockwise from true north (0: x east, y north)")
+
+
+class DiveMetadata(BaseModel):
+    """Discovery metadata (ACDD-1.3) written into every product; nothing is invented when a field is absent
+    (``hadal config --check`` lists the missing required ones)."""
+
+    model_config = ConfigDict(extra="forbid")
+    creator_name: str | None = Field(None, description="person or group who collected/processed the data")
+    creator_email: str | None = Field(None, description="contact e-mail of the creator")
+    creator_url: str | None = Field(None, description="web page of the creator")
+    creator_type: Literal["person", "group", "institution", "position"] | None = Field(
+        None, description="ACDD creator_type")
+    institution: str | None = Field(None, description="institution that produced the data")
+    project: str | None = Field(None, description="project or cruise programme")
+    program: str | None = Field(None, description="overarching programme")
+    cruise: str | None = Field(None, description="cruise id")
+    publisher_name: str | None = Field(None, description="publisher (data centre) name")
+    publisher_email: str | None = Field(None, description="publisher contact e-mail")
+    publisher_url: str | None = Field(None, description="publisher web page")
+    license: str | None = Field(None, description="data licence (e.g. 'CC-BY-4.0')")
+    naming_authority: str | None = Field(None, description="reverse-DNS naming authority of product ids")
+    acknowledgment: str | None = Field(None, description="funding / acknowledgement text")
+    references: str | None = Field(None, description="published references describing the data")
+    metadata_link: str | None = Field(None, description="URL of the dataset's landing page / full metadata")
+    platform_vocabulary_name: str | None = Field(
+        None, description="GCMD platform keyword of the vehicle (default 'Subsurface Vehicles > AUV')")
+    instruments: dict[str, str] = Field(
+        default_factory=dict, description="product name -> instrument description (overrides hadal's defaults, "
+                                          "e.g. {ctd: 'Sea-Bird SBE 49 FastCAT', dtm: 'Kongsberg EM122'})")
+
+
 class SourceFile(BaseModel):
     """One raw file with optional reading hints (every hint defaults to detection from the file's content).
 
@@ -136,6 +175,11 @@ class Dive(BaseModel):
     map_frame: MapFrame | None = Field(
         None, description="origin of the local transverse-Mercator map frame (default: the launch point)")
     sources: Sources = Field(default_factory=Sources, description="the dive's raw files by kind")
+    metadata: DiveMetadata = Field(default_factory=DiveMetadata,
+                                   description="discovery metadata (creator, institution, project, licence, "
+                                               "instruments) written into the products")
+    laser_frame: LaserFrame | None = Field(
+        None, description="georeference of the laser survey's local frame (landing sites in lat/lon)")
     notes: str = Field("", description="free text")
 
     @field_validator("dive_id")
@@ -213,9 +257,38 @@ def resolve_source(raw_dir: Path, rel: str | SourceFile) -> Path:
     return p
 
 
+_FINGERPRINTS: dict[tuple, str] = {}  # (raw_dir, stat of dive.yaml and every source) -> fingerprint, per process
+
+
+def _stat_key(path: Path) -> tuple:
+    try:
+        st = path.stat()
+    except OSError:
+        return (str(path), None)
+    return (str(path), st.st_size, st.st_mtime_ns, st.st_ino, st.st_ctime_ns)
+
+
 def dive_fingerprint(dive: Dive, raw_dir: Path) -> str:
     """Content fingerprint of a raw dive directory: SHA-256 over ``dive.yaml`` and, for every source file, its
-    relative path, size and the first and last MiB (cheap on large logs, yet different for different dives)."""
+    relative path, size and the first and last MiB (cheap on large logs, yet different for different dives).
+
+    Computed once per process for unchanged files: memoised on the size, mtime, inode and ctime of ``dive.yaml``
+    and of every source file (a run checks the dive's identity before and after each stage)."""
+    key: tuple = (str(raw_dir), _stat_key(raw_dir / DIVE_FILE))
+    for kind in type(dive.sources).model_fields:
+        for entry in dive.sources.files(kind):
+            try:
+                f = resolve_source(raw_dir, entry)
+            except HadalError:
+                key += ((kind, str(entry.path), None),)
+                continue
+            key += ((kind, str(entry.path), *_stat_key(f)),)
+    if key not in _FINGERPRINTS:
+        _FINGERPRINTS[key] = _dive_fingerprint(dive, raw_dir)
+    return _FINGERPRINTS[key]
+
+
+def _dive_fingerprint(dive: Dive, raw_dir: Path) -> str:
     import hashlib
 
     h = hashlib.sha256()

@@ -390,12 +390,59 @@ _COMMENTS = {
 }
 
 
+#: the commented ``metadata:`` stub of a new dive.yaml: (field, example value, ACDD-1.3 meaning); the required
+#: ones (:data:`hadal.products.metadata.ACDD_REQUIRED`) are listed by ``hadal config --check`` while missing
+METADATA_STUB: tuple[tuple[str, str, str], ...] = (
+    ("creator_name", "Jane Doe", "ACDD creator_name (required): person or group principally responsible for "
+                                 "collecting/processing the data"),
+    ("creator_email", "jane.doe@example.edu", "ACDD creator_email (required): contact address of the creator"),
+    ("creator_url", "https://example.edu/~jdoe", "ACDD creator_url: web page of the creator"),
+    ("creator_type", "person", "ACDD creator_type: person, group, institution or position"),
+    ("institution", "Example Institute of Oceanography", "ACDD/CF institution (required): where the data were "
+                                                         "produced"),
+    ("project", "Hadal Trench Survey 2026", "ACDD project (required): scientific project that produced the data"),
+    ("program", "", "ACDD program: overarching programme of the project"),
+    ("cruise", "", "cruise id (recorded in every product)"),
+    ("license", "CC-BY-4.0", "ACDD license (required): terms of use of the data (SPDX id or URL)"),
+    ("naming_authority", "edu.example", "ACDD naming_authority: reverse-DNS name of the organisation that makes "
+                                        "the product ids unique (IOOS-1.2 asks for it)"),
+    ("publisher_name", "", "ACDD publisher_name: who distributes the data (default: the creator)"),
+    ("publisher_email", "", "ACDD publisher_email: contact address of the publisher"),
+    ("publisher_url", "", "ACDD publisher_url: web page of the publisher (data centre)"),
+    ("acknowledgment", "", "ACDD acknowledgment: funding and support"),
+    ("metadata_link", "", "ACDD metadata_link: URL of the dataset's landing page / full metadata"),
+    ("platform_vocabulary_name", "Subsurface Vehicles > AUV", "ACDD platform: GCMD platform keyword of the vehicle "
+                                                              "(its name is the top-level 'platform:' field)"),
+)
+_INSTRUMENTS_STUB = (("ctd", "Sea-Bird SBE 49 FastCAT"), ("dtm", "Kongsberg EM 124"))
+
+
+def metadata_stub() -> list[str]:
+    """The commented ``metadata:`` block of a new dive.yaml: every field with its ACDD meaning and an example in
+    the comment, the value empty (uncommented as is, it validates as :class:`hadal.dive.DiveMetadata` and
+    ``hadal config --check`` still lists the required fields until they are filled in)."""
+    out = ["# metadata: discovery metadata (ACDD-1.3) written into every product; nothing is invented when a field",
+           "# is absent (the products list it in hadal_metadata_missing). Uncomment and fill in:",
+           "# metadata:"]
+    for key, example, meaning in METADATA_STUB:  # values left empty: an example never reaches a product
+        out.append(f"#   # {meaning}" + (f" (e.g. {example})" if example else ""))
+        out.append(f"#   {key}:")
+    out.append("#   # ACDD instrument per product (default: hadal's GCMD keyword; products measured by another")
+    out.append("#   # product's instrument, e.g. profile by ctd, suitability by dtm, follow it), e.g.")
+    out.append("#   instruments: {}")
+    out += [f"#   #   {k}: {v}" for k, v in _INSTRUMENTS_STUB]
+    return out
+
+
 def render_dive_yaml(res: InitResult) -> str:
-    """The commented dive.yaml text of ``res`` (the YAML itself round-trips to ``res.dive``)."""
+    """The commented dive.yaml text of ``res`` (the YAML itself round-trips to ``res.dive``); without a
+    ``metadata`` entry it ends with the commented stub of :func:`metadata_stub`."""
     out = [_HEADER.format(date=_dt.date.today().isoformat(), dir=res.raw_dir.name)]
     for key, value in res.dive.items():
         out.append(f"# {_COMMENTS.get(key, key)}")
         out.append(yaml.safe_dump({key: value}, sort_keys=False, default_flow_style=False).rstrip())
+    if "metadata" not in res.dive:
+        out += metadata_stub()
     if res.not_used:
         out.append("# files not used:")
         out += [f"#   {line}" for line in res.not_used]

@@ -30,8 +30,10 @@ Signatures (public format documentation):
 from __future__ import annotations
 
 import bz2
+import codecs
 import contextlib
 import gzip
+import io
 import lzma
 import re
 import struct
@@ -112,12 +114,75 @@ def compression_of(head: bytes) -> str | None:
     return None
 
 
+def utf16_of(head: bytes) -> str | None:
+    """``"utf-16"`` when ``head`` is UTF-16 text with a byte-order mark (Windows "Unicode" exports of loggers and
+    spreadsheets): the BOM, and its first 2 KiB decode to printable text. Binary formats that happen to start
+    with ``FF FE`` fail the text test."""
+    if not head.startswith((b"\xff\xfe", b"\xfe\xff")) or len(head) < 4:
+        return None
+    sample = head[:2048]
+    sample = sample[:len(sample) - len(sample) % 2]
+    try:
+        text = sample.decode("utf-16")
+    except UnicodeDecodeError:
+        return None
+    ok = sum(c.isprintable() or c in "\t\r\n" for c in text)
+    return "utf-16" if text and ok >= 0.98 * len(text) else None
+
+
+def text_encoding_of(head: bytes) -> str:
+    """``"utf-8"`` when ``head`` (the first bytes of a text file, as :func:`read_head` gives them) is valid UTF-8
+    (a character cut at the end allowed), else ``"cp1252"`` (Windows Latin-1: ``°`` ``µ`` in column names of
+    older loggers), which decodes any byte."""
+    try:
+        head.decode("utf-8")
+        return "utf-8"
+    except UnicodeDecodeError as exc:
+        return "utf-8" if exc.start >= len(head) - 3 and exc.reason.startswith("unexpected end") else "cp1252"
+
+
+class _Utf8FromUtf16(io.RawIOBase):
+    """A binary stream of the UTF-8 encoding of a UTF-16 stream (decoded incrementally, BOM dropped), so the
+    text readers see UTF-8 whatever the file's encoding."""
+
+    def __init__(self, fh: Any):
+        self._fh = fh
+        self._dec = codecs.getincrementaldecoder("utf-16")(errors="replace")
+        self._buf = b""
+        self._eof = False
+
+    def readable(self) -> bool:
+        return True
+
+    def readinto(self, b: Any) -> int:
+        while not self._buf and not self._eof:
+            raw = self._fh.read(1 << 16)
+            self._eof = not raw
+            self._buf = self._dec.decode(raw, final=self._eof).encode("utf-8")
+        n = min(len(b), len(self._buf))
+        b[:n] = self._buf[:n]
+        self._buf = self._buf[n:]
+        return n
+
+    def close(self) -> None:
+        self._fh.close()
+        super().close()
+
+
 def open_binary(path: str | Path):
-    """Open a file for binary reading, transparently decompressing gzip/bz2/xz (detected by magic bytes)."""
+    """Open a file for binary reading, transparently decompressing gzip/bz2/xz (detected by magic bytes) and
+    transcoding UTF-16 text (:func:`utf16_of`) to UTF-8."""
     p = Path(path)
     with open(p, "rb") as fh:
         comp = compression_of(fh.read(8))
-    return _OPENERS[comp](p, "rb") if comp else open(p, "rb")
+    fh = _OPENERS[comp](p, "rb") if comp else open(p, "rb")
+    try:
+        head = fh.peek(4096)[:4096] if hasattr(fh, "peek") else b""
+    except DECOMPRESS_ERRORS:
+        head = b""
+    if utf16_of(head):
+        return io.BufferedReader(_Utf8FromUtf16(fh))
+    return fh
 
 
 def _first_line(exc: BaseException) -> str:
@@ -160,11 +225,47 @@ def read_bytes(path: str | Path, what: str = "", *, text: bool = False) -> tuple
     if comp is not None:
         with decompress_errors(p, comp, what):
             raw = _DECOMPRESSORS[comp](raw)
+    if utf16_of(raw[:4096]):
+        raw = raw.decode("utf-16", errors="replace").encode("utf-8")
     if text and not raw.strip():
         raise InputError(f"{p}: {label} is empty")
     if text and b"\x00" in raw[:4096]:
         raise InputError(f"{p}: not a {label} (binary content)")
     return raw, comp
+
+
+#: block size of :func:`iter_blocks` (decompressed bytes per block)
+STREAM_BLOCK_BYTES = 4 << 20
+
+
+def iter_blocks(path: str | Path, what: str = "", *, text: bool = False, block_bytes: int = STREAM_BLOCK_BYTES):
+    """A file's (decompressed) content in blocks of ``block_bytes``: what :func:`read_bytes` returns, without
+    holding the whole file. Same one-line one-line errors (missing, unreadable, damaged stream, and with
+    ``text`` empty or binary content); a damaged stream is reported when the block holding the damage is read."""
+    p = Path(path)
+    label = f"{what} file" if what else "file"
+    if not p.is_file():
+        raise InputError(f"{p}: {label} does not exist")
+    try:
+        fh = open_binary(p)
+    except OSError as exc:
+        raise InputError(f"{p}: cannot read {label} ({exc.strerror or exc})") from None
+    with open(p, "rb") as raw_fh:
+        comp = compression_of(raw_fh.read(8))
+    blank = True
+    with fh, decompress_errors(p, comp, what):
+        first = True
+        while True:
+            b = fh.read(block_bytes)
+            if not b:
+                break
+            if text and first and b"\x00" in b[:4096]:
+                raise InputError(f"{p}: not a {label} (binary content)")
+            first = False
+            blank = blank and not b.strip()
+            yield b
+    if text and blank:
+        raise InputError(f"{p}: {label} is empty")
 
 
 def read_head(path: str | Path, n: int = _HEAD_BYTES, *, strict: bool = True) -> tuple[bytes, str | None]:
@@ -175,15 +276,23 @@ def read_head(path: str | Path, n: int = _HEAD_BYTES, *, strict: bool = True) ->
     with open(p, "rb") as fh:
         raw = fh.read(n)
     comp = compression_of(raw)
-    if comp is None:
-        return raw, None
-    try:
-        with _OPENERS[comp](p, "rb") as fh:
-            return _read_up_to(fh, n, strict), comp
-    except DECOMPRESS_ERRORS as exc:
-        if not strict:
-            return b"", comp
-        raise InputError(f"{p}: corrupt {comp} stream ({exc})") from None
+    if comp is not None:
+        try:
+            with _OPENERS[comp](p, "rb") as fh:
+                raw = _read_up_to(fh, n, strict)
+        except DECOMPRESS_ERRORS as exc:
+            if not strict:
+                return b"", comp
+            raise InputError(f"{p}: corrupt {comp} stream ({exc})") from None
+    if utf16_of(raw):  # UTF-16 text: its first n bytes as UTF-8, as open_binary gives them
+        try:
+            with open_binary(p) as fh:
+                raw = _read_up_to(fh, n, strict)
+        except DECOMPRESS_ERRORS as exc:
+            if not strict:
+                return b"", comp
+            raise InputError(f"{p}: corrupt {comp} stream ({exc})") from None
+    return raw, comp
 
 
 def _read_up_to(fh: Any, n: int, strict: bool = True) -> bytes:

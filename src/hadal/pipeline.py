@@ -6,13 +6,14 @@ notebook or a test, without an orchestrator.
 
 from __future__ import annotations
 
+import functools
+import hashlib
 import logging
 import os
 from collections.abc import Sequence
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
-from hadal.config import PipelineConfig, load_config
-from hadal.dive import load_dive
 from hadal.errors import HadalError, InputError, StageError
 from hadal.plan import PlannedStage, check_plan, plan_stages, runtime_skip_reason
 from hadal.stages import (
@@ -26,12 +27,29 @@ from hadal.stages import (
 )
 from hadal.store import ProductStore, ProductVersion
 
+if TYPE_CHECKING:  # hadal.config imports every stage (and their science): only where a run needs it
+    from hadal.config import PipelineConfig
+
 DIVE_CONFIG_FILE = "pipeline.yaml"
 
 
 def default_store_root() -> Path:
     """``$HADAL_STORE`` if set, else ``./data/processed``."""
     return Path(os.environ.get("HADAL_STORE", "data/processed"))
+
+
+@functools.lru_cache(maxsize=1)
+def code_digest() -> str:
+    """hadal's version + SHA-256 over its source files (catches uncommitted edits, unlike git HEAD); part of
+    every stage's cache key and the key of the CLI's cached ``hadal config`` output."""
+    import hadal
+
+    root = Path(hadal.__file__).resolve().parent
+    h = hashlib.sha256(hadal.__version__.encode())
+    for p in sorted(root.rglob("*.py")):
+        h.update(str(p.relative_to(root)).encode())
+        h.update(p.read_bytes())
+    return f"{hadal.__version__}+{h.hexdigest()[:16]}"
 
 
 def make_context(
@@ -41,6 +59,9 @@ def make_context(
     progress: Progress | None = None,
 ) -> StageContext:
     """Load ``dive.yaml`` and the configuration (explicit file, else ``<raw_dir>/pipeline.yaml``, else defaults)."""
+    from hadal.config import PipelineConfig, load_config
+    from hadal.dive import load_dive
+
     dive, raw = load_dive(raw_dir)
     if not isinstance(config, PipelineConfig):
         dive_cfg = raw / DIVE_CONFIG_FILE
@@ -63,18 +84,35 @@ def claim_dive(ctx: StageContext, *, check_only: bool = False) -> None:
     ctx.store.claim_dive(ctx.dive_id, ctx.raw_dir, dive_fingerprint(ctx.dive, ctx.raw_dir), check_only=check_only)
 
 
-def run_stage(name: str, ctx: StageContext) -> dict[str, ProductVersion]:
-    """Run one stage; it reads the latest upstream products and publishes new versions."""
+def run_stage(name: str, ctx: StageContext, run_info: dict[str, Any] | None = None) -> dict[str, ProductVersion]:
+    """Run one stage; it reads the latest upstream products and publishes new versions.
+
+    Each manifest it writes records ``stage_run`` (:data:`hadal.store.STAGE_RUN`): the stage, its start time, the
+    seconds from its start to that publish, and ``run_info`` (e.g. the Prefect flow/task run ids)."""
+    import datetime as _dt
+    import time
+
+    from hadal.store import STAGE_RUN
+
     mod = stage_module(name)
     if not callable(getattr(mod, "run", None)):
         raise StageError(f"stage {name!r} is not implemented in this version of hadal")
     claim_dive(ctx, check_only=True)  # refuse another directory's dive id before any work
     ctx.log.info("stage %s: start", name)
-    out = mod.run(ctx)
+    t0 = time.monotonic()
+    token = STAGE_RUN.set({"stage": name, "started_utc": _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds"),
+                           "t0": t0, **(run_info or {})})
+    try:
+        from hadal.products.metadata import dive_context  # the writers take ACDD metadata/paths from the dive
+
+        with dive_context(ctx.dive, ctx.raw_dir):
+            out = mod.run(ctx)
+    finally:
+        STAGE_RUN.reset(token)
     if out:
         claim_dive(ctx)
     for product, pv in out.items():
-        ctx.log.info("stage %s: published %s/%s/%s", name, pv.dive, product, pv.label)
+        ctx.log.info("stage %s: published %s/%s/%s (%.1f s)", name, pv.dive, product, pv.label, time.monotonic() - t0)
     return out
 
 

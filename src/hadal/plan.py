@@ -170,3 +170,32 @@ def format_plan(plan: list[PlannedStage]) -> str:
         else:
             lines.append(f"  skip  {ps.name:<12s} ({ps.reason})")
     return "\n".join(lines)
+
+
+def stage_reads(name: str) -> set[str]:
+    """Every product stage ``name`` reads: its declared ``upstream``/``optional_upstream`` and module ``UPSTREAM``."""
+    inp = stage_inputs(name)
+    return set(inp.upstream) | set(inp.optional_upstream) | set(getattr(stage_module(name), "UPSTREAM", ()))
+
+
+def stage_dependencies(names: Sequence[str]) -> dict[str, set[str]]:
+    """For each stage of a run (``names``), the stages *of that run* it must wait for: those that make a product
+    it reads. Stages with no path between them (``grid`` and ``ingest``/``derive``; ``landing`` and ``match``) run
+    concurrently in the flow."""
+    made = {n: set(getattr(stage_module(n), "PRODUCTS", ())) for n in names}
+    return {n: {m for m in names if m != n and made[m] & stage_reads(n)} for n in names}
+
+
+def downstream_stages(name: str, stages: Sequence[str] | None = None) -> list[str]:
+    """The stages (of ``stages``, default all, in :data:`STAGE_ORDER`) that depend on ``name`` directly or through
+    other stages (``hadal stage NAME --downstream``); ``name`` itself not included."""
+    from hadal.pipeline import resolve_stages
+
+    names = resolve_stages(stages)
+    deps = stage_dependencies(names)
+    out: set[str] = set()
+    frontier = {name}
+    while frontier:
+        frontier = {n for n in names if n not in out and n != name and deps[n] & frontier}
+        out |= frontier
+    return [n for n in names if n in out]

@@ -4,11 +4,17 @@ Sort-and-reduce binning (as NOAA bathygrid grids soundings): each sample's bin i
 ``floor(p / bin_dbar)``, and per-bin sums/counts come from ``np.bincount`` — O(n), NaN-aware per variable.
 The paper's Fig. 8 (conductivity, temperature, salinity, density and gravity of the whole water column) is
 this product plotted against pressure.
+
+``binning="seabird"`` bins as SBEDataProcessing's BinAvg does instead (:func:`hadal.ctd.bin_average`): bins
+centred on multiples of the bin size, the record split at its deepest scan (not by ``phase``), the
+turn-around bin in the descent cast. With ``latitude_deg`` the profile also gets N² per cast
+(:func:`hadal.ctd.teos10.n_squared_profile`, ``gsw.Nsquared`` on the binned SA and CT).
 """
 
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
+from typing import Literal
 
 import numpy as np
 import pandas as pd
@@ -21,7 +27,10 @@ from hadal.errors import InputError
 PROFILE_VARIABLES: tuple[str, ...] = (
     "temperature_its90_degc", "conductivity_s_m", "practical_salinity", "density_kg_m3", "gravity_m_s2",
     "sound_speed_m_s", "depth_m", "depth_fofonoff_millard_m", "depth_teos10_m",
+    "absolute_salinity_g_kg", "conservative_temperature_degc", "potential_temperature_degc", "sigma0_kg_m3",
 )
+#: N² of each binned cast (computed from the binned SA and CT when a latitude is given)
+N_SQUARED = "buoyancy_frequency_squared_s2"
 CASTS: tuple[str, ...] = ("descent", "ascent")
 
 
@@ -80,14 +89,18 @@ def _numpy(s: pd.Series) -> np.ndarray:
 
 
 def make_profile(df: pd.DataFrame, bin_dbar: float = 10.0, *, casts: Sequence[str] = CASTS,
-                 phase_column: str = "phase", pressure_column: str = "pressure_dbar") -> xr.Dataset:
+                 phase_column: str = "phase", pressure_column: str = "pressure_dbar",
+                 binning: Literal["floor", "seabird"] = "floor", latitude_deg: float | None = None) -> xr.Dataset:
     """Bin a ``ctd`` table by pressure separately for each cast (``phase`` = descent / ascent).
 
     Returns a Dataset with dims ``(cast, pressure_dbar)``: ``pressure_dbar`` = bin centres (bin ``k`` covers
     ``[k, k+1) * bin_dbar``), the mean of every :data:`PROFILE_VARIABLES` column present and ``count``
     (samples per bin). Bins that no sample of either cast reaches are dropped from the bottom. (The
     dimension is not called ``pressure``: CF checkers take a ``pressure`` axis to be ``air_pressure``.)
+    ``binning="seabird"``: SeaSoft BinAvg bins (centre ``k * bin_dbar``, ``k >= 1``), see the module docstring.
     """
+    if binning == "seabird":
+        return _seabird_profile(df, bin_dbar, casts, pressure_column, latitude_deg)
     if pressure_column not in df or phase_column not in df:
         raise InputError(f"profile: table lacks {pressure_column!r} or {phase_column!r}")
     edges = bin_edges(df[pressure_column].to_numpy(), bin_dbar)
@@ -114,4 +127,91 @@ def make_profile(df: pd.DataFrame, bin_dbar: float = 10.0, *, casts: Sequence[st
     ds["cast"].attrs.update({"long_name": "cast (dive phase)", "comment": "descent or ascent"})
     ds["count"].attrs.update({"long_name": "number of CTD samples in the pressure bin", "units": "1"})
     ds.attrs["bin_size_dbar"] = float(bin_dbar)
+    _add_n_squared(ds, latitude_deg)
     return ds
+
+
+def _add_n_squared(ds: xr.Dataset, latitude_deg: float | None) -> None:
+    """N² per cast from the binned SA and CT (when both and a latitude are there)."""
+    if latitude_deg is None or "absolute_salinity_g_kg" not in ds or "conservative_temperature_degc" not in ds:
+        return
+    from hadal.ctd.teos10 import n_squared_profile
+
+    pr = ds["pressure_dbar"].values
+    n2 = np.stack([n_squared_profile(pr, ds["absolute_salinity_g_kg"].values[k],
+                                     ds["conservative_temperature_degc"].values[k], latitude_deg)
+                   for k in range(ds.sizes["cast"])])
+    ds[N_SQUARED] = (("cast", "pressure_dbar"), n2)
+
+
+def _seabird_profile(df: pd.DataFrame, bin_dbar: float, casts: Sequence[str], pressure_column: str,
+                     latitude_deg: float | None) -> xr.Dataset:
+    """SeaSoft BinAvg binning of every :data:`PROFILE_VARIABLES` column onto a (cast, pressure_dbar) grid."""
+    from hadal.ctd.bin_average import bin_average
+
+    if pressure_column not in df:
+        raise InputError(f"profile: table lacks {pressure_column!r}")
+    if not bin_dbar > 0:
+        raise InputError(f"profile bin size must be > 0 dbar, got {bin_dbar}")
+    names = [c for c in PROFILE_VARIABLES if c in df.columns]
+    cols = {}
+    for n in names:
+        v = _numpy(df[n])
+        if np.issubdtype(v.dtype, np.datetime64):
+            x = v.astype("datetime64[ns]").astype(np.int64).astype(np.float64)
+            x[np.asarray(pd.isna(v))] = np.nan
+            cols[n] = x
+        else:
+            cols[n] = v.astype(np.float64)
+    r = bin_average(df[pressure_column].to_numpy(np.float64), cols, bin_dbar)
+    k = np.rint(r.centre / bin_dbar).astype(np.int64)
+    kmax = int(k.max())
+    centres = np.arange(1, kmax + 1) * float(bin_dbar)
+    ci = {c: i for i, c in enumerate(casts)}
+    counts = np.zeros((len(casts), kmax), dtype=np.int32)
+    data = {n: np.full((len(casts), kmax), np.nan) for n in names}
+    for j in range(len(k)):
+        row = ci.get(r.cast[j])
+        if row is None:
+            continue
+        counts[row, k[j] - 1] = r.nbin[j]
+        for n in names:
+            data[n][row, k[j] - 1] = r.means[n][j]
+    dims = ("cast", "pressure_dbar")
+    ds = xr.Dataset(coords={"cast": np.array(list(casts), dtype=object), "pressure_dbar": centres})
+    for n in names:
+        vals = data[n]
+        if np.issubdtype(_numpy(df[n]).dtype, np.datetime64):
+            vals = pd.to_datetime(vals.ravel(), utc=True).tz_localize(None).to_numpy().reshape(vals.shape)
+        ds[n] = (dims, vals)
+    ds["count"] = (dims, counts)
+    ds["pressure_dbar"].attrs.update({"standard_name": "sea_water_pressure", "units": "dbar", "positive": "down",
+                                      "axis": "Z", "long_name": "sea water pressure (bin centre)",
+                                      "comment": f"SeaSoft BinAvg bins: bin k covers [k - 1/2, k + 1/2) x "
+                                                 f"{float(bin_dbar):g} dbar (descent; ascent (k - 1/2, k + 1/2]); "
+                                                 "the turn-around bin is in the descent cast"})
+    ds["cast"].attrs.update({"long_name": "cast (split at the deepest scan)", "comment": "descent or ascent"})
+    ds["count"].attrs.update({"long_name": "number of CTD samples in the pressure bin", "units": "1"})
+    ds.attrs["bin_size_dbar"] = float(bin_dbar)
+    ds.attrs["binning"] = "seabird BinAvg"
+    _add_n_squared(ds, latitude_deg)
+    return ds
+
+
+def n_squared_per_sample(df: pd.DataFrame, ds: xr.Dataset, *, phase_column: str = "phase",
+                         pressure_column: str = "pressure_dbar") -> np.ndarray:
+    """Each sample's N²: that of its binned cast in ``ds`` at its pressure (bottom samples: the descent's), NaN
+    where the profile has none (no latitude given, or outside the cast's levels)."""
+    from hadal.ctd.teos10 import n_squared_at
+
+    out = np.full(len(df), np.nan)
+    if N_SQUARED not in ds or phase_column not in df or pressure_column not in df:
+        return out
+    pr = df[pressure_column].to_numpy(np.float64)
+    phase = df[phase_column].to_numpy(dtype=object)
+    levels = ds["pressure_dbar"].values
+    for k, cast in enumerate(ds["cast"].values):
+        sel = (phase == cast) | ((phase == "bottom") & (cast == "descent"))
+        if sel.any():
+            out[sel] = n_squared_at(pr[sel], levels, ds[N_SQUARED].values[k])
+    return out

@@ -301,9 +301,17 @@ def specific_volume_anomaly(salinity: ArrayLike, temperature_its90_degc: ArrayLi
 
 
 def sigma_t(salinity: ArrayLike, temperature_its90_degc: ArrayLike) -> np.ndarray:
-    """σt = ρ(S, t, 0) - 1000 (kg m⁻³), SeaSoft ``sigma-t00`` (EOS-80 at zero sea pressure, in situ t)."""
-    s, t = np.broadcast_arrays(_f(salinity), t68_from_t90(temperature_its90_degc))
-    return _rho0_and_k(s, t, 0.0)[0] - 1000.0
+    """σt = ρ(S, t, 0) - 1000 (kg m⁻³), SeaSoft ``sigma-t00`` (EOS-80 at zero sea pressure, in situ t).
+    Evaluated block-wise (:func:`_blockwise`): memory ~ the output (``bench/bench_depth_memory.py``)."""
+    return _sigma_t_kernel(salinity, temperature_its90_degc)
+
+
+@_blockwise
+def _sigma_t_kernel(s: np.ndarray, t90: np.ndarray) -> np.ndarray:
+    s, t = np.broadcast_arrays(s, t90 * T68_PER_T90)
+    out = _rho0_and_k(s, t, 0.0)[0]
+    out -= 1000.0
+    return out
 
 
 # ------------------------------------------------------------------------------- potential temperature
@@ -351,10 +359,17 @@ def potential_temperature(salinity: ArrayLike, temperature_its90_degc: ArrayLike
 def sigma_theta(salinity: ArrayLike, temperature_its90_degc: ArrayLike, pressure_dbar: ArrayLike) -> np.ndarray:
     """σθ = ρ(S, θ, 0) - 1000 (kg m⁻³), SeaSoft ``sigma-é00``: EOS-80 one-atmosphere density at the
     potential temperature referred to 0 dbar (UNESCO 44 ``THETA``, computed and used on IPTS-68)."""
-    s = _f(salinity)
-    th68 = potential_temperature_t68(s, t68_from_t90(temperature_its90_degc), pressure_dbar, 0.0)
+    return _sigma_theta_kernel(salinity, temperature_its90_degc, pressure_dbar)
+
+
+@_blockwise
+def _sigma_theta_kernel(s: np.ndarray, t90: np.ndarray, p: np.ndarray) -> np.ndarray:
+    # block-wise (cache-sized temporaries): the Runge-Kutta step of THETA makes ~40 temporaries per sample
+    th68 = potential_temperature_t68(s, t90 * T68_PER_T90, p, 0.0)
     s, th68 = np.broadcast_arrays(s, th68)
-    return _rho0_and_k(s, th68, 0.0)[0] - 1000.0
+    out = _rho0_and_k(s, th68, 0.0)[0]
+    out -= 1000.0
+    return out
 
 
 # ---------------------------------------------------------------------------------------------- gravity

@@ -21,6 +21,7 @@ creation time and the upstream product versions (provenance).
 from __future__ import annotations
 
 import contextlib
+import contextvars
 import datetime as _dt
 import errno
 import fcntl
@@ -30,6 +31,7 @@ import os
 import re
 import shutil
 import subprocess
+import threading
 import time
 import uuid
 from collections.abc import Iterator, Mapping, Sequence
@@ -68,6 +70,21 @@ def sha256_file(path: str | os.PathLike[str]) -> str:
         while chunk := fh.read(_HASH_CHUNK):
             h.update(chunk)
     return h.hexdigest()
+
+
+#: per-store cache of raw-file hashes (``<root>/.cache/file-sha256.json``), see :meth:`ProductStore.file_sha256`
+HASH_CACHE = ".cache/file-sha256.json"
+_PROCESS_HASHES: dict[tuple, str] = {}  # (resolved path, size, mtime_ns, inode, ctime_ns) -> SHA-256, this process
+_HASH_LOCK = threading.Lock()
+#: the stage run publishing in this context (set by :func:`hadal.pipeline.run_stage`: ``stage``, ``started_utc``,
+#: ``t0`` = its ``time.monotonic()`` start, and e.g. the Prefect ``flow_run``/``task_run`` ids); every manifest
+#: written in it records ``stage_run`` with ``seconds`` = the stage's time from its start to this publish
+STAGE_RUN: contextvars.ContextVar[dict[str, Any] | None] = contextvars.ContextVar("hadal_stage_run", default=None)
+
+
+def _file_key(path: Path) -> tuple:
+    st = path.stat()
+    return (str(path), st.st_size, st.st_mtime_ns, st.st_ino, st.st_ctime_ns)
 
 
 def code_version() -> str:
@@ -162,6 +179,68 @@ class ProductStore:
     def __init__(self, root: str | os.PathLike[str]):
         self.root = Path(root)
         self._intact: set[tuple[str, int, int]] = set()  # files check_intact found unchanged
+        self._hashes: dict[str, dict[str, Any]] | None = None  # HASH_CACHE, loaded on first use
+
+    # ---------------------------------------------------------------- raw-file hashes
+    def file_sha256(self, path: str | os.PathLike[str]) -> str:
+        """SHA-256 of a (raw input) file without re-reading it when it is unchanged.
+
+        The hash is remembered with the file's size, mtime, inode and ctime, in this process and in the store
+        (``<root>/.cache/file-sha256.json``), so an unchanged re-run of a dive stats its ~280 MB of raw files
+        instead of hashing them (the stage cache keys and the manifests' ``inputs``). A file whose size, mtime,
+        inode or ctime differs - edited, replaced, touched, copied - is hashed again. ctime cannot be set from
+        user space, so a file rewritten with its old mtime restored is still seen as changed. The cache is
+        best effort: an unreadable or unwritable one only costs the hashing."""
+        p = Path(path).resolve()
+        key = _file_key(p)
+        with _HASH_LOCK:
+            if key in _PROCESS_HASHES:
+                return _PROCESS_HASHES[key]
+            rec = self._hash_records().get(key[0])
+        if isinstance(rec, dict) and rec.get("stat") == list(key[1:]) and isinstance(rec.get("sha256"), str):
+            digest = rec["sha256"]
+        else:
+            digest = sha256_file(p)
+            if _file_key(p) != key:  # changed while it was read: do not remember either state
+                return digest
+            self._remember_hash(key, digest)
+        with _HASH_LOCK:
+            _PROCESS_HASHES[key] = digest
+        return digest
+
+    def _hash_records(self) -> dict[str, dict[str, Any]]:
+        if self._hashes is None:
+            try:
+                data = json.loads((self.root / HASH_CACHE).read_text(encoding="utf-8"))
+            except (OSError, ValueError):
+                data = {}
+            self._hashes = data if isinstance(data, dict) else {}
+        return self._hashes
+
+    def _remember_hash(self, key: tuple, digest: str) -> None:
+        """Add one record to the store's hash cache (merged with what other processes wrote; atomic replace)."""
+        f = self.root / HASH_CACHE
+        if not self.root.is_dir():  # never create a store just for its cache
+            return
+        with _HASH_LOCK:
+            try:
+                f.parent.mkdir(exist_ok=True)
+                with open(f.parent / ".lock", "a+") as lock:
+                    fcntl.flock(lock, fcntl.LOCK_EX)
+                    try:
+                        data = json.loads(f.read_text(encoding="utf-8"))
+                    except (OSError, ValueError):
+                        data = {}
+                    if not isinstance(data, dict):
+                        data = {}
+                    data = {k: v for k, v in data.items() if k == key[0] or Path(k).exists()}  # forget gone files
+                    data[key[0]] = {"stat": list(key[1:]), "sha256": digest}
+                    tmp = f.with_name(f".{f.name}.{os.getpid()}.{uuid.uuid4().hex[:8]}")
+                    tmp.write_text(json.dumps(data, indent=0), encoding="utf-8")
+                    os.replace(tmp, f)
+                    self._hashes = data
+            except OSError:
+                pass
 
     # ---------------------------------------------------------------- reading
     def product_dir(self, dive: str, product: str) -> Path:
@@ -318,7 +397,7 @@ class ProductStore:
         for p in draft.inputs:
             if not p.is_file():
                 raise StoreError(f"input file {p} recorded for {draft.product} does not exist")
-            inputs.append({"path": str(p.resolve()), "bytes": p.stat().st_size, "sha256": sha256_file(p)})
+            inputs.append({"path": str(p.resolve()), "bytes": p.stat().st_size, "sha256": self.file_sha256(p)})
         manifest = {
             "dive": draft.dive,
             "product": draft.product,
@@ -331,6 +410,13 @@ class ProductStore:
             "files": files,
             **draft.extra,
         }
+        from hadal.products.metadata import software_provenance  # command, hadal commit, library versions
+
+        manifest.setdefault("software", software_provenance())
+        run = STAGE_RUN.get()
+        if run:
+            manifest["stage_run"] = {**{k: v for k, v in run.items() if k != "t0"},
+                                     "seconds": round(time.monotonic() - run.get("t0", time.monotonic()), 3)}
         tmp = draft.path / (MANIFEST + ".tmp")
         with open(tmp, "w", encoding="utf-8") as fh:
             json.dump(manifest, fh, indent=2, default=_json_default)

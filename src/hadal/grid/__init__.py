@@ -8,24 +8,29 @@ Public API:
 * readers: :func:`read_soundings`, :func:`read_point_cloud`, :func:`read_grid`, :func:`read_gsf`.
 """
 
-from hadal.grid.laser import G_RES_M, grid_laser
-from hadal.grid.multibeam import (
-    add_geo,
-    apriori_sigma_m,
-    cell_uncertainty,
-    fill_small_holes,
-    grid_multibeam,
-    rmse_against,
-)
-from hadal.grid.points import GridSpec, grid_points, make_grid_spec, reduce_cells, robust_outlier_mask
-from hadal.grid.readers import (
-    GridCRSWarning,
-    looks_metric,
-    read_grid,
-    read_gsf,
-    read_point_cloud,
-    read_soundings,
-)
+import importlib
+from typing import Any
+
+#: public name -> submodule; imported on first access (PEP 562), so ``import hadal.grid.points`` (e.g. for a
+#: constant in :class:`hadal.stages.grid.Params`) does not import SciPy, open3d and the readers
+_LAZY = {
+    "G_RES_M": "laser", "grid_laser": "laser",
+    "add_geo": "multibeam", "apriori_sigma_m": "multibeam", "cell_uncertainty": "multibeam",
+    "fill_small_holes": "multibeam", "grid_multibeam": "multibeam", "rmse_against": "multibeam",
+    "GridSpec": "points", "grid_points": "points", "make_grid_spec": "points", "reduce_cells": "points",
+    "robust_outlier_mask": "points",
+    "GridCRSWarning": "readers", "looks_metric": "readers", "read_grid": "readers", "read_gsf": "readers",
+    "read_point_cloud": "readers", "read_soundings": "readers",
+}
+
+
+def __getattr__(name: str) -> Any:
+    if name in _LAZY:
+        value = getattr(importlib.import_module(f"{__name__}.{_LAZY[name]}"), name)
+        globals()[name] = value
+        return value
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
 
 __all__ = [
     "G_RES_M", "GridCRSWarning", "GridSpec", "add_geo", "apriori_sigma_m", "cell_uncertainty", "fill_small_holes",

@@ -71,6 +71,61 @@ def auto_resolution_m(points, *, quantile: float = 0.9, max_points: int = 1_000_
                                              f"quantile {q:.4g} m (coarser than the paper's 10 mm g_res)"}
 
 
+def coordinate_quantum_m(v, *, max_points: int = 5_000_000) -> float:
+    """The step every coordinate value of ``v`` sits on (m), or 0.0 when the values are not quantised.
+
+    The smallest positive difference ``q`` between the sorted distinct values is the quantum when (nearly)
+    every difference is an integer multiple of it: float32 coordinates far from the origin (UTM x ~5e5 m
+    resolves only 2**-5 m, y ~1.25e6 m 2**-3 m), or text printed with few decimals. Above ``max_points`` a
+    regular subsample is used.
+    """
+    a = np.asarray(v, np.float64)
+    a = a[np.isfinite(a)]
+    if a.size > max_points:
+        a = a[:: int(np.ceil(a.size / max_points))]
+    u = np.unique(a)
+    if u.size < 3:
+        return 0.0
+    d = np.diff(u)
+    q = float(d.min())
+    if not q > 0:
+        return 0.0
+    r = d / q
+    if np.mean(np.abs(r - np.rint(r)) < 0.01) < 0.99:
+        return 0.0
+    return q
+
+
+def check_quantisation(p: np.ndarray, resolution: float, pinned: bool) -> tuple[float, str]:
+    """Compare the cloud's x/y coordinate quantum (:func:`coordinate_quantum_m`) with the cell size.
+
+    A quantum more than 5 % coarser than the cell leaves empty stripes (points only every q/res columns).
+    Returns ``(resolution, note)``. ``pinned`` (the user gave the cell size): a one-line :class:`InputError`
+    when the quantum is the float32 spacing at the coordinates' magnitude (precision lost in the file), else
+    the cell is kept and ``note`` warns (a lattice-like cloud, e.g. a raster's points, gridded finer than its
+    spacing). Otherwise (auto) the cell is raised to the coarser quantum and ``note`` says why.
+    """
+    qs = {ax: coordinate_quantum_m(p[:, i]) for i, ax in enumerate("xy")}
+    q = max(qs.values())
+    if not q > resolution * 1.05:
+        return resolution, ""
+    ax = max(qs, key=qs.get)
+    mag = float(np.max(np.abs(p[:, "xy".index(ax)])))
+    f32 = float(np.spacing(np.float32(mag)))
+    is_f32 = 0.5 * f32 <= q <= 2.0 * f32
+    why = (f"float32 coordinates at {mag:.3g} m resolve only {f32:g} m: shift the cloud to a local origin before "
+           "saving it (e.g. CloudCompare/PDAL global shift) or store it as float64"
+           if is_f32 else "a lattice, or coordinates stored with few decimals")
+    msg = f"the laser cloud's {ax} coordinates are quantised to {q:g} m, coarser than the {resolution:g} m cell ({why})"
+    if pinned:
+        if is_f32:
+            raise InputError(f"{msg}; use grid.laser_resolution_m >= {q:g} or 'auto'")
+        return resolution, f"{msg}; expect empty stripes between the coordinate steps"
+    new = float(f"{q:.3g}")
+    new = new if new >= q else float(f"{q * 1.001:.3g}")
+    return new, f"{msg}; cell raised to {new:g} m"
+
+
 def clean_cloud(points) -> tuple[np.ndarray, int]:
     """``(N, 3)`` float64 array without rows containing NaN/inf, and the number dropped.
 
@@ -149,7 +204,16 @@ def grid_laser(
             raise InputError(f"laser resolution must be a number of metres or 'auto', got {resolution!r}")
         resolution, ainfo = auto_resolution_m(p)
         choice, nn_q = f"auto: {ainfo['rule']}", ainfo["nn_quantile_m"]
+        resolution, qnote = check_quantisation(p, resolution, pinned=False)
+        if qnote:
+            choice = f"auto: {qnote}"
+            warnings.warn(qnote, UserWarning, stacklevel=2)
         centred = resolution > G_RES_M and bounds is None
+    else:
+        resolution = float(resolution)
+        _, qnote = check_quantisation(p, resolution, pinned=True)
+        if qnote:
+            warnings.warn(qnote, UserWarning, stacklevel=2)
     pts, cand, info = filter_cloud(p, voxel_size_m=voxel_size_m, sor_neighbors=sor_neighbors,
                                    sor_std_ratio=sor_std_ratio)
     x, y, z = (np.ascontiguousarray(pts[:, i]) for i in range(3))
@@ -218,6 +282,7 @@ def grid_laser(
             "mapped_fraction": float(np.count_nonzero(cnt) / spec.n_cells),
             "resolution_m": spec.resolution,
             "resolution_choice": choice,
+            "coordinate_quantisation": qnote,
             "nn_quantile_m": nn_q,
             "voxel_size_m": float(voxel_size_m) if voxel_size_m else 0.0,
             "outlier_filter": (f"open3d remove_statistical_outlier(nb_neighbors={sor_neighbors}, "

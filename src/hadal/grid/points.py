@@ -8,10 +8,15 @@ primitives instead of a Python loop over cells:
   sum((z - z0)**2)`` with ``np.bincount`` over cache-sized chunks in two threads, cells whose
   subtraction is ill-conditioned recomputed two-pass (so 10 000 m depths with mm spread are exact,
   where the textbook ``E[z^2] - E[z]^2`` cancels catastrophically);
-* with median/min/max (:func:`reduce_cells`): two-pass ``bincount`` mean/std, and
-  ``np.lexsort((z, i))`` to group the points by cell with each cell's values sorted, after which the
-  median of a cell of ``n`` points starting at ``s`` is ``(zs[s + (n-1)//2] + zs[s + n//2]) / 2`` and
-  min/max are the segment ends; the per-cell median +- k MAD spike test reuses the same segments.
+* with median/min/max (:func:`cell_stats`, compiled): a counting sort of the points by block of
+  ``2**14`` consecutive cells, then per block a counting sort by cell and per cell the two-pass mean/std
+  and the sorted segment, after which the median of a cell of ``n`` points is
+  ``(zs[(n-1)//2] + zs[n//2]) / 2`` and min/max are the segment ends - every pass streams, so it costs
+  about the same in random and survey point order; the same kernels serve count/mean/std for points in
+  scattered order (:func:`_scattered`) and :func:`reduce_cells`;
+* the NumPy reference (no numba, small inputs: :func:`_reduce_cells_numpy`): two-pass ``bincount``
+  mean/std and ``np.lexsort((z, i))`` to group the points by cell with each cell's values sorted; the
+  per-cell median +- k MAD spike test (:func:`robust_outlier_mask`) uses the same segments.
 
 Grid convention: cells are squares of side ``resolution``; the grid's lower-left *edge* ``(x0, y0)``
 is snapped to an integer multiple of the resolution (so grids of different inputs align), ``x``/``y``
@@ -26,11 +31,13 @@ import math
 import os
 from collections.abc import Sequence
 from dataclasses import dataclass
-
-import numpy as np
-import xarray as xr
+from typing import TYPE_CHECKING
 
 from hadal.errors import InputError
+
+if TYPE_CHECKING:
+    import numpy as np
+    import xarray as xr
 
 #: Largest grid (cells) built without an explicit ``max_cells``: 5e7 cells x ~5 float64 layers ~ 2 GB.
 DEFAULT_MAX_CELLS = 50_000_000
@@ -64,11 +71,15 @@ class GridSpec:
     @property
     def x(self) -> np.ndarray:
         """Cell-centre x coordinates (ascending)."""
+        import numpy as np
+
         return self.x0 + (np.arange(self.nx) + 0.5) * self.resolution
 
     @property
     def y(self) -> np.ndarray:
         """Cell-centre y coordinates (ascending)."""
+        import numpy as np
+
         return self.y0 + (np.arange(self.ny) + 0.5) * self.resolution
 
     @property
@@ -84,6 +95,8 @@ class GridSpec:
         indices are always clamped into the grid (NaN coordinates give an arbitrary valid index:
         filter them separately).
         """
+        import numpy as np
+
         inv = 1.0 / self.resolution
         fx = np.subtract(x, self.x0)
         fx *= inv
@@ -167,6 +180,8 @@ def sorted_segments(idx: np.ndarray, z: np.ndarray) -> tuple[np.ndarray, np.ndar
     Returns ``(order, cells, starts, counts)``: ``z[order]`` is sorted by (cell, z); ``cells`` are the
     occupied cell indices (ascending), ``starts``/``counts`` their segments in ``z[order]``.
     """
+    import numpy as np
+
     order = np.lexsort((z, idx))
     si = idx[order]
     brk = np.flatnonzero(si[1:] != si[:-1]) + 1
@@ -199,6 +214,8 @@ def robust_outlier_mask(
     uncertainty), so cells whose points agree closely do not reject ordinary noise. Cells with fewer
     than ``min_count`` points cannot be judged robustly and keep all their points.
     """
+    import numpy as np
+
     n = len(z)
     if n == 0:
         return np.zeros(0, dtype=bool)
@@ -223,6 +240,8 @@ def typical_cell_sigma(idx: np.ndarray, z: np.ndarray, min_count: int = 5) -> fl
     A data-driven, outlier-resistant estimate of the point noise (plus sub-cell relief); NaN when no
     cell has enough points.
     """
+    import numpy as np
+
     if len(z) == 0:
         return float("nan")
     order, _cells, starts, counts = sorted_segments(idx, z)
@@ -243,6 +262,8 @@ def point_extent(x: np.ndarray, y: np.ndarray, z: np.ndarray) -> tuple[tuple[flo
     Raises :class:`InputError` for mismatched lengths, empty input or when no finite point is left.
     Works in chunks so no full-size temporary is allocated.
     """
+    import numpy as np
+
     n = _check_lengths(x, y, z)
     fast = (float(x.min()), float(y.min()), float(x.max()), float(y.max()))
     if all(math.isfinite(v) for v in fast) and math.isfinite(float(z.min())) and math.isfinite(float(z.max())):
@@ -277,6 +298,8 @@ def _check_lengths(x: np.ndarray, y: np.ndarray, z: np.ndarray) -> int:
 
 
 def _as_f64(a) -> np.ndarray:
+    import numpy as np
+
     a = np.asarray(a)
     if a.dtype != np.float64:
         a = a.astype(np.float64)
@@ -292,6 +315,8 @@ def _chunk_slices(n: int, size: int) -> list[slice]:
 
 def _chunk_index(spec: GridSpec, x, y, z, check_inside: bool, all_finite: bool = False):
     """Cell indices and values of one chunk's valid points (finite and, if checked, inside the grid)."""
+    import numpy as np
+
     if all_finite and not check_inside:
         return spec.cell_index(x, y, check_inside=False, finite=True)[0], z, 0, 0
     ok = np.isfinite(x)
@@ -333,10 +358,29 @@ def cell_moments(
     relative (typically 1e-14) or 1 micro-unit absolute - unlike the textbook ``E[z^2] - E[z]^2``,
     which loses everything for 10 km depths with mm spread.
 
+    Points in scattered order over a grid whose sums do not fit in cache (:func:`_scattered`) take the
+    block-partitioned path of :func:`cell_stats` instead (exact two-pass per cell, streaming passes only):
+    the single pass would wait on a cache miss per point there.
+
     Returns ``(count int64, mean, M2 or None, n_nonfinite, n_outside)`` as flat arrays over the cells.
     """
+    import numpy as np
+
     x, y, z = _as_f64(x), _as_f64(y), _as_f64(z)
     n = _check_lengths(x, y, z)
+    if _scattered(x, y, spec):
+        stats = ("count", "mean", "std") if need_m2 else ("count", "mean")
+        res = cell_stats(x, y, z, spec, stats, check_inside=check_inside, ddof=0, threads=threads)
+        if res is not None:
+            flat, bad, out = res
+            cnt = flat["count"]
+            m2 = None
+            if need_m2:
+                m2 = flat["std"]
+                m2 *= m2
+                m2 *= cnt
+                m2[cnt == 0] = 0.0  # as the single pass gives
+            return cnt, flat["mean"], m2, bad, out
     sample = z[:: max(1, n // 1024)]
     sample = sample[np.isfinite(sample)]
     z0 = float(np.median(sample)) if len(sample) else 0.0
@@ -368,6 +412,8 @@ def _cell_sums_numpy(x, y, z, spec: GridSpec, z0: float, check_inside: bool, all
     """Shifted per-cell sums ``(S0, S1, S2, n_nonfinite, n_outside)`` with ``np.bincount`` over chunks
     (``threads`` workers sum alternate chunks; the index arithmetic releases the GIL). The reference
     implementation, used when numba is unavailable."""
+    import numpy as np
+
     n = len(x)
     m = spec.n_cells
     size = max(_CHUNK, min(4 * m, 1 << 21))  # amortise the O(cells) accumulation over enough points
@@ -422,11 +468,116 @@ def _numba_kernel():
     return shifted_cell_sums
 
 
+#: the single-pass sums (24 bytes a cell) stay in cache up to this many bytes, whatever the point order
+_CACHE_BYTES = 1 << 20
+#: more distinct 64-byte lines of the sums touched per point of a window than this: scattered order
+_SCATTER_LINES_PER_POINT = 0.25
+
+
+def _scattered(x: np.ndarray, y: np.ndarray, spec: GridSpec, window: int = 4096, windows: int = 8) -> bool:
+    """Whether the points come in an order that makes the single-pass sums miss the cache.
+
+    A probe, not a proof: in ``windows`` windows of ``window`` consecutive points spread over the input,
+    the number of distinct 64-byte lines of the ``(count, S1, S2)`` array they would touch, per point.
+    Survey order (scan lines, pings, profiles) reuses a few lines (~0.05 a point); random order touches a
+    new line per point (~1). Grids whose sums fit in :data:`_CACHE_BYTES` are never "scattered". Only the
+    speed depends on the answer: both paths give the same statistics (to rounding).
+    """
+    import numpy as np
+
+    n = len(x)
+    if spec.n_cells * 24 <= _CACHE_BYTES or n < 4 * window or _partition_kernels() is None:
+        return False
+    fracs = []
+    for s0 in np.linspace(0, n - window, windows).astype(np.int64):
+        sl = slice(int(s0), int(s0) + window)
+        idx, _ = spec.cell_index(x[sl], y[sl], check_inside=False)
+        fracs.append(len(np.unique((idx * 24) >> 6)) / window)
+    return float(np.median(fracs)) > _SCATTER_LINES_PER_POINT
+
+
+def _partition_kernels():
+    """The compiled partitioned-gridding kernels (:mod:`hadal.grid._kernels`), or None without numba."""
+    if os.environ.get("HADAL_NO_NUMBA"):
+        return None
+    try:
+        from hadal.grid import _kernels
+    except ImportError:
+        return None
+    return _kernels
+
+
+#: fewer points than this are reduced by the NumPy path (milliseconds), sparing the ~1 s of numba start-up
+_COMPILED_MIN_POINTS = 32768
+#: cells per block of the partitioned path: a block's per-cell work arrays (~40 bytes a cell) stay in L2
+_BLOCK_SHIFT = 14
+_MAX_BLOCKS = 4096
+
+
+def _block_shift(n_cells: int, threads: int) -> tuple[int, int]:
+    """``(shift, nblocks)``: blocks of ``2**shift`` consecutive cells, at most ``2**14`` cells (cache-sized)
+    unless that gives more than :data:`_MAX_BLOCKS` blocks, and at least ``4 * threads`` blocks when the
+    grid allows (so the per-block work spreads over the threads)."""
+    shift = _BLOCK_SHIFT
+    while shift > 6 and (n_cells >> shift) < 4 * threads:
+        shift -= 1
+    while (n_cells >> shift) > _MAX_BLOCKS:
+        shift += 1
+    return shift, (n_cells + (1 << shift) - 1) >> shift
+
+
+def _partitioned_stats(kern, kb, zb, bstart, shift: int, n_cells: int, stats: tuple[str, ...], ddof: int,
+                       threads: int) -> dict[str, np.ndarray]:
+    want_m2 = "std" in stats
+    want_sorted = any(s in stats for s in ("median", "min", "max"))
+    count, mean, m2, med, zmin, zmax = kern.block_stats_kernel(kb, zb, bstart, shift, n_cells, want_m2,
+                                                               want_sorted, max(1, int(threads)))
+    out = {"count": count, "mean": mean, "median": med, "min": zmin, "max": zmax}
+    if want_m2:
+        out["std"] = _std(m2, count, ddof)
+    return {s: out[s] for s in stats}
+
+
+def cell_stats(x, y, z, spec: GridSpec, statistics: Sequence[str] = ("mean", "median", "count", "std"), *,
+               check_inside: bool = True, ddof: int = 1, threads: int = 2
+               ) -> tuple[dict[str, np.ndarray], int, int] | None:
+    """All per-cell statistics of :func:`reduce_cells` straight from the points, compiled and cache-friendly:
+    ``(flat statistics, n_nonfinite, n_outside)``, or None without numba, for fewer than
+    :data:`_COMPILED_MIN_POINTS` points or for a grid of 2**31 cells or more; the NumPy
+    :func:`point_indices` + :func:`_reduce_cells_numpy` path is the reference it is tested against.
+
+    Method (:mod:`hadal.grid._kernels`): the cell index of each point, a counting sort of the points by
+    block of ``2**shift`` consecutive cells (:func:`_block_shift`), then per block a counting sort by cell
+    (the histograms stay in L2) and per cell the two-pass mean and M2 (shifted by the cell's first value:
+    exact at 10 km depths with mm spread, no cancellation), and, for median/min/max, the sorted segment
+    (median = mean of the two middle values for an even count, as :func:`segment_median`). Every pass
+    streams through memory; none does random access into a grid-sized array, so random point order costs
+    about as much as survey order. Memory: 16 bytes a point (int32 index and float64 value twice).
+    """
+    x, y, z = _as_f64(x), _as_f64(y), _as_f64(z)
+    n = _check_lengths(x, y, z)
+    kern = _partition_kernels() if n >= _COMPILED_MIN_POINTS else None
+    if kern is None or spec.n_cells >= 2**31 - 1:
+        return None
+    stats = _check_stats(statistics)
+    nthreads = max(1, min(int(threads), max(1, n // 65536)))
+    shift, nblocks = _block_shift(spec.n_cells, nthreads)
+    kb, zb, bstart, bad, out = kern.partition_points(
+        x, y, z, float(spec.x0), float(spec.y0), 1.0 / spec.resolution, int(spec.nx), int(spec.ny),
+        bool(check_inside), shift, nblocks, nthreads)
+    if bad == n:
+        raise InputError(f"all {n} points have NaN/inf coordinates; nothing to grid")
+    flat = _partitioned_stats(kern, kb, zb, bstart, shift, spec.n_cells, stats, ddof, nthreads)
+    return flat, int(bad), int(out)
+
+
 def _cell_sums_numba(kernel, x, y, z, spec: GridSpec, z0: float, check_inside: bool, threads: int):
     """Same sums as :func:`_cell_sums_numpy` in one fused pass: the index arithmetic of
     :meth:`GridSpec.cell_index` and the three accumulations per point, with (count, S1, S2) of a cell
     side by side in memory (one cache miss per point instead of three), ``threads`` contiguous
     blocks in parallel and their per-thread sums added."""
+    import numpy as np
+
     nthreads = max(1, min(int(threads), max(1, len(x) // 65536)))
     acc, bad, out = kernel(x, y, z, float(spec.x0), float(spec.y0), 1.0 / spec.resolution, int(spec.nx),
                            int(spec.ny), float(z0), bool(check_inside), nthreads)
@@ -435,6 +586,8 @@ def _cell_sums_numba(kernel, x, y, z, spec: GridSpec, z0: float, check_inside: b
 
 def _exact_cells(x, y, z, spec, ill, mean, m2, z0, check_inside, all_finite) -> None:
     """Recompute mean (minus ``z0``) and M2 of the ``ill`` cells two-pass from just their points."""
+    import numpy as np
+
     idxs, zs = [], []
     for sl in _chunk_slices(len(x), 1 << 20):
         idx, zc, _, _ = _chunk_index(spec, x[sl], y[sl], z[sl], check_inside, all_finite)
@@ -451,6 +604,8 @@ def _exact_cells(x, y, z, spec, ill, mean, m2, z0, check_inside, all_finite) -> 
 def point_indices(x, y, z, spec: GridSpec, *, check_inside: bool = True
                   ) -> tuple[np.ndarray, np.ndarray, int, int]:
     """Flat cell index and value of every valid point (finite, inside the grid), plus the drop counts."""
+    import numpy as np
+
     x, y, z = _as_f64(x), _as_f64(y), _as_f64(z)
     n = _check_lengths(x, y, z)
     idxs, zs = [], []
@@ -477,8 +632,39 @@ def reduce_cells(
     """Per-cell statistics of ``z`` grouped by flat cell index ``idx`` (0 <= idx < n_cells), as flat arrays.
 
     Float statistics are NaN in empty cells (and ``std`` where ``count <= ddof``); ``count`` is int64.
-    Mean/std use a two-pass ``bincount``; median/min/max the (cell, z) ``lexsort``.
+    With numba: the block-partitioned kernels of :func:`cell_stats`; otherwise (and as the reference,
+    :func:`_reduce_cells_numpy`) a two-pass ``bincount`` for mean/std and the (cell, z) ``lexsort``
+    for median/min/max.
     """
+    import numpy as np
+
+    stats = _check_stats(statistics)
+    idx = np.asarray(idx)
+    if len(idx) != len(z):
+        raise InputError(f"idx and z must have the same length (got {len(idx)}, {len(z)})")
+    if len(idx) and (idx.min() < 0 or idx.max() >= n_cells):
+        raise InputError(f"cell indices must lie in [0, {n_cells}) (got {idx.min()}..{idx.max()})")
+    kern = _partition_kernels()
+    if kern is None or n_cells >= 2**31 - 1 or len(idx) < _COMPILED_MIN_POINTS:
+        return _reduce_cells_numpy(idx, z, n_cells, stats, ddof=ddof)
+    z = _as_f64(z)
+    nthreads = max(1, min(2, len(idx) // 65536))
+    shift, nblocks = _block_shift(n_cells, nthreads)
+    kb, zb, bstart = kern.partition_kernel(idx, z, shift, nblocks, nthreads)
+    return _partitioned_stats(kern, kb, zb, bstart, shift, n_cells, stats, ddof, nthreads)
+
+
+def _reduce_cells_numpy(
+    idx: np.ndarray,
+    z: np.ndarray,
+    n_cells: int,
+    statistics: Sequence[str] = ("mean", "median", "count", "std"),
+    *,
+    ddof: int = 1,
+) -> dict[str, np.ndarray]:
+    """NumPy reference of :func:`reduce_cells` (two-pass ``bincount`` mean/std, (cell, z) ``lexsort``)."""
+    import numpy as np
+
     stats = _check_stats(statistics)
     out: dict[str, np.ndarray] = {}
     count = np.bincount(idx, minlength=n_cells)
@@ -512,12 +698,16 @@ def _check_stats(statistics: Sequence[str]) -> tuple[str, ...]:
 
 
 def _scatter(n: int, cells: np.ndarray, values: np.ndarray) -> np.ndarray:
+    import numpy as np
+
     full = np.full(n, np.nan)
     full[cells] = values
     return full
 
 
 def _std(m2: np.ndarray, count: np.ndarray, ddof: int) -> np.ndarray:
+    import numpy as np
+
     std = np.full(len(count), np.nan)
     ok = count > ddof
     std[ok] = np.sqrt(m2[ok] / (count[ok] - ddof))
@@ -569,9 +759,14 @@ def grid_points(
         spec = make_grid_spec(resolution, bounds, max_cells=max_cells)
     check = bounds is not None
     if any(s in stats for s in ("median", "min", "max")):
-        idx, zz, n_bad, n_out = point_indices(x, y, z, spec, check_inside=check)
-        flat = reduce_cells(idx, zz, spec.n_cells, stats, ddof=ddof)
-        n_used = len(zz)
+        res = cell_stats(x, y, z, spec, stats, check_inside=check, ddof=ddof, threads=threads)
+        if res is not None:
+            flat, n_bad, n_out = res
+            n_used = int(flat["count"].sum()) if "count" in flat else len(z) - n_bad - n_out
+        else:
+            idx, zz, n_bad, n_out = point_indices(x, y, z, spec, check_inside=check)
+            flat = _reduce_cells_numpy(idx, zz, spec.n_cells, stats, ddof=ddof)
+            n_used = len(zz)
     else:
         cnt, mean, m2, n_bad, n_out = cell_moments(x, y, z, spec, check_inside=check,
                                                   need_m2="std" in stats, threads=threads,
@@ -589,6 +784,8 @@ def grid_points(
 def to_dataset(spec: GridSpec, flat: dict[str, np.ndarray], *, z_attrs: dict | None = None,
                attrs: dict | None = None, names: dict[str, str] | None = None) -> xr.Dataset:
     """Wrap flat per-cell arrays into an ``(y, x)`` Dataset on ``spec``'s cell centres."""
+    import xarray as xr
+
     names = names or {}
     data_vars = {}
     for stat, arr in flat.items():

@@ -84,6 +84,74 @@ def z_positive(da: xr.DataArray, hint: str | None = None) -> tuple[str, str]:
     return "up", "mixed signs: elevation (the GMT/ETOPO/GEBCO convention, land above 0)"
 
 
+# ------------------------------------------------------------------ plausibility
+#: largest plausible |depth| or |elevation| (m) of a bathymetry grid: the deepest sounding on Earth (Challenger
+#: Deep, ~10 935 m) plus ~5 % margin; Everest (8 849 m) is well inside. Beyond it a value is a fill or a unit error.
+MAX_ABS_DEPTH_M = 11_500.0
+#: fill values of common grid writers (GMT/ArcGIS/Surfer/int16 NetCDF) taken as nodata when they stand out
+COMMON_FILL_VALUES = (-32768.0, -32767.0, 32767.0, -99999.0, 99999.0, -999999.0, 999999.0, -9999.0, 9999.0)
+_FEET_UNITS = ("ft", "feet", "foot", "us survey foot", "us_survey_foot", "ftus", "us-ft", "international foot")
+
+
+def check_depth_plausible(da: xr.DataArray, max_abs_m: float = MAX_ABS_DEPTH_M) -> tuple[xr.DataArray, str]:
+    """Refuse or mask grid values no ocean has; returns ``(da, note)`` (``note`` empty when nothing was done).
+
+    Rules (in the source's units, before the sign is chosen):
+
+    * units ``ft``/``feet`` (a tag or attribute): a one-line :class:`InputError` (convert to metres first);
+    * cells exactly equal to a common fill value (:data:`COMMON_FILL_VALUES`: +-32767, -32768, +-99999,
+      +-999999, or +-9999 when it stands >= 1 km apart from every other value) or with ``|z| >= 1e30``
+      become NaN; ``note`` says how many (the grid stage logs it as a WARNING);
+    * any other ``|z| > max_abs_m`` (default 11 500 m: Challenger Deep 10 935 m + 5 %): a one-line
+      :class:`InputError` naming the value, with a hint - "looks like feet" when every value x 0.3048 is
+      plausible and at least 10 % of the values are beyond the limit, else an unknown fill value (set the
+      file's nodata).
+    """
+    src = da.attrs.get("source", "grid")
+    units = str(da.attrs.get("units", "")).strip().lower()
+    if units in _FEET_UNITS:
+        raise InputError(f"{src}: grid values are in feet (units {da.attrs.get('units')!r}); hadal needs metres: "
+                         "convert it first (e.g. gdal_calc.py --calc='A*0.3048')")
+    a = np.asarray(da.values, float)
+    fin = np.isfinite(a)
+    if not fin.any():
+        return da, ""
+    absa = np.where(fin, np.abs(a), 0.0)
+    fill = fin & (absa >= 1e30)
+    for fv in COMMON_FILL_VALUES:
+        hit = fin & (a == fv)
+        if not hit.any():
+            continue
+        if abs(fv) <= max_abs_m:  # +-9999 can be a real hadal depth: only when it is an isolated plateau
+            rest = fin & ~hit & ~fill
+            if not rest.any() or np.min(np.abs(a[rest] - fv)) < 1000.0:
+                continue
+        fill |= hit
+    note = ""
+    if fill.any():
+        vals = ", ".join(f"{v:g}" for v in np.unique(a[fill])[:4])
+        note = (f"{int(fill.sum())} cell(s) holding the fill value {vals} (no nodata tag for it) taken as nodata")
+        a = np.where(fill, np.nan, a)
+        fin &= ~fill
+        if not fin.any():
+            raise InputError(f"{src}: every grid cell holds the fill value {vals}")
+        da = da.copy(data=a)
+    over = fin & (np.abs(np.where(fin, a, 0.0)) > max_abs_m)
+    if over.any():
+        v = a[over]
+        worst = float(v[np.argmax(np.abs(v))])
+        allv = a[fin]
+        if (np.max(np.abs(allv)) * 0.3048 <= max_abs_m and np.median(np.abs(allv)) * 0.3048 > 100.0
+                and over.sum() >= 0.1 * allv.size):
+            hint = (f"the values look like feet (x 0.3048: {np.min(allv) * 0.3048:.0f}..{np.max(allv) * 0.3048:.0f} m)"
+                    "; convert the grid to metres")
+        else:
+            hint = "a fill value without a nodata tag? set it (e.g. gdal_translate -a_nodata VALUE) or crop it out"
+        raise InputError(f"{src}: {int(over.sum())} grid value(s) beyond +-{max_abs_m:g} m (e.g. {worst:g}), deeper "
+                         f"or higher than anywhere on Earth: {hint}")
+    return da, note
+
+
 # ------------------------------------------------------------------ geometry
 def source_crs(da: xr.DataArray):
     """The grid's pyproj CRS (``None`` for ``local_metric``); geographic grids without one are WGS84."""
@@ -279,8 +347,10 @@ def describe_crs(da: xr.DataArray) -> str:
 
 def prior_dtm(path: str | Path, frame: LocalFrame, *, z_positive_hint: str | None = None, crs: str | None = None,
               variable: str | None = None, format: str | None = None, resolution_m: float | None = None,
-              max_extent_m: float | None = DEFAULT_MAX_EXTENT_M, max_cells: int = DEFAULT_MAX_CELLS) -> xr.Dataset:
-    """A prior grid as a reference DTM in ``frame`` (module docstring): ``depth_m`` positive down + metadata."""
+              max_extent_m: float | None = DEFAULT_MAX_EXTENT_M, max_cells: int = DEFAULT_MAX_CELLS,
+              max_read_bytes: float | None = None) -> xr.Dataset:
+    """A prior grid as a reference DTM in ``frame`` (module docstring): ``depth_m`` positive down + metadata.
+    ``max_read_bytes``: refuse a file whose read needs more (default: the memory budget)."""
     import warnings
 
     from hadal.grid.multibeam import add_geo
@@ -289,7 +359,8 @@ def prior_dtm(path: str | Path, frame: LocalFrame, *, z_positive_hint: str | Non
     p = Path(path)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", GridCRSWarning)
-        da = read_grid(p, variable=variable, format=format, crs=crs)
+        da = read_grid(p, variable=variable, format=format, crs=crs, max_bytes=max_read_bytes)
+    da, depth_note = check_depth_plausible(da)
     pos, reason = z_positive(da, z_positive_hint)
     ds, info = resample_to_frame(da, frame, resolution_m, max_extent_m=max_extent_m, max_cells=max_cells)
     z = ds["z"].values
@@ -325,6 +396,10 @@ def prior_dtm(path: str | Path, frame: LocalFrame, *, z_positive_hint: str | Non
             ds.attrs[f"prior_grid_{k}"] = da.attrs[k]
     if caught:
         ds.attrs["prior_grid_warning"] = str(caught[0].message)
+    if depth_note:
+        ds.attrs["prior_grid_depth_check"] = depth_note
+    if "scale_offset" in da.attrs:
+        ds.attrs["prior_grid_scale_offset"] = da.attrs["scale_offset"]
     if info["cropped_to_m"]:
         ds.attrs.update(crop_attrs(info, pos))
     return add_geo(ds, frame)
@@ -361,6 +436,7 @@ def sample_depth(path_or_da, frame: LocalFrame, x_m, y_m, *, z_positive_hint: st
                  **read_kw) -> np.ndarray:
     """Prior-grid depth (positive down, bilinear) at map-frame points ``x_m, y_m`` (NaN outside/nodata)."""
     da = path_or_da if isinstance(path_or_da, xr.DataArray) else read_grid(path_or_da, **read_kw)
+    da, _ = check_depth_plausible(da)
     pos, _ = z_positive(da, z_positive_hint)
     inv, _ = _transformers(da, frame)
     xx, yy = np.broadcast_arrays(np.asarray(x_m, float), np.asarray(y_m, float))

@@ -20,7 +20,7 @@ import pandas as pd
 import xarray as xr
 
 from hadal.errors import InputError
-from hadal.formats import detect, read_bytes
+from hadal.formats import decompress_errors, detect, open_binary, read_head
 
 SOUNDING_COLUMNS = ("longitude_deg", "latitude_deg", "depth_m")
 
@@ -156,7 +156,12 @@ def read_point_cloud(path: str | Path, *, format: str | None = None, columns: li
         import laspy
 
         try:
+            _check_las_count(p, laspy)
             las = laspy.read(str(p))
+        except InputError:
+            raise
+        except MemoryError:
+            raise InputError(f"{p}: cannot read LAS/LAZ (its point count does not fit in memory)") from None
         except laspy.errors.LaspyException as exc:
             msg = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
             if "backend" in msg.lower() or "laz" in msg.lower():
@@ -182,20 +187,58 @@ _Y_NAMES = ("y", "lat", "latitude", "latitude_deg", "northing", "north", "n")
 _Z_NAMES = ("z", "depth", "depth_m", "elevation", "elevation_m", "height", "h", "altitude")
 
 
-def _read_xyz_cloud(p: Path, columns: list[str] | None) -> np.ndarray:
-    from hadal.grid.sonar import _not_number
+#: rows parsed per chunk of an xyz text point cloud
+XYZ_CHUNK_ROWS = 500_000
 
-    text = read_bytes(p, "point cloud")[0].decode("utf-8", errors="replace")
+
+def _read_xyz_cloud(p: Path, columns: list[str] | None) -> np.ndarray:
+    """x y z (and more) numeric text columns, streamed: the (decompressed) file passes once through a
+    :class:`~hadal.textstream.LineScan` (line-length bound) into pandas in chunks of :data:`XYZ_CHUNK_ROWS`,
+    and only the three coordinate columns are kept, as float64. Peak memory: the points plus one chunk."""
+    from hadal.grid.sonar import _not_number
+    from hadal.textstream import MAX_LINE_BYTES, GrowableColumn, LineScan, ScannedStream
+
+    head, compression = read_head(p, MAX_LINE_BYTES + 1, strict=False)
+    LineScan(p, "point cloud line").feed(head)
+    text = head.decode("utf-8", errors="replace")
     first = next((t for ln in io.StringIO(text) if (t := ln.strip()) and not t.startswith(("#", "//"))), None)
     if first is None:
         raise InputError(f"{p}: no points (file has no data lines)")
     sep = "," if "," in first else ";" if ";" in first else r"\s+"
     header = 0 if any(_not_number(t) for t in first.replace(",", " ").replace(";", " ").split()) else None
-    try:
-        df = pd.read_csv(io.StringIO(text), sep=sep, header=header, comment="#", skipinitialspace=True,
-                         engine="c" if sep != r"\s+" else "c")
-    except (pd.errors.ParserError, pd.errors.EmptyDataError, ValueError) as exc:
-        raise InputError(f"{p}: cannot parse xyz text ({str(exc).splitlines()[0]})") from None
+    out = [GrowableColumn(max(p.stat().st_size // 24, 1024), np.float64) for _ in range(3)]
+    idx: list[int] | None = None
+    n_rows = 0
+    with open_binary(p) as fh, decompress_errors(p, compression, "point cloud"):
+        try:
+            reader = pd.read_csv(ScannedStream(fh, LineScan(p, "point cloud line")), sep=sep, header=header,
+                                 comment="#", skipinitialspace=True, engine="c", chunksize=XYZ_CHUNK_ROWS,
+                                 encoding="utf-8", encoding_errors="replace")
+            with reader:
+                for df in reader:
+                    if idx is None:
+                        idx = _xyz_columns(p, df, columns, header)
+                    raw = df.iloc[:, idx]
+                    sub = raw.apply(pd.to_numeric, errors="coerce")
+                    bad = sub.isna().any(axis=1) & raw.notna().all(axis=1)
+                    if bad.any():
+                        i = int(np.flatnonzero(bad.to_numpy())[0])
+                        raise InputError(f"{p}: non-numeric value on data row {n_rows + i + 1} "
+                                         f"({raw.iloc[i].tolist()})")
+                    for k in range(3):
+                        out[k].extend(sub.iloc[:, k].to_numpy(np.float64))
+                    n_rows += len(df)
+        except InputError:
+            raise
+        except (pd.errors.ParserError, pd.errors.EmptyDataError, ValueError) as exc:
+            raise InputError(f"{p}: cannot parse xyz text ({str(exc).splitlines()[0]})") from None
+    if n_rows == 0:
+        raise InputError(f"{p}: no points (header only)")
+    return np.column_stack([c.values() for c in out])
+
+
+def _xyz_columns(p: Path, df: pd.DataFrame, columns: list[str] | None, header: int | None) -> list[int]:
+    """Which columns of an xyz table are x, y, z: by name (``columns`` given, or the header), else 0 1 2."""
     names = [str(c).strip().lower() for c in (columns or (df.columns if header == 0 else []))]
     if columns is not None and len(columns) > df.shape[1]:
         raise InputError(f"{p}: {len(columns)} column names given but the file has {df.shape[1]} columns")
@@ -209,15 +252,28 @@ def _read_xyz_cloud(p: Path, columns: list[str] | None) -> np.ndarray:
     idx = [pick(_X_NAMES, 0), pick(_Y_NAMES, 1), pick(_Z_NAMES, 2)] if names else [0, 1, 2]
     if df.shape[1] < 3 or max(idx) >= df.shape[1]:
         raise InputError(f"{p}: expected at least 3 columns (x y z), found {df.shape[1]}")
-    sub = df.iloc[:, idx].apply(pd.to_numeric, errors="coerce")
-    bad = sub.isna().any(axis=1) & df.iloc[:, idx].notna().all(axis=1)
-    if bad.any():
-        i = int(np.flatnonzero(bad.to_numpy())[0])
-        raise InputError(f"{p}: non-numeric value on data row {i + 1} ({df.iloc[i, idx].tolist()})")
-    pts = sub.to_numpy(np.float64)
-    if len(pts) == 0:
-        raise InputError(f"{p}: no points (header only)")
-    return pts
+    return idx
+
+
+def _check_las_count(p: Path, laspy) -> None:
+    """Refuse a LAS file whose header declares more point records than the file holds (a truncated file or a
+    lying header, which would make laspy allocate for all of them), or, for LAZ, more than the memory budget
+    (points x 3 float64 + the record) allows."""
+    from hadal.budget import format_bytes, memory_limit_bytes
+
+    with laspy.open(str(p)) as f:
+        h = f.header
+        n, size = int(h.point_count), int(h.point_format.size)
+        offset = int(h.offset_to_point_data)
+        compressed = bool(getattr(h, "are_points_compressed", False))
+    if not compressed and offset + n * size > p.stat().st_size:
+        have = max(p.stat().st_size - offset, 0) // max(size, 1)
+        raise InputError(f"{p}: LAS header declares {n:,} points but the file holds at most {have:,} "
+                         "(truncated, or a wrong point count in the header)")
+    need = n * (size + 24)
+    if need > memory_limit_bytes(None):
+        raise InputError(f"{p}: LAS file declares {n:,} points; reading them needs about {format_bytes(need)} "
+                         f"(limit {format_bytes(memory_limit_bytes(None))}): thin or tile the cloud first")
 
 
 def _quiet_open3d(o3d):
@@ -500,8 +556,26 @@ def looks_metric(x_extent: float, y_extent: float, relief_m: float) -> bool:
     return slope_deg_reading < 1e-5 and 1e-3 <= slope_m_reading <= 10
 
 
+#: bytes a grid read needs per cell at its peak (the stored values, the mask and the float64 copy)
+GRID_READ_BYTES_PER_CELL = 17
+
+
+def check_grid_read_size(p: Path, ny: int, nx: int, max_bytes: float | None) -> None:
+    """One-line :class:`InputError` when reading a ``ny`` x ``nx`` grid would need more than ``max_bytes``
+    (default: the memory budget of :mod:`hadal.budget`), before anything is read: a prior map of a whole ocean
+    basin, or a header that declares absurd dimensions."""
+    from hadal.budget import format_bytes, memory_limit_bytes
+
+    limit = memory_limit_bytes(None) if max_bytes is None else max_bytes
+    need = float(ny) * float(nx) * GRID_READ_BYTES_PER_CELL
+    if need > limit:
+        raise InputError(f"{p}: the grid is {ny:,} x {nx:,} cells; reading it needs about {format_bytes(need)} "
+                         f"(limit {format_bytes(limit)}): crop it to the dive area first (e.g. gdal_translate "
+                         "-projwin or gmt grdcut) or raise resources.max_memory_gb")
+
+
 def read_grid(path: str | Path, *, crs_kind: str | None = None, variable: str | None = None,
-              format: str | None = None, crs: str | None = None) -> xr.DataArray:
+              format: str | None = None, crs: str | None = None, max_bytes: float | None = None) -> xr.DataArray:
     """Read a gridded surface as a 2-D DataArray ``z(y, x)`` (values as stored: the sign is the caller's).
 
     The format is detected from the content (:func:`sniff_kind`; ``format`` overrides): GeoTIFF and any
@@ -517,9 +591,16 @@ def read_grid(path: str | Path, *, crs_kind: str | None = None, variable: str | 
     ``nodata``, ``nodata_fraction``, and the value's ``var_name``/``long_name``/``standard_name``/
     ``positive`` when the file has them (for the sign detection of :mod:`hadal.grid.prior`).
 
+    GDAL band scale/offset are applied (``attrs["scale_offset"]``). A NetCDF variable with dimensions beyond
+    its two x/y ones is squeezed when they have length 1 and refused when longer (``z(time, lat, lon)`` with
+    several times: no slice is picked silently); a CF lat/lon netCDF is never handed to GDAL's band 1.
+    Longitudes in -180..180 that jump at the antimeridian are unwrapped (> 180 after the jump).
+
     ``crs_kind`` or ``crs`` (``'EPSG:32654'``, WKT, PROJ, or ``'local'``) override the file. Without them a
     raster tagged geographic whose extent/relief make no sense in degrees (:func:`looks_metric`) is returned
-    as ``local_metric`` with a :class:`GridCRSWarning`. Every failure is a one-line :class:`InputError`.
+    as ``local_metric`` with a :class:`GridCRSWarning`. Every failure is a one-line :class:`InputError`; a grid
+    whose read would need more than ``max_bytes`` (default: the memory budget) is refused before it is read
+    (:func:`check_grid_read_size`).
     """
     p = _require_file(path, "grid")
     if crs_kind not in (None, "geographic", "projected", "local_metric"):
@@ -529,25 +610,36 @@ def read_grid(path: str | Path, *, crs_kind: str | None = None, variable: str | 
         raise InputError(f"{p}: is a {kind} point cloud, not a grid")
     if kind == "geotiff":
         _check_tiff_truncation(p)
-        da = _read_geotiff(p)
+        da = _read_geotiff(p, max_bytes)
     elif kind == "netcdf":
         check_grid_truncation(p)  # classic netCDF is read zero-filled past a cut, as a valid-looking grid
         try:
-            da = _read_netcdf_grid(p, variable)
+            da = _read_netcdf_grid(p, variable, max_bytes)
         except InputError as first:
             # HDF5 that is not netCDF (e.g. BAG), or a layout xarray cannot map: GDAL's turn. A readable netCDF
             # that lacks the asked-for variable or its coordinates stays an error (GDAL would silently give
             # pixel indices as coordinates).
             if variable is not None or not any(t in str(first) for t in ("cannot read NetCDF", "no 2-D variable")):
                 raise
+            # A netCDF with CF lat/lon coordinate variables is geographic: GDAL's band 1 of it (e.g. of a
+            # z(time, lat, lon) cube) would come back as 'local metric' with degree-sized metre cells - a
+            # silently wrong DTM. Refuse instead of falling back.
+            ll = _netcdf_latlon_names(p)
+            if ll:
+                raise InputError(f"{str(first).rstrip('.')}; the file has CF lat/lon coordinates "
+                                 f"({', '.join(ll)}) but no readable 2-D lat/lon grid variable: give the "
+                                 "variable in dive.yaml or make a 2-D file (e.g. 'ncks -d time,0 IN.nc OUT.nc')"
+                                 ) from None
             try:
-                da = _read_geotiff(p)
+                da = _read_geotiff(p, max_bytes)
             except InputError:
                 raise first from None
     else:
         try:
-            da = _read_geotiff(p)
-        except InputError:
+            da = _read_geotiff(p, max_bytes)
+        except InputError as exc:
+            if "reading it needs about" in str(exc):
+                raise
             hint = (" (a GMT native binary grid? GDAL cannot read those: convert it with "
                     "'gmt grdconvert IN.grd OUT.nc')" if p.suffix.lower() == ".grd" else "")
             raise InputError(f"{p}: not a grid format hadal reads (GeoTIFF, NetCDF/GMT netCDF or another GDAL "
@@ -601,7 +693,7 @@ def _check_tiff_truncation(p: Path) -> None:
         raise InputError(f"{p}: truncated: {p.stat().st_size} bytes, the header implies at least {need}")
 
 
-def _read_geotiff(p: Path) -> xr.DataArray:
+def _read_geotiff(p: Path, max_bytes: float | None = None) -> xr.DataArray:
     """Band 1 of a GDAL raster (GeoTIFF or any format GDAL identifies) via rasterio."""
     import rasterio
     from rasterio.errors import RasterioError
@@ -612,7 +704,14 @@ def _read_geotiff(p: Path) -> xr.DataArray:
             with rasterio.open(p) as src:
                 if src.count < 1:
                     raise InputError(f"{p}: raster has no bands")
+                check_grid_read_size(p, src.height, src.width, max_bytes)
                 a = src.read(1, masked=True).astype(np.float64).filled(np.nan)
+                # GDAL band scale/offset (packed int16 grids): value = raw * scale + offset, as GDAL's
+                # 'unscale' and netCDF's scale_factor/add_offset; nodata applies to the raw values (masked above)
+                scale = float(src.scales[0]) if src.scales and src.scales[0] is not None else 1.0
+                offset = float(src.offsets[0]) if src.offsets and src.offsets[0] is not None else 0.0
+                if scale != 1.0 or offset != 0.0:
+                    a = a * scale + offset
                 nodata = src.nodata
                 t = src.transform
                 crs = src.crs
@@ -621,6 +720,8 @@ def _read_geotiff(p: Path) -> xr.DataArray:
                 tags = {**src.tags(), **src.tags(1)}
                 desc = src.descriptions[0] if src.descriptions else None
                 georef = not t.is_identity
+    except InputError:
+        raise
     except RasterioError as exc:
         raise InputError(f"{p}: cannot read raster ({str(exc).splitlines()[0]})") from None
     except (OSError, ValueError, MemoryError) as exc:
@@ -647,6 +748,8 @@ def _read_geotiff(p: Path) -> xr.DataArray:
              "cell_size_x": abs(t.a), "cell_size_y": abs(t.e), "units": units or low.get("units", ""),
              "source": str(p), "format": "GeoTIFF" if driver == "GTiff" else f"GDAL {driver}",
              "reader": reader_of("geotiff"), "registration": reg, "var_name": "band 1"}
+    if scale != 1.0 or offset != 0.0:
+        attrs["scale_offset"] = f"band scale {scale:g}, offset {offset:g} applied"
     for k in ("positive", "standard_name", "long_name"):
         if k in low:
             attrs[k] = str(low[k])
@@ -678,7 +781,7 @@ def _axis_of(name: str, var: xr.DataArray | None) -> str | None:
     return None
 
 
-def _read_netcdf_grid(p: Path, variable: str | None) -> xr.DataArray:
+def _read_netcdf_grid(p: Path, variable: str | None, max_bytes: float | None = None) -> xr.DataArray:
     """A 2-D variable of a NetCDF (COARDS/CF, GMT netCDF) file via xarray."""
     try:
         ds = xr.open_dataset(p, decode_times=False)
@@ -692,6 +795,7 @@ def _read_netcdf_grid(p: Path, variable: str | None) -> xr.DataArray:
             if variable not in ds:
                 raise InputError(f"{p}: no variable {variable!r} (have {', '.join(map(str, ds.data_vars))})")
             da = ds[variable]
+            _refuse_stacked(p, ds, [variable])
         else:
             def squeezed_ndim(v):
                 return sum(s > 1 for s in ds[v].shape)
@@ -699,11 +803,17 @@ def _read_netcdf_grid(p: Path, variable: str | None) -> xr.DataArray:
             cands = [v for v in ds.data_vars if ds[v].ndim >= 2 and squeezed_ndim(v) == 2
                      and str(v).lower() not in _NOT_GRID_VARS]
             if not cands:
+                _refuse_stacked(p, ds, [v for v in ds.data_vars if str(v).lower() not in _NOT_GRID_VARS])
                 raise InputError(f"{p}: no 2-D variable to read as a grid (have {', '.join(map(str, ds.data_vars))})")
             pref = [v for v in cands if str(v).lower() in _PREFERRED_VARS]
             da = ds[(pref or cands)[0]]
+        big = [n for n in da.shape if n > 1]
+        if len(big) == 2:
+            check_grid_read_size(p, big[0], big[1], max_bytes)
         try:
             da = da.squeeze(drop=True).load()
+        except InputError:
+            raise
         except Exception as exc:  # noqa: BLE001 - truncated data blocks
             raise InputError(f"{p}: cannot read variable {da.name!r} ({str(exc).splitlines()[0]})") from None
         gm = str(da.attrs.get("grid_mapping", "") or da.encoding.get("grid_mapping", ""))
@@ -741,6 +851,12 @@ def _read_netcdf_grid(p: Path, variable: str | None) -> xr.DataArray:
     vattrs = dict(da.attrs)
     da = da.rename({d0: "y", d1: "x"}).astype(np.float64)
     da = da.where(np.isfinite(da))  # inf cells are nodata, as in GeoTIFFs (_FillValue: masked by xarray)
+    if geographic and da.sizes["x"] > 1:
+        # a regular grid across the antimeridian in -180..180 longitudes (179.98 .. 180, -179.999 ..): unwrap
+        # the jump of ~360 deg so the longitudes are continuous (> 180 after it; lookups wrap them mod 360)
+        lon = np.asarray(da.x.values, float)
+        if np.all(np.isfinite(lon)) and np.any(np.abs(np.diff(lon)) > 180.0):
+            da = da.assign_coords(x=np.unwrap(lon, period=360.0))
     if da.sizes["x"] > 1 and float(da.x[1] - da.x[0]) < 0:
         da = da.isel(x=slice(None, None, -1))
     if da.sizes["y"] > 1 and float(da.y[1] - da.y[0]) < 0:
@@ -798,6 +914,54 @@ def _read_netcdf_grid(p: Path, variable: str | None) -> xr.DataArray:
     da.attrs = attrs
     da.name = "z"
     return da
+
+
+def _netcdf_latlon_names(p: Path) -> list[str]:
+    """Names of the CF latitude/longitude coordinate variables of a netCDF file (units ``degrees_north``/
+    ``degrees_east``, ``standard_name`` latitude/longitude, or named lat/lon); ``[]`` when none or unreadable."""
+    try:
+        ds = xr.open_dataset(p, decode_times=False, decode_cf=False)
+    except Exception:  # noqa: BLE001 - not openable by xarray: let GDAL try
+        try:
+            import h5py
+
+            with h5py.File(p, "r") as h:
+                names = [k for k in h.keys() if isinstance(h[k], h5py.Dataset)]
+                meta = {k: {a: (v.decode() if isinstance(v, bytes) else str(v)) for a, v in h[k].attrs.items()
+                            if a in ("units", "standard_name")} for k in names}
+        except Exception:  # noqa: BLE001
+            return []
+    else:
+        with ds:
+            meta = {str(k): {a: str(v) for a, v in ds.variables[k].attrs.items() if a in ("units", "standard_name")}
+                    for k in ds.variables}
+    out = []
+    for k, a in meta.items():
+        un, sn = str(a.get("units", "")).lower(), str(a.get("standard_name", "")).lower()
+        if (un.startswith(("degrees_north", "degree_north", "degrees_east", "degree_east"))
+                or sn in ("latitude", "longitude") or k.lower() in ("lat", "lon", "latitude", "longitude")):
+            out.append(k)
+    return out
+
+
+def _refuse_stacked(p: Path, ds: xr.Dataset, names: list) -> None:
+    """One-line :class:`InputError` when a grid-like variable has two x/y dimensions plus further dimensions
+    longer than 1 (``z(time, lat, lon)`` with several times): hadal never picks a slice silently.
+    Length-1 extra dimensions are fine (they are squeezed)."""
+    for v in names:
+        if v not in ds.data_vars:
+            continue
+        da = ds[v]
+        axes = {str(d): _axis_of(str(d), ds[d] if d in ds.variables else None) for d in da.dims}
+        if sorted(a for a in axes.values() if a) != ["x", "y"]:
+            continue
+        extra = [(str(d), n) for d, n in zip(da.dims, da.shape, strict=True) if axes[str(d)] is None and n > 1]
+        if extra:
+            what = ", ".join(f"{n} {d} values" for d, n in extra)
+            d0 = extra[0][0]
+            raise InputError(f"{p}: {v} has dims ({', '.join(map(str, da.dims))}) with {what}: hadal reads one 2-D "
+                             f"grid and will not pick a slice; pick one with e.g. 'ncks -d {d0},0 IN.nc OUT.nc' "
+                             f"or 'cdo seltimestep,1' (or xarray ds.isel({d0}=0).to_netcdf(...))")
 
 
 def _read_old_gmt(p: Path, ds: xr.Dataset) -> xr.DataArray:

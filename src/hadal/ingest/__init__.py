@@ -13,22 +13,34 @@ Public API
 * :func:`build_sensor_table` - all of the above -> the ``sensors`` table (``schemas/sensors.yaml``).
 """
 
-from hadal.ingest.align import align_linear, align_nearest, align_sensor, clean_times
-from hadal.ingest.build import (
-    SENSOR_VARIABLES,
-    build_sensor_table,
-    field_metadata,
-    read_csv_sensors,
-    read_mcap_sensors,
-    sensors_schema,
-    validate_sensor_table,
-)
-from hadal.ingest.cnv import cnv_sensor_samples, cnv_time_ns, parse_latlon, read_cnv
-from hadal.ingest.csv_reader import SensorSamples, parse_time, read_sensor_csv, sensor_from_records
-from hadal.ingest.mcap_reader import McapReport, McapTopic, mcap_info, read_mcap, read_mcap_tables
-from hadal.ingest.qc import DEFAULT_QC, VariableQC, qc_flags, qc_table
-from hadal.ingest.units import CANONICAL_UNITS, convert, normalise_unit
-from hadal.ingest.vehicle import VehicleConfig, default_vehicle_config_path, load_vehicle_config
+import importlib
+
+#: public name -> the submodule defining it, imported on first use (PEP 562): importing one reader (``hadal
+#: inspect``, the stages) does not import them all (ioos_qc, numba, pandas: seconds)
+_WHERE = {
+    **dict.fromkeys(("align_linear", "align_nearest", "align_sensor", "clean_times"), "align"),
+    **dict.fromkeys(("SENSOR_VARIABLES", "build_sensor_table", "field_metadata", "read_csv_sensors",
+                     "read_mcap_sensors", "sensors_schema", "validate_sensor_table"), "build"),
+    **dict.fromkeys(("cnv_sensor_samples", "cnv_time_ns", "parse_latlon", "read_cnv"), "cnv"),
+    **dict.fromkeys(("SensorSamples", "parse_time", "read_sensor_csv", "sensor_from_records"), "csv_reader"),
+    **dict.fromkeys(("McapReport", "McapTopic", "mcap_info", "read_mcap", "read_mcap_tables"), "mcap_reader"),
+    **dict.fromkeys(("DEFAULT_QC", "VariableQC", "qc_flags", "qc_table"), "qc"),
+    **dict.fromkeys(("CANONICAL_UNITS", "convert", "normalise_unit"), "units"),
+    **dict.fromkeys(("VehicleConfig", "default_vehicle_config_path", "load_vehicle_config"), "vehicle"),
+}
+
+
+def __getattr__(name: str):
+    if name in _WHERE:
+        value = getattr(importlib.import_module(f"hadal.ingest.{_WHERE[name]}"), name)
+        globals()[name] = value
+        return value
+    raise AttributeError(f"module 'hadal.ingest' has no attribute {name!r}")
+
+
+def __dir__() -> list[str]:
+    return sorted({*globals(), *_WHERE})
+
 
 __all__ = [
     "CANONICAL_UNITS", "DEFAULT_QC", "SENSOR_VARIABLES", "McapReport", "McapTopic", "SensorSamples", "VariableQC",

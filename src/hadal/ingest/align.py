@@ -1,7 +1,8 @@
 """Time alignment of sensor streams onto the CTD time base.
 
-* :func:`clean_times` sorts a stream by time (stable), drops duplicated timestamps (first kept) and counts
-  both the out-of-order samples and the duplicates (recorded in the product metadata).
+* :func:`clean_times` drops backward clock jumps, sorts a stream by time (stable), drops identical rows and
+  spreads distinct samples that share a coarse time stamp over the stamp interval; every step is counted
+  (recorded in the product metadata).
 * :func:`align_linear` interpolates linearly between the two valid samples that bracket each base time,
   but only when they are at most ``max_gap_s`` apart: no interpolation across a longer gap (or outside the
   stream's time span) - those base samples become NaN and later get QARTOD flag 9 (missing).
@@ -22,23 +23,125 @@ __all__ = ["clean_times", "align_linear", "align_nearest", "align_sensor", "plau
            "overlap_stats", "out_of_range", "describe_offset", "iso_ns"]
 
 
-def clean_times(time_ns: np.ndarray, values: dict[str, np.ndarray]) -> tuple[np.ndarray, dict[str, np.ndarray], dict[str, int]]:
-    """Sort by time and drop duplicate timestamps (keep the first in file order).
+#: a row whose time is behind the latest earlier time by more than this (or 10 sampling intervals, whichever
+#: is larger) is part of a backward clock jump, not a reordered sample
+JUMP_BACK_MIN_S = 1.0
+#: more than this fraction of a stream's rows in backward clock jumps: refuse (the clock is unusable)
+JUMP_BACK_MAX_FRACTION = 0.5
 
-    Returns ``(time_ns, values, {"out_of_order": n, "duplicates": n})`` where ``out_of_order`` counts samples
-    whose time is earlier than the previous sample's in file order.
+
+def _identical_rows(ts: np.ndarray, vals: list[np.ndarray]) -> np.ndarray:
+    """Mask (over the time-sorted rows) of rows identical to an earlier row: same time and same value in every
+    variable (NaN equal to NaN); the first of each set of identical rows is not marked."""
+    n = ts.size
+    dup = np.zeros(n, dtype=bool)
+    same_t = np.zeros(n, dtype=bool)
+    same_t[1:] = ts[1:] == ts[:-1]
+    if not same_t.any():
+        return dup
+    # only rows in a group of equal times take part; sort them by (time, values), file order kept for ties
+    grp = same_t.copy()
+    grp[:-1] |= same_t[1:]
+    idx = np.flatnonzero(grp)
+    keys = [np.nan_to_num(v[idx], nan=np.inf) for v in vals] + [np.isnan(v[idx]) for v in vals]
+    order = np.lexsort((idx, *keys, ts[idx]))  # last key first: time, then values, then file order
+    j = idx[order]
+    eq = ts[j[1:]] == ts[j[:-1]]
+    for v in vals:
+        a, b = v[j[1:]], v[j[:-1]]
+        eq &= (a == b) | (np.isnan(a) & np.isnan(b))
+    dup[j[1:][eq]] = True
+    return dup
+
+
+def clean_times(time_ns: np.ndarray, values: dict[str, np.ndarray]) -> tuple[np.ndarray, dict[str, np.ndarray], dict[str, Any]]:
+    """Put a stream's rows in time order; drop backward clock jumps and identical rows; spread coarse stamps.
+
+    In this order:
+
+    1. **Backward clock jumps** (file order): a row whose time is behind the latest earlier time by more
+       than ``max(JUMP_BACK_MIN_S, 10 sampling intervals)`` belongs to a clock jump; those rows overlap data
+       already logged and their times cannot be trusted, so they are dropped (``clock_jump_rows``, the
+       number of jumps and the largest jump ``clock_jump_max_s`` are returned). More than
+       :data:`JUMP_BACK_MAX_FRACTION` of the rows in jumps is an :class:`~hadal.errors.InputError`.
+    2. Smaller inversions are sorted (stable); ``out_of_order`` counts the rows behind an earlier time (rows
+       affected, not inversions).
+    3. **Duplicates** are rows identical to another in time *and* every value: dropped (``duplicates``).
+    4. **Coarse time stamps**: rows that share a time stamp but hold different values are distinct samples
+       logged with a coarse clock (a logger stamping once per write batch, whole-second text times). They
+       are spread evenly over the stamp interval, in file order: the ``i``-th of ``k`` rows stamped ``T``
+       gets ``T + i (T' - T) / k`` where ``T'`` is the next distinct stamp (the median stamp interval after
+       the last one) - each stamp is taken as the start of its batch, so times can be late by up to one
+       interval when the logger stamps the end. ``coarse_rows`` counts them, ``coarse_resolution_s`` is the
+       median interval between distinct stamps of those groups and ``coarse_max_per_stamp`` the largest group.
     """
+    from hadal.errors import InputError
+
     t = np.asarray(time_ns, dtype=np.int64)
-    n_ooo = int(np.count_nonzero(np.diff(t) < 0)) if t.size > 1 else 0
-    order = np.argsort(t, kind="stable") if n_ooo else np.arange(t.size)
+    vals = {k: np.asarray(v, dtype=np.float64) for k, v in values.items()}
+    st: dict[str, Any] = {"out_of_order": 0, "duplicates": 0, "clock_jump_rows": 0, "clock_jumps": 0,
+                          "clock_jump_max_s": 0.0, "coarse_rows": 0, "coarse_resolution_s": None,
+                          "coarse_max_per_stamp": 1}
+    if t.size < 2:
+        return t.copy(), vals, st
+    d = np.diff(t)
+    if (d < 0).any():
+        prev_max = np.maximum.accumulate(t)[:-1]
+        behind_by = np.zeros(t.size, dtype=np.int64)
+        behind_by[1:] = np.maximum(prev_max - t[1:], 0)
+        nz = np.abs(d[d != 0])
+        step = float(np.median(nz)) if nz.size else 0.0
+        tol = max(JUMP_BACK_MIN_S * 1e9, 10.0 * step)
+        # a jump starts at one backward step larger than ``tol`` and lasts while the rows stay behind the
+        # latest time before it (a file in reverse order steps back a little every row: sorted, not a jump)
+        starts = np.flatnonzero(d < -tol) + 1
+        if starts.size > 100:  # a shuffled stream: every row far behind the running maximum
+            jump = behind_by > tol
+        else:
+            jump = np.zeros(t.size, dtype=bool)
+            for s0 in starts.tolist():
+                ahead = np.flatnonzero(t[s0:] >= prev_max[s0 - 1])
+                jump[s0:s0 + (int(ahead[0]) if ahead.size else t.size - s0)] = True
+        n_jump = int(jump.sum())
+        if n_jump:
+            starts = np.flatnonzero(jump & ~np.r_[False, jump[:-1]])
+            step = float(np.median(d[d > 0])) if (d > 0).any() else 0.0
+            st.update(clock_jump_rows=n_jump, clock_jumps=int(starts.size),
+                      clock_jump_max_s=(float(behind_by[starts].max()) + step) / 1e9)
+            if n_jump > JUMP_BACK_MAX_FRACTION * t.size:
+                raise InputError(f"{n_jump} of {t.size} rows lie in backward clock jump(s) (up to "
+                                 f"{st['clock_jump_max_s']:.3g} s back): the logger clock is unusable")
+            keep = ~jump
+            t, vals, behind_by = t[keep], {k: v[keep] for k, v in vals.items()}, behind_by[keep]
+        st["out_of_order"] = int(np.count_nonzero(behind_by > 0))
+    order = np.argsort(t, kind="stable") if st["out_of_order"] else np.arange(t.size)
     ts = t[order]
-    keep = np.ones(ts.size, dtype=bool)
-    if ts.size > 1:
-        keep[1:] = ts[1:] != ts[:-1]
-    n_dup = int(ts.size - keep.sum())
-    idx = order[keep]
-    return t[idx], {k: np.asarray(v, dtype=np.float64)[idx] for k, v in values.items()}, {
-        "out_of_order": n_ooo, "duplicates": n_dup}
+    vs = {k: v[order] for k, v in vals.items()}
+    dup = _identical_rows(ts, list(vs.values()))
+    if dup.any():
+        st["duplicates"] = int(dup.sum())
+        ts, vs = ts[~dup], {k: v[~dup] for k, v in vs.items()}
+    if ts.size > 1 and (ts[1:] == ts[:-1]).any():
+        new = np.r_[True, ts[1:] != ts[:-1]]
+        gid = np.cumsum(new) - 1
+        gstart = np.flatnonzero(new)
+        gsize = np.diff(np.r_[gstart, ts.size])
+        gt = ts[gstart]
+        gaps = np.diff(gt)
+        multi = gsize > 1
+        mgaps = gaps[multi[:-1]] if gaps.size else gaps
+        med = int(np.median(gaps)) if gaps.size else 0
+        nxt = np.r_[gaps, med]  # the stamp interval of each group
+        rank = np.arange(ts.size) - gstart[gid]
+        ts = ts + (rank * nxt[gid]) // gsize[gid]
+        st.update(coarse_rows=int(gsize[multi].sum()), coarse_max_per_stamp=int(gsize.max()),
+                  coarse_resolution_s=float(np.median(mgaps if mgaps.size else nxt[multi])) / 1e9)
+        # sub-ns collisions (an interval shorter than its group) stay equal: keep the first of those
+        ok = np.r_[True, ts[1:] > ts[:-1]]
+        if not ok.all():
+            st["duplicates"] += int((~ok).sum())
+            ts, vs = ts[ok], {k: v[ok] for k, v in vs.items()}
+    return ts, vs, st
 
 
 def align_linear(base_ns: np.ndarray, t_ns: np.ndarray, v: np.ndarray, max_gap_s: float,

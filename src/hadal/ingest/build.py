@@ -115,6 +115,19 @@ def read_mcap_sensors(paths: Sequence[str | Path], vehicle: VehicleConfig
     out: dict[str, SensorSamples] = {}
     names = ", ".join(Path(p).name for p in paths)
     if topics and paths and not per_topic:
+        # the mapped topics are there but no message on them could be decoded: say so, not "check vehicle.yaml"
+        undecodable = [(topic, r["path"], tr) for r in reports for topic, tr in (r.get("topics") or {}).items()
+                       if topic in topics and tr.get("decode_errors") and not tr.get("read")]
+        if undecodable:
+            topic, path, tr = undecodable[0]
+            others = sorted({x[0] for x in undecodable} - {topic})
+            raise InputError(
+                f"{Path(path).name}: none of the {tr['decode_errors']} message(s) on topic {topic} could be decoded "
+                f"(message encoding {tr.get('message_encoding')!r}"
+                f"{', schema ' + repr(tr['schema']) if tr.get('schema') else ''}); first error: "
+                f"{tr.get('first_decode_error') or 'unknown'}"
+                + (f"; the same on {', '.join(others[:5])}" if others else "")
+                + " - the payloads are not in the declared encoding (compressed or corrupt?)")
         # no mapped channel at all (e.g. a ROS talker bag of std_msgs/String): one clear line, nothing to ingest
         have = sorted({c["topic"] for p in paths for c in mcap_info(p) if c["messages"]})
         want = sorted(topics)
@@ -133,6 +146,13 @@ def read_mcap_sensors(paths: Sequence[str | Path], vehicle: VehicleConfig
         parts = per_topic.get(s.mcap.topic)
         if not parts:
             msg = f"{names}: no messages on topic {s.mcap.topic!r} (sensor {name!r})"
+            bad = [(r, r["topics"][s.mcap.topic]) for r in reports if (r.get("topics") or {}).get(
+                s.mcap.topic, {}).get("decode_errors")]
+            if bad:
+                tr = bad[0][1]
+                msg = (f"{Path(bad[0][0]['path']).name}: none of the {tr['decode_errors']} message(s) on topic "
+                       f"{s.mcap.topic} (sensor {name!r}) could be decoded (message encoding "
+                       f"{tr.get('message_encoding')!r}); first error: {tr.get('first_decode_error') or 'unknown'}")
             if s.required:
                 raise InputError(msg + " - missing required channel")
             warnings.warn(msg + "; its columns will be empty (flag 9)", stacklevel=2)
@@ -140,7 +160,31 @@ def read_mcap_sensors(paths: Sequence[str | Path], vehicle: VehicleConfig
         t = np.concatenate([x[0] for x in parts])
         msgs = [m for x in parts for m in x[1]]
         out[name] = sensor_from_records(name, t, msgs, s.mcap, "mcap:" + "+".join(x[2] for x in parts))
+        if s.mcap.time.field == "log_time" and msgs and isinstance(msgs[0], dict) \
+                and isinstance(out[name].stats, dict):
+            out[name].stats["time_field_alternatives"] = _time_fields(msgs[0])
     return out, reports
+
+
+def _time_fields(msg: dict[str, Any]) -> list[str]:
+    """Fields of a decoded message that look like a sample time (``stamp``, ``header.stamp``, ``time``...):
+    the alternatives to ``log_time`` named when log_time turns out to be coarse."""
+    import re
+
+    from hadal.ingest.mcap_reader import field_names
+
+    out: list[str] = []
+    for f in field_names(msg):
+        parts = f.split(".")
+        # a ROS time is a {sec, nanosec} mapping: name the mapping (header.stamp), not its leaves
+        if len(parts) > 1 and parts[-1] in ("sec", "secs", "nanosec", "nsecs") and re.search(
+                r"stamp|time", parts[-2], re.I):
+            f = ".".join(parts[:-1])
+        elif not re.search(r"stamp|time", parts[-1], re.I):
+            continue
+        if f not in out:
+            out.append(f)
+    return out[:4]
 
 
 def read_csv_sensors(files: Mapping[str, Path], vehicle: VehicleConfig) -> dict[str, SensorSamples]:
@@ -250,9 +294,9 @@ def build_profile_table(samples: SensorSamples, qc: Mapping[str, VariableQC] | N
     time and is not evaluated (it contributes flag 2, i.e. nothing, to the aggregate). Table metadata
     ``time_base`` = :data:`hadal.ingest.cnv.NO_TIME_BASE`."""
     from hadal.ingest.cnv import NO_TIME_BASE
-    from hadal.ingest.qc import DEFAULT_QC
+    from hadal.ingest.qc import merge_qc
 
-    qc = {**DEFAULT_QC, **(qc or {})}
+    qc = merge_qc(qc)
     n = len(samples)
     if n < 2:
         raise InputError(f"{samples.source}: only {n} sample(s) in the cast")
@@ -408,6 +452,47 @@ class _TimeChecks:
                        f"its span get NaN (flag 9) - check its clock, time zone or time format")
 
 
+def _check_sensor_keys(vehicle: VehicleConfig, where: str, table: Mapping[str, Any] | None) -> None:
+    """A mapping keyed by sensor names (``ingest.max_gap_s``) naming a sensor the vehicle does not have is a
+    :class:`~hadal.errors.ConfigError` (``guage``), except the packaged defaults' names (``position``...),
+    which another vehicle may lack."""
+    from hadal.errors import ConfigError
+
+    try:
+        from hadal.stages.ingest import Params
+
+        defaults = set(Params.model_fields["max_gap_s"].default or {})
+    except Exception:  # noqa: BLE001 - the stage module is optional here (library use)
+        defaults = set()
+    unknown = [k for k in (table or {}) if k not in vehicle.sensors and k not in defaults]
+    if unknown:
+        raise ConfigError(f"{where}: unknown sensor {unknown[0]!r} (the vehicle's sensors: "
+                          f"{', '.join(vehicle.sensors)})")
+
+
+def _time_cleaning_notes(tc: _TimeChecks, source: str, name: str, st: Mapping[str, Any], n_rows: int,
+                         alternatives: Sequence[str] = ()) -> None:
+    """Warnings for what :func:`hadal.ingest.align.clean_times` did to one stream (loud ones in the notes)."""
+    if st["clock_jump_rows"]:
+        tc._loud(f"{source}: {st['clock_jump_rows']} {name} row(s) in {st['clock_jumps']} backward clock jump(s) "
+                 f"(up to {st['clock_jump_max_s']:.3g} s back) dropped: they overlap data already logged and "
+                 "their times cannot be trusted - check the logger clock")
+    if st["coarse_rows"] and st["coarse_rows"] <= max(0.01 * n_rows, 4):
+        warnings.warn(f"{source}: {st['coarse_rows']} {name} row(s) share a time stamp with a row holding different "
+                      "values: not duplicates; spread evenly within the stamp interval", stacklevel=3)
+    elif st["coarse_rows"]:
+        tc._loud(f"{source}: {st['coarse_rows']} {name} row(s) share their time stamp with other rows holding "
+                 f"different values (up to {st['coarse_max_per_stamp']} per stamp): the time stamps are coarse "
+                 f"(effective resolution {st['coarse_resolution_s']:.3g} s); spread evenly within each stamp "
+                 "interval (each stamp taken as the start of its batch) - "
+                 + (f"the messages carry a time field ({', '.join(alternatives)}): map it in vehicle.yaml "
+                    f"(time: {{field: {alternatives[0]}, ...}}) instead of log_time" if alternatives else
+                    "map a finer time field if there is one (e.g. a message header stamp instead of log_time)"))
+    if st["out_of_order"] or st["duplicates"]:
+        warnings.warn(f"{source}: {st['out_of_order']} out-of-order row(s) (sorted) and {st['duplicates']} "
+                      f"identical duplicated row(s) (dropped)", stacklevel=3)
+
+
 def build_sensor_table(
     sensors: Mapping[str, SensorSamples],
     vehicle: VehicleConfig,
@@ -436,9 +521,10 @@ def build_sensor_table(
     covers less than ``min_overlap`` of the time base's is a warning with the measured overlap and offset.
     Samples rejected by the readers (non-numeric values) are summed up in ``meta["rejected_samples"]``.
     """
-    from hadal.ingest.qc import DEFAULT_QC
+    from hadal.ingest.qc import merge_qc
 
-    qc = {**DEFAULT_QC, **(qc or {})}
+    qc = merge_qc(qc)
+    _check_sensor_keys(vehicle, "ingest.max_gap_s", max_gap_s)
     base_name = vehicle.time_base
     if base_name not in sensors or len(sensors[base_name]) == 0:
         st = sensors[base_name].stats if base_name in sensors else {}
@@ -468,10 +554,22 @@ def build_sensor_table(
                     f"{s.source}: {ff:.0%} of {var} values are outside the plausible range [{lo:g}, {hi:g}] "
                     f"{CANONICAL_UNITS[var]} - wrong units in the vehicle config?")
             vals[var] = v
-        t, vals, st = clean_times(s.time_ns, vals)
-        if st["out_of_order"] or st["duplicates"]:
-            warnings.warn(f"{s.source}: {st['out_of_order']} out-of-order and {st['duplicates']} duplicated "
-                          f"time stamp(s) (sorted, duplicates dropped)", stacklevel=2)
+        empty = [var for var, v in vals.items() if var != SEASOFT_BAD_SCAN and v.size and not np.isfinite(v).any()]
+        for var in empty:
+            tc._loud(f"{s.source}: {name} {var} has no valid value in any of its {len(s)} row(s) (all missing or "
+                     f"non-numeric): the column is empty (flag 9) - check the vehicle.yaml mapping and the file")
+        meta.setdefault("empty_variables", {})[name] = empty
+        mapped = [var for var in vals if var != SEASOFT_BAD_SCAN]
+        if name == base_name and empty and (len(empty) == len(mapped) or "pressure_ctd_dbar" in empty):
+            raise InputError(f"{s.source}: the time-base sensor {name!r} has no valid value in "
+                             f"{', '.join(empty)} ({len(s)} row(s), all missing): nothing to build the sensor "
+                             "table on - check the vehicle.yaml mapping and the file")
+        try:
+            t, vals, st = clean_times(s.time_ns, vals)
+        except InputError as exc:
+            raise InputError(f"{s.source}: {name}: {exc}") from None
+        _time_cleaning_notes(tc, s.source, name, st, len(s), (s.stats or {}).get("time_field_alternatives", ())
+                             if isinstance(s.stats, dict) else ())
         cleaned[name] = (t, vals)
         meta["alignment"][name] = {"source": s.source, **st}
         meta["unit_conversions"].extend(s.conversions)

@@ -20,6 +20,7 @@ Reference: Sea-Bird Scientific, *SBE Data Processing* manual (Seasoft V2), secti
 from __future__ import annotations
 
 import datetime as _dt
+import itertools
 import logging
 import math
 import re
@@ -32,8 +33,8 @@ import numpy as np
 import pandas as pd
 
 from hadal.errors import InputError
-from hadal.formats import detect, read_bytes
-from hadal.ingest.csv_reader import check_line_lengths
+from hadal.formats import compression_of, detect, iter_blocks, read_bytes
+from hadal.ingest.csv_reader import MAX_LINE_BYTES
 
 log = logging.getLogger(__name__)
 
@@ -221,79 +222,175 @@ def _is_label_line(line: str) -> bool:
     return True
 
 
-def _parse_rows(lines: list[str], nquan: int, path: Path, first_line_no: int) -> tuple[np.ndarray, list[int]]:
-    """Numeric rows; a line with the wrong token count is re-read as 11-character fields (SeaSoft columns
-    can touch, e.g. ``-123.4567-99.12``); lines that still fail are dropped and their numbers returned."""
-    # rows go into float64 blocks, not a list of Python floats (~4x the memory of the numbers)
-    blocks: list[np.ndarray] = []
-    block = np.empty((_ROW_BLOCK, nquan), dtype=np.float64)
-    n_in = 0
-    bad: list[int] = []
-    for i, line in enumerate(lines):
-        if not line.strip():
-            continue
-        toks = line.split()
-        if len(toks) != nquan:
-            width = len(line.rstrip())
-            if width == nquan * _FIELD_WIDTH:
-                toks = [line[k * _FIELD_WIDTH:(k + 1) * _FIELD_WIDTH] for k in range(nquan)]
-            else:
-                bad.append(first_line_no + i)
+def _parse_line_slow(line: str, nquan: int) -> list[float] | None:
+    """One data line's values, or ``None``: whitespace-separated, else re-read as 11-character fields (SeaSoft
+    columns can touch, e.g. ``-123.4567-99.12``)."""
+    toks = line.split()
+    if len(toks) != nquan:
+        if len(line.rstrip()) != nquan * _FIELD_WIDTH:
+            return None
+        toks = [line[k * _FIELD_WIDTH:(k + 1) * _FIELD_WIDTH] for k in range(nquan)]
+    try:
+        return [float(t) for t in toks]
+    except ValueError:
+        return None
+
+
+#: bytes per piece of the .cnv body parsed at once (its temporaries, ~10x this, bound the reader's extra memory)
+_PIECE_BYTES = 1 << 20
+_WS = np.zeros(256, dtype=bool)
+_WS[[9, 10, 11, 12, 13, 32]] = True
+#: bytes of a plain numeric body (white space, digits, sign, point, exponent): parsed by ``np.fromstring``
+_PLAIN = _WS.copy()
+_PLAIN[np.frombuffer(b"0123456789+-.eE", dtype=np.uint8)] = True
+#: the first capacity of the row array when the body's size is unknown (compressed input): 64 MiB, then it grows
+_FIRST_CAPACITY_BYTES = 64 << 20
+
+
+class _RowSink:
+    """The data rows of a .cnv, parsed piece by piece (whole lines) into one preallocated float64 array.
+
+    Memory: the array (rows x nquan x 8 B) plus one piece's temporaries. The capacity is an estimate (the body's
+    bytes over the first piece's bytes per line, or the header's ``nvalues``); when it is exceeded the array
+    grows by 1.5x (the untouched tail of an over-estimate is never written, so it costs no resident memory).
+    A piece whose every non-blank line has ``nquan`` tokens is converted in one NumPy call; otherwise its lines
+    are read one by one (fixed-width fallback, unreadable lines dropped and their numbers kept)."""
+
+    def __init__(self, nquan: int, bad_flag: float, capacity_hint: int | None, body_bytes: int | None):
+        self.nquan, self.bad_flag = nquan, bad_flag
+        self.hint, self.body_bytes = capacity_hint, body_bytes
+        self.a: np.ndarray | None = None
+        self.n = 0
+        self.n_bad = 0
+        self.bad_lines: list[int] = []
+        #: values per rejected line -> how many lines (names the column-count mismatch when no row is readable)
+        self.bad_counts: dict[int, int] = {}
+
+    def _reserve(self, extra: int, piece_bytes: int, piece_rows: int) -> None:
+        need = self.n + extra
+        if self.a is None:
+            # the header's nvalues is a hint, never trusted for memory: it is capped by what the body can hold
+            # (uncompressed), or by a first capacity of _FIRST_CAPACITY_BYTES (compressed: the decompressed size is
+            # unknown), and the array grows as rows arrive (a gzip .cnv declaring 2e9 scans once asked for 119 GiB)
+            cap = self.hint or 0
+            if self.body_bytes is not None and piece_rows:
+                est = int(self.body_bytes / (piece_bytes / piece_rows) * 1.02) + 16
+                cap = est if not cap else min(max(cap, need), est)
+            elif cap:
+                cap = min(cap, max(_FIRST_CAPACITY_BYTES // (8 * self.nquan), 16))
+            cap = max(cap, need, 16)
+            self.a = np.empty((cap, self.nquan), dtype=np.float64)
+        elif need > self.a.shape[0]:
+            grown = np.empty((max(need, int(self.a.shape[0] * 1.5) + 16), self.nquan), dtype=np.float64)
+            grown[:self.n] = self.a[:self.n]
+            self.a = grown
+
+    def _store(self, vals: np.ndarray, piece_bytes: int) -> None:
+        # bad_flag = 0 is substituted after the whole body is read (_apply_zero_bad_flag: per channel, not in the
+        # flag/time/count channels, where 0 is a real value)
+        is_bad = np.isclose(vals, self.bad_flag, rtol=1e-6, atol=0.0) if self.bad_flag != 0 else None
+        nb = 0 if is_bad is None else int(np.count_nonzero(is_bad))
+        if nb:
+            vals[is_bad] = np.nan
+            self.n_bad += nb
+        self._reserve(vals.shape[0], piece_bytes, vals.shape[0])
+        assert self.a is not None
+        self.a[self.n:self.n + vals.shape[0]] = vals
+        self.n += vals.shape[0]
+
+    def feed(self, piece: bytes, first_line_no: int) -> None:
+        """Parse ``piece`` (whole lines, ``\\n``-separated; its first line is line ``first_line_no``)."""
+        if not piece.strip():
+            return
+        buf = np.frombuffer(piece, dtype=np.uint8)
+        ws = (buf >= 9) & (buf <= 13)  # bytes.split()'s white space: \t \n \v \f \r and space
+        ws |= buf == 32
+        starts = ~ws
+        starts[1:] &= ws[:-1]
+        ts = np.flatnonzero(starts)  # token starts
+        nl = np.flatnonzero(buf == 10)
+        if buf[-1] != 10:  # a last line without its line end
+            nl = np.append(nl, buf.size)
+        counts = np.diff(np.searchsorted(ts, nl), prepend=0)  # tokens per line
+        if np.all((counts == self.nquan) | (counts == 0)):
+            vals = None
+            if not np.bincount(buf, minlength=256)[~_PLAIN].any():  # digits, signs, '.', 'e', white space only
+                with warnings.catch_warnings():
+                    warnings.simplefilter("error", DeprecationWarning)
+                    try:
+                        vals = np.fromstring(piece, dtype=np.float64, sep=" ")
+                    except (ValueError, DeprecationWarning):  # an unparsable token: read it the slow way
+                        vals = None
+                if vals is not None and vals.size != int(counts.sum()):
+                    vals = None
+            if vals is None:
+                try:
+                    vals = np.array(piece.split(), dtype=np.float64)
+                except ValueError:
+                    vals = None
+            if vals is not None:
+                self._store(vals.reshape(-1, self.nquan), len(piece))
+                return
+        rows: list[list[float]] = []
+        for i, line in enumerate(piece.decode("latin-1").split("\n")):
+            if not line.strip():
                 continue
-        try:
-            block[n_in] = [float(t) for t in toks]
-        except ValueError:
-            bad.append(first_line_no + i)
-            continue
-        n_in += 1
-        if n_in == _ROW_BLOCK:
-            blocks.append(block)
-            block = np.empty((_ROW_BLOCK, nquan), dtype=np.float64)
-            n_in = 0
-    blocks.append(block[:n_in])
-    arr = blocks[0] if len(blocks) == 1 else np.concatenate(blocks)
-    return arr.reshape(-1, nquan), bad
+            v = _parse_line_slow(line, self.nquan)
+            if v is None:
+                self.bad_lines.append(first_line_no + i)
+                k = len(line.split())
+                self.bad_counts[k] = self.bad_counts.get(k, 0) + 1
+            else:
+                rows.append(v)
+        if rows:
+            self._store(np.array(rows, dtype=np.float64).reshape(-1, self.nquan), len(piece))
+
+    def result(self) -> np.ndarray:
+        if self.a is None:
+            return np.empty((0, self.nquan), dtype=np.float64)
+        return self.a[:self.n]
 
 
-_ROW_BLOCK = 1 << 14
+def _too_long(path: Path, line_no: int, n: int) -> None:
+    raise InputError(f"{path}: line {line_no} is {n:,}+ bytes long: not a .cnv header or data line (the limit is "
+                     f"{MAX_LINE_BYTES:,} bytes; is this really a Sea-Bird .cnv?)")
 
 
-def read_cnv(path: str | Path) -> pd.DataFrame:
-    """Read a Sea-Bird ``.cnv`` file into a DataFrame with the file's column names.
+def _pieces(path: Path):
+    """``(compression, file size)`` then the decompressed content as pieces of whole lines (``\\n`` line ends;
+    ``\\r\\n`` and old-Mac ``\\r`` normalised), in memory bounded by the block size: a line longer than
+    :data:`~hadal.ingest.csv_reader.MAX_LINE_BYTES` is a one-line :class:`InputError` (not a text file)."""
+    blocks = iter_blocks(path, "CNV", block_bytes=_PIECE_BYTES)
+    first = next(blocks, b"")  # the one-line errors of a missing/unreadable file or a damaged stream
+    with open(path, "rb") as fh:
+        comp = compression_of(fh.read(8))
+    yield comp, path.stat().st_size
+    carry = b""
+    line_no = 1  # number of the first line of the carry
+    for block in itertools.chain((first,) if first else (), blocks):
+        buf = carry + block if carry else bytes(block)
+        cut = buf.rfind(b"\n") + 1
+        if cut == 0:  # old-Mac '\r' line ends; a final '\r' may still be the first half of a '\r\n'
+            cut = buf.rfind(b"\r", 0, len(buf) - 1) + 1
+        piece, carry = buf[:cut], buf[cut:]
+        if len(carry) > MAX_LINE_BYTES:
+            _too_long(path, line_no + piece.count(b"\n"), len(carry))
+        if piece:
+            piece = piece.replace(b"\r\n", b"\n").replace(b"\r", b"\n")
+            if len(piece) > MAX_LINE_BYTES:
+                ends = np.flatnonzero(np.frombuffer(piece, dtype=np.uint8) == 10)
+                lengths = np.diff(ends, prepend=-1) - 1
+                k = int(np.argmax(lengths))
+                if lengths[k] > MAX_LINE_BYTES:
+                    _too_long(path, line_no + k, int(lengths[k]))
+            line_no += piece.count(b"\n")
+            yield piece
+    if carry:
+        yield carry.replace(b"\r\n", b"\n").replace(b"\r", b"\n")
 
-    ``df.attrs`` holds the header (all JSON-serialisable):
 
-    * ``source`` (path), ``instrument`` (first header line, e.g. ``Sea-Bird SBE 9 Data File:``);
-    * ``channels``: list of ``{index, name, column, long_name, units, span}`` (``units`` is the bracketed
-      text, e.g. ``"ITS-90, deg C"``, ``"db"``, ``"S/m"``; ``span`` the header ``[lo, hi]`` or ``None``);
-      ``units``: ``{column: units}``;
-    * ``latitude_deg`` / ``longitude_deg``: decimal degrees from ``* NMEA Latitude = ...`` /
-      ``** Latitude: ...`` lines (``None`` when absent or unreadable);
-    * ``start_time_utc`` (ISO-8601, ``None`` when absent), ``start_time_note`` (SeaSoft's bracket text),
-      ``nmea_utc`` when present;
-    * ``interval``: ``{"kind": "decibars"|"seconds"|..., "value": float}``;
-    * ``bad_flag`` (float; those values became NaN), ``bad_values`` (count replaced);
-    * ``processing``: SeaSoft processing lines in file order, ``[[key, value], ...]``
-      (``datcnv_date``, ``wildedit_vars``, ``Derive_in``, ...);
-    * ``sensors`` (``# sensor i = ...`` lines), ``user_header`` (``**`` lines), ``instrument_header``;
-    * ``nquan``, ``nvalues_declared``, ``nvalues`` (rows read), ``rows_dropped`` (line numbers of
-      unparseable data lines, dropped with a warning).
-
-    Raises :class:`~hadal.errors.InputError` (one line, naming the file) when the file is missing, empty,
-    has no ``*END*`` line, no ``# name`` lines, or no readable data rows.
-    """
-    path = Path(path)
-    raw, compression = read_bytes(path, "CNV")
-    if not raw.strip():
-        raise InputError(f"{path}: CNV file is empty")
-    check_line_lengths(raw, path, ".cnv header or data line")
-    # SeaSoft writes Windows-1252/Latin-1 (e.g. 'sigma-\xe900'); no whole-text copy kept beside the lines
-    lines = raw.decode("latin-1").replace("\r\n", "\n").replace("\r", "\n").split("\n")
-    del raw
-    end = next((i for i, ln in enumerate(lines) if ln.strip().upper() == "*END*"), None)
-    if end is None:
-        raise InputError(f"{path}: not a Sea-Bird .cnv file (no '*END*' line after the header)")
-    header = lines[:end]
+def _parse_header(header: list[str], path: Path) -> dict[str, Any]:
+    """The header lines before ``*END*`` parsed (channel names, spans, key/values, processing, positions, ...)."""
 
     names: dict[int, tuple[str, str]] = {}
     spans: dict[int, list[float] | None] = {}
@@ -378,35 +475,181 @@ def read_cnv(path: str | Path) -> pd.DataFrame:
         raise InputError(f"{path}: CNV header declares nquan = {nquan}")
     missing = [i for i in range(nquan) if i not in names]
     if missing:
-        warnings.warn(f"{path.name}: header lacks '# name' lines for channel(s) {missing}; named 'col<i>'", stacklevel=2)
+        warnings.warn(f"{path.name}: header lacks '# name' lines for channel(s) {missing}; named 'col<i>'", stacklevel=3)
     short = [names.get(i, (f"col{i}", ""))[0] for i in range(nquan)]
     columns = _unique_names(short)
-
-    body_lines = lines[end + 1:]
-    first = next((k for k, ln in enumerate(body_lines) if ln.strip()), None)
-    column_labels = None
-    if first is not None and _is_label_line(body_lines[first]):
-        column_labels = body_lines[first].split()
-        body_lines = body_lines[:first] + [""] + body_lines[first + 1:]  # keep line numbers
-    data, bad_lines = _parse_rows(body_lines, nquan, path, end + 2)
-    if bad_lines:
-        warnings.warn(
-            f"{path.name}: dropped {len(bad_lines)} unreadable data line(s) (first at line {bad_lines[0]})",
-            stacklevel=2,
-        )
-    if data.shape[0] == 0:
-        raise InputError(f"{path}: CNV file has no readable data rows after '*END*'")
-
     bad_flag = CNV_DEFAULT_BAD_FLAG
     if "bad_flag" in kv:
         try:
             bad_flag = float(kv["bad_flag"])
         except ValueError:
             pass
-    is_bad = np.isclose(data, bad_flag, rtol=1e-6, atol=0.0) if bad_flag != 0 else (data == 0)
-    n_bad = int(is_bad.sum())
-    data = np.where(is_bad, np.nan, data)
-    df = pd.DataFrame(data, columns=columns)
+    try:
+        nvalues_hint: int | None = int(kv["nvalues"])
+    except (KeyError, ValueError):
+        nvalues_hint = None
+    if nvalues_hint is not None and not 0 < nvalues_hint < 1 << 31:
+        nvalues_hint = None
+    return {"names": names, "spans": spans, "kv": kv, "processing": processing, "sensors": sensors, "user": user,
+            "instr": instr, "comments": comments, "xml_lines": xml_lines, "lat": lat, "lon": lon,
+            "lat_src": lat_src, "lon_src": lon_src, "nmea_utc": nmea_utc, "nquan": nquan, "columns": columns,
+            "bad_flag": bad_flag, "nvalues_hint": nvalues_hint}
+
+
+#: channels where 0 is a real value, never SeaSoft's bad marker: the scan flag (0 = good), counters (scan number,
+#: bottles fired, scans per bin), pump status and the time channels (elapsed time 0 at the first scan)
+_ZERO_IS_REAL = {"flag", "scan", "nbf", "nbin", "pumps", "times", "timej", "timey", "timek", "timem", "timeh",
+                 "timen", "timeq"}
+
+
+def _apply_zero_bad_flag(data: np.ndarray, columns: Sequence[str], path: Path) -> int:
+    """``# bad_flag = 0`` applied to ``data`` in place; returns the number of values made NaN.
+
+    0 is an ambiguous bad marker: it collides with real zeros (SeaSoft's ``flag`` channel, where 0 means good;
+    counters; elapsed time at the first scan; an unused user polynomial; PAR in the dark; conductivity in air).
+    So it is applied only where a 0 can plausibly mean "bad": not in :data:`_ZERO_IS_REAL` channels, not in a
+    channel that is 0 on every scan (a constant, not a bad channel); elsewhere every exact 0 becomes NaN and a
+    warning names the channels and counts, so that a real 0 wrongly blanked is visible. (Deviation from SeaSoft,
+    which compares every value with bad_flag: applied verbatim, bad_flag 0 once flagged a whole intact cast bad
+    through its flag channel.)"""
+    hit: list[str] = []
+    n_bad = 0
+    for j, col in enumerate(columns):
+        base = str(col).split(".")[0].strip().lower()
+        if base in _ZERO_IS_REAL:
+            continue
+        z = data[:, j] == 0
+        nz = int(np.count_nonzero(z))
+        if not nz or nz == data.shape[0]:
+            continue
+        data[z, j] = np.nan
+        n_bad += nz
+        hit.append(f"{col} ({nz})")
+    msg = (f"{path.name}: header says '# bad_flag = 0', which collides with real zeros; 0 was not treated as bad "
+           "in the flag, scan-count and time channels nor in all-zero channels")
+    msg += f"; zeros made NaN in: {', '.join(hit)}" if hit else "; no other channel holds a 0"
+    warnings.warn(msg, stacklevel=3)
+    return n_bad
+
+
+def _strip_label_line(piece: bytes) -> tuple[list[str] | None, bytes]:
+    """The column labels of a label line right after ``*END*`` (:func:`_is_label_line`; some tools write one)
+    and ``piece`` with that line blanked (line numbers kept); ``(None, piece)`` without one."""
+    a = 0
+    while a < len(piece):
+        b = piece.find(b"\n", a)
+        b = len(piece) if b < 0 else b
+        line = piece[a:b].decode("latin-1")
+        if line.strip():
+            if not _is_label_line(line):
+                return None, piece
+            return line.split(), piece[:a] + piece[b:]
+        a = b + 1
+    return None, piece
+
+
+def read_cnv(path: str | Path) -> pd.DataFrame:
+    """Read a Sea-Bird ``.cnv`` file into a DataFrame with the file's column names.
+
+    ``df.attrs`` holds the header (all JSON-serialisable):
+
+    * ``source`` (path), ``instrument`` (first header line, e.g. ``Sea-Bird SBE 9 Data File:``);
+    * ``channels``: list of ``{index, name, column, long_name, units, span}`` (``units`` is the bracketed
+      text, e.g. ``"ITS-90, deg C"``, ``"db"``, ``"S/m"``; ``span`` the header ``[lo, hi]`` or ``None``);
+      ``units``: ``{column: units}``;
+    * ``latitude_deg`` / ``longitude_deg``: decimal degrees from ``* NMEA Latitude = ...`` /
+      ``** Latitude: ...`` lines (``None`` when absent or unreadable);
+    * ``start_time_utc`` (ISO-8601, ``None`` when absent), ``start_time_note`` (SeaSoft's bracket text),
+      ``nmea_utc`` when present;
+    * ``interval``: ``{"kind": "decibars"|"seconds"|..., "value": float}``;
+    * ``bad_flag`` (float; those values became NaN; ``bad_flag = 0`` is ambiguous and applied only where a 0 can
+      mean "bad", never in the ``flag``/count/time channels, with a warning: :func:`_apply_zero_bad_flag`),
+      ``bad_values`` (count replaced);
+    * ``processing``: SeaSoft processing lines in file order, ``[[key, value], ...]``
+      (``datcnv_date``, ``wildedit_vars``, ``Derive_in``, ...);
+    * ``sensors`` (``# sensor i = ...`` lines), ``user_header`` (``**`` lines), ``instrument_header``;
+    * ``nquan``, ``nvalues_declared``, ``nvalues`` (rows read), ``rows_dropped`` (line numbers of
+      unparseable data lines, dropped with a warning).
+
+    The header's ``nvalues`` is only a capacity hint, capped by the body size (or 64 MiB for compressed input),
+    never trusted for memory; a count that disagrees with the rows is a warning.
+
+    Raises :class:`~hadal.errors.InputError` (one line, naming the file) when the file is missing, empty,
+    has no ``*END*`` line, no ``# name`` lines, or no readable data rows (naming a column-count mismatch: rows
+    of N values under a header of M columns).
+    """
+    path = Path(path)
+    pieces = _pieces(path)
+    compression, file_size = next(pieces)
+    header: list[str] = []
+    hdr: dict[str, Any] | None = None
+    sink: _RowSink | None = None
+    column_labels: list[str] | None = None
+    labels_checked = False
+    line_no = 1  # number of the next line
+    any_content = False
+    for piece in pieces:
+        any_content = any_content or bool(piece.strip())
+        if hdr is None:
+            lines = piece.decode("latin-1").split("\n")
+            if lines and lines[-1] == "":
+                lines.pop()  # the piece ends with a line end
+            k = next((i for i, ln in enumerate(lines) if ln.strip().upper() == "*END*"), None)
+            if k is None:
+                header.extend(lines)
+                line_no += len(lines)
+                continue
+            header.extend(lines[:k])
+            line_no += k + 1
+            hdr = _parse_header(header, path)
+            header_bytes = sum(len(x) + 1 for x in header) + len(lines[k]) + 1
+            sink = _RowSink(hdr["nquan"], hdr["bad_flag"], hdr["nvalues_hint"],
+                            None if compression is not None or file_size is None
+                            else max(file_size - header_bytes, 0))
+            rest = lines[k + 1:]
+            piece = ("\n".join(rest) + "\n").encode("latin-1") if rest else b""
+            if not piece:
+                continue
+        assert sink is not None
+        if not labels_checked and piece.strip():
+            labels_checked = True
+            column_labels, piece = _strip_label_line(piece)
+        try:
+            sink.feed(piece, line_no)
+        except MemoryError:  # a body (decompressed) too large for this machine: one line, not a traceback
+            raise InputError(f"{path}: CNV body too large to hold in memory ({sink.n:,}+ scans x {sink.nquan} "
+                             f"channels read so far, line {line_no})") from None
+        line_no += piece.count(b"\n") + (0 if piece.endswith(b"\n") else 1)
+    if not any_content:
+        raise InputError(f"{path}: CNV file is empty")
+    if hdr is None or sink is None:
+        raise InputError(f"{path}: not a Sea-Bird .cnv file (no '*END*' line after the header)")
+    h = hdr
+    names, spans, kv, processing = h["names"], h["spans"], h["kv"], h["processing"]
+    sensors, user, instr, comments = h["sensors"], h["user"], h["instr"], h["comments"]
+    xml_lines, lat, lon = h["xml_lines"], h["lat"], h["lon"]
+    lat_src, lon_src, nmea_utc = h["lat_src"], h["lon_src"], h["nmea_utc"]
+    nquan, columns, bad_flag = h["nquan"], h["columns"], h["bad_flag"]
+    data, bad_lines, n_bad, bad_counts = sink.result(), sink.bad_lines, sink.n_bad, sink.bad_counts
+    del sink
+    mismatch = ""
+    if bad_counts:
+        k_top = max(bad_counts, key=lambda k: bad_counts[k])
+        if k_top and k_top != nquan:
+            mismatch = (f"; {bad_counts[k_top]} of them have {k_top} values, the header declares {nquan} columns "
+                        f"('# nquan = {kv.get('nquan', '?')}', {len(names)} '# name' lines)")
+    if data.shape[0] == 0:
+        raise InputError(f"{path}: CNV file has no readable data rows after '*END*'"
+                         + (f": rows have {k_top} values, the header declares {nquan} columns "
+                            f"('# nquan = {kv.get('nquan', '?')}', {len(names)} '# name' lines)" if mismatch else ""))
+    if bad_lines:
+        warnings.warn(
+            f"{path.name}: dropped {len(bad_lines)} unreadable data line(s) (first at line {bad_lines[0]}){mismatch}",
+            stacklevel=2,
+        )
+    if bad_flag == 0:
+        n_bad = _apply_zero_bad_flag(data, columns, path)
+    df = pd.DataFrame(data, columns=columns, copy=False)
 
     channels = []
     for i in range(nquan):
@@ -502,11 +745,50 @@ def _ns(x_ns: np.ndarray, origin: int = 0) -> np.ndarray:
     return out
 
 
+def _timej_ns(jd: np.ndarray, start: pd.Timestamp) -> np.ndarray:
+    """``timeJ`` (SeaSoft Julian day: 1.0 = Jan 1 00:00 of the year) as int64 ns, across New Year.
+
+    timeJ carries no year. The first valid scan's year is the start_time's year, or the one before/after when
+    its day is more than half a year from the start's day (a start_time of Jan 1 00:00:30 with scans from Dec 31).
+    Then every drop of more than half a year between consecutive valid scans is a New Year: the days after it
+    count from Jan 1 of the next year (a cast from Dec 31 23:59 to Jan 1 00:01 once had its last minute dated
+    364 days before its start)."""
+    jd = np.asarray(jd, dtype=np.float64)
+    ok = np.flatnonzero(np.isfinite(jd))
+    out_days = np.full(jd.shape, np.nan)
+    if ok.size:
+        start_day = (start - pd.Timestamp(year=start.year, month=1, day=1, tz="UTC")).total_seconds() / 86400 + 1
+        year = start.year
+        half = 366 / 2
+        if jd[ok[0]] < start_day - half:
+            year += 1
+        elif jd[ok[0]] > start_day + half:
+            year -= 1
+        v = jd[ok]
+        # index (into v) of each New Year: a drop of more than half a year
+        wraps = np.flatnonzero(np.diff(v) < -half) + 1
+        base = pd.Timestamp(year=year, month=1, day=1, tz="UTC")
+        offsets = np.zeros(v.size)  # days from ``base`` to Jan 1 of each scan's year
+        off = 0.0
+        y = year
+        for w in wraps:
+            off += 366.0 if _is_leap(y) else 365.0
+            y += 1
+            offsets[w:] = off
+        out_days[ok] = v - 1.0 + offsets
+        return _ns(out_days * 86400e9, base.value)
+    return _ns(out_days, 0)
+
+
+def _is_leap(y: int) -> bool:
+    return y % 4 == 0 and (y % 100 != 0 or y % 400 == 0)
+
+
 def cnv_time_ns(df: pd.DataFrame) -> tuple[np.ndarray, str]:
     """Sample times (int64 ns since the Unix epoch) of a :func:`read_cnv` frame and how they were found.
 
     ``timeS`` (elapsed s) + ``start_time``; ``timeY`` (Unix s); ``timeJ`` (day of year, 1 = Jan 1 00:00, of
-    the start year); else a time-interval file (``# interval = seconds: dt``) gives ``start + i * dt``.
+    the start year, rolled into the next year at a New Year: :func:`_timej_ns`); else a time-interval file (``# interval = seconds: dt``) gives ``start + i * dt``.
     Pressure-binned files without a time channel raise :class:`InputError`.
     """
     a = df.attrs
@@ -517,8 +799,7 @@ def cnv_time_ns(df: pd.DataFrame) -> tuple[np.ndarray, str]:
     if start is not None and "timeS" in df:
         return _ns(df["timeS"].to_numpy(dtype=np.float64) * 1e9, start.value), "start_time + timeS"
     if start is not None and "timeJ" in df:
-        jan1 = pd.Timestamp(year=start.year, month=1, day=1, tz="UTC").value
-        return _ns((df["timeJ"].to_numpy(dtype=np.float64) - 1.0) * 86400e9, jan1), "start year + timeJ"
+        return _timej_ns(df["timeJ"].to_numpy(dtype=np.float64), start), "start year + timeJ"
     iv = a.get("interval") or {}
     if start is not None and iv.get("kind") == "seconds" and iv.get("value", 0) > 0:
         dt_ns = int(round(iv["value"] * 1e9))
@@ -557,8 +838,6 @@ def cnv_sensor_samples(df: pd.DataFrame, name: str = "ctd", *, allow_no_time: bo
     if n_bad_t == len(df) and len(df):
         raise InputError(f"{path}: every scan's time ({how}) is bad_flag or not a number: no time base")
     if n_bad_t:
-        import warnings
-
         warnings.warn(f"{Path(path).name}: dropped {n_bad_t} of {len(df)} scan(s) whose time ({how}) is bad_flag "
                       "or not a number", stacklevel=2)
         df = df.loc[~bad_t]
@@ -569,7 +848,12 @@ def cnv_sensor_samples(df: pd.DataFrame, name: str = "ctd", *, allow_no_time: bo
         col = next(((c, u) for c, u in table if c in df.columns), None)
         if col is None:
             raise InputError(f"{path}: no {var.split('_')[0]} channel (looked for {', '.join(c for c, _ in table)})")
-        v, rec = convert(df[col[0]].to_numpy(dtype=np.float64), col[1], var)
+        raw = df[col[0]].to_numpy(dtype=np.float64)
+        if len(raw) and not np.isfinite(raw).any():
+            warnings.warn(f"{Path(path).name}: CTD {var.split('_')[0]} channel '{col[0]}' has no valid value on any "
+                          f"of its {len(raw)} scan(s) (all bad_flag or not a number): published as missing "
+                          "throughout", stacklevel=2)
+        v, rec = convert(raw, col[1], var)
         values[var] = v
         used[var] = col[0]
         if rec:

@@ -8,7 +8,6 @@ e.g. an altimeter dropout) and are kept.
 
 from __future__ import annotations
 
-import io
 import warnings
 from pathlib import Path
 from typing import Any
@@ -17,13 +16,21 @@ import numpy as np
 import pandas as pd
 
 from hadal.errors import InputError
-from hadal.formats import read_bytes
+from hadal.formats import decompress_errors, open_binary, read_head, text_encoding_of
 from hadal.ingest.align import time_unit_hint
 from hadal.ingest.units import CANONICAL_UNITS, TRANSFORMS, apply_transform, convert
 from hadal.ingest.vehicle import CsvSource, FieldMap, McapSource
+from hadal.textstream import (
+    MAX_LINE_BYTES,
+    GrowableColumn,
+    LineScan,
+    ScannedStream,
+    check_line_lengths,
+    count_nonblank_lines,
+)
 
 __all__ = ["describe_csv", "parse_time", "read_sensor_csv", "SensorSamples", "sensor_from_records", "field_getter",
-           "map_variable"]
+           "map_variable", "check_line_lengths", "count_nonblank_lines", "MAX_LINE_BYTES", "LineScan"]
 
 
 class SensorSamples:
@@ -66,66 +73,80 @@ def parse_time(values: Any, fmt: str) -> np.ndarray:
     return t.dt.as_unit("ns").to_numpy(dtype="datetime64[ns]").astype(np.int64)
 
 
-#: the longest line a text reader accepts: a row of a vehicle log or a .cnv data line is well under 1 KiB, so a
-#: line of 1 MiB is not a row (a file without newlines, a binary blob, a runaway writer) and is refused, before
-#: anything is parsed (pandas would hold it several times over)
-MAX_LINE_BYTES = 1 << 20
-_SCAN_BLOCK = 16 << 20
-
-
-def _newlines(raw: bytes):
-    """(block start, positions of b"\\n" in the block) for blocks of :data:`_SCAN_BLOCK` bytes: a scan costing
-    a few MiB whatever the file size."""
-    buf = np.frombuffer(raw, dtype=np.uint8)
-    for start in range(0, buf.size, _SCAN_BLOCK):
-        yield start, np.flatnonzero(buf[start:start + _SCAN_BLOCK] == 10) + start
-
-
-def check_line_lengths(raw: bytes, path: str | Path, what: str = "line", limit: int | None = None) -> None:
-    """One-line :class:`InputError` when a line of ``raw`` is longer than ``limit`` (default
-    :data:`MAX_LINE_BYTES`)."""
-    limit = MAX_LINE_BYTES if limit is None else limit
-
-    def too_long(a: int, n: int) -> bool:  # a line of n bytes at a; old-Mac '\\r' line ends are line ends too
-        if n <= limit:
-            return False
-        return raw.find(b"\r", a, a + n) < 0 or max(map(len, raw[a:a + n].split(b"\r"))) > limit
-
-    def refuse(line_no: int, n: int) -> None:
-        raise InputError(f"{path}: line {line_no} is {n:,} bytes long: not a {what} (the limit is {limit:,} bytes; "
-                         "is this really a text file with one record a line?)")
-
-    prev, line_no = -1, 1
-    for _start, nl in _newlines(raw):
-        ends = np.concatenate([[prev], nl])
-        lengths = np.diff(ends) - 1
-        for k in np.flatnonzero(lengths > limit):
-            if too_long(int(ends[k]) + 1, int(lengths[k])):
-                refuse(line_no + int(k), int(lengths[k]))
-        line_no += nl.size
-        if nl.size:
-            prev = int(nl[-1])
-    if too_long(prev + 1, len(raw) - 1 - prev):
-        refuse(line_no, len(raw) - 1 - prev)
-
-
-def count_nonblank_lines(raw: bytes) -> int:
-    """Lines of ``raw`` holding something other than white space (``str.splitlines`` on ``\\n``/``\\r\\n``)."""
-    n, prev = 0, -1
-    for _start, nl in _newlines(raw):
-        ends = np.concatenate([[prev], nl])
-        lengths = np.diff(ends) - 1
-        n += int((lengths > 8).sum())
-        for k in np.flatnonzero((lengths > 0) & (lengths <= 8)):  # short lines: maybe only blanks or '\\r'
-            a = int(ends[k]) + 1
-            n += bool(raw[a:a + int(lengths[k])].strip())
-        if nl.size:
-            prev = int(nl[-1])
-    return n + bool(raw[prev + 1:].strip())
-
-
 def _nat_mask(t: np.ndarray) -> np.ndarray:
     return t == np.iinfo(np.int64).min
+
+
+#: rows parsed per chunk by :func:`read_sensor_csv` (a chunk's text columns cost ~60 B a cell as Python strings)
+CSV_CHUNK_ROWS = 200_000
+_EMPTY_CELLS = ["", "nan", "NaN", "NA", "null", "None"]
+
+
+def csv_head(path: Path, what: str = "CSV") -> tuple[bytes, str | None]:
+    """The first (decompressed) :data:`MAX_LINE_BYTES` of a text table and its compression, with the one-line
+    errors of :func:`hadal.formats.read_bytes` (missing, unreadable, empty, binary)."""
+    if not path.is_file():
+        raise InputError(f"{path}: {what} file does not exist")
+    try:
+        head, compression = read_head(path, MAX_LINE_BYTES + 1)
+    except OSError as exc:
+        raise InputError(f"{path}: cannot read {what} file ({exc.strerror or exc})") from None
+    if not head.strip():
+        raise InputError(f"{path}: {what} file is empty")
+    if b"\x00" in head[:4096]:
+        raise InputError(f"{path}: not a {what} file (binary content)")
+    return head, compression
+
+
+def _csv_chunks(path: Path, sep: str, compression: str | None, scan: LineScan | None = None, **kw: Any):
+    """``pandas.read_csv`` chunks of the (decompressed) stream (``nrows``: one frame), damaged streams and parser
+    failures as one-line errors. With ``scan``, the stream passes through it (line lengths, row count)."""
+    kw = {"dtype": str, "keep_default_na": False, "encoding": "utf-8", **kw}
+    with open_binary(path) as fh, decompress_errors(path, compression, "CSV"):
+        try:
+            reader = pd.read_csv(fh if scan is None else ScannedStream(fh, scan), sep=sep, on_bad_lines="skip",
+                                 skipinitialspace=True, engine="c", encoding_errors="replace", **kw)
+            if "chunksize" not in kw:
+                yield reader
+                return
+            with reader:
+                yield from reader
+        except InputError:
+            raise
+        except (pd.errors.ParserError, pd.errors.EmptyDataError, ValueError) as exc:
+            raise InputError(f"{path}: not a readable CSV file ({str(exc).splitlines()[0]})") from None
+
+
+def _leading_comments(head: bytes, encoding: str) -> tuple[int, int, str]:
+    """Lines above the header that are ``#`` comments (or blank) - skipped, as loggers write a
+    ``# logged by ...`` preamble: their number, the number of non-blank ones, and the header line itself
+    (from the first bytes ``head``)."""
+    lines = head.decode(encoding, errors="replace").lstrip("\ufeff").splitlines()
+    n = 0
+    while n < len(lines) and (not lines[n].strip() or lines[n].lstrip().startswith("#")):
+        n += 1
+    n_text = sum(1 for x in lines[:n] if x.strip())
+    if not (n < len(lines) and n_text):
+        return 0, 0, (lines[0] if lines else "")
+    return n, n_text, lines[n]
+
+
+def _check_header(path: Path, line: str, delimiter: str, needed: list[str], sensor: str) -> None:
+    """A mapped column named twice in the raw header line is ambiguous (pandas would rename the second one
+    ``name.1`` and the first would be used silently): one-line :class:`InputError` naming it."""
+    import csv
+    from collections import Counter
+
+    try:
+        names = [c.strip() for c in next(csv.reader([line], delimiter=delimiter, skipinitialspace=True))]
+    except (csv.Error, StopIteration):
+        return
+    count = Counter(names)
+    dup = [c for c in dict.fromkeys(needed) if count.get(c, 0) > 1]
+    if dup:
+        pos = [i + 1 for i, c in enumerate(names) if c == dup[0]]
+        raise InputError(f"{path}: column {dup[0]!r} (mapped for sensor {sensor!r}) appears {count[dup[0]]} times "
+                         f"in the header (columns {', '.join(map(str, pos))}): ambiguous - rename or remove one")
 
 
 def read_sensor_csv(path: str | Path, mapping: CsvSource, sensor: str = "sensor") -> SensorSamples:
@@ -133,80 +154,127 @@ def read_sensor_csv(path: str | Path, mapping: CsvSource, sensor: str = "sensor"
 
     Raises :class:`InputError` when the file is missing/empty, has no header, lacks a mapped column, or
     has no usable row. Corrupt rows are dropped with a warning (count in ``stats["corrupt_rows"]``).
+
+    Memory: the file is never held whole. It is read once, as a stream: a :class:`LineScan` on the way bounds
+    the line length and counts the rows, and pandas parses :data:`CSV_CHUNK_ROWS` rows at a time, of which the
+    good rows of the mapped columns are kept as numbers. Peak memory is the decoded numbers plus one chunk.
     """
     path = Path(path)
-    raw = read_bytes(path, "CSV", text=True)[0]
-    # no decoded copy of the whole text (and no list of its lines): a bounded line length, the non-blank lines
-    # counted in blocks, pandas reads the bytes itself
-    check_line_lengths(raw, path, "CSV row")
-    n_lines = count_nonblank_lines(raw)
-    try:
-        df = pd.read_csv(io.BytesIO(raw), sep=mapping.delimiter, dtype=str, keep_default_na=False,
-                         on_bad_lines="skip", skipinitialspace=True, engine="c", encoding="utf-8",
-                         encoding_errors="replace")
-    except (pd.errors.ParserError, pd.errors.EmptyDataError, ValueError) as exc:
-        raise InputError(f"{path}: not a readable CSV file ({str(exc).splitlines()[0]})") from None
-    df.columns = [str(c).strip() for c in df.columns]
+    head, compression = csv_head(path)
+    scan = LineScan(path, "CSV row")
+    scan_head = LineScan(path, "CSV row")
+    scan_head.feed(head)  # the header line itself is bounded before pandas reads it
+    encoding = text_encoding_of(head)
+    n_comment, n_comment_text, header_line = _leading_comments(head, encoding)
+    skip = {"skiprows": n_comment} if n_comment else {}
+    header = next(_csv_chunks(path, mapping.delimiter, compression, nrows=0, encoding=encoding, **skip))
+    columns = [str(c).strip() for c in header.columns]
     needed = [mapping.time.field] + [f for fm in mapping.fields.values() for f in fm.inputs()]
     if mapping.valid_field:
         needed.append(mapping.valid_field)
-    missing = [c for c in needed if c not in df.columns]
+    _check_header(path, header_line, mapping.delimiter, needed, sensor)
+    missing = [c for c in needed if c not in columns]
     if missing:
+        why = ""
+        if len(columns) == 1:
+            other = [d for d in (";", "\t", ",", "|") if d != mapping.delimiter and d in columns[0]]
+            if other:
+                shown = {"\t": "\\t"}.get(other[0], other[0])
+                why = (f": the header is one column {columns[0][:60]!r}: is the delimiter {shown!r}? set "
+                       f"csv.delimiter: {shown!r} for sensor {sensor!r} in vehicle.yaml")
         raise InputError(f"{path}: missing column(s) {', '.join(repr(c) for c in missing)} required by the "
-                         f"vehicle config for sensor {sensor!r} (have: {', '.join(df.columns[:12])})")
-    bad_shape = max(n_lines - 1 - len(df), 0)  # rows pandas skipped for a wrong field count
-
-    tcol = df[mapping.time.field].str.strip()
-    t = parse_time(tcol, mapping.time.format)
-    bad_time = _nat_mask(t)
-    corrupt = bad_time.copy()
-    values: dict[str, np.ndarray] = {}
-    conversions = []
+                         f"vehicle config for sensor {sensor!r} (have: {', '.join(columns[:12])}){why}")
+    capacity = max(path.stat().st_size // 64, 1024)  # a first guess of the rows; the columns grow as needed
+    t_out = GrowableColumn(capacity, np.int64)
+    inputs = [(var, f) for var, fm in mapping.fields.items() for f in fm.inputs()]
+    num_out = {vf: GrowableColumn(capacity, np.float64) for vf in inputs}
+    ok_out = GrowableColumn(capacity, np.bool_) if mapping.valid_field else None
     per_col: dict[str, dict[str, Any]] = {}
-    for var, fm in mapping.fields.items():
-        cols = []
-        for f in fm.inputs():
-            col = df[f].str.strip()
-            empty = col.isin(["", "nan", "NaN", "NA", "null", "None"])
-            num = pd.to_numeric(col.where(~empty, None), errors="coerce").to_numpy(dtype=np.float64)
-            bad = np.isnan(num) & ~empty.to_numpy()
+    n_rows = n_bad_time = n_rejected = 0
+    bad_time_values: list[np.ndarray] = []
+    # numbers are parsed by pandas' C parser (a column with any other cell comes back as text and is checked
+    # cell by cell); the time column stays text unless it is a plain number, the validity column always.
+    # Every column is parsed (``usecols`` would hide rows with too many fields from ``on_bad_lines``); a
+    # chunk's unmapped columns are dropped with it.
+    raw_name = {str(c).strip(): c for c in header.columns}
+    as_text = [mapping.valid_field] if mapping.valid_field else []
+    if not mapping.time.format.startswith("unix_"):
+        as_text.append(mapping.time.field)
+    for chunk in _csv_chunks(path, mapping.delimiter, compression, scan, chunksize=CSV_CHUNK_ROWS,
+                             dtype={raw_name[c]: str for c in as_text}, na_values=_EMPTY_CELLS, encoding=encoding,
+                             **skip):
+        chunk.columns = [str(c).strip() for c in chunk.columns]
+        n_rows += len(chunk)
+        tcol = chunk[mapping.time.field]
+        if tcol.dtype.kind not in "iuf":
+            tcol = tcol.astype(object).where(tcol.notna(), "").astype(str).str.strip()
+        t = parse_time(tcol, mapping.time.format)
+        bad_time = _nat_mask(t)
+        corrupt = bad_time.copy()
+        nums = {}
+        for var, f in inputs:
+            col = chunk[f]
+            if col.dtype.kind in "iuf":  # pandas parsed every cell as a number (or one of the empty cells)
+                num, bad = col.to_numpy(dtype=np.float64), np.zeros(len(col), dtype=bool)
+            else:  # some cell is not a number: find which, never coerce ('true' is not 1.0)
+                col = col.astype(object).where(col.notna(), "").astype(str).str.strip()
+                empty = col.isin(_EMPTY_CELLS)
+                num = pd.to_numeric(col.where(~empty, None), errors="coerce").to_numpy(dtype=np.float64)
+                bad = np.isnan(num) & ~empty.to_numpy()
             if bad.any():  # 'true', '[1.5]', '{}', '3,2', 'abc': rejected (the row), never coerced
-                per_col[f] = {"variable": var, "count": int(bad.sum()),
-                              "examples": sorted({str(x)[:20] for x in col[bad].head(50)})[:3]}
+                d = per_col.setdefault(f, {"variable": var, "count": 0, "examples": []})
+                d["variable"] = var
+                d["count"] += int(bad.sum())
+                if len(d["examples"]) < 3:
+                    d["examples"] = sorted(set(d["examples"]) | {str(x)[:20] for x in col[bad].head(50)})[:3]
             corrupt |= bad
-            cols.append(num)
-        values[var], recs = map_variable(var, fm, cols, sensor, f"csv:{path.name}")
-        conversions.extend(recs)
-    if mapping.valid_field:
-        ok = df[mapping.valid_field].str.strip().str.lower().isin(["1", "true", "yes", "t"]).to_numpy()
-        for var in values:
-            values[var] = np.where(ok, values[var], np.nan)
-    n_corrupt = int(corrupt.sum()) + bad_shape
+            nums[(var, f)] = num
+        if bad_time.any() and mapping.time.format.startswith("unix_"):
+            bad_time_values.append(pd.to_numeric(tcol[bad_time], errors="coerce").to_numpy(np.float64))
+        n_bad_time += int(bad_time.sum())
+        n_rejected += int((corrupt & ~bad_time).sum())
+        keep = ~corrupt
+        t_out.extend(t[keep])
+        for vf, num in nums.items():
+            num_out[vf].extend(num[keep])
+        if ok_out is not None:
+            ok = chunk[mapping.valid_field].fillna("").str.strip().str.lower().isin(["1", "true", "yes", "t"])
+            ok = ok.to_numpy()
+            ok_out.extend(ok[keep])
+        del chunk, nums
+    n_lines = scan.finish()
+    bad_shape = max(n_lines - 1 - n_comment_text - n_rows, 0)  # rows pandas skipped for a wrong field count
+    n_corrupt = n_bad_time + n_rejected + bad_shape
     hint = None
-    if bad_time.any() and mapping.time.format.startswith("unix_"):
-        hint = time_unit_hint(pd.to_numeric(tcol[bad_time], errors="coerce").to_numpy(np.float64),
-                              mapping.time.format)
+    if bad_time_values:
+        hint = time_unit_hint(np.concatenate(bad_time_values), mapping.time.format)
     if n_corrupt:
         parts = []
         if bad_shape:
             parts.append(f"{bad_shape} with a wrong number of fields")
-        if bad_time.any():
-            parts.append(f"{int(bad_time.sum())} with an unparseable time in {mapping.time.field!r} "
+        if n_bad_time:
+            parts.append(f"{n_bad_time} with an unparseable time in {mapping.time.field!r} "
                          f"({mapping.time.format}{'; it ' + hint if hint else ''})")
         if per_col:
             parts.append("non-numeric values: " + "; ".join(
                 f"{c}: {d['count']} (e.g. {', '.join(repr(x) for x in d['examples'])})" for c, d in per_col.items()))
         warnings.warn(f"{path.name}: dropped {n_corrupt} corrupt row(s) of {n_lines - 1} ({'; '.join(parts)})",
                       stacklevel=2)
-    keep = ~corrupt
-    if not keep.any():
-        raise InputError(f"{path}: no usable rows (all {len(df)} rows have an unparseable time or value"
+    if t_out.n == 0:
+        raise InputError(f"{path}: no usable rows (all {n_rows} rows have an unparseable time or value"
                          + (f"; time column {mapping.time.field!r} {hint}" if hint else "") + ")")
-    stats = {"rows": int(n_lines - 1), "corrupt_rows": n_corrupt, "bad_times": int(bad_time.sum()),
-             "wrong_field_count": bad_shape, "rejected_samples": int((corrupt & ~bad_time).sum()),
+    values: dict[str, np.ndarray] = {}
+    conversions = []
+    for var, fm in mapping.fields.items():
+        cols = [num_out.pop((var, f)).values() for f in fm.inputs()]
+        values[var], recs = map_variable(var, fm, cols, sensor, f"csv:{path.name}")
+        conversions.extend(recs)
+        if ok_out is not None:
+            values[var] = np.where(ok_out.values(), values[var], np.nan)
+    stats = {"rows": int(n_lines - 1 - n_comment_text), "comment_lines": n_comment_text, "corrupt_rows": n_corrupt, "bad_times": n_bad_time,
+             "wrong_field_count": bad_shape, "rejected_samples": n_rejected,
              "rejected_values": per_col, "time_field": mapping.time.field, "time_format": mapping.time.format}
-    return SensorSamples(sensor, t[keep], {k: v[keep] for k, v in values.items()}, f"csv:{path.name}",
-                         stats, conversions)
+    return SensorSamples(sensor, t_out.values(), values, f"csv:{path.name}", stats, conversions)
 
 
 def field_getter(path: str) -> Any:
@@ -464,55 +532,76 @@ def describe_csv(path: str | Path, *, sample_rows: int = 2000) -> dict[str, Any]
     import csv as _csv
 
     path = Path(path)
-    text = read_bytes(path, "CSV", text=True)[0].decode("utf-8-sig", errors="replace")
-    lines = [ln for ln in text.splitlines() if ln.strip()]
-    head = "\n".join(lines[:50])
+    head, compression = csv_head(path)
+    LineScan(path, "CSV row").feed(head)
+    encoding = text_encoding_of(head)
+    text = head.decode("utf-8-sig" if encoding == "utf-8" else encoding, errors="replace")
+    lines = [ln for ln in text.splitlines()[:200] if ln.strip()]
+    sniff = "\n".join(lines[:50])
     try:
-        delim = _csv.Sniffer().sniff(head, delimiters=",;\t|").delimiter
+        delim = _csv.Sniffer().sniff(sniff, delimiters=",;\t|").delimiter
     except _csv.Error:
         counts = {d: lines[0].count(d) for d in ",;\t|"}
         delim = max(counts, key=counts.__getitem__) if max(counts.values()) else ","
-    try:
-        df = pd.read_csv(io.StringIO(text), sep=delim, dtype=str, keep_default_na=False, on_bad_lines="skip",
-                         skipinitialspace=True, engine="c")
-    except (pd.errors.ParserError, pd.errors.EmptyDataError, ValueError) as exc:
-        raise InputError(f"{path}: not a readable CSV file ({str(exc).splitlines()[0]})") from None
-    columns = [str(c).strip() for c in df.columns]
-    df.columns = columns
-    if not columns or all(pd.to_numeric(pd.Series(columns), errors="coerce").notna()):
-        raise InputError(f"{path}: no header row (the first line holds numbers, not column names)")
-    sample = {c: str(v) for c, v in zip(columns, df.iloc[0].tolist(), strict=True)} if len(df) else {}
-    numeric, first_values = [], {}
-    head_df = df.head(sample_rows)
-    for c in columns:
-        col = df[c].str.strip()
-        filled = col[~col.isin(["", "nan", "NaN", "NA", "null", "None"])]
-        if len(filled):
-            first_values[c] = str(filled.iloc[0])
-            if pd.to_numeric(filled.head(sample_rows), errors="coerce").notna().mean() > 0.95:
-                numeric.append(c)
-    # the time column: a time-like name first, then any column whose values parse as times
-    by_name = sorted((c for c in columns if c.lower() in _TIME_NAMES), key=lambda c: _TIME_NAMES.index(c.lower()))
-    candidates = by_name + [c for c in columns if c not in by_name and c not in numeric] + \
-        [c for c in columns if c not in by_name and c in numeric]
+    # one streamed pass in chunks: the first chunk gives the columns, the sample row, which columns are numeric
+    # and the time column; every chunk adds its rows, first values still missing and its time span
+    columns: list[str] = []
+    sample: dict[str, str] = {}
+    numeric: list[str] = []
+    first_values: dict[str, str] = {}
     tcol, tfmt = None, None
-    for c in candidates:
-        fmt = _guess_time_format(head_df[c].tolist())
-        if fmt is not None and (c in by_name or fmt == "iso8601" or c.lower().startswith(("time", "unix", "epoch"))):
-            tcol, tfmt = c, fmt
-            break
+    n_rows, n_t, t0, t1 = 0, 0, None, None
+    for k, df in enumerate(_csv_chunks(path, delim, compression, LineScan(path, "CSV row"),
+                                       chunksize=max(sample_rows, CSV_CHUNK_ROWS),
+                                       encoding="utf-8-sig" if encoding == "utf-8" else encoding)):
+        df.columns = [str(c).strip() for c in df.columns]
+        if k == 0:
+            columns = list(df.columns)
+            if not columns or all(pd.to_numeric(pd.Series(columns), errors="coerce").notna()):
+                raise InputError(f"{path}: no header row (the first line holds numbers, not column names)")
+            sample = {c: str(v) for c, v in zip(columns, df.iloc[0].tolist(), strict=True)} if len(df) else {}
+        n_rows += len(df)
+        for c in columns:
+            if c not in first_values:  # its first values: numeric when 95 % of (up to) sample_rows of them are
+                col = df[c].str.strip()
+                filled = col[~col.isin(_EMPTY_CELLS)]
+                if len(filled):
+                    first_values[c] = str(filled.iloc[0])
+                    if pd.to_numeric(filled.head(sample_rows), errors="coerce").notna().mean() > 0.95:
+                        numeric.append(c)
+        if k == 0:
+            tcol, tfmt = _time_column(columns, numeric, df.head(sample_rows))
+        if tcol is not None:
+            t = parse_time(df[tcol].str.strip(), tfmt)
+            t = t[~_nat_mask(t)]
+            if t.size:
+                n_t += t.size
+                t0 = int(t.min()) if t0 is None else min(t0, int(t.min()))
+                t1 = int(t.max()) if t1 is None else max(t1, int(t.max()))
+    if not columns:
+        raise InputError(f"{path}: not a readable CSV file (no columns)")
+    numeric = [c for c in columns if c in set(numeric)]
     out: dict[str, Any] = {
         "path": str(path), "format": "csv", "size_bytes": path.stat().st_size, "delimiter": delim, "columns": columns,
-        "sample_row": sample, "first_values": first_values, "rows": int(len(df)), "numeric_columns": numeric,
+        "sample_row": sample, "first_values": first_values, "rows": int(n_rows), "numeric_columns": numeric,
         "time_column": tcol, "time_format": tfmt, "start_time": None, "end_time": None, "duration_s": None,
         "rate_hz": None,
     }
-    if tcol is not None:
-        t = parse_time(df[tcol].str.strip(), tfmt)
-        t = t[~_nat_mask(t)]
-        if t.size:
-            t0, t1 = int(t.min()), int(t.max())
-            iso = [str(np.datetime64(x, "ns").astype("datetime64[ms]")) + "Z" for x in (t0, t1)]
-            out.update(start_time=iso[0], end_time=iso[1], duration_s=(t1 - t0) / 1e9,
-                       rate_hz=(t.size - 1) / ((t1 - t0) / 1e9) if t1 > t0 else None)
+    if n_t and t0 is not None and t1 is not None:
+        iso = [str(np.datetime64(x, "ns").astype("datetime64[ms]")) + "Z" for x in (t0, t1)]
+        out.update(start_time=iso[0], end_time=iso[1], duration_s=(t1 - t0) / 1e9,
+                   rate_hz=(n_t - 1) / ((t1 - t0) / 1e9) if t1 > t0 else None)
     return out
+
+
+def _time_column(columns: list[str], numeric: list[str], head_df: pd.DataFrame) -> tuple[str | None, str | None]:
+    """The time column of a table and its format: a time-like name first, then any column whose values parse
+    as times."""
+    by_name = sorted((c for c in columns if c.lower() in _TIME_NAMES), key=lambda c: _TIME_NAMES.index(c.lower()))
+    candidates = by_name + [c for c in columns if c not in by_name and c not in numeric] + \
+        [c for c in columns if c not in by_name and c in numeric]
+    for c in candidates:
+        fmt = _guess_time_format(head_df[c].tolist())
+        if fmt is not None and (c in by_name or fmt == "iso8601" or c.lower().startswith(("time", "unix", "epoch"))):
+            return c, fmt
+    return None, None

@@ -14,6 +14,14 @@ that a damaged record does not cost the rest of the file:
 
 The result is a :class:`McapReport` (JSON-able via :meth:`McapReport.as_dict`) recorded in the product
 metadata; a warning is issued whenever messages were lost.
+
+Speed (issue 19): files of 4 MiB or more walk their chunks with compiled kernels
+(:mod:`hadal.ingest._mcap_kernels`: record framing and per-channel payload gathering, no Python object
+per message until decoding), each chunk's payloads of a channel become one JSON array text decoded by
+msgspec in one call (json.loads where msgspec refuses what json accepts, message by message where a
+payload is corrupt), and ROS 2 CDR types of fixed size are decoded column-wise with NumPy
+(:func:`_decode_cdr_fixed`); :func:`_parse_chunk` and mcap-ros2-support's decoder remain the reference
+and the general path.
 """
 
 from __future__ import annotations
@@ -37,6 +45,9 @@ from hadal.errors import InputError
 __all__ = ["McapReport", "McapTopic", "describe_mcap", "mcap_info", "read_mcap", "read_mcap_tables", "ros2_type_name",
            "to_dict"]
 
+#: MCAP log times are u64; one above int64 (2**63 ...) is clamped here, an implausible time that the time
+#: checks reject as one sample (the kernels do the same, :data:`hadal.ingest._mcap_kernels.INT64_MAX`)
+_INT64_MAX = 2**63 - 1
 _RECORD_LIMIT = 256 * 2**20  # a record header claiming more than 256 MiB is treated as corruption
 
 
@@ -174,7 +185,7 @@ def _parse_chunk(data: bytes) -> list[tuple[int, Any]]:
             if ln < 22:
                 raise ValueError("message record too short")
             cid, _seq, lt, _pt = msg(data, pos)
-            append((_OP_MESSAGE, (cid, lt, data[pos + 22:end])))
+            append((_OP_MESSAGE, (cid, min(lt, _INT64_MAX), data[pos + 22:end])))
         elif op == _OP_SCHEMA:
             append((op, Schema.read(ReadDataStream(io.BytesIO(data[pos:end])))))
         elif op == _OP_CHANNEL:
@@ -233,18 +244,152 @@ class _Walk:
             self.corrupt += 1
             return None
 
+    def chunk_channels(self, rec: Any, kern: Any) -> Any:
+        """:func:`_chunk_channels` of a chunk, or ``None`` for a damaged chunk (counted)."""
+        try:
+            return _chunk_channels(_chunk_bytes(rec), kern)
+        except Exception:  # noqa: BLE001 - bad compression / CRC / framing: skip this chunk only
+            self.corrupt += 1
+            return None
 
-def _scan(path: Path, topics: set[str] | None) -> tuple[dict, dict, dict[int, list], dict[int, list], McapReport, Any]:
+
+class _ChanBuf:
+    """The raw messages of one channel as read: per chunk, the log times (int64 ns), the payloads written
+    as one JSON array text (``[p1,p2,...]``: the payloads one after the other, a comma between two,
+    whatever their encoding) and their lengths; no Python object per message."""
+
+    __slots__ = ("times", "blobs", "lens", "n")
+
+    def __init__(self) -> None:
+        self.times: list[np.ndarray] = []
+        self.blobs: list[Any] = []
+        self.lens: list[np.ndarray] = []
+        self.n = 0
+
+    def add(self, times: np.ndarray, blob: Any, lens: np.ndarray) -> None:
+        self.times.append(times)
+        self.blobs.append(blob)
+        self.lens.append(lens)
+        self.n += len(lens)
+
+    def add_one(self, log_time: int, data: bytes) -> None:
+        self.add(np.array([min(log_time, _INT64_MAX)], dtype=np.int64), b"[" + bytes(data) + b"]",
+                 np.array([len(data)], dtype=np.int64))
+
+    def log_times(self) -> np.ndarray:
+        return np.concatenate(self.times) if self.times else np.zeros(0, dtype=np.int64)
+
+    def decode_json(self) -> tuple[list[Any], int]:
+        """Every message decoded (:func:`_decode_json_text` per chunk; a chunk's part holding a corrupt
+        message is decoded message by message, the corrupt ones as ``None``) and the number undecodable."""
+        out: list[Any] = []
+        bad = 0
+        for blob, lens in zip(self.blobs, self.lens, strict=True):
+            part = _decode_json_text(blob, len(lens))
+            if part is None:
+                part, b = _decode_json(_split(blob, lens))
+                bad += b
+            out.extend(part)
+        return out, bad
+
+    def payload(self, i: int) -> bytes:
+        """Message ``i``'s payload (only its chunk's part is split)."""
+        for blob, lens in zip(self.blobs, self.lens, strict=True):
+            if i < len(lens):
+                return _split(blob, lens)[i]
+            i -= len(lens)
+        raise IndexError(i)
+
+    def payloads(self) -> list[bytes]:
+        """One bytes object per message (CDR decoding, channel merges)."""
+        out: list[bytes] = []
+        for blob, lens in zip(self.blobs, self.lens, strict=True):
+            out.extend(_split(blob, lens))
+        return out
+
+
+def _split(blob: Any, lens: np.ndarray) -> list[bytes]:
+    """The payloads of one ``[p1,p2,...]`` blob of :class:`_ChanBuf`."""
+    mv = memoryview(blob)
+    ends = np.cumsum(lens + 1)  # one past each payload, counting the opening bracket
+    starts = (ends - lens).tolist()
+    return [bytes(mv[a:b]) for a, b in zip(starts, ends.tolist(), strict=True)]
+
+
+#: files at least this large walk their chunks with the compiled kernels (numba's start-up, ~1 s, is not
+#: worth it for small files)
+_COMPILED_MIN_BYTES = 4 * 2**20
+
+
+def _chunk_kernels() -> Any:
+    """:mod:`hadal.ingest._mcap_kernels`, or None without numba (or with ``HADAL_NO_NUMBA`` set)."""
+    import os
+
+    if os.environ.get("HADAL_NO_NUMBA"):
+        return None
+    try:
+        from hadal.ingest import _mcap_kernels
+    except ImportError:
+        return None
+    return _mcap_kernels
+
+
+def _chunk_channels(data: bytes, kern: Any) -> tuple[list[tuple[int, Any]], dict[int, tuple[np.ndarray, bytes, np.ndarray]]]:
+    """The records of a decompressed chunk: its Schema/Channel records ``(opcode, record)`` in file order,
+    and per channel id its messages as ``(log times, comma-separated payloads, payload lengths)``.
+    Compiled walk with ``kern`` (:func:`hadal.ingest._mcap_kernels.walk_chunk`), else :func:`_parse_chunk`.
+    Raises ValueError on damaged framing (the caller skips the chunk)."""
+    from mcap.data_stream import ReadDataStream
+    from mcap.records import Channel, Schema
+
+    per: dict[int, tuple[np.ndarray, bytes, np.ndarray]] = {}
+    if kern is None:
+        others, msgs = [], {}
+        for op, r in _parse_chunk(data):
+            if op == _OP_MESSAGE:
+                msgs.setdefault(r[0], []).append(r)
+            else:
+                others.append((op, r))
+        for cid, rs in msgs.items():
+            per[cid] = (np.array([r[1] for r in rs], dtype=np.int64), b"[" + b",".join(r[2] for r in rs) + b"]",
+                        np.array([len(r[2]) for r in rs], dtype=np.int64))
+        return others, per
+    b = np.frombuffer(data, dtype=np.uint8)
+    status, cid, lt, ds, dl, oop, ost, oen = kern.walk_chunk(b)
+    if status != kern.OK:
+        raise ValueError({kern.HEADER_PAST_END: "record header past the end of the chunk",
+                          kern.RECORD_PAST_END: "record past the end of the chunk",
+                          kern.MESSAGE_TOO_SHORT: "message record too short"}.get(int(status), "bad chunk"))
+    others = []
+    for op, a, e in zip(oop.tolist(), ost.tolist(), oen.tolist(), strict=True):
+        if op == _OP_SCHEMA:
+            others.append((op, Schema.read(ReadDataStream(io.BytesIO(data[a:e])))))
+        elif op == _OP_CHANNEL:
+            others.append((op, Channel.read(ReadDataStream(io.BytesIO(data[a:e])))))
+    if len(cid) == 0:
+        return others, per
+    first = int(cid[0])
+    if (cid == first).all():
+        groups = [(first, None)]
+    else:
+        groups = [(int(c), cid == c) for c in np.unique(cid)]
+    for c, sel in groups:
+        s_, l_, t_ = (ds, dl, lt) if sel is None else (ds[sel], dl[sel], lt[sel])
+        per[c] = (t_, kern.gather(b, s_, l_), l_)
+    return others, per
+
+
+def _scan(path: Path, topics: set[str] | None) -> tuple[dict, dict, dict[int, _ChanBuf], McapReport, Any]:
     """One sequential pass: schemas, channels, raw messages per channel id, and the damage report."""
     from mcap.records import Channel, Chunk, Message, Schema, Statistics
 
     report = McapReport(path=str(path))
     schemas: dict[int, Any] = {}
     channels: dict[int, Any] = {}
-    times: dict[int, list[int]] = {}
-    datas: dict[int, list[bytes]] = {}
+    bufs: dict[int, _ChanBuf] = {}
     stats = None
     wanted: dict[int, bool] = {}
+    kern = _chunk_kernels() if path.stat().st_size >= _COMPILED_MIN_BYTES else None
 
     def want(cid: int) -> bool:
         ok = wanted.get(cid)
@@ -254,66 +399,165 @@ def _scan(path: Path, topics: set[str] | None) -> tuple[dict, dict, dict[int, li
                 return False
             ok = wanted[cid] = topics is None or ch.topic in topics
             if ok:
-                times.setdefault(cid, [])
-                datas.setdefault(cid, [])
+                bufs.setdefault(cid, _ChanBuf())
         return ok
 
-    def add_message(cid: int, log_time: int, data: bytes) -> None:
-        if want(cid):
-            times[cid].append(log_time)
-            datas[cid].append(data)
-        elif cid not in channels:
-            report.decode_errors += 1  # message of an unknown channel
+    def add_record(op: int, r: Any) -> None:
+        if op == _OP_SCHEMA:
+            schemas[r.id] = r
+        else:
+            channels[r.id] = r
+            wanted.pop(r.id, None)
 
     with open(path, "rb") as fh:
         walk = _Walk(fh)
         for rec in walk:
             if isinstance(rec, Chunk):
-                inner = walk.chunk(rec)
+                inner = walk.chunk_channels(rec, kern)
                 if inner is None:
                     continue
-                for op, r in inner:
-                    if op == _OP_MESSAGE:
-                        cid, lt, d = r
-                        if wanted.get(cid):  # fast path
-                            times[cid].append(lt)
-                            datas[cid].append(d)
-                        else:
-                            add_message(cid, lt, d)
-                    elif op == _OP_SCHEMA:
-                        schemas[r.id] = r
-                    else:
-                        channels[r.id] = r
-                        wanted.pop(r.id, None)
+                others, per = inner
+                for op, r in others:
+                    add_record(op, r)
+                for cid, (t, blob, lens) in per.items():
+                    if want(cid):
+                        bufs[cid].add(t, blob, lens)
+                    elif cid not in channels:
+                        report.decode_errors += len(lens)  # messages of an unknown channel
             elif isinstance(rec, Message):
-                add_message(rec.channel_id, rec.log_time, rec.data)
+                if want(rec.channel_id):
+                    bufs[rec.channel_id].add_one(rec.log_time, rec.data)
+                elif rec.channel_id not in channels:
+                    report.decode_errors += 1
             elif isinstance(rec, Schema):
-                schemas[rec.id] = rec
+                add_record(_OP_SCHEMA, rec)
             elif isinstance(rec, Channel):
-                channels[rec.id] = rec
-                wanted.pop(rec.id, None)
+                add_record(_OP_CHANNEL, rec)
             elif isinstance(rec, Statistics):
                 stats = rec
     report.truncated, report.problem, report.corrupt_chunks = walk.problem is not None, walk.problem, walk.corrupt
-    return schemas, channels, times, datas, report, stats
+    return schemas, channels, bufs, report, stats
+
+
+def _decode_json_text(text: Any, n: int) -> list[Any] | None:
+    """``n`` messages from one JSON array, with msgspec (2-3x the standard library) and, where msgspec
+    refuses what :mod:`json` accepts (``NaN``/``Infinity``, integers beyond 64 bits, lone surrogates),
+    with :func:`json.loads`; None when the array is not ``n`` valid JSON values (a corrupt message)."""
+    import msgspec
+
+    try:
+        out = msgspec.json.decode(text)
+    except (msgspec.DecodeError, UnicodeDecodeError):
+        try:
+            out = json.loads(bytes(text))
+        except (ValueError, UnicodeDecodeError, RecursionError):
+            return None
+    return out if isinstance(out, list) and len(out) == n else None
 
 
 def _decode_json(datas: list[bytes]) -> tuple[list[Any], int]:
-    """Decode JSON messages in one ``json.loads`` call; fall back per message when some are corrupt."""
-    try:
-        out = json.loads(b"[" + b",".join(datas) + b"]")
-        if len(out) == len(datas):
-            return out, 0
-    except (ValueError, UnicodeDecodeError):
-        pass
+    """Decode JSON messages in one call; fall back per message (:func:`json.loads`) when some are corrupt."""
+    out = _decode_json_text(b"[" + b",".join(datas) + b"]", len(datas))
+    if out is not None:
+        return out, 0
     out, bad = [], 0
     for d in datas:
         try:
             out.append(json.loads(d))
-        except (ValueError, UnicodeDecodeError):
+        except (ValueError, UnicodeDecodeError, RecursionError):
             out.append(None)
             bad += 1
     return out, bad
+
+
+#: CDR primitive -> NumPy little-endian type (ROS 2 ``char`` and ``byte`` are uint8, decoded as ints)
+_CDR_PRIMITIVES = {"bool": "?", "byte": "u1", "char": "u1", "octet": "u1", "int8": "i1", "uint8": "u1",
+                   "int16": "<i2", "uint16": "<u2", "int32": "<i4", "uint32": "<u4", "int64": "<i8",
+                   "uint64": "<u8", "float32": "<f4", "float64": "<f8", "float": "<f4", "double": "<f8"}
+
+
+def _fixed_cdr_layout(schema_name: str, text: str) -> tuple[list[tuple[tuple[str, ...], str, int, int]], int] | None:
+    """The byte layout of a ROS 2 message type whose serialised size is fixed (primitives, fixed-size
+    arrays of primitives, nested such messages; no string, no sequence): ``[(field path, NumPy type,
+    offset, count or 0 for a scalar)], size``, or None. Offsets are those of plain CDR (XCDR1, what
+    rosbag2 writes): each primitive aligned to its size, relative to the end of the 4-byte encapsulation
+    header."""
+    sections = _ros2msg_sections(schema_name, text)
+    if schema_name not in sections:
+        return None
+    fields: list[tuple[tuple[str, ...], str, int, int]] = []
+    pos = 0
+
+    def walk(tname: str, prefix: tuple[str, ...], depth: int) -> bool:
+        nonlocal pos
+        if depth > 8 or not sections.get(tname):
+            return False
+        for ftype, fname in sections[tname]:
+            base, count = ftype, 0
+            if "[" in ftype:
+                base, rest = ftype.split("[", 1)
+                if not rest[:-1].isdigit():  # unbounded or bounded sequence: variable size
+                    return False
+                count = int(rest[:-1])
+            if "<=" in base:
+                return False
+            if base in _CDR_PRIMITIVES:
+                dt = np.dtype(_CDR_PRIMITIVES[base])
+                pos = -(-pos // dt.itemsize) * dt.itemsize  # align
+                fields.append((prefix + (fname,), dt.str, pos, count))
+                pos += dt.itemsize * max(count, 1)
+            elif count == 0:
+                sub = _ros2msg_resolve(sections, ftype, tname.split("/", 1)[0])
+                if sub is None or sub == tname or not walk(sub, prefix + (fname,), depth + 1):
+                    return False
+            else:
+                return False  # array of messages: left to the general decoder
+        return True
+
+    if not walk(schema_name, (), 0) or not fields:
+        return None
+    return fields, pos
+
+
+def _decode_cdr_fixed(buf: _ChanBuf, sch: Any) -> list[dict[str, Any]] | None:
+    """Vectorised decoding of a fixed-layout ROS 2 message type (:func:`_fixed_cdr_layout`): every payload
+    of a chunk viewed as a row of one ``(messages, bytes)`` array, each field one strided NumPy column;
+    None (use the general decoder) when the type is not fixed-size, a payload's size differs from the
+    layout's (beyond up to 3 bytes of end padding) or its encapsulation header is not little-endian CDR."""
+    try:
+        layout = _fixed_cdr_layout(sch.name or "", bytes(sch.data).decode("utf-8"))
+    except (UnicodeDecodeError, ValueError):
+        return None
+    if layout is None or buf.n == 0:
+        return None
+    fields, size = layout
+    cols: list[list[Any]] = [[] for _ in fields]
+    for blob, lens in zip(buf.blobs, buf.lens, strict=True):
+        width = int(lens[0])
+        if not (4 + size <= width <= 4 + size + 3) or (lens != width).any():
+            return None
+        rows = np.frombuffer(blob, dtype=np.uint8)[1:].reshape(len(lens), width + 1)
+        if (rows[:, 0] != 0).any() or (rows[:, 1] != 1).any():  # CDR_LE encapsulation
+            return None
+        for col, (_path, dt, off, count) in zip(cols, fields, strict=True):
+            itemsize = np.dtype(dt).itemsize
+            raw = np.ascontiguousarray(rows[:, 4 + off:4 + off + itemsize * max(count, 1)])
+            v = raw.view(dt)
+            col.extend(v.ravel().tolist() if count == 0 else v.tolist())
+    # nested dicts in field order, as mcap-ros2-support's decoder + to_dict give them
+    tree: dict[str, Any] = {}
+    for i, (path, *_rest) in enumerate(fields):
+        node = tree
+        for part in path[:-1]:
+            node = node.setdefault(part, {})
+        node[path[-1]] = i
+
+    def build(node: dict[str, Any]) -> Any:
+        keys = list(node)
+        parts = [cols[v] if isinstance(v, int) else build(v) for v in node.values()]
+        return [dict(zip(keys, vals, strict=True)) for vals in zip(*parts, strict=True)]
+
+    return build(tree)
 
 
 def _schema_label(ch: Any, sch: Any) -> str:
@@ -380,7 +624,7 @@ def read_mcap(path: str | Path, topics: Iterable[str] | None = None, *, warn: bo
     path = Path(path)
     _open_check(path)
     tset = set(topics) if topics is not None else None
-    schemas, channels, times, datas, report, stats = _scan(path, tset)
+    schemas, channels, bufs, report, stats = _scan(path, tset)
     if stats is not None:
         per_chan, total = dict(stats.channel_message_counts), int(stats.message_count)
     else:
@@ -396,16 +640,35 @@ def read_mcap(path: str | Path, topics: Iterable[str] | None = None, *, warn: bo
         cid, ch = cids[0], channels[cids[0]]
         sch = schemas.get(ch.schema_id)
         dups = 0
+        enc = ch.message_encoding
+        raw: list[bytes] | None = None
+        raw_json: dict[int, bytes] | None = None
+        dec = None
+        fixed = None
         if len(cids) == 1:
-            raw = datas.pop(cid, [])  # released once decoded (peak memory: one topic's payloads + all decoded)
-            t = np.asarray(times.get(cid, []), dtype=np.int64)
-            n_raw = len(raw)
+            buf = bufs.pop(cid, None) or _ChanBuf()  # released once decoded (peak: one topic's payloads + all decoded)
+            t = buf.log_times()
+            n_raw = buf.n
+            if enc == "json":
+                msgs, bad = buf.decode_json()
+                if not set(map(type, msgs)) <= {dict}:  # keep the first unusable payload (for the error text)
+                    i0 = next(i for i, m in enumerate(msgs) if not isinstance(m, dict))
+                    raw_json = {i0: buf.payload(i0)}
+            else:
+                if enc == "cdr" and sch is not None and sch.encoding == "ros2msg":
+                    fixed = _decode_cdr_fixed(buf, sch)
+                if fixed is None:
+                    raw = buf.payloads()
+            del buf
         else:
             _check_same_schema(path, topic, [(c, channels[c], schemas.get(channels[c].schema_id)) for c in cids])
-            raw, t, n_raw, dups = _merge_channels([(times.get(c, []), datas.pop(c, [])) for c in cids])
-        enc = ch.message_encoding
+            parts = [(b.log_times().tolist(), b.payloads()) for b in (bufs.pop(c, None) or _ChanBuf() for c in cids)]
+            raw, t, n_raw, dups = _merge_channels(parts)
         if enc == "json":
-            msgs, bad = _decode_json(raw)
+            if raw is not None:
+                msgs, bad = _decode_json(raw)
+        elif fixed is not None:
+            msgs, bad = fixed, 0
         elif enc == "cdr" and sch is not None and sch.encoding in ("ros2msg", "ros2idl"):
             if ros2_factory is None:
                 from mcap_ros2.decoder import DecoderFactory
@@ -427,8 +690,18 @@ def read_mcap(path: str | Path, topics: Iterable[str] | None = None, *, warn: bo
                 f"{path}: topic {ch.topic} uses message encoding {enc!r} "
                 f"(schema {getattr(sch, 'encoding', None)!r}); hadal reads 'json' and ROS 2 'cdr'"
             )
-        keep = [i for i, m in enumerate(msgs) if isinstance(m, dict)]
+        if set(map(type, msgs)) <= {dict}:  # at C speed: every message decoded to an object
+            keep = msgs
+        else:
+            keep = [i for i, m in enumerate(msgs) if isinstance(m, dict)]
         bad = len(msgs) - len(keep)  # undecodable or not an object
+        first_error = None
+        if bad:
+            i0 = next(i for i, m in enumerate(msgs) if not isinstance(m, dict))
+            payload = raw[i0] if raw is not None and i0 < len(raw) else (raw_json or {}).get(i0)
+            if payload is not None:
+                first_error = _decode_error_text(payload, enc, dec, msgs[i0])
+        del raw_json
         if len(keep) != len(msgs):
             msgs = [msgs[i] for i in keep]
             t = t[np.asarray(keep, dtype=np.int64)] if keep else t[:0]
@@ -438,6 +711,7 @@ def read_mcap(path: str | Path, topics: Iterable[str] | None = None, *, warn: bo
             "channel_id": cid, "schema": getattr(sch, "name", None), "schema_encoding": getattr(sch, "encoding", None),
             "message_encoding": enc, "read": len(msgs), "expected": expected,
             "lost": (expected - n_raw) if expected is not None else None, "decode_errors": bad,
+            "first_decode_error": first_error,
         }
         if len(cids) > 1:
             report.topics[topic].update(channel_ids=list(cids), duplicates_dropped=dups)
@@ -477,6 +751,22 @@ def read_mcap(path: str | Path, topics: Iterable[str] | None = None, *, warn: bo
         warnings.warn(f"{path.name}: {lost} message(s) lost ({'; '.join(what)}); "
                       f"recovered {report.messages_read}", stacklevel=2)
     return out, report
+
+
+def _decode_error_text(payload: bytes, enc: str, dec: Any, decoded: Any) -> str:
+    """Why one message could not be used: the decoder's error (or the type it decoded to) and its first bytes."""
+    why = f"decoded to a {type(decoded).__name__}, not an object" if decoded is not None else None
+    if why is None:
+        try:
+            if enc == "json":
+                json.loads(payload)
+            elif dec is not None:
+                dec(payload)
+            why = "undecodable"
+        except Exception as exc:  # noqa: BLE001 - the decoder's own message is what the user needs
+            why = f"{type(exc).__name__}: {str(exc).splitlines()[0][:120] if str(exc) else ''}".rstrip(": ")
+    head = bytes(payload[:8]).hex(" ")
+    return f"{why} (payload of {len(payload)} bytes starting {head or '(empty)'})"
 
 
 def _flatten(d: dict[str, Any], prefix: str = "") -> dict[str, Any]:
@@ -524,10 +814,10 @@ def mcap_info(path: str | Path) -> list[dict[str, Any]]:
                  "schema_encoding": s.schemas[c.schema_id].encoding if c.schema_id in s.schemas else None,
                  "message_encoding": c.message_encoding, "messages": int(counts.get(c.id, 0))}
                 for c in sorted(s.channels.values(), key=lambda c: c.id)]
-    schemas, channels, times, _, _, _ = _scan(path, None)
+    schemas, channels, bufs, _, _ = _scan(path, None)
     return [{"topic": c.topic, "schema": getattr(schemas.get(c.schema_id), "name", None),
              "schema_encoding": getattr(schemas.get(c.schema_id), "encoding", None),
-             "message_encoding": c.message_encoding, "messages": len(times.get(c.id, []))}
+             "message_encoding": c.message_encoding, "messages": bufs[c.id].n if c.id in bufs else 0}
             for c in sorted(channels.values(), key=lambda c: c.id)]
 
 

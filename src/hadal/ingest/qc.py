@@ -20,13 +20,14 @@ O(n) rolling max/min. ``tests/test_ingest_units_align_qc.py`` checks it against 
 
 from __future__ import annotations
 
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-import numpy as np
-from ioos_qc import qartod
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
-__all__ = ["VariableQC", "DEFAULT_QC", "qc_flags", "qc_table", "flat_line_flags"]
+if TYPE_CHECKING:
+    import numpy as np
+
+__all__ = ["VariableQC", "DEFAULT_QC", "merge_qc", "qc_flags", "qc_table", "flat_line_flags"]
 
 GOOD, NOT_EVALUATED, SUSPECT, BAD, MISSING = 1, 2, 3, 4, 9
 
@@ -85,8 +86,39 @@ DEFAULT_QC: dict[str, VariableQC] = {
 }
 
 
+def merge_qc(overrides: Any = None) -> dict[str, VariableQC]:
+    """:data:`DEFAULT_QC` with ``overrides`` (variable -> :class:`VariableQC` or mapping) merged **test by test**:
+    only the fields an override sets (``model_fields_set``; ``null`` switches a test off) replace the default's,
+    so ``pressure_ctd_dbar: {fail_span: [-10, 11000]}`` keeps the saturation, spike and flat-line tests. A
+    variable that is not a sensor-table variable is a :class:`~hadal.errors.ConfigError` (a misspelt name)."""
+    from pydantic import ValidationError
+
+    from hadal.errors import ConfigError
+
+    out = dict(DEFAULT_QC)
+    for var, ov in dict(overrides or {}).items():
+        if var not in DEFAULT_QC:
+            raise ConfigError(f"ingest.qc: unknown variable {var!r} (known: {', '.join(DEFAULT_QC)})")
+        try:
+            if not isinstance(ov, VariableQC):
+                ov = VariableQC.model_validate(ov)
+            if ov is DEFAULT_QC[var]:
+                continue
+            out[var] = VariableQC.model_validate({**DEFAULT_QC[var].model_dump(), **ov.model_dump(
+                include=set(ov.model_fields_set))})
+        except ValidationError as exc:
+            e = exc.errors()[0]
+            loc = ".".join(str(x) for x in e.get("loc", ()))
+            raise ConfigError(f"ingest.qc.{var}{'.' + loc if loc else ''}: "
+                              f"{str(e.get('msg', '')).removeprefix('Value error, ')}") from None
+    return out
+
+
 def qc_flags(values: np.ndarray, time_ns: np.ndarray, cfg: VariableQC) -> np.ndarray:
     """QARTOD flags (uint8) of one variable; see the module docstring."""
+    import numpy as np
+    from ioos_qc import qartod
+
     x = np.asarray(values, dtype=np.float64)
     results = []
     if cfg.fail_span is not None or cfg.saturation is not None:
@@ -118,6 +150,7 @@ def qc_flags(values: np.ndarray, time_ns: np.ndarray, cfg: VariableQC) -> np.nda
 
 def flat_line_flags(x: np.ndarray, suspect_count: int, fail_count: int, tolerance: float) -> np.ndarray:
     """ioos_qc's flat-line test in samples, O(n): see the module docstring (flags 1, 3, 4, 9)."""
+    import numpy as np
     import pandas as pd
 
     x = np.asarray(x, dtype=np.float64)
@@ -138,6 +171,8 @@ def flat_line_flags(x: np.ndarray, suspect_count: int, fail_count: int, toleranc
 
 def fail_fraction(values: np.ndarray, cfg: VariableQC) -> float:
     """Fraction of the finite values outside the fail span (0 when there are none)."""
+    import numpy as np
+
     x = np.asarray(values, dtype=np.float64)
     x = x[np.isfinite(x)]
     if x.size == 0 or cfg.fail_span is None:
@@ -149,6 +184,8 @@ def fail_fraction(values: np.ndarray, cfg: VariableQC) -> float:
 def qc_table(columns: dict[str, np.ndarray], time_ns: np.ndarray, config: dict[str, VariableQC]
              ) -> tuple[dict[str, np.ndarray], dict[str, dict[str, int]]]:
     """Flags for every variable in ``columns`` (``<var>_qc``) and per-variable flag counts."""
+    import numpy as np
+
     flags, counts = {}, {}
     for var, x in columns.items():
         cfg = config.get(var, VariableQC())

@@ -209,8 +209,12 @@ def load_vehicle_config(path: str | Path) -> VehicleConfig:
     p = Path(path)
     if not p.is_file():
         raise ConfigError(f"vehicle config {p} does not exist")
+    from hadal.yamlfile import DuplicateKeyError, safe_load_unique
+
     try:
-        data = yaml.safe_load(p.read_text(encoding="utf-8"))
+        data = safe_load_unique(p.read_text(encoding="utf-8"))
+    except DuplicateKeyError as exc:
+        raise ConfigError(f"{p}: {exc}") from None
     except (yaml.YAMLError, UnicodeDecodeError) as exc:
         first = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
         raise ConfigError(f"{p}: not valid YAML ({first})") from None

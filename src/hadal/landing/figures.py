@@ -62,9 +62,11 @@ def _show(ax, res: LandingResult, img, cmap, label: str, vmin=None, vmax=None, c
     ax.tick_params(labelsize=6)
     ax.set_xlabel("x (m)", fontsize=7)
     ax.set_ylabel("y (m)", fontsize=7)
-    if cbar:
-        cb = plt.colorbar(im, ax=ax, shrink=0.6)
+    if cbar:  # a labelled colorbar as tall as the panel (strips are flat: a short bar is unreadable)
+        flat = (ext[3] - ext[2]) < 0.5 * (ext[1] - ext[0])
+        cb = plt.colorbar(im, ax=ax, shrink=1.0, aspect=5 if flat else 20, pad=0.01)
         cb.ax.tick_params(labelsize=6)
+        cb.set_label(label.split(") ", 1)[-1], fontsize=6)
     return im
 
 

@@ -173,14 +173,19 @@ def _robust_plane(x: np.ndarray, y: np.ndarray, z: np.ndarray, iterations: int =
 
 
 def ground_surface_m(z: np.ndarray, cell_m: float, plate_m: float, *, block_m: float = 2.5,
-                     coarse_m: float = 0.05, smooth_m: float = 0.2) -> tuple[np.ndarray, np.ndarray]:
+                     coarse_m: float = 0.05, smooth_m: float = 0.2, rows: slice | str | None = None,
+                     _coarse: tuple | None = None):
     """Ground under the protrusions: per ``block_m`` block (analysed with a margin of ``plate_m`` on every
     side), a robust plane is removed from the ``coarse_m`` block means of ``z`` and a grey opening by a flat
     octagon of minimum width ``plate_m`` is applied; the plane is added back and the result interpolated
-    bilinearly onto the input grid. Returns (ground elevation (m), cos of the block slope) on ``z``'s grid."""
+    bilinearly onto the input grid. Returns (ground elevation (m), cos of the block slope) on ``z``'s grid
+    (``rows``: a slice of rows only; ``rows="coarse"``: the coarse ground and cosines, which ``_coarse`` then
+    upsamples row chunk by row chunk without full-size temporaries)."""
     z = np.asarray(z, float)
     ny, nx = z.shape
     k = max(1, int(round(coarse_m / cell_m)))
+    if _coarse is not None:  # upsample rows ``rows`` of an already computed coarse ground
+        return _upsample_ground(*_coarse, k, ny, nx, rows)
     cc = cell_m * k
     zc = _block_mean(z, k)
     nyc, nxc = zc.shape
@@ -220,15 +225,26 @@ def ground_surface_m(z: np.ndarray, cell_m: float, plate_m: float, *, block_m: f
     # fill coarse cells without a ground value from their nearest neighbour (edges), then upsample
     bad = ~np.isfinite(ground)
     if bad.all():
-        return np.full(z.shape, np.nan), np.ones(z.shape)
-    if bad.any():
+        ground = None
+    elif bad.any():
         idx = ndi.distance_transform_edt(bad, return_distances=False, return_indices=True)
         ground = ground[idx[0], idx[1]]
+    if rows == "coarse":  # the coarse ground and slope cosines, for a row-chunked upsampling
+        return ground, cosm
+    return _upsample_ground(ground, cosm, k, ny, nx, rows)
+
+
+def _upsample_ground(ground, cosm, k: int, ny: int, nx: int, rows: slice | None):
+    """Bilinear ground and block cosines on the fine grid (rows ``rows`` only, or all)."""
+    r = np.arange(ny)[rows] if rows is not None else np.arange(ny)
+    if ground is None:
+        return np.full((r.size, nx), np.nan), np.ones((r.size, nx))
+    nyc, nxc = ground.shape
     # coarse cell (i, j) has its centre at fine index (i k + (k-1)/2, j k + (k-1)/2)
-    fy = (np.arange(ny) - 0.5 * (k - 1)) / k
+    fy = (r - 0.5 * (k - 1)) / k
     fx = (np.arange(nx) - 0.5 * (k - 1)) / k
     g_fine = _bilinear(ground, fy, fx)
-    cos_fine = cosm[np.minimum(np.arange(ny) // k, nyc - 1)][:, np.minimum(np.arange(nx) // k, nxc - 1)]
+    cos_fine = cosm[np.minimum(r // k, nyc - 1)][:, np.minimum(np.arange(nx) // k, nxc - 1)]
     return g_fine, cos_fine
 
 
@@ -269,9 +285,17 @@ def protrusion_height_map(
     """
     z = np.asarray(z, dtype=float)
     if method == "opening":
-        ground, cos_t = ground_surface_m(z, cell_m, diagonal_m, block_m=block_m, coarse_m=max(coarse_m, cell_m))
-        with np.errstate(invalid="ignore"):
-            return np.where(np.isfinite(z), (z - ground) * cos_t, np.nan)
+        cm = max(coarse_m, cell_m)
+        coarse = ground_surface_m(z, cell_m, diagonal_m, block_m=block_m, coarse_m=cm, rows="coarse")
+        out = np.empty(z.shape)
+        step = max(1, 1_000_000 // max(1, z.shape[1]))  # upsampled in row chunks: no full-size temporaries
+        for r0 in range(0, z.shape[0], step):
+            sl = slice(r0, min(z.shape[0], r0 + step))
+            ground, cos_t = ground_surface_m(z, cell_m, diagonal_m, coarse_m=cm, rows=sl, _coarse=coarse)
+            zz = z[sl]
+            with np.errstate(invalid="ignore"):
+                out[sl] = np.where(np.isfinite(zz), (zz - ground) * cos_t, np.nan)
+        return out
     if method != "butterworth":
         raise ValueError(f"unknown protrusion method {method!r}")
     ny, nx = z.shape

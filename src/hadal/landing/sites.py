@@ -30,7 +30,8 @@ Choices where the paper is silent or where we deviate (on purpose):
   keeps the slope error under 6 mm noise at ~1°. Interior holes up to 0.01 m² are filled with the nearest
   elevation first (:func:`fill_small_holes`), larger gaps stay unmapped.
 * A_r of Eq. 12 is exact on the grid (:func:`largest_aspect_rectangle_m2`), independent of the crop origin.
-* Inputs are checked for plausibility (units, cell size ≤ 0.2 × vehicle width, depth sign, elevations beyond
+* Inputs are checked for plausibility (units, cell size ≤ 1/10 × vehicle width — up to 0.2 × only with an
+  explicit ``max_cell_fraction`` override, reported as a warning — depth sign, elevations beyond
   any ocean depth, implausible median slope) and options are bounded (:class:`AnalysisOptions`); candidates
   with a non-finite cost are dropped, so the best site is never NaN.
 * α and α ± 180° give the same footprint, so -90° and 90° are analysed once and reported twice.
@@ -51,11 +52,13 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError
 from scipy import ndimage as ndi
 
 from hadal.errors import ConfigError, InputError
+from hadal.landing._kernels import combine_exclusion, outer_border, site_stats, squared_edt
 from hadal.landing.exclusion import (
     EXCLUSION_FLAGS,
     HIGH_PROTRUSION,
     SLOPE,
     SMALL_PROTRUSION,
+    TILE_CELLS,
     UNMAPPED,
     HeadingCorrelator,
     HeadingMaps,
@@ -63,10 +66,12 @@ from hadal.landing.exclusion import (
     footprint_offsets,
     small_protrusion_exclusion,
 )
+from hadal.landing.limits import CELL_FRACTION_RULE, COARSE_CELL_LIMIT
 from hadal.landing.protrusion import protrusion_height_map
 from hadal.landing.slope import local_slope_deg
 from hadal.landing.vehicle import Vehicle
 
+#: the cell-size rule CELL_FRACTION_RULE and the hard limit COARSE_CELL_LIMIT (issue 15): see hadal.landing.limits
 ROUGHNESS_WINDOW_M = 0.3  # heights are averaged over this before R (Eq. 13): 3 cells of the coarsest allowed grid
 
 SITE_COLUMNS = [
@@ -128,6 +133,7 @@ class LandingResult:
     frame_rotation_deg: float = 0.0
     # input grid (x, y) and, per input cell, the frame cell it falls in (rows, cols, inside) when rotated
     world_grid: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None
+    warnings: list[str] = field(default_factory=list)  # e.g. cells coarser than the 1/10-width rule
 
     def to_world(self, xf: np.ndarray | float, yf: np.ndarray | float) -> tuple[np.ndarray, np.ndarray]:
         """World (x, y) (m) of frame coordinates (``x_m``/``y_m`` of the arrays)."""
@@ -221,7 +227,7 @@ def roughness_max_m(vehicle: Vehicle, cell_m: float) -> float:
 
 def largest_aspect_rectangle_m2(mask: np.ndarray, cell_m: float, heading_deg: float, length_m: float,
                                 width_m: float, resolution_m: float | None = None,
-                                max_scale: float | None = None) -> float:
+                                max_scale: float | None = None, clearance2: np.ndarray | None = None) -> float:
     """A_r ``[Landing Eq. 12]``: area (m²) of the largest rectangle with the vehicle's aspect ratio, long side
     along ``heading_deg``, inscribed in boolean ``mask`` (rows = y, cols = x, cell ``cell_m``), exact on the grid.
 
@@ -234,13 +240,19 @@ def largest_aspect_rectangle_m2(mask: np.ndarray, cell_m: float, heading_deg: fl
     max_p s(p)² l w. The result depends only on the site's cells, not on the crop or the grid origin; tests
     check it against a brute-force erosion with the rotated footprint. ``max_scale``: stop as soon as a
     rectangle of that scale (side / vehicle side) is found and return its area, a lower bound (the site uses
-    √5: P_f of Eq. 12 is 0 for every A_r ≥ 5 A_f). ``resolution_m`` is ignored (kept for old callers)."""
+    √5: P_f of Eq. 12 is 0 for every A_r ≥ 5 A_f). ``resolution_m`` is ignored (kept for old callers).
+
+    ``clearance2`` (optional, same shape as ``mask``): for every site cell, the squared distance (cells²) to
+    some cell outside the site (e.g. the squared EDT of the landable cells). Then s(p) ≤ √clearance2 / (w/2)
+    (the rectangle norm is at most the Euclidean length over the shorter half side), and the k-d tree is only
+    queried where that bound can still reach the best value found: the same maxima, hence the same result
+    (tests compare), without querying every lattice point of a large site."""
     from scipy.spatial import cKDTree
 
     if not mask.any():
         return 0.0
-    m = np.pad(np.asarray(mask, bool), 1)
-    border = ndi.binary_dilation(m, np.ones((3, 3), bool)) & ~m
+    m = np.ascontiguousarray(mask, dtype=bool)
+    br, bc, n_site = outer_border(m)  # compiled: the outside cells 8-adjacent to the site, one pass
     a = math.radians(heading_deg)
     sa, ca = math.sin(a), math.cos(a)
     hl, hw = 0.5 * length_m / cell_m, 0.5 * width_m / cell_m
@@ -249,29 +261,72 @@ def largest_aspect_rectangle_m2(mask: np.ndarray, cell_m: float, heading_deg: fl
         r, c = rows.astype(float), cols.astype(float)
         return np.column_stack([(c * sa + r * ca) / hl, (c * ca - r * sa) / hw])
 
-    tree = cKDTree(frame(*np.nonzero(border)))
-    pr, pc = np.nonzero(m)
+    # unbalanced, uncompacted: ~2x faster to build and query here; the nearest distance does not depend on it
+    tree = cKDTree(frame(br, bc), balanced_tree=False, compact_nodes=False)
+    if clearance2 is not None:
+        return _rect_scale_pruned(m, np.asarray(clearance2), n_site, tree, frame, min(hl, hw), max_scale,
+                                  length_m * width_m)
+    pr = pc = None  # the site's cells, only listed when the coarse lattice does not settle A_r
     best0 = 0.0
     for k in (16, 4):  # coarse lattices first: a lower bound, and an early exit for very large sites
-        if pr.size <= 4 * k * k:
+        if n_site <= 4 * k * k:
             continue
         # s is 1-Lipschitz in the rectangle norm, so s at the lattice point (r - r % k, c - c % k) plus the
         # largest norm of an offset inside a k x k block bounds s(p) from above; exact s only where that bound
         # reaches the best lattice value (lattice points inside the site are candidates themselves)
-        ar, ac = pr - pr % k, pc - pc % k
-        lat, inv = np.unique(ar * m.shape[1] + ac, return_inverse=True)
-        lr, lc = lat // m.shape[1], lat % m.shape[1]
-        d_lat, _ = tree.query(frame(lr, lc), k=1, p=np.inf)
-        best0 = max(best0, float(np.max(d_lat[m[lr, lc]], initial=0.0)))
+        lr, lc = np.mgrid[0 : m.shape[0] : k, 0 : m.shape[1] : k]
+        d_lat, _ = tree.query(frame(lr.ravel(), lc.ravel()), k=1, p=np.inf)
+        d_lat = d_lat.reshape(lr.shape)
+        best0 = max(best0, float(np.max(d_lat[m[::k, ::k]], initial=0.0)))
         if max_scale is not None and best0 >= max_scale:
             return float(best0 * best0 * length_m * width_m)
         oy, ox = np.mgrid[0:k, 0:k]
         slack = float(np.max(np.maximum(np.abs(ox * sa + oy * ca) / hl, np.abs(ox * ca - oy * sa) / hw)))
-        sel = d_lat[inv.ravel()] + slack >= best0 - 1e-12
+        if pr is None:
+            pr, pc = np.nonzero(m)
+        sel = d_lat[pr // k, pc // k] + slack >= best0 - 1e-12
         pr, pc = pr[sel], pc[sel]
+    if pr is None:
+        pr, pc = np.nonzero(m)
     d, _ = tree.query(frame(pr, pc), k=1, p=np.inf) if pr.size else (np.zeros(1), None)
     best = max(best0, float(np.max(d)))
     return float(best * best * length_m * width_m)
+
+
+def _rect_scale_pruned(m: np.ndarray, c2: np.ndarray, n_site: int, tree, frame, h_min: float,
+                       max_scale: float | None, area: float) -> float:
+    """:func:`largest_aspect_rectangle_m2` with the clearance bound: the maximum of s over the same point sets
+    (the k = 16 and k = 4 lattices inside the site for the early exits, then every site cell), each found by
+    querying the points in decreasing order of their bound until the bound falls below the best value."""
+
+    def max_s(rows: np.ndarray, cols: np.ndarray, best: float) -> float:
+        ub = np.sqrt(c2[rows, cols].astype(float)) / h_min * (1.0 + 1e-9) + 1e-9
+        keep = ub >= best
+        rows, cols, ub = rows[keep], cols[keep], ub[keep]
+        order = np.argsort(-ub, kind="stable")
+        i, chunk = 0, 256
+        while i < order.size and ub[order[i]] >= best:
+            sel = order[i : i + chunk]
+            d, _ = tree.query(frame(rows[sel], cols[sel]), k=1, p=np.inf)
+            best = max(best, float(np.max(d)))
+            i += sel.size
+            chunk *= 2
+        return best
+
+    best0 = 0.0
+    for k in (16, 4):
+        if n_site <= 4 * k * k:
+            continue
+        lr, lc = np.nonzero(m[::k, ::k])
+        best0 = max_s(lr * k, lc * k, best0)
+        if max_scale is not None and best0 >= max_scale:
+            return float(best0 * best0 * area)
+    thr = (max(best0 - 2e-9, 0.0) * h_min) ** 2 * (1.0 - 1e-9)  # cells whose bound can reach best0
+    pr, pc = np.nonzero(m & (c2 >= thr))
+    best = max_s(pr, pc, best0) if pr.size else best0
+    if best == 0.0 and not pr.size:  # pragma: no cover - an empty site returned 0 above
+        return 0.0
+    return float(best * best * area)
 
 
 @dataclass
@@ -289,60 +344,43 @@ class _Ctx:
     y0: float
 
 
-def _heading_exclusion(ctx: _Ctx, hm: HeadingMaps) -> np.ndarray:
-    ex = ctx.static_excl.copy()
-    ex[hm.unmapped] |= UNMAPPED
-    with np.errstate(invalid="ignore"):
-        ex[hm.slope_deg > ctx.vehicle.critical_slope_deg] |= SLOPE
-    ex[hm.high] |= HIGH_PROTRUSION
-    return ex
+def _heading_exclusion(ctx: _Ctx, hm: HeadingMaps) -> tuple[np.ndarray, tuple[int, int, int, int]]:
+    """Bit flags of one heading and the bounding box (r0, r1, c0, c1) of the cells where C_G may land
+    (r0 = -1 when none), one compiled pass."""
+    tan_c = np.float32(math.tan(math.radians(ctx.vehicle.critical_slope_deg)))
+    ex, r0, r1, c0, c1 = combine_exclusion(ctx.static_excl, hm.unmapped, hm.high, hm.tan_slope, tan_c,
+                                           UNMAPPED, SLOPE, HIGH_PROTRUSION)
+    return ex, (r0, r1, c0, c1)
 
 
-def _analyse_heading(ctx: _Ctx, heading: float, want_labels: bool = False):
+def _analyse_heading(ctx: _Ctx, heading: float, want_labels: bool = False, keep: bool = False):
+    """Exclusion flags and site rows of one heading; ``want_labels``: also the heading maps and the full-grid
+    labels; ``keep``: also (heading maps, labels of the landable box, box) so the caller can keep the
+    heading that holds the best site instead of recomputing it."""
     hm = ctx.corr.compute(heading, need_slope=True if want_labels else None)
-    ex = _heading_exclusion(ctx, hm)
-    ok = ex == 0
+    ex, (r0, r1, c0, c1) = _heading_exclusion(ctx, hm)
     rows: list[dict[str, Any]] = []
     labels = None
-    if ok.any():
-        labels, n = ndi.label(ok, structure=np.ones((3, 3), bool))
-        # EDT only inside the bounding box of the landable cells (plus a background border)
-        sl = ndi.find_objects(ok.astype(np.int8))[0]
-        r0, c0 = sl[0].start, sl[1].start
-        sub = np.pad(ok[sl], 1)
-        dist = ndi.distance_transform_edt(sub)[1:-1, 1:-1]
-        lab = labels[sl]
-        # only cells whose inscribed circle is large enough can give a candidate (r >= 0.3 m)
-        core = dist >= ctx.min_radius_px
-        cand: list[tuple[int, int, int, float]] = []  # (label, row, col, radius_px)
-        if core.any():
-            # per label: the largest distance, then among the cells sharing it (e.g. along a corridor) the one
-            # nearest to their mean position — a deterministic and central choice (linear time, no sort of
-            # all core cells)
-            coreobj = ndi.find_objects(np.where(core, lab, 0))
-            dmax = np.zeros(n + 1)
-            tr_, tc_ = [], []
-            for lid, sl in enumerate(coreobj, start=1):
-                if sl is None:
-                    continue
-                inl = (lab[sl] == lid) & core[sl]
-                dmax[lid] = dist[sl][inl].max()
-                r_, c_ = np.nonzero(inl & (dist[sl] >= dmax[lid] - 1e-9))
-                tr_.append(r_ + sl[0].start)
-                tc_.append(c_ + sl[1].start)
-            tr, tc = np.concatenate(tr_), np.concatenate(tc_)
-            tl = lab[tr, tc]
-            cnt = np.maximum(np.bincount(tl, minlength=n + 1), 1)
-            my = np.bincount(tl, tr, minlength=n + 1) / cnt
-            mx = np.bincount(tl, tc, minlength=n + 1) / cnt
-            d2 = (tr - my[tl]) ** 2 + (tc - mx[tl]) ** 2
-            o = np.lexsort((tc, tr, d2, tl))
-            first = o[np.r_[True, tl[o][1:] != tl[o][:-1]]]
-            for q in first:
-                cand.append((int(tl[q]), int(tr[q]), int(tc[q]), float(dmax[tl[q]])))
+    kept = None
+    if r0 >= 0:
+        ok = ex[r0:r1, c0:c1] == 0  # labels, EDT and site statistics only inside the landable bounding box
+        lab, n = ndi.label(ok, structure=np.ones((3, 3), bool))
+        if want_labels:
+            labels = np.zeros(ex.shape, lab.dtype)
+            labels[r0:r1, c0:c1] = lab
+        if keep:
+            kept = (hm, lab, (r0, r1, c0, c1))
+        # exact squared EDT (numba, F&H; = scipy's distance_transform_edt of the padded box, tests compare);
+        # squared distances are exact integers, so the cells sharing the largest circle are found exactly
+        d2 = squared_edt(ok)
+        # per label: area, bounding box, the largest inscribed circle (only if >= the minimum radius), and among
+        # the cells sharing it (e.g. along a corridor) the one nearest to their mean position — a deterministic
+        # and central choice (ties: smallest row, then column)
+        areas, bb_r0, bb_r1, bb_c0, bb_c1, dmax2, best_r, best_c = site_stats(
+            lab, d2, n, ctx.min_radius_px ** 2 - 1e-9)
+        cand = [(lid, int(best_r[lid]), int(best_c[lid]), math.sqrt(dmax2[lid]))
+                for lid in np.nonzero(dmax2 >= 0)[0] if lid > 0]
         if cand:
-            areas = np.bincount(lab.ravel(), minlength=n + 1)
-            objs = ndi.find_objects(lab)
             rr, cc = hm.offsets
             v = ctx.vehicle
             for lid, pr, pc, rad_px in cand:
@@ -351,9 +389,11 @@ def _analyse_heading(ctx: _Ctx, heading: float, want_labels: bool = False):
                 zs = ctx.z[i + rr, j + cc]
                 hs = hs[np.isfinite(hs)]
                 R = float(np.mean(np.abs(hs - hs.mean()))) if hs.size else float("nan")
-                theta = float(hm.slope_deg[i, j])
-                rect = largest_aspect_rectangle_m2(lab[objs[lid - 1]] == lid, ctx.cell_m, heading,
-                                                   v.length_m, v.width_m, max_scale=math.sqrt(5.0))
+                theta = hm.slope_at(i, j)
+                box = lab[bb_r0[lid] : bb_r1[lid], bb_c0[lid] : bb_c1[lid]]
+                rect = largest_aspect_rectangle_m2(
+                    box == lid, ctx.cell_m, heading, v.length_m, v.width_m, max_scale=math.sqrt(5.0),
+                    clearance2=d2[bb_r0[lid] : bb_r1[lid], bb_c0[lid] : bb_c1[lid]])
                 ratio = rect / v.footprint_area_m2
                 p_s = theta / v.critical_slope_deg  # Eq. 11
                 p_f = float(np.clip(0.25 * (5.0 - ratio), 0.0, 1.0))  # Eq. 12
@@ -368,7 +408,17 @@ def _analyse_heading(ctx: _Ctx, heading: float, want_labels: bool = False):
                 })
     if want_labels:
         return ex, rows, hm, labels
+    if keep:
+        return ex, rows, kept
     return ex, rows
+
+
+def _best_score(rows: list[dict[str, Any]]) -> tuple[float, float] | None:
+    """The best-site order of :func:`analyse_submap` (smallest C_s, then largest radius) over the rows with
+    finite costs: the key of a heading's best row, None when it has none."""
+    keys = [(r["c_s"], -r["radius_m"]) for r in rows
+            if all(math.isfinite(r[c]) for c in ("p_s", "p_f", "p_r", "c_s"))]
+    return min(keys) if keys else None
 
 
 def fill_small_holes(z: np.ndarray, cell_m: float, max_area_m2: float) -> tuple[np.ndarray, np.ndarray]:
@@ -381,12 +431,15 @@ def fill_small_holes(z: np.ndarray, cell_m: float, max_area_m2: float) -> tuple[
     mapped = np.isfinite(z)
     if max_area_m2 <= 0 or mapped.all():
         return z, np.zeros(z.shape, bool)
-    holes = ndi.binary_fill_holes(mapped) & ~mapped
-    if not holes.any():
-        return z, holes
-    lab, n = ndi.label(holes)
+    # holes = 4-connected unmapped components not touching the grid edge (what binary_fill_holes finds), by one
+    # labelling pass instead of binary_fill_holes' iterative propagation (slow on large oblique bounding grids)
+    lab, n = ndi.label(~mapped)
+    edge = np.unique(np.concatenate([lab[0], lab[-1], lab[:, 0], lab[:, -1]]))
     size = np.bincount(lab.ravel(), minlength=n + 1)
     small = (size <= max_area_m2 / cell_m**2) & (np.arange(n + 1) > 0)
+    small[edge] = False
+    if not small.any():
+        return z, np.zeros(z.shape, bool)
     fill = small[lab]
     if not fill.any():
         return z, fill
@@ -410,7 +463,11 @@ def _grid_arrays(grid: xr.DataArray, vehicle: Vehicle, max_cell_fraction: float
     units = str(grid.attrs.get("units", "m")).strip().lower()
     if units not in ("m", "meter", "meters", "metre", "metres"):
         raise InputError(f"elevation grid {grid.name!r} has units {units!r}; expected metres")
-    g = grid.transpose("y", "x").sortby("y").sortby("x")
+    g = grid.transpose("y", "x")
+    for ax in ("y", "x"):  # sortby copies the grid (0.4 s on a 10 M-cell strip): only when not already ascending
+        c = np.asarray(g[ax].values)
+        if c.size > 1 and not (c.dtype.kind in "fiu" and np.all(c[1:] > c[:-1])):
+            g = g.sortby(ax)
     x = np.asarray(g["x"].values, float)
     y = np.asarray(g["y"].values, float)
     if x.size < 3 or y.size < 3:
@@ -427,8 +484,11 @@ def _grid_arrays(grid: xr.DataArray, vehicle: Vehicle, max_cell_fraction: float
         raise InputError("elevation grid must be regular with equal x and y spacing (metres)")
     max_cell = max_cell_fraction * vehicle.width_m
     if cell > max_cell * (1 + 1e-6):
+        hint = ("; x/y in mm labelled m?" if cell > COARSE_CELL_LIMIT * vehicle.width_m else
+                f" (a coarser grid up to {COARSE_CELL_LIMIT:g} × width runs only with max_cell_fraction raised, "
+                "reported as a warning)")
         raise InputError(f"grid cells of {cell:g} m are too coarse for a {vehicle.width_m:g} m wide vehicle "
-                         f"(at most {max_cell:g} m = {max_cell_fraction:g} × width); x/y in mm labelled m?")
+                         f"(at most {max_cell:g} m = {max_cell_fraction:g} × width){hint}")
     z = np.asarray(g.values, float)
     z = np.where(np.isfinite(z), z, np.nan)  # ±inf = unmapped
     if not np.isfinite(z).any():
@@ -465,8 +525,9 @@ class AnalysisOptions(BaseModel):
     block_margin_m: float = Field(1.0, ge=0, le=10)
     filter_order: int = Field(3, ge=1, le=10)
     fill_holes_max_m2: float = Field(0.01, ge=0, le=1.0)
-    max_cell_fraction: float = Field(0.2, gt=0, le=0.2)
+    max_cell_fraction: float = Field(CELL_FRACTION_RULE, gt=0, le=COARSE_CELL_LIMIT)
     workers: int = Field(1, ge=1, le=64)
+    tile_cells: int = Field(TILE_CELLS, ge=10_000, le=10**9)
 
 
 def _options(**kw) -> AnalysisOptions:
@@ -491,7 +552,19 @@ def along_track_frame(z: np.ndarray, x: np.ndarray, y: np.ndarray, cell: float, 
     ``min_cells`` cells (then the cost is negligible and the input cells are kept as they are)."""
     if z.size < min_cells:
         return None
-    rows, cols = np.nonzero(np.isfinite(z))
+    mapped = np.isfinite(z)
+    # quick decision on a regular sub-lattice of the cells (~250 k): an axis-aligned strip (the common case)
+    # is recognised without listing every mapped cell; otherwise the axis is taken from all of them as before
+    k = max(1, int(math.sqrt(z.size / 250_000)))
+    if k > 1:
+        rs, cs = np.nonzero(mapped[::k, ::k])
+        if rs.size >= 10:
+            ps = np.column_stack([x[cs * k], y[rs * k]])
+            _, vs = np.linalg.eigh(np.cov((ps - ps.mean(axis=0)).T))
+            phs = (math.degrees(math.atan2(vs[0, 1], vs[1, 1])) + 90.0) % 180.0 - 90.0
+            if abs(phs) < 0.5 or abs(abs(phs) - 90.0) < 0.5:
+                return None
+    rows, cols = np.nonzero(mapped)
     if rows.size < 10:
         return None
     px, py = x[cols], y[rows]
@@ -570,6 +643,59 @@ def landability_probability(z: np.ndarray, h: np.ndarray, sigma: np.ndarray, row
     return float(math.exp(logp))
 
 
+#: peak bytes per grid cell of :func:`analyse_submap` beyond the input (float64 maps: elevation, local slope,
+#: protrusion height, roughness heights, small-protrusion radii; per heading the bool exclusion maps, the float32
+#: footprint slope, the squared EDT, the labels; the tile spectra). Measured with ``bench/bench_landing.py --only
+#: strip`` (10 M cells) and rounded up.
+BYTES_PER_CELL = 120
+#: bytes per entry of the Fig. 15 exclusion table (distance and height, float64)
+TABLE_ENTRY_BYTES = 16
+
+
+def estimate_resources(shape: tuple[int, int], n_headings: int, *, keep_heading_exclusion: bool = True,
+                       exclusion_step_m: float = 0.005, vehicle: Vehicle | None = None) -> dict[str, float]:
+    """Memory (bytes) and work (cell x heading evaluations) :func:`analyse_submap` will need for a grid of
+    ``shape`` and ``n_headings`` headings, estimated before anything is allocated: ``BYTES_PER_CELL`` per cell,
+    one byte per cell and heading for the kept exclusion maps, the Fig. 15 table of ``exclusion_step_m``."""
+    vehicle = vehicle or Vehicle()
+    cells = float(shape[0]) * float(shape[1])
+    n_table = math.floor(0.5 * vehicle.width_m / exclusion_step_m) + 2 if exclusion_step_m > 0 else math.inf
+    parts = {
+        "maps": cells * BYTES_PER_CELL,
+        "heading_exclusion": cells * n_headings if keep_heading_exclusion else 0.0,
+        "exclusion_table": n_table * TABLE_ENTRY_BYTES,
+    }
+    return {"bytes": float(sum(parts.values())), "work": cells * n_headings, **parts}
+
+
+def check_resources(shape: tuple[int, int], n_headings: int, *, memory_limit_bytes: float | None,
+                    work_limit: float | None, keep_heading_exclusion: bool = True, exclusion_step_m: float = 0.005,
+                    vehicle: Vehicle | None = None, what: str = "the landing analysis",
+                    heading_setting: tuple[str, Any] | None = None,
+                    step_setting: tuple[str, Any] | None = None) -> dict[str, float]:
+    """Refuse (one-line :class:`ConfigError` with the estimate and the limit, :mod:`hadal.budget`) a grid /
+    heading / table configuration whose :func:`estimate_resources` exceeds the memory or work budget."""
+    from hadal.budget import check_memory, check_work
+
+    est = estimate_resources(shape, n_headings, keep_heading_exclusion=keep_heading_exclusion,
+                             exclusion_step_m=exclusion_step_m, vehicle=vehicle)
+    cells = f"{shape[0]:,} x {shape[1]:,} cells"
+    hs, hv = heading_setting or ("headings_deg", f"{n_headings} headings")
+    if memory_limit_bytes is not None:
+        if est["exclusion_table"] >= max(est["maps"], est["heading_exclusion"]):
+            ss, sv = step_setting or ("exclusion_step_m", exclusion_step_m)
+            check_memory(f"the Fig. 15 exclusion table of {what}", est["bytes"], memory_limit_bytes, setting=ss,
+                         value=sv)
+        else:
+            check_memory(f"{what} ({cells}, {n_headings} headings)", est["bytes"], memory_limit_bytes, setting=hs,
+                         value=hv, advice=f"use a larger {hs}, a coarser or smaller grid, or raise "
+                                          "resources.max_memory_gb")
+    if work_limit is not None:
+        check_work(f"{what} ({cells} x {n_headings} headings)", est["work"], work_limit, setting=hs, value=hv,
+                   advice=f"use a larger {hs}, a coarser or smaller grid, or raise the work limit")
+    return est
+
+
 def slope_window_px(window_m: float, cell_m: float) -> int:
     """Odd window (cells) of the local slope plane fit closest to ``window_m``, at least 3 cells."""
     return max(3, 2 * int(math.floor(0.5 * window_m / cell_m + 1e-9)) + 1)
@@ -592,18 +718,23 @@ def analyse_submap(
     edge_correction: bool = False,
     rectangle_resolution_m: float | None = None,
     fill_holes_max_m2: float = 0.01,
-    max_cell_fraction: float = 0.2,
+    max_cell_fraction: float = 0.1,
     frame: str = "auto",
     elevation_sigma_m: xr.DataArray | None = None,
     default_sigma_m: float = 0.006,
     workers: int = 1,
     keep_heading_exclusion: bool = True,
+    memory_limit_bytes: float | None = None,
+    work_limit: float | None = None,
+    tile_cells: int = TILE_CELLS,
 ) -> LandingResult:
     """Landing-site analysis of one bathymetry submap (Sangekar et al. §III-IV).
 
     ``grid``: elevation (m, positive up; ``attrs['positive'] == 'down'`` is negated; a depth-named variable
     without the attribute is read as depth, an all-positive one refused) on ``y``, ``x`` metric coordinates
-    (regular, equal spacing no larger than ``max_cell_fraction`` × vehicle width), NaN = unmapped.
+    (regular, equal spacing no larger than ``max_cell_fraction`` × vehicle width, NaN = unmapped). The rule is
+    1/10 of the width (:data:`CELL_FRACTION_RULE`); ``max_cell_fraction`` up to 0.2 is an explicit override for
+    coarser grids (the 0.10 m Takuyo raster) and adds a warning to ``LandingResult.warnings``.
     ``headings_deg``: landing headings (default -90° .. 90° in 5° steps). ``local_slope_window_m``: physical
     size of the local-slope plane fit (rounded to an odd number of cells, at least 3). ``protrusion_method``:
     ``"opening"`` (heights that see every rock narrower than the vehicle diagonal, see
@@ -614,6 +745,9 @@ def analyse_submap(
     laser grid's ``elevation_std_m / sqrt(count)``; NaN -> ``default_sigma_m``): each site then gets
     ``p_landable``, the probability that its slope and protrusion tests hold (:func:`landability_probability`).
     ``workers``: headings analysed in parallel threads. ``rectangle_resolution_m`` is ignored (A_r is exact).
+    ``memory_limit_bytes`` / ``work_limit``: refuse before allocating when :func:`estimate_resources` exceeds
+    them (one-line ConfigError with the estimate and the limit). ``tile_cells``: size of the row tiles of the
+    footprint-slope FFTs (:class:`HeadingCorrelator`; long strips are never transformed whole).
     Raises :class:`hadal.errors.InputError` on unusable grids, :class:`hadal.errors.ConfigError` on options
     out of bounds.
     """
@@ -622,10 +756,20 @@ def analyse_submap(
                    exclusion_step_m=exclusion_step_m, local_slope_window_m=local_slope_window_m,
                    protrusion_method=protrusion_method, protrusion_coarse_m=protrusion_coarse_m, block_m=block_m,
                    block_margin_m=block_margin_m, filter_order=filter_order, fill_holes_max_m2=fill_holes_max_m2,
-                   max_cell_fraction=max_cell_fraction, workers=workers)
+                   max_cell_fraction=max_cell_fraction, workers=workers, tile_cells=tile_cells)
     t_all = time.perf_counter()
     timings: dict[str, float] = {}
     z, x, y, cell = _grid_arrays(grid, vehicle, opt.max_cell_fraction)
+    warn: list[str] = []
+    if cell > CELL_FRACTION_RULE * vehicle.width_m * (1 + 1e-6):
+        warn.append(f"grid cells of {cell:g} m are coarser than the rule of 1/10 of the vehicle width "
+                    f"({CELL_FRACTION_RULE * vehicle.width_m:g} m), analysed only because max_cell_fraction = "
+                    f"{opt.max_cell_fraction:g}: exclusion discs and the footprint edge are resolved by few cells")
+    n_heads = 37 if headings_deg is None else int(np.size(headings_deg))
+    if memory_limit_bytes is not None or work_limit is not None:
+        check_resources(z.shape, n_heads, memory_limit_bytes=memory_limit_bytes, work_limit=work_limit,
+                        keep_heading_exclusion=keep_heading_exclusion, exclusion_step_m=opt.exclusion_step_m,
+                        vehicle=vehicle)
     sigma = _sigma_array(elevation_sigma_m, grid, z.shape, default_sigma_m)
     z, filled = fill_small_holes(z, cell, opt.fill_holes_max_m2)
     phi = 0.0
@@ -672,22 +816,24 @@ def analyse_submap(
         # Eq. 8 discs for the lower protrusion points: steep cells (Fig. 16b) at least min height high
         small = (slope_local > theta_c) & (h >= opt.min_protrusion_height_m) & ~high
         candidate = small | high
-    radius = np.full(z.shape, np.nan)
+    radius = np.full(z.shape, np.nan, np.float32)  # (float32: 4 bytes per cell on long strips)
     radius[small] = vehicle.exclusion_distance_m(h[small], opt.exclusion_step_m) / cell  # Fig. 15
     small_excl = small_protrusion_exclusion(radius)  # Fig. 18c
     static = np.where(small_excl, SMALL_PROTRUSION, np.uint8(0)).astype(np.uint8)
     timings["small_protrusion_exclusion"] = time.perf_counter() - t
 
     t = time.perf_counter()
-    corr = HeadingCorrelator(z, cell, vehicle, high, static_excluded=small_excl)
+    corr = HeadingCorrelator(z, cell, vehicle, high, static_excluded=small_excl, tile_cells=opt.tile_cells)
     r_max = roughness_max_m(vehicle, cell)
     # R [Landing Eq. 13] from heights averaged over the local-slope window: white sensor noise below that
     # scale is not roughness the vehicle feels (it raised C_s by ~30 % at 6 mm on the Takuyo raster)
     hv = np.isfinite(h)
     with np.errstate(invalid="ignore", divide="ignore"):
         rw = slope_window_px(ROUGHNESS_WINDOW_M, cell)
-        h_rough = np.where(hv, ndi.uniform_filter(np.where(hv, h, 0.0), rw, mode="constant")
-                           / ndi.uniform_filter(hv.astype(float), rw, mode="constant"), np.nan)
+        # float32, in place (a 10 M-cell strip would otherwise hold six float64 temporaries here)
+        h_rough = ndi.uniform_filter(np.where(hv, h, 0.0).astype(np.float32), rw, mode="constant")
+        h_rough /= ndi.uniform_filter(hv.astype(np.float32), rw, mode="constant")
+        h_rough[~hv] = np.nan
     ctx = _Ctx(z, h_rough, cell, vehicle, corr, static, opt.min_site_radius_m / cell, 0.0, r_max,
                float(x[0]), float(y[0]))
     timings["prepare_headings"] = time.perf_counter() - t
@@ -695,17 +841,27 @@ def analyse_submap(
     t = time.perf_counter()
     # α and α ± 180° give the same footprint (the paper's reason for -90..90): analyse each once
     keys = [round((float(a) - phi) % 180.0, 9) for a in heads]
+    cached = None  # (key, best-site order, kept maps) of the heading holding the best site
     uniq = list(dict.fromkeys(keys))
     first = {k: float(heads[keys.index(k)]) - phi for k in uniq}  # frame headings
     if opt.workers > 1 and len(uniq) > 1:
         with ThreadPoolExecutor(max_workers=opt.workers) as pool:
             res_u = dict(zip(uniq, pool.map(lambda k: _analyse_heading(ctx, first[k]), uniq), strict=False))
-    else:
-        res_u = {k: _analyse_heading(ctx, first[k]) for k in uniq}
+    else:  # one thread: keep the maps of the heading holding the best site so far (no recomputation below)
+        res_u = {}
+        for k in uniq:
+            ex_k, rows_k, kept = _analyse_heading(ctx, first[k], keep=True)
+            res_u[k] = (ex_k, rows_k)
+            score = _best_score(rows_k)
+            if score is not None and (cached is None or score < cached[1]):  # ties: the earlier heading, as below
+                cached = (k, score, kept)
+            del kept
     results = []
     for a, k in zip(heads, keys, strict=False):
         ex, rows = res_u[k]
-        results.append((ex, [{**r, "heading_deg": float(a)} for r in rows]))
+        # the per-heading flags are only kept when asked for (10 MB per heading on a 10 M-cell strip)
+        results.append((ex if keep_heading_exclusion else None, [{**r, "heading_deg": float(a)} for r in rows]))
+    del res_u
     timings["headings"] = time.perf_counter() - t
 
     t = time.perf_counter()
@@ -730,8 +886,15 @@ def analyse_submap(
         sites["is_best"] = False
         sites.loc[bi, "is_best"] = True
         best = {k: (v.item() if hasattr(v, "item") else v) for k, v in sites.iloc[bi].to_dict().items()}
-        _, _, hm, labels = _analyse_heading(ctx, best["heading_deg"] - phi, want_labels=True)
-        best_mask = labels == int(best["site_id"])
+        kb = round((float(best["heading_deg"]) - phi) % 180.0, 9)
+        if cached is not None and cached[0] == kb and first[kb] == float(best["heading_deg"]) - phi:
+            hm, lab, (b0, b1, b2, b3) = cached[2]
+            best_mask = np.zeros(z.shape, bool)
+            best_mask[b0:b1, b2:b3] = lab == int(best["site_id"])
+        else:
+            _, _, hm, labels = _analyse_heading(ctx, best["heading_deg"] - phi, want_labels=True)
+            best_mask = labels == int(best["site_id"])
+        cached = None
         fp_slope = hm.slope_deg
     else:
         sites["is_best"] = pd.Series(dtype=bool)
@@ -743,7 +906,7 @@ def analyse_submap(
         slope_local_deg=slope_local, protrusion_height_m=h, protrusion_candidate=candidate,
         small_exclusion=small_excl, high_protrusion=high, exclusion=exclusion, sites=sites, best=best,
         footprint_slope_deg=fp_slope, best_site_mask=best_mask, r_max_m=r_max, timings_s=timings, filled=filled,
-        frame_rotation_deg=phi, world_grid=world,
+        frame_rotation_deg=phi, world_grid=world, warnings=warn,
     )
 
 

@@ -29,6 +29,7 @@ class Profile:
     depth_m: np.ndarray  # (N,) seafloor depth, positive down
     along_m: np.ndarray  # (N,) along-track distance of the bin centre
     n_raw: int
+    time_s: np.ndarray | None = None  # (N,) mean time of the bin, seconds since the first sample (when given)
 
 
 def bottom_samples(ctd: pd.DataFrame, name: str = "ctd.parquet") -> pd.DataFrame:
@@ -50,7 +51,13 @@ def bottom_samples(ctd: pd.DataFrame, name: str = "ctd.parquet") -> pd.DataFrame
     return b
 
 
-def resample_along_track(x_m, y_m, depth_m, spacing_m: float) -> Profile:
+def bottom_seconds(bottom: pd.DataFrame) -> np.ndarray:
+    """Time of the bottom samples in seconds (UNIX epoch; any tz-aware or naive timestamps)."""
+    t = pd.to_datetime(bottom["time"], utc=True)
+    return (t - pd.Timestamp(0, tz="UTC")).dt.total_seconds().to_numpy(float)
+
+
+def resample_along_track(x_m, y_m, depth_m, spacing_m: float, time_s=None) -> Profile:
     """Average consecutive samples into bins of ``spacing_m`` of along-track distance (~ the map resolution).
 
     Stationary periods (hovering) collapse into one bin, so each map cell along the track weighs about
@@ -64,21 +71,27 @@ def resample_along_track(x_m, y_m, depth_m, spacing_m: float) -> Profile:
     uk, inv, cnt = np.unique(k, return_inverse=True, return_counts=True)
     def mean(v):
         return np.bincount(inv, weights=v) / cnt
-    return Profile(np.column_stack([mean(x), mean(y)]), mean(z), mean(s), x.size)
+    tb = None if time_s is None else mean(np.asarray(time_s, float) - float(np.asarray(time_s, float)[0]))
+    return Profile(np.column_stack([mean(x), mean(y)]), mean(z), mean(s), x.size, tb)
 
 
 def profile_from_ctd(ctd: pd.DataFrame, spacing_m: float, name: str = "ctd.parquet") -> tuple[Profile, pd.DataFrame]:
     """Measured profile of the bottom phase (seafloor depth vs dead-reckoned track), resampled at ``spacing_m``."""
     b = bottom_samples(ctd, name)
-    prof = resample_along_track(b["dr_east_m"], b["dr_north_m"], b["seafloor_depth_m"], spacing_m)
+    prof = resample_along_track(b["dr_east_m"], b["dr_north_m"], b["seafloor_depth_m"], spacing_m,
+                                time_s=bottom_seconds(b))
     if prof.depth_m.size < 3:
         raise InputError(f"{name}: the bottom track is shorter than 3 x {spacing_m} m; too short to match")
     return prof, b
 
 
-def matched_track(bottom: pd.DataFrame, res: TercomResult, frame: LocalFrame, map_depth=None) -> pd.DataFrame:
-    """The bottom-phase samples placed on the map by the TERCOM result, with lat/lon (degrees)."""
+def matched_track(bottom: pd.DataFrame, res: TercomResult, frame: LocalFrame, map_depth=None,
+                  drift_xy=None) -> pd.DataFrame:
+    """The bottom-phase samples placed on the map by the TERCOM result, with lat/lon (degrees); ``drift_xy``
+    (N, 2), the estimated dead-reckoning drift at the samples (posterior fix), is added when given."""
     xy = res.apply(bottom[["dr_east_m", "dr_north_m"]].to_numpy(float))
+    if drift_xy is not None:
+        xy = xy + np.asarray(drift_xy, float).reshape(-1, 2)
     lon, lat = frame.to_lonlat(xy[:, 0], xy[:, 1])
     out = pd.DataFrame({
         "time": bottom["time"].to_numpy(),

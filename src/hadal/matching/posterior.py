@@ -41,6 +41,27 @@ The MAP is the fine grid's best point; a Nelder-Mead polish of it is kept only w
 same log-likelihood (so refinement never makes the posterior worse; the coarse cell centre and pose
 are on the fine grid, hence the fine MAP is never worse than the coarse fix).
 
+**Joint drift (dead-reckoning error along the track).** The rigid pose cannot follow a dead-reckoning
+error that grows along the track, so the start would be carried from the terrain that fixes the track by the
+drift in between. After the grid, the MAP pose is refitted jointly with a drift ``w(tau) = sum_k B_k(tau) u_k``:
+a velocity bias ``u_k`` (east, north) constant within segments of ``drift_segment`` (time ``tau`` in s when
+``time_s`` is given, else along-track distance in m), integrated so that ``w`` is continuous and zero at the
+first sample (the start is not moved by it). Measurement model ``d_i = z(p_i + w_i) - b + e_i``, prior
+``u_k ~ N(0, drift_sigma^2)``; Levenberg-Marquardt on the same tempered log-likelihood (bilinear map, bias
+profiled out, analytic bilinear gradient) plus the prior, over start x/y, heading, scale (within the searched
+bounds; ``fine_scales`` widens the scale range) and the ``2K`` rates. The rigid fit's residuals are correlated
+by the drift itself, so the noise variance and ``N_eff`` are re-estimated from the joint residuals (up to three
+passes, each started from the rigid MAP). The joint fit replaces the rigid MAP only when it raises the
+log-posterior over the rigid MAP (zero drift) under the same likelihood. Its Laplace covariance of the start
+with the rates marginalised minus the one without (the drift the terrain cannot pin down) is added to the grid's
+second moment. ``refinement.drift`` records the segments, rates, drift at the end and the inflation;
+:meth:`PosteriorFix.apply` with ``tau`` places any track point with the drift. (A modelling choice beyond the
+TERCOM paper, which matches a rigid track.)
+
+**Crop.** The FFTs and the per-pose surfaces run on the map cropped to the search region plus the track's
+footprint (every heading x scale) and a margin; with a region (the suitability stage's proposed one) the cost
+and memory are those of the region, not of the map.
+
 **Reported.** The MAP fix (start, heading, scale, bias), the posterior second moment about it
 (covariance ``C``; ``sigma_x_m``/``sigma_y_m``; radial DRMS ``sqrt(tr C)``, which a calibrated 2-D
 Gaussian error stays within 63 % of the time and within twice 98 %), the 1-sigma and 2-sigma ellipses
@@ -115,6 +136,7 @@ class PosteriorFix:
     y_m: np.ndarray
     refinement: dict = field(default_factory=dict)
     modes: list[dict] = field(default_factory=list)
+    drift_model: tuple | None = None  # (tau of the first sample, segment edges, (K, 2) rates, unit) or None
 
     @property
     def sigma_x_m(self) -> float:
@@ -150,10 +172,23 @@ class PosteriorFix:
         except np.linalg.LinAlgError:
             return float("inf")
 
-    def apply(self, track_xy) -> np.ndarray:
-        """Map positions of track points given in the input track's frame (as :meth:`TercomResult.apply`)."""
+    def apply(self, track_xy, tau=None) -> np.ndarray:
+        """Map positions of track points given in the input track's frame (as :meth:`TercomResult.apply`), plus
+        the estimated drift at ``tau`` (their times, or along-track distances, in the unit of the fit) when given."""
         p = np.asarray(track_xy, float).reshape(-1, 2) - np.asarray(self.track_start_xy)
-        return _rotate(p, self.heading_deg) * self.scale + np.array([self.start_x_m, self.start_y_m])
+        out = _rotate(p, self.heading_deg) * self.scale + np.array([self.start_x_m, self.start_y_m])
+        if tau is not None:
+            out = out + self.drift_at(tau)
+        return out
+
+    def drift_at(self, tau) -> np.ndarray:
+        """(M, 2) estimated dead-reckoning drift (m, east/north) at ``tau`` (zero at the first profile sample)."""
+        tau = np.asarray(tau, float).ravel()
+        if self.drift_model is None:
+            return np.zeros((tau.size, 2))
+        t0, edges, U, _ = self.drift_model
+        B = np.clip((tau - t0)[:, None] - edges[None, :-1], 0.0, np.diff(edges)[None, :])
+        return B @ U
 
     def summary(self) -> dict:
         """The ``posterior`` section of ``fix.json`` (JSON-ready, NaN left to ``json_clean``)."""
@@ -183,12 +218,14 @@ class PosteriorFix:
             "mismatch": self.mismatch,
             "mismatch_reasons": list(self.reasons),
             "refinement": self.refinement,
+            "drift": self.refinement.get("drift", {"applied": False}),
         }
 
     def to_tercom_result(self, coarse: TercomResult) -> TercomResult:
         """``coarse`` (the paper's search, its surfaces) with the pose, sigma, mismatch and warnings of the posterior."""
-        g_rows = int(np.clip(np.rint((self.start_y_m - self.y_m[0]) / (self.x_m[1] - self.x_m[0])), 0, self.y_m.size - 1))
-        g_cols = int(np.clip(np.rint((self.start_x_m - self.x_m[0]) / (self.x_m[1] - self.x_m[0])), 0, self.x_m.size - 1))
+        hc = coarse.x_m[1] - coarse.x_m[0]  # cells of the coarse search's map (the posterior may hold a crop)
+        g_rows = int(np.clip(np.rint((self.start_y_m - coarse.y_m[0]) / hc), 0, coarse.y_m.size - 1))
+        g_cols = int(np.clip(np.rint((self.start_x_m - coarse.x_m[0]) / hc), 0, coarse.x_m.size - 1))
         sm = self.second_mode or {}
         keep = [w for w in coarse.warnings if "possible mismatch" not in w and "fall on invalid map cells" not in w]
         return replace(
@@ -236,10 +273,13 @@ def _s2_from(msd: float, nv: float, floor2: float) -> float:
     return float(max(msd * nv / dof, floor2))
 
 
-def _bilinear_residuals(g: MapGrid, d: np.ndarray, rel: np.ndarray, pose, offsets_xy: np.ndarray) -> np.ndarray:
+def _bilinear_residuals(g: MapGrid, d: np.ndarray, rel: np.ndarray, pose, offsets_xy: np.ndarray,
+                        drift_xy: np.ndarray | None = None) -> np.ndarray:
     """(M, N) map depth minus measured depth with the start at each of ``offsets_xy`` (M, 2), NaN where no map."""
     a, f = pose
     q = _rotate(rel, a) * f
+    if drift_xy is not None:
+        q = q + drift_xy
     return g.sample_bilinear(offsets_xy[:, :1] + q[None, :, 0], offsets_xy[:, 1:2] + q[None, :, 1]) - d[None, :]
 
 
@@ -252,6 +292,137 @@ def _msd_b(res: np.ndarray):
         b = r.sum(axis=-1) / nv
         msd = np.maximum((r * r).sum(axis=-1) / nv - b * b, 0.0)
     return np.where(nv > 0, msd, np.nan), nv, b
+
+
+def _bilinear_with_gradient(g: MapGrid, x_m: np.ndarray, y_m: np.ndarray):
+    """Bilinear depth and its gradient (dz/dx, dz/dy per metre) at map points; NaN outside or next to holes."""
+    c, r = g.col_of(x_m), g.row_of(y_m)
+    ny, nx = g.shape
+    z = np.full(c.shape, np.nan)
+    gx = np.full(c.shape, np.nan)
+    gy = np.full(c.shape, np.nan)
+    ok = (c >= 0) & (c <= nx - 1) & (r >= 0) & (r <= ny - 1)
+    c0 = np.clip(np.floor(c[ok]).astype(int), 0, nx - 2)
+    r0 = np.clip(np.floor(r[ok]).astype(int), 0, ny - 2)
+    fc, fr = c[ok] - c0, r[ok] - r0
+    Z = g.depth_m
+    z00, z01, z10, z11 = Z[r0, c0], Z[r0, c0 + 1], Z[r0 + 1, c0], Z[r0 + 1, c0 + 1]
+    z[ok] = z00 * (1 - fc) * (1 - fr) + z01 * fc * (1 - fr) + z10 * (1 - fc) * fr + z11 * fc * fr
+    gx[ok] = ((z01 - z00) * (1 - fr) + (z11 - z10) * fr) / g.resolution_m
+    gy[ok] = ((z10 - z00) * (1 - fc) + (z11 - z01) * fc) / g.resolution_m
+    return z, gx, gy
+
+
+def _drift_basis(tau: np.ndarray, segment: float) -> tuple[np.ndarray, np.ndarray]:
+    """(N, K) time (or distance) spent in each drift segment before each sample, and the K+1 segment edges.
+
+    The drift ``w(tau) = sum_k B_k(tau) u_k`` is continuous, zero at the first sample, piecewise linear with a
+    constant rate ``u_k`` (velocity bias) in each segment of length ``segment`` (the last one absorbs a remainder
+    shorter than half a segment)."""
+    t = tau - tau[0]
+    total = float(t[-1])
+    k = max(int(round(total / segment)), 1) if segment > 0 and total > 0 else 1
+    edges = np.linspace(0.0, total, k + 1) if total > 0 else np.array([0.0, 1.0])
+    B = np.clip(t[:, None] - edges[None, :-1], 0.0, np.diff(edges)[None, :])
+    return B, edges
+
+
+def _joint_drift_fit(g: MapGrid, d, rel, B, sigma_u: float, p0, bounds_a, bounds_f, s2: float, gamma: float,
+                     v_map: float, n_req: int, max_iter: int = 40, sigma_heading_deg: float | None = None,
+                     sigma_scale: float | None = None) -> dict:
+    """Levenberg-Marquardt MAP of start x/y, heading, scale and the drift rates under the (tempered) likelihood of
+    the module docstring plus the Gaussian drift prior; Laplace covariance of the start with and without drift."""
+    N = d.size
+    K = B.shape[1]
+    n_par = 4 + 2 * K
+    prior = np.zeros(n_par)
+    prior[4:] = 1.0 / sigma_u ** 2
+    if sigma_heading_deg:
+        prior[2] = 1.0 / sigma_heading_deg ** 2
+    if sigma_scale:
+        prior[3] = 1.0 / sigma_scale ** 2
+    centre = np.zeros(n_par)
+    centre[3] = 1.0
+
+    def unpack(th):
+        return th[0], th[1], th[2], th[3], th[4:].reshape(K, 2)
+
+    def evaluate(th, jac: bool):
+        x0, y0, a, f, U = unpack(th)
+        rq = _rotate(rel, a)
+        q = rq * f + np.array([x0, y0]) + B @ U
+        z, gx, gy = _bilinear_with_gradient(g, q[:, 0], q[:, 1])
+        r = z - d
+        ok = np.isfinite(r) & np.isfinite(gx) & np.isfinite(gy)
+        nv = int(ok.sum())
+        if nv < max(n_req, n_par // 2 + 3):
+            return -np.inf, None, None, ok
+        rc = r[ok] - r[ok].mean()
+        msd = float(rc @ rc) / nv
+        ll = float(_loglik(np.array([msd]), np.array([float(nv)]), N, s2, v_map, gamma)[0])
+        ll -= 0.5 * float(np.sum(prior * (th - centre) ** 2))
+        if not jac:
+            return ll, None, None, ok
+        J = np.zeros((nv, n_par))
+        gxo, gyo = gx[ok], gy[ok]
+        J[:, 0], J[:, 1] = gxo, gyo
+        dq_da = np.column_stack([rq[ok, 1], -rq[ok, 0]]) * f * (np.pi / 180.0)
+        J[:, 2] = gxo * dq_da[:, 0] + gyo * dq_da[:, 1]
+        J[:, 3] = gxo * rq[ok, 0] + gyo * rq[ok, 1]
+        J[:, 4::2] = gxo[:, None] * B[ok]
+        J[:, 5::2] = gyo[:, None] * B[ok]
+        J -= J.mean(axis=0)  # the bias is profiled out: centred residuals and Jacobian
+        return ll, J, rc, ok
+
+    th = np.concatenate([np.asarray(p0, float), np.zeros(2 * K)])
+    free = np.ones(n_par, bool)
+    free[2] = bounds_a[1] > bounds_a[0]
+    free[3] = bounds_f[1] > bounds_f[0]
+    ll0, J, rc, _ = evaluate(th, True)
+    if not np.isfinite(ll0):
+        return {"ok": False}
+    ll, lam, n_it = ll0, 1e-3, 0
+    w = gamma / s2
+    for _ in range(max_iter):
+        n_it += 1
+        A = w * (J.T @ J) + np.diag(prior)
+        gvec = w * (J.T @ rc) + prior * (th - centre)
+        Af = A[np.ix_(free, free)]
+        step = np.zeros(n_par)
+        improved = False
+        for _ in range(12):
+            M = Af + lam * np.diag(np.diag(Af)) + 1e-12 * np.trace(Af) * np.eye(Af.shape[0])
+            try:
+                step[free] = -np.linalg.solve(M, gvec[free])
+            except np.linalg.LinAlgError:
+                lam *= 10
+                continue
+            cand = th + step
+            cand[2] = np.clip(cand[2], *bounds_a)
+            cand[3] = np.clip(cand[3], *bounds_f)
+            ll_c, J_c, rc_c, _ = evaluate(cand, True)
+            if np.isfinite(ll_c) and ll_c > ll:
+                gain = ll_c - ll
+                th, ll, J, rc = cand, ll_c, J_c, rc_c
+                lam = max(lam / 3, 1e-9)
+                improved = True
+                break
+            lam *= 4
+        if not improved or gain < 1e-6:
+            break
+    A = w * (J.T @ J) + np.diag(prior)
+    Af = A[np.ix_(free, free)]
+    try:
+        cov_joint = np.linalg.pinv(Af, hermitian=True)[:2, :2]
+        nr = int(free[:4].sum())
+        cov_rigid = np.linalg.pinv(Af[:nr, :nr], hermitian=True)[:2, :2]
+    except np.linalg.LinAlgError:
+        return {"ok": False}
+    ev, V = np.linalg.eigh(0.5 * ((cov_joint - cov_rigid) + (cov_joint - cov_rigid).T))
+    infl = (V * np.maximum(ev, 0.0)) @ V.T
+    x0, y0, a, f, U = unpack(th)
+    return {"ok": True, "x": float(x0), "y": float(y0), "a": float(a), "f": float(f), "U": U, "ll": ll, "ll0": ll0,
+            "iterations": n_it, "cov_joint": cov_joint, "cov_rigid": cov_rigid, "inflation": infl}
 
 
 # ------------------------------------------------------------------ main entry
@@ -274,6 +445,13 @@ def posterior_fix(
     min_relief_to_noise: float = 1.0,
     min_valid_for_fix: float = 0.5,
     polish: bool = True,
+    fine_scales: Sequence[float] | None = None,
+    time_s=None,
+    drift: bool = True,
+    drift_segment: float | None = None,
+    drift_sigma: float | None = None,
+    heading_sigma_deg: float | None = None,
+    scale_sigma: float | None = None,
 ) -> PosteriorFix:
     """Posterior fix of a measured depth profile on a map (module docstring).
 
@@ -287,6 +465,12 @@ def posterior_fix(
     region : ``(x_min, x_max, y_min, y_max)`` map metres restricting the start position.
     uncertainty : per-cell map standard uncertainty (m) on the map grid (array, DataArray or MapGrid).
     min_valid_fraction : offsets with fewer valid samples are impossible (prior zero).
+    fine_scales : extra scale factors tried in the fine windows (with the plausible coarse headings) and the
+        bounds of the continuous scale fit (default: the coarse ``scales`` only).
+    time_s : (N,) time of each sample (s, any origin): the dead-reckoning drift is then piecewise constant in
+        time (``drift_segment`` s, prior ``drift_sigma`` m/s); without it in along-track distance
+        (``drift_segment`` m, prior ``drift_sigma`` m per m travelled).
+    drift : estimate the dead-reckoning drift jointly with the pose (module docstring, *Joint drift*).
     """
     d, t = _validate_inputs(profile_depth, track_xy)
     import xarray as xr
@@ -299,8 +483,9 @@ def posterior_fix(
     N = d.size
     headings = [float(a) for a in headings_deg] or [0.0]
     scale_list = [float(f) for f in scales] or [1.0]
-    if min(scale_list) <= 0:
-        raise InputError(f"track scale factors must be > 0, got {scale_list}")
+    fine_scale_list = sorted({*scale_list, *(float(f) for f in (fine_scales if fine_scales is not None else ()))})
+    if min(fine_scale_list) <= 0:
+        raise InputError(f"track scale factors must be > 0, got {fine_scale_list}")
     poses = [(a, f) for a in headings for f in scale_list]
     unc = None
     if uncertainty is not None:
@@ -310,13 +495,30 @@ def posterior_fix(
             raise InputError(f"uncertainty layer shape {unc.shape} does not match the map {g.shape}")
         unc = MapGrid(np.where(np.isfinite(unc), unc, np.nan), g.x_m, g.y_m, h)
 
+    rel = t - t[0]
+    # ---- crop the map to the search region plus the track's footprint (every heading x scale, plus a margin
+    # for the fine windows and the drift): the FFTs and the per-pose surfaces then cost the region, not the map
+    r0, r1, c0, c1 = g.region_window(region)
+    ext = np.array([_rotate(rel, a) * f for a in headings for f in fine_scale_list])  # (P', N, 2)
+    margin = int(np.ceil(mode_radius_cells)) + 8
+    cr0 = max(r0 + int(np.floor(ext[..., 1].min() / h)) - margin, 0)
+    cr1 = min(r1 + int(np.ceil(ext[..., 1].max() / h)) + margin, ny)
+    cc0 = max(c0 + int(np.floor(ext[..., 0].min() / h)) - margin, 0)
+    cc1 = min(c1 + int(np.ceil(ext[..., 0].max() / h)) + margin, nx)
+    del ext
+    if (cr0, cr1, cc0, cc1) != (0, ny, 0, nx):
+        g = MapGrid(np.ascontiguousarray(g.depth_m[cr0:cr1, cc0:cc1]), g.x_m[cc0:cc1], g.y_m[cr0:cr1], h)
+        if unc is not None:
+            unc = MapGrid(np.ascontiguousarray(unc.depth_m[cr0:cr1, cc0:cc1]), g.x_m, g.y_m, h)
+        ny, nx = g.shape
+        r0, r1, c0, c1 = r0 - cr0, r1 - cr0, c0 - cc0, c1 - cc0
+    if not np.isfinite(g.depth_m).any():
+        raise InputError("the search region and the track's footprint hold no valid map cell")
+
     V = np.isfinite(g.depth_m)
     ref = float(np.nanmean(g.depth_m))
     D = np.where(V, g.depth_m - ref, 0.0)
     dc = d - ref
-    rel = t - t[0]
-
-    r0, r1, c0, c1 = g.region_window(region)
     in_region = np.zeros((ny, nx), bool)
     in_region[r0:r1, c0:c1] = True
     zr = g.depth_m[r0:r1, c0:c1]
@@ -333,7 +535,7 @@ def posterior_fix(
                           (max(0, -rmin), max(0, -cmin)), (max(0, rmax), max(0, cmax)))
     P = len(poses)
     msd_all = np.full((P, ny, nx), np.nan, np.float32)
-    n_all = np.zeros((P, ny, nx), np.float32)
+    n_all = np.zeros((P, ny, nx), np.uint16 if N < 65535 else np.uint32)
     for k, (rows, cols) in enumerate(snapped):
         n, s_r, s_r2, _ = _sums_all_offsets(corr, rows, cols, dc, False)
         feas = (n >= n_req) & in_region
@@ -358,19 +560,31 @@ def posterior_fix(
         return float(np.mean(u * u)) if u.size else 0.0
 
     # ---- noise variance and effective sample size at the coarse MAP (two passes)
-    full = n_all >= 0.9 * N
-    cand = np.where(full & np.isfinite(msd_all), msd_all, np.inf)
-    k0 = int(np.argmin(cand)) if np.isfinite(cand).any() else int(np.nanargmin(np.where(n_all > 0, msd_all, np.inf)))
+    best_full, best_any = (np.inf, -1), (np.inf, -1)  # lowest MSD with >= 90 % valid samples / with any (per pose)
+    for k_ in range(P):
+        mk = np.where(np.isfinite(msd_all[k_]), msd_all[k_], np.inf)
+        j_ = int(np.argmin(np.where(n_all[k_] >= 0.9 * N, mk, np.inf)))
+        if mk.flat[j_] < best_full[0] and n_all[k_].flat[j_] >= 0.9 * N:
+            best_full = (float(mk.flat[j_]), k_ * ny * nx + j_)
+        j_ = int(np.argmin(np.where(n_all[k_] > 0, mk, np.inf)))
+        if mk.flat[j_] < best_any[0]:
+            best_any = (float(mk.flat[j_]), k_ * ny * nx + j_)
+    k0 = best_full[1] if best_full[1] >= 0 else best_any[1]
     kp, rc0 = divmod(k0, ny * nx)
     s2 = _s2_from(float(msd_all.flat[k0]), float(n_all.flat[k0]), floor2)
     gamma = 1.0
 
+    ll_all = np.empty((P, ny, nx), np.float32)
+
     def coarse_post(s2_, gamma_):
-        ll = _loglik(msd_all, n_all, N, s2_, v_map, gamma_)
-        m = ll.max()
-        w = np.exp(ll - m)
-        pc = w.sum(axis=0)
-        return ll, pc / pc.sum()
+        # one pose at a time (float64 temporaries of one map, not of P maps); log-likelihoods kept in float32
+        for k_ in range(P):
+            ll_all[k_] = _loglik(msd_all[k_], n_all[k_], N, s2_, v_map, gamma_)
+        m = float(ll_all.max())
+        pc = np.zeros((ny, nx))
+        for k_ in range(P):
+            pc += np.exp(ll_all[k_].astype(np.float64) - m)
+        return ll_all, pc / pc.sum()
 
     def coarse_residuals(k, r, c):
         rows, cols = snapped[k]
@@ -417,7 +631,9 @@ def posterior_fix(
     windows = []
     for (rw, cw) in centres:
         llw = ll[:, max(rw - Ri, 0) : rw + Ri + 1, max(cw - Ri, 0) : cw + Ri + 1].reshape(P, -1).max(axis=1)
-        pk = [k for k in range(P) if llw[k] > llw.max() - 12.0]
+        # plausible coarse poses, each expanded with the fine scales (the coarse pose itself is kept)
+        pk = list(dict.fromkeys(p_ for k in range(P) if llw[k] > llw.max() - 12.0
+                                for p_ in [poses[k]] + [(poses[k][0], fs) for fs in fine_scale_list]))
         xc, yc = float(g.x_m[cw]), float(g.y_m[rw])
         offs = oxy + np.array([xc, yc])
         inr = ((offs[:, 0] >= g.x_m[c0] - 1e-6) & (offs[:, 0] <= g.x_m[c1 - 1] + 1e-6)
@@ -426,7 +642,7 @@ def posterior_fix(
         nv_w = np.zeros((len(pk), len(offs)))
         b_w = np.zeros((len(pk), len(offs)))
         for j, k in enumerate(pk):
-            m, nv, b = _msd_b(_bilinear_residuals(g, d, rel, poses[k], offs))
+            m, nv, b = _msd_b(_bilinear_residuals(g, d, rel, k, offs))
             ok = (nv >= n_req) & inr
             msd_w[j] = np.where(ok, m, np.nan)
             nv_w[j] = np.where(ok, nv, 0)
@@ -455,9 +671,9 @@ def posterior_fix(
             llf = fine_ll(w0, s2f, gammaf)
             jj = int(np.argmax(llf))
             j, mo = divmod(jj, llf.shape[1])
-            res_f = _bilinear_residuals(g, d, rel, poses[w0["poses"][j]], w0["offs"][mo : mo + 1])[0]
+            res_f = _bilinear_residuals(g, d, rel, w0["poses"][j], w0["offs"][mo : mo + 1])[0]
             gammaf = _n_eff(res_f) / max(np.isfinite(res_f).sum(), 1)
-            xy_fix = _rotate(rel, poses[w0["poses"][j]][0]) * poses[w0["poses"][j]][1] + w0["offs"][mo]
+            xy_fix = _rotate(rel, w0["poses"][j][0]) * w0["poses"][j][1] + w0["offs"][mo]
             s2f = max(_s2_from(float(fl.flat[jj]), float(w0["nv"].flat[jj]), floor2), map_sigma2_at(xy_fix) + floor2)
 
     # window masses under the same fine likelihood
@@ -476,8 +692,7 @@ def posterior_fix(
     wb, llb = windows[best_w], lls[best_w]
     jj = int(np.argmax(llb))
     j, mo = divmod(jj, llb.shape[1])
-    k_map = wb["poses"][j]
-    a_map, f_map = poses[k_map]
+    a_map, f_map = wb["poses"][j]
     x_map, y_map = (float(v) for v in wb["offs"][mo])
     ll_grid = float(llb.flat[jj])
 
@@ -485,7 +700,8 @@ def posterior_fix(
     rc_c = windows[0]["rc"]
     centre_idx = (len(grid1) * len(grid1)) // 2
     kc = int(np.argmax(ll[:, rc_c[0], rc_c[1]]))
-    ll_coarse_pt = float(lls[0][windows[0]["poses"].index(kc), centre_idx]) if kc in windows[0]["poses"] else float("-inf")
+    ll_coarse_pt = (float(lls[0][windows[0]["poses"].index(poses[kc]), centre_idx]) if poses[kc] in windows[0]["poses"]
+                    else float("-inf"))
 
     # ---- Nelder-Mead polish under the same likelihood; kept only if better
     polished = False
@@ -493,7 +709,7 @@ def posterior_fix(
         from scipy.optimize import minimize
 
         ha = (min(headings), max(headings))
-        fa = (min(scale_list), max(scale_list))
+        fa = (min(fine_scale_list), max(fine_scale_list))
         xc, yc = float(g.x_m[wb["rc"][1]]), float(g.y_m[wb["rc"][0]])
 
         def neg(p):
@@ -507,7 +723,7 @@ def posterior_fix(
 
         x0v = np.array([x_map, y_map, a_map, f_map])
         da_ = max((ha[1] - ha[0]) / max(len(headings) - 1, 1), 0.1) if ha[1] > ha[0] else 0.0
-        df_ = max((fa[1] - fa[0]) / max(len(scale_list) - 1, 1), 0.002) if fa[1] > fa[0] else 0.0
+        df_ = max((fa[1] - fa[0]) / max(len(fine_scale_list) - 1, 1), 0.002) if fa[1] > fa[0] else 0.0
         simplex = [x0v.copy()]
         for i, st in enumerate((step, step, da_ / 2, df_ / 2)):
             v = x0v.copy()
@@ -533,7 +749,60 @@ def posterior_fix(
             x_map, y_map, a_map, f_map = (float(v) for v in p)
             polished = True
     ll_map = float(-neg(np.array([x_map, y_map, a_map, f_map]))) if polish else ll_grid
-    res_map = _bilinear_residuals(g, d, rel, (a_map, f_map), np.array([[x_map, y_map]]))[0]
+
+    # ---- joint dead-reckoning drift (piecewise-constant rate) with the pose: same likelihood + the drift prior;
+    # kept only when it raises that log-posterior (the rigid MAP is its zero-drift point)
+    x_rigid = np.array([x_map, y_map])
+    drift_xy = np.zeros((N, 2))
+    infl = np.zeros((2, 2))
+    drift_info: dict = {"applied": False}
+    drift_model = None
+    if drift and np.isfinite(ll_map) and N >= max(2 * min_samples, 12):
+        if time_s is not None:
+            tau = np.asarray(time_s, float).ravel()
+            if tau.size != N or not np.isfinite(tau).all() or (np.diff(tau) < 0).any():
+                raise InputError(f"time_s must be {N} finite, non-decreasing sample times")
+            seg, sig, unit = (drift_segment or 900.0), (drift_sigma or 0.003), "s"
+        else:
+            tau = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(rel, axis=0).T))])
+            seg, sig, unit = (drift_segment or max(float(tau[-1]) / 3.0, h)), (drift_sigma or 0.005), "m"
+        B, edges = _drift_basis(tau, seg)
+        bnd_a = (min(headings), max(headings))
+        bnd_f = (min(fine_scale_list), max(fine_scale_list))
+        # the rigid fit's residuals are correlated by the very drift modelled here (small N_eff): the noise variance
+        # and N_eff of the joint fit are re-estimated from its own residuals (two passes, each from the rigid MAP,
+        # so the rigid MAP and the joint one are compared under the same likelihood)
+        s2j, gj = s2f, gammaf
+        for _ in range(3):
+            jf = _joint_drift_fit(g, d, rel, B, sig, (x_map, y_map, a_map, f_map), bnd_a, bnd_f, s2j, gj, v_map, n_req,
+                                  sigma_heading_deg=heading_sigma_deg, sigma_scale=scale_sigma)
+            if not jf["ok"]:
+                break
+            rj = _bilinear_residuals(g, d, rel, (jf["a"], jf["f"]), np.array([[jf["x"], jf["y"]]]), B @ jf["U"])[0]
+            okj = np.isfinite(rj)
+            if okj.sum() <= N_PARAMS + 2 * B.shape[1]:
+                break
+            rc_ = rj[okj] - rj[okj].mean()
+            s2_new = max(float(rc_ @ rc_) / (okj.sum() - N_PARAMS - 2 * B.shape[1]), s2f * 0.25, floor2)
+            g_new = max(_n_eff(rj) / okj.sum(), gammaf)
+            if abs(s2_new - s2j) <= 0.02 * s2j and abs(g_new - gj) <= 0.02 * gj:
+                break
+            s2j, gj = s2_new, g_new
+        drift_info = {"applied": False, "segments": int(B.shape[1]), "segment_length": float(np.diff(edges)[0]),
+                      "unit": unit, "prior_sigma_rate": sig}
+        if jf["ok"] and jf["ll"] > jf["ll0"] + 1e-9:  # same objective at the rigid MAP (zero drift)
+            drift_info.update({
+                "applied": True, "log_posterior_rigid_map": jf["ll0"], "log_posterior_joint": jf["ll"],
+                "noise_sigma_m": float(np.sqrt(s2j)), "tempering": float(gj),
+                "comment": "both log-posteriors under the joint fit's likelihood (noise, N_eff from its residuals)",
+                "iterations": jf["iterations"], "moved_start_m": float(np.hypot(jf["x"] - x_map, jf["y"] - y_map)),
+                "rates": jf["U"].tolist(), "drift_at_end_m": (B @ jf["U"])[-1].tolist(),
+                "covariance_inflation_m2": jf["inflation"].tolist()})
+            x_map, y_map, a_map, f_map = jf["x"], jf["y"], jf["a"], jf["f"]
+            drift_xy = B @ jf["U"]
+            infl = jf["inflation"]
+            drift_model = (float(tau[0]), edges, jf["U"], unit)
+    res_map = _bilinear_residuals(g, d, rel, (a_map, f_map), np.array([[x_map, y_map]]) , drift_xy)[0]
     if not np.isfinite(res_map).any():  # bilinear undefined at the fix (holes): use the coarse residuals
         res_map = coarse_residuals(kp, *divmod(rc, nx))
     okm = np.isfinite(res_map)
@@ -541,16 +810,21 @@ def posterior_fix(
     bias = float(np.mean(res_map[okm])) if n_valid else float("nan")
 
     # ---- posterior moments about the MAP: fine windows (mixture) + coarse cells outside the windows
-    xhat = np.array([x_map, y_map])
+    xhat = x_rigid
     S = np.zeros((2, 2))
     mean = np.zeros(2)
     modes = []
-    for w, x_ll, m_w in zip(windows, lls, mw, strict=True):
+    # with the drift modelled, the main mode's width is that of the joint likelihood (its noise and N_eff), the
+    # rigid grid's (tempered by the drift-correlated residuals) rescaled by the ratio of the two precisions
+    kappa = (float(np.clip((gammaf / s2f) / (drift_info["tempering"] / drift_info["noise_sigma_m"] ** 2), 0.1, 1.0))
+             if drift_info.get("applied") else 1.0)
+    for iw, (w, x_ll, m_w) in enumerate(zip(windows, lls, mw, strict=True)):
         pw = np.exp(x_ll - x_ll.max()).sum(axis=0)
         pw = pw / pw.sum() if pw.sum() > 0 else np.full(pw.size, 1.0 / pw.size)
         e = w["offs"] - xhat
         mu = (pw[:, None] * w["offs"]).sum(axis=0)
-        S += m_w * ((pw[:, None, None] * e[:, :, None] * e[:, None, :]).sum(axis=0) + np.eye(2) * step * step / 12)
+        Sw = (pw[:, None, None] * e[:, :, None] * e[:, None, :]).sum(axis=0)
+        S += m_w * ((kappa * Sw if iw == best_w else Sw) + np.eye(2) * step * step / 12)
         mean += m_w * mu
         modes.append({"x_east_m": float(mu[0]), "y_north_m": float(mu[1]), "mass": float(m_w)})
     if m_out_coarse > 0:
@@ -563,6 +837,10 @@ def posterior_fix(
     tot = float(mw.sum() + m_out_coarse)
     S /= tot
     mean /= tot
+    # the grid is rigid: its moments are about the rigid MAP; the joint drift fit moves the fix and widens the
+    # start's posterior by the drift it cannot pin down (Laplace: joint minus rigid marginal covariance)
+    S = S + infl
+    mean = mean + (np.array([x_map, y_map]) - x_rigid)
     mass_out = float(1.0 - mw[best_w] / tot)
     others = [m for i, m in enumerate(modes) if i != best_w]
     # best coarse mode outside all windows
@@ -577,7 +855,7 @@ def posterior_fix(
 
     # ---- terrain information and flags
     s_f = float(np.sqrt(s2f))
-    xy_fix = _rotate(rel, a_map) * f_map + xhat
+    xy_fix = _rotate(rel, a_map) * f_map + np.array([x_map, y_map]) + drift_xy
     zf = g.sample_bilinear(xy_fix[:, 0], xy_fix[:, 1])
     zf = zf[np.isfinite(zf)]
     relief = float(np.std(zf)) if zf.size > 1 else 0.0
@@ -615,7 +893,7 @@ def posterior_fix(
         "loglik_coarse_fix": ll_coarse_pt, "loglik_grid_map": ll_grid, "loglik_map": ll_map, "polished": polished,
         "coarse_cell": {"x_east_m": float(g.x_m[rc_c[1]]), "y_north_m": float(g.y_m[rc_c[0]]),
                         "heading_error_deg": poses[kc][0], "track_scale": poses[kc][1]},
-        "noise_sigma_coarse_m": float(np.sqrt(s2)), "tempering": float(gammaf),
+        "noise_sigma_coarse_m": float(np.sqrt(s2)), "tempering": float(gammaf), "drift": drift_info,
     }
     return PosteriorFix(
         start_x_m=x_map, start_y_m=y_map, heading_deg=a_map, scale=f_map, bias_m=bias,
@@ -624,5 +902,5 @@ def posterior_fix(
         map_sigma_m=float(np.sqrt(map_sigma2_at(xy_fix))), n_eff=float(gammaf * max(n_valid, 1)),
         n_samples=N, n_valid=n_valid, relief_to_noise=r2n, mismatch=bool(reasons), reasons=reasons, warnings=warns,
         track_start_xy=(float(t[0, 0]), float(t[0, 1])), posterior_cells=pc.astype(np.float32), x_m=g.x_m, y_m=g.y_m,
-        refinement=refinement, modes=modes,
+        refinement=refinement, modes=modes, drift_model=drift_model,
     )

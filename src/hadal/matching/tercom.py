@@ -43,6 +43,7 @@ Options beyond the paper:
 
 from __future__ import annotations
 
+import warnings as _warnings
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
@@ -697,15 +698,25 @@ def refine_tercom(
             p[idx] = v
             return p
 
-        o = minimize(lambda v: cost(unpack(v), keep), x, method="Nelder-Mead",
-                     options={"initial_simplex": np.array(simplex), "xatol": 0.05, "fatol": 1e-4, "maxiter": 800})
+        with _warnings.catch_warnings(), np.errstate(all="ignore"):  # no optimiser warning reaches the user
+            _warnings.simplefilter("ignore")
+            o = minimize(lambda v: cost(unpack(v), keep), x, method="Nelder-Mead",
+                         options={"initial_simplex": np.array(simplex), "xatol": 0.05, "fatol": 1e-4, "maxiter": 800})
+        f0 = cost(full0, keep)
+        if not (np.isfinite(o.fun) and o.fun < f0):  # never worse than the start under the same (bilinear) MSD
+            return float(f0), full0
         return float(o.fun), unpack(o.x)
 
     fits = [(*fit(s0), rank) for rank, s0 in enumerate(seeds)]
     fits = [f for f in fits if np.isfinite(f[0])]
     if not fits:
         return replace(coarse, warnings=[*coarse.warnings, "sub-cell refinement found no feasible pose; coarse fix kept"])
+    # seeds compared under the same likelihood (bilinear MSD); a far seed must beat the coarse optimum's own
+    # refinement clearly (by the noise of the MSD itself, 2/N_valid relative), else the coarse fix's basin is kept
+    own = [f for f in fits if f[2] == 0]
     score, pose, rank = min(fits, key=lambda f: f[0])
+    if own and rank != 0 and score > own[0][0] * (1.0 - 2.0 / max(d.size, 1)):
+        score, pose, rank = own[0]
     x0, y0, a, sc = (float(v) for v in pose)
     res = residuals(pose)
     ok = np.isfinite(res)

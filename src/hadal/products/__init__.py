@@ -7,5 +7,7 @@ from hadal.products.io import (
     write_netcdf,
     write_parquet,
 )
+from hadal.products.metadata import dive_context, missing_acdd_fields
 
-__all__ = ["dive_attributes", "prepare_dataset", "read_parquet_metadata", "write_netcdf", "write_parquet"]
+__all__ = ["dive_attributes", "dive_context", "missing_acdd_fields", "prepare_dataset", "read_parquet_metadata",
+           "write_netcdf", "write_parquet"]

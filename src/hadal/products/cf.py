@@ -107,6 +107,20 @@ COLUMN_ATTRS: dict[str, dict[str, str]] = {
                        "long_name": "vehicle depth (TEOS-10)"},
     "sound_speed_m_s": {"standard_name": "speed_of_sound_in_sea_water", "units": "m s-1",
                         "long_name": "sound speed"},
+    # TEOS-10 (gsw), next to the EOS-80 columns (issue 17)
+    "absolute_salinity_g_kg": {"standard_name": "sea_water_absolute_salinity", "units": "g kg-1",
+                               "long_name": "Absolute Salinity (TEOS-10, gsw.SA_from_SP)"},
+    "conservative_temperature_degc": {"standard_name": "sea_water_conservative_temperature", "units": "degree_C",
+                                      "long_name": "Conservative Temperature (TEOS-10, gsw.CT_from_t)"},
+    "potential_temperature_degc": {"standard_name": "sea_water_potential_temperature", "units": "degree_C",
+                                   "long_name": "potential temperature referenced to 0 dbar (TEOS-10, gsw.pt0_from_t)"},
+    "sigma0_kg_m3": {"standard_name": "sea_water_sigma_theta", "units": "kg m-3",
+                     "long_name": "potential density anomaly referenced to 0 dbar (TEOS-10, gsw.sigma0 from SA "
+                                  "and CT)"},
+    "buoyancy_frequency_squared_s2": {"standard_name": "square_of_brunt_vaisala_frequency_in_sea_water",
+                                      "units": "s-2",
+                                      "long_name": "buoyancy frequency squared N2 (TEOS-10, gsw.Nsquared on the "
+                                                   "binned cast)"},
     "seafloor_depth_m": {"standard_name": "sea_floor_depth_below_sea_surface", "units": "m",
                          "long_name": "seafloor depth (vehicle depth + altitude)"},
     "lat": {"standard_name": "latitude", "units": "degrees_north", "long_name": "latitude"},
@@ -124,7 +138,8 @@ QARTOD_FLAG_MEANINGS = "pass not_evaluated suspect fail missing"
 #: Quantities of hadal products for which the CF Standard Name Table (v79..v93) has no entry. They get
 #: a long_name and units but no standard_name (inventing one would make the CF §3.3 check fail); this is
 #: the one documented exception to ACDD's "standard_name on every geophysical variable".
-NO_CF_STANDARD_NAME = ("gravity", "entropy", "msd", "score", "suitab", "roughness", "elevation", "energy", "bias", "cost")
+NO_CF_STANDARD_NAME = ("gravity", "entropy", "msd", "score", "suitab", "roughness", "elevation", "energy", "bias", "cost",
+                       "position_uncertainty")
 
 
 EDGE_RE = re.compile(r"[xy]_(min|max|edge\w*|left|right|lower|upper|start|end)(_m)?")

@@ -12,6 +12,9 @@ Two findings are *documented exceptions* (``Finding.allowed``), not defects of t
 * ACDD "variable missing standard_name" for quantities the CF Standard Name Table has no entry for
   (:data:`hadal.products.cf.NO_CF_STANDARD_NAME`: gravity, topographic entropy, MSD, scores, ...).
   Inventing a standard name would instead fail CF §3.3.
+* ACDD "<attribute> not present" for operator metadata (creator, institution, licence, ...) that the dive's
+  ``dive.yaml`` does not give: hadal never invents it, and the file lists exactly those attributes in its
+  ``hadal_metadata_missing`` attribute (``hadal config --check`` lists the required ones).
 * ACDD "geospatial_vertical_extents_match: Could not find vertical variable" for 2-D seafloor grids
   (DTM, suitability, landing maps): their vertical extent is the range of the seafloor depth
   *field*, which CF does not model as a vertical coordinate.
@@ -70,12 +73,16 @@ class ComplianceReport:
         return "\n".join(lines)
 
 
-def _allowed(checker: str, name: str, msgs: list[str]) -> bool:
+def _allowed(checker: str, name: str, msgs: list[str], missing: frozenset[str] = frozenset()) -> bool:
     if checker.startswith("acdd") and name.startswith("variable ") and msgs == ["standard_name"]:
         m = re.match(r'variable "([^"]+)"', name)
         return bool(m and has_no_cf_standard_name(m.group(1)))
     if checker.startswith("acdd") and name == "Global Attributes":
-        return all(re.fullmatch(r"geospatial_(bounds_)?vertical_\w+ not present", m) for m in msgs)
+        # no vertical information at all; or operator metadata the dive did not give (listed in the file's
+        # hadal_metadata_missing)
+        return all(re.fullmatch(r"geospatial_(bounds_)?vertical_\w+ not present", m)
+                   or ((g := re.fullmatch(r"(\w+) not present", m)) is not None and g.group(1) in missing)
+                   for m in msgs)
     if checker.startswith("acdd") and name == "geospatial_vertical_extents_match":
         return all(m.startswith("Could not find vertical variable") for m in msgs)
     return False
@@ -96,6 +103,7 @@ def check_compliance(path: str | Path, checkers: tuple[str, ...] = DEFAULT_CHECK
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         ds = suite.load_dataset(str(path))
+        missing = frozenset(str(getattr(ds, "hadal_metadata_missing", "") or "").split())
         try:
             groups = suite.run_all(ds, list(checkers), skip_checks=[])
         finally:
@@ -111,5 +119,5 @@ def check_compliance(path: str | Path, checkers: tuple[str, ...] = DEFAULT_CHECK
             if failed:
                 msgs = [str(m) for m in r.msgs]
                 report.findings.append(Finding(checker, PRIORITY.get(r.weight, str(r.weight)), str(r.name),
-                                               tuple(msgs), _allowed(checker, str(r.name), msgs)))
+                                               tuple(msgs), _allowed(checker, str(r.name), msgs, missing)))
     return report

@@ -13,9 +13,10 @@
   provenance), so pandas (``df.attrs``), polars (``pl.read_parquet_metadata``), duckdb
   (``parquet_kv_metadata``) and pyarrow all see it.
 
-Discovery attributes that describe the operator (creator, institution, license, ...) default to
-:data:`GLOBAL_DEFAULTS`; override them per deployment with ``HADAL_<ATTRIBUTE>`` environment variables
-(``HADAL_CREATOR_NAME``, ``HADAL_INSTITUTION``, ``HADAL_LICENSE``, ...) or per call with keyword arguments.
+Discovery attributes that describe the operator (creator, institution, project, license, ...) come from the
+dive's ``dive.yaml`` ``metadata`` (else ``HADAL_<ATTRIBUTE>`` environment variables), never from a placeholder;
+the ones given nowhere are listed in ``hadal_metadata_missing`` (:mod:`hadal.products.metadata`). String
+attributes are written as NC_CHAR (fixed-length), which every netCDF reader (older GMT, Ferret, MATLAB) reads.
 """
 
 from __future__ import annotations
@@ -23,7 +24,6 @@ from __future__ import annotations
 import datetime as _dt
 import functools
 import json
-import os
 import re
 from collections.abc import Mapping
 from pathlib import Path
@@ -47,43 +47,18 @@ from hadal.products.cf import (
     netcdf_variable_attrs,
     units_from_name,
 )
+from hadal.products.metadata import (
+    HADAL_FACTS,
+    current_dive,
+    metadata_missing,
+    product_attributes,
+    relative_to_raw,
+    store_relative,
+)
 
-#: Operator/discovery attributes written into every NetCDF product (override: HADAL_<NAME> env vars).
-GLOBAL_DEFAULTS: dict[str, str] = {
-    "naming_authority": "org.hadal",
-    "institution": "hadal post-dive processing",
-    "project": "hadal deep-sea vehicle post-dive processing",
-    "program": "hadal",
-    "creator_name": "hadal pipeline",
-    "creator_email": "hadal@example.org",
-    "creator_url": "https://github.com/hadal/hadal",
-    "creator_type": "group",
-    "creator_institution": "hadal post-dive processing",
-    "publisher_name": "hadal pipeline",
-    "publisher_email": "hadal@example.org",
-    "publisher_url": "https://github.com/hadal/hadal",
-    "publisher_type": "group",
-    "publisher_institution": "hadal post-dive processing",
-    "contributor_name": "hadal pipeline",
-    "contributor_role": "processor",
-    "license": "CC-BY-4.0 (https://creativecommons.org/licenses/by/4.0/)",
-    "acknowledgment": "Processed with the hadal post-dive pipeline.",
-    "references": "Ma et al. (2023) TERCOM Challenger Deep; Zhou et al. MRF terrain matching; AUV landing-site detection",
-    "keywords": (
-        "EARTH SCIENCE > OCEANS > BATHYMETRY/SEAFLOOR TOPOGRAPHY > BATHYMETRY, "
-        "EARTH SCIENCE > OCEANS > OCEAN PRESSURE > WATER PRESSURE, "
-        "EARTH SCIENCE > OCEANS > OCEAN TEMPERATURE > WATER TEMPERATURE, "
-        "EARTH SCIENCE > OCEANS > SALINITY/DENSITY > SALINITY, hadal, deep-sea vehicle"
-    ),
-    "keywords_vocabulary": "GCMD:GCMD Keywords",
-    "platform": "Subsurface Vehicles > AUV",
-    "platform_vocabulary": "GCMD:GCMD Platforms",
-    "instrument": "In Situ/Laboratory Instruments > Profilers/Sounders > CTD",
-    "instrument_vocabulary": "GCMD:GCMD Instruments",
-    "processing_level": "L2: geophysical variables derived from vehicle sensors",
-    "metadata_link": "https://github.com/hadal/hadal/blob/main/docs/architecture.md",
-    "comment": "Product of the hadal pipeline; provenance in the product version's manifest.json.",
-}
+#: Attributes of every NetCDF product that are facts about hadal (no operator placeholders: who made the data
+#: comes from dive.yaml ``metadata`` or ``HADAL_<NAME>``, see :mod:`hadal.products.metadata`).
+GLOBAL_DEFAULTS: dict[str, str] = dict(HADAL_FACTS)
 
 _LAT_NAMES = ("lat", "latitude", "latitude_deg")
 _LON_NAMES = ("lon", "longitude", "longitude_deg")
@@ -123,9 +98,12 @@ def provenance(source: Any = None) -> dict[str, Any]:
     out["dive"] = getattr(source, "dive", None)
     out["product"] = getattr(source, "product", None)
     out["parameters"] = getattr(source, "parameters", {})
-    out["upstream"] = [{"product": u.product, "version": u.label, "path": str(u.path)}
+    out["upstream"] = [{"product": u.product, "version": u.label, "path": store_relative(u.path)}
                        for u in getattr(source, "upstream", [])]
-    out["inputs"] = [str(p) for p in getattr(source, "inputs", [])]
+    _, raw_dir = current_dive(getattr(source, "path", None) and Path(source.path) / "x")
+    out["inputs"] = [relative_to_raw(p, raw_dir) for p in getattr(source, "inputs", [])]
+    if raw_dir is not None:
+        out["inputs_relative_to"] = "the dive's raw directory"
     return out
 
 
@@ -310,6 +288,7 @@ def _prepare_variable(name: str, var: xr.Variable, *, is_coord: bool, is_dim_coo
                       grid_mapping: str | None, yx_dims: tuple[str, str] | None) -> xr.Variable:
     attrs = dict(var.attrs)
     enc = dict(var.encoding)
+    enc.pop("coordinates", None)  # xarray writes `coordinates` from the dataset's coordinates
     var = _cf_integer_type(var)
     enc.pop("dtype", None) if var.dtype.kind in "iu" else None
     if np.issubdtype(var.dtype, np.bool_):
@@ -469,11 +448,14 @@ def _time_hint(pool: Mapping[str, Any]) -> pd.Timestamp | None:
     return None
 
 
+_DIVE_KEY = "_hadal_dive"  # the Dive model passed through dive_attributes (popped before writing)
+
+
 def dive_attributes(dive: Any) -> dict[str, Any]:
     """Global attributes describing a dive (``hadal.dive.Dive``): pass them to :func:`write_netcdf`
     (``write_netcdf(ds, path, title=..., summary=..., **dive_attributes(ctx.dive))``) so products without
     latitude/longitude or time variables (laser grids, landing maps, profiles) still get a position and time."""
-    out: dict[str, Any] = {"dive_id": dive.dive_id, "platform_name": dive.platform}
+    out: dict[str, Any] = {"dive_id": dive.dive_id, "platform_name": dive.platform, _DIVE_KEY: dive}
     if dive.launch is not None:
         out["launch_latitude_deg"] = dive.launch.latitude_deg
         out["launch_longitude_deg"] = dive.launch.longitude_deg
@@ -586,19 +568,41 @@ def _string_dims_to_index(out: xr.Dataset) -> xr.Dataset:
     return out
 
 
-def _env_defaults() -> dict[str, str]:
-    out = dict(GLOBAL_DEFAULTS)
-    for key in list(out) + ["creator_name", "institution", "license"]:
-        env = os.environ.get(f"HADAL_{key.upper()}")
-        if env:
-            out[key] = env
-    return out
+#: instance dimensions of pressure-binned casts (``derive``'s ``profile``/``cast_profiles``)
+PROFILE_DIMS = ("cast", "profile")
+
+
+def _profile_dsg(out: xr.Dataset) -> tuple[xr.Dataset, bool]:
+    """Casts on a common vertical axis as a CF-1.8 DSG in the orthogonal multidimensional representation
+    (CF §H.3.1): the cast dimension's coordinate gets ``cf_role = profile_id``; ``time``, ``lat`` and ``lon``
+    become per-cast coordinates (a scalar position is the position of every cast)."""
+    dims = [d for d in PROFILE_DIMS if d in out.dims]
+    z = next((str(n) for n in out.dims if n in out.coords and (
+        (out[n].attrs.get("units") or units_from_name(str(n))) in ("dbar", "decibar", "Pa", "m") and (
+            out[n].attrs.get("positive") or out[n].attrs.get("axis") == "Z" or str(n).startswith(("pressure", "depth"))))),
+        None)
+    if not dims or z is None or {"y", "x"} <= set(out.dims):
+        return out, False
+    d = dims[0]
+    if d not in out.coords:
+        out = out.assign_coords({d: np.arange(out.sizes[d], dtype="i4")})
+    out[d].attrs["cf_role"] = "profile_id"
+    for n in ("time", "lat", "lon"):
+        if n in out.variables and out[n].ndim == 0:
+            v = out[n]
+            out = out.drop_vars(n).assign_coords({n: ((d,), np.repeat(v.values[None], out.sizes[d]), v.attrs)})
+        elif n in out.data_vars and out[n].dims == (d,):
+            out = out.set_coords(n)
+    return out, True
 
 
 def prepare_dataset(ds: xr.Dataset, path: str | Path, *, title: str, summary: str, **attrs: Any) -> xr.Dataset:
     """The dataset :func:`write_netcdf` writes: ``ds`` with CF/ACDD attributes completed (caller's win)."""
     path = Path(path)
     provenance_from = attrs.pop("provenance_from", None)
+    dive_model = attrs.pop(_DIVE_KEY, None)
+    if dive_model is None:
+        dive_model, _ = current_dive(path)
     now_ts = pd.Timestamp.now(tz="UTC").floor("s")
     now = now_ts.isoformat()
     out = ds.copy()
@@ -613,7 +617,11 @@ def prepare_dataset(ds: xr.Dataset, path: str | Path, *, title: str, summary: st
     for n in out.variables:  # xarray writes `coordinates` from the dataset's coordinates
         out[n].attrs.pop("coordinates", None)
     out = _string_dims_to_index(out)
-    out = _add_scalar_fallbacks(out, {**ds.attrs, **attrs}, now_ts)
+    dive_hints = {k: v for k, v in dive_attributes(dive_model).items() if k != _DIVE_KEY} if dive_model else {}
+    out = _add_scalar_fallbacks(out, {**dive_hints, **ds.attrs, **attrs}, now_ts)
+    out, dsg = _profile_dsg(out)
+    if dsg:
+        attrs = {"featureType": "profile", "cdm_data_type": "Profile", **attrs}
     gm_names = [str(n) for n, v in out.variables.items() if _is_grid_mapping(v)]
     grid_mapping = gm_names[0] if gm_names else None
     for n in gm_names:
@@ -648,7 +656,7 @@ def prepare_dataset(ds: xr.Dataset, path: str | Path, *, title: str, summary: st
         "Conventions": "CF-1.8, ACDD-1.3",
         "title": title,
         "summary": summary,
-        **_env_defaults(),
+        **product_attributes(dive_model, product, {**ds.attrs, **attrs}),
         "id": ident,
         "source": f"hadal {__version__}",
         "standard_name_vocabulary": STANDARD_NAME_VOCABULARY,
@@ -664,7 +672,33 @@ def prepare_dataset(ds: xr.Dataset, path: str | Path, *, title: str, summary: st
         **{k: v for k, v in ds.attrs.items()},
         **attrs,
     }
+    if glob.get("platform") not in (None, product_attributes(dive_model, product).get("platform")):
+        glob.pop("platform_vocabulary", None)  # a caller's free-text platform is not a GCMD keyword
+    glob.pop("hadal_metadata_missing", None)
+    glob["hadal_metadata_missing"] = metadata_missing(glob)
     out.attrs = {k: _attr_value(v) for k, v in glob.items() if v is not None}
+    return out
+
+
+def _nc_char(attrs: Mapping[str, Any]) -> dict[str, Any]:
+    """String attributes as fixed-length byte strings: h5netcdf/HDF5 stores them as fixed-length strings,
+    which netCDF-C reads as NC_CHAR (classic text attributes) instead of netCDF-4 ``string``."""
+    out = {}
+    for k, v in attrs.items():
+        if isinstance(v, str):
+            if not v:
+                continue  # HDF5 has no zero-length fixed string; an empty attribute says nothing
+            v = np.bytes_(v.encode("utf-8"))
+        out[k] = v
+    return out
+
+
+def as_nc_char(ds: xr.Dataset) -> xr.Dataset:
+    """A shallow copy of ``ds`` whose global and variable string attributes are written as NC_CHAR."""
+    out = ds.copy(deep=False)
+    out.attrs = _nc_char(out.attrs)
+    for n in out.variables:
+        out[n].attrs = _nc_char(out[n].attrs)
     return out
 
 
@@ -686,7 +720,7 @@ def write_netcdf(ds: xr.Dataset, path: str | Path, *, title: str, summary: str, 
     # HDF5 never writes to the store: it encodes into memory, then the bytes are written with a free-space
     # check and plain os.write. HDF5 writing into a file on a full disk crashes the process (h5netcdf/h5py
     # close the file in __dealloc__ after a failed write: tracebacks, then a segfault), so it never does.
-    _write_file(path, out.to_netcdf(engine="h5netcdf"))
+    _write_file(path, as_nc_char(out).to_netcdf(engine="h5netcdf"))
     return path
 
 

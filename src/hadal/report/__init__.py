@@ -7,11 +7,10 @@ new version of the ``report`` product. The stage ``hadal.stages.report`` and ``h
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass, field
 from typing import Any
 
-from hadal.products.io import json_clean
+from hadal.products.geo_landing import strict_json
 from hadal.report.figures import FigureOptions, FigureResult, make_figures
 from hadal.report.html import render_html, summary_markdown, summary_rows
 from hadal.report.load import REPORT_INPUTS, DiveProducts, load_products
@@ -78,12 +77,19 @@ def publish_report(store: ProductStore, report: Report, parameters: dict[str, An
     """Publish ``report`` as a new version of ``<dive>/report`` (report.html, summary.json, figures/*.png)."""
     with store.publish(report.dive, "report", parameters=parameters or {}, upstream=report.upstream) as draft:
         (draft.path / "report.html").write_text(report.html, encoding="utf-8")
-        (draft.path / "summary.json").write_text(
-            json.dumps(json_clean(report.summary), indent=2, default=str, allow_nan=False), encoding="utf-8")
+        (draft.path / "summary.json").write_text(strict_json(report.summary, indent=2), encoding="utf-8")
         figdir = draft.path / "figures"
         figdir.mkdir()
         for f in report.figures:
             if f.png is not None:
                 (figdir / f"{f.key}.png").write_bytes(f.png)
     assert draft.result is not None
+    from hadal.products.stac import write_store_catalog  # the store's STAC catalog, now with this report
+
+    try:
+        write_store_catalog(store)
+    except (OSError, ValueError) as exc:  # the catalog is an index: a failure to write it never loses a report
+        import logging
+
+        logging.getLogger("hadal.report").warning("report: STAC catalog of %s not written (%s)", store.root, exc)
     return draft.result

@@ -114,7 +114,8 @@ CTD_PANELS = (
 def fig_ctd_profiles(dp: DiveProducts, opt: FigureOptions) -> FigureResult:
     r = FigureResult("fig08_ctd_profiles", "Water-column profiles", "Water column",
                      "Measured conductivity and temperature, and the salinity, density and gravity derived from them, "
-                     "against depth for the descent and ascent (cf. TERCOM paper Fig. 8).")
+                     "against depth: descent wide pale blue, bottom green, ascent thin dashed red (cf. TERCOM paper "
+                     "Fig. 8).")
     df = dp.ctd
     zcol = "depth_m" if df is not None and "depth_m" in df else "pressure_dbar"
     if (why := _need(df, (zcol,), "ctd product")) is not None:
@@ -132,8 +133,10 @@ def fig_ctd_profiles(dp: DiveProducts, opt: FigureOptions) -> FigureResult:
         for ph, g in _phases(d):
             if len(d) < 2000:  # a binned cast: few levels, draw them as a line with markers
                 ax.plot(g[col], g[zcol], ".-", ms=3, lw=0.8, color=PHASE_COLOURS.get(ph, "k"), label=ph)
-            else:
-                ax.plot(g[col], g[zcol], ".", ms=1.2, color=PHASE_COLOURS.get(ph, "k"), label=ph, rasterized=True)
+            else:  # descent wide and pale under a thin dashed ascent: both stay visible where they overlap
+                sty = {"descent": {"lw": 3.2, "alpha": 0.55, "ls": "-"}, "ascent": {"lw": 1.0, "alpha": 1.0, "ls": "--"},
+                       }.get(ph, {"lw": 1.5, "alpha": 0.9, "ls": "-"})
+                ax.plot(g[col], g[zcol], color=PHASE_COLOURS.get(ph, "k"), label=ph, rasterized=True, **sty)
         ax.set_xlabel(label)
         ax.set_title(title, fontsize=9)
         ax.grid(alpha=0.3)
@@ -141,8 +144,13 @@ def fig_ctd_profiles(dp: DiveProducts, opt: FigureOptions) -> FigureResult:
         ax.ticklabel_format(axis="x", useOffset=False)  # an offset label would overlap the axis label
         ax.xaxis.set_major_locator(MaxNLocator(3))
     axes[0].set_ylabel("depth (m)" if zcol == "depth_m" else "pressure (dbar)")
-    axes[0].invert_yaxis()
-    axes[-1].legend(fontsize=7, markerscale=6, loc="lower left")
+    zmax = float(np.nanmax(pd.to_numeric(d[zcol], errors="coerce")))
+    if np.isfinite(zmax) and zmax > 0:
+        axes[0].set_ylim(zmax * 1.01, min(0.0, float(np.nanmin(pd.to_numeric(d[zcol], errors="coerce")))))
+        axes[0].yaxis.set_major_locator(MaxNLocator(8))  # ticks down to the floor
+    else:
+        axes[0].invert_yaxis()
+    axes[-1].legend(fontsize=7, loc="lower left")
     if missing:
         r.caption += f" Not available: {', '.join(missing)}."
     r.png = _png(fig, opt.dpi)
@@ -390,7 +398,13 @@ def fig_msd_surface(dp: DiveProducts, opt: FigureOptions) -> FigureResult:
         bx, by = float(ds["x"][ix]), float(ds["y"][iy])
     if bx is not None:
         ax.plot(float(bx) * 1e-3, float(by) * 1e-3, "o", mfc="none", mec="w", ms=14, mew=2, label="best match")
-        ax.legend(fontsize=8, loc="upper right")
+    sm = ((dp.fix or {}).get("posterior") or {}).get("second_mode")
+    if isinstance(sm, dict) and sm.get("x") is not None and float(sm.get("mass") or 0) > 0.01:
+        ax.plot(float(sm["x"]) * 1e-3, float(sm["y"]) * 1e-3, "D", mfc="none", mec="c", ms=11, mew=2,
+                label=f"second mode ({100 * float(sm['mass']):.0f} % of the posterior mass)")
+        r.caption += " Cyan diamond: the posterior's second mode."
+    if bx is not None or ax.get_legend_handles_labels()[0]:  # dark legend: the markers are white/cyan
+        ax.legend(fontsize=8, loc="upper right", facecolor="0.3", labelcolor="w", framealpha=0.85)
     r.png = _png(fig, opt.dpi)
     return r
 
@@ -464,10 +478,11 @@ def fig_matched_track(dp: DiveProducts, opt: FigureOptions) -> FigureResult:
 # ------------------------------------------------------------------------------------------ landing
 def fig_landing_map(dp: DiveProducts, opt: FigureOptions) -> FigureResult:
     r = FigureResult("landing_map", "Best landing site", "Landing sites",
-                     "Laser elevation of the submap holding the dive's lowest-cost landing site; hatched: cells where "
+                     "Laser elevation of the submap holding the dive's lowest-cost landing site (top: the whole strip; "
+                     "bottom: zoom on the site, with its own colour range); hatched (top) / greyed (zoom): cells where "
                      "the vehicle's centre of gravity may not land at the site's heading (for every heading when "
-                     "there is no site); red: the selected site and its largest inscribed circle (cf. landing paper "
-                     "Figs. 19 and 25).")
+                     "there is no site); red: the selected site and its largest inscribed circle; yellow: the "
+                     "vehicle footprint at the chosen heading (arrow: bow) (cf. landing paper Figs. 19 and 25).")
     if not dp.landing_maps:
         r.skipped = "no landing product maps (submap_NN_maps.nc)"
         return r
@@ -509,30 +524,74 @@ def fig_landing_map(dp: DiveProducts, opt: FigureOptions) -> FigureResult:
     fig = Figure(figsize=(opt.width_in, opt.width_in * 0.62), layout="constrained")
     ax_all, ax = fig.subplots(2, 1, height_ratios=[1, 3])
     ext = _xy_extent(ds)
+    elev = np.asarray(ds["elevation_m"].transpose("y", "x").values, float)
+    zoom_lim = None
+    if has_best:  # colour range of the zoom: the elevations around the site (the strip's range hides its relief)
+        bx0 = float(best["x_m"])
+        win = elev[:, (x > bx0 - 1.5) & (x < bx0 + 1.5)]
+        if np.isfinite(win).any():
+            zoom_lim = (float(np.nanpercentile(win, 1)), float(np.nanpercentile(win, 99)))
+    ims = {}
     for a_ in (ax_all, ax):
-        im = a_.imshow(ds["elevation_m"].values, origin="lower", extent=ext, cmap=CMAPS["elev"], aspect="equal",
-                       interpolation="nearest")
+        lim = zoom_lim if a_ is ax and zoom_lim else (None, None)
+        ims[a_] = a_.imshow(elev, origin="lower", extent=ext, cmap=CMAPS["elev"], aspect="equal",
+                            interpolation="nearest", vmin=lim[0], vmax=lim[1])
         if ex is not None:
-            a_.contourf(x, y, ex, levels=[0.5, 1.5], colors="none", hatches=["///"])
+            if a_ is ax_all:
+                a_.contourf(x, y, ex, levels=[0.5, 1.5], colors="none", hatches=["///"])
+            else:  # the zoom: a light grey veil keeps the relief readable under the excluded cells
+                a_.contourf(x, y, ex, levels=[0.5, 1.5], colors=["0.85"], alpha=0.55)
         if site is not None:
             a_.contourf(x, y, site, levels=[0.5, 1.5], colors=["red"], alpha=0.45)
         if has_best:
             a_.plot(float(best["x_m"]), float(best["y_m"]), "*", color="red", mec="k", ms=14 if a_ is ax else 8)
+    im = ims[ax_all]
     ax_all.tick_params(labelsize=7)
     ax_all.set_ylabel("y (m)", fontsize=7)
+    rot = float(ds.attrs.get("frame_rotation_deg", 0.0) or 0.0)
     if has_best:
         bx, by = float(best["x_m"]), float(best["y_m"])
+        if {"row", "col"} <= set(best.index) and 0 <= int(best["col"]) < x.size and 0 <= int(best["row"]) < y.size:
+            bx, by = float(x[int(best["col"])]), float(y[int(best["row"])])  # the maps' own (analysis) frame
         rad = float(best["radius_m"]) if "radius_m" in best.index else 0.3
+        veh = (dp.landing_meta or {}).get("vehicle") or {}
+        if heading is not None and veh.get("length_m") and veh.get("width_m"):
+            from matplotlib.patches import Polygon
+
+            from hadal.products.geo_landing import footprint_corners
+
+            poly = footprint_corners(bx, by, heading - rot, float(veh["length_m"]), float(veh["width_m"]))
+            ax.add_patch(Polygon(poly, closed=True, fill=False, ec="yellow", lw=2,
+                                 label=f"vehicle footprint {float(veh['length_m']):g} m x {float(veh['width_m']):g} m "
+                                       f"at heading {heading:.0f}°"))
+            ax.annotate("", xy=(bx + 0.6 * float(veh["length_m"]) * np.sin(np.radians(heading - rot)),
+                                by + 0.6 * float(veh["length_m"]) * np.cos(np.radians(heading - rot))),
+                        xytext=(bx, by), arrowprops={"arrowstyle": "->", "color": "yellow", "lw": 1.5})
         half = max(1.5, 4 * rad)
         ax.set_xlim(max(ext[0], bx - half), min(ext[1], bx + half))
         ax_all.add_patch(Rectangle((bx - half, ext[2]), 2 * half, ext[3] - ext[2], fill=False, ec="red", lw=1))
         t = np.linspace(0, 2 * np.pi, 100)
         ax.plot(bx + rad * np.cos(t), by + rad * np.sin(t), "-", color="red", lw=1.5, label="largest inscribed circle")
         ax.legend(fontsize=7, loc="upper right")
-    ax.set_xlabel("x east (m, laser grid)")
-    ax.set_ylabel("y north (m, laser grid)")
-    fig.colorbar(im, ax=[ax_all, ax], label="elevation (m, positive up)", orientation="horizontal", shrink=0.6,
-                 aspect=40)
+    lf = (dp.landing_summary or {}).get("laser_frame")
+    if isinstance(lf, dict):
+        r.caption += (f" Laser frame: local x/y (m) of the laser survey, georeferenced by dive.yaml laser_frame "
+                      f"(origin {lf.get('origin_latitude_deg')}°N {lf.get('origin_longitude_deg')}°E, +y axis at "
+                      f"{lf.get('heading_deg')}° from true north); the sites' lat/lon are in landing_sites.parquet "
+                      "and the footprints in landing_footprints.geojson.")
+        xl, yl = "x (m, laser frame)", "y (m, laser frame)"
+    else:
+        r.caption += " Laser frame: local x/y (m) of the laser survey (not georeferenced: dive.yaml has no laser_frame)."
+        xl, yl = "x (m, laser frame)", "y (m, laser frame)"
+    if rot:
+        r.caption += f" The maps are in the along-track analysis frame, rotated by {rot:.1f}° from the laser frame."
+    ax.set_xlabel(xl)
+    ax.set_ylabel(yl)
+    fig.colorbar(im, ax=ax_all, label="elevation (m, up), whole strip", orientation="vertical", shrink=0.9,
+                 aspect=8)
+    if zoom_lim:
+        fig.colorbar(ims[ax], ax=ax, label="elevation (m, up), around the site", orientation="vertical",
+                     shrink=0.9)
     title = path.name.replace("_maps.nc", "")
     if has_best:
         title += f": best site, cost {float(best['c_s']):.3f}" + (f", heading {heading:.0f}°" if heading is not None else "")
@@ -549,11 +608,25 @@ FIGURES: tuple[Callable[[DiveProducts, FigureOptions], FigureResult], ...] = (
 )
 
 
+def all_figures() -> tuple[Callable[[DiveProducts, FigureOptions], FigureResult], ...]:
+    """The report's figures in order: :data:`FIGURES` with the geographic overview first, the T-S/θ/N² figure
+    after the CTD profiles and the residual panel in place of the plain matched-depth figure."""
+    from hadal.report.ctd_figures import fig_water_column
+    from hadal.report.geo_figures import fig_overview, fig_residuals
+
+    out: list[Callable[[DiveProducts, FigureOptions], FigureResult]] = [fig_overview]
+    for fn in FIGURES:
+        out.append(fig_residuals if fn is fig_matched_depth else fn)
+        if fn is fig_ctd_profiles:
+            out.append(fig_water_column)
+    return tuple(out)
+
+
 def make_figures(dp: DiveProducts, opt: FigureOptions | None = None) -> list[FigureResult]:
     """All report figures; a figure that fails to draw is skipped with the reason (never fails the report)."""
     opt = opt or FigureOptions()
     out = []
-    for fn in FIGURES:
+    for fn in all_figures():
         try:
             out.append(fn(dp, opt))
         except Exception as exc:  # defensive: unexpected product content must not sink the whole report

@@ -5,6 +5,7 @@ from __future__ import annotations
 import base64
 import datetime as _dt
 import html
+import re
 from collections.abc import Iterable, Mapping
 from pathlib import Path
 from typing import Any
@@ -125,6 +126,40 @@ def summary_markdown(s: Mapping[str, Any]) -> str:
     return "\n".join(lines) + "\n"
 
 
+#: match messages that describe normal processing (the sub-cell refinement moving the fix within the search
+#: it was given): shown as notes, not red warnings
+INFORMATIONAL = (re.compile(r"sub-cell refinement moved the fix [\d.]+ m from the coarse optimum$"),)
+
+
+def is_real_warning(text: str) -> bool:
+    """Whether a stage message is a problem for the reader (red box) rather than a note."""
+    return not any(p.search(text) for p in INFORMATIONAL)
+
+
+#: captions of the landing stage's figures (file name prefix -> what it shows, landing paper figure numbers)
+LANDING_CAPTIONS: dict[str, str] = {
+    "fig13_slope": "Exclusion for slope (landing paper Fig. 13): mapped area, where the centre of gravity can "
+                   "enter, the slope under the vehicle footprint and the cells excluded because it exceeds the "
+                   "critical slope, at the best site's heading",
+    "fig18_protrusions": "Exclusion for protrusions (landing paper Fig. 18): protrusion heights and the cells "
+                         "where a protrusion under the footprint exceeds the height limit",
+    "fig19_sites": "Landing sites (landing paper Fig. 19): full exclusion of the centre of gravity, candidate sites "
+                   "and the landing points on the elevation",
+    "fig21_costs_vs_heading": "Landing costs against heading (landing paper Fig. 21): slope, safety, roughness "
+                              "and total cost of every candidate site",
+    "fig25_transect": "Best sites along the surveyed transect (landing paper Fig. 25)",
+}
+
+
+def landing_caption(name: str) -> str:
+    stem = name.removesuffix(".png")
+    for prefix, cap in LANDING_CAPTIONS.items():
+        if stem.startswith(prefix):
+            sub = stem[len(prefix):].strip("_")
+            return cap + (f" - {sub.replace('_', ' ')}" if sub else "")
+    return stem.replace("_", " ")
+
+
 def render_html(dp: DiveProducts, summary: Mapping[str, Any], figures: list[FigureResult],
                 provenance: list[dict[str, Any]], title: str | None = None) -> str:
     """The complete report as one HTML string (no external resources)."""
@@ -136,10 +171,16 @@ def render_html(dp: DiveProducts, summary: Mapping[str, Any], figures: list[Figu
              _table(summary_rows(summary))]
     warns = list((summary.get("match") or {}).get("warnings") or [])
     for w in warns:
-        parts.append(f"<div class='warn'>match: {_e(w)}</div>")
+        cls = "warn" if is_real_warning(str(w)) else "note"
+        parts.append(f"<div class='{cls}'>match: {_e(w)}</div>")
     if summary.get("casts"):
         parts.append("<h2>Other casts of this dive</h2>")
         parts.append(_records_table(summary["casts"]))
+    if summary.get("qc_flags"):
+        parts.append("<h2>Quality flags (QARTOD) of the CTD product</h2>")
+        parts.append("<p class='muted'>1 good, 2 not evaluated, 3 suspect, 4 fail, 9 missing; derived variables "
+                     "inherit the worst range flag of their inputs (hadal.qc_derived)</p>")
+        parts.append(_records_table(summary["qc_flags"]))
     skipped = summary.get("skipped_stages") or []
     if skipped:
         parts.append("<h2>Stages not run on this dive</h2>")
@@ -168,8 +209,10 @@ def render_html(dp: DiveProducts, summary: Mapping[str, Any], figures: list[Figu
         parts.append("<h3>Figures of the landing stage</h3>")
         for p in dp.landing_figures:
             b64 = base64.b64encode(Path(p).read_bytes()).decode("ascii")
-            parts.append(f"<figure><img alt='{_e(p.name)}' src='data:image/png;base64,{b64}'>"
-                         f"<figcaption>{_e(p.name)} (landing product)</figcaption></figure>")
+            cap = landing_caption(Path(p).name)
+            parts.append(f"<figure><img alt='{_e(cap)}' src='data:image/png;base64,{b64}'>"
+                         f"<figcaption><b>{_e(cap)}</b> <span class='muted'>({_e(Path(p).name)}, landing product; "
+                         "laser frame: local x/y of the laser survey, m)</span></figcaption></figure>")
     if summary.get("landing_table_v"):
         tv = summary["landing_table_v"]
         parts.append("<h3>Landing analysis summary (landing paper Table V)</h3>")

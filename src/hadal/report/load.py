@@ -24,7 +24,8 @@ REPORT_INPUTS: tuple[tuple[str, str], ...] = (
     ("laser_grids", "grid"), ("suitability", "suitability"), ("match", "match"), ("landing", "landing"),
 )
 #: products made only when the data calls for them (external Sea-Bird casts): read when present, never "missing"
-REPORT_OPTIONAL: tuple[tuple[str, str], ...] = (("casts", "ingest"), ("cast_profiles", "derive"))
+REPORT_OPTIONAL: tuple[tuple[str, str], ...] = (("casts", "ingest"), ("cast_profiles", "derive"),
+                                                ("navigation", "match"))
 
 
 @dataclass
@@ -48,6 +49,8 @@ class DiveProducts:
     landing_maps: list[Path] = field(default_factory=list)
     launch: dict[str, float] | None = None  # {"lat", "lon"} of the dive's launch point, when known
     casts: list[dict[str, Any]] = field(default_factory=list)  # external casts: casts.json + cast_profiles.json
+    navigation: pd.DataFrame | None = None  # best position of every sample (match's navigation product)
+    landing_meta: dict[str, Any] = field(default_factory=dict)  # landing manifest parameters (vehicle geometry)
 
     @property
     def missing(self) -> list[str]:
@@ -153,6 +156,8 @@ def load_products(store: ProductStore, dive: str, skipped_stages: set[str] | Non
         dp.fix = _read_json(pv, "fix.json", dp)
         dp.msd = _read_netcdf(pv, "msd_surface.nc", dp)
         dp.track = _read_parquet(pv, "matched_track.parquet", dp)
+    if "navigation" in versions:
+        dp.navigation = _read_parquet(versions["navigation"], "navigation.parquet", dp)
     if "cast_profiles" in versions:
         derived = _read_json(versions["cast_profiles"], "cast_profiles.json", dp) or {}
         listed = (_read_json(versions["casts"], "casts.json", dp) or {}) if "casts" in versions else {}
@@ -165,4 +170,8 @@ def load_products(store: ProductStore, dive: str, skipped_stages: set[str] | Non
             dp.landing_summary = _read_json(pv, "landing_summary.json", dp)
         dp.landing_figures = sorted((pv.path / "figures").glob("*.png")) if (pv.path / "figures").is_dir() else []
         dp.landing_maps = sorted(pv.path.glob("*_maps.nc"))
+        try:
+            dp.landing_meta = dict(pv.manifest().get("parameters") or {})
+        except (OSError, ValueError):
+            dp.landing_meta = {}
     return dp

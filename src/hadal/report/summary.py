@@ -13,6 +13,7 @@ import numpy as np
 import pandas as pd
 
 from hadal.geo import format_position, geodesic_distance_m
+from hadal.products.geo_landing import iso_utc
 from hadal.report.load import DiveProducts
 
 
@@ -39,6 +40,27 @@ def _phase_durations(ctd: pd.DataFrame) -> dict[str, float]:
     return dict(sorted(out.items(), key=lambda kv: order.get(kv[0], 9)))
 
 
+#: QARTOD flag values and their meanings (ioos_qc, QARTOD manual)
+QARTOD_FLAGS = {1: "good", 2: "not evaluated", 3: "suspect", 4: "fail", 9: "missing"}
+
+
+def qc_flag_table(table: pd.DataFrame) -> list[dict[str, Any]]:
+    """Per ``<variable>_qc`` column of ``table``: the count of each QARTOD flag and the share flagged 3 or 4 among
+    the non-missing samples (the report's flag summary)."""
+    rows = []
+    for col in table.columns:
+        if not str(col).endswith("_qc"):
+            continue
+        f = pd.to_numeric(table[col], errors="coerce").fillna(9).astype(int).to_numpy()
+        row: dict[str, Any] = {"variable": str(col)[:-3]}
+        for k, name in QARTOD_FLAGS.items():
+            row[name] = int((f == k).sum())
+        valid = len(f) - row["missing"]
+        row["flagged %"] = round(100.0 * (row["suspect"] + row["fail"]) / valid, 3) if valid else 0.0
+        rows.append(row)
+    return rows
+
+
 def dive_summary(dp: DiveProducts, launch: dict[str, float] | None = None, best_sites: int = 5) -> dict[str, Any]:
     """Headline numbers: max depth (and when), deepest point position, drift, match quality, best landing sites.
 
@@ -58,7 +80,7 @@ def dive_summary(dp: DiveProducts, launch: dict[str, float] | None = None, best_
             s["max_depth_m"] = float(d.loc[i])
             s["max_depth_source"] = "ctd.depth_m (hydrostatic)"
             if "time" in ctd and pd.notna(ctd.loc[i, "time"]):
-                s["max_depth_time_utc"] = pd.Timestamp(ctd.loc[i, "time"]).isoformat()
+                s["max_depth_time_utc"] = iso_utc(ctd.loc[i, "time"])
             if "pressure_dbar" in ctd and pd.notna(ctd.loc[i, "pressure_dbar"]):
                 s["max_depth_pressure_dbar"] = float(ctd.loc[i, "pressure_dbar"])
         if "seafloor_depth_m" in ctd:
@@ -71,9 +93,10 @@ def dive_summary(dp: DiveProducts, launch: dict[str, float] | None = None, best_
                 if v.notna().any():
                     s[f"{col}_range"] = [float(v.min()), float(v.max())]
         s["phase_durations_s"] = _phase_durations(ctd)
+        s["qc_flags"] = qc_flag_table(ctd)
         t = pd.to_datetime(ctd["time"], utc=True) if "time" in ctd else None
         if t is not None and t.notna().any():
-            s["start_utc"], s["end_utc"] = t.min().isoformat(), t.max().isoformat()
+            s["start_utc"], s["end_utc"] = iso_utc(t.min()), iso_utc(t.max())
             s["duration_s"] = float((t.max() - t.min()).total_seconds())
         elif t is not None:
             s["time_base"] = "none (pressure-binned cast): CTD figures against pressure/depth"
@@ -147,7 +170,8 @@ def dive_summary(dp: DiveProducts, launch: dict[str, float] | None = None, best_
         best = sites[sites["is_best"].astype(bool)] if "is_best" in sites else sites
         if "c_s" in best:
             best = best.sort_values("c_s")
-        keep = [c for c in ("submap", "heading_deg", "x_m", "y_m", "radius_m", "slope_deg", "roughness_m", "c_s")
+        keep = [c for c in ("submap", "heading_deg", "x_m", "y_m", "lat", "lon", "heading_true_deg", "radius_m",
+                            "slope_deg", "roughness_m", "c_s")
                 if c in best.columns]
         s["best_landing_sites"] = [{k: (v.item() if hasattr(v, "item") else v) for k, v in row.items()}
                                    for row in best[keep].head(best_sites).to_dict(orient="records")]

@@ -11,6 +11,7 @@ from __future__ import annotations
 import json
 from collections.abc import Sequence
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pandas as pd
@@ -179,3 +180,54 @@ def publish_fake_products(store: ProductStore, dive: str = "fake-dive", products
                 write_netcdf(maps, d.path / f"{sm}_maps.nc", title="fake landing maps", summary="fake")
         out["landing"] = d.result
     return out
+
+
+_PROBE = """<script>
+window.__hadalErrs = [];
+window.addEventListener('error', e => window.__hadalErrs.push(String(e.message || (e.target && e.target.src
+  ? 'failed to load ' + e.target.src.slice(0, 60) : e))), true);
+(() => { const oe = console.error; console.error = (...a) => { window.__hadalErrs.push(a.join(' ')); oe(...a); }; })();
+window.addEventListener('load', () => {
+  const imgs = [...document.images];
+  const d = document.createElement('pre'); d.id = 'hadal-probe';
+  d.textContent = JSON.stringify({images: imgs.length,
+    broken: imgs.filter(i => !(i.complete && i.naturalWidth > 0)).map(i => i.alt || i.src.slice(0, 40)),
+    errors: window.__hadalErrs});
+  document.body.appendChild(d);
+});
+</script>"""
+
+
+def chromium() -> str | None:
+    """Path of a headless-capable Chromium, or ``None``."""
+    import shutil
+
+    for name in ("chromium", "chromium-browser", "google-chrome", "google-chrome-stable"):
+        if p := shutil.which(name):
+            return p
+    return None
+
+
+def browser_check(html: str, workdir: str | Path, timeout_s: float = 120.0) -> dict[str, Any] | None:
+    """Load ``html`` in headless Chromium and return ``{images, broken: [...], errors: [...]}`` (images that did
+    not decode, script errors and console.error messages), or ``None`` when no Chromium is installed."""
+    import json
+    import re
+    import subprocess
+
+    exe = chromium()
+    if exe is None:
+        return None
+    page = Path(workdir) / "report_probe.html"
+    probed = html.replace("<head>", "<head>" + _PROBE, 1) if "<head>" in html else _PROBE + html
+    page.write_text(probed, encoding="utf-8")
+    out = subprocess.run([exe, "--headless=new", "--no-sandbox", "--disable-gpu", "--disable-dev-shm-usage",
+                          f"--user-data-dir={Path(workdir) / 'chromium-profile'}", "--virtual-time-budget=10000",
+                          "--dump-dom", page.resolve().as_uri()], capture_output=True, text=True,
+                         timeout=timeout_s, check=False)
+    m = re.search(r'<pre id="hadal-probe">(.*?)</pre>', out.stdout, re.S)
+    if not m:
+        raise RuntimeError(f"chromium gave no probe result (rc {out.returncode}): {out.stderr[-500:]}")
+    import html as _html
+
+    return json.loads(_html.unescape(m.group(1)))

@@ -3,9 +3,11 @@
 Method: Ma et al. (2023) §3.2 (Eqs. 6-14) and §4.1.3. Reads the ``sensors`` product (``sensors.parquet``,
 CTD time base) and computes, per sample:
 
-* ``pressure_dbar``: CTD pressure where valid and unsaturated, else the high-range gauge, on one datum via
-  the gauge-CTD bias estimated on the deep overlap (default: the gauge's datum, the more accurate sensor;
-  :func:`hadal.depth.fuse_pressure`); ``pressure_source``;
+* ``pressure_dbar``: CTD pressure where valid and unsaturated (saturation also detected from the data: a
+  flat line or divergence from the gauge), else the high-range gauge, on one datum via a robust gain+offset
+  fit on the overlap, the gauge-CTD lag removed and a cross-over below the switch (default: the gauge's
+  datum, the more accurate sensor; :func:`hadal.depth.fuse_pressure`); ``pressure_source``; fit, lag,
+  saturation and switch points in the metadata (``pressure_fusion``);
 * PSS-78 salinity, EOS-80 density (Eq. 13), Chen-Millero sound speed (:mod:`hadal.seawater`);
 * ``depth_m``: hydrostatic integral (Eqs. 11-12) with gravity at the current depth (Eq. 14);
   ``depth_fofonoff_millard_m`` (Eqs. 8-10) and ``depth_teos10_m`` (``gsw.z_from_p`` with the dynamic height
@@ -21,33 +23,17 @@ from __future__ import annotations
 import json
 from typing import TYPE_CHECKING, Annotated, Any, Literal
 
-import numpy as np
-import pandas as pd
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
 from hadal.budget import check_memory, memory_limit_bytes
-from hadal.depth import (
-    correct_altitude,
-    depth_teos10,
-    dynamic_height_anomaly,
-    fuse_pressure,
-    hydrostatic_depth,
-    seafloor_depth,
-    segment_phases,
-)
 from hadal.errors import InputError
-from hadal.ingest.cnv import NO_TIME_BASE
-from hadal.profile import PROFILE_VARIABLES, make_profile
-from hadal.seawater import (
-    density_eos80,
-    depth_fofonoff_millard,
-    gravity,
-    practical_salinity,
-    sound_speed_chen_millero,
-)
+from hadal.qc_derived import DerivedVariableQC
 from hadal.stages import StageInputs
 
 if TYPE_CHECKING:
+    import numpy as np
+    import pandas as pd
+
     from hadal.stages import StageContext
     from hadal.store import ProductVersion
 
@@ -60,10 +46,17 @@ REQUIRED_COLUMNS = ("time", "conductivity_s_m", "temperature_its90_degc")
 #: attributes of the columns this stage adds that the shared CF table does not define
 EXTRA_COLUMN_ATTRS: dict[str, dict[str, str]] = {
     "pressure_source": {"long_name": "source of pressure_dbar",
-                        "comment": "ctd: SBE49 CTD pressure (plus the gauge-CTD bias on the gauge datum); "
-                                   "gauge: Keller gauge (minus the bias on the CTD datum); empty: no valid pressure"},
+                        "comment": "ctd: SBE49 CTD pressure (gain+offset fitted onto the gauge on the gauge datum); "
+                                   "gauge: Keller gauge (lag removed; mapped onto the CTD on the CTD datum); blend: "
+                                   "linear cross-over of the two below the switch pressure (derive.pressure_blend_dbar); "
+                                   "empty: no valid pressure"},
     "phase": {"long_name": "dive phase", "comment": "descent, bottom or ascent (from the depth series)"},
     "gravity_m_s2": {"units": "m s-2", "long_name": "gravitational acceleration at the sample depth (Eq. 14)"},
+    "loop_edit_bad": {"long_name": "scan marked bad by LoopEdit (slow-down, reversal or surface soak)",
+                      "comment": "derive.loop_edit; such scans are left out of profile.nc"},
+    "buoyancy_frequency_squared_s2": {"standard_name": "square_of_brunt_vaisala_frequency_in_sea_water",
+                                      "units": "s-2", "long_name": "N2 of the sample's binned cast (descent for "
+                                      "descent and bottom samples) at its pressure (gsw.Nsquared)"},
 }
 
 
@@ -88,11 +81,26 @@ class Params(BaseModel):
     saturation_margin_dbar: float = Field(5.0, ge=0, le=1000,
                                           description="use the gauge from saturation - margin up (dbar, 0-1000)")
     gauge_bias_window_dbar: tuple[Annotated[float, Field(ge=-100, le=20_000)], Annotated[float, Field(ge=-100, le=20_000)]] = Field(
-        (6000.0, 10_400.0), description="CTD pressure range (dbar, -100 to 20 000) where the gauge-CTD bias is estimated (median)")
+        (6000.0, 10_400.0), description="CTD pressure range (dbar, -100 to 20 000) where the gauge-CTD gain and offset are fitted")
     min_bias_samples: int = Field(20, ge=1, le=100_000_000, description="fewer samples in the window: use the whole overlap")
     pressure_datum: Literal["gauge", "ctd"] = Field(
         "gauge", description="datum of pressure_dbar: gauge (CTD + bias where the CTD is used; the gauge is the "
                              "more accurate sensor) or ctd (gauge - bias where the CTD saturates)")
+    pressure_fit: Literal["gain_offset", "offset"] = Field(
+        "gain_offset", description="gauge vs CTD on the overlap: gain_offset (robust Huber fit gauge = a + b ctd) "
+                                   "or offset (median difference only)")
+    pressure_blend_dbar: float = Field(20.0, ge=0, le=1000, description="cross-over from CTD to gauge over this "
+                                       "many dbar below the switch pressure (0-1000; 0: a hard switch)")
+    estimate_pressure_lag: bool = Field(True, description="estimate the gauge-CTD time lag (regression on the "
+                                                          "vertical speed) and shift the gauge by it")
+    max_pressure_lag_s: float = Field(30.0, gt=0, le=600, description="largest gauge-CTD lag accepted (s, up to 600)")
+    surface_start_dbar: float = Field(20.0, ge=0, le=1000, description="a record whose first pressure is deeper "
+                                      "than this (dbar) gets the water above from a model: its own shallower "
+                                      "samples, else the TEOS-10 standard ocean (warned, with the error estimate)")
+    qc_thresholds: dict[str, DerivedVariableQC] = Field(
+        default_factory=dict, description="QARTOD thresholds of derived variables and inputs overriding the shipped "
+                                          "defaults (hadal/data/qc_derived.yaml; same keys, e.g. {depth_m: "
+                                          "{fail_span: [-10, 11100]}})")
     nominal_sound_speed_m_s: float = Field(1500.0, ge=1300, le=1800,
                                            description="sound speed the altimeter assumes (m/s, 1300-1800)")
     profile_bin_dbar: float = Field(
@@ -103,6 +111,56 @@ class Params(BaseModel):
     phase_speed_threshold_m_s: float = Field(0.2, gt=0, le=10,
                                              description="vertical speed separating transit/bottom (m/s, up to 10)")
     phase_deep_fraction: float = Field(0.5, gt=0, lt=1, description="bottom phase only below this x max depth")
+    # --- Sea-Bird processing chain (hadal.ctd, SBEDataProcessing's steps); every step off, as in SeaSoft
+    wild_edit: bool = Field(False, description="WildEdit conductivity, temperature and CTD pressure first "
+                                               "(values beyond the pass-2 limit become missing)")
+    wild_edit_std_pass_1: float = Field(2.0, gt=0, le=100, description="WildEdit pass-1 limit (std, 0-100)")
+    wild_edit_std_pass_2: float = Field(20.0, gt=0, le=1000, description="WildEdit pass-2 limit (std, 0-1000)")
+    wild_edit_scans_per_block: int = Field(100, ge=2, le=10_000_000, description="WildEdit scans per block (2-1e7)")
+    wild_edit_min_delta: float = Field(0.0, ge=0, le=1e6, description="WildEdit keeps values within this distance "
+                                                                      "of the block mean (channel units, 0-1e6)")
+    filter_pressure_s: float | None = Field(None, gt=0, le=3600, description="Filter: low-pass time constant of "
+                                            "CTD pressure (s, up to 3600; null: not filtered)")
+    filter_temperature_s: float | None = Field(None, gt=0, le=3600, description="Filter: low-pass time constant "
+                                               "of temperature (s, up to 3600; null: not filtered)")
+    filter_conductivity_s: float | None = Field(None, gt=0, le=3600, description="Filter: low-pass time constant "
+                                                "of conductivity (s, up to 3600; null: not filtered)")
+    align_conductivity_s: float = Field(0.0, ge=-60, le=60, description="AlignCTD: advance of conductivity "
+                                        "relative to pressure (s, -60 to 60; 0: none)")
+    align_temperature_s: float = Field(0.0, ge=-60, le=60, description="AlignCTD: advance of temperature "
+                                       "relative to pressure (s, -60 to 60; 0: none)")
+    cell_thermal_mass: bool = Field(False, description="CellTM: correct conductivity for the cell's thermal mass")
+    cell_thermal_mass_alpha: float = Field(0.03, gt=0, le=1, description="CellTM thermal anomaly amplitude alpha "
+                                           "(0-1; SBE 9plus 0.03, SBE 19plus 0.04)")
+    cell_thermal_mass_beta_inverse_s: float = Field(7.0, gt=0, le=1000, description="CellTM time constant 1/beta "
+                                                    "(s, up to 1000; SBE 9plus 7, SBE 19plus 8)")
+    loop_edit: bool = Field(False, description="LoopEdit: exclude slow-down and reversal scans from profile.nc "
+                                               "(column loop_edit_bad)")
+    loop_edit_min_velocity_type: Literal["fixed", "percent"] = Field(
+        "fixed", description="LoopEdit criterion: fixed minimum velocity or percent of the mean speed")
+    loop_edit_min_velocity_m_s: float = Field(0.25, ge=0, le=10, description="LoopEdit minimum velocity (m/s, 0-10)")
+    loop_edit_window_s: float = Field(300.0, gt=0, le=86_400, description="LoopEdit mean-speed window (s, up to 1 day)")
+    loop_edit_mean_speed_percent: float = Field(20.0, ge=0, le=100,
+                                                description="LoopEdit percent of the mean speed (0-100)")
+    loop_edit_remove_surface_soak: bool = Field(True, description="LoopEdit removes the surface soak")
+    loop_edit_min_soak_depth_m: float = Field(5.0, ge=0, le=1000, description="LoopEdit minimum soak depth (m, 0-1000)")
+    loop_edit_max_soak_depth_m: float = Field(20.0, ge=0, le=1000, description="LoopEdit maximum soak depth (m, 0-1000)")
+    loop_edit_deck_pressure_offset: bool = Field(True, description="LoopEdit soak depths relative to the first scan")
+    profile_binning: Literal["floor", "seabird"] = Field(
+        "floor", description="profile.nc bins: floor ([k, k+1) x bin, by phase) or seabird (BinAvg: centred on "
+                             "k x bin, split at the deepest scan)")
+
+    @field_validator("qc_thresholds")
+    @classmethod
+    def _qc(cls, v: dict[str, DerivedVariableQC]) -> dict[str, DerivedVariableQC]:
+        from hadal.errors import ConfigError
+        from hadal.qc_derived import load_qc_config
+
+        try:
+            load_qc_config(v)
+        except ConfigError as exc:
+            raise ValueError(str(exc)) from None
+        return v
 
     @field_validator("gauge_bias_window_dbar")
     @classmethod
@@ -114,6 +172,8 @@ class Params(BaseModel):
 
 def _flag_ok(df: pd.DataFrame, column: str, accept: list[int]) -> np.ndarray:
     """True where ``column`` is finite and its ``<column>_qc`` flag (if present) is accepted."""
+    import numpy as np
+
     v = df[column].to_numpy(dtype=np.float64)
     ok = np.isfinite(v)
     qc = f"{column}_qc"
@@ -122,10 +182,18 @@ def _flag_ok(df: pd.DataFrame, column: str, accept: list[int]) -> np.ndarray:
     return ok
 
 
-def profile_memory_bytes(pressure_dbar: Any, bin_dbar: float, n_variables: int = len(PROFILE_VARIABLES),
+def profile_memory_bytes(pressure_dbar: Any, bin_dbar: float, n_variables: int | None = None,
                          n_casts: int = 2) -> float:
     """Bytes :func:`hadal.profile.make_profile` allocates for ``pressure_dbar`` in ``bin_dbar`` bins: per bin the
-    edges and per cast a count plus, per variable, a sum, a count, a mean and the product array (8 bytes each)."""
+    edges and per cast a count plus, per variable, a sum, a count, a mean and the product array (8 bytes each).
+    ``n_variables``: default ``len(hadal.profile.PROFILE_VARIABLES)`` (looked up here: hadal.profile imports xarray)."""
+    import numpy as np
+
+    if n_variables is None:
+        from hadal.profile import PROFILE_VARIABLES
+
+        n_variables = len(PROFILE_VARIABLES)
+
     pr = np.asarray(pressure_dbar, dtype=np.float64)
     pr = pr[np.isfinite(pr)]
     if pr.size == 0:
@@ -136,6 +204,9 @@ def profile_memory_bytes(pressure_dbar: Any, bin_dbar: float, n_variables: int =
 
 def check_profile_memory(sensors: pd.DataFrame, p: Params, limit_bytes: float | None = None) -> None:
     """Refuse (one-line ConfigError) a ``profile_bin_dbar`` whose bins would not fit the memory budget."""
+    import numpy as np
+    import pandas as pd
+
     cols = [c for c in ("pressure_ctd_dbar", "pressure_gauge_dbar") if c in sensors.columns]
     if not cols:
         return
@@ -157,6 +228,33 @@ def derive_ctd(sensors: pd.DataFrame, latitude_deg: float, longitude_deg: float,
     ``frame`` (a :class:`hadal.geo.LocalFrame`) and ``launch_xy`` (the launch point in it) turn the
     dead-reckoned offsets of the deepest point into longitude/latitude when given.
     """
+    import numpy as np
+    import pandas as pd
+
+    from hadal.ctd.chain import apply_channel_steps, loop_edit_flags
+    from hadal.ctd.teos10 import teos10_columns
+    from hadal.depth import (
+        correct_altitude,
+        depth_teos10,
+        dynamic_height_anomaly,
+        fuse_pressure,
+        hydrostatic_depth,
+        overlying_column,
+        seafloor_depth,
+        segment_phases,
+    )
+    from hadal.ingest.cnv import NO_TIME_BASE
+    from hadal.profile import make_profile
+    from hadal.qc_derived import apply_to_table as apply_derived_qc
+    from hadal.qc_derived import load_qc_config
+    from hadal.seawater import (
+        density_eos80,
+        depth_fofonoff_millard,
+        gravity,
+        practical_salinity,
+        sound_speed_chen_millero,
+    )
+
     missing = [c for c in REQUIRED_COLUMNS if c not in sensors.columns]
     if missing:
         raise InputError(f"sensors table lacks required column(s) {', '.join(missing)}")
@@ -185,6 +283,9 @@ def derive_ctd(sensors: pd.DataFrame, latitude_deg: float, longitude_deg: float,
     acc = list(p.accept_flags)
     nan = np.full(n, np.nan)
 
+    # --- Sea-Bird processing chain on the raw channels (hadal.ctd.chain; every step off unless enabled)
+    interval_s, ctd_steps = apply_channel_steps(df, p, no_time)
+
     # --- pressure fusion
     pc = df["pressure_ctd_dbar"].to_numpy(np.float64) if "pressure_ctd_dbar" in df else nan
     pg = df["pressure_gauge_dbar"].to_numpy(np.float64) if "pressure_gauge_dbar" in df else nan
@@ -194,7 +295,9 @@ def derive_ctd(sensors: pd.DataFrame, latitude_deg: float, longitude_deg: float,
         gauge_ok=_flag_ok(df, "pressure_gauge_dbar", acc) if "pressure_gauge_dbar" in df else None,
         ctd_saturation_dbar=p.ctd_saturation_dbar, saturation_margin_dbar=p.saturation_margin_dbar,
         bias_window_dbar=tuple(p.gauge_bias_window_dbar), min_bias_samples=p.min_bias_samples,
-        datum=p.pressure_datum,
+        datum=p.pressure_datum, fit=p.pressure_fit, blend_dbar=p.pressure_blend_dbar,
+        estimate_lag=p.estimate_pressure_lag, max_lag_s=p.max_pressure_lag_s,
+        time_s=None if no_time else (df["time"] - df["time"].iloc[0]).dt.total_seconds().to_numpy(),
     )
     pres = fusion.pressure_dbar
     if not np.isfinite(pres).any():
@@ -210,7 +313,10 @@ def derive_ctd(sensors: pd.DataFrame, latitude_deg: float, longitude_deg: float,
     rho = density_eos80(sp, temp, pres)
     if not np.isfinite(rho).any():
         raise InputError("sensors table has no valid conductivity/temperature: cannot compute density")
-    depth = hydrostatic_depth(pres, sp, temp, latitude_deg, integration=p.depth_integration, density_kg_m3=rho)
+    column = overlying_column(pres, sp, temp, latitude_deg, density_kg_m3=rho, surface_dbar=p.surface_start_dbar,
+                              bin_dbar=p.profile_bin_dbar)
+    depth = hydrostatic_depth(pres, sp, temp, latitude_deg, integration=p.depth_integration, density_kg_m3=rho,
+                              start_depth_m=column.start_depth_m)
     df["practical_salinity"] = sp
     df["density_kg_m3"] = rho
     df["gravity_m_s2"] = np.where(np.isfinite(depth), gravity(latitude_deg, depth), np.nan)
@@ -218,6 +324,14 @@ def derive_ctd(sensors: pd.DataFrame, latitude_deg: float, longitude_deg: float,
     df["depth_fofonoff_millard_m"] = depth_fofonoff_millard(pres, latitude_deg)
     sv = sound_speed_chen_millero(sp, temp, pres)
     df["sound_speed_m_s"] = sv
+    # TEOS-10 next to EOS-80 (gsw; N² comes from the binned casts, in derive_table)
+    for name, values in teos10_columns(sp, temp, pres, longitude_deg, latitude_deg).items():
+        df[name] = values
+    loop_bad, loop_step = loop_edit_flags(depth, interval_s, p)
+    if loop_bad is not None:
+        df["loop_edit_bad"] = loop_bad
+    if loop_step is not None:
+        ctd_steps.append(loop_step)
 
     # --- phases (needed for the descent profile of the TEOS-10 cross-check)
     if no_time:  # a binned cast is one profile: descent when pressure increases down the file, else ascent
@@ -257,9 +371,17 @@ def derive_ctd(sensors: pd.DataFrame, latitude_deg: float, longitude_deg: float,
     else:
         df["altitude_corrected_m"] = nan
     df["seafloor_depth_m"] = seafloor_depth(depth, df["altitude_corrected_m"].to_numpy())
+    # QARTOD flags on the derived variables and range checks on the inputs (hadal.qc_derived)
+    qc_meta = apply_derived_qc(df, load_qc_config(p.qc_thresholds), latitude_deg=latitude_deg,
+                               longitude_deg=longitude_deg)
 
     meta = _metadata(df, fusion, latitude_deg, longitude_deg, p, teos_note, frame, launch_xy)
+    meta["qc_derived"] = qc_meta
+    meta["pressure_fusion"] = fusion.to_dict()
+    meta["overlying_column"] = column.to_dict()
     meta["duplicate_times_dropped"] = int(dup.sum())
+    if ctd_steps:
+        meta["ctd_processing"] = ctd_steps
     if no_time:
         meta["time_base"] = NO_TIME_BASE
         meta["profile_note"] = ("no time channel: salinity, density, gravity and depth integrated in pressure "
@@ -268,6 +390,9 @@ def derive_ctd(sensors: pd.DataFrame, latitude_deg: float, longitude_deg: float,
 
 
 def _point(df: pd.DataFrame, i: int, frame: Any, launch_xy: tuple[float, float]) -> dict[str, Any]:
+    import numpy as np
+    import pandas as pd
+
     row = df.iloc[i]
     t = pd.Timestamp(row["time"])
     out: dict[str, Any] = {"time": None if pd.isna(t) else t.isoformat(), "index": int(i)}
@@ -283,6 +408,8 @@ def _point(df: pd.DataFrame, i: int, frame: Any, launch_xy: tuple[float, float])
 
 
 def _stats(diff: np.ndarray) -> dict[str, float]:
+    import numpy as np
+
     d = diff[np.isfinite(diff)]
     if d.size == 0:
         return {}
@@ -292,6 +419,8 @@ def _stats(diff: np.ndarray) -> dict[str, float]:
 
 def _metadata(df: pd.DataFrame, fusion: Any, lat: float, lon: float, p: Params, teos_note: str,
               frame: Any, launch_xy: tuple[float, float]) -> dict[str, Any]:
+    import numpy as np
+
     depth = df["depth_m"].to_numpy()
     i_deep = int(np.nanargmax(depth))
     meta: dict[str, Any] = {
@@ -304,8 +433,8 @@ def _metadata(df: pd.DataFrame, fusion: Any, lat: float, lon: float, p: Params, 
         "gauge_bias_mad_dbar": None if not np.isfinite(fusion.bias_mad_dbar) else round(fusion.bias_mad_dbar, 4),
         "gauge_bias_window_dbar": list(p.gauge_bias_window_dbar),
         "pressure_datum": p.pressure_datum,
-        "pressure_source_counts": {"ctd": fusion.n_ctd, "gauge": fusion.n_gauge,
-                                   "none": int(len(df) - fusion.n_ctd - fusion.n_gauge)},
+        "pressure_source_counts": {"ctd": fusion.n_ctd, "gauge": fusion.n_gauge, "blend": fusion.n_blend,
+                                   "none": int(len(df) - fusion.n_ctd - fusion.n_gauge - fusion.n_blend)},
         "nominal_sound_speed_m_s": p.nominal_sound_speed_m_s,
         "deepest_point": _point(df, i_deep, frame, launch_xy),
     }
@@ -356,6 +485,10 @@ FALLBACK_LATITUDE_DEG = 45.0
 
 def _latitude_error_m(pressure_dbar: float) -> float:
     """Largest depth error at ``pressure_dbar`` from using 45° for a cast anywhere between equator and pole."""
+    import numpy as np
+
+    from hadal.seawater import depth_fofonoff_millard
+
     p = np.array([pressure_dbar])
     d45 = float(depth_fofonoff_millard(p, FALLBACK_LATITUDE_DEG)[0])
     return max(abs(float(depth_fofonoff_millard(p, lat)[0]) - d45) for lat in (0.0, 90.0))
@@ -400,6 +533,12 @@ def derive_table(table: pd.DataFrame, sensors_meta: dict[str, Any], p: Params, d
                  what: str, *, external_cast: bool = False, memory_limit_bytes: float | None = None
                  ) -> tuple[pd.DataFrame, dict[str, Any], Any]:
     """``derive_ctd`` + position choice + profile for one sensors-schema table (the dive's or a cast's)."""
+    import numpy as np
+
+    from hadal.ingest.cnv import NO_TIME_BASE
+    from hadal.profile import N_SQUARED, make_profile, n_squared_per_sample
+    from hadal.qc_derived import load_qc_config, qc_profile
+
     pos = choose_position(p, dive, sensors_meta, header_first=external_cast)
     frame, launch_xy = (None, (0.0, 0.0)) if external_cast else _frame(dive)
     df, meta = derive_ctd(table, pos["latitude_deg"], pos["longitude_deg"], p, frame=frame, launch_xy=launch_xy,
@@ -414,6 +553,8 @@ def derive_table(table: pd.DataFrame, sensors_meta: dict[str, Any], p: Params, d
         meta["latitude_warning"] = msg
         meta["latitude_depth_error_max_m"] = round(err, 3)
         log.warning("derive: %s", msg)
+    if (meta.get("overlying_column") or {}).get("warning"):
+        log.warning("derive: %s: %s", what, meta["overlying_column"]["warning"])
     if sensors_meta.get("time_base") == NO_TIME_BASE:
         meta["time_base"] = NO_TIME_BASE
     # the binned profile uses only accepted samples: a flag-4 value (QARTOD fail, SeaSoft-flagged scan) is no mean's
@@ -422,7 +563,13 @@ def derive_table(table: pd.DataFrame, sensors_meta: dict[str, Any], p: Params, d
     excluded = {c: int((np.isfinite(df[c].to_numpy(np.float64)) & ~np.isfinite(v)).sum()) for c, v in masked.items()}
     if any(excluded.values()):
         meta["profile_values_excluded_by_flag"] = excluded
-    prof = make_profile(df.assign(**masked), p.profile_bin_dbar)
+    binned = df.assign(**masked)
+    if "loop_edit_bad" in binned:  # LoopEdit's bad scans take no part in the bins (as in SeaSoft's BinAvg)
+        binned = binned.loc[~binned["loop_edit_bad"].to_numpy(bool)]
+    prof = make_profile(binned, p.profile_bin_dbar, binning=p.profile_binning, latitude_deg=meta["latitude_deg"])
+    if "qc_derived" in meta:
+        meta["qc_derived"]["profile"] = qc_profile(prof, load_qc_config(p.qc_thresholds))
+    df[N_SQUARED] = n_squared_per_sample(df, prof)
     if meta.get("time_base") != NO_TIME_BASE:
         _cast_times(prof, df)
     else:
@@ -434,6 +581,9 @@ def _header_cast_time(ds: Any, sensors_meta: dict[str, Any], meta: dict[str, Any
     """``time(cast)`` of a cast without a time channel: the Sea-Bird header's ``start_time`` (``cast`` metadata
     ``start_time_utc``) for every cast, recorded in ``meta["cast_time_source"]``. Without one the profile has no
     time at all (none is invented: not the processing time)."""
+    import numpy as np
+    import pandas as pd
+
     start = (sensors_meta.get("cast") or {}).get("start_time_utc")
     t = pd.Timestamp(start) if start else None
     if t is None or pd.isna(t):
@@ -449,6 +599,11 @@ def _header_cast_time(ds: Any, sensors_meta: dict[str, Any], meta: dict[str, Any
 
 
 def run(ctx: StageContext) -> dict[str, ProductVersion]:
+    import pandas as pd
+
+    from hadal.ingest.cnv import NO_TIME_BASE
+    from hadal.qc_derived import load_qc_config, qc_field_attrs
+
     p: Params = ctx.config.derive
     limit = memory_limit_bytes(ctx.config)
     sensors = ctx.upstream("sensors")
@@ -501,9 +656,17 @@ def run(ctx: StageContext) -> dict[str, ProductVersion]:
     fields = {c: {k: v for k, v in sensor_fields.get(c, {}).items() if k in ("units", "standard_name", "long_name")}
               for c in sensors_columns(table)}
     fields.update(EXTRA_COLUMN_ATTRS)
+    fields.update(qc_field_attrs(df.columns, load_qc_config(p.qc_thresholds)))
+    if ctx.dive.launch is not None and "dr_east_m" in df:  # per-sample position (products.navigation)
+        from hadal.products.navigation import CTD_POSITION_FIELDS, dead_reckoned_lonlat
+
+        df["lat"], df["lon"] = dead_reckoned_lonlat(df, ctx.dive.frame(), ctx.dive.launch.latitude_deg,
+                                                    ctx.dive.launch.longitude_deg)
+        fields.update(CTD_POSITION_FIELDS)
     params = ctx.params("derive")
     summary = {k: meta[k] for k in ("gauge_bias_dbar", "latitude_deg", "deepest_point", "depth_comparison")}
     summary["latitude_source"] = meta["latitude_source"]
+    summary["qc_flags"] = {v: s["counts"] for v, s in meta["qc_derived"]["summary"].items()}
     with ctx.store.publish(ctx.dive_id, "ctd", parameters=params, upstream=[sensors],
                            extra={"summary": summary}) as draft:
         write_parquet(df, draft.path / "ctd.parquet", fields=fields, metadata=meta, provenance_from=draft)
@@ -565,6 +728,9 @@ def _cast_times(ds: Any, df: pd.DataFrame) -> None:
     """``time(cast)``: when the cast was at the sea surface (descent: its first sample, ascent: its last); the
     casts' first and last sample times go into its ``comment`` (a CF ``time_bounds`` variable would need
     attributes the product writer adds to every variable)."""
+    import numpy as np
+    import pandas as pd
+
     t = df["time"].dt.tz_convert("UTC").dt.tz_localize(None)
     bounds = np.full((ds.sizes["cast"], 2), np.datetime64("NaT"), dtype="datetime64[ns]")
     for k, cast in enumerate(ds["cast"].values):
@@ -602,14 +768,32 @@ _PROFILE_ATTRS: dict[str, dict[str, str]] = {
                                  "long_name": "mean depth, Fofonoff-Millard (Eqs. 8-10)"},
     "depth_teos10_m": {"standard_name": "depth", "units": "m", "positive": "down",
                        "long_name": "mean depth, TEOS-10 with dynamic height anomaly"},
+    "absolute_salinity_g_kg": {"standard_name": "sea_water_absolute_salinity", "units": "g kg-1",
+                               "long_name": "mean Absolute Salinity (TEOS-10, gsw.SA_from_SP)"},
+    "conservative_temperature_degc": {"standard_name": "sea_water_conservative_temperature", "units": "degree_C",
+                                      "long_name": "mean Conservative Temperature (TEOS-10, gsw.CT_from_t)"},
+    "potential_temperature_degc": {"standard_name": "sea_water_potential_temperature", "units": "degree_C",
+                                   "long_name": "mean potential temperature, 0 dbar (TEOS-10, gsw.pt0_from_t)"},
+    "sigma0_kg_m3": {"standard_name": "sea_water_sigma_theta", "units": "kg m-3",
+                     "long_name": "mean potential density anomaly, 0 dbar (TEOS-10, gsw.sigma0)"},
 }
 
 
 def _profile_attrs(ds: Any, meta: dict[str, Any]) -> None:
+    import numpy as np
+
+    from hadal.profile import N_SQUARED
+
     for name, attrs in _PROFILE_ATTRS.items():
         if name in ds:
             ds[name].attrs.update(attrs)
             ds[name].attrs["cell_methods"] = "pressure_dbar: mean"
+    if N_SQUARED in ds:
+        ds[N_SQUARED].attrs.update({"standard_name": "square_of_brunt_vaisala_frequency_in_sea_water",
+                                    "units": "s-2", "long_name": "buoyancy frequency squared N2 of the binned cast",
+                                    "comment": "gsw.Nsquared on the binned Absolute Salinity and Conservative "
+                                               "Temperature, at the mid-points between levels, linearly "
+                                               "interpolated to the bin centres"})
     # the profile's nominal position (the latitude used for gravity/depth, the launch longitude)
     ds.coords["lat"] = np.float64(meta["latitude_deg"])
     ds.coords["lon"] = np.float64(meta["longitude_deg"])

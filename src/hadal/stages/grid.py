@@ -20,20 +20,16 @@ from __future__ import annotations
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Literal
 
-import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
 from hadal.budget import check_memory, memory_limit_bytes
-from hadal.dive import resolve_source
 from hadal.errors import InputError, StageError
-from hadal.grid.laser import grid_laser
-from hadal.grid.multibeam import add_geo, auto_resolution_m, grid_multibeam
 from hadal.grid.points import DEFAULT_MAX_CELLS
-from hadal.grid.readers import read_point_cloud
-from hadal.products.io import write_netcdf
 from hadal.stages import StageInputs
 
 if TYPE_CHECKING:
+    import numpy as np
+
     from hadal.stages import StageContext
     from hadal.store import ProductVersion
 
@@ -102,6 +98,8 @@ LASER_LAYERS = 8
 
 def grid_memory_bytes(x: np.ndarray, y: np.ndarray, resolution_m: float, layers: int) -> tuple[float, int, int]:
     """``(bytes, nx, ny)`` of a grid at ``resolution_m`` covering the finite points ``x``, ``y``."""
+    import numpy as np
+
     ok = np.isfinite(x) & np.isfinite(y)
     if not ok.any():
         return 0.0, 0, 0
@@ -153,7 +151,11 @@ def make_dtm(files: list[Path], frame, p: Params, hints: list | None = None, rea
     ``readers``, when given, receives ``{str(file): "reader (format ...)"}`` for the manifest; the same text
     is in ``ds.attrs["multibeam_readers"]``.
     """
+    import numpy as np
+
     from hadal.geo import LocalFrame
+    from hadal.grid.multibeam import add_geo, auto_resolution_m, grid_multibeam
+    from hadal.grid.prior import MAX_ABS_DEPTH_M
     from hadal.grid.sonar import ColumnAccumulator, iter_multibeam
 
     hints = list(hints) if hints is not None else [None] * len(files)
@@ -214,6 +216,16 @@ def make_dtm(files: list[Path], frame, p: Params, hints: list | None = None, rea
     if frame is None or acc.n == 0:
         raise InputError(f"no soundings with positions in {', '.join(str(f) for f in files)}")
     x, y, dep = acc.finish()
+    # deeper/higher than anywhere on Earth: fill values or a unit error (NaN/inf are the gridder's 'nonfinite')
+    bad = np.isfinite(dep) & (np.abs(dep) > MAX_ABS_DEPTH_M)
+    n_implausible = int(bad.sum())
+    if n_implausible:
+        if n_implausible > 0.5 * dep.size:
+            med = float(np.median(np.abs(dep)))
+            hint = (f" (feet? x 0.3048 = {med * 0.3048:.0f} m)" if med * 0.3048 <= MAX_ABS_DEPTH_M else "")
+            raise InputError(f"{', '.join(str(f) for f in files)}: {n_implausible} of {dep.size} soundings are beyond "
+                             f"+-{MAX_ABS_DEPTH_M:g} m (median |depth| {med:.0f}){hint}: check the depth units/column")
+        x, y, dep = x[~bad], y[~bad], dep[~bad]
     res_m, how = p.dtm_resolution_m, "grid.dtm_resolution_m"
     if res_m == "auto":
         res_m, stats = auto_resolution_m(x, y)
@@ -231,6 +243,7 @@ def make_dtm(files: list[Path], frame, p: Params, hints: list | None = None, rea
     )
     ds = add_geo(ds, frame)
     ds.attrs["multibeam_readers"] = "; ".join(used)
+    ds.attrs["n_soundings_implausible"] = n_implausible
     ds.attrs["resolution_m"] = float(res_m)
     ds.attrs["resolution_choice"] = how
     _compress(ds)
@@ -244,6 +257,8 @@ def _as_input_error(f: Path, exc: Exception) -> InputError:
 
 
 def _existing(ctx: StageContext, entries, what: str) -> list[tuple[Path, object]]:
+    from hadal.dive import resolve_source
+
     out = []
     for sf in entries:
         f = resolve_source(ctx.raw_dir, sf)
@@ -251,6 +266,41 @@ def _existing(ctx: StageContext, entries, what: str) -> list[tuple[Path, object]
             raise InputError(f"{what} file {f} listed in dive.yaml does not exist")
         out.append((f, sf))
     return out
+
+
+def _drop_duplicates(entries: list[tuple[Path, object]], what: str, log) -> list[tuple[Path, object]]:
+    """Drop sources listed twice (same resolved path) or with identical content (SHA-256; only files of equal
+    size are hashed), keeping the first, with a WARNING: gridding the same soundings twice doubles ``count`` and
+    shrinks ``uncertainty_m`` by ~sqrt(2)."""
+    import hashlib
+
+    by_size: dict[int, list[int]] = {}
+    for i, (f, _) in enumerate(entries):
+        by_size.setdefault(f.stat().st_size, []).append(i)
+    drop: dict[int, str] = {}
+    for idx in by_size.values():
+        if len(idx) < 2:
+            continue
+        seen: dict[object, int] = {}
+        for i in idx:
+            f = entries[i][0]
+            real = f.resolve()
+            if real in seen:
+                drop[i] = f"listed twice (same file as entry {seen[real] + 1})"
+                continue
+            h = hashlib.sha256()
+            with open(f, "rb") as fh:
+                for block in iter(lambda fh=fh: fh.read(1 << 20), b""):
+                    h.update(block)
+            key = h.hexdigest()
+            if key in seen:
+                drop[i] = f"identical content (SHA-256 {key[:12]}...) to {entries[seen[key]][0].name}"
+                continue
+            seen[real] = seen[key] = i
+    for i, why in sorted(drop.items()):
+        log.warning("%s: %s %s: %s; dropped (its soundings would be counted twice)", what, entries[i][0].name,
+                    f"(entry {i + 1})", why)
+    return [e for i, e in enumerate(entries) if i not in drop]
 
 
 def _hint(sf, name: str):
@@ -284,7 +334,7 @@ def _prior_dtm(ctx: StageContext, f: Path, sf, frame, p: Params):
         return prior_dtm(f, frame, z_positive_hint=_hint(sf, "z_positive"), crs=_hint(sf, "crs"),
                          variable=_hint(sf, "variable"), format=_hint(sf, "format"),
                          resolution_m=p.prior_resolution_m, max_extent_m=p.prior_max_extent_km * 1000.0,
-                         max_cells=p.max_cells)
+                         max_cells=p.max_cells, max_read_bytes=memory_limit_bytes(ctx.config))
     except InputError as exc:
         raise _as_input_error(f, exc) from None
     except (OSError, ValueError, RuntimeError, KeyError, TypeError) as exc:
@@ -293,6 +343,8 @@ def _prior_dtm(ctx: StageContext, f: Path, sf, frame, p: Params):
 
 def _fill_from_prior(dtm, f: Path, sf, frame) -> int:
     """Fill the multibeam DTM's empty cells from a prior grid (``filled`` = 2); returns the cells filled."""
+    import numpy as np
+
     from hadal.grid.prior import sample_depth
 
     try:
@@ -345,16 +397,17 @@ def _laser_grid(ctx: StageContext, f: Path, sf, p: Params, limit_bytes: float | 
 
     import xarray as xr
 
-    from hadal.grid.laser import laser_grid_from_raster
+    from hadal.grid.laser import grid_laser, laser_grid_from_raster
     from hadal.grid.prior import z_positive
-    from hadal.grid.readers import _CLOUD_KINDS, _kind_of, read_grid, reader_of
+    from hadal.grid.readers import _CLOUD_KINDS, _kind_of, read_grid, read_point_cloud, reader_of
 
     try:
         kind = _kind_of(f, _hint(sf, "format"))
         if kind not in _CLOUD_KINDS and kind != "text":  # rasters (and other binaries: GDAL may know them)
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")  # a mislabelled CRS is expected for laser rasters; recorded
-                da = read_grid(f, variable=_hint(sf, "variable"), format=_hint(sf, "format"), crs=_hint(sf, "crs"))
+                da = read_grid(f, variable=_hint(sf, "variable"), format=_hint(sf, "format"), crs=_hint(sf, "crs"),
+                               max_bytes=memory_limit_bytes(ctx.config))
             pos, reason = z_positive(da, _hint(sf, "z_positive"))
             frame = ctx.dive.frame("grid") if da.attrs["crs_kind"] == "geographic" else None
             ds = laser_grid_from_raster(da, z_positive=pos, z_reason=reason, frame=frame)
@@ -365,9 +418,13 @@ def _laser_grid(ctx: StageContext, f: Path, sf, p: Params, limit_bytes: float | 
             pts = pts.copy()
             pts[:, 2] = -pts[:, 2]
         _check_laser_memory(pts, p, limit_bytes)
-        ds = grid_laser(pts, p.laser_resolution_m, voxel_size_m=p.laser_voxel_m,
-                        sor_neighbors=p.laser_sor_neighbors, sor_std_ratio=p.laser_sor_std_ratio,
-                        surface_tol_m=p.laser_surface_tol_m, max_cells=p.max_cells)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", UserWarning)  # the quantisation note is logged below
+            ds = grid_laser(pts, p.laser_resolution_m, voxel_size_m=p.laser_voxel_m,
+                            sor_neighbors=p.laser_sor_neighbors, sor_std_ratio=p.laser_sor_std_ratio,
+                            surface_tol_m=p.laser_surface_tol_m, max_cells=p.max_cells)
+        if ds.attrs.get("coordinate_quantisation"):
+            ctx.log.warning("laser %s: %s", f.name, ds.attrs["coordinate_quantisation"])
         ds.attrs.update({"laser_input": "point cloud", "source_format": kind, "source_reader": reader_of(kind),
                          "z_positive_source": pos, "z_sign_detection": reason, "z_sign_flipped": int(pos == "down")})
         return ds, reader_of(kind), "point cloud"
@@ -378,6 +435,10 @@ def _laser_grid(ctx: StageContext, f: Path, sf, p: Params, limit_bytes: float | 
 
 
 def run(ctx: StageContext) -> dict[str, ProductVersion]:
+    from hadal.grid.multibeam import add_geo
+    from hadal.grid.prior import MAX_ABS_DEPTH_M
+    from hadal.products.io import write_netcdf
+
     p: Params = ctx.config.grid
     src = ctx.dive.sources
     if not src.multibeam and not src.laser and not src.prior_grid:
@@ -393,7 +454,7 @@ def run(ctx: StageContext) -> dict[str, ProductVersion]:
     dtm_title = dtm_summary = dtm_keywords = ""
     priors = _existing(ctx, src.prior_grid, "prior grid")
     if src.multibeam:
-        mb = _existing(ctx, src.multibeam, "multibeam")
+        mb = _drop_duplicates(_existing(ctx, src.multibeam, "multibeam"), "multibeam", ctx.log)
         mb_files = [f for f, _ in mb]
         frame = ctx.dive.frame("grid")
         dtm = make_dtm(list(ctx.progress.track(mb_files, "reading multibeam", total=len(mb_files))), frame, p,
@@ -403,6 +464,9 @@ def run(ctx: StageContext) -> dict[str, ProductVersion]:
                      dtm.sizes["x"], dtm.sizes["y"], dtm.attrs["resolution_m"], dtm.attrs["n_soundings_used"],
                      dtm.attrs["n_soundings_spikes"], dtm.attrs["n_cells_filled"])
         dtm.attrs["dtm_source"] = "multibeam"
+        if dtm.attrs["n_soundings_implausible"]:
+            ctx.log.warning("dtm: %d sounding(s) deeper/higher than %g m (fill values?) dropped",
+                            dtm.attrs["n_soundings_implausible"], MAX_ABS_DEPTH_M)
         if priors:
             names = ", ".join(f.name for f, _ in priors)
             if p.prior_fill:
@@ -438,6 +502,9 @@ def run(ctx: StageContext) -> dict[str, ProductVersion]:
                      f.name, dtm.attrs["prior_grid_format"], dtm.attrs["prior_grid_crs"],
                      dtm.attrs["prior_grid_registration"], dtm.sizes["x"], dtm.sizes["y"], dtm.attrs["resolution"],
                      "elevation, negated" if dtm.attrs["z_sign_flipped"] else "depth", dtm.attrs["z_sign_detection"])
+        for k in ("prior_grid_depth_check", "prior_grid_warning"):
+            if dtm.attrs.get(k):
+                ctx.log.warning("dtm: prior grid %s: %s", f.name, dtm.attrs[k])
         if dtm.attrs.get("prior_grid_cropped_to_m"):
             a = dtm.attrs
             ctx.log.warning(
@@ -490,6 +557,9 @@ def run(ctx: StageContext) -> dict[str, ProductVersion]:
         with ctx.store.publish(ctx.dive_id, "dtm", parameters=params, inputs=dtm_inputs, extra=extra) as draft:
             write_netcdf(dtm, draft.path / "dtm.nc", title=dtm_title, summary=dtm_summary, keywords=dtm_keywords,
                          processing_level="L3 gridded", provenance_from=draft, **_frame_attrs(ctx))
+            from hadal.products.geotiff import write_grid_cog  # the same DTM as a COG in the dive's UTM zone
+
+            write_grid_cog(dtm, draft.path / "dtm.tif", "depth_m")
         out["dtm"] = draft.result
     if grids:
         extra = {"readers": {f.name: readers[str(f)] for f, *_ in grids},
@@ -512,5 +582,10 @@ def run(ctx: StageContext) -> dict[str, ProductVersion]:
                     keywords="bathymetry, laser, structured light, microbathymetry",
                     processing_level="L3 gridded", provenance_from=draft, **_frame_attrs(ctx),
                 )
+                lf = None if p.laser_frame == "map" else getattr(ctx.dive, "laser_frame", None)
+                if p.laser_frame == "map" or lf is not None:  # georeferenced: also a COG in the dive's UTM zone
+                    from hadal.products.geotiff import write_grid_cog
+
+                    write_grid_cog(ds, draft.path / f"{stem}.tif", "elevation_m", laser_frame=lf)
         out["laser_grids"] = draft.result
     return out

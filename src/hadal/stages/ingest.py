@@ -24,27 +24,16 @@ import warnings
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Any, Literal
 
-import pandas as pd
 from pydantic import BaseModel, ConfigDict, Field
 
-from hadal.dive import resolve_source
 from hadal.errors import InputError
-from hadal.ingest.build import (
-    build_profile_table,
-    build_sensor_table,
-    field_metadata,
-    is_profile,
-    read_cast,
-    read_cnv_sensors,
-    read_csv_sensors,
-    read_mcap_sensors,
-)
 from hadal.ingest.qc import DEFAULT_QC, VariableQC
-from hadal.ingest.vehicle import default_vehicle_config_path, load_vehicle_config
 from hadal.stages import StageInputs
 from hadal.store import sha256_file
 
 if TYPE_CHECKING:
+    import pandas as pd
+
     from hadal.ingest.csv_reader import SensorSamples
     from hadal.ingest.vehicle import VehicleConfig
     from hadal.stages import StageContext
@@ -93,6 +82,9 @@ def _gap_limits(p: Params) -> dict[str, float]:
 
 
 def _vehicle_path(ctx: StageContext, p: Params) -> Path:
+    from hadal.dive import resolve_source
+    from hadal.ingest.vehicle import default_vehicle_config_path
+
     rel = p.vehicle_config or ctx.dive.vehicle_config
     if rel:
         path = resolve_source(ctx.raw_dir, rel)
@@ -116,6 +108,8 @@ def _cast_id(k: int, path: Path) -> str:
 def _cast_table(samples: SensorSamples, vehicle: VehicleConfig, p: Params, launch_ns: int | None = None
                 ) -> tuple[pd.DataFrame, dict[str, Any]]:
     """A cast's own sensors-schema table: a profile (no time base) or a CTD-only time series."""
+    from hadal.ingest.build import build_profile_table, build_sensor_table, is_profile
+
     if is_profile(samples):
         return build_profile_table(samples, p.qc)
     return build_sensor_table({vehicle.time_base: samples}, vehicle, max_gap_s=_gap_limits(p),
@@ -125,6 +119,8 @@ def _cast_table(samples: SensorSamples, vehicle: VehicleConfig, p: Params, launc
 
 def _launch_ns(ctx: StageContext) -> int | None:
     """dive.yaml ``launch.time_utc`` as ns since the epoch (a naive time is UTC); ``None`` when not given."""
+    import pandas as pd
+
     launch = ctx.dive.launch
     if launch is None or launch.time_utc is None:
         return None
@@ -173,6 +169,18 @@ def reader_of(path: Path) -> str:
 
 def run(ctx: StageContext) -> dict[str, ProductVersion]:
     """Read, align, QC and publish ``sensors`` (and ``casts``); see the module docstring."""
+    from hadal.dive import resolve_source
+    from hadal.ingest.build import (
+        build_profile_table,
+        build_sensor_table,
+        field_metadata,
+        is_profile,
+        read_cast,
+        read_cnv_sensors,
+        read_csv_sensors,
+        read_mcap_sensors,
+    )
+    from hadal.ingest.vehicle import load_vehicle_config
     from hadal.products import write_parquet
     from hadal.products.io import json_clean
 

@@ -12,24 +12,26 @@ Reads ``laser_grids`` (one ``<name>.nc`` per laser input, whatever its name - e.
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
-from typing import Literal
+from typing import TYPE_CHECKING, Literal
 
-import numpy as np
-import pandas as pd
-import xarray as xr
 from pydantic import BaseModel, ConfigDict, Field
 
+from hadal.budget import memory_limit_bytes
 from hadal.errors import InputError, StageError
-from hadal.landing.sites import SITE_FIELDS, analyse_submap, mapped_length_m, results_table
+from hadal.landing.limits import CELL_FRACTION_RULE, COARSE_CELL_LIMIT
 from hadal.landing.vehicle import Vehicle
-from hadal.products import dive_attributes, write_netcdf, write_parquet
 from hadal.stages import StageInputs
+
+if TYPE_CHECKING:
+    import numpy as np
+    import pandas as pd
+    import xarray as xr
 
 PRODUCTS = ("landing",)
 UPSTREAM = ("laser_grids",)
 INPUTS = StageInputs(upstream=("laser_grids",))
+DEFAULT_MAX_CELL_HEADINGS = 1e10
 
 
 class Params(BaseModel):
@@ -53,7 +55,14 @@ class Params(BaseModel):
     edge_correction: bool = Field(False, description="normalised low-pass next to gaps (the paper zero-fills)")
     rectangle_resolution_m: float = Field(0.02, gt=0, le=1.0, description="ignored: A_r (Eq. 12) is now exact")
     fill_holes_max_m2: float = Field(0.01, ge=0, le=1.0, description="fill interior unmapped holes up to this area (m²)")
-    max_cell_fraction: float = Field(0.2, gt=0, le=0.2, description="refuse grid cells larger than this × vehicle width")
+    max_cell_fraction: float = Field(
+        CELL_FRACTION_RULE, gt=0, le=COARSE_CELL_LIMIT,
+        description="refuse grid cells larger than this × vehicle width (rule 0.1; up to 0.2 is an explicit override "
+                    "for coarser grids, reported as a warning)")
+    max_cell_headings: float = Field(
+        DEFAULT_MAX_CELL_HEADINGS, ge=1e3, le=1e13,
+        description="refuse a submap whose cells x headings exceed this (work budget, checked before allocating; "
+                    "1e10 is about 10 minutes single-threaded)")
     default_sigma_m: float = Field(0.006, ge=0, le=0.1, description="elevation 1-σ where a laser cell has < 2 points "
                                    "(m; for the per-site landability probability)")
     workers: int = Field(1, ge=1, le=64, description="headings analysed in parallel threads")
@@ -63,6 +72,9 @@ class Params(BaseModel):
 def _read_submap(path: Path) -> tuple[xr.DataArray, xr.DataArray | None]:
     """Elevation and, where the laser grid has ``elevation_std_m`` and ``count``, the 1-σ uncertainty of the
     cell mean std/sqrt(count) (NaN where fewer than 2 points: the analysis uses its default sensor σ there)."""
+    import numpy as np
+    import xarray as xr
+
     sigma = None
     try:
         with xr.open_dataset(path, engine="h5netcdf") as ds:
@@ -81,8 +93,52 @@ def _read_submap(path: Path) -> tuple[xr.DataArray, xr.DataArray | None]:
     return da, sigma
 
 
+def _cell_size_m(path: Path) -> float | None:
+    """The cell size (m) of one laser grid from its coordinates, without loading the data; None if unreadable."""
+    import numpy as np
+    import xarray as xr
+
+    try:
+        with xr.open_dataset(path, engine="h5netcdf") as ds:
+            x = np.asarray(ds["x"].values, dtype=np.float64)
+            return float(np.median(np.abs(np.diff(x)))) if x.size > 1 else None
+    except Exception:  # noqa: BLE001 - unreadable grids are run()'s one-line error
+        return None
+
+
+def skip_reason(ctx) -> str | None:
+    """Why ``landing`` cannot analyse this dive's laser grids, or ``None``: every grid's cells are coarser than
+    ``landing.max_cell_fraction`` x the vehicle width (the Eq. 9 footprint tests need several cells across the
+    vehicle). A laser-only dive with a coarse raster then publishes its grids and says why no sites were sought,
+    instead of failing; ``hadal stage landing`` names the reason as an error."""
+    p: Params = ctx.config.landing
+    pv = ctx.optional_upstream("laser_grids")
+    if pv is None:
+        return None
+    files = sorted(f for f in pv.path.glob("*.nc") if f.is_file() and not f.name.endswith("_maps.nc"))
+    cells = [_cell_size_m(f) for f in files]
+    limit = p.max_cell_fraction * p.vehicle.width_m
+    if not cells or any(c is None or c <= limit * (1 + 1e-6) for c in cells):
+        return None
+    return (f"the laser grids' cells ({', '.join(f'{c:g}' for c in sorted(set(cells)))} m) are coarser than "
+            f"landing.max_cell_fraction ({p.max_cell_fraction:g}) x the vehicle width ({p.vehicle.width_m:g} m) = "
+            f"{limit:g} m; raise landing.max_cell_fraction (at most {COARSE_CELL_LIMIT:g}) to analyse them anyway")
+
+
 def run(ctx) -> dict:
     """Analyse every laser submap and publish the ``landing`` product."""
+    import numpy as np
+    import pandas as pd
+
+    from hadal.landing.sites import (
+        SITE_FIELDS,
+        analyse_submap,
+        check_resources,
+        mapped_length_m,
+        results_table,
+    )
+    from hadal.products import dive_attributes, write_netcdf, write_parquet
+
     p: Params = ctx.config.landing
     laser = ctx.upstream("laser_grids")
     # every grid of the product, whatever its name (laser inputs keep their file stems); only landing's own
@@ -91,6 +147,8 @@ def run(ctx) -> dict:
     if not files:
         raise StageError(f"{ctx.dive_id}/laser_grids/{laser.label} has no laser grids (*.nc)")
     headings = np.linspace(-90.0, 90.0, int(round(180.0 / p.heading_step_deg)) + 1)
+    mem_limit = memory_limit_bytes(ctx.config)
+    warnings_: list[str] = []
     all_sites: list[pd.DataFrame] = []
     finals: list[dict] = []
     mapped_area = 0.0
@@ -108,6 +166,12 @@ def run(ctx) -> dict:
             if not np.isfinite(grid.values).any():
                 ctx.log.warning("landing: %s has no mapped cells; skipped", name)
                 continue
+            # memory and work before allocating anything of the analysis (issue 14): one-line ConfigError
+            check_resources(tuple(grid.shape), len(headings), memory_limit_bytes=mem_limit,
+                            work_limit=p.max_cell_headings, keep_heading_exclusion=True,
+                            exclusion_step_m=p.exclusion_step_m, vehicle=p.vehicle, what=f"landing submap {name}",
+                            heading_setting=("landing.heading_step_deg", p.heading_step_deg),
+                            step_setting=("landing.exclusion_step_m", p.exclusion_step_m))
             res = analyse_submap(
                 grid, p.vehicle, headings_deg=headings, min_site_radius_m=p.min_site_radius_m,
                 min_protrusion_height_m=p.min_protrusion_height_m, exclusion_step_m=p.exclusion_step_m,
@@ -118,6 +182,9 @@ def run(ctx) -> dict:
                 elevation_sigma_m=sigma, default_sigma_m=p.default_sigma_m,
             )
             ctx.log.info("landing: %s %d candidate sites in %.1f s", name, len(res.sites), res.timings_s["total"])
+            for w in res.warnings:
+                ctx.log.warning("landing: %s: %s", name, w)
+                warnings_.append(f"{name}: {w}")
             mapped = np.isfinite(res.elevation_m)
             mapped_area += float(mapped.sum()) * res.cell_m**2
             rows_, cols_ = np.nonzero(mapped)
@@ -146,11 +213,25 @@ def run(ctx) -> dict:
         meta = {"dive_id": ctx.dive_id, "critical_slope_deg": p.vehicle.critical_slope_deg,
                 "critical_height_m": p.vehicle.critical_height_m, "table_v": table,
                 "method": "Sangekar et al., Autonomous landing of underwater vehicles using high resolution bathymetry"}
-        write_parquet(sites_df, draft.path / "landing_sites.parquet", fields=SITE_FIELDS, metadata=meta)
-        finals_df = pd.DataFrame(finals)
+        if warnings_:
+            meta["warnings"] = warnings_  # e.g. grids coarser than the 1/10-width cell rule (explicit override)
+        from hadal.products.geo_landing import (
+            SITE_GEO_FIELDS,
+            footprints_geojson,
+            georeference_sites,
+            strict_json,
+        )
+
+        lf = ctx.dive.laser_frame  # dive.yaml georeference of the laser frame: sites in lat/lon, footprints GeoJSON
+        sites_df, finals_df = georeference_sites(sites_df, lf), georeference_sites(pd.DataFrame(finals), lf)
+        meta["laser_frame"] = lf.model_dump() if lf is not None else "local (not georeferenced: no laser_frame)"
+        write_parquet(sites_df, draft.path / "landing_sites.parquet", fields={**SITE_FIELDS, **SITE_GEO_FIELDS},
+                      metadata=meta)
         (draft.path / "landing_summary.json").write_text(
-            json.dumps({"table_v": table, "final_sites": finals_df.to_dict(orient="records")}, indent=2, default=float),
-            encoding="utf-8")
+            strict_json({"table_v": table, "laser_frame": meta["laser_frame"],
+                         "final_sites": finals_df.to_dict(orient="records")}, indent=2), encoding="utf-8")
+        if (gj := footprints_geojson(sites_df, lf, p.vehicle.length_m, p.vehicle.width_m)) is not None:
+            (draft.path / "landing_footprints.geojson").write_text(strict_json(gj), encoding="utf-8")
         if p.figures:
             from hadal.landing import figures as fg
 

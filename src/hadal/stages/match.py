@@ -19,15 +19,21 @@ Deviations from the paper's set-up, all configurable:
   halves the sounding noise of a multibeam DTM with a few soundings per cell;
 * ``segment_m`` can restrict the match to the start of the bottom track (default: the whole track).
 
-By default (``posterior: true``) the reported fix is the point-mass posterior of
+With ``posterior: true`` the reported fix is the point-mass posterior of
 :func:`hadal.matching.posterior_fix` (MAP start/heading/scale, posterior covariance and 1-/2-sigma ellipses,
 mass outside the main mode, mismatch reasons: ambiguous, short track, off the map / over holes, flat map);
-the paper's cell-resolution search still provides ``msd_surface.nc`` and ``refinement.coarse``. With
+the paper's cell-resolution search still provides ``msd_surface.nc`` and ``refinement.coarse``. The posterior
+also estimates the dead-reckoning drift (a velocity bias piecewise constant over ``drift_segment_s``, prior
+``drift_velocity_sigma_m_s``) jointly with the start, heading and scale (``1 +- refine_scale_range``); the
+matched track then follows the drift. It is computed for the record in any case (``fix.json`` ``posterior``,
+``msd_posterior_probability`` in ``msd_surface.nc``); ``posterior`` is off by default because it does not yet
+place the sample dive's start within one cell on every generator seed (bench/sample_seeds_tercom.py). With
 ``posterior: false`` the fix uncertainty combines the MSD likelihood, a jackknife over track blocks and a dead-reckoning term
 (``dr_error_fraction`` x the distance from the start to the track's terrain-information centroid; a
 conservative bound: the refinement already removes part of the DR heading/scale error). Products:
 
-* ``msd_surface.nc`` -- the criterion on the map grid (track start at each cell), the per-offset bias;
+* ``msd_surface.nc`` -- the criterion on the map grid (track start at each cell), the per-offset bias, the
+  posterior probability of the start per cell;
 * ``matched_track.parquet`` -- the bottom samples placed on the map, lat/lon in degrees;
 * ``fix.json`` -- best offset, start and deepest-point lat/lon (also degrees-minutes), drift from the
   launch point (geodesic), uncertainty, second optimum / mismatch warning, depth bias, MRF result.
@@ -37,20 +43,21 @@ from __future__ import annotations
 
 import json
 from dataclasses import replace
-from typing import Literal
+from typing import TYPE_CHECKING, Literal
 
-import numpy as np
-import pandas as pd
-import xarray as xr
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from hadal.budget import check_memory, check_work, memory_limit_bytes, work_limit
 from hadal.errors import ConfigError, InputError
-from hadal.products import write_netcdf, write_parquet
 from hadal.stages import StageContext, StageInputs
 from hadal.store import ProductVersion
 
-PRODUCTS = ("match",)
+if TYPE_CHECKING:
+    import numpy as np
+    import pandas as pd
+    import xarray as xr
+
+PRODUCTS = ("match", "navigation")
 UPSTREAM = ("dtm", "ctd")
 INPUTS = StageInputs(raw_any=("mcap", "csv"), upstream=("dtm", "ctd"), optional_upstream=("suitability",),
                      needs_launch=True, frame_for=("match",))
@@ -94,7 +101,7 @@ class Params(BaseModel):
     )
     exclusion_radius_m: float | None = Field(None, gt=0, le=10_000_000, description="neighbourhood (m) excluded when looking for the second optimum (default max(5 cells, 100 m))")
     mismatch_ratio: float = Field(1.2, ge=1, le=1000, description="warn when second-best / best MSD is below this ratio")
-    mrf: bool = Field(False, description="refine the TERCOM fix with MRF fine matching of the gridded bottom track (needs 2-D coverage)")
+    mrf: bool = Field(False, description="refine the fix with MRF fine matching of a 2-D real-time terrain patch (MRF paper); a single-beam bottom track (< 50 % of the cells under it sounded) is recorded as not matchable by MRF and MRF is not run")
     scale_range: float = Field(0.0, ge=0, lt=0.5, description="search DR scale errors 1 +- this range (0: none)")
     scale_step: float = Field(0.01, ge=1e-5, le=0.5, description="scale search step (1e-5 to 0.5, at most scale_range)")
     mrf_max_shift_cells: float = Field(1.5, gt=0, le=100, description="MRF shift search range per iteration, in map cells")
@@ -105,6 +112,9 @@ class Params(BaseModel):
     max_mass_outside: float = Field(0.05, gt=0, lt=1, description="posterior: flag a mismatch when more than this posterior mass lies outside the main mode")
     mode_radius_cells: float = Field(3.0, gt=0, le=1000, description="posterior: radius of the main mode in map cells")
     min_samples: int = Field(10, ge=3, le=10_000_000, description="posterior: flag profiles with fewer samples as too short")
+    drift: bool = Field(True, description="posterior: estimate the dead-reckoning drift (a velocity bias, piecewise constant in time) jointly with the start, heading and scale")
+    drift_segment_s: float = Field(900.0, ge=10, le=1_000_000, description="posterior: duration of each constant-velocity-bias segment of the drift, seconds")
+    drift_velocity_sigma_m_s: float = Field(0.003, gt=0, le=10, description="posterior: prior standard deviation of the DR velocity bias in each segment, m/s")
 
     @model_validator(mode="after")
     def _steps(self) -> Params:
@@ -119,6 +129,8 @@ class Params(BaseModel):
 
 
 def _headings(p: Params) -> np.ndarray:
+    import numpy as np
+
     if p.heading_range_deg == 0:
         return np.array([0.0])
     if not p.heading_step_deg > 0 or p.heading_step_deg > p.heading_range_deg:
@@ -129,6 +141,8 @@ def _headings(p: Params) -> np.ndarray:
 
 
 def _scales(p: Params) -> np.ndarray:
+    import numpy as np
+
     if p.scale_range == 0:
         return np.array([1.0])
     if not p.scale_step > 0 or p.scale_step > p.scale_range:
@@ -172,6 +186,8 @@ def _search_size(rng: float, step: float) -> float:
 
 
 def read_ctd(pv: ProductVersion) -> pd.DataFrame:
+    import pandas as pd
+
     path = pv.file("ctd.parquet")
     try:
         return pd.read_parquet(path)
@@ -183,6 +199,8 @@ def information_distance_m(res, track_xy: np.ndarray, along_m: np.ndarray, g) ->
     """Along-track distance from the start to where the terrain fixes the match: the centroid of the
     profile points weighted by the squared map gradient at their matched positions (flat stretches carry no
     position information, so the start is carried there by dead reckoning)."""
+    import numpy as np
+
     xy = res.apply(track_xy)
     gy, gx = np.gradient(g.depth_m, g.resolution_m)  # NaN next to holes: those points carry no weight
     from hadal.matching.mapgrid import MapGrid
@@ -198,6 +216,8 @@ def grid_track_patch(xy: np.ndarray, depth: np.ndarray, g, margin_cells: int = 3
 
     Returns ``(patch, x0_m, y0_m)`` with NaN for empty cells and the map position of cell ``[0, 0]``.
     """
+    import numpy as np
+
     col = np.rint(g.col_of(xy[:, 0])).astype(int)
     row = np.rint(g.row_of(xy[:, 1])).astype(int)
     c0, r0 = col.min() - margin_cells, row.min() - margin_cells
@@ -211,7 +231,10 @@ def grid_track_patch(xy: np.ndarray, depth: np.ndarray, g, margin_cells: int = 3
     return patch, float(g.x_m[0] + c0 * h), float(g.y_m[0] + r0 * h)
 
 
-def surface_dataset(res, frame, criterion: str) -> xr.Dataset:
+def surface_dataset(res, frame, criterion: str, post=None) -> xr.Dataset:
+    import numpy as np
+    import xarray as xr
+
     long = {"msd": "mean square difference (TERCOM paper Eq. 17)", "mad": "mean absolute difference (Eq. 16)",
             "cor": "cross correlation (Eq. 15)"}[criterion]
     units = {"msd": "m2", "mad": "m", "cor": "m2"}[criterion]
@@ -221,6 +244,15 @@ def surface_dataset(res, frame, criterion: str) -> xr.Dataset:
         "score_all_headings": (("y", "x"), res.surface_all_headings.astype(np.float32), {
             "long_name": f"best {criterion.upper()} over the searched headings", "units": units, "grid_mapping": "crs"}),
     }
+    if post is not None:  # the posterior may hold a crop of the map (search region + track footprint): embed it
+        pc = np.zeros(res.surface.shape, np.float32)
+        h = float(res.x_m[1] - res.x_m[0])
+        c0 = int(round((post.x_m[0] - res.x_m[0]) / h))
+        r0 = int(round((post.y_m[0] - res.y_m[0]) / h))
+        pc[r0 : r0 + post.y_m.size, c0 : c0 + post.x_m.size] = post.posterior_cells
+        data["msd_posterior_probability"] = (("y", "x"), pc, {
+            "long_name": "posterior probability of the track start in the cell (point-mass posterior, all poses)",
+            "units": "1", "grid_mapping": "crs"})
     if res.bias_surface is not None:
         data["bias_m"] = (("y", "x"), res.bias_surface.astype(np.float32), {
             "long_name": "estimated map-minus-measured depth bias at the offset", "units": "m", "grid_mapping": "crs"})
@@ -245,12 +277,16 @@ def surface_dataset(res, frame, criterion: str) -> xr.Dataset:
     return ds
 
 
+#: MRF runs only on a 2-D real-time terrain patch: at least this fraction of the patch's cells must hold soundings
+MRF_MIN_COVERAGE = 0.5
+
 #: ``ctd`` columns the bottom track is made of (seafloor depth = depth + altitude, on the dead-reckoned track)
 TRACK_COLUMNS = ("seafloor_depth_m", "dr_east_m", "dr_north_m")
 
 
 def skip_reason(ctx: StageContext) -> str | None:
     """Why ``match`` cannot run on this dive's ``ctd`` (no altimeter or no dead-reckoned track), or ``None``."""
+    import numpy as np
     import pyarrow.parquet as pq
 
     pv = ctx.optional_upstream("ctd")
@@ -273,9 +309,13 @@ def skip_reason(ctx: StageContext) -> str | None:
 
 
 def run(ctx: StageContext) -> dict[str, ProductVersion]:
+    import numpy as np
+    import xarray as xr
+
     from hadal.matching import MapGrid, refine_tercom, tercom
-    from hadal.matching.fix import fix_summary, json_clean, matched_track, profile_from_ctd
+    from hadal.matching.fix import fix_summary, matched_track, profile_from_ctd
     from hadal.matching.mrf import mrf_refine
+    from hadal.products import write_netcdf, write_parquet
     from hadal.stages.suitability import open_dtm
 
     p: Params = ctx.config.match
@@ -326,10 +366,14 @@ def run(ctx: StageContext) -> dict[str, ProductVersion]:
 
         dtm_ds = open_dtm(dtm_pv)
         unc = dtm_ds["uncertainty_m"].transpose("y", "x").values if "uncertainty_m" in dtm_ds else None
+        r_s = p.refine_scale_range
         post = posterior_fix(
             prof.depth_m[used], prof.track_xy[used], g, headings_deg=_headings(p), scales=_scales(p), region=region,
             uncertainty=unc, min_valid_fraction=min(p.min_valid_fraction, 0.5), mode_radius_cells=p.mode_radius_cells,
             max_mass_outside=p.max_mass_outside, min_samples=p.min_samples,
+            fine_scales=np.linspace(1 - r_s, 1 + r_s, 5) if r_s > 0 else None,
+            time_s=None if prof.time_s is None else prof.time_s[used], drift=p.drift,
+            drift_segment=p.drift_segment_s, drift_sigma=p.drift_velocity_sigma_m_s,
         )
         if p.posterior:
             res = post.to_tercom_result(res)
@@ -338,7 +382,13 @@ def run(ctx: StageContext) -> dict[str, ProductVersion]:
     d_info = information_distance_m(res, prof.track_xy[used], prof.along_m[used], g)
     sigma_dr = 0.0 if use_post else p.dr_error_fraction * d_info / np.sqrt(2.0)  # per axis
     res = replace(res, sigma_x_m=float(np.hypot(res.sigma_x_m, sigma_dr)), sigma_y_m=float(np.hypot(res.sigma_y_m, sigma_dr)))
-    track = matched_track(bottom, res, frame, map_depth=g_raw.sample_bilinear)
+    drift_xy = None
+    if use_post and post.drift_model is not None:  # the matched track follows the estimated DR drift
+        from hadal.matching.fix import bottom_seconds
+
+        tb = bottom_seconds(bottom)
+        drift_xy = post.drift_at(tb - tb[0])
+    track = matched_track(bottom, res, frame, map_depth=g_raw.sample_bilinear, drift_xy=drift_xy)
     launch = ctx.dive.launch
     fix = fix_summary(res, track, frame, launch.latitude_deg, launch.longitude_deg)
     fix["uncertainty_m"]["components"] = {
@@ -357,11 +407,19 @@ def run(ctx: StageContext) -> dict[str, ProductVersion]:
             fix["mismatch_reasons"] = list(post.reasons)
             # the report draws the ellipse about the matched start and the dead-reckoning-only track
             e1, e2 = post.ellipse(1.0), post.ellipse(2.0)
+            clon, clat = (float(v) for v in frame.to_lonlat(post.start_x_m, post.start_y_m))
+            centre = {"x_east_m": post.start_x_m, "y_north_m": post.start_y_m, "lat": clat, "lon": clon,
+                      "comment": "ellipse centre: the MAP position of the first profile point (profile_start)"}
+            e1, e2 = {**e1, "centre": centre}, {**e2, "centre": centre}
             fix["uncertainty_m"].update({"ellipse_1sigma": e1, "ellipse_2sigma": e2,
                                          "covariance_m2": fix["posterior"]["covariance_m2"]})
+            fix["posterior"]["ellipse_1sigma"], fix["posterior"]["ellipse_2sigma"] = e1, e2
         else:
             fix["posterior"]["comment"] = ("computed for the record; the reported fix is the refined score minimum "
                                            "(match.posterior: false)")
+        fix["posterior"]["surface"] = {
+            "file": "msd_surface.nc", "variable": "msd_posterior_probability",
+            "comment": "marginal posterior probability of the track start per map cell (sums to 1 over the searched cells)"}
         dr_only = bottom[["dr_east_m", "dr_north_m"]].to_numpy(float)
         lx, ly = fix["launch"]["x_east_m"], fix["launch"]["y_north_m"]
         fix["dead_reckoning_track"] = {
@@ -370,12 +428,26 @@ def run(ctx: StageContext) -> dict[str, ProductVersion]:
             "x_east_m": [float(v) for v in (dr_only[::10, 0] + lx)] + [float(dr_only[-1, 0] + lx)],
             "y_north_m": [float(v) for v in (dr_only[::10, 1] + ly)] + [float(dr_only[-1, 1] + ly)],
         }
+        dlon, dlat = frame.to_lonlat(np.asarray(fix["dead_reckoning_track"]["x_east_m"]),
+                                     np.asarray(fix["dead_reckoning_track"]["y_north_m"]))
+        fix["dead_reckoning_track"]["lon"] = [float(v) for v in np.atleast_1d(dlon)]
+        fix["dead_reckoning_track"]["lat"] = [float(v) for v in np.atleast_1d(dlat)]
     fix["profile"] = {"n_raw_bottom_samples": prof.n_raw, "n_profile_points": int(prof.depth_m.size),
                       "spacing_m": p.resample_spacing_m or g.resolution_m, "track_length_m": float(prof.along_m[-1]),
                       "n_points_matched": int(used.sum()), "matched_length_m": float(prof.along_m[used][-1])}
     fix["dtm"] = {"empty_fraction": empty, "smooth_sigma_cells": sigma}
     if p.mrf:
         patch, x0, y0 = grid_track_patch(track[["x_east_m", "y_north_m"]].to_numpy(), track["seafloor_depth_m"].to_numpy(), g)
+        cover = float(np.isfinite(patch[3:-3, 3:-3]).mean()) if min(patch.shape) > 6 else 0.0
+    if p.mrf and cover < MRF_MIN_COVERAGE:
+        # MRF paper §2: the real-time terrain is a 2-D multibeam patch; a single-beam (altimeter) track gridded on
+        # the map leaves most cells empty, and the Gibbs neighbourhood prior and the 2-D Taylor step are undefined
+        fix["mrf"] = {"applied": False, "coverage": cover,
+                      "reason": f"MRF fine matching needs a 2-D real-time terrain patch (the vehicle's own swath/multibeam "
+                                f"soundings); this dive's bottom track is a single-beam altimeter profile covering "
+                                f"{100 * cover:.0f} % of the cells under it (< {100 * MRF_MIN_COVERAGE:.0f} %), so MRF is not run"}
+        fix["warnings"].append("match.mrf is on but the bottom track is single-beam (no 2-D terrain patch): MRF not run")
+    elif p.mrf:
         try:
             m = mrf_refine(patch, x0, y0, g_raw, max_shift_cells=p.mrf_max_shift_cells)
         except InputError as exc:
@@ -402,11 +474,16 @@ def run(ctx: StageContext) -> dict[str, ProductVersion]:
     }
     with ctx.store.publish(ctx.dive_id, "match", parameters=ctx.params("match"), upstream=upstream) as draft:
         write_netcdf(
-            surface_dataset(res, frame, p.criterion), draft.path / "msd_surface.nc",
+            surface_dataset(res, frame, p.criterion, post), draft.path / "msd_surface.nc",
             title=f"TERCOM {p.criterion.upper()} surface, dive {ctx.dive_id}",
             summary="TERCOM criterion for every start position of the bottom track on the reference DTM (TERCOM paper §3.3, §4.2).",
         )
         write_parquet(track, draft.path / "matched_track.parquet", fields=fields,
                       metadata={"dive": ctx.dive_id, "criterion": p.criterion, "start_degmin": fix["start"]["position_degmin"]})
-        (draft.path / "fix.json").write_text(json.dumps(json_clean(fix), indent=2, allow_nan=False), encoding="utf-8")
-    return {"match": draft.result}
+        from hadal.products.geo_landing import strict_json  # strict JSON, times without spurious microseconds
+
+        (draft.path / "fix.json").write_text(strict_json(fix, indent=2), encoding="utf-8")
+    from hadal.products.navigation import publish_navigation  # best position of every sample (products/)
+
+    nav = publish_navigation(ctx, ctd, track, fix, [ctd_pv, draft.result], p.dr_error_fraction)
+    return {"match": draft.result, "navigation": nav}

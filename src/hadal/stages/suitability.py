@@ -8,15 +8,16 @@ around the launch point (Fig. 7). Publishes ``suitability`` (``suitability.nc``)
 from __future__ import annotations
 
 import json
+from typing import TYPE_CHECKING
 
-import numpy as np
-import xarray as xr
 from pydantic import BaseModel, ConfigDict, Field
 
 from hadal.errors import InputError
-from hadal.products import write_netcdf
 from hadal.stages import StageContext, StageInputs
 from hadal.store import ProductVersion
+
+if TYPE_CHECKING:
+    import xarray as xr
 
 PRODUCTS = ("suitability",)
 UPSTREAM = ("dtm",)
@@ -43,6 +44,8 @@ def open_dtm(pv: ProductVersion) -> xr.Dataset:
     Works for DTMs from multibeam soundings and from prior grids alike (``attrs['dtm_source']``); only
     ``depth_m(y, x)`` is required - a prior-grid DTM has no ``count``/``uncertainty_m`` layers.
     """
+    import xarray as xr
+
     path = pv.file("dtm.nc")
     try:
         with xr.open_dataset(path, engine="h5netcdf") as ds:
@@ -58,6 +61,8 @@ def region_centre(dive, dtm: xr.Dataset, frame) -> tuple[float, float, str]:
     """Centre (lat, lon) of the proposed matching region: the launch point (TERCOM paper §4.1.2), else the
     map-frame origin; when that lies outside the DTM (a cast taken far from the prior map), the DTM's centre,
     with a note saying so."""
+    import numpy as np
+
     launch = dive.launch
     lat, lon = ((launch.latitude_deg, launch.longitude_deg) if launch is not None
                 else (frame.origin_latitude_deg, frame.origin_longitude_deg))
@@ -75,6 +80,8 @@ def region_centre(dive, dtm: xr.Dataset, frame) -> tuple[float, float, str]:
 
 def _min_window(suit: xr.Dataset, dim: str, size_m: float) -> float:
     """``size_m``, or two block widths along ``dim`` when the blocks are wider than half the window."""
+    import numpy as np
+
     c = suit[dim].values
     block = float(np.median(np.diff(c))) if c.size > 1 else float(suit[f"{dim}_max"].values.max()
                                                                    - suit[f"{dim}_min"].values.min())
@@ -83,6 +90,8 @@ def _min_window(suit: xr.Dataset, dim: str, size_m: float) -> float:
 
 def build_suitability(dtm: xr.Dataset, frame, launch_lat_deg: float, launch_lon_deg: float, p: Params) -> xr.Dataset:
     """Block statistics + lat/lon + proposed region, ready to write."""
+    import numpy as np
+
     from hadal.matching.mapgrid import MapGrid
     from hadal.suitability import propose_region, suitability_map
 
@@ -126,6 +135,8 @@ def build_suitability(dtm: xr.Dataset, frame, launch_lat_deg: float, launch_lon_
 
 
 def run(ctx: StageContext) -> dict[str, ProductVersion]:
+    from hadal.products import write_netcdf
+
     p: Params = ctx.config.suitability
     dtm_pv = ctx.upstream("dtm")
     dtm = open_dtm(dtm_pv)
@@ -144,4 +155,12 @@ def run(ctx: StageContext) -> dict[str, ProductVersion]:
             summary="Per-block terrain elevation standard deviation and topographic entropy of the reference DTM, "
                     "with the proposed terrain-matching region (TERCOM paper §3.1, §4.1.2).",
         )
+        from hadal.products.geotiff import write_grid_cog  # block statistics as COGs in the dive's UTM zone
+
+        for v in COG_VARIABLES:
+            write_grid_cog(suit, draft.path / f"suitability_{v}.tif", v)
     return {"suitability": draft.result}
+
+
+#: suitability layers also written as Cloud-Optimized GeoTIFF (``suitability_<name>.tif``)
+COG_VARIABLES = ("std_m", "entropy")

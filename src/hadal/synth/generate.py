@@ -256,6 +256,17 @@ def _write_dive_yaml(out: Path, seed: int, small: bool, vehicle_rel, csv_files, 
     d["map_frame"] = {"origin_latitude_deg": sc.MAP_ORIGIN_LAT_DEG, "origin_longitude_deg": sc.MAP_ORIGIN_LON_DEG}
     d["sources"] = {"mcap": ["logs/haidou.mcap"], "csv": dict(csv_files), "cnv": [],
                     "multibeam": list(mb_files), "laser": list(laser_files)}
+    # discovery metadata of the sample (synthetic: the addresses are RFC 2606 example domains on purpose)
+    d["metadata"] = {"creator_name": "hadal.synth sample generator", "creator_type": "group",
+                     "creator_email": "sample-dive@example.org", "creator_url": "https://example.org/hadal-sample",
+                     "institution": "synthetic sample dive (no institution)", "project": "hadal sample dive",
+                     "license": "CC0-1.0", "naming_authority": "org.example.hadal-sample",
+                     "instruments": {"ctd": "Sea-Bird SBE 49 FastCAT CTD (simulated)",
+                                     "dtm": "Kongsberg EM122 multibeam echosounder (simulated)",
+                                     "laser_grids": "structured-light laser scanner (simulated)"}}
+    # the laser survey's local frame: origin at the launch point, +y axis 15 degrees east of north
+    d["laser_frame"] = {"origin_latitude_deg": round(sc.LAUNCH_LAT_DEG, 8),
+                        "origin_longitude_deg": round(sc.LAUNCH_LON_DEG, 8), "heading_deg": 15.0}
     d["notes"] = (f"Synthetic sample dive written by hadal.synth (seed {seed}{', small' if small else ''}): "
                   "Haidou in the Challenger Deep after Zhang et al. (TERCOM) sections 2 and 4. "
                   "Ground truth in truth.json and truth/ (never read by the pipeline).")

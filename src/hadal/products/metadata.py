@@ -1,0 +1,242 @@
+"""Discovery metadata (ACDD-1.3) of the products, from the dive's ``dive.yaml`` - never invented.
+
+* Who made the data (``creator_*``, ``institution``, ``project``, ``license``, ...) comes from ``dive.yaml``
+  ``metadata`` (:class:`hadal.dive.DiveMetadata`), else from ``HADAL_<ATTRIBUTE>`` environment variables (a
+  deployment's operator). Nothing else: a field given nowhere is left out of the product and listed in its
+  ``hadal_metadata_missing`` attribute; :func:`missing_acdd_fields` lists the required ones for ``hadal config
+  --check``.
+* What hadal knows for certain (``source``, ``processing_level``, ``references`` of the method papers, the
+  GCMD vocabularies) is written always. ``instrument`` is per product (:data:`PRODUCT_INSTRUMENTS`, overridden
+  per product by ``metadata.instruments``): the DTM names the multibeam echosounder, the CTD products the CTD.
+* :func:`dive_context` makes a stage's dive (and raw directory) known to the writers while it runs
+  (``hadal.pipeline.run_stage``); provenance then records input paths relative to the raw directory.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import contextvars
+import json
+import os
+import re
+from collections.abc import Iterator, Mapping
+from pathlib import Path
+from typing import Any
+
+#: ACDD attributes a dive must give (``hadal config --check`` lists the missing ones)
+ACDD_REQUIRED: tuple[str, ...] = ("creator_name", "creator_email", "institution", "project", "license")
+#: ACDD "recommended" attributes taken from the dive when given (the compliance checker asks for them)
+ACDD_RECOMMENDED: tuple[str, ...] = ("creator_url", "naming_authority", "publisher_name", "publisher_email",
+                                     "publisher_url")
+#: ACDD "suggested" attributes (compliance-checker: low priority) listed as missing when nobody gives them
+ACDD_SUGGESTED: tuple[str, ...] = ("creator_type", "creator_institution", "publisher_type", "publisher_institution",
+                                   "program", "metadata_link", "platform", "platform_vocabulary", "instrument",
+                                   "instrument_vocabulary")
+#: every operator attribute read from dive.yaml ``metadata`` / ``HADAL_<NAME>``
+OPERATOR_FIELDS: tuple[str, ...] = (*ACDD_REQUIRED, *ACDD_RECOMMENDED, "creator_type", "creator_institution",
+                                    "publisher_type", "publisher_institution", "program", "acknowledgment",
+                                    "contributor_name", "contributor_role", "cruise", "metadata_link")
+
+#: facts about every hadal product (not about its operator): always written
+HADAL_FACTS: dict[str, str] = {
+    "keywords": (
+        "EARTH SCIENCE > OCEANS > BATHYMETRY/SEAFLOOR TOPOGRAPHY > BATHYMETRY, "
+        "EARTH SCIENCE > OCEANS > OCEAN PRESSURE > WATER PRESSURE, "
+        "EARTH SCIENCE > OCEANS > OCEAN TEMPERATURE > WATER TEMPERATURE, "
+        "EARTH SCIENCE > OCEANS > SALINITY/DENSITY > SALINITY, hadal, deep-sea vehicle"
+    ),
+    "keywords_vocabulary": "GCMD:GCMD Keywords",
+    "acknowledgment": "Processed with the hadal post-dive pipeline.",
+    "contributor_name": "hadal post-dive pipeline",
+    "contributor_role": "processor",
+    "processing_level": "L2: geophysical variables derived from vehicle sensors",
+    "references": ("Zhang et al., TERCOM terrain matching at the Challenger Deep; MRF terrain matching; "
+                   "Sangekar et al., AUV landing-site detection in laser bathymetry"),
+    "comment": "Product of the hadal pipeline; provenance in hadal_provenance and the version's manifest.json.",
+}
+
+_CTD = "In Situ/Laboratory Instruments > Profilers/Sounders > CTD"
+_MULTIBEAM = "Active Remote Sensing > Profilers/Sounders > Acoustic Sounders > MULTIBEAM ECHO SOUNDERS"
+_LASER = "Active Remote Sensing > Profilers/Sounders > Lidar/Laser Sounders > LIDAR"
+_ALTIMETER = "Active Remote Sensing > Profilers/Sounders > Acoustic Sounders > ALTIMETERS"
+_DVL = "In Situ/Laboratory Instruments > Current/Wind Meters > ADCP"
+#: GCMD instrument keywords of each product (its measuring instruments); ``metadata.instruments`` overrides
+PRODUCT_INSTRUMENTS: dict[str, str] = {
+    "sensors": f"{_CTD}, {_ALTIMETER}, {_DVL}",
+    "ctd": _CTD, "profile": _CTD, "casts": _CTD, "cast_profiles": _CTD,
+    "dtm": _MULTIBEAM, "suitability": _MULTIBEAM,
+    "laser_grids": _LASER, "landing": _LASER,
+    "match": f"{_MULTIBEAM}, {_ALTIMETER}, {_CTD}",
+    "navigation": f"{_DVL}, {_ALTIMETER}, {_CTD}, {_MULTIBEAM}",
+}
+#: products measured by another product's instrument (``metadata.instruments`` names the instrument once)
+INSTRUMENT_OF: dict[str, str] = {"sensors": "ctd", "profile": "ctd", "casts": "ctd", "cast_profiles": "ctd",
+                                 "suitability": "dtm", "landing": "laser_grids"}
+_GCMD_AUV = "Subsurface Vehicles > AUV"
+
+_DIVE: contextvars.ContextVar[tuple[Any, Path | None] | None] = contextvars.ContextVar("hadal_dive", default=None)
+
+
+@contextlib.contextmanager
+def dive_context(dive: Any, raw_dir: str | os.PathLike[str] | None = None) -> Iterator[None]:
+    """Make ``dive`` (a :class:`hadal.dive.Dive`) and its raw directory known to the product writers."""
+    token = _DIVE.set((dive, Path(raw_dir).resolve() if raw_dir is not None else None))
+    try:
+        yield
+    finally:
+        _DIVE.reset(token)
+
+
+def current_dive(path: Path | None = None) -> tuple[Any, Path | None]:
+    """(dive, raw_dir) of the running stage, else of the store the file ``path`` is written into (its
+    ``<dive>/dive.json`` record), else ``(None, None)``."""
+    cur = _DIVE.get()
+    if cur is not None:
+        return cur
+    if path is None:
+        return None, None
+    parent = Path(path).parent
+    if not (parent.name.startswith(".staging-") or re.fullmatch(r"v\d{3,}", parent.name)):
+        return None, None
+    rec = parent.parent.parent / "dive.json"
+    try:
+        raw = Path(json.loads(rec.read_text(encoding="utf-8"))["raw_dir"])
+        from hadal.dive import load_dive
+
+        dive, raw = load_dive(raw)
+    except Exception:  # noqa: BLE001 - no record / moved raw directory: the product says what it lacks
+        return None, None
+    return dive, raw
+
+
+def operator_attributes(dive: Any = None) -> dict[str, str]:
+    """Operator attributes: ``dive.yaml`` ``metadata``, else ``HADAL_<NAME>`` environment variables."""
+    out: dict[str, str] = {}
+    for key in OPERATOR_FIELDS:
+        env = os.environ.get(f"HADAL_{key.upper()}")
+        if env:
+            out[key] = env
+    md = getattr(dive, "metadata", None)
+    if md is not None:
+        out.update({k: str(v) for k, v in md.model_dump(exclude={"instruments", "platform_vocabulary_name"}).items()
+                    if v not in (None, "")})
+    if "creator_institution" not in out and "institution" in out:
+        out["creator_institution"] = out["institution"]
+    return out
+
+
+def missing_acdd_fields(dive: Any, recommended: bool = False) -> list[str]:
+    """The required (with ``recommended``: also the recommended) ACDD attributes that neither ``dive.yaml``
+    ``metadata`` nor a ``HADAL_<NAME>`` environment variable gives."""
+    have = operator_attributes(dive)
+    want = ACDD_REQUIRED + (ACDD_RECOMMENDED if recommended else ())
+    return [k for k in want if k not in have]
+
+
+def product_attributes(dive: Any, product: str | None, given: Mapping[str, Any] | None = None) -> dict[str, Any]:
+    """Discovery attributes of one product of ``dive``: hadal's facts, the operator's attributes, platform and
+    the product's instrument; ``hadal_metadata_missing`` names the ACDD fields nobody gave."""
+    given = dict(given or {})
+    out: dict[str, Any] = dict(HADAL_FACTS)
+    out.update(operator_attributes(dive))
+    md = getattr(dive, "metadata", None)
+    platform = getattr(dive, "platform", None) or given.get("platform_name")
+    if platform and platform != "unknown":
+        out["platform_name"] = platform
+    gcmd = getattr(md, "platform_vocabulary_name", None) or (_GCMD_AUV if platform and platform != "unknown" else None)
+    if gcmd:
+        out["platform"] = gcmd
+        out["platform_vocabulary"] = "GCMD:GCMD Platforms"
+    instruments = dict(getattr(md, "instruments", None) or {})
+    inst = instruments.get(product or "") or instruments.get(INSTRUMENT_OF.get(product or "", "")) or \
+        PRODUCT_INSTRUMENTS.get(product or "")
+    if given.get("dtm_source") == "prior_grid" and product in ("dtm", "suitability") and product not in instruments:
+        inst = None  # a compiled prior grid: no instrument of this dive measured it
+    if inst:
+        out["instrument"] = inst
+        out["instrument_vocabulary"] = ("GCMD:GCMD Instruments" if all(
+            part.strip() in _gcmd_parts() for part in inst.split(",")) else "none (free text of dive.yaml "
+                                                                               "metadata.instruments)")
+    if "publisher_name" not in out and "creator_name" in out:
+        # the creator publishes unless the dive names a publisher (ACDD: publisher = who distributes the data)
+        for a, b in (("publisher_name", "creator_name"), ("publisher_email", "creator_email"),
+                     ("publisher_url", "creator_url"), ("publisher_type", "creator_type"),
+                     ("publisher_institution", "creator_institution")):
+            if b in out:
+                out[a] = out[b]
+    return out
+
+
+def metadata_missing(attrs: Mapping[str, Any]) -> str | None:
+    """The ACDD attributes absent from a product's final global ``attrs`` (space-separated), or ``None``."""
+    missing = [k for k in (*ACDD_REQUIRED, *ACDD_RECOMMENDED, *ACDD_SUGGESTED) if attrs.get(k) in (None, "")]
+    return " ".join(missing) or None
+
+
+def _gcmd_parts() -> set[str]:
+    return {p.strip() for v in PRODUCT_INSTRUMENTS.values() for p in v.split(",")}
+
+
+def relative_to_raw(path: str | os.PathLike[str], raw_dir: Path | None) -> str:
+    """``path`` relative to the dive's raw directory when inside it (else its file name: no machine paths)."""
+    p = Path(path)
+    if raw_dir is not None:
+        try:
+            return p.resolve().relative_to(raw_dir).as_posix()
+        except (ValueError, OSError):
+            pass
+    return p.as_posix() if not p.is_absolute() else p.name
+
+
+def store_relative(path: str | os.PathLike[str]) -> str:
+    """A store path as ``<dive>/<product>/<version>`` (the store root is machine-specific)."""
+    parts = Path(path).parts
+    return "/".join(parts[-3:]) if len(parts) >= 3 else Path(path).as_posix()
+
+
+#: libraries whose versions computed the numbers of a product (manifest ``software.libraries``)
+PROVENANCE_LIBRARIES: tuple[str, ...] = ("numpy", "scipy", "pandas", "xarray", "gsw", "open3d", "prefect", "pyproj",
+                                         "numba")
+
+
+def software_provenance() -> dict[str, Any]:
+    """What computed a product: the command line, hadal's version and git commit, and library versions
+    (distribution metadata, so open3d/prefect are not imported; ``null`` when not installed)."""
+    import sys
+    from importlib import metadata as _md
+
+    from hadal import __version__
+
+    libs: dict[str, str | None] = {}
+    for name in PROVENANCE_LIBRARIES:
+        libs[name] = None
+        for dist in (name, f"{name}-cpu"):  # open3d is also distributed as open3d-cpu
+            try:
+                libs[name] = _md.version(dist)
+                break
+            except _md.PackageNotFoundError:
+                continue
+    return {"command": [Path(sys.argv[0]).name, *sys.argv[1:]] if sys.argv and sys.argv[0] else [],
+            "hadal_version": __version__, "git_commit": _git_commit_cached(), "python": sys.version.split()[0],
+            "libraries": libs}
+
+
+def _git_commit_once() -> str | None:
+    import subprocess
+
+    src = Path(__file__).resolve().parent
+    try:
+        sha = subprocess.run(["git", "-C", str(src), "rev-parse", "HEAD"], capture_output=True, text=True,
+                             timeout=5, check=True).stdout.strip()
+    except (OSError, subprocess.SubprocessError):
+        return None
+    return sha or None
+
+
+_COMMIT: list[str | None] = []
+
+
+def _git_commit_cached() -> str | None:
+    if not _COMMIT:
+        _COMMIT.append(_git_commit_once())
+    return _COMMIT[0]

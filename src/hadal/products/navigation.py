@@ -1,0 +1,219 @@
+"""The ``navigation`` product: the vehicle's best position for every sample of the dive.
+
+Sources, per sample (column ``position_source``):
+
+* ``matched`` - bottom-phase samples positioned by terrain matching (``match``'s ``matched_track``);
+* ``dead_reckoned`` - the dead-reckoned track (launch point + DR offsets ``dr_east_m``/``dr_north_m``). With a
+  match, the descent is corrected by the offset between the matched and the dead-reckoned position at the first
+  bottom sample, distributed linearly in time from the launch (known position, correction 0) to that sample:
+  the standard adjustment of a dead-reckoned leg between two fixes, which assumes the DR error grows
+  uniformly. The ascent has no later fix: it keeps the correction of the last matched sample;
+* ``launch`` - samples without a DR offset (before the first DR message, dropouts), at the launch point (descent)
+  or the last known position.
+
+Uncertainty (``position_uncertainty_m``, 1-sigma radial, DRMS): matched samples take the fix's radial uncertainty
+(``fix.json`` ``uncertainty_m.radial``). Without a match, dead-reckoned samples add ``dr_error_fraction`` x the
+horizontal distance travelled since the launch (``match.dr_error_fraction``'s model) in quadrature with
+``launch_uncertainty_m``. With a match, the match reveals the DR error over the descent (c0 = |matched - DR| at the
+first bottom sample): on the descent the adjusted track's error is taken as c0 x min(w, 1 - w) (w: fraction of the
+descent time; zero at both fixes, c0/2 half-way), and after the last match it grows at the revealed drift rate
+c0 / descent time (at least ``dr_error_fraction`` x distance), each in quadrature with the nearer fix's uncertainty.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from hadal.geo import LocalFrame
+
+SOURCES = ("matched", "dead_reckoned", "launch")
+
+NAV_FIELDS: dict[str, dict[str, str]] = {
+    "time": {"standard_name": "time", "long_name": "sample time (UTC)"},
+    "lat": {"standard_name": "latitude", "units": "degrees_north", "long_name": "best latitude of the vehicle"},
+    "lon": {"standard_name": "longitude", "units": "degrees_east", "long_name": "best longitude of the vehicle"},
+    "x_east_m": {"standard_name": "projection_x_coordinate", "units": "m",
+                 "long_name": "best easting in the dive's map frame"},
+    "y_north_m": {"standard_name": "projection_y_coordinate", "units": "m",
+                  "long_name": "best northing in the dive's map frame"},
+    "depth_m": {"standard_name": "depth", "units": "m", "positive": "down", "long_name": "vehicle depth (hydrostatic)"},
+    "position_source": {"long_name": "source of the position: matched, dead_reckoned or launch"},
+    "position_uncertainty_m": {"units": "m", "long_name": "1-sigma radial (DRMS) horizontal position uncertainty"},
+    "phase": {"long_name": "dive phase (descent, bottom, ascent)"},
+}
+
+
+def _travelled(e: np.ndarray, n: np.ndarray) -> np.ndarray:
+    """Cumulative horizontal distance along (e, n) (m), NaN steps counted as 0."""
+    d = np.hypot(np.diff(e, prepend=e[:1]), np.diff(n, prepend=n[:1]))
+    return np.cumsum(np.where(np.isfinite(d), d, 0.0))
+
+
+def navigation_table(ctd: pd.DataFrame, frame: LocalFrame, launch_lat: float, launch_lon: float, *,
+                     matched: pd.DataFrame | None = None, fix: dict[str, Any] | None = None,
+                     dr_error_fraction: float = 0.01, launch_uncertainty_m: float = 10.0) -> pd.DataFrame:
+    """Best position of every ``ctd`` sample (see module docstring). ``matched``: match's ``matched_track``
+    (``time``, ``x_east_m``, ``y_north_m``); ``fix``: its ``fix.json`` (for the radial uncertainty)."""
+    n = len(ctd)
+    has_t = "time" in ctd
+    t = pd.to_datetime(ctd["time"], utc=True).reset_index(drop=True) if has_t else None
+    tns = t.astype("int64").to_numpy() if has_t else np.zeros(n, np.int64)  # ns (tz-aware to_numpy is slow)
+    ts = (tns - tns[0]) / 1e9 if n else np.zeros(0)
+    lx, ly = (float(v) for v in frame.to_xy(launch_lon, launch_lat))
+    e = ctd["dr_east_m"].to_numpy(float) if "dr_east_m" in ctd else np.full(n, np.nan)
+    nn = ctd["dr_north_m"].to_numpy(float) if "dr_north_m" in ctd else np.full(n, np.nan)
+    have_dr = np.isfinite(e) & np.isfinite(nn)
+    # carry the last known DR offset over dropouts (0 = launch point before the first one)
+    ef = pd.Series(np.where(have_dr, e, np.nan)).ffill().fillna(0.0).to_numpy()
+    nf = pd.Series(np.where(have_dr, nn, np.nan)).ffill().fillna(0.0).to_numpy()
+    x, y = lx + ef, ly + nf
+    seen = np.cumsum(have_dr) > 0  # a DR offset has been received (held over later dropouts)
+    source = np.where(seen, "dead_reckoned", "launch").astype(object)
+    dist = _travelled(ef, nf)
+    unc = np.hypot(launch_uncertainty_m, dr_error_fraction * dist)
+    if matched is not None and len(matched) and has_t and n:
+        mt = pd.to_datetime(matched["time"], utc=True).astype("int64").to_numpy()
+        mx, my = matched["x_east_m"].to_numpy(float), matched["y_north_m"].to_numpy(float)
+        order = np.argsort(mt, kind="stable")
+        mt, mx, my = mt[order], mx[order], my[order]
+        k = np.clip(np.searchsorted(mt, tns), 0, mt.size - 1)
+        is_m = (mt[k] == tns) & np.isfinite(mx[k]) & np.isfinite(my[k])
+        if is_m.any():
+            first, last = int(np.argmax(is_m)), int(n - 1 - np.argmax(is_m[::-1]))
+            u_fix = float(((fix or {}).get("uncertainty_m") or {}).get("radial") or 0.0)
+            cx0, cy0 = mx[k[first]] - x[first], my[k[first]] - y[first]
+            cx1, cy1 = mx[k[last]] - x[last], my[k[last]] - y[last]
+            c0 = float(np.hypot(cx0, cy0))  # the DR error the match revealed over the descent
+            span = ts[first] - ts[0]
+            # descent: correction grows linearly in time from 0 at the launch to (cx0, cy0) at the first match;
+            # its error is bounded by the revealed DR error times the distance in time to the nearer fix
+            w = np.clip((ts[:first] - ts[0]) / span, 0.0, 1.0) if span > 0 else np.ones(first)
+            x[:first] += w * cx0
+            y[:first] += w * cy0
+            unc[:first] = np.hypot((1 - w) * launch_uncertainty_m + w * u_fix, c0 * np.minimum(w, 1 - w))
+            x[is_m], y[is_m] = mx[k[is_m]], my[k[is_m]]
+            source[is_m] = "matched"
+            unc[is_m] = u_fix
+            # unmatched bottom samples (altimeter dropouts) and the ascent keep the correction of the last match;
+            # their error grows at the DR drift rate the descent revealed (c0 / descent time)
+            rest = (np.arange(n) > first) & ~is_m
+            x[rest] += cx1
+            y[rest] += cy1
+            rate = c0 / span if span > 0 else 0.0
+            unc[rest] = np.hypot(u_fix, np.maximum(rate * np.abs(ts[rest] - ts[last]),
+                                                   dr_error_fraction * np.abs(dist[rest] - dist[last])))
+    lon, lat = frame.to_lonlat(x, y)
+    out = pd.DataFrame({"lat": np.asarray(lat, float), "lon": np.asarray(lon, float),
+                        "x_east_m": x, "y_north_m": y,
+                        "depth_m": ctd["depth_m"].to_numpy(float) if "depth_m" in ctd else np.full(n, np.nan),
+                        "position_source": pd.Categorical(source, categories=list(SOURCES)),
+                        "position_uncertainty_m": unc})
+    if has_t:
+        out.insert(0, "time", t)
+    if "phase" in ctd:
+        out["phase"] = ctd["phase"].astype(str).to_numpy()
+    return out
+
+
+def dead_reckoned_lonlat(ctd: pd.DataFrame, frame: LocalFrame, launch_lat: float, launch_lon: float
+                         ) -> tuple[np.ndarray, np.ndarray]:
+    """(lat, lon) of every ``ctd`` sample by dead reckoning alone (launch + DR offsets; launch where no DR yet):
+    the positions ``derive`` can know (``ctd``'s ``lat``/``lon``); ``navigation`` has the matched ones."""
+    nav = navigation_table(ctd, frame, launch_lat, launch_lon)
+    return nav["lat"].to_numpy(), nav["lon"].to_numpy()
+
+
+def navigation_summary(nav: pd.DataFrame) -> dict[str, Any]:
+    """Counts per source and the uncertainty range (manifest summary)."""
+    src = nav["position_source"].astype(str)
+    u = nav["position_uncertainty_m"].to_numpy(float)
+    return {"samples": int(len(nav)), "sources": {s: int((src == s).sum()) for s in SOURCES},
+            "uncertainty_m": {"min": float(np.nanmin(u)) if len(u) else None,
+                              "median": float(np.nanmedian(u)) if len(u) else None,
+                              "max": float(np.nanmax(u)) if len(u) else None}}
+
+
+def trajectory_dataset(nav: pd.DataFrame, ctd: pd.DataFrame | None, dive_id: str,
+                       columns: tuple[str, ...] = ("pressure_dbar", "temperature_its90_degc", "practical_salinity",
+                                                   "conductivity_s_m", "altitude_corrected_m", "seafloor_depth_m",
+                                                   "sound_speed_m_s")) -> Any:
+    """The dive time series as a CF-1.8 Discrete Sampling Geometry, single trajectory (CF §H.4.1):
+    dimension ``obs``, ``time``/``lat``/``lon``/``depth_m`` coordinates, a ``trajectory`` id variable
+    (``cf_role = trajectory_id``), the best positions and, from ``ctd``, the listed measurement columns."""
+    import xarray as xr
+
+    from hadal.products.cf import COLUMN_ATTRS
+
+    obs = np.arange(len(nav), dtype="i4")
+    t = pd.to_datetime(nav["time"], utc=True).dt.tz_convert(None).to_numpy(dtype="datetime64[ns]")
+    coords = {
+        "time": ("obs", t, {"standard_name": "time", "long_name": "sample time (UTC)", "axis": "T"}),
+        "lat": ("obs", nav["lat"].to_numpy(float), dict(NAV_FIELDS["lat"], axis="Y")),
+        "lon": ("obs", nav["lon"].to_numpy(float), dict(NAV_FIELDS["lon"], axis="X")),
+        "depth_m": ("obs", nav["depth_m"].to_numpy(float), dict(NAV_FIELDS["depth_m"], axis="Z")),
+    }
+    src = nav["position_source"].astype(str).to_numpy()
+    data = {
+        "trajectory": ((), dive_id, {"cf_role": "trajectory_id", "long_name": "dive id"}),
+        "x_east_m": ("obs", nav["x_east_m"].to_numpy(float), dict(NAV_FIELDS["x_east_m"])),
+        "y_north_m": ("obs", nav["y_north_m"].to_numpy(float), dict(NAV_FIELDS["y_north_m"])),
+        "position_uncertainty_m": ("obs", nav["position_uncertainty_m"].to_numpy(float),
+                                   {"units": "m", "long_name": NAV_FIELDS["position_uncertainty_m"]["long_name"]}),
+        "position_source": ("obs", pd.Categorical(src, categories=list(SOURCES)).codes.astype("i1"),
+                            {"long_name": "source of the position", "flag_values": np.arange(len(SOURCES), dtype="i1"),
+                             "flag_meanings": " ".join(SOURCES)}),
+    }
+    for c in columns:
+        if ctd is not None and c in ctd and len(ctd) == len(nav):
+            attrs = {k: v for k, v in COLUMN_ATTRS.get(c, {}).items() if k in ("standard_name", "units", "long_name")}
+            data[c] = ("obs", ctd[c].to_numpy(float), attrs)
+    ds = xr.Dataset(data, coords={**coords, "obs": obs})
+    for n in ds.data_vars:
+        if ds[n].dims == ("obs",):
+            ds[n].attrs["coordinates"] = "time lat lon depth_m"
+            ds[n].encoding.update(zlib=True, complevel=4, chunksizes=(min(len(obs), 1 << 16),) if len(obs) else None)
+    for n in ("time", "lat", "lon", "depth_m"):
+        ds[n].encoding.update(zlib=True, complevel=4)
+    return ds
+
+
+def publish_navigation(ctx: Any, ctd: pd.DataFrame, track: pd.DataFrame | None, fix: dict[str, Any] | None,
+                       upstream: list[Any], dr_error_fraction: float) -> Any:
+    """Publish the ``navigation`` product (``navigation.parquet`` + CF trajectory ``navigation.nc``) of a
+    stage context ``ctx`` (``match`` calls it after publishing ``match``). Returns the ProductVersion."""
+    from hadal.products.io import write_netcdf, write_parquet
+
+    launch = ctx.dive.require_launch("navigation")
+    frame = ctx.dive.frame()
+    nav = navigation_table(ctd, frame, launch.latitude_deg, launch.longitude_deg, matched=track, fix=fix,
+                           dr_error_fraction=dr_error_fraction)
+    summary = navigation_summary(nav)
+    meta = {"dive_id": ctx.dive_id, "summary": summary, "method": __doc__.strip().splitlines()[0],
+            "map_frame": {"origin_latitude_deg": frame.origin_latitude_deg,
+                          "origin_longitude_deg": frame.origin_longitude_deg, "crs_wkt": frame.crs.to_wkt()}}
+    with ctx.store.publish(ctx.dive_id, "navigation", parameters={"dr_error_fraction": dr_error_fraction},
+                           upstream=upstream, extra={"summary": summary}) as draft:
+        write_parquet(nav, draft.path / "navigation.parquet", fields=NAV_FIELDS, metadata=meta,
+                      provenance_from=draft)
+        write_netcdf(trajectory_dataset(nav, ctd, ctx.dive_id), draft.path / "navigation.nc",
+                     title=f"Best vehicle position and CTD time series of dive {ctx.dive_id}",
+                     summary=("The dive's time series as a CF trajectory: for every sample the best position "
+                              "(terrain-matched on the bottom, dead-reckoned and adjusted between the launch and the "
+                              "matched start elsewhere), its 1-sigma uncertainty and source, and the CTD "
+                              "measurements."),
+                     keywords="navigation, trajectory, terrain-aided navigation, CTD, deep-sea vehicle",
+                     featureType="trajectory", cdm_data_type="Trajectory", processing_level="L2 navigation",
+                     provenance_from=draft, dive_id=ctx.dive_id)
+    return draft.result
+
+
+#: ``ctd``'s per-sample position columns (derive runs before match: dead reckoning only)
+CTD_POSITION_FIELDS: dict[str, dict[str, str]] = {
+    "lat": {"standard_name": "latitude", "units": "degrees_north",
+            "long_name": "dead-reckoned latitude (launch + DR offsets; terrain-matched positions: navigation product)"},
+    "lon": {"standard_name": "longitude", "units": "degrees_east",
+            "long_name": "dead-reckoned longitude (launch + DR offsets; terrain-matched positions: navigation product)"},
+}

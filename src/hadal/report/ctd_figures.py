@@ -1,0 +1,179 @@
+"""Water-column figures as an oceanographer reads them: T-S diagram with sigma-0 contours, potential
+temperature and buoyancy frequency profiles, descent and ascent drawn apart.
+
+TEOS-10 (gsw): absolute salinity ``SA = gsw.SA_from_SP(SP, p, lon, lat)``, conservative temperature
+``CT = gsw.CT_from_t(SA, t, p)``, potential temperature (0 dbar) ``theta = gsw.pt_from_CT(SA, CT)``,
+potential density anomaly ``sigma0 = gsw.sigma0(SA, CT)`` and ``N^2 = gsw.Nsquared(SA, CT, p, lat)`` between
+adjacent levels of the pressure-binned profiles (``profile.nc``; without it the ``ctd`` samples are binned here
+at 10 dbar). Columns written by ``derive`` into ``profile.nc`` (``absolute_salinity_g_kg``, ``conservative_temperature_degc``)
+are used when present; N² is always computed here from the binned SA/CT (then averaged in log-depth bins).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+from matplotlib.figure import Figure
+
+from hadal.report.figures import PHASE_COLOURS, FigureOptions, FigureResult, _png
+from hadal.report.load import DiveProducts
+
+#: derive's TEOS-10 columns of profile.nc -> the names used here (used instead of recomputing when present)
+TEOS_COLUMNS = {"absolute_salinity_g_kg": "SA_given", "conservative_temperature_degc": "CT_given"}
+
+CAST_STYLE = {"descent": {"color": PHASE_COLOURS["descent"], "ls": "-", "marker": None},
+              "ascent": {"color": PHASE_COLOURS["ascent"], "ls": "--", "marker": None}}
+
+
+def _casts(dp: DiveProducts) -> tuple[list[tuple[str, pd.DataFrame]], float, float]:
+    """[(cast name, table with pressure_dbar, depth_m, t, SP)], lat, lon: from profile.nc, else binned ctd."""
+    lat = lon = np.nan
+    out: list[tuple[str, pd.DataFrame]] = []
+    prof = dp.profile
+    if prof is not None and {"temperature_its90_degc", "practical_salinity"} <= set(prof.data_vars):
+        lat = float(np.nanmean(prof["lat"].values)) if "lat" in prof.variables else np.nan
+        lon = float(np.nanmean(prof["lon"].values)) if "lon" in prof.variables else np.nan
+        zname = next((d for d in prof["temperature_its90_degc"].dims if d != "cast"), None)
+        cast_dim = "cast" if "cast" in prof.dims else None
+        meanings = str(prof["cast"].attrs.get("flag_meanings", "descent ascent")).split() if cast_dim else ["cast"]
+        n = prof.sizes.get("cast", 1) if cast_dim else 1
+        for i in range(n):
+            sel = prof.isel(cast=i) if cast_dim else prof
+            df = pd.DataFrame({"pressure_dbar": prof[zname].values.astype(float),
+                               "t": sel["temperature_its90_degc"].values.astype(float),
+                               "SP": sel["practical_salinity"].values.astype(float)})
+            if "depth_m" in sel:
+                df["depth_m"] = sel["depth_m"].values.astype(float)
+            for col, key in TEOS_COLUMNS.items():  # derive's TEOS-10 columns, when it wrote them
+                if col in sel and sel[col].dims == (zname,):
+                    df[key] = sel[col].values.astype(float)
+            out.append((meanings[i] if i < len(meanings) else f"cast {i}", df))
+    elif dp.ctd is not None and {"pressure_dbar", "temperature_its90_degc", "practical_salinity"} <= set(dp.ctd):
+        c = dp.ctd
+        if {"lat", "lon"} <= set(c.columns):
+            lat, lon = float(np.nanmean(c["lat"])), float(np.nanmean(c["lon"]))
+        phases = c["phase"].astype(str) if "phase" in c else pd.Series("descent", index=c.index)
+        for ph in ("descent", "ascent"):
+            g = c[(phases == ph).to_numpy()]
+            if len(g) < 10:
+                continue
+            b = (g["pressure_dbar"] // 10).astype(int)
+            cols = {"pressure_dbar": "pressure_dbar", "temperature_its90_degc": "t", "practical_salinity": "SP"}
+            if "depth_m" in g:
+                cols["depth_m"] = "depth_m"
+            m = g[list(cols)].groupby(b.to_numpy()).mean().rename(columns=cols).reset_index(drop=True)
+            out.append((ph, m))
+    if not np.isfinite(lat):
+        lat = float(dp.launch["lat"]) if dp.launch else 0.0
+    if not np.isfinite(lon):
+        lon = float(dp.launch["lon"]) if dp.launch else 0.0
+    return out, lat, lon
+
+
+def teos10(df: pd.DataFrame, lat: float, lon: float) -> pd.DataFrame:
+    """SA, CT, theta, sigma0 of a binned cast and N^2 at mid-levels (``N2``, ``p_mid``; NaN-padded)."""
+    import gsw
+
+    d = df[np.isfinite(df["t"]) & np.isfinite(df["SP"]) & np.isfinite(df["pressure_dbar"])].copy()
+    d = d.sort_values("pressure_dbar").reset_index(drop=True)
+    p = d["pressure_dbar"].to_numpy(float)
+    d["SA"] = gsw.SA_from_SP(d["SP"].to_numpy(float), p, lon, lat)
+    if "SA_given" in d and np.isfinite(d["SA_given"]).all():
+        d["SA"] = d["SA_given"]
+    d["CT"] = gsw.CT_from_t(d["SA"].to_numpy(float), d["t"].to_numpy(float), p)
+    if "CT_given" in d and np.isfinite(d["CT_given"]).all():
+        d["CT"] = d["CT_given"]
+    d["theta"] = gsw.pt_from_CT(d["SA"].to_numpy(float), d["CT"].to_numpy(float))
+    d["sigma0"] = gsw.sigma0(d["SA"].to_numpy(float), d["CT"].to_numpy(float))
+    if len(d) > 1:
+        n2, pmid = gsw.Nsquared(d["SA"].to_numpy(float), d["CT"].to_numpy(float), p, lat)
+        d["N2"] = np.append(np.asarray(n2, float), np.nan)
+        d["p_mid"] = np.append(np.asarray(pmid, float), np.nan)
+    else:
+        d["N2"] = d["p_mid"] = np.nan
+    return d
+
+
+def log_bin_mean(z: np.ndarray, v: np.ndarray, per_decade: int = 12) -> tuple[np.ndarray, np.ndarray]:
+    """Means of ``v`` in depth bins equally spaced in log10(depth) (``per_decade`` per decade): N² from 10 dbar
+    bins is noise-dominated in the deep, weakly stratified water; averaging over a window that grows with depth
+    keeps the upper-ocean structure and shows the deep mean."""
+    z, v = np.asarray(z, float), np.asarray(v, float)
+    ok = np.isfinite(z) & np.isfinite(v) & (z > 0)
+    if not ok.any():
+        return np.array([]), np.array([])
+    lz = np.log10(np.maximum(z[ok], 1.0))
+    edges = np.arange(np.floor(lz.min() * per_decade), np.ceil(lz.max() * per_decade) + 1) / per_decade
+    k = np.clip(np.digitize(lz, edges) - 1, 0, edges.size - 2)
+    n = np.bincount(k, minlength=edges.size - 1)
+    sv = np.bincount(k, weights=v[ok], minlength=edges.size - 1)
+    sz = np.bincount(k, weights=z[ok], minlength=edges.size - 1)
+    m = n > 0
+    return sz[m] / n[m], sv[m] / n[m]
+
+
+def fig_water_column(dp: DiveProducts, opt: FigureOptions) -> FigureResult:
+    r = FigureResult("ctd_ts_theta_n2", "T–S diagram, potential temperature and stratification", "Water column",
+                     "(a) Potential temperature θ against absolute salinity (TEOS-10) with potential density "
+                     "anomaly σ0 contours (kg/m³); (b) θ and (c) buoyancy frequency N² against depth on a "
+                     "logarithmic depth axis (the upper ocean is where the water column changes), down to the "
+                     "deepest level; N² from adjacent pressure bins (gsw.Nsquared), averaged in bins of 1/12 "
+                     "decade of depth. Descent solid blue, ascent dashed red; pressure-binned profiles.")
+    casts, lat, lon = _casts(dp)
+    if not casts:
+        r.skipped = "no profile or ctd product with temperature and salinity"
+        return r
+    fig = Figure(figsize=(opt.width_in, opt.width_in * 0.55), layout="constrained")
+    ax_ts, ax_th, ax_n2 = fig.subplots(1, 3, gridspec_kw={"width_ratios": [1.3, 1, 1]})
+    zmax = 1.0
+    all_sa, all_th = [], []
+    n_nonpos = 0
+    for name, df in casts:
+        d = teos10(df, lat, lon)
+        if d.empty:
+            continue
+        st = CAST_STYLE.get(name, {"color": "k", "ls": "-", "marker": None})
+        z = d["depth_m"].to_numpy(float) if "depth_m" in d else d["pressure_dbar"].to_numpy(float)
+        zmax = max(zmax, float(np.nanmax(z)))
+        ax_ts.plot(d["SA"], d["theta"], ls=st["ls"], color=st["color"], lw=1.2, label=name)
+        ax_th.plot(d["theta"], np.maximum(z, 1.0), ls=st["ls"], color=st["color"], lw=1.2, label=name)
+        if d["p_mid"].notna().any():
+            zmid = np.interp(d["p_mid"], d["pressure_dbar"], z)
+            zb, n2b = log_bin_mean(zmid, d["N2"].to_numpy(float))
+            n_nonpos += int(np.sum(n2b <= 0))
+            n2b = np.where(n2b > 0, n2b, np.nan)
+            ax_n2.plot(n2b, zb, ls=st["ls"], color=st["color"], lw=1.2, marker=".", ms=3, label=name)
+        all_sa.append(d["SA"].to_numpy(float))
+        all_th.append(d["theta"].to_numpy(float))
+    if all_sa:
+        import gsw
+
+        sa = np.concatenate(all_sa)
+        th = np.concatenate(all_th)
+        s0, s1 = np.nanmin(sa), np.nanmax(sa)
+        t0, t1 = np.nanmin(th), np.nanmax(th)
+        ps, pt = 0.05 * max(s1 - s0, 0.01), 0.05 * max(t1 - t0, 0.1)
+        S, T = np.meshgrid(np.linspace(s0 - ps, s1 + ps, 120), np.linspace(t0 - pt, t1 + pt, 120))
+        sig = gsw.sigma0(S, gsw.CT_from_pt(S, T))
+        cs = ax_ts.contour(S, T, sig, levels=10, colors="0.5", linewidths=0.6)
+        ax_ts.clabel(cs, fontsize=6, fmt="%.2f")
+    ax_ts.set_xlabel("absolute salinity SA (g/kg)")
+    ax_ts.set_ylabel("potential temperature θ (°C)")
+    ax_ts.set_title("(a) T–S", fontsize=9)
+    ax_ts.grid(alpha=0.3)
+    ax_ts.legend(fontsize=8)
+    for ax, lab, title in ((ax_th, "potential temperature θ (°C)", "(b) θ"),
+                           (ax_n2, "N² (s⁻²)", "(c) buoyancy frequency N²")):
+        ax.set_yscale("log")
+        ax.set_ylim(zmax * 1.05, 1.0)
+        ax.set_xlabel(lab)
+        ax.set_title(title, fontsize=9)
+        ax.grid(alpha=0.3, which="both")
+    ax_th.set_ylabel("depth (m, log scale)")
+    ax_n2.set_xscale("log")  # bins with mean N² <= 0 (unstable or unresolved) are not drawn on a log axis
+    lo, hi = ax_n2.get_xlim()
+    ax_n2.set_xlim(max(lo, 1e-10), hi)
+    if n_nonpos:
+        r.caption += f" {n_nonpos} depth bin(s) with mean N² ≤ 0 are not drawn."
+    r.png = _png(fig, opt.dpi)
+    return r

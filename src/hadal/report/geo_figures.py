@@ -1,0 +1,275 @@
+"""Geographic report figures: the dive on the reference terrain in longitude/latitude.
+
+* :func:`fig_overview` - hillshaded DTM with depth contours on lon/lat axes (equal ground distances: the aspect is
+  1/cos(latitude)), a scale bar, the best track of the whole dive (``navigation``), the dead-reckoning-only track,
+  the launch point, the matched start of the bottom track with its 1-sigma and 2-sigma uncertainty ellipses
+  (``fix.json`` ``uncertainty_m.ellipse_*``, about ``profile_start``), the posterior's second mode when it holds
+  more than 1 % of the mass, and the deepest point.
+* :func:`fig_residuals` - measured and reference seafloor depth along the matched track, with the residual
+  (measured - (map - bias)) in a panel under it.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+import pandas as pd
+from matplotlib.colors import LightSource
+from matplotlib.figure import Figure
+
+from hadal.report.figures import CMAPS, FigureOptions, FigureResult, _png, _thin, _time
+from hadal.report.load import DiveProducts
+
+
+def _frame(dp: DiveProducts) -> Any:
+    from hadal.geo import LocalFrame
+
+    for ds in (dp.dtm, dp.suitability, dp.msd):
+        if ds is not None and "map_frame_origin_latitude_deg" in ds.attrs:
+            return LocalFrame(float(ds.attrs["map_frame_origin_latitude_deg"]),
+                              float(ds.attrs["map_frame_origin_longitude_deg"]))
+    return None
+
+
+def _second_mode(fix: dict[str, Any]) -> dict[str, Any] | None:
+    sm = ((fix or {}).get("posterior") or {}).get("second_mode")
+    if isinstance(sm, dict) and sm.get("x") is not None and float(sm.get("mass") or 0) > 0.01:
+        return sm
+    return None
+
+
+def _nice_length(m: float) -> float:
+    """A 1-2-5 length close to ``m`` (scale bars)."""
+    e = 10 ** math.floor(math.log10(m))
+    return max(v * e for v in (1, 2, 5) if v * e <= m) if m > 0 else 1.0
+
+
+def _scale_bar(ax, lat0: float) -> None:
+    x0, x1 = ax.get_xlim()
+    y0, y1 = ax.get_ylim()
+    m_per_deg_lon = 111_320.0 * math.cos(math.radians(lat0))
+    width_m = (x1 - x0) * m_per_deg_lon
+    L = _nice_length(width_m / 5)
+    dlon = L / m_per_deg_lon
+    bx, by = x0 + 0.05 * (x1 - x0), y0 + 0.06 * (y1 - y0)
+    ax.plot([bx, bx + dlon], [by, by], "-", color="k", lw=4, solid_capstyle="butt")
+    ax.plot([bx, bx + dlon], [by, by], "-", color="w", lw=2, solid_capstyle="butt")
+    ax.text(bx + dlon / 2, by + 0.02 * (y1 - y0), f"{L / 1000:g} km" if L >= 1000 else f"{L:g} m",
+            ha="center", va="bottom", fontsize=8, bbox={"fc": "w", "ec": "none", "alpha": 0.7, "pad": 1})
+
+
+def _ellipse_lonlat(frame, x: float, y: float, e: dict[str, Any]) -> tuple[np.ndarray, np.ndarray] | None:
+    """Outline (lon, lat) of an uncertainty ellipse about map-frame (x, y): semi-axes in metres, azimuth of
+    the major axis clockwise from north; built on the ground and projected point by point (exact)."""
+    try:
+        a, b, az = float(e["semi_major_m"]), float(e["semi_minor_m"]), math.radians(float(e["azimuth_deg"]))
+    except (KeyError, TypeError, ValueError):
+        return None
+    t = np.linspace(0, 2 * np.pi, 121)
+    u, v = a * np.cos(t), b * np.sin(t)  # along / across the major axis
+    ex = x + u * math.sin(az) + v * math.cos(az)
+    ny = y + u * math.cos(az) - v * math.sin(az)
+    lon, lat = frame.to_lonlat(ex, ny)
+    return np.asarray(lon, float), np.asarray(lat, float)
+
+
+def fig_overview(dp: DiveProducts, opt: FigureOptions) -> FigureResult:
+    r = FigureResult("overview_map", "Geographic overview of the dive", "Dive",
+                     "The dive on the hillshaded reference DTM (contours every 100 m of depth) in longitude/latitude "
+                     "(WGS 84; equal ground distances on both axes; washed-out cells: no soundings): best track of the whole dive (navigation: "
+                     "terrain-matched on the bottom, dead reckoning adjusted to the launch and the match elsewhere), "
+                     "the dead-reckoning-only track, the launch point, the matched start of the bottom track with "
+                     "its 1-sigma and 2-sigma uncertainty ellipses (inset: zoom on the fix; the radial 1-sigma circle "
+                     "when the match has no posterior ellipse), the posterior's second mode when it holds more "
+                     "than 1 % of the mass, the selected landing sites when the laser survey is georeferenced, "
+                     "and the deepest point.")
+    frame = _frame(dp)
+    if dp.dtm is None or frame is None or "depth_m" not in dp.dtm:
+        r.skipped = "no dtm product (reference terrain)"
+        return r
+    ds = dp.dtm
+    fix = dp.fix or {}
+    x, y = ds["x"].values.astype(float), ds["y"].values.astype(float)
+    z = ds["depth_m"].transpose("y", "x").values.astype(float)
+    # the area around the dive: track, launch and start with a margin; the whole grid without a track
+    px, py = [], []
+    if dp.navigation is not None and {"x_east_m", "y_north_m"} <= set(dp.navigation.columns):
+        px += list(dp.navigation["x_east_m"].to_numpy(float)[::50])
+        py += list(dp.navigation["y_north_m"].to_numpy(float)[::50])
+    elif dp.track is not None and {"x_east_m", "y_north_m"} <= set(dp.track.columns):
+        px += list(dp.track["x_east_m"].to_numpy(float)[::50])
+        py += list(dp.track["y_north_m"].to_numpy(float)[::50])
+    dr = fix.get("dead_reckoning_track") or {}
+    px += list(dr.get("x_east_m") or [])
+    py += list(dr.get("y_north_m") or [])
+    for k in ("launch", "start"):
+        if isinstance(fix.get(k), dict) and fix[k].get("x_east_m") is not None:
+            px.append(float(fix[k]["x_east_m"]))
+            py.append(float(fix[k]["y_north_m"]))
+    if px:
+        pad = max(800.0, 0.25 * max(np.nanmax(px) - np.nanmin(px), np.nanmax(py) - np.nanmin(py)))
+        kx = (x >= np.nanmin(px) - pad) & (x <= np.nanmax(px) + pad)
+        ky = (y >= np.nanmin(py) - pad) & (y <= np.nanmax(py) + pad)
+        if kx.sum() > 2 and ky.sum() > 2:
+            x, y, z = x[kx], y[ky], z[np.ix_(ky, kx)]
+    X, Y = np.meshgrid(x, y)
+    LON, LAT = (np.asarray(v, float) for v in frame.to_lonlat(X, Y))
+    lat0 = float(np.nanmean(LAT))
+    fig = Figure(figsize=(opt.width_in * 0.8, opt.width_in * 0.72), layout="constrained")
+    ax = fig.subplots()
+    # empty cells: nearest valid depth for the shading (no false cliffs at their edges), drawn greyed below
+    bad = ~np.isfinite(z)
+    if bad.any() and (~bad).any():
+        from scipy.ndimage import distance_transform_edt
+
+        idx = distance_transform_edt(bad, return_distances=False, return_indices=True)
+        zf = z[tuple(idx)]
+    else:
+        zf = np.where(bad, 0.0, z)
+    ls = LightSource(azdeg=315, altdeg=45)
+    dx = float(np.median(np.diff(x))) if x.size > 1 else 1.0
+    cmap = CMAPS["depth"]
+    norm_z = (zf - np.nanmin(zf)) / max(np.nanmax(zf) - np.nanmin(zf), 1e-9)
+    rgb = ls.shade_rgb(cmap(norm_z), -zf, vert_exag=1.0, dx=dx, dy=dx, blend_mode="soft")[..., :3]
+    rgb = np.where(bad[..., None], 0.6 * rgb + 0.4, rgb)  # empty cells of the DTM: washed out
+    ax.pcolormesh(LON, LAT, rgb, shading="nearest", rasterized=True)
+    from matplotlib.cm import ScalarMappable
+    from matplotlib.colors import Normalize
+
+    sm = ScalarMappable(norm=Normalize(np.nanmin(z), np.nanmax(z)), cmap=cmap)
+    cb = fig.colorbar(sm, ax=ax, shrink=0.8, label="reference depth (m, positive down)")
+    cb.ax.invert_yaxis()
+    step = 100.0 if np.nanmax(z) - np.nanmin(z) > 300 else 20.0
+    levels = np.arange(math.ceil(np.nanmin(z) / step) * step, np.nanmax(z), step)
+    if levels.size:
+        cs = ax.contour(LON, LAT, z, levels=levels, colors="k", linewidths=0.4, alpha=0.6)
+        ax.clabel(cs, levels=levels[::2], fontsize=6, fmt="%.0f")
+    handles = []
+    if dp.navigation is not None and {"lon", "lat"} <= set(dp.navigation.columns):
+        nav = _thin(dp.navigation, opt.max_points)
+        src = nav["position_source"].astype(str) if "position_source" in nav else pd.Series("", index=nav.index)
+        m = (src == "matched").to_numpy()
+        handles += ax.plot(nav["lon"].where(~m), nav["lat"].where(~m), "-", color="#ff9900", lw=1.2,
+                           label="best track (dead reckoning adjusted)")
+        handles += ax.plot(nav["lon"].where(m), nav["lat"].where(m), "-", color="m", lw=1.8,
+                           label="best track (terrain-matched)")
+    elif dp.track is not None and {"lon", "lat"} <= set(dp.track.columns):
+        t = _thin(dp.track, opt.max_points)
+        handles += ax.plot(t["lon"], t["lat"], "-", color="m", lw=1.8, label="matched bottom track")
+    if dr.get("x_east_m"):
+        dlon, dlat = frame.to_lonlat(np.asarray(dr["x_east_m"], float), np.asarray(dr["y_north_m"], float))
+        handles += ax.plot(dlon, dlat, "--", color="#00e5ff", lw=1.4, label="dead reckoning only (bottom)")
+    elif dp.ctd is not None and {"lon", "lat"} <= set(dp.ctd.columns):
+        c = _thin(dp.ctd, opt.max_points)
+        handles += ax.plot(c["lon"], c["lat"], "--", color="#00e5ff", lw=1.4, label="dead reckoning only")
+    la = fix.get("launch") or ({"lat": dp.launch["lat"], "lon": dp.launch["lon"]} if dp.launch else None)
+    if la and la.get("lon") is not None:
+        handles += ax.plot(la["lon"], la["lat"], "X", color="r", mec="k", ms=11, ls="none", label="launch")
+    st = fix.get("start")
+    if isinstance(st, dict) and st.get("lon") is not None:
+        handles += ax.plot(st["lon"], st["lat"], "o", mfc="none", mec="yellow", mew=2, ms=9, ls="none",
+                           label="matched start of the bottom track")
+        unc = fix.get("uncertainty_m") or {}
+        centre = fix.get("profile_start") if isinstance(fix.get("profile_start"), dict) else st
+        cx, cy = centre.get("x_east_m", st.get("x_east_m")), centre.get("y_north_m", st.get("y_north_m"))
+        ells = [(key, ls_, lab) for key, ls_, lab in (("ellipse_1sigma", "-", "1σ ellipse"),
+                                                      ("ellipse_2sigma", ":", "2σ ellipse"))
+                if isinstance(unc.get(key), dict)]
+        if not ells and unc.get("radial"):  # no posterior ellipse: the radial (DRMS) uncertainty as a circle
+            rr = float(unc["radial"])
+            unc = {**unc, "_circle": {"semi_major_m": rr, "semi_minor_m": rr, "azimuth_deg": 0.0}}
+            ells = [("_circle", "-", f"radial 1σ uncertainty ({rr:.0f} m)")]
+        outlines = []
+        for key, ls_, lab in ells:
+            pts = _ellipse_lonlat(frame, float(cx), float(cy), unc[key]) if cx is not None else None
+            if pts is not None:
+                handles += ax.plot(pts[0], pts[1], ls_, color="yellow", lw=1.4, label=lab)
+                outlines.append((pts, ls_))
+        if outlines:  # the ellipses are tens of metres on a map of kilometres: an inset zoom on the fix
+            ins = ax.inset_axes([0.64, 0.03, 0.34, 0.30])
+            ins.set_facecolor("0.15")
+            for pts, ls_ in outlines:
+                ins.plot(pts[0], pts[1], ls_, color="yellow", lw=1.4)
+            ins.plot(st["lon"], st["lat"], "o", mfc="none", mec="yellow", mew=1.5, ms=6)
+            if dp.track is not None and {"lon", "lat"} <= set(dp.track.columns):
+                tt = _thin(dp.track, 2000)
+                ins.plot(tt["lon"], tt["lat"], "-", color="m", lw=1.2)
+            big = outlines[-1][0]
+            w = max(float(np.ptp(big[0])), float(np.ptp(big[1])) * math.cos(math.radians(lat0)))
+            ins.set_xlim(st["lon"] - w, st["lon"] + w)
+            ins.set_ylim(st["lat"] - w / math.cos(math.radians(lat0)), st["lat"] + w / math.cos(math.radians(lat0)))
+            ins.set_aspect(1.0 / math.cos(math.radians(lat0)))
+            ins.set_xticks([])
+            ins.set_yticks([])
+            wm = w * 111_320.0 * math.cos(math.radians(lat0))
+            ins.set_title(f"zoom on the fix ({2 * wm:.0f} m wide)", fontsize=7, color="k", pad=2,
+                          bbox={"fc": "w", "ec": "none", "alpha": 0.8, "pad": 1})
+    sm2 = _second_mode(fix)
+    if sm2 is not None:
+        slon, slat = frame.to_lonlat(float(sm2["x"]), float(sm2["y"]))
+        handles += ax.plot(slon, slat, "D", mfc="none", mec="c", mew=1.8, ms=9, ls="none",
+                           label=f"posterior second mode ({100 * float(sm2['mass']):.0f} % of the mass)")
+    ls_ = dp.landing_sites
+    if ls_ is not None and {"lat", "lon"} <= set(ls_.columns) and len(ls_):
+        best = ls_[ls_["is_best"].astype(bool)] if "is_best" in ls_ else ls_
+        handles += ax.plot(best["lon"], best["lat"], "^", color="#39ff14", mec="k", ms=9, ls="none",
+                           label="selected landing site(s) (laser survey)")
+    deep = fix.get("deepest_point")
+    if isinstance(deep, dict) and deep.get("lon") is not None:
+        handles += ax.plot(deep["lon"], deep["lat"], "*", color="gold", mec="k", ms=15, ls="none",
+                           label="deepest point")
+    ax.set_xlim(float(np.nanmin(LON)), float(np.nanmax(LON)))
+    ax.set_ylim(float(np.nanmin(LAT)), float(np.nanmax(LAT)))
+    ax.set_aspect(1.0 / math.cos(math.radians(lat0)))
+    ax.set_xlabel("longitude (°E)")
+    ax.set_ylabel("latitude (°N)")
+    ax.ticklabel_format(useOffset=False)
+    ax.tick_params(labelsize=8)
+    _scale_bar(ax, lat0)
+    if handles:
+        ax.legend(handles=handles, fontsize=7, loc="upper right", framealpha=0.85)
+    reasons = fix.get("mismatch_reasons") or []
+    if reasons:
+        ax.set_title("fix flagged: " + ", ".join(map(str, reasons)), fontsize=9, color="#b00020")
+    r.png = _png(fig, opt.dpi)
+    return r
+
+
+def fig_residuals(dp: DiveProducts, opt: FigureOptions) -> FigureResult:
+    r = FigureResult("fig16_matched_depth", "Measured vs reference depth along the matched track", "Terrain matching",
+                     "(top) Seafloor depth measured by the vehicle (depth + altitude) and the reference-map depth at "
+                     "the matched positions (minus the estimated bias when the match estimated one); (bottom) the "
+                     "residual measured - reference, with its RMS (cf. TERCOM paper Fig. 16).")
+    tr = dp.track
+    if tr is None or not {"seafloor_depth_m", "map_depth_m"} <= set(tr.columns):
+        r.skipped = "no matched track" if tr is None else "matched track has no seafloor_depth_m/map_depth_m"
+        return r
+    tr = _thin(tr, opt.max_points)
+    xaxis = _time(tr) if "time" in tr else np.arange(len(tr))
+    ref = "map_depth_minus_bias_m" if "map_depth_minus_bias_m" in tr else "map_depth_m"
+    res = tr["seafloor_depth_m"].to_numpy(float) - tr[ref].to_numpy(float)
+    fig = Figure(figsize=(opt.width_in, opt.width_in * 0.55), layout="constrained")
+    ax, ax2 = fig.subplots(2, 1, sharex=True, height_ratios=[2.2, 1])
+    ax.plot(xaxis, tr["seafloor_depth_m"], ".", ms=2, label="measured (depth + altitude)", color="#1f77b4",
+            rasterized=True)
+    ax.plot(xaxis, tr[ref], "-", lw=1.5, label="reference map" + (" − bias" if ref != "map_depth_m" else ""),
+            color="#d62728")
+    ax.invert_yaxis()
+    ax.set_ylabel("seafloor depth (m)")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8)
+    ok = np.isfinite(res)
+    rms = float(np.sqrt(np.mean(res[ok] ** 2))) if ok.any() else float("nan")
+    ax2.plot(xaxis, res, ".", ms=1.5, color="k", rasterized=True)
+    ax2.axhline(0, color="#d62728", lw=1)
+    ax2.set_ylabel("residual (m)")
+    ax2.set_xlabel("time (UTC)" if "time" in tr else "sample")
+    ax2.grid(alpha=0.3)
+    ax2.text(0.01, 0.92, f"RMS {rms:.1f} m, mean {np.nanmean(res):+.1f} m", transform=ax2.transAxes, fontsize=8,
+             va="top", bbox={"fc": "w", "ec": "none", "alpha": 0.8})
+    if "time" in tr:
+        fig.autofmt_xdate()
+    r.png = _png(fig, opt.dpi)
+    return r

@@ -1,0 +1,285 @@
+"""Geographic products (issue 18): navigation (best position per sample), landing sites in lat/lon with GeoJSON
+footprints, the DTM as a Cloud-Optimized GeoTIFF in UTM, CF-DSG trajectory/profile files."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pandas as pd
+import pytest
+import xarray as xr
+from pyproj import CRS, Geod, Transformer
+
+from hadal.dive import LaserFrame
+from hadal.geo import LocalFrame
+from hadal.products import write_netcdf
+from hadal.products.geo_landing import (
+    footprint_corners,
+    footprints_geojson,
+    frame_to_lonlat,
+    georeference_sites,
+)
+from hadal.products.navigation import navigation_table, trajectory_dataset
+
+FRAME = LocalFrame(11.33, 142.20)
+LAUNCH = (11.3371, 142.2097)  # lat, lon
+GEOD = Geod(ellps="WGS84")
+
+
+def _dive_table(n_desc=100, n_bot=50, n_asc=100):
+    """A dive at 1 Hz: DR offsets (east = 1 m/s along the descent, 0 after), phases."""
+    n = n_desc + n_bot + n_asc
+    t = pd.date_range("2018-10-06T23:00:00", periods=n, freq="1s", tz="UTC")
+    e = np.concatenate([np.arange(n_desc, dtype=float), np.full(n_bot + n_asc, float(n_desc - 1))])
+    e[n_desc + n_bot:] += np.arange(n_asc) * 0.5
+    nn = np.zeros(n)
+    e[:3] = np.nan  # no DR before the first message
+    nn[:3] = np.nan
+    phase = ["descent"] * n_desc + ["bottom"] * n_bot + ["ascent"] * n_asc
+    return pd.DataFrame({"time": t, "dr_east_m": e, "dr_north_m": nn, "depth_m": np.linspace(0, 5000, n),
+                         "phase": phase})
+
+
+def test_navigation_sources_and_the_adjustment_between_fixes():
+    ctd = _dive_table()
+    lx, ly = (float(v) for v in FRAME.to_xy(LAUNCH[1], LAUNCH[0]))
+    bot = ctd[ctd.phase == "bottom"]
+    # the match puts the bottom track 200 m north of dead reckoning
+    matched = pd.DataFrame({"time": bot["time"], "x_east_m": lx + bot["dr_east_m"], "y_north_m": ly + 200.0})
+    fix = {"uncertainty_m": {"radial": 12.0}}
+    nav = navigation_table(ctd, FRAME, *LAUNCH, matched=matched, fix=fix, dr_error_fraction=0.01)
+    src = nav["position_source"].astype(str)
+    assert (src[:3] == "launch").all()
+    assert (src[ctd.phase == "bottom"] == "matched").all()
+    assert (src[3:100] == "dead_reckoned").all() and (src[150:] == "dead_reckoned").all()
+    # descent: correction linear in time from 0 at the launch to +200 m north at the first matched sample
+    dy = nav["y_north_m"].to_numpy() - ly
+    assert dy[0] == pytest.approx(0.0, abs=1e-6)
+    assert dy[50] == pytest.approx(200.0 * 50 / 100, rel=1e-6)
+    # ascent keeps the last correction; x follows the DR offsets
+    assert np.allclose(dy[150:], 200.0)
+    assert nav["x_east_m"].iloc[-1] - lx == pytest.approx(99 + 99 * 0.5)
+    # lat/lon are the map-frame positions projected (independent: pyproj with the frame's CRS)
+    to_ll = Transformer.from_crs(FRAME.crs, CRS.from_epsg(4326), always_xy=True)
+    lon, lat = to_ll.transform(nav["x_east_m"].to_numpy(), nav["y_north_m"].to_numpy())
+    assert np.allclose(nav["lon"], lon, atol=1e-9) and np.allclose(nav["lat"], lat, atol=1e-9)
+    # uncertainty: the fix's on the bottom, zero-growth at both ends of the descent, largest half-way
+    u = nav["position_uncertainty_m"].to_numpy()
+    assert np.allclose(u[100:150], 12.0)
+    assert u[50] > u[10] and u[50] > u[95] and u[50] >= 0.5 * 200.0 * 0.99
+
+
+def test_navigation_without_match_is_dead_reckoning_from_the_launch():
+    ctd = _dive_table()
+    nav = navigation_table(ctd, FRAME, *LAUNCH)
+    az, _, dist = GEOD.inv(LAUNCH[1], LAUNCH[0], nav["lon"].iloc[99], nav["lat"].iloc[99])
+    assert dist == pytest.approx(99.0, abs=0.01)  # DR offset 99 m east at sample 99
+    assert az == pytest.approx(90.0, abs=0.05)
+    assert set(nav["position_source"].astype(str)) == {"launch", "dead_reckoned"}
+
+
+def test_navigation_trajectory_is_a_compliant_cf_dsg(tmp_path):
+    pytest.importorskip("compliance_checker")
+    from hadal.products.compliance import check_compliance
+
+    ctd = _dive_table()
+    ctd["temperature_its90_degc"] = np.linspace(20, 2, len(ctd))
+    nav = navigation_table(ctd, FRAME, *LAUNCH)
+    path = write_netcdf(trajectory_dataset(nav, ctd, "dive-7"), tmp_path / "navigation.nc", title="t", summary="s",
+                        featureType="trajectory", cdm_data_type="Trajectory")
+    rep = check_compliance(path)
+    assert rep.ok, rep.describe()
+    with xr.open_dataset(path) as ds:
+        assert ds.attrs["featureType"] == "trajectory"
+        assert ds["trajectory"].attrs["cf_role"] == "trajectory_id"
+        assert set(ds["temperature_its90_degc"].encoding["coordinates"].split()) >= {"time", "lat", "lon", "depth_m"}
+
+
+def test_profiles_are_cf_dsg_profiles(tmp_path):
+    pytest.importorskip("compliance_checker")
+    from hadal.products.compliance import check_compliance
+
+    p = np.arange(5.0, 1000.0, 10.0)
+    ds = xr.Dataset({"temperature_its90_degc": (("cast", "pressure_dbar"), np.ones((2, p.size)) * 3.0),
+                     "time": ("cast", pd.to_datetime(["2018-10-06T23:00", "2018-10-07T08:00"]).to_numpy())},
+                    coords={"pressure_dbar": p, "cast": ("cast", [0, 1], {"flag_values": [0, 1],
+                                                                          "flag_meanings": "descent ascent"}),
+                            "lat": 11.33, "lon": 142.2})
+    path = write_netcdf(ds, tmp_path / "profile.nc", title="t", summary="s")
+    rep = check_compliance(path)
+    assert rep.ok, rep.describe()
+    with xr.open_dataset(path) as out:
+        assert out.attrs["featureType"] == "profile"
+        assert out["cast"].attrs["cf_role"] == "profile_id"
+        assert out["lat"].dims == ("cast",) and out["time"].dims == ("cast",)
+
+
+LF = LaserFrame(origin_latitude_deg=11.3371, origin_longitude_deg=142.2097, heading_deg=30.0)
+
+
+def test_laser_frame_georeference_against_geodesics():
+    # +y of the laser frame points 30 degrees east of north: (0, 100) is 100 m away at azimuth 30
+    lon, lat = frame_to_lonlat([0.0, 100.0], [100.0, 0.0], LF)
+    for k, want_az in ((0, 30.0), (1, 120.0)):
+        az, _, dist = GEOD.inv(LF.origin_longitude_deg, LF.origin_latitude_deg, lon[k], lat[k])
+        assert dist == pytest.approx(100.0, abs=0.01)
+        assert (az % 360) == pytest.approx(want_az, abs=0.01)
+    sites = pd.DataFrame({"x_m": [0.0], "y_m": [100.0], "heading_deg": [80.0]})
+    g = georeference_sites(sites, LF)
+    assert g["heading_true_deg"].iloc[0] == pytest.approx(110.0)
+    assert georeference_sites(sites, None) is sites
+
+
+def test_footprints_geojson_polygons_at_the_site_heading():
+    sites = pd.DataFrame({"x_m": [10.0], "y_m": [5.0], "heading_deg": [80.0], "c_s": [0.6], "is_best": [True],
+                          "submap": ["s1"]})
+    gj = footprints_geojson(sites, LF, 1.7, 0.5)
+    json.dumps(gj, allow_nan=False)
+    ring = gj["features"][0]["geometry"]["coordinates"][0]
+    assert ring[0] == ring[-1] and len(ring) == 5
+    lons, lats = zip(*ring, strict=True)
+    area, perim = GEOD.polygon_area_perimeter(lons, lats)
+    assert area == pytest.approx(1.7 * 0.5, rel=1e-4)  # counter-clockwise (RFC 7946): positive area
+    assert perim == pytest.approx(2 * (1.7 + 0.5), rel=1e-4)
+    # the long side lies along the geographic heading 80 + 30
+    az, _, d = GEOD.inv(lons[0], lats[0], lons[3], lats[3])
+    long_side = (az % 180) if d > 1.0 else (GEOD.inv(lons[0], lats[0], lons[1], lats[1])[0] % 180)
+    assert long_side == pytest.approx(110.0, abs=0.05)
+    c = footprint_corners(0, 0, 0.0, 2.0, 1.0)
+    assert np.allclose(sorted(c[:, 1]), [-1, -1, 1, 1]) and np.allclose(sorted(c[:, 0]), [-0.5, -0.5, 0.5, 0.5])
+    assert footprints_geojson(sites, None, 1.7, 0.5) is None
+
+
+def test_dtm_cog_in_the_utm_zone_matches_the_grid(tmp_path):
+    rasterio = pytest.importorskip("rasterio")
+    pytest.importorskip("rio_cogeo")
+    from pyproj.aoi import AreaOfInterest
+    from pyproj.database import query_utm_crs_info
+    from rio_cogeo.cogeo import cog_validate
+    from scipy.interpolate import RegularGridInterpolator
+
+    from hadal.products.geotiff import NODATA, write_grid_cog
+
+    x, y = np.arange(-2000.0, 2000.0, 20.0), np.arange(-1500.0, 1500.0, 20.0)
+    X, Y = np.meshgrid(x, y)
+    depth = 10000 + 0.05 * X - 0.02 * Y + 20 * np.sin(X / 300)
+    depth[:10, :10] = np.nan
+    ds = xr.Dataset({"depth_m": (("y", "x"), depth, {"units": "m", "positive": "down", "long_name": "depth"}),
+                     "crs": ((), 0, {"crs_wkt": FRAME.crs.to_wkt()})}, coords={"x": x, "y": y})
+    path = write_grid_cog(ds, tmp_path / "dtm.tif")
+    ok, errors, _ = cog_validate(str(path), quiet=True)
+    assert ok, errors
+    utm = query_utm_crs_info(datum_name="WGS 84", area_of_interest=AreaOfInterest(142.2, 11.33, 142.2, 11.33))
+    with rasterio.open(path) as f:
+        assert f.crs.to_epsg() == int(utm[0].code) == 32654
+        assert f.nodata == NODATA and f.units == ("m",) and f.res == (20.0, 20.0)
+        band = f.read(1)
+        rows, cols = np.meshgrid(np.arange(20, f.height - 20, 17), np.arange(20, f.width - 20, 23), indexing="ij")
+        ex, ny = rasterio.transform.xy(f.transform, rows.ravel(), cols.ravel())
+        vals = band[rows.ravel(), cols.ravel()]
+    # independent: UTM pixel centres -> map frame (pyproj) -> bilinear in the source grid (scipy)
+    to_map = Transformer.from_crs(CRS.from_epsg(32654), FRAME.crs, always_xy=True)
+    mx, my = to_map.transform(np.asarray(ex), np.asarray(ny))
+    ref = RegularGridInterpolator((y, x), depth, bounds_error=False, fill_value=np.nan)(np.c_[my, mx])
+    good = np.isfinite(ref) & (vals != NODATA)
+    assert good.mean() > 0.8
+    assert np.nanmax(np.abs(vals[good] - ref[good])) < 0.05  # float32 of ~1e4 m: ~1e-3 m
+    assert (band == NODATA).any()  # the empty corner and outside the rotated grid are nodata
+
+
+def test_utm_zone_selection():
+    from hadal.products.geotiff import utm_epsg
+
+    assert utm_epsg(142.2, 11.3) == 32654
+    assert utm_epsg(-70.5, -33.0) == 32719
+    assert utm_epsg(179.99, 0.0) == 32660 and utm_epsg(-180.0, 0.0) == 32601
+    assert utm_epsg(10.0, 86.0) == 4326
+
+
+def _cog_vs_independent(path, value_at_lonlat, epsg_expected, res_m):
+    """Open a COG, check its layout (rio-cogeo), CRS and cell size; compare sampled pixels with
+    ``value_at_lonlat`` (an independent interpolation of the source grid). Returns (max |diff|, fraction kept)."""
+    rasterio = pytest.importorskip("rasterio")
+    from rio_cogeo.cogeo import cog_validate
+
+    from hadal.products.geotiff import NODATA
+
+    ok, errors, _ = cog_validate(str(path), quiet=True)
+    assert ok, errors
+    with rasterio.open(path) as f:
+        assert f.crs.to_epsg() == epsg_expected and f.nodata == NODATA
+        assert f.res == pytest.approx((res_m, res_m))
+        band = f.read(1)
+        rows, cols = np.meshgrid(np.arange(2, f.height - 2, 3), np.arange(2, f.width - 2, 5), indexing="ij")
+        ex, ny = rasterio.transform.xy(f.transform, rows.ravel(), cols.ravel())
+        vals = band[rows.ravel(), cols.ravel()]
+    lon, lat = Transformer.from_crs(CRS.from_epsg(epsg_expected), "EPSG:4326", always_xy=True).transform(
+        np.asarray(ex), np.asarray(ny))
+    ref = value_at_lonlat(lon, lat)
+    good = np.isfinite(ref) & (vals != NODATA)
+    return float(np.max(np.abs(vals[good] - ref[good]))), float(good.mean()), band
+
+
+def test_suitability_cog_in_the_utm_zone_matches_the_blocks(tmp_path):
+    """The suitability stage's COGs (its own build + write calls) against scipy bilinear interpolation of the
+    block grid at the UTM pixel centres taken back to the map frame with pyproj."""
+    pytest.importorskip("rio_cogeo")
+    from scipy.interpolate import RegularGridInterpolator
+
+    from hadal.products.geotiff import write_grid_cog
+    from hadal.stages.suitability import COG_VARIABLES, Params, build_suitability
+
+    x, y = np.arange(-6000.0, 6000.0, 50.0), np.arange(-4000.0, 4000.0, 50.0)
+    X, Y = np.meshgrid(x, y)
+    rng = np.random.default_rng(3)
+    depth = 10000 + 0.02 * X + 30 * np.sin(X / 700) * np.cos(Y / 900) + rng.normal(0, 2, X.shape)
+    dtm = xr.Dataset({"depth_m": (("y", "x"), depth, {"units": "m", "positive": "down"}),
+                      "crs": ((), 0, {"crs_wkt": FRAME.crs.to_wkt()})}, coords={"x": x, "y": y})
+    suit = build_suitability(dtm, FRAME, 11.33, 142.20, Params())
+    to_map = Transformer.from_crs("EPSG:4326", FRAME.crs, always_xy=True)
+    bx, by = suit["x"].values, suit["y"].values
+    for v in COG_VARIABLES:
+        path = write_grid_cog(suit, tmp_path / f"suitability_{v}.tif", v)
+        vals = suit[v].values.astype(float)
+        interp = RegularGridInterpolator((by, bx), vals, bounds_error=False, fill_value=np.nan)
+
+        def at(lon, lat, interp=interp):
+            mx, my = to_map.transform(lon, lat)
+            return interp(np.c_[my, mx])
+
+        res = min(np.median(np.diff(bx)), np.median(np.diff(by)))  # 200 x 150 m blocks: the finer one
+        err, kept, _ = _cog_vs_independent(path, at, 32654, float(res))
+        assert kept > 0.5
+        assert err < 1e-3 * max(1.0, float(np.nanmax(np.abs(vals))))  # float32 rounding only
+
+
+def test_laser_grid_cog_from_the_georeferenced_laser_frame(tmp_path):
+    """A laser grid in its own frame, turned 35° and placed by dive.yaml laser_frame: the COG's pixels equal
+    scipy bilinear interpolation of the grid at (UTM centre -> lon/lat -> laser frame), the last step by
+    geodesics (pyproj Geod: distance and azimuth from the origin), independent of the TM frame used in the writer."""
+    pytest.importorskip("rio_cogeo")
+    from scipy.interpolate import RegularGridInterpolator
+
+    from hadal.products.geotiff import write_grid_cog
+
+    lf = LaserFrame(origin_latitude_deg=11.3371, origin_longitude_deg=142.2097, heading_deg=35.0)
+    x, y = np.arange(0.0, 6.0, 0.02), np.arange(-2.0, 2.0, 0.02)
+    X, Y = np.meshgrid(x, y)
+    elev = -10900 + 0.3 * X - 0.1 * Y + 0.05 * np.sin(X * 3)
+    ds = xr.Dataset({"elevation_m": (("y", "x"), elev, {"units": "m", "positive": "up"})}, coords={"x": x, "y": y})
+    path = write_grid_cog(ds, tmp_path / "submap_00.tif", "elevation_m", laser_frame=lf)
+    interp = RegularGridInterpolator((y, x), elev, bounds_error=False, fill_value=np.nan)
+
+    def at(lon, lat):
+        az, _, dist = GEOD.inv(np.full_like(lon, lf.origin_longitude_deg), np.full_like(lat, lf.origin_latitude_deg),
+                               lon, lat)
+        rel = np.radians(np.asarray(az) - lf.heading_deg)  # azimuth from the frame's +y axis, clockwise
+        return interp(np.c_[dist * np.cos(rel), dist * np.sin(rel)])
+
+    err, kept, band = _cog_vs_independent(path, at, 32654, 0.02)
+    assert kept > 0.3  # a turned rectangle fills about half of its north-up bounding box
+    assert err < 0.01  # float32 of ~1e4 m (1e-3) + bilinear of the gentle sine at 2 cm cells
+    from hadal.products.geotiff import NODATA
+
+    assert (band == NODATA).any()
