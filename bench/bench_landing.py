@@ -36,9 +36,10 @@ import xarray as xr  # noqa: E402
 from scipy import ndimage as ndi  # noqa: E402
 
 from hadal.landing import Vehicle, analyse_submap  # noqa: E402
+from hadal.landing.testing import TAKUYO_RASTER  # noqa: E402
 
 V = Vehicle()
-RASTER = Path(__file__).resolve().parents[2] / "shared" / "data" / "bathy-real" / "LAD_Takuyo_B1_raster_100mm.tif"
+RASTER = Path(__file__).resolve().parents[2] / "shared" / "data" / TAKUYO_RASTER
 
 
 def _terrain(al: np.ndarray, ac: np.ndarray, rng: np.random.Generator, length: float, width: float) -> np.ndarray:
@@ -244,32 +245,15 @@ def bench_pf() -> None:
 
 
 def bench_noise() -> None:
-    import warnings
-
-    from hadal.grid.readers import read_grid
+    from hadal.landing.testing import read_takuyo, resampled
 
     if not RASTER.is_file():
         print(f"[noise] {RASTER} not present")
         return
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        g = read_grid(RASTER, crs="local")
-    d = g.values.astype(float)
-    d[d == 0] = np.nan
-    ny, nx = d.shape
-    t = xr.DataArray(d, dims=("y", "x"), coords={"y": (np.arange(ny) + 0.5) * 0.1, "x": (np.arange(nx) + 0.5) * 0.1},
-                     attrs={"units": "m", "positive": "down"})
+    t = read_takuyo(RASTER)
     # the same area resampled to 10 mm (mask by nearest cell, values bilinear), 8 m x 6 m around the best site
-    v = np.isfinite(t.values)
-    idx = ndi.distance_transform_edt(~v, return_distances=False, return_indices=True)
-    filled = t.copy(data=t.values[idx[0], idx[1]])
     b0 = analyse_submap(t, max_cell_fraction=0.2).best
-    yy = np.arange(b0["y_m"] - 3.0, b0["y_m"] + 3.0, 0.01)
-    xx = np.arange(b0["x_m"] - 4.0, b0["x_m"] + 4.0, 0.01)
-    lin = filled.interp(y=yy, x=xx, method="linear", kwargs={"fill_value": None})
-    mask = xr.DataArray(v.astype(float), dims=t.dims, coords=t.coords).interp(y=yy, x=xx, method="nearest",
-                                                                                kwargs={"fill_value": 0.0})
-    t10 = lin.where(mask.values > 0.5)
+    t10 = resampled(t, 0.01, (b0["y_m"] - 3.0, b0["y_m"] + 3.0, b0["x_m"] - 4.0, b0["x_m"] + 4.0))
     for label, grid_, win in (("100 mm", t, 0.03), ("100 mm", t, 0.1), ("10 mm crop", t10, 0.03), ("10 mm crop", t10, 0.1)):
         _noise_row(label, grid_, win)
 

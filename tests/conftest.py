@@ -62,3 +62,14 @@ def small_run(small_dive, tmp_path_factory):
         warnings.simplefilter("ignore")
         products = run_pipeline(ctx)
     return ctx, products
+
+
+@pytest.fixture(scope="session")
+def takuyo(shared_data):
+    """The real Takuyo laser raster (0.10 m) as a local metric depth grid (:func:`hadal.landing.testing.read_takuyo`)."""
+    from hadal.landing.testing import TAKUYO_RASTER, read_takuyo
+
+    path = shared_data / TAKUYO_RASTER
+    if not path.is_file():
+        pytest.skip(f"{path} not present")
+    return read_takuyo(path)

@@ -18,6 +18,7 @@ from hadal.landing import Vehicle, analyse_submap
 from hadal.landing.exclusion import UNMAPPED, footprint_mask
 from hadal.landing.protrusion import _octagon_filter, octagon_offsets, protrusion_height_map
 from hadal.landing.sites import largest_aspect_rectangle_m2, slope_window_px
+from hadal.landing.testing import resampled
 
 V = Vehicle()
 HC = V.critical_height_m
@@ -115,25 +116,6 @@ def test_old_literal_cutoff_loses_wide_rocks():
 def test_slope_window_is_physical():
     assert slope_window_px(0.1, 0.01) == 11 and slope_window_px(0.1, 0.005) == 21
     assert slope_window_px(0.1, 0.1) == 3  # never fewer than 3 cells
-
-
-@pytest.fixture(scope="module")
-def takuyo(shared_data) -> xr.DataArray:
-    from hadal.grid.readers import read_grid
-
-    path = shared_data / "bathy-real/LAD_Takuyo_B1_raster_100mm.tif"
-    if not path.is_file():
-        pytest.skip(f"{path} not present")
-    import warnings
-
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        g = read_grid(path, crs="local")
-    d = g.values.astype(float)
-    d[d == 0] = np.nan
-    ny, nx = d.shape
-    return xr.DataArray(d, dims=("y", "x"), coords={"y": (np.arange(ny) + 0.5) * 0.1, "x": (np.arange(nx) + 0.5) * 0.1},
-                        attrs={"units": "m", "positive": "down"})
 
 
 def test_noise_robustness_real_raster(takuyo):
@@ -285,17 +267,8 @@ def test_resolution_stability_100mm_vs_50mm(takuyo):
     keeps the best heading, moves the best site < 1 m and changes its C_s < 0.03 (measured: 0.9 m, 0.065 ->
     0.057). The physical windows (local slope 0.1 m but >= 3 cells, ground smoothing and roughness 0.3 m) and
     the exact A_r make this possible; the old code moved the site ~2 m and C_s 2.7x."""
-    t = takuyo
-    v = np.isfinite(t.values)
-    idx = ndi.distance_transform_edt(~v, return_distances=False, return_indices=True)
-    filled = t.copy(data=t.values[idx[0], idx[1]])
-    y = np.arange(t.y.values[0], t.y.values[-1] + 1e-9, 0.05)
-    x = np.arange(t.x.values[0], t.x.values[-1] + 1e-9, 0.05)
-    lin = filled.interp(y=y, x=x, method="linear", kwargs={"fill_value": None})
-    mask = xr.DataArray(v.astype(float), dims=t.dims, coords=t.coords).interp(
-        y=y, x=x, method="nearest", kwargs={"fill_value": 0.0})
-    fine = lin.where(mask.values > 0.5)
-    a = analyse_submap(t, max_cell_fraction=0.2).best
+    fine = resampled(takuyo, 0.05)
+    a = analyse_submap(takuyo, max_cell_fraction=0.2).best
     b = analyse_submap(fine).best
     assert a is not None and b is not None
     assert abs(((a["heading_deg"] - b["heading_deg"]) + 90) % 180 - 90) <= 5.0
@@ -307,17 +280,8 @@ def test_noise_robustness_real_area_at_10mm(takuyo):
     """The Takuyo area resampled to 10 mm (8 m x 6 m around the best site): with the 0.1 m local-slope window
     white noise of 2/6 mm keeps the best site (< 0.3 m) and C_s (within 10 %); the old 3 cm window lost every
     site at 2 mm already (bench/bench_landing.py --only noise)."""
-    t = takuyo
-    v = np.isfinite(t.values)
-    idx = ndi.distance_transform_edt(~v, return_distances=False, return_indices=True)
-    filled = t.copy(data=t.values[idx[0], idx[1]])
-    b0 = analyse_submap(t, max_cell_fraction=0.2).best
-    yy = np.arange(b0["y_m"] - 3.0, b0["y_m"] + 3.0, 0.01)
-    xx = np.arange(b0["x_m"] - 4.0, b0["x_m"] + 4.0, 0.01)
-    lin = filled.interp(y=yy, x=xx, method="linear", kwargs={"fill_value": None})
-    mask = xr.DataArray(v.astype(float), dims=t.dims, coords=t.coords).interp(y=yy, x=xx, method="nearest",
-                                                                                kwargs={"fill_value": 0.0})
-    t10 = lin.where(mask.values > 0.5)
+    b0 = analyse_submap(takuyo, max_cell_fraction=0.2).best
+    t10 = resampled(takuyo, 0.01, (b0["y_m"] - 3.0, b0["y_m"] + 3.0, b0["x_m"] - 4.0, b0["x_m"] + 4.0))
     base = analyse_submap(t10)
     assert base.best is not None
     rng = np.random.default_rng(6)

@@ -20,6 +20,7 @@ from hadal.landing._kernels import outer_border, squared_edt
 from hadal.landing.exclusion import HeadingCorrelator, footprint_mask
 from hadal.landing.protrusion import protrusion_height_map
 from hadal.landing.sites import check_resources, estimate_resources, largest_aspect_rectangle_m2
+from hadal.landing.testing import resampled
 
 V = Vehicle()
 HC = V.critical_height_m
@@ -209,39 +210,6 @@ def test_p_landable_agrees_with_monte_carlo(case):
 
 
 # ----------------------------------------------------------------------------- resolution stability (real data)
-@pytest.fixture(scope="module")
-def takuyo(shared_data) -> xr.DataArray:
-    from hadal.grid.readers import read_grid
-
-    path = shared_data / "bathy-real/LAD_Takuyo_B1_raster_100mm.tif"
-    if not path.is_file():
-        pytest.skip(f"{path} not present")
-    import warnings
-
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        g = read_grid(path, crs="local")
-    d = g.values.astype(float)
-    d[d == 0] = np.nan
-    ny, nx = d.shape
-    return xr.DataArray(d, dims=("y", "x"), coords={"y": (np.arange(ny) + 0.5) * 0.1, "x": (np.arange(nx) + 0.5) * 0.1},
-                        attrs={"units": "m", "positive": "down"})
-
-
-def _resampled(t: xr.DataArray, cell: float, box=None) -> xr.DataArray:
-    """The same real area on a finer grid: values bilinear (gaps filled by the nearest cell first), the mapped
-    mask by the nearest 100 mm cell."""
-    v = np.isfinite(t.values)
-    idx = ndi.distance_transform_edt(~v, return_distances=False, return_indices=True)
-    filled = t.copy(data=t.values[idx[0], idx[1]])
-    y0, y1, x0, x1 = box or (t.y.values[0], t.y.values[-1] + 1e-9, t.x.values[0], t.x.values[-1] + 1e-9)
-    y, x = np.arange(y0, y1, cell), np.arange(x0, x1, cell)
-    lin = filled.interp(y=y, x=x, method="linear", kwargs={"fill_value": None})
-    mask = xr.DataArray(v.astype(float), dims=t.dims, coords=t.coords).interp(
-        y=y, x=x, method="nearest", kwargs={"fill_value": 0.0})
-    return lin.where(mask.values > 0.5)
-
-
 def test_resolution_stability_real_takuyo(takuyo):
     """Stated for the real Takuyo raster (the only real grid: 0.10 m, run with the explicit cell override), against
     the same area at 25 mm (whole raster) and at 20 mm (an 8 m x 6 m crop around the 100 mm best site):
@@ -253,7 +221,7 @@ def test_resolution_stability_real_takuyo(takuyo):
     assert a.warnings and a.best is not None
     b0 = a.best
     box = (b0["y_m"] - 3.0, b0["y_m"] + 3.0, b0["x_m"] - 4.0, b0["x_m"] + 4.0)
-    for g in (_resampled(takuyo, 0.025), _resampled(takuyo, 0.02, box)):
+    for g in (resampled(takuyo, 0.025), resampled(takuyo, 0.02, box)):
         r = analyse_submap(g)
         assert r.warnings == [] and r.best is not None
         b = r.best
