@@ -206,6 +206,33 @@ def decompress_errors(path: str | Path, compression: str | None, what: str = "")
         raise InputError(f"{path}: corrupt or truncated {kind} file ({_first_line(exc)})") from None
 
 
+def _require_file(p: Path, label: str) -> None:
+    if not p.is_file():
+        raise InputError(f"{p}: {label} does not exist")
+
+
+def _check_text(p: Path, label: str, content: bytes) -> None:
+    """``content`` (a file's decompressed text, or its head) must be text: not blank, no NUL in its first 4 KiB."""
+    if not content.strip():
+        raise InputError(f"{p}: {label} is empty")
+    if b"\x00" in content[:4096]:
+        raise InputError(f"{p}: not a {label} (binary content)")
+
+
+def read_text_head(path: str | Path, what: str, n: int) -> tuple[bytes, str | None]:
+    """The first ``n`` decompressed bytes of a text file and its compression, with the one-line errors of
+    :func:`read_bytes` (``text=True``): missing, unreadable, empty, binary."""
+    p = Path(path)
+    label = f"{what} file" if what else "file"
+    _require_file(p, label)
+    try:
+        head, comp = read_head(p, n)
+    except OSError as exc:
+        raise InputError(f"{p}: cannot read {label} ({exc.strerror or exc})") from None
+    _check_text(p, label, head)
+    return head, comp
+
+
 def read_bytes(path: str | Path, what: str = "", *, text: bool = False) -> tuple[bytes, str | None]:
     """A file's whole content, decompressed when its first bytes are a gzip/bz2/xz magic (whatever the
     name), and the compression found. Every failure is a one-line :class:`InputError` naming the file and
@@ -215,8 +242,7 @@ def read_bytes(path: str | Path, what: str = "", *, text: bool = False) -> tuple
     ``not a CNV file (binary content)``."""
     p = Path(path)
     label = f"{what} file" if what else "file"
-    if not p.is_file():
-        raise InputError(f"{p}: {label} does not exist")
+    _require_file(p, label)
     try:
         raw = p.read_bytes()
     except OSError as exc:
@@ -227,10 +253,8 @@ def read_bytes(path: str | Path, what: str = "", *, text: bool = False) -> tuple
             raw = _DECOMPRESSORS[comp](raw)
     if utf16_of(raw[:4096]):
         raw = raw.decode("utf-16", errors="replace").encode("utf-8")
-    if text and not raw.strip():
-        raise InputError(f"{p}: {label} is empty")
-    if text and b"\x00" in raw[:4096]:
-        raise InputError(f"{p}: not a {label} (binary content)")
+    if text:
+        _check_text(p, label, raw)
     return raw, comp
 
 
@@ -244,8 +268,7 @@ def iter_blocks(path: str | Path, what: str = "", *, text: bool = False, block_b
     ``text`` empty or binary content); a damaged stream is reported when the block holding the damage is read."""
     p = Path(path)
     label = f"{what} file" if what else "file"
-    if not p.is_file():
-        raise InputError(f"{p}: {label} does not exist")
+    _require_file(p, label)
     try:
         fh = open_binary(p)
     except OSError as exc:

@@ -16,7 +16,7 @@ import numpy as np
 import pandas as pd
 
 from hadal.errors import InputError
-from hadal.formats import decompress_errors, open_binary, read_head, text_encoding_of
+from hadal.formats import decompress_errors, open_binary, read_text_head, text_encoding_of
 from hadal.ingest.align import time_unit_hint
 from hadal.ingest.units import CANONICAL_UNITS, TRANSFORMS, apply_transform, convert
 from hadal.ingest.vehicle import CsvSource, FieldMap, McapSource
@@ -83,19 +83,9 @@ _EMPTY_CELLS = ["", "nan", "NaN", "NA", "null", "None"]
 
 
 def csv_head(path: Path, what: str = "CSV") -> tuple[bytes, str | None]:
-    """The first (decompressed) :data:`MAX_LINE_BYTES` of a text table and its compression, with the one-line
-    errors of :func:`hadal.formats.read_bytes` (missing, unreadable, empty, binary)."""
-    if not path.is_file():
-        raise InputError(f"{path}: {what} file does not exist")
-    try:
-        head, compression = read_head(path, MAX_LINE_BYTES + 1)
-    except OSError as exc:
-        raise InputError(f"{path}: cannot read {what} file ({exc.strerror or exc})") from None
-    if not head.strip():
-        raise InputError(f"{path}: {what} file is empty")
-    if b"\x00" in head[:4096]:
-        raise InputError(f"{path}: not a {what} file (binary content)")
-    return head, compression
+    """The first (decompressed) :data:`MAX_LINE_BYTES` + 1 bytes of a text table and its compression
+    (:func:`hadal.formats.read_text_head`: missing, unreadable, empty and binary files are one-line errors)."""
+    return read_text_head(path, what, MAX_LINE_BYTES + 1)
 
 
 def _csv_chunks(path: Path, sep: str, compression: str | None, scan: LineScan | None = None, **kw: Any):
