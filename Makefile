@@ -22,7 +22,7 @@ sysdeps:
 $(VENV)/.installed: pyproject.toml | sysdeps
 	@test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
 	@$(BIN)/python -m pip install -q --upgrade uv
-	$(BIN)/uv pip install --python $(BIN)/python -q -e '.[test]'
+	$(BIN)/uv pip install --python $(BIN)/python -q -e '.[test,zarr]'
 	@touch $@
 
 $(DIVE)/dive.yaml: | setup

@@ -6,9 +6,10 @@ Sections (``--only`` picks some; default all but ``reference``):
                (goal ≤ 1 s; the paper's MATLAB: 254.9 s, Table VI);
 * ``diagonal`` the same submap surveyed at 45° in its north-up bounding grid, analysed in its along-track
                frame: time and ratio to the axis-aligned one (goal ≤ 1.5×);
-* ``strip``    a 100 m × 10 m strip at 10 mm (10 M cells) in a child process: wall and CPU time and the
-               analysis' peak RSS (VmHWM after a reset; goals ≤ 20 s, ≤ 1.5 GB). On a shared machine the CPU
-               time is the meaningful number;
+* ``strip``    a 100 m × 10 m strip at 10 mm (10 M cells) in a child process, single-threaded and with the
+               landing stage's default heading threads (``--threads``, default min(4, CPU cores)): wall and CPU
+               time and the analysis' peak RSS (VmHWM after a reset; goals ≤ 20 s, ≤ 1.5 GB). On a shared
+               machine wall time is not CPU time: the single-thread CPU time is the work;
 * ``rocks``    fraction of a rock's height each protrusion measure keeps (opening = ours, the paper's literal
                Butterworth f_c = 2/σ, the reference C++ disc mean), widths 0.05-1.5 m, on 0° and θc slopes,
                and cells truly above h_c that a measure misses;
@@ -152,28 +153,37 @@ except OSError:
     pass
 r0 = rss_kb()
 t = time.perf_counter(); c = time.process_time()
-res = analyse_submap(g, keep_heading_exclusion=False)
+res = analyse_submap(g, keep_heading_exclusion=False, workers=int(sys.argv[1]))
 print(f"{time.perf_counter() - t:.2f} {time.process_time() - c:.2f} "
       f"{hwm_kb() / 1024:.0f} {r0 / 1024:.0f} {len(res.sites)} {resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024:.0f}")
 print({k: round(v, 2) for k, v in res.timings_s.items()})
 """
 
 
-def bench_strip() -> None:
+def bench_strip(threads: int | None = None) -> None:
+    """The strip single-threaded (CPU time = the work) and with ``threads`` heading threads (default: the
+    stage's auto, min(4, CPU cores); wall time)."""
     env = {**os.environ, "OMP_NUM_THREADS": "1", "PYTHONPATH": str(Path(__file__).resolve().parents[1] / "src")}
-    out = subprocess.run([sys.executable, "-c", STRIP_CHILD], capture_output=True, text=True, env=env, timeout=900)
-    if out.returncode:
-        print(f"[strip] failed: {out.stderr.strip().splitlines()[-1:]}")
-        return
-    first, steps = out.stdout.strip().splitlines()[-2:]
-    wall, cpu, rss, rss0, n, rss_all = first.split()
-    print(f"[strip] 100 m x 10 m at 10 mm (10 M cells), 37 headings, 1 thread: {float(wall):.1f} s wall, "
-          f"{float(cpu):.1f} s CPU (goal <= 20 s: CPU x{float(cpu) / 20:.2f} of it); peak RSS {float(rss) / 1024:.2f} GB "
-          f"(x{float(rss) / 1024 / 1.5:.2f} of the 1.5 GB goal; RSS before it, interpreter + input, "
-          f"{float(rss0) / 1024:.2f} GB; whole child incl. building the input {float(rss_all) / 1024:.2f} GB); "
-          f"{n} sites; load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores (wall time is not CPU time "
-          "on a shared machine)")
-    print(f"  steps: {steps}")
+    for n in dict.fromkeys([1, threads or min(4, os.cpu_count() or 1)]):
+        out = subprocess.run([sys.executable, "-c", STRIP_CHILD, str(n)], capture_output=True, text=True, env=env,
+                             timeout=900)
+        if out.returncode:
+            print(f"[strip] failed: {out.stderr.strip().splitlines()[-1:]}")
+            return
+        first, steps = out.stdout.strip().splitlines()[-2:]
+        wall, cpu, rss, rss0, n_sites, rss_all = first.split()
+        print(f"[strip] 100 m x 10 m at 10 mm (10 M cells), 37 headings, {n} heading thread(s): {float(wall):.1f} s "
+              f"wall (goal <= 20 s: x{float(wall) / 20:.2f}), {float(cpu):.1f} s CPU; peak RSS {float(rss) / 1024:.2f} GB "
+              f"(x{float(rss) / 1024 / 1.5:.2f} of the 1.5 GB goal; RSS before it, interpreter + input, "
+              f"{float(rss0) / 1024:.2f} GB; whole child incl. building the input {float(rss_all) / 1024:.2f} GB); "
+              f"{n_sites} sites; load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores (on a shared machine "
+              "wall time is not CPU time)")
+        from hadal.landing.sites import estimate_resources
+
+        est = estimate_resources((10_000, 1_000), 37, keep_heading_exclusion=False, workers=n)["bytes"] / 2**30
+        print(f"  steps: {steps}; check_resources' estimate {est:.2f} GiB against the analysis' measured "
+              f"{(float(rss) - float(rss0)) / 1024:.2f} GiB above the input (an upper bound: x"
+              f"{est / ((float(rss) - float(rss0)) / 1024):.2f})")
 
 
 def bench_rocks() -> None:
@@ -305,6 +315,7 @@ def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--only", nargs="*", default=["submap", "diagonal", "strip", "rocks", "pf", "noise"])
     ap.add_argument("--repeat", type=int, default=3)
+    ap.add_argument("--threads", type=int, default=None, help="heading threads of the second strip run")
     a = ap.parse_args()
     for name in a.only:
         if name == "submap":
@@ -312,7 +323,7 @@ def main() -> None:
         elif name == "diagonal":
             bench_diagonal(a.repeat)
         elif name == "strip":
-            bench_strip()
+            bench_strip(a.threads)
         elif name == "rocks":
             bench_rocks()
         elif name == "pf":

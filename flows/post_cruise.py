@@ -23,7 +23,14 @@ from prefect.futures import as_completed
 from prefect.task_runners import ThreadPoolTaskRunner
 
 from hadal.errors import HadalError
-from hadal.pipeline import all_products, blocked_by_failure, make_context, raise_failures, stage_plan
+from hadal.pipeline import (
+    RunOutcome,
+    all_products,
+    blocked_by_failure,
+    make_context,
+    raise_failures,
+    stage_plan,
+)
 from hadal.plan import stage_dependencies
 
 log = logging.getLogger("hadal.flow")
@@ -34,18 +41,6 @@ STAGE_THREADS = 4
 
 def stage_tasks(names: list[str]):
     return [getattr(importlib.import_module(f"hadal.tasks.{n}"), n) for n in names]
-
-
-class RunOutcome(dict):
-    """``{product: version directory}`` of a run, with :attr:`stages`: one row per stage (``stage``, ``status`` -
-    published / reused / skipped / failed -, ``seconds``, ``versions`` and ``reason``) for the closing table."""
-
-    def __init__(self, published: dict[str, str] | None = None, stages: list[dict[str, Any]] | None = None):
-        super().__init__(published or {})
-        self.stages = list(stages or [])
-
-    def __reduce__(self):  # results may be pickled (Dask, persisted results): keep the stage rows
-        return (RunOutcome, (dict(self), self.stages))
 
 
 @dataclass

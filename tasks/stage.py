@@ -1,6 +1,8 @@
 """Factory for the per-stage Prefect tasks (each ``tasks/<stage>.py`` is one line using it).
 
-Caching: a stage task's cache key is the SHA-256 of its *fingerprint* (:func:`stage_fingerprint`):
+Caching: a stage task's cache key is the SHA-256 of its *fingerprint* (:func:`hadal.pipeline.stage_fingerprint`,
+Prefect-free, so ``hadal run`` can tell an unchanged dive without starting Prefect:
+:func:`hadal.pipeline.current_stages`):
 
 * the stage name, dive id and store root;
 * hadal's code version (package version + SHA-256 of every ``hadal/**/*.py`` source file);
@@ -25,10 +27,8 @@ Retries: I/O-bound stages (ingest, grid) retry on ``OSError`` only (:func:`retry
 
 from __future__ import annotations
 
-import hashlib
 import json
 import logging
-import os
 import re
 import threading
 import time
@@ -39,15 +39,23 @@ from typing import Any
 from prefect import task
 
 from hadal.errors import HadalError
-from hadal.pipeline import code_digest, default_store_root, make_context, pin_paths, run_stage, should_run
+from hadal.pipeline import (  # noqa: F401 - the fingerprint functions are re-exported (Prefect-free in pipeline)
+    RESULTS_DIR,
+    code_digest,
+    fingerprint_key,
+    make_context,
+    pin_paths,
+    raw_inputs,
+    result_storage,
+    run_stage,
+    should_run,
+    stage_cache_key,
+    stage_fingerprint,
+)
 from hadal.progress import default_progress
-from hadal.stages import StageContext, stage_module
-from hadal.store import sha256_file
+from hadal.stages import StageContext
 
 __all__ = ["code_digest", "stage_fingerprint", "stage_task", "configured", "published_exist", "route_hadal_logs"]
-
-RESULTS_DIR = ".prefect-results"
-
 
 # ---------------------------------------------------------------------------------------- logs into Prefect
 class PrefectRunLogHandler(logging.Handler):
@@ -140,71 +148,19 @@ def _run_ids() -> dict[str, str]:
     return {"flow_run": str(trc.task_run.flow_run_id), "task_run": str(trc.task_run.id)}
 
 
-def raw_inputs(name: str, ctx: StageContext) -> list[Path]:
-    """Raw files stage ``name`` reads: ``dive.yaml`` always; the files of its ``INPUTS.raw_any`` source kinds
-    when it reads raw data (``INPUTS.reads_raw``), and the vehicle mapping for ``ingest``."""
-    from hadal.dive import resolve_source
-    from hadal.plan import stage_inputs
-
-    files = [ctx.raw_dir / "dive.yaml"]
-    inp = stage_inputs(name)
-    if not inp.reads_raw:
-        return files
-    if name == "ingest" and ctx.dive.vehicle_config:
-        files.append(resolve_source(ctx.raw_dir, ctx.dive.vehicle_config))
-    for kind in inp.raw_any:
-        files.extend(resolve_source(ctx.raw_dir, e) for e in ctx.dive.sources.files(kind))
-    return files
-
-
-def stage_fingerprint(name: str, ctx: StageContext) -> dict[str, Any]:
-    """Everything a stage's output depends on (see module docstring); JSON-serialisable."""
-    mod = stage_module(name)
-    raw = {}
-    for f in raw_inputs(name, ctx):  # unchanged files are not re-read: ProductStore.file_sha256
-        raw[str(f)] = ctx.store.file_sha256(f) if f.is_file() else "missing"
-    upstream = {}
-    for product in getattr(mod, "UPSTREAM", ()):
-        pv = ctx.pins.get(product) or (ctx.store.latest(ctx.dive_id, product)
-                                       if ctx.store.has(ctx.dive_id, product) else None)
-        upstream[product] = f"{pv.label}:{sha256_file(pv.manifest_path)}" if pv is not None else "missing"
-    return {
-        "stage": name,
-        "dive": ctx.dive_id,
-        "store": str(Path(ctx.store.root).resolve()),
-        "code": code_digest(),
-        "params": ctx.params(name),
-        "raw": raw,
-        "upstream": upstream,
-    }
-
-
-def fingerprint_key(fp: dict[str, Any]) -> str:
-    return hashlib.sha256(json.dumps(fp, sort_keys=True, default=str).encode()).hexdigest()
-
-
 def cache_key(name: str) -> Callable[[Any, dict[str, Any]], str | None]:
     """A Prefect ``cache_key_fn`` for stage ``name`` (task parameters: raw_dir, store_root, config_path)."""
 
     def _key(context: Any, parameters: dict[str, Any]) -> str | None:
         try:
-            ctx = make_context(parameters["raw_dir"], parameters.get("store_root"), parameters.get("config_path"))
-            pin_paths(ctx, parameters.get("pins"))
-            fp = stage_fingerprint(name, ctx)
-            if parameters.get("failed") or parameters.get("failed_skips"):  # the report lists this run's failures
-                fp["failed"] = {"failed": parameters.get("failed"), "skips": parameters.get("failed_skips")}
-            return f"hadal-{name}-{fingerprint_key(fp)}"
+            return stage_cache_key(name, parameters["raw_dir"], parameters.get("store_root"),
+                                   parameters.get("config_path"), parameters.get("pins"), parameters.get("failed"),
+                                   parameters.get("failed_skips"))
         except (HadalError, OSError):
             return None  # the task itself will report the problem; never cache it
 
     _key.__name__ = f"{name}_cache_key"
     return _key
-
-
-def result_storage(store_root: str | os.PathLike[str] | None) -> Path:
-    """Where task results (cache records) are persisted: ``<store>/.prefect-results``."""
-    root = Path(store_root) if store_root is not None else default_store_root()
-    return (root / RESULTS_DIR).resolve()
 
 
 def retry_on_io_error(task_: Any, task_run: Any, state: Any) -> bool:

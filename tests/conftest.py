@@ -28,6 +28,25 @@ def shared_data() -> Path:
 
 
 @pytest.fixture(scope="session")
+def shared_cnv(shared_data):
+    """``read(rel)``: the Sea-Bird .cnv ``../shared/data/<rel>`` read with :func:`hadal.ingest.cnv.read_cnv` (its
+    warnings silenced); the test skips cleanly when the file is absent."""
+    import warnings
+
+    from hadal.ingest.cnv import read_cnv
+
+    def read(rel: str):
+        p = shared_data / rel
+        if not p.is_file():
+            pytest.skip(f"{p} not present")
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            return read_cnv(p)
+
+    return read
+
+
+@pytest.fixture(scope="session")
 def prefect_harness():
     """ONE temporary Prefect API (sqlite in PREFECT_HOME under tmp) for every test that runs a flow (opt-in)."""
     from prefect.testing.utilities import prefect_test_harness

@@ -101,7 +101,7 @@ def test_init_writes_a_commented_acdd_metadata_stub(tmp_path):
     from hadal.dive import Dive
     from hadal.dive_init import METADATA_STUB, InitResult
     from hadal.products import missing_acdd_fields
-    from hadal.products.metadata import ACDD_REQUIRED
+    from hadal.products.metadata import REQUIRED_FIELDS as ACDD_REQUIRED  # ACDD-1.3 + IOOS-1.2 required
 
     res = InitResult(raw_dir=tmp_path, dive={"dive_id": "d1", "platform": "Haidou", "sources": {}})
     text = res.dive_yaml()
@@ -112,12 +112,14 @@ def test_init_writes_a_commented_acdd_metadata_stub(tmp_path):
     for key in (*ACDD_REQUIRED, "creator_type", "naming_authority", "platform_vocabulary_name", "instruments"):
         i = next(k for k, ln in enumerate(stub) if ln.strip().startswith(f"{key}:"))
         if key != "instruments":
-            assert "ACDD" in stub[i - 1] and stub[i - 1].strip().startswith("#"), (key, stub[i - 1])
+            assert ("ACDD" in stub[i - 1] or "IOOS" in stub[i - 1]) and stub[i - 1].strip().startswith("#"), (
+                key, stub[i - 1])
     assert {k for k, _, _ in METADATA_STUB} >= set(ACDD_REQUIRED)
     uncommented = yaml.safe_load("\n".join(stub))
     dive = Dive.model_validate({**res.dive, **uncommented})
     assert missing_acdd_fields(dive) == list(ACDD_REQUIRED)  # empty values: still listed, nothing invented
-    filled = {k: "x@y.org" if k.endswith("email") else "CC-BY-4.0" if k == "license" else "A" for k in ACDD_REQUIRED}
+    filled = {k: "x@y.org" if k.endswith("email") else "CC-BY-4.0" if k == "license" else "academic"
+              if k == "creator_sector" else "A" for k in ACDD_REQUIRED}
     dive = Dive.model_validate({**res.dive, "metadata": {**uncommented["metadata"], **filled}})
     assert missing_acdd_fields(dive) == []
     res.dive["metadata"] = {"creator_name": "A"}  # a dive that has metadata gets no stub

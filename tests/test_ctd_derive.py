@@ -6,14 +6,11 @@ and ``seabirdscientific.processing`` for the chained channel steps.
 
 from __future__ import annotations
 
-import warnings
-
 import numpy as np
 import pandas as pd
 import pytest
 
 from hadal import ctd
-from hadal.ingest.cnv import read_cnv
 from hadal.stages import derive
 
 gsw = pytest.importorskip("gsw")
@@ -24,15 +21,6 @@ LAT, LON = 36.6, -121.9  # Monterey Bay (the casts' headers carry no position; a
 FLAG = -9.99e-29
 
 
-def _read(shared_data, rel):
-    p = shared_data / rel
-    if not p.is_file():
-        pytest.skip(f"{p} not present")
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        return read_cnv(p)
-
-
 def _sensors(df, c_col, t_col, p_col, c_scale=1.0, dt=0.25):
     t0 = pd.Timestamp("2019-07-02T15:46:41Z")
     return pd.DataFrame({"time": t0 + pd.to_timedelta(np.arange(len(df)) * dt, unit="s"),
@@ -41,8 +29,8 @@ def _sensors(df, c_col, t_col, p_col, c_scale=1.0, dt=0.25):
 
 
 @pytest.fixture(scope="module")
-def example(shared_data):
-    return _read(shared_data, EXAMPLE)
+def example(shared_cnv):
+    return shared_cnv(EXAMPLE)
 
 
 @pytest.fixture(scope="module")
@@ -68,10 +56,10 @@ def test_teos10_columns_against_gsw_and_seasoft_salinity(example, example_derive
     ("ctd-real/pyctd_CTD_with_sigma_e00.cnv", "t068C", "c0S/m", 1.0, "potemp090C", "sigma-\xe900"),
     ("ctd-real/seabird_dPIRX010.cnv", "t090C", "c0S/m", 1.0, "potemp090C", None),
 ])
-def test_teos10_theta_and_sigma0_close_to_seasoft_eos80(shared_data, rel, t_col, c_col, c_scale, pt_col, sig_col):
+def test_teos10_theta_and_sigma0_close_to_seasoft_eos80(rel, t_col, c_col, c_scale, pt_col, sig_col, shared_cnv):
     """TEOS-10 potential temperature / sigma0 against SeaSoft's EOS-80 theta / sigma-theta of the same cast:
     different equations of state, so agreement to a few mK / 0.01 kg m-3 (McDougall & Barker 2011, Fig. 1)."""
-    df = _read(shared_data, rel)
+    df = shared_cnv(rel)
     t = df[t_col].to_numpy()
     if t_col.startswith("t068"):
         t = t / 1.00024  # IPTS-68 -> ITS-90
@@ -160,9 +148,9 @@ def test_chain_channels_match_seabirdscientific(example):
     assert out["loop_edit_bad"].sum() > 100
 
 
-def test_seabird_binning_reproduces_sbe_binavg(shared_data):
+def test_seabird_binning_reproduces_sbe_binavg(shared_cnv):
     """derive with profile_binning=seabird on SeaSoft's DatCnv output = SeaSoft's BinAvg output (2 dbar)."""
-    src, sbe = _read(shared_data, f"{CROPPED}.cnv"), _read(shared_data, f"{CROPPED}_binavg.cnv")
+    src, sbe = shared_cnv(f"{CROPPED}.cnv"), shared_cnv(f"{CROPPED}_binavg.cnv")
     sens = _sensors(src, "c0mS/cm", "tv290C", "prdM", c_scale=0.1)
     p = derive.Params(profile_binning="seabird", profile_bin_dbar=2.0, latitude_deg=LAT, longitude_deg=LON)
 
@@ -188,8 +176,8 @@ def test_seabird_binning_reproduces_sbe_binavg(shared_data):
     assert "buoyancy_frequency_squared_s2" in prof and "sigma0_kg_m3" in prof
 
 
-def test_chain_skipped_without_time(shared_data):
-    df = _read(shared_data, "ctd-real/seabird_dPIRX010.cnv")
+def test_chain_skipped_without_time(shared_cnv):
+    df = shared_cnv("ctd-real/seabird_dPIRX010.cnv")
     sens = pd.DataFrame({"time": pd.NaT, "conductivity_s_m": df["c0S/m"].to_numpy(),
                          "temperature_its90_degc": df["t090C"].to_numpy(), "pressure_ctd_dbar": df["prDM"].to_numpy()})
     out, meta = derive.derive_ctd(sens, LAT, LON, derive.Params(filter_temperature_s=0.5, loop_edit=True))

@@ -9,13 +9,10 @@
 
 from __future__ import annotations
 
-import warnings
-
 import numpy as np
 import pytest
 
 from hadal import ctd
-from hadal.ingest.cnv import read_cnv
 from hadal.seawater import depth_fofonoff_millard
 
 CROPPED = "formats-real/sbs_SBE19plus_01906398_2019_07_15_0033_cropped"
@@ -26,23 +23,14 @@ FLAG = -9.99e-29  # SeaSoft's bad flag (seabirdscientific.constants.FLAG_VALUE)
 PRINTED = {"timeS": 5e-4, "c0mS/cm": 5e-7, "prdM": 5e-4, "tv290C": 5e-5}
 
 
-def _read(shared_data, rel):
-    p = shared_data / rel
-    if not p.is_file():
-        pytest.skip(f"{p} not present")
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        return read_cnv(p)
+@pytest.fixture(scope="module")
+def sbe(shared_cnv):
+    return {k: shared_cnv(f"{CROPPED}{k}.cnv") for k in ("", "_loopedit", "_loopedit_wildedit", "_binavg")}
 
 
 @pytest.fixture(scope="module")
-def sbe(shared_data):
-    return {k: _read(shared_data, f"{CROPPED}{k}.cnv") for k in ("", "_loopedit", "_loopedit_wildedit", "_binavg")}
-
-
-@pytest.fixture(scope="module")
-def example(shared_data):
-    return _read(shared_data, EXAMPLE)
+def example(shared_cnv):
+    return shared_cnv(EXAMPLE)
 
 
 def _setting(df, key):
@@ -198,12 +186,12 @@ def test_loop_edit_keeps_earlier_flags(example):
 
 @pytest.mark.parametrize(("s1", "s2", "block", "delta", "exclude"),
                          [(2.0, 20.0, 100, 0.0, False), (1.0, 2.5, 100, 0.1, True), (1.5, 3.0, 37, 0.0, False)])
-def test_wild_edit_matches_seabirdscientific(shared_data, example, s1, s2, block, delta, exclude):
+def test_wild_edit_matches_seabirdscientific(example, s1, s2, block, delta, exclude, shared_cnv):
     z = depth_fofonoff_millard(example["prdM"].to_numpy(), 0.0)
     loop = ctd.loop_edit(z, 0.25)
     series = [(example[c].to_numpy(), loop) for c in ("tv290C", "c0S/m", "prdM")]
     for rel in BINNED:  # SeaSoft-binned casts: other water, other instruments
-        df = _read(shared_data, rel)
+        df = shared_cnv(rel)
         col = next(c for c in df.columns if c.startswith(("t090C", "t068C")))
         series.append((df[col].to_numpy(), np.zeros(len(df), dtype=bool)))
     n_flagged = 0

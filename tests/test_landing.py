@@ -301,6 +301,10 @@ def test_parallel_headings_same_result():
     b = analyse_submap(grid(z, cell), headings_deg=hs, workers=2)
     assert np.array_equal(a.exclusion, b.exclusion)
     assert a.sites.equals(b.sites)
+    # the best heading's maps kept by whichever thread found it: the same best site, mask and footprint slope
+    assert a.best == b.best and a.best is not None
+    assert np.array_equal(a.best_site_mask, b.best_site_mask) and a.best_site_mask.any()
+    assert np.array_equal(a.footprint_slope_deg, b.footprint_slope_deg, equal_nan=True)
     c = analyse_submap(grid(z, cell), headings_deg=[-90.0, 90.0])
     assert np.array_equal(c.exclusion[0], c.exclusion[1])  # α and α+180° are the same footprint
 

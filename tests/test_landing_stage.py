@@ -130,6 +130,6 @@ def test_stage_uses_laser_uncertainty_layers(tmp_path):
 
 def test_params_bounded():
     for bad in ({"block_m": 0}, {"filter_order": 0}, {"local_slope_window_m": 0}, {"heading_step_deg": 0.1},
-                {"vehicle": {"length_m": 1e6}}, {"vehicle": {"water_density_kg_m3": 1.0}}, {"workers": 0}):
+                {"vehicle": {"length_m": 1e6}}, {"vehicle": {"water_density_kg_m3": 1.0}}, {"workers": -1}):
         with pytest.raises(ValidationError):
             stage.Params(**bad)

@@ -143,3 +143,41 @@ def test_mad_uses_the_median_bias_and_cor_is_pearson():
     assert np.nanmax(c.surface) <= 1 + 1e-9 and np.nanmin(c.surface) >= -1 - 1e-9
     assert (c.start_x_m, c.start_y_m) == pytest.approx(tuple(start), abs=20.0)
     assert np.isfinite(c.separation_ratio)
+
+
+@pytest.mark.parametrize("seed", [58, 116, 157])
+def test_track_over_holes_landing_on_a_hole_free_spot_is_flagged(worlds, seed):
+    """40-50 % of the true track over map holes: the likelihood (hole samples carry no information) lands
+    confidently on a hole-free spot elsewhere (these seeds: > 3 cells off, < 5 % mass outside, no flag before
+    the holes test); the holes test flags it: were the holes to fit, the posterior mass would move."""
+    rng = np.random.default_rng(seed)
+    g, truth = _world(worlds, ("tut", "gmt")[seed % 2], rng)
+    c = simulate_case(g, truth, rng, "holes")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        old = posterior_fix(c["profile"], c["dr"], c["map"], headings_deg=HEADINGS, scales=SCALES,
+                            max_mass_outside=0.05, max_mass_outside_holes=1.0)  # the previous flags
+    err = np.hypot(old.start_x_m - c["start"][0], old.start_y_m - c["start"][1]) / c["h"]
+    assert err > 3 and not old.mismatch
+    f = _fix(c)
+    assert f.mismatch and "over_holes" in f.reasons
+    assert f.refinement["holes_test"]["mass_outside_if_holes_fit"] > 0.05
+
+
+def test_hole_far_from_a_clean_track_and_map_edges_raise_no_holes_flag(worlds):
+    """Empty cells connected to the map border (the projected grid's edges) are off the map, not holes; an
+    interior hole away from a well-fixed track does not move the posterior."""
+    rng = np.random.default_rng(3)
+    g, truth = _world(worlds, "gmt", rng)
+    c = simulate_case(g, truth, rng, "clean", n=80, noise_frac=0.005)
+    z = c["map"].depth_m.copy()
+    r, col = int(c["map"].row_of(c["start"][1])), int(c["map"].col_of(c["start"][0]))
+    rr, cc = (r + 60) % z.shape[0], (col + 60) % z.shape[1]
+    z[max(rr - 3, 1): rr + 3, max(cc - 3, 1): cc + 3] = np.nan
+    c["map"] = MapGrid(z, c["map"].x_m, c["map"].y_m, c["map"].resolution_m)
+    f = _fix(c)
+    assert np.hypot(f.start_x_m - c["start"][0], f.start_y_m - c["start"][1]) <= c["h"]
+    assert f.refinement["holes_test"]["map_has_interior_holes"] and "over_holes" not in f.reasons
+    gt, tt = worlds["tut"]  # tut_bathy's NaN cells all touch its border (projection edges)
+    ct = simulate_case(gt, tt, np.random.default_rng(5), "clean", n=60, noise_frac=0.005)
+    assert not _fix(ct).refinement["holes_test"]["map_has_interior_holes"]

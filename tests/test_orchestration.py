@@ -314,3 +314,95 @@ def test_stage_graph_runs_independent_stages_concurrently_with_pins(tmp_path, pr
     assert status == {"ingest": "published", "derive": "failed", "grid": "published", "landing": "published",
                       "report": "published"}
     assert d.failed == {"derive": "derive broke"}
+
+
+# ------------------------------------------------------------------------------ unchanged dive without Prefect
+def _tree(root: Path) -> dict[str, tuple[int, int]]:
+    """Every file under ``root`` (products, manifests, cache records) with its size and mtime."""
+    return {str(p.relative_to(root)): (p.stat().st_size, p.stat().st_mtime_ns) for p in root.rglob("*") if p.is_file()}
+
+
+@pytest.mark.prefect
+def test_unchanged_dive_is_told_without_a_flow_run_and_changes_still_rerun(fake, tmp_path, prefect_harness,
+                                                                           monkeypatch, capsys):
+    """`hadal stage`/`hadal run` on a dive whose stages would all be cache hits answer without starting Prefect,
+    returning what Prefect's own cache returns (oracle: the flow's re-run, and Prefect's ResultRecord reader for
+    the records); a changed parameter (re-run through the CLI), raw file (dive.yaml) or removed version is not
+    current, and --flow still runs the flow."""
+    from hadal.flows.post_cruise import post_cruise
+    from prefect.client.orchestration import get_client
+    from prefect.results import ResultRecord
+
+    from hadal import cli as hcli
+    from hadal.pipeline import cached_result, current_stages, result_storage
+
+    raw, store = fake
+    st = ProductStore(store)
+    assert current_stages(str(raw), str(store), None, ["report"]) is None  # never run: not current
+    out1 = post_cruise(str(raw), str(store), None, ["report"])
+    cur = current_stages(str(raw), str(store), None, ["report"])
+    again = post_cruise(str(raw), str(store), None, ["report"])  # Prefect's own cache decision
+    assert cur is not None and dict(cur) == dict(again) == dict(out1)
+    assert [r["status"] for r in cur.stages] == [r["status"] for r in again.stages] == ["reused"]
+    storage = result_storage(store)
+    for rec in storage.iterdir():  # the Prefect-free reader agrees with Prefect's
+        assert cached_result(storage, rec.name) == ResultRecord.deserialize(rec.read_bytes()).result
+
+    monkeypatch.setenv("COLUMNS", "250")
+
+    def no_prefect():
+        raise AssertionError("Prefect was started for an unchanged dive")
+
+    def flow_runs() -> int:
+        with get_client(sync_client=True) as client:
+            return len(client.read_flow_runs())
+
+    before, n_runs = _tree(store), flow_runs()
+    monkeypatch.setattr(hcli, "_prefect_environment", no_prefect)
+    rc, _, err = cli(monkeypatch, capsys, "stage", "report", str(raw), "--store", str(store))
+    assert rc == 0 and "1 stage(s) current" in err and "Traceback" not in err, err
+    assert _tree(store) == before and flow_runs() == n_runs  # nothing written, no flow run
+    monkeypatch.undo()
+    monkeypatch.setenv("COLUMNS", "250")
+
+    rc, _, err = cli(monkeypatch, capsys, "stage", "report", str(raw), "--store", str(store), "--flow")
+    assert rc == 0 and flow_runs() == n_runs + 1, err  # --flow: a recorded (all cache hits) run
+    assert [v.label for v in st.versions("dive-a", "report")] == ["v001"]
+    cfg = tmp_path / "cfg.yaml"
+    cfg.write_text("report: {dpi: 60}\n")
+    assert current_stages(str(raw), str(store), str(cfg), ["report"]) is None  # a parameter changed
+    rc, _, err = cli(monkeypatch, capsys, "stage", "report", str(raw), "--store", str(store), "--config", str(cfg))
+    assert rc == 0 and [v.label for v in st.versions("dive-a", "report")] == ["v001", "v002"], err
+    assert current_stages(str(raw), str(store), str(cfg), ["report"]) is not None
+    shutil.rmtree(st.latest("dive-a", "report").path)  # the cached version is gone: not current
+    assert current_stages(str(raw), str(store), str(cfg), ["report"]) is None
+    (raw / "dive.yaml").write_text((raw / "dive.yaml").read_text() + "# edited\n")  # a raw input changed
+    assert current_stages(str(raw), str(store), None, ["report"]) is None  # (the flow then re-runs: cache key test)
+
+
+def test_cached_result_reads_prefect_records_and_refuses_what_it_cannot_trust(tmp_path):
+    """Records written by Prefect's own ResultRecord (pickle and JSON serializers) are read back as the task result;
+    an expired record, a result that is not plain data (a pickled class) and a garbled file are "not known"."""
+    import datetime as dt
+
+    from prefect._internal.result_records import ResultRecord, ResultRecordMetadata
+    from prefect.serializers import JSONSerializer, PickleSerializer
+
+    from hadal.pipeline import cached_result
+
+    value = {"report": str(tmp_path / "d" / "report" / "v001")}
+
+    def write(key, result, **meta):
+        rec = ResultRecord(metadata=ResultRecordMetadata(storage_key=str(tmp_path / key), **meta), result=result)
+        (tmp_path / key).write_bytes(rec.serialize())
+
+    write("pickle", value)
+    write("json", value, serializer=JSONSerializer())
+    write("future", value, expiration=dt.datetime.now(dt.UTC) + dt.timedelta(days=1))
+    write("expired", value, expiration=dt.datetime.now(dt.UTC) - dt.timedelta(seconds=1))
+    write("object", {"report": tmp_path}, serializer=PickleSerializer())  # a PosixPath: a class reference
+    (tmp_path / "garbled").write_text("{not json")
+    assert cached_result(tmp_path, "pickle") == cached_result(tmp_path, "json") == value
+    assert cached_result(tmp_path, "future") == value
+    for key in ("expired", "object", "garbled", "absent"):
+        assert cached_result(tmp_path, key) is None, key

@@ -18,7 +18,7 @@ from hadal.dive import Dive
 from hadal.products import dive_attributes, dive_context, missing_acdd_fields, write_netcdf
 from hadal.products.geo_landing import iso_utc, strict_json
 from hadal.products.io import provenance
-from hadal.products.metadata import ACDD_REQUIRED, software_provenance
+from hadal.products.metadata import ACDD_REQUIRED, REQUIRED_FIELDS, software_provenance
 from hadal.store import ProductStore
 
 FULL_METADATA = {
@@ -27,6 +27,7 @@ FULL_METADATA = {
     "project": "Hadal Trench Survey 2026", "program": "Deep Ocean Programme", "license": "CC-BY-4.0",
     "naming_authority": "net.example.ocean", "metadata_link": "https://ocean.example.net/data/dive-7",
     "instruments": {"dtm": "Kongsberg EM124 multibeam echosounder"},
+    "creator_country": "China", "creator_sector": "academic", "infoUrl": "https://ocean.example.net/data/dive-7",
 }
 
 
@@ -55,12 +56,12 @@ def _store_path(tmp_path: Path, product: str, name: str) -> Path:
 
 
 def test_missing_acdd_fields_lists_exactly_what_dive_yaml_lacks(monkeypatch):
-    for k in ACDD_REQUIRED:
+    for k in REQUIRED_FIELDS:
         monkeypatch.delenv(f"HADAL_{k.upper()}", raising=False)
-    assert missing_acdd_fields(_dive()) == list(ACDD_REQUIRED)
+    assert missing_acdd_fields(_dive()) == list(REQUIRED_FIELDS)
     assert missing_acdd_fields(_dive(FULL_METADATA)) == []
     assert missing_acdd_fields(_dive({"creator_name": "x", "license": "CC0-1.0"})) == [
-        "creator_email", "institution", "project"]
+        "creator_email", "institution", "project", "creator_country", "creator_sector", "infoUrl"]
     monkeypatch.setenv("HADAL_INSTITUTION", "Operator Institute")  # a deployment's operator counts
     assert "institution" not in missing_acdd_fields(_dive())
 

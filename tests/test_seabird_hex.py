@@ -23,7 +23,7 @@ import pandas as pd
 import pytest
 
 from hadal.errors import InputError
-from hadal.ingest.cnv import cnv_time_ns, read_cnv
+from hadal.ingest.cnv import cnv_time_ns
 from hadal.ingest.seabird_hex import describe_hex, read_hex
 
 HEX = "formats-real/sbs_19plus_V2.hex"
@@ -43,13 +43,8 @@ def hex_path(shared_data) -> Path:
 
 
 @pytest.fixture(scope="module")
-def seasoft(shared_data):
-    p = shared_data / CNV
-    if not p.is_file():
-        pytest.skip(f"{p} not present")
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        return read_cnv(p)
+def seasoft(shared_cnv):
+    return shared_cnv(CNV)
 
 
 @pytest.fixture(scope="module")

@@ -253,6 +253,30 @@ def test_file_hash_cache_is_the_sha256_and_sees_every_change(tmp_path, monkeypat
     assert reads  # re-hashed
 
 
+def test_file_hashes_of_a_cold_run_reach_the_store_cache(tmp_path, monkeypatch):
+    """A cold run hashes its raw inputs before the first product creates the store: once the store exists, the
+    next lookup in the same process writes them to its cache, so the first re-run (a new process) reads nothing."""
+    import hashlib
+
+    import hadal.store as hs
+
+    hs._PROCESS_HASHES.clear()
+    raw = tmp_path / "log.bin"
+    raw.write_bytes(b"xyz" * 500)
+    st = ProductStore(tmp_path / "store")  # not created yet
+    assert st.file_sha256(raw) == hashlib.sha256(b"xyz" * 500).hexdigest()
+    assert not (tmp_path / "store").exists()  # a store is never created just for its cache
+    with st.publish("d1", "sensors") as draft:
+        (draft.path / "a.txt").write_text("x")
+    ProductStore(tmp_path / "store").file_sha256(raw)  # later in the same run (another stage's context)
+    reads = []
+    real = hs.sha256_file
+    monkeypatch.setattr(hs, "sha256_file", lambda p: reads.append(p) or real(p))
+    hs._PROCESS_HASHES.clear()  # the re-run: a new process
+    assert ProductStore(tmp_path / "store").file_sha256(raw) == hashlib.sha256(b"xyz" * 500).hexdigest()
+    assert reads == []
+
+
 def test_manifest_records_the_stage_run_time(tmp_path):
     from hadal.store import STAGE_RUN
 

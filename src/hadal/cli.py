@@ -84,11 +84,14 @@ def _quiet_prefect_tracebacks() -> None:
 
 
 def _run_flow(raw_dir: Path, store: Path | None, config: Path | None, stages: list[str] | None,
-              force: bool = False) -> dict[str, str]:
+              force: bool = False, flow_run: bool = False) -> dict[str, str]:
+    """Run the post-cruise flow on ``stages`` of one dive (default all); when every stage would be a cache hit
+    (:func:`hadal.pipeline.current_stages`), and neither ``force`` nor ``flow_run`` is given, say so in one line and
+    return without starting Prefect: the products, manifests and lineage are those an unchanged flow run leaves."""
     import time
 
     from hadal.dive import load_dive
-    from hadal.pipeline import claim_dive, make_context, stage_plan
+    from hadal.pipeline import claim_dive, current_stages, make_context, stage_plan
 
     t0 = time.monotonic()
     # validate everything cheap before starting Prefect, so bad input fails fast and in one line
@@ -100,6 +103,14 @@ def _run_flow(raw_dir: Path, store: Path | None, config: Path | None, stages: li
     for ps in plan:
         if not ps.run:
             console.print(f"[yellow]skip[/] {ps.name}: {ps.reason}", highlight=False)
+    if not force and not flow_run and (
+            cur := current_stages(raw_dir, _store_root(store), str(config) if config else None, names)) is not None:
+        for stale in ctx.store.clean_staging():  # as the flow does at its start
+            console.print(f"removed abandoned staging directory {stale}", highlight=False)
+        console.print(f"[bold]hadal[/] {raw_dir}: all {len(names)} stage(s) current (raw files, parameters and code "
+                      "unchanged): nothing to run (--flow records a Prefect run anyway, --force re-runs)",
+                      highlight=False, soft_wrap=True)
+        return cur
     _prefect_environment()
     from prefect import tags
 
@@ -185,6 +196,8 @@ def _print_published(published: dict[str, str]) -> None:
 
 
 ForceOpt = Annotated[bool, typer.Option("--force", help="re-run even if the inputs, parameters and code are unchanged")]
+FlowOpt = Annotated[bool, typer.Option(
+    "--flow", help="always run the Prefect flow (recorded on the server), also when every stage is current")]
 
 
 @app.command()
@@ -196,10 +209,14 @@ def run(
     workers: Annotated[int, typer.Option("--workers", help="batch: LocalCluster worker processes")] = 2,
     scheduler: Annotated[str | None, typer.Option("--scheduler", help="batch: address of an existing dask scheduler (tcp://host:8786)")] = None,
     force: ForceOpt = False,
+    flow_run: FlowOpt = False,
 ) -> None:
-    """Run the full post-cruise flow on one dive, or on several in parallel (--dives DIR...)."""
+    """Run the full post-cruise flow on one dive, or on several in parallel (--dives DIR...).
+
+    A dive whose stages are all current (raw files, parameters, code and upstream versions unchanged since their
+    products were published) is told in one line without starting Prefect; --flow runs (and records) the flow."""
     if not dives and len(raw_dirs) == 1:
-        _print_published(_run_flow(raw_dirs[0], store, config, None, force))
+        _print_published(_run_flow(raw_dirs[0], store, config, None, force, flow_run))
         return
     results = _run_batch(raw_dirs, store, config, workers, scheduler, force)
     table = Table(title="batch")
@@ -223,6 +240,7 @@ def stage(
     force: ForceOpt = False,
     downstream: Annotated[bool, typer.Option(
         "--downstream", help="also re-run every stage that depends on it (directly or through other stages)")] = False,
+    flow_run: FlowOpt = False,
 ) -> None:
     """Re-run one stage, reusing the latest upstream products (a cache hit if nothing changed; --force re-runs).
 
@@ -235,7 +253,7 @@ def stage(
     dependents = downstream_stages(name)
     stages = [name, *dependents] if downstream else [name, *(["report"] if name != "report" else [])]
     stages = _runnable_with(stages, raw_dir, store, config)
-    out = _run_flow(raw_dir, store, config, stages, force)
+    out = _run_flow(raw_dir, store, config, stages, force, flow_run)
     _print_published(out)
     stale = [s for s in dependents if s != "report"]
     rows = {r["stage"]: r for r in getattr(out, "stages", [])}
@@ -502,7 +520,7 @@ def _check_dive_dir(raw_dir: Path) -> None:
     from hadal.products import missing_acdd_fields  # discovery metadata the products will lack
 
     if missing := missing_acdd_fields(ctx.dive):
-        print(f"metadata: dive.yaml 'metadata' lacks {', '.join(missing)} (ACDD; the products leave them out and "
+        print(f"metadata: dive.yaml 'metadata' lacks {', '.join(missing)} (ACDD/IOOS; the products leave them out and "
               "list them in hadal_metadata_missing)")
 
 

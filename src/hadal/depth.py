@@ -12,7 +12,9 @@ height ``gsw.z_from_p`` with the dynamic height anomaly of the measured profile 
 
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any, Literal
 
 import numpy as np
@@ -283,6 +285,25 @@ def _profile_depth(p_levels: np.ndarray, rho_levels: np.ndarray, p0: float, lati
     return float(d_t), float(abs(d_t - d_r))
 
 
+@dataclass(frozen=True)
+class UserProfile:
+    """A user-supplied profile of the water above a record (:func:`read_overlying_profile`): strictly
+    increasing ``pressure_dbar`` from near the surface and the in situ ``density_kg_m3`` at each level."""
+
+    pressure_dbar: np.ndarray
+    density_kg_m3: np.ndarray
+    source: str  #: the file
+    basis: str  #: where the density comes from
+    columns: dict[str, str]  #: variable -> the file's column used
+    sha256: str = ""
+    conversions: tuple[dict[str, Any], ...] = ()
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"file": self.source, "sha256": self.sha256, "levels": int(self.pressure_dbar.size),
+                "pressure_range_dbar": [round(float(self.pressure_dbar[0]), 3), round(float(self.pressure_dbar[-1]), 3)],
+                "density_from": self.basis, "columns": dict(self.columns), "conversions": list(self.conversions)}
+
+
 def overlying_column(
     pressure_dbar: ArrayLike,
     salinity: ArrayLike,
@@ -290,7 +311,7 @@ def overlying_column(
     latitude_deg: float,
     *,
     density_kg_m3: ArrayLike | None = None,
-    profile: tuple[ArrayLike, ArrayLike, ArrayLike] | None = None,
+    profile: tuple[ArrayLike, ArrayLike, ArrayLike] | UserProfile | None = None,
     surface_dbar: float = 20.0,
     bin_dbar: float = 10.0,
 ) -> OverlyingColumn:
@@ -301,7 +322,10 @@ def overlying_column(
        above it (:func:`hydrostatic_depth` without ``start_depth_m``; < 1 mm at 20 dbar);
     2. ``user profile``: ``profile = (pressure_dbar, practical salinity, ITS-90 temperature)`` (e.g. a cast or a
        climatology at the site) reaching within ``surface_dbar`` of the surface and down to the first sample:
-       the hydrostatic integral of its EOS-80 density (Eqs. 11-13);
+       the hydrostatic integral of its EOS-80 density (Eqs. 11-13). A :class:`UserProfile` (a file,
+       ``derive.overlying_profile``) gives its densities directly and must cover the water above: one that does
+       not reach the first sample (within ``bin_dbar``) is an :class:`InputError` naming the file, not a silent
+       fall back to 3-4;
     3. ``record profile``: the record's own later samples shallower than the first one (the ascent of a dive
        whose logging started late, or the upcast itself), pressure-binned (``bin_dbar``), when they reach
        within ``surface_dbar`` of the surface: the same integral;
@@ -332,13 +356,21 @@ def overlying_column(
         return OverlyingColumn(p0, d0, "surface", abs(d0) * 1e-3, None)
 
     if profile is not None:
-        pp, ps, pt = (np.asarray(x, dtype=np.float64) for x in profile)
-        pp, ps, pt = np.broadcast_arrays(pp, ps, pt)
-        pr = density_eos80(ps, pt, pp)
+        if isinstance(profile, UserProfile):
+            pp, pr = profile.pressure_dbar, profile.density_kg_m3
+        else:
+            pp, ps, pt = (np.asarray(x, dtype=np.float64) for x in profile)
+            pp, ps, pt = np.broadcast_arrays(pp, ps, pt)
+            pr = density_eos80(ps, pt, pp)
         m = np.isfinite(pp) & np.isfinite(pr)
         order = np.argsort(pp[m], kind="stable")
         pp, pr = pp[m][order], pr[m][order]
-        if pp.size >= 2 and pp[0] <= surface_dbar and pp[-1] >= p0 - bin_dbar:
+        covers = pp.size >= 2 and pp[0] <= surface_dbar and pp[-1] >= p0 - bin_dbar
+        if not covers and isinstance(profile, UserProfile):
+            raise InputError(f"{profile.source}: overlying profile covers {pp[0]:.1f} to {pp[-1]:.1f} dbar but the "
+                             f"record starts at {p0:.1f} dbar: it must reach from within {surface_dbar:g} dbar of "
+                             f"the surface down to the record's first sample (within {bin_dbar:g} dbar)")
+        if covers:
             d0, err = _profile_depth(pp, pr, p0, latitude_deg)
             return OverlyingColumn(p0, d0, "user profile", err,
                                    f"record starts at {p0:.0f} dbar: depth of the first sample from the supplied "
@@ -363,6 +395,199 @@ def overlying_column(
                            f"record starts at {p0:.0f} dbar and no profile covers the water above: the first "
                            f"sample's depth is the TEOS-10 standard ocean's, {d0:.2f} m; estimated error up to "
                            f"+{err:.2f} m (real water is warmer: deeper); supply a profile of the site to remove it")
+
+
+# ------------------------------------------------------------------- the user's overlying profile (a file)
+#: plausible ranges of a profile's values: outside them the column's unit is wrong (sigma given as density ...)
+PROFILE_VALUE_RANGES = {"pressure": (-5.0, 12_000.0, "dbar"), "temperature": (-3.0, 45.0, "degC"),
+                        "salinity": (0.0, 45.0, "PSS-78"), "density": (950.0, 1100.0, "kg m-3")}
+#: CSV column names (lower case) of each quantity; a name with its unit as suffix needs no unit
+_PROFILE_NAMES = {
+    "pressure": ("pressure", "pres", "prdm", "prsm", "sea_water_pressure"),
+    "temperature": ("temperature", "temp", "t", "t090c", "sea_water_temperature"),
+    "salinity": ("salinity", "sal", "sal00", "psal", "sp", "practical_salinity", "sea_water_practical_salinity"),
+    "density": ("density", "rho", "density00", "sea_water_density"),
+}
+_PROFILE_SUFFIXED = {"pressure_dbar": ("pressure", "dbar"), "temperature_its90_degc": ("temperature", "degC_its90"),
+                     "temperature_its68_degc": ("temperature", "degC_its68"), "density_kg_m3": ("density", "kg/m3")}
+_SALINITY_UNITS = ("", "1", "psu", "pss-78", "pss78", "pss", "practical")
+_DENSITY_UNITS = {"kg/m3": 1.0, "kgm-3": 1.0, "kg/m^3": 1.0, "kg/m**3": 1.0, "g/cm3": 1000.0, "g/cm^3": 1000.0,
+                  "g/ml": 1000.0, "density,kg/m^3": 1.0}
+_HEADER_RE = re.compile(r"^\s*(.*?)\s*(?:[\[(]\s*([^\])]*?)\s*[\])])?\s*$")
+
+
+def _csv_profile_columns(path: Path) -> tuple[dict[str, tuple[str, np.ndarray, str]], str]:
+    """``{quantity: (column, values, unit)}`` of a CSV profile (header ``name``, ``name [unit]``, ``name (unit)``
+    or hadal's ``pressure_dbar`` / ``temperature_its90_degc`` / ``practical_salinity`` / ``density_kg_m3``),
+    read with hadal's CSV machinery (:mod:`hadal.ingest.csv_reader`: compression, encodings, ``#`` preamble)."""
+    from hadal.formats import text_encoding_of
+    from hadal.ingest.csv_reader import _csv_chunks, _leading_comments, csv_head, describe_csv
+
+    head, compression = csv_head(path, "overlying profile CSV")
+    delim = describe_csv(path)["delimiter"]
+    encoding = text_encoding_of(head)
+    n_comment, _, _ = _leading_comments(head, encoding)
+    frame = next(_csv_chunks(path, delim, compression, encoding="utf-8-sig" if encoding == "utf-8" else encoding,
+                             **({"skiprows": n_comment} if n_comment else {})))
+    found: dict[str, tuple[str, np.ndarray, str]] = {}
+    for raw in frame.columns:
+        col = str(raw).strip()
+        m = _HEADER_RE.match(col)
+        name, unit = (m.group(1).lower(), m.group(2)) if m else (col.lower(), None)
+        if name in _PROFILE_SUFFIXED and unit is None:
+            qty, unit = _PROFILE_SUFFIXED[name]
+        else:
+            qty = next((q for q, names in _PROFILE_NAMES.items() if name in names), None)
+        if qty is None or qty in found:
+            continue
+        if unit is None and qty != "salinity":
+            raise InputError(f"{path}: column {col!r} has no unit: write it as '{qty} [unit]' or name it "
+                             f"{ {'pressure': 'pressure_dbar', 'temperature': 'temperature_its90_degc', 'density': 'density_kg_m3'}[qty]}")
+        text = frame[raw].astype(str).str.strip()
+        empty = text.isin(["", "nan", "NaN", "NA"])
+        vals = pd.to_numeric(text.where(~empty, None), errors="coerce").to_numpy(np.float64)
+        bad = np.flatnonzero(np.isnan(vals) & ~empty.to_numpy())
+        if bad.size:
+            raise InputError(f"{path}: column {col!r} row {int(bad[0]) + 1} is not a number ({text.iloc[bad[0]][:20]!r})")
+        found[qty] = (col, vals, unit or "")
+    return found, "csv"
+
+
+def _cnv_profile_columns(path: Path) -> tuple[dict[str, tuple[str, np.ndarray, str]], str]:
+    """``{quantity: (column, values, unit)}`` of a Sea-Bird cast (:func:`hadal.ingest.cnv.read_seabird`):
+    pressure, temperature, salinity (``sal00``, else from conductivity) and density (``density00``)."""
+    from hadal.ingest.cnv import CNV_CONDUCTIVITY, CNV_PRESSURE, CNV_TEMPERATURE, read_seabird
+    from hadal.ingest.units import convert
+
+    df = read_seabird(path)
+    found: dict[str, tuple[str, np.ndarray, str]] = {}
+    for qty, table in (("pressure", CNV_PRESSURE), ("temperature", CNV_TEMPERATURE)):
+        col = next(((c, u) for c, u in table if c in df.columns), None)
+        if col is not None:
+            found[qty] = (col[0], df[col[0]].to_numpy(np.float64), col[1])
+    sal = next((c for c in ("sal00", "sal11") if c in df.columns), None)
+    if sal is not None:
+        found["salinity"] = (sal, df[sal].to_numpy(np.float64), "")
+    elif {"pressure", "temperature"} <= set(found):
+        cc = next(((c, u) for c, u in CNV_CONDUCTIVITY if c in df.columns), None)
+        if cc is not None:  # PSS-78 from the conductivity (as the record's own salinity)
+            from hadal.seawater import practical_salinity
+
+            c, _ = convert(df[cc[0]].to_numpy(np.float64), cc[1], "conductivity_s_m")
+            p, _ = convert(found["pressure"][1], found["pressure"][2], "pressure_ctd_dbar")
+            t, _ = convert(found["temperature"][1], found["temperature"][2], "temperature_its90_degc")
+            found["salinity"] = (f"PSS-78 of {cc[0]}", practical_salinity(c, t, p), "")
+    rho = next((c for c in ("density00", "density11") if c in df.columns), None)
+    if rho is not None:
+        found["density"] = (rho, df[rho].to_numpy(np.float64), "kg/m3")
+    return found, "cnv"
+
+
+def read_overlying_profile(path: str | Path, *, surface_dbar: float = 20.0) -> UserProfile:
+    """Read and check a user's profile of the water above a record (``derive.overlying_profile``): a CSV or a
+    Sea-Bird .cnv (.hex) with pressure and temperature + practical salinity, or in situ density.
+
+    The density is EOS-80 (Eq. 13, as the record's) of the temperature and salinity when the file has both, else
+    its density column. Each mistake is a one-line error naming the file: a missing file (:class:`ConfigError`,
+    the setting points at nothing), an unreadable file, a missing column, a unit that is not one of the quantity
+    (or no unit), values outside :data:`PROFILE_VALUE_RANGES` (a wrong unit: sigma for density, kPa for dbar),
+    a pressure that is not strictly monotonic (a record with loops, not one binned cast), or that starts deeper
+    than ``surface_dbar`` (:class:`InputError`). Whether it reaches the record's first sample is checked by
+    :func:`overlying_column`."""
+    import hashlib
+
+    from hadal.errors import ConfigError
+    from hadal.formats import KINDS, detect
+    from hadal.ingest.units import convert
+
+    path = Path(path)
+    if not path.is_file():
+        raise ConfigError(f"{path}: derive.overlying_profile does not exist (a path relative to the dive's raw "
+                          "directory, or absolute)")
+    kind = detect(path, strict=False).kind
+    if kind in ("cnv", "seabird_hex"):
+        found, fmt = _cnv_profile_columns(path)
+    elif kind in ("csv", "xyz"):
+        found, fmt = _csv_profile_columns(path)
+    else:
+        raise InputError(f"{path}: overlying profile is a {KINDS.get(kind, kind)}, not a CSV or Sea-Bird .cnv profile")
+    have = ", ".join(f"{q}: {c}" for q, (c, _, _) in found.items()) or "none recognised"
+    if "pressure" not in found:
+        raise InputError(f"{path}: overlying profile has no pressure column (pressure_dbar, 'pressure [dbar]', "
+                         f"prDM; found {have})")
+    use_ts = "temperature" in found and "salinity" in found
+    if not use_ts and "density" not in found:
+        raise InputError(f"{path}: overlying profile needs temperature and practical salinity, or density "
+                         f"(found {have})")
+    conversions: list[dict[str, Any]] = []
+    values: dict[str, np.ndarray] = {}
+    for qty, var in (("pressure", "pressure_ctd_dbar"), ("temperature", "temperature_its90_degc")):
+        if qty in found and (qty == "pressure" or use_ts):
+            col, v, unit = found[qty]
+            try:
+                values[qty], rec = convert(v, unit, var)
+            except ConfigError as exc:
+                raise InputError(f"{path}: column {col!r}: wrong unit for {qty} ({exc})") from None
+            if rec:
+                conversions.append({**rec, "source": col})
+    if use_ts:
+        col, v, unit = found["salinity"]
+        if unit.strip().lower() not in _SALINITY_UNITS:
+            raise InputError(f"{path}: column {col!r}: unit {unit!r} is not practical salinity (PSS-78, unitless; "
+                             "absolute salinity in g/kg is not accepted)")
+        values["salinity"] = v
+    else:
+        col, v, unit = found["density"]
+        key = unit.replace(" ", "").lower()
+        if key not in _DENSITY_UNITS:
+            raise InputError(f"{path}: column {col!r}: unit {unit!r} is not a density (kg/m3 or g/cm3; sigma-t or "
+                             "sigma-theta anomalies are not accepted)")
+        values["density"] = v * _DENSITY_UNITS[key]
+    for qty, v in values.items():
+        lo, hi, u = PROFILE_VALUE_RANGES[qty]
+        fin = v[np.isfinite(v)]
+        if fin.size and (fin.min() < lo or fin.max() > hi):
+            col = found[qty][0]
+            raise InputError(f"{path}: column {col!r}: {qty} from {fin.min():.4g} to {fin.max():.4g} {u} is outside "
+                             f"{lo:g} to {hi:g} {u}: wrong unit?")
+    p = values["pressure"]
+    keep = np.isfinite(p)
+    p = p[keep]
+    if p.size < 2:
+        raise InputError(f"{path}: overlying profile has {p.size} row(s) with a pressure: need at least 2")
+    d = np.diff(p)
+    sign = 1.0 if d[0] > 0 else -1.0
+    bad = np.flatnonzero(~(sign * d > 0))
+    if bad.size:
+        i = int(bad[0]) + 1
+        raise InputError(f"{path}: pressure is not strictly monotonic ({p[i]:.2f} dbar after {p[i - 1]:.2f} dbar, "
+                         f"level {i + 1}): give one binned cast (e.g. SeaSoft BinAvg output), not a record with "
+                         "loops or repeats")
+    if use_ts:
+        rho = density_eos80(values["salinity"][keep], values["temperature"][keep], p)
+        basis = f"EOS-80 density (Eq. 13) of {found['temperature'][0]} and {found['salinity'][0]}"
+        cols = {"pressure_dbar": found["pressure"][0], "temperature_its90_degc": found["temperature"][0],
+                "practical_salinity": found["salinity"][0]}
+    else:
+        rho = values["density"][keep]
+        basis = f"density column {found['density'][0]}"
+        cols = {"pressure_dbar": found["pressure"][0], "density_kg_m3": found["density"][0]}
+    ok = np.isfinite(rho)
+    if sign < 0:
+        p, rho = p[::-1], rho[::-1]
+        ok = ok[::-1]
+    p, rho = p[ok], rho[ok]
+    if p.size < 2:
+        raise InputError(f"{path}: overlying profile has fewer than 2 levels with a valid density")
+    if p[0] > surface_dbar:
+        raise InputError(f"{path}: overlying profile starts at {p[0]:.1f} dbar, deeper than "
+                         f"derive.surface_start_dbar ({surface_dbar:g} dbar): it must reach the surface")
+    h = hashlib.sha256()
+    with path.open("rb") as fh:
+        for block in iter(lambda: fh.read(1 << 20), b""):
+            h.update(block)
+    return UserProfile(np.ascontiguousarray(p), np.ascontiguousarray(rho), str(path), f"{basis} ({fmt})", cols,
+                       h.hexdigest(), tuple(conversions))
 
 
 # ---------------------------------------------------------------------------------- pressure fusion

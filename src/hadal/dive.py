@@ -59,7 +59,7 @@ class LaserFrame(BaseModel):
 
 
 class DiveMetadata(BaseModel):
-    """Discovery metadata (ACDD-1.3) written into every product; nothing is invented when a field is absent
+    """Discovery metadata (ACDD-1.3, IOOS-1.2) written into every product; nothing is invented when a field is absent
     (``hadal config --check`` lists the missing required ones)."""
 
     model_config = ConfigDict(extra="forbid")
@@ -68,6 +68,13 @@ class DiveMetadata(BaseModel):
     creator_url: str | None = Field(None, description="web page of the creator")
     creator_type: Literal["person", "group", "institution", "position"] | None = Field(
         None, description="ACDD creator_type")
+    creator_country: str | None = Field(None, max_length=100,
+                                        description="IOOS-1.2 creator_country: country of the creator (e.g. 'China')")
+    creator_sector: Literal["academic", "gov_federal", "gov_municipal", "gov_state", "industry", "nonprofit",
+                            "tribal", "other", "unknown"] | None = Field(
+        None, description="IOOS-1.2 creator_sector: societal sector of the creator (https://mmisw.org/ont/ioos/sector)")
+    infoUrl: str | None = Field(None, max_length=2048,  # noqa: N815 - the IOOS/ERDDAP attribute's own name
+                                description="IOOS-1.2 infoUrl: URL with background information about the dataset")
     institution: str | None = Field(None, description="institution that produced the data")
     project: str | None = Field(None, description="project or cruise programme")
     program: str | None = Field(None, description="overarching programme")
@@ -75,6 +82,8 @@ class DiveMetadata(BaseModel):
     publisher_name: str | None = Field(None, description="publisher (data centre) name")
     publisher_email: str | None = Field(None, description="publisher contact e-mail")
     publisher_url: str | None = Field(None, description="publisher web page")
+    publisher_country: str | None = Field(None, max_length=100,
+                                          description="IOOS-1.2 publisher_country (default: the creator's)")
     license: str | None = Field(None, description="data licence (e.g. 'CC-BY-4.0')")
     naming_authority: str | None = Field(None, description="reverse-DNS naming authority of product ids")
     acknowledgment: str | None = Field(None, description="funding / acknowledgement text")
@@ -82,6 +91,10 @@ class DiveMetadata(BaseModel):
     metadata_link: str | None = Field(None, description="URL of the dataset's landing page / full metadata")
     platform_vocabulary_name: str | None = Field(
         None, description="GCMD platform keyword of the vehicle (default 'Subsurface Vehicles > AUV')")
+    platform_type: str | None = Field(
+        None, pattern=r"^\S+$", max_length=100,
+        description="IOOS-1.2 platform: term of the IOOS platform vocabulary (https://mmisw.org/ont/ioos/platform) "
+                    "for the vehicle, no blanks (default 'submersible')")
     instruments: dict[str, str] = Field(
         default_factory=dict, description="product name -> instrument description (overrides hadal's defaults, "
                                           "e.g. {ctd: 'Sea-Bird SBE 49 FastCAT', dtm: 'Kongsberg EM122'})")

@@ -390,14 +390,20 @@ _COMMENTS = {
 }
 
 
-#: the commented ``metadata:`` stub of a new dive.yaml: (field, example value, ACDD-1.3 meaning); the required
-#: ones (:data:`hadal.products.metadata.ACDD_REQUIRED`) are listed by ``hadal config --check`` while missing
+#: the commented ``metadata:`` stub of a new dive.yaml: (field, example value, ACDD-1.3 / IOOS-1.2 meaning); the
+#: required ones (:data:`hadal.products.metadata.REQUIRED_FIELDS`) are listed by ``hadal config --check`` while
+#: missing
 METADATA_STUB: tuple[tuple[str, str, str], ...] = (
     ("creator_name", "Jane Doe", "ACDD creator_name (required): person or group principally responsible for "
                                  "collecting/processing the data"),
     ("creator_email", "jane.doe@example.edu", "ACDD creator_email (required): contact address of the creator"),
     ("creator_url", "https://example.edu/~jdoe", "ACDD creator_url: web page of the creator"),
     ("creator_type", "person", "ACDD creator_type: person, group, institution or position"),
+    ("creator_country", "China", "IOOS-1.2 creator_country (required): country of the creator"),
+    ("creator_sector", "academic", "IOOS-1.2 creator_sector (required): academic, gov_federal, gov_municipal, "
+                                   "gov_state, industry, nonprofit, tribal, other or unknown"),
+    ("infoUrl", "https://example.edu/hadal-dives", "IOOS-1.2 infoUrl (required): web page with background "
+                                                   "information about the data"),
     ("institution", "Example Institute of Oceanography", "ACDD/CF institution (required): where the data were "
                                                          "produced"),
     ("project", "Hadal Trench Survey 2026", "ACDD project (required): scientific project that produced the data"),
@@ -409,10 +415,13 @@ METADATA_STUB: tuple[tuple[str, str, str], ...] = (
     ("publisher_name", "", "ACDD publisher_name: who distributes the data (default: the creator)"),
     ("publisher_email", "", "ACDD publisher_email: contact address of the publisher"),
     ("publisher_url", "", "ACDD publisher_url: web page of the publisher (data centre)"),
+    ("publisher_country", "", "IOOS-1.2 publisher_country: country of the publisher (default: the creator's)"),
     ("acknowledgment", "", "ACDD acknowledgment: funding and support"),
     ("metadata_link", "", "ACDD metadata_link: URL of the dataset's landing page / full metadata"),
     ("platform_vocabulary_name", "Subsurface Vehicles > AUV", "ACDD platform: GCMD platform keyword of the vehicle "
                                                               "(its name is the top-level 'platform:' field)"),
+    ("platform_type", "submersible", "IOOS-1.2 platform: term of the IOOS platform vocabulary "
+                                     "(https://mmisw.org/ont/ioos/platform; default submersible)"),
 )
 _INSTRUMENTS_STUB = (("ctd", "Sea-Bird SBE 49 FastCAT"), ("dtm", "Kongsberg EM 124"))
 
@@ -421,7 +430,8 @@ def metadata_stub() -> list[str]:
     """The commented ``metadata:`` block of a new dive.yaml: every field with its ACDD meaning and an example in
     the comment, the value empty (uncommented as is, it validates as :class:`hadal.dive.DiveMetadata` and
     ``hadal config --check`` still lists the required fields until they are filled in)."""
-    out = ["# metadata: discovery metadata (ACDD-1.3) written into every product; nothing is invented when a field",
+    out = ["# metadata: discovery metadata (ACDD-1.3, IOOS-1.2) written into every product; nothing is invented "
+           "when a field",
            "# is absent (the products list it in hadal_metadata_missing). Uncomment and fill in:",
            "# metadata:"]
     for key, example, meaning in METADATA_STUB:  # values left empty: an example never reaches a product

@@ -116,6 +116,18 @@ def run_stage(name: str, ctx: StageContext, run_info: dict[str, Any] | None = No
     return out
 
 
+class RunOutcome(dict):
+    """``{product: version directory}`` of a run, with :attr:`stages`: one row per stage (``stage``, ``status`` -
+    published / reused / skipped / failed -, ``seconds``, ``versions`` and ``reason``) for the closing table."""
+
+    def __init__(self, published: dict[str, str] | None = None, stages: list[dict[str, Any]] | None = None):
+        super().__init__(published or {})
+        self.stages = list(stages or [])
+
+    def __reduce__(self):  # results may be pickled (Dask, persisted results): keep the stage rows
+        return (RunOutcome, (dict(self), self.stages))
+
+
 def resolve_stages(stages: Sequence[str] | None = None) -> list[str]:
     """Validate a stage selection and return it in execution order (all implemented stages by default)."""
     avail = available_stages()
@@ -219,3 +231,158 @@ def pin_paths(ctx: StageContext, pins: dict[str, str] | None) -> None:
     """Pin the versions named by ``{product: version directory}`` (a flow passes them between its tasks)."""
     for product, path in (pins or {}).items():
         ctx.pins[product] = ctx.store.version_at(path)
+
+
+# ------------------------------------------------------------------------ stage fingerprints (Prefect-free)
+#: where the stage tasks' results (Prefect cache records) live: ``<store>/.prefect-results/<cache key>``
+RESULTS_DIR = ".prefect-results"
+
+
+def result_storage(store_root: str | os.PathLike[str] | None) -> Path:
+    """Where task results (cache records) are persisted: ``<store>/.prefect-results``."""
+    root = Path(store_root) if store_root is not None else default_store_root()
+    return (root / RESULTS_DIR).resolve()
+
+
+def raw_inputs(name: str, ctx: StageContext) -> list[Path]:
+    """Raw files stage ``name`` reads: ``dive.yaml`` always; those its module's ``raw_files(ctx)`` names (derive's
+    ``overlying_profile``); the files of its ``INPUTS.raw_any`` source kinds when it reads raw data
+    (``INPUTS.reads_raw``), and the vehicle mapping for ``ingest``."""
+    from hadal.dive import resolve_source
+    from hadal.plan import stage_inputs
+
+    files = [ctx.raw_dir / "dive.yaml"]
+    extra = getattr(stage_module(name), "raw_files", None)  # files a stage's settings point at (derive)
+    if extra is not None:
+        files.extend(extra(ctx))
+    inp = stage_inputs(name)
+    if not inp.reads_raw:
+        return files
+    if name == "ingest" and ctx.dive.vehicle_config:
+        files.append(resolve_source(ctx.raw_dir, ctx.dive.vehicle_config))
+    for kind in inp.raw_any:
+        files.extend(resolve_source(ctx.raw_dir, e) for e in ctx.dive.sources.files(kind))
+    return files
+
+
+def stage_fingerprint(name: str, ctx: StageContext) -> dict[str, Any]:
+    """Everything a stage's output depends on (the stage task's cache key, ``tasks/stage.py``); JSON-serialisable.
+
+    The stage, dive and store; hadal's code (:func:`code_digest`); the stage's parameters; the SHA-256 of the raw
+    files it reads (:func:`raw_inputs`, cached by size/mtime/inode/ctime: :meth:`ProductStore.file_sha256`); the
+    manifests (SHA-256) of the pinned (else latest) versions of its ``UPSTREAM`` products."""
+    from hadal.store import sha256_file
+
+    mod = stage_module(name)
+    raw = {}
+    for f in raw_inputs(name, ctx):  # unchanged files are not re-read: ProductStore.file_sha256
+        raw[str(f)] = ctx.store.file_sha256(f) if f.is_file() else "missing"
+    upstream = {}
+    for product in getattr(mod, "UPSTREAM", ()):
+        pv = ctx.pins.get(product) or (ctx.store.latest(ctx.dive_id, product)
+                                       if ctx.store.has(ctx.dive_id, product) else None)
+        upstream[product] = f"{pv.label}:{sha256_file(pv.manifest_path)}" if pv is not None else "missing"
+    return {
+        "stage": name,
+        "dive": ctx.dive_id,
+        "store": str(Path(ctx.store.root).resolve()),
+        "code": code_digest(),
+        "params": ctx.params(name),
+        "raw": raw,
+        "upstream": upstream,
+    }
+
+
+def fingerprint_key(fp: dict[str, Any]) -> str:
+    import json
+
+    return hashlib.sha256(json.dumps(fp, sort_keys=True, default=str).encode()).hexdigest()
+
+
+def stage_cache_key(name: str, raw_dir: str | Path, store_root: str | Path | None, config_path: str | Path | None,
+                    pins: dict[str, str] | None = None, failed: dict[str, str] | None = None,
+                    failed_skips: dict[str, str] | None = None) -> str:
+    """The cache key of stage ``name``'s task for these task parameters: ``hadal-<stage>-<SHA-256 of its
+    fingerprint>`` (the report's key also covers the failures of the run it lists)."""
+    ctx = make_context(raw_dir, store_root, config_path)
+    pin_paths(ctx, pins)
+    fp = stage_fingerprint(name, ctx)
+    if failed or failed_skips:  # the report lists this run's failures
+        fp["failed"] = {"failed": failed, "skips": failed_skips}
+    return f"hadal-{name}-{fingerprint_key(fp)}"
+
+
+def _plain_unpickle(data: bytes) -> Any:
+    """Unpickle plain data only (dict/list/str/...: a task result is ``{product: version directory}``); any class
+    reference is refused."""
+    import io
+    import pickle
+
+    class _Plain(pickle.Unpickler):
+        def find_class(self, module: str, name: str):
+            raise pickle.UnpicklingError(f"{module}.{name} is not plain data")
+
+    return _Plain(io.BytesIO(data)).load()
+
+
+def cached_result(storage: Path, key: str) -> dict[str, str] | None:
+    """The result Prefect persisted for cache key ``key`` in ``storage`` (a ``ResultRecord`` JSON file:
+    ``{"metadata": {"expiration", "serializer"}, "result"}``), read without importing Prefect; ``None`` if there
+    is none, it expired, or it is in a form this reader does not know (then only a flow run can tell)."""
+    import base64
+    import datetime as _dt
+    import json
+
+    try:
+        rec = json.loads((storage / key).read_bytes())
+        meta = rec["metadata"]
+        if meta.get("expiration") is not None:
+            exp = _dt.datetime.fromisoformat(str(meta["expiration"]).replace("Z", "+00:00"))
+            if exp.tzinfo is None or exp <= _dt.datetime.now(_dt.UTC):
+                return None
+        ser = meta.get("serializer") or {}
+        if ser.get("type") == "pickle" and ser.get("picklelib") in ("cloudpickle", "pickle"):
+            value = _plain_unpickle(base64.b64decode(rec["result"]))
+        elif ser.get("type") == "json":
+            value = json.loads(rec["result"])
+        else:
+            return None
+    except Exception:  # noqa: BLE001 - missing, unreadable or unknown: not known to be current
+        return None
+    if not isinstance(value, dict) or not all(isinstance(k, str) and isinstance(v, str) for k, v in value.items()):
+        return None
+    return value
+
+
+def current_stages(raw_dir: str | Path, store_root: str | Path | None, config_path: str | Path | None,
+                   names: Sequence[str]) -> RunOutcome | None:
+    """Whether a flow run of stages ``names`` (in plan order) would be nothing but cache hits, decided without
+    Prefect: the stage graph's walk (``flows/post_cruise.py``) replayed - each stage's cache key
+    (:func:`stage_cache_key`) with the pins of the run so far, its persisted result (:func:`cached_result`), whose
+    versions must all still exist. Returns what that flow run would (a :class:`RunOutcome`: the versions reused,
+    every stage ``reused``) when all are current, else ``None`` (something changed, or it cannot be told: a flow
+    run decides). Publishes nothing (it may add raw-file hashes to the store's hash cache, as a flow run does)."""
+    import time
+
+    storage = result_storage(store_root)
+    if not names or not storage.is_dir() or \
+            os.environ.get("PREFECT_TASKS_REFRESH_CACHE", "").lower() in ("1", "true", "yes"):
+        return None  # nothing cached yet (a first run), or Prefect told to refresh every cache
+    ctx = make_context(raw_dir, store_root, config_path)
+    ctx.pin_existing(all_products())
+    pins = {p: str(pv.path) for p, pv in ctx.pins.items()}
+    rows, published = [], {}
+    for name in names:
+        t0 = time.monotonic()
+        try:
+            key = stage_cache_key(name, raw_dir, store_root, config_path, pins)
+        except (HadalError, OSError):
+            return None  # the task would not cache it either
+        out = cached_result(storage, key)
+        if out is None or not all(Path(p, "manifest.json").is_file() for p in out.values()):
+            return None
+        pins.update(out)
+        published.update(out)
+        rows.append({"stage": name, "status": "reused", "seconds": round(time.monotonic() - t0, 2),
+                     "versions": {p: Path(v).name for p, v in out.items()}, "reason": ""})
+    return RunOutcome(published, rows)

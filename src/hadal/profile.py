@@ -1,7 +1,10 @@
-"""Pressure-binned vertical profiles of a dive (descent and ascent casts) — the ``profile`` product.
+"""Pressure- or depth-binned vertical profiles of a dive (descent and ascent casts) — the ``profile`` product.
 
 Sort-and-reduce binning (as NOAA bathygrid grids soundings): each sample's bin index is
-``floor(p / bin_dbar)``, and per-bin sums/counts come from ``np.bincount`` — O(n), NaN-aware per variable.
+``floor(z / bin_size)``, and per-bin sums/counts come from ``np.bincount`` — O(n), NaN-aware per variable.
+``z`` is the pressure (``axis="pressure"``, dbar, coordinate ``pressure_dbar``) or the hydrostatic depth
+(``axis="depth"``, m, coordinate ``depth_m``; SeaSoft BinAvg's "bin type: depth"); the other one is then a
+binned mean like every other variable (``depth_m`` on the pressure axis, ``pressure_dbar`` on the depth axis).
 The paper's Fig. 8 (conductivity, temperature, salinity, density and gravity of the whole water column) is
 this product plotted against pressure.
 
@@ -33,16 +36,42 @@ PROFILE_VARIABLES: tuple[str, ...] = (
 N_SQUARED = "buoyancy_frequency_squared_s2"
 CASTS: tuple[str, ...] = ("descent", "ascent")
 
+Axis = Literal["pressure", "depth"]
+#: the binning column (and coordinate name) of each axis, its unit, and the column averaged instead of it
+AXES: dict[str, tuple[str, str, str]] = {"pressure": ("pressure_dbar", "dbar", "depth_m"),
+                                         "depth": ("depth_m", "m", "pressure_dbar")}
+#: CF attributes of the vertical coordinate (bin centres) of each axis
+AXIS_ATTRS: dict[str, dict[str, str]] = {
+    "pressure": {"standard_name": "sea_water_pressure", "units": "dbar", "positive": "down", "axis": "Z",
+                 "long_name": "sea water pressure (bin centre)"},
+    "depth": {"standard_name": "depth", "units": "m", "positive": "down", "axis": "Z",
+              "long_name": "depth below the sea surface (bin centre; hydrostatic depth, Eqs. 11-12)"},
+}
 
-def bin_edges(pressure_dbar: ArrayLike, bin_dbar: float) -> np.ndarray:
-    """Bin edges (dbar) multiples of ``bin_dbar`` covering 0 (or the lowest pressure, if negative) to the
-    highest finite pressure."""
+
+def profile_variables(axis: Axis = "pressure") -> tuple[str, ...]:
+    """The columns averaged into a profile on ``axis``: :data:`PROFILE_VARIABLES`, on the depth axis with the
+    mean pressure in place of the mean (hydrostatic) depth, which is the coordinate there."""
+    if axis == "pressure":
+        return PROFILE_VARIABLES
+    return tuple("pressure_dbar" if v == "depth_m" else v for v in PROFILE_VARIABLES)
+
+
+def _axis(axis: str) -> tuple[str, str, str]:
+    if axis not in AXES:
+        raise InputError(f"profile: axis must be pressure or depth, got {axis!r}")
+    return AXES[axis]
+
+
+def bin_edges(pressure_dbar: ArrayLike, bin_dbar: float, *, unit: str = "dbar") -> np.ndarray:
+    """Bin edges, multiples of ``bin_dbar``, covering 0 (or the lowest value, if negative) to the highest finite
+    value (pressure in dbar, or depth in m with ``unit="m"``: only the messages differ)."""
     if not bin_dbar > 0:
-        raise InputError(f"profile bin size must be > 0 dbar, got {bin_dbar}")
+        raise InputError(f"profile bin size must be > 0 {unit}, got {bin_dbar}")
     p = np.asarray(pressure_dbar, dtype=np.float64)
     p = p[np.isfinite(p)]
     if p.size == 0:
-        raise InputError("profile: no finite pressure to bin")
+        raise InputError(f"profile: no finite {'pressure' if unit == 'dbar' else 'depth'} to bin")
     k0 = min(0, int(np.floor(p.min() / bin_dbar)))
     k1 = int(np.floor(p.max() / bin_dbar)) + 1
     return np.arange(k0, k1 + 1) * float(bin_dbar)
@@ -90,45 +119,66 @@ def _numpy(s: pd.Series) -> np.ndarray:
 
 def make_profile(df: pd.DataFrame, bin_dbar: float = 10.0, *, casts: Sequence[str] = CASTS,
                  phase_column: str = "phase", pressure_column: str = "pressure_dbar",
-                 binning: Literal["floor", "seabird"] = "floor", latitude_deg: float | None = None) -> xr.Dataset:
-    """Bin a ``ctd`` table by pressure separately for each cast (``phase`` = descent / ascent).
+                 binning: Literal["floor", "seabird"] = "floor", latitude_deg: float | None = None,
+                 axis: Axis = "pressure") -> xr.Dataset:
+    """Bin a ``ctd`` table by pressure (or depth) separately for each cast (``phase`` = descent / ascent).
 
     Returns a Dataset with dims ``(cast, pressure_dbar)``: ``pressure_dbar`` = bin centres (bin ``k`` covers
     ``[k, k+1) * bin_dbar``), the mean of every :data:`PROFILE_VARIABLES` column present and ``count``
     (samples per bin). Bins that no sample of either cast reaches are dropped from the bottom. (The
     dimension is not called ``pressure``: CF checkers take a ``pressure`` axis to be ``air_pressure``.)
     ``binning="seabird"``: SeaSoft BinAvg bins (centre ``k * bin_dbar``, ``k >= 1``), see the module docstring.
+
+    ``axis="depth"``: the same on the ``depth_m`` column (the hydrostatic depth), ``bin_dbar`` then being the bin
+    size in metres; dims ``(cast, depth_m)``, ``depth_m`` the bin centres (CF ``depth``, positive down, axis Z)
+    and ``pressure_dbar(cast, depth_m)`` the mean pressure of each bin (N² is computed on it).
     """
+    zcol, unit, _ = _axis(axis)
+    if axis == "pressure":
+        zcol = pressure_column
     if binning == "seabird":
-        return _seabird_profile(df, bin_dbar, casts, pressure_column, latitude_deg)
-    if pressure_column not in df or phase_column not in df:
-        raise InputError(f"profile: table lacks {pressure_column!r} or {phase_column!r}")
-    edges = bin_edges(df[pressure_column].to_numpy(), bin_dbar)
-    names = [c for c in PROFILE_VARIABLES if c in df.columns]
+        return _seabird_profile(df, bin_dbar, casts, zcol, latitude_deg, axis)
+    if zcol not in df or phase_column not in df:
+        raise InputError(f"profile: table lacks {zcol!r} or {phase_column!r}")
+    z = df[zcol].to_numpy(np.float64)
+    edges = bin_edges(z, bin_dbar, unit=unit)
+    names = [c for c in profile_variables(axis) if c in df.columns]
     cols = {n: _numpy(df[n]) for n in names}
     per_cast = []
     for cast in casts:
         sel = (df[phase_column] == cast).to_numpy()
-        means, count = bin_by_pressure(df[pressure_column].to_numpy(np.float64)[sel],
-                                       {n: v[sel] for n, v in cols.items()}, edges)
+        means, count = bin_by_pressure(z[sel], {n: v[sel] for n, v in cols.items()}, edges)
         per_cast.append((means, count))
     counts = np.stack([c for _, c in per_cast])
     used = np.flatnonzero(counts.sum(axis=0) > 0)
     last = used[-1] + 1 if used.size else 1
     centres = 0.5 * (edges[:-1] + edges[1:])[:last]
-    dims = ("cast", "pressure_dbar")
-    ds = xr.Dataset(coords={"cast": np.array(list(casts), dtype=object), "pressure_dbar": centres})
+    coord = AXES[axis][0]
+    dims = ("cast", coord)
+    ds = xr.Dataset(coords={"cast": np.array(list(casts), dtype=object), coord: centres})
     for n in names:
         ds[n] = (dims, np.stack([m[n][:last] for m, _ in per_cast]))
     ds["count"] = (dims, counts[:, :last].astype(np.int32))
-    ds["pressure_dbar"].attrs.update({"standard_name": "sea_water_pressure", "units": "dbar", "positive": "down",
-                                      "axis": "Z", "long_name": "sea water pressure (bin centre)",
-                                      "comment": f"bin k covers [k, k+1) x {float(bin_dbar):g} dbar"})
+    ds[coord].attrs.update({**AXIS_ATTRS[axis], "comment": f"bin k covers [k, k+1) x {float(bin_dbar):g} {unit}"})
     ds["cast"].attrs.update({"long_name": "cast (dive phase)", "comment": "descent or ascent"})
-    ds["count"].attrs.update({"long_name": "number of CTD samples in the pressure bin", "units": "1"})
-    ds.attrs["bin_size_dbar"] = float(bin_dbar)
-    _add_n_squared(ds, latitude_deg)
+    _finish(ds, axis, bin_dbar, latitude_deg)
     return ds
+
+
+def _finish(ds: xr.Dataset, axis: str, bin_size: float, latitude_deg: float | None) -> None:
+    """Attributes common to both binnings (count, bin size, axis) and N²."""
+    what = "pressure" if axis == "pressure" else "depth"
+    ds["count"].attrs.update({"long_name": f"number of CTD samples in the {what} bin", "units": "1"})
+    if axis == "pressure":
+        ds.attrs["bin_size_dbar"] = float(bin_size)
+    else:
+        ds.attrs["bin_size_m"] = float(bin_size)
+        ds["count"].attrs["standard_name"] = "depth number_of_observations"
+        if "pressure_dbar" in ds:
+            ds["pressure_dbar"].attrs.update({"standard_name": "sea_water_pressure", "units": "dbar",
+                                              "long_name": "mean sea water pressure of the depth bin"})
+    ds.attrs["profile_axis"] = axis
+    _add_n_squared(ds, latitude_deg)
 
 
 def _add_n_squared(ds: xr.Dataset, latitude_deg: float | None) -> None:
@@ -137,23 +187,28 @@ def _add_n_squared(ds: xr.Dataset, latitude_deg: float | None) -> None:
         return
     from hadal.ctd.teos10 import n_squared_profile
 
-    pr = ds["pressure_dbar"].values
-    n2 = np.stack([n_squared_profile(pr, ds["absolute_salinity_g_kg"].values[k],
-                                     ds["conservative_temperature_degc"].values[k], latitude_deg)
-                   for k in range(ds.sizes["cast"])])
-    ds[N_SQUARED] = (("cast", "pressure_dbar"), n2)
+    if "pressure_dbar" not in ds:
+        return
+    sa = ds["absolute_salinity_g_kg"]
+    # the pressure of each level: the bin centres (pressure axis) or each cast's mean bin pressure (depth axis)
+    pr = np.broadcast_to(ds["pressure_dbar"].values, sa.shape)
+    n2 = np.stack([n_squared_profile(pr[k], sa.values[k], ds["conservative_temperature_degc"].values[k],
+                                     latitude_deg) for k in range(ds.sizes["cast"])])
+    ds[N_SQUARED] = (sa.dims, n2)
 
 
 def _seabird_profile(df: pd.DataFrame, bin_dbar: float, casts: Sequence[str], pressure_column: str,
-                     latitude_deg: float | None) -> xr.Dataset:
-    """SeaSoft BinAvg binning of every :data:`PROFILE_VARIABLES` column onto a (cast, pressure_dbar) grid."""
+                     latitude_deg: float | None, axis: Axis = "pressure") -> xr.Dataset:
+    """SeaSoft BinAvg binning of every :func:`profile_variables` column onto a (cast, pressure_dbar) grid (or
+    (cast, depth_m): BinAvg's depth bin type, on the column ``pressure_column``, then the depth)."""
     from hadal.ctd.bin_average import bin_average
 
+    unit = AXES[axis][1]
     if pressure_column not in df:
         raise InputError(f"profile: table lacks {pressure_column!r}")
     if not bin_dbar > 0:
-        raise InputError(f"profile bin size must be > 0 dbar, got {bin_dbar}")
-    names = [c for c in PROFILE_VARIABLES if c in df.columns]
+        raise InputError(f"profile bin size must be > 0 {unit}, got {bin_dbar}")
+    names = [c for c in profile_variables(axis) if c in df.columns]
     cols = {}
     for n in names:
         v = _numpy(df[n])
@@ -177,24 +232,22 @@ def _seabird_profile(df: pd.DataFrame, bin_dbar: float, casts: Sequence[str], pr
         counts[row, k[j] - 1] = r.nbin[j]
         for n in names:
             data[n][row, k[j] - 1] = r.means[n][j]
-    dims = ("cast", "pressure_dbar")
-    ds = xr.Dataset(coords={"cast": np.array(list(casts), dtype=object), "pressure_dbar": centres})
+    coord = AXES[axis][0]
+    dims = ("cast", coord)
+    ds = xr.Dataset(coords={"cast": np.array(list(casts), dtype=object), coord: centres})
     for n in names:
         vals = data[n]
         if np.issubdtype(_numpy(df[n]).dtype, np.datetime64):
             vals = pd.to_datetime(vals.ravel(), utc=True).tz_localize(None).to_numpy().reshape(vals.shape)
         ds[n] = (dims, vals)
     ds["count"] = (dims, counts)
-    ds["pressure_dbar"].attrs.update({"standard_name": "sea_water_pressure", "units": "dbar", "positive": "down",
-                                      "axis": "Z", "long_name": "sea water pressure (bin centre)",
-                                      "comment": f"SeaSoft BinAvg bins: bin k covers [k - 1/2, k + 1/2) x "
-                                                 f"{float(bin_dbar):g} dbar (descent; ascent (k - 1/2, k + 1/2]); "
-                                                 "the turn-around bin is in the descent cast"})
+    ds[coord].attrs.update({**AXIS_ATTRS[axis],
+                            "comment": f"SeaSoft BinAvg bins: bin k covers [k - 1/2, k + 1/2) x "
+                                       f"{float(bin_dbar):g} {unit} (descent; ascent (k - 1/2, k + 1/2]); "
+                                       "the turn-around bin is in the descent cast"})
     ds["cast"].attrs.update({"long_name": "cast (split at the deepest scan)", "comment": "descent or ascent"})
-    ds["count"].attrs.update({"long_name": "number of CTD samples in the pressure bin", "units": "1"})
-    ds.attrs["bin_size_dbar"] = float(bin_dbar)
     ds.attrs["binning"] = "seabird BinAvg"
-    _add_n_squared(ds, latitude_deg)
+    _finish(ds, axis, bin_dbar, latitude_deg)
     return ds
 
 
@@ -205,13 +258,14 @@ def n_squared_per_sample(df: pd.DataFrame, ds: xr.Dataset, *, phase_column: str 
     from hadal.ctd.teos10 import n_squared_at
 
     out = np.full(len(df), np.nan)
-    if N_SQUARED not in ds or phase_column not in df or pressure_column not in df:
+    if N_SQUARED not in ds or phase_column not in df or pressure_column not in df or "pressure_dbar" not in ds:
         return out
     pr = df[pressure_column].to_numpy(np.float64)
     phase = df[phase_column].to_numpy(dtype=object)
-    levels = ds["pressure_dbar"].values
+    # the levels' pressures: the bin centres, or on the depth axis each cast's mean bin pressures
+    levels = np.broadcast_to(ds["pressure_dbar"].values, ds[N_SQUARED].shape)
     for k, cast in enumerate(ds["cast"].values):
         sel = (phase == cast) | ((phase == "bottom") & (cast == "descent"))
         if sel.any():
-            out[sel] = n_squared_at(pr[sel], levels, ds[N_SQUARED].values[k])
+            out[sel] = n_squared_at(pr[sel], levels[k], ds[N_SQUARED].values[k])
     return out

@@ -194,10 +194,16 @@ class ProductStore:
         p = Path(path).resolve()
         key = _file_key(p)
         with _HASH_LOCK:
-            if key in _PROCESS_HASHES:
-                return _PROCESS_HASHES[key]
+            known = _PROCESS_HASHES.get(key)
             rec = self._hash_records().get(key[0])
-        if isinstance(rec, dict) and rec.get("stat") == list(key[1:]) and isinstance(rec.get("sha256"), str):
+        stored = isinstance(rec, dict) and rec.get("stat") == list(key[1:]) and isinstance(rec.get("sha256"), str)
+        if known is not None:
+            # hashed earlier in this process, perhaps before the store existed (a cold run hashes its inputs
+            # before the first product creates the store): remember it in the store now that it can be written
+            if not stored and self.root.is_dir():
+                self._remember_hash(key, known)
+            return known
+        if stored:
             digest = rec["sha256"]
         else:
             digest = sha256_file(p)

@@ -512,16 +512,19 @@ _COMPILED_MIN_POINTS = 32768
 #: cells per block of the partitioned path: a block's per-cell work arrays (~40 bytes a cell) stay in L2
 _BLOCK_SHIFT = 14
 _MAX_BLOCKS = 4096
+#: the kernels keep a point's cell index within its block as uint16
+_MAX_SHIFT = 16
 
 
 def _block_shift(n_cells: int, threads: int) -> tuple[int, int]:
     """``(shift, nblocks)``: blocks of ``2**shift`` consecutive cells, at most ``2**14`` cells (cache-sized)
-    unless that gives more than :data:`_MAX_BLOCKS` blocks, and at least ``4 * threads`` blocks when the
-    grid allows (so the per-block work spreads over the threads)."""
+    unless that gives more than :data:`_MAX_BLOCKS` blocks (then up to ``2**16`` cells, the in-block index
+    being uint16), and at least ``4 * threads`` blocks when the grid allows (so the per-block work spreads
+    over the threads)."""
     shift = _BLOCK_SHIFT
     while shift > 6 and (n_cells >> shift) < 4 * threads:
         shift -= 1
-    while (n_cells >> shift) > _MAX_BLOCKS:
+    while (n_cells >> shift) > _MAX_BLOCKS and shift < _MAX_SHIFT:
         shift += 1
     return shift, (n_cells + (1 << shift) - 1) >> shift
 
@@ -552,7 +555,7 @@ def cell_stats(x, y, z, spec: GridSpec, statistics: Sequence[str] = ("mean", "me
     exact at 10 km depths with mm spread, no cancellation), and, for median/min/max, the sorted segment
     (median = mean of the two middle values for an even count, as :func:`segment_median`). Every pass
     streams through memory; none does random access into a grid-sized array, so random point order costs
-    about as much as survey order. Memory: 16 bytes a point (int32 index and float64 value twice).
+    about as much as survey order. Memory: 10 bytes a point (uint16 in-block cell index, float64 value).
     """
     x, y, z = _as_f64(x), _as_f64(y), _as_f64(z)
     n = _check_lengths(x, y, z)

@@ -96,57 +96,24 @@ def dilate_rows(ptr, ra, rb, ny, nx, off_r, off_lo, off_hi, outside, r0, r1):  #
 
 
 @njit(cache=True, nogil=True)
-def _edt_1d(f, n, d, v, zb):  # pragma: no cover - compiled
-    """Squared distance transform of the sampled function f[0:n] (F&H lower envelope), into d."""
-    big = 1e30
-    k = 0
-    # skip leading infinite samples
-    q0 = 0
-    while q0 < n and f[q0] >= big:
-        q0 += 1
-    if q0 == n:
-        for q in range(n):
-            d[q] = big
-        return
-    v[0] = q0
-    zb[0] = -big
-    zb[1] = big
-    for q in range(q0 + 1, n):
-        if f[q] >= big:
-            continue
-        while True:
-            p = v[k]
-            s = ((f[q] + q * q) - (f[p] + p * p)) / (2.0 * q - 2.0 * p)
-            if s <= zb[k]:
-                k -= 1
-                if k < 0:
-                    k = 0
-                    v[0] = q
-                    zb[0] = -big
-                    zb[1] = big
-                    break
-                continue
-            k += 1
-            v[k] = q
-            zb[k] = s
-            zb[k + 1] = big
-            break
-    k = 0
-    for q in range(n):
-        while zb[k + 1] < q:
-            k += 1
-        p = v[k]
-        d[q] = (q - p) * (q - p) + f[p]
-
-
-@njit(cache=True, nogil=True)
 def squared_edt(inside):  # pragma: no cover - compiled
     """Exact squared Euclidean distance (cells², float32) from every True cell of ``inside`` to the nearest
     False cell or the grid exterior (cells beyond the edges count as False: scipy's
     ``distance_transform_edt`` of ``np.pad(inside, 1)``); 0 on False cells."""
+    g = np.empty(inside.shape, np.float32)
+    squared_edt_into(inside, g)
+    return g
+
+
+@njit(cache=True, nogil=True)
+def squared_edt_into(inside, g):  # pragma: no cover - compiled
+    """:func:`squared_edt` written into ``g`` (float32, the shape of ``inside``; a reused buffer: a fresh
+    40 MB array per heading of a 10 M-cell strip costs its page faults every time).
+
+    Columns: the 1-D distance to the nearest False cell by two scans. Rows: the lower envelope of the parabolas
+    (j - p)² + g(p)² (F&H §2.1) in exact integer arithmetic without division — the intersection tests are
+    cross-multiplied (s(b, q) <= s(a, b) ⟺ (F_q - F_b)(b - a) <= (F_b - F_a)(q - b), F_p = g(p)² + p²)."""
     ny, nx = inside.shape
-    g = np.empty((ny, nx), np.float32)
-    # columns: 1-D distance to the nearest False cell (or the edge, one cell beyond), row by row (cache order)
     last = np.full(nx, -1, np.int64)
     for i in range(ny):
         for j in range(nx):
@@ -164,26 +131,42 @@ def squared_edt(inside):  # pragma: no cover - compiled
                     g[i, j] = dd
             else:
                 last[j] = i
-    n = nx + 2
-    f = np.empty(n)
-    d = np.empty(n)
+    n = nx + 2  # one False cell beyond each edge
+    F = np.empty(n, np.int64)
     v = np.empty(n, np.int64)
-    zb = np.empty(n + 1)
     for i in range(ny):
-        f[0] = 0.0
-        f[n - 1] = 0.0
         any_in = False
+        F[0] = 0
+        F[n - 1] = (n - 1) * (n - 1)
         for j in range(nx):
-            x = g[i, j]
-            f[j + 1] = x * x
+            x = np.int64(g[i, j])
+            F[j + 1] = x * x + (j + 1) * (j + 1)
             if x > 0:
                 any_in = True
         if not any_in:
             continue
-        _edt_1d(f, n, d, v, zb)
-        for j in range(nx):
-            g[i, j] = d[j + 1] if inside[i, j] else 0.0
-    return g
+        k = 0
+        v[0] = 0
+        for q in range(1, n):
+            fq = F[q]
+            while k >= 1:
+                b = v[k]
+                a = v[k - 1]
+                if (fq - F[b]) * (b - a) <= (F[b] - F[a]) * (q - b):
+                    k -= 1
+                else:
+                    break
+            k += 1
+            v[k] = q
+        top = k
+        k = 0
+        for q in range(1, n - 1):
+            if not inside[i, q - 1]:
+                continue  # already 0
+            while k < top and F[v[k + 1]] - F[v[k]] < 2 * q * (v[k + 1] - v[k]):
+                k += 1
+            p = v[k]
+            g[i, q - 1] = F[p] - p * p + (q - p) * (q - p)
 
 
 @njit(cache=True, nogil=True)
@@ -253,9 +236,24 @@ def plane_tangent(s_uz, s_vz, k1, k2, k3, gx, gy, inv_cell, unmapped, out):  # p
 
 
 @njit(cache=True, nogil=True)
-def combine_exclusion(static_bits, unmapped, high, tan_slope, tan_c, f_unmapped, f_slope, f_high):  # pragma: no cover
-    """Exclusion bit flags of one heading (static | unmapped | slope > θc | high) and the bounding box of the
-    cells where C_G may land (r0, r1, c0, c1; r0 = -1 when none), in one pass."""
+def times_conj_imaginary(fz, a_u, a_v, out_u, out_v):  # pragma: no cover - compiled
+    """out_u = fz · conj(i a_u), out_v = fz · conj(i a_v) for real ``a_u``/``a_v`` (the spectra of the
+    antisymmetric kernels uB, vB are purely imaginary): (x + iy)(-i a) = a y - i a x, one read of ``fz``."""
+    ny, nx = fz.shape
+    for i in range(ny):
+        for j in range(nx):
+            z = fz[i, j]
+            au = a_u[i, j]
+            av = a_v[i, j]
+            out_u[i, j] = complex(au * z.imag, -au * z.real)
+            out_v[i, j] = complex(av * z.imag, -av * z.real)
+
+
+@njit(cache=True, nogil=True)
+def combine_exclusion(static_bits, unmapped, high, tan_slope, tan_c, f_unmapped, f_slope, f_high, ok):  # pragma: no cover
+    """Exclusion bit flags of one heading (static | unmapped | slope > θc | high), the cells where C_G may land
+    written into the bool array ``ok`` (flags 0), and their bounding box (r0, r1, c0, c1; r0 = -1 when none), in
+    one pass."""
     ny, nx = unmapped.shape
     ex = np.empty((ny, nx), np.uint8)
     r0, r1, c0, c1 = -1, -1, nx, -1
@@ -269,6 +267,7 @@ def combine_exclusion(static_bits, unmapped, high, tan_slope, tan_c, f_unmapped,
             if tan_slope[i, j] > tan_c:  # NaN compares False
                 e |= f_slope
             ex[i, j] = e
+            ok[i, j] = e == 0
             if e == 0:
                 if r0 < 0:
                     r0 = i
@@ -292,19 +291,31 @@ def site_stats(lab, d2, n, min_r2):  # pragma: no cover - compiled
     cmin = np.full(n + 1, nx, np.int64)
     cmax = np.full(n + 1, -1, np.int64)
     dmax2 = np.full(n + 1, -1.0)
-    for i in range(ny):
-        for j in range(nx):
+    for i in range(ny):  # by runs of one label along the row: the per-label updates once per run
+        j = 0
+        while j < nx:
             k = lab[i, j]
             if k == 0:
+                j += 1
                 continue
-            area[k] += 1
-            rmin[k] = min(rmin[k], i)
-            rmax[k] = max(rmax[k], i)
-            cmin[k] = min(cmin[k], j)
-            cmax[k] = max(cmax[k], j)
-            d = d2[i, j]
-            if d >= min_r2 and d > dmax2[k]:
-                dmax2[k] = d
+            j0 = j
+            dm = d2[i, j]
+            j += 1
+            while j < nx and lab[i, j] == k:
+                d = d2[i, j]
+                if d > dm:
+                    dm = d
+                j += 1
+            area[k] += j - j0
+            if rmin[k] > i:
+                rmin[k] = i
+            rmax[k] = i  # rows arrive in order
+            if j0 < cmin[k]:
+                cmin[k] = j0
+            if j - 1 > cmax[k]:
+                cmax[k] = j - 1
+            if dm >= min_r2 and dm > dmax2[k]:
+                dmax2[k] = dm
     sr = np.zeros(n + 1)
     sc = np.zeros(n + 1)
     cnt = np.zeros(n + 1)
@@ -335,27 +346,28 @@ def site_stats(lab, d2, n, min_r2):  # pragma: no cover - compiled
 
 
 @njit(cache=True, nogil=True)
-def outer_border(m):  # pragma: no cover - compiled
-    """Cells outside the True set of ``m`` (including the one-cell ring beyond its edges) that are 8-adjacent
-    to it: (rows, cols) in ``m``'s index frame (-1 and ny / nx for the ring), row-major, and the number of True
-    cells. Same output as :func:`outer_border_reference`, from a vertical 3-row OR per row (one buffer of
+def outer_border_of(lab, lid):  # pragma: no cover - compiled
+    """Cells outside the set ``lab == lid`` (including the one-cell ring beyond its edges) that are 8-adjacent
+    to it: (rows, cols) in ``lab``'s index frame (-1 and ny / nx for the ring), row-major, and the number of
+    cells of the set (a site of a label array, without building its mask; :func:`outer_border` for a bool
+    mask). Same output as :func:`outer_border_reference`, from a vertical 3-row OR per row (one buffer of
     nx + 4) then a horizontal 3-OR: ~4 byte operations per cell instead of 9 bounds-checked lookups."""
-    ny, nx = m.shape
+    ny, nx = lab.shape
     br = np.empty(2 * (ny + nx) + 16, np.int64)
     bc = np.empty(br.size, np.int64)
     nb = 0
     n_in = 0
-    vor = np.zeros(nx + 4, np.uint8)  # vor[j + 2] = m[i-1, j] | m[i, j] | m[i+1, j]; zero beyond the edges
+    vor = np.zeros(nx + 4, np.uint8)  # vor[j + 2]: the set at (i-1, j), (i, j) or (i+1, j); zero beyond the edges
     for i in range(-1, ny + 1):
         any_v = False
         for j in range(nx):
             x = False
             if i >= 1:
-                x = m[i - 1, j]
-            if 0 <= i < ny and m[i, j]:
+                x = lab[i - 1, j] == lid
+            if 0 <= i < ny and lab[i, j] == lid:
                 x = True
                 n_in += 1
-            if i + 1 < ny and m[i + 1, j]:
+            if i + 1 < ny and lab[i + 1, j] == lid:
                 x = True
             vor[j + 2] = x
             if x:
@@ -366,7 +378,7 @@ def outer_border(m):  # pragma: no cover - compiled
         for j in range(-1, nx + 1):
             if not (vor[j + 1] | vor[j + 2] | vor[j + 3]):
                 continue
-            if inside_row and 0 <= j < nx and m[i, j]:
+            if inside_row and 0 <= j < nx and lab[i, j] == lid:
                 continue
             if nb == br.size:
                 br2 = np.empty(2 * br.size, np.int64)
@@ -378,6 +390,33 @@ def outer_border(m):  # pragma: no cover - compiled
             bc[nb] = j
             nb += 1
     return br[:nb], bc[:nb], n_in
+
+
+@njit(cache=True, nogil=True)
+def outer_border(m):  # pragma: no cover - compiled
+    """:func:`outer_border_of` the True set of the bool mask ``m``."""
+    return outer_border_of(m, True)
+
+
+@njit(cache=True, nogil=True)
+def site_cells_at_least(lab, lid, c2, thr):  # pragma: no cover - compiled
+    """(rows, cols), row-major, of the cells with ``lab == lid`` and ``c2 >= thr``."""
+    ny, nx = lab.shape
+    n = 0
+    for i in range(ny):
+        for j in range(nx):
+            if lab[i, j] == lid and c2[i, j] >= thr:
+                n += 1
+    rows = np.empty(n, np.int64)
+    cols = np.empty(n, np.int64)
+    k = 0
+    for i in range(ny):
+        for j in range(nx):
+            if lab[i, j] == lid and c2[i, j] >= thr:
+                rows[k] = i
+                cols[k] = j
+                k += 1
+    return rows, cols
 
 
 @njit(cache=True, nogil=True)

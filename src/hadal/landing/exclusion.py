@@ -31,7 +31,7 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.fft as sfft
 
-from hadal.landing._kernels import any_free, plane_tangent
+from hadal.landing._kernels import any_free, plane_tangent, times_conj_imaginary
 from hadal.landing.vehicle import Vehicle
 
 UNMAPPED = np.uint8(1)
@@ -230,9 +230,12 @@ class HeadingCorrelator:
         ny, nx = self.shape
         return dilate_rows(runs[0], runs[1], runs[2], ny, nx, rows, lo, hi, outside, 0, ny)
 
-    def compute(self, heading_deg: float, need_slope: bool | None = None) -> HeadingMaps:
+    def compute(self, heading_deg: float, need_slope: bool | None = None,
+                out: np.ndarray | None = None) -> HeadingMaps:
         """Footprint erosion/dilation and plane-fit slope for one heading. ``need_slope``: None = only
-        when some cell is still landable after the boundary and protrusion exclusions; True = always."""
+        when some cell is still landable after the boundary and protrusion exclusions; True = always.
+        ``out``: a float32 buffer of the grid's shape for the slope tangents (reused across headings by the
+        caller; the returned maps then share it)."""
         v = self.vehicle
         ny, nx = self.shape
         rr, cc = footprint_offsets(v.length_m, v.width_m, heading_deg, self.cell_m)
@@ -240,25 +243,27 @@ class HeadingCorrelator:
         unmapped = self._dilate(self._unmapped_runs, True, rows, lo, hi)
         high = self._dilate(self._high_runs, False, rows, lo, hi) if self.high_any else np.zeros(self.shape, bool)
         if need_slope or (need_slope is None and any_free(unmapped, high, self.static)):
-            tan_slope = np.empty(self.shape, np.float32)  # every cell is written below (the tiles cover the grid)
+            # every cell is written below (the tiles cover the grid)
+            tan_slope = np.empty(self.shape, np.float32) if out is None else out
             u = cc.astype(np.float32)
             w = rr.astype(np.float32)
-            # uB and vB are antisymmetric: purely imaginary spectra; correlation = irfft(F_z conj(F_K))
-            FuBc = np.conj(self._kernel_spectrum(rr, cc, u))
-            FvBc = np.conj(self._kernel_spectrum(rr, cc, w))
+            # uB and vB are antisymmetric: purely imaginary spectra i a_u, i a_v (the real parts are rounding);
+            # correlation = irfft(F_z conj(F_K))
+            a_u = np.ascontiguousarray(self._kernel_spectrum(rr, cc, u).imag)
+            a_v = np.ascontiguousarray(self._kernel_spectrum(rr, cc, w).imag)
             uu = float(np.sum(cc.astype(float) ** 2))
             vv = float(np.sum(rr.astype(float) ** 2))
             uv = float(np.sum(cc.astype(float) * rr))
             det = uu * vv - uv * uv
             k1, k2, k3 = np.float32(vv / det), np.float32(uv / det), np.float32(uu / det)
             gx, gy = np.float32(self.plane[1]), np.float32(self.plane[2])
-            prod = np.empty_like(FuBc)
+            prod_u = np.empty(a_u.shape, np.complex64)
+            prod_v = np.empty(a_u.shape, np.complex64)
             for (r0, r1), (e0, Fz) in zip(self.tiles, self._spectra, strict=True):
                 q0, q1 = r0 - e0, r1 - e0
-                np.multiply(Fz, FuBc, out=prod)
-                s_uz = sfft.irfft2(prod, s=self.fshape, workers=self.workers, overwrite_x=True)[q0:q1, :nx]
-                np.multiply(Fz, FvBc, out=prod)
-                s_vz = sfft.irfft2(prod, s=self.fshape, workers=self.workers, overwrite_x=True)[q0:q1, :nx]
+                times_conj_imaginary(Fz, a_u, a_v, prod_u, prod_v)
+                s_uz = sfft.irfft2(prod_u, s=self.fshape, workers=self.workers, overwrite_x=True)[q0:q1, :nx]
+                s_vz = sfft.irfft2(prod_v, s=self.fshape, workers=self.workers, overwrite_x=True)[q0:q1, :nx]
                 # single precision (the sums are small: the global plane was removed); gradient in m per cell
                 plane_tangent(s_uz, s_vz, k1, k2, k3, gx, gy, np.float32(1.0 / self.cell_m), unmapped[r0:r1],
                               tan_slope[r0:r1])

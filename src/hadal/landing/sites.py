@@ -39,8 +39,12 @@ Choices where the paper is silent or where we deviate (on purpose):
 
 from __future__ import annotations
 
+import dataclasses
 import math
+import queue
+import threading
 import time
+import warnings
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import Any, Literal
@@ -52,7 +56,15 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError
 from scipy import ndimage as ndi
 
 from hadal.errors import ConfigError, InputError
-from hadal.landing._kernels import combine_exclusion, outer_border, site_stats, squared_edt
+from hadal.landing._kernels import (
+    combine_exclusion,
+    outer_border,
+    outer_border_of,
+    site_cells_at_least,
+    site_stats,
+    squared_edt,
+    squared_edt_into,
+)
 from hadal.landing.exclusion import (
     EXCLUSION_FLAGS,
     HIGH_PROTRUSION,
@@ -227,7 +239,8 @@ def roughness_max_m(vehicle: Vehicle, cell_m: float) -> float:
 
 def largest_aspect_rectangle_m2(mask: np.ndarray, cell_m: float, heading_deg: float, length_m: float,
                                 width_m: float, resolution_m: float | None = None,
-                                max_scale: float | None = None, clearance2: np.ndarray | None = None) -> float:
+                                max_scale: float | None = None, clearance2: np.ndarray | None = None,
+                                label: int | None = None) -> float:
     """A_r ``[Landing Eq. 12]``: area (m²) of the largest rectangle with the vehicle's aspect ratio, long side
     along ``heading_deg``, inscribed in boolean ``mask`` (rows = y, cols = x, cell ``cell_m``), exact on the grid.
 
@@ -246,13 +259,22 @@ def largest_aspect_rectangle_m2(mask: np.ndarray, cell_m: float, heading_deg: fl
     some cell outside the site (e.g. the squared EDT of the landable cells). Then s(p) ≤ √clearance2 / (w/2)
     (the rectangle norm is at most the Euclidean length over the shorter half side), and the k-d tree is only
     queried where that bound can still reach the best value found: the same maxima, hence the same result
-    (tests compare), without querying every lattice point of a large site."""
+    (tests compare), without querying every lattice point of a large site.
+
+    ``label``: ``mask`` is a label array and the site is ``mask == label`` (with ``clearance2``, no mask of the
+    site is built: two passes over the site's bounding box fewer)."""
     from scipy.spatial import cKDTree
 
-    if not mask.any():
+    if label is not None and clearance2 is None:
+        mask, label = np.asarray(mask) == label, None
+    if label is None:
+        m = np.ascontiguousarray(mask, dtype=bool)
+        br, bc, n_site = outer_border(m)  # compiled: the outside cells 8-adjacent to the site, one pass
+    else:
+        m = np.asarray(mask)  # a view of the labels (no copy: the kernels take strided arrays)
+        br, bc, n_site = outer_border_of(m, m.dtype.type(label))
+    if n_site == 0:
         return 0.0
-    m = np.ascontiguousarray(mask, dtype=bool)
-    br, bc, n_site = outer_border(m)  # compiled: the outside cells 8-adjacent to the site, one pass
     a = math.radians(heading_deg)
     sa, ca = math.sin(a), math.cos(a)
     hl, hw = 0.5 * length_m / cell_m, 0.5 * width_m / cell_m
@@ -264,7 +286,7 @@ def largest_aspect_rectangle_m2(mask: np.ndarray, cell_m: float, heading_deg: fl
     # unbalanced, uncompacted: ~2x faster to build and query here; the nearest distance does not depend on it
     tree = cKDTree(frame(br, bc), balanced_tree=False, compact_nodes=False)
     if clearance2 is not None:
-        return _rect_scale_pruned(m, np.asarray(clearance2), n_site, tree, frame, min(hl, hw), max_scale,
+        return _rect_scale_pruned(m, label, np.asarray(clearance2), n_site, tree, frame, min(hl, hw), max_scale,
                                   length_m * width_m)
     pr = pc = None  # the site's cells, only listed when the coarse lattice does not settle A_r
     best0 = 0.0
@@ -293,11 +315,12 @@ def largest_aspect_rectangle_m2(mask: np.ndarray, cell_m: float, heading_deg: fl
     return float(best * best * length_m * width_m)
 
 
-def _rect_scale_pruned(m: np.ndarray, c2: np.ndarray, n_site: int, tree, frame, h_min: float,
+def _rect_scale_pruned(m: np.ndarray, label: int | None, c2: np.ndarray, n_site: int, tree, frame, h_min: float,
                        max_scale: float | None, area: float) -> float:
     """:func:`largest_aspect_rectangle_m2` with the clearance bound: the maximum of s over the same point sets
     (the k = 16 and k = 4 lattices inside the site for the early exits, then every site cell), each found by
-    querying the points in decreasing order of their bound until the bound falls below the best value."""
+    querying the points in decreasing order of their bound until the bound falls below the best value.
+    ``m``: the site's bool mask, or (``label`` given) a label array holding the site as ``m == label``."""
 
     def max_s(rows: np.ndarray, cols: np.ndarray, best: float) -> float:
         ub = np.sqrt(c2[rows, cols].astype(float)) / h_min * (1.0 + 1e-9) + 1e-9
@@ -317,12 +340,16 @@ def _rect_scale_pruned(m: np.ndarray, c2: np.ndarray, n_site: int, tree, frame, 
     for k in (16, 4):
         if n_site <= 4 * k * k:
             continue
-        lr, lc = np.nonzero(m[::k, ::k])
+        sub = m[::k, ::k]
+        lr, lc = np.nonzero(sub if label is None else sub == label)
         best0 = max_s(lr * k, lc * k, best0)
         if max_scale is not None and best0 >= max_scale:
             return float(best0 * best0 * area)
     thr = (max(best0 - 2e-9, 0.0) * h_min) ** 2 * (1.0 - 1e-9)  # cells whose bound can reach best0
-    pr, pc = np.nonzero(m & (c2 >= thr))
+    if label is None:
+        pr, pc = np.nonzero(m & (c2 >= thr))
+    else:
+        pr, pc = site_cells_at_least(m, m.dtype.type(label), c2, c2.dtype.type(thr) if thr < 3e38 else np.inf)
     best = max_s(pr, pc, best0) if pr.size else best0
     if best == 0.0 and not pr.size:  # pragma: no cover - an empty site returned 0 above
         return 0.0
@@ -344,27 +371,56 @@ class _Ctx:
     y0: float
 
 
-def _heading_exclusion(ctx: _Ctx, hm: HeadingMaps) -> tuple[np.ndarray, tuple[int, int, int, int]]:
-    """Bit flags of one heading and the bounding box (r0, r1, c0, c1) of the cells where C_G may land
-    (r0 = -1 when none), one compiled pass."""
+def _heading_exclusion(ctx: _Ctx, hm: HeadingMaps, ok: np.ndarray | None = None
+                       ) -> tuple[np.ndarray, np.ndarray, tuple[int, int, int, int]]:
+    """Bit flags of one heading, the bool map of the cells where C_G may land (into ``ok`` when given) and their
+    bounding box (r0, r1, c0, c1; r0 = -1 when none), one compiled pass."""
     tan_c = np.float32(math.tan(math.radians(ctx.vehicle.critical_slope_deg)))
+    ok = np.empty(hm.unmapped.shape, bool) if ok is None else ok
     ex, r0, r1, c0, c1 = combine_exclusion(ctx.static_excl, hm.unmapped, hm.high, hm.tan_slope, tan_c,
-                                           UNMAPPED, SLOPE, HIGH_PROTRUSION)
-    return ex, (r0, r1, c0, c1)
+                                           UNMAPPED, SLOPE, HIGH_PROTRUSION, ok)
+    return ex, ok, (r0, r1, c0, c1)
 
 
-def _analyse_heading(ctx: _Ctx, heading: float, want_labels: bool = False, keep: bool = False):
+class _Workspace:
+    """Buffers of one thread's heading loop, reused from heading to heading: the slope tangents, the labels
+    and the squared EDT of a 10 M-cell strip are 40 MB each, and a fresh array of that size is mapped and
+    page-faulted anew every time (~1.5 s of the strip's 37 headings). Results that outlive the heading
+    (the kept best heading) are copied by the caller."""
+
+    def __init__(self, shape: tuple[int, int]):
+        self.shape = shape
+        self._buf: dict[str, np.ndarray] = {}
+
+    def get(self, name: str, shape: tuple[int, int], dtype) -> np.ndarray:
+        n = int(shape[0]) * int(shape[1])
+        buf = self._buf.get(name)
+        if buf is None or buf.dtype != np.dtype(dtype) or buf.size < n:
+            buf = self._buf[name] = np.empty(int(self.shape[0]) * int(self.shape[1]), dtype)
+        return buf[:n].reshape(shape)
+
+
+def _analyse_heading(ctx: _Ctx, heading: float, want_labels: bool = False, keep: bool = False,
+                     ws: _Workspace | None = None):
     """Exclusion flags and site rows of one heading; ``want_labels``: also the heading maps and the full-grid
     labels; ``keep``: also (heading maps, labels of the landable box, box) so the caller can keep the
-    heading that holds the best site instead of recomputing it."""
-    hm = ctx.corr.compute(heading, need_slope=True if want_labels else None)
-    ex, (r0, r1, c0, c1) = _heading_exclusion(ctx, hm)
+    heading that holds the best site instead of recomputing it (with ``ws`` they share its buffers: copy
+    what is kept). ``ws``: reused buffers (one workspace per thread)."""
+    hm = ctx.corr.compute(heading, need_slope=True if want_labels else None,
+                          out=None if ws is None else ws.get("tan", ctx.z.shape, np.float32))
+    ex, ok_all, (r0, r1, c0, c1) = _heading_exclusion(
+        ctx, hm, None if ws is None else ws.get("ok", ctx.z.shape, np.bool_))
     rows: list[dict[str, Any]] = []
     labels = None
     kept = None
     if r0 >= 0:
-        ok = ex[r0:r1, c0:c1] == 0  # labels, EDT and site statistics only inside the landable bounding box
-        lab, n = ndi.label(ok, structure=np.ones((3, 3), bool))
+        ok = ok_all[r0:r1, c0:c1]  # labels, EDT and site statistics only inside the landable bounding box
+        eight = np.ones((3, 3), bool)
+        if ws is None:
+            lab, n = ndi.label(ok, structure=eight)
+        else:
+            lab = ws.get("lab", ok.shape, np.int32)
+            n = ndi.label(ok, structure=eight, output=lab)
         if want_labels:
             labels = np.zeros(ex.shape, lab.dtype)
             labels[r0:r1, c0:c1] = lab
@@ -372,7 +428,11 @@ def _analyse_heading(ctx: _Ctx, heading: float, want_labels: bool = False, keep:
             kept = (hm, lab, (r0, r1, c0, c1))
         # exact squared EDT (numba, F&H; = scipy's distance_transform_edt of the padded box, tests compare);
         # squared distances are exact integers, so the cells sharing the largest circle are found exactly
-        d2 = squared_edt(ok)
+        if ws is None:
+            d2 = squared_edt(ok)
+        else:
+            d2 = ws.get("d2", ok.shape, np.float32)
+            squared_edt_into(ok, d2)
         # per label: area, bounding box, the largest inscribed circle (only if >= the minimum radius), and among
         # the cells sharing it (e.g. along a corridor) the one nearest to their mean position — a deterministic
         # and central choice (ties: smallest row, then column)
@@ -392,8 +452,8 @@ def _analyse_heading(ctx: _Ctx, heading: float, want_labels: bool = False, keep:
                 theta = hm.slope_at(i, j)
                 box = lab[bb_r0[lid] : bb_r1[lid], bb_c0[lid] : bb_c1[lid]]
                 rect = largest_aspect_rectangle_m2(
-                    box == lid, ctx.cell_m, heading, v.length_m, v.width_m, max_scale=math.sqrt(5.0),
-                    clearance2=d2[bb_r0[lid] : bb_r1[lid], bb_c0[lid] : bb_c1[lid]])
+                    box, ctx.cell_m, heading, v.length_m, v.width_m, max_scale=math.sqrt(5.0),
+                    clearance2=d2[bb_r0[lid] : bb_r1[lid], bb_c0[lid] : bb_c1[lid]], label=lid)
                 ratio = rect / v.footprint_area_m2
                 p_s = theta / v.critical_slope_deg  # Eq. 11
                 p_f = float(np.clip(0.25 * (5.0 - ratio), 0.0, 1.0))  # Eq. 12
@@ -489,9 +549,12 @@ def _grid_arrays(grid: xr.DataArray, vehicle: Vehicle, max_cell_fraction: float
                 "reported as a warning)")
         raise InputError(f"grid cells of {cell:g} m are too coarse for a {vehicle.width_m:g} m wide vehicle "
                          f"(at most {max_cell:g} m = {max_cell_fraction:g} × width){hint}")
-    z = np.asarray(g.values, float)
-    z = np.where(np.isfinite(z), z, np.nan)  # ±inf = unmapped
-    if not np.isfinite(z).any():
+    z = np.array(g.values, dtype=float)  # the analysis' own copy
+    np.copyto(z, np.nan, where=np.isinf(z))  # ±inf = unmapped
+    with warnings.catch_warnings():  # all-NaN: reported below
+        warnings.simplefilter("ignore", RuntimeWarning)
+        lo, hi = float(np.nanmin(z)), float(np.nanmax(z))  # one pass each (fmin/fmax reductions, no copy)
+    if not math.isfinite(lo):
         raise InputError("elevation grid has no mapped (finite) cells")
     positive = str(grid.attrs.get("positive", "")).strip().lower()
     names = {str(grid.name or "").lower(), str(grid.attrs.get("standard_name", "")).lower()}
@@ -500,13 +563,13 @@ def _grid_arrays(grid: xr.DataArray, vehicle: Vehicle, max_cell_fraction: float
     if not positive:
         if names & set(_DEPTH_NAMES) or "depth" in str(grid.attrs.get("long_name", "")).lower():
             positive = "down"  # a depth variable without the attribute: depths are positive down
-        elif np.nanmin(z) > 50.0:
-            raise InputError(f"elevation grid {grid.name!r} is all > 50 m (min {np.nanmin(z):.1f}) and has no "
+        elif lo > 50.0:
+            raise InputError(f"elevation grid {grid.name!r} is all > 50 m (min {lo:.1f}) and has no "
                              "'positive' attribute: depths? set positive='down' (or 'up')")
     if positive == "down":
-        z = -z
-    if np.nanmax(np.abs(z)) > 12_000.0:
-        raise InputError(f"elevation grid {grid.name!r} reaches {np.nanmax(np.abs(z)):.0f} m: deeper than any "
+        np.negative(z, out=z)
+    if max(abs(lo), abs(hi)) > 12_000.0:
+        raise InputError(f"elevation grid {grid.name!r} reaches {max(abs(lo), abs(hi)):.0f} m: deeper than any "
                          "ocean (values in mm labelled m?)")
     return z, x, y, cell
 
@@ -650,13 +713,18 @@ def landability_probability(z: np.ndarray, h: np.ndarray, sigma: np.ndarray, row
 BYTES_PER_CELL = 120
 #: bytes per entry of the Fig. 15 exclusion table (distance and height, float64)
 TABLE_ENTRY_BYTES = 16
+#: bytes per cell of each heading thread beyond the first (its workspace: float32 slope tangents, int32
+#: labels, float32 squared EDT; the bool exclusion maps of the heading in flight), rounded up
+THREAD_BYTES_PER_CELL = 24
 
 
 def estimate_resources(shape: tuple[int, int], n_headings: int, *, keep_heading_exclusion: bool = True,
-                       exclusion_step_m: float = 0.005, vehicle: Vehicle | None = None) -> dict[str, float]:
+                       exclusion_step_m: float = 0.005, vehicle: Vehicle | None = None,
+                       workers: int = 1) -> dict[str, float]:
     """Memory (bytes) and work (cell x heading evaluations) :func:`analyse_submap` will need for a grid of
     ``shape`` and ``n_headings`` headings, estimated before anything is allocated: ``BYTES_PER_CELL`` per cell,
-    one byte per cell and heading for the kept exclusion maps, the Fig. 15 table of ``exclusion_step_m``."""
+    one byte per cell and heading for the kept exclusion maps, the Fig. 15 table of ``exclusion_step_m``,
+    ``THREAD_BYTES_PER_CELL`` per cell for each heading thread beyond the first (``workers``)."""
     vehicle = vehicle or Vehicle()
     cells = float(shape[0]) * float(shape[1])
     n_table = math.floor(0.5 * vehicle.width_m / exclusion_step_m) + 2 if exclusion_step_m > 0 else math.inf
@@ -664,6 +732,7 @@ def estimate_resources(shape: tuple[int, int], n_headings: int, *, keep_heading_
         "maps": cells * BYTES_PER_CELL,
         "heading_exclusion": cells * n_headings if keep_heading_exclusion else 0.0,
         "exclusion_table": n_table * TABLE_ENTRY_BYTES,
+        "heading_threads": cells * THREAD_BYTES_PER_CELL * max(0, min(int(workers), n_headings) - 1),
     }
     return {"bytes": float(sum(parts.values())), "work": cells * n_headings, **parts}
 
@@ -672,13 +741,13 @@ def check_resources(shape: tuple[int, int], n_headings: int, *, memory_limit_byt
                     work_limit: float | None, keep_heading_exclusion: bool = True, exclusion_step_m: float = 0.005,
                     vehicle: Vehicle | None = None, what: str = "the landing analysis",
                     heading_setting: tuple[str, Any] | None = None,
-                    step_setting: tuple[str, Any] | None = None) -> dict[str, float]:
+                    step_setting: tuple[str, Any] | None = None, workers: int = 1) -> dict[str, float]:
     """Refuse (one-line :class:`ConfigError` with the estimate and the limit, :mod:`hadal.budget`) a grid /
-    heading / table configuration whose :func:`estimate_resources` exceeds the memory or work budget."""
+    heading / table / thread configuration whose :func:`estimate_resources` exceeds the memory or work budget."""
     from hadal.budget import check_memory, check_work
 
     est = estimate_resources(shape, n_headings, keep_heading_exclusion=keep_heading_exclusion,
-                             exclusion_step_m=exclusion_step_m, vehicle=vehicle)
+                             exclusion_step_m=exclusion_step_m, vehicle=vehicle, workers=workers)
     cells = f"{shape[0]:,} x {shape[1]:,} cells"
     hs, hv = heading_setting or ("headings_deg", f"{n_headings} headings")
     if memory_limit_bytes is not None:
@@ -769,7 +838,7 @@ def analyse_submap(
     if memory_limit_bytes is not None or work_limit is not None:
         check_resources(z.shape, n_heads, memory_limit_bytes=memory_limit_bytes, work_limit=work_limit,
                         keep_heading_exclusion=keep_heading_exclusion, exclusion_step_m=opt.exclusion_step_m,
-                        vehicle=vehicle)
+                        vehicle=vehicle, workers=opt.workers)
     sigma = _sigma_array(elevation_sigma_m, grid, z.shape, default_sigma_m)
     z, filled = fill_small_holes(z, cell, opt.fill_holes_max_m2)
     phi = 0.0
@@ -841,26 +910,47 @@ def analyse_submap(
     t = time.perf_counter()
     # α and α ± 180° give the same footprint (the paper's reason for -90..90): analyse each once
     keys = [round((float(a) - phi) % 180.0, 9) for a in heads]
-    cached = None  # (key, best-site order, kept maps) of the heading holding the best site
     uniq = list(dict.fromkeys(keys))
     first = {k: float(heads[keys.index(k)]) - phi for k in uniq}  # frame headings
-    if opt.workers > 1 and len(uniq) > 1:
-        with ThreadPoolExecutor(max_workers=opt.workers) as pool:
-            res_u = dict(zip(uniq, pool.map(lambda k: _analyse_heading(ctx, first[k]), uniq), strict=False))
-    else:  # one thread: keep the maps of the heading holding the best site so far (no recomputation below)
-        res_u = {}
-        for k in uniq:
-            ex_k, rows_k, kept = _analyse_heading(ctx, first[k], keep=True)
-            res_u[k] = (ex_k, rows_k)
+    order_of = {k: n for n, k in enumerate(uniq)}
+    # the maps of the heading holding the best site so far are kept (copied out of the thread's workspace),
+    # so the best site's footprint slope and mask need no recomputation; (best-site order, heading order)
+    # decides, ties to the earlier heading, as the final selection below
+    best_lock = threading.Lock()
+    cached: list[Any] = []  # [(key, (score, order), kept maps)] of the heading holding the best site
+    spaces: queue.SimpleQueue[_Workspace] = queue.SimpleQueue()
+    n_threads = max(1, min(opt.workers, len(uniq)))
+    for _ in range(n_threads):
+        spaces.put(_Workspace(z.shape))
+
+    def one(k: float):
+        ws = spaces.get()
+        try:
+            ex_k, rows_k, kept = _analyse_heading(ctx, first[k], keep=True, ws=ws)
             score = _best_score(rows_k)
-            if score is not None and (cached is None or score < cached[1]):  # ties: the earlier heading, as below
-                cached = (k, score, kept)
-            del kept
+            if score is not None:
+                rank = (score, order_of[k])
+                with best_lock:
+                    if not cached or rank < cached[0][1]:
+                        hm_k, lab_k, box_k = kept  # they share the workspace's buffers: copy what is kept
+                        cached[:] = [(k, rank, (dataclasses.replace(hm_k, tan_slope=hm_k.tan_slope.copy()),
+                                                lab_k.copy(), box_k))]
+            # the per-heading flags are only kept when asked for (10 MB per heading on a 10 M-cell strip)
+            return (ex_k if keep_heading_exclusion else None), rows_k
+        finally:
+            spaces.put(ws)
+
+    if n_threads > 1:
+        with ThreadPoolExecutor(max_workers=n_threads) as pool:
+            res_u = dict(zip(uniq, pool.map(one, uniq), strict=True))
+    else:
+        res_u = {k: one(k) for k in uniq}
+    while not spaces.empty():  # free the workspaces' buffers before the selection
+        spaces.get()
     results = []
     for a, k in zip(heads, keys, strict=False):
         ex, rows = res_u[k]
-        # the per-heading flags are only kept when asked for (10 MB per heading on a 10 M-cell strip)
-        results.append((ex if keep_heading_exclusion else None, [{**r, "heading_deg": float(a)} for r in rows]))
+        results.append((ex, [{**r, "heading_deg": float(a)} for r in rows]))
     del res_u
     timings["headings"] = time.perf_counter() - t
 
@@ -887,14 +977,14 @@ def analyse_submap(
         sites.loc[bi, "is_best"] = True
         best = {k: (v.item() if hasattr(v, "item") else v) for k, v in sites.iloc[bi].to_dict().items()}
         kb = round((float(best["heading_deg"]) - phi) % 180.0, 9)
-        if cached is not None and cached[0] == kb and first[kb] == float(best["heading_deg"]) - phi:
-            hm, lab, (b0, b1, b2, b3) = cached[2]
+        if cached and cached[0][0] == kb and first[kb] == float(best["heading_deg"]) - phi:
+            hm, lab, (b0, b1, b2, b3) = cached[0][2]
             best_mask = np.zeros(z.shape, bool)
             best_mask[b0:b1, b2:b3] = lab == int(best["site_id"])
         else:
             _, _, hm, labels = _analyse_heading(ctx, best["heading_deg"] - phi, want_labels=True)
             best_mask = labels == int(best["site_id"])
-        cached = None
+        cached.clear()
         fp_slope = hm.slope_deg
     else:
         sites["is_best"] = pd.Series(dtype=bool)

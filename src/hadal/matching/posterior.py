@@ -68,7 +68,14 @@ Gaussian error stays within 63 % of the time and within twice 98 %), the 1-sigma
 (eigen-decomposition of ``C``; 39 % / 86 % content for a Gaussian), the posterior mass outside the
 main mode and the second mode. **Mismatch** (``mismatch=True`` and a reason in ``reasons``):
 
-* ``ambiguous``: more than ``max_mass_outside`` of the posterior outside the main mode;
+* ``ambiguous``: more than ``max_mass_outside`` (20 %) of the posterior outside the main mode;
+* ``over_holes``: the map has interior holes (empty cells not connected to its border; border-connected ones
+  are outside its coverage) and, were the map under them to fit the track as well as its valid part does (each
+  hole sample scored with the unbiased residual variance of the valid samples at its offset), more than
+  ``max_mass_outside_holes`` (5 %) of the posterior would lie outside the main mode. The likelihood scores a
+  sample over a hole with the map's whole depth distribution, which favours hole-free offsets: on real terrain
+  with 40-50 % of the track over holes the MAP lands confidently on a hole-free spot elsewhere (the previous
+  calibration's only misses); this test catches them;
 * ``short_track``: fewer than ``min_samples`` profile samples;
 * ``off_map``: fewer than ``min_valid_for_fix`` (50 %) of the samples on valid map cells at the fix
   (between that and ``min_valid_at_fix``, 90 %, a warning only: missing samples are in the likelihood,
@@ -78,7 +85,11 @@ main mode and the second mode. **Mismatch** (``mismatch=True`` and a reason in `
 
 ``mass_outside_main_mode`` is the posterior probability that the error exceeds ``mode_radius_cells``
 (3 cells); a broad posterior (weak terrain) and a competing mode both raise it. The DRMS is not used
-as a flag: a tiny mass far away inflates the second moment without making the fix wrong.
+as a flag: a tiny mass far away inflates the second moment without making the fix wrong. On the real-terrain
+calibration bench it behaves as a probability (of the fixes with 10-20 % outside, about one in eight was more
+than 3 cells off), so a 5 % threshold flagged mostly correct fixes of 20-24-sample tracks; 20 % was chosen on
+bench seed 1 once the holes test caught the tracks over holes (their wrong fixes had 0-13 % outside) and
+checked on seeds 2 and 3 (bench/calibration_tercom.py).
 """
 
 from __future__ import annotations
@@ -313,6 +324,35 @@ def _bilinear_with_gradient(g: MapGrid, x_m: np.ndarray, y_m: np.ndarray):
     return z, gx, gy
 
 
+def _holes_mass_outside(msd_all, n_all, n_hole_all, N: int, s2: float, v_map: float, gamma: float, n_min: float,
+                        fix_cr: tuple[float, float], R: float) -> float:
+    """Posterior mass more than ``R`` cells from the fix (column, row) when every sample over an interior hole is
+    scored like the valid ones at its offset: its squared residual is the unbiased residual variance of the
+    valid samples, ``nv MSD / (nv - 5)``; offsets with fewer than ``n_min`` valid samples stay impossible (they
+    would be flagged off the map)."""
+    P, ny, nx = msd_all.shape
+    lls = []
+    for k in range(P):
+        nv = n_all[k].astype(float)
+        nh = n_hole_all[k].astype(float)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            m = msd_all[k].astype(float)
+            var = m * nv / np.maximum(nv - N_PARAMS, 1.0)
+            msd_h = (nv * m + nh * var) / np.maximum(nv + nh, 1.0)
+        ok = np.isfinite(msd_h) & (nv >= n_min)
+        lls.append(np.where(ok, _loglik(msd_h, nv + nh, N, s2, v_map, gamma), -np.inf))
+    top = max(float(x.max()) for x in lls)
+    if not np.isfinite(top):
+        return 0.0
+    pc = np.zeros((ny, nx))
+    for x in lls:
+        pc += np.exp(x - top)
+    yy, xx = np.mgrid[0:ny, 0:nx]
+    near = (xx - fix_cr[0]) ** 2 + (yy - fix_cr[1]) ** 2 <= R * R + 1e-9
+    tot = float(pc.sum())
+    return float(1.0 - pc[near].sum() / tot) if tot > 0 else 0.0
+
+
 def _drift_basis(tau: np.ndarray, segment: float) -> tuple[np.ndarray, np.ndarray]:
     """(N, K) time (or distance) spent in each drift segment before each sample, and the K+1 segment edges.
 
@@ -439,7 +479,8 @@ def posterior_fix(
     mode_radius_cells: float = 3.0,
     fine_step_cells: float = 0.25,
     n_alt_modes: int = 3,
-    max_mass_outside: float = 0.05,
+    max_mass_outside: float = 0.2,
+    max_mass_outside_holes: float = 0.05,
     min_samples: int = 10,
     min_valid_at_fix: float = 0.9,
     min_relief_to_noise: float = 1.0,
@@ -545,6 +586,21 @@ def posterior_fix(
             msd = np.maximum(s_r2 / nn - b * b, 0.0)
         msd_all[k] = msd
         n_all[k] = np.where(feas, n, 0)
+    # interior holes of the (cropped) map: empty cells not connected to its border (those are outside the map's
+    # coverage, e.g. the edges of a projected grid, and stay "off the map"); counted per pose for the holes test
+    lab, n_lab = ndimage.label(~V)
+    edge_labels = np.unique(np.concatenate([lab[0], lab[-1], lab[:, 0], lab[:, -1]]))
+    interior = (lab > 0) & ~np.isin(lab, edge_labels)
+    n_hole_all = None
+    if interior.any():
+        corr_h = _FFTCorrelator({"H": interior.astype(float)}, (max(0, -rmin), max(0, -cmin)),
+                                (max(0, rmax), max(0, cmax)))
+        n_hole_all = np.zeros((P, ny, nx), np.int32)
+        for k, (rows, cols) in enumerate(snapped):
+            rmin_k, cmin_k = int(rows.min()), int(cols.min())
+            (fc,) = corr_h.masks_fft(rows - rmin_k, cols - cmin_k, [np.ones(N)])
+            n_hole_all[k] = np.rint(corr_h.inverse([corr_h.F["H"] * fc], rmin_k, cmin_k)[0]).astype(np.int32)
+        del corr_h
     if not np.isfinite(msd_all).any():
         raise InputError(f"no feasible offset: the {N}-sample track does not fit on valid cells of the {ny} x {nx} "
                          f"map with min_valid_fraction={min_valid_fraction}")
@@ -877,6 +933,22 @@ def posterior_fix(
         reasons.append("no_terrain_information")
         warns.append(f"possible mismatch: map relief under the track (std {relief:.3g} m) is only {r2n:.2g} x the "
                      f"profile noise ({s_f:.3g} m): too little terrain information (flat map)")
+    # ---- holes test: the likelihood scores a sample over a hole with the map's whole depth distribution (it
+    # carries no position information), which favours hole-free offsets. Under the most optimistic alternative
+    # (the unknown map under the interior holes fits the track as well as the valid part does) the posterior must
+    # still hold the fix; if more than max_mass_outside_holes of it then lies elsewhere, the fix depends on what
+    # the holes hide: flagged ``over_holes``
+    mass_out_holes = 0.0
+    if n_hole_all is not None:
+        mass_out_holes = _holes_mass_outside(msd_all, n_all, n_hole_all, N, s2, v_map, gamma,
+                                             max(n_req, min_valid_for_fix * N),
+                                             (float(g.col_of(np.array([x_map]))[0]), float(g.row_of(np.array([y_map]))[0])), R)
+    holes_flag = mass_out_holes > max_mass_outside_holes
+    if holes_flag:
+        reasons.append("over_holes")
+        warns.append(f"possible mismatch: if the map under its holes fitted the track as well as elsewhere, "
+                     f"{100 * mass_out_holes:.1f} % of the posterior mass would lie more than {mode_radius_cells:g} "
+                     "cells from the fix: the fix depends on what the map holes hide")
     if mass_out > max_mass_outside:
         broad = second is None or second["mass"] < 0.5 * mass_out
         reasons.append("ambiguous")
@@ -894,6 +966,8 @@ def posterior_fix(
         "coarse_cell": {"x_east_m": float(g.x_m[rc_c[1]]), "y_north_m": float(g.y_m[rc_c[0]]),
                         "heading_error_deg": poses[kc][0], "track_scale": poses[kc][1]},
         "noise_sigma_coarse_m": float(np.sqrt(s2)), "tempering": float(gammaf), "drift": drift_info,
+        "holes_test": {"map_has_interior_holes": n_hole_all is not None, "mass_outside_if_holes_fit": mass_out_holes,
+                       "flagged": holes_flag},
     }
     return PosteriorFix(
         start_x_m=x_map, start_y_m=y_map, heading_deg=a_map, scale=f_map, bias_m=bias,

@@ -420,6 +420,9 @@ def _z_coordinate(ds: xr.Dataset) -> str | None:
     """The vertical coordinate as the compliance checker finds it: a (dimension or auxiliary)
     coordinate with standard_name depth/height/altitude, else one with pressure units or ``positive``."""
     coords = [str(n) for n in ds.coords if np.issubdtype(ds[n].dtype, np.number)]
+    for n in ds.dims:  # a depth dimension coordinate first (a depth-binned profile), before depth-like data
+        if n in ds.coords and ds[n].attrs.get("standard_name") in ("depth", "height", "altitude"):
+            return str(n)
     for n, v in ds.variables.items():  # the checker treats these standard names as coordinates anywhere
         if v.attrs.get("standard_name") in ("depth", "height", "altitude") and np.issubdtype(v.dtype, np.number):
             return str(n)
@@ -568,6 +571,9 @@ def _string_dims_to_index(out: xr.Dataset) -> xr.Dataset:
     return out
 
 
+#: the conventions every NetCDF product follows (IOOS-1.2 where it applies: see hadal.products.compliance)
+CONVENTIONS = "CF-1.8, ACDD-1.3, IOOS-1.2"
+
 #: instance dimensions of pressure-binned casts (``derive``'s ``profile``/``cast_profiles``)
 PROFILE_DIMS = ("cast", "profile")
 
@@ -583,6 +589,7 @@ def _profile_dsg(out: xr.Dataset) -> tuple[xr.Dataset, bool]:
         None)
     if not dims or z is None or {"y", "x"} <= set(out.dims):
         return out, False
+    out = _depth_auxiliary(out, z)
     d = dims[0]
     if d not in out.coords:
         out = out.assign_coords({d: np.arange(out.sizes[d], dtype="i4")})
@@ -594,6 +601,59 @@ def _profile_dsg(out: xr.Dataset) -> tuple[xr.Dataset, bool]:
         elif n in out.data_vars and out[n].dims == (d,):
             out = out.set_coords(n)
     return out, True
+
+
+def _depth_auxiliary(out: xr.Dataset, z: str) -> xr.Dataset:
+    """Casts binned by pressure get a length vertical coordinate as well (IOOS-1.2 accepts only lengths): the
+    stage's own depth of every bin (``depth_m``, standard_name depth, positive down) becomes an auxiliary
+    coordinate; without one, ``depth`` from TEOS-10 ``gsw.z_from_p`` at the casts' latitude (depth = -z, the
+    standard ocean's hydrostatic depth). The pressure axis is kept as it is."""
+    units = out[z].attrs.get("units") or units_from_name(z)
+    if units not in ("dbar", "decibar"):
+        return out
+    def attr(n: str, v: xr.DataArray, key: str) -> Any:  # the variable's own, else hadal's column table's
+        return v.attrs.get(key) or COLUMN_ATTRS.get(n, {}).get(key)
+
+    cand = [str(n) for n, v in out.data_vars.items() if z in v.dims and attr(str(n), v, "standard_name") == "depth"
+            and attr(str(n), v, "positive") == "down" and (attr(str(n), v, "units") or units_from_name(str(n))) == "m"]
+    if cand:
+        name = "depth_m" if "depth_m" in cand else cand[0]
+        return out.set_coords(name)
+    if "depth" in out.variables:
+        return out
+    import gsw
+
+    lat = out["lat"] if "lat" in out.variables else None
+    if lat is None or not np.isfinite(np.asarray(lat.values, float)).any():
+        return out
+    lat_v = float(np.nanmean(np.asarray(lat.values, float)))
+    depth = -gsw.z_from_p(np.asarray(out[z].values, float), lat_v)
+    attrs = {"standard_name": "depth", "units": "m", "positive": "down",
+             "long_name": "depth of the pressure bin (TEOS-10 gsw.z_from_p at the casts' mean latitude)"}
+    return out.assign_coords(depth=((z,), depth, attrs))
+
+
+#: name of the IOOS-1.2 platform container variable every data variable refers to (``platform`` attribute)
+PLATFORM_VARIABLE = "platform"
+
+
+def _add_platform_variable(out: xr.Dataset, glob: dict[str, Any], grid_mapping: str | None) -> xr.Dataset:
+    """IOOS-1.2 / CF-1.8 platform container variable (a scalar holding the platform's attributes) and the
+    ``platform`` attribute on every data variable naming it; only when the product names a platform."""
+    gcmd = glob.pop("hadal_platform_gcmd", None)
+    if not glob.get("platform") or PLATFORM_VARIABLE in out.variables:
+        return out
+    pattrs = {"long_name": glob.get("platform_name") or str(glob["platform"]),
+              "comment": "container variable of the platform (vehicle) metadata; every data variable names it "
+                         "in its platform attribute",
+              "platform_type": str(glob["platform"]), "platform_vocabulary": glob.get("platform_vocabulary"),
+              "platform_id": glob.get("platform_id"), "gcmd_platform_keyword": gcmd,
+              "instrument": glob.get("instrument")}
+    for n in list(out.data_vars):
+        if str(n) != grid_mapping:
+            out[n].attrs["platform"] = PLATFORM_VARIABLE
+    out[PLATFORM_VARIABLE] = xr.Variable((), np.int8(0), {k: v for k, v in pattrs.items() if v})
+    return out
 
 
 def prepare_dataset(ds: xr.Dataset, path: str | Path, *, title: str, summary: str, **attrs: Any) -> xr.Dataset:
@@ -653,7 +713,7 @@ def prepare_dataset(ds: xr.Dataset, path: str | Path, *, title: str, summary: st
     ident = ".".join(x for x in (dive, product if product and product != stem else None, stem) if x)
     cdm = "Grid" if yx else ("Trajectory" if "time" in out.dims else ("Profile" if _z_coordinate(out) else "Point"))
     glob: dict[str, Any] = {
-        "Conventions": "CF-1.8, ACDD-1.3",
+        "Conventions": CONVENTIONS,
         "title": title,
         "summary": summary,
         **product_attributes(dive_model, product, {**ds.attrs, **attrs}),
@@ -672,8 +732,12 @@ def prepare_dataset(ds: xr.Dataset, path: str | Path, *, title: str, summary: st
         **{k: v for k, v in ds.attrs.items()},
         **attrs,
     }
-    if glob.get("platform") not in (None, product_attributes(dive_model, product).get("platform")):
-        glob.pop("platform_vocabulary", None)  # a caller's free-text platform is not a GCMD keyword
+    own_platform = product_attributes(dive_model, product).get("platform")
+    if glob.get("platform") is not None and glob.get("platform") == glob.get("platform_name") and own_platform:
+        glob["platform"] = own_platform  # a caller's vehicle name: that is platform_name; platform is the type
+    if glob.get("platform") not in (None, own_platform):
+        glob.pop("platform_vocabulary", None)  # a caller's free-text platform is not a term of the vocabulary
+    out = _add_platform_variable(out, glob, grid_mapping)
     glob.pop("hadal_metadata_missing", None)
     glob["hadal_metadata_missing"] = metadata_missing(glob)
     out.attrs = {k: _attr_value(v) for k, v in glob.items() if v is not None}
@@ -721,6 +785,47 @@ def write_netcdf(ds: xr.Dataset, path: str | Path, *, title: str, summary: str, 
     # check and plain os.write. HDF5 writing into a file on a full disk crashes the process (h5netcdf/h5py
     # close the file in __dealloc__ after a failed write: tracebacks, then a segfault), so it never does.
     _write_file(path, as_nc_char(out).to_netcdf(engine="h5netcdf"))
+    return path
+
+
+#: Zarr format written: v2 (consolidated metadata) is read by every Zarr reader (zarr-python 2 and 3, GDAL,
+#: xarray, R, Julia); v3 readers are fewer
+ZARR_FORMAT = 2
+
+
+def write_zarr(netcdf_path: str | Path, path: str | Path, *, chunk: int = 512) -> Path:
+    """The NetCDF product ``netcdf_path`` (written by :func:`write_netcdf`) also as a Zarr store (a directory
+    ``path``): the same variables, values, encodings and attributes (CF/ACDD/IOOS globals, grid mapping),
+    chunked ``chunk`` x ``chunk`` along ``y``/``x`` (other dimensions whole), copied chunk by chunk (dask) so a
+    large grid is never held whole. zarr is an optional dependency (``pip install 'hadal[zarr]'``); without it a
+    one-line :class:`hadal.errors.ConfigError`."""
+    netcdf_path, path = Path(netcdf_path), Path(path)
+    try:
+        import zarr  # noqa: F401 - the optional dependency, imported only to fail early and clearly
+    except ImportError:
+        from hadal.errors import ConfigError
+
+        raise ConfigError(f"{path.name}: writing Zarr grids (grid.zarr: true) needs the zarr package, which is "
+                          "not installed (pip install 'hadal[zarr]', or set grid.zarr: false)") from None
+    from hadal.store import ensure_free_space
+
+    if path.exists():
+        raise InputError(f"{path} already exists (a Zarr store is written once, never overwritten)")
+    with xr.open_dataset(netcdf_path, engine="h5netcdf", chunks={}) as src:
+        ensure_free_space(path, netcdf_size_lower_bound(src), path.name)
+        encoding = {}
+        for n, v in src.variables.items():
+            enc = {k: val for k, val in v.encoding.items() if k in ("dtype", "_FillValue", "units", "calendar",
+                                                                      "scale_factor", "add_offset")}
+            enc.setdefault("_FillValue", None)  # none in the NetCDF (coordinates): none in the Zarr either
+            if v.ndim and n not in src.dims:
+                enc["chunks"] = tuple(min(int(chunk), sz) if d in ("y", "x") else sz
+                                      for d, sz in zip(v.dims, v.shape, strict=True))
+            encoding[n] = enc
+        ds = src.chunk({d: min(int(chunk), src.sizes[d]) if d in ("y", "x") else -1 for d in src.dims})
+        for v in ds.variables.values():
+            v.encoding = {}
+        ds.to_zarr(path, mode="w-", zarr_format=ZARR_FORMAT, consolidated=True, encoding=encoding)
     return path
 
 

@@ -8,6 +8,11 @@
 * What hadal knows for certain (``source``, ``processing_level``, ``references`` of the method papers, the
   GCMD vocabularies) is written always. ``instrument`` is per product (:data:`PRODUCT_INSTRUMENTS`, overridden
   per product by ``metadata.instruments``): the DTM names the multibeam echosounder, the CTD products the CTD.
+* IOOS-1.2 (:data:`IOOS_REQUIRED`, asked of the dive like the ACDD required ones): ``creator_country``,
+  ``creator_sector``, ``infoUrl`` (``publisher_country`` follows the creator's); the global ``platform`` is a term
+  of the IOOS platform vocabulary (``metadata.platform_type``, default ``submersible``; IOOS disallows GCMD
+  keywords there), ``platform_id`` the vehicle name's letters and digits, and the GCMD platform keyword goes to
+  the products' ``platform`` container variable (:func:`hadal.products.io.prepare_dataset`).
 * :func:`dive_context` makes a stage's dive (and raw directory) known to the writers while it runs
   (``hadal.pipeline.run_stage``); provenance then records input paths relative to the raw directory.
 """
@@ -25,6 +30,18 @@ from typing import Any
 
 #: ACDD attributes a dive must give (``hadal config --check`` lists the missing ones)
 ACDD_REQUIRED: tuple[str, ...] = ("creator_name", "creator_email", "institution", "project", "license")
+#: IOOS-1.2 attributes (required there) only the operator can give; ``hadal config --check`` lists them too
+IOOS_REQUIRED: tuple[str, ...] = ("creator_country", "creator_sector", "infoUrl")
+#: every attribute ``hadal config --check`` asks dive.yaml ``metadata`` for
+REQUIRED_FIELDS: tuple[str, ...] = (*ACDD_REQUIRED, *IOOS_REQUIRED)
+#: IOOS-1.2 required attributes checked in a product's final attributes (``hadal_metadata_missing``)
+IOOS_PRODUCT_REQUIRED: tuple[str, ...] = (*IOOS_REQUIRED, "creator_institution", "publisher_country",
+                                          "publisher_institution", "platform_name")
+#: the IOOS platform vocabulary (IOOS-1.2: ``platform`` is one of its terms, no GCMD keyword) and hadal's default
+IOOS_PLATFORM_VOCABULARY = "https://mmisw.org/ont/ioos/platform"
+IOOS_PLATFORM_DEFAULT = "submersible"
+#: NERC G04 (ISO 19115 CI_RoleCode): the vocabulary of ``contributor_role`` (IOOS-1.2 default)
+CONTRIBUTOR_ROLE_VOCABULARY = "https://vocab.nerc.ac.uk/collection/G04/current/"
 #: ACDD "recommended" attributes taken from the dive when given (the compliance checker asks for them)
 ACDD_RECOMMENDED: tuple[str, ...] = ("creator_url", "naming_authority", "publisher_name", "publisher_email",
                                      "publisher_url")
@@ -33,9 +50,10 @@ ACDD_SUGGESTED: tuple[str, ...] = ("creator_type", "creator_institution", "publi
                                    "program", "metadata_link", "platform", "platform_vocabulary", "instrument",
                                    "instrument_vocabulary")
 #: every operator attribute read from dive.yaml ``metadata`` / ``HADAL_<NAME>``
-OPERATOR_FIELDS: tuple[str, ...] = (*ACDD_REQUIRED, *ACDD_RECOMMENDED, "creator_type", "creator_institution",
-                                    "publisher_type", "publisher_institution", "program", "acknowledgment",
-                                    "contributor_name", "contributor_role", "cruise", "metadata_link")
+OPERATOR_FIELDS: tuple[str, ...] = (*ACDD_REQUIRED, *ACDD_RECOMMENDED, *IOOS_REQUIRED, "creator_type",
+                                    "creator_institution", "publisher_type", "publisher_institution",
+                                    "publisher_country", "program", "acknowledgment", "contributor_name",
+                                    "contributor_role", "cruise", "metadata_link")
 
 #: facts about every hadal product (not about its operator): always written
 HADAL_FACTS: dict[str, str] = {
@@ -49,6 +67,7 @@ HADAL_FACTS: dict[str, str] = {
     "acknowledgment": "Processed with the hadal post-dive pipeline.",
     "contributor_name": "hadal post-dive pipeline",
     "contributor_role": "processor",
+    "contributor_role_vocabulary": CONTRIBUTOR_ROLE_VOCABULARY,
     "processing_level": "L2: geophysical variables derived from vehicle sensors",
     "references": ("Zhang et al., TERCOM terrain matching at the Challenger Deep; MRF terrain matching; "
                    "Sangekar et al., AUV landing-site detection in laser bathymetry"),
@@ -118,18 +137,19 @@ def operator_attributes(dive: Any = None) -> dict[str, str]:
             out[key] = env
     md = getattr(dive, "metadata", None)
     if md is not None:
-        out.update({k: str(v) for k, v in md.model_dump(exclude={"instruments", "platform_vocabulary_name"}).items()
-                    if v not in (None, "")})
+        out.update({k: str(v) for k, v in md.model_dump(
+            exclude={"instruments", "platform_vocabulary_name", "platform_type"}).items() if v not in (None, "")})
     if "creator_institution" not in out and "institution" in out:
         out["creator_institution"] = out["institution"]
     return out
 
 
 def missing_acdd_fields(dive: Any, recommended: bool = False) -> list[str]:
-    """The required (with ``recommended``: also the recommended) ACDD attributes that neither ``dive.yaml``
-    ``metadata`` nor a ``HADAL_<NAME>`` environment variable gives."""
+    """The required ACDD-1.3 and IOOS-1.2 attributes (:data:`REQUIRED_FIELDS`; with ``recommended``: also the
+    recommended ACDD ones) that neither ``dive.yaml`` ``metadata`` nor a ``HADAL_<NAME>`` environment variable
+    gives."""
     have = operator_attributes(dive)
-    want = ACDD_REQUIRED + (ACDD_RECOMMENDED if recommended else ())
+    want = REQUIRED_FIELDS + (ACDD_RECOMMENDED if recommended else ())
     return [k for k in want if k not in have]
 
 
@@ -143,10 +163,13 @@ def product_attributes(dive: Any, product: str | None, given: Mapping[str, Any] 
     platform = getattr(dive, "platform", None) or given.get("platform_name")
     if platform and platform != "unknown":
         out["platform_name"] = platform
-    gcmd = getattr(md, "platform_vocabulary_name", None) or (_GCMD_AUV if platform and platform != "unknown" else None)
-    if gcmd:
-        out["platform"] = gcmd
-        out["platform_vocabulary"] = "GCMD:GCMD Platforms"
+    if platform and platform != "unknown":
+        # IOOS-1.2: `platform` is a term of the IOOS platform vocabulary (a URL; GCMD keywords, which have blanks,
+        # are not allowed there); ACDD-1.3 accepts any vocabulary. The GCMD keyword goes to the platform variable.
+        out["platform"] = getattr(md, "platform_type", None) or IOOS_PLATFORM_DEFAULT
+        out["platform_vocabulary"] = IOOS_PLATFORM_VOCABULARY
+        out["platform_id"] = re.sub(r"[^A-Za-z0-9]", "", str(platform)) or None
+        out["hadal_platform_gcmd"] = getattr(md, "platform_vocabulary_name", None) or _GCMD_AUV
     instruments = dict(getattr(md, "instruments", None) or {})
     inst = instruments.get(product or "") or instruments.get(INSTRUMENT_OF.get(product or "", "")) or \
         PRODUCT_INSTRUMENTS.get(product or "")
@@ -161,7 +184,7 @@ def product_attributes(dive: Any, product: str | None, given: Mapping[str, Any] 
         # the creator publishes unless the dive names a publisher (ACDD: publisher = who distributes the data)
         for a, b in (("publisher_name", "creator_name"), ("publisher_email", "creator_email"),
                      ("publisher_url", "creator_url"), ("publisher_type", "creator_type"),
-                     ("publisher_institution", "creator_institution")):
+                     ("publisher_institution", "creator_institution"), ("publisher_country", "creator_country")):
             if b in out:
                 out[a] = out[b]
     return out
@@ -169,7 +192,8 @@ def product_attributes(dive: Any, product: str | None, given: Mapping[str, Any] 
 
 def metadata_missing(attrs: Mapping[str, Any]) -> str | None:
     """The ACDD attributes absent from a product's final global ``attrs`` (space-separated), or ``None``."""
-    missing = [k for k in (*ACDD_REQUIRED, *ACDD_RECOMMENDED, *ACDD_SUGGESTED) if attrs.get(k) in (None, "")]
+    missing = [k for k in dict.fromkeys((*ACDD_REQUIRED, *ACDD_RECOMMENDED, *ACDD_SUGGESTED, *IOOS_PRODUCT_REQUIRED))
+               if attrs.get(k) in (None, "")]
     return " ".join(missing) or None
 
 

@@ -12,12 +12,16 @@ Sources, per sample (column ``position_source``):
   or the last known position.
 
 Uncertainty (``position_uncertainty_m``, 1-sigma radial, DRMS): matched samples take the fix's radial uncertainty
-(``fix.json`` ``uncertainty_m.radial``). Without a match, dead-reckoned samples add ``dr_error_fraction`` x the
-horizontal distance travelled since the launch (``match.dr_error_fraction``'s model) in quadrature with
-``launch_uncertainty_m``. With a match, the match reveals the DR error over the descent (c0 = |matched - DR| at the
+(``fix.json`` ``uncertainty_m.radial``). Without a match, three terms in quadrature: ``launch_uncertainty_m``;
+the drift with the currents while the dead reckoning has no velocity reference (the unpowered descent and
+ascent: DR offsets held), a random walk ``unreferenced_drift_m_per_sqrt_s`` x sqrt(unreferenced time) (see
+``match.dr_unreferenced_drift_m_per_sqrt_s``); and ``dr_error_fraction`` x the horizontal distance dead-reckoned
+(``match.dr_error_fraction``). With a match, the match reveals the DR error over the descent (c0 = |matched - DR| at the
 first bottom sample): on the descent the adjusted track's error is taken as c0 x min(w, 1 - w) (w: fraction of the
-descent time; zero at both fixes, c0/2 half-way), and after the last match it grows at the revealed drift rate
-c0 / descent time (at least ``dr_error_fraction`` x distance), each in quadrature with the nearer fix's uncertainty.
+descent time; zero at both fixes, c0/2 half-way), and after the last match it grows as the larger of the
+dead-reckoning-only model restarted at the fix (random walk over the unreferenced time plus the distance term) and
+the revealed drift rate c0 / descent time extrapolated linearly, each in quadrature with the nearer fix's
+uncertainty.
 """
 
 from __future__ import annotations
@@ -52,15 +56,41 @@ def _travelled(e: np.ndarray, n: np.ndarray) -> np.ndarray:
     return np.cumsum(np.where(np.isfinite(d), d, 0.0))
 
 
+def unreferenced_seconds(ts: np.ndarray, e: np.ndarray, n: np.ndarray, window_s: float = 60.0,
+                         min_move_m: float = 0.5) -> np.ndarray:
+    """Cumulative time (s) since the first sample during which the dead reckoning had no velocity reference:
+    the DR offsets (``e``, ``n``, m) moved less than ``min_move_m`` within +-``window_s``/2 (unpowered descent
+    and ascent: DR held while the vehicle drifts with the currents; a vehicle hovering with a bottom lock is
+    counted too, which only overstates the uncertainty)."""
+    if ts.size == 0:
+        return np.zeros(0)
+    h = window_s / 2
+    move = np.hypot(np.interp(ts + h, ts, e) - np.interp(ts - h, ts, e),
+                    np.interp(ts + h, ts, n) - np.interp(ts - h, ts, n))
+    dt = np.clip(np.diff(ts, prepend=ts[0]), 0.0, None)
+    return np.cumsum(np.where(move < min_move_m, dt, 0.0))
+
+
 def navigation_table(ctd: pd.DataFrame, frame: LocalFrame, launch_lat: float, launch_lon: float, *,
                      matched: pd.DataFrame | None = None, fix: dict[str, Any] | None = None,
-                     dr_error_fraction: float = 0.01, launch_uncertainty_m: float = 10.0) -> pd.DataFrame:
+                     dr_error_fraction: float | None = None, launch_uncertainty_m: float = 10.0,
+                     unreferenced_drift_m_per_sqrt_s: float | None = None) -> pd.DataFrame:
     """Best position of every ``ctd`` sample (see module docstring). ``matched``: match's ``matched_track``
-    (``time``, ``x_east_m``, ``y_north_m``); ``fix``: its ``fix.json`` (for the radial uncertainty)."""
+    (``time``, ``x_east_m``, ``y_north_m``); ``fix``: its ``fix.json`` (for the radial uncertainty).
+    ``dr_error_fraction``, ``unreferenced_drift_m_per_sqrt_s``: default the ``match`` stage's."""
+    if dr_error_fraction is None or unreferenced_drift_m_per_sqrt_s is None:
+        from hadal.stages.match import Params  # the defaults are declared once, in match's Params
+
+        f = Params.model_fields
+        dr_error_fraction = f["dr_error_fraction"].default if dr_error_fraction is None else dr_error_fraction
+        unreferenced_drift_m_per_sqrt_s = (f["dr_unreferenced_drift_m_per_sqrt_s"].default
+                                           if unreferenced_drift_m_per_sqrt_s is None
+                                           else unreferenced_drift_m_per_sqrt_s)
     n = len(ctd)
     has_t = "time" in ctd
     t = pd.to_datetime(ctd["time"], utc=True).reset_index(drop=True) if has_t else None
-    tns = t.astype("int64").to_numpy() if has_t else np.zeros(n, np.int64)  # ns (tz-aware to_numpy is slow)
+    # ns whatever the column's resolution (pandas 3 keeps us/ms/s; tz-aware to_numpy is slow)
+    tns = t.dt.as_unit("ns").astype("int64").to_numpy() if has_t else np.zeros(n, np.int64)
     ts = (tns - tns[0]) / 1e9 if n else np.zeros(0)
     lx, ly = (float(v) for v in frame.to_xy(launch_lon, launch_lat))
     e = ctd["dr_east_m"].to_numpy(float) if "dr_east_m" in ctd else np.full(n, np.nan)
@@ -73,9 +103,11 @@ def navigation_table(ctd: pd.DataFrame, frame: LocalFrame, launch_lat: float, la
     seen = np.cumsum(have_dr) > 0  # a DR offset has been received (held over later dropouts)
     source = np.where(seen, "dead_reckoned", "launch").astype(object)
     dist = _travelled(ef, nf)
-    unc = np.hypot(launch_uncertainty_m, dr_error_fraction * dist)
+    t_unref = unreferenced_seconds(ts, ef, nf)
+    unc = np.sqrt(launch_uncertainty_m ** 2 + unreferenced_drift_m_per_sqrt_s ** 2 * t_unref
+                  + (dr_error_fraction * dist) ** 2)
     if matched is not None and len(matched) and has_t and n:
-        mt = pd.to_datetime(matched["time"], utc=True).astype("int64").to_numpy()
+        mt = pd.to_datetime(matched["time"], utc=True).dt.as_unit("ns").astype("int64").to_numpy()
         mx, my = matched["x_east_m"].to_numpy(float), matched["y_north_m"].to_numpy(float)
         order = np.argsort(mt, kind="stable")
         mt, mx, my = mt[order], mx[order], my[order]
@@ -102,9 +134,15 @@ def navigation_table(ctd: pd.DataFrame, frame: LocalFrame, launch_lat: float, la
             rest = (np.arange(n) > first) & ~is_m
             x[rest] += cx1
             y[rest] += cy1
+            # the larger of the dead-reckoning-only growth restarted at the last fix (random walk over the time
+            # without a velocity reference, plus the distance term) and the revealed rate extrapolated linearly
+            # (the ascent's drift need not be uniform: the linear rate alone covered 21-23 % of the generated
+            # dives' ascent errors within 1 sigma, bench/dr_uncertainty_tercom.py --match)
             rate = c0 / span if span > 0 else 0.0
-            unc[rest] = np.hypot(u_fix, np.maximum(rate * np.abs(ts[rest] - ts[last]),
-                                                   dr_error_fraction * np.abs(dist[rest] - dist[last])))
+            grow2 = np.maximum(unreferenced_drift_m_per_sqrt_s ** 2 * np.abs(t_unref[rest] - t_unref[last])
+                               + (dr_error_fraction * np.abs(dist[rest] - dist[last])) ** 2,
+                               (rate * np.abs(ts[rest] - ts[last])) ** 2)
+            unc[rest] = np.sqrt(u_fix ** 2 + grow2)
     lon, lat = frame.to_lonlat(x, y)
     out = pd.DataFrame({"lat": np.asarray(lat, float), "lon": np.asarray(lon, float),
                         "x_east_m": x, "y_north_m": y,
@@ -140,9 +178,13 @@ def trajectory_dataset(nav: pd.DataFrame, ctd: pd.DataFrame | None, dive_id: str
                        columns: tuple[str, ...] = ("pressure_dbar", "temperature_its90_degc", "practical_salinity",
                                                    "conductivity_s_m", "altitude_corrected_m", "seafloor_depth_m",
                                                    "sound_speed_m_s")) -> Any:
-    """The dive time series as a CF-1.8 Discrete Sampling Geometry, single trajectory (CF §H.4.1):
-    dimension ``obs``, ``time``/``lat``/``lon``/``depth_m`` coordinates, a ``trajectory`` id variable
-    (``cf_role = trajectory_id``), the best positions and, from ``ctd``, the listed measurement columns."""
+    """The dive time series as a CF-1.8 Discrete Sampling Geometry: one trajectory in the contiguous ragged
+    array representation (CF §H.4.3): dimension ``obs`` with ``time``/``lat``/``lon``/``depth_m`` coordinates,
+    dimension ``traj`` of length 1 with the id variable ``trajectory`` (``cf_role = trajectory_id``, the dive
+    id; a string, so not a coordinate variable of its dimension) and ``row_size`` (``sample_dimension = obs``:
+    every sample), the best positions and, from ``ctd``,
+    the listed measurement columns. (A length-1 instance dimension rather than CF §H.4.1's scalar id: IOOS-1.2
+    asks the trajectory_id variable for a dimension of length 1, one platform per dataset.)"""
     import xarray as xr
 
     from hadal.products.cf import COLUMN_ATTRS
@@ -157,7 +199,10 @@ def trajectory_dataset(nav: pd.DataFrame, ctd: pd.DataFrame | None, dive_id: str
     }
     src = nav["position_source"].astype(str).to_numpy()
     data = {
-        "trajectory": ((), dive_id, {"cf_role": "trajectory_id", "long_name": "dive id"}),
+        "trajectory": (("traj",), np.array([dive_id], dtype=object),
+                       {"cf_role": "trajectory_id", "long_name": "dive id"}),
+        "row_size": (("traj",), np.array([len(obs)], dtype="i4"),
+                     {"sample_dimension": "obs", "long_name": "number of observations of the trajectory"}),
         "x_east_m": ("obs", nav["x_east_m"].to_numpy(float), dict(NAV_FIELDS["x_east_m"])),
         "y_north_m": ("obs", nav["y_north_m"].to_numpy(float), dict(NAV_FIELDS["y_north_m"])),
         "position_uncertainty_m": ("obs", nav["position_uncertainty_m"].to_numpy(float),
@@ -181,20 +226,27 @@ def trajectory_dataset(nav: pd.DataFrame, ctd: pd.DataFrame | None, dive_id: str
 
 
 def publish_navigation(ctx: Any, ctd: pd.DataFrame, track: pd.DataFrame | None, fix: dict[str, Any] | None,
-                       upstream: list[Any], dr_error_fraction: float) -> Any:
+                       upstream: list[Any], dr_error_fraction: float,
+                       unreferenced_drift_m_per_sqrt_s: float | None = None) -> Any:
     """Publish the ``navigation`` product (``navigation.parquet`` + CF trajectory ``navigation.nc``) of a
     stage context ``ctx`` (``match`` calls it after publishing ``match``). Returns the ProductVersion."""
     from hadal.products.io import write_netcdf, write_parquet
 
     launch = ctx.dive.require_launch("navigation")
     frame = ctx.dive.frame()
+    if unreferenced_drift_m_per_sqrt_s is None:
+        from hadal.stages.match import Params
+
+        unreferenced_drift_m_per_sqrt_s = Params.model_fields["dr_unreferenced_drift_m_per_sqrt_s"].default
     nav = navigation_table(ctd, frame, launch.latitude_deg, launch.longitude_deg, matched=track, fix=fix,
-                           dr_error_fraction=dr_error_fraction)
+                           dr_error_fraction=dr_error_fraction,
+                           unreferenced_drift_m_per_sqrt_s=unreferenced_drift_m_per_sqrt_s)
     summary = navigation_summary(nav)
     meta = {"dive_id": ctx.dive_id, "summary": summary, "method": __doc__.strip().splitlines()[0],
             "map_frame": {"origin_latitude_deg": frame.origin_latitude_deg,
                           "origin_longitude_deg": frame.origin_longitude_deg, "crs_wkt": frame.crs.to_wkt()}}
-    with ctx.store.publish(ctx.dive_id, "navigation", parameters={"dr_error_fraction": dr_error_fraction},
+    with ctx.store.publish(ctx.dive_id, "navigation", parameters={"dr_error_fraction": dr_error_fraction,
+                                                         "unreferenced_drift_m_per_sqrt_s": unreferenced_drift_m_per_sqrt_s},
                            upstream=upstream, extra={"summary": summary}) as draft:
         write_parquet(nav, draft.path / "navigation.parquet", fields=NAV_FIELDS, metadata=meta,
                       provenance_from=draft)

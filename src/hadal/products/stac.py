@@ -34,7 +34,21 @@ MEDIA_TYPES: dict[str, tuple[str, list[str]]] = {
     ".json": ("application/json", ["metadata"]),
     ".html": ("text/html", ["overview"]),
     ".png": ("image/png", ["visual"]),
+    ".zarr": ("application/vnd+zarr", ["data"]),  # a Zarr store (directory): one asset (pystac MediaType.ZARR)
 }
+ZARR_MEDIA_TYPE = MEDIA_TYPES[".zarr"][0]
+
+
+def _asset_paths(root: Path) -> list[Path]:
+    """The files of a product version, a Zarr store (``*.zarr`` directory) counted as one asset."""
+    out: set[Path] = set()
+    for f in root.rglob("*"):
+        if not f.is_file():
+            continue
+        rel = f.relative_to(root)
+        store = next((i for i, part in enumerate(rel.parts[:-1]) if part.lower().endswith(".zarr")), None)
+        out.add(root.joinpath(*rel.parts[:store + 1]) if store is not None else f)
+    return sorted(out)
 
 
 def _latest_versions(store: Any, dive: str) -> dict[str, Any]:
@@ -156,7 +170,7 @@ def dive_item(store: Any, dive: str) -> Any:
     item = pystac.Item(id=dive, geometry=geometry, bbox=bbox, datetime=None, start_datetime=start,
                        end_datetime=end, properties=props)
     for product, pv in versions.items():
-        for f in sorted(p for p in pv.path.rglob("*") if p.is_file()):
+        for f in _asset_paths(pv.path):
             rel = f.relative_to(pv.path).as_posix()
             media, roles = MEDIA_TYPES.get(f.suffix.lower(), ("application/octet-stream", ["data"]))
             if f.name == "manifest.json":
@@ -250,6 +264,8 @@ def validate_store_catalog(root: str | os.PathLike[str]) -> list[str]:
         except pystac.errors.STACValidationError as exc:
             problems.append(f"item {item.id}: {exc}")
         for key, a in item.assets.items():
-            if not Path(a.get_absolute_href()).is_file():
+            target = Path(a.get_absolute_href())
+            ok = target.is_dir() and any(target.iterdir()) if a.media_type == ZARR_MEDIA_TYPE else target.is_file()
+            if not ok:
                 problems.append(f"item {item.id}: asset {key} -> missing file {a.href}")
     return problems

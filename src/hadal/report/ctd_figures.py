@@ -39,7 +39,8 @@ def _casts(dp: DiveProducts) -> tuple[list[tuple[str, pd.DataFrame]], float, flo
         n = prof.sizes.get("cast", 1) if cast_dim else 1
         for i in range(n):
             sel = prof.isel(cast=i) if cast_dim else prof
-            df = pd.DataFrame({"pressure_dbar": prof[zname].values.astype(float),
+            zp = sel["pressure_dbar"] if "pressure_dbar" in sel.data_vars else prof[zname]  # a depth-binned profile
+            df = pd.DataFrame({"pressure_dbar": zp.values.astype(float),
                                "t": sel["temperature_its90_degc"].values.astype(float),
                                "SP": sel["practical_salinity"].values.astype(float)})
             if "depth_m" in sel:

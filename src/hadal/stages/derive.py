@@ -15,7 +15,12 @@ CTD time base) and computes, per sample:
 * ``gravity_m_s2`` at the sample's depth; ``altitude_corrected_m`` (sound-speed corrected altimeter range);
   ``seafloor_depth_m`` = depth + corrected altitude (Fig. 10); ``phase`` (descent/bottom/ascent).
 
-Publishes ``ctd`` (``ctd.parquet``) and ``profile`` (``profile.nc``, pressure-binned descent and ascent casts).
+Publishes ``ctd`` (``ctd.parquet``) and ``profile`` (``profile.nc``, descent and ascent casts binned by pressure,
+or by depth with ``profile_axis: depth``).
+
+A record that does not start at the surface gets the water above from :func:`hadal.depth.overlying_column`: a
+user profile (``overlying_profile``, a CSV or Sea-Bird file read by :func:`hadal.depth.read_overlying_profile`),
+else its own shallower samples, else the TEOS-10 standard ocean.
 """
 
 from __future__ import annotations
@@ -31,6 +36,8 @@ from hadal.qc_derived import DerivedVariableQC
 from hadal.stages import StageInputs
 
 if TYPE_CHECKING:
+    from pathlib import Path
+
     import numpy as np
     import pandas as pd
 
@@ -106,6 +113,20 @@ class Params(BaseModel):
     profile_bin_dbar: float = Field(
         10.0, ge=1e-4, le=1000, description="pressure bin size of profile.nc (dbar, 1e-4 to 1000; the bins' memory is "
                                             "checked against resources.max_memory_gb)")
+    profile_axis: Literal["pressure", "depth"] = Field(
+        "pressure", description="vertical axis of profile.nc: pressure (profile_bin_dbar bins, coordinate "
+                                "pressure_dbar) or depth (profile_bin_m bins of the hydrostatic depth depth_m, "
+                                "with the bins' mean pressure as a variable)")
+    profile_bin_m: float = Field(
+        10.0, ge=1e-4, le=1000, description="depth bin size of profile.nc with profile_axis: depth (m, 1e-4 to "
+                                            "1000; memory checked against resources.max_memory_gb)")
+    overlying_profile: str | None = Field(
+        None, min_length=1, max_length=4096,
+        description="profile of the water above a record that does not start at the surface: a CSV (columns "
+                    "pressure_dbar and temperature_its90_degc + practical_salinity, or density_kg_m3; other "
+                    "units as 'name [unit]') or Sea-Bird .cnv file, path relative to the dive's raw directory "
+                    "or absolute; monotonic pressure from within surface_start_dbar of the surface down to the "
+                    "record's first sample (null: the record's own shallower samples, else the standard ocean)")
     phase_smoothing_s: float = Field(60.0, gt=0, le=86_400,
                                      description="depth smoothing before the phase segmentation (s, up to 1 day)")
     phase_speed_threshold_m_s: float = Field(0.2, gt=0, le=10,
@@ -162,6 +183,13 @@ class Params(BaseModel):
             raise ValueError(str(exc)) from None
         return v
 
+    @field_validator("overlying_profile")
+    @classmethod
+    def _overlying(cls, v: str | None) -> str | None:
+        if v is not None and (not v.strip() or "\x00" in v):
+            raise ValueError("overlying_profile must be a file path (not blank, no NUL character)")
+        return v
+
     @field_validator("gauge_bias_window_dbar")
     @classmethod
     def _window(cls, v: tuple[float, float]) -> tuple[float, float]:
@@ -182,11 +210,17 @@ def _flag_ok(df: pd.DataFrame, column: str, accept: list[int]) -> np.ndarray:
     return ok
 
 
+#: most metres per dbar of a water column (density >= 990 kg/m3, g >= 9.78 m/s2: 1e4 / (990 x 9.78) = 1.033): an
+#: upper bound of the depth from the pressure, for the memory check of a depth-binned profile before derive
+DEPTH_PER_DBAR_MAX = 1.04
+
+
 def profile_memory_bytes(pressure_dbar: Any, bin_dbar: float, n_variables: int | None = None,
                          n_casts: int = 2) -> float:
     """Bytes :func:`hadal.profile.make_profile` allocates for ``pressure_dbar`` in ``bin_dbar`` bins: per bin the
     edges and per cast a count plus, per variable, a sum, a count, a mean and the product array (8 bytes each).
-    ``n_variables``: default ``len(hadal.profile.PROFILE_VARIABLES)`` (looked up here: hadal.profile imports xarray)."""
+    ``n_variables``: default ``len(hadal.profile.PROFILE_VARIABLES)`` (looked up here: hadal.profile imports xarray).
+    The same holds on the depth axis with depths (m) and a bin size in m (as many variables)."""
     import numpy as np
 
     if n_variables is None:
@@ -203,7 +237,10 @@ def profile_memory_bytes(pressure_dbar: Any, bin_dbar: float, n_variables: int |
 
 
 def check_profile_memory(sensors: pd.DataFrame, p: Params, limit_bytes: float | None = None) -> None:
-    """Refuse (one-line ConfigError) a ``profile_bin_dbar`` whose bins would not fit the memory budget."""
+    """Refuse (one-line ConfigError) a ``profile_bin_dbar`` (or, on the depth axis, ``profile_bin_m``) whose bins
+    would not fit the memory budget. On the depth axis the depth is not known yet: it is bounded by
+    :data:`DEPTH_PER_DBAR_MAX` x the pressure, and the descent profile derive bins by pressure for the TEOS-10
+    cross-check (one cast, four variables, ``profile_bin_dbar``) is counted too."""
     import numpy as np
     import pandas as pd
 
@@ -211,22 +248,45 @@ def check_profile_memory(sensors: pd.DataFrame, p: Params, limit_bytes: float | 
     if not cols:
         return
     pr = np.concatenate([pd.to_numeric(sensors[c], errors="coerce").to_numpy(np.float64) for c in cols])
-    need = profile_memory_bytes(pr, p.profile_bin_dbar)
     fin = pr[np.isfinite(pr)]
+    limit = memory_limit_bytes() if limit_bytes is None else limit_bytes
+    if p.profile_axis == "depth":
+        z = pr * DEPTH_PER_DBAR_MAX
+        need = profile_memory_bytes(z, p.profile_bin_m) + profile_memory_bytes(pr, p.profile_bin_dbar, 4, 1)
+        zf = z[np.isfinite(z)]
+        span = (f"up to {float(zf.max()) - min(0.0, float(zf.min())):.0f} m ({DEPTH_PER_DBAR_MAX:g} m/dbar x the "
+                "pressure)" if zf.size else "no pressure")
+        check_memory(f"the depth-binned profile ({span} in {p.profile_bin_m:g} m bins)", need, limit,
+                     setting="derive.profile_bin_m", value=float(p.profile_bin_m),
+                     advice="use a larger derive.profile_bin_m (and profile_bin_dbar) or raise "
+                            "resources.max_memory_gb")
+        return
+    need = profile_memory_bytes(pr, p.profile_bin_dbar)
     span = f"{float(fin.max()) - min(0.0, float(fin.min())):.0f} dbar" if fin.size else "no pressure"
-    check_memory(f"the profile ({span} in {p.profile_bin_dbar:g} dbar bins)", need,
-                 memory_limit_bytes() if limit_bytes is None else limit_bytes,
+    check_memory(f"the profile ({span} in {p.profile_bin_dbar:g} dbar bins)", need, limit,
                  setting="derive.profile_bin_dbar", value=float(p.profile_bin_dbar),
                  advice="use a larger derive.profile_bin_dbar or raise resources.max_memory_gb")
 
 
+def profile_bin_size(p: Params) -> float:
+    """The bin size of profile.nc in its axis' unit (dbar or m)."""
+    return p.profile_bin_m if p.profile_axis == "depth" else p.profile_bin_dbar
+
+
+def profile_axis_text(p: Params) -> str:
+    """``'10 dbar pressure'`` or ``'5 m depth'``: the bins of profile.nc, for titles and summaries."""
+    return f"{p.profile_bin_m:g} m depth" if p.profile_axis == "depth" else f"{p.profile_bin_dbar:g} dbar pressure"
+
+
 def derive_ctd(sensors: pd.DataFrame, latitude_deg: float, longitude_deg: float, p: Params,
                frame: Any = None, launch_xy: tuple[float, float] = (0.0, 0.0), *,
-               memory_limit_bytes: float | None = None) -> tuple[pd.DataFrame, dict]:
+               memory_limit_bytes: float | None = None, overlying_profile: Any = None) -> tuple[pd.DataFrame, dict]:
     """Pure science of the stage: the ``ctd`` table and its metadata from a ``sensors`` table.
 
     ``frame`` (a :class:`hadal.geo.LocalFrame`) and ``launch_xy`` (the launch point in it) turn the
-    dead-reckoned offsets of the deepest point into longitude/latitude when given.
+    dead-reckoned offsets of the deepest point into longitude/latitude when given. ``overlying_profile`` (a
+    :class:`hadal.depth.UserProfile`, from ``p.overlying_profile``) is the water above a record that does not
+    start at the surface (:func:`hadal.depth.overlying_column`).
     """
     import numpy as np
     import pandas as pd
@@ -314,7 +374,7 @@ def derive_ctd(sensors: pd.DataFrame, latitude_deg: float, longitude_deg: float,
     if not np.isfinite(rho).any():
         raise InputError("sensors table has no valid conductivity/temperature: cannot compute density")
     column = overlying_column(pres, sp, temp, latitude_deg, density_kg_m3=rho, surface_dbar=p.surface_start_dbar,
-                              bin_dbar=p.profile_bin_dbar)
+                              bin_dbar=p.profile_bin_dbar, profile=overlying_profile)
     depth = hydrostatic_depth(pres, sp, temp, latitude_deg, integration=p.depth_integration, density_kg_m3=rho,
                               start_depth_m=column.start_depth_m)
     df["practical_salinity"] = sp
@@ -379,6 +439,8 @@ def derive_ctd(sensors: pd.DataFrame, latitude_deg: float, longitude_deg: float,
     meta["qc_derived"] = qc_meta
     meta["pressure_fusion"] = fusion.to_dict()
     meta["overlying_column"] = column.to_dict()
+    if overlying_profile is not None:
+        meta["overlying_column"]["user_profile"] = overlying_profile.to_dict()
     meta["duplicate_times_dropped"] = int(dup.sum())
     if ctd_steps:
         meta["ctd_processing"] = ctd_steps
@@ -530,8 +592,8 @@ def _frame(dive: Any) -> tuple[Any, tuple[float, float]]:
 
 
 def derive_table(table: pd.DataFrame, sensors_meta: dict[str, Any], p: Params, dive: Any, log: Any,
-                 what: str, *, external_cast: bool = False, memory_limit_bytes: float | None = None
-                 ) -> tuple[pd.DataFrame, dict[str, Any], Any]:
+                 what: str, *, external_cast: bool = False, memory_limit_bytes: float | None = None,
+                 overlying_profile: Any = None) -> tuple[pd.DataFrame, dict[str, Any], Any]:
     """``derive_ctd`` + position choice + profile for one sensors-schema table (the dive's or a cast's)."""
     import numpy as np
 
@@ -542,7 +604,7 @@ def derive_table(table: pd.DataFrame, sensors_meta: dict[str, Any], p: Params, d
     pos = choose_position(p, dive, sensors_meta, header_first=external_cast)
     frame, launch_xy = (None, (0.0, 0.0)) if external_cast else _frame(dive)
     df, meta = derive_ctd(table, pos["latitude_deg"], pos["longitude_deg"], p, frame=frame, launch_xy=launch_xy,
-                          memory_limit_bytes=memory_limit_bytes)
+                          memory_limit_bytes=memory_limit_bytes, overlying_profile=overlying_profile)
     meta.update({k: pos[k] for k in ("latitude_source", "longitude_source")})
     if pos["fallback"]:
         pmax = float(np.nanmax(df["pressure_dbar"].to_numpy()))
@@ -566,9 +628,16 @@ def derive_table(table: pd.DataFrame, sensors_meta: dict[str, Any], p: Params, d
     binned = df.assign(**masked)
     if "loop_edit_bad" in binned:  # LoopEdit's bad scans take no part in the bins (as in SeaSoft's BinAvg)
         binned = binned.loc[~binned["loop_edit_bad"].to_numpy(bool)]
-    prof = make_profile(binned, p.profile_bin_dbar, binning=p.profile_binning, latitude_deg=meta["latitude_deg"])
+    prof = make_profile(binned, profile_bin_size(p), binning=p.profile_binning, latitude_deg=meta["latitude_deg"],
+                        axis=p.profile_axis)
+    meta["profile_axis"] = {"axis": p.profile_axis, "bin_size": profile_bin_size(p),
+                            "units": "m" if p.profile_axis == "depth" else "dbar", "binning": p.profile_binning}
     if "qc_derived" in meta:
         meta["qc_derived"]["profile"] = qc_profile(prof, load_qc_config(p.qc_thresholds))
+        if "depth_m_qc" in prof and "depth_m" in prof.dims:  # the depth axis: bin centres are not checked
+            prof = prof.drop_vars("depth_m_qc")
+            prof["depth_m"].attrs.pop("ancillary_variables", None)
+            meta["qc_derived"]["profile"].pop("depth_m", None)
     df[N_SQUARED] = n_squared_per_sample(df, prof)
     if meta.get("time_base") != NO_TIME_BASE:
         _cast_times(prof, df)
@@ -615,10 +684,18 @@ def run(ctx: StageContext) -> dict[str, ProductVersion]:
         sensors_meta, sensor_fields = read_parquet_metadata(path)
     except Exception as exc:  # unreadable upstream file: one-line error, not a traceback
         raise InputError(f"{path}: cannot read sensors table ({type(exc).__name__}: {exc})") from None
+    user_profile = None
+    if p.overlying_profile is not None:  # the file's own errors name the file (not the sensors table)
+        from hadal.depth import read_overlying_profile
+
+        user_profile = read_overlying_profile(overlying_profile_path(p, ctx.raw_dir),
+                                              surface_dbar=p.surface_start_dbar)
     try:
         df, meta, profile = derive_table(table, sensors_meta, p, ctx.dive, ctx.log, f"dive {ctx.dive_id}",
-                                         memory_limit_bytes=limit)
+                                         memory_limit_bytes=limit, overlying_profile=user_profile)
     except InputError as exc:
+        if user_profile is not None and str(exc).startswith(user_profile.source):
+            raise
         raise InputError(f"{path}: {exc}") from None
     meta["dive_id"] = ctx.dive_id
     lat = meta["latitude_deg"]
@@ -648,6 +725,12 @@ def run(ctx: StageContext) -> dict[str, ProductVersion]:
     elif listed:
         ctx.log.warning("derive: sensors lists external casts %s but the dive has no 'casts' product", listed)
 
+    oc = meta["overlying_column"]
+    if user_profile is not None:
+        ctx.log.info("derive: overlying profile %s (%d levels, %.1f to %.1f dbar, %s): %s", user_profile.source,
+                     user_profile.pressure_dbar.size, user_profile.pressure_dbar[0], user_profile.pressure_dbar[-1],
+                     user_profile.basis, f"used, first sample at {oc['first_depth_m']:.2f} m"
+                     if oc["method"] == "user profile" else f"not needed ({oc['method']})")
     deep = meta["deepest_point"]
     ctx.log.info("derive: %d samples, gauge bias %+.3f dbar (%d samples), deepest %.2f m at %s\n%s",
                  len(df), meta["gauge_bias_dbar"], meta["gauge_bias_samples"], deep["depth_m"],
@@ -664,7 +747,8 @@ def run(ctx: StageContext) -> dict[str, ProductVersion]:
                                                     ctx.dive.launch.longitude_deg)
         fields.update(CTD_POSITION_FIELDS)
     params = ctx.params("derive")
-    summary = {k: meta[k] for k in ("gauge_bias_dbar", "latitude_deg", "deepest_point", "depth_comparison")}
+    summary = {k: meta[k] for k in ("gauge_bias_dbar", "latitude_deg", "deepest_point", "depth_comparison",
+                                    "overlying_column")}
     summary["latitude_source"] = meta["latitude_source"]
     summary["qc_flags"] = {v: s["counts"] for v, s in meta["qc_derived"]["summary"].items()}
     with ctx.store.publish(ctx.dive_id, "ctd", parameters=params, upstream=[sensors],
@@ -674,15 +758,21 @@ def run(ctx: StageContext) -> dict[str, ProductVersion]:
 
     is_prof = meta.get("time_base") == NO_TIME_BASE
     _profile_attrs(profile, meta)
+    zdim = "depth_m" if p.profile_axis == "depth" else "pressure_dbar"
+    psummary = {"bin_dbar": p.profile_bin_dbar, "levels": int(profile.sizes[zdim])}
+    if p.profile_axis == "depth":  # the pressure-axis summary stays as it was
+        psummary = {"axis": "depth", "bin_m": p.profile_bin_m, "levels": int(profile.sizes[zdim])}
     with ctx.store.publish(ctx.dive_id, "profile", parameters=params, upstream=[sensors, ctd],
-                           extra={"summary": {"bin_dbar": p.profile_bin_dbar,
-                                              "levels": int(profile.sizes["pressure_dbar"])}}) as draft:
+                           extra={"summary": psummary}) as draft:
         write_netcdf(
             profile, draft.path / "profile.nc",
-            title=f"Pressure-binned CTD profiles (descent and ascent) of dive {ctx.dive_id}",
-            summary=(f"Means in {p.profile_bin_dbar:g} dbar pressure bins of the dive's CTD samples, separately for "
+            title=f"{_axis_title(p)} CTD profiles (descent and ascent) of dive {ctx.dive_id}",
+            summary=(f"Means in {profile_axis_text(p)} bins of the dive's CTD samples, separately for "
                      "the descent and ascent casts: temperature, conductivity, PSS-78 salinity, EOS-80 density, "
-                     "gravity, Chen-Millero sound speed, and hydrostatic / Fofonoff-Millard / TEOS-10 depths."
+                     "gravity, Chen-Millero sound speed, and "
+                     + ("hydrostatic / Fofonoff-Millard / TEOS-10 depths." if p.profile_axis == "pressure" else
+                        "pressure and Fofonoff-Millard / TEOS-10 depths; the depth axis is the hydrostatic depth "
+                        "(depth_m, Eqs. 11-12).")
                      + ((" The cast has no time channel (pressure-binned): its time is the header start time."
                          if "time" in profile.variables else
                          " The cast has no time channel (pressure-binned) and no header start time: no times.")
@@ -702,10 +792,11 @@ def run(ctx: StageContext) -> dict[str, ProductVersion]:
                 write_parquet(cdf, draft.path / f"{cid}.parquet", fields=fields, metadata=cm, provenance_from=draft)
                 _profile_attrs(cprof, cm)
                 write_netcdf(cprof, draft.path / f"{cid}.nc",
-                             title=f"Pressure-binned CTD profile of cast {cid} (dive {ctx.dive_id})",
-                             summary=(f"Means in {p.profile_bin_dbar:g} dbar pressure bins of an external Sea-Bird "
+                             title=f"{_axis_title(p)} CTD profile of cast {cid} (dive {ctx.dive_id})",
+                             summary=(f"Means in {profile_axis_text(p)} bins of an external Sea-Bird "
                                       "cast of the dive: temperature, conductivity, PSS-78 salinity, EOS-80 density, "
-                                      "gravity, sound speed and depths."),
+                                      "gravity, sound speed and " + ("depths." if p.profile_axis == "pressure"
+                                                                     else "pressure and depths.")),
                              keywords="CTD, salinity, density, depth, pressure, profile",
                              processing_level="L2 binned profile", provenance_from=draft, dive_id=ctx.dive_id,
                              cast_id=cid, latitude_used_deg=cm["latitude_deg"],
@@ -722,6 +813,25 @@ def run(ctx: StageContext) -> dict[str, ProductVersion]:
         out["cast_profiles"] = draft.result
         ctx.log.info("derive: %d external cast(s) derived into 'cast_profiles'", len(index))
     return out
+
+
+def _axis_title(p: Params) -> str:
+    return "Depth-binned" if p.profile_axis == "depth" else "Pressure-binned"
+
+
+def overlying_profile_path(p: Params, raw_dir: Any) -> Path:
+    """``p.overlying_profile`` as a path: absolute, or relative to the dive's raw directory (``~`` expanded)."""
+    from pathlib import Path
+
+    path = Path(str(p.overlying_profile)).expanduser()
+    return path if path.is_absolute() else Path(raw_dir) / path
+
+
+def raw_files(ctx: StageContext) -> list[Path]:
+    """Raw files this stage reads besides its upstream products (for the cache fingerprint, tasks/stage.py):
+    the overlying profile, when configured."""
+    p: Params = ctx.config.derive
+    return [] if p.overlying_profile is None else [overlying_profile_path(p, ctx.raw_dir)]
 
 
 def _cast_times(ds: Any, df: pd.DataFrame) -> None:
@@ -784,10 +894,15 @@ def _profile_attrs(ds: Any, meta: dict[str, Any]) -> None:
 
     from hadal.profile import N_SQUARED
 
+    axis = "depth_m" if "depth_m" in ds.dims else "pressure_dbar"
     for name, attrs in _PROFILE_ATTRS.items():
-        if name in ds:
+        if name in ds and name not in ds.dims:
             ds[name].attrs.update(attrs)
-            ds[name].attrs["cell_methods"] = "pressure_dbar: mean"
+            ds[name].attrs["cell_methods"] = f"{axis}: mean"
+    if axis == "depth_m" and "pressure_dbar" in ds:  # the depth axis: the bins' mean pressure is a variable
+        ds["pressure_dbar"].attrs.update({"standard_name": "sea_water_pressure", "units": "dbar",
+                                          "long_name": "mean sea water pressure of the depth bin",
+                                          "cell_methods": "depth_m: mean"})
     if N_SQUARED in ds:
         ds[N_SQUARED].attrs.update({"standard_name": "square_of_brunt_vaisala_frequency_in_sea_water",
                                     "units": "s-2", "long_name": "buoyancy frequency squared N2 of the binned cast",

@@ -20,7 +20,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Literal
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, field_validator
 
 from hadal.budget import check_memory, memory_limit_bytes
 from hadal.errors import InputError, StageError
@@ -87,6 +87,20 @@ class Params(BaseModel):
     prior_fill: bool = Field(
         False, description="with multibeam soundings: fill the DTM's empty cells from the prior grid (filled = 2); "
                            "default: the prior grid is not used (multibeam wins)")
+    zarr: bool = Field(
+        False, description="also write each grid (dtm.nc, the laser grids) as a Zarr store <name>.zarr beside "
+                           "it: the same values and CF attributes, chunked (needs the optional zarr package: "
+                           "pip install 'hadal[zarr]')")
+    zarr_chunk: int = Field(512, ge=16, le=8192, description="Zarr chunk size along y and x (cells, 16-8192)")
+
+    @field_validator("zarr")
+    @classmethod
+    def _zarr_installed(cls, v: bool) -> bool:
+        import importlib.util
+
+        if v and importlib.util.find_spec("zarr") is None:
+            raise ValueError("grid.zarr is on but the zarr package is not installed (pip install 'hadal[zarr]')")
+        return v
 
 
 #: float64 (y, x) layers a multibeam DTM holds at its peak (mean, median, count, std, uncertainty, filled and the
@@ -560,6 +574,10 @@ def run(ctx: StageContext) -> dict[str, ProductVersion]:
             from hadal.products.geotiff import write_grid_cog  # the same DTM as a COG in the dive's UTM zone
 
             write_grid_cog(dtm, draft.path / "dtm.tif", "depth_m")
+            if p.zarr:  # the same DTM as a chunked Zarr store (hadal.products.io.write_zarr)
+                from hadal.products.io import write_zarr
+
+                write_zarr(draft.path / "dtm.nc", draft.path / "dtm.zarr", chunk=p.zarr_chunk)
         out["dtm"] = draft.result
     if grids:
         extra = {"readers": {f.name: readers[str(f)] for f, *_ in grids},
@@ -582,6 +600,10 @@ def run(ctx: StageContext) -> dict[str, ProductVersion]:
                     keywords="bathymetry, laser, structured light, microbathymetry",
                     processing_level="L3 gridded", provenance_from=draft, **_frame_attrs(ctx),
                 )
+                if p.zarr:
+                    from hadal.products.io import write_zarr
+
+                    write_zarr(draft.path / f"{stem}.nc", draft.path / f"{stem}.zarr", chunk=p.zarr_chunk)
                 lf = None if p.laser_frame == "map" else getattr(ctx.dive, "laser_frame", None)
                 if p.laser_frame == "map" or lf is not None:  # georeferenced: also a COG in the dive's UTM zone
                     from hadal.products.geotiff import write_grid_cog

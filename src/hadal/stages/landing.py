@@ -12,6 +12,7 @@ Reads ``laser_grids`` (one ``<name>.nc`` per laser input, whatever its name - e.
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 from typing import TYPE_CHECKING, Literal
 
@@ -65,7 +66,8 @@ class Params(BaseModel):
                     "1e10 is about 10 minutes single-threaded)")
     default_sigma_m: float = Field(0.006, ge=0, le=0.1, description="elevation 1-σ where a laser cell has < 2 points "
                                    "(m; for the per-site landability probability)")
-    workers: int = Field(1, ge=1, le=64, description="headings analysed in parallel threads")
+    workers: int = Field(0, ge=0, le=64, description="headings analysed in parallel threads (0 = auto: "
+                         "min(4, CPU cores); each thread beyond the first needs ~24 bytes per cell)")
     figures: bool = Field(True, description="write PNG figures into the product")
 
 
@@ -148,6 +150,7 @@ def run(ctx) -> dict:
         raise StageError(f"{ctx.dive_id}/laser_grids/{laser.label} has no laser grids (*.nc)")
     headings = np.linspace(-90.0, 90.0, int(round(180.0 / p.heading_step_deg)) + 1)
     mem_limit = memory_limit_bytes(ctx.config)
+    threads = p.workers or min(4, os.cpu_count() or 1)
     warnings_: list[str] = []
     all_sites: list[pd.DataFrame] = []
     finals: list[dict] = []
@@ -171,14 +174,14 @@ def run(ctx) -> dict:
                             work_limit=p.max_cell_headings, keep_heading_exclusion=True,
                             exclusion_step_m=p.exclusion_step_m, vehicle=p.vehicle, what=f"landing submap {name}",
                             heading_setting=("landing.heading_step_deg", p.heading_step_deg),
-                            step_setting=("landing.exclusion_step_m", p.exclusion_step_m))
+                            step_setting=("landing.exclusion_step_m", p.exclusion_step_m), workers=threads)
             res = analyse_submap(
                 grid, p.vehicle, headings_deg=headings, min_site_radius_m=p.min_site_radius_m,
                 min_protrusion_height_m=p.min_protrusion_height_m, exclusion_step_m=p.exclusion_step_m,
                 local_slope_window_m=p.local_slope_window_m, protrusion_method=p.protrusion_method,
                 protrusion_coarse_m=p.protrusion_coarse_m, block_m=p.block_m, block_margin_m=p.block_margin_m,
                 filter_order=p.filter_order, edge_correction=p.edge_correction,
-                fill_holes_max_m2=p.fill_holes_max_m2, max_cell_fraction=p.max_cell_fraction, workers=p.workers,
+                fill_holes_max_m2=p.fill_holes_max_m2, max_cell_fraction=p.max_cell_fraction, workers=threads,
                 elevation_sigma_m=sigma, default_sigma_m=p.default_sigma_m,
             )
             ctx.log.info("landing: %s %d candidate sites in %.1f s", name, len(res.sites), res.timings_s["total"])

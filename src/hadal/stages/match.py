@@ -30,7 +30,13 @@ matched track then follows the drift. It is computed for the record in any case 
 place the sample dive's start within one cell on every generator seed (bench/sample_seeds_tercom.py). With
 ``posterior: false`` the fix uncertainty combines the MSD likelihood, a jackknife over track blocks and a dead-reckoning term
 (``dr_error_fraction`` x the distance from the start to the track's terrain-information centroid; a
-conservative bound: the refinement already removes part of the DR heading/scale error). Products:
+conservative bound: the refinement already removes part of the DR heading/scale error). The ``navigation``
+product's dead-reckoning-only uncertainty (no match, or where the match does not reach) adds, in quadrature
+with the launch uncertainty, ``dr_error_fraction`` x the distance dead-reckoned and a random walk
+``dr_unreferenced_drift_m_per_sqrt_s`` x sqrt(seconds without a DR velocity reference): the unpowered descent
+carries the vehicle hundreds of metres with the currents while the DR is held (533 m in the TERCOM paper, §4.2).
+On 10 generator seeds 75 % of the DR-only errors lie within the stated 1 sigma and 100 % within 2 sigma
+(bench/dr_uncertainty_tercom.py; the former 1 %-of-distance model: 0.2 % / 0.4 %). Products:
 
 * ``msd_surface.nc`` -- the criterion on the map grid (track start at each cell), the per-offset bias, the
   posterior probability of the start per cell;
@@ -96,20 +102,36 @@ class Params(BaseModel):
     refine_scale_range: float = Field(0.05, ge=0, lt=0.5, description="refinement: DR track scale searched within 1 +- this")
     refine_seeds: int = Field(12, ge=1, le=100, description="refinement: number of distinct coarse minima refined")
     dr_error_fraction: float = Field(
-        0.01, ge=0, lt=1,
-        description="dead-reckoning error per distance travelled (1 sigma), for the fix uncertainty: the start is carried from where the terrain fixes the track",
+        0.02, ge=0, lt=1,
+        description="dead-reckoning error per distance dead-reckoned (1 sigma radial), for the fix uncertainty (the start is carried from where the terrain fixes the track) and the navigation product; "
+                    "0.02: the DR-only error grown along the sample dive's bottom track is 1.2-2.3 % (median 1.6 %) of the distance on 10 generator seeds (bench/dr_uncertainty_tercom.py; compass bias 1-2.5 deg, speed scale 1-3 %)",
+    )
+    dr_unreferenced_drift_m_per_sqrt_s: float = Field(
+        5.6, ge=0, le=1000,
+        description="navigation product without a match: while the dead reckoning has no velocity reference (unpowered descent and ascent, DR held) the vehicle drifts with the currents; "
+                    "1-sigma radial error = this x sqrt(unreferenced seconds), a random walk (currents change with depth). 5.6: the TERCOM paper's 533 m descent drift in 3 h 35 min taken as the median "
+                    "of a Rayleigh distribution (533 / sqrt(ln 2 x 12 900 s))",
     )
     exclusion_radius_m: float | None = Field(None, gt=0, le=10_000_000, description="neighbourhood (m) excluded when looking for the second optimum (default max(5 cells, 100 m))")
     mismatch_ratio: float = Field(1.2, ge=1, le=1000, description="warn when second-best / best MSD is below this ratio")
     mrf: bool = Field(False, description="refine the fix with MRF fine matching of a 2-D real-time terrain patch (MRF paper); a single-beam bottom track (< 50 % of the cells under it sounded) is recorded as not matchable by MRF and MRF is not run")
     scale_range: float = Field(0.0, ge=0, lt=0.5, description="search DR scale errors 1 +- this range (0: none)")
     scale_step: float = Field(0.01, ge=1e-5, le=0.5, description="scale search step (1e-5 to 0.5, at most scale_range)")
-    mrf_max_shift_cells: float = Field(1.5, gt=0, le=100, description="MRF shift search range per iteration, in map cells")
+    mrf_max_shift_cells: float = Field(1.5, gt=0, le=100, description="MRF fine stage (linearised MRF paper Eqs. 7-13): shift search range per iteration, in map cells")
+    mrf_max_total_shift_cells: float = Field(
+        25.0, gt=0, le=100,
+        description="MRF coarse stage: the exact data term is searched over shifts up to this many map cells from the TERCOM fix (25: the largest initial error the MRF paper reports results from, §4.3 Simulation 1; divergent at 30); a minimum beyond it is flagged",
+    )
+    mrf_prior: Literal["gibbs", "none"] = Field(
+        "gibbs",
+        description="MRF Gibbs neighbourhood prior (paper Eqs. 3-4): 'gibbs' matches the MAP real-time terrain with T from the soundings' noise (hadal.matching.mrf, deviation 3); 'none' the soundings as measured",
+    )
     posterior: bool = Field(
         False,
         description="report the point-mass posterior fix (MAP, covariance, ellipses, mass outside the main mode; hadal.matching.posterior) instead of the refined score minimum",
     )
-    max_mass_outside: float = Field(0.05, gt=0, lt=1, description="posterior: flag a mismatch when more than this posterior mass lies outside the main mode")
+    max_mass_outside: float = Field(0.2, gt=0, lt=1, description="posterior: flag a mismatch (ambiguous) when more than this posterior mass lies outside the main mode (0.2: chosen on the real-terrain calibration bench, see hadal.matching.posterior)")
+    max_mass_outside_holes: float = Field(0.05, gt=0, lt=1, description="posterior: flag a mismatch (over_holes) when, were the map under its interior holes to fit the track as well as its valid part does, more than this posterior mass would lie outside the main mode")
     mode_radius_cells: float = Field(3.0, gt=0, le=1000, description="posterior: radius of the main mode in map cells")
     min_samples: int = Field(10, ge=3, le=10_000_000, description="posterior: flag profiles with fewer samples as too short")
     drift: bool = Field(True, description="posterior: estimate the dead-reckoning drift (a velocity bias, piecewise constant in time) jointly with the start, heading and scale")
@@ -370,7 +392,8 @@ def run(ctx: StageContext) -> dict[str, ProductVersion]:
         post = posterior_fix(
             prof.depth_m[used], prof.track_xy[used], g, headings_deg=_headings(p), scales=_scales(p), region=region,
             uncertainty=unc, min_valid_fraction=min(p.min_valid_fraction, 0.5), mode_radius_cells=p.mode_radius_cells,
-            max_mass_outside=p.max_mass_outside, min_samples=p.min_samples,
+            max_mass_outside=p.max_mass_outside, max_mass_outside_holes=p.max_mass_outside_holes,
+            min_samples=p.min_samples,
             fine_scales=np.linspace(1 - r_s, 1 + r_s, 5) if r_s > 0 else None,
             time_s=None if prof.time_s is None else prof.time_s[used], drift=p.drift,
             drift_segment=p.drift_segment_s, drift_sigma=p.drift_velocity_sigma_m_s,
@@ -449,7 +472,8 @@ def run(ctx: StageContext) -> dict[str, ProductVersion]:
         fix["warnings"].append("match.mrf is on but the bottom track is single-beam (no 2-D terrain patch): MRF not run")
     elif p.mrf:
         try:
-            m = mrf_refine(patch, x0, y0, g_raw, max_shift_cells=p.mrf_max_shift_cells)
+            m = mrf_refine(patch, x0, y0, g_raw, max_shift_cells=p.mrf_max_shift_cells,
+                           max_total_shift_cells=p.mrf_max_total_shift_cells, prior=p.mrf_prior)
         except InputError as exc:
             fix["mrf"] = {"applied": False, "reason": str(exc)}
         else:
@@ -457,6 +481,8 @@ def run(ctx: StageContext) -> dict[str, ProductVersion]:
             slon, slat = (float(v) for v in frame.to_lonlat(sx, sy))
             fix["mrf"] = {"applied": m.converged, "dx_m": m.dx_m, "dy_m": m.dy_m, "iterations": m.iterations,
                           "sigma_n_m": m.sigma_n_m, "window_cells": list(m.n_window), "warnings": m.warnings,
+                          "coarse_shift_cells": list(m.coarse_d_cells), "sigma_cells": [v if np.isfinite(v) else None for v in m.sigma_cells],
+                          "gibbs_temperature_m2": m.temperature if np.isfinite(m.temperature) else None,
                           "start": {"x_east_m": sx, "y_north_m": sy, "lat": slat, "lon": slon}}
             fix["warnings"].extend(m.warnings)
     for w in fix["warnings"]:
@@ -485,5 +511,6 @@ def run(ctx: StageContext) -> dict[str, ProductVersion]:
         (draft.path / "fix.json").write_text(strict_json(fix, indent=2), encoding="utf-8")
     from hadal.products.navigation import publish_navigation  # best position of every sample (products/)
 
-    nav = publish_navigation(ctx, ctd, track, fix, [ctd_pv, draft.result], p.dr_error_fraction)
+    nav = publish_navigation(ctx, ctd, track, fix, [ctd_pv, draft.result], p.dr_error_fraction,
+                             unreferenced_drift_m_per_sqrt_s=p.dr_unreferenced_drift_m_per_sqrt_s)
     return {"match": draft.result, "navigation": nav}
