@@ -33,7 +33,7 @@ from pathlib import Path
 import numpy as np
 
 from hadal.matching.mrf import mrf_refine
-from hadal.matching.testing import real_terrain
+from hadal.matching.testing import cut_patch, real_terrain
 
 SHARED = Path(__file__).resolve().parents[2] / "shared" / "data"
 GRIDS = {"tut_bathy": SHARED / "bathy-real" / "tut_bathy.nc", "gmt_depth_pixel": SHARED / "formats-real" / "gmt_depth_pixel.nc"}
@@ -43,23 +43,8 @@ NEW: dict = {}
 NY, NX = 30, 40
 
 
-def cut_patch(g, truth, rng, noise_frac, ny=NY, nx=NX, r0=None, c0=None):
-    """(patch, true x0, true y0): a patch of the true seafloor at a random sub-cell position inside the map."""
-    h = g.resolution_m
-    for _ in range(200):
-        r = rng.uniform(1, g.shape[0] - ny - 2) if r0 is None else r0 + rng.uniform(0, 1)
-        c = rng.uniform(1, g.shape[1] - nx - 2) if c0 is None else c0 + rng.uniform(0, 1)
-        x0, y0 = g.x_m[0] + c * h, g.y_m[0] + r * h
-        jj, ii = np.meshgrid(np.arange(nx), np.arange(ny))
-        z = truth(x0 + jj * h, y0 + ii * h)
-        if np.isfinite(z).all():
-            rel = float(np.ptp(z))
-            return z + rng.uniform(-50, 50) + rng.normal(0, noise_frac * rel, z.shape), x0, y0
-    raise RuntimeError("no valid patch position")
-
-
 def trial(g, truth, rng, r_cells, noise_frac, kwargs_list):
-    patch, x0, y0 = cut_patch(g, truth, rng, noise_frac)
+    patch, x0, y0 = cut_patch(g, truth, rng, noise_frac, ny=NY, nx=NX)
     a = rng.uniform(0, 2 * np.pi)
     h = g.resolution_m
     ax, ay = x0 + r_cells * h * np.cos(a), y0 + r_cells * h * np.sin(a)
@@ -124,7 +109,7 @@ def prior_table(worlds, trials, seed):
         res = []
         for rc in where:
             r0, c0 = (None, None) if rc is None else rc
-            patch, x0, y0 = cut_patch(g, truth, rng, pn, r0=r0, c0=c0)
+            patch, x0, y0 = cut_patch(g, truth, rng, pn, r0=r0, c0=c0, ny=NY, nx=NX)
             rel = np.ptp(patch) / (1 + 4 * pn)
             gm = MapGrid(g.depth_m + rng.normal(0, mn * rel, g.shape), g.x_m, g.y_m, h) if mn else g
             a, rr = rng.uniform(0, 2 * np.pi), rng.uniform(0, 3)

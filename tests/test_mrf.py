@@ -11,7 +11,7 @@ import pytest
 from hadal.errors import InputError
 from hadal.matching import MapGrid, tercom
 from hadal.matching.mrf import GibbsFilter, _gibbs, _shift_axis, gibbs_temperature, mrf_refine
-from hadal.matching.testing import AnalyticTerrain
+from hadal.matching.testing import AnalyticTerrain, cut_patch
 
 H = 20.0
 SHARED = Path(__file__).resolve().parents[2] / "shared" / "data"
@@ -38,20 +38,6 @@ def real():
 def _patch(t, px, py, rng, ny=15, nx=20, noise=1.0, bias=5.0):
     jj, ii = np.meshgrid(np.arange(nx), np.arange(ny))
     return t(px + jj * H, py + ii * H) + bias + rng.normal(0, noise, jj.shape)
-
-
-def _cut(g, truth, rng, noise_frac, r0=None, c0=None, ny=30, nx=40):
-    """A 40 x 30 patch of the true (bicubic, off-node) seafloor at a random sub-cell position; noise a fraction of its range."""
-    h = g.resolution_m
-    for _ in range(100):
-        r = rng.uniform(1, g.shape[0] - ny - 2) if r0 is None else r0 + rng.uniform(0, 1)
-        c = rng.uniform(1, g.shape[1] - nx - 2) if c0 is None else c0 + rng.uniform(0, 1)
-        x0, y0 = g.x_m[0] + c * h, g.y_m[0] + r * h
-        jj, ii = np.meshgrid(np.arange(nx), np.arange(ny))
-        z = truth(x0 + jj * h, y0 + ii * h)
-        if np.isfinite(z).all():
-            return z + rng.uniform(-50, 50) + rng.normal(0, noise_frac * np.ptp(z), z.shape), x0, y0
-    raise AssertionError("no patch position")
 
 
 def _start(x0, y0, h, r_cells, rng):
@@ -130,7 +116,7 @@ def test_converges_from_20_to_25_cells_on_real_terrain(real):
     for name, (g, truth) in real.items():
         h = g.resolution_m
         for r_cells in (20, 23, 25):
-            patch, x0, y0 = _cut(g, truth, rng, 0.01)
+            patch, x0, y0 = cut_patch(g, truth, rng, 0.01)
             ax, ay = _start(x0, y0, h, r_cells, rng)
             m = mrf_refine(patch, ax, ay, g)
             assert m.converged and not m.warnings, (name, r_cells, m.warnings)
@@ -138,7 +124,7 @@ def test_converges_from_20_to_25_cells_on_real_terrain(real):
             old = mrf_refine(patch, ax, ay, g, **OLD)  # linearised only, 3-cell cap: no fix from that far
             assert not old.converged or np.hypot(old.x0_m - x0, old.y0_m - y0) > 5 * h
         for _ in range(2):  # beyond the range (25 cells + guard ring): flagged, not a wrong fix
-            patch, x0, y0 = _cut(g, truth, rng, 0.01)
+            patch, x0, y0 = cut_patch(g, truth, rng, 0.01)
             far = mrf_refine(patch, *_start(x0, y0, h, 34, rng), g)
             assert not far.converged and far.warnings, name
 
@@ -148,7 +134,7 @@ def test_subcell_accuracy_on_real_terrain(real):
     errs = []
     for g, truth in real.values():
         for _ in range(4):
-            patch, x0, y0 = _cut(g, truth, rng, 0.01)
+            patch, x0, y0 = cut_patch(g, truth, rng, 0.01)
             m = mrf_refine(patch, *_start(x0, y0, g.resolution_m, rng.uniform(0, 10), rng), g)
             assert m.converged
             errs.append(np.hypot(m.x0_m - x0, m.y0_m - y0) / g.resolution_m)
@@ -174,7 +160,7 @@ def test_gibbs_prior_helps_on_low_texture_noisy_data_and_not_hurts_on_texture(re
     rng = np.random.default_rng(12)
     err = {"gibbs": [], "none": []}
     for rc in _flattest(g, 12):
-        patch, x0, y0 = _cut(g, truth, rng, 0.10, *rc)
+        patch, x0, y0 = cut_patch(g, truth, rng, 0.10, *rc)
         noisy = MapGrid(g.depth_m + rng.normal(0, 0.2 * np.ptp(patch) / 1.4, g.shape), g.x_m, g.y_m, h)
         ax, ay = _start(x0, y0, h, rng.uniform(0, 3), rng)
         for prior in err:
@@ -184,7 +170,7 @@ def test_gibbs_prior_helps_on_low_texture_noisy_data_and_not_hurts_on_texture(re
     assert np.sqrt(np.mean(eg ** 2)) < 0.9 * np.sqrt(np.mean(en ** 2)), (eg, en)
     assert np.mean(np.abs(eg - en)) > 0.08
     for _ in range(4):
-        patch, x0, y0 = _cut(g, truth, rng, 0.01)
+        patch, x0, y0 = cut_patch(g, truth, rng, 0.01)
         ax, ay = _start(x0, y0, h, rng.uniform(0, 10), rng)
         a, b = (mrf_refine(patch, ax, ay, g, prior=p) for p in ("gibbs", "none"))
         ea, eb = (np.hypot(m.x0_m - x0, m.y0_m - y0) / h for m in (a, b))

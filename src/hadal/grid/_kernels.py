@@ -34,29 +34,14 @@ def shifted_cell_sums(x, y, z, x0, y0, inv_h, nx, ny, z0, check_inside, nthreads
             xi = x[i]
             yi = y[i]
             zi = z[i]
-            if not (np.isfinite(xi) and np.isfinite(yi) and np.isfinite(zi)):
+            keep = _keep(xi, yi, zi, x0, y0, inv_h, nx, ny, check_inside)
+            if keep == 1:
                 nb += 1
                 continue
-            fx = (xi - x0) * inv_h
-            fy = (yi - y0) * inv_h
-            if check_inside and (fx < 0.0 or fy < 0.0 or fx > nx or fy > ny):
+            if keep == 2:
                 no += 1
                 continue
-            # floor + clamp in floating point before the integer conversion (any finite value is safe);
-            # a point on the upper/right edge joins the last cell
-            if fx >= nx:
-                c = nx - 1
-            elif fx < 0.0:
-                c = 0
-            else:
-                c = int(fx)  # truncation == floor for fx >= 0
-            if fy >= ny:
-                r = ny - 1
-            elif fy < 0.0:
-                r = 0
-            else:
-                r = int(fy)
-            k = r * nx + c
+            k = _cell_of(xi, yi, x0, y0, inv_h, nx, ny)
             d = zi - z0
             a[k, 0] += 1.0
             a[k, 1] += d
@@ -218,7 +203,8 @@ def block_stats_kernel(kb, zb, bstart, shift, m, want_m2, want_sorted, nthreads)
 
 @njit(inline="always")
 def _cell_of(xi, yi, x0, y0, inv_h, nx, ny):  # pragma: no cover - compiled
-    """Cell index of a finite point, clamped into the grid (``shifted_cell_sums``'s arithmetic)."""
+    """Cell index of a finite point, clamped into the grid: floor and clamp in floating point before the integer
+    conversion (any finite value is safe); a point on the upper/right edge joins the last cell."""
     fx = (xi - x0) * inv_h
     fy = (yi - y0) * inv_h
     if fx >= nx:

@@ -223,3 +223,21 @@ def simulate_case(g, truth, rng, kind: str = "clean", n: int | None = None, nois
     return {"profile": prof, "dr": dr + rng.uniform(-5e4, 5e4, 2), "map": g, "start": start, "h": h, "n": n,
             "noise_m": noise_m, "noise_frac": noise_frac, "heading_deg": a, "scale": f, "bias_m": bias,
             "velocity_bias": vb, "kind": kind, "relief_m": relief}
+
+
+def cut_patch(g, truth, rng: np.random.Generator, noise_frac: float, r0: float | None = None,
+              c0: float | None = None, ny: int = 30, nx: int = 40) -> tuple[np.ndarray, float, float]:
+    """(patch, true x0, true y0): an ``ny`` x ``nx`` patch of the true seafloor ``truth(x, y)`` (e.g. the bicubic
+    interpolant of a real grid: off-node) at a random sub-cell position inside the map ``g`` (a
+    :class:`hadal.matching.MapGrid`; at row/column ``r0``/``c0`` + U(0, 1) when given), with a depth bias
+    U(-50, 50) m and white noise ``noise_frac`` x the patch's depth range (the MRF tests and benchmark)."""
+    h = g.resolution_m
+    for _ in range(200):
+        r = rng.uniform(1, g.shape[0] - ny - 2) if r0 is None else r0 + rng.uniform(0, 1)
+        c = rng.uniform(1, g.shape[1] - nx - 2) if c0 is None else c0 + rng.uniform(0, 1)
+        x0, y0 = g.x_m[0] + c * h, g.y_m[0] + r * h
+        jj, ii = np.meshgrid(np.arange(nx), np.arange(ny))
+        z = truth(x0 + jj * h, y0 + ii * h)
+        if np.isfinite(z).all():
+            return z + rng.uniform(-50, 50) + rng.normal(0, noise_frac * float(np.ptp(z)), z.shape), x0, y0
+    raise RuntimeError("no valid patch position")
