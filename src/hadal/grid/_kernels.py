@@ -82,15 +82,7 @@ def partition_kernel(k, z, shift, nblocks, nthreads):  # pragma: no cover - comp
             kk = k[i]
             if kk >= 0:
                 h[kk >> shift] += 1
-    bstart = np.zeros(nblocks + 1, np.int64)
-    off = np.empty((nthreads, nblocks), np.int64)
-    pos = 0
-    for b in range(nblocks):
-        bstart[b] = pos
-        for t in range(nthreads):
-            off[t, b] = pos
-            pos += hist[t, b]
-    bstart[nblocks] = pos
+    bstart, off, pos = _block_offsets(hist)
     kb = np.empty(pos, np.uint16)
     zb = np.empty(pos, np.float64)
     mask = (1 << shift) - 1
@@ -202,6 +194,24 @@ def block_stats_kernel(kb, zb, bstart, shift, m, want_m2, want_sorted, nthreads)
 
 
 @njit(inline="always")
+def _block_offsets(hist):  # pragma: no cover - compiled
+    """From per-thread block histograms ``hist`` (nthreads, nblocks): the blocks' start offsets ``bstart``
+    (nblocks + 1), each thread's write offset per block ``off`` (threads in order within a block: file order
+    kept) and the total count."""
+    nthreads, nblocks = hist.shape
+    bstart = np.zeros(nblocks + 1, np.int64)
+    off = np.empty((nthreads, nblocks), np.int64)
+    pos = 0
+    for b in range(nblocks):
+        bstart[b] = pos
+        for t in range(nthreads):
+            off[t, b] = pos
+            pos += hist[t, b]
+    bstart[nblocks] = pos
+    return bstart, off, pos
+
+
+@njit(inline="always")
 def _cell_of(xi, yi, x0, y0, inv_h, nx, ny):  # pragma: no cover - compiled
     """Cell index of a finite point, clamped into the grid: floor and clamp in floating point before the integer
     conversion (any finite value is safe); a point on the upper/right edge joins the last cell."""
@@ -264,15 +274,7 @@ def partition_points(x, y, z, x0, y0, inv_h, nx, ny, check_inside, shift, nblock
                 h[_cell_of(xi, yi, x0, y0, inv_h, nx, ny) >> shift] += 1
         bad[t] = nb
         out[t] = no
-    bstart = np.zeros(nblocks + 1, np.int64)
-    off = np.empty((nthreads, nblocks), np.int64)
-    pos = 0
-    for b in range(nblocks):
-        bstart[b] = pos
-        for t in range(nthreads):
-            off[t, b] = pos
-            pos += hist[t, b]
-    bstart[nblocks] = pos
+    bstart, off, pos = _block_offsets(hist)
     kb = np.empty(pos, np.uint16)
     zb = np.empty(pos, np.float64)
     mask = (1 << shift) - 1

@@ -459,13 +459,8 @@ def _cell_sums_numpy(x, y, z, spec: GridSpec, z0: float, check_inside: bool, all
 
 def _numba_kernel():
     """The compiled single-pass kernel (:mod:`hadal.grid._kernels`), or None without numba."""
-    if os.environ.get("HADAL_NO_NUMBA"):
-        return None
-    try:
-        from hadal.grid._kernels import shifted_cell_sums
-    except ImportError:
-        return None
-    return shifted_cell_sums
+    kernels = _partition_kernels()
+    return None if kernels is None else kernels.shifted_cell_sums
 
 
 #: the single-pass sums (24 bytes a cell) stay in cache up to this many bytes, whatever the point order
