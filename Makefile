@@ -44,6 +44,7 @@ bench: setup
 
 lint: setup
 	$(BIN)/ruff check src flows tasks tests bench
+	$(BIN)/python .ci/mypy-ratchet
 
 clean:
 	rm -rf $(VENV) .pytest_cache

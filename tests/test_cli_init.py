@@ -39,6 +39,7 @@ def test_inspect_json_and_exit_codes(tmp_path):
     assert res.returncode == 0 and "xyz" in res.stdout
 
 
+@pytest.mark.integration  # slow (> 9 s here): the integration tier (issue 20: make test <= 5 min)
 def test_init_writes_validates_and_never_overwrites(tmp_path):
     raw = tmp_path / "My Dive 3"
     raw.mkdir()
@@ -76,6 +77,7 @@ def test_schema_command_and_field_reference_is_current():
     assert render_doc(doc) == doc, "docs/dive-directory.md is stale: run python -m hadal.schema_docs"
 
 
+@pytest.mark.integration  # slow (> 9 s here): the integration tier (issue 20: make test <= 5 min)
 @pytest.mark.prefect
 def test_init_then_run_a_compressed_real_cast(shared_data, tmp_path):
     """The acceptance path: `hadal init DIR && hadal run DIR`, generated yaml unedited, through Prefect."""

@@ -36,3 +36,19 @@ def test_bad_config_is_one_clear_error(tmp_path, text, frag):
     p.write_text(text)
     with pytest.raises(ConfigError, match=frag):
         load_config(p)
+
+
+def test_library_callers_catch_hadal_errors_as_value_errors(tmp_path):
+    """Issue 20 item 5: bad values raise what numpy/xarray callers already catch (ValueError), with the same
+    one-line message, while the CLI still tells them apart from bugs (HadalError)."""
+    from hadal.errors import HadalError
+    from hadal.matching.fix import resample_along_track
+
+    p = tmp_path / "c.yaml"
+    p.write_text("ingest: {no_such_option: 3}")
+    with pytest.raises(ValueError, match="no_such_option") as exc:
+        load_config(p)
+    assert isinstance(exc.value, HadalError)
+    with pytest.raises(ValueError, match="spacing must be > 0") as exc:  # an InputError from the science library
+        resample_along_track([0.0, 1.0], [0.0, 1.0], [5.0, 5.0], spacing_m=0.0)
+    assert isinstance(exc.value, HadalError)

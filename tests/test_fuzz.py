@@ -899,6 +899,7 @@ def test_fuzz_read_hex(data, tmp_path):
     check_reader("read_hex", tmp_path, *fuzz_seeds(data, _from(HEX_SEEDS)))
 
 
+@pytest.mark.integration  # slow (> 9 s here): the integration tier (issue 20: make test <= 5 min)
 @FUZZ
 @given(data=st.data())
 def test_fuzz_read_multibeam(samples, data, tmp_path):

@@ -163,6 +163,7 @@ def _section_with(d, key):
     return None
 
 
+@pytest.mark.integration  # slow (> 9 s here): the integration tier (issue 20: make test <= 5 min)
 def test_sample_dive_round_trip(small_dive):
     """Grid the sample dive's soundings and compare with truth/terrain.nc against the injected noise.
 

@@ -74,11 +74,17 @@ def test_vehicle_protrusion_table():
     assert np.all(V.protrusion_height_limit_m(dist[:3]) >= np.array([0.004, 0.05, 0.15]) - 1e-12)
 
 
-def test_vehicle_rejects_positive_buoyancy():
-    with pytest.raises(ConfigError):
+def test_vehicle_rejects_positive_buoyancy(tmp_path):
+    with pytest.raises(ValueError, match="negative buoyancy"):  # pydantic's ValidationError is a ValueError
         Vehicle(mass_kg=60.0, buoyancy_mass_kg=62.0)
-    with pytest.raises(ConfigError):
-        Vehicle(cg_height_m=2.0)  # no righting moment
+    with pytest.raises(ValueError, match="no righting moment"):
+        Vehicle(cg_height_m=2.0)
+    from hadal.config import load_config
+
+    cfg = tmp_path / "pipeline.yaml"  # from YAML: one clean line naming the setting
+    cfg.write_text("landing:\n  vehicle:\n    mass_kg: 60\n    buoyancy_mass_kg: 62\n")
+    with pytest.raises(ConfigError, match=r"^invalid configuration at landing.vehicle: vehicle mass 60.0 kg must exceed"):
+        load_config(cfg)
 
 
 def test_headings_and_footprint():

@@ -87,8 +87,9 @@ def test_rock_heights_every_size(slope_deg, flat):
     assert np.nanmax(np.abs(h[ndi.binary_dilation(true == 0, iterations=1) & (ndi.distance_transform_edt(true == 0) > 3)])) < 0.005
 
 
-@pytest.mark.parametrize("case", [(1.5, 0.2, True), (1.0, 0.3, False), (0.6, 0.3, False), (0.05, 0.5, True),
-                                  (0.4, 0.16, True)])
+@pytest.mark.parametrize("case", [(1.5, 0.2, True)] + [  # 16 s each here: one in make test, all in the integration tier
+    pytest.param(c, marks=pytest.mark.integration) for c in [(1.0, 0.3, False), (0.6, 0.3, False), (0.05, 0.5, True),
+                                                             (0.4, 0.16, True)]])
 def test_rock_taller_than_hc_excludes_every_touching_footprint(case):
     """[Landing Eq. 9] end to end on a θc slope: no landable C_G has a footprint covering a rock cell truly
     higher than h_c (oracle: scipy dilation of the true mask with the rotated footprint)."""
@@ -145,6 +146,7 @@ def _brute_scale(mask: np.ndarray, cell: float, heading: float, step: float = 0.
     return lo
 
 
+@pytest.mark.integration  # slow (> 9 s here): the integration tier (issue 20: make test <= 5 min)
 def test_inscribed_rectangle_matches_brute_force_and_ignores_crop():
     rng = np.random.default_rng(4)
     cell = 0.02

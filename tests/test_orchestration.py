@@ -72,6 +72,7 @@ def test_retry_condition_only_for_io_errors():
     assert not retry_on_io_error(None, None, S(ValueError("bug")))
 
 
+@pytest.mark.integration  # slow (> 9 s here): the integration tier (issue 20: make test <= 5 min)
 @pytest.mark.prefect
 def test_flow_reuses_unchanged_stage_and_reruns_changed(fake, tmp_path, prefect_harness):
     from hadal.flows.post_cruise import post_cruise
@@ -100,6 +101,7 @@ def test_flow_reuses_unchanged_stage_and_reruns_changed(fake, tmp_path, prefect_
     assert arts and "dive-a" in arts[0].data
 
 
+@pytest.mark.integration  # slow (> 9 s here): the integration tier (issue 20: make test <= 5 min)
 @pytest.mark.prefect
 def test_cruise_directory_flow_processes_new_dives_and_reuses_unchanged(tmp_path, prefect_harness):
     """`hadal serve CRUISE_DIR` deploys post-cruise-new-dives: each run discovers the dives present,
@@ -129,7 +131,7 @@ def test_cruise_directory_flow_processes_new_dives_and_reuses_unchanged(tmp_path
 
 
 @pytest.mark.prefect
-@pytest.mark.parametrize("processes", [False, pytest.param(True, marks=pytest.mark.slow)], ids=["threads", "processes"])
+@pytest.mark.parametrize("processes", [False, pytest.param(True, marks=[pytest.mark.slow, pytest.mark.integration])], ids=["threads", "processes"])
 def test_batch_two_dives_on_two_dask_workers(tmp_path, prefect_harness, processes):
     """Two dives fanned out on a 2-worker LocalCluster (worker processes: slow, ~40 s on a busy 2-core box)."""
     from hadal.flows.batch import run_batch

@@ -197,6 +197,7 @@ def test_cli_rejects_bad_configuration_in_one_line(items, tmp_path, name, comman
     assert not store.exists()
 
 
+@pytest.mark.integration  # slow (> 9 s here): the integration tier (issue 20: make test <= 5 min)
 @pytest.mark.slow
 @pytest.mark.prefect
 def test_cli_error_inside_the_flow_is_one_line_and_leaves_products_alone(items, tmp_path):

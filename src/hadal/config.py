@@ -61,7 +61,7 @@ def load_config(*paths: str | Path | None) -> PipelineConfig:
     except ValidationError as exc:
         e = exc.errors()[0]
         loc = ".".join(str(x) for x in e.get("loc", ()))
-        raise ConfigError(f"invalid configuration at {loc}: {e.get('msg')}") from None
+        raise ConfigError(f"invalid configuration at {loc}: {str(e.get('msg', '')).removeprefix('Value error, ')}") from None
 
 
 def default_yaml() -> str:

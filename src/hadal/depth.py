@@ -1,12 +1,12 @@
 """Vehicle depth from pressure, pressure-source fusion, seafloor depth and dive phases.
 
-Implements §3.2.2 (Eqs. 11-12) and §4.1.3 of Ma et al. (2023) *TERCOM Challenger Deep*
+Implements §3.2.2 ([TERCOM Eqs. 11-12]) and §4.1.3 of Ma et al. (2023) *TERCOM Challenger Deep*
 (``papers/tercom-challenger-deep.md``): the depth is the hydrostatic integral of the measured in situ
-specific volume, ``H_i = sum h_i``, ``h_i = (p_i - p_{i-1}) / (ρ_i g_i)`` with EOS-80 density (Eq. 13,
-:func:`hadal.seawater.density_eos80`) and gravity at the current depth (Eq. 14, :func:`hadal.seawater.gravity`);
+specific volume, ``H_i = sum h_i``, ``h_i = (p_i - p_{i-1}) / (ρ_i g_i)`` with EOS-80 density ([TERCOM Eq. 13],
+:func:`hadal.seawater.density_eos80`) and gravity at the current depth ([TERCOM Eq. 14], :func:`hadal.seawater.gravity`);
 the seafloor depth is the vehicle depth plus the (sound-speed corrected) altimeter range (Fig. 10).
 
-Cross-checks: :func:`hadal.seawater.depth_fofonoff_millard` (Eqs. 8-10, standard ocean) and the TEOS-10
+Cross-checks: :func:`hadal.seawater.depth_fofonoff_millard` ([TERCOM Eqs. 8-10], standard ocean) and the TEOS-10
 height ``gsw.z_from_p`` with the dynamic height anomaly of the measured profile (:func:`depth_teos10`).
 """
 
@@ -65,11 +65,11 @@ def hydrostatic_depth(
     max_iterations: int = 20,
     start_depth_m: float | None = None,
 ) -> np.ndarray:
-    """Depth (m, positive down) by integrating the hydrostatic equation along the sample series — Eqs. (11)-(12).
+    """Depth (m, positive down) by integrating the hydrostatic equation along the sample series — [TERCOM Eqs. 11-12].
 
     ``H_i = Σ_{k<=i} h_k`` with ``h_k = Δp_k / (ρ_k g_k)``: ``Δp_k = (p_k - p_{k-1})·1e4`` Pa (sea pressure
-    in dbar, 1 dbar = 1e4 Pa), ``ρ_k`` the EOS-80 in situ density (Eq. 13) of the sample and ``g_k`` the gravity
-    (Eq. 14, :func:`hadal.seawater.gravity`) **at the depth reached so far** (``H_{k-1}``), not the
+    in dbar, 1 dbar = 1e4 Pa), ``ρ_k`` the EOS-80 in situ density ([TERCOM Eq. 13]) of the sample and ``g_k`` the gravity
+    ([TERCOM Eq. 14], :func:`hadal.seawater.gravity`) **at the depth reached so far** (``H_{k-1}``), not the
     Fofonoff-Millard column-mean gravity (that would cost ~5 m at 10 000 dbar).
 
     * First sample: without ``start_depth_m`` the series is taken to start below the surface at ``p_0`` with
@@ -83,7 +83,7 @@ def hydrostatic_depth(
     * NaN pressure: the sample is skipped (its depth is NaN) and the next valid sample's increment is taken
       from the last valid pressure. NaN density (e.g. a conductivity dropout) at a valid pressure: the
       density is interpolated linearly over the sample index from its valid neighbours (held at the ends).
-    * ``integration="rectangle"`` is Eq. (12) as printed (ρ and g of the interval's end sample, g at
+    * ``integration="rectangle"`` is [TERCOM Eq. 12] as printed (ρ and g of the interval's end sample, g at
       ``H_{k-1}``); ``"trapezoid"`` (default) averages ``1/(ρ g)`` of the two ends of each interval, i.e.
       second-order accurate in Δp. The rectangle rule is biased shallow by ½ Σ Δp Δ(1/ρg), which grows with
       the step: at 11 000 dbar ≈ 1.5 mm for a 16 Hz CTD at 1 m/s (Δp ≈ 0.06 dbar), 1 cm at 0.5 dbar steps
@@ -93,7 +93,7 @@ def hydrostatic_depth(
     (``H ← H_0 + cumsum(h(g(H)))``, vectorised) started from the Fofonoff-Millard depth, block by block
     (:data:`DEPTH_BLOCK` samples, the last depth carried into the next block); the error shrinks by a factor
     ~C3·H ≈ 2.5e-3 per iteration, so 3-4 iterations reach ``tolerance_m``. The sequential recursion of
-    Eq. (12) is the fixed point (``tests/test_depth.py`` checks both agree to 1e-8 m). With the trapezoid rule
+    [TERCOM Eq. 12] is the fixed point (``tests/test_depth.py`` checks both agree to 1e-8 m). With the trapezoid rule
     the first interval (surface to ``p_0``) also averages ``g`` over its ends. Memory: the output, the
     density when it is not passed (and a filled copy when it has gaps), and per-block temporaries
     (``bench/bench_depth_memory.py``: <= 3x the output).
@@ -135,7 +135,7 @@ def hydrostatic_depth(
             rho = rho.copy()
         _fill_density(rho, valid, good)
     del good
-    g0 = gravity(lat, 0.0)  # ρ g(φ, H) = ρ g(φ, 0) (1 + C3 H), Eq. (14)
+    g0 = gravity(lat, 0.0)  # ρ g(φ, H) = ρ g(φ, 0) (1 + C3 H), [TERCOM Eq. 14]
     prev: tuple[float, float, float] | None = None  # (pressure, depth, 1/(ρ g)) of the last valid sample
     for a in range(0, p.size, DEPTH_BLOCK):
         sl = slice(a, a + DEPTH_BLOCK)
@@ -216,7 +216,7 @@ def dynamic_height_anomaly(pressure_dbar: ArrayLike, salinity: ArrayLike, temper
 
 def depth_teos10(pressure_dbar: ArrayLike, latitude_deg: ArrayLike, profile_pressure_dbar: ArrayLike | None = None,
                  profile_psi: ArrayLike | None = None) -> np.ndarray:
-    """TEOS-10 depth (m, positive down): ``-gsw.z_from_p(p, lat, ψ(p))`` (IOC et al. 2010, Eq. 3.32.3).
+    """TEOS-10 depth (m, positive down): ``-gsw.z_from_p(p, lat, ψ(p))`` (IOC et al. 2010, [TEOS-10 Eq. 3.32.3]).
 
     ``ψ`` (dynamic height anomaly, p_ref = 0, from :func:`dynamic_height_anomaly` of the descent profile) is
     interpolated linearly in pressure at each sample and extrapolated below the profile with its last
@@ -322,7 +322,7 @@ def overlying_column(
        above it (:func:`hydrostatic_depth` without ``start_depth_m``; < 1 mm at 20 dbar);
     2. ``user profile``: ``profile = (pressure_dbar, practical salinity, ITS-90 temperature)`` (e.g. a cast or a
        climatology at the site) reaching within ``surface_dbar`` of the surface and down to the first sample:
-       the hydrostatic integral of its EOS-80 density (Eqs. 11-13). A :class:`UserProfile` (a file,
+       the hydrostatic integral of its EOS-80 density ([TERCOM Eqs. 11-13]). A :class:`UserProfile` (a file,
        ``derive.overlying_profile``) gives its densities directly and must cover the water above: one that does
        not reach the first sample (within ``bin_dbar``) is an :class:`InputError` naming the file, not a silent
        fall back to 3-4;
@@ -487,7 +487,7 @@ def read_overlying_profile(path: str | Path, *, surface_dbar: float = 20.0) -> U
     """Read and check a user's profile of the water above a record (``derive.overlying_profile``): a CSV or a
     Sea-Bird .cnv (.hex) with pressure and temperature + practical salinity, or in situ density.
 
-    The density is EOS-80 (Eq. 13, as the record's) of the temperature and salinity when the file has both, else
+    The density is EOS-80 ([TERCOM Eq. 13], as the record's) of the temperature and salinity when the file has both, else
     its density column. Each mistake is a one-line error naming the file: a missing file (:class:`ConfigError`,
     the setting points at nothing), an unreadable file, a missing column, a unit that is not one of the quantity
     (or no unit), values outside :data:`PROFILE_VALUE_RANGES` (a wrong unit: sigma for density, kPa for dbar),

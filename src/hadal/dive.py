@@ -331,7 +331,7 @@ def _first_error(exc: ValidationError) -> str:
     loc = ".".join(str(x) for x in e.get("loc", ()))
     n = len(exc.errors())
     more = f" (+{n - 1} more)" if n > 1 else ""
-    return f"{loc}: {e.get('msg')}{more}"
+    return f"{loc}: {str(e.get('msg', '')).removeprefix('Value error, ')}{more}"
 
 
 def find_dives(*dirs: str | Path, allow_empty: bool = False) -> list[Path]:

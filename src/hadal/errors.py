@@ -11,12 +11,13 @@ class HadalError(Exception):
     """Base class: a clear, one-line problem report meant for the person running the pipeline."""
 
 
-class InputError(HadalError):
-    """A raw input file is missing, unreadable, truncated or inconsistent."""
+class InputError(HadalError, ValueError):
+    """A raw input file is missing, unreadable, truncated or inconsistent (also a :class:`ValueError`, so library
+    callers catch it as they would a bad value from numpy or xarray)."""
 
 
-class ConfigError(HadalError):
-    """A YAML configuration (pipeline, dive or vehicle) is invalid."""
+class ConfigError(HadalError, ValueError):
+    """A YAML configuration (pipeline, dive or vehicle) or a parameter is invalid (also a :class:`ValueError`)."""
 
 
 class StoreError(HadalError):

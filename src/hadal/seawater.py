@@ -3,11 +3,11 @@
 Implements §3.2.2 of Ma et al. (2023) *TERCOM Challenger Deep* (``papers/tercom-challenger-deep.md``):
 
 * :func:`practical_salinity` — PSS-78 (UNESCO 1983, Tech. Pap. Mar. Sci. 44 "UNESCO 44", p. 6-9), the
-  "formula to calculate the salinity" of Sea-Bird Electronics Inc. (2007) cited after Eq. (13);
-* :func:`density_eos80` — Eq. (13), EOS-80 in situ density with the secant bulk modulus (UNESCO 44 p. 15-19,
+  "formula to calculate the salinity" of Sea-Bird Electronics Inc. (2007) cited after [TERCOM Eq. 13];
+* :func:`density_eos80` — [TERCOM Eq. 13], EOS-80 in situ density with the secant bulk modulus (UNESCO 44 p. 15-19,
   Millero & Poisson 1981); :func:`sigma_t`, :func:`sigma_theta`, :func:`potential_temperature`;
-* :func:`gravity` — Eq. (14), after McDougall & Barker (2011) / ``gsw.grav`` (see the deviation note there);
-* :func:`depth_fofonoff_millard` — Eqs. (8)-(10), Saunders & Fofonoff's fit, SeaSoft ``depSM``;
+* :func:`gravity` — [TERCOM Eq. 14], after McDougall & Barker (2011) / ``gsw.grav`` (see the deviation note there);
+* :func:`depth_fofonoff_millard` — [TERCOM Eqs. 8-10], Saunders & Fofonoff's fit, SeaSoft ``depSM``;
 * :func:`sound_speed_chen_millero` — Chen & Millero (1977), UNESCO 44 p. 46-49, SeaSoft ``svCM``.
 
 Conventions (as SeaSoft): temperatures passed in are ITS-90 (°C) and converted inside to IPTS-68 with
@@ -202,7 +202,7 @@ def conductivity_from_salinity(salinity: ArrayLike, temperature_its90_degc: Arra
 
 
 # --------------------------------------------------------------------------------------------- EOS-80
-# Eq. (13) coefficients (UNESCO 44 p. 17-18, Millero & Poisson 1981; Sea-Bird 2007 application note 69)
+# [TERCOM Eq. 13] coefficients (UNESCO 44 p. 17-18, Millero & Poisson 1981; Sea-Bird 2007 application note 69)
 _A0, _A1, _A2, _A3, _A4, _A5 = 999.842594, 6.793952e-2, -9.095290e-3, 1.001685e-4, -1.120083e-6, 6.536332e-9
 _B0, _B1, _B2, _B3, _B4 = 8.24493e-1, -4.0899e-3, 7.6438e-5, -8.2467e-7, 5.3875e-9
 _C0, _C1, _C2 = -5.72466e-3, 1.0227e-4, -1.6546e-6
@@ -228,7 +228,7 @@ def _horner(x: np.ndarray, *coeffs: float) -> np.ndarray:
 
 
 def _rho0_and_k(s: np.ndarray, t: np.ndarray, p_bar: np.ndarray | float) -> tuple[np.ndarray, np.ndarray]:
-    """(one-atmosphere density ρ(S,t,0) = A+B+C+D, secant bulk modulus K(S,t,p) = E+...+M) of Eq. (13);
+    """(one-atmosphere density ρ(S,t,0) = A+B+C+D, secant bulk modulus K(S,t,p) = E+...+M) of [TERCOM Eq. 13];
     t in °C IPTS-68, p in **bar**. Factored as ``A + S (B' + √S C' + D0 S)`` etc. (fewer operations)."""
     s = np.maximum(s, 1e-6)  # SeaSoft guard against s**1.5 of s <= 0 (NaN stays NaN)
     sq = np.sqrt(s)
@@ -262,7 +262,7 @@ def _rho0_and_k(s: np.ndarray, t: np.ndarray, p_bar: np.ndarray | float) -> tupl
 
 
 def density_eos80_t68(salinity: ArrayLike, temperature_ipts68_degc: ArrayLike, pressure_dbar: ArrayLike) -> np.ndarray:
-    """EOS-80 in situ density (kg m⁻³), Eq. (13), with temperature on IPTS-68 (the UNESCO 44 ``DENS`` inputs)."""
+    """EOS-80 in situ density (kg m⁻³), [TERCOM Eq. 13], with temperature on IPTS-68 (the UNESCO 44 ``DENS`` inputs)."""
     return _density_kernel(salinity, temperature_ipts68_degc, pressure_dbar)
 
 
@@ -277,10 +277,10 @@ def _density_kernel(s: np.ndarray, t: np.ndarray, p: np.ndarray) -> np.ndarray:
 
 
 def density_eos80(salinity: ArrayLike, temperature_its90_degc: ArrayLike, pressure_dbar: ArrayLike) -> np.ndarray:
-    """EOS-80 in situ density ρ (kg m⁻³) — Eq. (13) of the paper (Sea-Bird Electronics Inc. 2007).
+    """EOS-80 in situ density ρ (kg m⁻³) — [TERCOM Eq. 13] of the paper (Sea-Bird Electronics Inc. 2007).
 
     ``ρ = ρ(S,t,0) / (1 - p/K(S,t,p))`` with ``ρ(S,t,0) = A+B+C+D`` (one-atmosphere EOS, Millero & Poisson
-    1981) and ``K = E+F+G+H+I+J+K+M`` the secant bulk modulus (UNESCO 44 p. 15-19). ``p`` in Eq. (13) is in
+    1981) and ``K = E+F+G+H+I+J+K+M`` the secant bulk modulus (UNESCO 44 p. 15-19). ``p`` in [TERCOM Eq. 13] is in
     bar: ``pressure_dbar / 10``. ``salinity`` is practical salinity, temperature ITS-90 °C (converted to
     IPTS-68 inside, as SeaSoft), ``pressure_dbar`` sea pressure. Non-positive salinity is treated as 1e-6
     (SeaSoft). Check values: UNESCO 44 p. 19 (e.g. ρ(35, 25 °C₆₈, 10 000 dbar) = 1062.53817).
@@ -373,16 +373,16 @@ def _sigma_theta_kernel(s: np.ndarray, t90: np.ndarray, p: np.ndarray) -> np.nda
 
 
 # ---------------------------------------------------------------------------------------------- gravity
-#: Eq. (14) constants (McDougall & Barker 2011, gsw_grav): g0, A3, B3, C3 (C3 in m⁻¹)
+#: [TERCOM Eq. 14] constants (McDougall & Barker 2011, gsw_grav): g0, A3, B3, C3 (C3 in m⁻¹)
 G0_M_S2, GRAV_A3, GRAV_B3, GRAV_C3_PER_M = 9.780327, 5.2792e-3, 2.32e-5, 2.26e-7
 
 
 def gravity(latitude_deg: ArrayLike, depth_m: ArrayLike = 0.0) -> np.ndarray:
-    """Gravitational acceleration g (m s⁻²) at latitude φ and depth H below the sea surface — Eq. (14).
+    """Gravitational acceleration g (m s⁻²) at latitude φ and depth H below the sea surface — [TERCOM Eq. 14].
 
     ``g = 9.780327 (1 + (5.2792e-3 + 2.32e-5 sin²φ) sin²φ) (1 + 2.26e-7 H)``, ``H`` in metres, positive down.
 
-    Deviation from the paper: Eq. (14) as printed reads ``g0{1 + [A3 + (B3 - 5 sin²θ) sin²θ]}(1 - C3 H)``.
+    Deviation from the paper: [TERCOM Eq. 14] as printed reads ``g0{1 + [A3 + (B3 - 5 sin²θ) sin²θ]}(1 - C3 H)``.
     The "``- 5``" is a transcription error (the cited source, McDougall & Barker 2011 / ``gsw.grav``, has
     ``(A3 + B3 sin²φ) sin²φ``; with ``-5 sin²φ`` g would drop by ~0.3 m s⁻² at 15° N), and the depth factor
     there is ``(1 - γ z)`` with ``z`` the *height* (negative below the sea surface), i.e. ``(1 + C3 H)`` for
@@ -398,7 +398,7 @@ def gravity(latitude_deg: ArrayLike, depth_m: ArrayLike = 0.0) -> np.ndarray:
 
 
 def gravity_unesco(latitude_deg: ArrayLike, pressure_dbar: ArrayLike = 0.0) -> np.ndarray:
-    """Gravity (m s⁻²) of the Fofonoff-Millard depth formula, Eq. (10):
+    """Gravity (m s⁻²) of the Fofonoff-Millard depth formula, [TERCOM Eq. 10]:
     ``F = 9.780318 (1 + (5.2788e-3 + 2.36e-5 sin²φ) sin²φ) + 1.092e-6 p`` (``p`` in dbar) — a column-mean
     gravity (half the mean vertical gradient), not the local g; used only inside :func:`depth_fofonoff_millard`."""
     x = np.sin(_f(latitude_deg) / _DEG_PER_RAD_SEASOFT) ** 2  # on the latitudes' own shape, then broadcast
@@ -406,13 +406,13 @@ def gravity_unesco(latitude_deg: ArrayLike, pressure_dbar: ArrayLike = 0.0) -> n
 
 
 def depth_fofonoff_millard(pressure_dbar: ArrayLike, latitude_deg: ArrayLike) -> np.ndarray:
-    """Depth (m, positive down) of a standard ocean (S=35, T=0 °C) — Eqs. (8)-(10) without the ΔD/9.8 term.
+    """Depth (m, positive down) of a standard ocean (S=35, T=0 °C) — [TERCOM Eqs. 8-10] without the ΔD/9.8 term.
 
-    Eq. (9): ``Z = (((A1 p + B1) p - C1) p + D1) p / F(φ, p)`` with A1=-1.82e-15, B1=2.279e-10, C1=2.2512e-5,
-    D1=9.72659 and Eq. (10) ``F`` (:func:`gravity_unesco`); ``p`` in dbar. Note Eq. (9) as printed omits the
+    [TERCOM Eq. 9]: ``Z = (((A1 p + B1) p - C1) p + D1) p / F(φ, p)`` with A1=-1.82e-15, B1=2.279e-10, C1=2.2512e-5,
+    D1=9.72659 and [TERCOM Eq. 10] ``F`` (:func:`gravity_unesco`); ``p`` in dbar. Note [TERCOM Eq. 9] as printed omits the
     final factor ``p`` of the Horner polynomial (UNESCO 44 p. 28 has it; without it H would not be a length).
     This is SeaSoft's ``depSM`` ("depth, salt water") and UNESCO 44 ``DEPTH``: check value 9712.653 m at
-    10 000 dbar, 30° latitude. The geopotential anomaly term ΔD/9.8 of Eq. (8) is not included (as SeaSoft);
+    10 000 dbar, 30° latitude. The geopotential anomaly term ΔD/9.8 of [TERCOM Eq. 8] is not included (as SeaSoft);
     the hydrostatic integral (:func:`hadal.depth.hydrostatic_depth`) replaces it.
     """
     return _depth_fm_kernel(pressure_dbar, latitude_deg)

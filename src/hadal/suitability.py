@@ -4,13 +4,13 @@ TERCOM paper (tercom-challenger-deep.md) §3.1 and §4.1.2: the reference map is
 ``m x n`` grid of blocks (44 x 60 for the Challenger Deep map) and for each block, with ``z(i, j)`` its
 ``m x n`` cell values,
 
-* Eq. (1)  ``zbar = 1/(mn) * sum z(i, j)``
-* Eq. (2)  ``D(z) = 1/(m(n-1)) * sum (z(i, j) - zbar)^2``  -- **implemented as written**: the paper's
+* [TERCOM Eq. 1]  ``zbar = 1/(mn) * sum z(i, j)``
+* [TERCOM Eq. 2]  ``D(z) = 1/(m(n-1)) * sum (z(i, j) - zbar)^2``  -- **implemented as written**: the paper's
   normaliser is ``m(n-1)``, not the usual ``mn - 1``; for a 20 x 20 block it differs from the
   ``mn - 1`` sample variance by a factor ``(mn-1)/(m(n-1)) = 1.047``.
-* Eq. (3)  ``sigma = sqrt(D(z))``
-* Eq. (4)  ``H_f = - sum p_ij log p_ij`` (natural logarithm, nats)
-* Eq. (5)  ``p_ij = z(i, j) / sum z(i, j)``
+* [TERCOM Eq. 3]  ``sigma = sqrt(D(z))``
+* [TERCOM Eq. 4]  ``H_f = - sum p_ij log p_ij`` (natural logarithm, nats)
+* [TERCOM Eq. 5]  ``p_ij = z(i, j) / sum z(i, j)``
 
 ``p_ij`` must be a probability, so ``z`` must be positive: we use **depth positive down** (``depth_m``
 of the DTM, ~10 000 m at the Challenger Deep), never elevation (negative below sea level). Blocks that
@@ -23,7 +23,7 @@ small"; its Fig. 6 caption reads the other way round). Suitable = high ``sigma``
 also store ``entropy_deficit = log(K) - H_f`` (K valid cells; 0 for flat terrain, grows with relief).
 
 Missing (NaN) cells: a block is evaluated from its ``K`` valid cells when at least
-``min_valid_fraction`` of it is valid; Eq. (2)'s normaliser then becomes ``K (n-1)/n`` (equal to
+``min_valid_fraction`` of it is valid; [TERCOM Eq. 2]'s normaliser then becomes ``K (n-1)/n`` (equal to
 ``m(n-1)`` when the block is complete) -- a deviation needed to handle holes, documented here.
 """
 
@@ -39,7 +39,7 @@ from hadal.matching.mapgrid import MapGrid
 
 
 def block_std_entropy(z: np.ndarray, min_valid_fraction: float = 0.5) -> tuple[float, float, int]:
-    """Eqs. (1)-(5) for one ``m x n`` block ``z`` (depth positive down, metres).
+    """[TERCOM Eqs. 1-5] for one ``m x n`` block ``z`` (depth positive down, metres).
 
     Returns ``(sigma_m, entropy_nats, n_valid)``; NaN when fewer than ``min_valid_fraction`` cells are valid.
     """
@@ -49,20 +49,20 @@ def block_std_entropy(z: np.ndarray, min_valid_fraction: float = 0.5) -> tuple[f
 
 
 def _blocks(b: np.ndarray, min_valid_fraction: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Vectorised Eqs. (1)-(5) over blocks ``b[by, bx, m, n]``."""
+    """Vectorised [TERCOM Eqs. 1-5] over blocks ``b[by, bx, m, n]``."""
     m, n = b.shape[2], b.shape[3]
     valid = np.isfinite(b)
     k = valid.sum(axis=(2, 3))
     bz = np.where(valid, b, 0.0)
     with np.errstate(invalid="ignore", divide="ignore"):
-        zbar = bz.sum(axis=(2, 3)) / k  # Eq. (1) over the valid cells
+        zbar = bz.sum(axis=(2, 3)) / k  # [TERCOM Eq. 1] over the valid cells
         dev2 = np.where(valid, (b - zbar[..., None, None]) ** 2, 0.0).sum(axis=(2, 3))
-        norm = k * (n - 1) / n if n > 1 else k.astype(float)  # = m(n-1) for a complete block (Eq. 2)
-        sigma = np.sqrt(dev2 / norm)  # Eqs. (2)-(3)
+        norm = k * (n - 1) / n if n > 1 else k.astype(float)  # = m(n-1) for a complete block ([TERCOM Eq. 2])
+        sigma = np.sqrt(dev2 / norm)  # [TERCOM Eqs. 2-3]
         total = bz.sum(axis=(2, 3))
-        p = np.where(valid, b, 1.0) / total[..., None, None]  # Eq. (5)
+        p = np.where(valid, b, 1.0) / total[..., None, None]  # [TERCOM Eq. 5]
         plogp = np.where(valid & (p > 0), p * np.log(np.where(p > 0, p, 1.0)), 0.0)
-        entropy = -plogp.sum(axis=(2, 3))  # Eq. (4)
+        entropy = -plogp.sum(axis=(2, 3))  # [TERCOM Eq. 4]
     ok = k >= max(1, int(np.ceil(min_valid_fraction * m * n)))
     nonpos = (np.where(valid, b, 1.0) <= 0).any(axis=(2, 3))
     sigma = np.where(ok, sigma, np.nan)
@@ -77,7 +77,7 @@ def suitability_map(
     *,
     min_valid_fraction: float = 0.5,
 ) -> xr.Dataset:
-    """Per-block ``std_m`` (Eqs. 1-3) and ``entropy`` (Eqs. 4-5) of the reference DTM on an ``n_blocks_y x n_blocks_x`` grid.
+    """Per-block ``std_m`` ([TERCOM Eqs. 1-3]) and ``entropy`` ([TERCOM Eqs. 4-5]) of the reference DTM on an ``n_blocks_y x n_blocks_x`` grid.
 
     The map is cut into equal blocks of ``floor(ny/n_blocks_y) x floor(nx/n_blocks_x)`` cells; the
     remainder rows/columns (fewer than one block) on the north/east edge are left out. Returns a

@@ -1,6 +1,6 @@
 """Landing-site analysis on mm-resolution laser bathymetry (Sangekar et al., §III-IV).
 
-Public API: :class:`Vehicle` (Table II, Eqs. 1-9), :func:`analyse_submap` -> :class:`LandingResult`.
+Public API: :class:`Vehicle` (Table II, [Landing Eqs. 1-9]), :func:`analyse_submap` -> :class:`LandingResult`.
 """
 
 import importlib

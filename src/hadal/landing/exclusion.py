@@ -4,10 +4,10 @@ For a landing heading α the centre of gravity C_G may not enter a cell when
 
 * the vehicle footprint centred there would cover unmapped seafloor (binary erosion of the mapped area
   by the rotated vehicle rectangle, Fig. 13b)  → :data:`UNMAPPED`;
-* the slope of the plane fitted over that footprint exceeds θc (Eq. 2, Fig. 13c-d)  → :data:`SLOPE`;
-* it lies within the radius d_i(h) of a protrusion of height 5 mm ≤ h ≤ h_c (Eqs. 7-8, Fig. 15,
+* the slope of the plane fitted over that footprint exceeds θc ([Landing Eq. 2], Fig. 13c-d)  → :data:`SLOPE`;
+* it lies within the radius d_i(h) of a protrusion of height 5 mm ≤ h ≤ h_c ([Landing Eqs. 7-8], Fig. 15,
   heading independent, Fig. 18c)  → :data:`SMALL_PROTRUSION`;
-* the footprint would touch a protrusion higher than h_c (Eq. 9; binary dilation of those protrusions
+* the footprint would touch a protrusion higher than h_c ([Landing Eq. 9]; binary dilation of those protrusions
   by the rotated vehicle rectangle, Fig. 18d-e)  → :data:`HIGH_PROTRUSION`.
 
 Headings are compass-style: α is measured clockwise from +y (north) towards +x (east); the vehicle's

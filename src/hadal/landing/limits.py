@@ -2,10 +2,10 @@
 them without importing the analysis (:mod:`hadal.landing.sites` re-exports them)."""
 
 #: the cell-size rule (issue 15): cells at most 1/10 of the vehicle width (5 cm for Table II), so the
-#: footprint width spans >= 10 cells, the Eq. 8 exclusion radii (0 .. b_u/2) >= 5 cells and the 0.1 m local-slope
+#: footprint width spans >= 10 cells, the [Landing Eq. 8] exclusion radii (0 .. b_u/2) >= 5 cells and the 0.1 m local-slope
 #: window >= 3 cells (it never gets coarser than its physical size).
 CELL_FRACTION_RULE = 0.1
 #: hard limit with an explicit ``max_cell_fraction`` override (e.g. the real Takuyo raster, 0.10 m = 0.2 × 0.5 m):
 #: the analysis runs and adds a warning to :attr:`LandingResult.warnings`; beyond it cells are refused outright
-#: (the footprint is then only ~5 cells wide and the Eq. 8 discs 1-2 cells: the exclusions are meaningless).
+#: (the footprint is then only ~5 cells wide and the [Landing Eq. 8] discs 1-2 cells: the exclusions are meaningless).
 COARSE_CELL_LIMIT = 0.2

@@ -1,4 +1,4 @@
-"""Protrusion height maps (Sangekar et al. §III-B2, Eq. 10, Fig. 17).
+"""Protrusion height maps (Sangekar et al. §III-B2, [Landing Eq. 10], Fig. 17).
 
 Two methods:
 
@@ -7,7 +7,7 @@ Two methods:
   a flat octagon (≈ disc) of minimum width = the vehicle diagonal σ, applied after removing a robust local
   plane per block. Every rock narrower than σ — i.e. every rock the whole vehicle cannot stand on —
   is removed from the ground entirely, so its height comes out in full, flat tops included, on any slope.
-* ``method="butterworth"`` — the paper's literal Eq. 10: Fourier low-pass
+* ``method="butterworth"`` — the paper's literal [Landing Eq. 10]: Fourier low-pass
   H(f) = 1/sqrt(1 + (f/f_c)^(2n)) with f_c = 2/σ (σ in samples) per zero-filled block
   ``[Landing Eq. 10]``; kept for comparison (``bench/bench_landing.py --rocks`` prints both).
 
@@ -16,7 +16,7 @@ Why the default deviates from the literal f_c = 2/σ ``[Landing Eq. 10]``
 f_c = 2/σ cycles per sample is a cut-off *wavelength* of σ/2 = 0.89 m for Table II. Any rock whose size is
 comparable to that wavelength is partly kept in the "smooth" surface and its height is lost: a 30 cm dome keeps
 83 % of its height at 0.2 m diameter, 51 % at 0.4 m, 23 % at 0.6 m, 13 % at 1 m — so a 30 cm × 0.6 m rock
-under the footprint reads as 7 cm and the site is called safe, breaking the Eq. 9 rule (nothing higher than
+under the footprint reads as 7 cm and the site is called safe, breaking the [Landing Eq. 9] rule (nothing higher than
 h_c may touch the vehicle). A mean over a disc of the vehicle diagonal (the reference C++ implementation,
 ocean-perception/landing_area_detector) keeps ~92 % of a 0.6 m rock but only ~30 % of a 1.5 m one.
 Any *linear* low-pass keeps a fraction of a wide rock; a morphological opening does not: the ground at a point
@@ -42,7 +42,7 @@ import numpy as np
 import scipy.fft as sfft
 from scipy import ndimage as ndi
 
-# ----------------------------------------------------------------------------- paper's Eq. 10 (for comparison)
+# ----------------------------------------------------------------------------- paper's [Landing Eq. 10] (for comparison)
 
 
 def butterworth_lowpass(shape: tuple[int, int], cutoff_cycles_per_sample: float, order: int = 3) -> np.ndarray:

@@ -1,4 +1,4 @@
-"""Landing-site identification and selection (Sangekar et al. §III-C, §III-D, Eqs. 11-15) and the public
+"""Landing-site identification and selection (Sangekar et al. §III-C, §III-D, [Landing Eqs. 11-15]) and the public
 entry point :func:`analyse_submap`.
 
 Per landing heading α (-90° .. 90°, 5° steps): combine the exclusion zones (Fig. 19a), group the cells
@@ -6,30 +6,30 @@ where C_G may land by 8-connectivity, take the centre of the largest inscribed c
 Euclidean distance transform) as the landing coordinate (Fig. 19c), reject groups whose circle radius is
 below 0.3 m, and cost every remaining candidate:
 
-* P_s = θ̄ / θc (Eq. 11), θ̄ the slope of the plane fitted over the footprint at the landing coordinate;
+* P_s = θ̄ / θc ([Landing Eq. 11]), θ̄ the slope of the plane fitted over the footprint at the landing coordinate;
 * P_f = (5 - A_r/A_f)/4 clipped to [0, 1] ``[Landing Eq. 12]``, A_r the largest rectangle of the vehicle's aspect
   ratio, oriented along α, inscribed in the site;
-* P_r = R / R_max (Eqs. 13-14), R = mean |h - h̄| of the protrusion heights under the footprint and R_max
-  the same for the worst admissible terrain of Fig. 20 (heights h(d) of Eq. 8 within b_u/2 of the centre,
+* P_r = R / R_max ([Landing Eqs. 13-14]), R = mean |h - h̄| of the protrusion heights under the footprint and R_max
+  the same for the worst admissible terrain of Fig. 20 (heights h(d) of [Landing Eq. 8] within b_u/2 of the centre,
   h_c beyond);
-* C_s = (P_s + P_f + P_r)/3 (Eq. 15); the candidate with the lowest C_s over all headings is the site.
+* C_s = (P_s + P_f + P_r)/3 ([Landing Eq. 15]); the candidate with the lowest C_s over all headings is the site.
 
 Choices where the paper is silent or where we deviate (on purpose):
 
 * The circle radius is the Euclidean distance from the landing cell to the nearest excluded cell centre.
   When several cells share the largest circle (a corridor), the one nearest the middle of that ridge is taken.
-* θ̄ of Eq. 11 is the slope of the plane fitted over the footprint at the landing coordinate — the "mean
+* θ̄ of [Landing Eq. 11] is the slope of the plane fitted over the footprint at the landing coordinate — the "mean
   slope of the ground over the footprint" that the paper thresholds in Fig. 13c.
 * P_r is not clipped: terrain rougher than the Fig. 20 worst case gives P_r > 1 (the paper does not say).
 * Protrusions higher than h_c ``[Landing Eq. 9]`` are *every* mapped cell whose height (above the ground of
   :mod:`hadal.landing.protrusion`, which keeps the full height of any rock narrower than the vehicle
-  diagonal) exceeds h_c — not only steep cells, so flat rock tops count. The Eq. 8 discs ``[Landing Eq. 8]``
+  diagonal) exceeds h_c — not only steep cells, so flat rock tops count. The ``[Landing Eq. 8]`` discs
   for lower protrusions use the paper's candidates: cells whose local slope (plane fit over a fixed
   *physical* window, ``local_slope_window_m`` = 0.1 m by default, Fig. 16a) exceeds θc and whose height is at
   least 5 mm. A window of a few cells (the old 3 cm) turns sub-resolution sensor noise into steep cells; 0.1 m
   keeps the slope error under 6 mm noise at ~1°. Interior holes up to 0.01 m² are filled with the nearest
   elevation first (:func:`fill_small_holes`), larger gaps stay unmapped.
-* A_r of Eq. 12 is exact on the grid (:func:`largest_aspect_rectangle_m2`), independent of the crop origin.
+* A_r of [Landing Eq. 12] is exact on the grid (:func:`largest_aspect_rectangle_m2`), independent of the crop origin.
 * Inputs are checked for plausibility (units, cell size ≤ 1/10 × vehicle width — up to 0.2 × only with an
   explicit ``max_cell_fraction`` override, reported as a warning — depth sign, elevations beyond
   any ocean depth, implausible median slope) and options are bounded (:class:`AnalysisOptions`); candidates
@@ -84,7 +84,7 @@ from hadal.landing.slope import local_slope_deg
 from hadal.landing.vehicle import Vehicle
 
 #: the cell-size rule CELL_FRACTION_RULE and the hard limit COARSE_CELL_LIMIT (issue 15): see hadal.landing.limits
-ROUGHNESS_WINDOW_M = 0.3  # heights are averaged over this before R (Eq. 13): 3 cells of the coarsest allowed grid
+ROUGHNESS_WINDOW_M = 0.3  # heights are averaged over this before R ([Landing Eq. 13]): 3 cells of the coarsest allowed grid
 
 SITE_COLUMNS = [
     "heading_deg", "site_id", "row", "col", "x_m", "y_m", "radius_m", "area_m2", "slope_deg",
@@ -227,8 +227,8 @@ class LandingResult:
 
 
 def roughness_max_m(vehicle: Vehicle, cell_m: float) -> float:
-    """R_max (Eq. 14, Fig. 20): roughness (Eq. 13) of the worst terrain that still leaves the footprint
-    centre outside every C_G exclusion zone: at radial distance d ≤ b_u/2 the height limit h(d) of Eq. 8,
+    """R_max ([Landing Eq. 14], Fig. 20): roughness ([Landing Eq. 13]) of the worst terrain that still leaves the footprint
+    centre outside every C_G exclusion zone: at radial distance d ≤ b_u/2 the height limit h(d) of [Landing Eq. 8],
     beyond it h_c."""
     rr, cc = footprint_offsets(vehicle.length_m, vehicle.width_m, 0.0, cell_m)
     d = np.hypot(rr, cc) * cell_m
@@ -253,7 +253,7 @@ def largest_aspect_rectangle_m2(mask: np.ndarray, cell_m: float, heading_deg: fl
     max_p s(p)² l w. The result depends only on the site's cells, not on the crop or the grid origin; tests
     check it against a brute-force erosion with the rotated footprint. ``max_scale``: stop as soon as a
     rectangle of that scale (side / vehicle side) is found and return its area, a lower bound (the site uses
-    √5: P_f of Eq. 12 is 0 for every A_r ≥ 5 A_f). ``resolution_m`` is ignored (kept for old callers).
+    √5: P_f of [Landing Eq. 12] is 0 for every A_r ≥ 5 A_f). ``resolution_m`` is ignored (kept for old callers).
 
     ``clearance2`` (optional, same shape as ``mask``): for every site cell, the squared distance (cells²) to
     some cell outside the site (e.g. the squared EDT of the landable cells). Then s(p) ≤ √clearance2 / (w/2)
@@ -455,16 +455,16 @@ def _analyse_heading(ctx: _Ctx, heading: float, want_labels: bool = False, keep:
                     box, ctx.cell_m, heading, v.length_m, v.width_m, max_scale=math.sqrt(5.0),
                     clearance2=d2[bb_r0[lid] : bb_r1[lid], bb_c0[lid] : bb_c1[lid]], label=lid)
                 ratio = rect / v.footprint_area_m2
-                p_s = theta / v.critical_slope_deg  # Eq. 11
-                p_f = float(np.clip(0.25 * (5.0 - ratio), 0.0, 1.0))  # Eq. 12
-                p_r = R / ctx.r_max_m  # Eq. 14
+                p_s = theta / v.critical_slope_deg  # [Landing Eq. 11]
+                p_f = float(np.clip(0.25 * (5.0 - ratio), 0.0, 1.0))  # [Landing Eq. 12]
+                p_r = R / ctx.r_max_m  # [Landing Eq. 14]
                 rows.append({
                     "heading_deg": float(heading), "site_id": lid, "row": int(i), "col": int(j),
                     "x_m": ctx.x0 + j * ctx.cell_m, "y_m": ctx.y0 + i * ctx.cell_m,  # frame; world later
                     "radius_m": rad_px * ctx.cell_m, "area_m2": float(areas[lid]) * ctx.cell_m**2,
                     "slope_deg": theta, "elevation_m": float(np.nanmean(zs)), "roughness_m": R,
                     "rect_area_m2": rect, "rect_area_ratio": ratio,
-                    "p_s": p_s, "p_f": p_f, "p_r": p_r, "c_s": (p_s + p_f + p_r) / 3.0,  # Eq. 15
+                    "p_s": p_s, "p_f": p_f, "p_r": p_r, "c_s": (p_s + p_f + p_r) / 3.0,  # [Landing Eq. 15]
                 })
     if want_labels:
         return ex, rows, hm, labels
@@ -880,9 +880,9 @@ def analyse_submap(
 
     t = time.perf_counter()
     with np.errstate(invalid="ignore"):
-        # Eq. 9: nothing higher than h_c may touch the vehicle — every mapped cell counts (flat rock tops too)
+        # [Landing Eq. 9]: nothing higher than h_c may touch the vehicle — every mapped cell counts (flat rock tops too)
         high = np.isfinite(h) & (h > h_c)  # Fig. 18d
-        # Eq. 8 discs for the lower protrusion points: steep cells (Fig. 16b) at least min height high
+        # [Landing Eq. 8] discs for the lower protrusion points: steep cells (Fig. 16b) at least min height high
         small = (slope_local > theta_c) & (h >= opt.min_protrusion_height_m) & ~high
         candidate = small | high
     radius = np.full(z.shape, np.nan, np.float32)  # (float32: 4 bytes per cell on long strips)

@@ -1,5 +1,5 @@
 """Landing-vehicle model of Sangekar et al., "Autonomous landing of underwater vehicles using high
-resolution bathymetry", §III-B1 (Eqs. 1-9). Defaults are the paper's Table II.
+resolution bathymetry", §III-B1 ([Landing Eqs. 1-9]). Defaults are the paper's Table II.
 
 All lengths in metres, forces in newtons, angles in degrees unless the name says ``_rad``.
 """
@@ -10,8 +10,6 @@ import math
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, model_validator
-
-from hadal.errors import ConfigError
 
 
 class Vehicle(BaseModel):
@@ -36,18 +34,20 @@ class Vehicle(BaseModel):
 
     @model_validator(mode="after")
     def _check(self) -> Vehicle:
+        # ValueError, as pydantic expects: construction raises a ValidationError (a ValueError); the configuration
+        # loaders turn it into a one-line ConfigError
         if self.mass_kg <= self.buoyancy_mass_kg:
-            raise ConfigError(
+            raise ValueError(
                 f"vehicle mass {self.mass_kg} kg must exceed its buoyancy mass {self.buoyancy_mass_kg} kg "
                 "(the landing concept needs negative buoyancy, F_R > 0)"
             )
         if self.righting_denominator_nm <= 0:
-            raise ConfigError(
+            raise ValueError(
                 "vehicle has no righting moment: d_m*F_B - d_g*F_R must be > 0 "
                 f"(got {self.righting_denominator_nm:.3f} N m); check cg_height_m / cg_cb_distance_m"
             )
         if self.width_m > self.length_m:
-            raise ConfigError(f"vehicle width {self.width_m} m exceeds its length {self.length_m} m")
+            raise ValueError(f"vehicle width {self.width_m} m exceeds its length {self.length_m} m")
         return self
 
     # ------------------------------------------------------------------ forces
@@ -68,22 +68,22 @@ class Vehicle(BaseModel):
 
     @property
     def righting_denominator_nm(self) -> float:
-        """d_m F_B - d_g F_R (N m), the denominator of Eqs. 1, 2 and 7."""
+        """d_m F_B - d_g F_R (N m), the denominator of [Landing Eqs. 1, 2 and 7]."""
         return self.cg_cb_distance_m * self.force_buoyancy_n - self.cg_height_m * self.net_force_n
 
     @property
     def footprint_area_m2(self) -> float:
-        """A_f = l_u b_u (m²), used by the safety cost (Eq. 12)."""
+        """A_f = l_u b_u (m²), used by the safety cost ([Landing Eq. 12])."""
         return self.length_m * self.width_m
 
     @property
     def diagonal_m(self) -> float:
-        """Diagonal of the vehicle footprint (m); sets the low-pass cut-off of Eq. 10 (f_c = 2/σ)."""
+        """Diagonal of the vehicle footprint (m); sets the low-pass cut-off of [Landing Eq. 10] (f_c = 2/σ)."""
         return math.hypot(self.length_m, self.width_m)
 
-    # ------------------------------------------------------------------ slope (Eqs. 1-6)
+    # ------------------------------------------------------------------ slope ([Landing Eqs. 1-6])
     def tilt_angle_rad(self, contact_distance_m: float | np.ndarray) -> float | np.ndarray:
-        """Eq. 1 / Eq. 7: largest tilt θ = atan(d F_R / (d_m F_B - d_g F_R)) the righting moment allows
+        """[Landing Eq. 1] / [Landing Eq. 7]: largest tilt θ = atan(d F_R / (d_m F_B - d_g F_R)) the righting moment allows
         for a contact point at distance ``d`` (m) from the C_G-C_B centre line."""
         d = np.asarray(contact_distance_m, dtype=float)
         out = np.arctan(d * self.net_force_n / self.righting_denominator_nm)
@@ -91,38 +91,38 @@ class Vehicle(BaseModel):
 
     @property
     def critical_slope_deg(self) -> float:
-        """Eq. 2: θc, the steepest slope the vehicle can land on at any orientation (d_ψ = b_u/2)."""
+        """[Landing Eq. 2]: θc, the steepest slope the vehicle can land on at any orientation (d_ψ = b_u/2)."""
         return math.degrees(float(self.tilt_angle_rad(0.5 * self.width_m)))
 
     def current_force_limit_n(self, slope_deg: float | np.ndarray, friction: float | np.ndarray) -> np.ndarray:
-        """Eq. 5: largest current force F_C ≤ (F_G - F_B)(μ cos θ - sin θ) (N) before the landed vehicle
-        slides down a slope θ with friction coefficient μ (Eqs. 3-4); negative = slides even without current."""
+        """[Landing Eq. 5]: largest current force F_C ≤ (F_G - F_B)(μ cos θ - sin θ) (N) before the landed vehicle
+        slides down a slope θ with friction coefficient μ ([Landing Eqs. 3-4]); negative = slides even without current."""
         th = np.radians(np.asarray(slope_deg, dtype=float))
         return self.net_force_n * (np.asarray(friction, dtype=float) * np.cos(th) - np.sin(th))
 
     def admissible_current_m_s(self, slope_deg: float | np.ndarray, friction: float | np.ndarray) -> np.ndarray:
-        """Eq. 6: admissible current v_c = sqrt(2 F_C / (C_d ρ l_u h_u)) (m/s); 0 where the vehicle
-        slides even in still water (F_C < 0, Eq. 5)."""
+        """[Landing Eq. 6]: admissible current v_c = sqrt(2 F_C / (C_d ρ l_u h_u)) (m/s); 0 where the vehicle
+        slides even in still water (F_C < 0, [Landing Eq. 5])."""
         fc = np.clip(self.current_force_limit_n(slope_deg, friction), 0.0, None)
         area = self.length_m * self.height_m
         return np.sqrt(2.0 * fc / (self.drag_coefficient * self.water_density_kg_m3 * area))
 
-    # ------------------------------------------------------------------ protrusions (Eqs. 7-9)
+    # ------------------------------------------------------------------ protrusions ([Landing Eqs. 7-9])
     def protrusion_height_limit_m(self, contact_distance_m: float | np.ndarray) -> float | np.ndarray:
-        """Eq. 8: h_i = (b_u/2 + d_i) sin θ_i, the highest protrusion at distance d_i (m) from the
-        C_G-C_B centre line on which the vehicle still settles (θ_i from Eq. 7)."""
+        """[Landing Eq. 8]: h_i = (b_u/2 + d_i) sin θ_i, the highest protrusion at distance d_i (m) from the
+        C_G-C_B centre line on which the vehicle still settles (θ_i from [Landing Eq. 7])."""
         d = np.asarray(contact_distance_m, dtype=float)
         out = (0.5 * self.width_m + d) * np.sin(self.tilt_angle_rad(d))
         return float(out) if np.ndim(out) == 0 else out
 
     @property
     def critical_height_m(self) -> float:
-        """Eq. 9: h_c = b_u sin θc (m); any protrusion higher than this must not touch the vehicle."""
+        """[Landing Eq. 9]: h_c = b_u sin θc (m); any protrusion higher than this must not touch the vehicle."""
         return self.width_m * math.sin(math.radians(self.critical_slope_deg))
 
     def exclusion_table(self, step_m: float = 0.005) -> tuple[np.ndarray, np.ndarray]:
         """The paper's Fig. 15: distances d (0 .. b_u/2 in ``step_m`` steps, m) and the protrusion height
-        limits h(d) (Eq. 8, m). The last entry is (b_u/2, h_c)."""
+        limits h(d) ([Landing Eq. 8], m). The last entry is (b_u/2, h_c)."""
         n = int(math.floor(0.5 * self.width_m / step_m + 1e-9))
         d = np.append(np.arange(n + 1) * step_m, 0.5 * self.width_m)
         d = np.unique(d)

@@ -4,25 +4,25 @@ Method: mrf-terrain-matching.txt §2-3 (Markov-random-field underwater terrain p
 The real-time terrain ``I_R`` (multibeam soundings gridded at the DTM's spacing) and the prior DTM
 ``I_D`` are related by a constant position deviation ``(dx, dy)`` (Assumptions 1 and 3):
 
-* Eq. (1)/(5) ``I_D(x, y) = I_R(x + dx, y + dy) + e(x, y)``, ``e`` Gaussian white noise (Assumption 4).
-* Eq. (2)-(4) MAP estimate with the Gibbs prior of the real-time terrain
+* [MRF Eqs. 1/5] ``I_D(x, y) = I_R(x + dx, y + dy) + e(x, y)``, ``e`` Gaussian white noise (Assumption 4).
+* [MRF Eqs. 2-4] MAP estimate with the Gibbs prior of the real-time terrain
   ``P(I_R) = Z^-1 exp(-U(I_R) / T)``, ``U(I_R) = sum_W sum_{|m|+|n|=1} [I_R(x, y) - I_R(x+m, y+n)]^2``.
-* Eq. (6)-(7) first-order Taylor expansion: ``e_x(x, y) = I_D - I_R - dx dI_R/dx`` (with ``dy = 0``).
-* Eq. (8)-(13) ``dx_hat = argmin_dx sum_W e_x^2 / (2 s_n^2) (+ F(dx) / T)``, likewise ``dy``;
-  Eq. (14) the matched position.
+* [MRF Eqs. 6-7] first-order Taylor expansion: ``e_x(x, y) = I_D - I_R - dx dI_R/dx`` (with ``dy = 0``).
+* [MRF Eqs. 8-13] ``dx_hat = argmin_dx sum_W e_x^2 / (2 s_n^2) (+ F(dx) / T)``, likewise ``dy``;
+  [MRF Eq. 14] the matched position.
 
 What this module does (``mrf_refine``, defaults) and where it deviates from the paper, with the reason:
 
-1. **Coarse stage: the exact data term, no linearisation.** The paper's Taylor step (Eq. 6) only holds
+1. **Coarse stage: the exact data term, no linearisation.** The paper's Taylor step ([MRF Eq. 6]) only holds
    within about a cell; yet it reports positioning results from initial errors (IPE) of 20 and 25 grid
    cells (§4.3 Simulation 1: 40 x 30 patch, 1 m grid, IPE 20 m and 25 m; "when the IPE reached 30 m the
-   positioning results were divergent"). We therefore first evaluate the data term of Eq. (5) exactly,
+   positioning results were divergent"). We therefore first evaluate the data term of [MRF Eq. 5] exactly,
    ``E(d) = mean_W [I_D(x) - I_R(x + d)]^2`` with the depth offset removed (§3.3 reason 4: both windows
    centred over their overlap ``W``), at every integer shift ``d`` within ``max_total_shift_cells``
    (default 25: the largest IPE the paper reports results for). Shifts whose overlap holds fewer than
    ``min_overlap`` of the patch's cells are not candidates. The mean (not the sum) over ``W`` keeps shifts
    with different overlaps comparable.
-2. **Fine stage: the paper's Eqs. (7)-(13).** From the best integer shift, the linearised per-axis
+2. **Fine stage: the paper's [MRF Eqs. 7-13].** From the best integer shift, the linearised per-axis
    estimate (candidate grid ``+-max_shift_cells``, step ``step_cells``) is iterated, the prior DTM being
    resampled (bilinear) at the corrected position each time (Gauss-Newton / Lucas-Kanade); the first
    iteration is the paper's one-shot estimate. The fine stage may move at most ``max_fine_cells`` from the
@@ -31,16 +31,16 @@ What this module does (``mrf_refine``, defaults) and where it deviates from the 
 3. **The Gibbs prior, made to matter.** Taken literally (the previous implementation, ``prior="window"``),
    ``U(I_R(. + d))`` of the *measured* patch depends on ``d`` only through which cells enter ``W`` and the
    interpolation at fractional shifts; with ``T = U(I_R)`` it changed no fix by more than 0.08 cell
-   (issue 16). In Eq. (2) ``I_R`` is the unknown real-time terrain and the soundings ``M`` its noisy
-   measurement (Assumption 4), so the MAP of Eqs. (2)-(4) over the terrain given the soundings is
+   (issue 16). In [MRF Eq. 2] ``I_R`` is the unknown real-time terrain and the soundings ``M`` its noisy
+   measurement (Assumption 4), so the MAP of [MRF Eqs. 2-4] over the terrain given the soundings is
    ``I_R = argmin sum (I_R - M)^2 / (2 s^2) + U(I_R) / T`` (``s``: the soundings' noise), i.e. the linear
    system ``(1 + 4 s^2 / T · L) I_R = M`` (``L`` the 4-neighbourhood graph Laplacian over the valid cells;
    :class:`GibbsFilter`). ``prior="gibbs"`` (default) matches this restored terrain: the coarse search is
-   repeated and the fine stage (Eqs. 7-13) run with the DTM window passed through the *same* operator
-   (deviation: otherwise the two sides of Eq. 5 have different smoothness and the Taylor step over-shoots
+   repeated and the fine stage ([MRF Eqs. 7-13]) run with the DTM window passed through the *same* operator
+   (deviation: otherwise the two sides of [MRF Eq. 5] have different smoothness and the Taylor step over-shoots
    by ``sum dI . K dI / sum (K dI)^2``, measured as non-convergence). Where it matters (bench/mrf_convergence.py,
    paired trials on real GMT windows): when both the soundings and the DTM are noisy on low-texture terrain
-   -- Eq. (7)'s gradient of the *measured* terrain is then mostly noise -- the restored terrain lowers the
+   -- [MRF Eq. 7]'s gradient of the *measured* terrain is then mostly noise -- the restored terrain lowers the
    RMS error from 0.40 to 0.31 cell (soundings 10 %, DTM 20 % of the patch range) and from 0.67 to 0.47
    cell, fixes > 1 cell off from 15 % to 5 % (both 20 %); fixes move by 0.2-0.3 cell on average. On
    textured terrain it is negligible (0.013 vs 0.015 cell). Against an exact DTM with noisy soundings
@@ -48,30 +48,30 @@ What this module does (``mrf_refine``, defaults) and where it deviates from the 
    10 % sounding noise (0.19 vs 0.14 cell RMS) and helps slightly at 20 % (0.39 vs 0.44); real prior DTMs
    are not exact, hence the default. **Temperature.** ``P(I_R)`` is then a
    Gaussian MRF in which each neighbour difference has variance ``T/4`` (every pair appears twice in
-   Eq. 4), so ``T`` is set from the data as the Gibbs distribution requires:
+   [MRF Eq. 4]), so ``T`` is set from the data as the Gibbs distribution requires:
    ``T = 4 max(var(dM) - 2 s^2, 0.1 var(dM))``, ``dM`` the measured neighbour differences (white noise
    adds ``2 s^2``), ``s`` the soundings' own white-noise level (:func:`sounding_noise_m`, Immerkær's
    estimator, at most ``s_n``; ``sigma_n_m`` when given) -- not ``s_n``, which holds the map error too and
    over-smooths a clean patch against a noisy DTM (measured: 1.3 vs 0.4 cell RMS). The prior thus weighs
    ``s^2 / var(dI_R)``: strong where the data are ambiguous (low texture, noise), negligible on rough
    terrain. ``temperature`` overrides ``T``; ``prior="none"`` uses the soundings as measured; ``gibbs_coarse=False`` keeps the coarse search on the raw soundings.
-4. **Noise.** The paper writes ``2 s_n`` in Eq. 8; a Gaussian needs ``2 s_n^2`` (used here). ``s_n``
+4. **Noise.** The paper writes ``2 s_n`` in [MRF Eq. 8]; a Gaussian needs ``2 s_n^2`` (used here). ``s_n``
    (``sigma_n_m``) defaults to the RMS of the centred residual at the coarse fix (the paper's ``e`` of
-   Eq. 1 lumps sounding and map error).
-5. **Texture check (refusal).** The Cramér-Rao bound of the linearised data term (Eq. 7) gives the
+   [MRF Eq. 1] lumps sounding and map error).
+5. **Texture check (refusal).** The Cramér-Rao bound of the linearised data term ([MRF Eq. 7]) gives the
    shift's 1 sigma per axis, ``s_n / sqrt(sum_W (dI_R/dx)^2)`` (cells); above ``max_sigma_cells`` (default
    0.5) the patch has too little texture for the fix and the result is flagged (``converged = False``,
    input position returned), as is a coarse minimum beyond ``max_total_shift_cells`` + 0.5 (the search disc
    has a one-cell guard ring; such a minimum says the initial error may exceed the range). A second
    coarse minimum more than ``ambiguity_radius_cells`` from the best whose energy is within
    ``min_energy_gap`` (default 3) of it is flagged as ambiguous; the energy is the Gaussian log-likelihood of
-   Eq. (8) with the best MSD as the variance and the window's *effective* number of independent cells
+   [MRF Eq. 8] with the best MSD as the variance and the window's *effective* number of independent cells
    (``n (1 - rho_x)(1 - rho_y) / ((1 + rho_x)(1 + rho_y))``, ``rho`` the residual's lag-1 autocorrelation:
    a wrong match leaves correlated terrain in the residual, a right one mostly white noise).
 6. **Missing cells.** ``W`` holds the cells where ``I_R``, its gradient along the axis and the shifted
    values are finite; the Gibbs sums use the neighbour pairs that are finite.
 7. **Sign.** ``d = (dx, dy)`` is *assumed minus true* position of the patch (``I_R`` content is displaced
-   by ``+d`` against the map), so the corrected patch origin is ``origin - d`` (Eq. 14).
+   by ``+d`` against the map), so the corrected patch origin is ``origin - d`` ([MRF Eq. 14]).
 
 The previous implementation (linearised estimate only, the Gibbs term of the measured window, a 3-cell
 cap) is ``mrf_refine(..., coarse=False, prior="window", max_total_shift_cells=3)``; bench/mrf_convergence.py
@@ -95,7 +95,7 @@ class MrfResult:
 
     x0_m: float
     y0_m: float
-    dx_m: float  # total deviation (assumed - true), Eq. (14)
+    dx_m: float  # total deviation (assumed - true), [MRF Eq. 14]
     dy_m: float
     iterations: int
     converged: bool
@@ -128,7 +128,7 @@ def _shift_axis(a: np.ndarray, d: np.ndarray, axis: int) -> np.ndarray:
 
 
 def _gibbs(ir_s: np.ndarray) -> np.ndarray:
-    """Eq. (11)/(13) per cell: sum over the 4-neighbourhood of squared differences of (shifted) ``I_R``.
+    """[MRF Eqs. 11/13] per cell: sum over the 4-neighbourhood of squared differences of (shifted) ``I_R``.
 
     ``ir_s`` is (K, ny, nx); returns (K, ny, nx) with NaN where the cell itself is missing. Missing
     neighbours contribute nothing.
@@ -145,7 +145,7 @@ def _gibbs(ir_s: np.ndarray) -> np.ndarray:
 
 def _axis_estimate(id_w: np.ndarray, ir: np.ndarray, axis: int, cands: np.ndarray, sigma_n: float | None,
                    temperature: float | None, min_cells: int, offset: float = 0.0, window_gibbs: bool = True):
-    """One-axis minimisation of Eq. (10) (axis=1, x) or Eq. (12) (axis=0, y). Returns (d, energy, sigma, n_W).
+    """One-axis minimisation of [MRF Eq. 10] (axis=1, x) or [MRF Eq. 12] (axis=0, y). Returns (d, energy, sigma, n_W).
 
     ``offset`` is the deviation already accumulated along the axis (cells): the data term is linearised
     about it (``id_w`` is the DTM resampled there) while the Gibbs term is evaluated at the *total*
@@ -154,7 +154,7 @@ def _axis_estimate(id_w: np.ndarray, ir: np.ndarray, axis: int, cands: np.ndarra
     grad = np.gradient(ir, axis=axis)  # NaN where a neighbour is missing (central differences inside)
     W = np.isfinite(id_w) & np.isfinite(ir) & np.isfinite(grad)
     if window_gibbs:
-        ir_s = _shift_axis(ir, offset + cands, axis)  # I_R(x + dx), Eq. (11)/(13)
+        ir_s = _shift_axis(ir, offset + cands, axis)  # I_R(x + dx), [MRF Eqs. 11/13]
         u = _gibbs(ir_s)
         W &= np.isfinite(ir_s).all(axis=0)
     nw = int(W.sum())
@@ -165,18 +165,18 @@ def _axis_estimate(id_w: np.ndarray, ir: np.ndarray, axis: int, cands: np.ndarra
     g = grad[W] - grad[W].mean()  # the mean of I_R(x + d) over W moves by d * mean(grad): centre it too
     r0 = a - b
     s_n = sigma_n if sigma_n is not None else max(float(np.sqrt(np.mean(r0 ** 2))), 1e-3)
-    e = r0[None, :] - cands[:, None] * g[None, :]  # Eq. (7)
-    E = (e ** 2).sum(axis=1) / (2.0 * s_n ** 2)  # Eq. (8) exponent
+    e = r0[None, :] - cands[:, None] * g[None, :]  # [MRF Eq. 7]
+    E = (e ** 2).sum(axis=1) / (2.0 * s_n ** 2)  # [MRF Eq. 8] exponent
     if not window_gibbs:  # the Gibbs prior acts on the restored patch instead (module docstring)
         k = int(np.argmin(E))
         return float(cands[k]), float(E[k]), s_n, nw
-    F = u[:, W].sum(axis=1)  # Eq. (11)/(13)
+    F = u[:, W].sum(axis=1)  # [MRF Eqs. 11/13]
     if temperature is None:  # T = U(I_R) at zero total shift
         u0 = _gibbs(_shift_axis(ir, np.array([0.0]), axis))[0]
         T = max(float(np.nansum(u0[W])), 1e-12)
     else:
         T = temperature
-    total = E + F / T  # Eq. (9)/(10)
+    total = E + F / T  # [MRF Eqs. 9/10]
     k = int(np.argmin(total))
     return float(cands[k]), float(total[k]), s_n, nw
 
@@ -210,7 +210,7 @@ def sounding_noise_m(patch: np.ndarray) -> float:
 
 
 def gibbs_temperature(patch: np.ndarray, sigma_n_m: float) -> float:
-    """``T`` of the Gaussian MRF of Eqs. (3)-(4) from the measured neighbour differences (module docstring, 3)."""
+    """``T`` of the Gaussian MRF of [MRF Eqs. 3-4] from the measured neighbour differences (module docstring, 3)."""
     a, b = _neighbour_pairs(np.isfinite(patch))
     if a.size == 0:
         return float("nan")
@@ -220,7 +220,7 @@ def gibbs_temperature(patch: np.ndarray, sigma_n_m: float) -> float:
 
 
 class GibbsFilter:
-    """MAP terrain under the Gibbs prior: ``argmin_I sum (I - M)^2/(2 s_n^2) + U(I)/T`` (Eqs. 2-4 with Eq. 8).
+    """MAP terrain under the Gibbs prior: ``argmin_I sum (I - M)^2/(2 s_n^2) + U(I)/T`` ([MRF Eqs. 2-4] with [MRF Eq. 8]).
 
     ``filter(M)`` solves ``(1 + 4 s_n^2/T L) I = M`` on the cells where ``M`` is finite (``L``: the
     4-neighbourhood graph Laplacian of those cells); NaN cells stay NaN. The factorisation is cached per
@@ -279,7 +279,7 @@ def _n_effective(resid: np.ndarray) -> float:
 
 
 def _coarse_search(ext: np.ndarray, ir: np.ndarray, radius: int, min_n: int):
-    """Exact centred mean-square data term (Eq. 5) at integer shifts ``|d| <= radius``. Returns (msd, n) (2R+1, 2R+1).
+    """Exact centred mean-square data term ([MRF Eq. 5]) at integer shifts ``|d| <= radius``. Returns (msd, n) (2R+1, 2R+1).
 
     ``ext`` is the DTM sampled on the patch lattice extended by ``radius`` cells on each side; the DTM under
     patch cell ``(i, j)`` at deviation ``(cx, cy)`` is ``ext[i - cy + R, j - cx + R]``. Index ``[cy + R, cx + R]``.
@@ -333,7 +333,7 @@ def mrf_refine(
     min_energy_gap: float = 3.0,
     gibbs_coarse: bool = True,
 ) -> MrfResult:
-    """Refine the position of a real-time terrain patch on the prior DTM (MRF paper Eqs. 1-14).
+    """Refine the position of a real-time terrain patch on the prior DTM ([MRF Eqs. 1-14]).
 
     ``patch_depth[i, j]`` (depth positive down, metres; NaN = empty cell) is the real-time terrain on
     a grid with the DTM's spacing ``h`` whose cell ``[i, j]`` is *assumed* to lie at map position
@@ -399,10 +399,10 @@ def mrf_refine(
     if coarse:
         qy, qx = np.mgrid[-R : R + 1, -R : R + 1]
         far = np.hypot(qx - cx, qy - cy) > ambiguity_radius_cells
-        if np.isfinite(msd[far]).any():  # log-likelihood units, the best MSD as the residual variance (Eq. 8)
+        if np.isfinite(msd[far]).any():  # log-likelihood units, the best MSD as the residual variance ([MRF Eq. 8])
             r = ext[R - int(cy) : R - int(cy) + ny, R - int(cx) : R - int(cx) + nx] - ir
             gap = float(_n_effective(r) * (np.min(msd[far]) / max(msd[k], 1e-12) - 1.0) / 2.0)
-    # texture (Cramér-Rao of Eq. 7) on the terrain the fine stage uses
+    # texture (Cramér-Rao of [MRF Eq. 7]) on the terrain the fine stage uses
     sig = []
     for ax in (1, 0):
         gr = np.gradient(ir_fine, axis=ax)

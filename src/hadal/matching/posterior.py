@@ -1,6 +1,6 @@
 """Terrain-relative navigation as a posterior: point-mass-filter likelihood over position, heading, scale, bias.
 
-TERCOM (``tercom.py``, TERCOM paper Eqs. 15-17, §4.2) returns the offset of the best score; a score is
+TERCOM (``tercom.py``, [TERCOM Eqs. 15-17], §4.2) returns the offset of the best score; a score is
 not a probability. Here the MSD surfaces over offsets x headings x scales [TERCOM Eq. 17] are turned
 into a likelihood and a posterior, as point-mass filters for terrain-relative navigation do:
 

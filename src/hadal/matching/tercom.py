@@ -5,9 +5,9 @@ the map (the whole map, at the map resolution, as in §4.2: "the whole region wa
 search interval was equivalent to the map resolution") the measured seafloor depths ``d_M(i)`` are
 compared with the map depths ``d_BT(x, y, i)`` under the track:
 
-* Eq. (15) ``COR(x, y) = 1/N sum d_M(i) d_BT(x, y, i)``      (maximised)
-* Eq. (16) ``MAD(x, y) = 1/N sum |d_M(i) - d_BT(x, y, i)|``  (minimised)
-* Eq. (17) ``MSD(x, y) = 1/N sum [d_M(i) - d_BT(x, y, i)]^2`` (minimised; the paper's choice)
+* [TERCOM Eq. 15] ``COR(x, y) = 1/N sum d_M(i) d_BT(x, y, i)``      (maximised)
+* [TERCOM Eq. 16] ``MAD(x, y) = 1/N sum |d_M(i) - d_BT(x, y, i)|``  (minimised)
+* [TERCOM Eq. 17] ``MSD(x, y) = 1/N sum [d_M(i) - d_BT(x, y, i)]^2`` (minimised; the paper's choice)
 
 Implementation (FFT route). The track is given relative to its start; its samples are snapped to the
 map grid relative to the start (**nearest-cell sampling**: sample ``i`` falls in cell
@@ -32,9 +32,9 @@ Options beyond the paper:
   closed form, ``b = mean(d_BT - d_M)`` and ``MSD_b = MSD - b^2``. For MAD the L1 optimum, the
   **median** residual, by a direct gather at every start cell (no correlation form; restrict with
   ``region`` on large maps). For COR (**documented deviation**) the bias-free form is the **Pearson**
-  correlation ``cov(d_M, d_BT) / (sd(d_M) sd(d_BT))`` in [-1, 1] (the paper's Eq. 15 is dominated by
+  correlation ``cov(d_M, d_BT) / (sd(d_M) sd(d_BT))`` in [-1, 1] (the paper's [TERCOM Eq. 15] is dominated by
   the mean depth and its scale by the relief, so it cannot rank offsets or give a separation ratio);
-  ``estimate_bias=False`` gives Eq. 15 as written.
+  ``estimate_bias=False`` gives [TERCOM Eq. 15] as written.
 * ``headings_deg``: small heading errors of the dead-reckoned track, tried by rotating the track about
   its start (e.g. ``np.arange(-9, 9.01, 0.5)``: 37 headings); the best (heading, offset) wins.
 * MAD has no FFT identity (|.| is not bilinear); it is evaluated by a vectorised direct sum over the
@@ -212,7 +212,7 @@ def _sums_all_offsets(corr: _FFTCorrelator, rows, cols, d, want_cor: bool, singl
 
 
 def _mad_direct(D: np.ndarray, V: np.ndarray, rows, cols, d, bias: np.ndarray | None, region_rc) -> np.ndarray:
-    """Eq. (16) by direct summation over samples, vectorised over the start cells of ``region_rc``."""
+    """[TERCOM Eq. 16] by direct summation over samples, vectorised over the start cells of ``region_rc``."""
     ny, nx = D.shape
     r0, r1, c0, c1 = region_rc
     out = np.zeros((r1 - r0, c1 - c0))
@@ -231,7 +231,7 @@ def _mad_direct(D: np.ndarray, V: np.ndarray, rows, cols, d, bias: np.ndarray | 
 
 
 def _mad_median_direct(D: np.ndarray, V: np.ndarray, rows, cols, d, region_rc, n_req: int, chunk: int = 8192):
-    """Eq. (16) with the median bias: per start cell ``b = median(d_BT - d_M)``, ``MAD = mean |d_BT - d_M - b|``.
+    """[TERCOM Eq. 16] with the median bias: per start cell ``b = median(d_BT - d_M)``, ``MAD = mean |d_BT - d_M - b|``.
 
     Direct gather over the start cells of ``region_rc`` (chunked); returns ``(mad, bias)`` on the region."""
     ny, nx = D.shape
@@ -274,7 +274,7 @@ def tercom(
     scales: Sequence[float] = (1.0,),
     progress=None,
 ) -> TercomResult:
-    """Exhaustive TERCOM search (TERCOM paper Eqs. 15-17, §4.2) of a measured profile over the whole map.
+    """Exhaustive TERCOM search ([TERCOM Eqs. 15-17], §4.2) of a measured profile over the whole map.
 
     Parameters
     ----------
@@ -282,7 +282,7 @@ def tercom(
     track_xy : (N, 2) dead-reckoned positions (x_east_m, y_north_m) of the samples, any origin; the
         track is matched relative to its first sample.
     dtm : the reference map (``dtm`` Dataset with ``depth_m(y, x)``, a DataArray or a :class:`MapGrid`).
-    criterion : ``"msd"`` (Eq. 17, minimised), ``"mad"`` (Eq. 16, minimised) or ``"cor"`` (Eq. 15, maximised).
+    criterion : ``"msd"`` ([TERCOM Eq. 17], minimised), ``"mad"`` ([TERCOM Eq. 16], minimised) or ``"cor"`` ([TERCOM Eq. 15], maximised).
     estimate_bias : estimate a constant map-minus-measured depth bias at every offset (module docstring).
     headings_deg : heading errors (degrees, clockwise) to try by rotating the track about its start.
     region : ``(x_min, x_max, y_min, y_max)`` in map metres restricting the *start* position; default whole map.
@@ -369,7 +369,7 @@ def tercom(
                     vd = s_dd / nn - (s_d / nn) ** 2
                     den = np.sqrt(np.maximum(vb, 0.0) * np.maximum(vd, 0.0))
                     val = np.where(den > 1e-12 * max(float(np.nanmax(np.abs(vd))), 1e-300), cov / den, np.nan)
-                else:  # Eq. (15) with the un-centred depths: d = dc + ref, b = D + ref
+                else:  # [TERCOM Eq. 15] with the un-centred depths: d = dc + ref, b = D + ref
                     val = (s_db + ref * (s_d + s_b)) / nn + ref * ref
         key = sign * val
         key[~np.isfinite(key)] = np.inf
@@ -539,7 +539,7 @@ def _likelihood_sigma(msd: np.ndarray | None, r: int, c: int, msd_min: float, n:
 
 def tercom_direct(profile_depth, track_xy, dtm, starts_rc, criterion: str = "msd", *, estimate_bias: bool = True,
                   heading_deg: float = 0.0, min_valid_fraction: float = 0.95, scale: float = 1.0) -> np.ndarray:
-    """Reference implementation: Eqs. (15)-(17) evaluated offset by offset with a plain NumPy loop.
+    """Reference implementation: [TERCOM Eqs. 15-17] evaluated offset by offset with a plain NumPy loop.
 
     Same sampling convention as :func:`tercom` (nearest cell relative to the start). ``starts_rc`` is
     an (K, 2) array of start (row, col) cells. Slow - used by the tests and the benchmark as the peer.
@@ -596,7 +596,7 @@ def refine_tercom(
     scale error of a few per cent never fits the grid exactly, so the best *snapped* offset can lie a
     cell or two from the truth while a wrong heading fits the quantised samples better. Here the coarse
     optimum and each of the ``n_seeds`` best distinct local minima of the coarse all-heading surface
-    seed a Nelder-Mead search of the Eq. (17) MSD (bias estimated in closed form when
+    seed a Nelder-Mead search of the [TERCOM Eq. 17] MSD (bias estimated in closed form when
     ``estimate_bias``, as in the coarse search) with the map sampled **bilinearly** at the un-snapped
     track positions, over (start x, start y, heading, scale) within the bounds (and the start inside
     ``region``); the lowest refined MSD wins. The second distinct optimum, the separation ratio and the

@@ -1,6 +1,6 @@
 """Stage ``derive``: sensors → seawater properties, depth and seafloor depth (``ctd``) and binned profiles (``profile``).
 
-Method: Ma et al. (2023) §3.2 (Eqs. 6-14) and §4.1.3. Reads the ``sensors`` product (``sensors.parquet``,
+Method: Ma et al. (2023) §3.2 ([TERCOM Eqs. 6-14]) and §4.1.3. Reads the ``sensors`` product (``sensors.parquet``,
 CTD time base) and computes, per sample:
 
 * ``pressure_dbar``: CTD pressure where valid and unsaturated (saturation also detected from the data: a
@@ -8,9 +8,9 @@ CTD time base) and computes, per sample:
   fit on the overlap, the gauge-CTD lag removed and a cross-over below the switch (default: the gauge's
   datum, the more accurate sensor; :func:`hadal.depth.fuse_pressure`); ``pressure_source``; fit, lag,
   saturation and switch points in the metadata (``pressure_fusion``);
-* PSS-78 salinity, EOS-80 density (Eq. 13), Chen-Millero sound speed (:mod:`hadal.seawater`);
-* ``depth_m``: hydrostatic integral (Eqs. 11-12) with gravity at the current depth (Eq. 14);
-  ``depth_fofonoff_millard_m`` (Eqs. 8-10) and ``depth_teos10_m`` (``gsw.z_from_p`` with the dynamic height
+* PSS-78 salinity, EOS-80 density ([TERCOM Eq. 13]), Chen-Millero sound speed (:mod:`hadal.seawater`);
+* ``depth_m``: hydrostatic integral ([TERCOM Eqs. 11-12]) with gravity at the current depth ([TERCOM Eq. 14]);
+  ``depth_fofonoff_millard_m`` ([TERCOM Eqs. 8-10]) and ``depth_teos10_m`` (``gsw.z_from_p`` with the dynamic height
   anomaly of the descent profile) as cross-checks — their differences go into the metadata and the log;
 * ``gravity_m_s2`` at the sample's depth; ``altitude_corrected_m`` (sound-speed corrected altimeter range);
   ``seafloor_depth_m`` = depth + corrected altitude (Fig. 10); ``phase`` (descent/bottom/ascent).

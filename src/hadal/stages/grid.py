@@ -23,7 +23,7 @@ from typing import TYPE_CHECKING, Annotated, Literal
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
 from hadal.budget import check_memory, memory_limit_bytes
-from hadal.errors import InputError, StageError
+from hadal.errors import ConfigError, InputError, StageError
 from hadal.grid.points import DEFAULT_MAX_CELLS
 from hadal.stages import StageInputs
 
@@ -351,6 +351,8 @@ def _prior_dtm(ctx: StageContext, f: Path, sf, frame, p: Params):
                          max_cells=p.max_cells, max_read_bytes=memory_limit_bytes(ctx.config))
     except InputError as exc:
         raise _as_input_error(f, exc) from None
+    except ConfigError:  # a budget/setting refusal (also a ValueError) stays itself
+        raise
     except (OSError, ValueError, RuntimeError, KeyError, TypeError) as exc:
         raise _as_input_error(f, exc) from None
 
@@ -368,6 +370,8 @@ def _fill_from_prior(dtm, f: Path, sf, frame) -> int:
                          crs=_hint(sf, "crs"), variable=_hint(sf, "variable"), format=_hint(sf, "format"))
     except InputError as exc:
         raise _as_input_error(f, exc) from None
+    except ConfigError:  # a budget/setting refusal (also a ValueError) stays itself
+        raise
     except (OSError, ValueError, RuntimeError, KeyError, TypeError) as exc:
         raise _as_input_error(f, exc) from None
     ok = np.isfinite(v)
@@ -444,6 +448,8 @@ def _laser_grid(ctx: StageContext, f: Path, sf, p: Params, limit_bytes: float | 
         return ds, reader_of(kind), "point cloud"
     except InputError as exc:
         raise _as_input_error(f, exc) from None
+    except ConfigError:  # a budget/setting refusal (also a ValueError) stays itself
+        raise
     except (OSError, ValueError, RuntimeError, KeyError, TypeError, MemoryError) as exc:
         raise _as_input_error(f, exc) from None
 

@@ -110,7 +110,7 @@ def _cell_size_m(path: Path) -> float | None:
 
 def skip_reason(ctx) -> str | None:
     """Why ``landing`` cannot analyse this dive's laser grids, or ``None``: every grid's cells are coarser than
-    ``landing.max_cell_fraction`` x the vehicle width (the Eq. 9 footprint tests need several cells across the
+    ``landing.max_cell_fraction`` x the vehicle width (the [Landing Eq. 9] footprint tests need several cells across the
     vehicle). A laser-only dive with a coarse raster then publishes its grids and says why no sites were sought,
     instead of failing; ``hadal stage landing`` names the reason as an error."""
     p: Params = ctx.config.landing

@@ -1,6 +1,6 @@
 """Stage `suitability`: per-block terrain standard deviation and entropy of the reference DTM, proposed matching region.
 
-Reads the ``dtm`` product, computes TERCOM paper Eqs. (1)-(5) on an ``n_blocks_y x n_blocks_x`` block
+Reads the ``dtm`` product, computes [TERCOM Eqs. 1-5] on an ``n_blocks_y x n_blocks_x`` block
 grid (44 x 60 in the paper, §4.1.2; see :mod:`hadal.suitability`) and proposes a matching region
 around the launch point (Fig. 7). Publishes ``suitability`` (``suitability.nc``).
 """

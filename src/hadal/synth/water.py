@@ -10,7 +10,7 @@ paper Fig. 8). Conductivity comes from gsw.C_from_SP.
 
 Depth <-> pressure is the TEOS-10 relation with the dynamic height anomaly of this same profile
 (gsw.z_from_p / gsw.p_from_z with geo_strf_dyn_height, p_ref = 0) on a 1 dbar grid; this is the
-ground truth that the pipeline's hydrostatic depth integration (paper eqs. 11-14) is tested against.
+ground truth that the pipeline's hydrostatic depth integration ([TERCOM Eqs. 11-14]) is tested against.
 This module must not use hadal.seawater / hadal.depth (the code under test).
 """
 
