@@ -34,29 +34,27 @@ import pandas as pd
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
+from sample_seeds_tercom import _seconds, prepare  # noqa: E402  (bench/ is on the path above)
+
 CELL_M = 20.0
 
 
-def _seconds(s) -> np.ndarray:
-    return pd.to_datetime(s, utc=True).astype("int64").to_numpy() / 1e9
-
-
 def load(d: Path):
-    """(match params, smoothed DTM grid, true terrain grid, profile, true x/y of the profile samples)."""
+    """(match params, smoothed DTM grid, its per-cell uncertainty layer or None, true terrain grid, profile, true
+    x/y of the profile samples)."""
     import xarray as xr
 
     from hadal.matching import MapGrid
     from hadal.matching.fix import bottom_seconds, profile_from_ctd
     from hadal.pipeline import make_context
-    from hadal.stages.match import read_ctd
+    from hadal.stages.match import matching_dtm, read_ctd
     from hadal.stages.suitability import open_dtm
 
     ctx = make_context(d / "dive", d / "store")
     p = ctx.config.match
-    g_raw = MapGrid.from_any(open_dtm(ctx.upstream("dtm")))
-    empty = float(np.mean(~np.isfinite(g_raw.depth_m)))
-    sigma = p.dtm_smooth_sigma_cells if p.dtm_smooth_sigma_cells is not None else (2.0 if empty > 0.10 else 1.0)
-    g = g_raw.filled(sigma, smooth_all=True) if sigma > 0 else g_raw
+    dtm = open_dtm(ctx.upstream("dtm"))
+    g, _, _ = matching_dtm(MapGrid.from_any(dtm), p)
+    unc = dtm["uncertainty_m"].transpose("y", "x").values if "uncertainty_m" in dtm else None  # as the stage
     prof, bottom = profile_from_ctd(read_ctd(ctx.upstream("ctd")), g.resolution_m)
     truth = pd.read_parquet(d / "dive" / "truth" / "track.parquet")
     ts = _seconds(truth["time"])
@@ -65,7 +63,7 @@ def load(d: Path):
     with xr.open_dataset(d / "dive" / "truth" / "terrain.nc") as t:
         terrain = MapGrid(t["depth_m"].transpose("y", "x").values.astype(float), t["x"].values, t["y"].values,
                           float(t["x"].values[1] - t["x"].values[0]))
-    return p, g, terrain, prof, tx, ty
+    return p, g, unc, terrain, prof, tx, ty
 
 
 def crlb_start_m(g, terrain, tx, ty) -> tuple[float, float, float]:
@@ -88,27 +86,20 @@ def crlb_start_m(g, terrain, tx, ty) -> tuple[float, float, float]:
     return float(np.sqrt(C[0, 0] + C[1, 1])), float(np.sqrt(s2)), k_corr
 
 
-def start_error_m(p, grid, prof, tx, ty) -> tuple[float, float]:
+def start_error_m(p, grid, prof, tx, ty, uncertainty=None) -> tuple[float, float]:
     """(start error, reported radial sigma) of the posterior fix on ``grid`` with the stage's parameters."""
     from hadal.matching.posterior import posterior_fix
-    from hadal.stages.match import _headings, _scales
+    from hadal.stages.match import posterior_options
 
-    r_s = p.refine_scale_range
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        post = posterior_fix(
-            prof.depth_m, prof.track_xy, grid, headings_deg=_headings(p), scales=_scales(p),
-            min_valid_fraction=min(p.min_valid_fraction, 0.5), mode_radius_cells=p.mode_radius_cells,
-            max_mass_outside=p.max_mass_outside, max_mass_outside_holes=p.max_mass_outside_holes,
-            min_samples=p.min_samples, fine_scales=np.linspace(1 - r_s, 1 + r_s, 5) if r_s > 0 else None,
-            time_s=prof.time_s, drift=p.drift, drift_segment=p.drift_segment_s, drift_sigma=p.drift_velocity_sigma_m_s)
+        post = posterior_fix(prof.depth_m, prof.track_xy, grid, time_s=prof.time_s, uncertainty=uncertainty,
+                             **posterior_options(p))
     xy = post.apply(prof.track_xy[:1], prof.time_s[:1])
     return float(np.hypot(xy[0, 0] - tx[0], xy[0, 1] - ty[0])), post.sigma_m
 
 
 def main() -> None:
-    from sample_seeds_tercom import prepare
-
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", type=int, nargs="+", default=[20181006, 1, 2, 3, 4, 5, 6, 7, 8, 9])
     ap.add_argument("--work", type=Path, default=Path("/tmp/hadal-sample-seeds"))
@@ -119,11 +110,11 @@ def main() -> None:
     probs, on_dtm, on_truth = [], [], []
     for seed in args.seeds:
         d = prepare(args.work, seed)
-        p, g, terrain, prof, tx, ty = load(d)
+        p, g, unc, terrain, prof, tx, ty = load(d)
         crlb, s_map, k = crlb_start_m(g, terrain, tx, ty)
         per_axis = crlb / np.sqrt(2.0)
         prob = 1.0 - np.exp(-(CELL_M**2) / (2 * per_axis**2))
-        e_dtm, s_dtm = start_error_m(p, g, prof, tx, ty)
+        e_dtm, s_dtm = start_error_m(p, g, prof, tx, ty, unc)
         e_true, s_true = start_error_m(p, terrain, prof, tx, ty)
         probs.append(prob)
         on_dtm.append(e_dtm)

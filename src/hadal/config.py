@@ -14,7 +14,7 @@ import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from hadal.budget import Params as ResourcesParams
-from hadal.errors import ConfigError
+from hadal.errors import ConfigError, first_validation_error
 from hadal.stages.derive import Params as DeriveParams
 from hadal.stages.grid import Params as GridParams
 from hadal.stages.ingest import Params as IngestParams
@@ -59,9 +59,8 @@ def load_config(*paths: str | Path | None) -> PipelineConfig:
     try:
         return PipelineConfig.model_validate(merged)
     except ValidationError as exc:
-        e = exc.errors()[0]
-        loc = ".".join(str(x) for x in e.get("loc", ()))
-        raise ConfigError(f"invalid configuration at {loc}: {str(e.get('msg', '')).removeprefix('Value error, ')}") from None
+        loc, msg, _ = first_validation_error(exc)
+        raise ConfigError(f"invalid configuration at {loc}: {msg}") from None
 
 
 def default_yaml() -> str:

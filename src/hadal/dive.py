@@ -23,7 +23,7 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 
-from hadal.errors import ConfigError, HadalError, InputError
+from hadal.errors import ConfigError, HadalError, InputError, first_validation_error
 from hadal.geo import LocalFrame
 from hadal.store import validate_name
 
@@ -241,7 +241,8 @@ def load_dive(raw_dir: str | Path) -> tuple[Dive, Path]:
     try:
         dive = Dive.model_validate(data)
     except ValidationError as exc:
-        raise ConfigError(f"{f}: {_first_error(exc)}") from None
+        loc, msg, more = first_validation_error(exc)
+        raise ConfigError(f"{f}: {loc}: {msg}{more}") from None
     return dive, raw.resolve()
 
 
@@ -324,14 +325,6 @@ def _dive_fingerprint(dive: Dive, raw_dir: Path) -> str:
             except (OSError, HadalError):
                 h.update(b"missing")
     return h.hexdigest()
-
-
-def _first_error(exc: ValidationError) -> str:
-    e = exc.errors()[0]
-    loc = ".".join(str(x) for x in e.get("loc", ()))
-    n = len(exc.errors())
-    more = f" (+{n - 1} more)" if n > 1 else ""
-    return f"{loc}: {str(e.get('msg', '')).removeprefix('Value error, ')}{more}"
 
 
 def find_dives(*dirs: str | Path, allow_empty: bool = False) -> list[Path]:

@@ -26,3 +26,14 @@ class StoreError(HadalError):
 
 class StageError(HadalError):
     """A pipeline stage cannot run (e.g. its upstream product is missing)."""
+
+
+def first_validation_error(exc) -> tuple[str, str, str]:
+    """``(location, message, more)`` of a pydantic ``ValidationError``'s first error, for one-line reports:
+    the dotted location (``""`` at the top level), the message without pydantic's ``"Value error, "`` prefix
+    (a validator's own ``ValueError`` text) and ``" (+N more)"`` when there are further errors (else ``""``)."""
+    errors = exc.errors()
+    e = errors[0]
+    loc = ".".join(str(x) for x in e.get("loc", ()))
+    msg = str(e.get("msg", "")).removeprefix("Value error, ")
+    return loc, msg, f" (+{len(errors) - 1} more)" if len(errors) > 1 else ""

@@ -28,7 +28,7 @@ from typing import TYPE_CHECKING, Any
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
-from hadal.errors import ConfigError
+from hadal.errors import ConfigError, first_validation_error
 
 if TYPE_CHECKING:
     import numpy as np
@@ -99,8 +99,7 @@ class DerivedQCConfig(BaseModel):
             try:
                 table[name] = DerivedVariableQC(**{**table[name].model_dump(), **ov})
             except ValidationError as exc:
-                err = exc.errors()[0]
-                raise ConfigError(f"derive.qc_thresholds.{name}: {err['msg']}") from None
+                raise ConfigError(f"derive.qc_thresholds.{name}: {first_validation_error(exc)[1]}") from None
         return DerivedQCConfig(inputs=inputs, derived=derived)
 
 

@@ -93,7 +93,7 @@ def merge_qc(overrides: Any = None) -> dict[str, VariableQC]:
     variable that is not a sensor-table variable is a :class:`~hadal.errors.ConfigError` (a misspelt name)."""
     from pydantic import ValidationError
 
-    from hadal.errors import ConfigError
+    from hadal.errors import ConfigError, first_validation_error
 
     out = dict(DEFAULT_QC)
     for var, ov in dict(overrides or {}).items():
@@ -107,10 +107,8 @@ def merge_qc(overrides: Any = None) -> dict[str, VariableQC]:
             out[var] = VariableQC.model_validate({**DEFAULT_QC[var].model_dump(), **ov.model_dump(
                 include=set(ov.model_fields_set))})
         except ValidationError as exc:
-            e = exc.errors()[0]
-            loc = ".".join(str(x) for x in e.get("loc", ()))
-            raise ConfigError(f"ingest.qc.{var}{'.' + loc if loc else ''}: "
-                              f"{str(e.get('msg', '')).removeprefix('Value error, ')}") from None
+            loc, msg, _ = first_validation_error(exc)
+            raise ConfigError(f"ingest.qc.{var}{'.' + loc if loc else ''}: {msg}") from None
     return out
 
 

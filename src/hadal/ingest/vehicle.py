@@ -30,7 +30,7 @@ from typing import Literal
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
-from hadal.errors import ConfigError
+from hadal.errors import ConfigError, first_validation_error
 from hadal.ingest.units import CANONICAL_UNITS, TRANSFORMS, check_unit, normalise_unit
 
 __all__ = ["TIME_FORMATS", "FieldMap", "TimeSpec", "McapSource", "CsvSource", "SensorConfig", "VehicleConfig",
@@ -223,10 +223,7 @@ def load_vehicle_config(path: str | Path) -> VehicleConfig:
     try:
         return VehicleConfig.model_validate(data)
     except ValidationError as exc:
-        e = exc.errors()[0]
-        loc = ".".join(str(x) for x in e.get("loc", ()))
-        msg = str(e.get("msg", "")).removeprefix("Value error, ")
-        more = f" (+{len(exc.errors()) - 1} more)" if len(exc.errors()) > 1 else ""
+        loc, msg, more = first_validation_error(exc)
         raise ConfigError(f"{p}: invalid vehicle config at {loc or '<top>'}: {msg}{more}") from None
 
 

@@ -55,7 +55,7 @@ import xarray as xr
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 from scipy import ndimage as ndi
 
-from hadal.errors import ConfigError, InputError
+from hadal.errors import ConfigError, InputError, first_validation_error
 from hadal.landing._kernels import (
     combine_exclusion,
     outer_border,
@@ -597,8 +597,8 @@ def _options(**kw) -> AnalysisOptions:
     try:
         return AnalysisOptions(**kw)
     except ValidationError as exc:
-        e = exc.errors()[0]
-        raise ConfigError(f"landing option {'.'.join(map(str, e['loc']))}={e.get('input')!r}: {e['msg']}") from None
+        loc, msg, _ = first_validation_error(exc)
+        raise ConfigError(f"landing option {loc}={exc.errors()[0].get('input')!r}: {msg}") from None
 
 
 def _to_world(xf: np.ndarray, yf: np.ndarray, phi_deg: float) -> tuple[np.ndarray, np.ndarray]:

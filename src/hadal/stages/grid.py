@@ -264,8 +264,11 @@ def make_dtm(files: list[Path], frame, p: Params, hints: list | None = None, rea
     return ds
 
 
-def _as_input_error(f: Path, exc: Exception) -> InputError:
-    """One line naming the file, whatever a reader library raised."""
+def _as_input_error(f: Path, exc: Exception) -> InputError | ConfigError:
+    """One line naming the file, whatever a reader library raised (an ``InputError`` included); a budget or
+    setting refusal (``ConfigError``, also a ``ValueError``) is returned as it is."""
+    if isinstance(exc, ConfigError):
+        return exc
     msg = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
     return InputError(msg if str(f) in msg or f.name in msg else f"{f}: {msg}")
 
@@ -349,10 +352,6 @@ def _prior_dtm(ctx: StageContext, f: Path, sf, frame, p: Params):
                          variable=_hint(sf, "variable"), format=_hint(sf, "format"),
                          resolution_m=p.prior_resolution_m, max_extent_m=p.prior_max_extent_km * 1000.0,
                          max_cells=p.max_cells, max_read_bytes=memory_limit_bytes(ctx.config))
-    except InputError as exc:
-        raise _as_input_error(f, exc) from None
-    except ConfigError:  # a budget/setting refusal (also a ValueError) stays itself
-        raise
     except (OSError, ValueError, RuntimeError, KeyError, TypeError) as exc:
         raise _as_input_error(f, exc) from None
 
@@ -368,10 +367,6 @@ def _fill_from_prior(dtm, f: Path, sf, frame) -> int:
         xx, yy = np.meshgrid(dtm["x"].values, dtm["y"].values)
         v = sample_depth(f, frame, xx[empty], yy[empty], z_positive_hint=_hint(sf, "z_positive"),
                          crs=_hint(sf, "crs"), variable=_hint(sf, "variable"), format=_hint(sf, "format"))
-    except InputError as exc:
-        raise _as_input_error(f, exc) from None
-    except ConfigError:  # a budget/setting refusal (also a ValueError) stays itself
-        raise
     except (OSError, ValueError, RuntimeError, KeyError, TypeError) as exc:
         raise _as_input_error(f, exc) from None
     ok = np.isfinite(v)
@@ -446,10 +441,6 @@ def _laser_grid(ctx: StageContext, f: Path, sf, p: Params, limit_bytes: float | 
         ds.attrs.update({"laser_input": "point cloud", "source_format": kind, "source_reader": reader_of(kind),
                          "z_positive_source": pos, "z_sign_detection": reason, "z_sign_flipped": int(pos == "down")})
         return ds, reader_of(kind), "point cloud"
-    except InputError as exc:
-        raise _as_input_error(f, exc) from None
-    except ConfigError:  # a budget/setting refusal (also a ValueError) stays itself
-        raise
     except (OSError, ValueError, RuntimeError, KeyError, TypeError, MemoryError) as exc:
         raise _as_input_error(f, exc) from None
 

@@ -27,9 +27,10 @@ also estimates the dead-reckoning drift (a velocity bias piecewise constant over
 ``drift_velocity_sigma_m_s``) jointly with the start, heading and scale (``1 +- refine_scale_range``); the
 matched track then follows the drift. It is computed for the record in any case (``fix.json`` ``posterior``,
 ``msd_posterior_probability`` in ``msd_surface.nc``). ``posterior`` is on by default: on the sample dive's 10
-generator seeds its start errors equal the refined minimum's, and its 1-sigma is honest (6/10 errors within the
-radial 1-sigma, 9/10 within 2-sigma; the refined minimum's jackknife + DR sigma holds all 10 within 1-sigma at
-57-75 m). Neither places the start within one cell on every seed: with this prior DTM (1.3 soundings a cell,
+generator seeds its start errors equal the refined minimum's and its radial 1-sigma (19-32 m) is closer to them
+than the refined minimum's jackknife + DR sigma (57-75 m, all 10 within it), but overconfident there: 5/10 errors
+within 1-sigma, 8/10 within 2-sigma (seeds 4 and 5 at 2.4 and 3.4 sigma; on the real-terrain calibration bench
+72-76 % / 96-97 %). Neither places the start within one cell on every seed: with this prior DTM (1.3 soundings a cell,
 0.1 % of depth noise) the Cramér-Rao bound of the start is 14-24 m, and the same code on the true terrain is
 within one cell on 10/10 (bench/sample_seeds_information.py). With ``posterior: false`` the fix uncertainty combines the MSD likelihood, a jackknife over track blocks and a dead-reckoning term
 (``dr_error_fraction`` x the distance from the start to the track's terrain-information centroid; a
@@ -210,6 +211,29 @@ def _search_size(rng: float, step: float) -> float:
     return 2.0 * round(rng / step) + 1.0
 
 
+def matching_dtm(g_raw, p: Params):
+    """``(map matched on, empty fraction, smoothing sigma in cells)``: the DTM low-passed by a normalised Gaussian
+    convolution of ``p.dtm_smooth_sigma_cells`` (default: 2 cells when more than 10 % of it is empty, else 1)."""
+    import numpy as np
+
+    empty = float(np.mean(~np.isfinite(g_raw.depth_m)))
+    sigma = p.dtm_smooth_sigma_cells if p.dtm_smooth_sigma_cells is not None else (2.0 if empty > 0.10 else 1.0)
+    return (g_raw.filled(sigma, smooth_all=True) if sigma > 0 else g_raw), empty, sigma
+
+
+def posterior_options(p: Params) -> dict:
+    """Keyword arguments of :func:`hadal.matching.posterior.posterior_fix` from the stage parameters (all but the
+    profile, the map, ``region``, ``uncertainty`` and ``time_s``)."""
+    import numpy as np
+
+    r_s = p.refine_scale_range
+    return {"headings_deg": _headings(p), "scales": _scales(p), "min_valid_fraction": min(p.min_valid_fraction, 0.5),
+            "mode_radius_cells": p.mode_radius_cells, "max_mass_outside": p.max_mass_outside,
+            "max_mass_outside_holes": p.max_mass_outside_holes, "min_samples": p.min_samples,
+            "fine_scales": np.linspace(1 - r_s, 1 + r_s, 5) if r_s > 0 else None, "drift": p.drift,
+            "drift_segment": p.drift_segment_s, "drift_sigma": p.drift_velocity_sigma_m_s}
+
+
 def read_ctd(pv: ProductVersion) -> pd.DataFrame:
     import pandas as pd
 
@@ -346,10 +370,9 @@ def run(ctx: StageContext) -> dict[str, ProductVersion]:
     p: Params = ctx.config.match
     dtm_pv, ctd_pv = ctx.upstream("dtm"), ctx.upstream("ctd")
     upstream = [dtm_pv, ctd_pv]
-    g_raw = MapGrid.from_any(open_dtm(dtm_pv), name=str(dtm_pv.path / "dtm.nc"))
-    empty = float(np.mean(~np.isfinite(g_raw.depth_m)))
-    sigma = p.dtm_smooth_sigma_cells if p.dtm_smooth_sigma_cells is not None else (2.0 if empty > 0.10 else 1.0)
-    g = g_raw.filled(sigma, smooth_all=True) if sigma > 0 else g_raw
+    dtm_ds = open_dtm(dtm_pv)  # read once: the depth layer and, for the posterior, the per-cell uncertainty
+    g_raw = MapGrid.from_any(dtm_ds, name=str(dtm_pv.path / "dtm.nc"))
+    g, empty, sigma = matching_dtm(g_raw, p)
     ctd = read_ctd(ctd_pv)
     frame = ctx.dive.frame()
     prof, bottom = profile_from_ctd(ctd, p.resample_spacing_m or g.resolution_m, name=str(ctd_pv.path / "ctd.parquet"))
@@ -389,18 +412,9 @@ def run(ctx: StageContext) -> dict[str, ProductVersion]:
     if p.criterion == "msd":
         from hadal.matching.posterior import posterior_fix
 
-        dtm_ds = open_dtm(dtm_pv)
         unc = dtm_ds["uncertainty_m"].transpose("y", "x").values if "uncertainty_m" in dtm_ds else None
-        r_s = p.refine_scale_range
-        post = posterior_fix(
-            prof.depth_m[used], prof.track_xy[used], g, headings_deg=_headings(p), scales=_scales(p), region=region,
-            uncertainty=unc, min_valid_fraction=min(p.min_valid_fraction, 0.5), mode_radius_cells=p.mode_radius_cells,
-            max_mass_outside=p.max_mass_outside, max_mass_outside_holes=p.max_mass_outside_holes,
-            min_samples=p.min_samples,
-            fine_scales=np.linspace(1 - r_s, 1 + r_s, 5) if r_s > 0 else None,
-            time_s=None if prof.time_s is None else prof.time_s[used], drift=p.drift,
-            drift_segment=p.drift_segment_s, drift_sigma=p.drift_velocity_sigma_m_s,
-        )
+        post = posterior_fix(prof.depth_m[used], prof.track_xy[used], g, region=region, uncertainty=unc,
+                             time_s=None if prof.time_s is None else prof.time_s[used], **posterior_options(p))
         if p.posterior:
             res = post.to_tercom_result(res)
     use_post = post is not None and p.posterior
