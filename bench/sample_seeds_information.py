@@ -47,8 +47,8 @@ def load(d: Path):
     from hadal.matching import MapGrid
     from hadal.matching.fix import bottom_seconds, profile_from_ctd
     from hadal.pipeline import make_context
+    from hadal.products.readers import open_dtm
     from hadal.stages.match import matching_dtm, read_ctd
-    from hadal.stages.suitability import open_dtm
 
     ctx = make_context(d / "dive", d / "store")
     p = ctx.config.match

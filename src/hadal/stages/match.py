@@ -365,7 +365,7 @@ def run(ctx: StageContext) -> dict[str, ProductVersion]:
     from hadal.matching.fix import fix_summary, matched_track, profile_from_ctd
     from hadal.matching.mrf import mrf_refine
     from hadal.products import write_netcdf, write_parquet
-    from hadal.stages.suitability import open_dtm
+    from hadal.products.readers import open_dtm
 
     p: Params = ctx.config.match
     dtm_pv, ctd_pv = ctx.upstream("dtm"), ctx.upstream("ctd")

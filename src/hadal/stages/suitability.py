@@ -12,7 +12,6 @@ from typing import TYPE_CHECKING
 
 from pydantic import BaseModel, ConfigDict, Field
 
-from hadal.errors import InputError
 from hadal.stages import StageContext, StageInputs
 from hadal.store import ProductVersion
 
@@ -36,25 +35,6 @@ class Params(BaseModel):
     region_search_radius_m: float = Field(
         0.0, ge=0, le=10_000_000, description="(m) 0: region centred on the launch point; >0: best-scoring window centred within this radius"
     )
-
-
-def open_dtm(pv: ProductVersion) -> xr.Dataset:
-    """Load ``dtm.nc`` fully into memory with a clear error on unreadable files.
-
-    Works for DTMs from multibeam soundings and from prior grids alike (``attrs['dtm_source']``); only
-    ``depth_m(y, x)`` is required - a prior-grid DTM has no ``count``/``uncertainty_m`` layers.
-    """
-    import xarray as xr
-
-    path = pv.file("dtm.nc")
-    try:
-        with xr.open_dataset(path, engine="h5netcdf") as ds:
-            ds = ds.load()
-    except (OSError, ValueError) as exc:
-        raise InputError(f"{path}: cannot read the DTM ({str(exc).splitlines()[0] if str(exc) else type(exc).__name__})") from None
-    if "depth_m" not in ds or set(ds["depth_m"].dims) != {"y", "x"}:
-        raise InputError(f"{path}: not a DTM (no depth_m(y, x); have {', '.join(map(str, ds.data_vars))})")
-    return ds
 
 
 def region_centre(dive, dtm: xr.Dataset, frame) -> tuple[float, float, str]:
@@ -135,7 +115,8 @@ def build_suitability(dtm: xr.Dataset, frame, launch_lat_deg: float, launch_lon_
 
 
 def run(ctx: StageContext) -> dict[str, ProductVersion]:
-    from hadal.products import write_netcdf
+    from hadal.products import write_netcdf  # lazy: the listing commands import this module's Params
+    from hadal.products.readers import open_dtm
 
     p: Params = ctx.config.suitability
     dtm_pv = ctx.upstream("dtm")
