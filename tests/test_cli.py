@@ -1,27 +1,58 @@
-"""CLI: bad input gives one clear line and exit status 2, never a traceback."""
+"""CLI: bad input gives one clear line and exit status 2, never a traceback.
+
+The error paths run in-process through typer's CliRunner (streams and environment isolated, ``hadal.cli._main``
+called as the entry point calls it, so the one-line formatting of ``main`` is what is tested); one subprocess
+smoke test goes through the installed ``hadal`` entry point."""
 
 from __future__ import annotations
 
 import os
+import shutil
 import subprocess
 import sys
+import traceback
+from dataclasses import dataclass
 from pathlib import Path
 
 import pytest
+from typer.testing import CliRunner
+
+from hadal import cli
 
 REPO = Path(__file__).resolve().parents[1]
 
 
-def hadal(*args: str, cwd: Path | None = None) -> subprocess.CompletedProcess:
-    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(REPO / "src"), str(REPO)]), "HADAL_PROGRESS": "0",
-           "COLUMNS": "200"}
-    return subprocess.run([sys.executable, "-m", "hadal.cli", *args], capture_output=True, text=True,
-                          cwd=cwd or REPO, env=env, timeout=120)
+@dataclass
+class Res:
+    returncode: int
+    stdout: str
+    stderr: str
 
 
-def assert_one_line_error(res: subprocess.CompletedProcess, *fragments: str) -> None:
+def hadal(*args: str, env: dict[str, str] | None = None) -> Res:
+    """``hadal ARGS`` in-process: exit status, stdout, stderr; an escaping exception is printed as a traceback
+    on stderr, as the interpreter would print it."""
+    runner = CliRunner()
+    code = 0
+    with runner.isolation(env={"HADAL_PROGRESS": "0", "COLUMNS": "200", **(env or {})}) as (out, err, _):
+        argv, sys.argv = sys.argv, ["hadal", *args]
+        try:
+            cli._main()
+        except SystemExit as exc:
+            code = exc.code if isinstance(exc.code, int) else (0 if exc.code is None else 1)
+        except Exception:  # would be a traceback for the user
+            traceback.print_exc(file=sys.stderr)
+            code = 1
+        finally:
+            sys.argv = argv
+            sys.stdout.flush()
+            sys.stderr.flush()
+        return Res(code, out.getvalue().decode(), err.getvalue().decode())
+
+
+def assert_one_line_error(res: Res, *fragments: str) -> None:
     assert res.returncode == 2, (res.stdout, res.stderr)
-    assert "Traceback" not in res.stderr
+    assert "Traceback" not in res.stderr + res.stdout
     err_lines = [ln for ln in res.stderr.splitlines() if ln.startswith("error:")]
     assert len(err_lines) == 1, res.stderr
     for frag in fragments:
@@ -68,7 +99,7 @@ def test_unknown_stage(tmp_path):
 def test_products_path_traversal_and_empty(tmp_path):
     assert_one_line_error(hadal("products", "../../etc", "--store", str(tmp_path)), "invalid dive id")
     res = hadal("products", "d1", "--store", str(tmp_path))
-    assert res.returncode == 1 and "no products" in res.stderr
+    assert res.returncode == 1 and "no products" in res.stderr and "Traceback" not in res.stderr
     assert list(tmp_path.iterdir()) == []
 
 
@@ -91,18 +122,31 @@ def test_version_plain_and_usage_errors_are_one_line():
         assert_one_line_error(hadal(*args), frag)
 
 
+def test_entry_point_smoke():
+    """The one subprocess test: the installed console script answers --version and reports a usage error as one
+    line with exit status 2 (no traceback from the real interpreter)."""
+    from hadal import __version__
+
+    exe = shutil.which("hadal", path=os.path.dirname(sys.executable)) or shutil.which("hadal")
+    if exe is None:
+        pytest.skip("no installed `hadal` console script")
+    env = {**os.environ, "HADAL_PROGRESS": "0", "COLUMNS": "200"}
+    res = subprocess.run([exe, "--version"], capture_output=True, text=True, env=env, timeout=120)
+    assert res.returncode == 0 and res.stdout.strip() == f"hadal {__version__}", res.stderr
+    res = subprocess.run([exe, "run", "--bogus", "x"], capture_output=True, text=True, env=env, timeout=120)
+    assert_one_line_error(Res(res.returncode, res.stdout, res.stderr), "--bogus")
+
+
 def test_config_output_is_cached_per_code_version(tmp_path):
     """`hadal config` (cached per code version) prints exactly what the generator makes; a cache file of another
     code version is never used."""
-    env = {**os.environ, "HADAL_CACHE_DIR": str(tmp_path)}
+    from hadal.config import default_yaml
+
     (tmp_path / "pipeline-defaults-0.0.0+stale.yaml").write_text("stale: true\n")
-    first = subprocess.run([sys.executable, "-m", "hadal.cli", "config"], capture_output=True, text=True, env=env,
-                           cwd=REPO, timeout=300)
-    oracle = subprocess.run([sys.executable, "-c", "from hadal.config import default_yaml; "
-                             "print(default_yaml(), end='')"], capture_output=True, text=True, cwd=REPO, timeout=300)
-    assert first.returncode == 0 and first.stdout == oracle.stdout
+    oracle = default_yaml()
+    first = hadal("config", env={"HADAL_CACHE_DIR": str(tmp_path)})
+    assert first.returncode == 0 and first.stdout == oracle, first.stderr
     cached = [f for f in tmp_path.glob("pipeline-defaults-*.yaml") if "stale" not in f.name]
-    assert len(cached) == 1 and cached[0].read_text() == oracle.stdout
-    second = subprocess.run([sys.executable, "-m", "hadal.cli", "config"], capture_output=True, text=True, env=env,
-                            cwd=REPO, timeout=300)
+    assert len(cached) == 1 and cached[0].read_text() == oracle
+    second = hadal("config", env={"HADAL_CACHE_DIR": str(tmp_path)})
     assert second.stdout == first.stdout

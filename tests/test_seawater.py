@@ -33,9 +33,13 @@ def test_pss78_unesco44(r, t68, p, rp, rt, big_rt, s):
 def test_pss78_fortran_sal78_and_c3515():
     # R printed to 1e-6 and dS/dR ~ 21 at S=40: S known to ~2e-5
     assert sw.salinity_from_ratio(1.888091, 40.0, 10000.0) == pytest.approx(40.0, abs=2e-5)
-    assert sw.C3515_S_M == 4.2914
-    # C(35, 15 degC IPTS-68, 0) gives S = 35 through the ITS-90 interface
-    assert sw.practical_salinity(4.2914, 15.0 / 1.00024, 0.0) == pytest.approx(35.0, abs=5e-7)
+    # C(35, 15 degC IPTS-68, 0) gives S = 35 through the ITS-90 interface, as it does in the peer library (gsw,
+    # mS/cm), across a range of conductivities and pressures
+    assert sw.practical_salinity(sw.C3515_S_M, 15.0 / 1.00024, 0.0) == pytest.approx(35.0, abs=5e-7)
+    gsw = pytest.importorskip("gsw")
+    assert float(gsw.SP_from_C(10 * sw.C3515_S_M, 15.0 / 1.00024, 0.0)) == pytest.approx(35.0, abs=5e-7)
+    c, t, p = np.meshgrid([2.5, 3.3, 4.2914, 5.5], [-1.5, 2.0, 15.0, 28.0], [0.0, 1000.0, 6000.0], indexing="ij")
+    np.testing.assert_allclose(sw.practical_salinity(c, t, p), gsw.SP_from_C(10 * c, t, p), atol=2e-6, rtol=0)
 
 
 # Row 1 is printed 0.498088 in UNESCO 44, a misprint: the CSIRO SEAWATER test report lists the same mismatch

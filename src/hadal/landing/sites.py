@@ -47,12 +47,12 @@ import time
 import warnings
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
-from typing import Any, Literal
+from typing import Any
 
 import numpy as np
 import pandas as pd
 import xarray as xr
-from pydantic import BaseModel, ConfigDict, Field, ValidationError
+from pydantic import ValidationError
 from scipy import ndimage as ndi
 
 from hadal.errors import ConfigError, InputError, first_validation_error
@@ -70,7 +70,6 @@ from hadal.landing.exclusion import (
     HIGH_PROTRUSION,
     SLOPE,
     SMALL_PROTRUSION,
-    TILE_CELLS,
     UNMAPPED,
     HeadingCorrelator,
     HeadingMaps,
@@ -79,6 +78,7 @@ from hadal.landing.exclusion import (
     small_protrusion_exclusion,
 )
 from hadal.landing.limits import CELL_FRACTION_RULE, COARSE_CELL_LIMIT
+from hadal.landing.options import AnalysisOptions
 from hadal.landing.protrusion import protrusion_height_map
 from hadal.landing.slope import local_slope_deg
 from hadal.landing.vehicle import Vehicle
@@ -574,25 +574,6 @@ def _grid_arrays(grid: xr.DataArray, vehicle: Vehicle, max_cell_fraction: float
     return z, x, y, cell
 
 
-class AnalysisOptions(BaseModel):
-    """Bounded numeric options of :func:`analyse_submap` (validated; violations -> one-line ConfigError)."""
-
-    model_config = ConfigDict(extra="forbid")
-    min_site_radius_m: float = Field(0.3, gt=0, le=10)
-    min_protrusion_height_m: float = Field(0.005, ge=0, le=0.1)
-    exclusion_step_m: float = Field(0.005, ge=1e-4, le=0.05)
-    local_slope_window_m: float = Field(0.1, gt=0, le=1.0)
-    protrusion_method: Literal["opening", "butterworth"] = "opening"
-    protrusion_coarse_m: float = Field(0.05, gt=0, le=0.2)
-    block_m: float = Field(2.5, ge=0.5, le=50)
-    block_margin_m: float = Field(1.0, ge=0, le=10)
-    filter_order: int = Field(3, ge=1, le=10)
-    fill_holes_max_m2: float = Field(0.01, ge=0, le=1.0)
-    max_cell_fraction: float = Field(CELL_FRACTION_RULE, gt=0, le=COARSE_CELL_LIMIT)
-    workers: int = Field(1, ge=1, le=64)
-    tile_cells: int = Field(TILE_CELLS, ge=10_000, le=10**9)
-
-
 def _options(**kw) -> AnalysisOptions:
     try:
         return AnalysisOptions(**kw)
@@ -775,27 +756,14 @@ def analyse_submap(
     vehicle: Vehicle | None = None,
     *,
     headings_deg: np.ndarray | list[float] | None = None,
-    min_site_radius_m: float = 0.3,
-    min_protrusion_height_m: float = 0.005,
-    exclusion_step_m: float = 0.005,
-    local_slope_window_m: float = 0.1,
-    protrusion_method: str = "opening",
-    protrusion_coarse_m: float = 0.05,
-    block_m: float = 2.5,
-    block_margin_m: float = 1.0,
-    filter_order: int = 3,
-    edge_correction: bool = False,
-    rectangle_resolution_m: float | None = None,
-    fill_holes_max_m2: float = 0.01,
-    max_cell_fraction: float = 0.1,
     frame: str = "auto",
     elevation_sigma_m: xr.DataArray | None = None,
-    default_sigma_m: float = 0.006,
-    workers: int = 1,
     keep_heading_exclusion: bool = True,
     memory_limit_bytes: float | None = None,
     work_limit: float | None = None,
-    tile_cells: int = TILE_CELLS,
+    rectangle_resolution_m: float | None = None,
+    options: AnalysisOptions | None = None,
+    **option_values: Any,
 ) -> LandingResult:
     """Landing-site analysis of one bathymetry submap (Sangekar et al. §III-IV).
 
@@ -804,6 +772,8 @@ def analyse_submap(
     (regular, equal spacing no larger than ``max_cell_fraction`` × vehicle width, NaN = unmapped). The rule is
     1/10 of the width (:data:`CELL_FRACTION_RULE`); ``max_cell_fraction`` up to 0.2 is an explicit override for
     coarser grids (the 0.10 m Takuyo raster) and adds a warning to ``LandingResult.warnings``.
+    The analysis options are :class:`AnalysisOptions` (their defaults are declared there only): pass ``options``
+    or its fields as keywords (``option_values``; both together: the keywords override ``options``).
     ``headings_deg``: landing headings (default -90° .. 90° in 5° steps). ``local_slope_window_m``: physical
     size of the local-slope plane fit (rounded to an odd number of cells, at least 3). ``protrusion_method``:
     ``"opening"`` (heights that see every rock narrower than the vehicle diagonal, see
@@ -821,11 +791,7 @@ def analyse_submap(
     out of bounds.
     """
     vehicle = vehicle or Vehicle()
-    opt = _options(min_site_radius_m=min_site_radius_m, min_protrusion_height_m=min_protrusion_height_m,
-                   exclusion_step_m=exclusion_step_m, local_slope_window_m=local_slope_window_m,
-                   protrusion_method=protrusion_method, protrusion_coarse_m=protrusion_coarse_m, block_m=block_m,
-                   block_margin_m=block_margin_m, filter_order=filter_order, fill_holes_max_m2=fill_holes_max_m2,
-                   max_cell_fraction=max_cell_fraction, workers=workers, tile_cells=tile_cells)
+    opt = _options(**{**(options.model_dump() if options is not None else {}), **option_values})
     t_all = time.perf_counter()
     timings: dict[str, float] = {}
     z, x, y, cell = _grid_arrays(grid, vehicle, opt.max_cell_fraction)
@@ -839,7 +805,7 @@ def analyse_submap(
         check_resources(z.shape, n_heads, memory_limit_bytes=memory_limit_bytes, work_limit=work_limit,
                         keep_heading_exclusion=keep_heading_exclusion, exclusion_step_m=opt.exclusion_step_m,
                         vehicle=vehicle, workers=opt.workers)
-    sigma = _sigma_array(elevation_sigma_m, grid, z.shape, default_sigma_m)
+    sigma = _sigma_array(elevation_sigma_m, grid, z.shape, opt.default_sigma_m)
     z, filled = fill_small_holes(z, cell, opt.fill_holes_max_m2)
     phi = 0.0
     world = None
@@ -874,7 +840,7 @@ def analyse_submap(
 
     t = time.perf_counter()
     h = protrusion_height_map(z, cell, vehicle.diagonal_m, method=opt.protrusion_method, block_m=opt.block_m,
-                              margin_m=opt.block_margin_m, order=opt.filter_order, edge_correction=edge_correction,
+                              margin_m=opt.block_margin_m, order=opt.filter_order, edge_correction=opt.edge_correction,
                               coarse_m=opt.protrusion_coarse_m)
     timings["protrusion_map"] = time.perf_counter() - t
 

@@ -106,6 +106,7 @@ from hadal.matching.mapgrid import MapGrid
 from hadal.matching.tercom import (
     TercomResult,
     _FFTCorrelator,
+    _required_samples,
     _rotate,
     _snap,
     _sums_all_offsets,
@@ -564,7 +565,7 @@ def posterior_fix(
     in_region[r0:r1, c0:c1] = True
     zr = g.depth_m[r0:r1, c0:c1]
     v_map = float(np.nanvar(zr)) if np.isfinite(zr).sum() > 1 else 0.0
-    n_req = max(int(np.ceil(min_valid_fraction * N - 1e-9)), 1)
+    n_req = _required_samples(min_valid_fraction, N)
 
     # ---- coarse surfaces [TERCOM Eq. 17] for every pose (FFT route, nearest-cell sampling)
     snapped = [_snap(_rotate(rel, a) * f, h) for a, f in poses]

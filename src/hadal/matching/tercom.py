@@ -131,10 +131,26 @@ def _validate_inputs(profile_depth, track_xy) -> tuple[np.ndarray, np.ndarray]:
     return d, t
 
 
-@dataclass
-class _Masks:
-    rows: np.ndarray  # relative cell rows of the samples
-    cols: np.ndarray
+def _required_samples(min_valid_fraction: float, n: int) -> int:
+    """Fewest samples on valid map cells for an offset to be feasible: ``max(ceil(fraction * n), 1)``."""
+    return max(int(np.ceil(min_valid_fraction * n - 1e-9)), 1)
+
+
+def _second_optimum_verdict(criterion: str, score: float, second: float, sx: float, sy: float, bx: float, by: float,
+                            mismatch_ratio: float, estimate_bias: bool) -> tuple[float, bool, str | None]:
+    """Separation ratio, mismatch flag and warning (or None) for the best ``score`` at ``(bx, by)`` and the second
+    distinct optimum ``second`` at ``(sx, sy)``; COR is maximised (ratio best/second), MSD/MAD minimised."""
+    if criterion == "cor":
+        ratio = (score / second) if (estimate_bias and second > 0) else float("nan")
+    else:
+        ratio = second / score if score > 0 else float("inf")
+    mismatch = bool(np.isfinite(ratio) and ratio < mismatch_ratio)
+    warning = None
+    if mismatch:
+        warning = (f"possible mismatch: second distinct {criterion.upper()} optimum {second:.4g} at "
+                   f"({sx:.0f}, {sy:.0f}) m is within a factor {mismatch_ratio} of the best {score:.4g} "
+                   f"({np.hypot(sx - bx, sy - by):.0f} m away)")
+    return ratio, mismatch, warning
 
 
 def _snap(track_rel: np.ndarray, h: float) -> tuple[np.ndarray, np.ndarray]:
@@ -337,7 +353,7 @@ def tercom(
     in_region[r0:r1, c0:c1] = True
 
     sign = -1.0 if criterion == "cor" else 1.0  # internally minimise
-    n_req = max(int(np.ceil(min_valid_fraction * d.size - 1e-9)), 1)
+    n_req = _required_samples(min_valid_fraction, d.size)
 
     def evaluate(k: int, single: bool):
         rows, cols = snapped[k]
@@ -483,17 +499,10 @@ def tercom(
         r2, c2 = divmod(j, nx)
         second = float(all_best_val[r2, c2])
         sx, sy = float(g.x_m[c2]), float(g.y_m[r2])
-        if criterion == "cor":
-            ratio = (score / second) if (estimate_bias and second > 0) else float("nan")
-        else:
-            ratio = second / score if score > 0 else float("inf")
-        mismatch = bool(np.isfinite(ratio) and ratio < mismatch_ratio)
-        if mismatch:
-            warnings.append(
-                f"possible mismatch: second distinct {criterion.upper()} optimum {second:.4g} at "
-                f"({sx:.0f}, {sy:.0f}) m is within a factor {mismatch_ratio} of the best {score:.4g} "
-                f"({np.hypot(sx - g.x_m[c], sy - g.y_m[r]):.0f} m away)"
-            )
+        ratio, mismatch, warn = _second_optimum_verdict(criterion, score, second, sx, sy, g.x_m[c], g.y_m[r],
+                                                        mismatch_ratio, estimate_bias)
+        if warn is not None:
+            warnings.append(warn)
     else:
         second, sx, sy, ratio, mismatch = float("nan"), float("nan"), float("nan"), float("inf"), False
     n_valid = int(n_surf[r, c])
@@ -555,7 +564,7 @@ def tercom_direct(profile_depth, track_xy, dtm, starts_rc, criterion: str = "msd
         dbt = np.full(d.size, np.nan)
         dbt[inside] = g.depth_m[rr[inside], cc[inside]]
         ok = np.isfinite(dbt)
-        if ok.sum() < max(np.ceil(min_valid_fraction * d.size - 1e-9), 1):
+        if ok.sum() < _required_samples(min_valid_fraction, d.size):
             continue
         dm, db = d[ok], dbt[ok]
         b = np.mean(db - dm) if estimate_bias else 0.0
@@ -625,7 +634,7 @@ def refine_tercom(
     g = MapGrid.from_any(dtm)
     h = g.resolution_m
     rel = t - t[0]
-    n_req = max(int(np.ceil(min_valid_fraction * d.size - 1e-9)), 1)
+    n_req = _required_samples(min_valid_fraction, d.size)
     hb = tuple(heading_bounds_deg) if heading_bounds_deg is not None else (coarse.heading_deg - 1.0, coarse.heading_deg + 1.0)
     sb = tuple(scale_bounds)
     if hb[0] > hb[1] or sb[0] > sb[1] or sb[0] <= 0:
@@ -730,11 +739,9 @@ def refine_tercom(
     if others:
         s2, p2, _ = min(others, key=lambda f: f[0])
         second, sx, sy = float(s2), float(p2[0]), float(p2[1])
-        ratio = second / score if score > 0 else float("inf")
-        mismatch = bool(ratio < mismatch_ratio)
-        if mismatch:
-            warnings.append(f"possible mismatch: second distinct MSD optimum {second:.4g} at ({sx:.0f}, {sy:.0f}) m is "
-                            f"within a factor {mismatch_ratio} of the best {score:.4g} ({np.hypot(sx - x0, sy - y0):.0f} m away)")
+        ratio, mismatch, warn = _second_optimum_verdict("msd", score, second, sx, sy, x0, y0, mismatch_ratio, estimate_bias)
+        if warn is not None:
+            warnings.append(warn)
     else:
         second, sx, sy, ratio, mismatch = coarse.second_score, coarse.second_x_m, coarse.second_y_m, float("nan"), coarse.mismatch
     if n_valid < d.size:

@@ -14,13 +14,14 @@ from __future__ import annotations
 
 import os
 from pathlib import Path
-from typing import TYPE_CHECKING, Literal
+from typing import TYPE_CHECKING
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import ConfigDict, Field
 
 from hadal.budget import memory_limit_bytes
 from hadal.errors import InputError, StageError
-from hadal.landing.limits import CELL_FRACTION_RULE, COARSE_CELL_LIMIT
+from hadal.landing.limits import COARSE_CELL_LIMIT
+from hadal.landing.options import AnalysisOptions
 from hadal.landing.vehicle import Vehicle
 from hadal.stages import StageInputs
 
@@ -35,38 +36,22 @@ INPUTS = StageInputs(upstream=("laser_grids",))
 DEFAULT_MAX_CELL_HEADINGS = 1e10
 
 
-class Params(BaseModel):
-    """Landing-site analysis parameters (defaults = Sangekar et al. where the paper is safe; every number bounded)."""
+class Params(AnalysisOptions):
+    """Landing-site analysis parameters (defaults = Sangekar et al. where the paper is safe; every number bounded).
+
+    The analysis options are :class:`hadal.landing.options.AnalysisOptions` (declared there, once); this model
+    adds the stage's own (vehicle, headings, work budget, thread count with 'auto', figures)."""
 
     model_config = ConfigDict(extra="forbid")
     vehicle: Vehicle = Field(default_factory=Vehicle, description="vehicle geometry and forces (Table II)")
     heading_step_deg: float = Field(5.0, ge=1.0, le=90, description="landing headings -90..90° in these steps")
-    min_site_radius_m: float = Field(0.3, gt=0, le=10, description="reject sites whose inscribed circle is smaller (m)")
-    min_protrusion_height_m: float = Field(0.005, ge=0, le=0.1, description="protrusions below this are noise (m)")
-    exclusion_step_m: float = Field(0.005, ge=1e-4, le=0.05, description="distance step of the Fig. 15 table (m)")
-    local_slope_window_m: float = Field(0.1, gt=0, le=1.0,
-                                        description="window of the local slope map (m; odd cells, >= 3)")
-    protrusion_method: Literal["opening", "butterworth"] = Field(
-        "opening", description="protrusion heights: opening (sees every rock narrower than the vehicle diagonal) "
-                               "or the paper's Butterworth low-pass (Eq. 10)")
-    protrusion_coarse_m: float = Field(0.05, gt=0, le=0.2, description="cell of the ground estimate of the opening (m)")
-    block_m: float = Field(2.5, ge=0.5, le=50, description="block size of the protrusion analysis (m)")
-    block_margin_m: float = Field(1.0, ge=0, le=10, description="overlap margin of each Butterworth block (m)")
-    filter_order: int = Field(3, ge=1, le=10, description="Butterworth low-pass order (Eq. 10)")
-    edge_correction: bool = Field(False, description="normalised low-pass next to gaps (the paper zero-fills)")
     rectangle_resolution_m: float = Field(0.02, gt=0, le=1.0, description="ignored: A_r (Eq. 12) is now exact")
-    fill_holes_max_m2: float = Field(0.01, ge=0, le=1.0, description="fill interior unmapped holes up to this area (m²)")
-    max_cell_fraction: float = Field(
-        CELL_FRACTION_RULE, gt=0, le=COARSE_CELL_LIMIT,
-        description="refuse grid cells larger than this × vehicle width (rule 0.1; up to 0.2 is an explicit override "
-                    "for coarser grids, reported as a warning)")
     max_cell_headings: float = Field(
         DEFAULT_MAX_CELL_HEADINGS, ge=1e3, le=1e13,
         description="refuse a submap whose cells x headings exceed this (work budget, checked before allocating; "
                     "1e10 is about 10 minutes single-threaded)")
-    default_sigma_m: float = Field(0.006, ge=0, le=0.1, description="elevation 1-σ where a laser cell has < 2 points "
-                                   "(m; for the per-site landability probability)")
-    workers: int = Field(0, ge=0, le=64, description="headings analysed in parallel threads (0 = auto: "
+    # the stage's thread count has an 'auto' the library function does not (it is given a resolved count)
+    workers: int = Field(0, ge=0, le=64, description="headings analysed in parallel threads (0 = auto: "  # type: ignore[assignment]
                          "min(4, CPU cores); each thread beyond the first needs ~24 bytes per cell)")
     figures: bool = Field(True, description="write PNG figures into the product")
 
@@ -175,15 +160,8 @@ def run(ctx) -> dict:
                             exclusion_step_m=p.exclusion_step_m, vehicle=p.vehicle, what=f"landing submap {name}",
                             heading_setting=("landing.heading_step_deg", p.heading_step_deg),
                             step_setting=("landing.exclusion_step_m", p.exclusion_step_m), workers=threads)
-            res = analyse_submap(
-                grid, p.vehicle, headings_deg=headings, min_site_radius_m=p.min_site_radius_m,
-                min_protrusion_height_m=p.min_protrusion_height_m, exclusion_step_m=p.exclusion_step_m,
-                local_slope_window_m=p.local_slope_window_m, protrusion_method=p.protrusion_method,
-                protrusion_coarse_m=p.protrusion_coarse_m, block_m=p.block_m, block_margin_m=p.block_margin_m,
-                filter_order=p.filter_order, edge_correction=p.edge_correction,
-                fill_holes_max_m2=p.fill_holes_max_m2, max_cell_fraction=p.max_cell_fraction, workers=threads,
-                elevation_sigma_m=sigma, default_sigma_m=p.default_sigma_m,
-            )
+            opts = AnalysisOptions(**{**p.model_dump(include=set(AnalysisOptions.model_fields)), "workers": threads})
+            res = analyse_submap(grid, p.vehicle, headings_deg=headings, elevation_sigma_m=sigma, options=opts)
             ctx.log.info("landing: %s %d candidate sites in %.1f s", name, len(res.sites), res.timings_s["total"])
             for w in res.warnings:
                 ctx.log.warning("landing: %s: %s", name, w)
