@@ -35,8 +35,8 @@ import pandas as pd
 
 from hadal.matching import MapGrid, tercom
 from hadal.matching.mrf import mrf_refine
-from hadal.matching.testing import AnalyticTerrain, wiggly_track
 from hadal.suitability import block_std_entropy
+from hadal.testing import AnalyticTerrain, wiggly_track
 
 H = 20.0
 NX, NY = 200, 160

@@ -21,7 +21,7 @@ import time
 import numpy as np
 
 from hadal.matching import MapGrid, tercom, tercom_direct
-from hadal.matching.testing import AnalyticTerrain, wiggly_track
+from hadal.testing import AnalyticTerrain, wiggly_track
 
 
 def main() -> None:
@@ -52,7 +52,7 @@ def main() -> None:
     r1 = tercom(prof, tr, g)
     t_fft1 = time.perf_counter() - t0
     t0 = time.perf_counter()
-    rn = tercom(prof, tr, g, headings_deg=headings)
+    rn = tercom(prof, tr, g, headings_deg=headings, precision="double")
     t_fftn_double = time.perf_counter() - t0
     t0 = time.perf_counter()
     rm = tercom(prof, tr, g, headings_deg=headings, precision="mixed")

@@ -1,5 +1,7 @@
-"""`hadal inspect`, `hadal init`, `hadal config --check DIR`, `hadal schema` as a user runs them (subprocesses),
-and `hadal init DIR && hadal run DIR` on a compressed real cast through the Prefect flow."""
+"""`hadal inspect`, `hadal init`, `hadal config --check DIR`, `hadal schema` in-process through typer's CliRunner
+(streams and environment isolated, ``hadal.cli._main`` called as the entry point calls it), and
+`hadal init DIR && hadal run DIR` on a compressed real cast through the Prefect flow as a user runs it (subprocesses,
+integration tier)."""
 
 from __future__ import annotations
 
@@ -8,21 +10,55 @@ import json
 import os
 import subprocess
 import sys
+import traceback
+from dataclasses import dataclass
 from pathlib import Path
 
 import pytest
 import yaml
+from typer.testing import CliRunner
+
+from hadal import cli
 
 REPO = Path(__file__).resolve().parents[1]
 
 
-def hadal(*args: str, cwd: Path | None = None, timeout: int = 300) -> subprocess.CompletedProcess:
-    env = {**os.environ, "HADAL_PROGRESS": "none", "PREFECT_SERVER_ANALYTICS_ENABLED": "false"}
+@dataclass
+class Res:
+    returncode: int
+    stdout: str
+    stderr: str
+
+
+def hadal(*args: str) -> Res:
+    """``hadal ARGS`` in-process: exit status, stdout, stderr; an escaping exception is printed as a traceback
+    on stderr, as the interpreter would print it."""
+    runner = CliRunner()
+    code = 0
+    with runner.isolation(env={"HADAL_PROGRESS": "none", "COLUMNS": "200"}) as (out, err, _):
+        argv, sys.argv = sys.argv, ["hadal", *args]
+        try:
+            cli._main()
+        except SystemExit as exc:
+            code = exc.code if isinstance(exc.code, int) else (0 if exc.code is None else 1)
+        except Exception:  # would be a traceback for the user
+            traceback.print_exc(file=sys.stderr)
+            code = 1
+        finally:
+            sys.argv = argv
+            sys.stdout.flush()
+            sys.stderr.flush()
+        return Res(code, out.getvalue().decode(), err.getvalue().decode())
+
+
+def hadal_subprocess(*args: str, env: dict[str, str] | None = None, timeout: int = 300) -> subprocess.CompletedProcess:
+    """``python -m hadal.cli ARGS`` in a child process (the acceptance path only)."""
+    env = {**os.environ, "HADAL_PROGRESS": "none", "PREFECT_SERVER_ANALYTICS_ENABLED": "false", **(env or {})}
     return subprocess.run([sys.executable, "-m", "hadal.cli", *args], capture_output=True, text=True, env=env,
-                          cwd=cwd, timeout=timeout)
+                          timeout=timeout)
 
 
-def _no_traceback(res: subprocess.CompletedProcess) -> None:
+def _no_traceback(res: Res | subprocess.CompletedProcess) -> None:
     assert "Traceback" not in res.stderr + res.stdout, res.stderr[-2000:]
 
 
@@ -39,7 +75,6 @@ def test_inspect_json_and_exit_codes(tmp_path):
     assert res.returncode == 0 and "xyz" in res.stdout
 
 
-@pytest.mark.integration  # slow (> 9 s here): the integration tier (issue 20: make test <= 5 min)
 def test_init_writes_validates_and_never_overwrites(tmp_path):
     raw = tmp_path / "My Dive 3"
     raw.mkdir()
@@ -85,10 +120,9 @@ def test_init_then_run_a_compressed_real_cast(shared_data, tmp_path):
     raw.mkdir()
     src = shared_data / "ctd-real" / "oceissues644_02dk.cnv"
     (raw / "station12.dat").write_bytes(gzip.compress(src.read_bytes()))  # compressed, odd name
-    env_home = tmp_path / "prefect"
-    os.environ.setdefault("PREFECT_HOME", str(env_home))
-    assert hadal("init", str(raw)).returncode == 0
-    res = hadal("run", str(raw), "--store", str(tmp_path / "store"), timeout=600)
+    env = {"PREFECT_HOME": os.environ.get("PREFECT_HOME", str(tmp_path / "prefect"))}
+    assert hadal_subprocess("init", str(raw), env=env).returncode == 0
+    res = hadal_subprocess("run", str(raw), "--store", str(tmp_path / "store"), env=env, timeout=600)
     _no_traceback(res)
     assert res.returncode == 0, res.stderr[-3000:]
     listing = json.loads(hadal("products", "cast-dive", "--store", str(tmp_path / "store"), "--json").stdout)

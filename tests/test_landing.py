@@ -47,8 +47,40 @@ def test_vehicle_table_ii_values():
     assert V.net_force_n == pytest.approx(3 * 9.81)
     assert V.critical_slope_deg == pytest.approx(17.70, abs=0.01)  # paper: 17.7°
     assert V.critical_height_m == pytest.approx(0.152, abs=0.001)  # paper: h_c = 0.15 m
-    # Eq. 2 by hand: atan(0.25*29.43 / (0.05*608.22 - 0.25*29.43))
-    assert math.radians(V.critical_slope_deg) == pytest.approx(math.atan(7.3575 / (30.411 - 7.3575)), rel=1e-6)
+
+
+def _tilt_moment_nm(v: Vehicle, tilt_rad: float, contact_m: float) -> float:
+    """Net moment (N m) about the contact point P of gravity at C_G and buoyancy at C_B, the vehicle tilted by
+    ``tilt_rad`` about P: statics with explicit rotated positions, no use of Eq. 1's closed form.
+    Body frame: P at the skid plane, ``contact_m`` across from the C_G-C_B centre line; C_G ``d_g`` above the skid,
+    C_B ``d_m`` above C_G. Positive: the vehicle keeps tilting; zero: the righting moment balances it."""
+    c, s = math.cos(tilt_rad), math.sin(tilt_rad)
+    moment = 0.0
+    for height, force_up in ((v.cg_height_m, -v.force_gravity_n), (v.cg_height_m + v.cg_cb_distance_m, v.force_buoyancy_n)):
+        u, w = -contact_m, height
+        lever_x = c * u - s * w  # horizontal arm after the rotation
+        moment += lever_x * force_up  # z-component of r x F for a vertical force
+    return moment
+
+
+@pytest.mark.parametrize("vehicle", [V, Vehicle(width_m=0.9, cg_cb_distance_m=0.08, cg_height_m=0.3, mass_kg=70.0)],
+                         ids=["table-ii", "other"])
+def test_critical_slope_is_the_moment_balance_on_the_long_edge(vehicle):
+    """Eq. 2 against an independent oracle: the tilt at which the righting moment balances the net weight for
+    contact on the long edge (d_psi = b_u/2), found numerically from the statics above."""
+    from scipy.optimize import brentq
+
+    d = 0.5 * vehicle.width_m
+    assert _tilt_moment_nm(vehicle, 0.0, d) == pytest.approx(vehicle.net_force_n * d)  # upright: tips towards P
+    root = brentq(lambda t: _tilt_moment_nm(vehicle, t, d), 0.0, math.pi / 2 - 1e-6, xtol=1e-14)
+    assert vehicle.critical_slope_deg == pytest.approx(math.degrees(root), abs=1e-9)
+    # just below θc the vehicle still tilts on to the slope; just above, the righting moment holds it off
+    th = math.radians(vehicle.critical_slope_deg)
+    assert _tilt_moment_nm(vehicle, th - 1e-3, d) > 0 > _tilt_moment_nm(vehicle, th + 1e-3, d)
+    # Eq. 1 / Eq. 7 at other contact distances: the same balance, and the allowed tilt grows with d
+    for frac in (0.1, 0.5, 0.9):
+        r = brentq(lambda t, dd=frac * d: _tilt_moment_nm(vehicle, t, dd), 0.0, math.pi / 2 - 1e-6, xtol=1e-14)
+        assert float(vehicle.tilt_angle_rad(frac * d)) == pytest.approx(r, abs=1e-9) and r < root
 
 
 def test_vehicle_current_and_friction():

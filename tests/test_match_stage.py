@@ -13,11 +13,11 @@ from hadal.config import PipelineConfig
 from hadal.dive import Dive, Launch, MapFrame
 from hadal.errors import InputError, StageError
 from hadal.geo import geodesic_distance_m, parse_degmin
-from hadal.matching.testing import AnalyticTerrain, lawnmower
 from hadal.stages import StageContext
 from hadal.stages import match as match_stage
 from hadal.stages import suitability as suit_stage
 from hadal.store import ProductStore
+from hadal.testing import AnalyticTerrain, lawnmower
 
 H = 20.0
 DRIFT = np.array([430.0, -260.0])  # true bottom start minus launch point, metres
@@ -73,7 +73,7 @@ def _world(tmp_path, *, track="wiggle", ctd_mutator=None, nan_hole=False):
 
 
 def _wiggle(n, length):
-    from hadal.matching.testing import wiggly_track
+    from hadal.testing import wiggly_track
 
     return wiggly_track(n, length, seed=4)
 

@@ -14,7 +14,7 @@ import pytest
 
 from hadal.matching import MapGrid
 from hadal.matching.posterior import _drift_basis, posterior_fix
-from hadal.matching.testing import AnalyticTerrain, wiggly_track
+from hadal.testing import AnalyticTerrain, wiggly_track
 
 H = 20.0
 

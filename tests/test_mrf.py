@@ -11,7 +11,7 @@ import pytest
 from hadal.errors import InputError
 from hadal.matching import MapGrid, tercom
 from hadal.matching.mrf import GibbsFilter, _gibbs, _shift_axis, gibbs_temperature, mrf_refine
-from hadal.matching.testing import AnalyticTerrain, cut_patch
+from hadal.testing import AnalyticTerrain, cut_patch
 
 H = 20.0
 SHARED = Path(__file__).resolve().parents[2] / "shared" / "data"
@@ -30,7 +30,7 @@ def world():
 def real():
     if not all(p.exists() for p in REAL.values()):
         pytest.skip("real grids under ../shared/data absent")
-    from hadal.matching.testing import real_terrain
+    from hadal.testing import real_terrain
 
     return {k: real_terrain(p) for k, p in REAL.items()}
 

@@ -58,7 +58,7 @@ def profile_like() -> xr.Dataset:
             "density_kg_m3": (("phase", "pressure_dbar"), ones * (1028 + p / 200)),
             "gravity_m_s2": (("phase", "pressure_dbar"), ones * (9.78 + p * 2e-6)),
             "depth_m": (("phase", "pressure_dbar"), ones * p * 0.99),
-            "n_samples": (("phase", "pressure_dbar"), np.ones((2, p.size), "i4")),
+            "count": (("phase", "pressure_dbar"), np.ones((2, p.size), "i4")),
         },
         coords={"pressure_dbar": p, "phase": ["descent", "ascent"]},
         attrs={"launch_latitude_deg": 11.337, "launch_longitude_deg": 142.21,
@@ -74,7 +74,7 @@ def suitability_like() -> xr.Dataset:
     X, Y = np.meshgrid(bx, by)
     lon, lat = FRAME.to_lonlat(X, Y)
     return xr.Dataset(
-        {"std_m": (("y", "x"), s * 10), "entropy": (("y", "x"), s), "proposed": (("y", "x"), s > 0.5),
+        {"std_m": (("y", "x"), s * 10), "entropy": (("y", "x"), s), "in_region": (("y", "x"), s > 0.5),
          "lat": (("y", "x"), lat), "lon": (("y", "x"), lon),
          "crs": ((), 0, {"proj4": FRAME.crs.to_proj4()})},
         coords={"x": bx, "y": by},
@@ -87,7 +87,7 @@ def msd_like() -> xr.Dataset:
     y = np.arange(-400.0, 400.0, 20.0)
     X, Y = np.meshgrid(x, y)
     lon, lat = FRAME.to_lonlat(X, Y)
-    return xr.Dataset({"msd_m2": (("y", "x"), (X - 100) ** 2 / 1e3 + (Y + 50) ** 2 / 1e3 + 3),
+    return xr.Dataset({"score": (("y", "x"), (X - 100) ** 2 / 1e3 + (Y + 50) ** 2 / 1e3 + 3),
                        "lat": (("y", "x"), lat), "lon": (("y", "x"), lon)}, coords={"x": x, "y": y})
 
 
@@ -180,7 +180,7 @@ def test_netcdf_profile_and_store_identity(tmp_path):
 def test_dive_attributes_give_position_and_time(tmp_path):
     from hadal.dive import load_dive
     from hadal.products import dive_attributes
-    from hadal.report.testing import write_fake_dive
+    from hadal.testing import write_fake_dive
 
     dive, _ = load_dive(write_fake_dive(tmp_path / "raw", "dive-9"))
     attrs = dive_attributes(dive)

@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import base64
+import io
 import json
+import math
 import re
 import shutil
 from html import escape as html_escape
@@ -17,10 +19,10 @@ from hadal.errors import StageError
 from hadal.pipeline import make_context, run_stage
 from hadal.products import write_parquet
 from hadal.report import FigureOptions, build_report, load_products, publish_report
-from hadal.report.testing import ALL_FAKE, fake_ctd, publish_fake_products, write_fake_dive
 from hadal.store import ProductStore
+from hadal.testing import ALL_FAKE, fake_ctd, publish_fake_products, write_fake_dive
 
-FAST = FigureOptions(dpi=40, width_in=6, max_points=500)
+FAST = FigureOptions(dpi=40, width_in=6, max_points=500, keep_figure=True)  # keep_figure: the artists are tested
 
 
 @pytest.fixture(scope="module")
@@ -39,6 +41,43 @@ def _pngs(html: str) -> list[bytes]:
     return [base64.b64decode(b) for b in re.findall(r"data:image/png;base64,([A-Za-z0-9+/=]+)", html)]
 
 
+def _image(png: bytes) -> np.ndarray:
+    """Decoded RGB(A) pixels (floats in [0, 1]) of a PNG."""
+    from matplotlib.image import imread
+
+    return imread(io.BytesIO(png), format="png")
+
+
+def assert_drawn(fr, opt: FigureOptions = FAST) -> np.ndarray:
+    """The figure's PNG decodes to a non-blank image of about the figure's size at ``opt.dpi`` (``bbox_inches=
+    "tight"`` crops to the drawn content, or grows where a label or colour bar pokes out); returns the pixels."""
+    assert fr.png is not None and fr.png.startswith(b"\x89PNG\r\n\x1a\n"), (fr.key, fr.skipped)
+    img = _image(fr.png)
+    h, w = img.shape[:2]
+    assert img[..., :3].std() > 0.05, f"{fr.key}: blank image"  # a plain canvas has std 0
+    assert len(np.unique(img[..., :3].reshape(-1, 3), axis=0)) > 16, f"{fr.key}: hardly anything drawn"
+    if fr.figure is not None:
+        fw, fh = fr.figure.get_size_inches() * opt.dpi
+        assert 0.4 * fw <= w <= 1.3 * fw and 0.4 * fh <= h <= 1.3 * fh, (fr.key, (w, h), (fw, fh))
+    return img
+
+
+def _line(ax, label: str):
+    found = [ln for ln in ax.get_lines() if ln.get_label() == label]
+    assert len(found) == 1, (label, [ln.get_label() for ln in ax.get_lines()])
+    return found[0]
+
+
+def assert_points_of(xs, ys, df: pd.DataFrame, xcol: str, ycol: str, max_points: int) -> None:
+    """The plotted points are rows of ``df`` (exact coordinates, in order), start at its first row and
+    cover it to within one thinning step, at most ``max_points`` of them."""
+    xs, ys = np.asarray(xs, float), np.asarray(ys, float)
+    src = list(zip(df[xcol].to_numpy(float), df[ycol].to_numpy(float), strict=True))
+    idx = [src.index(pt) for pt in zip(xs, ys, strict=True)]  # ValueError: a point that is not in the input
+    assert idx[0] == 0 and idx == sorted(idx) and len(idx) <= max_points
+    assert len(src) - 1 - idx[-1] < math.ceil(len(src) / max_points)
+
+
 def test_full_report_has_every_figure_embedded(full_report):
     figs = {f.key: f for f in full_report.figures}
     assert {"fig08_ctd_profiles", "fig09_depth_time", "fig10_seafloor_depth", "fig05_06_suitability",
@@ -47,7 +86,9 @@ def test_full_report_has_every_figure_embedded(full_report):
     assert not skipped, skipped
     pngs = _pngs(full_report.html)
     assert len(pngs) >= len(figs)
-    assert all(p.startswith(b"\x89PNG\r\n\x1a\n") for p in pngs)
+    assert {f.png for f in figs.values()} <= set(pngs)  # the page embeds exactly the drawn figures
+    for f in figs.values():
+        assert_drawn(f)
     assert "<script" not in full_report.html and "http://" not in full_report.html.replace("http://www.w3", "")
 
 
@@ -75,13 +116,30 @@ def test_partial_products_are_reported_missing_not_fatal(tmp_path):
     publish_fake_products(st, "dive-b", products=("ctd",))
     rep = build_report(st, "dive-b", options=FAST)
     figs = {f.key: f for f in rep.figures}
-    assert figs["fig09_depth_time"].png is not None and figs["fig08_ctd_profiles"].png is not None
+    assert_drawn(figs["fig09_depth_time"])
+    assert_drawn(figs["fig08_ctd_profiles"])
+    # the depth-time figure draws the ctd product's depth, one line per phase, and stars the deepest sample
+    ctd = pd.read_parquet(st.latest("dive-b", "ctd").file("ctd.parquet"))
+    ax = figs["fig09_depth_time"].figure.axes[0]
+    for phase in ("descent", "bottom", "ascent"):
+        line = _line(ax, phase)
+        g = ctd[ctd["phase"] == phase]
+        assert np.isin(line.get_ydata(), g["depth_m"].to_numpy()).all() and len(line.get_ydata()) > 10
+    deepest = _line(ax, f"max {ctd['depth_m'].max():.1f} m")
+    assert deepest.get_ydata()[0] == ctd["depth_m"].max()
+    assert ax.get_ylabel() == "depth (m)" and ax.get_ylim()[0] > ax.get_ylim()[1]  # depth increases downwards
+    assert [a.get_xlabel() for a in figs["fig08_ctd_profiles"].figure.axes] == [
+        "conductivity (S/m)", "temperature ITS-90 (°C)", "practical salinity", "in situ density (kg/m³)",
+        "gravity (m/s²)"]
     assert figs["fig17_matched_track"].png is None and "matched track" in figs["fig17_matched_track"].skipped
     for product in ("dtm", "match", "landing", "suitability"):
         assert f"product &#x27;{product}&#x27; is missing" in rep.html
     assert "figure skipped" in rep.html
     pv = publish_report(st, rep)
-    assert (pv.path / "report.html").is_file() and (pv.path / "figures" / "fig09_depth_time.png").is_file()
+    assert (pv.path / "report.html").read_text(encoding="utf-8") == rep.html
+    assert (pv.path / "figures" / "fig09_depth_time.png").read_bytes() == figs["fig09_depth_time"].png
+    assert sorted(p.stem for p in (pv.path / "figures").glob("*.png")) == sorted(
+        f.key for f in rep.figures if f.png is not None)  # one file per drawn figure, none for skipped ones
     assert {u["product"] for u in pv.manifest()["upstream"]} == {"ctd"}
 
 
@@ -96,8 +154,10 @@ def test_missing_columns_and_unreadable_files_skip_figures(tmp_path):
         (d.path / "fix.json").write_text("{not json")
     rep = build_report(st, "dive-c", options=FAST)
     figs = {f.key: f for f in rep.figures}
-    assert figs["fig08_ctd_profiles"].png is not None
+    assert_drawn(figs["fig08_ctd_profiles"])
     assert "gravity_m_s2" in figs["fig08_ctd_profiles"].caption  # named as not available
+    assert "gravity (m/s²)" not in [a.get_xlabel() for a in figs["fig08_ctd_profiles"].figure.axes]
+    assert len(figs["fig08_ctd_profiles"].figure.axes) == 4
     assert figs["fig10_seafloor_depth"].png is None and "seafloor_depth_m" in figs["fig10_seafloor_depth"].skipped
     assert any("fix.json is unreadable" in n for n in rep.summary["notes"])
     assert any("has no msd_surface.nc" in n for n in rep.summary["notes"])
@@ -165,11 +225,122 @@ def test_cli_report_writes_html(tmp_path, full_store, monkeypatch, capsys):
     assert "error:" in err and "no products" in " ".join(err.split()) and "Traceback" not in err
 
 
-def test_new_figures_are_drawn(full_report):
+def test_new_figures_are_drawn(full_store, full_report):
     figs = {f.key: f for f in full_report.figures}
     for key in ("overview_map", "ctd_ts_theta_n2", "fig16_matched_depth"):
-        assert figs[key].png is not None, (key, figs[key].skipped)
+        assert_drawn(figs[key])
     assert "residual" in figs["fig16_matched_depth"].caption
+    dp = load_products(ProductStore(full_store), "dive-a")
+    track = dp.track
+    # overview: the matched track in lon/lat, the launch, and (no posterior ellipse) the radial 1σ circle
+    ax = figs["overview_map"].figure.axes[0]
+    assert (ax.get_xlabel(), ax.get_ylabel()) == ("longitude (°E)", "latitude (°N)")
+    tr = _line(ax, "matched bottom track")
+    assert_points_of(tr.get_xdata(), tr.get_ydata(), track, "lon", "lat", FAST.max_points)
+    la = _line(ax, "launch")
+    assert (la.get_xdata()[0], la.get_ydata()[0]) == (dp.fix["launch"]["lon"], dp.fix["launch"]["lat"])
+    circle = _line(ax, "radial 1σ uncertainty (19 m)")
+    from hadal.geo import LocalFrame
+    from hadal.testing import ORIGIN
+
+    cx, cy = LocalFrame(*ORIGIN).to_xy(np.asarray(circle.get_xdata()), np.asarray(circle.get_ydata()))
+    r = np.hypot(cx - dp.fix["start"]["x_east_m"], cy - dp.fix["start"]["y_north_m"])
+    assert r == pytest.approx(np.full(r.size, dp.fix["uncertainty_m"]["radial"]), abs=1e-3)  # 19.2 m on the ground
+    # residual panel: measured - (map - bias) of the matched track, in metres
+    top, bottom = figs["fig16_matched_depth"].figure.axes[:2]
+    assert top.get_ylabel() == "seafloor depth (m)" and bottom.get_ylabel() == "residual (m)"
+    meas = _line(top, "measured (depth + altitude)").get_ydata()
+    ref = _line(top, "reference map").get_ydata()
+    res = bottom.get_lines()[0].get_ydata()
+    assert_points_of(meas, ref, track, "seafloor_depth_m", "map_depth_m", FAST.max_points)
+    assert np.allclose(res, np.asarray(meas) - np.asarray(ref))
+    # T-S / θ / N²: every axis says its quantity and unit
+    labels = [(a.get_xlabel(), a.get_ylabel()) for a in figs["ctd_ts_theta_n2"].figure.axes]
+    assert labels[0] == ("absolute salinity SA (g/kg)", "potential temperature θ (°C)")
+    assert labels[1] == ("potential temperature θ (°C)", "depth (m, log scale)")
+    assert labels[2][0] == "N² (s⁻²)"
+
+
+def test_overview_draws_the_fix_ellipses_from_the_summary(full_store):
+    """The 1σ/2σ outlines on the overview map have the semi-axes and azimuth of fix.json's ellipses (metres on
+    the ground, about profile_start), and the zoom inset shows the same outlines."""
+    from hadal.geo import LocalFrame
+    from hadal.report.geo_figures import fig_overview
+    from hadal.testing import ORIGIN
+
+    dp = load_products(ProductStore(full_store), "dive-a")
+    centre = {"x_east_m": dp.fix["start"]["x_east_m"] + 40.0, "y_north_m": dp.fix["start"]["y_north_m"] - 25.0}
+    ell = {"ellipse_1sigma": {"semi_major_m": 30.0, "semi_minor_m": 12.0, "azimuth_deg": 60.0},
+           "ellipse_2sigma": {"semi_major_m": 73.4, "semi_minor_m": 29.4, "azimuth_deg": 60.0}}
+    dp.fix = {**dp.fix, "profile_start": centre, "uncertainty_m": {**dp.fix["uncertainty_m"], **ell}}
+    fr = fig_overview(dp, FAST)
+    assert_drawn(fr)
+    ax = fr.figure.axes[0]
+    frame = LocalFrame(*ORIGIN)
+    for key, label in (("ellipse_1sigma", "1σ ellipse"), ("ellipse_2sigma", "2σ ellipse")):
+        line = _line(ax, label)
+        x, y = frame.to_xy(np.asarray(line.get_xdata()), np.asarray(line.get_ydata()))
+        dx, dy = np.asarray(x) - centre["x_east_m"], np.asarray(y) - centre["y_north_m"]
+        r = np.hypot(dx, dy)
+        e = ell[key]
+        assert r.max() == pytest.approx(e["semi_major_m"], abs=0.01)
+        assert r.min() == pytest.approx(e["semi_minor_m"], abs=0.01)
+        k = int(np.argmax(r))
+        assert math.degrees(math.atan2(dx[k], dy[k])) % 180 == pytest.approx(e["azimuth_deg"], abs=0.05)
+    assert "radial 1σ uncertainty (19 m)" not in [ln.get_label() for ln in ax.get_lines()]
+    inset = next(a for a in ax.child_axes)
+    assert inset.get_title().startswith("zoom on the fix")
+    two_sigma = _line(ax, "2σ ellipse")
+    assert any(np.array_equal(ln.get_xdata(), two_sigma.get_xdata()) for ln in inset.get_lines())
+
+
+def test_overview_zoom_inset_does_not_hide_the_track(full_store):
+    """The zoom inset sits in the map corner over the fewest plotted track points: with a dead-reckoning track
+    running from the start to the map's south-east (through the lower-right corner, the inset's first choice) the
+    inset moves to a corner that covers fewer of the tracks' points than any other."""
+    from hadal.report.geo_figures import _INSET_CORNERS, _INSET_SIZE, fig_overview
+
+    dp = load_products(ProductStore(full_store), "dive-a")
+    st = dp.fix["start"]
+    xs, ys = dp.dtm["x"].values, dp.dtm["y"].values
+    end = (xs.max() - 0.1 * np.ptp(xs), ys.min() + 0.1 * np.ptp(ys))  # towards the map's south-east corner
+    t = np.linspace(0.0, 1.0, 200)
+    dr = {"x_east_m": list(st["x_east_m"] + (end[0] - st["x_east_m"]) * t),
+          "y_north_m": list(st["y_north_m"] + (end[1] - st["y_north_m"]) * t)}
+    dp.fix = {**dp.fix, "dead_reckoning_track": dr}
+    w, h = _INSET_SIZE
+    fig = fig_overview(dp, FAST).figure
+    ax = fig.axes[0]
+    inset = next(a for a in ax.child_axes)
+    to_axes = ax.transData + ax.transAxes.inverted()
+    uv = np.concatenate([to_axes.transform(np.column_stack([ln.get_xdata(), ln.get_ydata()]).astype(float))
+                         for ln in ax.get_lines() if "track" in ln.get_label() or "dead reckoning" in ln.get_label()])
+    uv = uv[np.isfinite(uv).all(axis=1)]
+
+    def covered(x0, y0):
+        return int(((uv[:, 0] >= x0) & (uv[:, 0] <= x0 + w) & (uv[:, 1] >= y0) & (uv[:, 1] <= y0 + h)).sum())
+
+    assert covered(*_INSET_CORNERS[0]) > 0  # the DR track does run through the lower-right corner
+    fig.canvas.draw()
+    pi, pa = inset.get_window_extent(), ax.get_window_extent()  # pixels, as drawn (the inset keeps its aspect)
+    cu, cv = ((pi.x0 + pi.x1) / 2 - pa.x0) / pa.width, ((pi.y0 + pi.y1) / 2 - pa.y0) / pa.height
+    (x0, y0), = [c for c in _INSET_CORNERS if c[0] < cu < c[0] + w and c[1] < cv < c[1] + h]
+    assert (x0, y0) != _INSET_CORNERS[0]
+    assert covered(x0, y0) == min(covered(*c) for c in _INSET_CORNERS)
+
+
+def test_matched_track_figure_plots_the_track_in_the_map_frame(full_report, full_store):
+    fr = {f.key: f for f in full_report.figures}["fig17_matched_track"]
+    assert_drawn(fr)
+    dp = load_products(ProductStore(full_store), "dive-a")
+    ax = fr.figure.axes[0]
+    assert (ax.get_xlabel(), ax.get_ylabel()) == ("x east (m, map frame)", "y north (m, map frame)")
+    line = _line(ax, "matched track")
+    assert_points_of(line.get_xdata(), line.get_ydata(), dp.track, "x_east_m", "y_north_m", FAST.max_points)
+    deep = _line(ax, "deepest point")
+    assert (deep.get_xdata()[0], deep.get_ydata()[0]) == (dp.fix["deepest_point"]["x_east_m"],
+                                                          dp.fix["deepest_point"]["y_north_m"])
+    assert ax.get_aspect() == 1.0  # equal metres on both axes
 
 
 def test_normal_refinement_is_a_note_and_real_problems_stay_warnings(full_store):
@@ -202,7 +373,7 @@ def test_log_bin_mean_against_brute_force():
 
 def test_report_html_in_headless_chromium(full_report, tmp_path):
     """Every embedded figure decodes and the page logs no error, in a real browser (skipped without one)."""
-    from hadal.report.testing import browser_check, chromium
+    from hadal.testing import browser_check, chromium
 
     if chromium() is None:
         pytest.skip("no chromium installed")

@@ -11,7 +11,7 @@ import xarray as xr
 
 from hadal.errors import InputError
 from hadal.matching import MapGrid, refine_tercom, tercom, tercom_direct
-from hadal.matching.testing import AnalyticTerrain, wiggly_track
+from hadal.testing import AnalyticTerrain, wiggly_track
 
 H = 20.0
 
@@ -92,7 +92,7 @@ def test_heading_search_recovers_rotated_track(terrain):
     assert true.min() > 0 and true[:, 0].max() < g.x_m[-1] and true[:, 1].max() < g.y_m[-1]
     prof = t(true[:, 0], true[:, 1]) + rng.normal(0, 0.5, tr.shape[0])
     r0 = tercom(prof, tr, g)
-    r = tercom(prof, tr, g, headings_deg=np.arange(-9, 9.01, 0.5))
+    r = tercom(prof, tr, g, headings_deg=np.arange(-9, 9.01, 0.5), precision="double")
     assert len(r.heading_scores) == 37
     assert abs(r.heading_deg - 6.0) <= 1.0
     assert r.score < r0.score

@@ -311,7 +311,8 @@ def test_timeless_cast_without_start_time_has_no_time(shared_data, tmp_path):
 def test_time_omitted_means_no_processing_time(tmp_path):
     from hadal.products.io import write_netcdf
 
-    ds = xr.Dataset({"a": (("k",), np.arange(3.0))}, coords={"k": np.arange(3)}, attrs={"time_omitted": "none"})
+    ds = xr.Dataset({"temperature_its90_degc": (("pressure_dbar",), np.arange(3.0))},
+                    coords={"pressure_dbar": np.arange(3.0)}, attrs={"time_omitted": "none"})
     p = write_netcdf(ds, tmp_path / "a.nc", title="t", summary="s")
     with xr.open_dataset(p, engine="h5netcdf") as out:
         assert "time" not in out.variables and "time_coverage_start" not in out.attrs

@@ -21,8 +21,8 @@ from pathlib import Path
 import pytest
 
 from hadal.pipeline import code_digest
-from hadal.report.testing import publish_fake_products, write_fake_dive
 from hadal.store import ProductStore
+from hadal.testing import publish_fake_products, write_fake_dive
 
 REPO = Path(__file__).resolve().parents[1]
 PREFECT = str(Path(sys.executable).with_name("prefect"))

@@ -20,7 +20,13 @@ Eq. 17, bias at its closed-form optimum] the log-likelihood, bias marginalised u
 * ``s^2`` is estimated from the data: the residual at the maximum-a-posteriori pose,
   ``s^2 = N_v MSD_b / (N_v - 5)`` (five fitted parameters: x, y, heading, scale, bias), floored by the
   DTM's ``uncertainty_m`` layer (mean square along the matched track) when it exists, and by a tiny
-  numeric floor.
+  numeric floor. With correlated residuals a fit absorbs more noise than that (each parameter ``1 / gamma``
+  samples' worth, ``E[RSS] ~ s^2 (N_v - p / gamma)``): the reported covariance of the main mode is widened
+  by ``(N_v - p) / (N_v - p / gamma)`` (``p`` = 5, plus the drift rates when the drift is applied; the
+  divisor kept >= ``N_v / 4``; ``refinement.noise_dof_inflation``), while the likelihood that ranks the
+  modes, the masses and the flags keeps ``N_v - 5``. (A deviation, measured: without it the sample dive's
+  smoothed, correlated DTM errors made the posterior overconfident, 8/10 seeds within 2 sigma;
+  ``tests/test_posterior_noise.py`` checks the divisor against Monte-Carlo.)
 * ``gamma = N_eff / N_v``: the residuals along a track are correlated (map interpolation error and
   dead-reckoning drift vary smoothly), so ``N_v`` samples do not carry ``N_v`` independent pieces of
   information. ``N_eff = N_v (1 - rho) / (1 + rho)`` from the lag-1 autocorrelation ``rho`` of the
@@ -280,9 +286,20 @@ def _n_eff(res: np.ndarray) -> float:
     return float(max(n * (1 - rho) / (1 + rho), 2.0))
 
 
+def _dof(nv: float, gamma: float = 1.0, n_params: int = N_PARAMS) -> float:
+    """Residual degrees of freedom of ``nv`` residuals after a fit of ``n_params`` parameters.
+
+    With correlated residuals (``gamma = N_eff / N_v < 1``) a fit absorbs more of the noise than ``n_params`` of
+    ``N_v`` independent samples would: ``E[RSS] ~ s^2 (N_v - n_params / gamma)`` (each parameter removes one of
+    the ``N_eff`` independent pieces, worth ``1 / gamma`` samples; the limit for regressors that vary slowly along
+    the track, as a smooth terrain's pose derivatives do), kept >= ``min(N_v - n_params, N_v / 4)``;
+    ``gamma = 1``: the usual ``N_v - n_params``."""
+    g = min(max(gamma, 1e-3), 1.0)
+    return float(max(nv - n_params / g, min(nv - n_params, nv / 4.0), 1.0))
+
+
 def _s2_from(msd: float, nv: float, floor2: float) -> float:
-    dof = max(nv - N_PARAMS, 1.0)
-    return float(max(msd * nv / dof, floor2))
+    return float(max(msd * nv / _dof(nv), floor2))
 
 
 def _bilinear_residuals(g: MapGrid, d: np.ndarray, rel: np.ndarray, pose, offsets_xy: np.ndarray,
@@ -875,6 +892,14 @@ def posterior_fix(
     # rigid grid's (tempered by the drift-correlated residuals) rescaled by the ratio of the two precisions
     kappa = (float(np.clip((gammaf / s2f) / (drift_info["tempering"] / drift_info["noise_sigma_m"] ** 2), 0.1, 1.0))
              if drift_info.get("applied") else 1.0)
+    # the likelihood's noise variance divides the residuals by N_v - p; with correlated residuals the fit absorbed
+    # more of the noise (``_dof``): the main mode's width (and the drift's share) is widened by the ratio, the MAP,
+    # window masses and flags stay those of the likelihood
+    n_par_fit = N_PARAMS + (2 * int(drift_info["segments"]) if drift_info.get("applied") else 0)
+    g_fit = float(drift_info["tempering"]) if drift_info.get("applied") else float(gammaf)
+    dof_inflation = _dof(max(n_valid, 1), 1.0, n_par_fit) / _dof(max(n_valid, 1), g_fit, n_par_fit)
+    kappa *= dof_inflation
+    infl = infl * dof_inflation
     for iw, (w, x_ll, m_w) in enumerate(zip(windows, lls, mw, strict=True)):
         pw = np.exp(x_ll - x_ll.max()).sum(axis=0)
         pw = pw / pw.sum() if pw.sum() > 0 else np.full(pw.size, 1.0 / pw.size)
@@ -967,6 +992,7 @@ def posterior_fix(
         "coarse_cell": {"x_east_m": float(g.x_m[rc_c[1]]), "y_north_m": float(g.y_m[rc_c[0]]),
                         "heading_error_deg": poses[kc][0], "track_scale": poses[kc][1]},
         "noise_sigma_coarse_m": float(np.sqrt(s2)), "tempering": float(gammaf), "drift": drift_info,
+        "noise_dof_inflation": float(dof_inflation),
         "holes_test": {"map_has_interior_holes": n_hole_all is not None, "mass_outside_if_holes_fit": mass_out_holes,
                        "flagged": holes_flag},
     }

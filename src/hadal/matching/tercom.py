@@ -46,6 +46,7 @@ from __future__ import annotations
 import warnings as _warnings
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 import scipy.fft as sfft
@@ -53,6 +54,7 @@ from scipy import ndimage
 
 from hadal.errors import InputError
 from hadal.matching.mapgrid import MapGrid
+from hadal.matching.options import DIRECT_FIELDS, REFINE_FIELDS, TERCOM_FIELDS, TercomOptions, tercom_options
 
 CRITERIA = ("msd", "mad", "cor")
 
@@ -273,24 +275,217 @@ def _mad_median_direct(D: np.ndarray, V: np.ndarray, rows, cols, d, region_rc, n
     return mad.reshape(r1 - r0, c1 - c0), med.reshape(r1 - r0, c1 - c0)
 
 
+class _Search:
+    """One TERCOM search ([TERCOM Eqs. 15-17]): the map layers centred on the map mean, the track snapped for every
+    (heading, scale) pose, the FFT correlator and the feasibility rules; :meth:`evaluate` gives the criterion of a
+    pose at every start cell, :meth:`exact_msd` the MSD at given cells exactly (float64 direct gather)."""
+
+    def __init__(self, d: np.ndarray, t: np.ndarray, g: MapGrid, poses: list[tuple[float, float]], o: TercomOptions,
+                 region: tuple[float, float, float, float] | None):
+        self.g, self.poses, self.criterion, self.estimate_bias = g, poses, o.criterion, o.estimate_bias
+        self.h = g.resolution_m
+        self.ny, self.nx = ny, nx = g.shape
+        self.V = V = np.isfinite(g.depth_m)
+        self.ref = float(np.nanmean(g.depth_m))
+        self.D = D = np.where(V, g.depth_m - self.ref, 0.0)
+        self.dc = d - self.ref
+        rel = t - t[0]
+        self.snapped = snapped = [_snap(_rotate(rel, a) * f, self.h) for a, f in poses]
+        rmin = min(int(r.min()) for r, _ in snapped)
+        rmax = max(int(r.max()) for r, _ in snapped)
+        cmin = min(int(c.min()) for _, c in snapped)
+        cmax = max(int(c.max()) for _, c in snapped)
+        pad_lo = (max(0, -rmin), max(0, -cmin))
+        pad_hi = (max(0, rmax), max(0, cmax))
+        self.corr = _FFTCorrelator({"V": V.astype(float), "D": D, "D2": D * D}, pad_lo, pad_hi)
+        self.window = r0, r1, c0, c1 = g.region_window(region)
+        self.in_region = np.zeros((ny, nx), bool)
+        self.in_region[r0:r1, c0:c1] = True
+        self.sign = -1.0 if o.criterion == "cor" else 1.0  # internally minimise
+        self.n_req = _required_samples(o.min_valid_fraction, d.size)
+
+    def evaluate(self, k: int, single: bool):
+        """``(criterion, key to minimise (inf where infeasible), bias or None, valid count)`` of pose ``k`` at
+        every start cell; ``single``: float32 FFTs."""
+        ny, nx, criterion, estimate_bias = self.ny, self.nx, self.criterion, self.estimate_bias
+        rows, cols = self.snapped[k]
+        n, s_r, s_r2, extra = _sums_all_offsets(self.corr, rows, cols, self.dc, criterion == "cor", single)
+        feasible = (n >= self.n_req) & self.in_region
+        r0, r1, c0, c1 = self.window
+        with np.errstate(invalid="ignore", divide="ignore"):
+            nn = np.where(feasible, n, np.nan)
+            bias = s_r / nn if estimate_bias else None
+            if criterion == "msd":
+                val = s_r2 / nn
+                if estimate_bias:
+                    val -= bias * bias
+                np.maximum(val, 0.0, out=val)  # NaN (infeasible) propagates
+            elif criterion == "mad":
+                val = np.full((ny, nx), np.nan)
+                if estimate_bias:  # the L1-optimal bias: the median residual at every offset
+                    sub, med = _mad_median_direct(self.D, self.V, rows, cols, self.dc, self.window, self.n_req)
+                    bias = np.full((ny, nx), np.nan)
+                    bias[r0:r1, c0:c1] = med
+                    val[r0:r1, c0:c1] = np.where(feasible[r0:r1, c0:c1], sub, np.nan)
+                else:
+                    sub = _mad_direct(self.D, self.V, rows, cols, self.dc, None, self.window)
+                    val[r0:r1, c0:c1] = sub / nn[r0:r1, c0:c1]
+            else:
+                val = self._cor(nn, extra)
+        key = self.sign * val
+        key[~np.isfinite(key)] = np.inf
+        return val, key, bias, n
+
+    def _cor(self, nn: np.ndarray, extra) -> np.ndarray:
+        s_db, s_d, s_b, s_bb, s_dd = extra
+        if self.estimate_bias:  # Pearson correlation of the two profiles (documented deviation)
+            cov = s_db / nn - (s_d / nn) * (s_b / nn)
+            vb = s_bb / nn - (s_b / nn) ** 2
+            vd = s_dd / nn - (s_d / nn) ** 2
+            den = np.sqrt(np.maximum(vb, 0.0) * np.maximum(vd, 0.0))
+            return np.where(den > 1e-12 * max(float(np.nanmax(np.abs(vd))), 1e-300), cov / den, np.nan)
+        ref = self.ref  # [TERCOM Eq. 15] with the un-centred depths: d = dc + ref, b = D + ref
+        return (s_db + ref * (s_d + s_b)) / nn + ref * ref
+
+    def exact_msd(self, k: int, flat: np.ndarray):
+        """MSD, valid count and bias at cells ``flat`` for pose ``k``, exactly (float64 direct gather)."""
+        ny, nx = self.ny, self.nx
+        rows, cols = self.snapped[k]
+        rc, cc_ = np.unravel_index(flat, (ny, nx))
+        rr, cc = rc[:, None] + rows[None, :], cc_[:, None] + cols[None, :]
+        inside = (rr >= 0) & (rr < ny) & (cc >= 0) & (cc < nx)
+        rr, cc = np.clip(rr, 0, ny - 1), np.clip(cc, 0, nx - 1)
+        ok = inside & self.V[rr, cc]
+        nn = ok.sum(axis=1)
+        res = np.where(ok, self.D[rr, cc] - self.dc[None, :], 0.0)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            b = res.sum(axis=1) / nn if self.estimate_bias else np.zeros(len(flat))
+            msd = np.maximum((res * res).sum(axis=1) / nn - b * b, 0.0)
+        return np.where(nn >= self.n_req, msd, np.nan), nn, b
+
+    def exact_msd_at_candidates(self, k: int, val, key, bias, n, m: int = 64) -> np.ndarray:
+        """Recompute MSD exactly at the ``m`` lowest screened cells of pose ``k``; patch the surfaces in place."""
+        kf = key.ravel()
+        flat = np.argpartition(kf, min(m, kf.size - 1))[:m] if kf.size > m else np.arange(kf.size)
+        flat = flat[np.isfinite(kf[flat])]
+        msd, nn, b = self.exact_msd(k, flat)
+        feas = np.isfinite(msd)
+        val.flat[flat] = np.where(feas, msd, np.nan)
+        key.flat[flat] = np.where(feas, msd, np.inf)
+        n.flat[flat] = nn
+        if bias is not None:
+            bias.flat[flat] = b
+        return flat
+
+
+def _search_poses(s: _Search, mixed: bool, verify_headings: int, progress):
+    """Evaluate every pose (float32 screening when ``mixed``, then the ``verify_headings`` best-screened poses in
+    double precision). Returns ``(best, all_best, all_pose, heading_scores)``: ``best`` = ``(key, pose, flat cell,
+    criterion surface, bias surface, count surface)`` or None when no offset is feasible; ``all_best`` the best key
+    over the poses at each cell, ``all_pose`` its pose."""
+    poses, sign, criterion = s.poses, s.sign, s.criterion
+    all_best = np.full((s.ny, s.nx), np.inf)
+    all_pose = np.zeros((s.ny, s.nx), np.int32)
+    heading_scores: dict[float, float] = {}
+    screened: list[tuple[float, int]] = []
+    kept: list[tuple[float, int, tuple]] = []
+    best = None
+    it = range(len(poses))
+    if progress is not None:
+        it = progress.track(it, "TERCOM headings", total=len(poses))
+
+    def note_score(k: int, v: float) -> None:
+        a = poses[k][0]
+        old = heading_scores.get(a, float("nan"))
+        if not np.isfinite(old) or (np.isfinite(v) and sign * v < sign * old):
+            heading_scores[a] = v
+
+    for k in it:
+        val, key, bias, n = s.evaluate(k, single=mixed)
+        idx = int(np.argmin(key))
+        better = key < all_best
+        all_best[better] = key[better]
+        all_pose[better] = k
+        if not np.isfinite(key.flat[idx]):
+            note_score(k, float("nan"))
+            continue
+        note_score(k, float(val.flat[idx]))
+        screened.append((float(key.flat[idx]), k))
+        if mixed and criterion == "msd":  # keep the screened surfaces of the best few headings
+            kept.append((float(key.flat[idx]), k, (val, key, bias, n)))
+            kept.sort(key=lambda e: e[0])
+            del kept[verify_headings:]
+        if not mixed and (best is None or key.flat[idx] < best[0]):
+            best = (float(key.flat[idx]), k, idx, val, bias, n)
+    if mixed:  # verify the best-screened headings in double precision; the best of those wins
+        surfaces = {k: arrays for _, k, arrays in kept}
+        for _, k in sorted(screened)[:verify_headings]:
+            if criterion == "msd":
+                val, key, bias, n = surfaces[k]
+                flat = s.exact_msd_at_candidates(k, val, key, bias, n)
+                idx = int(flat[np.argmin(key.flat[flat])])
+            else:
+                val, key, bias, n = s.evaluate(k, single=False)
+                idx = int(np.argmin(key))
+            note_score(k, float(val.flat[idx]))
+            if np.isfinite(key.flat[idx]) and (best is None or key.flat[idx] < best[0]):
+                best = (float(key.flat[idx]), k, idx, val, bias, n)
+    return best, all_best, all_pose, heading_scores
+
+
+def _second_optimum(s: _Search, all_best: np.ndarray, all_best_val: np.ndarray, all_pose: np.ndarray, r: int, c: int,
+                    score: float, mixed: bool, o: TercomOptions) -> tuple[float, float, float, float, bool, list[str]]:
+    """Best local optimum outside the exclusion neighbourhood of the fix (cell ``r``, ``c``) and its verdict:
+    ``(second, x, y, separation ratio, mismatch, warnings)``. With float32 screening the best candidates are
+    re-checked exactly (``all_best_val`` is patched in place)."""
+    g, h, ny, nx = s.g, s.h, s.ny, s.nx
+    excl = o.exclusion_radius_m if o.exclusion_radius_m is not None else max(5 * h, 100.0)
+    key_all = np.where(np.isfinite(all_best), all_best, np.inf)
+    local = key_all == ndimage.minimum_filter(key_all, size=3, mode="constant", cval=np.inf)
+    rr, cc = np.mgrid[0:ny, 0:nx]
+    far = np.hypot((rr - r) * h, (cc - c) * h) > excl
+    cand = local & far & np.isfinite(key_all)
+    warnings: list[str] = []
+    if cand.any() and mixed and s.criterion == "msd":
+        # float32 screening can be off by ~0.1 m^2 on high-relief maps: re-check the best candidates exactly
+        cf = np.flatnonzero(cand)
+        cf = cf[np.argsort(key_all.flat[cf])[:32]]
+        exact = np.array([s.exact_msd(int(all_pose.flat[f]), np.array([f]))[0][0] for f in cf])
+        all_best_val.flat[cf] = exact
+        key_all.flat[cf] = np.where(np.isfinite(exact), exact, np.inf)
+    if not cand.any():
+        return float("nan"), float("nan"), float("nan"), float("inf"), False, warnings
+    j = int(np.argmin(np.where(cand, key_all, np.inf)))
+    r2, c2 = divmod(j, nx)
+    second = float(all_best_val[r2, c2])
+    sx, sy = float(g.x_m[c2]), float(g.y_m[r2])
+    ratio, mismatch, warn = _second_optimum_verdict(s.criterion, score, second, sx, sy, g.x_m[c], g.y_m[r],
+                                                    o.mismatch_ratio, o.estimate_bias)
+    if warn is not None:
+        warnings.append(warn)
+    return second, sx, sy, ratio, mismatch, warnings
+
+
 def tercom(
     profile_depth,
     track_xy,
     dtm,
-    criterion: str = "msd",
+    criterion: str | None = None,
     *,
-    estimate_bias: bool = True,
-    headings_deg: Sequence[float] = (0.0,),
+    headings_deg: Sequence[float] | np.ndarray = (0.0,),
+    scales: Sequence[float] | np.ndarray = (1.0,),
     region: tuple[float, float, float, float] | None = None,
-    min_valid_fraction: float = 0.95,
-    exclusion_radius_m: float | None = None,
-    mismatch_ratio: float = 1.2,
-    precision: str = "double",
     verify_headings: int = 3,
-    scales: Sequence[float] = (1.0,),
     progress=None,
+    options: TercomOptions | None = None,
+    **option_values: Any,
 ) -> TercomResult:
     """Exhaustive TERCOM search ([TERCOM Eqs. 15-17], §4.2) of a measured profile over the whole map.
+
+    The options ``criterion``, ``estimate_bias``, ``precision``, ``min_valid_fraction``, ``exclusion_radius_m``
+    and ``mismatch_ratio`` are :class:`hadal.matching.options.TercomOptions` (their defaults are declared there
+    only): pass ``options`` or the fields as keywords (the keywords override ``options``); a value out of
+    bounds raises :class:`InputError`.
 
     Parameters
     ----------
@@ -317,194 +512,33 @@ def tercom(
         applied about the start together with every heading; ``heading_scores`` then holds the best
         value over the scales for each heading and ``scale`` the best factor.
     """
-    criterion = criterion.lower()
-    if precision not in ("double", "mixed"):
-        raise InputError(f"precision must be 'double' or 'mixed', got {precision!r}")
-    if criterion not in CRITERIA:
-        raise InputError(f"unknown TERCOM criterion {criterion!r}; use one of {', '.join(CRITERIA)}")
+    if criterion is not None:
+        option_values["criterion"] = criterion
+    o = tercom_options(options, option_values, TERCOM_FIELDS, "tercom")
     d, t = _validate_inputs(profile_depth, track_xy)
     g = MapGrid.from_any(dtm)
-    h = g.resolution_m
-    ny, nx = g.shape
     headings = [float(a) for a in headings_deg] or [0.0]
     scale_list = [float(f) for f in scales] or [1.0]
     if min(scale_list) <= 0:
         raise InputError(f"track scale factors must be > 0, got {scale_list}")
     poses = [(a, f) for a in headings for f in scale_list]
-    if not 0 < min_valid_fraction <= 1:
-        raise InputError(f"min_valid_fraction must be in (0, 1], got {min_valid_fraction}")
-
-    V = np.isfinite(g.depth_m)
-    ref = float(np.nanmean(g.depth_m))
-    D = np.where(V, g.depth_m - ref, 0.0)
-    dc = d - ref
-    rel = t - t[0]
-    snapped = [_snap(_rotate(rel, a) * f, h) for a, f in poses]
-    rmin = min(int(r.min()) for r, _ in snapped)
-    rmax = max(int(r.max()) for r, _ in snapped)
-    cmin = min(int(c.min()) for _, c in snapped)
-    cmax = max(int(c.max()) for _, c in snapped)
-    pad_lo = (max(0, -rmin), max(0, -cmin))
-    pad_hi = (max(0, rmax), max(0, cmax))
-    corr = _FFTCorrelator({"V": V.astype(float), "D": D, "D2": D * D}, pad_lo, pad_hi)
-
-    r0, r1, c0, c1 = g.region_window(region)
-    in_region = np.zeros((ny, nx), bool)
-    in_region[r0:r1, c0:c1] = True
-
-    sign = -1.0 if criterion == "cor" else 1.0  # internally minimise
-    n_req = _required_samples(min_valid_fraction, d.size)
-
-    def evaluate(k: int, single: bool):
-        rows, cols = snapped[k]
-        n, s_r, s_r2, extra = _sums_all_offsets(corr, rows, cols, dc, criterion == "cor", single)
-        feasible = (n >= n_req) & in_region
-        with np.errstate(invalid="ignore", divide="ignore"):
-            nn = np.where(feasible, n, np.nan)
-            bias = s_r / nn if estimate_bias else None
-            if criterion == "msd":
-                val = s_r2 / nn
-                if estimate_bias:
-                    val -= bias * bias
-                np.maximum(val, 0.0, out=val)  # NaN (infeasible) propagates
-            elif criterion == "mad":
-                val = np.full((ny, nx), np.nan)
-                if estimate_bias:  # the L1-optimal bias: the median residual at every offset
-                    sub, med = _mad_median_direct(D, V, rows, cols, dc, (r0, r1, c0, c1), n_req)
-                    bias = np.full((ny, nx), np.nan)
-                    bias[r0:r1, c0:c1] = med
-                    val[r0:r1, c0:c1] = np.where(feasible[r0:r1, c0:c1], sub, np.nan)
-                else:
-                    sub = _mad_direct(D, V, rows, cols, dc, None, (r0, r1, c0, c1))
-                    val[r0:r1, c0:c1] = sub / nn[r0:r1, c0:c1]
-            else:
-                s_db, s_d, s_b, s_bb, s_dd = extra
-                if estimate_bias:  # Pearson correlation of the two profiles (documented deviation)
-                    cov = s_db / nn - (s_d / nn) * (s_b / nn)
-                    vb = s_bb / nn - (s_b / nn) ** 2
-                    vd = s_dd / nn - (s_d / nn) ** 2
-                    den = np.sqrt(np.maximum(vb, 0.0) * np.maximum(vd, 0.0))
-                    val = np.where(den > 1e-12 * max(float(np.nanmax(np.abs(vd))), 1e-300), cov / den, np.nan)
-                else:  # [TERCOM Eq. 15] with the un-centred depths: d = dc + ref, b = D + ref
-                    val = (s_db + ref * (s_d + s_b)) / nn + ref * ref
-        key = sign * val
-        key[~np.isfinite(key)] = np.inf
-        return val, key, bias, n
-
-    def _exact_msd(k: int, flat: np.ndarray):
-        """MSD, valid count and bias at cells ``flat`` for pose ``k``, exactly (float64 direct gather)."""
-        rows, cols = snapped[k]
-        rc, cc_ = np.unravel_index(flat, (ny, nx))
-        rr, cc = rc[:, None] + rows[None, :], cc_[:, None] + cols[None, :]
-        inside = (rr >= 0) & (rr < ny) & (cc >= 0) & (cc < nx)
-        rr, cc = np.clip(rr, 0, ny - 1), np.clip(cc, 0, nx - 1)
-        ok = inside & V[rr, cc]
-        nn = ok.sum(axis=1)
-        res = np.where(ok, D[rr, cc] - dc[None, :], 0.0)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            b = res.sum(axis=1) / nn if estimate_bias else np.zeros(len(flat))
-            msd = np.maximum((res * res).sum(axis=1) / nn - b * b, 0.0)
-        return np.where(nn >= n_req, msd, np.nan), nn, b
-
-    def _exact_msd_at_candidates(k: int, val, key, bias, n, m: int = 64) -> np.ndarray:
-        """Recompute MSD exactly at the ``m`` lowest screened cells of pose ``k``; patch the surfaces in place."""
-        kf = key.ravel()
-        flat = np.argpartition(kf, min(m, kf.size - 1))[:m] if kf.size > m else np.arange(kf.size)
-        flat = flat[np.isfinite(kf[flat])]
-        msd, nn, b = _exact_msd(k, flat)
-        feas = np.isfinite(msd)
-        val.flat[flat] = np.where(feas, msd, np.nan)
-        key.flat[flat] = np.where(feas, msd, np.inf)
-        n.flat[flat] = nn
-        if bias is not None:
-            bias.flat[flat] = b
-        return flat
-
-    mixed = precision == "mixed" and len(poses) > verify_headings
-    all_best = np.full((ny, nx), np.inf)
-    all_pose = np.zeros((ny, nx), np.int32)
-    heading_scores: dict[float, float] = {}
-    screened: list[tuple[float, int]] = []
-    kept: list[tuple[float, int, tuple]] = []
-    best = None
-    it = range(len(poses))
-    if progress is not None:
-        it = progress.track(it, "TERCOM headings", total=len(poses))
-
-    def note_score(k: int, v: float) -> None:
-        a = poses[k][0]
-        old = heading_scores.get(a, float("nan"))
-        if not np.isfinite(old) or (np.isfinite(v) and sign * v < sign * old):
-            heading_scores[a] = v
-
-    for k in it:
-        val, key, bias, n = evaluate(k, single=mixed)
-        idx = int(np.argmin(key))
-        better = key < all_best
-        all_best[better] = key[better]
-        all_pose[better] = k
-        if not np.isfinite(key.flat[idx]):
-            note_score(k, float("nan"))
-            continue
-        note_score(k, float(val.flat[idx]))
-        screened.append((float(key.flat[idx]), k))
-        if mixed and criterion == "msd":  # keep the screened surfaces of the best few headings
-            kept.append((float(key.flat[idx]), k, (val, key, bias, n)))
-            kept.sort(key=lambda e: e[0])
-            del kept[verify_headings:]
-        if not mixed and (best is None or key.flat[idx] < best[0]):
-            best = (float(key.flat[idx]), k, idx, val, bias, n)
-    if mixed:  # verify the best-screened headings in double precision; the best of those wins
-        surfaces = {k: arrays for _, k, arrays in kept}
-        for _, k in sorted(screened)[:verify_headings]:
-            if criterion == "msd":
-                val, key, bias, n = surfaces[k]
-                flat = _exact_msd_at_candidates(k, val, key, bias, n)
-                idx = int(flat[np.argmin(key.flat[flat])])
-            else:
-                val, key, bias, n = evaluate(k, single=False)
-                idx = int(np.argmin(key))
-            note_score(k, float(val.flat[idx]))
-            if np.isfinite(key.flat[idx]) and (best is None or key.flat[idx] < best[0]):
-                best = (float(key.flat[idx]), k, idx, val, bias, n)
+    s = _Search(d, t, g, poses, o, region)
+    ny, nx = g.shape
+    mixed = o.precision == "mixed" and len(poses) > verify_headings
+    best, all_best, all_pose, heading_scores = _search_poses(s, mixed, verify_headings, progress)
     if best is None:
         raise InputError(
             f"no feasible TERCOM offset: the {d.size}-sample track (extent {np.ptp(t[:, 0]):.0f} x {np.ptp(t[:, 1]):.0f} m) "
-            f"does not fit on valid cells of the {ny} x {nx} map with min_valid_fraction={min_valid_fraction}"
+            f"does not fit on valid cells of the {ny} x {nx} map with min_valid_fraction={o.min_valid_fraction}"
         )
     _, k_best, idx, surf, bias_surf, n_surf = best
     a_best, f_best = poses[k_best]
     r, c = divmod(idx, nx)
     score = float(surf[r, c])
     bias_m = float(bias_surf[r, c]) if bias_surf is not None else 0.0
-    all_best_val = np.where(np.isfinite(all_best), sign * all_best, np.nan)
-
-    # second distinct optimum: best local optimum outside the exclusion neighbourhood
-    excl = exclusion_radius_m if exclusion_radius_m is not None else max(5 * h, 100.0)
-    key_all = np.where(np.isfinite(all_best), all_best, np.inf)
-    local = key_all == ndimage.minimum_filter(key_all, size=3, mode="constant", cval=np.inf)
-    rr, cc = np.mgrid[0:ny, 0:nx]
-    far = np.hypot((rr - r) * h, (cc - c) * h) > excl
-    cand = local & far & np.isfinite(key_all)
-    warnings: list[str] = []
-    if cand.any() and mixed and criterion == "msd":
-        # float32 screening can be off by ~0.1 m^2 on high-relief maps: re-check the best candidates exactly
-        cf = np.flatnonzero(cand)
-        cf = cf[np.argsort(key_all.flat[cf])[:32]]
-        exact = np.array([_exact_msd(int(all_pose.flat[f]), np.array([f]))[0][0] for f in cf])
-        all_best_val.flat[cf] = exact
-        key_all.flat[cf] = np.where(np.isfinite(exact), exact, np.inf)
-    if cand.any():
-        j = int(np.argmin(np.where(cand, key_all, np.inf)))
-        r2, c2 = divmod(j, nx)
-        second = float(all_best_val[r2, c2])
-        sx, sy = float(g.x_m[c2]), float(g.y_m[r2])
-        ratio, mismatch, warn = _second_optimum_verdict(criterion, score, second, sx, sy, g.x_m[c], g.y_m[r],
-                                                        mismatch_ratio, estimate_bias)
-        if warn is not None:
-            warnings.append(warn)
-    else:
-        second, sx, sy, ratio, mismatch = float("nan"), float("nan"), float("nan"), float("inf"), False
+    all_best_val = np.where(np.isfinite(all_best), s.sign * all_best, np.nan)
+    second, sx, sy, ratio, mismatch, warnings = _second_optimum(s, all_best, all_best_val, all_pose, r, c, score,
+                                                                mixed, o)
     n_valid = int(n_surf[r, c])
     if n_valid < d.size:
         warnings.append(f"{d.size - n_valid} of {d.size} samples fall on invalid map cells at the best offset")
@@ -512,9 +546,9 @@ def tercom(
     if r in (0, ny - 1) or c in (0, nx - 1) or not np.isfinite(nb).all():
         warnings.append("best offset lies on the edge of the feasible search region; the true position may be outside it")
 
-    sig_x, sig_y = _likelihood_sigma(surf if criterion == "msd" else None, r, c, score, n_valid, h)
+    sig_x, sig_y = _likelihood_sigma(surf if o.criterion == "msd" else None, r, c, score, n_valid, g.resolution_m)
     return TercomResult(
-        criterion=criterion, start_x_m=float(g.x_m[c]), start_y_m=float(g.y_m[r]), start_row=r, start_col=c,
+        criterion=o.criterion, start_x_m=float(g.x_m[c]), start_y_m=float(g.y_m[r]), start_row=r, start_col=c,
         heading_deg=a_best, score=score, bias_m=bias_m, n_samples=int(d.size), n_valid=n_valid,
         surface=surf, surface_all_headings=all_best_val, bias_surface=bias_surf, x_m=g.x_m, y_m=g.y_m,
         heading_scores=heading_scores, second_score=second, second_x_m=sx, second_y_m=sy,
@@ -546,13 +580,18 @@ def _likelihood_sigma(msd: np.ndarray | None, r: int, c: int, msd_min: float, n:
     return float(np.sqrt(vx + q)), float(np.sqrt(vy + q))
 
 
-def tercom_direct(profile_depth, track_xy, dtm, starts_rc, criterion: str = "msd", *, estimate_bias: bool = True,
-                  heading_deg: float = 0.0, min_valid_fraction: float = 0.95, scale: float = 1.0) -> np.ndarray:
+def tercom_direct(profile_depth, track_xy, dtm, starts_rc, criterion: str | None = None, *, heading_deg: float = 0.0,
+                  scale: float = 1.0, options: TercomOptions | None = None, **option_values: Any) -> np.ndarray:
     """Reference implementation: [TERCOM Eqs. 15-17] evaluated offset by offset with a plain NumPy loop.
 
-    Same sampling convention as :func:`tercom` (nearest cell relative to the start). ``starts_rc`` is
+    Same sampling convention and options as :func:`tercom` (nearest cell relative to the start; ``criterion``,
+    ``estimate_bias``, ``min_valid_fraction`` of :class:`hadal.matching.options.TercomOptions`). ``starts_rc`` is
     an (K, 2) array of start (row, col) cells. Slow - used by the tests and the benchmark as the peer.
     """
+    if criterion is not None:
+        option_values["criterion"] = criterion
+    o = tercom_options(options, option_values, DIRECT_FIELDS, "tercom_direct")
+    criterion, estimate_bias, min_valid_fraction = o.criterion, o.estimate_bias, o.min_valid_fraction
     d, t = _validate_inputs(profile_depth, track_xy)
     g = MapGrid.from_any(dtm)
     rows, cols = _snap(_rotate(t - t[0], heading_deg) * scale, g.resolution_m)
@@ -581,23 +620,173 @@ def tercom_direct(profile_depth, track_xy, dtm, starts_rc, criterion: str = "msd
     return out
 
 
+class _PoseFit:
+    """The refinement's likelihood: the [TERCOM Eq. 17] MSD (closed-form bias when ``estimate_bias``) of the track
+    posed at (start x, start y, heading, scale) on the bilinear map, inf outside the bounds / ``region`` or with too
+    few valid samples; :meth:`fit` a bounded Nelder-Mead search from a seed pose."""
+
+    def __init__(self, d: np.ndarray, t: np.ndarray, g: MapGrid, hb: tuple, sb: tuple, reg: tuple,
+                 estimate_bias: bool, min_valid_fraction: float):
+        self.d, self.g, self.hb, self.sb, self.reg = d, g, hb, sb, reg
+        self.rel = t - t[0]
+        self.estimate_bias, self.min_valid_fraction = estimate_bias, min_valid_fraction
+        self.n_req = _required_samples(min_valid_fraction, d.size)
+        h = g.resolution_m
+        # free parameters: start x/y always; heading and scale only where their bounds leave room. Simplex
+        # steps never exceed half the bounded range (else the simplex collapses onto the bound).
+        self.free = [True, True, hb[1] > hb[0], sb[1] > sb[0]]
+        self.lo = np.array([reg[0], reg[2], hb[0], sb[0]])
+        self.hi = np.array([reg[1], reg[3], hb[1], sb[1]])
+        self.base_step = np.array([h, h, max(0.25 * (hb[1] - hb[0]), 0.1), max(0.25 * (sb[1] - sb[0]), 0.002)])
+        self.idx = [i for i in range(4) if self.free[i]]
+
+    def residuals(self, p):
+        x0, y0, a, sc = p
+        q = _rotate(self.rel, a) * sc
+        return self.g.sample_bilinear(q[:, 0] + x0, q[:, 1] + y0) - self.d
+
+    def cost(self, p, keep=None):
+        x0, y0, a, sc = p
+        hb, sb, reg = self.hb, self.sb, self.reg
+        if not (hb[0] <= a <= hb[1] and sb[0] <= sc <= sb[1] and reg[0] <= x0 <= reg[1] and reg[2] <= y0 <= reg[3]):
+            return np.inf
+        r = self.residuals(p)
+        ok = np.isfinite(r)
+        if keep is not None:
+            ok &= keep
+            if ok.sum() < self.min_valid_fraction * keep.sum():
+                return np.inf
+        elif ok.sum() < self.n_req:
+            return np.inf
+        r = r[ok]
+        return float(np.mean((r - r.mean()) ** 2)) if self.estimate_bias else float(np.mean(r * r))
+
+    def fit(self, s0, keep=None):
+        """``(MSD, pose)`` of the Nelder-Mead search from ``s0`` (samples ``keep`` only, when given); never worse
+        than the start under the same (bilinear) MSD."""
+        from scipy.optimize import minimize
+
+        idx, lo, hi, hb, sb = self.idx, self.lo, self.hi, self.hb, self.sb
+        full0 = np.array([s0[0], s0[1], np.clip(s0[2], *hb), np.clip(s0[3], *sb)], float)
+        x = full0[idx].copy()
+        steps = []
+        for j, i in enumerate(idx):
+            st = self.base_step[i]
+            if np.isfinite(hi[i] - lo[i]):
+                narrow = (hi[i] - lo[i]) < 2 * st
+                st = min(st, 0.5 * (hi[i] - lo[i]))
+                if i >= 2 and narrow and (x[j] <= lo[i] or x[j] >= hi[i]):
+                    x[j] = 0.5 * (lo[i] + hi[i])  # a narrow range: start inside it, not on its bound
+            steps.append(st)
+        simplex = [x]
+        for j, i in enumerate(idx):
+            v = x.copy()
+            v[j] = x[j] + steps[j] if x[j] + steps[j] <= hi[i] else x[j] - steps[j]
+            simplex.append(v)
+
+        def unpack(v):
+            p = full0.copy()
+            p[idx] = v
+            return p
+
+        with _warnings.catch_warnings(), np.errstate(all="ignore"):  # no optimiser warning reaches the user
+            _warnings.simplefilter("ignore")
+            o = minimize(lambda v: self.cost(unpack(v), keep), x, method="Nelder-Mead",
+                         options={"initial_simplex": np.array(simplex), "xatol": 0.05, "fatol": 1e-4, "maxiter": 800})
+        f0 = self.cost(full0, keep)
+        if not (np.isfinite(o.fun) and o.fun < f0):  # never worse than the start under the same (bilinear) MSD
+            return float(f0), full0
+        return float(o.fun), unpack(o.x)
+
+
+def _refine_seeds(coarse: TercomResult, g: MapGrid, pf: _PoseFit, n_seeds: int) -> list[tuple]:
+    """The coarse optimum, then the ``n_seeds`` best distinct local minima of the best-over-headings surface (each
+    at the coarse heading that fits it best)."""
+    hb, sb = pf.hb, pf.sb
+    surf = np.where(np.isfinite(coarse.surface_all_headings), coarse.surface_all_headings, np.inf)
+    local = (surf == ndimage.minimum_filter(surf, size=5, mode="constant", cval=np.inf)) & np.isfinite(surf)
+    flat = np.flatnonzero(local)
+    flat = flat[np.argsort(surf.flat[flat], kind="stable")[:n_seeds]]
+    headings = sorted(coarse.heading_scores) or [coarse.heading_deg]
+    seeds = [(coarse.start_x_m, coarse.start_y_m, coarse.heading_deg, coarse.scale)]
+    for f in flat:
+        r, c = divmod(int(f), g.shape[1])
+        x0, y0 = float(g.x_m[c]), float(g.y_m[r])
+        if (x0, y0) == seeds[0][:2]:
+            continue
+        a = min(headings, key=lambda a, x0=x0, y0=y0: pf.cost((x0, y0, float(np.clip(a, *hb)), float(np.clip(coarse.scale, *sb)))))
+        seeds.append((x0, y0, a, coarse.scale))
+    return seeds
+
+
+def _refined_verdict(fits: list, coarse: TercomResult, pose, score: float, rank: int, n_seeds_tried: int,
+                     n_valid: int, n: int, pf: _PoseFit, o: TercomOptions):
+    """Second distinct optimum among the refined seeds and the refined fix's warnings:
+    ``(second, x, y, separation ratio, mismatch, warnings)``."""
+    h = pf.g.resolution_m
+    x0, y0 = float(pose[0]), float(pose[1])
+    excl = o.exclusion_radius_m if o.exclusion_radius_m is not None else max(5 * h, 100.0)
+    others = [f for f in fits if np.hypot(f[1][0] - x0, f[1][1] - y0) > excl]
+    warnings = [w for w in coarse.warnings if "fall on invalid map cells" not in w and "possible mismatch" not in w]
+    if others:
+        s2, p2, _ = min(others, key=lambda f: f[0])
+        second, sx, sy = float(s2), float(p2[0]), float(p2[1])
+        ratio, mismatch, warn = _second_optimum_verdict("msd", score, second, sx, sy, x0, y0, o.mismatch_ratio,
+                                                        o.estimate_bias)
+        if warn is not None:
+            warnings.append(warn)
+    else:
+        second, sx, sy, ratio, mismatch = coarse.second_score, coarse.second_x_m, coarse.second_y_m, float("nan"), coarse.mismatch
+    if n_valid < n:
+        warnings.append(f"{n - n_valid} of {n} samples fall on invalid map cells at the refined fix")
+    moved = float(np.hypot(x0 - coarse.start_x_m, y0 - coarse.start_y_m))
+    if moved > h:
+        warnings.append(f"sub-cell refinement moved the fix {moved:.0f} m from the coarse optimum"
+                        + (f" (seed {rank} of {n_seeds_tried} fitted better)" if rank > 0 else ""))
+    at_bound = [name for name, i in (("heading", 2), ("scale", 3))
+                if pf.free[i] and (np.isclose(pose[i], pf.lo[i]) or np.isclose(pose[i], pf.hi[i]))]
+    if at_bound:
+        warnings.append(f"refined {' and '.join(at_bound)} on the search bound; widen heading_range_deg / refine_scale_range")
+    return second, sx, sy, ratio, mismatch, warnings
+
+
+def _jackknife_sigma(pf: _PoseFit, pose, n: int, blocks: int) -> tuple[float, float, int]:
+    """Delete-a-block jackknife of the start position (DR random walk the rigid pose cannot follow):
+    ``(sigma_x, sigma_y, blocks used)``, NaN with fewer than 2 feasible refits."""
+    jk = []
+    if blocks >= 2 and n >= 4 * blocks:
+        block = np.minimum((np.arange(n) * blocks) // n, blocks - 1)
+        for k in range(blocks):
+            fun, p_k = pf.fit(pose, keep=block != k)
+            if np.isfinite(fun):
+                jk.append(p_k[:2])
+    jx = jy = float("nan")
+    if len(jk) >= 2:
+        a = np.array(jk)
+        var_j = (len(a) - 1) / len(a) * ((a - a.mean(axis=0)) ** 2).sum(axis=0)
+        jx, jy = (float(v) for v in np.sqrt(var_j))
+    return jx, jy, len(jk)
+
+
 def refine_tercom(
     profile_depth,
     track_xy,
     dtm,
     coarse: TercomResult,
     *,
-    estimate_bias: bool = True,
-    n_seeds: int = 12,
     heading_bounds_deg: tuple[float, float] | None = None,
-    scale_bounds: tuple[float, float] = (0.95, 1.05),
+    scale_bounds: tuple[float, float] | None = None,
     region: tuple[float, float, float, float] | None = None,
-    min_valid_fraction: float = 0.8,
-    exclusion_radius_m: float | None = None,
-    mismatch_ratio: float = 1.2,
     jackknife_blocks: int = 8,
+    options: TercomOptions | None = None,
+    **option_values: Any,
 ) -> TercomResult:
     """Continuous refinement of a coarse TERCOM (MSD) fix: sub-cell start, heading and track scale.
+
+    Options (:class:`hadal.matching.options.TercomOptions`, defaults declared there only; ``options`` or the
+    fields as keywords): ``estimate_bias``, ``min_valid_fraction``, ``exclusion_radius_m``, ``mismatch_ratio``,
+    ``refine_seeds`` (the ``n_seeds`` below) and ``refine_scale_range`` (``scale_bounds`` default
+    ``1 -+ refine_scale_range``). ``heading_bounds_deg`` default: the coarse heading +-1 deg.
 
     **Deviation from the paper, and why.** §4.2 stops at the map resolution: the track is snapped to
     whole cells and the best cell wins. On steep terrain the half-cell snapping error (up to 10 m at
@@ -624,99 +813,21 @@ def refine_tercom(
     """
     from dataclasses import replace
 
-    from scipy.optimize import minimize
-
+    o = tercom_options(options, option_values, REFINE_FIELDS, "refine_tercom")
+    if scale_bounds is None:
+        scale_bounds = (1.0 - o.refine_scale_range, 1.0 + o.refine_scale_range)
     if coarse.criterion != "msd":
         raise InputError(f"sub-cell refinement is implemented for MSD only, not {coarse.criterion.upper()}")
-    if not 0 < min_valid_fraction <= 1:
-        raise InputError(f"min_valid_fraction must be in (0, 1], got {min_valid_fraction}")
     d, t = _validate_inputs(profile_depth, track_xy)
     g = MapGrid.from_any(dtm)
-    h = g.resolution_m
-    rel = t - t[0]
-    n_req = _required_samples(min_valid_fraction, d.size)
     hb = tuple(heading_bounds_deg) if heading_bounds_deg is not None else (coarse.heading_deg - 1.0, coarse.heading_deg + 1.0)
     sb = tuple(scale_bounds)
     if hb[0] > hb[1] or sb[0] > sb[1] or sb[0] <= 0:
         raise InputError(f"invalid refinement bounds: heading {hb}, scale {sb}")
     reg = region if region is not None else (-np.inf, np.inf, -np.inf, np.inf)
-
-    def residuals(p):
-        x0, y0, a, sc = p
-        q = _rotate(rel, a) * sc
-        return g.sample_bilinear(q[:, 0] + x0, q[:, 1] + y0) - d
-
-    def cost(p, keep=None):
-        x0, y0, a, sc = p
-        if not (hb[0] <= a <= hb[1] and sb[0] <= sc <= sb[1] and reg[0] <= x0 <= reg[1] and reg[2] <= y0 <= reg[3]):
-            return np.inf
-        r = residuals(p)
-        ok = np.isfinite(r)
-        if keep is not None:
-            ok &= keep
-            if ok.sum() < min_valid_fraction * keep.sum():
-                return np.inf
-        elif ok.sum() < n_req:
-            return np.inf
-        r = r[ok]
-        return float(np.mean((r - r.mean()) ** 2)) if estimate_bias else float(np.mean(r * r))
-
-    # seeds: the coarse optimum, then distinct local minima of the best-over-headings surface
-    surf = np.where(np.isfinite(coarse.surface_all_headings), coarse.surface_all_headings, np.inf)
-    local = (surf == ndimage.minimum_filter(surf, size=5, mode="constant", cval=np.inf)) & np.isfinite(surf)
-    flat = np.flatnonzero(local)
-    flat = flat[np.argsort(surf.flat[flat], kind="stable")[:n_seeds]]
-    headings = sorted(coarse.heading_scores) or [coarse.heading_deg]
-    seeds = [(coarse.start_x_m, coarse.start_y_m, coarse.heading_deg, coarse.scale)]
-    for f in flat:
-        r, c = divmod(int(f), g.shape[1])
-        x0, y0 = float(g.x_m[c]), float(g.y_m[r])
-        if (x0, y0) == seeds[0][:2]:
-            continue
-        a = min(headings, key=lambda a, x0=x0, y0=y0: cost((x0, y0, float(np.clip(a, *hb)), float(np.clip(coarse.scale, *sb)))))
-        seeds.append((x0, y0, a, coarse.scale))
-
-    # free parameters: start x/y always; heading and scale only where their bounds leave room. Simplex
-    # steps never exceed half the bounded range (else the simplex collapses onto the bound).
-    free = [True, True, hb[1] > hb[0], sb[1] > sb[0]]
-    lo = np.array([reg[0], reg[2], hb[0], sb[0]])
-    hi = np.array([reg[1], reg[3], hb[1], sb[1]])
-    base_step = np.array([h, h, max(0.25 * (hb[1] - hb[0]), 0.1), max(0.25 * (sb[1] - sb[0]), 0.002)])
-    idx = [i for i in range(4) if free[i]]
-
-    def fit(s0, keep=None):
-        full0 = np.array([s0[0], s0[1], np.clip(s0[2], *hb), np.clip(s0[3], *sb)], float)
-        x = full0[idx].copy()
-        steps = []
-        for j, i in enumerate(idx):
-            st = base_step[i]
-            if np.isfinite(hi[i] - lo[i]):
-                narrow = (hi[i] - lo[i]) < 2 * st
-                st = min(st, 0.5 * (hi[i] - lo[i]))
-                if i >= 2 and narrow and (x[j] <= lo[i] or x[j] >= hi[i]):
-                    x[j] = 0.5 * (lo[i] + hi[i])  # a narrow range: start inside it, not on its bound
-            steps.append(st)
-        simplex = [x]
-        for j, i in enumerate(idx):
-            v = x.copy()
-            v[j] = x[j] + steps[j] if x[j] + steps[j] <= hi[i] else x[j] - steps[j]
-            simplex.append(v)
-
-        def unpack(v):
-            p = full0.copy()
-            p[idx] = v
-            return p
-
-        with _warnings.catch_warnings(), np.errstate(all="ignore"):  # no optimiser warning reaches the user
-            _warnings.simplefilter("ignore")
-            o = minimize(lambda v: cost(unpack(v), keep), x, method="Nelder-Mead",
-                         options={"initial_simplex": np.array(simplex), "xatol": 0.05, "fatol": 1e-4, "maxiter": 800})
-        f0 = cost(full0, keep)
-        if not (np.isfinite(o.fun) and o.fun < f0):  # never worse than the start under the same (bilinear) MSD
-            return float(f0), full0
-        return float(o.fun), unpack(o.x)
-
-    fits = [(*fit(s0), rank) for rank, s0 in enumerate(seeds)]
+    pf = _PoseFit(d, t, g, hb, sb, reg, o.estimate_bias, o.min_valid_fraction)
+    seeds = _refine_seeds(coarse, g, pf, o.refine_seeds)
+    fits = [(*pf.fit(s0), rank) for rank, s0 in enumerate(seeds)]
     fits = [f for f in fits if np.isfinite(f[0])]
     if not fits:
         return replace(coarse, warnings=[*coarse.warnings, "sub-cell refinement found no feasible pose; coarse fix kept"])
@@ -727,48 +838,16 @@ def refine_tercom(
     if own and rank != 0 and score > own[0][0] * (1.0 - 2.0 / max(d.size, 1)):
         score, pose, rank = own[0]
     x0, y0, a, sc = (float(v) for v in pose)
-    res = residuals(pose)
+    res = pf.residuals(pose)
     ok = np.isfinite(res)
-    bias = float(np.mean(res[ok])) if estimate_bias else 0.0
+    bias = float(np.mean(res[ok])) if o.estimate_bias else 0.0
     n_valid = int(ok.sum())
-
-    # second distinct optimum among the refined seeds
-    excl = exclusion_radius_m if exclusion_radius_m is not None else max(5 * h, 100.0)
-    others = [f for f in fits if np.hypot(f[1][0] - x0, f[1][1] - y0) > excl]
-    warnings = [w for w in coarse.warnings if "fall on invalid map cells" not in w and "possible mismatch" not in w]
-    if others:
-        s2, p2, _ = min(others, key=lambda f: f[0])
-        second, sx, sy = float(s2), float(p2[0]), float(p2[1])
-        ratio, mismatch, warn = _second_optimum_verdict("msd", score, second, sx, sy, x0, y0, mismatch_ratio, estimate_bias)
-        if warn is not None:
-            warnings.append(warn)
-    else:
-        second, sx, sy, ratio, mismatch = coarse.second_score, coarse.second_x_m, coarse.second_y_m, float("nan"), coarse.mismatch
-    if n_valid < d.size:
-        warnings.append(f"{d.size - n_valid} of {d.size} samples fall on invalid map cells at the refined fix")
-    moved = float(np.hypot(x0 - coarse.start_x_m, y0 - coarse.start_y_m))
-    if moved > h:
-        warnings.append(f"sub-cell refinement moved the fix {moved:.0f} m from the coarse optimum"
-                        + (f" (seed {rank} of {len(seeds)} fitted better)" if rank > 0 else ""))
-    at_bound = [name for name, i in (("heading", 2), ("scale", 3)) if free[i] and (np.isclose(pose[i], lo[i]) or np.isclose(pose[i], hi[i]))]
-    if at_bound:
-        warnings.append(f"refined {' and '.join(at_bound)} on the search bound; widen heading_range_deg / refine_scale_range")
-
-    # delete-a-block jackknife of the start position (DR random walk the rigid pose cannot follow)
-    jk = []
-    if jackknife_blocks >= 2 and d.size >= 4 * jackknife_blocks:
-        block = np.minimum((np.arange(d.size) * jackknife_blocks) // d.size, jackknife_blocks - 1)
-        for k in range(jackknife_blocks):
-            fun, p_k = fit(pose, keep=block != k)
-            if np.isfinite(fun):
-                jk.append(p_k[:2])
-    jx = jy = float("nan")
-    if len(jk) >= 2:
-        jk = np.array(jk)
-        var_j = (len(jk) - 1) / len(jk) * ((jk - jk.mean(axis=0)) ** 2).sum(axis=0)
-        jx, jy = (float(v) for v in np.sqrt(var_j))
+    second, sx, sy, ratio, mismatch, warnings = _refined_verdict(fits, coarse, pose, score, rank, len(seeds), n_valid,
+                                                                 d.size, pf, o)
+    jx, jy, n_jk = _jackknife_sigma(pf, pose, d.size, jackknife_blocks)
     sig_x = float(np.hypot(coarse.sigma_x_m, jx)) if np.isfinite(jx) else coarse.sigma_x_m
     sig_y = float(np.hypot(coarse.sigma_y_m, jy)) if np.isfinite(jy) else coarse.sigma_y_m
+    moved = float(np.hypot(x0 - coarse.start_x_m, y0 - coarse.start_y_m))
     return replace(
         coarse, start_x_m=x0, start_y_m=y0, heading_deg=a, scale=sc, score=score, bias_m=bias, n_valid=n_valid,
         start_row=int(np.clip(np.rint(g.row_of(y0)), 0, g.shape[0] - 1)),
@@ -781,5 +860,5 @@ def refine_tercom(
                                "separation_ratio": coarse.separation_ratio},
                     "seeds": len(seeds), "winning_seed": rank, "moved_m": moved,
                     "heading_bounds_deg": list(hb), "scale_bounds": list(sb),
-                    "jackknife_sigma_m": {"east": jx, "north": jy, "blocks": int(len(jk))}},
+                    "jackknife_sigma_m": {"east": jx, "north": jy, "blocks": int(n_jk)}},
     )

@@ -4,14 +4,15 @@
   compliance-checker's CF-1.8 and ACDD-1.3 checks need, so stages only describe their science:
   global discovery attributes (``id``, ``naming_authority``, ``keywords``, ``license``, ``creator_*``,
   ``institution``, ``standard_name_vocabulary``, ``product_version``, ``processing_level``, ...),
-  ``geospatial_*`` / ``time_coverage_*`` computed from the data, and per variable ``units`` (from the
-  name suffix when missing), ``long_name``, ``coverage_content_type``, ``actual_range``, ``_FillValue``,
+  ``geospatial_*`` / ``time_coverage_*`` computed from the data, and per variable the attributes declared in
+  ``schemas/variables.yaml`` (:mod:`hadal.products.registry`: ``units``, ``standard_name``, ``long_name``,
+  ``coverage_content_type``, flags; a variable not declared there is refused), ``actual_range``, ``_FillValue``,
   ``coordinates`` (2-D lat/lon are promoted to coordinates), ``grid_mapping`` (any variable holding a
   ``grid_mapping_name``/``crs_wkt``), CF flag attributes for QARTOD ``*_qc`` and boolean flags.
-* :func:`write_parquet` stores per-column ``units``/``standard_name``/``long_name`` as Arrow field
-  metadata *and* as JSON in the file's key-value metadata (``hadal`` key: table metadata, ``columns``,
-  provenance), so pandas (``df.attrs``), polars (``pl.read_parquet_metadata``), duckdb
-  (``parquet_kv_metadata``) and pyarrow all see it.
+* :func:`write_parquet` stores per-column ``units``/``standard_name``/``long_name`` (from the registry, the
+  caller's win; an undeclared column is refused) as Arrow field metadata *and* as JSON in the file's
+  key-value metadata (``hadal`` key: table metadata, ``columns``, provenance), so pandas (``df.attrs``),
+  polars (``pl.read_parquet_metadata``), duckdb (``parquet_kv_metadata``) and pyarrow all see it.
 
 Discovery attributes that describe the operator (creator, institution, project, license, ...) come from the
 dive's ``dive.yaml`` ``metadata`` (else ``HADAL_<ATTRIBUTE>`` environment variables), never from a placeholder;
@@ -38,13 +39,8 @@ import xarray as xr
 from hadal import __version__
 from hadal.errors import InputError
 from hadal.products.cf import (
-    COLUMN_ATTRS,
-    QARTOD_FLAG_MEANINGS,
-    QARTOD_FLAG_VALUES,
     STANDARD_NAME_VOCABULARY,
     is_axis_edge,
-    long_name_from_name,
-    netcdf_variable_attrs,
     units_from_name,
 )
 from hadal.products.metadata import (
@@ -55,13 +51,11 @@ from hadal.products.metadata import (
     relative_to_raw,
     store_relative,
 )
+from hadal.products.registry import registry, variable_attrs
 
 #: Attributes of every NetCDF product that are facts about hadal (no operator placeholders: who made the data
 #: comes from dive.yaml ``metadata`` or ``HADAL_<NAME>``, see :mod:`hadal.products.metadata`).
 GLOBAL_DEFAULTS: dict[str, str] = dict(HADAL_FACTS)
-
-_LAT_NAMES = ("lat", "latitude", "latitude_deg")
-_LON_NAMES = ("lon", "longitude", "longitude_deg")
 
 
 @functools.lru_cache(maxsize=1)
@@ -108,17 +102,18 @@ def provenance(source: Any = None) -> dict[str, Any]:
 
 
 # ---------------------------------------------------------------------------------------------- Parquet
-def column_attrs(name: str, given: Mapping[str, Any] | None = None) -> dict[str, str]:
-    """CF attributes of a column: the caller's, completed from :data:`COLUMN_ATTRS` and the name suffix."""
-    out: dict[str, str] = {}
-    base = COLUMN_ATTRS.get(name)
-    if base is None and name.endswith("_qc"):
-        base = {"long_name": f"QARTOD flag of {name[:-3]}",
-                "flag_values": " ".join(map(str, QARTOD_FLAG_VALUES)), "flag_meanings": QARTOD_FLAG_MEANINGS}
-    out.update(base or {})
-    if "units" not in out and (u := units_from_name(name)) is not None:
-        out["units"] = u
-    out.setdefault("long_name", long_name_from_name(name))
+#: registry attributes that describe NetCDF variables only (not written into Parquet field metadata)
+_NETCDF_ONLY = ("coverage_content_type", "axis")
+
+
+def _field_text(v: Any) -> str:
+    return " ".join(map(str, v)) if isinstance(v, (list, tuple)) else str(v)
+
+
+def column_attrs(name: str, given: Mapping[str, Any] | None = None, *, where: str = "") -> dict[str, str]:
+    """CF attributes of a column: the ones ``schemas/variables.yaml`` declares, the caller's winning. A column
+    the registry does not declare raises :class:`hadal.products.registry.UndeclaredVariableError`."""
+    out = {k: _field_text(v) for k, v in variable_attrs(name, where=where).items() if k not in _NETCDF_ONLY}
     out.update({k: str(v) for k, v in (given or {}).items() if v is not None})
     return out
 
@@ -133,9 +128,9 @@ def write_parquet(
 ) -> Path:
     """Write ``df`` to Parquet (zstd) with self-describing metadata.
 
-    ``fields[col] = {units, standard_name, long_name, ...}`` (completed from the CF column table and the
-    name's unit suffix) go into each Arrow field's metadata and, with ``metadata`` and a provenance
-    block, into the file key-value metadata as JSON: ``hadal`` = ``{**metadata, "columns": {...},
+    ``fields[col] = {units, standard_name, long_name, ...}`` (completed from the variable registry,
+    ``schemas/variables.yaml``; an undeclared column is refused) go into each Arrow field's metadata and,
+    with ``metadata`` and a provenance block, into the file key-value metadata as JSON: ``hadal`` = ``{**metadata, "columns": {...},
     "provenance": {...}}``; the same JSON is stored as ``PANDAS_ATTRS`` so ``pd.read_parquet(p).attrs``
     returns it. ``provenance_from`` may be the store ``Draft`` being written (adds dive, product,
     parameters, upstream versions).
@@ -145,7 +140,7 @@ def write_parquet(
         raise InputError(f"write_parquet({path.name}): expected a pandas DataFrame, got {type(df).__name__}")
     table = pa.Table.from_pandas(df, preserve_index=False)
     fields = fields or {}
-    cols = {f.name: column_attrs(f.name, fields.get(f.name)) for f in table.schema}
+    cols = {f.name: column_attrs(f.name, fields.get(f.name), where=path.name) for f in table.schema}
     new_fields = [f.with_metadata(cols[f.name]) if cols[f.name] else f for f in table.schema]
     dive, product = _store_location(path)
     prov_src = provenance_from if provenance_from is not None else (
@@ -207,12 +202,20 @@ def _json_default(obj: Any) -> Any:
 
 
 # ---------------------------------------------------------------------------------------------- NetCDF
+def _standard_name(name: str, var: xr.DataArray) -> str | None:
+    """The variable's own standard_name, else the one the registry declares for its name."""
+    if var.attrs.get("standard_name"):
+        return str(var.attrs["standard_name"])
+    spec = registry().find(name)
+    return spec.standard_name if spec is not None else None
+
+
 def _is_lat(name: str, var: xr.DataArray) -> bool:
-    return var.attrs.get("standard_name") == "latitude" or name.lower() in _LAT_NAMES
+    return _standard_name(name, var) == "latitude"
 
 
 def _is_lon(name: str, var: xr.DataArray) -> bool:
-    return var.attrs.get("standard_name") == "longitude" or name.lower() in _LON_NAMES
+    return _standard_name(name, var) == "longitude"
 
 
 def _is_grid_mapping(var: xr.DataArray) -> bool:
@@ -252,17 +255,6 @@ def _fill_grid_mapping(var: xr.DataArray) -> None:
         var.attrs.setdefault(k, v)
 
 
-def _coverage_type(name: str, var: xr.DataArray) -> str:
-    low = name.lower()
-    if "flag_values" in var.attrs or "flag_meanings" in var.attrs or low.endswith("_qc"):
-        return "qualityInformation"
-    if any(t in low for t in ("uncertainty", "std", "error", "count", "sigma")):
-        return "auxiliaryInformation"
-    if any(t in low for t in ("entropy", "suitab", "msd", "score", "slope", "rough", "landing", "proposed")):
-        return "modelResult"
-    return "physicalMeasurement"
-
-
 def _cf_integer_type(var: xr.Variable) -> xr.Variable:
     """CF-1.8 §2.2 allows only signed byte/short/int: 64-bit integers become int32 and unsigned integers
     the smallest signed type holding every value (uint8 QARTOD flags -> int8), when the values fit."""
@@ -285,36 +277,31 @@ def _cf_integer_type(var: xr.Variable) -> xr.Variable:
 
 
 def _prepare_variable(name: str, var: xr.Variable, *, is_coord: bool, is_dim_coord: bool,
-                      grid_mapping: str | None, yx_dims: tuple[str, str] | None) -> xr.Variable:
-    attrs = dict(var.attrs)
+                      grid_mapping: str | None, yx_dims: tuple[str, str] | None, where: str = "") -> xr.Variable:
+    """``var`` with its CF attributes and encoding: the attributes ``schemas/variables.yaml`` declares for
+    ``name`` (as a y/x map-grid layer when it lies on one), the caller's winning, plus the structural CF rules
+    (time encoding, boolean flags, integer narrowing, ``_FillValue``, ``actual_range``, ``grid_mapping``). An
+    undeclared variable raises :class:`hadal.products.registry.UndeclaredVariableError`."""
+    on_grid = yx_dims is not None and set(yx_dims) <= set(var.dims)
+    declared = variable_attrs(name, on_grid, where)
+    declared_coverage = declared.pop("coverage_content_type", None)
+    attrs = {**declared, **dict(var.attrs)}  # the caller's attributes win
     enc = dict(var.encoding)
     enc.pop("coordinates", None)  # xarray writes `coordinates` from the dataset's coordinates
-    var = _cf_integer_type(var)
+    var = _cf_integer_type(xr.Variable(var.dims, var.data, attrs))
     enc.pop("dtype", None) if var.dtype.kind in "iu" else None
     if np.issubdtype(var.dtype, np.bool_):
         var = var.astype("i1")
         attrs.setdefault("flag_values", np.array([0, 1], dtype="i1"))
         attrs.setdefault("flag_meanings", f"not_{name} {name}")
         attrs.pop("units", None)
-    elif name.endswith("_qc") and np.issubdtype(var.dtype, np.integer) and "flag_values" not in attrs:
-        attrs["flag_values"] = np.array(QARTOD_FLAG_VALUES, dtype=var.dtype)
-        attrs["flag_meanings"] = QARTOD_FLAG_MEANINGS
-        attrs.setdefault("standard_name", "aggregate_quality_flag")
-    elif np.issubdtype(var.dtype, np.integer) and "flag_values" not in attrs and "flag_masks" not in attrs \
-            and "units" not in attrs and units_from_name(name) is None and var.size \
-            and set(np.unique(np.asarray(var.values)).tolist()) <= {0, 1}:
-        # a 0/1 integer mask without units: describe it as a CF flag
-        attrs["flag_values"] = np.array([0, 1], dtype=var.dtype)
-        attrs["flag_meanings"] = f"not_{name} {name}"
     for k in ("flag_values", "flag_masks"):
         if k in attrs and np.issubdtype(var.dtype, np.integer):
             attrs[k] = np.asarray(attrs[k]).astype(var.dtype)
     is_flag = "flag_values" in attrs or "flag_masks" in attrs
     is_time = np.issubdtype(var.dtype, np.datetime64)
-    on_grid = bool(yx_dims) and set(yx_dims) <= set(var.dims)
     if is_time:
         attrs.setdefault("standard_name", "time")
-        attrs.setdefault("long_name", "time")
         attrs.pop("units", None)  # xarray writes CF time units from the encoding
         enc.setdefault("units", "seconds since 1970-01-01T00:00:00Z")
         enc.setdefault("calendar", "standard")
@@ -326,37 +313,18 @@ def _prepare_variable(name: str, var: xr.Variable, *, is_coord: bool, is_dim_coo
             attrs["units"], attrs["calendar"] = enc.pop("units"), enc.pop("calendar")
             enc.pop("dtype", None)
             enc["_FillValue"] = np.nan
-    if not is_flag and not is_time and "units" not in attrs and np.issubdtype(var.dtype, np.number):
-        u = units_from_name(name)
-        if u is not None:
-            attrs["units"] = u
-    if name.lower() in _LAT_NAMES:
-        attrs.setdefault("standard_name", "latitude")
-        attrs["units"] = attrs.get("units", "degrees_north")
-    if name.lower() in _LON_NAMES:
-        attrs.setdefault("standard_name", "longitude")
-        attrs["units"] = attrs.get("units", "degrees_east")
-    if yx_dims and name in yx_dims and var.dims == (name,):
-        attrs.setdefault("standard_name", "projection_y_coordinate" if name == yx_dims[0] else "projection_x_coordinate")
-        attrs.setdefault("axis", "Y" if name == yx_dims[0] else "X")
-        attrs.setdefault("units", "m")
-    if not is_flag and not is_time and "standard_name" not in attrs and np.issubdtype(var.dtype, np.number):
-        for k, v in netcdf_variable_attrs(name, on_grid).items():
-            attrs.setdefault(k, v)
     if str(attrs.get("standard_name", "")).endswith("number_of_observations"):
         attrs["units"] = "1"  # CF Appendix C: the number_of_observations modifier has units 1
     if is_dim_coord and attrs.get("units") == "dbar":
         attrs.setdefault("positive", "down")
         attrs.setdefault("axis", "Z")
-    if attrs.get("standard_name") in ("depth", "sea_floor_depth_below_sea_surface") or (
-        name.lower().startswith("depth") and attrs.get("units") == "m"
-    ):
-        attrs.setdefault("positive", "down")
-    attrs.setdefault("long_name", long_name_from_name(name))
+    if attrs.get("standard_name") in ("depth", "sea_floor_depth_below_sea_surface"):
+        attrs.setdefault("positive", "down")  # CF: these standard names are positive down
     if is_coord:
         attrs.setdefault("coverage_content_type", "coordinate")
-    else:
-        attrs.setdefault("coverage_content_type", _coverage_type(name, var))
+    elif is_flag:
+        attrs.setdefault("coverage_content_type", "qualityInformation")
+    attrs.setdefault("coverage_content_type", declared_coverage or "physicalMeasurement")
     if grid_mapping and on_grid and not is_coord:
         attrs.setdefault("grid_mapping", grid_mapping)
     if is_dim_coord:
@@ -611,11 +579,12 @@ def _depth_auxiliary(out: xr.Dataset, z: str) -> xr.Dataset:
     units = out[z].attrs.get("units") or units_from_name(z)
     if units not in ("dbar", "decibar"):
         return out
-    def attr(n: str, v: xr.DataArray, key: str) -> Any:  # the variable's own, else hadal's column table's
-        return v.attrs.get(key) or COLUMN_ATTRS.get(n, {}).get(key)
+    def attr(n: str, v: xr.DataArray, key: str) -> Any:  # the variable's own, else the registry's
+        spec = registry().find(n)
+        return v.attrs.get(key) or (spec.attrs().get(key) if spec is not None else None)
 
     cand = [str(n) for n, v in out.data_vars.items() if z in v.dims and attr(str(n), v, "standard_name") == "depth"
-            and attr(str(n), v, "positive") == "down" and (attr(str(n), v, "units") or units_from_name(str(n))) == "m"]
+            and attr(str(n), v, "positive") == "down" and attr(str(n), v, "units") == "m"]
     if cand:
         name = "depth_m" if "depth_m" in cand else cand[0]
         return out.set_coords(name)
@@ -699,7 +668,7 @@ def prepare_dataset(ds: xr.Dataset, path: str | Path, *, title: str, summary: st
         if str(n) in gm_names:
             continue
         new_vars[n] = _prepare_variable(str(n), v, is_coord=n in out.coords, is_dim_coord=n in out.dims,
-                                        grid_mapping=grid_mapping, yx_dims=yx)
+                                        grid_mapping=grid_mapping, yx_dims=yx, where=path.name)
     for n, v in new_vars.items():
         if n in out.coords:
             out = out.assign_coords({n: v})

@@ -77,11 +77,12 @@ def navigation_table(ctd: pd.DataFrame, frame: LocalFrame, launch_lat: float, la
                      unreferenced_drift_m_per_sqrt_s: float | None = None) -> pd.DataFrame:
     """Best position of every ``ctd`` sample (see module docstring). ``matched``: match's ``matched_track``
     (``time``, ``x_east_m``, ``y_north_m``); ``fix``: its ``fix.json`` (for the radial uncertainty).
-    ``dr_error_fraction``, ``unreferenced_drift_m_per_sqrt_s``: default the ``match`` stage's."""
+    ``dr_error_fraction``, ``unreferenced_drift_m_per_sqrt_s``: default :class:`DeadReckoningOptions`' (the ``match``
+    stage's ``Params`` extends it)."""
     if dr_error_fraction is None or unreferenced_drift_m_per_sqrt_s is None:
-        from hadal.stages.match import Params  # the defaults are declared once, in match's Params
+        from hadal.matching.options import DeadReckoningOptions  # the defaults are declared once, there
 
-        f = Params.model_fields
+        f = DeadReckoningOptions.model_fields
         dr_error_fraction = f["dr_error_fraction"].default if dr_error_fraction is None else dr_error_fraction
         unreferenced_drift_m_per_sqrt_s = (f["dr_unreferenced_drift_m_per_sqrt_s"].default
                                            if unreferenced_drift_m_per_sqrt_s is None
@@ -187,7 +188,7 @@ def trajectory_dataset(nav: pd.DataFrame, ctd: pd.DataFrame | None, dive_id: str
     asks the trajectory_id variable for a dimension of length 1, one platform per dataset.)"""
     import xarray as xr
 
-    from hadal.products.cf import COLUMN_ATTRS
+    from hadal.products.registry import variable_attrs
 
     obs = np.arange(len(nav), dtype="i4")
     t = pd.to_datetime(nav["time"], utc=True).dt.tz_convert(None).to_numpy(dtype="datetime64[ns]")
@@ -213,7 +214,8 @@ def trajectory_dataset(nav: pd.DataFrame, ctd: pd.DataFrame | None, dive_id: str
     }
     for c in columns:
         if ctd is not None and c in ctd and len(ctd) == len(nav):
-            attrs = {k: v for k, v in COLUMN_ATTRS.get(c, {}).items() if k in ("standard_name", "units", "long_name")}
+            attrs = {k: v for k, v in variable_attrs(c, where="navigation.nc").items()
+                     if k in ("standard_name", "units", "long_name")}
             data[c] = ("obs", ctd[c].to_numpy(float), attrs)
     ds = xr.Dataset(data, coords={**coords, "obs": obs})
     for n in ds.data_vars:
@@ -235,9 +237,9 @@ def publish_navigation(ctx: Any, ctd: pd.DataFrame, track: pd.DataFrame | None, 
     launch = ctx.dive.require_launch("navigation")
     frame = ctx.dive.frame()
     if unreferenced_drift_m_per_sqrt_s is None:
-        from hadal.stages.match import Params
+        from hadal.matching.options import DeadReckoningOptions
 
-        unreferenced_drift_m_per_sqrt_s = Params.model_fields["dr_unreferenced_drift_m_per_sqrt_s"].default
+        unreferenced_drift_m_per_sqrt_s = DeadReckoningOptions.model_fields["dr_unreferenced_drift_m_per_sqrt_s"].default
     nav = navigation_table(ctd, frame, launch.latitude_deg, launch.longitude_deg, matched=track, fix=fix,
                            dr_error_fraction=dr_error_fraction,
                            unreferenced_drift_m_per_sqrt_s=unreferenced_drift_m_per_sqrt_s)

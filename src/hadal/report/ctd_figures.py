@@ -15,7 +15,7 @@ import numpy as np
 import pandas as pd
 from matplotlib.figure import Figure
 
-from hadal.report.figures import PHASE_COLOURS, FigureOptions, FigureResult, _png
+from hadal.report.figures import PHASE_COLOURS, FigureOptions, FigureResult, _render
 from hadal.report.load import DiveProducts
 
 #: derive's TEOS-10 columns of profile.nc -> the names used here (used instead of recomputing when present)
@@ -176,5 +176,4 @@ def fig_water_column(dp: DiveProducts, opt: FigureOptions) -> FigureResult:
     ax_n2.set_xlim(max(lo, 1e-10), hi)
     if n_nonpos:
         r.caption += f" {n_nonpos} depth bin(s) with mean N² ≤ 0 are not drawn."
-    r.png = _png(fig, opt.dpi)
-    return r
+    return _render(r, fig, opt)

@@ -25,7 +25,7 @@ from __future__ import annotations
 import io
 import json
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 import pandas as pd
@@ -56,6 +56,8 @@ class FigureResult:
     caption: str
     png: bytes | None = None
     skipped: str | None = None
+    #: the drawn matplotlib Figure, kept only with ``FigureOptions(keep_figure=True)`` (tests inspect its artists)
+    figure: Figure | None = field(default=None, repr=False, compare=False)
 
 
 @dataclass
@@ -63,6 +65,7 @@ class FigureOptions:
     dpi: int = 110
     width_in: float = 10.0
     max_points: int = 20000
+    keep_figure: bool = False  # keep the Figure on the result (FigureResult.figure); off: freed after rendering
 
 
 def _png(fig: Figure, dpi: int) -> bytes:
@@ -70,6 +73,14 @@ def _png(fig: Figure, dpi: int) -> bytes:
     buf = io.BytesIO()
     fig.savefig(buf, format="png", dpi=dpi, bbox_inches="tight")
     return buf.getvalue()
+
+
+def _render(r: FigureResult, fig: Figure, opt: FigureOptions) -> FigureResult:
+    """``r`` with the PNG of ``fig`` (and ``fig`` itself when ``opt.keep_figure``)."""
+    r.png = _png(fig, opt.dpi)
+    if opt.keep_figure:
+        r.figure = fig
+    return r
 
 
 def _thin(df: pd.DataFrame, n: int) -> pd.DataFrame:
@@ -153,8 +164,7 @@ def fig_ctd_profiles(dp: DiveProducts, opt: FigureOptions) -> FigureResult:
     axes[-1].legend(fontsize=7, loc="lower left")
     if missing:
         r.caption += f" Not available: {', '.join(missing)}."
-    r.png = _png(fig, opt.dpi)
-    return r
+    return _render(r, fig, opt)
 
 
 def fig_depth_time(dp: DiveProducts, opt: FigureOptions) -> FigureResult:
@@ -174,8 +184,7 @@ def fig_depth_time(dp: DiveProducts, opt: FigureOptions) -> FigureResult:
         ax.plot(_time(g), g["depth_m"], lw=1.2, color=PHASE_COLOURS.get(ph, "k"), label=ph)
     _mark_deepest(ax, df, _time, "time (UTC)", ms=14)
     fig.autofmt_xdate()
-    r.png = _png(fig, opt.dpi)
-    return r
+    return _render(r, fig, opt)
 
 
 def _depth_pressure(df: pd.DataFrame, r: FigureResult, opt: FigureOptions) -> FigureResult:
@@ -193,8 +202,7 @@ def _depth_pressure(df: pd.DataFrame, r: FigureResult, opt: FigureOptions) -> Fi
     if "depth_fofonoff_millard_m" in df:
         ax.plot(df["pressure_dbar"], df["depth_fofonoff_millard_m"], "--", lw=0.8, label="Fofonoff-Millard")
     _mark_deepest(ax, df, lambda rows: rows["pressure_dbar"], "pressure (dbar)", ms=12)
-    r.png = _png(fig, opt.dpi)
-    return r
+    return _render(r, fig, opt)
 
 
 def _mark_deepest(ax, df: pd.DataFrame, x_of: Callable[[pd.DataFrame], object], xlabel: str, *, ms: float) -> None:
@@ -240,8 +248,7 @@ def fig_seafloor_depth(dp: DiveProducts, opt: FigureOptions) -> FigureResult:
     axes[2].invert_yaxis()
     axes[2].set_xlabel("time (UTC)")
     fig.autofmt_xdate()
-    r.png = _png(fig, opt.dpi)
-    return r
+    return _render(r, fig, opt)
 
 
 # ------------------------------------------------------------------------------------------ maps
@@ -314,8 +321,7 @@ def fig_dtm(dp: DiveProducts, opt: FigureOptions) -> FigureResult:
         tr = _thin(dp.track, opt.max_points)
         ax.plot(tr["x_east_m"] * 1e-3, tr["y_north_m"] * 1e-3, "-", color="w", lw=1.5, label="matched track")
         ax.legend(fontsize=8, loc="upper right")
-    r.png = _png(fig, opt.dpi)
-    return r
+    return _render(r, fig, opt)
 
 
 def _region(ds: xr.Dataset) -> dict | None:
@@ -356,8 +362,7 @@ def fig_suitability(dp: DiveProducts, opt: FigureOptions) -> FigureResult:
             ax.plot(xs, ys, "--", color="k", lw=1.2)
         if launch:
             ax.plot(launch[0] * 1e-3, launch[1] * 1e-3, "x", color="r", ms=9, mew=2)
-    r.png = _png(fig, opt.dpi)
-    return r
+    return _render(r, fig, opt)
 
 
 def _score_var(ds: xr.Dataset) -> str | None:
@@ -405,8 +410,7 @@ def fig_msd_surface(dp: DiveProducts, opt: FigureOptions) -> FigureResult:
         r.caption += " Cyan diamond: the posterior's second mode."
     if bx is not None or ax.get_legend_handles_labels()[0]:  # dark legend: the markers are white/cyan
         ax.legend(fontsize=8, loc="upper right", facecolor="0.3", labelcolor="w", framealpha=0.85)
-    r.png = _png(fig, opt.dpi)
-    return r
+    return _render(r, fig, opt)
 
 
 def fig_matched_depth(dp: DiveProducts, opt: FigureOptions) -> FigureResult:
@@ -431,8 +435,7 @@ def fig_matched_depth(dp: DiveProducts, opt: FigureOptions) -> FigureResult:
     ax.legend(fontsize=8)
     if "time" in tr:
         fig.autofmt_xdate()
-    r.png = _png(fig, opt.dpi)
-    return r
+    return _render(r, fig, opt)
 
 
 def fig_matched_track(dp: DiveProducts, opt: FigureOptions) -> FigureResult:
@@ -471,8 +474,7 @@ def fig_matched_track(dp: DiveProducts, opt: FigureOptions) -> FigureResult:
     ax.set_ylabel("y north (m, map frame)")
     ax.set_aspect("equal")
     ax.legend(fontsize=8, loc="best")
-    r.png = _png(fig, opt.dpi)
-    return r
+    return _render(r, fig, opt)
 
 
 # ------------------------------------------------------------------------------------------ landing
@@ -598,8 +600,7 @@ def fig_landing_map(dp: DiveProducts, opt: FigureOptions) -> FigureResult:
     else:
         title += ": no landing site found" if best_name is None else f" (maps of the best submap {best_name} missing)"
     ax_all.set_title(title, fontsize=9)
-    r.png = _png(fig, opt.dpi)
-    return r
+    return _render(r, fig, opt)
 
 
 FIGURES: tuple[Callable[[DiveProducts, FigureOptions], FigureResult], ...] = (

@@ -19,7 +19,7 @@ import pandas as pd
 from matplotlib.colors import LightSource
 from matplotlib.figure import Figure
 
-from hadal.report.figures import CMAPS, FigureOptions, FigureResult, _png, _thin, _time
+from hadal.report.figures import CMAPS, FigureOptions, FigureResult, _render, _thin, _time
 from hadal.report.load import DiveProducts
 
 
@@ -58,6 +58,25 @@ def _scale_bar(ax, lat0: float) -> None:
     ax.plot([bx, bx + dlon], [by, by], "-", color="w", lw=2, solid_capstyle="butt")
     ax.text(bx + dlon / 2, by + 0.02 * (y1 - y0), f"{L / 1000:g} km" if L >= 1000 else f"{L:g} m",
             ha="center", va="bottom", fontsize=8, bbox={"fc": "w", "ec": "none", "alpha": 0.7, "pad": 1})
+
+
+#: inset corners (axes fraction: x0, y0, width, height), tried in this order
+_INSET_CORNERS = ((0.64, 0.03), (0.02, 0.03), (0.64, 0.67), (0.02, 0.67))
+_INSET_SIZE = (0.34, 0.30)
+
+
+def _emptiest_corner(lines, lon_lim: tuple[float, float], lat_lim: tuple[float, float]) -> list[float]:
+    """The inset box (axes fraction) over the fewest points of the plotted tracks and markers, so the zoom on the
+    fix does not hide them (ties: the first of :data:`_INSET_CORNERS`, lower right)."""
+    pts = [np.column_stack([np.asarray(ln.get_xdata(), float), np.asarray(ln.get_ydata(), float)]) for ln in lines]
+    xy = np.concatenate(pts) if pts else np.empty((0, 2))
+    xy = xy[np.isfinite(xy).all(axis=1)]
+    u = (xy[:, 0] - lon_lim[0]) / max(lon_lim[1] - lon_lim[0], 1e-12)
+    v = (xy[:, 1] - lat_lim[0]) / max(lat_lim[1] - lat_lim[0], 1e-12)
+    w, h = _INSET_SIZE
+    counts = [int(((u >= x0) & (u <= x0 + w) & (v >= y0) & (v <= y0 + h)).sum()) for x0, y0 in _INSET_CORNERS]
+    x0, y0 = _INSET_CORNERS[int(np.argmin(counts))]
+    return [x0, y0, w, h]
 
 
 def _ellipse_lonlat(frame, x: float, y: float, e: dict[str, Any]) -> tuple[np.ndarray, np.ndarray] | None:
@@ -188,7 +207,8 @@ def fig_overview(dp: DiveProducts, opt: FigureOptions) -> FigureResult:
                 handles += ax.plot(pts[0], pts[1], ls_, color="yellow", lw=1.4, label=lab)
                 outlines.append((pts, ls_))
         if outlines:  # the ellipses are tens of metres on a map of kilometres: an inset zoom on the fix
-            ins = ax.inset_axes([0.64, 0.03, 0.34, 0.30])
+            ins = ax.inset_axes(_emptiest_corner(handles, (float(np.nanmin(LON)), float(np.nanmax(LON))),
+                                                 (float(np.nanmin(LAT)), float(np.nanmax(LAT)))))
             ins.set_facecolor("0.15")
             for pts, ls_ in outlines:
                 ins.plot(pts[0], pts[1], ls_, color="yellow", lw=1.4)
@@ -233,8 +253,7 @@ def fig_overview(dp: DiveProducts, opt: FigureOptions) -> FigureResult:
     reasons = fix.get("mismatch_reasons") or []
     if reasons:
         ax.set_title("fix flagged: " + ", ".join(map(str, reasons)), fontsize=9, color="#b00020")
-    r.png = _png(fig, opt.dpi)
-    return r
+    return _render(r, fig, opt)
 
 
 def fig_residuals(dp: DiveProducts, opt: FigureOptions) -> FigureResult:
@@ -271,5 +290,4 @@ def fig_residuals(dp: DiveProducts, opt: FigureOptions) -> FigureResult:
              va="top", bbox={"fc": "w", "ec": "none", "alpha": 0.8})
     if "time" in tr:
         fig.autofmt_xdate()
-    r.png = _png(fig, opt.dpi)
-    return r
+    return _render(r, fig, opt)

@@ -27,10 +27,10 @@ also estimates the dead-reckoning drift (a velocity bias piecewise constant over
 ``drift_velocity_sigma_m_s``) jointly with the start, heading and scale (``1 +- refine_scale_range``); the
 matched track then follows the drift. It is computed for the record in any case (``fix.json`` ``posterior``,
 ``msd_posterior_probability`` in ``msd_surface.nc``). ``posterior`` is on by default: on the sample dive's 10
-generator seeds its start errors equal the refined minimum's and its radial 1-sigma (19-32 m) is closer to them
-than the refined minimum's jackknife + DR sigma (57-75 m, all 10 within it), but overconfident there: 5/10 errors
-within 1-sigma, 8/10 within 2-sigma (seeds 4 and 5 at 2.4 and 3.4 sigma; on the real-terrain calibration bench
-72-76 % / 96-97 %). Neither places the start within one cell on every seed: with this prior DTM (1.3 soundings a cell,
+generator seeds its start errors equal the refined minimum's; its radial 1-sigma (34-59 m, widened for the
+correlated residuals: ``hadal.matching.posterior``) holds 8/10 errors within 1-sigma and 10/10 within 2-sigma
+(bench/sample_seeds_information.py; before the widening 6/10 and 8/10), against the refined minimum's jackknife +
+DR sigma (57-75 m, all 10 within 1-sigma); on the real-terrain calibration bench 73-77 % / 96-97 %. Neither places the start within one cell on every seed: with this prior DTM (1.3 soundings a cell,
 0.1 % of depth noise) the Cramér-Rao bound of the start is 14-24 m, and the same code on the true terrain is
 within one cell on 10/10 (bench/sample_seeds_information.py). With ``posterior: false`` the fix uncertainty combines the MSD likelihood, a jackknife over track blocks and a dead-reckoning term
 (``dr_error_fraction`` x the distance from the start to the track's terrain-information centroid; a
@@ -52,13 +52,13 @@ On 10 generator seeds 75 % of the DR-only errors lie within the stated 1 sigma a
 from __future__ import annotations
 
 import json
-from dataclasses import replace
 from typing import TYPE_CHECKING, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, model_validator
+from pydantic import ConfigDict, Field, model_validator
 
 from hadal.budget import check_memory, check_work, memory_limit_bytes, work_limit
 from hadal.errors import ConfigError, InputError
+from hadal.matching.options import DeadReckoningOptions, TercomOptions
 from hadal.stages import StageContext, StageInputs
 from hadal.store import ProductVersion
 
@@ -73,12 +73,14 @@ INPUTS = StageInputs(raw_any=("mcap", "csv"), upstream=("dtm", "ctd"), optional_
                      needs_launch=True, frame_for=("match",))
 
 
-class Params(BaseModel):
-    """Terrain matching (TERCOM MSD search over the map, optional MRF fine matching)."""
+class Params(TercomOptions, DeadReckoningOptions):
+    """Terrain matching (TERCOM MSD search over the map, optional MRF fine matching).
+
+    The search options are :class:`hadal.matching.options.TercomOptions` and the dead-reckoning error model
+    :class:`hadal.matching.options.DeadReckoningOptions` (declared there, once); this model adds the stage's own
+    (search ranges, map smoothing, region, posterior, drift, MRF)."""
 
     model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
-    criterion: Literal["msd", "mad", "cor"] = Field("msd", description="TERCOM criterion (paper Eqs. 15-17); the paper uses MSD")
-    estimate_bias: bool = Field(True, description="estimate a constant map-minus-measured depth bias at every offset")
     resample_spacing_m: float | None = Field(None, ge=0.001, le=100_000, description="along-track profile spacing in metres (1 mm to 100 km; default: map resolution)")
     segment_m: float | None = Field(
         None, gt=0, le=10_000_000,
@@ -90,11 +92,7 @@ class Params(BaseModel):
     heading_step_deg: float = Field(
         0.5, ge=1e-4, le=45, description="heading search step in degrees (1e-4 to 45, at most heading_range_deg; the "
                                          "search's work and memory are checked against the resources section)")
-    precision: Literal["double", "mixed"] = Field(
-        "mixed", description="heading search: float32 screening of every heading + exact float64 check of the best 3 (mixed), or float64 throughout"
-    )
     region: Literal["map", "suitability"] = Field("map", description="search the whole map or the suitability product's proposed region")
-    min_valid_fraction: float = Field(0.8, gt=0, le=1, description="minimum fraction of profile samples on valid map cells")
     dtm_smooth_sigma_cells: float | None = Field(
         None, ge=0, le=100,
         description="normalised Gaussian convolution of the DTM before matching (fills holes, suppresses sounding noise); null = 2 cells when > 10 % of the DTM is empty, else 1; 0 = never",
@@ -103,21 +101,6 @@ class Params(BaseModel):
         True,
         description="refine the MSD fix below the map resolution (bilinear map, continuous start/heading/scale; a deviation from the paper, see hadal.matching.refine_tercom)",
     )
-    refine_scale_range: float = Field(0.05, ge=0, lt=0.5, description="refinement: DR track scale searched within 1 +- this")
-    refine_seeds: int = Field(12, ge=1, le=100, description="refinement: number of distinct coarse minima refined")
-    dr_error_fraction: float = Field(
-        0.02, ge=0, lt=1,
-        description="dead-reckoning error per distance dead-reckoned (1 sigma radial), for the fix uncertainty (the start is carried from where the terrain fixes the track) and the navigation product; "
-                    "0.02: the DR-only error grown along the sample dive's bottom track is 1.2-2.3 % (median 1.6 %) of the distance on 10 generator seeds (bench/dr_uncertainty_tercom.py; compass bias 1-2.5 deg, speed scale 1-3 %)",
-    )
-    dr_unreferenced_drift_m_per_sqrt_s: float = Field(
-        5.6, ge=0, le=1000,
-        description="navigation product without a match: while the dead reckoning has no velocity reference (unpowered descent and ascent, DR held) the vehicle drifts with the currents; "
-                    "1-sigma radial error = this x sqrt(unreferenced seconds), a random walk (currents change with depth). 5.6: the TERCOM paper's 533 m descent drift in 3 h 35 min taken as the median "
-                    "of a Rayleigh distribution (533 / sqrt(ln 2 x 12 900 s))",
-    )
-    exclusion_radius_m: float | None = Field(None, gt=0, le=10_000_000, description="neighbourhood (m) excluded when looking for the second optimum (default max(5 cells, 100 m))")
-    mismatch_ratio: float = Field(1.2, ge=1, le=1000, description="warn when second-best / best MSD is below this ratio")
     mrf: bool = Field(False, description="refine the fix with MRF fine matching of a 2-D real-time terrain patch (MRF paper); a single-beam bottom track (< 50 % of the cells under it sounded) is recorded as not matchable by MRF and MRF is not run")
     scale_range: float = Field(0.0, ge=0, lt=0.5, description="search DR scale errors 1 +- this range (0: none)")
     scale_step: float = Field(0.01, ge=1e-5, le=0.5, description="scale search step (1e-5 to 0.5, at most scale_range)")
@@ -244,42 +227,6 @@ def read_ctd(pv: ProductVersion) -> pd.DataFrame:
         raise InputError(f"{path}: cannot read the CTD table ({type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''})") from None
 
 
-def information_distance_m(res, track_xy: np.ndarray, along_m: np.ndarray, g) -> float:
-    """Along-track distance from the start to where the terrain fixes the match: the centroid of the
-    profile points weighted by the squared map gradient at their matched positions (flat stretches carry no
-    position information, so the start is carried there by dead reckoning)."""
-    import numpy as np
-
-    xy = res.apply(track_xy)
-    gy, gx = np.gradient(g.depth_m, g.resolution_m)  # NaN next to holes: those points carry no weight
-    from hadal.matching.mapgrid import MapGrid
-
-    w = (MapGrid(gx, g.x_m, g.y_m, g.resolution_m).sample_bilinear(xy[:, 0], xy[:, 1]) ** 2
-         + MapGrid(gy, g.x_m, g.y_m, g.resolution_m).sample_bilinear(xy[:, 0], xy[:, 1]) ** 2)
-    w = np.where(np.isfinite(w), w, 0.0)
-    return float(np.sum(w * along_m) / np.sum(w)) if np.sum(w) > 0 else float(along_m[-1] / 2)
-
-
-def grid_track_patch(xy: np.ndarray, depth: np.ndarray, g, margin_cells: int = 3):
-    """Grid matched track soundings onto the DTM cells (cell means): the 'real-time terrain' patch for MRF.
-
-    Returns ``(patch, x0_m, y0_m)`` with NaN for empty cells and the map position of cell ``[0, 0]``.
-    """
-    import numpy as np
-
-    col = np.rint(g.col_of(xy[:, 0])).astype(int)
-    row = np.rint(g.row_of(xy[:, 1])).astype(int)
-    c0, r0 = col.min() - margin_cells, row.min() - margin_cells
-    nx_p, ny_p = col.max() - c0 + 1 + margin_cells, row.max() - r0 + 1 + margin_cells
-    flat = (row - r0) * nx_p + (col - c0)
-    s = np.bincount(flat, weights=depth, minlength=nx_p * ny_p)
-    n = np.bincount(flat, minlength=nx_p * ny_p)
-    with np.errstate(invalid="ignore"):
-        patch = (s / n).reshape(ny_p, nx_p)
-    h = g.resolution_m
-    return patch, float(g.x_m[0] + c0 * h), float(g.y_m[0] + r0 * h)
-
-
 def surface_dataset(res, frame, criterion: str, post=None) -> xr.Dataset:
     import numpy as np
     import xarray as xr
@@ -326,11 +273,19 @@ def surface_dataset(res, frame, criterion: str, post=None) -> xr.Dataset:
     return ds
 
 
-#: MRF runs only on a 2-D real-time terrain patch: at least this fraction of the patch's cells must hold soundings
-MRF_MIN_COVERAGE = 0.5
-
 #: ``ctd`` columns the bottom track is made of (seafloor depth = depth + altitude, on the dead-reckoned track)
 TRACK_COLUMNS = ("seafloor_depth_m", "dr_east_m", "dr_north_m")
+
+#: science that moved to :mod:`hadal.matching.budget`, still importable from here (loaded on first access)
+_MOVED = ("MRF_MIN_COVERAGE", "grid_track_patch", "information_distance_m")
+
+
+def __getattr__(name: str):
+    if name in _MOVED:
+        from hadal.matching import budget
+
+        return getattr(budget, name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 def skip_reason(ctx: StageContext) -> str | None:
@@ -357,13 +312,63 @@ def skip_reason(ctx: StageContext) -> str | None:
     return None
 
 
-def run(ctx: StageContext) -> dict[str, ProductVersion]:
+def _search(ctx: StageContext, p: Params, prof, g, region, dtm_ds):
+    """The TERCOM search of the profile (or its first ``segment_m``) on the matching map ``g``, the sub-cell
+    refinement (``posterior: false``) and the point-mass posterior (MSD). Returns ``(fix, posterior or None,
+    mask of the profile points used)``."""
     import numpy as np
+
+    from hadal.matching import refine_tercom, tercom
+
+    used = np.ones(prof.depth_m.size, bool)
+    if p.segment_m is not None and prof.along_m[-1] > p.segment_m:
+        used = prof.along_m <= p.segment_m
+        if used.sum() < 10:  # too short to be unique: fall back to the whole track
+            used[:] = True
+    check_search_budget(p, int(g.depth_m.size), int(used.sum()), ctx.config)
+    ctx.log.info("match: %d bottom samples -> %d profile points (%d used), %d heading(s)",
+                 prof.n_raw, prof.depth_m.size, int(used.sum()), _headings(p).size)
+    res = tercom(prof.depth_m[used], prof.track_xy[used], g, headings_deg=_headings(p), scales=_scales(p),
+                 region=region, progress=ctx.progress, options=p)
+    if p.refine and p.criterion == "msd" and not p.posterior:
+        hs, sc = _headings(p), _scales(p)
+        res = refine_tercom(
+            prof.depth_m[used], prof.track_xy[used], g, res, region=region, options=p,
+            heading_bounds_deg=(float(hs.min()) - p.heading_step_deg / 2, float(hs.max()) + p.heading_step_deg / 2)
+            if hs.size > 1 else (0.0, 0.0),
+            scale_bounds=(min(float(sc.min()), 1 - p.refine_scale_range), max(float(sc.max()), 1 + p.refine_scale_range)),
+        )
+    post = None
+    if p.criterion == "msd":
+        from hadal.matching.posterior import posterior_fix
+
+        unc = dtm_ds["uncertainty_m"].transpose("y", "x").values if "uncertainty_m" in dtm_ds else None
+        post = posterior_fix(prof.depth_m[used], prof.track_xy[used], g, region=region, uncertainty=unc,
+                             time_s=None if prof.time_s is None else prof.time_s[used], **posterior_options(p))
+        if p.posterior:
+            res = post.to_tercom_result(res)
+    return res, post, used
+
+
+#: column attributes of ``matched_track.parquet``
+TRACK_FIELDS = {
+    "x_east_m": {"units": "m", "long_name": "matched easting in the dive's map frame"},
+    "y_north_m": {"units": "m", "long_name": "matched northing in the dive's map frame"},
+    "lon": {"units": "degrees_east", "standard_name": "longitude"},
+    "lat": {"units": "degrees_north", "standard_name": "latitude"},
+    "depth_m": {"units": "m", "standard_name": "depth", "long_name": "vehicle depth"},
+    "seafloor_depth_m": {"units": "m", "long_name": "measured seafloor depth (vehicle depth + altitude)"},
+    "map_depth_m": {"units": "m", "long_name": "reference DTM depth at the matched position (bilinear)"},
+    "map_depth_minus_bias_m": {"units": "m", "long_name": "reference DTM depth minus the estimated bias"},
+}
+
+
+def run(ctx: StageContext) -> dict[str, ProductVersion]:
     import xarray as xr
 
-    from hadal.matching import MapGrid, refine_tercom, tercom
+    from hadal.matching import MapGrid
+    from hadal.matching.budget import mrf_step, posterior_record, uncertainty_budget
     from hadal.matching.fix import fix_summary, matched_track, profile_from_ctd
-    from hadal.matching.mrf import mrf_refine
     from hadal.products import write_netcdf, write_parquet
     from hadal.products.readers import open_dtm
 
@@ -385,43 +390,11 @@ def run(ctx: StageContext) -> dict[str, ProductVersion]:
             reg = json.loads(s.attrs["proposed_region"])
         region = (reg["x_min_m"], reg["x_max_m"], reg["y_min_m"], reg["y_max_m"])
 
-    used = np.ones(prof.depth_m.size, bool)
-    if p.segment_m is not None and prof.along_m[-1] > p.segment_m:
-        used = prof.along_m <= p.segment_m
-        if used.sum() < 10:  # too short to be unique: fall back to the whole track
-            used[:] = True
-    check_search_budget(p, int(g.depth_m.size), int(used.sum()), ctx.config)
-    ctx.log.info("match: %d bottom samples -> %d profile points (%d used), %d heading(s)",
-                 prof.n_raw, prof.depth_m.size, int(used.sum()), _headings(p).size)
-    res = tercom(
-        prof.depth_m[used], prof.track_xy[used], g, p.criterion, estimate_bias=p.estimate_bias, headings_deg=_headings(p),
-        region=region, min_valid_fraction=p.min_valid_fraction, exclusion_radius_m=p.exclusion_radius_m,
-        mismatch_ratio=p.mismatch_ratio, precision=p.precision, scales=_scales(p), progress=ctx.progress,
-    )
-    if p.refine and p.criterion == "msd" and not p.posterior:
-        hs, sc = _headings(p), _scales(p)
-        res = refine_tercom(
-            prof.depth_m[used], prof.track_xy[used], g, res, estimate_bias=p.estimate_bias, n_seeds=p.refine_seeds,
-            region=region, exclusion_radius_m=p.exclusion_radius_m, mismatch_ratio=p.mismatch_ratio,
-            heading_bounds_deg=(float(hs.min()) - p.heading_step_deg / 2, float(hs.max()) + p.heading_step_deg / 2)
-            if hs.size > 1 else (0.0, 0.0),
-            scale_bounds=(min(float(sc.min()), 1 - p.refine_scale_range), max(float(sc.max()), 1 + p.refine_scale_range)),
-            min_valid_fraction=p.min_valid_fraction,
-        )
-    post = None
-    if p.criterion == "msd":
-        from hadal.matching.posterior import posterior_fix
-
-        unc = dtm_ds["uncertainty_m"].transpose("y", "x").values if "uncertainty_m" in dtm_ds else None
-        post = posterior_fix(prof.depth_m[used], prof.track_xy[used], g, region=region, uncertainty=unc,
-                             time_s=None if prof.time_s is None else prof.time_s[used], **posterior_options(p))
-        if p.posterior:
-            res = post.to_tercom_result(res)
+    res, post, used = _search(ctx, p, prof, g, region, dtm_ds)
     use_post = post is not None and p.posterior
-    sigma_lik_jk = (res.sigma_x_m, res.sigma_y_m)
-    d_info = information_distance_m(res, prof.track_xy[used], prof.along_m[used], g)
-    sigma_dr = 0.0 if use_post else p.dr_error_fraction * d_info / np.sqrt(2.0)  # per axis
-    res = replace(res, sigma_x_m=float(np.hypot(res.sigma_x_m, sigma_dr)), sigma_y_m=float(np.hypot(res.sigma_y_m, sigma_dr)))
+    budget = uncertainty_budget(res, prof.track_xy[used], prof.along_m[used], g, dr_error_fraction=p.dr_error_fraction,
+                                posterior_used=use_post)
+    res = budget.result
     drift_xy = None
     if use_post and post.drift_model is not None:  # the matched track follows the estimated DR drift
         from hadal.matching.fix import bottom_seconds
@@ -431,97 +404,29 @@ def run(ctx: StageContext) -> dict[str, ProductVersion]:
     track = matched_track(bottom, res, frame, map_depth=g_raw.sample_bilinear, drift_xy=drift_xy)
     launch = ctx.dive.launch
     fix = fix_summary(res, track, frame, launch.latitude_deg, launch.longitude_deg)
-    fix["uncertainty_m"]["components"] = {
-        "match_radial": float(np.hypot(*sigma_lik_jk)), "dead_reckoning_radial": float(sigma_dr * np.sqrt(2.0)),
-        "information_distance_m": d_info, "dr_error_fraction": p.dr_error_fraction,
-        "comment": ("posterior second moment about the MAP fix (point-mass grid over position x heading x scale, noise "
-                    "and effective sample size estimated from the residuals); no separate dead-reckoning term")
-        if use_post else
-        ("match: MSD likelihood (+ jackknife when refined); dead reckoning: dr_error_fraction x the along-track "
-         "distance from the start to the terrain-information centroid (gradient^2-weighted) of the track"),
-    }
+    fix["uncertainty_m"]["components"] = budget.components
     if post is not None:
-        fix["posterior"] = post.summary()
-        fix["posterior"]["used_for_fix"] = use_post
-        if use_post:
-            fix["mismatch_reasons"] = list(post.reasons)
-            # the report draws the ellipse about the matched start and the dead-reckoning-only track
-            e1, e2 = post.ellipse(1.0), post.ellipse(2.0)
-            clon, clat = (float(v) for v in frame.to_lonlat(post.start_x_m, post.start_y_m))
-            centre = {"x_east_m": post.start_x_m, "y_north_m": post.start_y_m, "lat": clat, "lon": clon,
-                      "comment": "ellipse centre: the MAP position of the first profile point (profile_start)"}
-            e1, e2 = {**e1, "centre": centre}, {**e2, "centre": centre}
-            fix["uncertainty_m"].update({"ellipse_1sigma": e1, "ellipse_2sigma": e2,
-                                         "covariance_m2": fix["posterior"]["covariance_m2"]})
-            fix["posterior"]["ellipse_1sigma"], fix["posterior"]["ellipse_2sigma"] = e1, e2
-        else:
-            fix["posterior"]["comment"] = ("computed for the record; the reported fix is the refined score minimum "
-                                           "(match.posterior: false)")
-        fix["posterior"]["surface"] = {
-            "file": "msd_surface.nc", "variable": "msd_posterior_probability",
-            "comment": "marginal posterior probability of the track start per map cell (sums to 1 over the searched cells)"}
-        dr_only = bottom[["dr_east_m", "dr_north_m"]].to_numpy(float)
-        lx, ly = fix["launch"]["x_east_m"], fix["launch"]["y_north_m"]
-        fix["dead_reckoning_track"] = {
-            "comment": "bottom track by dead reckoning only (launch point + DR offsets), map frame metres; "
-                       "every 10th sample and the last",
-            "x_east_m": [float(v) for v in (dr_only[::10, 0] + lx)] + [float(dr_only[-1, 0] + lx)],
-            "y_north_m": [float(v) for v in (dr_only[::10, 1] + ly)] + [float(dr_only[-1, 1] + ly)],
-        }
-        dlon, dlat = frame.to_lonlat(np.asarray(fix["dead_reckoning_track"]["x_east_m"]),
-                                     np.asarray(fix["dead_reckoning_track"]["y_north_m"]))
-        fix["dead_reckoning_track"]["lon"] = [float(v) for v in np.atleast_1d(dlon)]
-        fix["dead_reckoning_track"]["lat"] = [float(v) for v in np.atleast_1d(dlat)]
+        fix.update(posterior_record(post, fix, frame, bottom, use_post))
     fix["profile"] = {"n_raw_bottom_samples": prof.n_raw, "n_profile_points": int(prof.depth_m.size),
                       "spacing_m": p.resample_spacing_m or g.resolution_m, "track_length_m": float(prof.along_m[-1]),
                       "n_points_matched": int(used.sum()), "matched_length_m": float(prof.along_m[used][-1])}
     fix["dtm"] = {"empty_fraction": empty, "smooth_sigma_cells": sigma}
     if p.mrf:
-        patch, x0, y0 = grid_track_patch(track[["x_east_m", "y_north_m"]].to_numpy(), track["seafloor_depth_m"].to_numpy(), g)
-        cover = float(np.isfinite(patch[3:-3, 3:-3]).mean()) if min(patch.shape) > 6 else 0.0
-    if p.mrf and cover < MRF_MIN_COVERAGE:
-        # MRF paper §2: the real-time terrain is a 2-D multibeam patch; a single-beam (altimeter) track gridded on
-        # the map leaves most cells empty, and the Gibbs neighbourhood prior and the 2-D Taylor step are undefined
-        fix["mrf"] = {"applied": False, "coverage": cover,
-                      "reason": f"MRF fine matching needs a 2-D real-time terrain patch (the vehicle's own swath/multibeam "
-                                f"soundings); this dive's bottom track is a single-beam altimeter profile covering "
-                                f"{100 * cover:.0f} % of the cells under it (< {100 * MRF_MIN_COVERAGE:.0f} %), so MRF is not run"}
-        fix["warnings"].append("match.mrf is on but the bottom track is single-beam (no 2-D terrain patch): MRF not run")
-    elif p.mrf:
-        try:
-            m = mrf_refine(patch, x0, y0, g_raw, max_shift_cells=p.mrf_max_shift_cells,
-                           max_total_shift_cells=p.mrf_max_total_shift_cells, prior=p.mrf_prior)
-        except InputError as exc:
-            fix["mrf"] = {"applied": False, "reason": str(exc)}
-        else:
-            sx, sy = fix["start"]["x_east_m"] - m.dx_m, fix["start"]["y_north_m"] - m.dy_m
-            slon, slat = (float(v) for v in frame.to_lonlat(sx, sy))
-            fix["mrf"] = {"applied": m.converged, "dx_m": m.dx_m, "dy_m": m.dy_m, "iterations": m.iterations,
-                          "sigma_n_m": m.sigma_n_m, "window_cells": list(m.n_window), "warnings": m.warnings,
-                          "coarse_shift_cells": list(m.coarse_d_cells), "sigma_cells": [v if np.isfinite(v) else None for v in m.sigma_cells],
-                          "gibbs_temperature_m2": m.temperature if np.isfinite(m.temperature) else None,
-                          "start": {"x_east_m": sx, "y_north_m": sy, "lat": slat, "lon": slon}}
-            fix["warnings"].extend(m.warnings)
+        fix["mrf"], mrf_warnings = mrf_step(
+            track[["x_east_m", "y_north_m"]].to_numpy(), track["seafloor_depth_m"].to_numpy(), g, g_raw,
+            (fix["start"]["x_east_m"], fix["start"]["y_north_m"]), frame, max_shift_cells=p.mrf_max_shift_cells,
+            max_total_shift_cells=p.mrf_max_total_shift_cells, prior=p.mrf_prior)
+        fix["warnings"].extend(mrf_warnings)
     for w in fix["warnings"]:
         ctx.log.warning("match: %s", w)
 
-    fields = {
-        "x_east_m": {"units": "m", "long_name": "matched easting in the dive's map frame"},
-        "y_north_m": {"units": "m", "long_name": "matched northing in the dive's map frame"},
-        "lon": {"units": "degrees_east", "standard_name": "longitude"},
-        "lat": {"units": "degrees_north", "standard_name": "latitude"},
-        "depth_m": {"units": "m", "standard_name": "depth", "long_name": "vehicle depth"},
-        "seafloor_depth_m": {"units": "m", "long_name": "measured seafloor depth (vehicle depth + altitude)"},
-        "map_depth_m": {"units": "m", "long_name": "reference DTM depth at the matched position (bilinear)"},
-        "map_depth_minus_bias_m": {"units": "m", "long_name": "reference DTM depth minus the estimated bias"},
-    }
     with ctx.store.publish(ctx.dive_id, "match", parameters=ctx.params("match"), upstream=upstream) as draft:
         write_netcdf(
             surface_dataset(res, frame, p.criterion, post), draft.path / "msd_surface.nc",
             title=f"TERCOM {p.criterion.upper()} surface, dive {ctx.dive_id}",
             summary="TERCOM criterion for every start position of the bottom track on the reference DTM (TERCOM paper §3.3, §4.2).",
         )
-        write_parquet(track, draft.path / "matched_track.parquet", fields=fields,
+        write_parquet(track, draft.path / "matched_track.parquet", fields=TRACK_FIELDS,
                       metadata={"dive": ctx.dive_id, "criterion": p.criterion, "start_degmin": fix["start"]["position_degmin"]})
         from hadal.products.geo_landing import strict_json  # strict JSON, times without spurious microseconds
 

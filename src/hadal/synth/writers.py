@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import gzip
 import json
+from importlib.resources import files
 from pathlib import Path
 
 import numpy as np
@@ -17,81 +18,38 @@ from mcap.writer import CompressionType, Writer
 
 from hadal.synth.sensors import KELLER_MAX_DBAR, SBE49_MAX_DBAR
 
-#: MCAP topics, schema names and JSON Schemas of the five channels (architecture.md "MCAP channels").
-_STAMP = {"type": "number", "description": "sample time, seconds since the Unix epoch (UTC)"}
-CHANNELS: dict[str, dict] = {
-    "ctd": {
-        "topic": "/haidou/ctd", "schema_name": "haidou.Ctd",
-        "schema": {
-            "$schema": "https://json-schema.org/draft/2020-12/schema", "title": "haidou.Ctd",
-            "description": "Sea-Bird SBE49 FastCAT sample (16 Hz)", "type": "object",
-            "properties": {
-                "stamp": _STAMP,
-                "cond": {"type": "number", "description": "conductivity, S/m"},
-                "temp": {"type": "number", "description": "in-situ temperature, degC ITS-90"},
-                "pres": {"type": "number", "maximum": SBE49_MAX_DBAR,
-                         "description": f"sea pressure, dbar (sensor range 0-{SBE49_MAX_DBAR:g}; saturates above)"},
-            },
-            "required": ["stamp", "cond", "temp", "pres"], "additionalProperties": False,
-        },
-    },
-    "keller": {
-        "topic": "/haidou/keller", "schema_name": "haidou.Keller",
-        "schema": {
-            "$schema": "https://json-schema.org/draft/2020-12/schema", "title": "haidou.Keller",
-            "description": "Keller PA-33X pressure gauge sample (4 Hz)", "type": "object",
-            "properties": {
-                "stamp": _STAMP,
-                "pressure": {"type": "number", "minimum": 0, "maximum": KELLER_MAX_DBAR,
-                             "description": "sea pressure, dbar (range 0-12000, 0.01 %FS accuracy)"},
-            },
-            "required": ["stamp", "pressure"], "additionalProperties": False,
-        },
-    },
-    "altimeter": {
-        "topic": "/haidou/altimeter", "schema_name": "haidou.Altimeter",
-        "schema": {
-            "$schema": "https://json-schema.org/draft/2020-12/schema", "title": "haidou.Altimeter",
-            "description": "400 kHz single-beam altimeter (2 Hz); range assumes 1500 m/s sound speed",
-            "type": "object",
-            "properties": {
-                "stamp": _STAMP,
-                "range": {"type": ["number", "null"], "minimum": 0, "maximum": 100,
-                          "description": "range to the seafloor, m (0.3 m resolution); null on dropout or beyond 100 m"},
-                "valid": {"type": "boolean", "description": "true when range holds a bottom detection"},
-            },
-            "required": ["stamp", "range", "valid"], "additionalProperties": False,
-        },
-    },
-    "attitude": {
-        "topic": "/haidou/attitude", "schema_name": "haidou.Attitude",
-        "schema": {
-            "$schema": "https://json-schema.org/draft/2020-12/schema", "title": "haidou.Attitude",
-            "description": "vehicle attitude (10 Hz)", "type": "object",
-            "properties": {
-                "stamp": _STAMP,
-                "heading": {"type": "number", "minimum": 0, "maximum": 360, "description": "heading, deg true"},
-                "pitch": {"type": "number", "description": "pitch, deg (bow up positive)"},
-                "roll": {"type": "number", "description": "roll, deg (starboard down positive)"},
-            },
-            "required": ["stamp", "heading", "pitch", "roll"], "additionalProperties": False,
-        },
-    },
-    "dr": {
-        "topic": "/haidou/dr", "schema_name": "haidou.DeadReckoning",
-        "schema": {
-            "$schema": "https://json-schema.org/draft/2020-12/schema", "title": "haidou.DeadReckoning",
-            "description": "dead-reckoned position relative to the launch point (1 Hz)", "type": "object",
-            "properties": {
-                "stamp": _STAMP,
-                "east": {"type": "number", "description": "east of the launch point, m"},
-                "north": {"type": "number", "description": "north of the launch point, m"},
-                "speed": {"type": "number", "minimum": 0, "description": "speed over ground estimate, m/s"},
-            },
-            "required": ["stamp", "east", "north", "speed"], "additionalProperties": False,
-        },
-    },
+#: MCAP topic and JSON Schema file (``schemas/mcap/<file>``, package data of ``hadal.schemas``) of each of the
+#: five channels (architecture.md "MCAP channels"). The schemas are declared once, in those files; the MCAP
+#: schema name is the schema's ``title``.
+_CHANNEL_FILES: dict[str, tuple[str, str]] = {
+    "ctd": ("/haidou/ctd", "haidou_ctd.json"),
+    "keller": ("/haidou/keller", "haidou_keller.json"),
+    "altimeter": ("/haidou/altimeter", "haidou_altimeter.json"),
+    "attitude": ("/haidou/attitude", "haidou_attitude.json"),
+    "dr": ("/haidou/dr", "haidou_dr.json"),
 }
+
+
+def load_channel_schema(file_name: str) -> dict:
+    """The JSON Schema ``schemas/mcap/<file_name>`` (installed as ``hadal.schemas``)."""
+    return json.loads((files("hadal.schemas") / "mcap" / file_name).read_text(encoding="utf-8"))
+
+
+def _channels() -> dict[str, dict]:
+    out: dict[str, dict] = {}
+    for name, (topic, file_name) in _CHANNEL_FILES.items():
+        schema = load_channel_schema(file_name)
+        out[name] = {"topic": topic, "schema_name": schema["title"], "schema": schema}
+    # the sensor limits the generator simulates are the ones the schemas state
+    for name, field, limit in (("ctd", "pres", SBE49_MAX_DBAR), ("keller", "pressure", KELLER_MAX_DBAR)):
+        if out[name]["schema"]["properties"][field].get("maximum") != limit:
+            raise ValueError(f"schemas/mcap/{_CHANNEL_FILES[name][1]}: {field} maximum differs from the simulated "
+                             f"sensor range {limit:g} dbar")
+    return out
+
+
+#: MCAP topics, schema names and JSON Schemas of the five channels, read from ``schemas/mcap/*.json``
+CHANNELS: dict[str, dict] = _channels()
 CHANNEL_ORDER = ("ctd", "keller", "altimeter", "attitude", "dr")
 
 
