@@ -10,45 +10,18 @@ import json
 import os
 import subprocess
 import sys
-import traceback
-from dataclasses import dataclass
 from pathlib import Path
 
 import pytest
 import yaml
-from typer.testing import CliRunner
-
-from hadal import cli
+from cli_runner import Res, run_cli
 
 REPO = Path(__file__).resolve().parents[1]
 
 
-@dataclass
-class Res:
-    returncode: int
-    stdout: str
-    stderr: str
-
-
 def hadal(*args: str) -> Res:
-    """``hadal ARGS`` in-process: exit status, stdout, stderr; an escaping exception is printed as a traceback
-    on stderr, as the interpreter would print it."""
-    runner = CliRunner()
-    code = 0
-    with runner.isolation(env={"HADAL_PROGRESS": "none", "COLUMNS": "200"}) as (out, err, _):
-        argv, sys.argv = sys.argv, ["hadal", *args]
-        try:
-            cli._main()
-        except SystemExit as exc:
-            code = exc.code if isinstance(exc.code, int) else (0 if exc.code is None else 1)
-        except Exception:  # would be a traceback for the user
-            traceback.print_exc(file=sys.stderr)
-            code = 1
-        finally:
-            sys.argv = argv
-            sys.stdout.flush()
-            sys.stderr.flush()
-        return Res(code, out.getvalue().decode(), err.getvalue().decode())
+    """``hadal ARGS`` in-process (:func:`cli_runner.run_cli`)."""
+    return run_cli(*args)
 
 
 def hadal_subprocess(*args: str, env: dict[str, str] | None = None, timeout: int = 300) -> subprocess.CompletedProcess:

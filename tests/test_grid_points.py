@@ -307,3 +307,39 @@ def test_random_order_takes_the_partitioned_path_with_the_same_result():
         np.testing.assert_allclose(ds["std"].values, exp["std"], rtol=1e-8, atol=1e-11, equal_nan=True)  # pandas: Welford
         cnt, mean, m2, bad, out = P.cell_moments(xs, ys, zs, spec)
         assert (m2[cnt == 0] == 0).all() and bad == 0 and out == 0
+
+
+def test_partition_in_many_chunks_matches_the_reference(monkeypatch):
+    """The chunked partition (many chunks of a few points per block, NaN/inf and outside points in them) and the
+    one-pass block M2 (with its two-pass fallback for a cell whose first value is far from the others) equal the
+    NumPy reference."""
+    if P._partition_kernels() is None:
+        pytest.skip("numba not installed")
+    monkeypatch.setattr(P, "_PART_CHUNK", 1000)
+    monkeypatch.setattr(P, "_MIN_SEGMENT", 1)
+    rng = np.random.default_rng(21)
+    nx, ny, res = 400, 300, 1.0
+    n = 120_003
+    x, y = rng.uniform(0, nx, n), rng.uniform(0, ny, n)
+    z = rng.normal(-6000.0, 0.2, n)
+    x[3005:3500:7] = np.nan
+    y[3007:3900:11] = ny + 5.0  # outside
+    x[:2000], y[:2000] = 10.5, 20.5  # one crowded cell: an outlier first, then mm spread
+    z[0] = -5000.0
+    z[1:2000] = rng.normal(-6000.0, 1e-3, 1999)
+    spec = make_grid_spec(res, (0, 0, nx, ny))
+    idx, zz, bad, out = P.point_indices(x, y, z, spec)
+    moments = ("count", "mean", "std")
+    for stats in (moments, P.STATISTICS):
+        ref = P._reduce_cells_numpy(idx, zz, spec.n_cells, stats)
+        got, b2, o2 = P.cell_stats(x, y, z, spec, stats)
+        assert (b2, o2) == (bad, out)
+        red = reduce_cells(idx, zz, spec.n_cells, stats)
+        for s in stats:
+            np.testing.assert_allclose(got[s], ref[s], rtol=1e-12, equal_nan=True, err_msg=s)
+            np.testing.assert_allclose(red[s], ref[s], rtol=1e-12, equal_nan=True, err_msg=s)
+    c = 20 * nx + 10
+    v = zz[idx == c]
+    assert got["std"][c] == pytest.approx(np.std(v, ddof=1), rel=1e-12)
+    cnt, mean, m2, _, _ = P.cell_moments(x, y, z, spec)
+    np.testing.assert_allclose(m2[c], np.var(v) * len(v), rtol=1e-12)

@@ -1,10 +1,12 @@
-"""The posterior's noise variance under correlated residuals (issue 16: the sample dive's posterior was overconfident).
+"""The posterior's noise-variance widening under correlated residuals (issue 16: the sample dive's posterior was
+overconfident).
 
-Oracle: Monte-Carlo regressions with a known noise variance (1) and AR(1)-correlated noise, the regressors slowly
-varying along the track as the pose derivatives of a smooth terrain are; ``RSS / dof`` with the degrees of freedom
-:func:`hadal.matching.posterior._dof` gives for the effective sample size the posterior estimates from the same
-residuals (the divisor behind the reported covariance's widening) must be unbiased there, where the classical
-``RSS / (N - p)`` (the likelihood's :func:`~hadal.matching.posterior._s2_from`) is biased low.
+Oracle: Monte-Carlo. AR(1)-correlated noise of variance 1 along a track on a map; the pose + bias (+ drift) fit is
+a least-squares regression on the map's gradients at the track (computed here by central differences of the map's
+bilinear sampler, not by the code under test); ``(N - p) / mean(RSS)`` over many noise draws is the factor by which the
+classical ``RSS / (N - p)`` underestimates the noise variance. :func:`hadal.matching.posterior._fit_dof_inflation`
+must give that factor from the analytic expectation, on a smooth terrain (where it approaches ``1 / gamma`` times
+the parameters' share) and on a rough one (near 1).
 """
 
 from __future__ import annotations
@@ -13,41 +15,69 @@ import numpy as np
 import pytest
 from scipy.signal import lfilter
 
-from hadal.matching.posterior import N_PARAMS, _dof, _n_eff, _s2_from
+from hadal.matching import MapGrid
+from hadal.matching.posterior import N_PARAMS, _drift_basis, _fit_dof_inflation
+
+H = 10.0
 
 
-def _ar1(rng, n: int, rho: float, reps: int) -> np.ndarray:
+def _terrain(kind: str):
+    if kind == "smooth":
+        return lambda x, y: 40 * np.sin(x / 700.0) + 30 * np.cos(y / 500.0) + 0.01 * x
+    rng = np.random.default_rng(3)
+    kx, ky, ph = rng.uniform(0.02, 0.2, 40), rng.uniform(0.02, 0.2, 40), rng.uniform(0, 2 * np.pi, 40)
+    return lambda x, y: sum(3 * np.sin(kx[i] * x + ky[i] * y + ph[i]) for i in range(40))
+
+
+def _case(kind: str, drift: bool):
+    z = _terrain(kind)
+    x = np.arange(0.0, 4000.0, H)
+    y = np.arange(0.0, 3000.0, H)
+    X, Y = np.meshgrid(x, y)
+    g = MapGrid(z(X, Y), x, y, H)
+    n = 200
+    t = np.linspace(0.0, 1.0, n)
+    rel = np.column_stack([1500 * t, 400 * np.sin(3 * t)])
+    start = np.array([1000.0, 1200.0])
+    q = rel + start
+    e = 1e-4  # the gradient of the map as the fit sees it (bilinear between nodes), by central differences
+    gx = (g.sample_bilinear(q[:, 0] + e, q[:, 1]) - g.sample_bilinear(q[:, 0] - e, q[:, 1])) / (2 * e)
+    gy = (g.sample_bilinear(q[:, 0], q[:, 1] + e) - g.sample_bilinear(q[:, 0], q[:, 1] - e)) / (2 * e)
+    J = [gx, gy, (gx * rel[:, 1] - gy * rel[:, 0]) * np.pi / 180.0, gx * rel[:, 0] + gy * rel[:, 1], np.ones(n)]
+    B = None
+    if drift:
+        B, _ = _drift_basis(np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(rel, axis=0).T))]), 500.0)
+        J += [gx[:, None] * B, gy[:, None] * B]
+    J = np.column_stack(J)
+    return g, z(q[:, 0], q[:, 1]), rel, start, B, J
+
+
+def _mc_factor(J: np.ndarray, rho: float, reps: int = 3000) -> float:
+    rng = np.random.default_rng(16)
+    n, p = J.shape
     w = rng.standard_normal((reps, n)) * np.sqrt(1.0 - rho * rho)
     w[:, 0] = rng.standard_normal(reps)
-    return lfilter([1.0], [1.0, -rho], w, axis=1)
-
-
-def _estimates(rho: float, reps: int = 600, n: int = 180, p: int = N_PARAMS):
-    rng = np.random.default_rng(16)
-    t = np.linspace(0.0, 1.0, n)
-    J = np.column_stack([np.ones(n)] + [np.sin(2 * np.pi * (k + 1) * t + k) for k in range(p - 1)])
-    E = _ar1(rng, n, rho, reps)
+    E = lfilter([1.0], [1.0, -rho], w, axis=1)
     beta = np.linalg.lstsq(J, E.T, rcond=None)[0]
-    R = E - (J @ beta).T
-    new, old = [], []
-    for r in R:
-        msd = float(r @ r) / n
-        new.append(msd * n / _dof(n, _n_eff(r) / n, p))
-        old.append(_s2_from(msd, n, 0.0))
-    return float(np.mean(new)), float(np.mean(old))
+    rss = ((E - (J @ beta).T) ** 2).sum(axis=1)
+    return (n - p) / float(rss.mean())
 
 
-def test_white_residuals_keep_the_classical_estimator():
-    assert _s2_from(2.0, 100, 0.0) == pytest.approx(2.0 * 100 / (100 - N_PARAMS))
-    assert _dof(100, 1.0) == 100 - N_PARAMS and _dof(3, 1.0) == 1.0
-    assert _s2_from(2.0, 100, 5.0) == 5.0  # the floor still holds
-    # a tiny effective sample size inflates at most four times (dof >= N / 4)
-    assert _dof(40, 0.01) == pytest.approx(10.0)
-    assert _dof(100, 0.5, 5) == pytest.approx(90.0)
+@pytest.mark.parametrize(("kind", "rho", "drift"), [("smooth", 0.8, False), ("smooth", 0.5, False),
+                                                    ("rough", 0.8, False), ("smooth", 0.8, True)])
+def test_widening_equals_the_monte_carlo_bias_of_the_classical_estimator(kind, rho, drift):
+    g, d, rel, start, B, J = _case(kind, drift)
+    gamma = (1 - rho) / (1 + rho)
+    mc = _mc_factor(J, rho)
+    got = _fit_dof_inflation(g, d, rel, (0.0, 1.0), start, None, B, gamma, 0.0, True, True)
+    assert got == pytest.approx(max(mc, 1.0), rel=0.03), (got, mc)
+    if kind == "smooth" and rho == 0.8:
+        assert got > 1.15  # a smooth terrain's fit absorbs the correlated noise: the classical estimate is low
 
 
-@pytest.mark.parametrize("rho", [0.5, 0.8])
-def test_correlated_residuals_unbiased_where_the_classical_estimator_is_low(rho):
-    new, old = _estimates(rho)
-    assert abs(new - 1.0) < 0.06, new
-    assert old < 1.0 - (0.04 if rho == 0.5 else 0.15), old  # the bias the correction removes (MC: 0.94, 0.80)
+def test_independent_residuals_are_not_widened():
+    g, d, rel, start, _, J = _case("smooth", False)
+    assert J.shape[1] == N_PARAMS
+    assert _fit_dof_inflation(g, d, rel, (0.0, 1.0), start, None, None, 1.0, 0.0, True, True) == pytest.approx(1.0)
+    # a tiny effective sample size: bounded by the N / 4 divisor floor
+    assert _fit_dof_inflation(g, d, rel, (0.0, 1.0), start, None, None, 1e-3, 0.0, True, True) <= 4.0

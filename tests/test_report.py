@@ -261,6 +261,30 @@ def test_new_figures_are_drawn(full_store, full_report):
     assert labels[2][0] == "N² (s⁻²)"
 
 
+@pytest.mark.parametrize("opt", [FAST, FigureOptions(dpi=110, width_in=10, keep_figure=True)], ids=["fast", "default"])
+def test_landing_map_png_is_the_figure_canvas_with_everything_on_it(full_store, opt):
+    """The landing map's PNG has the figure's size (it came out as a 596 x 714 portrait of an 1100 x 682 figure:
+    colour bars anchored the equal-aspect maps to the right and a colour-bar label poked out of the top), and every
+    axes, colour bar and label lies inside the canvas."""
+    from hadal.report.figures import fig_landing_map
+
+    fr = fig_landing_map(load_products(ProductStore(full_store), "dive-a"), opt)
+    img = assert_drawn(fr, opt)
+    fw, fh = fr.figure.get_size_inches() * opt.dpi
+    assert abs(img.shape[1] - fw) <= 2 and abs(img.shape[0] - fh) <= 2, ((img.shape[1], img.shape[0]), (fw, fh))
+    fig = fr.figure
+    renderer = fig.canvas.get_renderer()
+    canvas = fig.bbox
+    axes = [a for ax in fig.axes for a in (ax, *ax.child_axes)]
+    assert len(axes) >= 4  # the strip, the zoom and their colour bars
+    for a in axes:
+        bb = a.get_tightbbox(renderer)
+        assert (bb.x0 >= canvas.x0 - 1 and bb.y0 >= canvas.y0 - 1 and bb.x1 <= canvas.x1 + 1
+                and bb.y1 <= canvas.y1 + 1), (a.get_label() or a.get_ylabel(), bb.bounds, canvas.bounds)
+    strip, zoom = fig.axes[:2]
+    assert strip.get_title().startswith("submap_") and zoom.get_xlabel() == "x (m, laser frame)"
+
+
 def test_overview_draws_the_fix_ellipses_from_the_summary(full_store):
     """The 1σ/2σ outlines on the overview map have the semi-axes and azimuth of fix.json's ellipses (metres on
     the ground, about profile_start), and the zoom inset shows the same outlines."""

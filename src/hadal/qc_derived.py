@@ -122,6 +122,8 @@ def flags_for(values: Any, cfg: DerivedVariableQC) -> np.ndarray:
     import numpy as np
     from ioos_qc import qartod
 
+    from hadal.ingest.qc import combine_flags
+
     x = np.asarray(values, dtype=np.float64).reshape(-1)
     results = []
     if cfg.fail_span is not None or cfg.suspect_span is not None:
@@ -131,12 +133,7 @@ def flags_for(values: Any, cfg: DerivedVariableQC) -> np.ndarray:
     if cfg.spike_suspect is not None and x.size >= 3:
         results.append(np.ma.filled(qartod.spike_test(inp=x, suspect_threshold=cfg.spike_suspect,
                                                       fail_threshold=cfg.spike_fail or np.inf), NOT_EVALUATED))
-    if results:
-        flags = np.asarray(qartod.qartod_compare(results), dtype=np.uint8)
-    else:
-        flags = np.full(x.size, NOT_EVALUATED, dtype=np.uint8)
-    flags[~np.isfinite(x)] = MISSING
-    return flags
+    return combine_flags(results, x)
 
 
 def _worst(a: np.ndarray, b: np.ndarray) -> np.ndarray:

@@ -8,8 +8,9 @@ Public API:
 * readers: :func:`read_soundings`, :func:`read_point_cloud`, :func:`read_grid`, :func:`read_gsf`.
 """
 
-import importlib
 from typing import Any
+
+from hadal._lazy import lazy_attr
 
 #: public name -> submodule; imported on first access (PEP 562), so ``import hadal.grid.points`` (e.g. for a
 #: constant in :class:`hadal.stages.grid.Params`) does not import SciPy, open3d and the readers
@@ -25,11 +26,7 @@ _LAZY = {
 
 
 def __getattr__(name: str) -> Any:
-    if name in _LAZY:
-        value = getattr(importlib.import_module(f"{__name__}.{_LAZY[name]}"), name)
-        globals()[name] = value
-        return value
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    return lazy_attr(__name__, _LAZY, name)
 
 
 __all__ = [

@@ -56,47 +56,75 @@ def shifted_cell_sums(x, y, z, x0, y0, inv_h, nx, ny, z0, check_inside, nthreads
 
 # --- Partitioned gridding (count/mean/std/median/min/max), used by hadal.grid.points.cell_stats -----------------
 #
-# Three passes, every one of them streaming or cache-resident (no random access into a grid-sized array):
-# 1. per-thread histograms of the blocks of ``2**shift`` consecutive cells (cell index as ``shifted_cell_sums``
-#    computes it; NaN/inf and outside points skipped and counted);
-# 2. a stable counting sort of the points by block (prefix sums, then the cell index recomputed and the point's
-#    in-block index (uint16) and value scattered to a few hundred sequential output streams) - 1 and 2 are
-#    ``partition_points`` (``partition_kernel`` from given cell indices);
-# 3. ``block_stats_kernel``: per block (in parallel), a counting sort by cell inside the block (its
-#    histograms fit in L2), then per cell: count, mean and M2 two-pass (shifted by the cell's first value,
-#    so 10 km depths with mm spread lose nothing), min/max and the median of the sorted segment.
+# Two passes, both streaming or cache-resident (no random access into a grid-sized array):
+# 1. ``partition_points`` (``partition_kernel`` from given cell indices): the points in chunks of ``chunk``
+#    consecutive points (the threads take contiguous runs of chunks). Per chunk: the cell index of every point
+#    (as ``shifted_cell_sums`` computes it; NaN/inf and outside points skipped and counted) into a chunk-sized
+#    buffer (L2), the histogram of the blocks of ``2**shift`` consecutive cells, then a stable counting sort of
+#    the chunk's points by block, written (in-block index uint16, value float64) into the chunk's own slice of
+#    the output: the input is read once, and no global histogram pass is needed. ``seg[c, b]`` is where block
+#    ``b``'s segment of chunk ``c`` starts (``seg[c, nblocks]``: the end of chunk ``c``'s valid points);
+# 2. ``block_stats_kernel``: per block (in parallel), its segments of every chunk in order (file order kept),
+#    a counting sort by cell inside the block (its histograms fit in L2), then per cell: count, mean and M2
+#    from sums shifted by the cell's first value (so 10 km depths with mm spread lose nothing; a block where
+#    a cell's rounding bound exceeds ``_BLOCK_M2_RTOL`` is recomputed two-pass) or, with median/min/max, two-pass
+#    over the cell's grouped values (as the NumPy reference), min/max and the median of the sorted segment.
+
+
+#: ``block_stats_kernel`` takes a block's one-pass M2 (sums shifted by each cell's first value) unless a cell's
+#: rounding bound ``2 eps n S2`` exceeds this fraction of its M2; then the block is recomputed two-pass
+_BLOCK_M2_RTOL = 1e-13
+_EPS2 = 2.0 * np.finfo(np.float64).eps
+
+
+@njit(inline="always")
+def _partition_chunk(k, z, lo, h, row, kb, zb, shift):  # pragma: no cover - compiled
+    """Stable counting sort of the points ``lo .. lo + k.size`` (cell indices ``k``, ``-1``: skip; ``h``: their
+    block histogram, used up as the write pointers) by block into ``kb``/``zb[lo:]``; ``row`` (nblocks + 1)
+    receives the blocks' segment starts and the end."""
+    nblocks = h.size
+    pos = lo
+    for b in range(nblocks):
+        row[b] = pos
+        hb = h[b]
+        h[b] = pos
+        pos += hb
+    row[nblocks] = pos
+    mask = (1 << shift) - 1
+    for i in range(k.size):
+        kk = k[i]
+        if kk >= 0:
+            b = kk >> shift
+            p = h[b]
+            kb[p] = kk & mask
+            zb[p] = z[lo + i]
+            h[b] = p + 1
 
 
 @njit(parallel=True, cache=True, nogil=True)
-def partition_kernel(k, z, shift, nblocks, nthreads):  # pragma: no cover - compiled
-    """Stable counting sort of the points with ``k >= 0`` by block ``k >> shift`` (``shift <= 16``).
+def partition_kernel(k, z, shift, nblocks, chunk, nthreads):  # pragma: no cover - compiled
+    """Chunked stable counting sort of the points with ``k >= 0`` by block ``k >> shift`` (``shift <= 16``).
 
-    Returns ``(kb uint16, zb, bstart)``: the cell indices *within their block* (``k & (2**shift - 1)``) and
-    values grouped by block, block ``b`` in ``[bstart[b], bstart[b + 1])``, file order kept within a block."""
+    Returns ``(kb uint16, zb, seg)``: the cell indices *within their block* (``k & (2**shift - 1)``) and values,
+    block ``b``'s points of chunk ``c`` in ``[seg[c, b], seg[c, b + 1])``, file order kept within a block."""
     n = k.size
-    chunk = (n + nthreads - 1) // nthreads
-    hist = np.zeros((nthreads, nblocks), np.int64)
+    nchunks = max(1, (n + chunk - 1) // chunk)
+    seg = np.empty((nchunks, nblocks + 1), np.int64)
+    kb = np.empty(n, np.uint16)
+    zb = np.empty(n, np.float64)
+    per = (nchunks + nthreads - 1) // nthreads
     for t in prange(nthreads):
-        h = hist[t]
-        for i in range(t * chunk, min(n, (t + 1) * chunk)):
-            kk = k[i]
-            if kk >= 0:
-                h[kk >> shift] += 1
-    bstart, off, pos = _block_offsets(hist)
-    kb = np.empty(pos, np.uint16)
-    zb = np.empty(pos, np.float64)
-    mask = (1 << shift) - 1
-    for t in prange(nthreads):
-        o = off[t]
-        for i in range(t * chunk, min(n, (t + 1) * chunk)):
-            kk = k[i]
-            if kk >= 0:
-                b = kk >> shift
-                p = o[b]
-                kb[p] = kk & mask
-                zb[p] = z[i]
-                o[b] = p + 1
-    return kb, zb, bstart
+        h = np.empty(nblocks, np.int64)
+        for ci in range(t * per, min(nchunks, (t + 1) * per)):
+            lo = ci * chunk
+            hi = min(n, lo + chunk)
+            h[:] = 0
+            for i in range(lo, hi):
+                kk = k[i]
+                if kk >= 0:
+                    h[kk >> shift] += 1
+            _partition_chunk(k[lo:hi], z, lo, h, seg[ci], kb, zb, shift)
+    return kb, zb, seg
 
 
 @njit(cache=True, nogil=True)
@@ -116,12 +144,13 @@ def _sort_small(a):  # pragma: no cover - compiled
 
 
 @njit(parallel=True, cache=True, nogil=True)
-def block_stats_kernel(kb, zb, bstart, shift, m, want_m2, want_sorted, nthreads):  # pragma: no cover - compiled
+def block_stats_kernel(kb, zb, seg, shift, m, want_m2, want_sorted, nthreads):  # pragma: no cover - compiled
     """Per-cell ``count`` (int64), ``mean``, ``m2`` (sum of squared deviations from the mean; empty when
     not ``want_m2``) and, with ``want_sorted``, ``median``/``min``/``max``, over ``m`` cells from the
-    block-partitioned points of :func:`partition_kernel` (``kb``: cell index within the block). Empty cells:
-    count 0, NaN elsewhere."""
-    nblocks = bstart.size - 1
+    block-partitioned points of :func:`partition_kernel` (``kb``: cell index within the block; ``seg``: the
+    chunks' block segments). Empty cells: count 0, NaN elsewhere."""
+    nseg = seg.shape[0]
+    nblocks = seg.shape[1] - 1
     count = np.zeros(m, np.int64)
     mean = np.full(m, np.nan)
     m2 = np.full(m if want_m2 else 0, np.nan)
@@ -136,33 +165,45 @@ def block_stats_kernel(kb, zb, bstart, shift, m, want_m2, want_sorted, nthreads)
         s1 = np.zeros(bs)
         s2 = np.zeros(bs)
         for b in range(t, nblocks, nthreads):
-            lo = bstart[b]
-            hi = bstart[b + 1]
-            if hi == lo:
+            total = 0
+            for ci in range(nseg):
+                total += seg[ci, b + 1] - seg[ci, b]
+            if total == 0:
                 continue
             base = b << shift
             sz = min(bs, m - base)
             cnt[:sz] = 0
             s1[:sz] = 0.0
             s2[:sz] = 0.0
-            for p in range(lo, hi):
-                j = kb[p]
-                zi = zb[p]
-                if cnt[j] == 0:
-                    ref[j] = zi
-                cnt[j] += 1
-                s1[j] += zi - ref[j]
+            for ci in range(nseg):
+                for p in range(seg[ci, b], seg[ci, b + 1]):
+                    j = kb[p]
+                    zi = zb[p]
+                    if cnt[j] == 0:
+                        ref[j] = zi
+                    cnt[j] += 1
+                    d = zi - ref[j]
+                    s1[j] += d
+                    s2[j] += d * d
+            ill = False
             for j in range(sz):
                 c = cnt[j]
                 if c > 0:
-                    s1[j] = ref[j] + s1[j] / c  # now the mean
+                    u = s1[j] / c
+                    mj = max(s2[j] - s1[j] * u, 0.0)  # shifted sums: M2 = S2 - S1**2 / n
+                    ill |= _EPS2 * c * s2[j] > _BLOCK_M2_RTOL * mj  # its rounding bound is too large
+                    s1[j] = ref[j] + u  # now the mean
+                    s2[j] = mj
                     count[base + j] = c
                     mean[base + j] = s1[j]
-            if want_m2:
-                for p in range(lo, hi):
-                    j = kb[p]
-                    d = zb[p] - s1[j]
-                    s2[j] += d * d
+            if want_m2 and not want_sorted:
+                if ill:  # recompute the block two-pass about the means (mean unchanged)
+                    s2[:sz] = 0.0
+                    for ci in range(nseg):
+                        for p in range(seg[ci, b], seg[ci, b + 1]):
+                            j = kb[p]
+                            d = zb[p] - s1[j]
+                            s2[j] += d * d
                 for j in range(sz):
                     if cnt[j] > 0:
                         m2[base + j] = s2[j]
@@ -175,40 +216,30 @@ def block_stats_kernel(kb, zb, bstart, shift, m, want_m2, want_sorted, nthreads)
                     acc += cnt[j]
                 start[sz] = acc
                 fill = start[:sz].copy()
-                buf = np.empty(hi - lo)
-                for p in range(lo, hi):
-                    j = kb[p]
-                    buf[fill[j]] = zb[p]
-                    fill[j] += 1
+                buf = np.empty(total)
+                for ci in range(nseg):
+                    for p in range(seg[ci, b], seg[ci, b + 1]):
+                        j = kb[p]
+                        buf[fill[j]] = zb[p]
+                        fill[j] += 1
                 for j in range(sz):
                     c = cnt[j]
                     if c == 0:
                         continue
                     a = start[j]
-                    seg = buf[a:a + c]
-                    _sort_small(seg)
-                    med[base + j] = 0.5 * (seg[(c - 1) // 2] + seg[c // 2])
-                    zmin[base + j] = seg[0]
-                    zmax[base + j] = seg[c - 1]
+                    cs = buf[a:a + c]
+                    if want_m2:  # two-pass about the mean over the cell's values (in file order), in cache
+                        mu = s1[j]
+                        q2 = 0.0
+                        for q in range(c):
+                            d = cs[q] - mu
+                            q2 += d * d
+                        m2[base + j] = q2
+                    _sort_small(cs)
+                    med[base + j] = 0.5 * (cs[(c - 1) // 2] + cs[c // 2])
+                    zmin[base + j] = cs[0]
+                    zmax[base + j] = cs[c - 1]
     return count, mean, m2, med, zmin, zmax
-
-
-@njit(inline="always")
-def _block_offsets(hist):  # pragma: no cover - compiled
-    """From per-thread block histograms ``hist`` (nthreads, nblocks): the blocks' start offsets ``bstart``
-    (nblocks + 1), each thread's write offset per block ``off`` (threads in order within a block: file order
-    kept) and the total count."""
-    nthreads, nblocks = hist.shape
-    bstart = np.zeros(nblocks + 1, np.int64)
-    off = np.empty((nthreads, nblocks), np.int64)
-    pos = 0
-    for b in range(nblocks):
-        bstart[b] = pos
-        for t in range(nthreads):
-            off[t, b] = pos
-            pos += hist[t, b]
-    bstart[nblocks] = pos
-    return bstart, off, pos
 
 
 @njit(inline="always")
@@ -245,51 +276,57 @@ def _keep(xi, yi, zi, x0, y0, inv_h, nx, ny, check_inside):  # pragma: no cover 
     return 0
 
 
-@njit(parallel=True, cache=True, nogil=True)
-def partition_points(x, y, z, x0, y0, inv_h, nx, ny, check_inside, shift, nblocks, nthreads):  # pragma: no cover
-    """:func:`partition_kernel` straight from the points (``shift <= 16``): a first pass counts the block
-    histograms (and the NaN/inf and outside points, skipped as :func:`shifted_cell_sums` skips them), the
-    second recomputes each point's cell index (measured: the same CPU time as storing and re-reading an int32
-    index, without its 4 bytes a point) and scatters its in-block index (uint16) and value to its block.
-    Memory: 10 bytes a point (16 before: an int32 global index). Returns
-    ``(kb, zb, bstart, n_nonfinite, n_outside)``."""
-    n = x.size
-    bad = np.zeros(nthreads, np.int64)
-    out = np.zeros(nthreads, np.int64)
-    hist = np.zeros((nthreads, nblocks), np.int64)
-    chunk = (n + nthreads - 1) // nthreads
-    for t in prange(nthreads):
-        h = hist[t]
-        nb = 0
-        no = 0
-        for i in range(t * chunk, min(n, (t + 1) * chunk)):
-            xi = x[i]
-            yi = y[i]
-            why = _keep(xi, yi, z[i], x0, y0, inv_h, nx, ny, check_inside)
+@njit(cache=True, nogil=True)
+def _chunk_cells(x, y, z, lo, hi, x0, y0, inv_h, nx, ny, check_inside, shift, k, h):  # pragma: no cover - compiled
+    """Cell index ``k[i - lo]`` of the points ``lo .. hi`` (``-1``: NaN/inf or outside) and their block histogram
+    ``h``; returns the numbers of NaN/inf and of outside points."""
+    h[:] = 0
+    nb = 0
+    no = 0
+    for i in range(lo, hi):
+        xi = x[i]
+        yi = y[i]
+        why = _keep(xi, yi, z[i], x0, y0, inv_h, nx, ny, check_inside)
+        if why == 0:
+            kk = _cell_of(xi, yi, x0, y0, inv_h, nx, ny)
+            k[i - lo] = kk
+            h[kk >> shift] += 1
+        else:
+            k[i - lo] = -1
             if why == 1:
                 nb += 1
-            elif why == 2:
-                no += 1
             else:
-                h[_cell_of(xi, yi, x0, y0, inv_h, nx, ny) >> shift] += 1
+                no += 1
+    return nb, no
+
+
+@njit(parallel=True, cache=True, nogil=True)
+def partition_points(x, y, z, x0, y0, inv_h, nx, ny, check_inside, shift, nblocks, chunk, nthreads):  # pragma: no cover
+    """:func:`partition_kernel` straight from the points (``shift <= 16``), reading them once: per chunk, the
+    cell indices (NaN/inf and outside points skipped and counted, as :func:`shifted_cell_sums` skips them) go
+    to a chunk-sized buffer that stays in cache, then the chunk is sorted by block into its slice of the
+    output. Memory: 10 bytes a point (uint16 in-block index, float64 value) plus the ``(nchunks, nblocks + 1)``
+    segment table. Returns ``(kb, zb, seg, n_nonfinite, n_outside)``."""
+    n = x.size
+    nchunks = max(1, (n + chunk - 1) // chunk)
+    seg = np.empty((nchunks, nblocks + 1), np.int64)
+    kb = np.empty(n, np.uint16)
+    zb = np.empty(n, np.float64)
+    bad = np.zeros(nthreads, np.int64)
+    out = np.zeros(nthreads, np.int64)
+    per = (nchunks + nthreads - 1) // nthreads
+    for t in prange(nthreads):
+        h = np.empty(nblocks, np.int64)
+        kbuf = np.empty(chunk, np.int32)  # grids of < 2**31 cells
+        nb = 0
+        no = 0
+        for ci in range(t * per, min(nchunks, (t + 1) * per)):
+            lo = ci * chunk
+            hi = min(n, lo + chunk)
+            why = _chunk_cells(x, y, z, lo, hi, x0, y0, inv_h, nx, ny, check_inside, shift, kbuf, h)
+            nb += why[0]
+            no += why[1]
+            _partition_chunk(kbuf[:hi - lo], z, lo, h, seg[ci], kb, zb, shift)
         bad[t] = nb
         out[t] = no
-    bstart, off, pos = _block_offsets(hist)
-    kb = np.empty(pos, np.uint16)
-    zb = np.empty(pos, np.float64)
-    mask = (1 << shift) - 1
-    for t in prange(nthreads):
-        o = off[t]
-        for i in range(t * chunk, min(n, (t + 1) * chunk)):
-            xi = x[i]
-            yi = y[i]
-            zi = z[i]
-            if _keep(xi, yi, zi, x0, y0, inv_h, nx, ny, check_inside) != 0:
-                continue
-            kk = _cell_of(xi, yi, x0, y0, inv_h, nx, ny)
-            b = kk >> shift
-            p = o[b]
-            kb[p] = kk & mask
-            zb[p] = zi
-            o[b] = p + 1
-    return kb, zb, bstart, bad.sum(), out.sum()
+    return kb, zb, seg, bad.sum(), out.sum()

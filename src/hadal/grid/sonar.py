@@ -583,6 +583,15 @@ def _read_exact(fh, n: int) -> bytes:
     return b if b is not None else b""
 
 
+def _read_lead(fh, n: int, p: Path, ext: str, partial: str) -> bytes:
+    """The ``n``-byte lead (length, record frame) of the next record: ``b""`` at a clean end of the file; a partial
+    one is a ``truncated <ext> file (<partial>)`` InputError (``{got}`` in ``partial``: the bytes read)."""
+    lead = _read_exact(fh, n)
+    if 0 < len(lead) < n:
+        raise InputError(f"{p}: truncated {ext} file ({partial.format(got=len(lead))})")
+    return lead
+
+
 def _datagrams(p: Path, fh, ext: str, order_of, limits: tuple[int, int], *,
                length_counts_itself: bool) -> Iterator[tuple[int, int, bytes, bytes]]:
     """Walk length-prefixed datagrams (Kongsberg .kmall / .all): yield ``(k, offset, lead, body)`` with the
@@ -591,11 +600,9 @@ def _datagrams(p: Path, fh, ext: str, order_of, limits: tuple[int, int], *,
     A partial length or body is a ``truncated .ext`` InputError, a length out of limits ``corrupt .ext``."""
     off = k = 0
     while True:
-        lead = _read_exact(fh, 4)
+        lead = _read_lead(fh, 4, p, ext, f"{{got}} stray bytes at byte {off}")
         if not lead:
             return
-        if len(lead) < 4:
-            raise InputError(f"{p}: truncated {ext} file ({len(lead)} stray bytes at byte {off})")
         n = struct.unpack(order_of(lead) + "I", lead)[0]
         if n < limits[0] or n > limits[1]:
             raise InputError(f"{p}: corrupt {ext} file (datagram {k} at byte {off} declares {n} bytes)")
@@ -911,11 +918,9 @@ def _iter_s7k(p: Path, comp: str | None, chunk_points: int, info: dict) -> Itera
     off = 0
     with _reading(p, comp) as fh:
         while True:
-            drf = _read_exact(fh, 64)
+            drf = _read_lead(fh, 64, p, ".s7k", f"partial record frame at byte {off}")
             if not drf:
                 break
-            if len(drf) < 64:
-                raise InputError(f"{p}: truncated .s7k file (partial record frame at byte {off})")
             (_ver, _o, sync, size, opt_off, _opt_id, t7k, _rv, rtype, _dev, _r1, _se, _r2, flags, _r3, _r4,
              _ft, _fn) = _S7K_DRF.unpack(drf)
             if sync != 0x0000FFFF:

@@ -13,7 +13,9 @@ Public API
 * :func:`build_sensor_table` - all of the above -> the ``sensors`` table (``schemas/sensors.yaml``).
 """
 
-import importlib
+from typing import Any
+
+from hadal._lazy import lazy_attr
 
 #: public name -> the submodule defining it, imported on first use (PEP 562): importing one reader (``hadal
 #: inspect``, the stages) does not import them all (ioos_qc, numba, pandas: seconds)
@@ -30,12 +32,8 @@ _WHERE = {
 }
 
 
-def __getattr__(name: str):
-    if name in _WHERE:
-        value = getattr(importlib.import_module(f"hadal.ingest.{_WHERE[name]}"), name)
-        globals()[name] = value
-        return value
-    raise AttributeError(f"module 'hadal.ingest' has no attribute {name!r}")
+def __getattr__(name: str) -> Any:
+    return lazy_attr(__name__, _WHERE, name)
 
 
 def __dir__() -> list[str]:

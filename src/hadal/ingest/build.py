@@ -7,7 +7,7 @@ Pure library code (no store, no Prefect): :func:`read_sources` -> {sensor: Senso
 from __future__ import annotations
 
 import warnings
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterator, Mapping, Sequence
 from functools import lru_cache
 from pathlib import Path
 from typing import Any
@@ -46,23 +46,31 @@ def _schema_path() -> Path:
 
 @lru_cache(maxsize=1)
 def sensors_schema() -> dict[str, Any]:
-    """The ``sensors`` contract from ``schemas/sensors.yaml`` (columns with dtype/units/standard_name/long_name)."""
+    """The ``sensors`` table contract from ``schemas/sensors.yaml`` (column set and dtypes, time rules). The
+    columns' attributes are not in it: they are declared once, in the variable registry (:func:`field_metadata`)."""
     return yaml.safe_load(_schema_path().read_text(encoding="utf-8"))
 
 
 def field_metadata() -> dict[str, dict[str, str]]:
-    """Per-column Parquet field metadata (units, standard_name, long_name) from the contract, QC columns included."""
-    sch = sensors_schema()
+    """Per-column Parquet field metadata of ``sensors`` (units, standard_name, long_name; flag attributes of the
+    ``<var>_qc`` columns), QC columns included: the variable registry's (``schemas/variables.yaml``), the single
+    source of the attributes (:func:`hadal.products.io.column_attrs`, which :func:`write_parquet` applies too)."""
+    from hadal.products.io import column_attrs
+
     out: dict[str, dict[str, str]] = {}
-    meanings = sch.get("qc_flag_meanings", "")
-    values = " ".join(str(v) for v in sch.get("qc_flag_values", []))
-    for name, col in sch["columns"].items():
-        out[name] = {k: str(col[k]) for k in ("units", "standard_name", "long_name") if col.get(k)}
+    for name in sensors_schema()["columns"]:
+        out[name] = column_attrs(name, where="sensors.yaml")
         if name != "time":
-            out[f"{name}_qc"] = {"long_name": f"QARTOD flag of {name}", "flag_values": values,
-                                 "flag_meanings": meanings, "standard_name": "quality_flag",
-                                 "units": "1"}
+            out[f"{name}_qc"] = column_attrs(f"{name}_qc", where="sensors.yaml")
     return out
+
+
+def qc_flag_values() -> list[int]:
+    """The QARTOD flag values a ``<var>_qc`` column may hold (the registry's ``*_qc`` pattern)."""
+    from hadal.products.registry import registry
+
+    spec = registry().spec(f"{SENSOR_VARIABLES[0]}_qc", "sensors.yaml")
+    return [int(v) for v in spec.flag_values or ()]
 
 
 def check_ros2_mapping(file: str, tp: Any, mapping: Any, sensor: str) -> None:
@@ -92,6 +100,25 @@ def check_ros2_mapping(file: str, tp: Any, mapping: Any, sensor: str) -> None:
         raise InputError(f"{file}: vehicle config maps {sensor}'s {var} to field {f!r} of topic {tp.topic}, "
                          f"which is {what} ({ftype}) in the ROS 2 schema {tp.schema_name}: only numeric fields "
                          f"(int*, uint*, float*) can give a numeric variable{hint}")
+
+
+def _mapped_sensors(vehicle: VehicleConfig, kind: str, what: str) -> Iterator[tuple[str, Any]]:
+    """``(name, sensor)`` of each of the vehicle's sensors with a ``kind`` (``mcap``/``csv``) mapping, in order; a
+    required sensor without one is an :class:`InputError` (``what``: the mapping in words)."""
+    for name, s in vehicle.sensors.items():
+        if getattr(s, kind) is None:
+            if s.required:
+                raise InputError(f"vehicle config gives no {what} for the required sensor {name!r}")
+            continue
+        yield name, s
+
+
+def _missing_channel(msg: str, required: bool) -> None:
+    """A mapped sensor with no data: an :class:`InputError` when it is required, else a warning (flag 9 columns)
+    for the caller of the ``read_*_sensors`` function."""
+    if required:
+        raise InputError(msg + " - missing required channel")
+    warnings.warn(msg + "; its columns will be empty (flag 9)", stacklevel=3)
 
 
 def read_mcap_sensors(paths: Sequence[str | Path], vehicle: VehicleConfig
@@ -138,11 +165,7 @@ def read_mcap_sensors(paths: Sequence[str | Path], vehicle: VehicleConfig
             f"{', ...' if len(have) > 8 else ''} - nothing to ingest"
             f"{' (missing required channel: ' + ', '.join(req) + ')' if req else ''}; check vehicle.yaml "
             "(hadal init suggests one)")
-    for name, s in vehicle.sensors.items():
-        if s.mcap is None:
-            if s.required:
-                raise InputError(f"vehicle config gives no MCAP topic for the required sensor {name!r}")
-            continue
+    for name, s in _mapped_sensors(vehicle, "mcap", "MCAP topic"):
         parts = per_topic.get(s.mcap.topic)
         if not parts:
             msg = f"{names}: no messages on topic {s.mcap.topic!r} (sensor {name!r})"
@@ -153,9 +176,7 @@ def read_mcap_sensors(paths: Sequence[str | Path], vehicle: VehicleConfig
                 msg = (f"{Path(bad[0][0]['path']).name}: none of the {tr['decode_errors']} message(s) on topic "
                        f"{s.mcap.topic} (sensor {name!r}) could be decoded (message encoding "
                        f"{tr.get('message_encoding')!r}); first error: {tr.get('first_decode_error') or 'unknown'}")
-            if s.required:
-                raise InputError(msg + " - missing required channel")
-            warnings.warn(msg + "; its columns will be empty (flag 9)", stacklevel=2)
+            _missing_channel(msg, s.required)
             continue
         t = np.concatenate([x[0] for x in parts])
         msgs = [m for x in parts for m in x[1]]
@@ -190,17 +211,10 @@ def _time_fields(msg: dict[str, Any]) -> list[str]:
 def read_csv_sensors(files: Mapping[str, Path], vehicle: VehicleConfig) -> dict[str, SensorSamples]:
     """Read every sensor with a ``csv`` mapping; ``files`` maps the dive's ``sources.csv`` keys to paths."""
     out: dict[str, SensorSamples] = {}
-    for name, s in vehicle.sensors.items():
-        if s.csv is None:
-            if s.required:
-                raise InputError(f"vehicle config gives no CSV mapping for the required sensor {name!r}")
-            continue
+    for name, s in _mapped_sensors(vehicle, "csv", "CSV mapping"):
         path = files.get(s.csv.source)
         if path is None:
-            msg = f"dive.yaml sources.csv has no {s.csv.source!r} file (sensor {name!r})"
-            if s.required:
-                raise InputError(msg + " - missing required channel")
-            warnings.warn(msg + "; its columns will be empty (flag 9)", stacklevel=2)
+            _missing_channel(f"dive.yaml sources.csv has no {s.csv.source!r} file (sensor {name!r})", s.required)
             continue
         out[name] = read_sensor_csv(path, s.csv, name)
     return out
@@ -628,7 +642,7 @@ def validate_sensor_table(df: pd.DataFrame, *, profile: bool = False) -> None:
 
     sch = sensors_schema()
     cols: dict[str, Any] = {}
-    flag_values = [int(v) for v in sch["qc_flag_values"]]
+    flag_values = qc_flag_values()
     for name, c in sch["columns"].items():
         if name == "time" and profile:
             cols[name] = pa.Column("datetime64[ns, UTC]", nullable=True,

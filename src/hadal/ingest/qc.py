@@ -27,7 +27,7 @@ from pydantic import BaseModel, ConfigDict, Field, model_validator
 if TYPE_CHECKING:
     import numpy as np
 
-__all__ = ["VariableQC", "DEFAULT_QC", "merge_qc", "qc_flags", "qc_table", "flat_line_flags"]
+__all__ = ["VariableQC", "DEFAULT_QC", "merge_qc", "qc_flags", "qc_table", "flat_line_flags", "combine_flags"]
 
 GOOD, NOT_EVALUATED, SUSPECT, BAD, MISSING = 1, 2, 3, 4, 9
 
@@ -138,6 +138,15 @@ def qc_flags(values: np.ndarray, time_ns: np.ndarray, cfg: VariableQC) -> np.nda
             n_sus = max(int(cfg.flat_line_suspect_s / dt), 1)
             n_fail = max(int((cfg.flat_line_fail_s or cfg.flat_line_suspect_s) / dt), n_sus)
             results.append(flat_line_flags(x, n_sus, n_fail, cfg.flat_line_tolerance))
+    return combine_flags(results, x)
+
+
+def combine_flags(results: list[np.ndarray], x: np.ndarray) -> np.ndarray:
+    """The QARTOD aggregate (``qartod_compare``, uint8) of the tests' ``results`` on the series ``x``: 2 (not
+    evaluated) everywhere when no test ran, 9 (missing) where ``x`` is not finite."""
+    import numpy as np
+    from ioos_qc import qartod
+
     if results:
         flags = np.asarray(qartod.qartod_compare(results), dtype=np.uint8)
     else:

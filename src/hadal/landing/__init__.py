@@ -3,8 +3,9 @@
 Public API: :class:`Vehicle` (Table II, [Landing Eqs. 1-9]), :func:`analyse_submap` -> :class:`LandingResult`.
 """
 
-import importlib
 from typing import Any
+
+from hadal._lazy import lazy_attr
 
 #: public name -> submodule, imported on first access (PEP 562): ``hadal.landing.vehicle``/``limits`` (used by
 #: :class:`hadal.stages.landing.Params`) load without the SciPy/numba analysis in ``sites``
@@ -12,11 +13,7 @@ _LAZY = {"LandingResult": "sites", "analyse_submap": "sites", "Vehicle": "vehicl
 
 
 def __getattr__(name: str) -> Any:
-    if name in _LAZY:
-        value = getattr(importlib.import_module(f"{__name__}.{_LAZY[name]}"), name)
-        globals()[name] = value
-        return value
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    return lazy_attr(__name__, _LAZY, name)
 
 
 __all__ = ["LandingResult", "Vehicle", "analyse_submap"]

@@ -345,6 +345,20 @@ def site_stats(lab, d2, n, min_r2):  # pragma: no cover - compiled
     return area, rmin, rmax + 1, cmin, cmax + 1, dmax2, best_r, best_c
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _append_cell(br, bc, nb, i, j):  # pragma: no cover - compiled
+    """Store (i, j) at index ``nb`` of the growing (rows, cols) buffers, doubling them when full; returns them."""
+    if nb == br.size:
+        br2 = np.empty(2 * br.size, np.int64)
+        bc2 = np.empty(2 * br.size, np.int64)
+        br2[:nb] = br
+        bc2[:nb] = bc
+        br, bc = br2, bc2
+    br[nb] = i
+    bc[nb] = j
+    return br, bc
+
+
 @njit(cache=True, nogil=True)
 def outer_border_of(lab, lid):  # pragma: no cover - compiled
     """Cells outside the set ``lab == lid`` (including the one-cell ring beyond its edges) that are 8-adjacent
@@ -380,14 +394,7 @@ def outer_border_of(lab, lid):  # pragma: no cover - compiled
                 continue
             if inside_row and 0 <= j < nx and lab[i, j] == lid:
                 continue
-            if nb == br.size:
-                br2 = np.empty(2 * br.size, np.int64)
-                bc2 = np.empty(2 * br.size, np.int64)
-                br2[:nb] = br
-                bc2[:nb] = bc
-                br, bc = br2, bc2
-            br[nb] = i
-            bc[nb] = j
+            br, bc = _append_cell(br, bc, nb, i, j)
             nb += 1
     return br[:nb], bc[:nb], n_in
 
@@ -447,13 +454,6 @@ def outer_border_reference(m):  # pragma: no cover - compiled
                 if hit:
                     break
             if hit:
-                if nb == br.size:
-                    br2 = np.empty(2 * br.size, np.int64)
-                    bc2 = np.empty(2 * br.size, np.int64)
-                    br2[:nb] = br
-                    bc2[:nb] = bc
-                    br, bc = br2, bc2
-                br[nb] = i
-                bc[nb] = j
+                br, bc = _append_cell(br, bc, nb, i, j)
                 nb += 1
     return br[:nb], bc[:nb], n_in

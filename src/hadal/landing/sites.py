@@ -794,6 +794,62 @@ def analyse_submap(
     opt = _options(**{**(options.model_dump() if options is not None else {}), **option_values})
     t_all = time.perf_counter()
     timings: dict[str, float] = {}
+    inp = _prepare_input(grid, vehicle, opt, headings_deg, frame, elevation_sigma_m, keep_heading_exclusion,
+                         memory_limit_bytes, work_limit)
+    maps = _terrain_maps(inp.z, inp.cell, vehicle, opt, timings)
+
+    t = time.perf_counter()
+    ctx = _heading_context(inp, vehicle, opt, maps)
+    timings["prepare_headings"] = time.perf_counter() - t
+
+    t = time.perf_counter()
+    results, first, cached = _run_headings(ctx, inp.heads, inp.phi, opt.workers, keep_heading_exclusion)
+    timings["headings"] = time.perf_counter() - t
+
+    t = time.perf_counter()
+    exclusion = (np.stack([r[0] for r in results]) if keep_heading_exclusion
+                 else np.zeros((0,) + inp.z.shape, np.uint8))
+    sites = _site_table(results, inp.phi)
+    del results
+    if len(sites) and inp.sigma is not None:
+        sites["p_landable"] = [
+            landability_probability(inp.z, maps.h, inp.sigma, int(r.row), int(r.col), float(r.heading_deg) - inp.phi,
+                                    inp.cell, vehicle)
+            for r in sites.itertuples()]
+    best, best_mask, fp_slope = _select_best(ctx, sites, inp.heads, inp.phi, first, cached)
+    timings["selection"] = time.perf_counter() - t
+    timings["total"] = time.perf_counter() - t_all
+    return LandingResult(
+        x_m=inp.x, y_m=inp.y, cell_m=inp.cell, vehicle=vehicle, headings_deg=inp.heads, elevation_m=inp.z,
+        slope_local_deg=maps.slope_local, protrusion_height_m=maps.h, protrusion_candidate=maps.candidate,
+        small_exclusion=maps.small_excl, high_protrusion=maps.high, exclusion=exclusion, sites=sites, best=best,
+        footprint_slope_deg=fp_slope, best_site_mask=best_mask, r_max_m=ctx.r_max_m, timings_s=timings,
+        filled=inp.filled, frame_rotation_deg=inp.phi, world_grid=inp.world, warnings=inp.warnings,
+    )
+
+
+@dataclass
+class _Input:
+    """The analysed grid of :func:`analyse_submap`: elevation (m, up; in the along-track frame when rotated by
+    ``phi``), its coordinates, cell, per-cell σ, filled holes, the world grid, the headings and the warnings."""
+
+    z: np.ndarray
+    x: np.ndarray
+    y: np.ndarray
+    cell: float
+    sigma: np.ndarray | None
+    filled: np.ndarray | None
+    phi: float
+    world: Any
+    heads: np.ndarray
+    warnings: list[str]
+
+
+def _prepare_input(grid: xr.DataArray, vehicle: Vehicle, opt: AnalysisOptions, headings_deg, frame: str,
+                   elevation_sigma_m: xr.DataArray | None, keep_heading_exclusion: bool,
+                   memory_limit_bytes: float | None, work_limit: float | None) -> _Input:
+    """Checked grid arrays, resource limits, σ, filled holes and the along-track frame of :func:`analyse_submap`
+    (in that order, so the first problem found is the one reported)."""
     z, x, y, cell = _grid_arrays(grid, vehicle, opt.max_cell_fraction)
     warn: list[str] = []
     if cell > CELL_FRACTION_RULE * vehicle.width_m * (1 + 1e-6):
@@ -824,11 +880,28 @@ def analyse_submap(
     heads = default_headings_deg() if headings_deg is None else np.asarray(headings_deg, float)
     if heads.ndim != 1 or heads.size == 0 or not np.all(np.isfinite(heads)):
         raise InputError("landing headings must be a non-empty list of finite angles")
-    theta_c = vehicle.critical_slope_deg
-    h_c = vehicle.critical_height_m
-    if opt.min_protrusion_height_m >= h_c:
-        raise ConfigError(f"min_protrusion_height_m {opt.min_protrusion_height_m} m must be below h_c {h_c:.3f} m")
+    if opt.min_protrusion_height_m >= vehicle.critical_height_m:
+        raise ConfigError(f"min_protrusion_height_m {opt.min_protrusion_height_m} m must be below h_c "
+                          f"{vehicle.critical_height_m:.3f} m")
+    return _Input(z, x, y, cell, sigma, filled, phi, world, heads, warn)
 
+
+@dataclass
+class _TerrainMaps:
+    """The heading-independent maps of :func:`analyse_submap` (Figs. 16-18)."""
+
+    slope_local: np.ndarray
+    h: np.ndarray
+    high: np.ndarray
+    candidate: np.ndarray
+    small_excl: np.ndarray
+    static: np.ndarray  # uint8 SMALL_PROTRUSION bits
+
+
+def _terrain_maps(z: np.ndarray, cell: float, vehicle: Vehicle, opt: AnalysisOptions,
+                  timings: dict[str, float]) -> _TerrainMaps:
+    """Local slope (checked for plausibility), protrusion heights, high protrusions and the small-protrusion
+    exclusion; their times into ``timings``."""
     t = time.perf_counter()
     win = slope_window_px(opt.local_slope_window_m, cell)
     slope_local = local_slope_deg(z, cell, win)
@@ -847,18 +920,22 @@ def analyse_submap(
     t = time.perf_counter()
     with np.errstate(invalid="ignore"):
         # [Landing Eq. 9]: nothing higher than h_c may touch the vehicle — every mapped cell counts (flat rock tops too)
-        high = np.isfinite(h) & (h > h_c)  # Fig. 18d
+        high = np.isfinite(h) & (h > vehicle.critical_height_m)  # Fig. 18d
         # [Landing Eq. 8] discs for the lower protrusion points: steep cells (Fig. 16b) at least min height high
-        small = (slope_local > theta_c) & (h >= opt.min_protrusion_height_m) & ~high
+        small = (slope_local > vehicle.critical_slope_deg) & (h >= opt.min_protrusion_height_m) & ~high
         candidate = small | high
     radius = np.full(z.shape, np.nan, np.float32)  # (float32: 4 bytes per cell on long strips)
     radius[small] = vehicle.exclusion_distance_m(h[small], opt.exclusion_step_m) / cell  # Fig. 15
     small_excl = small_protrusion_exclusion(radius)  # Fig. 18c
     static = np.where(small_excl, SMALL_PROTRUSION, np.uint8(0)).astype(np.uint8)
     timings["small_protrusion_exclusion"] = time.perf_counter() - t
+    return _TerrainMaps(slope_local, h, high, candidate, small_excl, static)
 
-    t = time.perf_counter()
-    corr = HeadingCorrelator(z, cell, vehicle, high, static_excluded=small_excl, tile_cells=opt.tile_cells)
+
+def _heading_context(inp: _Input, vehicle: Vehicle, opt: AnalysisOptions, maps: _TerrainMaps) -> _Ctx:
+    """The footprint correlator, R_max and the roughness heights shared by every heading."""
+    z, cell, h = inp.z, inp.cell, maps.h
+    corr = HeadingCorrelator(z, cell, vehicle, maps.high, static_excluded=maps.small_excl, tile_cells=opt.tile_cells)
     r_max = roughness_max_m(vehicle, cell)
     # R [Landing Eq. 13] from heights averaged over the local-slope window: white sensor noise below that
     # scale is not roughness the vehicle feels (it raised C_s by ~30 % at 6 mm on the Takuyo raster)
@@ -869,25 +946,33 @@ def analyse_submap(
         h_rough = ndi.uniform_filter(np.where(hv, h, 0.0).astype(np.float32), rw, mode="constant")
         h_rough /= ndi.uniform_filter(hv.astype(np.float32), rw, mode="constant")
         h_rough[~hv] = np.nan
-    ctx = _Ctx(z, h_rough, cell, vehicle, corr, static, opt.min_site_radius_m / cell, 0.0, r_max,
-               float(x[0]), float(y[0]))
-    timings["prepare_headings"] = time.perf_counter() - t
+    return _Ctx(z, h_rough, cell, vehicle, corr, maps.static, opt.min_site_radius_m / cell, 0.0, r_max,
+                float(inp.x[0]), float(inp.y[0]))
 
-    t = time.perf_counter()
+
+def _heading_key(heading_deg: float, phi: float) -> float:
+    """The frame heading modulo 180° (α and α ± 180° give the same footprint), rounded: one analysis per key."""
+    return round((float(heading_deg) - phi) % 180.0, 9)
+
+
+def _run_headings(ctx: _Ctx, heads: np.ndarray, phi: float, workers: int, keep_heading_exclusion: bool):
+    """Analyse every distinct heading once (``workers`` threads, one :class:`_Workspace` each). Returns the
+    per-heading (flags or None, site rows with world headings) in ``heads`` order, the frame heading of each key
+    and the cache [(key, rank, kept maps)] of the heading holding the best site."""
     # α and α ± 180° give the same footprint (the paper's reason for -90..90): analyse each once
-    keys = [round((float(a) - phi) % 180.0, 9) for a in heads]
+    keys = [_heading_key(a, phi) for a in heads]
     uniq = list(dict.fromkeys(keys))
     first = {k: float(heads[keys.index(k)]) - phi for k in uniq}  # frame headings
     order_of = {k: n for n, k in enumerate(uniq)}
     # the maps of the heading holding the best site so far are kept (copied out of the thread's workspace),
     # so the best site's footprint slope and mask need no recomputation; (best-site order, heading order)
-    # decides, ties to the earlier heading, as the final selection below
+    # decides, ties to the earlier heading, as the final selection
     best_lock = threading.Lock()
     cached: list[Any] = []  # [(key, (score, order), kept maps)] of the heading holding the best site
     spaces: queue.SimpleQueue[_Workspace] = queue.SimpleQueue()
-    n_threads = max(1, min(opt.workers, len(uniq)))
+    n_threads = max(1, min(workers, len(uniq)))
     for _ in range(n_threads):
-        spaces.put(_Workspace(z.shape))
+        spaces.put(_Workspace(ctx.z.shape))
 
     def one(k: float):
         ws = spaces.get()
@@ -917,35 +1002,39 @@ def analyse_submap(
     for a, k in zip(heads, keys, strict=False):
         ex, rows = res_u[k]
         results.append((ex, [{**r, "heading_deg": float(a)} for r in rows]))
-    del res_u
-    timings["headings"] = time.perf_counter() - t
+    return results, first, cached
 
-    t = time.perf_counter()
-    exclusion = np.stack([r[0] for r in results]) if keep_heading_exclusion else np.zeros((0,) + z.shape, np.uint8)
+
+def _site_table(results: list, phi: float) -> pd.DataFrame:
+    """The candidate sites of all headings (x/y in world terms), without those of a non-finite cost."""
     rows = [row for r in results for row in r[1]]
     sites = pd.DataFrame(rows, columns=SITE_COLUMNS)
     if phi and len(sites):
         xw, yw = _to_world(sites["x_m"].to_numpy(float), sites["y_m"].to_numpy(float), phi)
         sites["x_m"], sites["y_m"] = xw, yw
-    best = None
-    best_mask = np.zeros(z.shape, bool)
     finite = np.isfinite(sites[["p_s", "p_f", "p_r", "c_s"]].to_numpy(float)).all(axis=1) if len(sites) else []
     if len(sites) and not np.all(finite):  # never a NaN cost or a NaN "best"
         sites = sites[finite].reset_index(drop=True)
-    if len(sites) and sigma is not None:
-        sites["p_landable"] = [
-            landability_probability(z, h, sigma, int(r.row), int(r.col), float(r.heading_deg) - phi, cell, vehicle)
-            for r in sites.itertuples()]
+    return sites
+
+
+def _select_best(ctx: _Ctx, sites: pd.DataFrame, heads: np.ndarray, phi: float, first: dict[float, float],
+                 cached: list[Any]) -> tuple[dict[str, Any] | None, np.ndarray, np.ndarray]:
+    """Mark the lowest-cost site (ties: the larger circle) in ``sites`` (``is_best``, in place) and return it, its
+    cell mask and the footprint slope of its heading (the first heading when there is no site); the maps come from
+    ``cached`` when it holds that heading, else the heading is analysed again."""
+    best = None
+    best_mask = np.zeros(ctx.z.shape, bool)
     if len(sites):
         order = np.lexsort((-sites["radius_m"].to_numpy(), sites["c_s"].to_numpy()))
         bi = int(order[0])
         sites["is_best"] = False
         sites.loc[bi, "is_best"] = True
         best = {k: (v.item() if hasattr(v, "item") else v) for k, v in sites.iloc[bi].to_dict().items()}
-        kb = round((float(best["heading_deg"]) - phi) % 180.0, 9)
+        kb = _heading_key(best["heading_deg"], phi)
         if cached and cached[0][0] == kb and first[kb] == float(best["heading_deg"]) - phi:
             hm, lab, (b0, b1, b2, b3) = cached[0][2]
-            best_mask = np.zeros(z.shape, bool)
+            best_mask = np.zeros(ctx.z.shape, bool)
             best_mask[b0:b1, b2:b3] = lab == int(best["site_id"])
         else:
             _, _, hm, labels = _analyse_heading(ctx, best["heading_deg"] - phi, want_labels=True)
@@ -954,16 +1043,8 @@ def analyse_submap(
         fp_slope = hm.slope_deg
     else:
         sites["is_best"] = pd.Series(dtype=bool)
-        fp_slope = corr.compute(float(heads[0]) - phi, need_slope=True).slope_deg
-    timings["selection"] = time.perf_counter() - t
-    timings["total"] = time.perf_counter() - t_all
-    return LandingResult(
-        x_m=x, y_m=y, cell_m=cell, vehicle=vehicle, headings_deg=heads, elevation_m=z,
-        slope_local_deg=slope_local, protrusion_height_m=h, protrusion_candidate=candidate,
-        small_exclusion=small_excl, high_protrusion=high, exclusion=exclusion, sites=sites, best=best,
-        footprint_slope_deg=fp_slope, best_site_mask=best_mask, r_max_m=r_max, timings_s=timings, filled=filled,
-        frame_rotation_deg=phi, world_grid=world, warnings=warn,
-    )
+        fp_slope = ctx.corr.compute(float(heads[0]) - phi, need_slope=True).slope_deg
+    return best, best_mask, fp_slope
 
 
 def results_table(sites: pd.DataFrame, area_m2: float, transect_length_m: float) -> dict[str, Any]:

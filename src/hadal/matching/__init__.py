@@ -10,10 +10,11 @@
 * :mod:`hadal.matching.fix` -- measured profile from ``ctd.parquet``, matched track, ``fix.json`` content.
 """
 
-import importlib
 import sys
 import types
 from typing import TYPE_CHECKING, Any
+
+from hadal._lazy import lazy_attr
 
 if TYPE_CHECKING:  # the names the type checker sees (at run time they are imported on first access)
     from hadal.matching.mapgrid import MapGrid
@@ -29,11 +30,7 @@ _LAZY = {"MapGrid": "mapgrid", "MrfResult": "mrf", "mrf_refine": "mrf", "Posteri
 
 
 def __getattr__(name: str) -> Any:
-    if name in _LAZY:
-        value = getattr(importlib.import_module(f"{__name__}.{_LAZY[name]}"), name)
-        globals()[name] = value
-        return value
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    return lazy_attr(__name__, _LAZY, name)
 
 
 class _Package(types.ModuleType):

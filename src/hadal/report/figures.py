@@ -26,6 +26,7 @@ import io
 import json
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 import pandas as pd
@@ -68,16 +69,17 @@ class FigureOptions:
     keep_figure: bool = False  # keep the Figure on the result (FigureResult.figure); off: freed after rendering
 
 
-def _png(fig: Figure, dpi: int) -> bytes:
+def _png(fig: Figure, dpi: int, tight: bool = True) -> bytes:
+    """PNG of ``fig``; ``tight``: cropped to the drawn content (``bbox_inches="tight"``), else the whole canvas."""
     FigureCanvasAgg(fig)
     buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=dpi, bbox_inches="tight")
+    fig.savefig(buf, format="png", dpi=dpi, bbox_inches="tight" if tight else None)
     return buf.getvalue()
 
 
-def _render(r: FigureResult, fig: Figure, opt: FigureOptions) -> FigureResult:
-    """``r`` with the PNG of ``fig`` (and ``fig`` itself when ``opt.keep_figure``)."""
-    r.png = _png(fig, opt.dpi)
+def _render(r: FigureResult, fig: Figure, opt: FigureOptions, tight: bool = True) -> FigureResult:
+    """``r`` with the PNG of ``fig`` (and ``fig`` itself when ``opt.keep_figure``); ``tight``: see :func:`_png`."""
+    r.png = _png(fig, opt.dpi, tight)
     if opt.keep_figure:
         r.figure = fig
     return r
@@ -112,6 +114,12 @@ def _need(df: pd.DataFrame | None, cols: tuple[str, ...], what: str) -> str | No
     return f"{what} has no column(s) {', '.join(miss)}" if miss else None
 
 
+def _lacks(r: FigureResult, df: pd.DataFrame | None, cols: tuple[str, ...], what: str) -> bool:
+    """Whether the table ``df`` (``what``) is missing or lacks any of ``cols``: then ``r`` is skipped with the reason."""
+    r.skipped = _need(df, cols, what)
+    return r.skipped is not None
+
+
 # ------------------------------------------------------------------------------------------ CTD / depth
 CTD_PANELS = (
     ("conductivity_s_m", "conductivity (S/m)", "(a) conductivity"),
@@ -129,8 +137,7 @@ def fig_ctd_profiles(dp: DiveProducts, opt: FigureOptions) -> FigureResult:
                      "Fig. 8).")
     df = dp.ctd
     zcol = "depth_m" if df is not None and "depth_m" in df else "pressure_dbar"
-    if (why := _need(df, (zcol,), "ctd product")) is not None:
-        r.skipped = why
+    if _lacks(r, df, (zcol,), "ctd product"):
         return r
     panels = [p for p in CTD_PANELS if p[0] in df.columns]
     if not panels:
@@ -172,8 +179,7 @@ def fig_depth_time(dp: DiveProducts, opt: FigureOptions) -> FigureResult:
                      "Calibrated vehicle depth (hydrostatic integral of the fused pressure) during the whole dive, "
                      "coloured by phase; the deepest sample is marked (cf. TERCOM paper Fig. 9).")
     df = dp.ctd
-    if (why := _need(df, ("time", "depth_m"), "ctd product")) is not None:
-        r.skipped = why
+    if _lacks(r, df, ("time", "depth_m"), "ctd product"):
         return r
     if not _has_time(df):
         return _depth_pressure(df, r, opt)
@@ -223,8 +229,7 @@ def fig_seafloor_depth(dp: DiveProducts, opt: FigureOptions) -> FigureResult:
                      "and (c) seafloor depth = depth + altitude, near the bottom (cf. TERCOM paper Fig. 10).")
     df = dp.ctd
     alt = "altitude_corrected_m" if df is not None and "altitude_corrected_m" in df else "altitude_m"
-    if (why := _need(df, ("time", "depth_m", alt, "seafloor_depth_m"), "ctd product")) is not None:
-        r.skipped = why
+    if _lacks(r, df, ("time", "depth_m", alt, "seafloor_depth_m"), "ctd product"):
         return r
     if not _has_time(df):
         r.skipped = "cast without time channel (pressure-binned): no altimeter time series"
@@ -413,26 +418,39 @@ def fig_msd_surface(dp: DiveProducts, opt: FigureOptions) -> FigureResult:
     return _render(r, fig, opt)
 
 
+def _track_depths(tr: pd.DataFrame, max_points: int) -> tuple[pd.DataFrame, Any, str]:
+    """The matched track thinned to ``max_points``, its x axis (sample times, else sample numbers) and its
+    reference-depth column (the map depth minus the bias when the match estimated one)."""
+    tr = _thin(tr, max_points)
+    xaxis = _time(tr) if "time" in tr else np.arange(len(tr))
+    ref = "map_depth_minus_bias_m" if "map_depth_minus_bias_m" in tr else "map_depth_m"
+    return tr, xaxis, ref
+
+
+def _plot_track_depths(ax, tr: pd.DataFrame, xaxis, ref: str, rasterized: bool = False) -> None:
+    """Measured seafloor depth (dots) and the reference map's (line) along the matched track, depth down."""
+    ax.plot(xaxis, tr["seafloor_depth_m"], ".", ms=2, label="measured (depth + altitude)", color="#1f77b4",
+            rasterized=rasterized)
+    ax.plot(xaxis, tr[ref], "-", lw=1.5, label="reference map" + (" − bias" if ref != "map_depth_m" else ""),
+            color="#d62728")
+    ax.invert_yaxis()
+    ax.set_ylabel("seafloor depth (m)")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8)
+
+
 def fig_matched_depth(dp: DiveProducts, opt: FigureOptions) -> FigureResult:
     r = FigureResult("fig16_matched_depth", "Measured vs reference depth along the matched track", "Terrain matching",
                      "Seafloor depth measured by the vehicle and the reference-map depth at the matched positions "
                      "(bias-corrected when the match estimated a bias), cf. TERCOM paper Fig. 16.")
     tr = dp.track
-    if (why := _need(tr, ("seafloor_depth_m", "map_depth_m"), "matched track")) is not None:
-        r.skipped = why
+    if _lacks(r, tr, ("seafloor_depth_m", "map_depth_m"), "matched track"):
         return r
-    tr = _thin(tr, opt.max_points)
-    xaxis = _time(tr) if "time" in tr else np.arange(len(tr))
+    tr, xaxis, ref = _track_depths(tr, opt.max_points)
     fig = Figure(figsize=(opt.width_in, opt.width_in * 0.4))
     ax = fig.subplots()
-    ax.plot(xaxis, tr["seafloor_depth_m"], ".", ms=2, label="measured (depth + altitude)", color="#1f77b4")
-    ref = "map_depth_minus_bias_m" if "map_depth_minus_bias_m" in tr else "map_depth_m"
-    ax.plot(xaxis, tr[ref], "-", lw=1.5, label="reference map" + (" − bias" if ref != "map_depth_m" else ""), color="#d62728")
-    ax.invert_yaxis()
-    ax.set_ylabel("seafloor depth (m)")
+    _plot_track_depths(ax, tr, xaxis, ref)
     ax.set_xlabel("time (UTC)" if "time" in tr else "sample")
-    ax.grid(alpha=0.3)
-    ax.legend(fontsize=8)
     if "time" in tr:
         fig.autofmt_xdate()
     return _render(r, fig, opt)
@@ -443,8 +461,7 @@ def fig_matched_track(dp: DiveProducts, opt: FigureOptions) -> FigureResult:
                      "Bottom track placed on the reference terrain by the match; x: launch point, *: deepest point "
                      "(cf. TERCOM paper Fig. 17).")
     tr = dp.track
-    if (why := _need(tr, ("x_east_m", "y_north_m"), "matched track")) is not None:
-        r.skipped = why
+    if _lacks(r, tr, ("x_east_m", "y_north_m"), "matched track"):
         return r
     fig = Figure(figsize=(opt.width_in * 0.75, opt.width_in * 0.6))
     ax = fig.subplots()
@@ -478,6 +495,16 @@ def fig_matched_track(dp: DiveProducts, opt: FigureOptions) -> FigureResult:
 
 
 # ------------------------------------------------------------------------------------------ landing
+def _inset_colorbar(fig: Figure, im, ax, label: str, fontsize: float | None = None):
+    """A vertical colour bar just right of ``ax``'s drawn (aspect-adjusted) box, as tall as it: it moves with
+    the axes, and constrained layout reserves its room from the axes' tight box."""
+    cb = fig.colorbar(im, cax=ax.inset_axes((1.02, 0.0, 0.03, 1.0)), orientation="vertical")
+    cb.set_label(label, fontsize=fontsize)
+    if fontsize:
+        cb.ax.tick_params(labelsize=fontsize)
+    return cb
+
+
 def fig_landing_map(dp: DiveProducts, opt: FigureOptions) -> FigureResult:
     r = FigureResult("landing_map", "Best landing site", "Landing sites",
                      "Laser elevation of the submap holding the dive's lowest-cost landing site (top: the whole strip; "
@@ -570,8 +597,9 @@ def fig_landing_map(dp: DiveProducts, opt: FigureOptions) -> FigureResult:
                                 by + 0.6 * float(veh["length_m"]) * np.cos(np.radians(heading - rot))),
                         xytext=(bx, by), arrowprops={"arrowstyle": "->", "color": "yellow", "lw": 1.5})
         half = max(1.5, 4 * rad)
-        ax.set_xlim(max(ext[0], bx - half), min(ext[1], bx + half))
-        ax_all.add_patch(Rectangle((bx - half, ext[2]), 2 * half, ext[3] - ext[2], fill=False, ec="red", lw=1))
+        z0, z1 = max(ext[0], bx - half), min(ext[1], bx + half)  # the zoom's x range, within the map
+        ax.set_xlim(z0, z1)
+        ax_all.add_patch(Rectangle((z0, ext[2]), z1 - z0, ext[3] - ext[2], fill=False, ec="red", lw=1))
         t = np.linspace(0, 2 * np.pi, 100)
         ax.plot(bx + rad * np.cos(t), by + rad * np.sin(t), "-", color="red", lw=1.5, label="largest inscribed circle")
         ax.legend(fontsize=7, loc="upper right")
@@ -589,18 +617,21 @@ def fig_landing_map(dp: DiveProducts, opt: FigureOptions) -> FigureResult:
         r.caption += f" The maps are in the along-track analysis frame, rotated by {rot:.1f}° from the laser frame."
     ax.set_xlabel(xl)
     ax.set_ylabel(yl)
-    fig.colorbar(im, ax=ax_all, label="elevation (m, up), whole strip", orientation="vertical", shrink=0.9,
-                 aspect=8)
+    # colour bars in insets of their own axes: ``fig.colorbar(ax=...)`` anchors an equal-aspect axes to the east of
+    # its layout box (the colour bar's ``panchor``), so constrained layout left the canvas' left half empty and the
+    # tall label of the short strip's bar poked out of the top (a 596 x 714 PNG of an 1100 x 682 figure)
+    _inset_colorbar(fig, im, ax_all, "elevation (m)\nwhole strip", fontsize=7)
     if zoom_lim:
-        fig.colorbar(ims[ax], ax=ax, label="elevation (m, up), around the site", orientation="vertical",
-                     shrink=0.9)
+        _inset_colorbar(fig, ims[ax], ax, "elevation (m, up), around the site")
     title = path.name.replace("_maps.nc", "")
     if has_best:
         title += f": best site, cost {float(best['c_s']):.3f}" + (f", heading {heading:.0f}°" if heading is not None else "")
     else:
         title += ": no landing site found" if best_name is None else f" (maps of the best submap {best_name} missing)"
     ax_all.set_title(title, fontsize=9)
-    return _render(r, fig, opt)
+    # the whole canvas: constrained layout keeps everything on it, and cropping to the content would make the
+    # PNG's shape follow the map's aspect instead of the figure's
+    return _render(r, fig, opt, tight=False)
 
 
 FIGURES: tuple[Callable[[DiveProducts, FigureOptions], FigureResult], ...] = (

@@ -19,7 +19,15 @@ import pandas as pd
 from matplotlib.colors import LightSource
 from matplotlib.figure import Figure
 
-from hadal.report.figures import CMAPS, FigureOptions, FigureResult, _render, _thin, _time
+from hadal.report.figures import (
+    CMAPS,
+    FigureOptions,
+    FigureResult,
+    _plot_track_depths,
+    _render,
+    _thin,
+    _track_depths,
+)
 from hadal.report.load import DiveProducts
 
 
@@ -265,20 +273,11 @@ def fig_residuals(dp: DiveProducts, opt: FigureOptions) -> FigureResult:
     if tr is None or not {"seafloor_depth_m", "map_depth_m"} <= set(tr.columns):
         r.skipped = "no matched track" if tr is None else "matched track has no seafloor_depth_m/map_depth_m"
         return r
-    tr = _thin(tr, opt.max_points)
-    xaxis = _time(tr) if "time" in tr else np.arange(len(tr))
-    ref = "map_depth_minus_bias_m" if "map_depth_minus_bias_m" in tr else "map_depth_m"
+    tr, xaxis, ref = _track_depths(tr, opt.max_points)
     res = tr["seafloor_depth_m"].to_numpy(float) - tr[ref].to_numpy(float)
     fig = Figure(figsize=(opt.width_in, opt.width_in * 0.55), layout="constrained")
     ax, ax2 = fig.subplots(2, 1, sharex=True, height_ratios=[2.2, 1])
-    ax.plot(xaxis, tr["seafloor_depth_m"], ".", ms=2, label="measured (depth + altitude)", color="#1f77b4",
-            rasterized=True)
-    ax.plot(xaxis, tr[ref], "-", lw=1.5, label="reference map" + (" − bias" if ref != "map_depth_m" else ""),
-            color="#d62728")
-    ax.invert_yaxis()
-    ax.set_ylabel("seafloor depth (m)")
-    ax.grid(alpha=0.3)
-    ax.legend(fontsize=8)
+    _plot_track_depths(ax, tr, xaxis, ref, rasterized=True)
     ok = np.isfinite(res)
     rms = float(np.sqrt(np.mean(res[ok] ** 2))) if ok.any() else float("nan")
     ax2.plot(xaxis, res, ".", ms=1.5, color="k", rasterized=True)

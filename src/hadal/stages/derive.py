@@ -860,33 +860,34 @@ def sensors_columns(table: pd.DataFrame) -> list[str]:
     return [str(c) for c in table.columns]
 
 
-_PROFILE_ATTRS: dict[str, dict[str, str]] = {
-    "temperature_its90_degc": {"standard_name": "sea_water_temperature", "units": "degree_C",
-                               "long_name": "mean CTD temperature (ITS-90)"},
-    "conductivity_s_m": {"standard_name": "sea_water_electrical_conductivity", "units": "S m-1",
-                         "long_name": "mean CTD conductivity"},
-    "practical_salinity": {"standard_name": "sea_water_practical_salinity", "units": "1",
-                           "long_name": "mean practical salinity (PSS-78)"},
-    "density_kg_m3": {"standard_name": "sea_water_density", "units": "kg m-3",
-                      "long_name": "mean in situ density (EOS-80, Eq. 13)"},
-    "gravity_m_s2": {"units": "m s-2", "long_name": "mean gravitational acceleration (Eq. 14)"},
-    "sound_speed_m_s": {"standard_name": "speed_of_sound_in_sea_water", "units": "m s-1",
-                        "long_name": "mean sound speed (Chen-Millero)"},
-    "depth_m": {"standard_name": "depth", "units": "m", "positive": "down",
-                "long_name": "mean depth, hydrostatic integral (Eqs. 11-12)"},
-    "depth_fofonoff_millard_m": {"standard_name": "depth", "units": "m", "positive": "down",
-                                 "long_name": "mean depth, Fofonoff-Millard (Eqs. 8-10)"},
-    "depth_teos10_m": {"standard_name": "depth", "units": "m", "positive": "down",
-                       "long_name": "mean depth, TEOS-10 with dynamic height anomaly"},
-    "absolute_salinity_g_kg": {"standard_name": "sea_water_absolute_salinity", "units": "g kg-1",
-                               "long_name": "mean Absolute Salinity (TEOS-10, gsw.SA_from_SP)"},
-    "conservative_temperature_degc": {"standard_name": "sea_water_conservative_temperature", "units": "degree_C",
-                                      "long_name": "mean Conservative Temperature (TEOS-10, gsw.CT_from_t)"},
-    "potential_temperature_degc": {"standard_name": "sea_water_potential_temperature", "units": "degree_C",
-                                   "long_name": "mean potential temperature, 0 dbar (TEOS-10, gsw.pt0_from_t)"},
-    "sigma0_kg_m3": {"standard_name": "sea_water_sigma_theta", "units": "kg m-3",
-                     "long_name": "mean potential density anomaly, 0 dbar (TEOS-10, gsw.sigma0)"},
+#: long_name of each binned variable of ``profile`` (the bins' means); units, standard_name and positive are the
+#: variable registry's (``schemas/variables.yaml``, :func:`_profile_var_attrs`)
+_PROFILE_LONG_NAMES: dict[str, str] = {
+    "temperature_its90_degc": "mean CTD temperature (ITS-90)",
+    "conductivity_s_m": "mean CTD conductivity",
+    "practical_salinity": "mean practical salinity (PSS-78)",
+    "density_kg_m3": "mean in situ density (EOS-80, Eq. 13)",
+    "gravity_m_s2": "mean gravitational acceleration (Eq. 14)",
+    "sound_speed_m_s": "mean sound speed (Chen-Millero)",
+    "depth_m": "mean depth, hydrostatic integral (Eqs. 11-12)",
+    "depth_fofonoff_millard_m": "mean depth, Fofonoff-Millard (Eqs. 8-10)",
+    "depth_teos10_m": "mean depth, TEOS-10 with dynamic height anomaly",
+    "absolute_salinity_g_kg": "mean Absolute Salinity (TEOS-10, gsw.SA_from_SP)",
+    "conservative_temperature_degc": "mean Conservative Temperature (TEOS-10, gsw.CT_from_t)",
+    "potential_temperature_degc": "mean potential temperature, 0 dbar (TEOS-10, gsw.pt0_from_t)",
+    "sigma0_kg_m3": "mean potential density anomaly, 0 dbar (TEOS-10, gsw.sigma0)",
 }
+
+
+def _profile_var_attrs(name: str) -> dict[str, str]:
+    """Attributes of a binned ``profile`` variable: the registry's standard_name/units/positive, the bin mean's
+    long_name (:data:`_PROFILE_LONG_NAMES`)."""
+    from hadal.products.registry import variable_attrs
+
+    reg = variable_attrs(name, where="profile")
+    out: dict[str, str] = {k: str(reg[k]) for k in ("standard_name", "units", "positive") if k in reg}
+    out["long_name"] = _PROFILE_LONG_NAMES[name]
+    return out
 
 
 def _profile_attrs(ds: Any, meta: dict[str, Any]) -> None:
@@ -895,9 +896,9 @@ def _profile_attrs(ds: Any, meta: dict[str, Any]) -> None:
     from hadal.profile import N_SQUARED
 
     axis = "depth_m" if "depth_m" in ds.dims else "pressure_dbar"
-    for name, attrs in _PROFILE_ATTRS.items():
+    for name in _PROFILE_LONG_NAMES:
         if name in ds and name not in ds.dims:
-            ds[name].attrs.update(attrs)
+            ds[name].attrs.update(_profile_var_attrs(name))
             ds[name].attrs["cell_methods"] = f"{axis}: mean"
     if axis == "depth_m" and "pressure_dbar" in ds:  # the depth axis: the bins' mean pressure is a variable
         ds["pressure_dbar"].attrs.update({"standard_name": "sea_water_pressure", "units": "dbar",

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import gzip
 import json
+from collections.abc import Callable
 from importlib.resources import files
 from pathlib import Path
 
@@ -129,41 +130,25 @@ def write_csvs(csv_dir: Path, channels: dict[str, dict[str, np.ndarray]], t0_uni
     csv_dir.mkdir(parents=True, exist_ok=True)
     files = {}
 
-    def emit(fname: str, header: str, lines) -> None:
+    def emit(key: str, channel: str, fname: str, header: str, row: Callable[..., str], *cols: str) -> None:
+        ch = channels[channel]
+        t = _iso_ms(ch["t_ms"] + t0_unix_ms).tolist()
+        lines = (row(a, *vals) for a, *vals in zip(t, *(ch[c].tolist() for c in cols), strict=True))
         with open(csv_dir / fname, "w", encoding="utf-8", newline="\n") as fh:
             fh.write(header + "\n")
             fh.write("\n".join(lines))
             fh.write("\n")
+        files[key] = f"csv/{fname}"
 
-    ch = channels["ctd"]
-    t = _iso_ms(ch["t_ms"] + t0_unix_ms).tolist()
-    emit("ctd.csv", "time,conductivity_mS_cm,temperature_ITS90,pressure_dbar",
-         (f"{a},{c * 10:.4f},{b:.4f},{p:.3f}" for a, c, b, p in
-          zip(t, ch["cond"].tolist(), ch["temp"].tolist(), ch["pres"].tolist(), strict=True)))
-    files["ctd"] = "csv/ctd.csv"
-    ch = channels["keller"]
-    t = _iso_ms(ch["t_ms"] + t0_unix_ms).tolist()
-    emit("keller.csv", "time,pressure_bar",
-         (f"{a},{p / 10:.3f}" for a, p in zip(t, ch["pressure"].tolist(), strict=True)))
-    files["gauge"] = "csv/keller.csv"
-    ch = channels["altimeter"]
-    t = _iso_ms(ch["t_ms"] + t0_unix_ms).tolist()
-    emit("altimeter.csv", "time,altitude_m",
-         (f"{a},{r:.1f}" if v else f"{a}," for a, r, v in
-          zip(t, ch["range"].tolist(), ch["valid"].tolist(), strict=True)))
-    files["altimeter"] = "csv/altimeter.csv"
-    ch = channels["attitude"]
-    t = _iso_ms(ch["t_ms"] + t0_unix_ms).tolist()
-    emit("attitude.csv", "time,heading_deg,pitch_deg,roll_deg",
-         (f"{a},{h:.2f},{p:.2f},{r:.2f}" for a, h, p, r in
-          zip(t, ch["heading"].tolist(), ch["pitch"].tolist(), ch["roll"].tolist(), strict=True)))
-    files["attitude"] = "csv/attitude.csv"
-    ch = channels["dr"]
-    t = _iso_ms(ch["t_ms"] + t0_unix_ms).tolist()
-    emit("dr.csv", "time,east_m,north_m,speed_m_s",
-         (f"{a},{e:.3f},{n:.3f},{v:.3f}" for a, e, n, v in
-          zip(t, ch["east"].tolist(), ch["north"].tolist(), ch["speed"].tolist(), strict=True)))
-    files["dr"] = "csv/dr.csv"
+    emit("ctd", "ctd", "ctd.csv", "time,conductivity_mS_cm,temperature_ITS90,pressure_dbar",
+         lambda a, c, b, p: f"{a},{c * 10:.4f},{b:.4f},{p:.3f}", "cond", "temp", "pres")
+    emit("gauge", "keller", "keller.csv", "time,pressure_bar", lambda a, p: f"{a},{p / 10:.3f}", "pressure")
+    emit("altimeter", "altimeter", "altimeter.csv", "time,altitude_m",
+         lambda a, r, v: f"{a},{r:.1f}" if v else f"{a},", "range", "valid")
+    emit("attitude", "attitude", "attitude.csv", "time,heading_deg,pitch_deg,roll_deg",
+         lambda a, h, p, r: f"{a},{h:.2f},{p:.2f},{r:.2f}", "heading", "pitch", "roll")
+    emit("dr", "dr", "dr.csv", "time,east_m,north_m,speed_m_s",
+         lambda a, e, n, v: f"{a},{e:.3f},{n:.3f},{v:.3f}", "east", "north", "speed")
     return files
 
 
