@@ -37,6 +37,7 @@ from matplotlib.patches import Rectangle
 from matplotlib.ticker import MaxNLocator
 
 from hadal.report.load import DiveProducts
+from hadal.report.units import axis_label
 
 try:  # cmocean is a dependency; fall back to matplotlib maps if it is broken
     import cmocean.cm as cmo
@@ -121,12 +122,13 @@ def _lacks(r: FigureResult, df: pd.DataFrame | None, cols: tuple[str, ...], what
 
 
 # ------------------------------------------------------------------------------------------ CTD / depth
+#: (variable, axis label without its unit, panel title); the unit comes from the variable registry
 CTD_PANELS = (
-    ("conductivity_s_m", "conductivity (S/m)", "(a) conductivity"),
-    ("temperature_its90_degc", "temperature ITS-90 (°C)", "(b) temperature"),
+    ("conductivity_s_m", "conductivity", "(a) conductivity"),
+    ("temperature_its90_degc", "temperature ITS-90", "(b) temperature"),
     ("practical_salinity", "practical salinity", "(c) salinity"),
-    ("density_kg_m3", "in situ density (kg/m³)", "(d) density"),
-    ("gravity_m_s2", "gravity (m/s²)", "(e) gravity"),
+    ("density_kg_m3", "in situ density", "(d) density"),
+    ("gravity_m_s2", "gravity", "(e) gravity"),
 )
 
 
@@ -155,13 +157,13 @@ def fig_ctd_profiles(dp: DiveProducts, opt: FigureOptions) -> FigureResult:
                 sty = {"descent": {"lw": 3.2, "alpha": 0.55, "ls": "-"}, "ascent": {"lw": 1.0, "alpha": 1.0, "ls": "--"},
                        }.get(ph, {"lw": 1.5, "alpha": 0.9, "ls": "-"})
                 ax.plot(g[col], g[zcol], color=PHASE_COLOURS.get(ph, "k"), label=ph, rasterized=True, **sty)
-        ax.set_xlabel(label)
+        ax.set_xlabel(axis_label(col, label))
         ax.set_title(title, fontsize=9)
         ax.grid(alpha=0.3)
         ax.tick_params(labelsize=8)
         ax.ticklabel_format(axis="x", useOffset=False)  # an offset label would overlap the axis label
         ax.xaxis.set_major_locator(MaxNLocator(3))
-    axes[0].set_ylabel("depth (m)" if zcol == "depth_m" else "pressure (dbar)")
+    axes[0].set_ylabel(axis_label(zcol, "depth" if zcol == "depth_m" else "pressure"))
     zmax = float(np.nanmax(pd.to_numeric(d[zcol], errors="coerce")))
     if np.isfinite(zmax) and zmax > 0:
         axes[0].set_ylim(zmax * 1.01, min(0.0, float(np.nanmin(pd.to_numeric(d[zcol], errors="coerce")))))

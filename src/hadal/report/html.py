@@ -13,6 +13,7 @@ from typing import Any
 from hadal import __version__
 from hadal.report.figures import FigureResult
 from hadal.report.load import DiveProducts
+from hadal.report.units import units_of
 
 CSS = """
 body{font-family:-apple-system,Segoe UI,Helvetica,Arial,sans-serif;margin:2em auto;max-width:1100px;color:#222;padding:0 1em}
@@ -109,12 +110,11 @@ def summary_rows(s: Mapping[str, Any]) -> list[tuple[str, str]]:
         if b.get("heading_deg") is not None:
             txt += f", heading {_fmt(b.get('heading_deg'), 0)}°"
         rows.append(("best landing site", txt))
-    for key, label, unit in (("temperature_its90_degc_range", "temperature", "°C"),
-                             ("practical_salinity_range", "practical salinity", ""),
-                             ("density_kg_m3_range", "in situ density", "kg/m³")):
-        if key in s:
-            lo, hi = s[key]
-            rows.append((label, f"{lo:.3f} – {hi:.3f} {unit}".strip()))
+    for name, label in (("temperature_its90_degc", "temperature"), ("practical_salinity", "practical salinity"),
+                        ("density_kg_m3", "in situ density")):
+        if f"{name}_range" in s:
+            lo, hi = s[f"{name}_range"]
+            rows.append((label, f"{lo:.3f} – {hi:.3f} {units_of(name)}".strip()))  # unit: the variable registry
     return [(k, str(v)) for k, v in rows]
 
 
