@@ -29,8 +29,8 @@ Eq. 17, bias at its closed-form optimum] the log-likelihood, bias marginalised u
   checks it against Monte-Carlo: x1.22 for a smooth terrain at ``rho = 0.8``. On the sample dive's tracks (one
   sample a cell, the drift's prior as a ridge) it is 1.00-1.004, and on the real-terrain calibration bench it leaves
   the fractions within 1/2 sigma unchanged: the
-  sample dive's overconfidence at seeds 4 and 5, errors of about 2.5 times the Cramér-Rao bound, is a bias of the
-  fix on the smoothed DTM, not noise the fit absorbed.)
+  sample dive's overconfidence at seeds 4 and 5, errors of about 2.5 times their Cramér-Rao bound, is not noise
+  the fit absorbed.)
 * ``gamma = N_eff / N_v``: the residuals along a track are correlated (map interpolation error and
   dead-reckoning drift vary smoothly), so ``N_v`` samples do not carry ``N_v`` independent pieces of
   information. ``N_eff = N_v (1 - rho) / (1 + rho)`` from the lag-1 autocorrelation ``rho`` of the

@@ -29,9 +29,9 @@ matched track then follows the drift. It is computed for the record in any case 
 ``msd_posterior_probability`` in ``msd_surface.nc``). ``posterior`` is on by default: on the sample dive's 10
 generator seeds its start errors equal the refined minimum's and its radial 1-sigma (19-32 m) is closer to them
 than the refined minimum's jackknife + DR sigma (57-75 m, all 10 within it), but overconfident there: 6/10 errors
-within 1-sigma, 8/10 within 2-sigma (seeds 4 and 5 at 2.4 and 3.4 sigma, about 2.5 times the Cramér-Rao bound: the
-estimator's bias on the smoothed DTM, not residual noise, which the posterior's correlated-noise widening already
-accounts for; on the real-terrain calibration bench 72-76 % / 96-97 %). Neither places the start within one cell on every seed: with this prior DTM (1.3 soundings a cell,
+within 1-sigma, 8/10 within 2-sigma (seeds 4 and 5 at 2.4 and 3.4 sigma, about 2.5 times their Cramér-Rao bound; the
+posterior's correlated-noise widening is 1.00 there, so it is not noise the fit absorbed; on the real-terrain
+calibration bench 72-76 % / 96-97 %). Neither places the start within one cell on every seed: with this prior DTM (1.3 soundings a cell,
 0.1 % of depth noise) the Cramér-Rao bound of the start is 14-24 m, and the same code on the true terrain is
 within one cell on 10/10 (bench/sample_seeds_information.py). With ``posterior: false`` the fix uncertainty combines the MSD likelihood, a jackknife over track blocks and a dead-reckoning term
 (``dr_error_fraction`` x the distance from the start to the track's terrain-information centroid; a
