@@ -389,82 +389,88 @@ def _pieces(path: Path):
         yield carry.replace(b"\r\n", b"\n").replace(b"\r", b"\n")
 
 
-def _parse_header(header: list[str], path: Path) -> dict[str, Any]:
-    """The header lines before ``*END*`` parsed (channel names, spans, key/values, processing, positions, ...)."""
+class _HeaderLines:
+    """What :func:`_parse_header` collects from the ``*`` and ``#`` header lines, one line at a time."""
 
-    names: dict[int, tuple[str, str]] = {}
-    spans: dict[int, list[float] | None] = {}
-    kv: dict[str, str] = {}
-    processing: list[list[str]] = []
-    sensors: list[str] = []
-    user: list[str] = []
-    instr: list[str] = []
-    comments: list[str] = []
-    xml_lines: list[str] = []
-    in_xml = False
-    lat = lon = None
-    lat_src = lon_src = None
-    nmea_utc = None
-    for ln in header:
-        s = ln.strip()
-        if not s:
-            continue
-        if s.startswith("*"):
-            (user if s.startswith("**") else instr).append(s.lstrip("*").strip())
-            m = _POS_RE.match(s)
-            if m:
-                key = m.group(1).lower()
-                is_lat = key.startswith("lat")
-                val = parse_latlon(m.group(2), is_latitude=is_lat)
-                # a '**' user line wins over the NMEA line only when the NMEA one is missing/unreadable
-                if is_lat and val is not None and (lat is None or lat_src == "nmea" and s.startswith("**")):
-                    lat, lat_src = val, ("user" if s.startswith("**") else "nmea")
-                elif not is_lat and val is not None and (lon is None or lon_src == "nmea" and s.startswith("**")):
-                    lon, lon_src = val, ("user" if s.startswith("**") else "nmea")
-            m = re.match(r"^\*\s*NMEA UTC \(Time\)\s*=\s*(.+)$", s, re.I)
-            if m:
-                nmea_utc = _parse_time(m.group(1))[0]
-            continue
-        if not s.startswith("#"):
-            continue
+    def __init__(self) -> None:
+        self.names: dict[int, tuple[str, str]] = {}
+        self.spans: dict[int, list[float] | None] = {}
+        self.kv: dict[str, str] = {}
+        self.processing: list[list[str]] = []
+        self.sensors: list[str] = []
+        self.user: list[str] = []
+        self.instr: list[str] = []
+        self.comments: list[str] = []
+        self.xml_lines: list[str] = []
+        self.in_xml = False
+        self.lat: float | None = None
+        self.lon: float | None = None
+        self.lat_src: str | None = None
+        self.lon_src: str | None = None
+        self.nmea_utc: str | None = None
+
+    def star_line(self, s: str) -> None:
+        """A ``*`` (instrument) or ``**`` (user) line: kept, and read for the position and NMEA time."""
+        (self.user if s.startswith("**") else self.instr).append(s.lstrip("*").strip())
+        m = _POS_RE.match(s)
+        if m:
+            key = m.group(1).lower()
+            is_lat = key.startswith("lat")
+            val = parse_latlon(m.group(2), is_latitude=is_lat)
+            # a '**' user line wins over the NMEA line only when the NMEA one is missing/unreadable
+            if is_lat and val is not None and (self.lat is None or self.lat_src == "nmea" and s.startswith("**")):
+                self.lat, self.lat_src = val, ("user" if s.startswith("**") else "nmea")
+            elif not is_lat and val is not None and (self.lon is None
+                                                     or self.lon_src == "nmea" and s.startswith("**")):
+                self.lon, self.lon_src = val, ("user" if s.startswith("**") else "nmea")
+        m = re.match(r"^\*\s*NMEA UTC \(Time\)\s*=\s*(.+)$", s, re.I)
+        if m:
+            self.nmea_utc = _parse_time(m.group(1))[0]
+
+    def hash_line(self, s: str) -> None:
+        """A ``#`` line: sensor XML, channel name / span, sensor, processing or key = value line, else a comment."""
         body = s[1:].strip()
-        if in_xml or re.match(r"^<Sensors\b", body):
-            in_xml = not body.startswith("</Sensors")
-            xml_lines.append(body)
-            continue
+        if self.in_xml or re.match(r"^<Sensors\b", body):
+            self.in_xml = not body.startswith("</Sensors")
+            self.xml_lines.append(body)
+            return
         if re.match(r"^</?[A-Za-z!]", body):
-            continue  # other XML lines outside the sensor block
+            return  # other XML lines outside the sensor block
         m = _NAME_RE.match(s)
         if m:
-            names[int(m.group(1))] = (m.group(2).strip(), m.group(3).strip())
-            continue
+            self.names[int(m.group(1))] = (m.group(2).strip(), m.group(3).strip())
+            return
         m = _SPAN_RE.match(s)
         if m:
             try:
                 lo, hi = (float(x) for x in m.group(2).split(",")[:2])
-                spans[int(m.group(1))] = [lo, hi]
+                self.spans[int(m.group(1))] = [lo, hi]
             except ValueError:
-                spans[int(m.group(1))] = None
-            continue
+                self.spans[int(m.group(1))] = None
+            return
         if re.match(r"^#\s*sensor\s+\d+\s*=", s):
-            sensors.append(s.lstrip("#").strip())
-            continue
+            self.sensors.append(s.lstrip("#").strip())
+            return
         proc = _processing_line(s)
         if proc is not None and proc[0].lower() not in _RESERVED:
-            processing.append(proc)
-            continue
+            self.processing.append(proc)
+            return
         m = _KV_RE.match(s)
         if m:
             key, val = m.group(1).strip(), m.group(2).strip()
             if key.lower() in _RESERVED:
-                kv[key.lower()] = val
+                self.kv[key.lower()] = val
             elif re.fullmatch(r"[A-Za-z][A-Za-z0-9_]*", key):
-                processing.append([key, val])  # '<module>_<key> = value' SeaSoft processing line
+                self.processing.append([key, val])  # '<module>_<key> = value' SeaSoft processing line
             else:
-                comments.append(s.lstrip("#").strip())
+                self.comments.append(s.lstrip("#").strip())
         else:
-            comments.append(s.lstrip("#").strip())
+            self.comments.append(s.lstrip("#").strip())
 
+
+def _header_columns(names: dict[int, tuple[str, str]], kv: dict[str, str], path: Path) -> tuple[int, list[str]]:
+    """The number of channels (``# nquan``, else the highest ``# name`` index + 1) and unique column names;
+    warns (at read_cnv's caller) about channels without a ``# name`` line."""
     if not names:
         raise InputError(f"{path}: CNV header has no '# name N = ...' channel lines")
     try:
@@ -475,9 +481,14 @@ def _parse_header(header: list[str], path: Path) -> dict[str, Any]:
         raise InputError(f"{path}: CNV header declares nquan = {nquan}")
     missing = [i for i in range(nquan) if i not in names]
     if missing:
-        warnings.warn(f"{path.name}: header lacks '# name' lines for channel(s) {missing}; named 'col<i>'", stacklevel=3)
+        warnings.warn(f"{path.name}: header lacks '# name' lines for channel(s) {missing}; named 'col<i>'",
+                      stacklevel=5)  # _parse_header <- _stream_cnv <- read_cnv <- its caller
     short = [names.get(i, (f"col{i}", ""))[0] for i in range(nquan)]
-    columns = _unique_names(short)
+    return nquan, _unique_names(short)
+
+
+def _header_hints(kv: dict[str, str]) -> tuple[float, int | None]:
+    """The header's ``bad_flag`` (SeaSoft's default when absent/unreadable) and a plausible ``nvalues``."""
     bad_flag = CNV_DEFAULT_BAD_FLAG
     if "bad_flag" in kv:
         try:
@@ -490,10 +501,26 @@ def _parse_header(header: list[str], path: Path) -> dict[str, Any]:
         nvalues_hint = None
     if nvalues_hint is not None and not 0 < nvalues_hint < 1 << 31:
         nvalues_hint = None
-    return {"names": names, "spans": spans, "kv": kv, "processing": processing, "sensors": sensors, "user": user,
-            "instr": instr, "comments": comments, "xml_lines": xml_lines, "lat": lat, "lon": lon,
-            "lat_src": lat_src, "lon_src": lon_src, "nmea_utc": nmea_utc, "nquan": nquan, "columns": columns,
-            "bad_flag": bad_flag, "nvalues_hint": nvalues_hint}
+    return bad_flag, nvalues_hint
+
+
+def _parse_header(header: list[str], path: Path) -> dict[str, Any]:
+    """The header lines before ``*END*`` parsed (channel names, spans, key/values, processing, positions, ...)."""
+    h = _HeaderLines()
+    for ln in header:
+        s = ln.strip()
+        if not s:
+            continue
+        if s.startswith("*"):
+            h.star_line(s)
+        elif s.startswith("#"):
+            h.hash_line(s)
+    nquan, columns = _header_columns(h.names, h.kv, path)
+    bad_flag, nvalues_hint = _header_hints(h.kv)
+    return {"names": h.names, "spans": h.spans, "kv": h.kv, "processing": h.processing, "sensors": h.sensors,
+            "user": h.user, "instr": h.instr, "comments": h.comments, "xml_lines": h.xml_lines, "lat": h.lat,
+            "lon": h.lon, "lat_src": h.lat_src, "lon_src": h.lon_src, "nmea_utc": h.nmea_utc, "nquan": nquan,
+            "columns": columns, "bad_flag": bad_flag, "nvalues_hint": nvalues_hint}
 
 
 #: channels where 0 is a real value, never SeaSoft's bad marker: the scan flag (0 = good), counters (scan number,
@@ -548,37 +575,10 @@ def _strip_label_line(piece: bytes) -> tuple[list[str] | None, bytes]:
     return None, piece
 
 
-def read_cnv(path: str | Path) -> pd.DataFrame:
-    """Read a Sea-Bird ``.cnv`` file into a DataFrame with the file's column names.
-
-    ``df.attrs`` holds the header (all JSON-serialisable):
-
-    * ``source`` (path), ``instrument`` (first header line, e.g. ``Sea-Bird SBE 9 Data File:``);
-    * ``channels``: list of ``{index, name, column, long_name, units, span}`` (``units`` is the bracketed
-      text, e.g. ``"ITS-90, deg C"``, ``"db"``, ``"S/m"``; ``span`` the header ``[lo, hi]`` or ``None``);
-      ``units``: ``{column: units}``;
-    * ``latitude_deg`` / ``longitude_deg``: decimal degrees from ``* NMEA Latitude = ...`` /
-      ``** Latitude: ...`` lines (``None`` when absent or unreadable);
-    * ``start_time_utc`` (ISO-8601, ``None`` when absent), ``start_time_note`` (SeaSoft's bracket text),
-      ``nmea_utc`` when present;
-    * ``interval``: ``{"kind": "decibars"|"seconds"|..., "value": float}``;
-    * ``bad_flag`` (float; those values became NaN; ``bad_flag = 0`` is ambiguous and applied only where a 0 can
-      mean "bad", never in the ``flag``/count/time channels, with a warning: :func:`_apply_zero_bad_flag`),
-      ``bad_values`` (count replaced);
-    * ``processing``: SeaSoft processing lines in file order, ``[[key, value], ...]``
-      (``datcnv_date``, ``wildedit_vars``, ``Derive_in``, ...);
-    * ``sensors`` (``# sensor i = ...`` lines), ``user_header`` (``**`` lines), ``instrument_header``;
-    * ``nquan``, ``nvalues_declared``, ``nvalues`` (rows read), ``rows_dropped`` (line numbers of
-      unparseable data lines, dropped with a warning).
-
-    The header's ``nvalues`` is only a capacity hint, capped by the body size (or 64 MiB for compressed input),
-    never trusted for memory; a count that disagrees with the rows is a warning.
-
-    Raises :class:`~hadal.errors.InputError` (one line, naming the file) when the file is missing, empty,
-    has no ``*END*`` line, no ``# name`` lines, or no readable data rows (naming a column-count mismatch: rows
-    of N values under a header of M columns).
-    """
-    path = Path(path)
+def _stream_cnv(path: Path) -> tuple[str | None, dict[str, Any], _RowSink, list[str] | None]:
+    """One streaming pass over ``path``: the header lines up to ``*END*`` (parsed by :func:`_parse_header`),
+    then each body piece fed to a :class:`_RowSink` (never the whole file in memory). Returns (compression,
+    parsed header, the filled sink, the labels of a label line after ``*END*`` or None)."""
     pieces = _pieces(path)
     compression, file_size = next(pieces)
     header: list[str] = []
@@ -624,14 +624,14 @@ def read_cnv(path: str | Path) -> pd.DataFrame:
         raise InputError(f"{path}: CNV file is empty")
     if hdr is None or sink is None:
         raise InputError(f"{path}: not a Sea-Bird .cnv file (no '*END*' line after the header)")
-    h = hdr
-    names, spans, kv, processing = h["names"], h["spans"], h["kv"], h["processing"]
-    sensors, user, instr, comments = h["sensors"], h["user"], h["instr"], h["comments"]
-    xml_lines, lat, lon = h["xml_lines"], h["lat"], h["lon"]
-    lat_src, lon_src, nmea_utc = h["lat_src"], h["lon_src"], h["nmea_utc"]
-    nquan, columns, bad_flag = h["nquan"], h["columns"], h["bad_flag"]
-    data, bad_lines, n_bad, bad_counts = sink.result(), sink.bad_lines, sink.n_bad, sink.bad_counts
-    del sink
+    return compression, hdr, sink, column_labels
+
+
+def _check_rows(path: Path, h: dict[str, Any], data: np.ndarray, bad_lines: list[int],
+                bad_counts: dict[int, int]) -> None:
+    """Refuse a body without a readable row (naming a column-count mismatch); warn (at read_cnv's caller)
+    about dropped lines."""
+    nquan, kv, names = h["nquan"], h["kv"], h["names"]
     mismatch = ""
     if bad_counts:
         k_top = max(bad_counts, key=lambda k: bad_counts[k])
@@ -645,14 +645,15 @@ def read_cnv(path: str | Path) -> pd.DataFrame:
     if bad_lines:
         warnings.warn(
             f"{path.name}: dropped {len(bad_lines)} unreadable data line(s) (first at line {bad_lines[0]}){mismatch}",
-            stacklevel=2,
+            stacklevel=3,
         )
-    if bad_flag == 0:
-        n_bad = _apply_zero_bad_flag(data, columns, path)
-    df = pd.DataFrame(data, columns=columns, copy=False)
 
+
+def _cnv_channels(h: dict[str, Any]) -> list[dict[str, Any]]:
+    """read_cnv's ``attrs['channels']``: one dict per column (name, long name, units, span, notes, latitude)."""
+    names, spans, columns = h["names"], h["spans"], h["columns"]
     channels = []
-    for i in range(nquan):
+    for i in range(h["nquan"]):
         nm, long = names.get(i, (f"col{i}", ""))
         um = _UNITS_RE.search(long)
         units = um.group(1).strip() if um else ""
@@ -661,48 +662,57 @@ def read_cnv(path: str | Path) -> pd.DataFrame:
         channels.append({"index": i, "name": nm, "column": columns[i], "long_name": long,
                          "units": units, "span": spans.get(i), "notes": notes,
                          "latitude_deg": float(ch_lat) if isinstance(ch_lat, float) and abs(ch_lat) <= 90 else None})
-    start_iso, start_note = _parse_time(kv.get("start_time", ""))
-    interval = None
+    return channels
+
+
+def _cnv_interval(kv: dict[str, str]) -> dict[str, Any] | None:
+    """The header's ``# interval = <kind>: <value>`` as ``{"kind", "value"}`` (None when absent/unreadable)."""
     if "interval" in kv:
         mi = re.match(r"^\s*([A-Za-z_ ]+?)\s*:\s*([-+0-9.eE]+)", kv["interval"])
         if mi:
-            interval = {"kind": mi.group(1).strip(), "value": float(mi.group(2))}
+            return {"kind": mi.group(1).strip(), "value": float(mi.group(2))}
+    return None
 
-    def _int(k: str) -> int | None:
-        try:
-            return int(kv[k])
-        except (KeyError, ValueError):
-            return None
 
-    nvalues_declared = _int("nvalues")
+def _cnv_attrs(path: Path, compression: str | None, h: dict[str, Any], channels: list[dict[str, Any]],
+               data: np.ndarray, bad_lines: list[int], n_bad: int, column_labels: list[str] | None
+               ) -> dict[str, Any]:
+    """read_cnv's ``df.attrs``; warns (at read_cnv's caller) about a wrong ``nvalues`` or unreadable sensor XML."""
+    kv, processing, instr, xml_lines, columns = h["kv"], h["processing"], h["instr"], h["xml_lines"], h["columns"]
+    start_iso, start_note = _parse_time(kv.get("start_time", ""))
+    interval = _cnv_interval(kv)
+    try:
+        nvalues_declared: int | None = int(kv["nvalues"])
+    except (KeyError, ValueError):
+        nvalues_declared = None
     if nvalues_declared is not None and nvalues_declared != data.shape[0] + len(bad_lines):
         warnings.warn(f"{path.name}: header declares nvalues = {nvalues_declared} but the file holds "
-                      f"{data.shape[0] + len(bad_lines)} data rows (truncated or edited file)", stacklevel=2)
+                      f"{data.shape[0] + len(bad_lines)} data rows (truncated or edited file)", stacklevel=3)
     sensors_xml, xml_error = _parse_sensors_xml(xml_lines) if xml_lines else (None, None)
     if xml_error:
-        warnings.warn(f"{path.name}: {xml_error}; kept as text in attrs['sensors_xml_text']", stacklevel=2)
+        warnings.warn(f"{path.name}: {xml_error}; kept as text in attrs['sensors_xml_text']", stacklevel=3)
     serial = re.search(r"SerialNumber='([^']*)'", " ".join(instr))
     channel_lat = {c["column"]: c["latitude_deg"] for c in channels if c["latitude_deg"] is not None}
     time_cols = [c for c in ("timeS", "timeJ", "timeY", "timeK", "timeM", "timeH", "timeN", "timeQ")
                  if c in columns]
-    attrs: dict[str, Any] = {
+    return {
         "source": str(path),
         "compression": compression,
         "format": "Sea-Bird SeaSoft .cnv",
         "instrument": instr[0] if instr else None,
         "channels": channels,
         "units": {c["column"]: c["units"] for c in channels},
-        "latitude_deg": lat,
-        "longitude_deg": lon,
-        "position_source": {"latitude": lat_src, "longitude": lon_src},
+        "latitude_deg": h["lat"],
+        "longitude_deg": h["lon"],
+        "position_source": {"latitude": h["lat_src"], "longitude": h["lon_src"]},
         "start_time_utc": start_iso,
         "start_time_note": start_note,
-        "nmea_utc": nmea_utc,
+        "nmea_utc": h["nmea_utc"],
         "interval": interval,
-        "bad_flag": bad_flag,
+        "bad_flag": h["bad_flag"],
         "bad_values": n_bad,
         "processing": processing,
-        "sensors": sensors,
+        "sensors": h["sensors"],
         "sensors_xml": sensors_xml,
         "sensors_xml_text": "\n".join(xml_lines) if xml_error else None,
         "instrument_serial": serial.group(1) if serial else None,
@@ -711,16 +721,56 @@ def read_cnv(path: str | Path) -> pd.DataFrame:
         "time_channels": time_cols,
         "binned": bool((interval or {}).get("kind") in ("decibars", "meters", "scans")
                        or any(k.startswith("binavg_") for k, _ in processing)),
-        "user_header": user,
+        "user_header": h["user"],
         "instrument_header": instr,
-        "header_comments": comments,
-        "nquan": nquan,
+        "header_comments": h["comments"],
+        "nquan": h["nquan"],
         "nvalues_declared": nvalues_declared,
         "nvalues": int(data.shape[0]),
         "truncated": bool(nvalues_declared is not None and nvalues_declared > data.shape[0] + len(bad_lines)),
         "rows_dropped": bad_lines,
     }
-    df.attrs.update(attrs)
+
+
+def read_cnv(path: str | Path) -> pd.DataFrame:
+    """Read a Sea-Bird ``.cnv`` file into a DataFrame with the file's column names.
+
+    ``df.attrs`` holds the header (all JSON-serialisable):
+
+    * ``source`` (path), ``instrument`` (first header line, e.g. ``Sea-Bird SBE 9 Data File:``);
+    * ``channels``: list of ``{index, name, column, long_name, units, span}`` (``units`` is the bracketed
+      text, e.g. ``"ITS-90, deg C"``, ``"db"``, ``"S/m"``; ``span`` the header ``[lo, hi]`` or ``None``);
+      ``units``: ``{column: units}``;
+    * ``latitude_deg`` / ``longitude_deg``: decimal degrees from ``* NMEA Latitude = ...`` /
+      ``** Latitude: ...`` lines (``None`` when absent or unreadable);
+    * ``start_time_utc`` (ISO-8601, ``None`` when absent), ``start_time_note`` (SeaSoft's bracket text),
+      ``nmea_utc`` when present;
+    * ``interval``: ``{"kind": "decibars"|"seconds"|..., "value": float}``;
+    * ``bad_flag`` (float; those values became NaN; ``bad_flag = 0`` is ambiguous and applied only where a 0 can
+      mean "bad", never in the ``flag``/count/time channels, with a warning: :func:`_apply_zero_bad_flag`),
+      ``bad_values`` (count replaced);
+    * ``processing``: SeaSoft processing lines in file order, ``[[key, value], ...]``
+      (``datcnv_date``, ``wildedit_vars``, ``Derive_in``, ...);
+    * ``sensors`` (``# sensor i = ...`` lines), ``user_header`` (``**`` lines), ``instrument_header``;
+    * ``nquan``, ``nvalues_declared``, ``nvalues`` (rows read), ``rows_dropped`` (line numbers of
+      unparseable data lines, dropped with a warning).
+
+    The header's ``nvalues`` is only a capacity hint, capped by the body size (or 64 MiB for compressed input),
+    never trusted for memory; a count that disagrees with the rows is a warning.
+
+    Raises :class:`~hadal.errors.InputError` (one line, naming the file) when the file is missing, empty,
+    has no ``*END*`` line, no ``# name`` lines, or no readable data rows (naming a column-count mismatch: rows
+    of N values under a header of M columns).
+    """
+    path = Path(path)
+    compression, h, sink, column_labels = _stream_cnv(path)
+    data, bad_lines, n_bad, bad_counts = sink.result(), sink.bad_lines, sink.n_bad, sink.bad_counts
+    del sink
+    _check_rows(path, h, data, bad_lines, bad_counts)
+    if h["bad_flag"] == 0:
+        n_bad = _apply_zero_bad_flag(data, h["columns"], path)
+    df = pd.DataFrame(data, columns=h["columns"], copy=False)
+    df.attrs.update(_cnv_attrs(path, compression, h, _cnv_channels(h), data, bad_lines, n_bad, column_labels))
     return df
 
 

@@ -139,6 +139,123 @@ def _check_header(path: Path, line: str, delimiter: str, needed: list[str], sens
                          f"in the header (columns {', '.join(map(str, pos))}): ambiguous - rename or remove one")
 
 
+def _check_columns(path: Path, columns: list[str], header_line: str, mapping: CsvSource, sensor: str) -> None:
+    """Every mapped column present once in the header; else a one-line :class:`InputError` (naming a likely
+    wrong delimiter when the header came out as one column)."""
+    needed = [mapping.time.field] + [f for fm in mapping.fields.values() for f in fm.inputs()]
+    if mapping.valid_field:
+        needed.append(mapping.valid_field)
+    _check_header(path, header_line, mapping.delimiter, needed, sensor)
+    missing = [c for c in needed if c not in columns]
+    if missing:
+        why = ""
+        if len(columns) == 1:
+            other = [d for d in (";", "\t", ",", "|") if d != mapping.delimiter and d in columns[0]]
+            if other:
+                shown = {"\t": "\\t"}.get(other[0], other[0])
+                why = (f": the header is one column {columns[0][:60]!r}: is the delimiter {shown!r}? set "
+                       f"csv.delimiter: {shown!r} for sensor {sensor!r} in vehicle.yaml")
+        raise InputError(f"{path}: missing column(s) {', '.join(repr(c) for c in missing)} required by the "
+                         f"vehicle config for sensor {sensor!r} (have: {', '.join(columns[:12])}){why}")
+
+
+def _chunk_numbers(chunk: pd.DataFrame, inputs: list[tuple[str, str]], per_col: dict[str, dict[str, Any]],
+                   corrupt: np.ndarray) -> dict[tuple[str, str], np.ndarray]:
+    """One chunk's mapped input columns as float64; a cell that is not a number marks its row in ``corrupt``
+    (in place) and is counted, with examples, in ``per_col``."""
+    nums = {}
+    for var, f in inputs:
+        col = chunk[f]
+        if col.dtype.kind in "iuf":  # pandas parsed every cell as a number (or one of the empty cells)
+            num, bad = col.to_numpy(dtype=np.float64), np.zeros(len(col), dtype=bool)
+        else:  # some cell is not a number: find which, never coerce ('true' is not 1.0)
+            col = col.astype(object).where(col.notna(), "").astype(str).str.strip()
+            empty = col.isin(_EMPTY_CELLS)
+            num = pd.to_numeric(col.where(~empty, None), errors="coerce").to_numpy(dtype=np.float64)
+            bad = np.isnan(num) & ~empty.to_numpy()
+        if bad.any():  # 'true', '[1.5]', '{}', '3,2', 'abc': rejected (the row), never coerced
+            d = per_col.setdefault(f, {"variable": var, "count": 0, "examples": []})
+            d["variable"] = var
+            d["count"] += int(bad.sum())
+            if len(d["examples"]) < 3:
+                d["examples"] = sorted(set(d["examples"]) | {str(x)[:20] for x in col[bad].head(50)})[:3]
+        corrupt |= bad
+        nums[(var, f)] = num
+    return nums
+
+
+class _CsvRows:
+    """The good rows of a sensor CSV, kept as numbers chunk by chunk (:func:`read_sensor_csv`), and the counts
+    of the rows dropped."""
+
+    def __init__(self, path: Path, mapping: CsvSource) -> None:
+        capacity = max(path.stat().st_size // 64, 1024)  # a first guess of the rows; the columns grow as needed
+        self.mapping = mapping
+        self.t_out = GrowableColumn(capacity, np.int64)
+        self.inputs = [(var, f) for var, fm in mapping.fields.items() for f in fm.inputs()]
+        self.num_out = {vf: GrowableColumn(capacity, np.float64) for vf in self.inputs}
+        self.ok_out = GrowableColumn(capacity, np.bool_) if mapping.valid_field else None
+        self.per_col: dict[str, dict[str, Any]] = {}
+        self.n_rows = self.n_bad_time = self.n_rejected = 0
+        self.bad_time_values: list[np.ndarray] = []
+
+    def add(self, chunk: pd.DataFrame) -> None:
+        """One parsed chunk: its rows with a good time and good numbers are kept."""
+        mapping = self.mapping
+        chunk.columns = [str(c).strip() for c in chunk.columns]
+        self.n_rows += len(chunk)
+        tcol = chunk[mapping.time.field]
+        if tcol.dtype.kind not in "iuf":
+            tcol = tcol.astype(object).where(tcol.notna(), "").astype(str).str.strip()
+        t = parse_time(tcol, mapping.time.format)
+        bad_time = _nat_mask(t)
+        corrupt = bad_time.copy()
+        nums = _chunk_numbers(chunk, self.inputs, self.per_col, corrupt)
+        if bad_time.any() and mapping.time.format.startswith("unix_"):
+            self.bad_time_values.append(pd.to_numeric(tcol[bad_time], errors="coerce").to_numpy(np.float64))
+        self.n_bad_time += int(bad_time.sum())
+        self.n_rejected += int((corrupt & ~bad_time).sum())
+        keep = ~corrupt
+        self.t_out.extend(t[keep])
+        for vf, num in nums.items():
+            self.num_out[vf].extend(num[keep])
+        if self.ok_out is not None:
+            ok = chunk[mapping.valid_field].fillna("").str.strip().str.lower().isin(["1", "true", "yes", "t"])
+            ok = ok.to_numpy()
+            self.ok_out.extend(ok[keep])
+
+
+def _warn_corrupt(path: Path, mapping: CsvSource, rows: _CsvRows, n_lines: int, bad_shape: int, n_corrupt: int,
+                  hint: str | None) -> None:
+    """The one warning about dropped rows (why, with examples), raised at read_sensor_csv's caller."""
+    parts = []
+    if bad_shape:
+        parts.append(f"{bad_shape} with a wrong number of fields")
+    if rows.n_bad_time:
+        parts.append(f"{rows.n_bad_time} with an unparseable time in {mapping.time.field!r} "
+                     f"({mapping.time.format}{'; it ' + hint if hint else ''})")
+    if rows.per_col:
+        parts.append("non-numeric values: " + "; ".join(
+            f"{c}: {d['count']} (e.g. {', '.join(repr(x) for x in d['examples'])})" for c, d in rows.per_col.items()))
+    warnings.warn(f"{path.name}: dropped {n_corrupt} corrupt row(s) of {n_lines - 1} ({'; '.join(parts)})",
+                  stacklevel=3)
+
+
+def _mapped_values(path: Path, mapping: CsvSource, rows: _CsvRows, sensor: str
+                   ) -> tuple[dict[str, np.ndarray], list[Any]]:
+    """Each mapped variable from its input columns (units converted; NaN where the validity column says not
+    valid), and the conversion records."""
+    values: dict[str, np.ndarray] = {}
+    conversions = []
+    for var, fm in mapping.fields.items():
+        cols = [rows.num_out.pop((var, f)).values() for f in fm.inputs()]
+        values[var], recs = map_variable(var, fm, cols, sensor, f"csv:{path.name}")
+        conversions.extend(recs)
+        if rows.ok_out is not None:
+            values[var] = np.where(rows.ok_out.values(), values[var], np.nan)
+    return values, conversions
+
+
 def read_sensor_csv(path: str | Path, mapping: CsvSource, sensor: str = "sensor") -> SensorSamples:
     """Read one sensor CSV file with ``mapping`` (columns, units, time format, delimiter).
 
@@ -159,29 +276,8 @@ def read_sensor_csv(path: str | Path, mapping: CsvSource, sensor: str = "sensor"
     skip = {"skiprows": n_comment} if n_comment else {}
     header = next(_csv_chunks(path, mapping.delimiter, compression, nrows=0, encoding=encoding, **skip))
     columns = [str(c).strip() for c in header.columns]
-    needed = [mapping.time.field] + [f for fm in mapping.fields.values() for f in fm.inputs()]
-    if mapping.valid_field:
-        needed.append(mapping.valid_field)
-    _check_header(path, header_line, mapping.delimiter, needed, sensor)
-    missing = [c for c in needed if c not in columns]
-    if missing:
-        why = ""
-        if len(columns) == 1:
-            other = [d for d in (";", "\t", ",", "|") if d != mapping.delimiter and d in columns[0]]
-            if other:
-                shown = {"\t": "\\t"}.get(other[0], other[0])
-                why = (f": the header is one column {columns[0][:60]!r}: is the delimiter {shown!r}? set "
-                       f"csv.delimiter: {shown!r} for sensor {sensor!r} in vehicle.yaml")
-        raise InputError(f"{path}: missing column(s) {', '.join(repr(c) for c in missing)} required by the "
-                         f"vehicle config for sensor {sensor!r} (have: {', '.join(columns[:12])}){why}")
-    capacity = max(path.stat().st_size // 64, 1024)  # a first guess of the rows; the columns grow as needed
-    t_out = GrowableColumn(capacity, np.int64)
-    inputs = [(var, f) for var, fm in mapping.fields.items() for f in fm.inputs()]
-    num_out = {vf: GrowableColumn(capacity, np.float64) for vf in inputs}
-    ok_out = GrowableColumn(capacity, np.bool_) if mapping.valid_field else None
-    per_col: dict[str, dict[str, Any]] = {}
-    n_rows = n_bad_time = n_rejected = 0
-    bad_time_values: list[np.ndarray] = []
+    _check_columns(path, columns, header_line, mapping, sensor)
+    rows = _CsvRows(path, mapping)
     # numbers are parsed by pandas' C parser (a column with any other cell comes back as text and is checked
     # cell by cell); the time column stays text unless it is a plain number, the validity column always.
     # Every column is parsed (``usecols`` would hide rows with too many fields from ``on_bad_lines``); a
@@ -193,78 +289,24 @@ def read_sensor_csv(path: str | Path, mapping: CsvSource, sensor: str = "sensor"
     for chunk in _csv_chunks(path, mapping.delimiter, compression, scan, chunksize=CSV_CHUNK_ROWS,
                              dtype={raw_name[c]: str for c in as_text}, na_values=_EMPTY_CELLS, encoding=encoding,
                              **skip):
-        chunk.columns = [str(c).strip() for c in chunk.columns]
-        n_rows += len(chunk)
-        tcol = chunk[mapping.time.field]
-        if tcol.dtype.kind not in "iuf":
-            tcol = tcol.astype(object).where(tcol.notna(), "").astype(str).str.strip()
-        t = parse_time(tcol, mapping.time.format)
-        bad_time = _nat_mask(t)
-        corrupt = bad_time.copy()
-        nums = {}
-        for var, f in inputs:
-            col = chunk[f]
-            if col.dtype.kind in "iuf":  # pandas parsed every cell as a number (or one of the empty cells)
-                num, bad = col.to_numpy(dtype=np.float64), np.zeros(len(col), dtype=bool)
-            else:  # some cell is not a number: find which, never coerce ('true' is not 1.0)
-                col = col.astype(object).where(col.notna(), "").astype(str).str.strip()
-                empty = col.isin(_EMPTY_CELLS)
-                num = pd.to_numeric(col.where(~empty, None), errors="coerce").to_numpy(dtype=np.float64)
-                bad = np.isnan(num) & ~empty.to_numpy()
-            if bad.any():  # 'true', '[1.5]', '{}', '3,2', 'abc': rejected (the row), never coerced
-                d = per_col.setdefault(f, {"variable": var, "count": 0, "examples": []})
-                d["variable"] = var
-                d["count"] += int(bad.sum())
-                if len(d["examples"]) < 3:
-                    d["examples"] = sorted(set(d["examples"]) | {str(x)[:20] for x in col[bad].head(50)})[:3]
-            corrupt |= bad
-            nums[(var, f)] = num
-        if bad_time.any() and mapping.time.format.startswith("unix_"):
-            bad_time_values.append(pd.to_numeric(tcol[bad_time], errors="coerce").to_numpy(np.float64))
-        n_bad_time += int(bad_time.sum())
-        n_rejected += int((corrupt & ~bad_time).sum())
-        keep = ~corrupt
-        t_out.extend(t[keep])
-        for vf, num in nums.items():
-            num_out[vf].extend(num[keep])
-        if ok_out is not None:
-            ok = chunk[mapping.valid_field].fillna("").str.strip().str.lower().isin(["1", "true", "yes", "t"])
-            ok = ok.to_numpy()
-            ok_out.extend(ok[keep])
-        del chunk, nums
+        rows.add(chunk)
+        del chunk
     n_lines = scan.finish()
-    bad_shape = max(n_lines - 1 - n_comment_text - n_rows, 0)  # rows pandas skipped for a wrong field count
-    n_corrupt = n_bad_time + n_rejected + bad_shape
+    bad_shape = max(n_lines - 1 - n_comment_text - rows.n_rows, 0)  # rows pandas skipped for a wrong field count
+    n_corrupt = rows.n_bad_time + rows.n_rejected + bad_shape
     hint = None
-    if bad_time_values:
-        hint = time_unit_hint(np.concatenate(bad_time_values), mapping.time.format)
+    if rows.bad_time_values:
+        hint = time_unit_hint(np.concatenate(rows.bad_time_values), mapping.time.format)
     if n_corrupt:
-        parts = []
-        if bad_shape:
-            parts.append(f"{bad_shape} with a wrong number of fields")
-        if n_bad_time:
-            parts.append(f"{n_bad_time} with an unparseable time in {mapping.time.field!r} "
-                         f"({mapping.time.format}{'; it ' + hint if hint else ''})")
-        if per_col:
-            parts.append("non-numeric values: " + "; ".join(
-                f"{c}: {d['count']} (e.g. {', '.join(repr(x) for x in d['examples'])})" for c, d in per_col.items()))
-        warnings.warn(f"{path.name}: dropped {n_corrupt} corrupt row(s) of {n_lines - 1} ({'; '.join(parts)})",
-                      stacklevel=2)
-    if t_out.n == 0:
-        raise InputError(f"{path}: no usable rows (all {n_rows} rows have an unparseable time or value"
+        _warn_corrupt(path, mapping, rows, n_lines, bad_shape, n_corrupt, hint)
+    if rows.t_out.n == 0:
+        raise InputError(f"{path}: no usable rows (all {rows.n_rows} rows have an unparseable time or value"
                          + (f"; time column {mapping.time.field!r} {hint}" if hint else "") + ")")
-    values: dict[str, np.ndarray] = {}
-    conversions = []
-    for var, fm in mapping.fields.items():
-        cols = [num_out.pop((var, f)).values() for f in fm.inputs()]
-        values[var], recs = map_variable(var, fm, cols, sensor, f"csv:{path.name}")
-        conversions.extend(recs)
-        if ok_out is not None:
-            values[var] = np.where(ok_out.values(), values[var], np.nan)
-    stats = {"rows": int(n_lines - 1 - n_comment_text), "comment_lines": n_comment_text, "corrupt_rows": n_corrupt, "bad_times": n_bad_time,
-             "wrong_field_count": bad_shape, "rejected_samples": n_rejected,
-             "rejected_values": per_col, "time_field": mapping.time.field, "time_format": mapping.time.format}
-    return SensorSamples(sensor, t_out.values(), values, f"csv:{path.name}", stats, conversions)
+    values, conversions = _mapped_values(path, mapping, rows, sensor)
+    stats = {"rows": int(n_lines - 1 - n_comment_text), "comment_lines": n_comment_text, "corrupt_rows": n_corrupt,
+             "bad_times": rows.n_bad_time, "wrong_field_count": bad_shape, "rejected_samples": rows.n_rejected,
+             "rejected_values": rows.per_col, "time_field": mapping.time.field, "time_format": mapping.time.format}
+    return SensorSamples(sensor, rows.t_out.values(), values, f"csv:{path.name}", stats, conversions)
 
 
 def field_getter(path: str) -> Any:

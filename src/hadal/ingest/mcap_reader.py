@@ -611,6 +611,163 @@ def _merge_channels(parts: list[tuple[list[int], list[bytes]]]) -> tuple[list[by
     return [d_all[i] for i in order], t[order], n_raw, dups
 
 
+def _topic_payloads(path: Path, topic: str, cids: list[int], channels: dict[int, Any], schemas: dict[int, Any],
+                    bufs: dict[int, _ChanBuf]) -> tuple[np.ndarray, int, int, list[bytes] | None,
+                                                        dict[int, bytes] | None, list[Any] | None, Any]:
+    """Take one topic's buffered messages out of ``bufs`` (released once taken: peak is one topic's payloads
+    plus everything decoded). Returns (log times, messages before dropping duplicates, duplicates dropped,
+    payloads still to decode, the first unusable JSON payload by index, JSON already decoded, fixed-layout
+    CDR already decoded); several channels of the topic are merged (:func:`_merge_channels`)."""
+    cid, ch = cids[0], channels[cids[0]]
+    sch = schemas.get(ch.schema_id)
+    enc = ch.message_encoding
+    dups = 0
+    raw: list[bytes] | None = None
+    raw_json: dict[int, bytes] | None = None
+    msgs: list[Any] | None = None
+    fixed = None
+    if len(cids) == 1:
+        buf = bufs.pop(cid, None) or _ChanBuf()
+        t = buf.log_times()
+        n_raw = buf.n
+        if enc == "json":
+            msgs, _bad = buf.decode_json()
+            if not set(map(type, msgs)) <= {dict}:  # keep the first unusable payload (for the error text)
+                i0 = next(i for i, m in enumerate(msgs) if not isinstance(m, dict))
+                raw_json = {i0: buf.payload(i0)}
+        else:
+            if enc == "cdr" and sch is not None and sch.encoding == "ros2msg":
+                fixed = _decode_cdr_fixed(buf, sch)
+            if fixed is None:
+                raw = buf.payloads()
+        del buf
+    else:
+        _check_same_schema(path, topic, [(c, channels[c], schemas.get(channels[c].schema_id)) for c in cids])
+        parts = [(b.log_times().tolist(), b.payloads()) for b in (bufs.pop(c, None) or _ChanBuf() for c in cids)]
+        raw, t, n_raw, dups = _merge_channels(parts)
+    return t, n_raw, dups, raw, raw_json, msgs, fixed
+
+
+def _decode_topic(path: Path, ch: Any, sch: Any, raw: list[bytes] | None, msgs: list[Any] | None, fixed: Any,
+                  factory: list[Any]) -> tuple[list[Any], Any]:
+    """Decode what :func:`_topic_payloads` left to decode; returns (messages, the ROS 2 decoder or None).
+    ``factory`` holds the one ROS 2 ``DecoderFactory`` of a read, made on first use."""
+    enc = ch.message_encoding
+    dec = None
+    if enc == "json":
+        if raw is not None:
+            msgs, _bad = _decode_json(raw)
+    elif fixed is not None:
+        msgs = fixed
+    elif enc == "cdr" and sch is not None and sch.encoding in ("ros2msg", "ros2idl"):
+        if not factory:
+            from mcap_ros2.decoder import DecoderFactory
+
+            factory.append(DecoderFactory())
+        try:
+            dec = factory[0].decoder_for(enc, sch)
+        except Exception as exc:  # noqa: BLE001 - broken message definition in the schema record
+            raise InputError(f"{path}: cannot build a ROS 2 decoder for {ch.topic} ({sch.name}): {exc}") from None
+        msgs = []
+        for d in raw:
+            try:
+                msgs.append(to_dict(dec(d)))
+            except Exception:  # noqa: BLE001 - corrupt CDR payload: drop and count
+                msgs.append(None)
+    else:
+        raise InputError(
+            f"{path}: topic {ch.topic} uses message encoding {enc!r} "
+            f"(schema {getattr(sch, 'encoding', None)!r}); hadal reads 'json' and ROS 2 'cdr'"
+        )
+    return msgs, dec
+
+
+def _keep_objects(msgs: list[Any], t: np.ndarray, raw: list[bytes] | None, raw_json: dict[int, bytes] | None,
+                  enc: str, dec: Any) -> tuple[list[Any], np.ndarray, int, str | None]:
+    """Drop the messages that did not decode to an object; returns (messages, their log times, number dropped,
+    why the first one was unusable)."""
+    if set(map(type, msgs)) <= {dict}:  # at C speed: every message decoded to an object
+        keep = msgs
+    else:
+        keep = [i for i, m in enumerate(msgs) if isinstance(m, dict)]
+    bad = len(msgs) - len(keep)  # undecodable or not an object
+    first_error = None
+    if bad:
+        i0 = next(i for i, m in enumerate(msgs) if not isinstance(m, dict))
+        payload = raw[i0] if raw is not None and i0 < len(raw) else (raw_json or {}).get(i0)
+        if payload is not None:
+            first_error = _decode_error_text(payload, enc, dec, msgs[i0])
+    if len(keep) != len(msgs):
+        msgs = [msgs[i] for i in keep]
+        t = t[np.asarray(keep, dtype=np.int64)] if keep else t[:0]
+    return msgs, t, bad, first_error
+
+
+def _read_topic(path: Path, topic: str, cids: list[int], channels: dict[int, Any], schemas: dict[int, Any],
+                bufs: dict[int, _ChanBuf], per_chan: dict[int, int] | None, report: McapReport, warn: bool,
+                factory: list[Any]) -> McapTopic:
+    """Decode one topic (all its channels) into a :class:`McapTopic`; records it in ``report.topics``."""
+    cid, ch = cids[0], channels[cids[0]]
+    sch = schemas.get(ch.schema_id)
+    enc = ch.message_encoding
+    t, n_raw, dups, raw, raw_json, msgs, fixed = _topic_payloads(path, topic, cids, channels, schemas, bufs)
+    msgs, dec = _decode_topic(path, ch, sch, raw, msgs, fixed, factory)
+    msgs, t, bad, first_error = _keep_objects(msgs, t, raw, raw_json, enc, dec)
+    del raw_json
+    report.decode_errors += bad
+    expected = sum(per_chan.get(c, 0) for c in cids) if per_chan is not None else None
+    report.topics[topic] = {
+        "channel_id": cid, "schema": getattr(sch, "name", None), "schema_encoding": getattr(sch, "encoding", None),
+        "message_encoding": enc, "read": len(msgs), "expected": expected,
+        "lost": (expected - n_raw) if expected is not None else None, "decode_errors": bad,
+        "first_decode_error": first_error,
+    }
+    if len(cids) > 1:
+        report.topics[topic].update(channel_ids=list(cids), duplicates_dropped=dups)
+        report.duplicates_dropped += dups
+        if warn:
+            warnings.warn(f"{path.name}: topic {topic} is recorded on {len(cids)} channels "
+                          f"({', '.join(str(c) for c in cids)}) with the same schema "
+                          f"{getattr(sch, 'name', None)!r}: merged in time order, {dups} exact duplicate "
+                          "message(s) dropped", stacklevel=3)  # the caller of read_mcap
+    return McapTopic(topic, getattr(sch, "name", None), getattr(sch, "encoding", None), enc, t, msgs,
+                     getattr(sch, "data", None), list(cids), dups)
+
+
+def _count_lost(report: McapReport, out: dict[str, McapTopic], total: int | None, per_chan: dict[int, int] | None,
+                channels: dict[int, Any], tset: set[str] | None) -> None:
+    """Fill ``report.messages_read`` / ``messages_expected`` / ``messages_lost`` from what was read."""
+    report.messages_read = sum(len(v.messages) for v in out.values())
+    if total is not None and tset is None:
+        report.messages_expected = total
+    elif per_chan is not None:
+        report.messages_expected = sum(n for cid, n in per_chan.items()
+                                       if cid in channels and (tset is None or channels[cid].topic in tset))
+    if report.messages_expected is not None:
+        report.messages_lost = max(report.messages_expected - report.messages_read - report.duplicates_dropped, 0)
+    elif report.truncated or report.corrupt_chunks:
+        report.messages_lost = None  # unknown: no summary survived
+    else:
+        report.messages_lost = report.decode_errors
+
+
+def _warn_lost(path: Path, report: McapReport) -> None:
+    """The one :class:`UserWarning` of a damaged read (what was lost and why), raised at read_mcap's caller."""
+    lost = "an unknown number of" if report.messages_lost is None else str(report.messages_lost)
+    what = []
+    if report.truncated:
+        what.append("truncated/corrupted after the last intact record")
+    if report.corrupt_chunks:
+        what.append(f"{report.corrupt_chunks} corrupt chunk(s) skipped")
+    if report.decode_errors:
+        what.append(f"{report.decode_errors} undecodable message(s)")
+    if not what:
+        what.append(f"the summary counts {report.messages_expected} message(s) on these topics, "
+                    f"{report.messages_read} were found")
+    warnings.warn(f"{path.name}: {lost} message(s) lost ({'; '.join(what)}); "
+                  f"recovered {report.messages_read}", stacklevel=3)
+
+
 def read_mcap(path: str | Path, topics: Iterable[str] | None = None, *, warn: bool = True
               ) -> tuple[dict[str, McapTopic], McapReport]:
     """Read (and decode) the messages of ``topics`` (all when ``None``) from an MCAP file.
@@ -631,125 +788,16 @@ def read_mcap(path: str | Path, topics: Iterable[str] | None = None, *, warn: bo
         per_chan, total = _summary_counts(path) if (report.truncated or report.corrupt_chunks) else (None, None)
 
     out: dict[str, McapTopic] = {}
-    ros2_factory = None
+    ros2_factory: list[Any] = []
     by_topic: dict[str, list[int]] = {}
     for cid, ch in sorted(channels.items()):
         if tset is None or ch.topic in tset:
             by_topic.setdefault(ch.topic, []).append(cid)
     for topic, cids in by_topic.items():
-        cid, ch = cids[0], channels[cids[0]]
-        sch = schemas.get(ch.schema_id)
-        dups = 0
-        enc = ch.message_encoding
-        raw: list[bytes] | None = None
-        raw_json: dict[int, bytes] | None = None
-        dec = None
-        fixed = None
-        if len(cids) == 1:
-            buf = bufs.pop(cid, None) or _ChanBuf()  # released once decoded (peak: one topic's payloads + all decoded)
-            t = buf.log_times()
-            n_raw = buf.n
-            if enc == "json":
-                msgs, bad = buf.decode_json()
-                if not set(map(type, msgs)) <= {dict}:  # keep the first unusable payload (for the error text)
-                    i0 = next(i for i, m in enumerate(msgs) if not isinstance(m, dict))
-                    raw_json = {i0: buf.payload(i0)}
-            else:
-                if enc == "cdr" and sch is not None and sch.encoding == "ros2msg":
-                    fixed = _decode_cdr_fixed(buf, sch)
-                if fixed is None:
-                    raw = buf.payloads()
-            del buf
-        else:
-            _check_same_schema(path, topic, [(c, channels[c], schemas.get(channels[c].schema_id)) for c in cids])
-            parts = [(b.log_times().tolist(), b.payloads()) for b in (bufs.pop(c, None) or _ChanBuf() for c in cids)]
-            raw, t, n_raw, dups = _merge_channels(parts)
-        if enc == "json":
-            if raw is not None:
-                msgs, bad = _decode_json(raw)
-        elif fixed is not None:
-            msgs, bad = fixed, 0
-        elif enc == "cdr" and sch is not None and sch.encoding in ("ros2msg", "ros2idl"):
-            if ros2_factory is None:
-                from mcap_ros2.decoder import DecoderFactory
-
-                ros2_factory = DecoderFactory()
-            try:
-                dec = ros2_factory.decoder_for(enc, sch)
-            except Exception as exc:  # noqa: BLE001 - broken message definition in the schema record
-                raise InputError(f"{path}: cannot build a ROS 2 decoder for {ch.topic} ({sch.name}): {exc}") from None
-            msgs, bad = [], 0
-            for d in raw:
-                try:
-                    msgs.append(to_dict(dec(d)))
-                except Exception:  # noqa: BLE001 - corrupt CDR payload: drop and count
-                    msgs.append(None)
-                    bad += 1
-        else:
-            raise InputError(
-                f"{path}: topic {ch.topic} uses message encoding {enc!r} "
-                f"(schema {getattr(sch, 'encoding', None)!r}); hadal reads 'json' and ROS 2 'cdr'"
-            )
-        if set(map(type, msgs)) <= {dict}:  # at C speed: every message decoded to an object
-            keep = msgs
-        else:
-            keep = [i for i, m in enumerate(msgs) if isinstance(m, dict)]
-        bad = len(msgs) - len(keep)  # undecodable or not an object
-        first_error = None
-        if bad:
-            i0 = next(i for i, m in enumerate(msgs) if not isinstance(m, dict))
-            payload = raw[i0] if raw is not None and i0 < len(raw) else (raw_json or {}).get(i0)
-            if payload is not None:
-                first_error = _decode_error_text(payload, enc, dec, msgs[i0])
-        del raw_json
-        if len(keep) != len(msgs):
-            msgs = [msgs[i] for i in keep]
-            t = t[np.asarray(keep, dtype=np.int64)] if keep else t[:0]
-        report.decode_errors += bad
-        expected = sum(per_chan.get(c, 0) for c in cids) if per_chan is not None else None
-        report.topics[topic] = {
-            "channel_id": cid, "schema": getattr(sch, "name", None), "schema_encoding": getattr(sch, "encoding", None),
-            "message_encoding": enc, "read": len(msgs), "expected": expected,
-            "lost": (expected - n_raw) if expected is not None else None, "decode_errors": bad,
-            "first_decode_error": first_error,
-        }
-        if len(cids) > 1:
-            report.topics[topic].update(channel_ids=list(cids), duplicates_dropped=dups)
-            report.duplicates_dropped += dups
-            if warn:
-                warnings.warn(f"{path.name}: topic {topic} is recorded on {len(cids)} channels "
-                              f"({', '.join(str(c) for c in cids)}) with the same schema "
-                              f"{getattr(sch, 'name', None)!r}: merged in time order, {dups} exact duplicate "
-                              "message(s) dropped", stacklevel=2)
-        out[topic] = McapTopic(topic, getattr(sch, "name", None), getattr(sch, "encoding", None), enc, t, msgs,
-                               getattr(sch, "data", None), list(cids), dups)
-
-    report.messages_read = sum(len(v.messages) for v in out.values())
-    if total is not None and tset is None:
-        report.messages_expected = total
-    elif per_chan is not None:
-        report.messages_expected = sum(n for cid, n in per_chan.items()
-                                       if cid in channels and (tset is None or channels[cid].topic in tset))
-    if report.messages_expected is not None:
-        report.messages_lost = max(report.messages_expected - report.messages_read - report.duplicates_dropped, 0)
-    elif report.truncated or report.corrupt_chunks:
-        report.messages_lost = None  # unknown: no summary survived
-    else:
-        report.messages_lost = report.decode_errors
+        out[topic] = _read_topic(path, topic, cids, channels, schemas, bufs, per_chan, report, warn, ros2_factory)
+    _count_lost(report, out, total, per_chan, channels, tset)
     if warn and report.damaged:
-        lost = "an unknown number of" if report.messages_lost is None else str(report.messages_lost)
-        what = []
-        if report.truncated:
-            what.append("truncated/corrupted after the last intact record")
-        if report.corrupt_chunks:
-            what.append(f"{report.corrupt_chunks} corrupt chunk(s) skipped")
-        if report.decode_errors:
-            what.append(f"{report.decode_errors} undecodable message(s)")
-        if not what:
-            what.append(f"the summary counts {report.messages_expected} message(s) on these topics, "
-                        f"{report.messages_read} were found")
-        warnings.warn(f"{path.name}: {lost} message(s) lost ({'; '.join(what)}); "
-                      f"recovered {report.messages_read}", stacklevel=2)
+        _warn_lost(path, report)
     return out, report
 
 
@@ -1024,6 +1072,154 @@ def _decode_first(enc: str, sch: Any, data: bytes, factory: list[Any]) -> tuple[
                   "(it reads 'json' and ROS 2 'cdr')")
 
 
+class _McapTally:
+    """What :func:`describe_mcap`'s one pass collects: schemas, channels and per-channel counts / time spans."""
+
+    def __init__(self) -> None:
+        self.schemas: dict[int, Any] = {}
+        self.channels: dict[int, Any] = {}
+        self.count: dict[int, int] = {}
+        self.tmin: dict[int, int] = {}
+        self.tmax: dict[int, int] = {}
+        self.first: dict[int, bytes] = {}
+        self.header: Any = None
+        self.stats: Any = None
+        self.chunk_indexes = 0
+        self.chunks_read = 0
+        self.attachments = 0
+        self.compression: set[str] = set()
+        self.metadata: list[str] = []
+
+    def add(self, cid: int, lt: int, data: bytes) -> None:
+        n = self.count.get(cid)
+        if n is None:
+            self.count[cid] = 1
+            self.tmin[cid] = self.tmax[cid] = lt
+            self.first[cid] = bytes(data)
+            return
+        self.count[cid] = n + 1
+        if lt < self.tmin[cid]:
+            self.tmin[cid] = lt
+        elif lt > self.tmax[cid]:
+            self.tmax[cid] = lt
+
+
+def _tally_mcap(path: Path) -> tuple[_McapTally, _Walk]:
+    """One sequential, damage-tolerant pass over ``path``; the walk keeps its ``problem`` / ``corrupt``."""
+    from mcap.opcode import Opcode
+    from mcap.records import (
+        Attachment,
+        Channel,
+        Chunk,
+        ChunkIndex,
+        Header,
+        Message,
+        Metadata,
+        Schema,
+        Statistics,
+    )
+
+    t = _McapTally()
+    keep = frozenset({Opcode.CHUNK_INDEX, Opcode.ATTACHMENT, Opcode.METADATA})
+    with open(path, "rb") as fh:
+        walk = _Walk(fh, keep)
+        for rec in walk:
+            if isinstance(rec, Chunk):
+                t.compression.add(rec.compression or "none")
+                inner = walk.chunk(rec)
+                if inner is None:
+                    continue
+                t.chunks_read += 1
+                for op, r in inner:
+                    if op == _OP_MESSAGE:
+                        t.add(*r)
+                    elif op == _OP_SCHEMA:
+                        t.schemas[r.id] = r
+                    else:
+                        t.channels[r.id] = r
+            elif isinstance(rec, Message):
+                t.add(rec.channel_id, rec.log_time, rec.data)
+            elif isinstance(rec, Schema):
+                t.schemas[rec.id] = rec
+            elif isinstance(rec, Channel):
+                t.channels[rec.id] = rec
+            elif isinstance(rec, Header):
+                t.header = rec
+            elif isinstance(rec, Statistics):
+                t.stats = rec
+            elif isinstance(rec, ChunkIndex):
+                t.chunk_indexes += 1
+            elif isinstance(rec, Metadata):
+                t.metadata.append(rec.name)
+            elif isinstance(rec, Attachment):
+                t.attachments += 1
+    return t, walk
+
+
+def _recover_summary(path: Path, t: _McapTally) -> bool:
+    """A seeking reader finds the footer's summary when only the middle of the file is damaged; True if read."""
+    from mcap.reader import make_reader
+
+    summary_read = False
+    try:
+        with open(path, "rb") as fh:
+            s = make_reader(fh).get_summary()
+        if s is not None:
+            t.stats = s.statistics
+            t.chunk_indexes = len(s.chunk_indexes)
+            summary_read = True
+            for sid, sc in s.schemas.items():
+                t.schemas.setdefault(sid, sc)
+            for cid, c in s.channels.items():
+                t.channels.setdefault(cid, c)
+    except Exception:  # noqa: BLE001 - no summary either
+        pass
+    return summary_read
+
+
+def _schema_docs(sch: Any, sname: str | None, senc: str | None) -> tuple[dict[str, str], str | None]:
+    """Field docs (units/comments) from a channel's schema, and its name (a JSON schema's title if unnamed)."""
+    docs: dict[str, str] = {}
+    try:
+        if senc == "jsonschema" and sch is not None and sch.data:
+            js = json.loads(sch.data)
+            docs = _jsonschema_docs(js)
+            if not sname:
+                sname = js.get("title")
+        elif senc == "ros2msg" and sch is not None:
+            docs = _ros2msg_docs(sname or "", sch.data.decode("utf-8", errors="replace"))
+    except (ValueError, UnicodeDecodeError, AttributeError):
+        docs = {}
+    return docs, sname
+
+
+def _describe_channel(cid: int, ch: Any, t: _McapTally, per_chan: dict[int, int] | None,
+                      factory: list[Any]) -> dict[str, Any]:
+    """:func:`describe_mcap`'s entry for one channel."""
+    sch = t.schemas.get(ch.schema_id)
+    enc = ch.message_encoding
+    senc = getattr(sch, "encoding", None)
+    is_ros = enc == "cdr" or (senc or "").startswith("ros")
+    msg, err = (None, None)
+    if cid in t.first:
+        msg, err = _decode_first(enc, sch, t.first[cid], factory)
+    docs, sname = _schema_docs(sch, getattr(sch, "name", None), senc)
+    n = t.count.get(cid, 0)
+    span = (t.tmax[cid] - t.tmin[cid]) / 1e9 if n > 1 else None
+    return {
+        "id": cid, "topic": ch.topic, "message_encoding": enc, "schema_name": sname, "schema_encoding": senc,
+        "message_type": ros2_type_name(sname) if is_ros else sname,
+        "metadata": dict(ch.metadata or {}), "message_count": n,
+        "messages_expected": int(per_chan.get(cid, 0)) if per_chan is not None else None,
+        "first_log_time": _iso(t.tmin.get(cid)), "last_log_time": _iso(t.tmax.get(cid)),
+        "first_log_time_ns": t.tmin.get(cid), "last_log_time_ns": t.tmax.get(cid),
+        "rate_hz": (n - 1) / span if span else None,
+        "fields": field_names(msg) if isinstance(msg, dict) else [],
+        "first_message": _preview(msg) if msg is not None else None,
+        "field_docs": docs, "decode_error": err,
+    }
+
+
 def describe_mcap(path: str | Path) -> dict[str, Any]:
     """What is in an MCAP file, as a JSON-serialisable dict (``hadal inspect``, ``hadal init``).
 
@@ -1039,150 +1235,32 @@ def describe_mcap(path: str | Path) -> dict[str, Any]:
     message), ``first_message`` (abridged), ``field_docs`` (units/comments from the schema) and
     ``decode_error``. Raises :class:`InputError` only when the file is missing, empty or not MCAP.
     """
-    from mcap.opcode import Opcode
-    from mcap.records import (
-        Attachment,
-        Channel,
-        Chunk,
-        ChunkIndex,
-        Header,
-        Message,
-        Metadata,
-        Schema,
-        Statistics,
-    )
-
     path = Path(path)
     _open_check(path)
-    schemas: dict[int, Any] = {}
-    channels: dict[int, Any] = {}
-    count: dict[int, int] = {}
-    tmin: dict[int, int] = {}
-    tmax: dict[int, int] = {}
-    first: dict[int, bytes] = {}
-    header = None
-    stats = None
-    chunk_indexes = 0
-    chunks_read = attachments = 0
-    compression: set[str] = set()
-    metadata: list[str] = []
-
-    def add(cid: int, lt: int, data: bytes) -> None:
-        n = count.get(cid)
-        if n is None:
-            count[cid] = 1
-            tmin[cid] = tmax[cid] = lt
-            first[cid] = bytes(data)
-            return
-        count[cid] = n + 1
-        if lt < tmin[cid]:
-            tmin[cid] = lt
-        elif lt > tmax[cid]:
-            tmax[cid] = lt
-
-    keep = frozenset({Opcode.CHUNK_INDEX, Opcode.ATTACHMENT, Opcode.METADATA})
-    with open(path, "rb") as fh:
-        walk = _Walk(fh, keep)
-        for rec in walk:
-            if isinstance(rec, Chunk):
-                compression.add(rec.compression or "none")
-                inner = walk.chunk(rec)
-                if inner is None:
-                    continue
-                chunks_read += 1
-                for op, r in inner:
-                    if op == _OP_MESSAGE:
-                        add(*r)
-                    elif op == _OP_SCHEMA:
-                        schemas[r.id] = r
-                    else:
-                        channels[r.id] = r
-            elif isinstance(rec, Message):
-                add(rec.channel_id, rec.log_time, rec.data)
-            elif isinstance(rec, Schema):
-                schemas[rec.id] = rec
-            elif isinstance(rec, Channel):
-                channels[rec.id] = rec
-            elif isinstance(rec, Header):
-                header = rec
-            elif isinstance(rec, Statistics):
-                stats = rec
-            elif isinstance(rec, ChunkIndex):
-                chunk_indexes += 1
-            elif isinstance(rec, Metadata):
-                metadata.append(rec.name)
-            elif isinstance(rec, Attachment):
-                attachments += 1
+    t, walk = _tally_mcap(path)
     truncated, problem, corrupt = walk.problem is not None, walk.problem, walk.corrupt
-    summary_read = stats is not None
-    if stats is None and (truncated or corrupt):
-        from mcap.reader import make_reader
-
-        try:  # a seeking reader finds the footer's summary when only the middle of the file is damaged
-            with open(path, "rb") as fh:
-                s = make_reader(fh).get_summary()
-            if s is not None:
-                stats = s.statistics
-                chunk_indexes = len(s.chunk_indexes)
-                summary_read = True
-                for sid, sc in s.schemas.items():
-                    schemas.setdefault(sid, sc)
-                for cid, c in s.channels.items():
-                    channels.setdefault(cid, c)
-        except Exception:  # noqa: BLE001 - no summary either
-            pass
+    summary_read = t.stats is not None
+    if t.stats is None and (truncated or corrupt):
+        summary_read = _recover_summary(path, t)
+    stats = t.stats
     per_chan = dict(stats.channel_message_counts) if stats is not None else None
     factory: list[Any] = []
-    out_channels = []
-    for cid, ch in sorted(channels.items()):
-        sch = schemas.get(ch.schema_id)
-        enc = ch.message_encoding
-        sname = getattr(sch, "name", None)
-        senc = getattr(sch, "encoding", None)
-        is_ros = enc == "cdr" or (senc or "").startswith("ros")
-        msg, err = (None, None)
-        if cid in first:
-            msg, err = _decode_first(enc, sch, first[cid], factory)
-        docs: dict[str, str] = {}
-        try:
-            if senc == "jsonschema" and sch is not None and sch.data:
-                js = json.loads(sch.data)
-                docs = _jsonschema_docs(js)
-                if not sname:
-                    sname = js.get("title")
-            elif senc == "ros2msg" and sch is not None:
-                docs = _ros2msg_docs(sname or "", sch.data.decode("utf-8", errors="replace"))
-        except (ValueError, UnicodeDecodeError, AttributeError):
-            docs = {}
-        n = count.get(cid, 0)
-        span = (tmax[cid] - tmin[cid]) / 1e9 if n > 1 else None
-        out_channels.append({
-            "id": cid, "topic": ch.topic, "message_encoding": enc, "schema_name": sname, "schema_encoding": senc,
-            "message_type": ros2_type_name(sname) if is_ros else sname,
-            "metadata": dict(ch.metadata or {}), "message_count": n,
-            "messages_expected": int(per_chan.get(cid, 0)) if per_chan is not None else None,
-            "first_log_time": _iso(tmin.get(cid)), "last_log_time": _iso(tmax.get(cid)),
-            "first_log_time_ns": tmin.get(cid), "last_log_time_ns": tmax.get(cid),
-            "rate_hz": (n - 1) / span if span else None,
-            "fields": field_names(msg) if isinstance(msg, dict) else [],
-            "first_message": _preview(msg) if msg is not None else None,
-            "field_docs": docs, "decode_error": err,
-        })
-    total = sum(count.values())
+    out_channels = [_describe_channel(cid, ch, t, per_chan, factory) for cid, ch in sorted(t.channels.items())]
+    total = sum(t.count.values())
     expected = int(stats.message_count) if stats is not None else None
-    t0 = min(tmin.values()) if tmin else None
-    t1 = max(tmax.values()) if tmax else None
+    t0 = min(t.tmin.values()) if t.tmin else None
+    t1 = max(t.tmax.values()) if t.tmax else None
     lost = max(expected - total, 0) if expected is not None else (0 if not (truncated or corrupt) else None)
     return {
         "path": str(path), "format": "mcap", "size_bytes": path.stat().st_size,
-        "profile": getattr(header, "profile", None), "library": getattr(header, "library", None),
+        "profile": getattr(t.header, "profile", None), "library": getattr(t.header, "library", None),
         "message_count": total, "start_time": _iso(t0), "end_time": _iso(t1),
         "duration_s": (t1 - t0) / 1e9 if t0 is not None and t1 is not None else None,
-        "chunks": {"read": chunks_read, "corrupt": corrupt,
-                   "expected": chunk_indexes if summary_read else None,
-                   "lost": max(chunk_indexes - chunks_read, 0) if summary_read else None,
-                   "compression": sorted(compression)},
+        "chunks": {"read": t.chunks_read, "corrupt": corrupt,
+                   "expected": t.chunk_indexes if summary_read else None,
+                   "lost": max(t.chunk_indexes - t.chunks_read, 0) if summary_read else None,
+                   "compression": sorted(t.compression)},
         "truncated": truncated, "problem": problem, "summary": summary_read,
         "messages_expected": expected, "messages_lost": lost,
-        "metadata": metadata, "attachments": attachments, "channels": out_channels,
+        "metadata": t.metadata, "attachments": t.attachments, "channels": out_channels,
     }

@@ -174,73 +174,88 @@ def _parse_xml_blocks(h: HexHeader, header_text: str, path: Path) -> None:
         if dev and not h.model:
             h.model = {"sbe19plus": "SBE 19plus", "sbe16plus": "SBE 16plus"}.get(dev.lower(), dev)
         if tag == "HardwareData":
-            fw = el.findtext("FirmwareVersion")
-            if fw:
-                h.firmware = fw.strip()
-            for s in el.iter("Sensor"):
-                sid, typ = (s.get("id") or "").strip(), (s.findtext("type") or "").strip().lower()
-                if sid == "Main Pressure" and typ:
-                    h.pressure_type = "quartz" if "quartz" in typ else "strain gauge" if "strain" in typ else typ
-                if s.findtext("SerialNumber") and sid.startswith("Main "):
-                    h.sensor_serials[sid[5:].lower()] = s.findtext("SerialNumber").strip()
+            _xml_hardware(h, el)
         elif tag == "StatusData":
             t = el.findtext("DateTime")
             if t:
                 h.status_time_utc = _parse_time(t.strip())
         elif tag == "ConfigurationData":
-            pm, mm = el.find("ProfileMode"), el.find("MooredMode")
-            if pm is not None and mm is None:
-                h.mode = "profile"
-            elif mm is not None and pm is None:
-                h.mode = "moored"
-            for sub in (pm, mm):
-                if sub is None:
-                    continue
-                if sub.findtext("ScansToAverage") and sub is pm:
-                    h.scans_to_average = int(_float(sub.findtext("ScansToAverage")) or 1)
-                if sub.findtext("SampleInterval") and sub is mm:
-                    h.sample_interval_s = _float(sub.findtext("SampleInterval"))
-            mode_txt = (el.findtext("SampleMode") or el.findtext("Mode") or "").strip().lower()
-            if mode_txt.startswith(("profil", "moored")):
-                h.mode = "profile" if mode_txt.startswith("profil") else "moored"
-            dc = el.find("DataChannels")
-            if dc is not None:
-                h.volts = [k for k in range(8) if _yes(dc.findtext(f"ExtVolt{k}"))]
-                for key in ("SBE38", "WETLABS", "OPTODE", "SBE63", "GTD", "DualGTD"):
-                    if dc.find(key) is not None:
-                        h.aux[key] = _yes(dc.findtext(key))
-            of = el.findtext("OutputFormat")
-            if of:
-                h.output_format = of.strip()
+            _xml_configuration(h, el)
         elif tag == "CalibrationCoefficients":
-            for cal in el.iter("Calibration"):
-                cid = (cal.get("id") or "").strip().lower()
-                fmt = (cal.get("format") or "").strip().upper()
-                vals = {c.tag.upper(): _float(c.text) for c in cal if _float(c.text) is not None}
-                date = (cal.findtext("CalDate") or "").strip() or None
-                serial = (cal.findtext("SerialNum") or "").strip() or None
-                kind = None
-                if "temperature" in cid and "pressure" not in cid:
-                    kind = "temperature"
-                elif "conductivity" in cid:
-                    kind = "conductivity"
-                elif "pressure" in cid:
-                    kind = "pressure"
-                    if fmt.startswith("QUARTZ"):
-                        h.pressure_type = "quartz"
-                    elif fmt.startswith("STRAIN") or "PA0" in vals:
-                        h.pressure_type = h.pressure_type or "strain gauge"
-                    if vals.get("PRANGE") is not None:
-                        h.pressure_range_psia = vals["PRANGE"]
-                mv = re.match(r"volt\s*(\d+)", cid)
-                if mv:
-                    h.volt_cal[int(mv.group(1))] = {"offset": vals.get("OFFSET"), "slope": vals.get("SLOPE")}
-                if kind:
-                    h.coefficients[kind] = {k: v for k, v in vals.items() if k not in ("SERIALNUM",)}
-                    if date:
-                        h.calibration_dates[kind] = date
-                    if serial:
-                        h.sensor_serials[kind] = serial
+            _xml_calibration(h, el)
+
+
+def _xml_hardware(h: HexHeader, el: ET.Element) -> None:
+    """``<HardwareData>``: firmware, pressure sensor type, sensor serial numbers."""
+    fw = el.findtext("FirmwareVersion")
+    if fw:
+        h.firmware = fw.strip()
+    for s in el.iter("Sensor"):
+        sid, typ = (s.get("id") or "").strip(), (s.findtext("type") or "").strip().lower()
+        if sid == "Main Pressure" and typ:
+            h.pressure_type = "quartz" if "quartz" in typ else "strain gauge" if "strain" in typ else typ
+        if s.findtext("SerialNumber") and sid.startswith("Main "):
+            h.sensor_serials[sid[5:].lower()] = s.findtext("SerialNumber").strip()
+
+
+def _xml_configuration(h: HexHeader, el: ET.Element) -> None:
+    """``<ConfigurationData>``: profile/moored mode, averaging, sample interval, enabled channels, output format."""
+    pm, mm = el.find("ProfileMode"), el.find("MooredMode")
+    if pm is not None and mm is None:
+        h.mode = "profile"
+    elif mm is not None and pm is None:
+        h.mode = "moored"
+    for sub in (pm, mm):
+        if sub is None:
+            continue
+        if sub.findtext("ScansToAverage") and sub is pm:
+            h.scans_to_average = int(_float(sub.findtext("ScansToAverage")) or 1)
+        if sub.findtext("SampleInterval") and sub is mm:
+            h.sample_interval_s = _float(sub.findtext("SampleInterval"))
+    mode_txt = (el.findtext("SampleMode") or el.findtext("Mode") or "").strip().lower()
+    if mode_txt.startswith(("profil", "moored")):
+        h.mode = "profile" if mode_txt.startswith("profil") else "moored"
+    dc = el.find("DataChannels")
+    if dc is not None:
+        h.volts = [k for k in range(8) if _yes(dc.findtext(f"ExtVolt{k}"))]
+        for key in ("SBE38", "WETLABS", "OPTODE", "SBE63", "GTD", "DualGTD"):
+            if dc.find(key) is not None:
+                h.aux[key] = _yes(dc.findtext(key))
+    of = el.findtext("OutputFormat")
+    if of:
+        h.output_format = of.strip()
+
+
+def _xml_calibration(h: HexHeader, el: ET.Element) -> None:
+    """``<CalibrationCoefficients>``: each sensor's coefficients, calibration date and serial number."""
+    for cal in el.iter("Calibration"):
+        cid = (cal.get("id") or "").strip().lower()
+        fmt = (cal.get("format") or "").strip().upper()
+        vals = {c.tag.upper(): _float(c.text) for c in cal if _float(c.text) is not None}
+        date = (cal.findtext("CalDate") or "").strip() or None
+        serial = (cal.findtext("SerialNum") or "").strip() or None
+        kind = None
+        if "temperature" in cid and "pressure" not in cid:
+            kind = "temperature"
+        elif "conductivity" in cid:
+            kind = "conductivity"
+        elif "pressure" in cid:
+            kind = "pressure"
+            if fmt.startswith("QUARTZ"):
+                h.pressure_type = "quartz"
+            elif fmt.startswith("STRAIN") or "PA0" in vals:
+                h.pressure_type = h.pressure_type or "strain gauge"
+            if vals.get("PRANGE") is not None:
+                h.pressure_range_psia = vals["PRANGE"]
+        mv = re.match(r"volt\s*(\d+)", cid)
+        if mv:
+            h.volt_cal[int(mv.group(1))] = {"offset": vals.get("OFFSET"), "slope": vals.get("SLOPE")}
+        if kind:
+            h.coefficients[kind] = {k: v for k, v in vals.items() if k not in ("SERIALNUM",)}
+            if date:
+                h.calibration_dates[kind] = date
+            if serial:
+                h.sensor_serials[kind] = serial
 
 
 _COEF_LINE = re.compile(rf"^\s*([A-Za-z][A-Za-z0-9]*)\s*=\s*({_NUM})\s*$")
@@ -253,10 +268,11 @@ _CAST = re.compile(r"^\s*cast\s+(\d+)\s+(\d{1,2}\s+\w{3}\s+\d{4}\s+[\d:]+)\s+sam
 
 
 def _parse_text_lines(h: HexHeader, header: list[str]) -> None:
-    from hadal.ingest.cnv import _POS_RE, parse_latlon
+    """The ``*`` / ``**`` text header lines of a .hex file into ``h`` (position, status, calibration, casts)."""
+    from hadal.ingest.cnv import _POS_RE
 
     section = None
-    lat_src = lon_src = None
+    pos_src: dict[str, str | None] = {"latitude": None, "longitude": None}
     for raw in header:
         s = raw.strip()
         if not s.startswith("*"):
@@ -267,118 +283,141 @@ def _parse_text_lines(h: HexHeader, header: list[str]) -> None:
             h.instrument_header.append(s.lstrip("*").strip())
         m = _POS_RE.match(s)
         if m:
-            is_lat = m.group(1).lower().startswith("lat")
-            val = parse_latlon(m.group(2), is_latitude=is_lat)
-            src = "user" if s.startswith("**") else "nmea"
-            if val is not None:
-                if is_lat and (h.latitude_deg is None or (lat_src == "nmea" and src == "user")):
-                    h.latitude_deg, lat_src = val, src
-                elif not is_lat and (h.longitude_deg is None or (lon_src == "nmea" and src == "user")):
-                    h.longitude_deg, lon_src = val, src
+            _position_line(h, s, m, pos_src)
             continue
         body = s.lstrip("*").strip()
         if not body or body.startswith("<"):
             continue
-        m = re.match(r"^NMEA UTC \(Time\)\s*=\s*(.+)$", body, re.I)
-        if m:
-            h.nmea_utc = _parse_time(m.group(1), ("%b %d %Y %H:%M:%S",))
-            continue
-        m = re.match(r"^System UpLoad Time\s*=\s*(.+)$", body, re.I)
-        if m:
-            h.upload_time_utc = _parse_time(m.group(1), ("%b %d %Y %H:%M:%S",))
-            continue
-        m = re.match(r"^(Temperature|Conductivity) SN\s*=\s*(\S+)", body, re.I)
-        if m:
-            h.sensor_serials.setdefault(m.group(1).lower(), m.group(2))
-            continue
-        m = _DS_MODEL.match(body)
-        if m:
-            name = m.group(1)
-            if re.match(r"SBE\s*(19|16)\s*plus", name, re.I):
-                num = re.search(r"\d+", name).group(0)
-                ver = m.group(3)
-                h.model = f"SBE {num}plus" + (" V2" if _major(ver) >= 2 else "")
-            else:
-                h.model = name
-            h.firmware = m.group(3)
-            h.serial_number = h.serial_number or m.group(4)
-            t = _parse_time(m.group(5))
-            if t and h.status_time_utc is None:
-                h.status_time_utc = t
-            section = None
-            continue
-        m = _CAST.match(body)
-        if m:
-            h.casts.append({"cast": int(m.group(1)), "start_utc": _parse_time(m.group(2)),
-                            "first_sample": int(m.group(3)), "last_sample": int(m.group(4)),
-                            "avg": int(m.group(5)) if m.group(5) else None, "line": body})
-            continue
-        m = _CAL_SECTION.match(body)
-        if m:
-            kind, rest, date = m.group(1).lower(), m.group(2) or "", (m.group(3) or "").strip()
-            section = kind
-            if date:
-                h.calibration_dates[kind] = date
-            h.coefficients.setdefault(kind, {})
-            ms = re.search(r"S/N\s*=\s*([^,\s]+)", rest)
-            if ms:
-                h.sensor_serials[kind] = ms.group(1)
-            mr = re.search(rf"range\s*=\s*({_NUM})\s*psia", rest, re.I)
-            if mr:
-                h.pressure_range_psia = float(mr.group(1))
-            continue
-        m = _VOLT_CAL.match(body)
-        if m:
-            h.volt_cal[int(m.group(1))] = {"offset": float(m.group(2)), "slope": float(m.group(3))}
-            section = None
-            continue
-        m = _COEF_LINE.match(body)
-        if m and section:
-            h.coefficients[section][m.group(1).upper()] = float(m.group(2))
-            continue
-        # ds status lines (comma-separated key = value pairs)
-        for part in body.split(","):
-            kv = part.split("=", 1)
-            if len(kv) != 2:
-                continue
-            key, val = kv[0].strip().lower(), kv[1].strip()
-            if key == "mode":
-                h.mode = "profile" if val.lower().startswith("profil") else \
-                    "moored" if val.lower().startswith("moored") else h.mode
-            elif key == "number of scans to average":
-                h.scans_to_average = int(_float(val) or 1)
-            elif key == "sample interval":
-                h.sample_interval_s = _float(re.match(rf"^\s*({_NUM})", val).group(1)) \
-                    if re.match(rf"^\s*{_NUM}", val) else None
-            elif key == "pressure sensor":
-                v = val.lower()
-                h.pressure_type = "strain gauge" if "strain" in v else "quartz" if "quartz" in v else \
-                    "none" if v in ("no", "none") else v
-            elif key == "range" and h.pressure_type is not None and h.pressure_range_psia is None:
-                h.pressure_range_psia = _float(val.split()[0]) if val.split() else None
-            elif re.fullmatch(r"ext volt (\d)", key):
-                k = int(key.split()[-1])
-                if _yes(val) and k not in h.volts:
-                    h.volts.append(k)
-            elif key in ("sbe 38", "sbe38"):
-                h.aux["SBE38"] = _yes(val)
-            elif key in ("wetlabs", "wet labs"):
-                h.aux["WETLABS"] = _yes(val)
-            elif key == "optode":
-                h.aux["OPTODE"] = _yes(val)
-            elif key in ("sbe63", "sbe 63"):
-                h.aux["SBE63"] = _yes(val)
-            elif key in ("gas tension device", "gtd"):
-                h.aux["GTD"] = _yes(val) or val.lower().startswith("dual")
-                h.aux["DualGTD"] = val.lower().startswith("dual")
-            elif key in ("sbe 50", "sbe50"):
-                h.aux["SBE50"] = _yes(val)
-            elif key == "dual gtd":
-                h.aux["DualGTD"] = _yes(val)
-            elif key == "output format":
-                h.output_format = val
+        section = _header_body_line(h, body, section)
     h.volts.sort()
-    h.position_source = {"latitude": lat_src, "longitude": lon_src}
+    h.position_source = pos_src
+
+
+def _position_line(h: HexHeader, s: str, m: re.Match[str], pos_src: dict[str, str | None]) -> None:
+    """A ``Latitude``/``Longitude`` header line: a user (``**``) position wins over the NMEA (``*``) one."""
+    from hadal.ingest.cnv import parse_latlon
+
+    is_lat = m.group(1).lower().startswith("lat")
+    val = parse_latlon(m.group(2), is_latitude=is_lat)
+    src = "user" if s.startswith("**") else "nmea"
+    if val is not None:
+        if is_lat and (h.latitude_deg is None or (pos_src["latitude"] == "nmea" and src == "user")):
+            h.latitude_deg, pos_src["latitude"] = val, src
+        elif not is_lat and (h.longitude_deg is None or (pos_src["longitude"] == "nmea" and src == "user")):
+            h.longitude_deg, pos_src["longitude"] = val, src
+
+
+def _header_body_line(h: HexHeader, body: str, section: str | None) -> str | None:
+    """One instrument header line (``*`` stripped) into ``h``; returns the calibration section now open."""
+    m = re.match(r"^NMEA UTC \(Time\)\s*=\s*(.+)$", body, re.I)
+    if m:
+        h.nmea_utc = _parse_time(m.group(1), ("%b %d %Y %H:%M:%S",))
+        return section
+    m = re.match(r"^System UpLoad Time\s*=\s*(.+)$", body, re.I)
+    if m:
+        h.upload_time_utc = _parse_time(m.group(1), ("%b %d %Y %H:%M:%S",))
+        return section
+    m = re.match(r"^(Temperature|Conductivity) SN\s*=\s*(\S+)", body, re.I)
+    if m:
+        h.sensor_serials.setdefault(m.group(1).lower(), m.group(2))
+        return section
+    m = _DS_MODEL.match(body)
+    if m:
+        _model_line(h, m)
+        return None
+    m = _CAST.match(body)
+    if m:
+        h.casts.append({"cast": int(m.group(1)), "start_utc": _parse_time(m.group(2)),
+                        "first_sample": int(m.group(3)), "last_sample": int(m.group(4)),
+                        "avg": int(m.group(5)) if m.group(5) else None, "line": body})
+        return section
+    m = _CAL_SECTION.match(body)
+    if m:
+        return _calibration_section(h, m)
+    m = _VOLT_CAL.match(body)
+    if m:
+        h.volt_cal[int(m.group(1))] = {"offset": float(m.group(2)), "slope": float(m.group(3))}
+        return None
+    m = _COEF_LINE.match(body)
+    if m and section:
+        h.coefficients[section][m.group(1).upper()] = float(m.group(2))
+        return section
+    # ds status lines (comma-separated key = value pairs)
+    for part in body.split(","):
+        kv = part.split("=", 1)
+        if len(kv) == 2:
+            _status_pair(h, kv[0].strip().lower(), kv[1].strip())
+    return section
+
+
+def _model_line(h: HexHeader, m: re.Match[str]) -> None:
+    """The ``ds`` model / firmware / serial number / status time line."""
+    name = m.group(1)
+    if re.match(r"SBE\s*(19|16)\s*plus", name, re.I):
+        num = re.search(r"\d+", name).group(0)
+        ver = m.group(3)
+        h.model = f"SBE {num}plus" + (" V2" if _major(ver) >= 2 else "")
+    else:
+        h.model = name
+    h.firmware = m.group(3)
+    h.serial_number = h.serial_number or m.group(4)
+    t = _parse_time(m.group(5))
+    if t and h.status_time_utc is None:
+        h.status_time_utc = t
+
+
+def _calibration_section(h: HexHeader, m: re.Match[str]) -> str:
+    """A calibration section's title line (sensor kind, S/N, date, pressure range); returns the kind."""
+    kind, rest, date = m.group(1).lower(), m.group(2) or "", (m.group(3) or "").strip()
+    if date:
+        h.calibration_dates[kind] = date
+    h.coefficients.setdefault(kind, {})
+    ms = re.search(r"S/N\s*=\s*([^,\s]+)", rest)
+    if ms:
+        h.sensor_serials[kind] = ms.group(1)
+    mr = re.search(rf"range\s*=\s*({_NUM})\s*psia", rest, re.I)
+    if mr:
+        h.pressure_range_psia = float(mr.group(1))
+    return kind
+
+
+def _status_pair(h: HexHeader, key: str, val: str) -> None:
+    """One ``key = value`` pair of a ``ds`` status line (mode, averaging, pressure sensor, enabled sensors)."""
+    if key == "mode":
+        h.mode = "profile" if val.lower().startswith("profil") else \
+            "moored" if val.lower().startswith("moored") else h.mode
+    elif key == "number of scans to average":
+        h.scans_to_average = int(_float(val) or 1)
+    elif key == "sample interval":
+        h.sample_interval_s = _float(re.match(rf"^\s*({_NUM})", val).group(1)) \
+            if re.match(rf"^\s*{_NUM}", val) else None
+    elif key == "pressure sensor":
+        v = val.lower()
+        h.pressure_type = "strain gauge" if "strain" in v else "quartz" if "quartz" in v else \
+            "none" if v in ("no", "none") else v
+    elif key == "range" and h.pressure_type is not None and h.pressure_range_psia is None:
+        h.pressure_range_psia = _float(val.split()[0]) if val.split() else None
+    elif re.fullmatch(r"ext volt (\d)", key):
+        k = int(key.split()[-1])
+        if _yes(val) and k not in h.volts:
+            h.volts.append(k)
+    elif key in ("sbe 38", "sbe38"):
+        h.aux["SBE38"] = _yes(val)
+    elif key in ("wetlabs", "wet labs"):
+        h.aux["WETLABS"] = _yes(val)
+    elif key == "optode":
+        h.aux["OPTODE"] = _yes(val)
+    elif key in ("sbe63", "sbe 63"):
+        h.aux["SBE63"] = _yes(val)
+    elif key in ("gas tension device", "gtd"):
+        h.aux["GTD"] = _yes(val) or val.lower().startswith("dual")
+        h.aux["DualGTD"] = val.lower().startswith("dual")
+    elif key in ("sbe 50", "sbe50"):
+        h.aux["SBE50"] = _yes(val)
+    elif key == "dual gtd":
+        h.aux["DualGTD"] = _yes(val)
+    elif key == "output format":
+        h.output_format = val
 
 
 def parse_hex_header(path: str | Path, header: list[str]) -> HexHeader:
@@ -560,49 +599,19 @@ def _pick_cast(path: Path, h: HexHeader, n: int) -> tuple[dict[str, Any] | None,
     return casts[0], None
 
 
-def read_hex(path: str | Path, *, raw: bool = False) -> pd.DataFrame:
-    """Read a Sea-Bird SBE 19plus V2 / 16plus V2 ``.hex`` file and convert it with its header calibration.
+def _add_channel(cols: dict[str, np.ndarray], channels: list[dict[str, Any]], name: str, values: np.ndarray,
+                 long_name: str, units: str, **extra: Any) -> None:
+    """Put ``values`` in ``cols[name]`` and append its read_cnv-style channel entry to ``channels``."""
+    cols[name] = values
+    channels.append({"name": name, "long_name": f"{long_name} [{units}]" if units else long_name,
+                     "units": units, **extra})
 
-    Returns a DataFrame shaped like :func:`hadal.ingest.cnv.read_cnv`'s, with SeaSoft's column names:
-    ``tv290C`` (temperature, ITS-90 degC), ``c0S/m`` (conductivity, S/m), ``prdM`` (strain-gauge pressure, dbar),
-    ``v0``..``vN`` (external voltages, V, numbered in scan order), ``t3890C`` (SBE 38 temperature) and, in moored
-    mode, ``timeS`` (seconds since the first scan). Other enabled RS-232 sensors are decoded as the instrument
-    writes them (``wetlabs0..2`` counts, ``gtdP`` mbar / ``gtdT`` degC, ``optodeO2`` umol/L, ``sbe63phase`` /
-    ``sbe63V``). ``raw=True`` adds SeaSoft's raw channels ``f0`` (temperature A/D counts), ``f1``
-    (conductivity frequency, Hz) and ``f2`` (pressure A/D counts).
 
-    ``df.attrs`` has read_cnv's keys (``source``, ``instrument``, ``channels``, ``units``, ``latitude_deg``,
-    ``longitude_deg``, ``start_time_utc``, ``interval`` = ``{'kind': 'seconds', 'value': dt}`` so that
-    :func:`~hadal.ingest.cnv.cnv_time_ns` puts it on a time base, ``processing`` = ``[['datcnv', 'hadal ...'],
-    ...]``, ``sensors`` (also as ``sensors_xml``, read_cnv's key for parsed sensors) = list of ``{channel,
-    kind, type, serial_number, calibration_date, description, coefficients}`` ...) plus ``serial_number``
-    (also ``instrument_serial``), ``firmware``, ``mode``, ``scans_to_average``, ``sample_rate_hz``, ``calibration``,
-    ``casts`` and ``scan_layout``. gzip / bz2 / xz compressed files are read (detected by magic bytes).
-
-    Raises :class:`~hadal.errors.InputError` (one line naming the file) on a missing/empty/non-.hex file, an
-    unsupported instrument or pressure sensor, missing calibration coefficients, a truncated or over-long
-    scan line, or a non-hexadecimal character.
-    """
-    path = Path(path)
-    text, comp = _read_text(path)
-    header, data_lines, first_no = _split(path, text)
-    h = parse_hex_header(path, header)
-    _check_supported(h, path)
-    ints, layout, moored = _decode(path, h, data_lines, first_no)
-    n = len(ints["temperature"])
-    with np.errstate(all="ignore"):
-        cols = _convert(path, h, ints)
-    if not np.isfinite(cols["tv290C"]).all():
-        bad = int((~np.isfinite(cols["tv290C"])).sum())
-        warnings.warn(f"{path.name}: {bad} scan(s) give no finite temperature (A/D counts out of range)",
-                      stacklevel=2)
-
-    channels: list[dict[str, Any]] = []
-
+def _add_sensor_channels(cols: dict[str, np.ndarray], channels: list[dict[str, Any]], h: HexHeader,
+                         ints: dict[str, np.ndarray]) -> None:
+    """Add the CTD channels, external voltages and enabled RS-232 sensors, in SeaSoft's column order."""
     def add(name: str, values: np.ndarray, long_name: str, units: str, **extra: Any) -> None:
-        cols[name] = values
-        channels.append({"name": name, "long_name": f"{long_name} [{units}]" if units else long_name,
-                         "units": units, **extra})
+        _add_channel(cols, channels, name, values, long_name, units, **extra)
 
     for name, long_name, units in (("tv290C", "Temperature", "ITS-90, deg C"), ("c0S/m", "Conductivity", "S/m"),
                                    ("prdM", "Pressure, Strain Gauge", "db")):
@@ -624,10 +633,17 @@ def read_hex(path: str | Path, *, raw: bool = False) -> pd.DataFrame:
         add("sbe63phase", ints["sbe63_phase"] / 100000.0 - 10.0, "SBE 63 oxygen phase", "usec")
         add("sbe63V", ints["sbe63_t"] / 1000000.0 - 1.0, "SBE 63 thermistor voltage", "V")
 
+
+def _add_time_channel(cols: dict[str, np.ndarray], channels: list[dict[str, Any]], h: HexHeader,
+                      ints: dict[str, np.ndarray], moored: bool, n: int,
+                      picked: tuple[dict[str, Any] | None, np.ndarray | None]
+                      ) -> tuple[str | None, str | None, float | None, float | None]:
+    """Add ``timeS`` where the file gives one (``picked``: :func:`_pick_cast`'s answer, profile mode); returns
+    (start ISO time, its note, interval s, sample rate Hz)."""
     start_iso = start_note = None
     if moored:
         secs = ints["time"].astype(np.float64)
-        add("timeS", secs - secs[0], "Time, Elapsed", "seconds")
+        _add_channel(cols, channels, "timeS", secs - secs[0], "Time, Elapsed", "seconds")
         start_iso = (_EPOCH_2000 + _dt.timedelta(seconds=float(secs[0]))).isoformat()
         start_note = "first scan's time stamp"
         interval = h.sample_interval_s
@@ -637,25 +653,28 @@ def read_hex(path: str | Path, *, raw: bool = False) -> pd.DataFrame:
     else:
         interval = h.scans_to_average / PROFILE_SCAN_RATE_HZ
         sample_rate = PROFILE_SCAN_RATE_HZ / h.scans_to_average
-        cast, per_cast = _pick_cast(path, h, n)
+        cast, per_cast = picked
         if cast is not None:
             start_iso, start_note = cast["start_utc"], "Instrument's time stamp, header"
         if per_cast is not None:
-            add("timeS", per_cast, "Time, Elapsed", "seconds")
-    if raw:
-        add("f0", ints["temperature"].astype(np.float64), "Temperature A/D counts", "counts")
-        add("f1", ints["conductivity"] / 256.0, "Conductivity frequency", "Hz")
-        add("f2", ints["pressure"].astype(np.float64), "Pressure A/D counts", "counts")
+            _add_channel(cols, channels, "timeS", per_cast, "Time, Elapsed", "seconds")
+    return start_iso, start_note, interval, sample_rate
+
+
+def _channel_frame(cols: dict[str, np.ndarray], channels: list[dict[str, Any]]) -> pd.DataFrame:
+    """The float64 DataFrame of ``channels`` (in order); adds ``index``, ``column`` and ``span`` to each entry."""
     data = {c["name"]: np.asarray(cols[c["name"]], dtype=np.float64) for c in channels}
     df = pd.DataFrame(data)
     for i, c in enumerate(channels):
         v = df[c["name"]].to_numpy()
         fin = v[np.isfinite(v)]
         c.update(index=i, column=c["name"], span=[float(fin.min()), float(fin.max())] if fin.size else None)
+    return df
 
+
+def _seabirdscientific_version() -> str:
+    """The installed seabirdscientific's version (``"?"`` when it cannot be told)."""
     import seabirdscientific
-
-    from hadal import __version__
 
     sbs_ver = getattr(seabirdscientific, "__version__", None)
     if sbs_ver is None:
@@ -665,7 +684,11 @@ def read_hex(path: str | Path, *, raw: bool = False) -> pd.DataFrame:
             sbs_ver = version("seabirdscientific")
         except Exception:  # pragma: no cover
             sbs_ver = "?"
-    # one dict per sensor, with the keys of read_cnv's attrs['sensors_xml'] entries (SeaSoft .xmlcon names)
+    return sbs_ver
+
+
+def _hex_sensors(h: HexHeader) -> list[dict[str, Any]]:
+    """One dict per sensor, with the keys of read_cnv's ``attrs['sensors_xml']`` entries (SeaSoft .xmlcon names)."""
     sensors: list[dict[str, Any]] = []
     for ch, kind, typ, desc in ((1, "temperature", "TemperatureSensor", "Count, Temperature"),
                                 (2, "conductivity", "ConductivitySensor", "Frequency 0, Conductivity"),
@@ -679,12 +702,24 @@ def read_hex(path: str | Path, *, raw: bool = False) -> pd.DataFrame:
                         "serial_number": None, "calibration_date": None,
                         "description": f"A/D voltage {i} (Ext Volt {k})",
                         "coefficients": {k2.upper(): v for k2, v in h.volt_cal.get(k, {}).items()}})
+    return sensors
+
+
+def _hex_attrs(path: Path, h: HexHeader, comp: str | None, df: pd.DataFrame, channels: list[dict[str, Any]],
+               times: tuple[str | None, str | None, float | None, float | None], moored: bool,
+               layout: list[tuple[str, int]], n: int) -> dict[str, Any]:
+    """read_hex's ``df.attrs`` (read_cnv's keys plus the .hex header's instrument, calibration and casts)."""
+    from hadal import __version__
+
+    start_iso, start_note, interval, sample_rate = times
+    sensors = _hex_sensors(h)
     processing = [
-        ["datcnv", f"hadal {__version__} seabird_hex.read_hex (seabirdscientific {sbs_ver} conversions)"],
+        ["datcnv", f"hadal {__version__} seabird_hex.read_hex (seabirdscientific {_seabirdscientific_version()} "
+                   "conversions)"],
         ["datcnv_in", str(path)],
         ["datcnv_calibration", f"{h.model} S/N {h.serial_number} .hex header ({h.header_form})"],
     ]
-    attrs: dict[str, Any] = {
+    return {
         "source": str(path),
         "format": "Sea-Bird raw .hex",
         "conversion": "hadal DatCnv equivalent with the calibration coefficients in the .hex header",
@@ -731,7 +766,55 @@ def read_hex(path: str | Path, *, raw: bool = False) -> pd.DataFrame:
         "truncated": False,
         "rows_dropped": [],
     }
-    df.attrs.update(attrs)
+
+
+def read_hex(path: str | Path, *, raw: bool = False) -> pd.DataFrame:
+    """Read a Sea-Bird SBE 19plus V2 / 16plus V2 ``.hex`` file and convert it with its header calibration.
+
+    Returns a DataFrame shaped like :func:`hadal.ingest.cnv.read_cnv`'s, with SeaSoft's column names:
+    ``tv290C`` (temperature, ITS-90 degC), ``c0S/m`` (conductivity, S/m), ``prdM`` (strain-gauge pressure, dbar),
+    ``v0``..``vN`` (external voltages, V, numbered in scan order), ``t3890C`` (SBE 38 temperature) and, in moored
+    mode, ``timeS`` (seconds since the first scan). Other enabled RS-232 sensors are decoded as the instrument
+    writes them (``wetlabs0..2`` counts, ``gtdP`` mbar / ``gtdT`` degC, ``optodeO2`` umol/L, ``sbe63phase`` /
+    ``sbe63V``). ``raw=True`` adds SeaSoft's raw channels ``f0`` (temperature A/D counts), ``f1``
+    (conductivity frequency, Hz) and ``f2`` (pressure A/D counts).
+
+    ``df.attrs`` has read_cnv's keys (``source``, ``instrument``, ``channels``, ``units``, ``latitude_deg``,
+    ``longitude_deg``, ``start_time_utc``, ``interval`` = ``{'kind': 'seconds', 'value': dt}`` so that
+    :func:`~hadal.ingest.cnv.cnv_time_ns` puts it on a time base, ``processing`` = ``[['datcnv', 'hadal ...'],
+    ...]``, ``sensors`` (also as ``sensors_xml``, read_cnv's key for parsed sensors) = list of ``{channel,
+    kind, type, serial_number, calibration_date, description, coefficients}`` ...) plus ``serial_number``
+    (also ``instrument_serial``), ``firmware``, ``mode``, ``scans_to_average``, ``sample_rate_hz``, ``calibration``,
+    ``casts`` and ``scan_layout``. gzip / bz2 / xz compressed files are read (detected by magic bytes).
+
+    Raises :class:`~hadal.errors.InputError` (one line naming the file) on a missing/empty/non-.hex file, an
+    unsupported instrument or pressure sensor, missing calibration coefficients, a truncated or over-long
+    scan line, or a non-hexadecimal character.
+    """
+    path = Path(path)
+    text, comp = _read_text(path)
+    header, data_lines, first_no = _split(path, text)
+    h = parse_hex_header(path, header)
+    _check_supported(h, path)
+    ints, layout, moored = _decode(path, h, data_lines, first_no)
+    n = len(ints["temperature"])
+    with np.errstate(all="ignore"):
+        cols = _convert(path, h, ints)
+    if not np.isfinite(cols["tv290C"]).all():
+        bad = int((~np.isfinite(cols["tv290C"])).sum())
+        warnings.warn(f"{path.name}: {bad} scan(s) give no finite temperature (A/D counts out of range)",
+                      stacklevel=2)
+
+    channels: list[dict[str, Any]] = []
+    _add_sensor_channels(cols, channels, h, ints)
+    picked = (None, None) if moored else _pick_cast(path, h, n)  # warns at read_hex's caller
+    times = _add_time_channel(cols, channels, h, ints, moored, n, picked)
+    if raw:
+        _add_channel(cols, channels, "f0", ints["temperature"].astype(np.float64), "Temperature A/D counts", "counts")
+        _add_channel(cols, channels, "f1", ints["conductivity"] / 256.0, "Conductivity frequency", "Hz")
+        _add_channel(cols, channels, "f2", ints["pressure"].astype(np.float64), "Pressure A/D counts", "counts")
+    df = _channel_frame(cols, channels)
+    df.attrs.update(_hex_attrs(path, h, comp, df, channels, times, moored, layout, n))
     return df
 
 

@@ -426,13 +426,33 @@ def _drift_basis(tau: np.ndarray, segment: float) -> tuple[np.ndarray, np.ndarra
     return B, edges
 
 
-def _joint_drift_fit(g: MapGrid, d, rel, B, sigma_u: float, p0, bounds_a, bounds_f, s2: float, gamma: float,
-                     v_map: float, n_req: int, max_iter: int = 40, sigma_heading_deg: float | None = None,
-                     sigma_scale: float | None = None) -> dict:
-    """Levenberg-Marquardt MAP of start x/y, heading, scale and the drift rates under the (tempered) likelihood of
-    the module docstring plus the Gaussian drift prior; Laplace covariance of the start with and without drift."""
-    N = d.size
-    K = B.shape[1]
+@dataclass
+class _JointModel:
+    """Objective of the joint drift fit: the data, the drift basis ``B`` (N, K), the Gaussian prior (precisions
+    ``prior`` about ``centre``, over x, y, heading, scale and the ``2K`` rates) and the tempered likelihood."""
+
+    g: MapGrid
+    d: np.ndarray
+    rel: np.ndarray
+    B: np.ndarray
+    prior: np.ndarray
+    centre: np.ndarray
+    s2: float
+    gamma: float
+    v_map: float
+    n_req: int
+
+    @property
+    def n_par(self) -> int:
+        return 4 + 2 * self.B.shape[1]
+
+    def unpack(self, th):
+        return th[0], th[1], th[2], th[3], th[4:].reshape(self.B.shape[1], 2)
+
+
+def _joint_prior(K: int, sigma_u: float, sigma_heading_deg: float | None, sigma_scale: float | None):
+    """Precisions and centre of the joint fit's Gaussian prior: the rates ``N(0, sigma_u^2)``, the heading and the
+    scale (about 1) only when their sigmas are given."""
     n_par = 4 + 2 * K
     prior = np.zeros(n_par)
     prior[4:] = 1.0 / sigma_u ** 2
@@ -442,50 +462,50 @@ def _joint_drift_fit(g: MapGrid, d, rel, B, sigma_u: float, p0, bounds_a, bounds
         prior[3] = 1.0 / sigma_scale ** 2
     centre = np.zeros(n_par)
     centre[3] = 1.0
+    return prior, centre
 
-    def unpack(th):
-        return th[0], th[1], th[2], th[3], th[4:].reshape(K, 2)
 
-    def evaluate(th, jac: bool):
-        x0, y0, a, f, U = unpack(th)
-        rq = _rotate(rel, a)
-        q = rq * f + np.array([x0, y0]) + B @ U
-        z, gx, gy = _bilinear_with_gradient(g, q[:, 0], q[:, 1])
-        r = z - d
-        ok = np.isfinite(r) & np.isfinite(gx) & np.isfinite(gy)
-        nv = int(ok.sum())
-        if nv < max(n_req, n_par // 2 + 3):
-            return -np.inf, None, None, ok
-        rc = r[ok] - r[ok].mean()
-        msd = float(rc @ rc) / nv
-        ll = float(_loglik(np.array([msd]), np.array([float(nv)]), N, s2, v_map, gamma)[0])
-        ll -= 0.5 * float(np.sum(prior * (th - centre) ** 2))
-        if not jac:
-            return ll, None, None, ok
-        J = np.zeros((nv, n_par))
-        gxo, gyo = gx[ok], gy[ok]
-        J[:, 0], J[:, 1] = gxo, gyo
-        dq_da = np.column_stack([rq[ok, 1], -rq[ok, 0]]) * f * (np.pi / 180.0)
-        J[:, 2] = gxo * dq_da[:, 0] + gyo * dq_da[:, 1]
-        J[:, 3] = gxo * rq[ok, 0] + gyo * rq[ok, 1]
-        J[:, 4::2] = gxo[:, None] * B[ok]
-        J[:, 5::2] = gyo[:, None] * B[ok]
-        J -= J.mean(axis=0)  # the bias is profiled out: centred residuals and Jacobian
-        return ll, J, rc, ok
+def _joint_evaluate(m: _JointModel, th: np.ndarray, jac: bool):
+    """Log-posterior of ``th`` (bias profiled out), and with ``jac`` the centred Jacobian of the residuals and the
+    centred residuals (analytic bilinear gradient); ``-inf`` with too few valid samples."""
+    N, B, n_par = m.d.size, m.B, m.n_par
+    x0, y0, a, f, U = m.unpack(th)
+    rq = _rotate(m.rel, a)
+    q = rq * f + np.array([x0, y0]) + B @ U
+    z, gx, gy = _bilinear_with_gradient(m.g, q[:, 0], q[:, 1])
+    r = z - m.d
+    ok = np.isfinite(r) & np.isfinite(gx) & np.isfinite(gy)
+    nv = int(ok.sum())
+    if nv < max(m.n_req, n_par // 2 + 3):
+        return -np.inf, None, None, ok
+    rc = r[ok] - r[ok].mean()
+    msd = float(rc @ rc) / nv
+    ll = float(_loglik(np.array([msd]), np.array([float(nv)]), N, m.s2, m.v_map, m.gamma)[0])
+    ll -= 0.5 * float(np.sum(m.prior * (th - m.centre) ** 2))
+    if not jac:
+        return ll, None, None, ok
+    J = np.zeros((nv, n_par))
+    gxo, gyo = gx[ok], gy[ok]
+    J[:, 0], J[:, 1] = gxo, gyo
+    dq_da = np.column_stack([rq[ok, 1], -rq[ok, 0]]) * f * (np.pi / 180.0)
+    J[:, 2] = gxo * dq_da[:, 0] + gyo * dq_da[:, 1]
+    J[:, 3] = gxo * rq[ok, 0] + gyo * rq[ok, 1]
+    J[:, 4::2] = gxo[:, None] * B[ok]
+    J[:, 5::2] = gyo[:, None] * B[ok]
+    J -= J.mean(axis=0)  # the bias is profiled out: centred residuals and Jacobian
+    return ll, J, rc, ok
 
-    th = np.concatenate([np.asarray(p0, float), np.zeros(2 * K)])
-    free = np.ones(n_par, bool)
-    free[2] = bounds_a[1] > bounds_a[0]
-    free[3] = bounds_f[1] > bounds_f[0]
-    ll0, J, rc, _ = evaluate(th, True)
-    if not np.isfinite(ll0):
-        return {"ok": False}
-    ll, lam, n_it = ll0, 1e-3, 0
-    w = gamma / s2
+
+def _joint_lm(m: _JointModel, th, ll, J, rc, free, bounds_a, bounds_f, max_iter: int):
+    """Levenberg-Marquardt ascent of the joint log-posterior from ``th`` (heading and scale clipped to their
+    bounds, only the ``free`` parameters moved); the optimum, its log-posterior, Jacobian, residuals, iterations."""
+    n_par = m.n_par
+    lam, n_it = 1e-3, 0
+    w = m.gamma / m.s2
     for _ in range(max_iter):
         n_it += 1
-        A = w * (J.T @ J) + np.diag(prior)
-        gvec = w * (J.T @ rc) + prior * (th - centre)
+        A = w * (J.T @ J) + np.diag(m.prior)
+        gvec = w * (J.T @ rc) + m.prior * (th - m.centre)
         Af = A[np.ix_(free, free)]
         step = np.zeros(n_par)
         improved = False
@@ -499,7 +519,7 @@ def _joint_drift_fit(g: MapGrid, d, rel, B, sigma_u: float, p0, bounds_a, bounds
             cand = th + step
             cand[2] = np.clip(cand[2], *bounds_a)
             cand[3] = np.clip(cand[3], *bounds_f)
-            ll_c, J_c, rc_c, _ = evaluate(cand, True)
+            ll_c, J_c, rc_c, _ = _joint_evaluate(m, cand, True)
             if np.isfinite(ll_c) and ll_c > ll:
                 gain = ll_c - ll
                 th, ll, J, rc = cand, ll_c, J_c, rc_c
@@ -509,7 +529,27 @@ def _joint_drift_fit(g: MapGrid, d, rel, B, sigma_u: float, p0, bounds_a, bounds
             lam *= 4
         if not improved or gain < 1e-6:
             break
-    A = w * (J.T @ J) + np.diag(prior)
+    return th, ll, J, n_it
+
+
+def _joint_drift_fit(g: MapGrid, d, rel, B, sigma_u: float, p0, bounds_a, bounds_f, s2: float, gamma: float,
+                     v_map: float, n_req: int, max_iter: int = 40, sigma_heading_deg: float | None = None,
+                     sigma_scale: float | None = None) -> dict:
+    """Levenberg-Marquardt MAP of start x/y, heading, scale and the drift rates under the (tempered) likelihood of
+    the module docstring plus the Gaussian drift prior; Laplace covariance of the start with and without drift."""
+    K = B.shape[1]
+    prior, centre = _joint_prior(K, sigma_u, sigma_heading_deg, sigma_scale)
+    m = _JointModel(g, d, rel, B, prior, centre, s2, gamma, v_map, n_req)
+    n_par = m.n_par
+    th = np.concatenate([np.asarray(p0, float), np.zeros(2 * K)])
+    free = np.ones(n_par, bool)
+    free[2] = bounds_a[1] > bounds_a[0]
+    free[3] = bounds_f[1] > bounds_f[0]
+    ll0, J, rc, _ = _joint_evaluate(m, th, True)
+    if not np.isfinite(ll0):
+        return {"ok": False}
+    th, ll, J, n_it = _joint_lm(m, th, ll0, J, rc, free, bounds_a, bounds_f, max_iter)
+    A = (gamma / s2) * (J.T @ J) + np.diag(prior)
     Af = A[np.ix_(free, free)]
     try:
         cov_joint = np.linalg.pinv(Af, hermitian=True)[:2, :2]
@@ -519,9 +559,717 @@ def _joint_drift_fit(g: MapGrid, d, rel, B, sigma_u: float, p0, bounds_a, bounds
         return {"ok": False}
     ev, V = np.linalg.eigh(0.5 * ((cov_joint - cov_rigid) + (cov_joint - cov_rigid).T))
     infl = (V * np.maximum(ev, 0.0)) @ V.T
-    x0, y0, a, f, U = unpack(th)
+    x0, y0, a, f, U = m.unpack(th)
     return {"ok": True, "x": float(x0), "y": float(y0), "a": float(a), "f": float(f), "U": U, "ll": ll, "ll0": ll0,
             "iterations": n_it, "cov_joint": cov_joint, "cov_rigid": cov_rigid, "inflation": infl}
+
+
+# ------------------------------------------------------------------ the steps of posterior_fix
+_Pose = tuple[float, float, float, float]  # start x, start y (map metres), heading error (deg), track scale
+
+
+@dataclass
+class _Problem:
+    """The validated inputs of :func:`posterior_fix`: the map (and its uncertainty layer) cropped to the search
+    region plus the track's footprint, the search region in the crop's cells, the pose grid."""
+
+    d: np.ndarray  # (N,) measured depths
+    t: np.ndarray  # (N, 2) dead-reckoned track
+    rel: np.ndarray  # (N, 2) track relative to its first sample
+    g: MapGrid
+    unc: MapGrid | None
+    window: tuple[int, int, int, int]  # search region r0, r1, c0, c1 (cells of ``g``)
+    headings: list[float]
+    scale_list: list[float]
+    fine_scale_list: list[float]
+    poses: list[tuple[float, float]]  # coarse (heading, scale) grid
+    n: int  # samples
+    h: float  # cell size (m)
+    v_map: float  # map depth variance over the search region (the score of a sample without a map depth)
+    n_req: int  # fewest valid samples of a feasible offset
+    floor2: float  # numeric floor of the noise variance
+
+
+@dataclass
+class _Limits:
+    """The thresholds of the mismatch flags (:func:`posterior_fix` parameters)."""
+
+    min_samples: int
+    min_valid_for_fix: float
+    min_valid_at_fix: float
+    min_relief_to_noise: float
+    max_mass_outside: float
+    max_mass_outside_holes: float
+    mode_radius_cells: float
+
+
+@dataclass
+class _Coarse:
+    """Coarse surfaces [TERCOM Eq. 17] per pose: snapped track cells, bias-free MSD, valid and interior-hole counts."""
+
+    snapped: list[tuple[np.ndarray, np.ndarray]]
+    msd_all: np.ndarray  # (P, ny, nx) float32, NaN where infeasible
+    n_all: np.ndarray  # (P, ny, nx) valid samples (0 where infeasible)
+    n_hole_all: np.ndarray | None  # (P, ny, nx) samples over interior holes; None when the map has none
+
+
+@dataclass
+class _CoarsePosterior:
+    """Noise variance and tempering at the coarse MAP, the coarse log-likelihoods and the posterior over cells."""
+
+    s2: float
+    gamma: float
+    ll: np.ndarray  # (P, ny, nx) float32 log-likelihoods
+    pc: np.ndarray  # (ny, nx) posterior over start cells
+    kp: int  # pose of the coarse MAP (last noise pass)
+    rc: int  # flat cell of the coarse MAP (last noise pass)
+
+
+@dataclass
+class _Window:
+    """A fine window about a coarse mode: its cell, plausible poses, start offsets and their bilinear MSD."""
+
+    rc: tuple[int, int]
+    poses: list[tuple[float, float]]
+    offs: np.ndarray  # (M, 2) start offsets (map metres)
+    msd: np.ndarray  # (len(poses), M) bias-free MSD, NaN where infeasible
+    nv: np.ndarray  # valid samples (0 where infeasible)
+    bias: np.ndarray
+
+
+@dataclass
+class _GridMap:
+    """Window masses and the fine grid's MAP."""
+
+    mw: np.ndarray  # posterior mass of each window
+    out_mask: np.ndarray  # cells outside every window
+    m_out_coarse: float  # coarse mass outside the windows
+    best_w: int
+    pose: _Pose
+    ll_grid: float
+
+
+@dataclass
+class _DriftStep:
+    """The joint drift step: the fix (moved when the drift is applied), the drift along the track, the Laplace
+    inflation of the start covariance, ``refinement.drift``, the drift model and its basis and prior."""
+
+    pose: _Pose
+    drift_xy: np.ndarray
+    inflation: np.ndarray
+    info: dict
+    model: tuple | None = None
+    B: np.ndarray | None = None
+    sigma: float = 0.0
+
+
+def _prepare_inputs(profile_depth, track_xy, dtm, headings_deg, scales, fine_scales, uncertainty, region,
+                    mode_radius_cells: float, min_valid_fraction: float) -> _Problem:
+    """Validated profile, track, pose grid and map (cropped, :func:`_crop_to_footprint`); :class:`InputError` on
+    inconsistent inputs."""
+    d, t = _validate_inputs(profile_depth, track_xy)
+    import xarray as xr
+
+    if uncertainty is None and isinstance(dtm, xr.Dataset) and "uncertainty_m" in dtm:
+        uncertainty = np.asarray(dtm["uncertainty_m"].transpose("y", "x").values, float)
+    g = MapGrid.from_any(dtm)
+    h = g.resolution_m
+    N = d.size
+    headings = [float(a) for a in headings_deg] or [0.0]
+    scale_list = [float(f) for f in scales] or [1.0]
+    fine_scale_list = sorted({*scale_list, *(float(f) for f in (fine_scales if fine_scales is not None else ()))})
+    if min(fine_scale_list) <= 0:
+        raise InputError(f"track scale factors must be > 0, got {fine_scale_list}")
+    poses = [(a, f) for a in headings for f in scale_list]
+    unc = None
+    if uncertainty is not None:
+        u = uncertainty.depth_m if isinstance(uncertainty, MapGrid) else np.asarray(
+            getattr(uncertainty, "values", uncertainty), float)
+        if u.shape != g.shape:
+            raise InputError(f"uncertainty layer shape {u.shape} does not match the map {g.shape}")
+        unc = MapGrid(np.where(np.isfinite(u), u, np.nan), g.x_m, g.y_m, h)
+
+    rel = t - t[0]
+    g, unc, window = _crop_to_footprint(g, unc, rel, headings, fine_scale_list, region, mode_radius_cells)
+    if not np.isfinite(g.depth_m).any():
+        raise InputError("the search region and the track's footprint hold no valid map cell")
+    r0, r1, c0, c1 = window
+    zr = g.depth_m[r0:r1, c0:c1]
+    v_map = float(np.nanvar(zr)) if np.isfinite(zr).sum() > 1 else 0.0
+    n_req = _required_samples(min_valid_fraction, N)
+    # numeric floor of the noise: tiny against the profile's spread (a flat, noise-free map stays flat)
+    floor2 = max((1e-3 * float(np.std(d))) ** 2, 1e-6)
+    return _Problem(d, t, rel, g, unc, window, headings, scale_list, fine_scale_list, poses, N, h, v_map, n_req,
+                    floor2)
+
+
+def _crop_to_footprint(g: MapGrid, unc: MapGrid | None, rel: np.ndarray, headings: list[float],
+                       fine_scale_list: list[float], region, mode_radius_cells: float):
+    """The map and uncertainty layer cropped to the search region plus the track's footprint (every heading x
+    scale, plus a margin for the fine windows and the drift), and the search region ``(r0, r1, c0, c1)`` in the
+    crop's cells: the FFTs and the per-pose surfaces then cost the region, not the map."""
+    h = g.resolution_m
+    ny, nx = g.shape
+    r0, r1, c0, c1 = g.region_window(region)
+    ext = np.array([_rotate(rel, a) * f for a in headings for f in fine_scale_list])  # (P', N, 2)
+    margin = int(np.ceil(mode_radius_cells)) + 8
+    cr0 = max(r0 + int(np.floor(ext[..., 1].min() / h)) - margin, 0)
+    cr1 = min(r1 + int(np.ceil(ext[..., 1].max() / h)) + margin, ny)
+    cc0 = max(c0 + int(np.floor(ext[..., 0].min() / h)) - margin, 0)
+    cc1 = min(c1 + int(np.ceil(ext[..., 0].max() / h)) + margin, nx)
+    del ext
+    if (cr0, cr1, cc0, cc1) != (0, ny, 0, nx):
+        g = MapGrid(np.ascontiguousarray(g.depth_m[cr0:cr1, cc0:cc1]), g.x_m[cc0:cc1], g.y_m[cr0:cr1], h)
+        if unc is not None:
+            unc = MapGrid(np.ascontiguousarray(unc.depth_m[cr0:cr1, cc0:cc1]), g.x_m, g.y_m, h)
+        r0, r1, c0, c1 = r0 - cr0, r1 - cr0, c0 - cc0, c1 - cc0
+    return g, unc, (r0, r1, c0, c1)
+
+
+def _coarse_surfaces(pb: _Problem, min_valid_fraction: float) -> _Coarse:
+    """Coarse MSD surfaces [TERCOM Eq. 17] of every start cell for every pose (FFT route, nearest-cell sampling),
+    restricted to the search region and the feasible offsets, and the per-pose interior-hole counts."""
+    g, N = pb.g, pb.n
+    ny, nx = g.shape
+    r0, r1, c0, c1 = pb.window
+    V = np.isfinite(g.depth_m)
+    ref = float(np.nanmean(g.depth_m))
+    D = np.where(V, g.depth_m - ref, 0.0)
+    dc = pb.d - ref
+    in_region = np.zeros((ny, nx), bool)
+    in_region[r0:r1, c0:c1] = True
+
+    snapped = [_snap(_rotate(pb.rel, a) * f, pb.h) for a, f in pb.poses]
+    rmin = min(int(r.min()) for r, _ in snapped)
+    rmax = max(int(r.max()) for r, _ in snapped)
+    cmin = min(int(c.min()) for _, c in snapped)
+    cmax = max(int(c.max()) for _, c in snapped)
+    pad_lo, pad_hi = (max(0, -rmin), max(0, -cmin)), (max(0, rmax), max(0, cmax))
+    corr = _FFTCorrelator({"V": V.astype(float), "D": D, "D2": D * D}, pad_lo, pad_hi)
+    P = len(pb.poses)
+    msd_all = np.full((P, ny, nx), np.nan, np.float32)
+    n_all = np.zeros((P, ny, nx), np.uint16 if N < 65535 else np.uint32)
+    for k, (rows, cols) in enumerate(snapped):
+        n, s_r, s_r2, _ = _sums_all_offsets(corr, rows, cols, dc, False)
+        feas = (n >= pb.n_req) & in_region
+        with np.errstate(invalid="ignore", divide="ignore"):
+            nn = np.where(feas, n, np.nan)
+            b = s_r / nn
+            msd = np.maximum(s_r2 / nn - b * b, 0.0)
+        msd_all[k] = msd
+        n_all[k] = np.where(feas, n, 0)
+    n_hole_all = _interior_hole_counts(V, snapped, pad_lo, pad_hi, N)
+    if not np.isfinite(msd_all).any():
+        raise InputError(f"no feasible offset: the {N}-sample track does not fit on valid cells of the {ny} x {nx} "
+                         f"map with min_valid_fraction={min_valid_fraction}")
+    return _Coarse(snapped, msd_all, n_all, n_hole_all)
+
+
+def _interior_hole_counts(V: np.ndarray, snapped, pad_lo, pad_hi, N: int) -> np.ndarray | None:
+    """(P, ny, nx) samples over interior holes of the (cropped) map for each pose and start cell, for the holes
+    test; None when there are none. Interior holes are empty cells not connected to the map's border (those are
+    outside the map's coverage, e.g. the edges of a projected grid, and stay "off the map")."""
+    lab, n_lab = ndimage.label(~V)
+    edge_labels = np.unique(np.concatenate([lab[0], lab[-1], lab[:, 0], lab[:, -1]]))
+    interior = (lab > 0) & ~np.isin(lab, edge_labels)
+    if not interior.any():
+        return None
+    corr_h = _FFTCorrelator({"H": interior.astype(float)}, pad_lo, pad_hi)
+    n_hole_all = np.zeros((len(snapped), *V.shape), np.int32)
+    for k, (rows, cols) in enumerate(snapped):
+        rmin_k, cmin_k = int(rows.min()), int(cols.min())
+        (fc,) = corr_h.masks_fft(rows - rmin_k, cols - cmin_k, [np.ones(N)])
+        n_hole_all[k] = np.rint(corr_h.inverse([corr_h.F["H"] * fc], rmin_k, cmin_k)[0]).astype(np.int32)
+    return n_hole_all
+
+
+def _map_sigma2_at(unc: MapGrid | None, xy: np.ndarray) -> float:
+    """Mean square map uncertainty along the track points ``xy`` (0 without an uncertainty layer)."""
+    if unc is None:
+        return 0.0
+    u = unc.sample_bilinear(xy[:, 0], xy[:, 1])
+    u = u[np.isfinite(u)]
+    return float(np.mean(u * u)) if u.size else 0.0
+
+
+def _coarse_posterior(cs: _Coarse, N: int, s2: float, gamma: float, v_map: float, ll_all: np.ndarray):
+    """Coarse log-likelihoods (into ``ll_all``, float32) and the posterior over start cells, marginalised over the
+    poses; one pose at a time (float64 temporaries of one map, not of P maps)."""
+    P, ny, nx = cs.msd_all.shape
+    for k_ in range(P):
+        ll_all[k_] = _loglik(cs.msd_all[k_], cs.n_all[k_], N, s2, v_map, gamma)
+    m = float(ll_all.max())
+    pc = np.zeros((ny, nx))
+    for k_ in range(P):
+        pc += np.exp(ll_all[k_].astype(np.float64) - m)
+    return ll_all, pc / pc.sum()
+
+
+def _coarse_residuals(pb: _Problem, cs: _Coarse, k: int, r: int, c: int) -> np.ndarray:
+    """Map depth (nearest cell) minus measured depth along the track of pose ``k`` started at cell ``(r, c)``."""
+    ny, nx = pb.g.shape
+    rows, cols = cs.snapped[k]
+    rr, cc = rows + r, cols + c
+    out = np.full(pb.n, np.nan)
+    ins = (rr >= 0) & (rr < ny) & (cc >= 0) & (cc < nx)
+    out[ins] = pb.g.depth_m[rr[ins], cc[ins]] - pb.d[ins]
+    return out
+
+
+def _coarse_noise(pb: _Problem, cs: _Coarse) -> _CoarsePosterior:
+    """Noise variance and effective sample size at the coarse MAP (two passes, started from the lowest MSD with
+    >= 90 % valid samples, else with any), and the coarse posterior under them."""
+    N = pb.n
+    P, ny, nx = cs.msd_all.shape
+    msd_all, n_all = cs.msd_all, cs.n_all
+    best_full, best_any = (np.inf, -1), (np.inf, -1)  # lowest MSD with >= 90 % valid samples / with any (per pose)
+    for k_ in range(P):
+        mk = np.where(np.isfinite(msd_all[k_]), msd_all[k_], np.inf)
+        j_ = int(np.argmin(np.where(n_all[k_] >= 0.9 * N, mk, np.inf)))
+        if mk.flat[j_] < best_full[0] and n_all[k_].flat[j_] >= 0.9 * N:
+            best_full = (float(mk.flat[j_]), k_ * ny * nx + j_)
+        j_ = int(np.argmin(np.where(n_all[k_] > 0, mk, np.inf)))
+        if mk.flat[j_] < best_any[0]:
+            best_any = (float(mk.flat[j_]), k_ * ny * nx + j_)
+    k0 = best_full[1] if best_full[1] >= 0 else best_any[1]
+    s2 = _s2_from(float(msd_all.flat[k0]), float(n_all.flat[k0]), pb.floor2)
+    gamma = 1.0
+    ll_all = np.empty((P, ny, nx), np.float32)
+    for _ in range(2):
+        ll, pc = _coarse_posterior(cs, N, s2, gamma, pb.v_map, ll_all)
+        kbest = int(np.argmax(ll))
+        kp, rc = divmod(kbest, ny * nx)
+        r_, c_ = divmod(rc, nx)
+        res_c = _coarse_residuals(pb, cs, kp, r_, c_)
+        gamma = _n_eff(res_c) / max(np.isfinite(res_c).sum(), 1)
+        s2 = _s2_from(float(msd_all[kp, r_, c_]), float(n_all[kp, r_, c_]), pb.floor2)
+    ll, pc = _coarse_posterior(cs, N, s2, gamma, pb.v_map, ll_all)
+    return _CoarsePosterior(s2, gamma, ll, pc, kp, rc)
+
+
+def _coarse_modes(pc: np.ndarray, R: float, n_alt_modes: int):
+    """Posterior mass within ``R`` cells of every cell, and the coarse modes (local maxima ``2 R`` apart, the main
+    one and up to ``n_alt_modes`` holding more than 1e-4) ranked by it."""
+    nx = pc.shape[1]
+    Ri = int(np.ceil(R))
+    yy, xx = np.mgrid[-Ri : Ri + 1, -Ri : Ri + 1]
+    disk = (xx * xx + yy * yy) <= R * R + 1e-9
+    mass_r = ndimage.convolve(pc, disk.astype(float), mode="constant", cval=0.0)
+    peaks = (pc == ndimage.maximum_filter(pc, size=3, mode="constant", cval=0.0)) & (pc > 0)
+    pf = np.flatnonzero(peaks)
+    pf = pf[np.argsort(-mass_r.flat[pf], kind="stable")]
+    centres: list[tuple[int, int]] = []
+    for fi in pf:
+        r_, c_ = divmod(int(fi), nx)
+        if all((r_ - a) ** 2 + (c_ - b) ** 2 > (2 * R) ** 2 for a, b in centres):
+            centres.append((r_, c_))
+        if len(centres) >= 1 + n_alt_modes:
+            break
+    centres = [centres[0]] + [cc for cc in centres[1:] if mass_r[cc] > 1e-4]
+    return mass_r, centres
+
+
+def _fine_windows(pb: _Problem, ll: np.ndarray, centres: list[tuple[int, int]], R: float, fine_step_cells: float):
+    """The fine windows about the coarse modes (bilinear likelihood on a sub-cell grid of start offsets x the
+    plausible poses), the cells they cover, the fine step (m) and the number of offsets a side."""
+    g, h = pb.g, pb.h
+    ny, nx = g.shape
+    r0, r1, c0, c1 = pb.window
+    P = len(pb.poses)
+    Ri = int(np.ceil(R))
+    step = fine_step_cells * h
+    nh = int(np.ceil(R / fine_step_cells))
+    grid1 = np.arange(-nh, nh + 1) * step
+    oxy = np.array(np.meshgrid(grid1, grid1)).reshape(2, -1).T  # (M, 2) offsets about the window centre
+    win_mask = np.zeros((ny, nx), bool)
+    windows = []
+    for (rw, cw) in centres:
+        llw = ll[:, max(rw - Ri, 0) : rw + Ri + 1, max(cw - Ri, 0) : cw + Ri + 1].reshape(P, -1).max(axis=1)
+        # plausible coarse poses, each expanded with the fine scales (the coarse pose itself is kept)
+        pk = list(dict.fromkeys(p_ for k in range(P) if llw[k] > llw.max() - 12.0
+                                for p_ in [pb.poses[k]] + [(pb.poses[k][0], fs) for fs in pb.fine_scale_list]))
+        xc, yc = float(g.x_m[cw]), float(g.y_m[rw])
+        offs = oxy + np.array([xc, yc])
+        inr = ((offs[:, 0] >= g.x_m[c0] - 1e-6) & (offs[:, 0] <= g.x_m[c1 - 1] + 1e-6)
+               & (offs[:, 1] >= g.y_m[r0] - 1e-6) & (offs[:, 1] <= g.y_m[r1 - 1] + 1e-6))
+        msd_w = np.full((len(pk), len(offs)), np.nan)
+        nv_w = np.zeros((len(pk), len(offs)))
+        b_w = np.zeros((len(pk), len(offs)))
+        for j, pose in enumerate(pk):
+            m, nv, b = _msd_b(_bilinear_residuals(g, pb.d, pb.rel, pose, offs))
+            ok = (nv >= pb.n_req) & inr
+            msd_w[j] = np.where(ok, m, np.nan)
+            nv_w[j] = np.where(ok, nv, 0)
+            b_w[j] = b
+        windows.append(_Window((rw, cw), pk, offs, msd_w, nv_w, b_w))
+        dd = (np.arange(ny)[:, None] - rw) ** 2 + (np.arange(nx)[None, :] - cw) ** 2
+        win_mask |= dd <= R * R + 1e-9
+    return windows, win_mask, step, len(grid1)
+
+
+def _fine_ll(w: _Window, N: int, s2: float, gamma: float, v_map: float) -> np.ndarray:
+    """(poses, offsets) log-likelihood of a fine window."""
+    return _loglik(w.msd, w.nv, N, s2, v_map, gamma)
+
+
+def _fine_noise(pb: _Problem, w0: _Window, s2: float, gamma: float) -> tuple[float, float]:
+    """Fine noise variance and tempering at the fine MAP of the main window (two passes; floored by the map
+    uncertainty along the track); the coarse ones when the window has no feasible point."""
+    fl = w0.msd
+    fin = np.isfinite(fl) & (w0.nv >= 0.9 * pb.n)
+    if not fin.any():
+        fin = np.isfinite(fl)
+    if not fin.any():  # no feasible fine point (bilinear needs both neighbours): fall back to the coarse likelihood
+        return s2, gamma
+    jj = int(np.argmin(np.where(fin, fl, np.inf)))
+    s2f = _s2_from(float(fl.flat[jj]), float(w0.nv.flat[jj]), pb.floor2)
+    gammaf = gamma
+    for _ in range(2):
+        llf = _fine_ll(w0, pb.n, s2f, gammaf, pb.v_map)
+        jj = int(np.argmax(llf))
+        j, mo = divmod(jj, llf.shape[1])
+        res_f = _bilinear_residuals(pb.g, pb.d, pb.rel, w0.poses[j], w0.offs[mo : mo + 1])[0]
+        gammaf = _n_eff(res_f) / max(np.isfinite(res_f).sum(), 1)
+        xy_fix = _rotate(pb.rel, w0.poses[j][0]) * w0.poses[j][1] + w0.offs[mo]
+        s2f = max(_s2_from(float(fl.flat[jj]), float(w0.nv.flat[jj]), pb.floor2),
+                  _map_sigma2_at(pb.unc, xy_fix) + pb.floor2)
+    return s2f, gammaf
+
+
+def _grid_map(windows: list[_Window], lls: list[np.ndarray], cp: _CoarsePosterior, win_mask: np.ndarray,
+              mass_r: np.ndarray, step: float, h: float) -> _GridMap:
+    """The windows' share of the coarse mass redistributed by their fine mass (the coarse masses within the mode
+    radius when no window has any), and the best point of the heaviest window."""
+    top = max(float(x.max()) for x in lls)
+    cell_frac = (step / h) ** 2
+    F = np.array([float(np.exp(x - top).sum()) * cell_frac for x in lls])
+    MW = float(cp.pc[win_mask].sum())
+    if F.sum() > 0:
+        mw = MW * F / F.sum()
+    else:
+        mw = np.array([float(mass_r[w.rc]) for w in windows])
+    out_mask = ~win_mask
+    m_out_coarse = float(cp.pc[out_mask].sum())
+    best_w = int(np.argmax(mw))
+    wb, llb = windows[best_w], lls[best_w]
+    jj = int(np.argmax(llb))
+    j, mo = divmod(jj, llb.shape[1])
+    a_map, f_map = wb.poses[j]
+    x_map, y_map = (float(v) for v in wb.offs[mo])
+    return _GridMap(mw, out_mask, m_out_coarse, best_w, (x_map, y_map, a_map, f_map), float(llb.flat[jj]))
+
+
+def _coarse_fix_loglik(cp: _CoarsePosterior, w0: _Window, ll0: np.ndarray, poses, n_side: int):
+    """Pose index of the coarse fix (the main window's cell centre, its best coarse pose) and its fine
+    log-likelihood, for the record (-inf when that pose is not in the window)."""
+    rc_c = w0.rc
+    centre_idx = (n_side * n_side) // 2
+    kc = int(np.argmax(cp.ll[:, rc_c[0], rc_c[1]]))
+    ll_coarse_pt = (float(ll0[w0.poses.index(poses[kc]), centre_idx]) if poses[kc] in w0.poses
+                    else float("-inf"))
+    return kc, ll_coarse_pt
+
+
+def _polish_negll(p, pb: _Problem, box, s2: float, gamma: float) -> float:
+    """Negative fine log-likelihood of pose ``p`` (x, y, heading, scale); inf outside ``box`` (the heading and
+    scale bounds, the window centre and half-width) or with too few valid samples."""
+    x0_, y0_, a_, f_ = p
+    ha, fa, xc, yc, half = box
+    if not (ha[0] <= a_ <= ha[1] and fa[0] <= f_ <= fa[1] and abs(x0_ - xc) <= half and abs(y0_ - yc) <= half):
+        return np.inf
+    m, nv, _ = _msd_b(_bilinear_residuals(pb.g, pb.d, pb.rel, (a_, f_), np.array([[x0_, y0_]])))
+    if nv[0] < pb.n_req:
+        return np.inf
+    return -float(_loglik(m, nv, pb.n, s2, pb.v_map, gamma)[0])
+
+
+def _polish_simplex(x0v: np.ndarray, step: float, ha, fa, n_headings: int, n_scales: int):
+    """Initial Nelder-Mead simplex about ``x0v`` (a fine step in x/y, half the grid steps in heading and scale,
+    reflected inside the bounds) over the free coordinates, and their indices."""
+    da_ = max((ha[1] - ha[0]) / max(n_headings - 1, 1), 0.1) if ha[1] > ha[0] else 0.0
+    df_ = max((fa[1] - fa[0]) / max(n_scales - 1, 1), 0.002) if fa[1] > fa[0] else 0.0
+    simplex = [x0v.copy()]
+    for i, st in enumerate((step, step, da_ / 2, df_ / 2)):
+        v = x0v.copy()
+        v[i] += st if st > 0 else 0.0
+        if i >= 2 and st > 0 and not (ha if i == 2 else fa)[0] <= v[i] <= (ha if i == 2 else fa)[1]:
+            v[i] = x0v[i] - st
+        simplex.append(v)
+    free = [0, 1] + ([2] if da_ > 0 else []) + ([3] if df_ > 0 else [])
+    return np.array(simplex)[[0] + [i + 1 for i in free]][:, free], free
+
+
+def _polish(pb: _Problem, wb: _Window, pose: _Pose, ll_grid: float, s2f: float, gammaf: float, R: float,
+            step: float) -> tuple[_Pose, bool, float]:
+    """Nelder-Mead polish of the grid MAP under the same likelihood (within the winning window and the pose
+    bounds), kept only when it raises it; the pose, whether it was polished, the log-likelihood at the pose."""
+    h = pb.h
+    ha = (min(pb.headings), max(pb.headings))
+    fa = (min(pb.fine_scale_list), max(pb.fine_scale_list))
+    box = (ha, fa, float(pb.g.x_m[wb.rc[1]]), float(pb.g.y_m[wb.rc[0]]), R * h)
+    polished = False
+    if np.isfinite(ll_grid):
+        from scipy.optimize import minimize
+
+        x0v = np.array(pose)
+        sim, free = _polish_simplex(x0v, step, ha, fa, len(pb.headings), len(pb.fine_scale_list))
+
+        def negf(v):
+            p = x0v.copy()
+            p[free] = v
+            return _polish_negll(p, pb, box, s2f, gammaf)
+
+        with _warnings.catch_warnings(), np.errstate(all="ignore"):
+            _warnings.simplefilter("ignore")
+            o = minimize(negf, x0v[free], method="Nelder-Mead",
+                         options={"initial_simplex": sim, "xatol": 0.02 * h, "fatol": 1e-3, "maxiter": 400})
+        if np.isfinite(o.fun) and -o.fun > ll_grid + 1e-9:
+            p = x0v.copy()
+            p[free] = o.x
+            x_map, y_map, a_map, f_map = (float(v) for v in p)
+            pose = (x_map, y_map, a_map, f_map)
+            polished = True
+    return pose, polished, float(-_polish_negll(np.array(pose), pb, box, s2f, gammaf))
+
+
+def _drift_coordinate(pb: _Problem, time_s, drift_segment: float | None, drift_sigma: float | None):
+    """Along-track coordinate ``tau`` of the drift (the sample times when given, else the distance travelled), the
+    segment length, the prior sigma of the rates and the unit."""
+    N = pb.n
+    if time_s is not None:
+        tau = np.asarray(time_s, float).ravel()
+        if tau.size != N or not np.isfinite(tau).all() or (np.diff(tau) < 0).any():
+            raise InputError(f"time_s must be {N} finite, non-decreasing sample times")
+        return tau, (drift_segment or 900.0), (drift_sigma or 0.003), "s"
+    tau = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(pb.rel, axis=0).T))])
+    return tau, (drift_segment or max(float(tau[-1]) / 3.0, pb.h)), (drift_sigma or 0.005), "m"
+
+
+def _joint_drift_passes(pb: _Problem, B: np.ndarray, sig: float, pose: _Pose, s2f: float, gammaf: float,
+                        heading_sigma_deg: float | None, scale_sigma: float | None):
+    """The joint drift fit with the noise variance and N_eff re-estimated from its own residuals (the rigid fit's
+    residuals are correlated by the very drift modelled here): up to three passes, each from the rigid MAP, so the
+    rigid MAP and the joint one are compared under the same likelihood. The last fit, its s^2 and tempering."""
+    bnd_a = (min(pb.headings), max(pb.headings))
+    bnd_f = (min(pb.fine_scale_list), max(pb.fine_scale_list))
+    g, d, rel = pb.g, pb.d, pb.rel
+    s2j, gj = s2f, gammaf
+    for _ in range(3):
+        jf = _joint_drift_fit(g, d, rel, B, sig, pose, bnd_a, bnd_f, s2j, gj, pb.v_map, pb.n_req,
+                              sigma_heading_deg=heading_sigma_deg, sigma_scale=scale_sigma)
+        if not jf["ok"]:
+            break
+        rj = _bilinear_residuals(g, d, rel, (jf["a"], jf["f"]), np.array([[jf["x"], jf["y"]]]), B @ jf["U"])[0]
+        okj = np.isfinite(rj)
+        if okj.sum() <= N_PARAMS + 2 * B.shape[1]:
+            break
+        rc_ = rj[okj] - rj[okj].mean()
+        s2_new = max(float(rc_ @ rc_) / (okj.sum() - N_PARAMS - 2 * B.shape[1]), s2f * 0.25, pb.floor2)
+        g_new = max(_n_eff(rj) / okj.sum(), gammaf)
+        if abs(s2_new - s2j) <= 0.02 * s2j and abs(g_new - gj) <= 0.02 * gj:
+            break
+        s2j, gj = s2_new, g_new
+    return jf, s2j, gj
+
+
+def _drift_step(pb: _Problem, pose: _Pose, ll_map: float, s2f: float, gammaf: float, drift: bool, time_s,
+                drift_segment: float | None, drift_sigma: float | None, heading_sigma_deg: float | None,
+                scale_sigma: float | None, min_samples: int) -> _DriftStep:
+    """Joint dead-reckoning drift (piecewise-constant rate) with the pose: same likelihood + the drift prior; kept
+    only when it raises that log-posterior (the rigid MAP is its zero-drift point)."""
+    N = pb.n
+    out = _DriftStep(pose, np.zeros((N, 2)), np.zeros((2, 2)), {"applied": False})
+    if not (drift and np.isfinite(ll_map) and N >= max(2 * min_samples, 12)):
+        return out
+    tau, seg, sig, unit = _drift_coordinate(pb, time_s, drift_segment, drift_sigma)
+    B, edges = _drift_basis(tau, seg)
+    jf, s2j, gj = _joint_drift_passes(pb, B, sig, pose, s2f, gammaf, heading_sigma_deg, scale_sigma)
+    out.info = {"applied": False, "segments": int(B.shape[1]), "segment_length": float(np.diff(edges)[0]),
+                "unit": unit, "prior_sigma_rate": sig}
+    out.B, out.sigma = B, sig
+    if jf["ok"] and jf["ll"] > jf["ll0"] + 1e-9:  # same objective at the rigid MAP (zero drift)
+        x_map, y_map = pose[0], pose[1]
+        out.info.update({
+            "applied": True, "log_posterior_rigid_map": jf["ll0"], "log_posterior_joint": jf["ll"],
+            "noise_sigma_m": float(np.sqrt(s2j)), "tempering": float(gj),
+            "comment": "both log-posteriors under the joint fit's likelihood (noise, N_eff from its residuals)",
+            "iterations": jf["iterations"], "moved_start_m": float(np.hypot(jf["x"] - x_map, jf["y"] - y_map)),
+            "rates": jf["U"].tolist(), "drift_at_end_m": (B @ jf["U"])[-1].tolist(),
+            "covariance_inflation_m2": jf["inflation"].tolist()})
+        out.pose = (jf["x"], jf["y"], jf["a"], jf["f"])
+        out.drift_xy = B @ jf["U"]
+        out.inflation = jf["inflation"]
+        out.model = (float(tau[0]), edges, jf["U"], unit)
+    return out
+
+
+def _fix_residuals(pb: _Problem, cs: _Coarse, cp: _CoarsePosterior, dr: _DriftStep) -> tuple[int, float]:
+    """Valid samples and depth bias at the fix (bilinear; the coarse residuals when bilinear is undefined there)."""
+    x_map, y_map, a_map, f_map = dr.pose
+    res_map = _bilinear_residuals(pb.g, pb.d, pb.rel, (a_map, f_map), np.array([[x_map, y_map]]), dr.drift_xy)[0]
+    if not np.isfinite(res_map).any():  # bilinear undefined at the fix (holes): use the coarse residuals
+        res_map = _coarse_residuals(pb, cs, cp.kp, *divmod(cp.rc, pb.g.shape[1]))
+    okm = np.isfinite(res_map)
+    n_valid = int(okm.sum())
+    bias = float(np.mean(res_map[okm])) if n_valid else float("nan")
+    return n_valid, bias
+
+
+def _main_mode_widening(pb: _Problem, dr: _DriftStep, s2f: float, gammaf: float) -> tuple[float, float]:
+    """Widening ``kappa`` of the main window's second moment, and the noise-dof inflation (:func:`_fit_dof_inflation`).
+
+    With the drift modelled, the main mode's width is that of the joint likelihood (its noise and N_eff), the
+    rigid grid's (tempered by the drift-correlated residuals) rescaled by the ratio of the two precisions. The
+    likelihood's noise variance divides the residuals by N_v - p; with correlated residuals the fit absorbed more
+    of the noise: the main mode's width (and the drift's share) is widened by the ratio, the MAP, window masses and
+    flags stay those of the likelihood."""
+    x_map, y_map, a_map, f_map = dr.pose
+    info = dr.info
+    kappa = (float(np.clip((gammaf / s2f) / (info["tempering"] / info["noise_sigma_m"] ** 2), 0.1, 1.0))
+             if info.get("applied") else 1.0)
+    free_a = min(pb.headings) < max(pb.headings)
+    free_f = min(pb.fine_scale_list) < max(pb.fine_scale_list)
+    if info.get("applied"):
+        dof_inflation = _fit_dof_inflation(
+            pb.g, pb.d, pb.rel, (a_map, f_map), (x_map, y_map), dr.drift_xy, dr.B, float(info["tempering"]),
+            float(info["noise_sigma_m"]) ** 2 / (float(info["tempering"]) * dr.sigma * dr.sigma), free_a, free_f)
+    else:
+        dof_inflation = _fit_dof_inflation(pb.g, pb.d, pb.rel, (a_map, f_map), (x_map, y_map), None, None,
+                                           float(gammaf), 0.0, free_a, free_f)
+    return kappa * dof_inflation, dof_inflation
+
+
+def _mixture_moments(g: MapGrid, windows: list[_Window], lls: list[np.ndarray], gm: _GridMap, pc: np.ndarray,
+                     kappa: float, step: float, xhat: np.ndarray):
+    """Second moment about the rigid MAP ``xhat`` and mean of the posterior: the fine windows (a mixture, the main
+    one widened by ``kappa``, plus the fine cells' own spread) and the coarse cells outside them; the windows'
+    means and masses (``modes``); the total mass."""
+    h = g.resolution_m
+    S = np.zeros((2, 2))
+    mean = np.zeros(2)
+    modes = []
+    for iw, (w, x_ll, m_w) in enumerate(zip(windows, lls, gm.mw, strict=True)):
+        pw = np.exp(x_ll - x_ll.max()).sum(axis=0)
+        pw = pw / pw.sum() if pw.sum() > 0 else np.full(pw.size, 1.0 / pw.size)
+        e = w.offs - xhat
+        mu = (pw[:, None] * w.offs).sum(axis=0)
+        Sw = (pw[:, None, None] * e[:, :, None] * e[:, None, :]).sum(axis=0)
+        S += m_w * ((kappa * Sw if iw == gm.best_w else Sw) + np.eye(2) * step * step / 12)
+        mean += m_w * mu
+        modes.append({"x_east_m": float(mu[0]), "y_north_m": float(mu[1]), "mass": float(m_w)})
+    if gm.m_out_coarse > 0:
+        rr, cc = np.nonzero(gm.out_mask & (pc > 0))
+        pw = pc[rr, cc]
+        ex, ey = g.x_m[cc] - xhat[0], g.y_m[rr] - xhat[1]
+        S += np.array([[np.sum(pw * ex * ex), np.sum(pw * ex * ey)], [np.sum(pw * ex * ey), np.sum(pw * ey * ey)]])
+        S += gm.m_out_coarse * np.eye(2) * h * h / 12
+        mean += np.array([np.sum(pw * g.x_m[cc]), np.sum(pw * g.y_m[rr])])
+    tot = float(gm.mw.sum() + gm.m_out_coarse)
+    S /= tot
+    mean /= tot
+    return S, mean, modes, tot
+
+
+def _second_mode(g: MapGrid, modes: list[dict], gm: _GridMap, mass_r: np.ndarray, tot: float, x_map: float,
+                 y_map: float) -> dict | None:
+    """The heaviest mode other than the main one (the other windows and the best coarse mode outside all windows),
+    with its distance from the fix; None when there is none."""
+    others = [m for i, m in enumerate(modes) if i != gm.best_w]
+    if gm.m_out_coarse > 0:
+        mo_ = np.where(gm.out_mask, mass_r, 0.0)
+        f2 = int(np.argmax(mo_))
+        r2, c2 = divmod(f2, g.shape[1])
+        others.append({"x_east_m": float(g.x_m[c2]), "y_north_m": float(g.y_m[r2]), "mass": float(mo_[r2, c2] / tot)})
+    second = max(others, key=lambda m: m["mass"]) if others else None
+    if second is not None:
+        second = {**second, "distance_m": float(np.hypot(second["x_east_m"] - x_map, second["y_north_m"] - y_map))}
+    return second
+
+
+def _terrain_relief(pb: _Problem, dr: _DriftStep, s_f: float):
+    """Track points at the fix, the map relief (std) under them and its ratio to the noise ``s_f``."""
+    x_map, y_map, a_map, f_map = dr.pose
+    xy_fix = _rotate(pb.rel, a_map) * f_map + np.array([x_map, y_map]) + dr.drift_xy
+    zf = pb.g.sample_bilinear(xy_fix[:, 0], xy_fix[:, 1])
+    zf = zf[np.isfinite(zf)]
+    relief = float(np.std(zf)) if zf.size > 1 else 0.0
+    r2n = relief / s_f if s_f > 0 else float("inf")
+    return xy_fix, relief, r2n
+
+
+def _holes_test(pb: _Problem, cs: _Coarse, cp: _CoarsePosterior, pose: _Pose, R: float,
+                min_valid_for_fix: float) -> float:
+    """Posterior mass outside the main mode were the map under its interior holes to fit the track as well as its
+    valid part does (:func:`_holes_mass_outside`); 0 without interior holes.
+
+    The likelihood scores a sample over a hole with the map's whole depth distribution (it carries no position
+    information), which favours hole-free offsets. Under the most optimistic alternative the posterior must still
+    hold the fix; if more than max_mass_outside_holes of it then lies elsewhere, the fix depends on what the holes
+    hide: flagged ``over_holes``."""
+    if cs.n_hole_all is None:
+        return 0.0
+    x_map, y_map = pose[0], pose[1]
+    fix_cr = (float(pb.g.col_of(np.array([x_map]))[0]), float(pb.g.row_of(np.array([y_map]))[0]))
+    return _holes_mass_outside(cs.msd_all, cs.n_all, cs.n_hole_all, pb.n, cp.s2, pb.v_map, cp.gamma,
+                               max(pb.n_req, min_valid_for_fix * pb.n), fix_cr, R)
+
+
+def _mismatch_flags(lim: _Limits, N: int, n_valid: int, relief: float, r2n: float, s_f: float,
+                    mass_out_holes: float, mass_out: float, second: dict | None, best_w: int):
+    """Mismatch reasons and warnings (module docstring, *Mismatch*), in the order short track, off the map, no
+    terrain information, over holes, ambiguous, and the note when the fine likelihood preferred another mode."""
+    reasons: list[str] = []
+    warns: list[str] = []
+    if N < lim.min_samples:
+        reasons.append("short_track")
+        warns.append(f"possible mismatch: the profile has {N} samples (< {lim.min_samples}); too short to fix the track uniquely")
+    vf = n_valid / N
+    if vf < lim.min_valid_for_fix:
+        reasons.append("off_map")
+        warns.append(f"possible mismatch: {N - n_valid} of {N} samples ({100 * (1 - vf):.0f} %) have no map depth at the fix "
+                     "(track off the map or over holes): too little terrain information")
+    elif vf < lim.min_valid_at_fix:
+        warns.append(f"{N - n_valid} of {N} samples ({100 * (1 - vf):.0f} %) have no map depth at the fix (track partly off "
+                     "the map or over holes); the posterior rests on the others")
+    if r2n < lim.min_relief_to_noise:
+        reasons.append("no_terrain_information")
+        warns.append(f"possible mismatch: map relief under the track (std {relief:.3g} m) is only {r2n:.2g} x the "
+                     f"profile noise ({s_f:.3g} m): too little terrain information (flat map)")
+    if mass_out_holes > lim.max_mass_outside_holes:
+        reasons.append("over_holes")
+        warns.append(f"possible mismatch: if the map under its holes fitted the track as well as elsewhere, "
+                     f"{100 * mass_out_holes:.1f} % of the posterior mass would lie more than {lim.mode_radius_cells:g} "
+                     "cells from the fix: the fix depends on what the map holes hide")
+    if mass_out > lim.max_mass_outside:
+        broad = second is None or second["mass"] < 0.5 * mass_out
+        reasons.append("ambiguous")
+        where = (f"; the next mode at ({second['x_east_m']:.0f}, {second['y_north_m']:.0f}) m holds {100 * second['mass']:.1f} %"
+                 if second else "")
+        what = "the posterior is spread over the map (too little terrain information)" if broad else "a second mode competes"
+        warns.append(f"possible mismatch: {100 * mass_out:.1f} % of the posterior mass lies more than "
+                     f"{lim.mode_radius_cells:g} cells from the fix: {what}{where}")
+    if best_w != 0:
+        warns.append("the fine (bilinear) likelihood preferred a different coarse mode than the cell-resolution search")
+    return reasons, warns
+
+
+def _refinement_record(g: MapGrid, step: float, windows: list[_Window], gm: _GridMap, lls_record: dict,
+                       coarse_pose: tuple[float, float], cp: _CoarsePosterior, gammaf: float, dr: _DriftStep,
+                       dof_inflation: float, has_holes: bool, mass_out_holes: float, holes_flag: bool) -> dict:
+    """``PosteriorFix.refinement``: the fine grid, the log-likelihoods of the coarse fix, the grid MAP and the MAP,
+    the coarse cell, the noise, the drift step and the holes test."""
+    rc_c = windows[0].rc
+    return {
+        "method": "point-mass grid (bilinear map, sub-cell step) + Nelder-Mead polish under the same likelihood",
+        "fine_step_m": step, "windows": len(windows), "winning_window": gm.best_w,
+        **lls_record,
+        "coarse_cell": {"x_east_m": float(g.x_m[rc_c[1]]), "y_north_m": float(g.y_m[rc_c[0]]),
+                        "heading_error_deg": coarse_pose[0], "track_scale": coarse_pose[1]},
+        "noise_sigma_coarse_m": float(np.sqrt(cp.s2)), "tempering": float(gammaf), "drift": dr.info,
+        "noise_dof_inflation": float(dof_inflation),
+        "holes_test": {"map_has_interior_holes": has_holes, "mass_outside_if_holes_fit": mass_out_holes,
+                       "flagged": holes_flag},
+    }
 
 
 # ------------------------------------------------------------------ main entry
@@ -572,482 +1320,57 @@ def posterior_fix(
         (``drift_segment`` m, prior ``drift_sigma`` m per m travelled).
     drift : estimate the dead-reckoning drift jointly with the pose (module docstring, *Joint drift*).
     """
-    d, t = _validate_inputs(profile_depth, track_xy)
-    import xarray as xr
-
-    if uncertainty is None and isinstance(dtm, xr.Dataset) and "uncertainty_m" in dtm:
-        uncertainty = np.asarray(dtm["uncertainty_m"].transpose("y", "x").values, float)
-    g = MapGrid.from_any(dtm)
-    h = g.resolution_m
-    ny, nx = g.shape
-    N = d.size
-    headings = [float(a) for a in headings_deg] or [0.0]
-    scale_list = [float(f) for f in scales] or [1.0]
-    fine_scale_list = sorted({*scale_list, *(float(f) for f in (fine_scales if fine_scales is not None else ()))})
-    if min(fine_scale_list) <= 0:
-        raise InputError(f"track scale factors must be > 0, got {fine_scale_list}")
-    poses = [(a, f) for a in headings for f in scale_list]
-    unc = None
-    if uncertainty is not None:
-        unc = uncertainty.depth_m if isinstance(uncertainty, MapGrid) else np.asarray(
-            getattr(uncertainty, "values", uncertainty), float)
-        if unc.shape != g.shape:
-            raise InputError(f"uncertainty layer shape {unc.shape} does not match the map {g.shape}")
-        unc = MapGrid(np.where(np.isfinite(unc), unc, np.nan), g.x_m, g.y_m, h)
-
-    rel = t - t[0]
-    # ---- crop the map to the search region plus the track's footprint (every heading x scale, plus a margin
-    # for the fine windows and the drift): the FFTs and the per-pose surfaces then cost the region, not the map
-    r0, r1, c0, c1 = g.region_window(region)
-    ext = np.array([_rotate(rel, a) * f for a in headings for f in fine_scale_list])  # (P', N, 2)
-    margin = int(np.ceil(mode_radius_cells)) + 8
-    cr0 = max(r0 + int(np.floor(ext[..., 1].min() / h)) - margin, 0)
-    cr1 = min(r1 + int(np.ceil(ext[..., 1].max() / h)) + margin, ny)
-    cc0 = max(c0 + int(np.floor(ext[..., 0].min() / h)) - margin, 0)
-    cc1 = min(c1 + int(np.ceil(ext[..., 0].max() / h)) + margin, nx)
-    del ext
-    if (cr0, cr1, cc0, cc1) != (0, ny, 0, nx):
-        g = MapGrid(np.ascontiguousarray(g.depth_m[cr0:cr1, cc0:cc1]), g.x_m[cc0:cc1], g.y_m[cr0:cr1], h)
-        if unc is not None:
-            unc = MapGrid(np.ascontiguousarray(unc.depth_m[cr0:cr1, cc0:cc1]), g.x_m, g.y_m, h)
-        ny, nx = g.shape
-        r0, r1, c0, c1 = r0 - cr0, r1 - cr0, c0 - cc0, c1 - cc0
-    if not np.isfinite(g.depth_m).any():
-        raise InputError("the search region and the track's footprint hold no valid map cell")
-
-    V = np.isfinite(g.depth_m)
-    ref = float(np.nanmean(g.depth_m))
-    D = np.where(V, g.depth_m - ref, 0.0)
-    dc = d - ref
-    in_region = np.zeros((ny, nx), bool)
-    in_region[r0:r1, c0:c1] = True
-    zr = g.depth_m[r0:r1, c0:c1]
-    v_map = float(np.nanvar(zr)) if np.isfinite(zr).sum() > 1 else 0.0
-    n_req = _required_samples(min_valid_fraction, N)
-
-    # ---- coarse surfaces [TERCOM Eq. 17] for every pose (FFT route, nearest-cell sampling)
-    snapped = [_snap(_rotate(rel, a) * f, h) for a, f in poses]
-    rmin = min(int(r.min()) for r, _ in snapped)
-    rmax = max(int(r.max()) for r, _ in snapped)
-    cmin = min(int(c.min()) for _, c in snapped)
-    cmax = max(int(c.max()) for _, c in snapped)
-    corr = _FFTCorrelator({"V": V.astype(float), "D": D, "D2": D * D},
-                          (max(0, -rmin), max(0, -cmin)), (max(0, rmax), max(0, cmax)))
-    P = len(poses)
-    msd_all = np.full((P, ny, nx), np.nan, np.float32)
-    n_all = np.zeros((P, ny, nx), np.uint16 if N < 65535 else np.uint32)
-    for k, (rows, cols) in enumerate(snapped):
-        n, s_r, s_r2, _ = _sums_all_offsets(corr, rows, cols, dc, False)
-        feas = (n >= n_req) & in_region
-        with np.errstate(invalid="ignore", divide="ignore"):
-            nn = np.where(feas, n, np.nan)
-            b = s_r / nn
-            msd = np.maximum(s_r2 / nn - b * b, 0.0)
-        msd_all[k] = msd
-        n_all[k] = np.where(feas, n, 0)
-    # interior holes of the (cropped) map: empty cells not connected to its border (those are outside the map's
-    # coverage, e.g. the edges of a projected grid, and stay "off the map"); counted per pose for the holes test
-    lab, n_lab = ndimage.label(~V)
-    edge_labels = np.unique(np.concatenate([lab[0], lab[-1], lab[:, 0], lab[:, -1]]))
-    interior = (lab > 0) & ~np.isin(lab, edge_labels)
-    n_hole_all = None
-    if interior.any():
-        corr_h = _FFTCorrelator({"H": interior.astype(float)}, (max(0, -rmin), max(0, -cmin)),
-                                (max(0, rmax), max(0, cmax)))
-        n_hole_all = np.zeros((P, ny, nx), np.int32)
-        for k, (rows, cols) in enumerate(snapped):
-            rmin_k, cmin_k = int(rows.min()), int(cols.min())
-            (fc,) = corr_h.masks_fft(rows - rmin_k, cols - cmin_k, [np.ones(N)])
-            n_hole_all[k] = np.rint(corr_h.inverse([corr_h.F["H"] * fc], rmin_k, cmin_k)[0]).astype(np.int32)
-        del corr_h
-    if not np.isfinite(msd_all).any():
-        raise InputError(f"no feasible offset: the {N}-sample track does not fit on valid cells of the {ny} x {nx} "
-                         f"map with min_valid_fraction={min_valid_fraction}")
-
-    # numeric floor of the noise: tiny against the profile's spread (a flat, noise-free map stays flat)
-    floor2 = max((1e-3 * float(np.std(d))) ** 2, 1e-6)
-
-    def map_sigma2_at(xy) -> float:
-        if unc is None:
-            return 0.0
-        u = unc.sample_bilinear(xy[:, 0], xy[:, 1])
-        u = u[np.isfinite(u)]
-        return float(np.mean(u * u)) if u.size else 0.0
-
-    # ---- noise variance and effective sample size at the coarse MAP (two passes)
-    best_full, best_any = (np.inf, -1), (np.inf, -1)  # lowest MSD with >= 90 % valid samples / with any (per pose)
-    for k_ in range(P):
-        mk = np.where(np.isfinite(msd_all[k_]), msd_all[k_], np.inf)
-        j_ = int(np.argmin(np.where(n_all[k_] >= 0.9 * N, mk, np.inf)))
-        if mk.flat[j_] < best_full[0] and n_all[k_].flat[j_] >= 0.9 * N:
-            best_full = (float(mk.flat[j_]), k_ * ny * nx + j_)
-        j_ = int(np.argmin(np.where(n_all[k_] > 0, mk, np.inf)))
-        if mk.flat[j_] < best_any[0]:
-            best_any = (float(mk.flat[j_]), k_ * ny * nx + j_)
-    k0 = best_full[1] if best_full[1] >= 0 else best_any[1]
-    kp, rc0 = divmod(k0, ny * nx)
-    s2 = _s2_from(float(msd_all.flat[k0]), float(n_all.flat[k0]), floor2)
-    gamma = 1.0
-
-    ll_all = np.empty((P, ny, nx), np.float32)
-
-    def coarse_post(s2_, gamma_):
-        # one pose at a time (float64 temporaries of one map, not of P maps); log-likelihoods kept in float32
-        for k_ in range(P):
-            ll_all[k_] = _loglik(msd_all[k_], n_all[k_], N, s2_, v_map, gamma_)
-        m = float(ll_all.max())
-        pc = np.zeros((ny, nx))
-        for k_ in range(P):
-            pc += np.exp(ll_all[k_].astype(np.float64) - m)
-        return ll_all, pc / pc.sum()
-
-    def coarse_residuals(k, r, c):
-        rows, cols = snapped[k]
-        rr, cc = rows + r, cols + c
-        out = np.full(N, np.nan)
-        ins = (rr >= 0) & (rr < ny) & (cc >= 0) & (cc < nx)
-        out[ins] = g.depth_m[rr[ins], cc[ins]] - d[ins]
-        return out
-
-    for _ in range(2):
-        ll, pc = coarse_post(s2, gamma)
-        kbest = int(np.argmax(ll))
-        kp, rc = divmod(kbest, ny * nx)
-        r_, c_ = divmod(rc, nx)
-        res_c = coarse_residuals(kp, r_, c_)
-        gamma = _n_eff(res_c) / max(np.isfinite(res_c).sum(), 1)
-        s2 = _s2_from(float(msd_all[kp, r_, c_]), float(n_all[kp, r_, c_]), floor2)
-    ll, pc = coarse_post(s2, gamma)
-
-    # ---- coarse modes ranked by mass within the mode radius
+    pb = _prepare_inputs(profile_depth, track_xy, dtm, headings_deg, scales, fine_scales, uncertainty, region,
+                         mode_radius_cells, min_valid_fraction)
+    g, h, N = pb.g, pb.h, pb.n
     R = float(mode_radius_cells)
-    Ri = int(np.ceil(R))
-    yy, xx = np.mgrid[-Ri : Ri + 1, -Ri : Ri + 1]
-    disk = (xx * xx + yy * yy) <= R * R + 1e-9
-    mass_r = ndimage.convolve(pc, disk.astype(float), mode="constant", cval=0.0)
-    peaks = (pc == ndimage.maximum_filter(pc, size=3, mode="constant", cval=0.0)) & (pc > 0)
-    pf = np.flatnonzero(peaks)
-    pf = pf[np.argsort(-mass_r.flat[pf], kind="stable")]
-    centres: list[tuple[int, int]] = []
-    for f in pf:
-        r_, c_ = divmod(int(f), nx)
-        if all((r_ - a) ** 2 + (c_ - b) ** 2 > (2 * R) ** 2 for a, b in centres):
-            centres.append((r_, c_))
-        if len(centres) >= 1 + n_alt_modes:
-            break
-    centres = [centres[0]] + [cc for cc in centres[1:] if mass_r[cc] > 1e-4]
-
-    # ---- fine windows (bilinear likelihood on a sub-cell grid of start offsets x plausible poses)
-    step = fine_step_cells * h
-    nh = int(np.ceil(R / fine_step_cells))
-    grid1 = np.arange(-nh, nh + 1) * step
-    oxy = np.array(np.meshgrid(grid1, grid1)).reshape(2, -1).T  # (M, 2) offsets about the window centre
-    win_mask = np.zeros((ny, nx), bool)
-    windows = []
-    for (rw, cw) in centres:
-        llw = ll[:, max(rw - Ri, 0) : rw + Ri + 1, max(cw - Ri, 0) : cw + Ri + 1].reshape(P, -1).max(axis=1)
-        # plausible coarse poses, each expanded with the fine scales (the coarse pose itself is kept)
-        pk = list(dict.fromkeys(p_ for k in range(P) if llw[k] > llw.max() - 12.0
-                                for p_ in [poses[k]] + [(poses[k][0], fs) for fs in fine_scale_list]))
-        xc, yc = float(g.x_m[cw]), float(g.y_m[rw])
-        offs = oxy + np.array([xc, yc])
-        inr = ((offs[:, 0] >= g.x_m[c0] - 1e-6) & (offs[:, 0] <= g.x_m[c1 - 1] + 1e-6)
-               & (offs[:, 1] >= g.y_m[r0] - 1e-6) & (offs[:, 1] <= g.y_m[r1 - 1] + 1e-6))
-        msd_w = np.full((len(pk), len(offs)), np.nan)
-        nv_w = np.zeros((len(pk), len(offs)))
-        b_w = np.zeros((len(pk), len(offs)))
-        for j, k in enumerate(pk):
-            m, nv, b = _msd_b(_bilinear_residuals(g, d, rel, k, offs))
-            ok = (nv >= n_req) & inr
-            msd_w[j] = np.where(ok, m, np.nan)
-            nv_w[j] = np.where(ok, nv, 0)
-            b_w[j] = b
-        windows.append({"rc": (rw, cw), "poses": pk, "offs": offs, "msd": msd_w, "nv": nv_w, "bias": b_w})
-        dd = (np.arange(ny)[:, None] - rw) ** 2 + (np.arange(nx)[None, :] - cw) ** 2
-        win_mask |= dd <= R * R + 1e-9
-
-    # fine s^2, gamma at the fine MAP of the main window (two passes)
-    w0 = windows[0]
-
-    def fine_ll(w, s2_, gamma_):
-        return _loglik(w["msd"], w["nv"], N, s2_, v_map, gamma_)
-
-    fl = w0["msd"]
-    fin = np.isfinite(fl) & (w0["nv"] >= 0.9 * N)
-    if not fin.any():
-        fin = np.isfinite(fl)
-    if not fin.any():  # no feasible fine point (bilinear needs both neighbours): fall back to the coarse likelihood
-        s2f, gammaf = s2, gamma
+    # ---- coarse posterior (whole search region): surfaces, noise and N_eff at the coarse MAP, modes
+    cs = _coarse_surfaces(pb, min_valid_fraction)
+    cp = _coarse_noise(pb, cs)
+    mass_r, centres = _coarse_modes(cp.pc, R, n_alt_modes)
+    # ---- fine posterior: windows about the modes under one fine s^2 and gamma, window masses, grid MAP
+    windows, win_mask, step, n_side = _fine_windows(pb, cp.ll, centres, R, fine_step_cells)
+    s2f, gammaf = _fine_noise(pb, windows[0], cp.s2, cp.gamma)
+    lls = [_fine_ll(w, N, s2f, gammaf, pb.v_map) for w in windows]
+    gm = _grid_map(windows, lls, cp, win_mask, mass_r, step, h)
+    kc, ll_coarse_pt = _coarse_fix_loglik(cp, windows[0], lls[0], pb.poses, n_side)
+    if polish:
+        pose, polished, ll_map = _polish(pb, windows[gm.best_w], gm.pose, gm.ll_grid, s2f, gammaf, R, step)
     else:
-        jj = int(np.argmin(np.where(fin, fl, np.inf)))
-        s2f = _s2_from(float(fl.flat[jj]), float(w0["nv"].flat[jj]), floor2)
-        gammaf = gamma
-        for _ in range(2):
-            llf = fine_ll(w0, s2f, gammaf)
-            jj = int(np.argmax(llf))
-            j, mo = divmod(jj, llf.shape[1])
-            res_f = _bilinear_residuals(g, d, rel, w0["poses"][j], w0["offs"][mo : mo + 1])[0]
-            gammaf = _n_eff(res_f) / max(np.isfinite(res_f).sum(), 1)
-            xy_fix = _rotate(rel, w0["poses"][j][0]) * w0["poses"][j][1] + w0["offs"][mo]
-            s2f = max(_s2_from(float(fl.flat[jj]), float(w0["nv"].flat[jj]), floor2), map_sigma2_at(xy_fix) + floor2)
-
-    # window masses under the same fine likelihood
-    lls = [fine_ll(w, s2f, gammaf) for w in windows]
-    top = max(float(x.max()) for x in lls)
-    cell_frac = (step / h) ** 2
-    F = np.array([float(np.exp(x - top).sum()) * cell_frac for x in lls])
-    MW = float(pc[win_mask].sum())
-    if F.sum() > 0:
-        mw = MW * F / F.sum()
-    else:
-        mw = np.array([float(mass_r[w["rc"]]) for w in windows])
-    out_mask = ~win_mask
-    m_out_coarse = float(pc[out_mask].sum())
-    best_w = int(np.argmax(mw))
-    wb, llb = windows[best_w], lls[best_w]
-    jj = int(np.argmax(llb))
-    j, mo = divmod(jj, llb.shape[1])
-    a_map, f_map = wb["poses"][j]
-    x_map, y_map = (float(v) for v in wb["offs"][mo])
-    ll_grid = float(llb.flat[jj])
-
-    # coarse fix (cell centre, coarse pose) under the same fine likelihood: for the record
-    rc_c = windows[0]["rc"]
-    centre_idx = (len(grid1) * len(grid1)) // 2
-    kc = int(np.argmax(ll[:, rc_c[0], rc_c[1]]))
-    ll_coarse_pt = (float(lls[0][windows[0]["poses"].index(poses[kc]), centre_idx]) if poses[kc] in windows[0]["poses"]
-                    else float("-inf"))
-
-    # ---- Nelder-Mead polish under the same likelihood; kept only if better
-    polished = False
-    if polish and np.isfinite(ll_grid):
-        from scipy.optimize import minimize
-
-        ha = (min(headings), max(headings))
-        fa = (min(fine_scale_list), max(fine_scale_list))
-        xc, yc = float(g.x_m[wb["rc"][1]]), float(g.y_m[wb["rc"][0]])
-
-        def neg(p):
-            x0_, y0_, a_, f_ = p
-            if not (ha[0] <= a_ <= ha[1] and fa[0] <= f_ <= fa[1] and abs(x0_ - xc) <= R * h and abs(y0_ - yc) <= R * h):
-                return np.inf
-            m, nv, _ = _msd_b(_bilinear_residuals(g, d, rel, (a_, f_), np.array([[x0_, y0_]])))
-            if nv[0] < n_req:
-                return np.inf
-            return -float(_loglik(m, nv, N, s2f, v_map, gammaf)[0])
-
-        x0v = np.array([x_map, y_map, a_map, f_map])
-        da_ = max((ha[1] - ha[0]) / max(len(headings) - 1, 1), 0.1) if ha[1] > ha[0] else 0.0
-        df_ = max((fa[1] - fa[0]) / max(len(fine_scale_list) - 1, 1), 0.002) if fa[1] > fa[0] else 0.0
-        simplex = [x0v.copy()]
-        for i, st in enumerate((step, step, da_ / 2, df_ / 2)):
-            v = x0v.copy()
-            v[i] += st if st > 0 else 0.0
-            if i >= 2 and st > 0 and not (ha if i == 2 else fa)[0] <= v[i] <= (ha if i == 2 else fa)[1]:
-                v[i] = x0v[i] - st
-            simplex.append(v)
-        free = [0, 1] + ([2] if da_ > 0 else []) + ([3] if df_ > 0 else [])
-        sim = np.array(simplex)[[0] + [i + 1 for i in free]][:, free]
-
-        def negf(v):
-            p = x0v.copy()
-            p[free] = v
-            return neg(p)
-
-        with _warnings.catch_warnings(), np.errstate(all="ignore"):
-            _warnings.simplefilter("ignore")
-            o = minimize(negf, x0v[free], method="Nelder-Mead",
-                         options={"initial_simplex": sim, "xatol": 0.02 * h, "fatol": 1e-3, "maxiter": 400})
-        if np.isfinite(o.fun) and -o.fun > ll_grid + 1e-9:
-            p = x0v.copy()
-            p[free] = o.x
-            x_map, y_map, a_map, f_map = (float(v) for v in p)
-            polished = True
-    ll_map = float(-neg(np.array([x_map, y_map, a_map, f_map]))) if polish else ll_grid
-
-    # ---- joint dead-reckoning drift (piecewise-constant rate) with the pose: same likelihood + the drift prior;
-    # kept only when it raises that log-posterior (the rigid MAP is its zero-drift point)
-    x_rigid = np.array([x_map, y_map])
-    drift_xy = np.zeros((N, 2))
-    infl = np.zeros((2, 2))
-    drift_info: dict = {"applied": False}
-    drift_model = None
-    if drift and np.isfinite(ll_map) and N >= max(2 * min_samples, 12):
-        if time_s is not None:
-            tau = np.asarray(time_s, float).ravel()
-            if tau.size != N or not np.isfinite(tau).all() or (np.diff(tau) < 0).any():
-                raise InputError(f"time_s must be {N} finite, non-decreasing sample times")
-            seg, sig, unit = (drift_segment or 900.0), (drift_sigma or 0.003), "s"
-        else:
-            tau = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(rel, axis=0).T))])
-            seg, sig, unit = (drift_segment or max(float(tau[-1]) / 3.0, h)), (drift_sigma or 0.005), "m"
-        B, edges = _drift_basis(tau, seg)
-        bnd_a = (min(headings), max(headings))
-        bnd_f = (min(fine_scale_list), max(fine_scale_list))
-        # the rigid fit's residuals are correlated by the very drift modelled here (small N_eff): the noise variance
-        # and N_eff of the joint fit are re-estimated from its own residuals (two passes, each from the rigid MAP,
-        # so the rigid MAP and the joint one are compared under the same likelihood)
-        s2j, gj = s2f, gammaf
-        for _ in range(3):
-            jf = _joint_drift_fit(g, d, rel, B, sig, (x_map, y_map, a_map, f_map), bnd_a, bnd_f, s2j, gj, v_map, n_req,
-                                  sigma_heading_deg=heading_sigma_deg, sigma_scale=scale_sigma)
-            if not jf["ok"]:
-                break
-            rj = _bilinear_residuals(g, d, rel, (jf["a"], jf["f"]), np.array([[jf["x"], jf["y"]]]), B @ jf["U"])[0]
-            okj = np.isfinite(rj)
-            if okj.sum() <= N_PARAMS + 2 * B.shape[1]:
-                break
-            rc_ = rj[okj] - rj[okj].mean()
-            s2_new = max(float(rc_ @ rc_) / (okj.sum() - N_PARAMS - 2 * B.shape[1]), s2f * 0.25, floor2)
-            g_new = max(_n_eff(rj) / okj.sum(), gammaf)
-            if abs(s2_new - s2j) <= 0.02 * s2j and abs(g_new - gj) <= 0.02 * gj:
-                break
-            s2j, gj = s2_new, g_new
-        drift_info = {"applied": False, "segments": int(B.shape[1]), "segment_length": float(np.diff(edges)[0]),
-                      "unit": unit, "prior_sigma_rate": sig}
-        if jf["ok"] and jf["ll"] > jf["ll0"] + 1e-9:  # same objective at the rigid MAP (zero drift)
-            drift_info.update({
-                "applied": True, "log_posterior_rigid_map": jf["ll0"], "log_posterior_joint": jf["ll"],
-                "noise_sigma_m": float(np.sqrt(s2j)), "tempering": float(gj),
-                "comment": "both log-posteriors under the joint fit's likelihood (noise, N_eff from its residuals)",
-                "iterations": jf["iterations"], "moved_start_m": float(np.hypot(jf["x"] - x_map, jf["y"] - y_map)),
-                "rates": jf["U"].tolist(), "drift_at_end_m": (B @ jf["U"])[-1].tolist(),
-                "covariance_inflation_m2": jf["inflation"].tolist()})
-            x_map, y_map, a_map, f_map = jf["x"], jf["y"], jf["a"], jf["f"]
-            drift_xy = B @ jf["U"]
-            infl = jf["inflation"]
-            drift_model = (float(tau[0]), edges, jf["U"], unit)
-    res_map = _bilinear_residuals(g, d, rel, (a_map, f_map), np.array([[x_map, y_map]]) , drift_xy)[0]
-    if not np.isfinite(res_map).any():  # bilinear undefined at the fix (holes): use the coarse residuals
-        res_map = coarse_residuals(kp, *divmod(rc, nx))
-    okm = np.isfinite(res_map)
-    n_valid = int(okm.sum())
-    bias = float(np.mean(res_map[okm])) if n_valid else float("nan")
-
-    # ---- posterior moments about the MAP: fine windows (mixture) + coarse cells outside the windows
-    xhat = x_rigid
-    S = np.zeros((2, 2))
-    mean = np.zeros(2)
-    modes = []
-    # with the drift modelled, the main mode's width is that of the joint likelihood (its noise and N_eff), the
-    # rigid grid's (tempered by the drift-correlated residuals) rescaled by the ratio of the two precisions
-    kappa = (float(np.clip((gammaf / s2f) / (drift_info["tempering"] / drift_info["noise_sigma_m"] ** 2), 0.1, 1.0))
-             if drift_info.get("applied") else 1.0)
-    # the likelihood's noise variance divides the residuals by N_v - p; with correlated residuals the fit absorbed
-    # more of the noise (``_dof``): the main mode's width (and the drift's share) is widened by the ratio, the MAP,
-    # window masses and flags stay those of the likelihood
-    if drift_info.get("applied"):
-        dof_inflation = _fit_dof_inflation(
-            g, d, rel, (a_map, f_map), (x_map, y_map), drift_xy, B, float(drift_info["tempering"]),
-            float(drift_info["noise_sigma_m"]) ** 2 / (float(drift_info["tempering"]) * sig * sig),
-            min(headings) < max(headings), min(fine_scale_list) < max(fine_scale_list))
-    else:
-        dof_inflation = _fit_dof_inflation(g, d, rel, (a_map, f_map), (x_map, y_map), None, None, float(gammaf), 0.0,
-                                           min(headings) < max(headings), min(fine_scale_list) < max(fine_scale_list))
-    kappa *= dof_inflation
-    infl = infl * dof_inflation
-    for iw, (w, x_ll, m_w) in enumerate(zip(windows, lls, mw, strict=True)):
-        pw = np.exp(x_ll - x_ll.max()).sum(axis=0)
-        pw = pw / pw.sum() if pw.sum() > 0 else np.full(pw.size, 1.0 / pw.size)
-        e = w["offs"] - xhat
-        mu = (pw[:, None] * w["offs"]).sum(axis=0)
-        Sw = (pw[:, None, None] * e[:, :, None] * e[:, None, :]).sum(axis=0)
-        S += m_w * ((kappa * Sw if iw == best_w else Sw) + np.eye(2) * step * step / 12)
-        mean += m_w * mu
-        modes.append({"x_east_m": float(mu[0]), "y_north_m": float(mu[1]), "mass": float(m_w)})
-    if m_out_coarse > 0:
-        rr, cc = np.nonzero(out_mask & (pc > 0))
-        pw = pc[rr, cc]
-        ex, ey = g.x_m[cc] - xhat[0], g.y_m[rr] - xhat[1]
-        S += np.array([[np.sum(pw * ex * ex), np.sum(pw * ex * ey)], [np.sum(pw * ex * ey), np.sum(pw * ey * ey)]])
-        S += m_out_coarse * np.eye(2) * h * h / 12
-        mean += np.array([np.sum(pw * g.x_m[cc]), np.sum(pw * g.y_m[rr])])
-    tot = float(mw.sum() + m_out_coarse)
-    S /= tot
-    mean /= tot
-    # the grid is rigid: its moments are about the rigid MAP; the joint drift fit moves the fix and widens the
-    # start's posterior by the drift it cannot pin down (Laplace: joint minus rigid marginal covariance)
-    S = S + infl
+        pose, polished, ll_map = gm.pose, False, gm.ll_grid
+    # ---- joint dead-reckoning drift; the fix's valid samples and bias
+    x_rigid = np.array([pose[0], pose[1]])
+    dr = _drift_step(pb, pose, ll_map, s2f, gammaf, drift, time_s, drift_segment, drift_sigma, heading_sigma_deg,
+                     scale_sigma, min_samples)
+    x_map, y_map, a_map, f_map = dr.pose
+    n_valid, bias = _fix_residuals(pb, cs, cp, dr)
+    # ---- posterior moments about the MAP: fine windows (mixture) + coarse cells outside the windows; the grid is
+    # rigid, so its moments are about the rigid MAP; the joint drift fit moves the fix and widens the start's
+    # posterior by the drift it cannot pin down (Laplace: joint minus rigid marginal covariance)
+    kappa, dof_inflation = _main_mode_widening(pb, dr, s2f, gammaf)
+    S, mean, modes, tot = _mixture_moments(g, windows, lls, gm, cp.pc, kappa, step, x_rigid)
+    S = S + dr.inflation * dof_inflation
     mean = mean + (np.array([x_map, y_map]) - x_rigid)
-    mass_out = float(1.0 - mw[best_w] / tot)
-    others = [m for i, m in enumerate(modes) if i != best_w]
-    # best coarse mode outside all windows
-    if m_out_coarse > 0:
-        mo_ = np.where(out_mask, mass_r, 0.0)
-        f2 = int(np.argmax(mo_))
-        r2, c2 = divmod(f2, nx)
-        others.append({"x_east_m": float(g.x_m[c2]), "y_north_m": float(g.y_m[r2]), "mass": float(mo_[r2, c2] / tot)})
-    second = max(others, key=lambda m: m["mass"]) if others else None
-    if second is not None:
-        second = {**second, "distance_m": float(np.hypot(second["x_east_m"] - x_map, second["y_north_m"] - y_map))}
-
-    # ---- terrain information and flags
+    mass_out = float(1.0 - gm.mw[gm.best_w] / tot)
+    second = _second_mode(g, modes, gm, mass_r, tot, x_map, y_map)
+    # ---- terrain information, holes test and flags
     s_f = float(np.sqrt(s2f))
-    xy_fix = _rotate(rel, a_map) * f_map + np.array([x_map, y_map]) + drift_xy
-    zf = g.sample_bilinear(xy_fix[:, 0], xy_fix[:, 1])
-    zf = zf[np.isfinite(zf)]
-    relief = float(np.std(zf)) if zf.size > 1 else 0.0
-    r2n = relief / s_f if s_f > 0 else float("inf")
-    reasons: list[str] = []
-    warns: list[str] = []
-    if N < min_samples:
-        reasons.append("short_track")
-        warns.append(f"possible mismatch: the profile has {N} samples (< {min_samples}); too short to fix the track uniquely")
-    vf = n_valid / N
-    if vf < min_valid_for_fix:
-        reasons.append("off_map")
-        warns.append(f"possible mismatch: {N - n_valid} of {N} samples ({100 * (1 - vf):.0f} %) have no map depth at the fix "
-                     "(track off the map or over holes): too little terrain information")
-    elif vf < min_valid_at_fix:
-        warns.append(f"{N - n_valid} of {N} samples ({100 * (1 - vf):.0f} %) have no map depth at the fix (track partly off "
-                     "the map or over holes); the posterior rests on the others")
-    if r2n < min_relief_to_noise:
-        reasons.append("no_terrain_information")
-        warns.append(f"possible mismatch: map relief under the track (std {relief:.3g} m) is only {r2n:.2g} x the "
-                     f"profile noise ({s_f:.3g} m): too little terrain information (flat map)")
-    # ---- holes test: the likelihood scores a sample over a hole with the map's whole depth distribution (it
-    # carries no position information), which favours hole-free offsets. Under the most optimistic alternative
-    # (the unknown map under the interior holes fits the track as well as the valid part does) the posterior must
-    # still hold the fix; if more than max_mass_outside_holes of it then lies elsewhere, the fix depends on what
-    # the holes hide: flagged ``over_holes``
-    mass_out_holes = 0.0
-    if n_hole_all is not None:
-        mass_out_holes = _holes_mass_outside(msd_all, n_all, n_hole_all, N, s2, v_map, gamma,
-                                             max(n_req, min_valid_for_fix * N),
-                                             (float(g.col_of(np.array([x_map]))[0]), float(g.row_of(np.array([y_map]))[0])), R)
-    holes_flag = mass_out_holes > max_mass_outside_holes
-    if holes_flag:
-        reasons.append("over_holes")
-        warns.append(f"possible mismatch: if the map under its holes fitted the track as well as elsewhere, "
-                     f"{100 * mass_out_holes:.1f} % of the posterior mass would lie more than {mode_radius_cells:g} "
-                     "cells from the fix: the fix depends on what the map holes hide")
-    if mass_out > max_mass_outside:
-        broad = second is None or second["mass"] < 0.5 * mass_out
-        reasons.append("ambiguous")
-        where = (f"; the next mode at ({second['x_east_m']:.0f}, {second['y_north_m']:.0f}) m holds {100 * second['mass']:.1f} %"
-                 if second else "")
-        what = "the posterior is spread over the map (too little terrain information)" if broad else "a second mode competes"
-        warns.append(f"possible mismatch: {100 * mass_out:.1f} % of the posterior mass lies more than "
-                     f"{mode_radius_cells:g} cells from the fix: {what}{where}")
-    if best_w != 0:
-        warns.append("the fine (bilinear) likelihood preferred a different coarse mode than the cell-resolution search")
-    refinement = {
-        "method": "point-mass grid (bilinear map, sub-cell step) + Nelder-Mead polish under the same likelihood",
-        "fine_step_m": step, "windows": len(windows), "winning_window": best_w,
-        "loglik_coarse_fix": ll_coarse_pt, "loglik_grid_map": ll_grid, "loglik_map": ll_map, "polished": polished,
-        "coarse_cell": {"x_east_m": float(g.x_m[rc_c[1]]), "y_north_m": float(g.y_m[rc_c[0]]),
-                        "heading_error_deg": poses[kc][0], "track_scale": poses[kc][1]},
-        "noise_sigma_coarse_m": float(np.sqrt(s2)), "tempering": float(gammaf), "drift": drift_info,
-        "noise_dof_inflation": float(dof_inflation),
-        "holes_test": {"map_has_interior_holes": n_hole_all is not None, "mass_outside_if_holes_fit": mass_out_holes,
-                       "flagged": holes_flag},
-    }
+    xy_fix, relief, r2n = _terrain_relief(pb, dr, s_f)
+    mass_out_holes = _holes_test(pb, cs, cp, dr.pose, R, min_valid_for_fix)
+    lim = _Limits(min_samples, min_valid_for_fix, min_valid_at_fix, min_relief_to_noise, max_mass_outside,
+                  max_mass_outside_holes, mode_radius_cells)
+    reasons, warns = _mismatch_flags(lim, N, n_valid, relief, r2n, s_f, mass_out_holes, mass_out, second, gm.best_w)
+    refinement = _refinement_record(
+        g, step, windows, gm, {"loglik_coarse_fix": ll_coarse_pt, "loglik_grid_map": gm.ll_grid, "loglik_map": ll_map,
+                               "polished": polished},
+        pb.poses[kc], cp, gammaf, dr, dof_inflation, cs.n_hole_all is not None, mass_out_holes,
+        mass_out_holes > max_mass_outside_holes)
     return PosteriorFix(
         start_x_m=x_map, start_y_m=y_map, heading_deg=a_map, scale=f_map, bias_m=bias,
         mean_x_m=float(mean[0]), mean_y_m=float(mean[1]), cov_m2=S, mass_outside_main_mode=mass_out,
         mode_radius_m=R * h, second_mode=second, noise_sigma_m=s_f,
-        map_sigma_m=float(np.sqrt(map_sigma2_at(xy_fix))), n_eff=float(gammaf * max(n_valid, 1)),
+        map_sigma_m=float(np.sqrt(_map_sigma2_at(pb.unc, xy_fix))), n_eff=float(gammaf * max(n_valid, 1)),
         n_samples=N, n_valid=n_valid, relief_to_noise=r2n, mismatch=bool(reasons), reasons=reasons, warnings=warns,
-        track_start_xy=(float(t[0, 0]), float(t[0, 1])), posterior_cells=pc.astype(np.float32), x_m=g.x_m, y_m=g.y_m,
-        refinement=refinement, modes=modes, drift_model=drift_model,
+        track_start_xy=(float(pb.t[0, 0]), float(pb.t[0, 1])), posterior_cells=cp.pc.astype(np.float32), x_m=g.x_m,
+        y_m=g.y_m, refinement=refinement, modes=modes, drift_model=dr.model,
     )

@@ -278,42 +278,13 @@ def profile_axis_text(p: Params) -> str:
     return f"{p.profile_bin_m:g} m depth" if p.profile_axis == "depth" else f"{p.profile_bin_dbar:g} dbar pressure"
 
 
-def derive_ctd(sensors: pd.DataFrame, latitude_deg: float, longitude_deg: float, p: Params,
-               frame: Any = None, launch_xy: tuple[float, float] = (0.0, 0.0), *,
-               memory_limit_bytes: float | None = None, overlying_profile: Any = None) -> tuple[pd.DataFrame, dict]:
-    """Pure science of the stage: the ``ctd`` table and its metadata from a ``sensors`` table.
-
-    ``frame`` (a :class:`hadal.geo.LocalFrame`) and ``launch_xy`` (the launch point in it) turn the
-    dead-reckoned offsets of the deepest point into longitude/latitude when given. ``overlying_profile`` (a
-    :class:`hadal.depth.UserProfile`, from ``p.overlying_profile``) is the water above a record that does not
-    start at the surface (:func:`hadal.depth.overlying_column`).
-    """
+def _checked_samples(sensors: pd.DataFrame, p: Params, memory_limit_bytes: float | None
+                     ) -> tuple[pd.DataFrame, bool, np.ndarray]:
+    """The sensors table checked (required columns, memory of the profile), in time order (a pressure-binned
+    cast without times: in pressure order) with repeated times dropped; returns it, whether it has no time
+    base and the dropped rows' mask."""
     import numpy as np
     import pandas as pd
-
-    from hadal.ctd.chain import apply_channel_steps, loop_edit_flags
-    from hadal.ctd.teos10 import teos10_columns
-    from hadal.depth import (
-        correct_altitude,
-        depth_teos10,
-        dynamic_height_anomaly,
-        fuse_pressure,
-        hydrostatic_depth,
-        overlying_column,
-        seafloor_depth,
-        segment_phases,
-    )
-    from hadal.ingest.cnv import NO_TIME_BASE
-    from hadal.profile import make_profile
-    from hadal.qc_derived import apply_to_table as apply_derived_qc
-    from hadal.qc_derived import load_qc_config
-    from hadal.seawater import (
-        density_eos80,
-        depth_fofonoff_millard,
-        gravity,
-        practical_salinity,
-        sound_speed_chen_millero,
-    )
 
     missing = [c for c in REQUIRED_COLUMNS if c not in sensors.columns]
     if missing:
@@ -339,14 +310,17 @@ def derive_ctd(sensors: pd.DataFrame, latitude_deg: float, longitude_deg: float,
         dup = df["time"].duplicated(keep="first").to_numpy()
     if dup.any():  # repeated samples (the ingest contract says unique times): keep the first, count the rest
         df = df.loc[~dup].reset_index(drop=True)
-    n = len(df)
-    acc = list(p.accept_flags)
-    nan = np.full(n, np.nan)
+    return df, no_time, dup
 
-    # --- Sea-Bird processing chain on the raw channels (hadal.ctd.chain; every step off unless enabled)
-    interval_s, ctd_steps = apply_channel_steps(df, p, no_time)
 
-    # --- pressure fusion
+def _fused_pressure(df: pd.DataFrame, p: Params, acc: list[int], no_time: bool) -> Any:
+    """Fuse CTD and gauge pressure (:func:`hadal.depth.fuse_pressure`) into ``pressure_dbar``/``pressure_source``."""
+    import numpy as np
+    import pandas as pd
+
+    from hadal.depth import fuse_pressure
+
+    nan = np.full(len(df), np.nan)
     pc = df["pressure_ctd_dbar"].to_numpy(np.float64) if "pressure_ctd_dbar" in df else nan
     pg = df["pressure_gauge_dbar"].to_numpy(np.float64) if "pressure_gauge_dbar" in df else nan
     fusion = fuse_pressure(
@@ -359,13 +333,29 @@ def derive_ctd(sensors: pd.DataFrame, latitude_deg: float, longitude_deg: float,
         estimate_lag=p.estimate_pressure_lag, max_lag_s=p.max_pressure_lag_s,
         time_s=None if no_time else (df["time"] - df["time"].iloc[0]).dt.total_seconds().to_numpy(),
     )
-    pres = fusion.pressure_dbar
-    if not np.isfinite(pres).any():
+    if not np.isfinite(fusion.pressure_dbar).any():
         raise InputError("sensors table has no valid pressure (CTD and gauge both missing or flagged bad)")
-    df["pressure_dbar"] = pres
+    df["pressure_dbar"] = fusion.pressure_dbar
     df["pressure_source"] = pd.array(fusion.source, dtype="string")
+    return fusion
 
-    # --- seawater
+
+def _seawater(df: pd.DataFrame, p: Params, acc: list[int], pres: np.ndarray, latitude_deg: float,
+              longitude_deg: float, overlying_profile: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, Any]:
+    """Salinity, density, gravity, the depths, sound speed and the TEOS-10 columns of accepted C/T samples;
+    returns salinity, temperature, density, depth and the overlying water column."""
+    import numpy as np
+
+    from hadal.ctd.teos10 import teos10_columns
+    from hadal.depth import hydrostatic_depth, overlying_column
+    from hadal.seawater import (
+        density_eos80,
+        depth_fofonoff_millard,
+        gravity,
+        practical_salinity,
+        sound_speed_chen_millero,
+    )
+
     tc_ok = _flag_ok(df, "conductivity_s_m", acc) & _flag_ok(df, "temperature_its90_degc", acc)
     cond = np.where(tc_ok, df["conductivity_s_m"].to_numpy(np.float64), np.nan)
     temp = np.where(tc_ok, df["temperature_its90_degc"].to_numpy(np.float64), np.nan)
@@ -387,23 +377,33 @@ def derive_ctd(sensors: pd.DataFrame, latitude_deg: float, longitude_deg: float,
     # TEOS-10 next to EOS-80 (gsw; N² comes from the binned casts, in derive_table)
     for name, values in teos10_columns(sp, temp, pres, longitude_deg, latitude_deg).items():
         df[name] = values
-    loop_bad, loop_step = loop_edit_flags(depth, interval_s, p)
-    if loop_bad is not None:
-        df["loop_edit_bad"] = loop_bad
-    if loop_step is not None:
-        ctd_steps.append(loop_step)
+    return sp, temp, rho, depth, column
 
-    # --- phases (needed for the descent profile of the TEOS-10 cross-check)
-    if no_time:  # a binned cast is one profile: descent when pressure increases down the file, else ascent
+
+def _phases(df: pd.DataFrame, p: Params, pres: np.ndarray, depth: np.ndarray, no_time: bool) -> None:
+    """``phase``: descent/bottom/ascent from the depth record; a binned cast is one profile (descent when pressure
+    increases down the file, else ascent)."""
+    import numpy as np
+    import pandas as pd
+
+    from hadal.depth import segment_phases
+
+    if no_time:
         fin = pres[np.isfinite(pres)]
-        phase = np.full(n, "descent" if fin.size < 2 or fin[-1] >= fin[0] else "ascent", dtype=object)
+        phase = np.full(len(df), "descent" if fin.size < 2 or fin[-1] >= fin[0] else "ascent", dtype=object)
     else:
         phase = segment_phases(df["time"], depth, smoothing_s=p.phase_smoothing_s,
                                vertical_speed_threshold_m_s=p.phase_speed_threshold_m_s,
                                deep_fraction=p.phase_deep_fraction)
     df["phase"] = pd.array(phase, dtype="string")
 
-    # --- TEOS-10 depth with the dynamic height anomaly of the binned descent profile
+
+def _teos10_depth(df: pd.DataFrame, p: Params, pres: np.ndarray, temp: np.ndarray, latitude_deg: float,
+                  longitude_deg: float) -> str:
+    """``depth_teos10_m`` with the dynamic height anomaly of the binned descent profile; returns how it was made."""
+    from hadal.depth import depth_teos10, dynamic_height_anomaly
+    from hadal.profile import make_profile
+
     teos_note = "dynamic height anomaly of the binned descent profile"
     try:
         prof = make_profile(df[["pressure_dbar", "phase", "practical_salinity", "temperature_its90_degc"]]
@@ -416,8 +416,17 @@ def derive_ctd(sensors: pd.DataFrame, latitude_deg: float, longitude_deg: float,
         p_psi = psi = None
         teos_note = "no usable descent profile: standard ocean (dynamic height anomaly 0)"
     df["depth_teos10_m"] = depth_teos10(pres, latitude_deg, p_psi, psi)
+    return teos_note
 
-    # --- altitude and seafloor depth
+
+def _altitude_seafloor(df: pd.DataFrame, p: Params, acc: list[int], pres: np.ndarray, sp: np.ndarray,
+                       temp: np.ndarray, rho: np.ndarray, depth: np.ndarray, latitude_deg: float) -> None:
+    """``altitude_corrected_m`` (sound speed of the water at the vehicle) and ``seafloor_depth_m``."""
+    import numpy as np
+    import pandas as pd
+
+    from hadal.depth import correct_altitude, seafloor_depth
+
     if "altitude_m" in df.columns:
         alt_ok = _flag_ok(df, "altitude_m", acc) & (df["altitude_m"].to_numpy(np.float64) > 0)
         alt = np.where(alt_ok, df["altitude_m"].to_numpy(np.float64), np.nan)
@@ -429,8 +438,40 @@ def derive_ctd(sensors: pd.DataFrame, latitude_deg: float, longitude_deg: float,
                                                       nominal_sound_speed_m_s=p.nominal_sound_speed_m_s,
                                                       latitude_deg=latitude_deg)
     else:
-        df["altitude_corrected_m"] = nan
+        df["altitude_corrected_m"] = np.full(len(df), np.nan)
     df["seafloor_depth_m"] = seafloor_depth(depth, df["altitude_corrected_m"].to_numpy())
+
+
+def derive_ctd(sensors: pd.DataFrame, latitude_deg: float, longitude_deg: float, p: Params,
+               frame: Any = None, launch_xy: tuple[float, float] = (0.0, 0.0), *,
+               memory_limit_bytes: float | None = None, overlying_profile: Any = None) -> tuple[pd.DataFrame, dict]:
+    """Pure science of the stage: the ``ctd`` table and its metadata from a ``sensors`` table.
+
+    ``frame`` (a :class:`hadal.geo.LocalFrame`) and ``launch_xy`` (the launch point in it) turn the
+    dead-reckoned offsets of the deepest point into longitude/latitude when given. ``overlying_profile`` (a
+    :class:`hadal.depth.UserProfile`, from ``p.overlying_profile``) is the water above a record that does not
+    start at the surface (:func:`hadal.depth.overlying_column`).
+    """
+    from hadal.ctd.chain import apply_channel_steps, loop_edit_flags
+    from hadal.ingest.cnv import NO_TIME_BASE
+    from hadal.qc_derived import apply_to_table as apply_derived_qc
+    from hadal.qc_derived import load_qc_config
+
+    df, no_time, dup = _checked_samples(sensors, p, memory_limit_bytes)
+    acc = list(p.accept_flags)
+    # --- Sea-Bird processing chain on the raw channels (hadal.ctd.chain; every step off unless enabled)
+    interval_s, ctd_steps = apply_channel_steps(df, p, no_time)
+    fusion = _fused_pressure(df, p, acc, no_time)
+    pres = fusion.pressure_dbar
+    sp, temp, rho, depth, column = _seawater(df, p, acc, pres, latitude_deg, longitude_deg, overlying_profile)
+    loop_bad, loop_step = loop_edit_flags(depth, interval_s, p)
+    if loop_bad is not None:
+        df["loop_edit_bad"] = loop_bad
+    if loop_step is not None:
+        ctd_steps.append(loop_step)
+    _phases(df, p, pres, depth, no_time)  # needed for the descent profile of the TEOS-10 cross-check
+    teos_note = _teos10_depth(df, p, pres, temp, latitude_deg, longitude_deg)
+    _altitude_seafloor(df, p, acc, pres, sp, temp, rho, depth, latitude_deg)
     # QARTOD flags on the derived variables and range checks on the inputs (hadal.qc_derived)
     qc_meta = apply_derived_qc(df, load_qc_config(p.qc_thresholds), latitude_deg=latitude_deg,
                                longitude_deg=longitude_deg)
@@ -667,40 +708,33 @@ def _header_cast_time(ds: Any, sensors_meta: dict[str, Any], meta: dict[str, Any
                                               "the cast has no time channel, so the samples have no times"})
 
 
-def run(ctx: StageContext) -> dict[str, ProductVersion]:
+def _read_table(path: Path, what: str) -> tuple[pd.DataFrame, dict[str, Any], dict[str, dict[str, str]]]:
+    """A sensors-schema Parquet table with its table and field metadata; an unreadable file is a one-line error."""
     import pandas as pd
 
-    from hadal.ingest.cnv import NO_TIME_BASE
-    from hadal.qc_derived import load_qc_config, qc_field_attrs
-
-    p: Params = ctx.config.derive
-    limit = memory_limit_bytes(ctx.config)
-    sensors = ctx.upstream("sensors")
-    path = sensors.file("sensors.parquet")
-    from hadal.products.io import read_parquet_metadata, write_netcdf, write_parquet
+    from hadal.products.io import read_parquet_metadata
 
     try:
         table = pd.read_parquet(path)
-        sensors_meta, sensor_fields = read_parquet_metadata(path)
+        meta, fields = read_parquet_metadata(path)
     except Exception as exc:  # unreadable upstream file: one-line error, not a traceback
-        raise InputError(f"{path}: cannot read sensors table ({type(exc).__name__}: {exc})") from None
-    user_profile = None
-    if p.overlying_profile is not None:  # the file's own errors name the file (not the sensors table)
-        from hadal.depth import read_overlying_profile
+        raise InputError(f"{path}: cannot read {what} table ({type(exc).__name__}: {exc})") from None
+    return table, meta, fields
 
-        user_profile = read_overlying_profile(overlying_profile_path(p, ctx.raw_dir),
-                                              surface_dbar=p.surface_start_dbar)
-    try:
-        df, meta, profile = derive_table(table, sensors_meta, p, ctx.dive, ctx.log, f"dive {ctx.dive_id}",
-                                         memory_limit_bytes=limit, overlying_profile=user_profile)
-    except InputError as exc:
-        if user_profile is not None and str(exc).startswith(user_profile.source):
-            raise
-        raise InputError(f"{path}: {exc}") from None
-    meta["dive_id"] = ctx.dive_id
-    lat = meta["latitude_deg"]
 
-    # external casts ingested next to the vehicle logs ('casts' of the same ingest run): derived each
+def _read_user_profile(ctx: StageContext, p: Params) -> Any:
+    """``derive.overlying_profile`` read (the file's own errors name the file, not the sensors table), or None."""
+    if p.overlying_profile is None:
+        return None
+    from hadal.depth import read_overlying_profile
+
+    return read_overlying_profile(overlying_profile_path(p, ctx.raw_dir), surface_dbar=p.surface_start_dbar)
+
+
+def _derive_external_casts(ctx: StageContext, p: Params, sensors_meta: dict[str, Any], limit: float | None
+                           ) -> tuple[Any, list[tuple[str, pd.DataFrame, dict[str, Any], Any]]]:
+    """External casts ingested next to the vehicle logs ('casts' of the same ingest run), derived each:
+    the ``casts`` version read and (cast id, ctd table, metadata, profile) per cast."""
     casts_pv = None
     cast_results: list[tuple[str, pd.DataFrame, dict[str, Any], Any]] = []
     listed = [c["cast_id"] for c in sensors_meta.get("external_casts") or []]
@@ -708,23 +742,23 @@ def run(ctx: StageContext) -> dict[str, ProductVersion]:
         casts_pv = ctx.upstream("casts")
         for cid in listed:
             cpath = casts_pv.path / f"{cid}.parquet"
-            try:
-                ctab = pd.read_parquet(cpath)
-                cmeta, _ = read_parquet_metadata(cpath)
-            except Exception as exc:
-                raise InputError(f"{cpath}: cannot read cast table ({type(exc).__name__}: {exc})") from None
+            ctab, cmeta, _ = _read_table(cpath, "cast")
             cmeta = {**cmeta, "cast_latitude_deg": (cmeta.get("cast") or {}).get("latitude_deg"),
                      "cast_longitude_deg": (cmeta.get("cast") or {}).get("longitude_deg")}
             try:
                 cdf, cm, cprof = derive_table(ctab, cmeta, p, ctx.dive, ctx.log, f"cast {cid}",
-                                                 external_cast=True, memory_limit_bytes=limit)
+                                              external_cast=True, memory_limit_bytes=limit)
             except InputError as exc:
                 raise InputError(f"{cmeta.get('sources', [{}])[0].get('path', cpath)}: {exc}") from None
             cm.update({"dive_id": ctx.dive_id, "cast_id": cid, "cast": cmeta.get("cast")})
             cast_results.append((cid, cdf, cm, cprof))
     elif listed:
         ctx.log.warning("derive: sensors lists external casts %s but the dive has no 'casts' product", listed)
+    return casts_pv, cast_results
 
+
+def _log_dive(ctx: StageContext, df: pd.DataFrame, meta: dict[str, Any], user_profile: Any) -> None:
+    """The overlying profile's use and the dive's summary line with the depth cross-check table."""
     oc = meta["overlying_column"]
     if user_profile is not None:
         ctx.log.info("derive: overlying profile %s (%d levels, %.1f to %.1f dbar, %s): %s", user_profile.source,
@@ -736,6 +770,13 @@ def run(ctx: StageContext) -> dict[str, ProductVersion]:
                  len(df), meta["gauge_bias_dbar"], meta["gauge_bias_samples"], deep["depth_m"],
                  deep.get("time") or f"{deep.get('pressure_dbar')} dbar", comparison_table(meta))
 
+
+def _ctd_fields(ctx: StageContext, p: Params, df: pd.DataFrame, table: pd.DataFrame,
+                sensor_fields: dict[str, dict[str, str]]) -> dict[str, Any]:
+    """Field metadata of ``ctd.parquet`` (the sensors' units/names, the derived columns', their QC flags'); with
+    a launch, the per-sample dead-reckoned ``lat``/``lon`` are added to ``df`` (products.navigation)."""
+    from hadal.qc_derived import load_qc_config, qc_field_attrs
+
     fields = {c: {k: v for k, v in sensor_fields.get(c, {}).items() if k in ("units", "standard_name", "long_name")}
               for c in sensors_columns(table)}
     fields.update(EXTRA_COLUMN_ATTRS)
@@ -746,15 +787,37 @@ def run(ctx: StageContext) -> dict[str, ProductVersion]:
         df["lat"], df["lon"] = dead_reckoned_lonlat(df, ctx.dive.frame(), ctx.dive.launch.latitude_deg,
                                                     ctx.dive.launch.longitude_deg)
         fields.update(CTD_POSITION_FIELDS)
-    params = ctx.params("derive")
+    return fields
+
+
+def _ctd_summary(meta: dict[str, Any]) -> dict[str, Any]:
+    """The ``ctd`` manifest's summary: gauge bias, latitude, deepest point, depth cross-check, QC flag counts."""
     summary = {k: meta[k] for k in ("gauge_bias_dbar", "latitude_deg", "deepest_point", "depth_comparison",
                                     "overlying_column")}
     summary["latitude_source"] = meta["latitude_source"]
     summary["qc_flags"] = {v: s["counts"] for v, s in meta["qc_derived"]["summary"].items()}
-    with ctx.store.publish(ctx.dive_id, "ctd", parameters=params, upstream=[sensors],
-                           extra={"summary": summary}) as draft:
-        write_parquet(df, draft.path / "ctd.parquet", fields=fields, metadata=meta, provenance_from=draft)
-    ctd = draft.result
+    return summary
+
+
+def _profile_summary(p: Params, profile: Any, is_prof: bool) -> str:
+    """The ``summary`` attribute of ``profile.nc``."""
+    return (f"Means in {profile_axis_text(p)} bins of the dive's CTD samples, separately for "
+            "the descent and ascent casts: temperature, conductivity, PSS-78 salinity, EOS-80 density, "
+            "gravity, Chen-Millero sound speed, and "
+            + ("hydrostatic / Fofonoff-Millard / TEOS-10 depths." if p.profile_axis == "pressure" else
+               "pressure and Fofonoff-Millard / TEOS-10 depths; the depth axis is the hydrostatic depth "
+               "(depth_m, Eqs. 11-12).")
+            + ((" The cast has no time channel (pressure-binned): its time is the header start time."
+                if "time" in profile.variables else
+                " The cast has no time channel (pressure-binned) and no header start time: no times.")
+               if is_prof else ""))
+
+
+def _publish_profile(ctx: StageContext, p: Params, params: dict, upstream: list, profile: Any,
+                     meta: dict[str, Any]) -> Any:
+    """Publish ``profile`` (``profile.nc``: the binned descent and ascent casts)."""
+    from hadal.ingest.cnv import NO_TIME_BASE
+    from hadal.products.io import write_netcdf
 
     is_prof = meta.get("time_base") == NO_TIME_BASE
     _profile_attrs(profile, meta)
@@ -762,55 +825,82 @@ def run(ctx: StageContext) -> dict[str, ProductVersion]:
     psummary = {"bin_dbar": p.profile_bin_dbar, "levels": int(profile.sizes[zdim])}
     if p.profile_axis == "depth":  # the pressure-axis summary stays as it was
         psummary = {"axis": "depth", "bin_m": p.profile_bin_m, "levels": int(profile.sizes[zdim])}
-    with ctx.store.publish(ctx.dive_id, "profile", parameters=params, upstream=[sensors, ctd],
+    with ctx.store.publish(ctx.dive_id, "profile", parameters=params, upstream=upstream,
                            extra={"summary": psummary}) as draft:
         write_netcdf(
             profile, draft.path / "profile.nc",
             title=f"{_axis_title(p)} CTD profiles (descent and ascent) of dive {ctx.dive_id}",
-            summary=(f"Means in {profile_axis_text(p)} bins of the dive's CTD samples, separately for "
-                     "the descent and ascent casts: temperature, conductivity, PSS-78 salinity, EOS-80 density, "
-                     "gravity, Chen-Millero sound speed, and "
-                     + ("hydrostatic / Fofonoff-Millard / TEOS-10 depths." if p.profile_axis == "pressure" else
-                        "pressure and Fofonoff-Millard / TEOS-10 depths; the depth axis is the hydrostatic depth "
-                        "(depth_m, Eqs. 11-12).")
-                     + ((" The cast has no time channel (pressure-binned): its time is the header start time."
-                         if "time" in profile.variables else
-                         " The cast has no time channel (pressure-binned) and no header start time: no times.")
-                        if is_prof else "")),
+            summary=_profile_summary(p, profile, is_prof),
             keywords="CTD, salinity, density, depth, pressure, profile",
             processing_level="L2 binned profile", provenance_from=draft,
-            dive_id=ctx.dive_id, latitude_used_deg=lat, latitude_source=meta["latitude_source"],
+            dive_id=ctx.dive_id, latitude_used_deg=meta["latitude_deg"], latitude_source=meta["latitude_source"],
             gauge_bias_dbar=meta["gauge_bias_dbar"],
         )
-    out = {"ctd": ctd, "profile": draft.result}
+    return draft.result
 
+
+def _publish_cast_profiles(ctx: StageContext, p: Params, params: dict, upstream: list,
+                           cast_results: list[tuple[str, pd.DataFrame, dict[str, Any], Any]],
+                           fields: dict[str, Any]) -> tuple[Any, list[dict[str, Any]]]:
+    """Publish ``cast_profiles``: per external cast its ctd table and binned profile, and the index JSON."""
+    from hadal.products.io import json_clean, write_netcdf, write_parquet
+
+    index = []
+    with ctx.store.publish(ctx.dive_id, "cast_profiles", parameters=params, upstream=upstream,
+                           extra={"casts": [c[0] for c in cast_results]}) as draft:
+        for cid, cdf, cm, cprof in cast_results:
+            write_parquet(cdf, draft.path / f"{cid}.parquet", fields=fields, metadata=cm, provenance_from=draft)
+            _profile_attrs(cprof, cm)
+            write_netcdf(cprof, draft.path / f"{cid}.nc",
+                         title=f"{_axis_title(p)} CTD profile of cast {cid} (dive {ctx.dive_id})",
+                         summary=(f"Means in {profile_axis_text(p)} bins of an external Sea-Bird "
+                                  "cast of the dive: temperature, conductivity, PSS-78 salinity, EOS-80 density, "
+                                  "gravity, sound speed and " + ("depths." if p.profile_axis == "pressure"
+                                                                 else "pressure and depths.")),
+                         keywords="CTD, salinity, density, depth, pressure, profile",
+                         processing_level="L2 binned profile", provenance_from=draft, dive_id=ctx.dive_id,
+                         cast_id=cid, latitude_used_deg=cm["latitude_deg"],
+                         latitude_source=cm["latitude_source"])
+            index.append({"cast_id": cid, "table": f"{cid}.parquet", "profile": f"{cid}.nc",
+                          "samples": int(len(cdf)), "time_base": cm.get("time_base", "time"),
+                          "latitude_deg": cm["latitude_deg"], "latitude_source": cm["latitude_source"],
+                          "latitude_warning": cm.get("latitude_warning"),
+                          "deepest_point": cm["deepest_point"]})
+        (draft.path / "cast_profiles.json").write_text(json.dumps(json_clean({"casts": index}), indent=2),
+                                                       encoding="utf-8")
+    return draft.result, index
+
+
+def run(ctx: StageContext) -> dict[str, ProductVersion]:
+    from hadal.products.io import write_parquet
+
+    p: Params = ctx.config.derive
+    limit = memory_limit_bytes(ctx.config)
+    sensors = ctx.upstream("sensors")
+    path = sensors.file("sensors.parquet")
+    table, sensors_meta, sensor_fields = _read_table(path, "sensors")
+    user_profile = _read_user_profile(ctx, p)
+    try:
+        df, meta, profile = derive_table(table, sensors_meta, p, ctx.dive, ctx.log, f"dive {ctx.dive_id}",
+                                         memory_limit_bytes=limit, overlying_profile=user_profile)
+    except InputError as exc:
+        if user_profile is not None and str(exc).startswith(user_profile.source):
+            raise
+        raise InputError(f"{path}: {exc}") from None
+    meta["dive_id"] = ctx.dive_id
+    casts_pv, cast_results = _derive_external_casts(ctx, p, sensors_meta, limit)
+    _log_dive(ctx, df, meta, user_profile)
+
+    fields = _ctd_fields(ctx, p, df, table, sensor_fields)
+    params = ctx.params("derive")
+    with ctx.store.publish(ctx.dive_id, "ctd", parameters=params, upstream=[sensors],
+                           extra={"summary": _ctd_summary(meta)}) as draft:
+        write_parquet(df, draft.path / "ctd.parquet", fields=fields, metadata=meta, provenance_from=draft)
+    ctd = draft.result
+    out = {"ctd": ctd, "profile": _publish_profile(ctx, p, params, [sensors, ctd], profile, meta)}
     if cast_results:
-        index = []
-        with ctx.store.publish(ctx.dive_id, "cast_profiles", parameters=params, upstream=[sensors, casts_pv],
-                               extra={"casts": [c[0] for c in cast_results]}) as draft:
-            for cid, cdf, cm, cprof in cast_results:
-                write_parquet(cdf, draft.path / f"{cid}.parquet", fields=fields, metadata=cm, provenance_from=draft)
-                _profile_attrs(cprof, cm)
-                write_netcdf(cprof, draft.path / f"{cid}.nc",
-                             title=f"{_axis_title(p)} CTD profile of cast {cid} (dive {ctx.dive_id})",
-                             summary=(f"Means in {profile_axis_text(p)} bins of an external Sea-Bird "
-                                      "cast of the dive: temperature, conductivity, PSS-78 salinity, EOS-80 density, "
-                                      "gravity, sound speed and " + ("depths." if p.profile_axis == "pressure"
-                                                                     else "pressure and depths.")),
-                             keywords="CTD, salinity, density, depth, pressure, profile",
-                             processing_level="L2 binned profile", provenance_from=draft, dive_id=ctx.dive_id,
-                             cast_id=cid, latitude_used_deg=cm["latitude_deg"],
-                             latitude_source=cm["latitude_source"])
-                index.append({"cast_id": cid, "table": f"{cid}.parquet", "profile": f"{cid}.nc",
-                              "samples": int(len(cdf)), "time_base": cm.get("time_base", "time"),
-                              "latitude_deg": cm["latitude_deg"], "latitude_source": cm["latitude_source"],
-                              "latitude_warning": cm.get("latitude_warning"),
-                              "deepest_point": cm["deepest_point"]})
-            from hadal.products.io import json_clean
-
-            (draft.path / "cast_profiles.json").write_text(json.dumps(json_clean({"casts": index}), indent=2),
-                                                           encoding="utf-8")
-        out["cast_profiles"] = draft.result
+        out["cast_profiles"], index = _publish_cast_profiles(ctx, p, params, [sensors, casts_pv], cast_results,
+                                                             fields)
         ctx.log.info("derive: %d external cast(s) derived into 'cast_profiles'", len(index))
     return out
 

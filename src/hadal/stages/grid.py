@@ -18,7 +18,7 @@ Every bad input is a one-line :class:`InputError` naming the file, and nothing i
 from __future__ import annotations
 
 from pathlib import Path
-from typing import TYPE_CHECKING, Annotated, Literal
+from typing import TYPE_CHECKING, Annotated, Any, Literal, NamedTuple
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
@@ -152,6 +152,91 @@ def _compress(ds) -> None:
                                    "chunksizes": (min(ny, 512), min(nx, 512))})
 
 
+def _project_chunk(f: Path, chunk, info: dict, frame, to_ll):
+    """One chunk of soundings -> (x, y) in the map frame, with the frame (made from the first positioned
+    soundings when None) and the CRS transformer carried to the next chunk; x is None when the chunk cannot be
+    placed yet (geographic soundings with no finite position and no frame)."""
+    import numpy as np
+
+    from hadal.geo import LocalFrame
+
+    if "longitude_deg" in chunk:
+        lon, lat = chunk["longitude_deg"].to_numpy(), chunk["latitude_deg"].to_numpy()
+        if frame is None:
+            ok = np.isfinite(lon) & np.isfinite(lat)
+            if ok.any():
+                frame = LocalFrame(float(np.median(lat[ok])), float(np.median(lon[ok])))
+        if frame is None:
+            return None, None, frame, to_ll
+        x, y = frame.to_xy(lon, lat)
+        return x, y, frame, to_ll
+    crs = info.get("crs")
+    xm, ym = chunk["x_m"].to_numpy(np.float64), chunk["y_m"].to_numpy(np.float64)
+    if crs is not None and str(crs).strip().lower() in ("local", "local_metric"):
+        if frame is None:
+            raise InputError(f"{f}: soundings are in the dive's local map frame (crs: local) but the "
+                             "dive has no map_frame or launch")
+        return xm, ym, frame, to_ll
+    if crs is None:
+        raise InputError(f"{f}: soundings are projected x/y metres with no CRS; declare it in dive.yaml "
+                         "(crs: 'EPSG:32654', or 'local' when they are in the dive's map frame)")
+    if to_ll is None:
+        from pyproj import Transformer
+
+        to_ll = Transformer.from_crs(crs, "EPSG:4326", always_xy=True)
+    lon, lat = to_ll.transform(xm, ym)
+    if frame is None:
+        ok = np.isfinite(lon) & np.isfinite(lat)
+        frame = LocalFrame(float(np.median(lat[ok])), float(np.median(lon[ok])))
+    x, y = frame.to_xy(lon, lat)
+    return x, y, frame, to_ll
+
+
+def _reader_description(info: dict) -> str:
+    """The manifest's text for how one multibeam file was read: ``reader (format, compression, ...)``."""
+    desc = f"{info.get('reader', '?')} ({info.get('format')}"
+    if info.get("compression"):
+        desc += f", {info['compression']}"
+    if info.get("crs_kind") == "projected":
+        desc += f", projected {info.get('crs') or ''}".rstrip()
+    if info.get("format") == "xyz" and info.get("z_positive") == "up":
+        desc += f", elevations negated ({info.get('z_positive_from')})"
+    if info.get("pings") is not None:
+        desc += f", {info['pings']} pings, {info.get('dropped', 0)} beams dropped"
+    return desc + ")"
+
+
+def _drop_implausible(files: list[Path], x: np.ndarray, y: np.ndarray, dep: np.ndarray):
+    """Drop soundings deeper/higher than anywhere on Earth (fill values or a unit error; NaN/inf are the gridder's
+    'nonfinite'); an error when they are most of them. Returns x, y, depth and the number dropped."""
+    import numpy as np
+
+    from hadal.grid.prior import MAX_ABS_DEPTH_M
+
+    bad = np.isfinite(dep) & (np.abs(dep) > MAX_ABS_DEPTH_M)
+    n_implausible = int(bad.sum())
+    if n_implausible:
+        if n_implausible > 0.5 * dep.size:
+            med = float(np.median(np.abs(dep)))
+            hint = (f" (feet? x 0.3048 = {med * 0.3048:.0f} m)" if med * 0.3048 <= MAX_ABS_DEPTH_M else "")
+            raise InputError(f"{', '.join(str(f) for f in files)}: {n_implausible} of {dep.size} soundings are beyond "
+                             f"+-{MAX_ABS_DEPTH_M:g} m (median |depth| {med:.0f}){hint}: check the depth units/column")
+        x, y, dep = x[~bad], y[~bad], dep[~bad]
+    return x, y, dep, n_implausible
+
+
+def _dtm_resolution(p: Params, x: np.ndarray, y: np.ndarray) -> tuple[float | str, str]:
+    """The DTM cell size (``grid.dtm_resolution_m``, or the automatic one) and how it was chosen."""
+    from hadal.grid.multibeam import auto_resolution_m
+
+    res_m, how = p.dtm_resolution_m, "grid.dtm_resolution_m"
+    if res_m == "auto":
+        res_m, stats = auto_resolution_m(x, y)
+        how = (f"auto: 2 x the 90th percentile ({stats['nn_quantile_m']:.3g} m) of the soundings' nearest-neighbour "
+               "distances, on the 1-2-5 series")
+    return res_m, how
+
+
 def make_dtm(files: list[Path], frame, p: Params, hints: list | None = None, readers: dict | None = None,
              chunk_points: int = 1_000_000, *, memory_limit_bytes: float | None = None):
     """Read multibeam sounding files, project them into ``frame`` and grid them (returns the DTM Dataset).
@@ -167,9 +252,7 @@ def make_dtm(files: list[Path], frame, p: Params, hints: list | None = None, rea
     """
     import numpy as np
 
-    from hadal.geo import LocalFrame
-    from hadal.grid.multibeam import add_geo, auto_resolution_m, grid_multibeam
-    from hadal.grid.prior import MAX_ABS_DEPTH_M
+    from hadal.grid.multibeam import add_geo, grid_multibeam
     from hadal.grid.sonar import ColumnAccumulator, iter_multibeam
 
     hints = list(hints) if hints is not None else [None] * len(files)
@@ -182,69 +265,20 @@ def make_dtm(files: list[Path], frame, p: Params, hints: list | None = None, rea
         to_ll = None
         for chunk in iter_multibeam(f, h, chunk_points=chunk_points, info=info):
             z = chunk["depth_m"].to_numpy(np.float64)
-            if "longitude_deg" in chunk:
-                lon, lat = chunk["longitude_deg"].to_numpy(), chunk["latitude_deg"].to_numpy()
-                if frame is None:
-                    ok = np.isfinite(lon) & np.isfinite(lat)
-                    if ok.any():
-                        frame = LocalFrame(float(np.median(lat[ok])), float(np.median(lon[ok])))
-                if frame is None:
-                    continue
-                x, y = frame.to_xy(lon, lat)
-            else:
-                crs = info.get("crs")
-                xm, ym = chunk["x_m"].to_numpy(np.float64), chunk["y_m"].to_numpy(np.float64)
-                if crs is not None and str(crs).strip().lower() in ("local", "local_metric"):
-                    if frame is None:
-                        raise InputError(f"{f}: soundings are in the dive's local map frame (crs: local) but the "
-                                         "dive has no map_frame or launch")
-                    x, y = xm, ym
-                elif crs is None:
-                    raise InputError(f"{f}: soundings are projected x/y metres with no CRS; declare it in dive.yaml "
-                                     "(crs: 'EPSG:32654', or 'local' when they are in the dive's map frame)")
-                else:
-                    if to_ll is None:
-                        from pyproj import Transformer
-
-                        to_ll = Transformer.from_crs(crs, "EPSG:4326", always_xy=True)
-                    lon, lat = to_ll.transform(xm, ym)
-                    if frame is None:
-                        ok = np.isfinite(lon) & np.isfinite(lat)
-                        frame = LocalFrame(float(np.median(lat[ok])), float(np.median(lon[ok])))
-                    x, y = frame.to_xy(lon, lat)
+            x, y, frame, to_ll = _project_chunk(f, chunk, info, frame, to_ll)
+            if x is None:
+                continue
             acc.add(np.asarray(x, np.float64), np.asarray(y, np.float64), z)
             del chunk, x, y, z
-        desc = f"{info.get('reader', '?')} ({info.get('format')}"
-        if info.get("compression"):
-            desc += f", {info['compression']}"
-        if info.get("crs_kind") == "projected":
-            desc += f", projected {info.get('crs') or ''}".rstrip()
-        if info.get("format") == "xyz" and info.get("z_positive") == "up":
-            desc += f", elevations negated ({info.get('z_positive_from')})"
-        if info.get("pings") is not None:
-            desc += f", {info['pings']} pings, {info.get('dropped', 0)} beams dropped"
-        desc += ")"
+        desc = _reader_description(info)
         used.append(f"{Path(f).name}: {desc}")
         if readers is not None:
             readers[str(f)] = desc
     if frame is None or acc.n == 0:
         raise InputError(f"no soundings with positions in {', '.join(str(f) for f in files)}")
     x, y, dep = acc.finish()
-    # deeper/higher than anywhere on Earth: fill values or a unit error (NaN/inf are the gridder's 'nonfinite')
-    bad = np.isfinite(dep) & (np.abs(dep) > MAX_ABS_DEPTH_M)
-    n_implausible = int(bad.sum())
-    if n_implausible:
-        if n_implausible > 0.5 * dep.size:
-            med = float(np.median(np.abs(dep)))
-            hint = (f" (feet? x 0.3048 = {med * 0.3048:.0f} m)" if med * 0.3048 <= MAX_ABS_DEPTH_M else "")
-            raise InputError(f"{', '.join(str(f) for f in files)}: {n_implausible} of {dep.size} soundings are beyond "
-                             f"+-{MAX_ABS_DEPTH_M:g} m (median |depth| {med:.0f}){hint}: check the depth units/column")
-        x, y, dep = x[~bad], y[~bad], dep[~bad]
-    res_m, how = p.dtm_resolution_m, "grid.dtm_resolution_m"
-    if res_m == "auto":
-        res_m, stats = auto_resolution_m(x, y)
-        how = (f"auto: 2 x the 90th percentile ({stats['nn_quantile_m']:.3g} m) of the soundings' nearest-neighbour "
-               "distances, on the 1-2-5 series")
+    x, y, dep, n_implausible = _drop_implausible(files, x, y, dep)
+    res_m, how = _dtm_resolution(p, x, y)
     check_grid_memory("the DTM", x, y, float(res_m), DTM_LAYERS + (2 if p.prior_fill else 0), memory_limit_bytes,
                       "grid.dtm_resolution_m",
                       f"auto ({float(res_m):g} m)" if p.dtm_resolution_m == "auto" else float(res_m), p.max_cells)
@@ -445,100 +479,111 @@ def _laser_grid(ctx: StageContext, f: Path, sf, p: Params, limit_bytes: float | 
         raise _as_input_error(f, exc) from None
 
 
-def run(ctx: StageContext) -> dict[str, ProductVersion]:
-    from hadal.grid.multibeam import add_geo
+class _Dtm(NamedTuple):
+    """The DTM made in memory before anything is published, with its inputs and its NetCDF texts."""
+
+    ds: Any
+    inputs: list[Path]
+    title: str
+    summary: str
+    keywords: str
+
+
+def _fill_dtm_from_priors(ctx: StageContext, p: Params, dtm, priors: list[tuple[Path, object]], frame,
+                          readers: dict[str, str], inputs: list[Path]) -> None:
+    """Multibeam wins over prior grids: fill its empty cells from them (``grid.prior_fill``) or record them unused."""
+    names = ", ".join(f.name for f, _ in priors)
+    if p.prior_fill:
+        n = 0
+        for f, sf in priors:
+            n += _fill_from_prior(dtm, f, sf, frame)
+            readers[str(f)] = "prior grid fill"
+        inputs += [f for f, _ in priors]
+        dtm.attrs["prior_grid_use"] = f"multibeam wins; empty cells filled from {names} (filled = 2)"
+        dtm.attrs["n_cells_prior_filled"] = n
+        ctx.log.info("dtm: multibeam wins over the prior grid(s) %s; %d empty cells filled from them", names, n)
+    else:
+        dtm.attrs["prior_grid_use"] = f"ignored: multibeam soundings win ({names} not used; grid.prior_fill)"
+        ctx.log.info("dtm: multibeam soundings win; prior grid(s) %s not used (set grid.prior_fill to fill "
+                     "empty cells from them)", names)
+
+
+def _multibeam_dtm(ctx: StageContext, p: Params, priors: list[tuple[Path, object]], readers: dict[str, str],
+                   limit: float | None) -> _Dtm:
+    """The DTM from the dive's multibeam soundings (duplicates dropped), prior grids filling its empty cells."""
     from hadal.grid.prior import MAX_ABS_DEPTH_M
-    from hadal.products.io import write_netcdf
 
-    p: Params = ctx.config.grid
-    src = ctx.dive.sources
-    if not src.multibeam and not src.laser and not src.prior_grid:
-        raise StageError(f"dive {ctx.dive_id!r} lists no multibeam, prior_grid or laser sources in dive.yaml; "
-                         "nothing to grid")
-    params = ctx.params("grid")
-    limit = memory_limit_bytes(ctx.config)
+    mb = _drop_duplicates(_existing(ctx, ctx.dive.sources.multibeam, "multibeam"), "multibeam", ctx.log)
+    mb_files = [f for f, _ in mb]
+    frame = ctx.dive.frame("grid")
+    dtm = make_dtm(list(ctx.progress.track(mb_files, "reading multibeam", total=len(mb_files))), frame, p,
+                   hints=[sf for _, sf in mb], readers=readers, memory_limit_bytes=limit)
+    inputs = list(mb_files)
+    ctx.log.info("dtm: %d x %d cells at %g m, %d soundings (%d spikes removed, %d cells filled)",
+                 dtm.sizes["x"], dtm.sizes["y"], dtm.attrs["resolution_m"], dtm.attrs["n_soundings_used"],
+                 dtm.attrs["n_soundings_spikes"], dtm.attrs["n_cells_filled"])
+    dtm.attrs["dtm_source"] = "multibeam"
+    if dtm.attrs["n_soundings_implausible"]:
+        ctx.log.warning("dtm: %d sounding(s) deeper/higher than %g m (fill values?) dropped",
+                        dtm.attrs["n_soundings_implausible"], MAX_ABS_DEPTH_M)
+    if priors:
+        _fill_dtm_from_priors(ctx, p, dtm, priors, frame, readers, inputs)
+    summary = ("Multibeam soundings projected into the dive's transverse-Mercator map frame and gridded "
+               f"at {dtm.attrs['resolution_m']:g} m ({dtm.attrs['resolution_choice']}): per-cell mean/median/count/std after robust spike removal, "
+               "standard uncertainty, small interior holes filled by harmonic interpolation (flagged).")
+    return _Dtm(dtm, inputs, f"Reference DTM of dive {ctx.dive_id} from multibeam soundings", summary,
+                "bathymetry, multibeam, digital terrain model")
 
-    # compute everything first, then publish: a bad laser file must not leave a lone new dtm version
-    dtm = None
-    dtm_inputs: list[Path] = []
-    readers: dict[str, str] = {}
-    dtm_title = dtm_summary = dtm_keywords = ""
-    priors = _existing(ctx, src.prior_grid, "prior grid")
-    if src.multibeam:
-        mb = _drop_duplicates(_existing(ctx, src.multibeam, "multibeam"), "multibeam", ctx.log)
-        mb_files = [f for f, _ in mb]
-        frame = ctx.dive.frame("grid")
-        dtm = make_dtm(list(ctx.progress.track(mb_files, "reading multibeam", total=len(mb_files))), frame, p,
-                       hints=[sf for _, sf in mb], readers=readers, memory_limit_bytes=limit)
-        dtm_inputs = list(mb_files)
-        ctx.log.info("dtm: %d x %d cells at %g m, %d soundings (%d spikes removed, %d cells filled)",
-                     dtm.sizes["x"], dtm.sizes["y"], dtm.attrs["resolution_m"], dtm.attrs["n_soundings_used"],
-                     dtm.attrs["n_soundings_spikes"], dtm.attrs["n_cells_filled"])
-        dtm.attrs["dtm_source"] = "multibeam"
-        if dtm.attrs["n_soundings_implausible"]:
-            ctx.log.warning("dtm: %d sounding(s) deeper/higher than %g m (fill values?) dropped",
-                            dtm.attrs["n_soundings_implausible"], MAX_ABS_DEPTH_M)
-        if priors:
-            names = ", ".join(f.name for f, _ in priors)
-            if p.prior_fill:
-                n = 0
-                for f, sf in priors:
-                    n += _fill_from_prior(dtm, f, sf, frame)
-                    readers[str(f)] = "prior grid fill"
-                dtm_inputs += [f for f, _ in priors]
-                dtm.attrs["prior_grid_use"] = f"multibeam wins; empty cells filled from {names} (filled = 2)"
-                dtm.attrs["n_cells_prior_filled"] = n
-                ctx.log.info("dtm: multibeam wins over the prior grid(s) %s; %d empty cells filled from them", names, n)
-            else:
-                dtm.attrs["prior_grid_use"] = f"ignored: multibeam soundings win ({names} not used; grid.prior_fill)"
-                ctx.log.info("dtm: multibeam soundings win; prior grid(s) %s not used (set grid.prior_fill to fill "
-                             "empty cells from them)", names)
-        dtm_title = f"Reference DTM of dive {ctx.dive_id} from multibeam soundings"
-        dtm_summary = ("Multibeam soundings projected into the dive's transverse-Mercator map frame and gridded "
-                       f"at {dtm.attrs['resolution_m']:g} m ({dtm.attrs['resolution_choice']}): per-cell mean/median/count/std after robust spike removal, "
-                       "standard uncertainty, small interior holes filled by harmonic interpolation (flagged).")
-        dtm_keywords = "bathymetry, multibeam, digital terrain model"
-    elif priors:
-        frame = ctx.dive.frame("grid")
-        f, sf = priors[0]
-        dtm = _prior_dtm(ctx, f, sf, frame, p)
-        dtm_inputs = [f]
-        readers[str(f)] = dtm.attrs.get("prior_grid_reader", "")
-        if len(priors) > 1:
-            rest = ", ".join(g.name for g, _ in priors[1:])
-            dtm.attrs["prior_grid_use"] = f"first listed prior grid {f.name} used; {rest} not used"
-            ctx.log.warning("dtm: %d prior grids listed; the first (%s) is the DTM, %s not used", len(priors),
-                            f.name, rest)
-        ctx.log.info("dtm: prior grid %s (%s, %s, %s registration) resampled to %d x %d cells at %g m; z %s (%s)",
-                     f.name, dtm.attrs["prior_grid_format"], dtm.attrs["prior_grid_crs"],
-                     dtm.attrs["prior_grid_registration"], dtm.sizes["x"], dtm.sizes["y"], dtm.attrs["resolution"],
-                     "elevation, negated" if dtm.attrs["z_sign_flipped"] else "depth", dtm.attrs["z_sign_detection"])
-        for k in ("prior_grid_depth_check", "prior_grid_warning"):
-            if dtm.attrs.get(k):
-                ctx.log.warning("dtm: prior grid %s: %s", f.name, dtm.attrs[k])
-        if dtm.attrs.get("prior_grid_cropped_to_m"):
-            a = dtm.attrs
-            ctx.log.warning(
-                "dtm: prior grid %s cropped to %g km around the map frame origin (grid.prior_max_extent_km): kept "
-                "lon %.4g..%.4g, lat %.4g..%.4g; %.1f%% of its area and %.1f%% of its depth range (%.0f..%.0f m, "
-                "kept %.0f..%.0f m) lost", f.name, a["prior_grid_cropped_to_m"] / 1000,
-                a.get("prior_grid_kept_lon_min", float("nan")), a.get("prior_grid_kept_lon_max", float("nan")),
-                a.get("prior_grid_kept_lat_min", float("nan")), a.get("prior_grid_kept_lat_max", float("nan")),
-                100 * a.get("prior_grid_crop_area_fraction_lost", float("nan")),
-                100 * a.get("prior_grid_crop_depth_range_lost_fraction", float("nan")),
-                a.get("prior_grid_source_depth_min_m", float("nan")), a.get("prior_grid_source_depth_max_m", float("nan")),
-                a.get("prior_grid_kept_depth_min_m", float("nan")), a.get("prior_grid_kept_depth_max_m", float("nan")))
-        dtm_title = f"Reference DTM of dive {ctx.dive_id} from the prior grid {f.name}"
-        dtm_summary = (f"Prior bathymetry grid {f.name} ({dtm.attrs['prior_grid_crs']}) resampled bilinearly onto "
-                       f"the dive's transverse-Mercator map frame at {dtm.attrs['resolution']:g} m (about its native "
-                       "resolution); depth positive down. No soundings: count, uncertainty and fill layers are "
-                       "absent.")
-        dtm_keywords = "bathymetry, prior grid, digital terrain model"
-    if dtm is not None:
-        _compress(dtm)
+
+def _log_prior_dtm(ctx: StageContext, f: Path, dtm) -> None:
+    """The prior-grid DTM's log lines: how it was read and resampled, its depth check, warning and crop."""
+    ctx.log.info("dtm: prior grid %s (%s, %s, %s registration) resampled to %d x %d cells at %g m; z %s (%s)",
+                 f.name, dtm.attrs["prior_grid_format"], dtm.attrs["prior_grid_crs"],
+                 dtm.attrs["prior_grid_registration"], dtm.sizes["x"], dtm.sizes["y"], dtm.attrs["resolution"],
+                 "elevation, negated" if dtm.attrs["z_sign_flipped"] else "depth", dtm.attrs["z_sign_detection"])
+    for k in ("prior_grid_depth_check", "prior_grid_warning"):
+        if dtm.attrs.get(k):
+            ctx.log.warning("dtm: prior grid %s: %s", f.name, dtm.attrs[k])
+    if dtm.attrs.get("prior_grid_cropped_to_m"):
+        a = dtm.attrs
+        ctx.log.warning(
+            "dtm: prior grid %s cropped to %g km around the map frame origin (grid.prior_max_extent_km): kept "
+            "lon %.4g..%.4g, lat %.4g..%.4g; %.1f%% of its area and %.1f%% of its depth range (%.0f..%.0f m, "
+            "kept %.0f..%.0f m) lost", f.name, a["prior_grid_cropped_to_m"] / 1000,
+            a.get("prior_grid_kept_lon_min", float("nan")), a.get("prior_grid_kept_lon_max", float("nan")),
+            a.get("prior_grid_kept_lat_min", float("nan")), a.get("prior_grid_kept_lat_max", float("nan")),
+            100 * a.get("prior_grid_crop_area_fraction_lost", float("nan")),
+            100 * a.get("prior_grid_crop_depth_range_lost_fraction", float("nan")),
+            a.get("prior_grid_source_depth_min_m", float("nan")), a.get("prior_grid_source_depth_max_m", float("nan")),
+            a.get("prior_grid_kept_depth_min_m", float("nan")), a.get("prior_grid_kept_depth_max_m", float("nan")))
+
+
+def _prior_grid_dtm(ctx: StageContext, p: Params, priors: list[tuple[Path, object]], readers: dict[str, str]) -> _Dtm:
+    """The DTM from the first listed prior grid (no multibeam), resampled onto the map frame."""
+    frame = ctx.dive.frame("grid")
+    f, sf = priors[0]
+    dtm = _prior_dtm(ctx, f, sf, frame, p)
+    readers[str(f)] = dtm.attrs.get("prior_grid_reader", "")
+    if len(priors) > 1:
+        rest = ", ".join(g.name for g, _ in priors[1:])
+        dtm.attrs["prior_grid_use"] = f"first listed prior grid {f.name} used; {rest} not used"
+        ctx.log.warning("dtm: %d prior grids listed; the first (%s) is the DTM, %s not used", len(priors),
+                        f.name, rest)
+    _log_prior_dtm(ctx, f, dtm)
+    summary = (f"Prior bathymetry grid {f.name} ({dtm.attrs['prior_grid_crs']}) resampled bilinearly onto "
+               f"the dive's transverse-Mercator map frame at {dtm.attrs['resolution']:g} m (about its native "
+               "resolution); depth positive down. No soundings: count, uncertainty and fill layers are "
+               "absent.")
+    return _Dtm(dtm, [f], f"Reference DTM of dive {ctx.dive_id} from the prior grid {f.name}", summary,
+                "bathymetry, prior grid, digital terrain model")
+
+
+def _grid_laser_inputs(ctx: StageContext, p: Params, laser: list[tuple[Path, object]], readers: dict[str, str],
+                       limit: float | None) -> list[tuple[Path, str, Any, str]]:
+    """Every laser input gridded (in the map frame with ``grid.laser_frame: map``): (file, stem, Dataset, kind)."""
+    from hadal.grid.multibeam import add_geo
 
     grids = []
-    laser = _existing(ctx, src.laser, "laser")
     stems = _unique_stems([f for f, _ in laser])
     for (f, sf), stem in zip(ctx.progress.track(laser, "gridding laser inputs", total=len(laser)), stems, strict=True):
         ds, reader, what = _laser_grid(ctx, f, sf, p, limit)
@@ -554,57 +599,105 @@ def run(ctx: StageContext) -> dict[str, ProductVersion]:
         grids.append((f, stem, ds, what))
         ctx.log.info("laser %s (%s %s): %d x %d cells at %g m, %.0f%% mapped", stem, what, f.name, ds.sizes["x"],
                      ds.sizes["y"], ds.attrs["resolution"], 100 * ds.attrs["mapped_fraction"])
+    return grids
+
+
+def _dtm_manifest_extra(dtm: _Dtm, readers: dict[str, str]) -> dict[str, Any]:
+    """The ``dtm`` manifest's ``extra``: the ``n_*`` counts, source, prior-grid crop and the readers of its inputs."""
+    attrs = dtm.ds.attrs
+    summary = {k: attrs[k] for k in attrs if k.startswith("n_")}
+    summary["dtm_source"] = attrs["dtm_source"]
+    summary.update({k: attrs[k] for k in attrs if k.startswith(("prior_grid_crop", "prior_grid_kept_",
+                                                                 "prior_grid_source_depth"))})
+    extra = {"summary": summary, "readers": {Path(k).name: v for k, v in readers.items() if Path(k) in dtm.inputs}}
+    if "prior_grid_use" in attrs:
+        extra["prior_grid_use"] = attrs["prior_grid_use"]
+    return extra
+
+
+def _publish_dtm(ctx: StageContext, p: Params, params: dict, dtm: _Dtm, readers: dict[str, str]):
+    """Publish ``dtm``: ``dtm.nc``, the same DTM as a COG (``dtm.tif``) and, with ``grid.zarr``, a Zarr store."""
+    from hadal.products.io import write_netcdf
+
+    with ctx.store.publish(ctx.dive_id, "dtm", parameters=params, inputs=dtm.inputs,
+                           extra=_dtm_manifest_extra(dtm, readers)) as draft:
+        write_netcdf(dtm.ds, draft.path / "dtm.nc", title=dtm.title, summary=dtm.summary, keywords=dtm.keywords,
+                     processing_level="L3 gridded", provenance_from=draft, **_frame_attrs(ctx))
+        from hadal.products.geotiff import write_grid_cog  # the same DTM as a COG in the dive's UTM zone
+
+        write_grid_cog(dtm.ds, draft.path / "dtm.tif", "depth_m")
+        if p.zarr:  # the same DTM as a chunked Zarr store (hadal.products.io.write_zarr)
+            from hadal.products.io import write_zarr
+
+            write_zarr(draft.path / "dtm.nc", draft.path / "dtm.zarr", chunk=p.zarr_chunk)
+    return draft.result
+
+
+def _laser_summary(f: Path, ds, what: str) -> str:
+    """The ``summary`` attribute of one laser grid's NetCDF."""
+    if what == "raster":
+        return (f"Laser bathymetry raster {f.name} ({ds.attrs['source_format']}) loaded at its own "
+                f"{ds.attrs['resolution']:g} m resolution as elevation (positive up); NaN = unmapped; "
+                "no per-cell point statistics.")
+    return (f"Laser point cloud {f.name} filtered with open3d and resampled to a uniform "
+            f"{ds.attrs['resolution'] * 1000:g} mm lateral grid (Sangekar et al., SIII-A; "
+            f"{ds.attrs.get('resolution_choice', 'grid.laser_resolution_m')}); cell mean "
+            "elevation, count and std; NaN = unmapped.")
+
+
+def _publish_laser_grids(ctx: StageContext, p: Params, params: dict, laser: list[tuple[Path, object]],
+                         grids: list[tuple[Path, str, Any, str]], readers: dict[str, str]):
+    """Publish ``laser_grids``: ``<stem>.nc`` per input, a Zarr store with ``grid.zarr``, a COG when georeferenced."""
+    from hadal.products.io import write_netcdf
+
+    extra = {"readers": {f.name: readers[str(f)] for f, *_ in grids},
+             "laser_grid_files": {f.name: f"{stem}.nc" for f, stem, *_ in grids}}
+    with ctx.store.publish(ctx.dive_id, "laser_grids", parameters=params, inputs=[f for f, _ in laser],
+                           extra=extra) as draft:
+        for f, stem, ds, what in grids:
+            write_netcdf(
+                ds, draft.path / f"{stem}.nc",
+                title=f"Laser elevation grid {stem} of dive {ctx.dive_id}", summary=_laser_summary(f, ds, what),
+                keywords="bathymetry, laser, structured light, microbathymetry",
+                processing_level="L3 gridded", provenance_from=draft, **_frame_attrs(ctx),
+            )
+            if p.zarr:
+                from hadal.products.io import write_zarr
+
+                write_zarr(draft.path / f"{stem}.nc", draft.path / f"{stem}.zarr", chunk=p.zarr_chunk)
+            lf = None if p.laser_frame == "map" else getattr(ctx.dive, "laser_frame", None)
+            if p.laser_frame == "map" or lf is not None:  # georeferenced: also a COG in the dive's UTM zone
+                from hadal.products.geotiff import write_grid_cog
+
+                write_grid_cog(ds, draft.path / f"{stem}.tif", "elevation_m", laser_frame=lf)
+    return draft.result
+
+
+def run(ctx: StageContext) -> dict[str, ProductVersion]:
+    p: Params = ctx.config.grid
+    src = ctx.dive.sources
+    if not src.multibeam and not src.laser and not src.prior_grid:
+        raise StageError(f"dive {ctx.dive_id!r} lists no multibeam, prior_grid or laser sources in dive.yaml; "
+                         "nothing to grid")
+    params = ctx.params("grid")
+    limit = memory_limit_bytes(ctx.config)
+
+    # compute everything first, then publish: a bad laser file must not leave a lone new dtm version
+    readers: dict[str, str] = {}
+    priors = _existing(ctx, src.prior_grid, "prior grid")
+    dtm = None
+    if src.multibeam:
+        dtm = _multibeam_dtm(ctx, p, priors, readers, limit)
+    elif priors:
+        dtm = _prior_grid_dtm(ctx, p, priors, readers)
+    if dtm is not None:
+        _compress(dtm.ds)
+    laser = _existing(ctx, src.laser, "laser")
+    grids = _grid_laser_inputs(ctx, p, laser, readers, limit)
 
     out: dict[str, ProductVersion] = {}
     if dtm is not None:
-        summary = {k: dtm.attrs[k] for k in dtm.attrs if k.startswith("n_")}
-        summary["dtm_source"] = dtm.attrs["dtm_source"]
-        summary.update({k: dtm.attrs[k] for k in dtm.attrs if k.startswith(("prior_grid_crop", "prior_grid_kept_",
-                                                                             "prior_grid_source_depth"))})
-        extra = {"summary": summary, "readers": {Path(k).name: v for k, v in readers.items()
-                                                 if Path(k) in dtm_inputs}}
-        if "prior_grid_use" in dtm.attrs:
-            extra["prior_grid_use"] = dtm.attrs["prior_grid_use"]
-        with ctx.store.publish(ctx.dive_id, "dtm", parameters=params, inputs=dtm_inputs, extra=extra) as draft:
-            write_netcdf(dtm, draft.path / "dtm.nc", title=dtm_title, summary=dtm_summary, keywords=dtm_keywords,
-                         processing_level="L3 gridded", provenance_from=draft, **_frame_attrs(ctx))
-            from hadal.products.geotiff import write_grid_cog  # the same DTM as a COG in the dive's UTM zone
-
-            write_grid_cog(dtm, draft.path / "dtm.tif", "depth_m")
-            if p.zarr:  # the same DTM as a chunked Zarr store (hadal.products.io.write_zarr)
-                from hadal.products.io import write_zarr
-
-                write_zarr(draft.path / "dtm.nc", draft.path / "dtm.zarr", chunk=p.zarr_chunk)
-        out["dtm"] = draft.result
+        out["dtm"] = _publish_dtm(ctx, p, params, dtm, readers)
     if grids:
-        extra = {"readers": {f.name: readers[str(f)] for f, *_ in grids},
-                 "laser_grid_files": {f.name: f"{stem}.nc" for f, stem, *_ in grids}}
-        with ctx.store.publish(ctx.dive_id, "laser_grids", parameters=params, inputs=[f for f, _ in laser],
-                               extra=extra) as draft:
-            for f, stem, ds, what in grids:
-                if what == "raster":
-                    summary = (f"Laser bathymetry raster {f.name} ({ds.attrs['source_format']}) loaded at its own "
-                               f"{ds.attrs['resolution']:g} m resolution as elevation (positive up); NaN = unmapped; "
-                               "no per-cell point statistics.")
-                else:
-                    summary = (f"Laser point cloud {f.name} filtered with open3d and resampled to a uniform "
-                               f"{ds.attrs['resolution'] * 1000:g} mm lateral grid (Sangekar et al., SIII-A; "
-                               f"{ds.attrs.get('resolution_choice', 'grid.laser_resolution_m')}); cell mean "
-                               "elevation, count and std; NaN = unmapped.")
-                write_netcdf(
-                    ds, draft.path / f"{stem}.nc",
-                    title=f"Laser elevation grid {stem} of dive {ctx.dive_id}", summary=summary,
-                    keywords="bathymetry, laser, structured light, microbathymetry",
-                    processing_level="L3 gridded", provenance_from=draft, **_frame_attrs(ctx),
-                )
-                if p.zarr:
-                    from hadal.products.io import write_zarr
-
-                    write_zarr(draft.path / f"{stem}.nc", draft.path / f"{stem}.zarr", chunk=p.zarr_chunk)
-                lf = None if p.laser_frame == "map" else getattr(ctx.dive, "laser_frame", None)
-                if p.laser_frame == "map" or lf is not None:  # georeferenced: also a COG in the dive's UTM zone
-                    from hadal.products.geotiff import write_grid_cog
-
-                    write_grid_cog(ds, draft.path / f"{stem}.tif", "elevation_m", laser_frame=lf)
-        out["laser_grids"] = draft.result
+        out["laser_grids"] = _publish_laser_grids(ctx, p, params, laser, grids, readers)
     return out

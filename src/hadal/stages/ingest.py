@@ -21,6 +21,7 @@ from __future__ import annotations
 import json
 import re
 import warnings
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Any, Literal
 
@@ -167,129 +168,207 @@ def reader_of(path: Path) -> str:
     return fk.kind
 
 
-def run(ctx: StageContext) -> dict[str, ProductVersion]:
-    """Read, align, QC and publish ``sensors`` (and ``casts``); see the module docstring."""
-    from hadal.dive import resolve_source
-    from hadal.ingest.build import (
-        build_profile_table,
-        build_sensor_table,
-        field_metadata,
-        is_profile,
-        read_cast,
-        read_cnv_sensors,
-        read_csv_sensors,
-        read_mcap_sensors,
-    )
-    from hadal.ingest.vehicle import load_vehicle_config
-    from hadal.products import write_parquet
-    from hadal.products.io import json_clean
+@dataclass
+class _Read:
+    """What the reading of the chosen sources gives: samples per sensor and the bookkeeping for the metadata."""
 
-    p: Params = ctx.config.ingest
-    vpath = _vehicle_path(ctx, p)
-    vehicle = load_vehicle_config(vpath)
-    src = ctx.dive.sources
-    kind = p.source
-    if kind == "auto":
-        kind = "mcap" if src.mcap else ("csv" if src.csv else "cnv")
-    inputs: list[Path] = [vpath]
-    mcap_reports: list[dict[str, Any]] = []
-    ignored: list[dict[str, str]] = []
+    sensors: dict[str, SensorSamples]
+    used: list[Path]
+    mcap_reports: list[dict[str, Any]] = field(default_factory=list)
+    ignored: list[dict[str, str]] = field(default_factory=list)
     cast_meta: dict[str, Any] | None = None
-    cast_paths = [resolve_source(ctx.raw_dir, r) for r in src.cnv]
-    for q in cast_paths:
+
+
+def _source_kind(p: Params, src) -> str:
+    """``ingest.source``, with ``auto`` resolved: MCAP when the dive lists one, else CSV, else the casts."""
+    if p.source == "auto":
+        return "mcap" if src.mcap else ("csv" if src.csv else "cnv")
+    return p.source
+
+
+def _read_mcap(ctx: StageContext, p: Params, vehicle: VehicleConfig) -> _Read:
+    from hadal.dive import resolve_source
+    from hadal.ingest.build import read_mcap_sensors
+
+    src = ctx.dive.sources
+    if not src.mcap:
+        raise InputError(f"dive {ctx.dive_id}: ingest.source is 'mcap' but dive.yaml lists no MCAP file")
+    paths = [resolve_source(ctx.raw_dir, r) for r in src.mcap]
+    for q in paths:
         if not q.is_file():
-            raise InputError(f"{q}: Sea-Bird cast listed in dive.yaml sources.cnv does not exist")
-    external: list[tuple[str, Path, pd.DataFrame, dict[str, Any]]] = []  # casts not in sensors
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always")
-        if kind == "mcap":
-            if not src.mcap:
-                raise InputError(f"dive {ctx.dive_id}: ingest.source is 'mcap' but dive.yaml lists no MCAP file")
-            paths = [resolve_source(ctx.raw_dir, r) for r in src.mcap]
-            for q in paths:
-                if not q.is_file():
-                    raise InputError(f"{q}: MCAP file listed in dive.yaml does not exist")
-            if src.csv:
-                ignored.append({"kind": "csv", "files": ", ".join(sorted(src.csv.values())),
-                                "why": f"ingest.source is {p.source!r}: the MCAP logs make sensors "
-                                       "(set ingest.source: csv to use the CSV logs instead)"})
-            sensors, mcap_reports = read_mcap_sensors(paths, vehicle)
-            inputs += paths
-        elif kind == "cnv":
-            if not cast_paths:
-                raise InputError(f"dive {ctx.dive_id}: ingest.source is 'cnv' but dive.yaml lists no .cnv file"
-                                 if p.source == "cnv" else
-                                 f"dive {ctx.dive_id}: dive.yaml lists neither MCAP, CSV nor .cnv sensor logs")
-            for k_, files in (("mcap", list(src.mcap)), ("csv", list(src.csv.values()))):
-                if files:
-                    ignored.append({"kind": k_, "files": ", ".join(files),
-                                    "why": "ingest.source is 'cnv': the Sea-Bird cast makes sensors"})
-            if p.merge_casts and len(cast_paths) > 1:
-                sensors = read_cnv_sensors(cast_paths, vehicle)
-                used = cast_paths
-            else:
-                s0, cast_meta = read_cast(cast_paths[0], vehicle.time_base)
-                sensors = {vehicle.time_base: s0}
-                used = cast_paths[:1]
-            inputs += used
-        else:
-            if not src.csv:
-                raise InputError(f"dive {ctx.dive_id}: ingest.source is 'csv' but dive.yaml lists no CSV file")
-            files = {k: resolve_source(ctx.raw_dir, r) for k, r in src.csv.items()}
-            used_names = {s.csv.source for s in vehicle.sensors.values() if s.csv is not None}
-            unused = sorted(k for k in files if k not in used_names)
-            if unused:
-                ignored.append({"kind": "csv", "files": ", ".join(unused),
-                                "why": "no sensor of the vehicle mapping reads these sources.csv names"})
-            files = {k: v for k, v in files.items() if k in used_names}
-            if src.mcap:
-                ignored.append({"kind": "mcap", "files": ", ".join(src.mcap),
-                                "why": "ingest.source is 'csv': the CSV logs make sensors"})
-            sensors = read_csv_sensors(files, vehicle)
-            inputs += list(files.values())
-        base = sensors.get(vehicle.time_base)
-        if kind == "cnv" and base is not None and is_profile(base):
-            df, meta = build_profile_table(base, p.qc)
-        else:
-            df, meta = build_sensor_table(sensors, vehicle, max_gap_s=_gap_limits(p),
-                                          default_max_gap_s=p.default_max_gap_s, qc=p.qc,
-                                          launch_ns=_launch_ns(ctx), strict_launch=kind != "cnv")
-        # every cast not used for sensors is ingested on its own (never silently ignored)
-        in_sensors = set(inputs)
-        for k, q in enumerate(cast_paths):
-            if q in in_sensors:
-                continue
-            s_k, m_k = read_cast(q, vehicle.time_base)
-            t_k, tm_k = _cast_table(s_k, vehicle, p, _launch_ns(ctx))
-            tm_k["cast"] = m_k
-            external.append((_cast_id(k, q), q, t_k, tm_k))
-    messages = [str(w.message) for w in caught]
-    for m in messages:
-        ctx.log.warning("ingest: %s", m)
-    for ig in ignored:
-        ctx.log.warning("ingest: %s logs not used (%s): %s", ig["kind"], ig["files"], ig["why"])
-    lost = [r.get("messages_lost") for r in mcap_reports]
+            raise InputError(f"{q}: MCAP file listed in dive.yaml does not exist")
+    ignored = []
+    if src.csv:
+        ignored.append({"kind": "csv", "files": ", ".join(sorted(src.csv.values())),
+                        "why": f"ingest.source is {p.source!r}: the MCAP logs make sensors "
+                               "(set ingest.source: csv to use the CSV logs instead)"})
+    sensors, mcap_reports = read_mcap_sensors(paths, vehicle)
+    return _Read(sensors, paths, mcap_reports, ignored)
+
+
+def _read_cnv(ctx: StageContext, p: Params, vehicle: VehicleConfig, cast_paths: list[Path]) -> _Read:
+    from hadal.ingest.build import read_cast, read_cnv_sensors
+
+    src = ctx.dive.sources
+    if not cast_paths:
+        raise InputError(f"dive {ctx.dive_id}: ingest.source is 'cnv' but dive.yaml lists no .cnv file"
+                         if p.source == "cnv" else
+                         f"dive {ctx.dive_id}: dive.yaml lists neither MCAP, CSV nor .cnv sensor logs")
+    ignored = []
+    for k_, files in (("mcap", list(src.mcap)), ("csv", list(src.csv.values()))):
+        if files:
+            ignored.append({"kind": k_, "files": ", ".join(files),
+                            "why": "ingest.source is 'cnv': the Sea-Bird cast makes sensors"})
+    if p.merge_casts and len(cast_paths) > 1:
+        return _Read(read_cnv_sensors(cast_paths, vehicle), cast_paths, ignored=ignored)
+    s0, cast_meta = read_cast(cast_paths[0], vehicle.time_base)
+    return _Read({vehicle.time_base: s0}, cast_paths[:1], ignored=ignored, cast_meta=cast_meta)
+
+
+def _read_csv(ctx: StageContext, vehicle: VehicleConfig) -> _Read:
+    from hadal.dive import resolve_source
+    from hadal.ingest.build import read_csv_sensors
+
+    src = ctx.dive.sources
+    if not src.csv:
+        raise InputError(f"dive {ctx.dive_id}: ingest.source is 'csv' but dive.yaml lists no CSV file")
+    files = {k: resolve_source(ctx.raw_dir, r) for k, r in src.csv.items()}
+    used_names = {s.csv.source for s in vehicle.sensors.values() if s.csv is not None}
+    unused = sorted(k for k in files if k not in used_names)
+    ignored = []
+    if unused:
+        ignored.append({"kind": "csv", "files": ", ".join(unused),
+                        "why": "no sensor of the vehicle mapping reads these sources.csv names"})
+    files = {k: v for k, v in files.items() if k in used_names}
+    if src.mcap:
+        ignored.append({"kind": "mcap", "files": ", ".join(src.mcap),
+                        "why": "ingest.source is 'csv': the CSV logs make sensors"})
+    return _Read(read_csv_sensors(files, vehicle), list(files.values()), ignored=ignored)
+
+
+def _sensor_table(ctx: StageContext, p: Params, vehicle: VehicleConfig, kind: str, read: _Read
+                  ) -> tuple[pd.DataFrame, dict[str, Any]]:
+    """The ``sensors`` table: a profile for a cast without time base, else the aligned, QC'd time series."""
+    from hadal.ingest.build import build_profile_table, build_sensor_table, is_profile
+
+    base = read.sensors.get(vehicle.time_base)
+    if kind == "cnv" and base is not None and is_profile(base):
+        return build_profile_table(base, p.qc)
+    return build_sensor_table(read.sensors, vehicle, max_gap_s=_gap_limits(p),
+                              default_max_gap_s=p.default_max_gap_s, qc=p.qc,
+                              launch_ns=_launch_ns(ctx), strict_launch=kind != "cnv")
+
+
+def _external_casts(ctx: StageContext, p: Params, vehicle: VehicleConfig, cast_paths: list[Path],
+                    in_sensors: set[Path]) -> list[tuple[str, Path, pd.DataFrame, dict[str, Any]]]:
+    """Every cast not used for sensors, ingested on its own (never silently ignored): (cast id, path, table, meta)."""
+    from hadal.ingest.build import read_cast
+
+    external = []
+    for k, q in enumerate(cast_paths):
+        if q in in_sensors:
+            continue
+        s_k, m_k = read_cast(q, vehicle.time_base)
+        t_k, tm_k = _cast_table(s_k, vehicle, p, _launch_ns(ctx))
+        tm_k["cast"] = m_k
+        external.append((_cast_id(k, q), q, t_k, tm_k))
+    return external
+
+
+def _source_entry(q: Path) -> dict[str, Any]:
+    return {"path": str(q), "sha256": sha256_file(q), "bytes": q.stat().st_size}
+
+
+def _sensors_metadata(ctx: StageContext, meta: dict[str, Any], df: pd.DataFrame, *, vehicle: VehicleConfig,
+                      vpath: Path, kind: str, inputs: list[Path], read: _Read, messages: list[str],
+                      external: list) -> None:
+    """Complete the ``sensors`` table metadata (dive, sources with SHA-256, MCAP damage, warnings, cast header)."""
+    lost = [r.get("messages_lost") for r in read.mcap_reports]
     start, end = _coverage(df)
     meta.update({
         "dive_id": ctx.dive_id,
         "vehicle": vehicle.vehicle,
         "vehicle_config": str(vpath),
         "source_kind": kind,
-        "sources": [{"path": str(q), "sha256": sha256_file(q), "bytes": q.stat().st_size} for q in inputs],
-        "mcap": mcap_reports,
-        "messages_lost": (None if any(x is None for x in lost) else sum(lost)) if mcap_reports else 0,
+        "sources": [_source_entry(q) for q in inputs],
+        "mcap": read.mcap_reports,
+        "messages_lost": (None if any(x is None for x in lost) else sum(lost)) if read.mcap_reports else 0,
         "warnings": messages,
-        "ignored_sources": ignored,
+        "ignored_sources": read.ignored,
         "external_casts": [{"cast_id": c, "path": str(q)} for c, q, _, _ in external],
         "rows": int(len(df)),
         "time_coverage_start": start,
         "time_coverage_end": end,
     })
-    if cast_meta is not None:
-        meta["cast"] = cast_meta
-        meta["cast_latitude_deg"] = cast_meta.get("latitude_deg")
-        meta["cast_longitude_deg"] = cast_meta.get("longitude_deg")
+    if read.cast_meta is not None:
+        meta["cast"] = read.cast_meta
+        meta["cast_latitude_deg"] = read.cast_meta.get("latitude_deg")
+        meta["cast_longitude_deg"] = read.cast_meta.get("longitude_deg")
     meta["readers"] = {q.name: reader_of(q) for q in inputs}
+
+
+def _publish_casts(ctx: StageContext, vpath: Path, external: list
+                   ) -> tuple[ProductVersion | None, list[dict[str, Any]]]:
+    """Publish ``casts``: one ``<cast id>.parquet`` per external cast and the ``casts.json`` index."""
+    from hadal.ingest.build import field_metadata
+    from hadal.products import write_parquet
+    from hadal.products.io import json_clean
+
+    index = []
+    for cid, q, t_k, tm_k in external:
+        s0, e0 = _coverage(t_k)
+        tm_k.update({"dive_id": ctx.dive_id, "cast_id": cid, "source_kind": "cnv", "rows": int(len(t_k)),
+                     "sources": [_source_entry(q)],
+                     "time_coverage_start": s0, "time_coverage_end": e0})
+        index.append({"cast_id": cid, "file": f"{cid}.parquet", "source": str(q), "rows": int(len(t_k)),
+                      "time_base": tm_k["time_base"], "latitude_deg": tm_k["cast"].get("latitude_deg"),
+                      "longitude_deg": tm_k["cast"].get("longitude_deg"),
+                      "start_time_utc": tm_k["cast"].get("start_time_utc"),
+                      "instrument": tm_k["cast"].get("instrument")})
+    with ctx.store.publish(ctx.dive_id, "casts", parameters=ctx.params("ingest"),
+                           inputs=[vpath] + [q for _, q, _, _ in external],
+                           extra={"casts": [c["cast_id"] for c in index]}) as draft:
+        for cid, _, t_k, tm_k in external:
+            write_parquet(t_k, draft.path / f"{cid}.parquet", fields=field_metadata(), metadata=tm_k,
+                          provenance_from=draft)
+        (draft.path / "casts.json").write_text(json.dumps(json_clean({"casts": index}), indent=2),
+                                               encoding="utf-8")
+    return draft.result, index
+
+
+def run(ctx: StageContext) -> dict[str, ProductVersion]:
+    """Read, align, QC and publish ``sensors`` (and ``casts``); see the module docstring."""
+    from hadal.dive import resolve_source
+    from hadal.ingest.build import field_metadata
+    from hadal.ingest.vehicle import load_vehicle_config
+    from hadal.products import write_parquet
+
+    p: Params = ctx.config.ingest
+    vpath = _vehicle_path(ctx, p)
+    vehicle = load_vehicle_config(vpath)
+    kind = _source_kind(p, ctx.dive.sources)
+    cast_paths = [resolve_source(ctx.raw_dir, r) for r in ctx.dive.sources.cnv]
+    for q in cast_paths:
+        if not q.is_file():
+            raise InputError(f"{q}: Sea-Bird cast listed in dive.yaml sources.cnv does not exist")
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        if kind == "mcap":
+            read = _read_mcap(ctx, p, vehicle)
+        elif kind == "cnv":
+            read = _read_cnv(ctx, p, vehicle, cast_paths)
+        else:
+            read = _read_csv(ctx, vehicle)
+        inputs: list[Path] = [vpath, *read.used]
+        df, meta = _sensor_table(ctx, p, vehicle, kind, read)
+        external = _external_casts(ctx, p, vehicle, cast_paths, set(inputs))
+    messages = [str(w.message) for w in caught]
+    for m in messages:
+        ctx.log.warning("ingest: %s", m)
+    for ig in read.ignored:
+        ctx.log.warning("ingest: %s logs not used (%s): %s", ig["kind"], ig["files"], ig["why"])
+    _sensors_metadata(ctx, meta, df, vehicle=vehicle, vpath=vpath, kind=kind, inputs=inputs, read=read,
+                      messages=messages, external=external)
     with ctx.store.publish(ctx.dive_id, "sensors", parameters=ctx.params("ingest"), inputs=inputs,
                            extra={"ingest": {k: meta[k] for k in ("source_kind", "rows", "messages_lost",
                                                                   "unit_conversions", "time_base", "readers")}}
@@ -299,26 +378,7 @@ def run(ctx: StageContext) -> dict[str, ProductVersion]:
     out = {"sensors": draft.result}
     ctx.log.info("ingest: %d rows from %s (%s), %d warning(s)", len(df), kind, vehicle.vehicle, len(messages))
     if external:
-        index = []
-        for cid, q, t_k, tm_k in external:
-            s0, e0 = _coverage(t_k)
-            tm_k.update({"dive_id": ctx.dive_id, "cast_id": cid, "source_kind": "cnv", "rows": int(len(t_k)),
-                         "sources": [{"path": str(q), "sha256": sha256_file(q), "bytes": q.stat().st_size}],
-                         "time_coverage_start": s0, "time_coverage_end": e0})
-            index.append({"cast_id": cid, "file": f"{cid}.parquet", "source": str(q), "rows": int(len(t_k)),
-                          "time_base": tm_k["time_base"], "latitude_deg": tm_k["cast"].get("latitude_deg"),
-                          "longitude_deg": tm_k["cast"].get("longitude_deg"),
-                          "start_time_utc": tm_k["cast"].get("start_time_utc"),
-                          "instrument": tm_k["cast"].get("instrument")})
-        with ctx.store.publish(ctx.dive_id, "casts", parameters=ctx.params("ingest"),
-                               inputs=[vpath] + [q for _, q, _, _ in external],
-                               extra={"casts": [c["cast_id"] for c in index]}) as draft:
-            for cid, _, t_k, tm_k in external:
-                write_parquet(t_k, draft.path / f"{cid}.parquet", fields=field_metadata(), metadata=tm_k,
-                              provenance_from=draft)
-            (draft.path / "casts.json").write_text(json.dumps(json_clean({"casts": index}), indent=2),
-                                                   encoding="utf-8")
-        out["casts"] = draft.result
+        out["casts"], index = _publish_casts(ctx, vpath, external)
         ctx.log.info("ingest: %d external cast(s) in 'casts': %s", len(index),
                      ", ".join(c["source"] for c in index))
     return out

@@ -13,6 +13,7 @@ Reads ``laser_grids`` (one ``<name>.nc`` per laser input, whatever its name - e.
 from __future__ import annotations
 
 import os
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -93,6 +94,12 @@ def _cell_size_m(path: Path) -> float | None:
         return None
 
 
+def _laser_files(pv) -> list[Path]:
+    """Every grid of a ``laser_grids`` version, whatever its name (laser inputs keep their file stems); only
+    landing's own ``*_maps.nc`` outputs are skipped should they ever sit next to them."""
+    return sorted(f for f in pv.path.glob("*.nc") if f.is_file() and not f.name.endswith("_maps.nc"))
+
+
 def skip_reason(ctx) -> str | None:
     """Why ``landing`` cannot analyse this dive's laser grids, or ``None``: every grid's cells are coarser than
     ``landing.max_cell_fraction`` x the vehicle width (the [Landing Eq. 9] footprint tests need several cells across the
@@ -102,7 +109,7 @@ def skip_reason(ctx) -> str | None:
     pv = ctx.optional_upstream("laser_grids")
     if pv is None:
         return None
-    files = sorted(f for f in pv.path.glob("*.nc") if f.is_file() and not f.name.endswith("_maps.nc"))
+    files = _laser_files(pv)
     cells = [_cell_size_m(f) for f in files]
     limit = p.max_cell_fraction * p.vehicle.width_m
     if not cells or any(c is None or c <= limit * (1 + 1e-6) for c in cells):
@@ -112,37 +119,134 @@ def skip_reason(ctx) -> str | None:
             f"{limit:g} m; raise landing.max_cell_fraction (at most {COARSE_CELL_LIMIT:g}) to analyse them anyway")
 
 
+@dataclass
+class _DiveSites:
+    """What the loop over the submaps gathers for the dive-wide products (pure bookkeeping, no I/O)."""
+
+    warnings: list[str] = field(default_factory=list)
+    sites: list[pd.DataFrame] = field(default_factory=list)
+    finals: list[dict] = field(default_factory=list)
+    mapped_area: float = 0.0
+    transect: float = 0.0
+    outlines: dict[str, np.ndarray] = field(default_factory=dict)
+    best_overall: tuple[float, str] | None = None
+
+    def add(self, name: str, res) -> None:
+        """Add one analysed submap: its warnings, mapped area and transect length, outline, sites and final site."""
+        import numpy as np
+
+        from hadal.landing.sites import mapped_length_m
+
+        self.warnings.extend(f"{name}: {w}" for w in res.warnings)
+        mapped = np.isfinite(res.elevation_m)
+        self.mapped_area += float(mapped.sum()) * res.cell_m**2
+        rows_, cols_ = np.nonzero(mapped)
+        self.transect += mapped_length_m(mapped, res.cell_m)
+        step = max(1, int(len(rows_) // 4000))
+        self.outlines[name] = np.column_stack(res.to_world(res.x_m[cols_[::step]], res.y_m[rows_[::step]]))
+        sites = res.sites.copy()
+        sites.insert(0, "submap", name)
+        self.sites.append(sites)
+        if res.best is not None:
+            self.finals.append({"submap": name, **res.best})
+            if self.best_overall is None or res.best["c_s"] < self.best_overall[0]:
+                self.best_overall = (float(res.best["c_s"]), name)
+
+
+def _analyse_file(ctx, p: Params, f: Path, headings: np.ndarray, mem_limit, threads: int):
+    """Read one laser grid, check its memory and work budget, analyse it; None (logged) when it has no mapped cells."""
+    import numpy as np
+
+    from hadal.landing.sites import analyse_submap, check_resources
+
+    name = f.stem
+    grid, sigma = _read_submap(f)
+    if not np.isfinite(grid.values).any():
+        ctx.log.warning("landing: %s has no mapped cells; skipped", name)
+        return None
+    # memory and work before allocating anything of the analysis (issue 14): one-line ConfigError
+    check_resources(tuple(grid.shape), len(headings), memory_limit_bytes=mem_limit,
+                    work_limit=p.max_cell_headings, keep_heading_exclusion=True,
+                    exclusion_step_m=p.exclusion_step_m, vehicle=p.vehicle, what=f"landing submap {name}",
+                    heading_setting=("landing.heading_step_deg", p.heading_step_deg),
+                    step_setting=("landing.exclusion_step_m", p.exclusion_step_m), workers=threads)
+    opts = AnalysisOptions(**{**p.model_dump(include=set(AnalysisOptions.model_fields)), "workers": threads})
+    res = analyse_submap(grid, p.vehicle, headings_deg=headings, elevation_sigma_m=sigma, options=opts)
+    ctx.log.info("landing: %s %d candidate sites in %.1f s", name, len(res.sites), res.timings_s["total"])
+    for w in res.warnings:
+        ctx.log.warning("landing: %s: %s", name, w)
+    return res
+
+
+def _write_submap_maps(ctx, res, path: Path, name: str) -> None:
+    """``<name>_maps.nc``: slope, protrusion height, exclusion per heading and the selected site of one submap."""
+    from hadal.products import dive_attributes, write_netcdf
+
+    write_netcdf(res.to_dataset(), path, title=f"Landing-site maps, {ctx.dive_id} {name}",
+                 summary="Slope, protrusion height, C_G exclusion per landing heading and the selected landing "
+                         "site (Sangekar et al.).", submap=name, **dive_attributes(ctx.dive))
+
+
+def _write_dive_products(ctx, p: Params, acc: _DiveSites, out: Path) -> tuple[pd.DataFrame, pd.DataFrame]:
+    """``landing_sites.parquet`` (Table V in its metadata), ``landing_summary.json`` and the footprint GeoJSON;
+    returns the georeferenced final sites (for the transect figure)."""
+    import pandas as pd
+
+    from hadal.landing.sites import SITE_FIELDS, results_table
+    from hadal.products import write_parquet
+
+    sites_df = pd.concat(acc.sites, ignore_index=True) if acc.sites else pd.DataFrame(columns=list(SITE_FIELDS))
+    table = results_table(sites_df, acc.mapped_area, acc.transect)
+    meta = {"dive_id": ctx.dive_id, "critical_slope_deg": p.vehicle.critical_slope_deg,
+            "critical_height_m": p.vehicle.critical_height_m, "table_v": table,
+            "method": "Sangekar et al., Autonomous landing of underwater vehicles using high resolution bathymetry"}
+    if acc.warnings:
+        meta["warnings"] = acc.warnings  # e.g. grids coarser than the 1/10-width cell rule (explicit override)
+    from hadal.products.geo_landing import (
+        SITE_GEO_FIELDS,
+        footprints_geojson,
+        georeference_sites,
+        strict_json,
+    )
+
+    lf = ctx.dive.laser_frame  # dive.yaml georeference of the laser frame: sites in lat/lon, footprints GeoJSON
+    sites_df, finals_df = georeference_sites(sites_df, lf), georeference_sites(pd.DataFrame(acc.finals), lf)
+    meta["laser_frame"] = lf.model_dump() if lf is not None else "local (not georeferenced: no laser_frame)"
+    write_parquet(sites_df, out / "landing_sites.parquet", fields={**SITE_FIELDS, **SITE_GEO_FIELDS},
+                  metadata=meta)
+    (out / "landing_summary.json").write_text(
+        strict_json({"table_v": table, "laser_frame": meta["laser_frame"],
+                     "final_sites": finals_df.to_dict(orient="records")}, indent=2), encoding="utf-8")
+    if (gj := footprints_geojson(sites_df, lf, p.vehicle.length_m, p.vehicle.width_m)) is not None:
+        (out / "landing_footprints.geojson").write_text(strict_json(gj), encoding="utf-8")
+    return sites_df, finals_df
+
+
+def _write_dive_figures(ctx, acc: _DiveSites, sites_df: pd.DataFrame, finals_df: pd.DataFrame, best_res,
+                        figdir: Path) -> None:
+    """Figs. 25 and 21 of the dive, Figs. 13 and 18 of its best submap."""
+    from hadal.landing import figures as fg
+
+    fg.figure_transect(finals_df, acc.outlines, figdir / "fig25_transect.png")
+    fg.figure_costs_vs_heading(sites_df, figdir / "fig21_costs_vs_heading.png", f"{ctx.dive_id}: all submaps")
+    if best_res is not None and acc.best_overall is not None:
+        fg.figure_slope_exclusion(best_res, figdir / f"fig13_slope_{acc.best_overall[1]}.png")
+        fg.figure_protrusion_exclusion(best_res, figdir / f"fig18_protrusions_{acc.best_overall[1]}.png")
+
+
 def run(ctx) -> dict:
     """Analyse every laser submap and publish the ``landing`` product."""
     import numpy as np
-    import pandas as pd
-
-    from hadal.landing.sites import (
-        SITE_FIELDS,
-        analyse_submap,
-        check_resources,
-        mapped_length_m,
-        results_table,
-    )
-    from hadal.products import dive_attributes, write_netcdf, write_parquet
 
     p: Params = ctx.config.landing
     laser = ctx.upstream("laser_grids")
-    # every grid of the product, whatever its name (laser inputs keep their file stems); only landing's own
-    # ``*_maps.nc`` outputs are skipped should they ever sit next to them
-    files = sorted(f for f in laser.path.glob("*.nc") if f.is_file() and not f.name.endswith("_maps.nc"))
+    files = _laser_files(laser)
     if not files:
         raise StageError(f"{ctx.dive_id}/laser_grids/{laser.label} has no laser grids (*.nc)")
     headings = np.linspace(-90.0, 90.0, int(round(180.0 / p.heading_step_deg)) + 1)
     mem_limit = memory_limit_bytes(ctx.config)
     threads = p.workers or min(4, os.cpu_count() or 1)
-    warnings_: list[str] = []
-    all_sites: list[pd.DataFrame] = []
-    finals: list[dict] = []
-    mapped_area = 0.0
-    transect = 0.0
-    outlines: dict[str, np.ndarray] = {}
-    best_overall: tuple[float, str] | None = None
+    acc = _DiveSites()
     with ctx.store.publish(ctx.dive_id, "landing", parameters=ctx.params("landing"), upstream=[laser]) as draft:
         figdir = draft.path / "figures"
         if p.figures:
@@ -150,76 +254,18 @@ def run(ctx) -> dict:
         best_res = None
         for f in ctx.progress.track(files, "landing sites", total=len(files)):
             name = f.stem
-            grid, sigma = _read_submap(f)
-            if not np.isfinite(grid.values).any():
-                ctx.log.warning("landing: %s has no mapped cells; skipped", name)
+            res = _analyse_file(ctx, p, f, headings, mem_limit, threads)
+            if res is None:
                 continue
-            # memory and work before allocating anything of the analysis (issue 14): one-line ConfigError
-            check_resources(tuple(grid.shape), len(headings), memory_limit_bytes=mem_limit,
-                            work_limit=p.max_cell_headings, keep_heading_exclusion=True,
-                            exclusion_step_m=p.exclusion_step_m, vehicle=p.vehicle, what=f"landing submap {name}",
-                            heading_setting=("landing.heading_step_deg", p.heading_step_deg),
-                            step_setting=("landing.exclusion_step_m", p.exclusion_step_m), workers=threads)
-            opts = AnalysisOptions(**{**p.model_dump(include=set(AnalysisOptions.model_fields)), "workers": threads})
-            res = analyse_submap(grid, p.vehicle, headings_deg=headings, elevation_sigma_m=sigma, options=opts)
-            ctx.log.info("landing: %s %d candidate sites in %.1f s", name, len(res.sites), res.timings_s["total"])
-            for w in res.warnings:
-                ctx.log.warning("landing: %s: %s", name, w)
-                warnings_.append(f"{name}: {w}")
-            mapped = np.isfinite(res.elevation_m)
-            mapped_area += float(mapped.sum()) * res.cell_m**2
-            rows_, cols_ = np.nonzero(mapped)
-            transect += mapped_length_m(mapped, res.cell_m)
-            step = max(1, int(len(rows_) // 4000))
-            outlines[name] = np.column_stack(res.to_world(res.x_m[cols_[::step]], res.y_m[rows_[::step]]))
-            sites = res.sites.copy()
-            sites.insert(0, "submap", name)
-            all_sites.append(sites)
-            ds = res.to_dataset()
-            write_netcdf(ds, draft.path / f"{name}_maps.nc", title=f"Landing-site maps, {ctx.dive_id} {name}",
-                         summary="Slope, protrusion height, C_G exclusion per landing heading and the selected landing "
-                                 "site (Sangekar et al.).", submap=name, **dive_attributes(ctx.dive))
-            if res.best is not None:
-                finals.append({"submap": name, **res.best})
-                if best_overall is None or res.best["c_s"] < best_overall[0]:
-                    best_overall = (float(res.best["c_s"]), name)
+            acc.add(name, res)
+            _write_submap_maps(ctx, res, draft.path / f"{name}_maps.nc", name)
             if p.figures:
                 from hadal.landing import figures as fg
 
                 fg.figure_sites(res, figdir / f"fig19_sites_{name}.png")
-                if best_overall is not None and best_overall[1] == name:
+                if acc.best_overall is not None and acc.best_overall[1] == name:
                     best_res = res  # only the dive's best submap is kept for the detailed figures
-        sites_df = pd.concat(all_sites, ignore_index=True) if all_sites else pd.DataFrame(columns=list(SITE_FIELDS))
-        table = results_table(sites_df, mapped_area, transect)
-        meta = {"dive_id": ctx.dive_id, "critical_slope_deg": p.vehicle.critical_slope_deg,
-                "critical_height_m": p.vehicle.critical_height_m, "table_v": table,
-                "method": "Sangekar et al., Autonomous landing of underwater vehicles using high resolution bathymetry"}
-        if warnings_:
-            meta["warnings"] = warnings_  # e.g. grids coarser than the 1/10-width cell rule (explicit override)
-        from hadal.products.geo_landing import (
-            SITE_GEO_FIELDS,
-            footprints_geojson,
-            georeference_sites,
-            strict_json,
-        )
-
-        lf = ctx.dive.laser_frame  # dive.yaml georeference of the laser frame: sites in lat/lon, footprints GeoJSON
-        sites_df, finals_df = georeference_sites(sites_df, lf), georeference_sites(pd.DataFrame(finals), lf)
-        meta["laser_frame"] = lf.model_dump() if lf is not None else "local (not georeferenced: no laser_frame)"
-        write_parquet(sites_df, draft.path / "landing_sites.parquet", fields={**SITE_FIELDS, **SITE_GEO_FIELDS},
-                      metadata=meta)
-        (draft.path / "landing_summary.json").write_text(
-            strict_json({"table_v": table, "laser_frame": meta["laser_frame"],
-                         "final_sites": finals_df.to_dict(orient="records")}, indent=2), encoding="utf-8")
-        if (gj := footprints_geojson(sites_df, lf, p.vehicle.length_m, p.vehicle.width_m)) is not None:
-            (draft.path / "landing_footprints.geojson").write_text(strict_json(gj), encoding="utf-8")
+        sites_df, finals_df = _write_dive_products(ctx, p, acc, draft.path)
         if p.figures:
-            from hadal.landing import figures as fg
-
-            fg.figure_transect(finals_df, outlines, figdir / "fig25_transect.png")
-            fg.figure_costs_vs_heading(sites_df, figdir / "fig21_costs_vs_heading.png", f"{ctx.dive_id}: all submaps")
-            if best_res is not None and best_overall is not None:
-                res = best_res
-                fg.figure_slope_exclusion(res, figdir / f"fig13_slope_{best_overall[1]}.png")
-                fg.figure_protrusion_exclusion(res, figdir / f"fig18_protrusions_{best_overall[1]}.png")
+            _write_dive_figures(ctx, acc, sites_df, finals_df, best_res, figdir)
     return {"landing": draft.result}
