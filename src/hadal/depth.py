@@ -53,6 +53,83 @@ def _fill_density(rho: np.ndarray, valid: np.ndarray, good: np.ndarray) -> None:
     rho[bad] = rho[lo] + w * (rho[hi] - rho[lo])
 
 
+def _depth_density(p: np.ndarray, salinity: ArrayLike, temperature_its90_degc: ArrayLike,
+                   density_kg_m3: ArrayLike | None) -> tuple[np.ndarray, bool]:
+    """``(density, owned)`` of :func:`hydrostatic_depth`: EOS-80 ([TERCOM Eq. 13]) unless passed, broadcast to
+    ``p``; ``owned``: it may be changed in place (not the caller's array)."""
+    if density_kg_m3 is None:
+        rho = density_eos80(salinity, temperature_its90_degc, p)
+        if rho.shape != p.shape:
+            rho = np.broadcast_to(rho, p.shape).copy()
+        owned = True
+    else:
+        rho = np.asarray(density_kg_m3, dtype=np.float64)
+        owned = False
+        if rho.shape != p.shape:
+            rho, owned = np.broadcast_to(rho, p.shape).copy(), True
+    return rho, owned
+
+
+def _fill_density_gaps(rho: np.ndarray, owned: bool, valid: np.ndarray) -> np.ndarray:
+    """``rho`` with its gaps at valid pressures filled (copied first unless ``owned``); an :class:`InputError`
+    when no density is valid."""
+    with np.errstate(invalid="ignore"):
+        good = valid & np.isfinite(rho) & (rho > 0)
+    if not good.any():
+        raise InputError("hydrostatic_depth: no valid density (salinity/temperature all NaN)")
+    if np.count_nonzero(good) != np.count_nonzero(valid):
+        if not owned:
+            rho = rho.copy()
+        _fill_density(rho, valid, good)
+    return rho
+
+
+@dataclass(frozen=True)
+class _DepthCarry:
+    """(pressure, depth, 1/(ρ g)) of the last valid sample, carried from one block of :func:`hydrostatic_depth`
+    to the next."""
+
+    pressure_dbar: float
+    depth_m: float
+    inv_rho_g: float
+
+
+def _depth_block(pv: np.ndarray, rho_g0: np.ndarray, lat_fm: Any, prev: _DepthCarry, integration: Integration,
+                 tolerance_m: float, max_iterations: int) -> np.ndarray:
+    """Depths of one block of valid samples by the fixed-point iteration of [TERCOM Eqs. 11-12] (``rho_g0`` =
+    ρ g(φ, 0), the gravity at depth H being ``g(φ, 0)(1 + C3 H)``, [TERCOM Eq. 14]), started from the
+    Fofonoff-Millard depth (latitude ``lat_fm``) and carried on from ``prev``."""
+    p_prev, h_prev0, inv_prev = prev.pressure_dbar, prev.depth_m, prev.inv_rho_g
+    dp_pa = np.diff(pv, prepend=p_prev)
+    dp_pa *= PA_PER_DBAR
+    fm_prev = float(depth_fofonoff_millard(p_prev, lat_fm if np.ndim(lat_fm) == 0 else lat_fm[0]))
+    depth = depth_fofonoff_millard(pv, lat_fm) - fm_prev + h_prev0
+    inv = np.empty(pv.size + 1)
+    inv[0] = inv_prev
+    for _ in range(max_iterations):
+        if integration == "rectangle":
+            hp = np.concatenate(([h_prev0], depth[:-1]))  # H_{i-1}
+            hp *= GRAV_C3_PER_M
+            hp += 1.0
+            hp *= rho_g0
+            h = np.divide(dp_pa, hp, out=hp)
+        else:
+            np.multiply(depth, GRAV_C3_PER_M, out=inv[1:])
+            inv[1:] += 1.0
+            inv[1:] *= rho_g0
+            np.divide(1.0, inv[1:], out=inv[1:])
+            h = inv[:-1] + inv[1:]
+            h *= dp_pa
+            h *= 0.5
+        new = np.cumsum(h, out=h)
+        new += h_prev0
+        change = float(np.max(np.abs(new - depth)))
+        depth = new
+        if change < tolerance_m:
+            break
+    return depth
+
+
 def hydrostatic_depth(
     pressure_dbar: ArrayLike,
     salinity: ArrayLike,
@@ -112,31 +189,14 @@ def hydrostatic_depth(
     valid = np.isfinite(p)
     if not valid.any():
         return out
-    if density_kg_m3 is None:
-        rho = density_eos80(salinity, temperature_its90_degc, p)
-        if rho.shape != p.shape:
-            rho = np.broadcast_to(rho, p.shape).copy()
-        owned = True
-    else:
-        rho = np.asarray(density_kg_m3, dtype=np.float64)
-        owned = False
-        if rho.shape != p.shape:
-            rho, owned = np.broadcast_to(rho, p.shape).copy(), True
+    rho, owned = _depth_density(p, salinity, temperature_its90_degc, density_kg_m3)
     lat = np.asarray(latitude_deg, dtype=np.float64)
     lat_arr = None if lat.ndim == 0 else np.broadcast_to(lat, p.shape)
     if not (np.isfinite(lat) if lat_arr is None else np.all(np.isfinite(lat_arr[valid]))):
         raise InputError("hydrostatic_depth: latitude is NaN/inf where pressure is valid")
-    with np.errstate(invalid="ignore"):
-        good = valid & np.isfinite(rho) & (rho > 0)
-    if not good.any():
-        raise InputError("hydrostatic_depth: no valid density (salinity/temperature all NaN)")
-    if np.count_nonzero(good) != np.count_nonzero(valid):
-        if not owned:
-            rho = rho.copy()
-        _fill_density(rho, valid, good)
-    del good
+    rho = _fill_density_gaps(rho, owned, valid)
     g0 = gravity(lat, 0.0)  # ρ g(φ, H) = ρ g(φ, 0) (1 + C3 H), [TERCOM Eq. 14]
-    prev: tuple[float, float, float] | None = None  # (pressure, depth, 1/(ρ g)) of the last valid sample
+    prev: _DepthCarry | None = None  # the last valid sample
     for a in range(0, p.size, DEPTH_BLOCK):
         sl = slice(a, a + DEPTH_BLOCK)
         v = valid[sl]
@@ -147,42 +207,15 @@ def hydrostatic_depth(
         lv = lat if lat_arr is None else lat_arr[sl][v]
         if prev is None:
             if start_depth_m is None:  # from the surface, the first sample's density above it
-                prev = (0.0, 0.0, 1.0 / float(rho_g0[0]))
+                prev = _DepthCarry(0.0, 0.0, 1.0 / float(rho_g0[0]))
             else:
                 h0 = float(start_depth_m)
-                prev = (float(pv[0]), h0, 1.0 / float(rho_g0[0] * (1.0 + GRAV_C3_PER_M * h0)))
-        p_prev, h_prev0, inv_prev = prev
-        dp_pa = np.diff(pv, prepend=p_prev)
-        dp_pa *= PA_PER_DBAR
-        fm_prev = float(depth_fofonoff_millard(p_prev, lv if lat_arr is None else lv[0]))
-        depth = depth_fofonoff_millard(pv, lv) - fm_prev + h_prev0
-        inv = np.empty(pv.size + 1)
-        inv[0] = inv_prev
-        for _ in range(max_iterations):
-            if integration == "rectangle":
-                hp = np.concatenate(([h_prev0], depth[:-1]))  # H_{i-1}
-                hp *= GRAV_C3_PER_M
-                hp += 1.0
-                hp *= rho_g0
-                h = np.divide(dp_pa, hp, out=hp)
-            else:
-                np.multiply(depth, GRAV_C3_PER_M, out=inv[1:])
-                inv[1:] += 1.0
-                inv[1:] *= rho_g0
-                np.divide(1.0, inv[1:], out=inv[1:])
-                h = inv[:-1] + inv[1:]
-                h *= dp_pa
-                h *= 0.5
-            new = np.cumsum(h, out=h)
-            new += h_prev0
-            change = float(np.max(np.abs(new - depth)))
-            depth = new
-            if change < tolerance_m:
-                break
+                prev = _DepthCarry(float(pv[0]), h0, 1.0 / float(rho_g0[0] * (1.0 + GRAV_C3_PER_M * h0)))
+        depth = _depth_block(pv, rho_g0, lv, prev, integration, tolerance_m, max_iterations)
         out[a:a + DEPTH_BLOCK][v] = depth
-        prev = (float(pv[-1]), float(depth[-1]), 1.0 / float(rho_g0[-1] * (1.0 + GRAV_C3_PER_M * depth[-1])))
+        prev = _DepthCarry(float(pv[-1]), float(depth[-1]),
+                           1.0 / float(rho_g0[-1] * (1.0 + GRAV_C3_PER_M * depth[-1])))
     return out
-
 
 # --------------------------------------------------------------------------------------------- TEOS-10
 def dynamic_height_anomaly(pressure_dbar: ArrayLike, salinity: ArrayLike, temperature_its90_degc: ArrayLike,
@@ -483,24 +516,13 @@ def _cnv_profile_columns(path: Path) -> tuple[dict[str, tuple[str, np.ndarray, s
     return found, "cnv"
 
 
-def read_overlying_profile(path: str | Path, *, surface_dbar: float = 20.0) -> UserProfile:
-    """Read and check a user's profile of the water above a record (``derive.overlying_profile``): a CSV or a
-    Sea-Bird .cnv (.hex) with pressure and temperature + practical salinity, or in situ density.
-
-    The density is EOS-80 ([TERCOM Eq. 13], as the record's) of the temperature and salinity when the file has both, else
-    its density column. Each mistake is a one-line error naming the file: a missing file (:class:`ConfigError`,
-    the setting points at nothing), an unreadable file, a missing column, a unit that is not one of the quantity
-    (or no unit), values outside :data:`PROFILE_VALUE_RANGES` (a wrong unit: sigma for density, kPa for dbar),
-    a pressure that is not strictly monotonic (a record with loops, not one binned cast), or that starts deeper
-    than ``surface_dbar`` (:class:`InputError`). Whether it reaches the record's first sample is checked by
-    :func:`overlying_column`."""
-    import hashlib
-
+def _profile_file_columns(path: Path) -> tuple[dict[str, tuple[str, np.ndarray, str]], str, bool]:
+    """``(found columns, format, use temperature + salinity)`` of a user's overlying profile file (steps of
+    :func:`read_overlying_profile`: the file exists, is a CSV or a Sea-Bird cast, has pressure and either
+    temperature + salinity or density)."""
     from hadal.errors import ConfigError
     from hadal.formats import KINDS, detect
-    from hadal.ingest.units import convert
 
-    path = Path(path)
     if not path.is_file():
         raise ConfigError(f"{path}: derive.overlying_profile does not exist (a path relative to the dive's raw "
                           "directory, or absolute)")
@@ -519,6 +541,16 @@ def read_overlying_profile(path: str | Path, *, surface_dbar: float = 20.0) -> U
     if not use_ts and "density" not in found:
         raise InputError(f"{path}: overlying profile needs temperature and practical salinity, or density "
                          f"(found {have})")
+    return found, fmt, use_ts
+
+
+def _profile_values(path: Path, found: dict[str, tuple[str, np.ndarray, str]], use_ts: bool
+                    ) -> tuple[dict[str, np.ndarray], list[dict[str, Any]]]:
+    """``({quantity: values in hadal's units}, unit conversions)`` of a profile's columns, each unit and
+    :data:`PROFILE_VALUE_RANGES` checked."""
+    from hadal.errors import ConfigError
+    from hadal.ingest.units import convert
+
     conversions: list[dict[str, Any]] = []
     values: dict[str, np.ndarray] = {}
     for qty, var in (("pressure", "pressure_ctd_dbar"), ("temperature", "temperature_its90_degc")):
@@ -550,9 +582,14 @@ def read_overlying_profile(path: str | Path, *, surface_dbar: float = 20.0) -> U
             col = found[qty][0]
             raise InputError(f"{path}: column {col!r}: {qty} from {fin.min():.4g} to {fin.max():.4g} {u} is outside "
                              f"{lo:g} to {hi:g} {u}: wrong unit?")
-    p = values["pressure"]
-    keep = np.isfinite(p)
-    p = p[keep]
+    return values, conversions
+
+
+def _monotonic_pressure(path: Path, pressure: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
+    """``(finite pressures, their mask, +1 increasing / -1 decreasing)``; an :class:`InputError` for fewer than
+    2 or a pressure that is not strictly monotonic."""
+    keep = np.isfinite(pressure)
+    p = pressure[keep]
     if p.size < 2:
         raise InputError(f"{path}: overlying profile has {p.size} row(s) with a pressure: need at least 2")
     d = np.diff(p)
@@ -563,6 +600,34 @@ def read_overlying_profile(path: str | Path, *, surface_dbar: float = 20.0) -> U
         raise InputError(f"{path}: pressure is not strictly monotonic ({p[i]:.2f} dbar after {p[i - 1]:.2f} dbar, "
                          f"level {i + 1}): give one binned cast (e.g. SeaSoft BinAvg output), not a record with "
                          "loops or repeats")
+    return p, keep, sign
+
+
+def _file_sha256(path: Path) -> str:
+    import hashlib
+
+    h = hashlib.sha256()
+    with path.open("rb") as fh:
+        for block in iter(lambda: fh.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
+def read_overlying_profile(path: str | Path, *, surface_dbar: float = 20.0) -> UserProfile:
+    """Read and check a user's profile of the water above a record (``derive.overlying_profile``): a CSV or a
+    Sea-Bird .cnv (.hex) with pressure and temperature + practical salinity, or in situ density.
+
+    The density is EOS-80 ([TERCOM Eq. 13], as the record's) of the temperature and salinity when the file has both, else
+    its density column. Each mistake is a one-line error naming the file: a missing file (:class:`ConfigError`,
+    the setting points at nothing), an unreadable file, a missing column, a unit that is not one of the quantity
+    (or no unit), values outside :data:`PROFILE_VALUE_RANGES` (a wrong unit: sigma for density, kPa for dbar),
+    a pressure that is not strictly monotonic (a record with loops, not one binned cast), or that starts deeper
+    than ``surface_dbar`` (:class:`InputError`). Whether it reaches the record's first sample is checked by
+    :func:`overlying_column`."""
+    path = Path(path)
+    found, fmt, use_ts = _profile_file_columns(path)
+    values, conversions = _profile_values(path, found, use_ts)
+    p, keep, sign = _monotonic_pressure(path, values["pressure"])
     if use_ts:
         rho = density_eos80(values["salinity"][keep], values["temperature"][keep], p)
         basis = f"EOS-80 density (Eq. 13) of {found['temperature'][0]} and {found['salinity'][0]}"
@@ -582,13 +647,8 @@ def read_overlying_profile(path: str | Path, *, surface_dbar: float = 20.0) -> U
     if p[0] > surface_dbar:
         raise InputError(f"{path}: overlying profile starts at {p[0]:.1f} dbar, deeper than "
                          f"derive.surface_start_dbar ({surface_dbar:g} dbar): it must reach the surface")
-    h = hashlib.sha256()
-    with path.open("rb") as fh:
-        for block in iter(lambda: fh.read(1 << 20), b""):
-            h.update(block)
     return UserProfile(np.ascontiguousarray(p), np.ascontiguousarray(rho), str(path), f"{basis} ({fmt})", cols,
-                       h.hexdigest(), tuple(conversions))
-
+                       _file_sha256(path), tuple(conversions))
 
 # ---------------------------------------------------------------------------------- pressure fusion
 @dataclass(frozen=True)
@@ -681,6 +741,206 @@ def _velocity_dbar_s(p: np.ndarray, t: np.ndarray, ok: np.ndarray, window_s: flo
     return v
 
 
+def _fusion_inputs(pressure_ctd_dbar: ArrayLike, pressure_gauge_dbar: ArrayLike, time_s: ArrayLike | None,
+                   ctd_ok: ArrayLike | None, gauge_ok: ArrayLike | None, datum: str, fit: str
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]:
+    """Checked inputs of :func:`fuse_pressure`: ``(ctd, gauge, ctd valid, gauge valid, time or None)`` (a time
+    base of the wrong length or with non-finite values is dropped)."""
+    pc = np.asarray(pressure_ctd_dbar, dtype=np.float64)
+    pg_raw = np.asarray(pressure_gauge_dbar, dtype=np.float64)
+    if pc.shape != pg_raw.shape:
+        raise InputError(f"fuse_pressure: CTD and gauge series differ in length ({pc.size} vs {pg_raw.size})")
+    if datum not in ("gauge", "ctd"):
+        raise ValueError(f"datum must be 'gauge' or 'ctd', not {datum!r}")
+    if fit not in ("gain_offset", "offset"):
+        raise ValueError(f"fit must be 'gain_offset' or 'offset', not {fit!r}")
+    n = pc.size
+    cok = np.isfinite(pc) & (np.ones(n, bool) if ctd_ok is None else np.asarray(ctd_ok, bool))
+    gok = np.isfinite(pg_raw) & (np.ones(n, bool) if gauge_ok is None else np.asarray(gauge_ok, bool))
+    t = None if time_s is None else np.asarray(time_s, dtype=np.float64)
+    if t is not None and (t.shape != pc.shape or not np.all(np.isfinite(t))):
+        t = None
+    return pc, pg_raw, cok, gok, t
+
+
+def _flat_line_saturation(pc: np.ndarray, pg_raw: np.ndarray, cok: np.ndarray, gok: np.ndarray,
+                          ctd_saturation_dbar: float, flat_tolerance_dbar: float, min_flat_samples: int
+                          ) -> tuple[float, str]:
+    """Step 3a of :func:`fuse_pressure`: ``(saturation, method)`` from the nominal range, lowered to the CTD's
+    clipping value where it reads a flat line at its top while the gauge moves."""
+    sat, sat_method = float(ctd_saturation_dbar), "nominal range"
+    if cok.any():
+        top = float(np.max(pc[cok]))
+        flat = cok & (pc >= top - flat_tolerance_dbar)
+        if flat.sum() >= min_flat_samples and (gok & flat).any():
+            g_flat = pg_raw[gok & flat]
+            if float(g_flat.max() - g_flat.min()) > max(1.0, 20 * flat_tolerance_dbar) and top < sat:
+                sat, sat_method = top - flat_tolerance_dbar, f"flat line at {top:.3f} dbar (CTD clipping)"
+    return sat, sat_method
+
+
+@dataclass(frozen=True)
+class _OverlapFit:
+    """The overlap selection and the gain/offset fit of :func:`fuse_pressure` (steps 1-2)."""
+
+    pc: np.ndarray
+    bias_window_dbar: tuple[float, float]
+    min_bias_samples: int
+    fit: str
+
+    def overlap(self, usable: np.ndarray, gok: np.ndarray, excl: np.ndarray) -> np.ndarray:
+        """Indices of the overlap (both valid, not ``excl``) inside the bias window (all of it when too few)."""
+        pc = self.pc
+        both = usable & gok & ~excl
+        win = both & (pc >= self.bias_window_dbar[0]) & (pc <= self.bias_window_dbar[1])
+        return np.flatnonzero(win if win.sum() >= self.min_bias_samples else both)
+
+    def line(self, idx: np.ndarray, gauge: np.ndarray) -> tuple[float, float, float]:
+        """``(a, b, MAD spread)`` of ``gauge = a + b · ctd`` on ``idx`` (median offset with ``b = 1`` when
+        ``fit="offset"`` or the overlap is too small or too flat)."""
+        pc = self.pc
+        if idx.size == 0:
+            return 0.0, 1.0, float("nan")
+        d = gauge[idx] - pc[idx]
+        if self.fit == "offset" or idx.size < max(self.min_bias_samples, 3) or np.ptp(pc[idx]) < 1.0:
+            off = float(np.median(d))
+            return off, 1.0, 1.4826 * float(np.median(np.abs(d - off)))
+        beta, s = _robust_linear_fit(pc[idx], gauge[idx], 2)
+        return float(beta[0]), float(beta[1]), s
+
+
+def _estimate_lag(of: _OverlapFit, pg_raw: np.ndarray, t: np.ndarray, usable: np.ndarray, gok: np.ndarray,
+                  gross: np.ndarray, velocity_window_s: float, max_lag_s: float
+                  ) -> tuple[np.ndarray, float, str, np.ndarray]:
+    """Step 1 of :func:`fuse_pressure`: ``(shifted gauge, lag, note, gauge valid)`` by the robust regression of
+    gauge - ctd on the CTD's vertical speed, refined on the shifted gauge."""
+    pc, n = of.pc, of.pc.size
+    pg = pg_raw
+    lag = 0.0
+    w = _velocity_dbar_s(pc, t, usable, velocity_window_s)
+    idx = _subsample(of.overlap(usable, gok, ~np.isfinite(w) | gross))
+    if idx.size >= 10 and np.std(w[idx]) > 0.05:
+        total = 0.0
+        for _ in range(3):
+            idx = idx[np.isfinite(pg[idx])]
+            if idx.size < 10:
+                break
+            beta, _s = _robust_linear_fit(np.column_stack([pc[idx], w[idx]]), pg[idx] - pc[idx], 3)
+            step = -float(beta[2]) / (1.0 + float(beta[1]))
+            total = float(np.clip(total + step, -max_lag_s, max_lag_s))
+            gi = np.flatnonzero(gok)
+            pg = np.full(n, np.nan)
+            pg[gi] = np.interp(t[gi] + total, t[gi], pg_raw[gi], left=np.nan, right=np.nan)
+            if abs(step) < 1e-3:
+                break
+        lag = total
+        lag_note = ("estimated by robust regression of gauge - ctd on the CTD's vertical speed; the gauge "
+                    f"is shifted by {lag:+.3f} s")
+        gok = gok & np.isfinite(pg)
+    else:
+        lag_note = "vertical speed does not vary enough on the overlap to separate lag from offset: lag 0"
+    return pg, lag, lag_note, gok
+
+
+@dataclass
+class _Fit:
+    """The fit of :func:`fuse_pressure` after steps 2 and 3b (``gauge = a + b · ctd``) and the saturation."""
+
+    a: float = 0.0
+    b: float = 1.0
+    mad: float = float("nan")
+    rms: float = float("nan")
+    n_fit: int = 0
+    method: str = "none"
+    divergent: np.ndarray | None = None
+    div_limit: float = float("nan")
+    sat: float = float("nan")
+    sat_method: str = ""
+
+
+def _fit_with_divergence(of: _OverlapFit, pg: np.ndarray, usable: np.ndarray, gok: np.ndarray, gross: np.ndarray,
+                         res: _Fit, *, divergence_sigma: float, divergence_floor_dbar: float, min_flat_samples: int,
+                         saturation_margin_dbar: float) -> None:
+    """Steps 2 and 3b of :func:`fuse_pressure`, in place on ``res`` (and ``usable``): the fit on the overlap, the
+    saturation lowered where the CTD diverges from the gauge at the top of its range, the fit redone without
+    the divergent samples."""
+    pc = of.pc
+    idx = of.overlap(usable, gok, gross)
+    if not idx.size:
+        return
+    res.a, res.b, res.mad = of.line(_subsample(idx), pg)
+    res.method = "huber gain+offset" if of.fit == "gain_offset" and res.b != 1.0 else "median offset"
+    # --- 3b. divergence from the gauge (the CTD reading low at the top of its range: saturation)
+    both = usable & gok
+    r = np.where(both, pg - (res.a + res.b * pc), 0.0)
+    res.div_limit = max(divergence_sigma * (res.mad if np.isfinite(res.mad) else 0.0), divergence_floor_dbar)
+    divergent = both & (np.abs(r) > res.div_limit)
+    res.divergent = divergent
+    # the lowest CTD pressure from which >= 90 % of the overlap samples above it read low by more than
+    # the limit (divergence that persists to the top of the CTD's range, not an isolated spike)
+    bi = np.flatnonzero(both)
+    order = bi[np.argsort(pc[bi], kind="stable")[::-1]]
+    low = (divergent & (r > 0))[order]
+    frac = np.cumsum(low) / np.arange(1, order.size + 1)
+    ok_top = np.flatnonzero((frac >= 0.9) & low & (np.arange(order.size) + 1 >= min_flat_samples))
+    if ok_top.size and low[:min_flat_samples].all():
+        new_sat = float(pc[order[ok_top[-1]]])
+        if new_sat < res.sat:
+            res.sat, res.sat_method = new_sat, f"divergence from the gauge from {new_sat:.3f} dbar"
+            usable &= pc < res.sat - saturation_margin_dbar
+    if divergent.any():
+        idx = of.overlap(usable, gok, divergent)
+        if idx.size:
+            res.a, res.b, res.mad = of.line(_subsample(idx), pg)
+    res.n_fit = int(idx.size)
+    rr = pg[idx] - (res.a + res.b * pc[idx])
+    res.rms = float(np.sqrt(np.mean(rr ** 2))) if rr.size else float("nan")
+
+
+def _blend_series(pc: np.ndarray, pg: np.ndarray, usable: np.ndarray, gok: np.ndarray, res: _Fit,
+                  saturation_margin_dbar: float, blend_dbar: float, datum: str
+                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Step 4 of :func:`fuse_pressure`: ``(fused, source, ctd on the datum, gauge on the datum)``, crossing over
+    linearly (weights in gauge pressure) over ``blend_dbar`` below the switch pressure."""
+    a, b = res.a, res.b
+    ctd_on_gauge = a + b * pc
+    p_switch_g = a + b * (res.sat - saturation_margin_dbar)
+    wgt = np.where(usable, 1.0, 0.0)
+    both = usable & gok
+    if blend_dbar > 0 and both.any():
+        wgt[both] = np.clip((p_switch_g - pg[both]) / blend_dbar, 0.0, 1.0)
+    wgt[usable & ~gok] = 1.0
+    if datum == "gauge":
+        c_val, g_val = ctd_on_gauge, pg
+    else:
+        c_val, g_val = pc, (pg - a) / b
+    fused = np.where(wgt >= 1.0, c_val, np.where(wgt <= 0.0, g_val, wgt * c_val + (1.0 - wgt) * g_val))
+    has_g = gok
+    fused = np.where(usable | has_g, fused, np.nan)
+    source = np.full(pc.size, "", dtype=object)
+    source[(wgt >= 1.0) & usable] = "ctd"
+    source[(wgt <= 0.0) & has_g] = "gauge"
+    source[(wgt > 0.0) & (wgt < 1.0)] = "blend"
+    return fused, source, c_val, g_val
+
+
+def _switch_points(fused: np.ndarray, source: np.ndarray, c_val: np.ndarray, g_val: np.ndarray,
+                   usable: np.ndarray, has_g: np.ndarray, max_switch_points: int) -> list[dict[str, Any]]:
+    """Where the source changes between ctd and gauge (through a blend or not), at most ``max_switch_points``."""
+    switches: list[dict[str, Any]] = []
+    lab = np.where(source == "ctd", 1, np.where(source == "gauge", 2, np.where(source == "blend", 3, 0)))
+    seen = np.flatnonzero(lab > 0)
+    if seen.size > 1:
+        ch = seen[1:][lab[seen[1:]] != lab[seen[:-1]]]
+        for i in ch[:max_switch_points]:
+            j = seen[np.searchsorted(seen, i) - 1]
+            step = float(c_val[i] - g_val[i]) if usable[i] and has_g[i] else float("nan")
+            switches.append({"index": int(i), "pressure_dbar": round(float(fused[i]), 3),
+                             "from": str(source[j]), "to": str(source[i]),
+                             "ctd_minus_gauge_dbar": None if not np.isfinite(step) else round(step, 4)})
+    return switches
+
+
 def fuse_pressure(
     pressure_ctd_dbar: ArrayLike,
     pressure_gauge_dbar: ArrayLike,
@@ -733,150 +993,41 @@ def fuse_pressure(
     The fit, its residual, the lag, the saturation found and the switch points (sample index, pressure,
     from/to, the step the blend removed) are in the result (:meth:`PressureFusion.to_dict`).
     """
-    pc = np.asarray(pressure_ctd_dbar, dtype=np.float64)
-    pg_raw = np.asarray(pressure_gauge_dbar, dtype=np.float64)
-    if pc.shape != pg_raw.shape:
-        raise InputError(f"fuse_pressure: CTD and gauge series differ in length ({pc.size} vs {pg_raw.size})")
-    if datum not in ("gauge", "ctd"):
-        raise ValueError(f"datum must be 'gauge' or 'ctd', not {datum!r}")
-    if fit not in ("gain_offset", "offset"):
-        raise ValueError(f"fit must be 'gain_offset' or 'offset', not {fit!r}")
+    pc, pg_raw, cok, gok, t = _fusion_inputs(pressure_ctd_dbar, pressure_gauge_dbar, time_s, ctd_ok, gauge_ok,
+                                             datum, fit)
     n = pc.size
-    cok = np.isfinite(pc) & (np.ones(n, bool) if ctd_ok is None else np.asarray(ctd_ok, bool))
-    gok = np.isfinite(pg_raw) & (np.ones(n, bool) if gauge_ok is None else np.asarray(gauge_ok, bool))
-    t = None if time_s is None else np.asarray(time_s, dtype=np.float64)
-    if t is not None and (t.shape != pc.shape or not np.all(np.isfinite(t))):
-        t = None
-
     # --- 3a. saturation: nominal range, then a flat line at the CTD's top
-    sat, sat_method = float(ctd_saturation_dbar), "nominal range"
-    if cok.any():
-        top = float(np.max(pc[cok]))
-        flat = cok & (pc >= top - flat_tolerance_dbar)
-        if flat.sum() >= min_flat_samples and (gok & flat).any():
-            g_flat = pg_raw[gok & flat]
-            if float(g_flat.max() - g_flat.min()) > max(1.0, 20 * flat_tolerance_dbar) and top < sat:
-                sat, sat_method = top - flat_tolerance_dbar, f"flat line at {top:.3f} dbar (CTD clipping)"
+    sat, sat_method = _flat_line_saturation(pc, pg_raw, cok, gok, ctd_saturation_dbar, flat_tolerance_dbar,
+                                            min_flat_samples)
     usable = cok & (pc < sat - saturation_margin_dbar)
 
     # --- 1. lag and 2. fit on the overlap
     pg = pg_raw
     lag, lag_note = 0.0, "no time base: lag not estimated" if t is None else "not estimated"
-    a, b, mad, rms, n_fit, method = 0.0, 1.0, float("nan"), float("nan"), 0, "none"
-    divergent = np.zeros(n, bool)
-    div_limit = float("nan")
-
-    def overlap(excl: np.ndarray) -> np.ndarray:
-        both = usable & gok & ~excl
-        win = both & (pc >= bias_window_dbar[0]) & (pc <= bias_window_dbar[1])
-        return np.flatnonzero(win if win.sum() >= min_bias_samples else both)
-
-    def do_fit(idx: np.ndarray, gauge: np.ndarray) -> tuple[float, float, float]:
-        if idx.size == 0:
-            return 0.0, 1.0, float("nan")
-        d = gauge[idx] - pc[idx]
-        if fit == "offset" or idx.size < max(min_bias_samples, 3) or np.ptp(pc[idx]) < 1.0:
-            off = float(np.median(d))
-            return off, 1.0, 1.4826 * float(np.median(np.abs(d - off)))
-        beta, s = _robust_linear_fit(pc[idx], gauge[idx], 2)
-        return float(beta[0]), float(beta[1]), s
-
+    of = _OverlapFit(pc, bias_window_dbar, min_bias_samples, fit)
     gross = np.zeros(n, bool)  # far off a first robust line (a clipped CTD): kept out of the lag regression
-    idx0 = overlap(gross)
+    idx0 = of.overlap(usable, gok, gross)
     if idx0.size >= max(min_bias_samples, 3) and fit == "gain_offset" and np.ptp(pc[idx0]) >= 1.0:
-        a0, b0, s0 = do_fit(_subsample(idx0), pg)
+        a0, b0, s0 = of.line(_subsample(idx0), pg)
         gross = usable & gok & (np.abs(pg - (a0 + b0 * pc)) > max(divergence_sigma * s0, divergence_floor_dbar))
     if t is not None and estimate_lag and (usable & gok).sum() >= max(min_bias_samples, 10):
-        w = _velocity_dbar_s(pc, t, usable, velocity_window_s)
-        idx = _subsample(overlap(~np.isfinite(w) | gross))
-        if idx.size >= 10 and np.std(w[idx]) > 0.05:
-            total = 0.0
-            for _ in range(3):
-                idx = idx[np.isfinite(pg[idx])]
-                if idx.size < 10:
-                    break
-                beta, _s = _robust_linear_fit(np.column_stack([pc[idx], w[idx]]), pg[idx] - pc[idx], 3)
-                step = -float(beta[2]) / (1.0 + float(beta[1]))
-                total = float(np.clip(total + step, -max_lag_s, max_lag_s))
-                gi = np.flatnonzero(gok)
-                pg = np.full(n, np.nan)
-                pg[gi] = np.interp(t[gi] + total, t[gi], pg_raw[gi], left=np.nan, right=np.nan)
-                if abs(step) < 1e-3:
-                    break
-            lag = total
-            lag_note = ("estimated by robust regression of gauge - ctd on the CTD's vertical speed; the gauge "
-                        f"is shifted by {lag:+.3f} s")
-            gok = gok & np.isfinite(pg)
-        else:
-            lag_note = "vertical speed does not vary enough on the overlap to separate lag from offset: lag 0"
+        pg, lag, lag_note, gok = _estimate_lag(of, pg_raw, t, usable, gok, gross, velocity_window_s, max_lag_s)
 
-    idx = overlap(gross)
-    if idx.size:
-        a, b, mad = do_fit(_subsample(idx), pg)
-        method = "huber gain+offset" if fit == "gain_offset" and b != 1.0 else "median offset"
-        # --- 3b. divergence from the gauge (the CTD reading low at the top of its range: saturation)
-        both = usable & gok
-        r = np.where(both, pg - (a + b * pc), 0.0)
-        div_limit = max(divergence_sigma * (mad if np.isfinite(mad) else 0.0), divergence_floor_dbar)
-        divergent = both & (np.abs(r) > div_limit)
-        # the lowest CTD pressure from which >= 90 % of the overlap samples above it read low by more than
-        # the limit (divergence that persists to the top of the CTD's range, not an isolated spike)
-        bi = np.flatnonzero(both)
-        order = bi[np.argsort(pc[bi], kind="stable")[::-1]]
-        low = (divergent & (r > 0))[order]
-        frac = np.cumsum(low) / np.arange(1, order.size + 1)
-        ok_top = np.flatnonzero((frac >= 0.9) & low & (np.arange(order.size) + 1 >= min_flat_samples))
-        if ok_top.size and low[:min_flat_samples].all():
-            new_sat = float(pc[order[ok_top[-1]]])
-            if new_sat < sat:
-                sat, sat_method = new_sat, f"divergence from the gauge from {new_sat:.3f} dbar"
-                usable &= pc < sat - saturation_margin_dbar
-        if divergent.any():
-            idx = overlap(divergent)
-            if idx.size:
-                a, b, mad = do_fit(_subsample(idx), pg)
-        n_fit = int(idx.size)
-        rr = pg[idx] - (a + b * pc[idx])
-        rms = float(np.sqrt(np.mean(rr ** 2))) if rr.size else float("nan")
+    res = _Fit(sat=sat, sat_method=sat_method)
+    _fit_with_divergence(of, pg, usable, gok, gross, res, divergence_sigma=divergence_sigma,
+                         divergence_floor_dbar=divergence_floor_dbar, min_flat_samples=min_flat_samples,
+                         saturation_margin_dbar=saturation_margin_dbar)
+    divergent = np.zeros(n, bool) if res.divergent is None else res.divergent
 
     # --- 4. continuous series on one datum, crossing over below the switch pressure
-    ctd_on_gauge = a + b * pc
-    p_switch_g = a + b * (sat - saturation_margin_dbar)
-    wgt = np.where(usable, 1.0, 0.0)
-    both = usable & gok
-    if blend_dbar > 0 and both.any():
-        wgt[both] = np.clip((p_switch_g - pg[both]) / blend_dbar, 0.0, 1.0)
-    wgt[usable & ~gok] = 1.0
-    if datum == "gauge":
-        c_val, g_val = ctd_on_gauge, pg
-    else:
-        c_val, g_val = pc, (pg - a) / b
-    fused = np.where(wgt >= 1.0, c_val, np.where(wgt <= 0.0, g_val, wgt * c_val + (1.0 - wgt) * g_val))
-    has_g = gok
-    fused = np.where(usable | has_g, fused, np.nan)
-    source = np.full(n, "", dtype=object)
-    source[(wgt >= 1.0) & usable] = "ctd"
-    source[(wgt <= 0.0) & has_g] = "gauge"
-    source[(wgt > 0.0) & (wgt < 1.0)] = "blend"
-    # switch points: where the source changes between ctd and gauge (through a blend or not)
-    switches: list[dict[str, Any]] = []
-    lab = np.where(source == "ctd", 1, np.where(source == "gauge", 2, np.where(source == "blend", 3, 0)))
-    seen = np.flatnonzero(lab > 0)
-    if seen.size > 1:
-        ch = seen[1:][lab[seen[1:]] != lab[seen[:-1]]]
-        for i in ch[:max_switch_points]:
-            j = seen[np.searchsorted(seen, i) - 1]
-            step = float(c_val[i] - g_val[i]) if usable[i] and has_g[i] else float("nan")
-            switches.append({"index": int(i), "pressure_dbar": round(float(fused[i]), 3),
-                             "from": str(source[j]), "to": str(source[i]),
-                             "ctd_minus_gauge_dbar": None if not np.isfinite(step) else round(step, 4)})
+    fused, source, c_val, g_val = _blend_series(pc, pg, usable, gok, res, saturation_margin_dbar, blend_dbar, datum)
+    switches = _switch_points(fused, source, c_val, g_val, usable, gok, max_switch_points)
     return PressureFusion(
-        fused, source, float(a), n_fit, float(mad), int((source == "ctd").sum()), int((source == "gauge").sum()),
-        gauge_gain=float(b), fit_method=method, fit_rms_dbar=rms, lag_s=float(lag), lag_note=lag_note,
-        saturation_dbar=float(sat), saturation_method=sat_method, divergent_samples=int(divergent.sum()),
-        divergence_limit_dbar=div_limit, n_blend=int((source == "blend").sum()), blend_dbar=float(blend_dbar),
-        switch_points=tuple(switches))
-
+        fused, source, float(res.a), res.n_fit, float(res.mad), int((source == "ctd").sum()),
+        int((source == "gauge").sum()), gauge_gain=float(res.b), fit_method=res.method, fit_rms_dbar=res.rms,
+        lag_s=float(lag), lag_note=lag_note, saturation_dbar=float(res.sat), saturation_method=res.sat_method,
+        divergent_samples=int(divergent.sum()), divergence_limit_dbar=res.div_limit,
+        n_blend=int((source == "blend").sum()), blend_dbar=float(blend_dbar), switch_points=tuple(switches))
 
 # ------------------------------------------------------------------------------------ altitude, phases
 def correct_altitude(altitude_m: ArrayLike, salinity: ArrayLike, temperature_its90_degc: ArrayLike,

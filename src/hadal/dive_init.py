@@ -199,6 +199,19 @@ def _lonlat_centre(info: dict[str, Any]) -> tuple[float, float] | None:
     return None
 
 
+@dataclass
+class _Scan:
+    """What :func:`_scan_files` gathered from the raw directory for :func:`scan_dive_dir`."""
+
+    sources: dict[str, Any]
+    centres: list[tuple[float, float]] = field(default_factory=list)
+    cast_positions: list[tuple[float, float, str | None]] = field(default_factory=list)
+    logs_mcap: list[Path] = field(default_factory=list)
+    logs_csv: dict[str, Path] = field(default_factory=dict)
+    casts_seen: dict[tuple[Any, Any], tuple[str, str]] = field(default_factory=dict)
+    extents: list[tuple[str, float, float, float, float]] = field(default_factory=list)  # rel, lon0, lon1, lat0, lat1
+
+
 def scan_dive_dir(raw_dir: str | Path, *, dive_id: str | None = None,
                   launch: tuple[float, float] | None = None) -> InitResult:
     """Identify every file of ``raw_dir`` and build the dive.yaml content (nothing is written)."""
@@ -207,13 +220,30 @@ def scan_dive_dir(raw_dir: str | Path, *, dive_id: str | None = None,
         raise InputError(f"raw dive directory {raw} does not exist" if not raw.exists()
                          else f"{raw} is not a directory")
     res = InitResult(raw.resolve(), {})
-    sources: dict[str, Any] = {"mcap": [], "csv": {}, "cnv": [], "multibeam": [], "prior_grid": [], "laser": []}
-    centres: list[tuple[float, float]] = []
-    cast_positions: list[tuple[float, float, str | None]] = []
-    logs_mcap: list[Path] = []
-    logs_csv: dict[str, Path] = {}
-    casts_seen: dict[tuple[Any, Any], tuple[str, str]] = {}
-    extents: list[tuple[str, float, float, float, float]] = []  # rel, lon0, lon1, lat0, lat1 of maps/soundings
+    scan = _Scan({"mcap": [], "csv": {}, "cnv": [], "multibeam": [], "prior_grid": [], "laser": []})
+    _scan_files(res, scan, raw)
+    sources = scan.sources
+    _map_vehicle_logs(res, sources, scan.logs_mcap, scan.logs_csv, raw, launch)
+
+    did = dive_id or sanitise_dive_id(raw.resolve().name)
+    dive: dict[str, Any] = {"dive_id": did, "platform": "unknown"}
+    if (raw / VEHICLE_FILE).is_file():
+        dive["vehicle_config"] = VEHICLE_FILE
+        res.mapped.append(f"{VEHICLE_FILE}: the existing mapping is used and kept (--force replaces it with the "
+                          "suggested one)")
+    elif res.vehicle_yaml is not None:
+        dive["vehicle_config"] = VEHICLE_FILE
+    _set_launch(res, dive, scan, launch)
+    _set_map_frame(res, dive, scan.centres)
+    dive["sources"] = {k: v for k, v in sources.items() if v}
+    res.dive = dive
+    _todo(res)
+    return res
+
+
+def _scan_files(res: InitResult, scan: _Scan, raw: Path) -> None:
+    """Inspect each candidate file of ``raw`` and map it to a source (or list it as not used)."""
+    sources = scan.sources
     for p in _candidate_files(raw):
         rel = p.relative_to(raw).as_posix()
         info = inspect_file(p)
@@ -224,29 +254,12 @@ def scan_dive_dir(raw_dir: str | Path, *, dive_id: str | None = None,
             res.not_used.append(f"{rel}: {info['error']}")
             continue
         if kind == "mcap":
-            logs_mcap.append(p)
+            scan.logs_mcap.append(p)
         elif kind == "csv":
-            logs_csv[_csv_key(p, logs_csv)] = p
+            scan.logs_csv[_csv_key(p, scan.logs_csv)] = p
         elif kind in ("cnv", "seabird_hex"):
-            key = (info.get("start_time_utc"), info.get("scans"))
-            if key[0] and key[1] and key in casts_seen:  # e.g. a .hex and SeaSoft's .cnv conversion of it
-                other, other_kind = casts_seen[key]
-                if kind == "cnv" and other_kind == "seabird_hex":  # keep SeaSoft's conversion, drop the raw file
-                    sources["cnv"].remove(other)
-                    res.mapped = [m for m in res.mapped if not m.startswith(f"{other}:")]
-                    res.not_used.append(f"{other}: the same cast as {rel} (same start time and {key[1]} scans); "
-                                        "the .cnv is used")
-                    casts_seen[key] = (rel, kind)
-                else:
-                    res.not_used.append(f"{rel}: the same cast as {other} (same start time and {key[1]} scans)")
-                    continue
-            else:
-                casts_seen[key] = (rel, kind)
-            sources["cnv"].append(rel)
-            res.mapped.append(f"{rel}: Sea-Bird cast ({kind}) -> sources.cnv")
-            lat, lon = info.get("latitude_deg"), info.get("longitude_deg")
-            if isinstance(lat, (int, float)) and isinstance(lon, (int, float)):
-                cast_positions.append((float(lat), float(lon), info.get("start_time_utc")))
+            if not _map_cast(res, scan, rel, kind, info):
+                continue
         elif kind in ("xyz", "gsf", "kmall", "em_all", "s7k"):
             role = xyz_role(info) if kind == "xyz" else "multibeam"
             sources[role].append(rel)
@@ -263,19 +276,39 @@ def scan_dive_dir(raw_dir: str | Path, *, dive_id: str | None = None,
             continue
         c = _lonlat_centre(info)
         if c is not None:
-            centres.append(c)
+            scan.centres.append(c)
             if (box := _lonlat_box(info)) is not None:
-                extents.append((rel, *box))
-    _map_vehicle_logs(res, sources, logs_mcap, logs_csv, raw, launch)
+                scan.extents.append((rel, *box))
 
-    did = dive_id or sanitise_dive_id(raw.resolve().name)
-    dive: dict[str, Any] = {"dive_id": did, "platform": "unknown"}
-    if (raw / VEHICLE_FILE).is_file():
-        dive["vehicle_config"] = VEHICLE_FILE
-        res.mapped.append(f"{VEHICLE_FILE}: the existing mapping is used and kept (--force replaces it with the "
-                          "suggested one)")
-    elif res.vehicle_yaml is not None:
-        dive["vehicle_config"] = VEHICLE_FILE
+
+def _map_cast(res: InitResult, scan: _Scan, rel: str, kind: str, info: dict[str, Any]) -> bool:
+    """Map a Sea-Bird cast to ``sources.cnv``; ``False`` when it duplicates a cast already kept."""
+    sources, casts_seen = scan.sources, scan.casts_seen
+    key = (info.get("start_time_utc"), info.get("scans"))
+    if key[0] and key[1] and key in casts_seen:  # e.g. a .hex and SeaSoft's .cnv conversion of it
+        other, other_kind = casts_seen[key]
+        if kind == "cnv" and other_kind == "seabird_hex":  # keep SeaSoft's conversion, drop the raw file
+            sources["cnv"].remove(other)
+            res.mapped = [m for m in res.mapped if not m.startswith(f"{other}:")]
+            res.not_used.append(f"{other}: the same cast as {rel} (same start time and {key[1]} scans); "
+                                "the .cnv is used")
+            casts_seen[key] = (rel, kind)
+        else:
+            res.not_used.append(f"{rel}: the same cast as {other} (same start time and {key[1]} scans)")
+            return False
+    else:
+        casts_seen[key] = (rel, kind)
+    sources["cnv"].append(rel)
+    res.mapped.append(f"{rel}: Sea-Bird cast ({kind}) -> sources.cnv")
+    lat, lon = info.get("latitude_deg"), info.get("longitude_deg")
+    if isinstance(lat, (int, float)) and isinstance(lon, (int, float)):
+        scan.cast_positions.append((float(lat), float(lon), info.get("start_time_utc")))
+    return True
+
+
+def _set_launch(res: InitResult, dive: dict[str, Any], scan: _Scan, launch: tuple[float, float] | None) -> None:
+    """Set ``dive["launch"]`` (given, or the casts' common header position) and check it against the extents."""
+    cast_positions = scan.cast_positions
     if launch is not None:
         dive["launch"] = {"latitude_deg": launch[0], "longitude_deg": launch[1]}
     elif cast_positions and _spread_km(cast_positions) <= CASTS_TOGETHER_KM:
@@ -283,25 +316,25 @@ def scan_dive_dir(raw_dir: str | Path, *, dive_id: str | None = None,
         dive["launch"] = {"latitude_deg": round(lat, 6), "longitude_deg": round(lon, 6)}
         if t:
             dive["launch"]["time_utc"] = t
-        res.mapped.append("launch: the position in the Sea-Bird header of " + sources["cnv"][0])
+        res.mapped.append("launch: the position in the Sea-Bird header of " + scan.sources["cnv"][0])
     elif cast_positions:
         res.mapped.append(f"launch: not set, the casts are {_spread_km(cast_positions):.0f} km apart; each cast "
                           "uses the position in its own header")
     pos = (dive["launch"]["latitude_deg"], dive["launch"]["longitude_deg"]) if "launch" in dive else None
-    for rel, lon0, lon1, lat0, lat1 in extents if pos is not None else ():
+    for rel, lon0, lon1, lat0, lat1 in scan.extents if pos is not None else ():
         if not (lat0 <= pos[0] <= lat1 and _lon_in(pos[1], lon0, lon1)):
             res.todo.append(f"the launch/cast position ({pos[0]:.4f}, {pos[1]:.4f}) lies outside {rel} "
                             f"(lon {lon0:.4f}..{lon1:.4f}, lat {lat0:.4f}..{lat1:.4f}): check that they belong to "
                             "one dive")
+
+
+def _set_map_frame(res: InitResult, dive: dict[str, Any], centres: list[tuple[float, float]]) -> None:
+    """Set ``dive["map_frame"]`` to the centre of the soundings'/grids' geographic extents, if any."""
     if centres:
         lon_c = sum(c[0] for c in centres) / len(centres)
         lat_c = sum(c[1] for c in centres) / len(centres)
         dive["map_frame"] = {"origin_latitude_deg": round(lat_c, 4), "origin_longitude_deg": round(lon_c, 4)}
         res.mapped.append("map_frame: the centre of the geographic extent of the soundings/grids")
-    dive["sources"] = {k: v for k, v in sources.items() if v}
-    res.dive = dive
-    _todo(res)
-    return res
 
 
 def _csv_key(p: Path, taken: dict[str, Path]) -> str:

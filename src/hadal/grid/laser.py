@@ -197,23 +197,7 @@ def grid_laser(
     """
     p, n_bad = clean_cloud(points)
     n_in = len(p)
-    choice, nn_q = f"{resolution!r} given", float("nan")
-    centred = False
-    if isinstance(resolution, str):
-        if resolution != "auto":
-            raise InputError(f"laser resolution must be a number of metres or 'auto', got {resolution!r}")
-        resolution, ainfo = auto_resolution_m(p)
-        choice, nn_q = f"auto: {ainfo['rule']}", ainfo["nn_quantile_m"]
-        resolution, qnote = check_quantisation(p, resolution, pinned=False)
-        if qnote:
-            choice = f"auto: {qnote}"
-            warnings.warn(qnote, UserWarning, stacklevel=2)
-        centred = resolution > G_RES_M and bounds is None
-    else:
-        resolution = float(resolution)
-        _, qnote = check_quantisation(p, resolution, pinned=True)
-        if qnote:
-            warnings.warn(qnote, UserWarning, stacklevel=2)
+    resolution, choice, nn_q, qnote, centred = _choose_resolution(p, resolution, bounds)
     pts, cand, info = filter_cloud(p, voxel_size_m=voxel_size_m, sor_neighbors=sor_neighbors,
                                    sor_std_ratio=sor_std_ratio)
     x, y, z = (np.ascontiguousarray(pts[:, i]) for i in range(3))
@@ -231,37 +215,10 @@ def grid_laser(
         spec = make_grid_spec(resolution, bounds, max_cells=max_cells)
     n_removed = 0
     if cand.any() and centred:
-        # a spacing-derived cell holds about one point: the surface test uses the candidate's 8 nearest
-        # non-candidate neighbours within 2.5 cells instead of its cell's other points
-        from scipy.spatial import cKDTree
-
-        gi = np.flatnonzero(good)
-        ci = np.flatnonzero(cand)
-        d, nb = cKDTree(np.column_stack([x[gi], y[gi]])).query(np.column_stack([x[ci], y[ci]]), k=8,
-                                                               distance_upper_bound=2.5 * resolution)
-        has = np.isfinite(d)
-        zn = np.where(has, z[gi][np.minimum(nb, len(gi) - 1)], np.nan)
-        cnt_n = has.sum(axis=1)
-        with np.errstate(invalid="ignore"), warnings.catch_warnings():
-            warnings.simplefilter("ignore", RuntimeWarning)
-            mu = np.nanmean(zn, axis=1)
-            sd = np.where(cnt_n > 1, np.nanstd(zn, axis=1, ddof=1), 0.0)
-            on_surface = (cnt_n > 0) & (np.abs(z[ci] - mu) <= np.maximum(surface_tol_m, 4.0 * sd))
-        good[ci[on_surface]] = True
-        n_removed = int(ci.size - on_surface.sum())
+        n_removed = _keep_surface_candidates_nn(x, y, z, good, cand, resolution, surface_tol_m)
         x, y, z = x[good], y[good], z[good]
     elif cand.any():
-        c0, mean0, m20, _, _ = cell_moments(x[good], y[good], z[good], spec, check_inside=True, all_finite=True)
-        ci, inside = spec.cell_index(x[cand], y[cand], check_inside=True, finite=True)
-        cc = np.where(inside, c0[ci], 0)
-        sd = np.zeros(len(ci))
-        multi = cc > 1
-        sd[multi] = np.sqrt(m20[ci[multi]] / (cc[multi] - 1))
-        with np.errstate(invalid="ignore"):
-            on_surface = (cc > 0) & (np.abs(z[cand] - mean0[ci]) <= np.maximum(surface_tol_m, 4.0 * sd))
-        keep_c = np.flatnonzero(cand)[on_surface]
-        good[keep_c] = True
-        n_removed = int(cand.sum() - on_surface.sum())
+        n_removed = _keep_surface_candidates_cell(x, y, z, good, cand, spec, surface_tol_m)
         x, y, z = x[good], y[good], z[good]
     info["n_outliers"] = n_removed
     cnt, mean, m2, _, n_out = cell_moments(x, y, z, spec, check_inside=bounds is not None, all_finite=True)
@@ -292,6 +249,78 @@ def grid_laser(
             "method": "Sangekar et al. SIII-A: resampled to a uniform lateral grid; cell mean of the points",
         },
     )
+    _laser_var_attrs(ds)
+    return ds
+
+
+def _choose_resolution(p: np.ndarray, resolution: float | str, bounds: Sequence[float] | None
+                       ) -> tuple[float, str, float, str, bool]:
+    """Resolve ``resolution`` (a number or ``"auto"``) for :func:`grid_laser`; warn on coordinate quantisation.
+
+    Returns ``(resolution, choice, nn_q, qnote, centred)``.
+    """
+    choice, nn_q = f"{resolution!r} given", float("nan")
+    centred = False
+    if isinstance(resolution, str):
+        if resolution != "auto":
+            raise InputError(f"laser resolution must be a number of metres or 'auto', got {resolution!r}")
+        resolution, ainfo = auto_resolution_m(p)
+        choice, nn_q = f"auto: {ainfo['rule']}", ainfo["nn_quantile_m"]
+        resolution, qnote = check_quantisation(p, resolution, pinned=False)
+        if qnote:
+            choice = f"auto: {qnote}"
+            warnings.warn(qnote, UserWarning, stacklevel=3)
+        centred = resolution > G_RES_M and bounds is None
+    else:
+        resolution = float(resolution)
+        _, qnote = check_quantisation(p, resolution, pinned=True)
+        if qnote:
+            warnings.warn(qnote, UserWarning, stacklevel=3)
+    return float(resolution), choice, nn_q, qnote, centred
+
+
+def _keep_surface_candidates_nn(x, y, z, good: np.ndarray, cand: np.ndarray, resolution: float,
+                                surface_tol_m: float) -> int:
+    """Mark SOR candidates on the surface of their nearest neighbours as ``good`` (in place); return the removed."""
+    # a spacing-derived cell holds about one point: the surface test uses the candidate's 8 nearest
+    # non-candidate neighbours within 2.5 cells instead of its cell's other points
+    from scipy.spatial import cKDTree
+
+    gi = np.flatnonzero(good)
+    ci = np.flatnonzero(cand)
+    d, nb = cKDTree(np.column_stack([x[gi], y[gi]])).query(np.column_stack([x[ci], y[ci]]), k=8,
+                                                           distance_upper_bound=2.5 * resolution)
+    has = np.isfinite(d)
+    zn = np.where(has, z[gi][np.minimum(nb, len(gi) - 1)], np.nan)
+    cnt_n = has.sum(axis=1)
+    with np.errstate(invalid="ignore"), warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        mu = np.nanmean(zn, axis=1)
+        sd = np.where(cnt_n > 1, np.nanstd(zn, axis=1, ddof=1), 0.0)
+        on_surface = (cnt_n > 0) & (np.abs(z[ci] - mu) <= np.maximum(surface_tol_m, 4.0 * sd))
+    good[ci[on_surface]] = True
+    n_removed = int(ci.size - on_surface.sum())
+    return n_removed
+
+
+def _keep_surface_candidates_cell(x, y, z, good: np.ndarray, cand: np.ndarray, spec, surface_tol_m: float) -> int:
+    """Mark SOR candidates on the surface of their cell's other points as ``good`` (in place); return the removed."""
+    c0, mean0, m20, _, _ = cell_moments(x[good], y[good], z[good], spec, check_inside=True, all_finite=True)
+    ci, inside = spec.cell_index(x[cand], y[cand], check_inside=True, finite=True)
+    cc = np.where(inside, c0[ci], 0)
+    sd = np.zeros(len(ci))
+    multi = cc > 1
+    sd[multi] = np.sqrt(m20[ci[multi]] / (cc[multi] - 1))
+    with np.errstate(invalid="ignore"):
+        on_surface = (cc > 0) & (np.abs(z[cand] - mean0[ci]) <= np.maximum(surface_tol_m, 4.0 * sd))
+    keep_c = np.flatnonzero(cand)[on_surface]
+    good[keep_c] = True
+    n_removed = int(cand.sum() - on_surface.sum())
+    return n_removed
+
+
+def _laser_var_attrs(ds: xr.Dataset) -> None:
+    """Set the CF attrs of the laser grid's variables and coordinates."""
     ds["elevation_m"].attrs = {"standard_name": "height", "long_name": "mean elevation of the laser points in the cell",
                                "units": "m", "positive": "up", "cell_methods": "area: mean",
                                "comment": "NaN = unmapped cell"}
@@ -300,7 +329,6 @@ def grid_laser(
     ds["count"].attrs = {"long_name": "number of laser points in the cell", "units": "1"}
     ds["x"].attrs.update({"long_name": "x in the laser survey's local frame", "units": "m", "axis": "X"})
     ds["y"].attrs.update({"long_name": "y in the laser survey's local frame", "units": "m", "axis": "Y"})
-    return ds
 
 
 def laser_grid_from_raster(da: xr.DataArray, *, z_positive: str, z_reason: str = "", frame=None) -> xr.Dataset:

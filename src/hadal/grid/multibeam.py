@@ -293,24 +293,7 @@ def grid_multibeam(
         spec = make_grid_spec(resolution, ext, max_cells=max_cells, snap=True)
     else:
         spec = make_grid_spec(resolution, bounds, max_cells=max_cells)
-    if bounds is None:
-        # keep x/y aligned with z when dropping non-finite points
-        ok = np.isfinite(x) & np.isfinite(y) & np.isfinite(z)
-        n_bad = int(len(x) - ok.sum())
-        x, y, z = x[ok], y[ok], z[ok]
-        idx, _ = spec.cell_index(x, y, check_inside=False, finite=True)
-        n_out = 0
-    else:
-        ok = np.isfinite(x) & np.isfinite(y) & np.isfinite(z)
-        n_bad = int(len(x) - ok.sum())
-        if not ok.any():
-            raise InputError(f"all {len(x)} soundings have NaN/inf coordinates; nothing to grid")
-        x, y, z = x[ok], y[ok], z[ok]
-        idx, inside = spec.cell_index(x, y, check_inside=True, finite=True)
-        n_out = int(len(x) - inside.sum())
-        x, y, z, idx = x[inside], y[inside], z[inside], idx[inside]
-        if len(z) == 0:
-            raise InputError(f"none of the soundings fall inside the grid bounds {tuple(bounds)}")
+    x, y, z, idx, n_bad, n_out = _soundings_in_grid(spec, x, y, z, bounds)
     n_in = len(z)
     spikes = np.zeros(n_in, dtype=bool)
     sigma0 = float("nan")
@@ -324,20 +307,9 @@ def grid_multibeam(
         n_sor = int((s & ~spikes).sum())
         spikes |= s
     keep = ~spikes
-    flat = reduce_cells(idx[keep], z[keep], spec.n_cells, ("mean", "median", "count", "std"))
-    unc = cell_uncertainty(flat["count"], flat["std"], flat["median"], a_m=apriori_a_m, b=apriori_b,
-                           prior_weight=prior_weight)
-    shape = (spec.ny, spec.nx)
-    mean_f, filled = fill_small_holes(flat["mean"].reshape(shape), fill_max_cells)
-    med_f, _ = fill_small_holes(flat["median"].reshape(shape), fill_max_cells)
-    unc = unc.reshape(shape)
-    unc[filled] = apriori_sigma_m(mean_f[filled], apriori_a_m, apriori_b)
-    flat = {
-        "mean": mean_f.ravel(), "median": med_f.ravel(), "count": flat["count"].astype(np.int32),
-        "std": flat["std"], "uncertainty": unc.ravel(), "filled": filled.ravel().astype(np.int8),
-    }
+    flat, filled = _dtm_layers(spec, idx[keep], z[keep], fill_max_cells, apriori_a_m, apriori_b, prior_weight)
     names = {"mean": "depth_m", "median": "depth_median_m", "std": "depth_std_m", "uncertainty": "uncertainty_m"}
-    ds = to_dataset(spec, flat, names=names, attrs={
+    attrs = {
         "n_soundings_input": int(n_in + n_bad + n_out),
         "n_soundings_nonfinite": n_bad,
         "n_soundings_outside": n_out,
@@ -346,6 +318,67 @@ def grid_multibeam(
         "n_soundings_used": int(keep.sum()),
         "n_cells_filled": int(filled.sum()),
         "spike_noise_floor_m": sigma0,
+        **_method_attrs(spike_k=spike_k, spike_k_neighbourhood=spike_k_neighbourhood,
+                        spike_neighbours=spike_neighbours, spike_min_count=spike_min_count,
+                        spike_floor_m=spike_floor_m, remove_spikes=remove_spikes, sor=sor,
+                        sor_neighbors=sor_neighbors, sor_std_ratio=sor_std_ratio, fill_max_cells=fill_max_cells,
+                        apriori_a_m=apriori_a_m, apriori_b=apriori_b, prior_weight=prior_weight),
+    }
+    ds = to_dataset(spec, flat, names=names, attrs=attrs)
+    _dtm_attrs(ds)
+    return ds
+
+
+def _soundings_in_grid(spec, x: np.ndarray, y: np.ndarray, z: np.ndarray, bounds: Sequence[float] | None):
+    """Drop non-finite soundings (and, with explicit ``bounds``, those outside the grid).
+
+    Returns ``(x, y, z, idx, n_bad, n_out)``: the kept soundings, their flat cell index, the number
+    dropped as non-finite and the number outside the bounds.
+    """
+    # keep x/y aligned with z when dropping non-finite points
+    ok = np.isfinite(x) & np.isfinite(y) & np.isfinite(z)
+    n_bad = int(len(x) - ok.sum())
+    if bounds is None:
+        x, y, z = x[ok], y[ok], z[ok]
+        idx, _ = spec.cell_index(x, y, check_inside=False, finite=True)
+        return x, y, z, idx, n_bad, 0
+    if not ok.any():
+        raise InputError(f"all {len(x)} soundings have NaN/inf coordinates; nothing to grid")
+    x, y, z = x[ok], y[ok], z[ok]
+    idx, inside = spec.cell_index(x, y, check_inside=True, finite=True)
+    n_out = int(len(x) - inside.sum())
+    x, y, z, idx = x[inside], y[inside], z[inside], idx[inside]
+    if len(z) == 0:
+        raise InputError(f"none of the soundings fall inside the grid bounds {tuple(bounds)}")
+    return x, y, z, idx, n_bad, n_out
+
+
+def _dtm_layers(spec, idx: np.ndarray, z: np.ndarray, fill_max_cells: int, apriori_a_m: float, apriori_b: float,
+                prior_weight: float) -> tuple[dict, np.ndarray]:
+    """Per-cell mean/median/count/std/uncertainty of the kept soundings, small holes filled.
+
+    Returns the flat layers for :func:`to_dataset` and the 2-D mask of filled cells.
+    """
+    flat = reduce_cells(idx, z, spec.n_cells, ("mean", "median", "count", "std"))
+    unc = cell_uncertainty(flat["count"], flat["std"], flat["median"], a_m=apriori_a_m, b=apriori_b,
+                           prior_weight=prior_weight)
+    shape = (spec.ny, spec.nx)
+    mean_f, filled = fill_small_holes(flat["mean"].reshape(shape), fill_max_cells)
+    med_f, _ = fill_small_holes(flat["median"].reshape(shape), fill_max_cells)
+    unc = unc.reshape(shape)
+    unc[filled] = apriori_sigma_m(mean_f[filled], apriori_a_m, apriori_b)
+    layers = {
+        "mean": mean_f.ravel(), "median": med_f.ravel(), "count": flat["count"].astype(np.int32),
+        "std": flat["std"], "uncertainty": unc.ravel(), "filled": filled.ravel().astype(np.int8),
+    }
+    return layers, filled
+
+
+def _method_attrs(*, spike_k, spike_k_neighbourhood, spike_neighbours, spike_min_count, spike_floor_m,
+                  remove_spikes, sor, sor_neighbors, sor_std_ratio, fill_max_cells, apriori_a_m, apriori_b,
+                  prior_weight) -> dict:
+    """The DTM's ``spike_filter``, ``uncertainty_model`` and ``gap_filling`` attrs (method descriptions)."""
+    return {
         "spike_filter": (f"per-cell median +- {spike_k} x max(1.4826 MAD, sigma_0) (cells with >= "
                          f"{spike_min_count} soundings); median of the {spike_neighbours} nearest soundings +- "
                          f"{spike_k_neighbourhood} x max(their 1.4826 MAD, sigma_0); sigma_0 = median cell 1.4826 MAD "
@@ -356,9 +389,7 @@ def grid_multibeam(
                               f"{prior_weight} sigma_a^2) / (n - 1 + {prior_weight}); u = sigma / sqrt(n); "
                               "filled cells: u = sigma_a"),
         "gap_filling": f"harmonic interpolation of interior holes of <= {fill_max_cells} cells",
-    })
-    _dtm_attrs(ds)
-    return ds
+    }
 
 
 def _dtm_attrs(ds: xr.Dataset) -> None:

@@ -612,44 +612,60 @@ def read_grid(path: str | Path, *, crs_kind: str | None = None, variable: str | 
         _check_tiff_truncation(p)
         da = _read_geotiff(p, max_bytes)
     elif kind == "netcdf":
-        check_grid_truncation(p)  # classic netCDF is read zero-filled past a cut, as a valid-looking grid
-        try:
-            da = _read_netcdf_grid(p, variable, max_bytes)
-        except InputError as first:
-            # HDF5 that is not netCDF (e.g. BAG), or a layout xarray cannot map: GDAL's turn. A readable netCDF
-            # that lacks the asked-for variable or its coordinates stays an error (GDAL would silently give
-            # pixel indices as coordinates).
-            if variable is not None or not any(t in str(first) for t in ("cannot read NetCDF", "no 2-D variable")):
-                raise
-            # A netCDF with CF lat/lon coordinate variables is geographic: GDAL's band 1 of it (e.g. of a
-            # z(time, lat, lon) cube) would come back as 'local metric' with degree-sized metre cells - a
-            # silently wrong DTM. Refuse instead of falling back.
-            ll = _netcdf_latlon_names(p)
-            if ll:
-                raise InputError(f"{str(first).rstrip('.')}; the file has CF lat/lon coordinates "
-                                 f"({', '.join(ll)}) but no readable 2-D lat/lon grid variable: give the "
-                                 "variable in dive.yaml or make a 2-D file (e.g. 'ncks -d time,0 IN.nc OUT.nc')"
-                                 ) from None
-            try:
-                da = _read_geotiff(p, max_bytes)
-            except InputError:
-                raise first from None
+        da = _read_netcdf_or_gdal(p, variable, max_bytes)
     else:
-        try:
-            da = _read_geotiff(p, max_bytes)
-        except InputError as exc:
-            if "reading it needs about" in str(exc):
-                raise
-            hint = (" (a GMT native binary grid? GDAL cannot read those: convert it with "
-                    "'gmt grdconvert IN.grd OUT.nc')" if p.suffix.lower() == ".grd" else "")
-            raise InputError(f"{p}: not a grid format hadal reads (GeoTIFF, NetCDF/GMT netCDF or another GDAL "
-                             f"raster){hint}") from None
+        da = _read_gdal_raster(p, max_bytes)
     if da.sizes["x"] < 2 or da.sizes["y"] < 2:
         raise InputError(f"{p}: grid must be at least 2 x 2 cells, got {da.sizes['y']} x {da.sizes['x']}")
     finite = np.isfinite(da.values)
     if not finite.any():
         raise InputError(f"{p}: grid has no valid (non-nodata) cells")
     da.attrs["nodata_fraction"] = float(1.0 - finite.mean())
+    _apply_crs(p, da, crs, crs_kind)
+    return da
+
+
+def _read_netcdf_or_gdal(p: Path, variable: str | None, max_bytes: float | None) -> xr.DataArray:
+    """A NetCDF grid via xarray, falling back to GDAL for HDF5/layouts xarray cannot map (see :func:`read_grid`)."""
+    check_grid_truncation(p)  # classic netCDF is read zero-filled past a cut, as a valid-looking grid
+    try:
+        return _read_netcdf_grid(p, variable, max_bytes)
+    except InputError as first:
+        # HDF5 that is not netCDF (e.g. BAG), or a layout xarray cannot map: GDAL's turn. A readable netCDF
+        # that lacks the asked-for variable or its coordinates stays an error (GDAL would silently give
+        # pixel indices as coordinates).
+        if variable is not None or not any(t in str(first) for t in ("cannot read NetCDF", "no 2-D variable")):
+            raise
+        # A netCDF with CF lat/lon coordinate variables is geographic: GDAL's band 1 of it (e.g. of a
+        # z(time, lat, lon) cube) would come back as 'local metric' with degree-sized metre cells - a
+        # silently wrong DTM. Refuse instead of falling back.
+        ll = _netcdf_latlon_names(p)
+        if ll:
+            raise InputError(f"{str(first).rstrip('.')}; the file has CF lat/lon coordinates "
+                             f"({', '.join(ll)}) but no readable 2-D lat/lon grid variable: give the "
+                             "variable in dive.yaml or make a 2-D file (e.g. 'ncks -d time,0 IN.nc OUT.nc')"
+                             ) from None
+        try:
+            return _read_geotiff(p, max_bytes)
+        except InputError:
+            raise first from None
+
+
+def _read_gdal_raster(p: Path, max_bytes: float | None) -> xr.DataArray:
+    """Any other GDAL raster; a one-line error (with a GMT hint for ``.grd``) when GDAL cannot read it."""
+    try:
+        return _read_geotiff(p, max_bytes)
+    except InputError as exc:
+        if "reading it needs about" in str(exc):
+            raise
+        hint = (" (a GMT native binary grid? GDAL cannot read those: convert it with "
+                "'gmt grdconvert IN.grd OUT.nc')" if p.suffix.lower() == ".grd" else "")
+        raise InputError(f"{p}: not a grid format hadal reads (GeoTIFF, NetCDF/GMT netCDF or another GDAL "
+                         f"raster){hint}") from None
+
+
+def _apply_crs(p: Path, da: xr.DataArray, crs: str | None, crs_kind: str | None) -> None:
+    """Apply the ``crs``/``crs_kind`` overrides, the local-metric detection and the x/y units (in place)."""
     detected = da.attrs["crs_kind"]
     if crs is not None:
         if str(crs).lower() in ("local", "local_metric", "none"):
@@ -674,7 +690,7 @@ def read_grid(path: str | Path, *, crs_kind: str | None = None, variable: str | 
             warnings.warn(
                 f"{p.name}: CRS says geographic but a {xe:g} x {ye:g} extent with {relief:.3g} m of relief only "
                 "makes sense in metres; treating it as a local metric grid",
-                GridCRSWarning, stacklevel=2,
+                GridCRSWarning, stacklevel=3,
             )
             da.attrs["crs_kind"] = "local_metric"
             da.attrs["crs_override"] = "geographic tag ignored: local metric frame"
@@ -684,7 +700,6 @@ def read_grid(path: str | Path, *, crs_kind: str | None = None, variable: str | 
     else:
         da["x"].attrs.update({"units": "degrees_east", "standard_name": "longitude"})
         da["y"].attrs.update({"units": "degrees_north", "standard_name": "latitude"})
-    return da
 
 
 def _check_tiff_truncation(p: Path) -> None:
@@ -791,22 +806,7 @@ def _read_netcdf_grid(p: Path, variable: str | None, max_bytes: float | None = N
     with ds:
         if variable is None and "z" in ds and ds["z"].ndim == 1 and "dimension" in ds and "x_range" in ds:
             return _read_old_gmt(p, ds)
-        if variable is not None:
-            if variable not in ds:
-                raise InputError(f"{p}: no variable {variable!r} (have {', '.join(map(str, ds.data_vars))})")
-            da = ds[variable]
-            _refuse_stacked(p, ds, [variable])
-        else:
-            def squeezed_ndim(v):
-                return sum(s > 1 for s in ds[v].shape)
-
-            cands = [v for v in ds.data_vars if ds[v].ndim >= 2 and squeezed_ndim(v) == 2
-                     and str(v).lower() not in _NOT_GRID_VARS]
-            if not cands:
-                _refuse_stacked(p, ds, [v for v in ds.data_vars if str(v).lower() not in _NOT_GRID_VARS])
-                raise InputError(f"{p}: no 2-D variable to read as a grid (have {', '.join(map(str, ds.data_vars))})")
-            pref = [v for v in cands if str(v).lower() in _PREFERRED_VARS]
-            da = ds[(pref or cands)[0]]
+        da = _netcdf_variable(p, ds, variable)
         big = [n for n in da.shape if n > 1]
         if len(big) == 2:
             check_grid_read_size(p, big[0], big[1], max_bytes)
@@ -816,23 +816,9 @@ def _read_netcdf_grid(p: Path, variable: str | None, max_bytes: float | None = N
             raise
         except Exception as exc:  # noqa: BLE001 - truncated data blocks
             raise InputError(f"{p}: cannot read variable {da.name!r} ({str(exc).splitlines()[0]})") from None
-        gm = str(da.attrs.get("grid_mapping", "") or da.encoding.get("grid_mapping", ""))
-        gm_attrs = dict(ds[gm].attrs) if gm and gm in ds else {}
-        if not gm_attrs:
-            for cand in ("crs", "spatial_ref", "transverse_mercator", "mercator"):
-                if cand in ds.variables and ("crs_wkt" in ds[cand].attrs or "spatial_ref" in ds[cand].attrs):
-                    gm_attrs = dict(ds[cand].attrs)
-                    break
+        gm_attrs = _netcdf_grid_mapping(ds, da)
         gattrs = dict(ds.attrs)
-        with open(p, "rb") as fh:
-            magic = fh.read(4)
-        fmt = {b"CDF\x01": "netCDF classic", b"CDF\x02": "netCDF 64-bit offset", b"CDF\x05": "netCDF CDF-5",
-               b"\x89HDF": "netCDF-4 (HDF5)"}.get(magic, "netCDF")
-        if "GMT_version" in ds.attrs or "node_offset" in ds.attrs:
-            fmt += f", GMT grid ({ds.attrs.get('GMT_version', 'GMT')})"
-        conv = ds.attrs.get("Conventions")
-        if conv:
-            fmt += f", {conv}"
+        fmt = _netcdf_format(p, ds)
     if da.ndim != 2:
         raise InputError(f"{p}: variable {da.name!r} is not 2-D after dropping length-1 dimensions ({da.dims})")
     var_name = str(da.name)
@@ -861,6 +847,73 @@ def _read_netcdf_grid(p: Path, variable: str | None, max_bytes: float | None = N
         da = da.isel(x=slice(None, None, -1))
     if da.sizes["y"] > 1 and float(da.y[1] - da.y[0]) < 0:
         da = da.isel(y=slice(None, None, -1))
+    cells = _regular_cells(p, da)
+    crs_wkt, crs_note, geographic = _netcdf_crs(gm_attrs, geographic)
+    kind = "geographic" if geographic else ("projected" if crs_wkt else "local_metric")
+    reg, reg_src = _registration(vattrs, gattrs)
+    da = da.reset_coords(drop=True)
+    attrs = {"crs_kind": kind, "crs_wkt": crs_wkt, "cell_size_x": cells[0], "cell_size_y": cells[1],
+             "units": str(vattrs.get("units", "")), "source": str(p), "format": fmt, "reader": reader_of("netcdf"),
+             "registration": reg, "registration_source": reg_src, "var_name": var_name, "nodata": ""}
+    if crs_note:
+        attrs["crs_note"] = crs_note
+    for k in ("positive", "standard_name", "long_name"):
+        if k in vattrs:
+            attrs[k] = str(vattrs[k])
+    da.attrs = attrs
+    da.name = "z"
+    return da
+
+
+def _netcdf_variable(p: Path, ds: xr.Dataset, variable: str | None) -> xr.DataArray:
+    """The (not yet loaded) grid variable of ``ds``: ``variable``, else the preferred/first 2-D data variable."""
+    if variable is not None:
+        if variable not in ds:
+            raise InputError(f"{p}: no variable {variable!r} (have {', '.join(map(str, ds.data_vars))})")
+        da = ds[variable]
+        _refuse_stacked(p, ds, [variable])
+        return da
+    else:
+        def squeezed_ndim(v):
+            return sum(s > 1 for s in ds[v].shape)
+
+        cands = [v for v in ds.data_vars if ds[v].ndim >= 2 and squeezed_ndim(v) == 2
+                 and str(v).lower() not in _NOT_GRID_VARS]
+        if not cands:
+            _refuse_stacked(p, ds, [v for v in ds.data_vars if str(v).lower() not in _NOT_GRID_VARS])
+            raise InputError(f"{p}: no 2-D variable to read as a grid (have {', '.join(map(str, ds.data_vars))})")
+        pref = [v for v in cands if str(v).lower() in _PREFERRED_VARS]
+        return ds[(pref or cands)[0]]
+
+
+def _netcdf_grid_mapping(ds: xr.Dataset, da: xr.DataArray) -> dict:
+    """The attrs of ``da``'s CF grid-mapping variable, else of a conventional CRS variable holding a WKT."""
+    gm = str(da.attrs.get("grid_mapping", "") or da.encoding.get("grid_mapping", ""))
+    gm_attrs = dict(ds[gm].attrs) if gm and gm in ds else {}
+    if not gm_attrs:
+        for cand in ("crs", "spatial_ref", "transverse_mercator", "mercator"):
+            if cand in ds.variables and ("crs_wkt" in ds[cand].attrs or "spatial_ref" in ds[cand].attrs):
+                gm_attrs = dict(ds[cand].attrs)
+                break
+    return gm_attrs
+
+
+def _netcdf_format(p: Path, ds: xr.Dataset) -> str:
+    """The ``format`` attr: the netCDF flavour from the magic bytes, GMT version and Conventions."""
+    with open(p, "rb") as fh:
+        magic = fh.read(4)
+    fmt = {b"CDF\x01": "netCDF classic", b"CDF\x02": "netCDF 64-bit offset", b"CDF\x05": "netCDF CDF-5",
+           b"\x89HDF": "netCDF-4 (HDF5)"}.get(magic, "netCDF")
+    if "GMT_version" in ds.attrs or "node_offset" in ds.attrs:
+        fmt += f", GMT grid ({ds.attrs.get('GMT_version', 'GMT')})"
+    conv = ds.attrs.get("Conventions")
+    if conv:
+        fmt += f", {conv}"
+    return fmt
+
+
+def _regular_cells(p: Path, da: xr.DataArray) -> list[float]:
+    """The x and y cell sizes of a grid with ascending coordinates; irregular spacing is refused."""
     cells = []
     for d in ("x", "y"):
         c = np.asarray(da[d].values, float)
@@ -872,6 +925,11 @@ def _read_netcdf_grid(p: Path, variable: str | None, max_bytes: float | None = N
             cells.append(float(step))
         else:
             cells.append(0.0)
+    return cells
+
+
+def _netcdf_crs(gm_attrs: dict, geographic: bool) -> tuple[str, str, bool]:
+    """``(crs_wkt, crs_note, geographic)`` from the grid-mapping attrs and the coordinates' geographic guess."""
     crs_wkt, crs_note = "", ""
     wkt = gm_attrs.get("crs_wkt") or gm_attrs.get("spatial_ref")
     if wkt:
@@ -892,7 +950,11 @@ def _read_netcdf_grid(p: Path, variable: str | None, max_bytes: float | None = N
             crs_wkt = ""
     if not crs_wkt and geographic:
         crs_note = "no CRS in the file: geographic coordinates taken as WGS84 (EPSG:4326)"
-    kind = "geographic" if geographic else ("projected" if crs_wkt else "local_metric")
+    return crs_wkt, crs_note, geographic
+
+
+def _registration(vattrs: dict, gattrs: dict) -> tuple[str, str]:
+    """``(registration, registration_source)`` from GMT's ``node_offset`` (variable or global attr)."""
     node_offset = vattrs.get("node_offset", gattrs.get("node_offset"))
     if node_offset is not None:
         try:
@@ -902,18 +964,7 @@ def _read_netcdf_grid(p: Path, variable: str | None, max_bytes: float | None = N
         reg_src = "node_offset attribute (GMT)"
     else:
         reg, reg_src = "gridline", "COARDS/CF coordinates are the values' positions"
-    da = da.reset_coords(drop=True)
-    attrs = {"crs_kind": kind, "crs_wkt": crs_wkt, "cell_size_x": cells[0], "cell_size_y": cells[1],
-             "units": str(vattrs.get("units", "")), "source": str(p), "format": fmt, "reader": reader_of("netcdf"),
-             "registration": reg, "registration_source": reg_src, "var_name": var_name, "nodata": ""}
-    if crs_note:
-        attrs["crs_note"] = crs_note
-    for k in ("positive", "standard_name", "long_name"):
-        if k in vattrs:
-            attrs[k] = str(vattrs[k])
-    da.attrs = attrs
-    da.name = "z"
-    return da
+    return reg, reg_src
 
 
 def _netcdf_latlon_names(p: Path) -> list[str]:

@@ -540,13 +540,7 @@ def build_sensor_table(
     qc = merge_qc(qc)
     _check_sensor_keys(vehicle, "ingest.max_gap_s", max_gap_s)
     base_name = vehicle.time_base
-    if base_name not in sensors or len(sensors[base_name]) == 0:
-        st = sensors[base_name].stats if base_name in sensors else {}
-        why = ""
-        if isinstance(st, dict) and (st.get("rejected_samples") or st.get("bad_times")):
-            why = (f" ({sensors[base_name].source}: {st.get('rejected_samples', 0)} sample(s) rejected for a value "
-                   f"that is not a number, {st.get('bad_times', 0)} without a valid time)")
-        raise InputError(f"no samples from the time-base sensor {base_name!r}{why}: cannot build the sensor table")
+    _require_time_base(sensors, base_name)
     meta: dict[str, Any] = {"time_base": base_name, "alignment": {}, "unit_conversions": [], "non_finite_values": {},
                             "read_stats": {}, "notes": []}
     tc = _TimeChecks(meta, launch_ns, launch_window_s or LAUNCH_WINDOW_S)
@@ -554,20 +548,7 @@ def build_sensor_table(
     cleaned: dict[str, tuple[np.ndarray, dict[str, np.ndarray]]] = {}
     for name, s in sensors.items():
         s = tc.plausible(name, s, required=name == base_name)
-        vals = {}
-        for var, v in s.values.items():
-            bad = np.isinf(v)
-            if bad.any():
-                meta["non_finite_values"][var] = int(bad.sum())
-                warnings.warn(f"{s.source}: {int(bad.sum())} infinite {var} value(s) set to NaN (flag 9)", stacklevel=2)
-                v = np.where(bad, np.nan, v)
-            cfg = qc.get(var)
-            if cfg is not None and (ff := fail_fraction(v, cfg)) > cfg.max_fail_fraction:
-                lo, hi = sorted(cfg.fail_span or (np.nan, np.nan))
-                raise InputError(
-                    f"{s.source}: {ff:.0%} of {var} values are outside the plausible range [{lo:g}, {hi:g}] "
-                    f"{CANONICAL_UNITS[var]} - wrong units in the vehicle config?")
-            vals[var] = v
+        vals = _checked_values(s, qc, meta)
         empty = [var for var, v in vals.items() if var != SEASOFT_BAD_SCAN and v.size and not np.isfinite(v).any()]
         for var in empty:
             tc._loud(f"{s.source}: {name} {var} has no valid value in any of its {len(s)} row(s) (all missing or "
@@ -598,24 +579,7 @@ def build_sensor_table(
             tc.overlap(name, sensors[name].source, base_name, base_t, t, min_overlap)
     dt = np.diff(base_t) / 1e9
     meta["time_base_rate_hz"] = float(1.0 / np.median(dt)) if np.median(dt) > 0 else None
-    columns: dict[str, np.ndarray] = {}
-    for name, (t, vals) in cleaned.items():
-        if name == base_name:
-            for var, v in vals.items():
-                columns[var] = v
-            meta["alignment"][name].update({"samples": int(t.size), "method": "time base"})
-            continue
-        gap = float(max_gap_s.get(name, default_max_gap_s))
-        # a limit shorter than the sensor's own sampling interval would blank almost every base sample
-        # (a 1 Hz stream with jitter under a 1.0 s limit): widen it to 1.5 intervals and say so
-        step = float(np.median(np.diff(t))) / 1e9 if t.size > 1 else 0.0
-        if 1.5 * step > gap:
-            warnings.warn(f"{sensors[name].source}: max_gap_s for {name!r} ({gap:g} s) is shorter than 1.5 x its "
-                          f"sampling interval ({step:.3g} s); using {1.5 * step:.3g} s", stacklevel=2)
-            gap = 1.5 * step
-        aligned, st = align_sensor(base_t, t, vals, gap, dict(methods or {}))
-        columns.update(aligned)
-        meta["alignment"][name].update(st)
+    columns = _aligned_columns(sensors, cleaned, base_name, meta, max_gap_s, default_max_gap_s, methods)
     n = base_t.size
     for var in SENSOR_VARIABLES:
         if var not in columns:
@@ -630,6 +594,63 @@ def build_sensor_table(
         df[f"{var}_qc"] = flags[f"{var}_qc"].astype(np.uint8)
     validate_sensor_table(df)
     return df, meta
+
+
+def _require_time_base(sensors: Mapping[str, SensorSamples], base_name: str) -> None:
+    """An :class:`InputError` (saying why, when the reader rejected samples) when the time base has no samples."""
+    if base_name not in sensors or len(sensors[base_name]) == 0:
+        st = sensors[base_name].stats if base_name in sensors else {}
+        why = ""
+        if isinstance(st, dict) and (st.get("rejected_samples") or st.get("bad_times")):
+            why = (f" ({sensors[base_name].source}: {st.get('rejected_samples', 0)} sample(s) rejected for a value "
+                   f"that is not a number, {st.get('bad_times', 0)} without a valid time)")
+        raise InputError(f"no samples from the time-base sensor {base_name!r}{why}: cannot build the sensor table")
+
+
+def _checked_values(s: SensorSamples, qc: Mapping[str, VariableQC], meta: dict[str, Any]) -> dict[str, np.ndarray]:
+    """``s``'s values with ``inf`` set to NaN (counted, warned); an :class:`InputError` on a unit mistake
+    (more than ``max_fail_fraction`` of a variable outside its fail span). Called by :func:`build_sensor_table`."""
+    vals = {}
+    for var, v in s.values.items():
+        bad = np.isinf(v)
+        if bad.any():
+            meta["non_finite_values"][var] = int(bad.sum())
+            warnings.warn(f"{s.source}: {int(bad.sum())} infinite {var} value(s) set to NaN (flag 9)", stacklevel=3)
+            v = np.where(bad, np.nan, v)
+        cfg = qc.get(var)
+        if cfg is not None and (ff := fail_fraction(v, cfg)) > cfg.max_fail_fraction:
+            lo, hi = sorted(cfg.fail_span or (np.nan, np.nan))
+            raise InputError(
+                f"{s.source}: {ff:.0%} of {var} values are outside the plausible range [{lo:g}, {hi:g}] "
+                f"{CANONICAL_UNITS[var]} - wrong units in the vehicle config?")
+        vals[var] = v
+    return vals
+
+
+def _aligned_columns(sensors: Mapping[str, SensorSamples], cleaned: dict[str, tuple[np.ndarray, dict[str, np.ndarray]]],
+                     base_name: str, meta: dict[str, Any], max_gap_s: Mapping[str, float], default_max_gap_s: float,
+                     methods: Mapping[str, str] | None) -> dict[str, np.ndarray]:
+    """Every sensor's variables on the time base's samples (:func:`build_sensor_table`); fills ``meta["alignment"]``."""
+    base_t = cleaned[base_name][0]
+    columns: dict[str, np.ndarray] = {}
+    for name, (t, vals) in cleaned.items():
+        if name == base_name:
+            for var, v in vals.items():
+                columns[var] = v
+            meta["alignment"][name].update({"samples": int(t.size), "method": "time base"})
+            continue
+        gap = float(max_gap_s.get(name, default_max_gap_s))
+        # a limit shorter than the sensor's own sampling interval would blank almost every base sample
+        # (a 1 Hz stream with jitter under a 1.0 s limit): widen it to 1.5 intervals and say so
+        step = float(np.median(np.diff(t))) / 1e9 if t.size > 1 else 0.0
+        if 1.5 * step > gap:
+            warnings.warn(f"{sensors[name].source}: max_gap_s for {name!r} ({gap:g} s) is shorter than 1.5 x its "
+                          f"sampling interval ({step:.3g} s); using {1.5 * step:.3g} s", stacklevel=3)
+            gap = 1.5 * step
+        aligned, st = align_sensor(base_t, t, vals, gap, dict(methods or {}))
+        columns.update(aligned)
+        meta["alignment"][name].update(st)
+    return columns
 
 
 def validate_sensor_table(df: pd.DataFrame, *, profile: bool = False) -> None:

@@ -310,6 +310,173 @@ def _coarse_search(ext: np.ndarray, ir: np.ndarray, radius: int, min_n: int):
     return msd, nn
 
 
+def _validated_patch(patch_depth, min_cells: int, step_cells: float, max_shift_cells: float,
+                     max_total_shift_cells: float, prior: str) -> np.ndarray:
+    """The real-time terrain patch as a float grid (NaN = empty cell), or an :class:`InputError` for a bad patch
+    or bad :func:`mrf_refine` parameters."""
+    ir = np.asarray(patch_depth, float)
+    if ir.ndim != 2 or min(ir.shape) < 3:
+        raise InputError(f"real-time terrain patch must be a 2-D grid of at least 3 x 3 cells, got shape {ir.shape}")
+    ir = np.where(np.isfinite(ir), ir, np.nan)
+    if np.isfinite(ir).sum() < min_cells:
+        raise InputError(f"real-time terrain patch has {int(np.isfinite(ir).sum())} valid cells; need >= {min_cells}")
+    if step_cells <= 0 or max_shift_cells <= 0 or max_total_shift_cells <= 0:
+        raise InputError("MRF step_cells, max_shift_cells and max_total_shift_cells must be > 0")
+    if prior not in ("gibbs", "window", "none"):
+        raise InputError(f"MRF prior must be 'gibbs', 'window' or 'none', got {prior!r}")
+    return ir
+
+
+@dataclass
+class _Search:
+    """Outcome of the coarse stage and the prior of :func:`mrf_refine`: the accumulated deviation ``(cx, cy)``
+    (cells, assumed - true), the noise ``s_n``, the ambiguity energy gap, the Gibbs temperature and operator and
+    the terrain the fine stage matches (``ir_fine``)."""
+
+    cx: float
+    cy: float
+    s_n: float
+    gap: float
+    T: float
+    ir_fine: np.ndarray
+    filt: GibbsFilter | None
+
+
+def _coarse_minimum(msd: np.ndarray, R: int):
+    """Index of the smallest coarse MSD and its shift ``(cy, cx)`` in cells."""
+    k = np.unravel_index(int(np.argmin(msd)), msd.shape)
+    return k, float(k[0] - R), float(k[1] - R)
+
+
+def _search_and_prior(g, ir, patch_x0_m, patch_y0_m, *, sigma_n_m, temperature, prior, coarse, gibbs_coarse,
+                      R, min_n, min_cells, ambiguity_radius_cells):
+    """Coarse stage (exact centred data term of [MRF Eq. 5] at integer shifts, repeated through the Gibbs operator
+    of [MRF Eqs. 2-4] for ``prior="gibbs"``) and the ambiguity energy gap ([MRF Eq. 8] log-likelihood with the best
+    MSD as the variance). Returns a :class:`_Search`, or ``None`` when the patch overlaps the map at no shift."""
+    h = g.resolution_m
+    ny, nx = ir.shape
+    cx = cy = 0.0  # accumulated deviation in cells (assumed - true)
+    gap = float("nan")
+    s_n = sigma_n_m
+    ext = None
+    if coarse:
+        ey, ex = np.mgrid[-R : ny + R, -R : nx + R]
+        ext = g.sample_bilinear(patch_x0_m + ex * h, patch_y0_m + ey * h)
+        msd, nn = _coarse_search(ext, ir, R, min_n)
+        if not np.isfinite(msd).any():
+            return None
+        k, cy, cx = _coarse_minimum(msd, R)
+        if s_n is None:
+            s_n = max(float(np.sqrt(msd[k])), 1e-3)
+    if s_n is None:  # no coarse stage: residual at the input position
+        jj, ii = np.meshgrid(np.arange(nx), np.arange(ny))
+        d0 = g.sample_bilinear(patch_x0_m + jj * h, patch_y0_m + ii * h) - ir
+        s_n = max(float(np.nanstd(d0)), 1e-3) if np.isfinite(d0).sum() >= min_cells else 1e-3
+    T = float("nan")
+    ir_fine = ir
+    filt = None
+    if prior == "gibbs":
+        s_m = sounding_noise_m(ir) if sigma_n_m is None else sigma_n_m  # the soundings' own noise, not the map's
+        s_m = min(s_m, s_n) if np.isfinite(s_m) else s_n
+        T = temperature if temperature is not None else gibbs_temperature(ir, s_m)
+        filt = GibbsFilter(s_m, T)
+        ir_fine = filt(ir)
+        if coarse and gibbs_coarse:  # the exact data term again, on both sides through the Gibbs operator
+            msd, nn = _coarse_search(GibbsFilter(s_m, T)(ext), ir_fine, R, min_n)
+            k, cy, cx = _coarse_minimum(msd, R)
+    if coarse:
+        qy, qx = np.mgrid[-R : R + 1, -R : R + 1]
+        far = np.hypot(qx - cx, qy - cy) > ambiguity_radius_cells
+        if np.isfinite(msd[far]).any():  # log-likelihood units, the best MSD as the residual variance ([MRF Eq. 8])
+            r = ext[R - int(cy) : R - int(cy) + ny, R - int(cx) : R - int(cx) + nx] - ir
+            gap = float(_n_effective(r) * (np.min(msd[far]) / max(msd[k], 1e-12) - 1.0) / 2.0)
+    return _Search(cx, cy, s_n, gap, T, ir_fine, filt)
+
+
+def _texture_sigma(ir_fine: np.ndarray, s_n: float, min_cells: int) -> tuple[float, float]:
+    """Cramér-Rao 1 sigma (cells) of ``(dx, dy)`` from the linearised data term ([MRF Eq. 7]):
+    ``s_n / sqrt(sum_W (dI_R/dx)^2)`` on the terrain the fine stage uses (``inf`` without a gradient)."""
+    sig = []
+    for ax in (1, 0):
+        gr = np.gradient(ir_fine, axis=ax)
+        gg = np.nansum((gr - np.nanmean(gr)) ** 2) if np.isfinite(gr).sum() >= min_cells else 0.0
+        sig.append(float(s_n / np.sqrt(gg)) if gg > 0 else float("inf"))
+    return (sig[0], sig[1])
+
+
+def _refusal(sig_t, cx, cy, gap, *, max_sigma_cells, max_total_shift_cells, min_energy_gap,
+             ambiguity_radius_cells) -> str | None:
+    """The warning of a coarse fix that is refused (too little texture, minimum at the edge of the search range,
+    ambiguous), or ``None``."""
+    if max(sig_t) > max_sigma_cells:
+        return (f"MRF: too little terrain texture for a fix (Cramér-Rao 1 sigma {max(sig_t):.2f} cells "
+                f"> {max_sigma_cells}); no fix")
+    if np.hypot(cx, cy) > max_total_shift_cells + 0.5:
+        return (f"MRF: the coarse minimum ({np.hypot(cx, cy):.0f} cells) is at the edge of the search range "
+                f"(max_total_shift_cells = {max_total_shift_cells:g}); the initial error may be larger; no fix")
+    if np.isfinite(gap) and gap < min_energy_gap:
+        return (f"MRF: ambiguous coarse match (a second minimum more than {ambiguity_radius_cells:g} cells away "
+                f"is within {gap:.2f} log-likelihood units of the best); no fix")
+    return None
+
+
+@dataclass
+class _Fine:
+    """Outcome of the fine stage of :func:`mrf_refine`: the total deviation (cells), the energy per iteration,
+    whether it converged, the iterations, the window sizes and the per-axis noise of the last iteration."""
+
+    cx: float
+    cy: float
+    energy: list[float]
+    converged: bool
+    n_iter: int
+    nws: tuple[int, int]
+    s_x: float
+    s_y: float
+
+
+def _fine_stage(g, ir, search, patch_x0_m, patch_y0_m, warnings, *, sig_fix, temperature, win, coarse,
+                max_shift_cells, step_cells, max_iter, tol_cells, min_cells, max_total_shift_cells, max_fine_cells):
+    """The paper's linearised per-axis estimate ([MRF Eqs. 7-13]) iterated from the coarse shift, the prior DTM
+    resampled (bilinear) at the corrected position each time; appends its warnings to ``warnings``."""
+    h = g.resolution_m
+    ny, nx = ir.shape
+    jj, ii = np.meshgrid(np.arange(nx), np.arange(ny))
+    cx, cy, ir_fine, filt = search.cx, search.cy, search.ir_fine, search.filt
+    cands = np.round(np.arange(-max_shift_cells, max_shift_cells + step_cells / 2, step_cells), 10)
+    c0x, c0y = cx, cy
+    energy = []
+    converged, n_iter, nws = False, 0, (0, 0)
+    for it in range(1, max_iter + 1):
+        n_iter = it
+        # prior DTM at the patch cells' current estimated positions: I_D(x') = Z(x' - c)
+        id_w = g.sample_bilinear(patch_x0_m + (jj - cx) * h, patch_y0_m + (ii - cy) * h)
+        if filt is not None:  # the DTM window through the same Gibbs operator (docstring, 3)
+            id_w = filt(np.where(np.isfinite(ir), id_w, np.nan))
+        dx, ex, s_x, nwx = _axis_estimate(id_w, ir_fine, 1, cands, sig_fix, temperature, min_cells, cx, win)
+        dy, ey, s_y, nwy = _axis_estimate(id_w, ir_fine, 0, cands, sig_fix, temperature, min_cells, cy, win)
+        nws = (nwx, nwy)
+        if nwx < min_cells and nwy < min_cells:
+            warnings.append(f"MRF window has too few usable cells ({nwx} for x, {nwy} for y); no refinement")
+            break
+        energy.append(float(np.nansum([ex, ey])))
+        cx += dx
+        cy += dy
+        if np.hypot(cx, cy) > max_total_shift_cells + (max_fine_cells if coarse else 0.0):
+            warnings.append(f"MRF diverged: accumulated shift {np.hypot(cx, cy):.2f} cells > {max_total_shift_cells}")
+            break
+        if coarse and np.hypot(cx - c0x, cy - c0y) > max_fine_cells:
+            warnings.append(f"MRF diverged: the fine stage moved {np.hypot(cx - c0x, cy - c0y):.2f} cells "
+                            f"from the coarse shift (> {max_fine_cells})")
+            break
+        if max(abs(dx), abs(dy)) <= (tol_cells if tol_cells is not None else step_cells) + 1e-9:
+            converged = True
+            break
+    else:
+        warnings.append(f"MRF did not converge in {max_iter} iterations")
+    return _Fine(cx, cy, energy, converged, n_iter, nws, s_x, s_y)
+
+
 def mrf_refine(
     patch_depth,
     patch_x0_m: float,
@@ -342,124 +509,48 @@ def mrf_refine(
     ``coarse=False, prior="window", max_total_shift_cells=3`` reproduces the previous implementation.
     """
     g = MapGrid.from_any(dtm)
-    ir = np.asarray(patch_depth, float)
-    if ir.ndim != 2 or min(ir.shape) < 3:
-        raise InputError(f"real-time terrain patch must be a 2-D grid of at least 3 x 3 cells, got shape {ir.shape}")
-    ir = np.where(np.isfinite(ir), ir, np.nan)
-    if np.isfinite(ir).sum() < min_cells:
-        raise InputError(f"real-time terrain patch has {int(np.isfinite(ir).sum())} valid cells; need >= {min_cells}")
-    if step_cells <= 0 or max_shift_cells <= 0 or max_total_shift_cells <= 0:
-        raise InputError("MRF step_cells, max_shift_cells and max_total_shift_cells must be > 0")
-    if prior not in ("gibbs", "window", "none"):
-        raise InputError(f"MRF prior must be 'gibbs', 'window' or 'none', got {prior!r}")
+    ir = _validated_patch(patch_depth, min_cells, step_cells, max_shift_cells, max_total_shift_cells, prior)
     h = g.resolution_m
-    ny, nx = ir.shape
-    jj, ii = np.meshgrid(np.arange(nx), np.arange(ny))
     warnings: list[str] = []
-    n_valid = int(np.isfinite(ir).sum())
 
-    def flagged(msg, it=0, s_n=float("nan"), nws=(0, 0), energy=(), **kw):
+    def flagged(msg, s_n=float("nan"), **kw):
         warnings.append(msg)
-        return MrfResult(patch_x0_m, patch_y0_m, 0.0, 0.0, it, False, s_n, nws, list(energy), warnings, **kw)
+        return MrfResult(patch_x0_m, patch_y0_m, 0.0, 0.0, 0, False, s_n, (0, 0), [], warnings, **kw)
 
     if not np.nanstd(ir) > 0:
         return flagged("MRF: the real-time terrain patch has no relief (no texture); no fix")
-    cx = cy = 0.0  # accumulated deviation in cells (assumed - true)
-    gap = float("nan")
-    s_n = sigma_n_m
     R = int(np.floor(max_total_shift_cells)) + 1  # one guard ring: a minimum on it is flagged below
-    min_n = max(min_cells, int(np.ceil(min_overlap * n_valid)))
-    ext = None
-    if coarse:
-        ey, ex = np.mgrid[-R : ny + R, -R : nx + R]
-        ext = g.sample_bilinear(patch_x0_m + ex * h, patch_y0_m + ey * h)
-        msd, nn = _coarse_search(ext, ir, R, min_n)
-        if not np.isfinite(msd).any():
-            return flagged("MRF: the patch does not overlap the map enough at any shift; no fix")
-        k = np.unravel_index(int(np.argmin(msd)), msd.shape)
-        cy, cx = float(k[0] - R), float(k[1] - R)
-        if s_n is None:
-            s_n = max(float(np.sqrt(msd[k])), 1e-3)
-    if s_n is None:  # no coarse stage: residual at the input position
-        d0 = g.sample_bilinear(patch_x0_m + jj * h, patch_y0_m + ii * h) - ir
-        s_n = max(float(np.nanstd(d0)), 1e-3) if np.isfinite(d0).sum() >= min_cells else 1e-3
-    T = float("nan")
-    ir_fine = ir
-    filt = None
-    if prior == "gibbs":
-        s_m = sounding_noise_m(ir) if sigma_n_m is None else sigma_n_m  # the soundings' own noise, not the map's
-        s_m = min(s_m, s_n) if np.isfinite(s_m) else s_n
-        T = temperature if temperature is not None else gibbs_temperature(ir, s_m)
-        filt = GibbsFilter(s_m, T)
-        ir_fine = filt(ir)
-        if coarse and gibbs_coarse:  # the exact data term again, on both sides through the Gibbs operator
-            msd, nn = _coarse_search(GibbsFilter(s_m, T)(ext), ir_fine, R, min_n)
-            k = np.unravel_index(int(np.argmin(msd)), msd.shape)
-            cy, cx = float(k[0] - R), float(k[1] - R)
-    if coarse:
-        qy, qx = np.mgrid[-R : R + 1, -R : R + 1]
-        far = np.hypot(qx - cx, qy - cy) > ambiguity_radius_cells
-        if np.isfinite(msd[far]).any():  # log-likelihood units, the best MSD as the residual variance ([MRF Eq. 8])
-            r = ext[R - int(cy) : R - int(cy) + ny, R - int(cx) : R - int(cx) + nx] - ir
-            gap = float(_n_effective(r) * (np.min(msd[far]) / max(msd[k], 1e-12) - 1.0) / 2.0)
+    min_n = max(min_cells, int(np.ceil(min_overlap * int(np.isfinite(ir).sum()))))
+    search = _search_and_prior(g, ir, patch_x0_m, patch_y0_m, sigma_n_m=sigma_n_m, temperature=temperature,
+                               prior=prior, coarse=coarse, gibbs_coarse=gibbs_coarse, R=R, min_n=min_n,
+                               min_cells=min_cells, ambiguity_radius_cells=ambiguity_radius_cells)
+    if search is None:
+        return flagged("MRF: the patch does not overlap the map enough at any shift; no fix")
+    s_n = search.s_n
     # texture (Cramér-Rao of [MRF Eq. 7]) on the terrain the fine stage uses
-    sig = []
-    for ax in (1, 0):
-        gr = np.gradient(ir_fine, axis=ax)
-        gg = np.nansum((gr - np.nanmean(gr)) ** 2) if np.isfinite(gr).sum() >= min_cells else 0.0
-        sig.append(float(s_n / np.sqrt(gg)) if gg > 0 else float("inf"))
-    sig_t = (sig[0], sig[1])
-    common = {"coarse_d_cells": (cx, cy), "sigma_cells": sig_t, "temperature": T, "energy_gap": gap}
-    if coarse and max(sig_t) > max_sigma_cells:
-        return flagged(f"MRF: too little terrain texture for a fix (Cramér-Rao 1 sigma {max(sig_t):.2f} cells "
-                       f"> {max_sigma_cells}); no fix", s_n=s_n, **common)
-    if coarse and np.hypot(cx, cy) > max_total_shift_cells + 0.5:
-        return flagged(f"MRF: the coarse minimum ({np.hypot(cx, cy):.0f} cells) is at the edge of the search range "
-                       f"(max_total_shift_cells = {max_total_shift_cells:g}); the initial error may be larger; no fix",
-                       s_n=s_n, **common)
-    if coarse and np.isfinite(gap) and gap < min_energy_gap:
-        return flagged(f"MRF: ambiguous coarse match (a second minimum more than {ambiguity_radius_cells:g} cells away "
-                       f"is within {gap:.2f} log-likelihood units of the best); no fix", s_n=s_n, **common)
+    sig_t = _texture_sigma(search.ir_fine, s_n, min_cells)
+    common = {"coarse_d_cells": (search.cx, search.cy), "sigma_cells": sig_t, "temperature": search.T,
+              "energy_gap": search.gap}
+    if coarse:
+        refused = _refusal(sig_t, search.cx, search.cy, search.gap, max_sigma_cells=max_sigma_cells,
+                           max_total_shift_cells=max_total_shift_cells, min_energy_gap=min_energy_gap,
+                           ambiguity_radius_cells=ambiguity_radius_cells)
+        if refused is not None:
+            return flagged(refused, s_n=s_n, **common)
 
-    cands = np.round(np.arange(-max_shift_cells, max_shift_cells + step_cells / 2, step_cells), 10)
-    c0x, c0y = cx, cy
-    energy = []
-    converged, n_iter, nws = False, 0, (0, 0)
-    sig_fix = sigma_n_m if not coarse else s_n
-    win = prior == "window"
-    for it in range(1, max_iter + 1):
-        n_iter = it
-        # prior DTM at the patch cells' current estimated positions: I_D(x') = Z(x' - c)
-        id_w = g.sample_bilinear(patch_x0_m + (jj - cx) * h, patch_y0_m + (ii - cy) * h)
-        if filt is not None:  # the DTM window through the same Gibbs operator (docstring, 3)
-            id_w = filt(np.where(np.isfinite(ir), id_w, np.nan))
-        dx, ex, s_x, nwx = _axis_estimate(id_w, ir_fine, 1, cands, sig_fix, temperature, min_cells, cx, win)
-        dy, ey, s_y, nwy = _axis_estimate(id_w, ir_fine, 0, cands, sig_fix, temperature, min_cells, cy, win)
-        nws = (nwx, nwy)
-        if nwx < min_cells and nwy < min_cells:
-            warnings.append(f"MRF window has too few usable cells ({nwx} for x, {nwy} for y); no refinement")
-            break
-        energy.append(float(np.nansum([ex, ey])))
-        cx += dx
-        cy += dy
-        if np.hypot(cx, cy) > max_total_shift_cells + (max_fine_cells if coarse else 0.0):
-            warnings.append(f"MRF diverged: accumulated shift {np.hypot(cx, cy):.2f} cells > {max_total_shift_cells}")
-            break
-        if coarse and np.hypot(cx - c0x, cy - c0y) > max_fine_cells:
-            warnings.append(f"MRF diverged: the fine stage moved {np.hypot(cx - c0x, cy - c0y):.2f} cells "
-                            f"from the coarse shift (> {max_fine_cells})")
-            break
-        if max(abs(dx), abs(dy)) <= (tol_cells if tol_cells is not None else step_cells) + 1e-9:
-            converged = True
-            break
-    else:
-        warnings.append(f"MRF did not converge in {max_iter} iterations")
+    fine = _fine_stage(g, ir, search, patch_x0_m, patch_y0_m, warnings, sig_fix=sigma_n_m if not coarse else s_n,
+                       temperature=temperature, win=prior == "window", coarse=coarse,
+                       max_shift_cells=max_shift_cells, step_cells=step_cells, max_iter=max_iter, tol_cells=tol_cells,
+                       min_cells=min_cells, max_total_shift_cells=max_total_shift_cells,
+                       max_fine_cells=max_fine_cells)
+    cx, cy, nws = fine.cx, fine.cy, fine.nws
     for ax, n in zip("xy", nws, strict=True):
         if n < min_cells:
             warnings.append(f"MRF: no usable gradient along {ax} in the patch; {ax} not refined")
     if not coarse:
-        s_n = float(np.nanmean([s_x, s_y]))
-    if not converged and any("diverged" in w for w in warnings):
-        return MrfResult(patch_x0_m, patch_y0_m, 0.0, 0.0, n_iter, False, s_n, nws, energy, warnings, **common)
-    return MrfResult(patch_x0_m - cx * h, patch_y0_m - cy * h, cx * h, cy * h, n_iter, converged, s_n, nws, energy,
-                     warnings, **common)
+        s_n = float(np.nanmean([fine.s_x, fine.s_y]))
+    if not fine.converged and any("diverged" in w for w in warnings):
+        return MrfResult(patch_x0_m, patch_y0_m, 0.0, 0.0, fine.n_iter, False, s_n, nws, fine.energy, warnings,
+                         **common)
+    return MrfResult(patch_x0_m - cx * h, patch_y0_m - cy * h, cx * h, cy * h, fine.n_iter, fine.converged, s_n, nws,
+                     fine.energy, warnings, **common)

@@ -517,17 +517,7 @@ def fig_landing_map(dp: DiveProducts, opt: FigureOptions) -> FigureResult:
     if not dp.landing_maps:
         r.skipped = "no landing product maps (submap_NN_maps.nc)"
         return r
-    best = None
-    s = dp.landing_sites
-    if s is not None and {"submap", "c_s"} <= set(s.columns) and len(s):
-        if "is_best" in s:
-            s = s[s["is_best"].astype(bool)]
-        if len(s):
-            best = s.sort_values("c_s").iloc[0]
-    best_name = str(best["submap"]) if best is not None else None
-    path = next((p for p in dp.landing_maps if best_name and p.name == f"{best_name}_maps.nc"), None)
-    if path is None:  # the best site's submap has no maps file: show the first submap without a site
-        path, best = dp.landing_maps[0], None
+    best, best_name, path = _best_landing_site(dp)
     try:
         with xr.open_dataset(path, engine="h5netcdf") as ds:
             ds = ds.load()
@@ -539,17 +529,7 @@ def fig_landing_map(dp: DiveProducts, opt: FigureOptions) -> FigureResult:
         return r
     x, y = ds["x"].values, ds["y"].values
     heading = float(best["heading_deg"]) if best is not None and "heading_deg" in best else None
-    ex = None
-    if "exclusion" in ds:
-        ex = ds["exclusion"]
-        if "heading" in ex.dims:
-            ex = ex.sel(heading=heading, method="nearest") if heading is not None else (ex > 0).min(dim="heading")
-        extra = [d for d in ex.dims if d not in ("y", "x")]
-        ex = (ex > 0).max(dim=extra) if extra else ex > 0
-        ex = np.asarray(ex.transpose("y", "x").values, float)
-    site = None
-    if "final_site" in ds and {"y", "x"} <= set(ds["final_site"].dims) and float(ds["final_site"].max()) > 0:
-        site = np.asarray(ds["final_site"].transpose("y", "x").values, float)
+    ex, site = _landing_masks(ds, heading)
     has_best = best is not None and {"x_m", "y_m"} <= set(best.index)
     # a submap is a long strip (25 m x 1.5 m): the whole strip on top, a zoom on the site below
     fig = Figure(figsize=(opt.width_in, opt.width_in * 0.62), layout="constrained")
@@ -581,42 +561,8 @@ def fig_landing_map(dp: DiveProducts, opt: FigureOptions) -> FigureResult:
     ax_all.set_ylabel("y (m)", fontsize=7)
     rot = float(ds.attrs.get("frame_rotation_deg", 0.0) or 0.0)
     if has_best:
-        bx, by = float(best["x_m"]), float(best["y_m"])
-        if {"row", "col"} <= set(best.index) and 0 <= int(best["col"]) < x.size and 0 <= int(best["row"]) < y.size:
-            bx, by = float(x[int(best["col"])]), float(y[int(best["row"])])  # the maps' own (analysis) frame
-        rad = float(best["radius_m"]) if "radius_m" in best.index else 0.3
-        veh = (dp.landing_meta or {}).get("vehicle") or {}
-        if heading is not None and veh.get("length_m") and veh.get("width_m"):
-            from matplotlib.patches import Polygon
-
-            from hadal.products.geo_landing import footprint_corners
-
-            poly = footprint_corners(bx, by, heading - rot, float(veh["length_m"]), float(veh["width_m"]))
-            ax.add_patch(Polygon(poly, closed=True, fill=False, ec="yellow", lw=2,
-                                 label=f"vehicle footprint {float(veh['length_m']):g} m x {float(veh['width_m']):g} m "
-                                       f"at heading {heading:.0f}°"))
-            ax.annotate("", xy=(bx + 0.6 * float(veh["length_m"]) * np.sin(np.radians(heading - rot)),
-                                by + 0.6 * float(veh["length_m"]) * np.cos(np.radians(heading - rot))),
-                        xytext=(bx, by), arrowprops={"arrowstyle": "->", "color": "yellow", "lw": 1.5})
-        half = max(1.5, 4 * rad)
-        z0, z1 = max(ext[0], bx - half), min(ext[1], bx + half)  # the zoom's x range, within the map
-        ax.set_xlim(z0, z1)
-        ax_all.add_patch(Rectangle((z0, ext[2]), z1 - z0, ext[3] - ext[2], fill=False, ec="red", lw=1))
-        t = np.linspace(0, 2 * np.pi, 100)
-        ax.plot(bx + rad * np.cos(t), by + rad * np.sin(t), "-", color="red", lw=1.5, label="largest inscribed circle")
-        ax.legend(fontsize=7, loc="upper right")
-    lf = (dp.landing_summary or {}).get("laser_frame")
-    if isinstance(lf, dict):
-        r.caption += (f" Laser frame: local x/y (m) of the laser survey, georeferenced by dive.yaml laser_frame "
-                      f"(origin {lf.get('origin_latitude_deg')}°N {lf.get('origin_longitude_deg')}°E, +y axis at "
-                      f"{lf.get('heading_deg')}° from true north); the sites' lat/lon are in landing_sites.parquet "
-                      "and the footprints in landing_footprints.geojson.")
-        xl, yl = "x (m, laser frame)", "y (m, laser frame)"
-    else:
-        r.caption += " Laser frame: local x/y (m) of the laser survey (not georeferenced: dive.yaml has no laser_frame)."
-        xl, yl = "x (m, laser frame)", "y (m, laser frame)"
-    if rot:
-        r.caption += f" The maps are in the along-track analysis frame, rotated by {rot:.1f}° from the laser frame."
+        _draw_best_site(ax, ax_all, best, heading, rot, ext, x, y, (dp.landing_meta or {}).get("vehicle") or {})
+    xl, yl = _landing_frame_caption(r, dp, rot)
     ax.set_xlabel(xl)
     ax.set_ylabel(yl)
     # colour bars in insets of their own axes: ``fig.colorbar(ax=...)`` anchors an equal-aspect axes to the east of
@@ -634,6 +580,83 @@ def fig_landing_map(dp: DiveProducts, opt: FigureOptions) -> FigureResult:
     # the whole canvas: constrained layout keeps everything on it, and cropping to the content would make the
     # PNG's shape follow the map's aspect instead of the figure's
     return _render(r, fig, opt, tight=False)
+
+
+def _best_landing_site(dp: DiveProducts) -> tuple[Any, str | None, Any]:
+    """The lowest-cost best site (or ``None``), its submap's name and the maps file :func:`fig_landing_map` draws."""
+    best = None
+    s = dp.landing_sites
+    if s is not None and {"submap", "c_s"} <= set(s.columns) and len(s):
+        if "is_best" in s:
+            s = s[s["is_best"].astype(bool)]
+        if len(s):
+            best = s.sort_values("c_s").iloc[0]
+    best_name = str(best["submap"]) if best is not None else None
+    path = next((p for p in dp.landing_maps if best_name and p.name == f"{best_name}_maps.nc"), None)
+    if path is None:  # the best site's submap has no maps file: show the first submap without a site
+        path, best = dp.landing_maps[0], None
+    return best, best_name, path
+
+
+def _landing_masks(ds: xr.Dataset, heading: float | None) -> tuple[np.ndarray | None, np.ndarray | None]:
+    """The (y, x) exclusion mask at ``heading`` (every heading when ``None``) and the final site's mask."""
+    ex = None
+    if "exclusion" in ds:
+        ex = ds["exclusion"]
+        if "heading" in ex.dims:
+            ex = ex.sel(heading=heading, method="nearest") if heading is not None else (ex > 0).min(dim="heading")
+        extra = [d for d in ex.dims if d not in ("y", "x")]
+        ex = (ex > 0).max(dim=extra) if extra else ex > 0
+        ex = np.asarray(ex.transpose("y", "x").values, float)
+    site = None
+    if "final_site" in ds and {"y", "x"} <= set(ds["final_site"].dims) and float(ds["final_site"].max()) > 0:
+        site = np.asarray(ds["final_site"].transpose("y", "x").values, float)
+    return ex, site
+
+
+def _draw_best_site(ax: Any, ax_all: Any, best: Any, heading: float | None, rot: float, ext: Any,
+                    x: np.ndarray, y: np.ndarray, veh: dict[str, Any]) -> None:
+    """The best site on the landing map: vehicle footprint and bow arrow, zoom range, inscribed circle."""
+    bx, by = float(best["x_m"]), float(best["y_m"])
+    if {"row", "col"} <= set(best.index) and 0 <= int(best["col"]) < x.size and 0 <= int(best["row"]) < y.size:
+        bx, by = float(x[int(best["col"])]), float(y[int(best["row"])])  # the maps' own (analysis) frame
+    rad = float(best["radius_m"]) if "radius_m" in best.index else 0.3
+    if heading is not None and veh.get("length_m") and veh.get("width_m"):
+        from matplotlib.patches import Polygon
+
+        from hadal.products.geo_landing import footprint_corners
+
+        poly = footprint_corners(bx, by, heading - rot, float(veh["length_m"]), float(veh["width_m"]))
+        ax.add_patch(Polygon(poly, closed=True, fill=False, ec="yellow", lw=2,
+                             label=f"vehicle footprint {float(veh['length_m']):g} m x {float(veh['width_m']):g} m "
+                                   f"at heading {heading:.0f}°"))
+        ax.annotate("", xy=(bx + 0.6 * float(veh["length_m"]) * np.sin(np.radians(heading - rot)),
+                            by + 0.6 * float(veh["length_m"]) * np.cos(np.radians(heading - rot))),
+                    xytext=(bx, by), arrowprops={"arrowstyle": "->", "color": "yellow", "lw": 1.5})
+    half = max(1.5, 4 * rad)
+    z0, z1 = max(ext[0], bx - half), min(ext[1], bx + half)  # the zoom's x range, within the map
+    ax.set_xlim(z0, z1)
+    ax_all.add_patch(Rectangle((z0, ext[2]), z1 - z0, ext[3] - ext[2], fill=False, ec="red", lw=1))
+    t = np.linspace(0, 2 * np.pi, 100)
+    ax.plot(bx + rad * np.cos(t), by + rad * np.sin(t), "-", color="red", lw=1.5, label="largest inscribed circle")
+    ax.legend(fontsize=7, loc="upper right")
+
+
+def _landing_frame_caption(r: FigureResult, dp: DiveProducts, rot: float) -> tuple[str, str]:
+    """Add the laser frame (and analysis-frame rotation) to ``r``'s caption; returns the x/y axis labels."""
+    lf = (dp.landing_summary or {}).get("laser_frame")
+    if isinstance(lf, dict):
+        r.caption += (f" Laser frame: local x/y (m) of the laser survey, georeferenced by dive.yaml laser_frame "
+                      f"(origin {lf.get('origin_latitude_deg')}°N {lf.get('origin_longitude_deg')}°E, +y axis at "
+                      f"{lf.get('heading_deg')}° from true north); the sites' lat/lon are in landing_sites.parquet "
+                      "and the footprints in landing_footprints.geojson.")
+        xl, yl = "x (m, laser frame)", "y (m, laser frame)"
+    else:
+        r.caption += " Laser frame: local x/y (m) of the laser survey (not georeferenced: dive.yaml has no laser_frame)."
+        xl, yl = "x (m, laser frame)", "y (m, laser frame)"
+    if rot:
+        r.caption += f" The maps are in the along-track analysis frame, rotated by {rot:.1f}° from the laser frame."
+    return xl, yl
 
 
 FIGURES: tuple[Callable[[DiveProducts, FigureOptions], FigureResult], ...] = (

@@ -120,120 +120,17 @@ def fig_overview(dp: DiveProducts, opt: FigureOptions) -> FigureResult:
     fix = dp.fix or {}
     x, y = ds["x"].values.astype(float), ds["y"].values.astype(float)
     z = ds["depth_m"].transpose("y", "x").values.astype(float)
-    # the area around the dive: track, launch and start with a margin; the whole grid without a track
-    px, py = [], []
-    if dp.navigation is not None and {"x_east_m", "y_north_m"} <= set(dp.navigation.columns):
-        px += list(dp.navigation["x_east_m"].to_numpy(float)[::50])
-        py += list(dp.navigation["y_north_m"].to_numpy(float)[::50])
-    elif dp.track is not None and {"x_east_m", "y_north_m"} <= set(dp.track.columns):
-        px += list(dp.track["x_east_m"].to_numpy(float)[::50])
-        py += list(dp.track["y_north_m"].to_numpy(float)[::50])
-    dr = fix.get("dead_reckoning_track") or {}
-    px += list(dr.get("x_east_m") or [])
-    py += list(dr.get("y_north_m") or [])
-    for k in ("launch", "start"):
-        if isinstance(fix.get(k), dict) and fix[k].get("x_east_m") is not None:
-            px.append(float(fix[k]["x_east_m"]))
-            py.append(float(fix[k]["y_north_m"]))
-    if px:
-        pad = max(800.0, 0.25 * max(np.nanmax(px) - np.nanmin(px), np.nanmax(py) - np.nanmin(py)))
-        kx = (x >= np.nanmin(px) - pad) & (x <= np.nanmax(px) + pad)
-        ky = (y >= np.nanmin(py) - pad) & (y <= np.nanmax(py) + pad)
-        if kx.sum() > 2 and ky.sum() > 2:
-            x, y, z = x[kx], y[ky], z[np.ix_(ky, kx)]
+    x, y, z, dr = _overview_area(dp, fix, x, y, z)
     X, Y = np.meshgrid(x, y)
     LON, LAT = (np.asarray(v, float) for v in frame.to_lonlat(X, Y))
     lat0 = float(np.nanmean(LAT))
     fig = Figure(figsize=(opt.width_in * 0.8, opt.width_in * 0.72), layout="constrained")
     ax = fig.subplots()
-    # empty cells: nearest valid depth for the shading (no false cliffs at their edges), drawn greyed below
-    bad = ~np.isfinite(z)
-    if bad.any() and (~bad).any():
-        from scipy.ndimage import distance_transform_edt
-
-        idx = distance_transform_edt(bad, return_distances=False, return_indices=True)
-        zf = z[tuple(idx)]
-    else:
-        zf = np.where(bad, 0.0, z)
-    ls = LightSource(azdeg=315, altdeg=45)
-    dx = float(np.median(np.diff(x))) if x.size > 1 else 1.0
-    cmap = CMAPS["depth"]
-    norm_z = (zf - np.nanmin(zf)) / max(np.nanmax(zf) - np.nanmin(zf), 1e-9)
-    rgb = ls.shade_rgb(cmap(norm_z), -zf, vert_exag=1.0, dx=dx, dy=dx, blend_mode="soft")[..., :3]
-    rgb = np.where(bad[..., None], 0.6 * rgb + 0.4, rgb)  # empty cells of the DTM: washed out
-    ax.pcolormesh(LON, LAT, rgb, shading="nearest", rasterized=True)
-    from matplotlib.cm import ScalarMappable
-    from matplotlib.colors import Normalize
-
-    sm = ScalarMappable(norm=Normalize(np.nanmin(z), np.nanmax(z)), cmap=cmap)
-    cb = fig.colorbar(sm, ax=ax, shrink=0.8, label="reference depth (m, positive down)")
-    cb.ax.invert_yaxis()
-    step = 100.0 if np.nanmax(z) - np.nanmin(z) > 300 else 20.0
-    levels = np.arange(math.ceil(np.nanmin(z) / step) * step, np.nanmax(z), step)
-    if levels.size:
-        cs = ax.contour(LON, LAT, z, levels=levels, colors="k", linewidths=0.4, alpha=0.6)
-        ax.clabel(cs, levels=levels[::2], fontsize=6, fmt="%.0f")
-    handles = []
-    if dp.navigation is not None and {"lon", "lat"} <= set(dp.navigation.columns):
-        nav = _thin(dp.navigation, opt.max_points)
-        src = nav["position_source"].astype(str) if "position_source" in nav else pd.Series("", index=nav.index)
-        m = (src == "matched").to_numpy()
-        handles += ax.plot(nav["lon"].where(~m), nav["lat"].where(~m), "-", color="#ff9900", lw=1.2,
-                           label="best track (dead reckoning adjusted)")
-        handles += ax.plot(nav["lon"].where(m), nav["lat"].where(m), "-", color="m", lw=1.8,
-                           label="best track (terrain-matched)")
-    elif dp.track is not None and {"lon", "lat"} <= set(dp.track.columns):
-        t = _thin(dp.track, opt.max_points)
-        handles += ax.plot(t["lon"], t["lat"], "-", color="m", lw=1.8, label="matched bottom track")
-    if dr.get("x_east_m"):
-        dlon, dlat = frame.to_lonlat(np.asarray(dr["x_east_m"], float), np.asarray(dr["y_north_m"], float))
-        handles += ax.plot(dlon, dlat, "--", color="#00e5ff", lw=1.4, label="dead reckoning only (bottom)")
-    elif dp.ctd is not None and {"lon", "lat"} <= set(dp.ctd.columns):
-        c = _thin(dp.ctd, opt.max_points)
-        handles += ax.plot(c["lon"], c["lat"], "--", color="#00e5ff", lw=1.4, label="dead reckoning only")
-    la = fix.get("launch") or ({"lat": dp.launch["lat"], "lon": dp.launch["lon"]} if dp.launch else None)
-    if la and la.get("lon") is not None:
-        handles += ax.plot(la["lon"], la["lat"], "X", color="r", mec="k", ms=11, ls="none", label="launch")
+    _shaded_dtm(fig, ax, LON, LAT, x, z)
+    handles = _overview_tracks(ax, dp, fix, dr, frame, opt)
     st = fix.get("start")
     if isinstance(st, dict) and st.get("lon") is not None:
-        handles += ax.plot(st["lon"], st["lat"], "o", mfc="none", mec="yellow", mew=2, ms=9, ls="none",
-                           label="matched start of the bottom track")
-        unc = fix.get("uncertainty_m") or {}
-        centre = fix.get("profile_start") if isinstance(fix.get("profile_start"), dict) else st
-        cx, cy = centre.get("x_east_m", st.get("x_east_m")), centre.get("y_north_m", st.get("y_north_m"))
-        ells = [(key, ls_, lab) for key, ls_, lab in (("ellipse_1sigma", "-", "1σ ellipse"),
-                                                      ("ellipse_2sigma", ":", "2σ ellipse"))
-                if isinstance(unc.get(key), dict)]
-        if not ells and unc.get("radial"):  # no posterior ellipse: the radial (DRMS) uncertainty as a circle
-            rr = float(unc["radial"])
-            unc = {**unc, "_circle": {"semi_major_m": rr, "semi_minor_m": rr, "azimuth_deg": 0.0}}
-            ells = [("_circle", "-", f"radial 1σ uncertainty ({rr:.0f} m)")]
-        outlines = []
-        for key, ls_, lab in ells:
-            pts = _ellipse_lonlat(frame, float(cx), float(cy), unc[key]) if cx is not None else None
-            if pts is not None:
-                handles += ax.plot(pts[0], pts[1], ls_, color="yellow", lw=1.4, label=lab)
-                outlines.append((pts, ls_))
-        if outlines:  # the ellipses are tens of metres on a map of kilometres: an inset zoom on the fix
-            ins = ax.inset_axes(_emptiest_corner(handles, (float(np.nanmin(LON)), float(np.nanmax(LON))),
-                                                 (float(np.nanmin(LAT)), float(np.nanmax(LAT)))))
-            ins.set_facecolor("0.15")
-            for pts, ls_ in outlines:
-                ins.plot(pts[0], pts[1], ls_, color="yellow", lw=1.4)
-            ins.plot(st["lon"], st["lat"], "o", mfc="none", mec="yellow", mew=1.5, ms=6)
-            if dp.track is not None and {"lon", "lat"} <= set(dp.track.columns):
-                tt = _thin(dp.track, 2000)
-                ins.plot(tt["lon"], tt["lat"], "-", color="m", lw=1.2)
-            big = outlines[-1][0]
-            w = max(float(np.ptp(big[0])), float(np.ptp(big[1])) * math.cos(math.radians(lat0)))
-            ins.set_xlim(st["lon"] - w, st["lon"] + w)
-            ins.set_ylim(st["lat"] - w / math.cos(math.radians(lat0)), st["lat"] + w / math.cos(math.radians(lat0)))
-            ins.set_aspect(1.0 / math.cos(math.radians(lat0)))
-            ins.set_xticks([])
-            ins.set_yticks([])
-            wm = w * 111_320.0 * math.cos(math.radians(lat0))
-            ins.set_title(f"zoom on the fix ({2 * wm:.0f} m wide)", fontsize=7, color="k", pad=2,
-                          bbox={"fc": "w", "ec": "none", "alpha": 0.8, "pad": 1})
+        _overview_fix(ax, dp, fix, st, frame, handles, LON, LAT, lat0)
     sm2 = _second_mode(fix)
     if sm2 is not None:
         slon, slat = frame.to_lonlat(float(sm2["x"]), float(sm2["y"]))
@@ -262,6 +159,134 @@ def fig_overview(dp: DiveProducts, opt: FigureOptions) -> FigureResult:
     if reasons:
         ax.set_title("fix flagged: " + ", ".join(map(str, reasons)), fontsize=9, color="#b00020")
     return _render(r, fig, opt)
+
+
+def _overview_area(dp: DiveProducts, fix: dict[str, Any], x: np.ndarray, y: np.ndarray, z: np.ndarray
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:
+    """The DTM cropped to the area around the dive (:func:`fig_overview`) and the dead-reckoning track of fix.json."""
+    # the area around the dive: track, launch and start with a margin; the whole grid without a track
+    px, py = [], []
+    if dp.navigation is not None and {"x_east_m", "y_north_m"} <= set(dp.navigation.columns):
+        px += list(dp.navigation["x_east_m"].to_numpy(float)[::50])
+        py += list(dp.navigation["y_north_m"].to_numpy(float)[::50])
+    elif dp.track is not None and {"x_east_m", "y_north_m"} <= set(dp.track.columns):
+        px += list(dp.track["x_east_m"].to_numpy(float)[::50])
+        py += list(dp.track["y_north_m"].to_numpy(float)[::50])
+    dr = fix.get("dead_reckoning_track") or {}
+    px += list(dr.get("x_east_m") or [])
+    py += list(dr.get("y_north_m") or [])
+    for k in ("launch", "start"):
+        if isinstance(fix.get(k), dict) and fix[k].get("x_east_m") is not None:
+            px.append(float(fix[k]["x_east_m"]))
+            py.append(float(fix[k]["y_north_m"]))
+    if px:
+        pad = max(800.0, 0.25 * max(np.nanmax(px) - np.nanmin(px), np.nanmax(py) - np.nanmin(py)))
+        kx = (x >= np.nanmin(px) - pad) & (x <= np.nanmax(px) + pad)
+        ky = (y >= np.nanmin(py) - pad) & (y <= np.nanmax(py) + pad)
+        if kx.sum() > 2 and ky.sum() > 2:
+            x, y, z = x[kx], y[ky], z[np.ix_(ky, kx)]
+    return x, y, z, dr
+
+
+def _shaded_dtm(fig: Figure, ax: Any, LON: np.ndarray, LAT: np.ndarray, x: np.ndarray, z: np.ndarray) -> None:
+    """The hillshaded DTM (empty cells washed out), its colour bar and depth contours (:func:`fig_overview`)."""
+    # empty cells: nearest valid depth for the shading (no false cliffs at their edges), drawn greyed below
+    bad = ~np.isfinite(z)
+    if bad.any() and (~bad).any():
+        from scipy.ndimage import distance_transform_edt
+
+        idx = distance_transform_edt(bad, return_distances=False, return_indices=True)
+        zf = z[tuple(idx)]
+    else:
+        zf = np.where(bad, 0.0, z)
+    ls = LightSource(azdeg=315, altdeg=45)
+    dx = float(np.median(np.diff(x))) if x.size > 1 else 1.0
+    cmap = CMAPS["depth"]
+    norm_z = (zf - np.nanmin(zf)) / max(np.nanmax(zf) - np.nanmin(zf), 1e-9)
+    rgb = ls.shade_rgb(cmap(norm_z), -zf, vert_exag=1.0, dx=dx, dy=dx, blend_mode="soft")[..., :3]
+    rgb = np.where(bad[..., None], 0.6 * rgb + 0.4, rgb)  # empty cells of the DTM: washed out
+    ax.pcolormesh(LON, LAT, rgb, shading="nearest", rasterized=True)
+    from matplotlib.cm import ScalarMappable
+    from matplotlib.colors import Normalize
+
+    sm = ScalarMappable(norm=Normalize(np.nanmin(z), np.nanmax(z)), cmap=cmap)
+    cb = fig.colorbar(sm, ax=ax, shrink=0.8, label="reference depth (m, positive down)")
+    cb.ax.invert_yaxis()
+    step = 100.0 if np.nanmax(z) - np.nanmin(z) > 300 else 20.0
+    levels = np.arange(math.ceil(np.nanmin(z) / step) * step, np.nanmax(z), step)
+    if levels.size:
+        cs = ax.contour(LON, LAT, z, levels=levels, colors="k", linewidths=0.4, alpha=0.6)
+        ax.clabel(cs, levels=levels[::2], fontsize=6, fmt="%.0f")
+
+
+def _overview_tracks(ax: Any, dp: DiveProducts, fix: dict[str, Any], dr: dict[str, Any], frame: Any,
+                     opt: FigureOptions) -> list[Any]:
+    """The best, matched and dead-reckoning tracks and the launch point (:func:`fig_overview`); their handles."""
+    handles = []
+    if dp.navigation is not None and {"lon", "lat"} <= set(dp.navigation.columns):
+        nav = _thin(dp.navigation, opt.max_points)
+        src = nav["position_source"].astype(str) if "position_source" in nav else pd.Series("", index=nav.index)
+        m = (src == "matched").to_numpy()
+        handles += ax.plot(nav["lon"].where(~m), nav["lat"].where(~m), "-", color="#ff9900", lw=1.2,
+                           label="best track (dead reckoning adjusted)")
+        handles += ax.plot(nav["lon"].where(m), nav["lat"].where(m), "-", color="m", lw=1.8,
+                           label="best track (terrain-matched)")
+    elif dp.track is not None and {"lon", "lat"} <= set(dp.track.columns):
+        t = _thin(dp.track, opt.max_points)
+        handles += ax.plot(t["lon"], t["lat"], "-", color="m", lw=1.8, label="matched bottom track")
+    if dr.get("x_east_m"):
+        dlon, dlat = frame.to_lonlat(np.asarray(dr["x_east_m"], float), np.asarray(dr["y_north_m"], float))
+        handles += ax.plot(dlon, dlat, "--", color="#00e5ff", lw=1.4, label="dead reckoning only (bottom)")
+    elif dp.ctd is not None and {"lon", "lat"} <= set(dp.ctd.columns):
+        c = _thin(dp.ctd, opt.max_points)
+        handles += ax.plot(c["lon"], c["lat"], "--", color="#00e5ff", lw=1.4, label="dead reckoning only")
+    la = fix.get("launch") or ({"lat": dp.launch["lat"], "lon": dp.launch["lon"]} if dp.launch else None)
+    if la and la.get("lon") is not None:
+        handles += ax.plot(la["lon"], la["lat"], "X", color="r", mec="k", ms=11, ls="none", label="launch")
+    return handles
+
+
+def _overview_fix(ax: Any, dp: DiveProducts, fix: dict[str, Any], st: dict[str, Any], frame: Any,
+                  handles: list[Any], LON: np.ndarray, LAT: np.ndarray, lat0: float) -> None:
+    """The matched start, its uncertainty ellipses and an inset zoom on them (:func:`fig_overview`)."""
+    handles += ax.plot(st["lon"], st["lat"], "o", mfc="none", mec="yellow", mew=2, ms=9, ls="none",
+                       label="matched start of the bottom track")
+    unc = fix.get("uncertainty_m") or {}
+    centre = fix.get("profile_start") if isinstance(fix.get("profile_start"), dict) else st
+    cx, cy = centre.get("x_east_m", st.get("x_east_m")), centre.get("y_north_m", st.get("y_north_m"))
+    ells = [(key, ls_, lab) for key, ls_, lab in (("ellipse_1sigma", "-", "1σ ellipse"),
+                                                  ("ellipse_2sigma", ":", "2σ ellipse"))
+            if isinstance(unc.get(key), dict)]
+    if not ells and unc.get("radial"):  # no posterior ellipse: the radial (DRMS) uncertainty as a circle
+        rr = float(unc["radial"])
+        unc = {**unc, "_circle": {"semi_major_m": rr, "semi_minor_m": rr, "azimuth_deg": 0.0}}
+        ells = [("_circle", "-", f"radial 1σ uncertainty ({rr:.0f} m)")]
+    outlines = []
+    for key, ls_, lab in ells:
+        pts = _ellipse_lonlat(frame, float(cx), float(cy), unc[key]) if cx is not None else None
+        if pts is not None:
+            handles += ax.plot(pts[0], pts[1], ls_, color="yellow", lw=1.4, label=lab)
+            outlines.append((pts, ls_))
+    if outlines:  # the ellipses are tens of metres on a map of kilometres: an inset zoom on the fix
+        ins = ax.inset_axes(_emptiest_corner(handles, (float(np.nanmin(LON)), float(np.nanmax(LON))),
+                                             (float(np.nanmin(LAT)), float(np.nanmax(LAT)))))
+        ins.set_facecolor("0.15")
+        for pts, ls_ in outlines:
+            ins.plot(pts[0], pts[1], ls_, color="yellow", lw=1.4)
+        ins.plot(st["lon"], st["lat"], "o", mfc="none", mec="yellow", mew=1.5, ms=6)
+        if dp.track is not None and {"lon", "lat"} <= set(dp.track.columns):
+            tt = _thin(dp.track, 2000)
+            ins.plot(tt["lon"], tt["lat"], "-", color="m", lw=1.2)
+        big = outlines[-1][0]
+        w = max(float(np.ptp(big[0])), float(np.ptp(big[1])) * math.cos(math.radians(lat0)))
+        ins.set_xlim(st["lon"] - w, st["lon"] + w)
+        ins.set_ylim(st["lat"] - w / math.cos(math.radians(lat0)), st["lat"] + w / math.cos(math.radians(lat0)))
+        ins.set_aspect(1.0 / math.cos(math.radians(lat0)))
+        ins.set_xticks([])
+        ins.set_yticks([])
+        wm = w * 111_320.0 * math.cos(math.radians(lat0))
+        ins.set_title(f"zoom on the fix ({2 * wm:.0f} m wide)", fontsize=7, color="k", pad=2,
+                      bbox={"fc": "w", "ec": "none", "alpha": 0.8, "pad": 1})
 
 
 def fig_residuals(dp: DiveProducts, opt: FigureOptions) -> FigureResult:

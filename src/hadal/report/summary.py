@@ -71,8 +71,18 @@ def dive_summary(dp: DiveProducts, launch: dict[str, float] | None = None, best_
     s: dict[str, Any] = {"dive": dp.dive, "products": {p: v.label for p, v in dp.versions.items()},
                          "missing_products": dp.missing, "notes": list(dp.notes)}
     fix = dp.fix or {}
+    _ctd_summary(s, dp.ctd)
+    _casts_summary(s, dp)
+    _dtm_summary(s, dp)
+    _position_summary(s, dp, fix, launch)
+    _match_summary(s, dp, fix)
+    _landing_summary(s, dp, best_sites)
+    return s
+
+
+def _ctd_summary(s: dict[str, Any], ctd: pd.DataFrame | None) -> None:
+    """Depth, ranges, phases, QC flags and time span of the dive's own CTD (:func:`dive_summary`)."""
     # ---- depth
-    ctd = dp.ctd
     if ctd is not None and "depth_m" in ctd and len(ctd):
         d = pd.to_numeric(ctd["depth_m"], errors="coerce")
         if d.notna().any():
@@ -102,6 +112,10 @@ def dive_summary(dp: DiveProducts, launch: dict[str, float] | None = None, best_
             s["time_base"] = "none (pressure-binned cast): CTD figures against pressure/depth"
         track = [c for c in ("dr_east_m", "altitude_m") if c in ctd]
         s["cast_only"] = not any(pd.to_numeric(ctd[c], errors="coerce").notna().any() for c in track)
+
+
+def _casts_summary(s: dict[str, Any], dp: DiveProducts) -> None:
+    """The external Sea-Bird casts (:func:`dive_summary`)."""
     # ---- external casts (Sea-Bird casts next to the dive's own CTD)
     if dp.casts:
         s["casts"] = [{"cast": c.get("cast_id"), "start_utc": c.get("start_time_utc"),
@@ -110,6 +124,10 @@ def dive_summary(dp: DiveProducts, launch: dict[str, float] | None = None, best_
                        "max_depth_m": _f((c.get("deepest_point") or {}).get("depth_m")),
                        "max_pressure_dbar": _f((c.get("deepest_point") or {}).get("pressure_dbar")),
                        "latitude_source": c.get("latitude_source")} for c in dp.casts]
+
+
+def _dtm_summary(s: dict[str, Any], dp: DiveProducts) -> None:
+    """The reference terrain (:func:`dive_summary`)."""
     # ---- reference terrain
     if dp.dtm is not None and "depth_m" in dp.dtm:
         z = dp.dtm["depth_m"].values
@@ -120,6 +138,11 @@ def dive_summary(dp: DiveProducts, launch: dict[str, float] | None = None, best_
                         "depth_range_m": [float(np.nanmin(z)), float(np.nanmax(z))],
                         "mapped_fraction": float(fin.mean()),
                         "soundings": _f(dp.dtm.attrs.get("n_soundings_used"))}
+
+
+def _position_summary(s: dict[str, Any], dp: DiveProducts, fix: dict[str, Any],
+                      launch: dict[str, float] | None) -> None:
+    """Deepest point position, launch, matched start and drift (:func:`dive_summary`)."""
     # ---- deepest point position (matched) and drift
     deep = fix.get("deepest_point") if isinstance(fix.get("deepest_point"), dict) else None
     if deep and _f(deep.get("lat")) is not None and _f(deep.get("lon")) is not None:
@@ -147,6 +170,10 @@ def dive_summary(dp: DiveProducts, launch: dict[str, float] | None = None, best_
     elif "launch" in s and "matched_start" in s:
         s["drift_m"] = float(geodesic_distance_m(s["launch"]["lon"], s["launch"]["lat"],
                                                  s["matched_start"]["lon"], s["matched_start"]["lat"]))
+
+
+def _match_summary(s: dict[str, Any], dp: DiveProducts, fix: dict[str, Any]) -> None:
+    """Match quality and the RMS depth residual along the matched track (:func:`dive_summary`)."""
     # ---- match quality
     if fix:
         unc = fix.get("uncertainty_m") if isinstance(fix.get("uncertainty_m"), dict) else {}
@@ -164,6 +191,10 @@ def dive_summary(dp: DiveProducts, launch: dict[str, float] | None = None, best_
         diff = diff[np.isfinite(diff)]
         if len(diff):
             s.setdefault("match", {})["rms_depth_residual_m"] = float(np.sqrt(np.mean(diff**2)))
+
+
+def _landing_summary(s: dict[str, Any], dp: DiveProducts, best_sites: int) -> None:
+    """The best landing sites (:func:`dive_summary`)."""
     # ---- landing
     sites = dp.landing_sites
     if sites is not None and len(sites):
@@ -178,4 +209,3 @@ def dive_summary(dp: DiveProducts, launch: dict[str, float] | None = None, best_
         s["n_candidate_sites"] = int(len(sites))
     if dp.landing_summary and isinstance(dp.landing_summary.get("table_v"), dict):
         s["landing_table_v"] = dp.landing_summary["table_v"]
-    return s
