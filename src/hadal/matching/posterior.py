@@ -290,6 +290,21 @@ def _n_eff(res: np.ndarray) -> float:
     return float(max(n * (1 - rho) / (1 + rho), 2.0))
 
 
+def _pose_jacobian(gx: np.ndarray, gy: np.ndarray, rq: np.ndarray, f: float, B: np.ndarray | None) -> np.ndarray:
+    """(N, 4 [+ 2K]) derivatives of the map depth at the track points with respect to start x, start y, heading
+    (per degree), scale and, with the drift basis ``B``, the K (east, north) drift rates (interleaved), from the
+    map gradient ``gx``, ``gy`` at the points and the rotated track ``rq``."""
+    J = np.zeros((gx.size, 4 + (2 * B.shape[1] if B is not None else 0)))
+    J[:, 0], J[:, 1] = gx, gy
+    dq_da = np.column_stack([rq[:, 1], -rq[:, 0]]) * f * (np.pi / 180.0)
+    J[:, 2] = gx * dq_da[:, 0] + gy * dq_da[:, 1]
+    J[:, 3] = gx * rq[:, 0] + gy * rq[:, 1]
+    if B is not None:
+        J[:, 4::2] = gx[:, None] * B
+        J[:, 5::2] = gy[:, None] * B
+    return J
+
+
 def _fit_dof_inflation(g: MapGrid, d: np.ndarray, rel: np.ndarray, pose, start_xy, drift_xy, B, gamma: float,
                        drift_ridge: float, free_heading: bool, free_scale: bool) -> float:
     """Widening ``(N_v - p) / (N_v - tr(P R))`` of the noise variance for residuals correlated along the track.
@@ -311,19 +326,10 @@ def _fit_dof_inflation(g: MapGrid, d: np.ndarray, rel: np.ndarray, pose, start_x
     z, gx, gy = _bilinear_with_gradient(g, q[:, 0], q[:, 1])
     ok = np.isfinite(z) & np.isfinite(gx) & np.isfinite(gy) & np.isfinite(d)
     n = int(ok.sum())
-    cols = [gx, gy]
-    if free_heading:
-        cols.append((gx * rq[:, 1] - gy * rq[:, 0]) * f * (np.pi / 180.0))
-    if free_scale:
-        cols.append(gx * rq[:, 0] + gy * rq[:, 1])
-    cols.append(np.ones(d.size))
-    J = np.column_stack(cols)
-    lam = np.zeros(J.shape[1])
-    p_used = N_PARAMS
-    if B is not None:
-        J = np.hstack([J, gx[:, None] * B, gy[:, None] * B])
-        lam = np.concatenate([lam, np.full(2 * B.shape[1], drift_ridge)])
-        p_used += 2 * B.shape[1]
+    keep = [True, True, free_heading, free_scale] + [True] * (2 * B.shape[1] if B is not None else 0)
+    J = np.column_stack([_pose_jacobian(gx, gy, rq, f, B)[:, keep], np.ones(d.size)])  # + the bias
+    lam = np.array([0.0] * int(sum(keep[:4])) + [drift_ridge] * (len(keep) - 4) + [0.0])
+    p_used = N_PARAMS + len(keep) - 4
     if n <= J.shape[1] + 1:
         return 1.0
     J = np.where(ok[:, None], J, 0.0)  # missing samples: no rows (zeros keep the along-track lags of the others)
@@ -484,14 +490,7 @@ def _joint_evaluate(m: _JointModel, th: np.ndarray, jac: bool):
     ll -= 0.5 * float(np.sum(m.prior * (th - m.centre) ** 2))
     if not jac:
         return ll, None, None, ok
-    J = np.zeros((nv, n_par))
-    gxo, gyo = gx[ok], gy[ok]
-    J[:, 0], J[:, 1] = gxo, gyo
-    dq_da = np.column_stack([rq[ok, 1], -rq[ok, 0]]) * f * (np.pi / 180.0)
-    J[:, 2] = gxo * dq_da[:, 0] + gyo * dq_da[:, 1]
-    J[:, 3] = gxo * rq[ok, 0] + gyo * rq[ok, 1]
-    J[:, 4::2] = gxo[:, None] * B[ok]
-    J[:, 5::2] = gyo[:, None] * B[ok]
+    J = _pose_jacobian(gx[ok], gy[ok], rq[ok], f, B[ok])
     J -= J.mean(axis=0)  # the bias is profiled out: centred residuals and Jacobian
     return ll, J, rc, ok
 
