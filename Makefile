@@ -5,6 +5,8 @@ BIN    := $(VENV)/bin
 DIVE   ?= data/raw/haidou-challenger-deep
 STORE  ?= data/processed
 PYTEST_ARGS ?=
+# pytest-xdist workers for `make test` (one per core; 0 runs in this process)
+TEST_WORKERS ?= auto
 export PREFECT_SERVER_ANALYTICS_ENABLED ?= false
 
 .PHONY: setup sysdeps demo test test-integration bench lint clean
@@ -22,7 +24,7 @@ sysdeps:
 $(VENV)/.installed: pyproject.toml | sysdeps
 	@test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
 	@$(BIN)/python -m pip install -q --upgrade uv
-	$(BIN)/uv pip install --python $(BIN)/python -q -e '.[test,zarr]'
+	$(BIN)/uv pip install --python $(BIN)/python -q --compile-bytecode -e '.[test,zarr]'
 	@touch $@
 
 $(DIVE)/dive.yaml: | setup
@@ -33,7 +35,7 @@ demo: setup $(DIVE)/dive.yaml
 	@echo "products: $(STORE)/$$(basename $(DIVE))/  (list them: $(BIN)/hadal products $$(basename $(DIVE)) --store $(STORE))"
 
 test: setup
-	$(BIN)/python -m pytest -m "not integration" $(PYTEST_ARGS)
+	$(BIN)/python -m pytest -m "not integration" -n $(TEST_WORKERS) $(PYTEST_ARGS)
 
 # the long integration tier (CI runs it after `make test`)
 test-integration: setup

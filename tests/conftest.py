@@ -9,8 +9,11 @@ from pathlib import Path
 import pytest
 
 _TMP = Path(tempfile.mkdtemp(prefix="hadal-tests-"))
-os.environ.setdefault("MPLCONFIGDIR", str(_TMP / "mpl"))
-os.environ.setdefault("PREFECT_HOME", str(_TMP / "prefect"))
+# each pytest-xdist worker (``make test`` runs ``-n``) gets its own Prefect home and matplotlib cache: the
+# workers inherit the controller's environment, so ``setdefault`` alone would make them share one
+_set = os.environ.__setitem__ if os.environ.get("PYTEST_XDIST_WORKER") else os.environ.setdefault
+_set("MPLCONFIGDIR", str(_TMP / "mpl"))
+_set("PREFECT_HOME", str(_TMP / "prefect"))
 os.environ.setdefault("PREFECT_SERVER_ANALYTICS_ENABLED", "false")
 os.environ.setdefault("PREFECT_LOGGING_LEVEL", "WARNING")
 os.environ.setdefault("MPLBACKEND", "Agg")
@@ -55,9 +58,33 @@ def prefect_harness():
         yield
 
 
+def built_once(tmp_path_factory, name: str, build) -> Path:
+    """``build(directory)`` run once per test run, shared by every pytest-xdist worker: the first worker to
+    get the lock builds into ``<the run's temp root>/<name>``, the others wait for it and reuse the result
+    (which the tests must only read: copy it to change it). Without xdist: a fresh directory, built once."""
+    if not os.environ.get("PYTEST_XDIST_WORKER"):
+        target = tmp_path_factory.mktemp(name)
+        build(target)
+        return target
+    import fcntl
+    import shutil
+
+    root = tmp_path_factory.getbasetemp().parent  # common to the workers of this run
+    target = root / name
+    with open(root / f"{name}.lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        if not (root / f"{name}.done").is_file():
+            shutil.rmtree(target, ignore_errors=True)
+            target.mkdir()
+            build(target)
+            (root / f"{name}.done").touch()
+    return target
+
+
 @pytest.fixture(scope="session")
 def small_dive(tmp_path_factory) -> Path:
-    """The seeded small sample dive (``hadal synth --small``), generated once per test session (~10 s).
+    """The seeded small sample dive (``hadal synth --small``), generated once per test run (~10 s), shared
+    by the xdist workers: read it, or copy it to change it.
 
     Set ``HADAL_SAMPLE_SMALL`` to an existing one to skip generation while iterating.
     """
@@ -66,21 +93,26 @@ def small_dive(tmp_path_factory) -> Path:
         return Path(pre)
     from hadal.synth import generate_dive
 
-    return generate_dive(tmp_path_factory.mktemp("sample") / "haidou-small", small=True)
+    return built_once(tmp_path_factory, "sample", lambda d: generate_dive(d / "haidou-small", small=True)) \
+        / "haidou-small"
 
 
 @pytest.fixture(scope="session")
 def small_run(small_dive, tmp_path_factory):
-    """Every stage run on the small sample dive (Prefect-free), once per session: ``(ctx, products)``."""
+    """Every stage run on the small sample dive (Prefect-free), once per test run and shared by the xdist
+    workers (read-only: copy the store to change it): ``(ctx, {product: the version this run published})``."""
     import warnings
 
-    from hadal.pipeline import make_context, run_pipeline
+    from hadal.pipeline import all_products, make_context, run_pipeline
 
-    ctx = make_context(small_dive, tmp_path_factory.mktemp("store"))
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        products = run_pipeline(ctx)
-    return ctx, products
+    def build(store: Path) -> None:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            run_pipeline(make_context(small_dive, store))
+
+    ctx = make_context(small_dive, built_once(tmp_path_factory, "store", build))
+    ctx.pin_existing(all_products())  # the store holds exactly the one run's versions
+    return ctx, dict(ctx.pins)
 
 
 @pytest.fixture(scope="session")
@@ -92,3 +124,4 @@ def takuyo(shared_data):
     if not path.is_file():
         pytest.skip(f"{path} not present")
     return read_takuyo(path)
+

@@ -286,10 +286,8 @@ def test_several_casts_none_ignored(shared_data, tmp_path):
     assert out["cast_profiles"].file("cast01_oce.nc").is_file()
 
 
-def test_mcap_plus_cnv_both_ingested(shared_data, tmp_path):
-    from hadal.synth import generate_dive
-
-    raw = generate_dive(tmp_path / "dive", small=True)
+def test_mcap_plus_cnv_both_ingested(shared_data, small_dive, tmp_path):
+    raw = Path(shutil.copytree(small_dive, tmp_path / "dive"))
     shutil.copy(_src(shared_data, "seabird_sta0860.cnv"), raw / "ship_cast.cnv")
     y = yaml.safe_load((raw / "dive.yaml").read_text())
     y["sources"]["cnv"] = ["ship_cast.cnv"]

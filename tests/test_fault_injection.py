@@ -82,6 +82,7 @@ def store(seeded_store, tmp_path) -> Path:
     return dst
 
 
+@pytest.mark.integration  # 9-17 s each here (a worker process per case): the integration tier (signals)
 @pytest.mark.parametrize("point", ["write", "rename"])
 def test_kill9_mid_publish_leaves_no_partial_version(small_dive, store, tmp_path, point):
     """SIGKILL while a real stage publishes (files half-way / inside the version lock): readers see only v001,

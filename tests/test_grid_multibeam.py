@@ -193,3 +193,49 @@ def test_sample_dive_round_trip(small_dive):
     assert r["rmse_debiased_m"] < 1.2 * sigma
     assert max_err < min(mb.get("spike_magnitude_m", [100.0])[0], 8 * sigma)
     assert dtm.attrs["n_soundings_spikes"] >= 0.9 * float(mb["spike_fraction"]) * dtm.attrs["n_soundings_input"]
+
+
+def _trench_wall_soundings(n: int, spacing_m: float, seed: int):
+    rng = np.random.default_rng(seed)
+    x = rng.uniform(0, spacing_m * np.sqrt(n), n)
+    y = rng.uniform(0, spacing_m * np.sqrt(n), n)
+    z = 8000 + 0.4 * x + 60 * np.sin(y / 250) + rng.normal(0, 1.5, n)
+    spikes = rng.random(n) < 0.02
+    z[spikes] += rng.choice([-1, 1], spikes.sum()) * rng.uniform(20, 200, spikes.sum())
+    m = min(50, n // 2)  # coincident soundings and a collinear run: the ridge keeps the plane fit solvable
+    x[:m] = x[m]
+    y[:m] = y[m] + np.arange(m) * 1e-3
+    return x, y, z
+
+
+@pytest.mark.parametrize("n,spacing,seed", [(20_000, 5.0, 0), (3_000, 40.0, 1), (18, 1.0, 2)])
+def test_compiled_neighbour_spike_test_equals_numpy_reference(n, spacing, seed):
+    """The compiled kernel of ``knn_spike_mask`` flags exactly the soundings its NumPy reference flags
+    (dense and sparse trench-wall surveys with 2 % spikes, coincident and collinear soundings), also across
+    chunk boundaries."""
+    from hadal.grid.multibeam import knn_spike_mask, knn_spike_mask_reference
+
+    x, y, z = _trench_wall_soundings(n, spacing, seed)
+    for floor in (0.5, 3.0):
+        ref = knn_spike_mask_reference(x, y, z, floor=floor)
+        fast = knn_spike_mask(x, y, z, floor=floor, chunk=997)
+        assert np.array_equal(fast, ref)
+    assert n < 1000 or 0.5 * 0.02 * n < ref.sum() < 2 * 0.02 * n
+
+
+def test_compiled_neighbour_spike_test_equals_reference_on_real_soundings(shared_data):
+    """Same equality on a real ship's multibeam soundings (EX1604 GSF, flagged beams included so real
+    outliers are present) in a local metric frame."""
+    from hadal.grid import read_gsf
+    from hadal.grid.multibeam import knn_spike_mask, knn_spike_mask_reference
+
+    path = shared_data / "bathy-real" / "0029_20160323_185603_EX1604_MB.gsf.mb121"
+    if not path.is_file():
+        pytest.skip(f"{path} not present")
+    df = read_gsf(path, include_flagged=True)
+    frame = LocalFrame(float(df["latitude_deg"].mean()), float(df["longitude_deg"].mean()))
+    x, y = frame.to_xy(df["longitude_deg"].to_numpy(), df["latitude_deg"].to_numpy())
+    z = df["depth_m"].to_numpy(np.float64)
+    ref = knn_spike_mask_reference(x, y, z, floor=0.5)
+    assert ref.any() and not ref.all()
+    assert np.array_equal(knn_spike_mask(x, y, z, floor=0.5), ref)

@@ -223,13 +223,11 @@ def test_describe_damaged_mcap_counts_lost_chunks(tiny_mcap, tmp_path):
 
 
 @pytest.fixture(scope="module")
-def sample_dive(tmp_path_factory):
-    from hadal.synth import generate_dive
-
-    return generate_dive(tmp_path_factory.mktemp("dive") / "d", small=True)
+def sample_dive(small_dive):
+    return small_dive
 
 
-def test_sample_dive_suggestion_equals_haidou_yaml(sample_dive):
+def test_sample_dive_suggestion_equals_haidou_yaml(sample_dive, tmp_path):
     dive = yaml.safe_load((sample_dive / "dive.yaml").read_text())
     csv = {k: sample_dive / v for k, v in dive["sources"]["csv"].items()}
     s = suggest_vehicle([sample_dive / "logs" / "haidou.mcap"], csv)
@@ -244,8 +242,8 @@ def test_sample_dive_suggestion_equals_haidou_yaml(sample_dive):
     assert not any(m["assumed"] for m in s.mapped)
     text = render_vehicle_yaml(s)
     assert yaml.safe_load(text) == s.vehicle and "# " in text
-    (sample_dive / "suggested.yaml").write_text(text)
-    assert load_vehicle_config(sample_dive / "suggested.yaml").model_dump()["sensors"] == want["sensors"]
+    (tmp_path / "suggested.yaml").write_text(text)
+    assert load_vehicle_config(tmp_path / "suggested.yaml").model_dump()["sensors"] == want["sensors"]
     json.dumps(s.as_dict(), allow_nan=False)
 
 

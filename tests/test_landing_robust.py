@@ -87,18 +87,21 @@ def test_rock_heights_every_size(slope_deg, flat):
     assert np.nanmax(np.abs(h[ndi.binary_dilation(true == 0, iterations=1) & (ndi.distance_transform_edt(true == 0) > 3)])) < 0.005
 
 
-@pytest.mark.parametrize("case", [(1.5, 0.2, True)] + [  # 16 s each here: one in make test, all in the integration tier
-    pytest.param(c, marks=pytest.mark.integration) for c in [(1.0, 0.3, False), (0.6, 0.3, False), (0.05, 0.5, True),
-                                                             (0.4, 0.16, True)]])
+@pytest.mark.parametrize("case", [(1.5, 0.2, True), (1.0, 0.3, False), (0.6, 0.3, False), (0.05, 0.5, True),
+                                  (0.4, 0.16, True)])
 def test_rock_taller_than_hc_excludes_every_touching_footprint(case):
     """[Landing Eq. 9] end to end on a θc slope: no landable C_G has a footprint covering a rock cell truly
-    higher than h_c (oracle: scipy dilation of the true mask with the rotated footprint)."""
+    higher than h_c (oracle: the dilation of the true mask with the rotated footprint, as an FFT convolution:
+    the same set as ``scipy.ndimage.binary_dilation``, 400x faster with a 1.7 m footprint)."""
+    from scipy.signal import fftconvolve
+
     w, hh, flat = case
     z, true = rock_field((w,), (hh,), V.critical_slope_deg - 0.5, flat, spacing=4.5)
     res = analyse_submap(grid(z, CELL), headings_deg=[0.0, 30.0, 90.0])
     assert res.high_protrusion[true > HC + 1e-3].all()
     for k, hd in enumerate(res.headings_deg):
-        touching = ndi.binary_dilation(true > HC + 1e-3, footprint_mask(V.length_m, V.width_m, hd, CELL))
+        fp = footprint_mask(V.length_m, V.width_m, hd, CELL).astype(np.float64)
+        touching = fftconvolve((true > HC + 1e-3).astype(np.float64), fp, mode="same") > 0.5
         landable = res.exclusion[k] == 0
         assert not (landable & touching).any(), (case, hd)
     # the plain slope next to the rock stays landable for some heading (the test is not vacuous)

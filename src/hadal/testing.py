@@ -324,14 +324,204 @@ def _published(draft: Any) -> ProductVersion:
     return draft.result
 
 
+def _publish_fake(store: ProductStore, dive: str, product: str, write) -> ProductVersion:
+    """Publish one fake ``product`` of ``dive``: ``write(path)`` fills the draft directory ``path``."""
+    with store.publish(dive, product, parameters={"fake": True}) as d:
+        write(d.path)
+    return _published(d)
+
+
+def _publish_fake_sensors(store: ProductStore, dive: str, ctd: pd.DataFrame) -> ProductVersion:
+    """The raw-sensor columns of the fake ``ctd`` table as the ``sensors`` product."""
+    from hadal.products import write_parquet
+
+    cols = [c for c in ctd.columns if c in ("time", "conductivity_s_m", "temperature_its90_degc", "pressure_ctd_dbar",
+                                            "pressure_gauge_dbar", "altitude_m", "heading_deg", "pitch_deg",
+                                            "roll_deg", "dr_east_m", "dr_north_m", "speed_m_s")]
+    return _publish_fake(store, dive, "sensors",
+                         lambda p: write_parquet(ctd[cols], p / "sensors.parquet", metadata={"dive": dive}))
+
+
+def _publish_fake_ctd(store: ProductStore, dive: str, ctd: pd.DataFrame) -> ProductVersion:
+    """The fake ``ctd`` table as the ``ctd`` product."""
+    from hadal.products import write_parquet
+
+    return _publish_fake(store, dive, "ctd", lambda p: write_parquet(ctd, p / "ctd.parquet", metadata={"dive": dive}))
+
+
+def _publish_fake_profile(store: ProductStore, dive: str) -> ProductVersion:
+    """A descent and an ascent temperature profile (°C) every 50 dbar as the ``profile`` product."""
+    import xarray as xr
+
+    from hadal.products import write_netcdf
+
+    p = np.arange(5.0, 11400.0, 50.0)
+    ds = xr.Dataset({"temperature_its90_degc": (("phase", "pressure_dbar"), np.vstack([1.45 + 20 * np.exp(-p / 310)] * 2))},
+                    coords={"pressure_dbar": p, "phase": ["descent", "ascent"]},
+                    attrs={"launch_latitude_deg": LAUNCH[0], "launch_longitude_deg": LAUNCH[1]})
+    return _publish_fake(store, dive, "profile",
+                         lambda path: write_netcdf(ds, path / "profile.nc", title="fake profile", summary="fake"))
+
+
+def _publish_fake_dtm(store: ProductStore, dive: str, frame, x: np.ndarray, y: np.ndarray,
+                      depth: np.ndarray) -> ProductVersion:
+    """The terrain ``depth`` (m) on the cell centres ``x``, ``y`` (m, map frame) as the ``dtm`` product."""
+    import xarray as xr
+
+    from hadal.products import write_netcdf
+
+    X, Y = np.meshgrid(x, y)
+    lon, lat = frame.to_lonlat(X, Y)
+    ds = xr.Dataset({"depth_m": (("y", "x"), depth), "count": (("y", "x"), np.full(depth.shape, 4, "i4")),
+                     "lat": (("y", "x"), lat), "lon": (("y", "x"), lon),
+                     "crs": ((), 0, {"crs_wkt": frame.crs.to_wkt()})}, coords={"x": x, "y": y},
+                    attrs={"map_frame_origin_latitude_deg": ORIGIN[0], "map_frame_origin_longitude_deg": ORIGIN[1]})
+    return _publish_fake(store, dive, "dtm", lambda p: write_netcdf(ds, p / "dtm.nc", title="fake dtm", summary="fake"))
+
+
+def _publish_fake_suitability(store: ProductStore, dive: str, x: np.ndarray, y: np.ndarray,
+                              depth: np.ndarray) -> ProductVersion:
+    """Depth std (m) and entropy of 5 x 5 cell blocks of the terrain as the ``suitability`` product."""
+    import xarray as xr
+
+    from hadal.products import write_netcdf
+
+    b = 5
+    blk = depth[: depth.shape[0] // b * b, : depth.shape[1] // b * b].reshape(depth.shape[0] // b, b, depth.shape[1] // b, b)
+    std = blk.std(axis=(1, 3))
+    ent = np.log(1 + std)
+    bx, by = x[: blk.shape[2] * b : b] + b * 10, y[: blk.shape[0] * b : b] + b * 10
+    ds = xr.Dataset({"std_m": (("y", "x"), std), "entropy": (("y", "x"), ent)}, coords={"x": bx, "y": by},
+                    attrs={"proposed_region": json.dumps({"x_min_m": 300.0, "x_max_m": 1500.0,
+                                                          "y_min_m": 200.0, "y_max_m": 1200.0})})
+    return _publish_fake(store, dive, "suitability",
+                         lambda p: write_netcdf(ds, p / "suitability.nc", title="fake suitability", summary="fake"))
+
+
+def _fake_matched_track(rng: np.random.Generator, frame, bottom: pd.DataFrame, x: np.ndarray, y: np.ndarray,
+                        depth: np.ndarray, sx_m: float, sy_m: float) -> pd.DataFrame:
+    """The bottom phase's DR track moved to start at ``sx_m``, ``sy_m`` (m, map frame), with the map depth
+    under it (m) and a measured seafloor depth (map + N(0, 1 m))."""
+    import pandas as pd
+
+    tx = sx_m + bottom["dr_east_m"].to_numpy() - bottom["dr_east_m"].iloc[0]
+    ty = sy_m + bottom["dr_north_m"].to_numpy() - bottom["dr_north_m"].iloc[0]
+    tlon, tlat = frame.to_lonlat(tx, ty)
+    ix = np.clip(np.searchsorted(x, tx), 0, x.size - 1)
+    iy = np.clip(np.searchsorted(y, ty), 0, y.size - 1)
+    return pd.DataFrame({"time": bottom["time"], "x_east_m": tx, "y_north_m": ty, "lon": tlon, "lat": tlat,
+                         "depth_m": bottom["depth_m"], "seafloor_depth_m": depth[iy, ix] + rng.normal(0, 1, len(bottom)),
+                         "map_depth_m": depth[iy, ix]})
+
+
+def _fake_msd_surface(rng: np.random.Generator, sx_m: float, sy_m: float):
+    """A TERCOM-like MSD surface (m²) on 20 m cells, a bowl with its minimum near ``sx_m``, ``sy_m`` (m)."""
+    import xarray as xr
+
+    cx, cy = np.arange(0.0, 1400.0, 20.0), np.arange(0.0, 1000.0, 20.0)
+    CX, CY = np.meshgrid(cx, cy)
+    msd = 1 + ((CX - sx_m) ** 2 + (CY - sy_m) ** 2) / 5e3 + rng.random(CX.shape)
+    return xr.Dataset({"score": (("y", "x"), msd, {"units": "m2"})}, coords={"x": cx, "y": cy},
+                      attrs={"criterion": "msd", "best_x_m": sx_m, "best_y_m": sy_m})
+
+
+def _fake_fix(frame, bottom: pd.DataFrame, track: pd.DataFrame, best_score: float, sx_m: float,
+              sy_m: float) -> dict[str, Any]:
+    """The ``fix.json`` record of the fake match: start at ``sx_m``, ``sy_m`` (m), launch, drift (m),
+    uncertainty (m) and the deepest point of the ``bottom`` phase on the matched ``track``."""
+    from hadal.geo import format_position, geodesic_distance_m
+
+    tx, ty = track["x_east_m"].to_numpy(), track["y_north_m"].to_numpy()
+    tlon, tlat = track["lon"].to_numpy(), track["lat"].to_numpy()
+    lx, ly = (float(v) for v in frame.to_xy(LAUNCH[1], LAUNCH[0]))
+    slon, slat = (float(v) for v in frame.to_lonlat(sx_m, sy_m))
+    k = int(bottom["depth_m"].idxmax())
+    return {"criterion": "msd", "score": best_score, "bias_m": 3.2,
+            "start": {"x_east_m": sx_m, "y_north_m": sy_m, "lat": slat, "lon": slon,
+                      "position_degmin": format_position(slat, slon)},
+            "launch": {"lat": LAUNCH[0], "lon": LAUNCH[1], "x_east_m": lx, "y_north_m": ly,
+                       "position_degmin": format_position(*LAUNCH)},
+            "drift_m": float(geodesic_distance_m(LAUNCH[1], LAUNCH[0], slon, slat)),
+            "uncertainty_m": {"east": 15.0, "north": 12.0, "radial": 19.2},
+            "second_optimum": {"score": best_score * 1.8, "separation_ratio": 1.8}, "mismatch": False,
+            "n_samples": len(bottom), "warnings": [],
+            "deepest_point": {"time": str(bottom.loc[k, "time"]), "depth_m": float(bottom.loc[k, "depth_m"]),
+                              "seafloor_depth_m": float(track.loc[k, "seafloor_depth_m"]),
+                              "x_east_m": float(tx[k]), "y_north_m": float(ty[k]), "lat": float(tlat[k]),
+                              "lon": float(tlon[k]),
+                              "position_degmin": format_position(float(tlat[k]), float(tlon[k]))}}
+
+
+def _publish_fake_match(store: ProductStore, dive: str, rng: np.random.Generator, frame, ctd: pd.DataFrame,
+                        x: np.ndarray, y: np.ndarray, depth: np.ndarray) -> ProductVersion:
+    """A TERCOM-like ``match`` product (MSD surface, matched track, fix) starting at (700, 500) m."""
+    from hadal.products import write_netcdf, write_parquet
+
+    bottom = ctd[ctd["phase"] == "bottom"].reset_index(drop=True)
+    sx, sy = 700.0, 500.0
+    track = _fake_matched_track(rng, frame, bottom, x, y, depth, sx, sy)
+    mds = _fake_msd_surface(rng, sx, sy)
+    fix = _fake_fix(frame, bottom, track, float(mds["score"].values.min()), sx, sy)
+
+    def write(p: Path) -> None:
+        write_netcdf(mds, p / "msd_surface.nc", title="fake msd", summary="fake",
+                     map_frame_origin_latitude_deg=ORIGIN[0], map_frame_origin_longitude_deg=ORIGIN[1])
+        write_parquet(track, p / "matched_track.parquet")
+        (p / "fix.json").write_text(json.dumps(fix, indent=2), encoding="utf-8")
+
+    return _publish_fake(store, dive, "match", write)
+
+
+def _fake_landing_sites(rng: np.random.Generator) -> pd.DataFrame:
+    """One random landing site per submap and heading (-45, 0, 45°; positions and radius in m, slope in
+    degrees, roughness in m), the lowest ``c_s`` of each submap marked best."""
+    import pandas as pd
+
+    rows = []
+    for sm in ("submap_01", "submap_02"):
+        for h in (-45.0, 0.0, 45.0):
+            rows.append({"submap": sm, "heading_deg": h, "site_id": 1, "x_m": rng.uniform(0, 3), "y_m": rng.uniform(0, 3),
+                         "radius_m": rng.uniform(0.3, 0.8), "slope_deg": rng.uniform(0, 10),
+                         "roughness_m": rng.uniform(0, 0.02), "c_s": rng.uniform(0, 1), "is_best": False})
+    sites = pd.DataFrame(rows)
+    for _, g in sites.groupby("submap"):
+        sites.loc[g["c_s"].idxmin(), "is_best"] = True
+    return sites
+
+
+def _fake_landing_maps():
+    """A 3 m x 3 m elevation map (m) on 1 cm cells with a 0.5 m radius final-site flag."""
+    import xarray as xr
+
+    gx = np.arange(0.0, 3.0, 0.01)
+    GX, GY = np.meshgrid(gx, gx)
+    elev = 0.05 * np.sin(GX * 3) + 0.03 * np.cos(GY * 4)
+    return xr.Dataset({"elevation_m": (("y", "x"), elev),
+                       "final_site": (("y", "x"), ((GX - 1.5) ** 2 + (GY - 1.5) ** 2 < 0.25).astype("i1"),
+                                      {"flag_values": np.array([0, 1], "i1"), "flag_meanings": "no yes"})},
+                      coords={"x": gx, "y": gx},
+                      attrs={"launch_latitude_deg": LAUNCH[0], "launch_longitude_deg": LAUNCH[1]})
+
+
+def _publish_fake_landing(store: ProductStore, dive: str, rng: np.random.Generator) -> ProductVersion:
+    """A ``landing`` product: the landing sites and the same fake maps for two submaps."""
+    from hadal.products import write_netcdf, write_parquet
+
+    sites = _fake_landing_sites(rng)
+    maps = _fake_landing_maps()
+
+    def write(p: Path) -> None:
+        write_parquet(sites, p / "landing_sites.parquet")
+        for sm in ("submap_01", "submap_02"):
+            write_netcdf(maps, p / f"{sm}_maps.nc", title="fake landing maps", summary="fake")
+
+    return _publish_fake(store, dive, "landing", write)
+
+
 def publish_fake_products(store: ProductStore, dive: str = "fake-dive", products: Sequence[str] = ALL_FAKE,
                           seed: int = 0) -> dict[str, ProductVersion]:
     """Publish the selected fake products of ``dive``; returns ``{product: version}``."""
-    import pandas as pd
-    import xarray as xr
-
-    from hadal.geo import LocalFrame, format_position, geodesic_distance_m
-    from hadal.products import write_netcdf, write_parquet
+    from hadal.geo import LocalFrame
 
     rng = np.random.default_rng(seed)
     frame = LocalFrame(*ORIGIN)
@@ -341,106 +531,19 @@ def publish_fake_products(store: ProductStore, dive: str = "fake-dive", products
     y = np.arange(0.0, 1600.0, 20.0)
     depth = _terrain(x, y)
     if "sensors" in products:
-        cols = [c for c in ctd.columns if c in ("time", "conductivity_s_m", "temperature_its90_degc", "pressure_ctd_dbar",
-                                                "pressure_gauge_dbar", "altitude_m", "heading_deg", "pitch_deg",
-                                                "roll_deg", "dr_east_m", "dr_north_m", "speed_m_s")]
-        with store.publish(dive, "sensors", parameters={"fake": True}) as d:
-            write_parquet(ctd[cols], d.path / "sensors.parquet", metadata={"dive": dive})
-        out["sensors"] = _published(d)
+        out["sensors"] = _publish_fake_sensors(store, dive, ctd)
     if "ctd" in products:
-        with store.publish(dive, "ctd", parameters={"fake": True}) as d:
-            write_parquet(ctd, d.path / "ctd.parquet", metadata={"dive": dive})
-        out["ctd"] = _published(d)
+        out["ctd"] = _publish_fake_ctd(store, dive, ctd)
     if "profile" in products:
-        p = np.arange(5.0, 11400.0, 50.0)
-        ds = xr.Dataset({"temperature_its90_degc": (("phase", "pressure_dbar"), np.vstack([1.45 + 20 * np.exp(-p / 310)] * 2))},
-                        coords={"pressure_dbar": p, "phase": ["descent", "ascent"]},
-                        attrs={"launch_latitude_deg": LAUNCH[0], "launch_longitude_deg": LAUNCH[1]})
-        with store.publish(dive, "profile", parameters={"fake": True}) as d:
-            write_netcdf(ds, d.path / "profile.nc", title="fake profile", summary="fake")
-        out["profile"] = _published(d)
-    X, Y = np.meshgrid(x, y)
-    lon, lat = frame.to_lonlat(X, Y)
+        out["profile"] = _publish_fake_profile(store, dive)
     if "dtm" in products:
-        ds = xr.Dataset({"depth_m": (("y", "x"), depth), "count": (("y", "x"), np.full(depth.shape, 4, "i4")),
-                         "lat": (("y", "x"), lat), "lon": (("y", "x"), lon),
-                         "crs": ((), 0, {"crs_wkt": frame.crs.to_wkt()})}, coords={"x": x, "y": y},
-                        attrs={"map_frame_origin_latitude_deg": ORIGIN[0], "map_frame_origin_longitude_deg": ORIGIN[1]})
-        with store.publish(dive, "dtm", parameters={"fake": True}) as d:
-            write_netcdf(ds, d.path / "dtm.nc", title="fake dtm", summary="fake")
-        out["dtm"] = _published(d)
+        out["dtm"] = _publish_fake_dtm(store, dive, frame, x, y, depth)
     if "suitability" in products:
-        b = 5
-        blk = depth[: depth.shape[0] // b * b, : depth.shape[1] // b * b].reshape(depth.shape[0] // b, b, depth.shape[1] // b, b)
-        std = blk.std(axis=(1, 3))
-        ent = np.log(1 + std)
-        bx, by = x[: blk.shape[2] * b : b] + b * 10, y[: blk.shape[0] * b : b] + b * 10
-        ds = xr.Dataset({"std_m": (("y", "x"), std), "entropy": (("y", "x"), ent)}, coords={"x": bx, "y": by},
-                        attrs={"proposed_region": json.dumps({"x_min_m": 300.0, "x_max_m": 1500.0,
-                                                              "y_min_m": 200.0, "y_max_m": 1200.0})})
-        with store.publish(dive, "suitability", parameters={"fake": True}) as d:
-            write_netcdf(ds, d.path / "suitability.nc", title="fake suitability", summary="fake")
-        out["suitability"] = _published(d)
+        out["suitability"] = _publish_fake_suitability(store, dive, x, y, depth)
     if "match" in products:
-        bottom = ctd[ctd["phase"] == "bottom"].reset_index(drop=True)
-        sx, sy = 700.0, 500.0
-        tx = sx + bottom["dr_east_m"].to_numpy() - bottom["dr_east_m"].iloc[0]
-        ty = sy + bottom["dr_north_m"].to_numpy() - bottom["dr_north_m"].iloc[0]
-        tlon, tlat = frame.to_lonlat(tx, ty)
-        ix = np.clip(np.searchsorted(x, tx), 0, x.size - 1)
-        iy = np.clip(np.searchsorted(y, ty), 0, y.size - 1)
-        track = pd.DataFrame({"time": bottom["time"], "x_east_m": tx, "y_north_m": ty, "lon": tlon, "lat": tlat,
-                              "depth_m": bottom["depth_m"], "seafloor_depth_m": depth[iy, ix] + rng.normal(0, 1, len(bottom)),
-                              "map_depth_m": depth[iy, ix]})
-        cx, cy = np.arange(0.0, 1400.0, 20.0), np.arange(0.0, 1000.0, 20.0)
-        CX, CY = np.meshgrid(cx, cy)
-        msd = 1 + ((CX - sx) ** 2 + (CY - sy) ** 2) / 5e3 + rng.random(CX.shape)
-        mds = xr.Dataset({"score": (("y", "x"), msd, {"units": "m2"})}, coords={"x": cx, "y": cy},
-                         attrs={"criterion": "msd", "best_x_m": sx, "best_y_m": sy})
-        lx, ly = (float(v) for v in frame.to_xy(LAUNCH[1], LAUNCH[0]))
-        slon, slat = (float(v) for v in frame.to_lonlat(sx, sy))
-        k = int(bottom["depth_m"].idxmax())
-        fix = {"criterion": "msd", "score": float(msd.min()), "bias_m": 3.2,
-               "start": {"x_east_m": sx, "y_north_m": sy, "lat": slat, "lon": slon, "position_degmin": format_position(slat, slon)},
-               "launch": {"lat": LAUNCH[0], "lon": LAUNCH[1], "x_east_m": lx, "y_north_m": ly,
-                          "position_degmin": format_position(*LAUNCH)},
-               "drift_m": float(geodesic_distance_m(LAUNCH[1], LAUNCH[0], slon, slat)),
-               "uncertainty_m": {"east": 15.0, "north": 12.0, "radial": 19.2},
-               "second_optimum": {"score": float(msd.min()) * 1.8, "separation_ratio": 1.8}, "mismatch": False,
-               "n_samples": len(bottom), "warnings": [],
-               "deepest_point": {"time": str(bottom.loc[k, "time"]), "depth_m": float(bottom.loc[k, "depth_m"]),
-                                 "seafloor_depth_m": float(track.loc[k, "seafloor_depth_m"]),
-                                 "x_east_m": float(tx[k]), "y_north_m": float(ty[k]), "lat": float(tlat[k]), "lon": float(tlon[k]),
-                                 "position_degmin": format_position(float(tlat[k]), float(tlon[k]))}}
-        with store.publish(dive, "match", parameters={"fake": True}) as d:
-            write_netcdf(mds, d.path / "msd_surface.nc", title="fake msd", summary="fake",
-                         map_frame_origin_latitude_deg=ORIGIN[0], map_frame_origin_longitude_deg=ORIGIN[1])
-            write_parquet(track, d.path / "matched_track.parquet")
-            (d.path / "fix.json").write_text(json.dumps(fix, indent=2), encoding="utf-8")
-        out["match"] = _published(d)
+        out["match"] = _publish_fake_match(store, dive, rng, frame, ctd, x, y, depth)
     if "landing" in products:
-        rows = []
-        for sm in ("submap_01", "submap_02"):
-            for h in (-45.0, 0.0, 45.0):
-                rows.append({"submap": sm, "heading_deg": h, "site_id": 1, "x_m": rng.uniform(0, 3), "y_m": rng.uniform(0, 3),
-                             "radius_m": rng.uniform(0.3, 0.8), "slope_deg": rng.uniform(0, 10),
-                             "roughness_m": rng.uniform(0, 0.02), "c_s": rng.uniform(0, 1), "is_best": False})
-        sites = pd.DataFrame(rows)
-        for _, g in sites.groupby("submap"):
-            sites.loc[g["c_s"].idxmin(), "is_best"] = True
-        gx = np.arange(0.0, 3.0, 0.01)
-        GX, GY = np.meshgrid(gx, gx)
-        elev = 0.05 * np.sin(GX * 3) + 0.03 * np.cos(GY * 4)
-        maps = xr.Dataset({"elevation_m": (("y", "x"), elev),
-                           "final_site": (("y", "x"), ((GX - 1.5) ** 2 + (GY - 1.5) ** 2 < 0.25).astype("i1"),
-                                          {"flag_values": np.array([0, 1], "i1"), "flag_meanings": "no yes"})},
-                          coords={"x": gx, "y": gx},
-                          attrs={"launch_latitude_deg": LAUNCH[0], "launch_longitude_deg": LAUNCH[1]})
-        with store.publish(dive, "landing", parameters={"fake": True}) as d:
-            write_parquet(sites, d.path / "landing_sites.parquet")
-            for sm in ("submap_01", "submap_02"):
-                write_netcdf(maps, d.path / f"{sm}_maps.nc", title="fake landing maps", summary="fake")
-        out["landing"] = _published(d)
+        out["landing"] = _publish_fake_landing(store, dive, rng)
     return out
 
 

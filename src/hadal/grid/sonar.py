@@ -393,120 +393,189 @@ def _not_number(tok: str) -> bool:
     return False
 
 
+def _xyz_head(raw) -> tuple[bytes, list[str], int | None]:
+    """The first decoded bytes of an xyz stream, read ``_HEAD_BYTES`` at a time (at most about 17 x
+    ``_HEAD_BYTES``) until they hold the first data line: ``(head, complete lines of head, index of the first
+    data line or None)``; comment lines start with ``#`` or ``%``."""
+    head = raw.read(_HEAD_BYTES)
+    while True:  # make sure the head holds the first data line
+        text = head.decode("utf-8", errors="replace")
+        lines = text.split("\n")
+        complete = lines if len(head) < _HEAD_BYTES else lines[:-1]
+        first_i = next((i for i, ln in enumerate(complete)
+                        if (t := ln.strip()) and not t.startswith(("#", "%"))), None)
+        if first_i is not None or len(head) % _HEAD_BYTES or len(head) > 16 * _HEAD_BYTES:
+            break
+        more = raw.read(_HEAD_BYTES)
+        if not more:
+            break
+        head += more
+    return head, complete, first_i
+
+
+def _xyz_layout(complete: list[str], first_i: int) -> tuple[str, bool, list[str] | None, int, int]:
+    """``(separator, has_header, header_names, first_sounding_line_index, n_columns)`` of an xyz text from its
+    first data line ``complete[first_i]``: the separator is ``","``, ``";"`` or ``"ws"`` (whitespace); a first
+    line with a non-numeric token is a header, and the column count is then that of the next data line."""
+    first = complete[first_i].strip()
+    sep = "," if "," in first else (";" if ";" in first else "ws")
+    toks = _tokens(first, sep)
+    header = any(_not_number(t) for t in toks)
+    names = [t.strip() for t in toks] if header else None
+    data_i = first_i + 1 if header else first_i
+    if header:  # the first data line (for the column count)
+        nxt = next((ln.strip() for ln in complete[data_i:] if (t := ln.strip()) and not t.startswith(("#", "%"))), None)
+        ncols = len(_tokens(nxt, sep)) if nxt else len(toks)
+    else:
+        ncols = len(toks)
+    return sep, header, names, data_i, ncols
+
+
+def _xyz_columns(p: Path, hints, header: bool, names: list[str] | None,
+                 ncols: int) -> tuple[tuple[int, int, int], list[str] | None, int]:
+    """``(x/y/z column indices, normalised column names or None, columns needed)`` from the declared
+    ``columns`` hint, else the header, else the first three columns; InputError when they do not fit."""
+    declared = _hint(hints, "columns")
+    if declared:
+        idx = _map_columns(list(declared))
+        if idx is None:
+            raise InputError(f"{p}: declared columns {list(declared)} must name x/lon, y/lat and z/depth/elevation")
+        col_names = [_norm(x) for x in declared]
+    elif header and (idx := _map_columns(names)) is not None:
+        col_names = [_norm(x) for x in names]
+    else:
+        idx, col_names = (0, 1, 2), None
+    need = max(idx) + 1
+    if ncols < need:
+        raise InputError(f"{p}: expected {need} columns (x/lon, y/lat, z/depth), found {ncols}")
+    return idx, col_names, need
+
+
+def _xyz_named_conventions(hints, col_names: list[str] | None,
+                           idx: tuple[int, int, int]) -> tuple[str | None, str | None, str | None, str | None]:
+    """``(crs_kind, crs_from, z_positive, z_positive_from)`` declared in ``hints``, else told by the header's
+    column names ("declared" / "header"); None where neither says (then decided from the values)."""
+    # horizontal CRS
+    crs_kind = _crs_kind_from_hint(_hint(hints, "crs"))
+    crs_how = "declared" if crs_kind else None
+    if crs_kind is None and col_names is not None:
+        xn, yn = col_names[idx[0]], col_names[idx[1]]
+        if xn in _LON or yn in _LAT:
+            crs_kind, crs_how = "geographic", "header"
+        elif xn in _EAST or yn in _NORTH:
+            crs_kind, crs_how = "projected", "header"
+    # vertical convention
+    zpos = _hint(hints, "z_positive")
+    z_how = "declared" if zpos else None
+    if zpos is None and col_names is not None:
+        zn = col_names[idx[2]]
+        if zn in _DEPTH:
+            zpos, z_how = "down", "header"
+        elif zn in _ELEV:
+            zpos, z_how = "up", "header"
+    return crs_kind, crs_how, zpos, z_how
+
+
+def _xyz_value_conventions(x: np.ndarray, y: np.ndarray, z: np.ndarray, crs_kind: str | None, crs_how: str | None,
+                           zpos: str | None, z_how: str | None) -> tuple[str, str | None, str, str | None]:
+    """The CRS kind and z sign still undecided, from the first chunk's values ("values"): lon/lat-like ranges
+    are geographic (:func:`_detect_crs_kind`), a negative median z (m) means elevations (positive up)."""
+    if crs_kind is None:
+        crs_kind, crs_how = _detect_crs_kind(x, y), "values"
+    if zpos is None:
+        fz = z[np.isfinite(z)]
+        zpos = "up" if len(fz) and float(np.median(fz)) < 0 else "down"
+        z_how = "values"
+    return crs_kind, crs_how, zpos, z_how
+
+
+def _xyz_csv_chunks(p: Path, buf, sep: str, data_i: int, idx: tuple[int, int, int], chunk_points: int):
+    """pandas' chunked C parser over ``buf`` (the x/y/z columns ``idx``, ``chunk_points`` rows a chunk, from
+    line ``data_i``); an empty iterator for no data, parse failures are one-line InputErrors."""
+    try:
+        return pd.read_csv(
+            buf, sep=r"\s+" if sep == "ws" else sep, header=None, skiprows=data_i, comment="#",
+            usecols=list(idx), chunksize=chunk_points, engine="c", skipinitialspace=sep != "ws",
+            encoding="utf-8", encoding_errors="replace", skip_blank_lines=True, low_memory=True,
+        )
+    except pd.errors.EmptyDataError:
+        return iter(())
+    except (pd.errors.ParserError, ValueError) as exc:
+        raise InputError(f"{p}: cannot parse soundings ({str(exc).splitlines()[0]})") from None
+
+
+def _next_xyz_chunk(p: Path, chunks) -> pd.DataFrame | None:
+    """The next parsed chunk, or None at the end; parse and decode failures are one-line InputErrors."""
+    try:
+        return next(chunks)
+    except StopIteration:
+        return None
+    except pd.errors.EmptyDataError:
+        return None
+    except (pd.errors.ParserError, ValueError, UnicodeDecodeError) as exc:
+        raise InputError(f"{p}: cannot parse soundings ({str(exc).splitlines()[0]})") from None
+
+
+def _xyz_float_columns(p: Path, df: pd.DataFrame, idx: tuple[int, int, int], out_cols: tuple[str, ...] | None,
+                       rows: int) -> list[np.ndarray]:
+    """The x, y, z columns ``idx`` of one parsed chunk as float64 copies (NaN/inf kept); fewer than 3 columns
+    or a value that is not a number is an InputError naming the column and its data row (``rows`` before)."""
+    if df.shape[1] < 3:
+        raise InputError(f"{p}: expected 3 columns (x/lon, y/lat, z/depth), found {df.shape[1]}")
+    arrs = []
+    tmp_names = ("x", "y", "depth_m")
+    for k, (ci, nm) in enumerate(zip(idx, tmp_names, strict=True)):
+        s = df[ci]
+        if s.dtype.kind not in "fi":
+            conv = pd.to_numeric(s, errors="coerce")
+            bad = conv.isna() & s.notna() & ~s.astype(str).str.strip().str.lower().isin(
+                ("nan", "-nan", "inf", "-inf", "+inf", "na", ""))
+            if bad.any():
+                i = int(np.flatnonzero(bad.to_numpy())[0])
+                shown = nm if k == 2 else (out_cols[k] if out_cols else ("longitude_deg", "latitude_deg")[k])
+                raise InputError(f"{p}: non-numeric {shown} {s.iloc[i]!r} on data row {rows + i + 1}")
+            s = conv
+        arrs.append(s.to_numpy(np.float64, copy=True))
+    return arrs
+
+
+def _check_xyz_end(p: Path, rows: int, header: bool, tail: bytes, sep: str, need: int) -> None:
+    """InputError for a file without soundings, or whose last data line (in ``tail``, the last bytes read) has
+    fewer than ``need`` values (a truncated file)."""
+    if rows == 0:
+        raise InputError(f"{p}: no soundings (header only)" if header else f"{p}: no soundings")
+    last = next((t for ln in reversed(tail.decode("utf-8", errors="replace").split("\n"))
+                 if (t := ln.strip()) and not t.startswith(("#", "%"))), None)
+    if last is not None and len(_tokens(last, sep)) < need:
+        raise InputError(f"{p}: last line {last[:60]!r} has fewer than {need} values (truncated file?)")
+
+
 def _iter_xyz(p: Path, comp: str | None, hints, chunk_points: int, info: dict, *,
               check_ranges: bool = True) -> Iterator[pd.DataFrame]:
     """Stream an xyz text file (see the module docstring). Rows with NaN/inf are kept (the gridder counts
     them); a short last line (truncated file), non-numeric values, out-of-range lon/lat are InputErrors."""
     info.update({"reader": "hadal xyz", "format": "xyz", "pings": None, "beams_per_ping": None, "dropped": 0})
     with _reading(p, comp) as raw:
-        head = raw.read(_HEAD_BYTES)
-        while True:  # make sure the head holds the first data line
-            text = head.decode("utf-8", errors="replace")
-            lines = text.split("\n")
-            complete = lines if len(head) < _HEAD_BYTES else lines[:-1]
-            first_i = next((i for i, ln in enumerate(complete)
-                            if (t := ln.strip()) and not t.startswith(("#", "%"))), None)
-            if first_i is not None or len(head) % _HEAD_BYTES or len(head) > 16 * _HEAD_BYTES:
-                break
-            more = raw.read(_HEAD_BYTES)
-            if not more:
-                break
-            head += more
+        head, complete, first_i = _xyz_head(raw)
         if not is_text(head):
             raise InputError(f"{p}: cannot parse soundings (binary content, not xyz text)")
         if first_i is None:
             raise InputError(f"{p}: no soundings (file has no data lines)")
-        first = complete[first_i].strip()
-        sep = "," if "," in first else (";" if ";" in first else "ws")
-        toks = _tokens(first, sep)
-        header = any(_not_number(t) for t in toks)
-        names = [t.strip() for t in toks] if header else None
-        data_i = first_i + 1 if header else first_i
-        if header:  # the first data line (for the column count)
-            nxt = next((ln.strip() for ln in complete[data_i:] if (t := ln.strip()) and not t.startswith(("#", "%"))), None)
-            ncols = len(_tokens(nxt, sep)) if nxt else len(toks)
-        else:
-            ncols = len(toks)
-        declared = _hint(hints, "columns")
-        if declared:
-            idx = _map_columns(list(declared))
-            if idx is None:
-                raise InputError(f"{p}: declared columns {list(declared)} must name x/lon, y/lat and z/depth/elevation")
-            col_names = [_norm(x) for x in declared]
-        elif header and (idx := _map_columns(names)) is not None:
-            col_names = [_norm(x) for x in names]
-        else:
-            idx, col_names = (0, 1, 2), None
-        need = max(idx) + 1
-        if ncols < need:
-            raise InputError(f"{p}: expected {need} columns (x/lon, y/lat, z/depth), found {ncols}")
-        # horizontal CRS
-        crs_kind = _crs_kind_from_hint(_hint(hints, "crs"))
-        crs_how = "declared" if crs_kind else None
-        if crs_kind is None and col_names is not None:
-            xn, yn = col_names[idx[0]], col_names[idx[1]]
-            if xn in _LON or yn in _LAT:
-                crs_kind, crs_how = "geographic", "header"
-            elif xn in _EAST or yn in _NORTH:
-                crs_kind, crs_how = "projected", "header"
-        # vertical convention
-        zpos = _hint(hints, "z_positive")
-        z_how = "declared" if zpos else None
-        if zpos is None and col_names is not None:
-            zn = col_names[idx[2]]
-            if zn in _DEPTH:
-                zpos, z_how = "down", "header"
-            elif zn in _ELEV:
-                zpos, z_how = "up", "header"
+        sep, header, names, data_i, ncols = _xyz_layout(complete, first_i)
+        idx, col_names, need = _xyz_columns(p, hints, header, names, ncols)
+        crs_kind, crs_how, zpos, z_how = _xyz_named_conventions(hints, col_names, idx)
         info.update({"header": names, "separator": {"ws": "whitespace"}.get(sep, sep), "columns_used": list(idx)})
         reader = _Reader(head, raw)
         buf = io.BufferedReader(reader, 1 << 20)
-        try:
-            chunks = pd.read_csv(
-                buf, sep=r"\s+" if sep == "ws" else sep, header=None, skiprows=data_i, comment="#",
-                usecols=list(idx), chunksize=chunk_points, engine="c", skipinitialspace=sep != "ws",
-                encoding="utf-8", encoding_errors="replace", skip_blank_lines=True, low_memory=True,
-            )
-        except pd.errors.EmptyDataError:
-            chunks = iter(())
-        except (pd.errors.ParserError, ValueError) as exc:
-            raise InputError(f"{p}: cannot parse soundings ({str(exc).splitlines()[0]})") from None
+        chunks = _xyz_csv_chunks(p, buf, sep, data_i, idx, chunk_points)
         rows = 0
         out_cols = None
-        while True:
-            try:
-                df = next(chunks)
-            except StopIteration:
-                break
-            except pd.errors.EmptyDataError:
-                break
-            except (pd.errors.ParserError, ValueError, UnicodeDecodeError) as exc:
-                raise InputError(f"{p}: cannot parse soundings ({str(exc).splitlines()[0]})") from None
-            if df.shape[1] < 3:
-                raise InputError(f"{p}: expected 3 columns (x/lon, y/lat, z/depth), found {df.shape[1]}")
-            arrs = []
-            tmp_names = ("x", "y", "depth_m")
-            for k, (ci, nm) in enumerate(zip(idx, tmp_names, strict=True)):
-                s = df[ci]
-                if s.dtype.kind not in "fi":
-                    conv = pd.to_numeric(s, errors="coerce")
-                    bad = conv.isna() & s.notna() & ~s.astype(str).str.strip().str.lower().isin(
-                        ("nan", "-nan", "inf", "-inf", "+inf", "na", ""))
-                    if bad.any():
-                        i = int(np.flatnonzero(bad.to_numpy())[0])
-                        shown = nm if k == 2 else (out_cols[k] if out_cols else ("longitude_deg", "latitude_deg")[k])
-                        raise InputError(f"{p}: non-numeric {shown} {s.iloc[i]!r} on data row {rows + i + 1}")
-                    s = conv
-                arrs.append(s.to_numpy(np.float64, copy=True))
+        while (df := _next_xyz_chunk(p, chunks)) is not None:
+            arrs = _xyz_float_columns(p, df, idx, out_cols, rows)
             del df
             x, y, z = arrs
             if out_cols is None:  # first chunk: decide CRS kind and z sign
-                if crs_kind is None:
-                    crs_kind, crs_how = _detect_crs_kind(x, y), "values"
-                if zpos is None:
-                    fz = z[np.isfinite(z)]
-                    zpos = "up" if len(fz) and float(np.median(fz)) < 0 else "down"
-                    z_how = "values"
+                crs_kind, crs_how, zpos, z_how = _xyz_value_conventions(x, y, z, crs_kind, crs_how, zpos, z_how)
                 out_cols = GEO_COLUMNS if crs_kind == "geographic" else PROJ_COLUMNS
                 info.update({"crs_kind": crs_kind, "crs_from": crs_how, "crs": _hint(hints, "crs"),
                              "z_positive": zpos, "z_positive_from": z_how})
@@ -520,12 +589,7 @@ def _iter_xyz(p: Path, comp: str | None, hints, chunk_points: int, info: dict, *
             del x, y, z, arrs
             yield chunk
         buf.close()
-    if rows == 0:
-        raise InputError(f"{p}: no soundings (header only)" if header else f"{p}: no soundings")
-    last = next((t for ln in reversed(reader.tail.decode("utf-8", errors="replace").split("\n"))
-                 if (t := ln.strip()) and not t.startswith(("#", "%"))), None)
-    if last is not None and len(_tokens(last, sep)) < need:
-        raise InputError(f"{p}: last line {last[:60]!r} has fewer than {need} values (truncated file?)")
+    _check_xyz_end(p, rows, header, reader.tail, sep, need)
     info["soundings"] = rows
 
 

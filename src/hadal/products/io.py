@@ -625,16 +625,10 @@ def _add_platform_variable(out: xr.Dataset, glob: dict[str, Any], grid_mapping: 
     return out
 
 
-def prepare_dataset(ds: xr.Dataset, path: str | Path, *, title: str, summary: str, **attrs: Any) -> xr.Dataset:
-    """The dataset :func:`write_netcdf` writes: ``ds`` with CF/ACDD attributes completed (caller's win)."""
-    path = Path(path)
-    provenance_from = attrs.pop("provenance_from", None)
-    dive_model = attrs.pop(_DIVE_KEY, None)
-    if dive_model is None:
-        dive_model, _ = current_dive(path)
-    now_ts = pd.Timestamp.now(tz="UTC").floor("s")
-    now = now_ts.isoformat()
-    out = ds.copy()
+def _promote_coordinates(out: xr.Dataset) -> xr.Dataset:
+    """``out`` with its lat/lon data variables (2-D or any), 1-D axis edges along a coordinate and the variables
+    named in a ``coordinates`` attribute made coordinates, and every ``coordinates`` attribute dropped (xarray
+    writes them from the dataset's coordinates)."""
     # 2-D (or any) lat/lon data variables become coordinates so xarray writes `coordinates` attributes
     promote = [n for n, v in out.data_vars.items() if _is_lat(str(n), v) or _is_lon(str(n), v)
                or (is_axis_edge(str(n)) and v.ndim == 1 and v.dims[0] in out.coords)]
@@ -645,12 +639,13 @@ def prepare_dataset(ds: xr.Dataset, path: str | Path, *, title: str, summary: st
         out = out.set_coords(promote)
     for n in out.variables:  # xarray writes `coordinates` from the dataset's coordinates
         out[n].attrs.pop("coordinates", None)
-    out = _string_dims_to_index(out)
-    dive_hints = {k: v for k, v in dive_attributes(dive_model).items() if k != _DIVE_KEY} if dive_model else {}
-    out = _add_scalar_fallbacks(out, {**dive_hints, **ds.attrs, **attrs}, now_ts)
-    out, dsg = _profile_dsg(out)
-    if dsg:
-        attrs = {"featureType": "profile", "cdm_data_type": "Profile", **attrs}
+    return out
+
+
+def _complete_grid_mappings(out: xr.Dataset) -> tuple[xr.Dataset, list[str], str | None]:
+    """``(out, names of its grid-mapping variables, the first of them or None)``: each grid-mapping variable
+    (one holding ``grid_mapping_name``/``crs_wkt``) replaced by a scalar int32 data variable with its CF
+    attributes completed (:func:`_fill_grid_mapping`)."""
     gm_names = [str(n) for n, v in out.variables.items() if _is_grid_mapping(v)]
     grid_mapping = gm_names[0] if gm_names else None
     for n in gm_names:
@@ -662,18 +657,42 @@ def prepare_dataset(ds: xr.Dataset, path: str | Path, *, title: str, summary: st
         if n in out.coords:
             out = out.reset_coords(n)
         out[n] = tmp
-    yx = ("y", "x") if {"y", "x"} <= set(out.dims) else None
+    return out, gm_names, grid_mapping
+
+
+def _prepare_variables(out: xr.Dataset, gm_names: list[str], grid_mapping: str | None,
+                       yx: tuple[str, str] | None, where: str) -> xr.Dataset:
+    """``out`` with every variable but the grid mappings completed by :func:`_prepare_variable` (registry
+    attributes, ranges, fill values, ``grid_mapping`` on the ``yx`` grids); ``where`` names the file in errors."""
     new_vars = {}
     for n, v in out.variables.items():
         if str(n) in gm_names:
             continue
         new_vars[n] = _prepare_variable(str(n), v, is_coord=n in out.coords, is_dim_coord=n in out.dims,
-                                        grid_mapping=grid_mapping, yx_dims=yx, where=path.name)
+                                        grid_mapping=grid_mapping, yx_dims=yx, where=where)
     for n, v in new_vars.items():
         if n in out.coords:
             out = out.assign_coords({n: v})
         else:
             out[n] = v
+    return out
+
+
+def _fix_platform(glob: dict[str, Any], own_platform: str | None) -> None:
+    """In place: a caller's vehicle name given as ``platform`` is the ``platform_name`` (``platform`` is the
+    dive's platform type); a caller's free-text platform drops ``platform_vocabulary``."""
+    if glob.get("platform") is not None and glob.get("platform") == glob.get("platform_name") and own_platform:
+        glob["platform"] = own_platform  # a caller's vehicle name: that is platform_name; platform is the type
+    if glob.get("platform") not in (None, own_platform):
+        glob.pop("platform_vocabulary", None)  # a caller's free-text platform is not a term of the vocabulary
+
+
+def _global_attributes(ds: xr.Dataset, out: xr.Dataset, path: Path, attrs: dict[str, Any], *, title: str,
+                       summary: str, dive_model: Any, provenance_from: Any, yx: tuple[str, str] | None,
+                       now_iso: str) -> dict[str, Any]:
+    """The product's global attributes before the platform variable: conventions, title/summary, the dive's
+    product attributes, id (dive.product.stem), provenance, ``cdm_data_type``, creation dates (``now_iso``,
+    ISO 8601 UTC), discovery attributes of ``out``, then ``ds.attrs`` and the caller's ``attrs`` (which win)."""
     dive, product = _store_location(path)
     dive = attrs.get("dive_id") or ds.attrs.get("dive_id") or dive
     prov = provenance(provenance_from) if provenance_from is not None else provenance(
@@ -691,21 +710,41 @@ def prepare_dataset(ds: xr.Dataset, path: str | Path, *, title: str, summary: st
         "standard_name_vocabulary": STANDARD_NAME_VOCABULARY,
         "product_version": prov["code_version"],
         "cdm_data_type": cdm,
-        "date_created": now,
-        "date_modified": now,
-        "date_issued": now,
-        "date_metadata_modified": now,
-        "history": f"{now} created by hadal {prov['code_version']}",
+        "date_created": now_iso,
+        "date_modified": now_iso,
+        "date_issued": now_iso,
+        "date_metadata_modified": now_iso,
+        "history": f"{now_iso} created by hadal {prov['code_version']}",
         "hadal_provenance": prov,
         **discovery_attributes(out),
         **{k: v for k, v in ds.attrs.items()},
         **attrs,
     }
-    own_platform = product_attributes(dive_model, product).get("platform")
-    if glob.get("platform") is not None and glob.get("platform") == glob.get("platform_name") and own_platform:
-        glob["platform"] = own_platform  # a caller's vehicle name: that is platform_name; platform is the type
-    if glob.get("platform") not in (None, own_platform):
-        glob.pop("platform_vocabulary", None)  # a caller's free-text platform is not a term of the vocabulary
+    _fix_platform(glob, product_attributes(dive_model, product).get("platform"))
+    return glob
+
+
+def prepare_dataset(ds: xr.Dataset, path: str | Path, *, title: str, summary: str, **attrs: Any) -> xr.Dataset:
+    """The dataset :func:`write_netcdf` writes: ``ds`` with CF/ACDD attributes completed (caller's win)."""
+    path = Path(path)
+    provenance_from = attrs.pop("provenance_from", None)
+    dive_model = attrs.pop(_DIVE_KEY, None)
+    if dive_model is None:
+        dive_model, _ = current_dive(path)
+    now_ts = pd.Timestamp.now(tz="UTC").floor("s")
+    now = now_ts.isoformat()
+    out = _promote_coordinates(ds.copy())
+    out = _string_dims_to_index(out)
+    dive_hints = {k: v for k, v in dive_attributes(dive_model).items() if k != _DIVE_KEY} if dive_model else {}
+    out = _add_scalar_fallbacks(out, {**dive_hints, **ds.attrs, **attrs}, now_ts)
+    out, dsg = _profile_dsg(out)
+    if dsg:
+        attrs = {"featureType": "profile", "cdm_data_type": "Profile", **attrs}
+    out, gm_names, grid_mapping = _complete_grid_mappings(out)
+    yx = ("y", "x") if {"y", "x"} <= set(out.dims) else None
+    out = _prepare_variables(out, gm_names, grid_mapping, yx, path.name)
+    glob = _global_attributes(ds, out, path, attrs, title=title, summary=summary, dive_model=dive_model,
+                              provenance_from=provenance_from, yx=yx, now_iso=now)
     out = _add_platform_variable(out, glob, grid_mapping)
     glob.pop("hadal_metadata_missing", None)
     glob["hadal_metadata_missing"] = metadata_missing(glob)

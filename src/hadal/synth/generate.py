@@ -297,25 +297,16 @@ def _r(v, n=6):
     return round(float(v), n)
 
 
-def _truth(seed, small, frame, ter, track, water, err, rates, counts, mb, n_sound, laser_truth, terrain_info,
-           launch_xy, start_xy, deep_xy) -> dict:
+def _truth_positions(frame, track, water) -> dict:
+    """Truth of the track's key points: ``bottom_track_start``/``_end``, ``surfacing``, ``deepest_point``
+    (times, degrees, m east/north in the map frame, depths in m, pressure in dbar) and ``drift_m`` (m,
+    launch point to bottom-track start)."""
     ib, ie, idp = track.i_bottom_start, track.i_bottom_end, track.i_deepest
     lon_b, lat_b = (float(v) for v in frame.to_lonlat(track.x[ib], track.y[ib]))
     lon_d, lat_d = (float(v) for v in frame.to_lonlat(track.x[idp], track.y[idp]))
     drift = geodesic_distance_m(sc.LAUNCH_LON_DEG, sc.LAUNCH_LAT_DEG, lon_b, lat_b)
     lon_s, lat_s = (float(v) for v in frame.to_lonlat(track.x[-1], track.y[-1]))
-    b = slice(ib, ie + 1)
     return {
-        "generator": GENERATOR, "format_version": FORMAT_VERSION, "hadal_version": getattr(hadal, "__version__", ""),
-        "seed": seed, "small": small,
-        "sources": {"paper": "Zhang et al., Terrain matching localization for hybrid underwater vehicle in the "
-                             "Challenger Deep of the Mariana Trench, sections 2 and 4",
-                    "laser": "Sangekar et al., Autonomous landing of underwater vehicles using high resolution "
-                             "bathymetry, sections III-IV"},
-        "launch": {"time": _iso(0.0), "latitude_deg": _r(sc.LAUNCH_LAT_DEG, 8),
-                   "longitude_deg": _r(sc.LAUNCH_LON_DEG, 8),
-                   "x_east_m": _r(launch_xy[0], 3), "y_north_m": _r(launch_xy[1], 3),
-                   "position": format_position(sc.LAUNCH_LAT_DEG, sc.LAUNCH_LON_DEG)},
         "bottom_track_start": {"time": _iso(track.t[ib]), "t_since_launch_s": _r(track.t[ib], 3),
                                "latitude_deg": _r(lat_b, 8), "longitude_deg": _r(lon_b, 8),
                                "x_east_m": _r(track.x[ib], 3), "y_north_m": _r(track.y[ib], 3),
@@ -335,41 +326,83 @@ def _truth(seed, small, frame, ter, track, water, err, rates, counts, mb, n_soun
                           "offset_from_paper_position_m": _r(geodesic_distance_m(
                               sc.DEEPEST_LON_DEG, sc.DEEPEST_LAT_DEG, lon_d, lat_d), 3)},
         "drift_m": _r(drift, 3),
+    }
+
+
+def _truth_bottom_survey(track) -> dict:
+    """Truth of the bottom survey: set altitude, altitude and seafloor-depth ranges (m), track length (m) and
+    waypoints (m, map frame)."""
+    b = slice(track.i_bottom_start, track.i_bottom_end + 1)
+    return {"set_altitude_m": sc.SURVEY_ALTITUDE_M,
+            "altitude_range_m": [_r(track.altitude[b].min(), 3), _r(track.altitude[b].max(), 3)],
+            "seafloor_range_m": [_r(track.seafloor[b].min(), 3), _r(track.seafloor[b].max(), 3)],
+            "length_m": _r(np.hypot(np.diff(track.x[b]), np.diff(track.y[b])).sum(), 1),
+            "waypoints_xy_m": np.round(track.info["waypoints"], 2).tolist()}
+
+
+def _truth_map(ter, terrain_info) -> dict:
+    """Truth of the reference terrain map: frame, shape, 20 m resolution, x/y ranges and depth range (m)."""
+    return {"frame": "transverse Mercator (hadal.geo.LocalFrame)",
+            "origin_latitude_deg": sc.MAP_ORIGIN_LAT_DEG, "origin_longitude_deg": sc.MAP_ORIGIN_LON_DEG,
+            "shape_yx": [int(ter.depth.shape[0]), int(ter.depth.shape[1])], "resolution_m": sc.MAP_RES_M,
+            "x_range_m": [_r(ter.x[0], 3), _r(ter.x[-1], 3)], "y_range_m": [_r(ter.y[0], 3), _r(ter.y[-1], 3)],
+            "min_depth_m": float(ter.depth.min()), "max_depth_m": float(ter.depth.max()),
+            "surface": "bilinear interpolation of truth/terrain.nc cell centres",
+            **terrain_info}
+
+
+def _truth_water_column(water) -> dict:
+    """Truth of the water column: position (degrees), depth-pressure conversion, heave (dbar rms), profile."""
+    return {"latitude_deg": _r(water.latitude_deg, 8), "longitude_deg": _r(water.longitude_deg, 8),
+            "depth_pressure": "TEOS-10 gsw.z_from_p/p_from_z with geo_strf_dyn_height (p_ref 0) of "
+                              "this profile on a 1 dbar grid",
+            "internal_wave_heave_dbar_rms": 4.0,
+            "profile": water.summary()}
+
+
+def _truth_sensors(err, rates, counts) -> dict:
+    """Truth of the simulated sensors: rates (Hz), message counts and each sensor's errors (in the units
+    their keys name)."""
+    return {
+        "rates_hz": rates, "message_counts": counts,
+        "ctd": {"pressure_offset_dbar": err.ctd_pressure_offset_dbar,
+                "pressure_noise_dbar": err.ctd_pressure_noise_dbar,
+                "pressure_saturation_dbar": _sensors.SBE49_MAX_DBAR,
+                "temperature_noise_degc": err.ctd_temperature_noise_degc,
+                "conductivity_noise_s_m": err.ctd_conductivity_noise_s_m},
+        "keller": {"offset_dbar": err.keller_offset_dbar, "noise_dbar": err.keller_noise_dbar,
+                   "resolution_dbar": _sensors.KELLER_RESOLUTION_DBAR, "range_dbar": _sensors.KELLER_MAX_DBAR,
+                   "gauge_minus_ctd_dbar": _r(err.keller_offset_dbar - err.ctd_pressure_offset_dbar, 4)},
+        "altimeter": {"nominal_sound_speed_m_s": _sensors.ALTIMETER_NOMINAL_SOUND_SPEED_M_S,
+                      "range_reported": "true_range * nominal_sound_speed / local_sound_speed, quantised",
+                      "resolution_m": _sensors.ALTIMETER_RESOLUTION_M,
+                      "max_range_m": _sensors.ALTIMETER_MAX_RANGE_M,
+                      "noise_m": err.altimeter_noise_m, "dropout_fraction": err.altimeter_dropout_fraction},
+        "attitude": {"compass_bias_deg": err.compass_bias_deg, "heading_noise_deg": err.heading_noise_deg},
+    }
+
+
+def _truth(seed, small, frame, ter, track, water, err, rates, counts, mb, n_sound, laser_truth, terrain_info,
+           launch_xy, start_xy, deep_xy) -> dict:
+    """The ``truth.json`` record of the sample dive (units in the key names)."""
+    positions = _truth_positions(frame, track, water)
+    return {
+        "generator": GENERATOR, "format_version": FORMAT_VERSION, "hadal_version": getattr(hadal, "__version__", ""),
+        "seed": seed, "small": small,
+        "sources": {"paper": "Zhang et al., Terrain matching localization for hybrid underwater vehicle in the "
+                             "Challenger Deep of the Mariana Trench, sections 2 and 4",
+                    "laser": "Sangekar et al., Autonomous landing of underwater vehicles using high resolution "
+                             "bathymetry, sections III-IV"},
+        "launch": {"time": _iso(0.0), "latitude_deg": _r(sc.LAUNCH_LAT_DEG, 8),
+                   "longitude_deg": _r(sc.LAUNCH_LON_DEG, 8),
+                   "x_east_m": _r(launch_xy[0], 3), "y_north_m": _r(launch_xy[1], 3),
+                   "position": format_position(sc.LAUNCH_LAT_DEG, sc.LAUNCH_LON_DEG)},
+        **positions,
         "phases_s": {"descent": sc.DESCENT_S, "bottom": sc.BOTTOM_S, "ascent": sc.ASCENT_S},
-        "bottom_survey": {"set_altitude_m": sc.SURVEY_ALTITUDE_M,
-                          "altitude_range_m": [_r(track.altitude[b].min(), 3), _r(track.altitude[b].max(), 3)],
-                          "seafloor_range_m": [_r(track.seafloor[b].min(), 3), _r(track.seafloor[b].max(), 3)],
-                          "length_m": _r(np.hypot(np.diff(track.x[b]), np.diff(track.y[b])).sum(), 1),
-                          "waypoints_xy_m": np.round(track.info["waypoints"], 2).tolist()},
-        "map": {"frame": "transverse Mercator (hadal.geo.LocalFrame)",
-                "origin_latitude_deg": sc.MAP_ORIGIN_LAT_DEG, "origin_longitude_deg": sc.MAP_ORIGIN_LON_DEG,
-                "shape_yx": [int(ter.depth.shape[0]), int(ter.depth.shape[1])], "resolution_m": sc.MAP_RES_M,
-                "x_range_m": [_r(ter.x[0], 3), _r(ter.x[-1], 3)], "y_range_m": [_r(ter.y[0], 3), _r(ter.y[-1], 3)],
-                "min_depth_m": float(ter.depth.min()), "max_depth_m": float(ter.depth.max()),
-                "surface": "bilinear interpolation of truth/terrain.nc cell centres",
-                **terrain_info},
-        "water_column": {"latitude_deg": _r(water.latitude_deg, 8), "longitude_deg": _r(water.longitude_deg, 8),
-                         "depth_pressure": "TEOS-10 gsw.z_from_p/p_from_z with geo_strf_dyn_height (p_ref 0) of "
-                                           "this profile on a 1 dbar grid",
-                         "internal_wave_heave_dbar_rms": 4.0,
-                         "profile": water.summary()},
-        "sensors": {
-            "rates_hz": rates, "message_counts": counts,
-            "ctd": {"pressure_offset_dbar": err.ctd_pressure_offset_dbar,
-                    "pressure_noise_dbar": err.ctd_pressure_noise_dbar,
-                    "pressure_saturation_dbar": _sensors.SBE49_MAX_DBAR,
-                    "temperature_noise_degc": err.ctd_temperature_noise_degc,
-                    "conductivity_noise_s_m": err.ctd_conductivity_noise_s_m},
-            "keller": {"offset_dbar": err.keller_offset_dbar, "noise_dbar": err.keller_noise_dbar,
-                       "resolution_dbar": _sensors.KELLER_RESOLUTION_DBAR, "range_dbar": _sensors.KELLER_MAX_DBAR,
-                       "gauge_minus_ctd_dbar": _r(err.keller_offset_dbar - err.ctd_pressure_offset_dbar, 4)},
-            "altimeter": {"nominal_sound_speed_m_s": _sensors.ALTIMETER_NOMINAL_SOUND_SPEED_M_S,
-                          "range_reported": "true_range * nominal_sound_speed / local_sound_speed, quantised",
-                          "resolution_m": _sensors.ALTIMETER_RESOLUTION_M,
-                          "max_range_m": _sensors.ALTIMETER_MAX_RANGE_M,
-                          "noise_m": err.altimeter_noise_m, "dropout_fraction": err.altimeter_dropout_fraction},
-            "attitude": {"compass_bias_deg": err.compass_bias_deg, "heading_noise_deg": err.heading_noise_deg},
-        },
+        "bottom_survey": _truth_bottom_survey(track),
+        "map": _truth_map(ter, terrain_info),
+        "water_column": _truth_water_column(water),
+        "sensors": _truth_sensors(err, rates, counts),
         "dr_error": {"heading_bias_deg": err.compass_bias_deg, "scale_error": err.dr_scale_error,
                      "velocity_noise_m_s": err.dr_velocity_noise_m_s, "velocity_noise_correlation_s": 300.0,
                      "model": "v_dr = (1 + scale_error) * R(heading_bias) * v_true + noise; DR = 0 until the "
