@@ -13,19 +13,15 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
+from hadal.grid._kernels import _sort_small
+
 
 @njit(inline="always")
 def _median_sorted_prefix(a, n):  # pragma: no cover - compiled
-    """Median of ``a[:n]`` (sorted in place by insertion; ``n`` is a neighbour count, ~16); NaN if ``n == 0``."""
-    for i in range(1, n):
-        v = a[i]
-        j = i - 1
-        while j >= 0 and a[j] > v:
-            a[j + 1] = a[j]
-            j -= 1
-        a[j + 1] = v
+    """Median of ``a[:n]`` (sorted in place by :func:`hadal.grid._kernels._sort_small`); NaN if ``n == 0``."""
     if n == 0:
         return np.nan
+    _sort_small(a[:n])
     h = n // 2
     if n % 2 == 1:
         return a[h]

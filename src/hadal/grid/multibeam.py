@@ -125,6 +125,19 @@ def _plane_fit(dx, dy, nb, w):
     return np.linalg.solve(m, rhs[..., None])[..., 0]
 
 
+def _neighbour_chunks(x, y, neighbours: int, chunk: int):
+    """``(s0, s1, j)`` per chunk of ``chunk`` soundings: ``j[i]`` the indices of the ``neighbours`` nearest
+    soundings (horizontal distance, scipy cKDTree) of sounding ``s0 + i``, itself excluded."""
+    from scipy.spatial import cKDTree
+
+    xy = np.column_stack([x, y])
+    tree = cKDTree(xy)
+    for s0 in range(0, len(xy), chunk):
+        s1 = min(len(xy), s0 + chunk)
+        _, j = tree.query(xy[s0:s1], k=neighbours + 1, workers=2)
+        yield s0, s1, j[:, 1:]  # column 0 is the sounding itself
+
+
 def knn_spike_mask(x, y, z, *, k: float = 4.0, neighbours: int = 16, floor: float = 0.5,
                    chunk: int = 100_000) -> np.ndarray:
     """True where a sounding deviates from the local surface of its ``neighbours`` nearest soundings.
@@ -138,55 +151,33 @@ def knn_spike_mask(x, y, z, *, k: float = 4.0, neighbours: int = 16, floor: floa
     hold 0-1 soundings and a per-cell test cannot judge anything.
 
     The neighbour search is scipy's; the per-sounding fit and test run in a compiled loop
-    (:mod:`hadal.grid._spike_kernels`, ~5x faster than the NumPy reference :func:`knn_spike_mask_reference`,
-    whose flags it reproduces). The inputs must be finite (the gridder drops non-finite soundings first).
+    (:mod:`hadal.grid._spike_kernels`, which flags exactly what the NumPy reference
+    :func:`knn_spike_mask_reference` flags; the whole function is ~1.5x faster, the neighbour query now
+    dominating). The inputs must be finite (the gridder drops non-finite soundings first).
     """
-    from scipy.spatial import cKDTree
-
     from hadal.grid._spike_kernels import knn_spike_flags
 
     x = np.ascontiguousarray(x, dtype=np.float64)
     y = np.ascontiguousarray(y, dtype=np.float64)
     z = np.ascontiguousarray(z, dtype=np.float64)
-    n = len(z)
-    out = np.zeros(n, dtype=bool)
-    if n <= neighbours:
+    out = np.zeros(len(z), dtype=bool)
+    if len(z) <= neighbours:
         return out
-    xy = np.column_stack([x, y])
-    tree = cKDTree(xy)
-    for s0 in range(0, n, chunk):
-        s1 = min(n, s0 + chunk)
-        _, j = tree.query(xy[s0:s1], k=neighbours + 1, workers=2)
-        nbr = np.ascontiguousarray(j[:, 1:], dtype=np.int64)  # column 0 is the sounding itself
-        knn_spike_flags(x, y, z, s0, nbr, float(k), float(floor), MAD_TO_SIGMA, out)
+    for s0, _, j in _neighbour_chunks(x, y, neighbours, chunk):
+        knn_spike_flags(x, y, z, s0, np.ascontiguousarray(j, dtype=np.int64), float(k), float(floor),
+                        MAD_TO_SIGMA, out)
     return out
 
 
 def knn_spike_mask_reference(x, y, z, *, k: float = 4.0, neighbours: int = 16, floor: float = 0.5,
-                   chunk: int = 100_000) -> np.ndarray:
-    """The NumPy reference of :func:`knn_spike_mask` (the oracle of its compiled kernel in the tests):
-    True where a sounding deviates from the local surface of its ``neighbours`` nearest soundings.
-
-    For each sounding a plane is fitted to its neighbours (horizontal distance, scipy cKDTree), robustly:
-    least squares, then again without the neighbours whose residual exceeds ``3 * max(1.4826 MAD,
-    floor)`` (spikes among the neighbours). The sounding is a spike if its own residual exceeds
-    ``k * max(1.4826 MAD of the kept residuals, floor)``. The plane removes the terrain slope, which on a
-    trench wall is tens of metres across the neighbourhood and would otherwise hide 100 m spikes; the
-    test does not depend on the sounding density, so it works for sparse surveys where most 20 m cells
-    hold 0-1 soundings and a per-cell test cannot judge anything.
-    """
-    from scipy.spatial import cKDTree
-
+                             chunk: int = 100_000) -> np.ndarray:
+    """The NumPy reference of :func:`knn_spike_mask` (the method is described there), the oracle of its
+    compiled kernel in the tests: ``(chunk, neighbours)`` arrays instead of one sounding at a time."""
     n = len(z)
     out = np.zeros(n, dtype=bool)
     if n <= neighbours:
         return out
-    xy = np.column_stack([x, y])
-    tree = cKDTree(xy)
-    for s0 in range(0, n, chunk):
-        s1 = min(n, s0 + chunk)
-        _, j = tree.query(xy[s0:s1], k=neighbours + 1, workers=2)
-        j = j[:, 1:]  # column 0 is the sounding itself
+    for s0, s1, j in _neighbour_chunks(x, y, neighbours, chunk):
         dx, dy, nb = x[j] - x[s0:s1, None], y[j] - y[s0:s1, None], z[j]
         w = np.ones_like(nb)
         for _ in range(2):
