@@ -143,12 +143,97 @@ def _sort_small(a):  # pragma: no cover - compiled
         a[j + 1] = v
 
 
+@njit(inline="always")
+def _block_shifted_sums(kb, zb, seg, b, sz, cnt, ref, s1, s2):  # pragma: no cover - compiled
+    """Block ``b``'s per-cell count and sums shifted by each cell's first value (``ref``) into ``cnt``/``s1``/
+    ``s2``; then ``s1`` holds the cells' means and ``s2`` their one-pass M2. Returns whether any cell's rounding
+    bound ``2 eps n S2`` exceeds ``_BLOCK_M2_RTOL`` of its M2 (the block must then be recomputed two-pass)."""
+    cnt[:sz] = 0
+    s1[:sz] = 0.0
+    s2[:sz] = 0.0
+    for ci in range(seg.shape[0]):
+        for p in range(seg[ci, b], seg[ci, b + 1]):
+            j = kb[p]
+            zi = zb[p]
+            if cnt[j] == 0:
+                ref[j] = zi
+            cnt[j] += 1
+            d = zi - ref[j]
+            s1[j] += d
+            s2[j] += d * d
+    ill = False
+    for j in range(sz):
+        c = cnt[j]
+        if c > 0:
+            u = s1[j] / c
+            mj = max(s2[j] - s1[j] * u, 0.0)  # shifted sums: M2 = S2 - S1**2 / n
+            ill |= _EPS2 * c * s2[j] > _BLOCK_M2_RTOL * mj  # its rounding bound is too large
+            s1[j] = ref[j] + u  # now the mean
+            s2[j] = mj
+    return ill
+
+
+@njit(inline="always")
+def _block_two_pass_m2(kb, zb, seg, b, sz, mean, s2):  # pragma: no cover - compiled
+    """Block ``b``'s per-cell M2 recomputed two-pass about the cells' ``mean`` into ``s2``."""
+    s2[:sz] = 0.0
+    for ci in range(seg.shape[0]):
+        for p in range(seg[ci, b], seg[ci, b + 1]):
+            j = kb[p]
+            d = zb[p] - mean[j]
+            s2[j] += d * d
+
+
+@njit(inline="always")
+def _block_grouped_values(kb, zb, seg, b, sz, cnt, total):  # pragma: no cover - compiled
+    """Block ``b``'s ``total`` values grouped by cell (a counting sort, file order kept inside a cell):
+    ``(buf, start)``, cell ``j``'s values in ``buf[start[j]:start[j + 1]]``."""
+    start = np.empty(sz + 1, np.int64)
+    acc = 0
+    for j in range(sz):
+        start[j] = acc
+        acc += cnt[j]
+    start[sz] = acc
+    fill = start[:sz].copy()
+    buf = np.empty(total)
+    for ci in range(seg.shape[0]):
+        for p in range(seg[ci, b], seg[ci, b + 1]):
+            j = kb[p]
+            buf[fill[j]] = zb[p]
+            fill[j] += 1
+    return buf, start
+
+
+@njit(inline="always")
+def _block_sorted_stats(buf, start, sz, base, cnt, mean, want_m2, m2, med, zmin, zmax):  # pragma: no cover
+    """Per cell of a block grouped by :func:`_block_grouped_values`: (with ``want_m2``) the two-pass M2 about
+    the cell's ``mean`` over its values in file order, then median, min and max of the sorted values."""
+    for j in range(sz):
+        c = cnt[j]
+        if c == 0:
+            continue
+        a = start[j]
+        cs = buf[a:a + c]
+        if want_m2:  # two-pass about the mean over the cell's values (in file order), in cache
+            mu = mean[j]
+            q2 = 0.0
+            for q in range(c):
+                d = cs[q] - mu
+                q2 += d * d
+            m2[base + j] = q2
+        _sort_small(cs)
+        med[base + j] = 0.5 * (cs[(c - 1) // 2] + cs[c // 2])
+        zmin[base + j] = cs[0]
+        zmax[base + j] = cs[c - 1]
+
+
 @njit(parallel=True, cache=True, nogil=True)
 def block_stats_kernel(kb, zb, seg, shift, m, want_m2, want_sorted, nthreads):  # pragma: no cover - compiled
     """Per-cell ``count`` (int64), ``mean``, ``m2`` (sum of squared deviations from the mean; empty when
     not ``want_m2``) and, with ``want_sorted``, ``median``/``min``/``max``, over ``m`` cells from the
     block-partitioned points of :func:`partition_kernel` (``kb``: cell index within the block; ``seg``: the
-    chunks' block segments). Empty cells: count 0, NaN elsewhere."""
+    chunks' block segments). Empty cells: count 0, NaN elsewhere. The blocks are shared round-robin by the
+    threads; each block's steps are the inlined helpers above."""
     nseg = seg.shape[0]
     nblocks = seg.shape[1] - 1
     count = np.zeros(m, np.int64)
@@ -172,73 +257,20 @@ def block_stats_kernel(kb, zb, seg, shift, m, want_m2, want_sorted, nthreads):  
                 continue
             base = b << shift
             sz = min(bs, m - base)
-            cnt[:sz] = 0
-            s1[:sz] = 0.0
-            s2[:sz] = 0.0
-            for ci in range(nseg):
-                for p in range(seg[ci, b], seg[ci, b + 1]):
-                    j = kb[p]
-                    zi = zb[p]
-                    if cnt[j] == 0:
-                        ref[j] = zi
-                    cnt[j] += 1
-                    d = zi - ref[j]
-                    s1[j] += d
-                    s2[j] += d * d
-            ill = False
+            ill = _block_shifted_sums(kb, zb, seg, b, sz, cnt, ref, s1, s2)  # s1: the means
             for j in range(sz):
-                c = cnt[j]
-                if c > 0:
-                    u = s1[j] / c
-                    mj = max(s2[j] - s1[j] * u, 0.0)  # shifted sums: M2 = S2 - S1**2 / n
-                    ill |= _EPS2 * c * s2[j] > _BLOCK_M2_RTOL * mj  # its rounding bound is too large
-                    s1[j] = ref[j] + u  # now the mean
-                    s2[j] = mj
-                    count[base + j] = c
+                if cnt[j] > 0:
+                    count[base + j] = cnt[j]
                     mean[base + j] = s1[j]
             if want_m2 and not want_sorted:
                 if ill:  # recompute the block two-pass about the means (mean unchanged)
-                    s2[:sz] = 0.0
-                    for ci in range(nseg):
-                        for p in range(seg[ci, b], seg[ci, b + 1]):
-                            j = kb[p]
-                            d = zb[p] - s1[j]
-                            s2[j] += d * d
+                    _block_two_pass_m2(kb, zb, seg, b, sz, s1, s2)
                 for j in range(sz):
                     if cnt[j] > 0:
                         m2[base + j] = s2[j]
             if want_sorted:
-                # counting sort by cell inside the block, then sort each cell's segment
-                start = np.empty(sz + 1, np.int64)
-                acc = 0
-                for j in range(sz):
-                    start[j] = acc
-                    acc += cnt[j]
-                start[sz] = acc
-                fill = start[:sz].copy()
-                buf = np.empty(total)
-                for ci in range(nseg):
-                    for p in range(seg[ci, b], seg[ci, b + 1]):
-                        j = kb[p]
-                        buf[fill[j]] = zb[p]
-                        fill[j] += 1
-                for j in range(sz):
-                    c = cnt[j]
-                    if c == 0:
-                        continue
-                    a = start[j]
-                    cs = buf[a:a + c]
-                    if want_m2:  # two-pass about the mean over the cell's values (in file order), in cache
-                        mu = s1[j]
-                        q2 = 0.0
-                        for q in range(c):
-                            d = cs[q] - mu
-                            q2 += d * d
-                        m2[base + j] = q2
-                    _sort_small(cs)
-                    med[base + j] = 0.5 * (cs[(c - 1) // 2] + cs[c // 2])
-                    zmin[base + j] = cs[0]
-                    zmax[base + j] = cs[c - 1]
+                buf, start = _block_grouped_values(kb, zb, seg, b, sz, cnt, total)
+                _block_sorted_stats(buf, start, sz, base, cnt, s1, want_m2, m2, med, zmin, zmax)
     return count, mean, m2, med, zmin, zmax
 
 

@@ -138,28 +138,27 @@ class Params(TercomOptions, DeadReckoningOptions):
         return self
 
 
-def _headings(p: Params) -> np.ndarray:
+def _symmetric_steps(centre: float, half_range: float, step: float, keys: tuple[str, str], what: str) -> np.ndarray:
+    """``centre + k * step`` for ``|k * step| <= half_range`` (just ``centre`` when the range is 0), rounded to
+    1e-6; a step that is not > 0 or exceeds the range is a one-line ConfigError naming the ``match.`` keys."""
     import numpy as np
 
-    if p.heading_range_deg == 0:
-        return np.array([0.0])
-    if not p.heading_step_deg > 0 or p.heading_step_deg > p.heading_range_deg:
-        raise ConfigError(f"match.heading_step_deg = {p.heading_step_deg:g} must be > 0 and at most "
-                          f"match.heading_range_deg = {p.heading_range_deg:g} (else only 0 deg is searched)")
-    n = int(round(p.heading_range_deg / p.heading_step_deg))
-    return np.round(np.arange(-n, n + 1) * p.heading_step_deg, 6)
+    if half_range == 0:
+        return np.array([centre])
+    if not step > 0 or step > half_range:
+        raise ConfigError(f"match.{keys[0]} = {step:g} must be > 0 and at most match.{keys[1]} = "
+                          f"{half_range:g} (else only {what} is searched)")
+    n = int(round(half_range / step))
+    return np.round(centre + np.arange(-n, n + 1) * step, 6)
+
+
+def _headings(p: Params) -> np.ndarray:
+    return _symmetric_steps(0.0, p.heading_range_deg, p.heading_step_deg,
+                            ("heading_step_deg", "heading_range_deg"), "0 deg")
 
 
 def _scales(p: Params) -> np.ndarray:
-    import numpy as np
-
-    if p.scale_range == 0:
-        return np.array([1.0])
-    if not p.scale_step > 0 or p.scale_step > p.scale_range:
-        raise ConfigError(f"match.scale_step = {p.scale_step:g} must be > 0 and at most match.scale_range = "
-                          f"{p.scale_range:g} (else only scale 1 is searched)")
-    n = int(round(p.scale_range / p.scale_step))
-    return np.round(1.0 + np.arange(-n, n + 1) * p.scale_step, 6)
+    return _symmetric_steps(1.0, p.scale_range, p.scale_step, ("scale_step", "scale_range"), "scale 1")
 
 
 #: float64 map-sized arrays the search holds besides the per-pose surfaces (smoothed map, FFT spectra, best
