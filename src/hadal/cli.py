@@ -668,7 +668,12 @@ _GUARD_PIPES: list[int] = []  # hadal's (write) ends of the servers' guard pipes
 def _guard_prefect_server() -> None:
     """Start Prefect's temporary server (``SubprocessASGIServer``) in its own process group - a Ctrl-C at the
     terminal reaches hadal only, which then stops the server, instead of killing the server under a running
-    flow - and through :data:`_SERVER_GUARD`, so it exits when hadal dies, even by ``kill -9``."""
+    flow - and through :data:`_SERVER_GUARD`, so it exits when hadal dies, even by ``kill -9``.
+
+    Nothing to do (and Prefect's server code, ~3 s of imports, is not loaded) when a Prefect API is configured
+    (``PREFECT_API_URL`` in the environment or the active Prefect profile): then no temporary server starts."""
+    if _prefect_api_configured():
+        return
     try:
         from prefect.server.api import server as srv
     except ImportError:  # a Prefect without the bundled server: nothing to guard
@@ -709,6 +714,18 @@ def _guard_prefect_server() -> None:
 
     cls._run_uvicorn_command = run_guarded
     cls._hadal_guarded = True
+
+
+def _prefect_api_configured() -> bool:
+    """Whether Prefect will talk to a running server (``PREFECT_API_URL`` set, in the environment or the active
+    profile) rather than start a temporary one."""
+    if os.environ.get("PREFECT_API_URL"):
+        return True
+    try:
+        from prefect.settings import get_current_settings
+    except ImportError:
+        return False
+    return bool(get_current_settings().api.url)
 
 
 class _Terminated(KeyboardInterrupt):

@@ -6,7 +6,8 @@ Issue 17 §3. Flags (IOOS QARTOD manual, 2020; ``ioos_qc.qartod``): 1 pass, 2 no
 * ``ioos_qc.qartod.gross_range_test`` with a *fail span* (outside: physically impossible for a full-ocean
   dive, flag 4) and a *suspect span* (outside: possible but unusual, or outside the formula's validity such as
   PSS-78's 2-42, flag 3);
-* ``ioos_qc.qartod.spike_test`` where thresholds are given (salinity, seafloor depth);
+* the QARTOD spike test where thresholds are given (salinity, seafloor depth): ``ioos_qc.qartod.spike_test``
+  as :func:`hadal.ingest.qc.spike_test_flags` computes it without its per-sample loop;
 * the inputs it is computed from are range-checked the same way (temperature, conductivity, fused pressure,
   latitude, longitude, altitude) and the derived value inherits the worst input flag (``depends_on``): a
   salinity computed from T = 99 °C is flag 4 even when its value looks plausible, a depth from latitude 91°
@@ -122,7 +123,7 @@ def flags_for(values: Any, cfg: DerivedVariableQC) -> np.ndarray:
     import numpy as np
     from ioos_qc import qartod
 
-    from hadal.ingest.qc import combine_flags
+    from hadal.ingest.qc import combine_flags, spike_test_flags
 
     x = np.asarray(values, dtype=np.float64).reshape(-1)
     results = []
@@ -131,8 +132,7 @@ def flags_for(values: Any, cfg: DerivedVariableQC) -> np.ndarray:
         results.append(np.ma.filled(qartod.gross_range_test(inp=x, fail_span=fail, suspect_span=cfg.suspect_span),
                                     MISSING))
     if cfg.spike_suspect is not None and x.size >= 3:
-        results.append(np.ma.filled(qartod.spike_test(inp=x, suspect_threshold=cfg.spike_suspect,
-                                                      fail_threshold=cfg.spike_fail or np.inf), NOT_EVALUATED))
+        results.append(spike_test_flags(x, cfg.spike_suspect, cfg.spike_fail or np.inf))
     return combine_flags(results, x)
 
 
