@@ -718,9 +718,7 @@ def _guard_prefect_server() -> None:
 
 def _prefect_api_configured() -> bool:
     """Whether Prefect will talk to a running server (``PREFECT_API_URL`` set, in the environment or the active
-    profile) rather than start a temporary one."""
-    if os.environ.get("PREFECT_API_URL"):
-        return True
+    profile: Prefect's settings read both) rather than start a temporary one."""
     try:
         from prefect.settings import get_current_settings
     except ImportError:

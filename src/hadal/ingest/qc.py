@@ -10,7 +10,7 @@ is flagged 4 by running the gross-range test with a fail span whose upper end is
 the saturation value (``ioos_qc`` flags values strictly outside the span).
 
 The spike test is ``ioos_qc.qartod.spike_test`` (method "average") re-expressed without its per-sample Python
-loop over the masks (:func:`spike_test_flags`: 5.4 s of a 567 k-sample dive's ingest, 0.05 s vectorised);
+loop over the masks (:func:`spike_test_flags`: 0.21 s -> 0.012 s a variable on 567 k samples, 17x);
 ``tests/test_qc_spike.py`` checks it flag for flag against the library on series with NaN/inf runs, huge values
 and every threshold form.
 
@@ -153,7 +153,8 @@ def spike_test_flags(values: np.ndarray, suspect_threshold: float | None,
 
     ``diff[n] = |x[n] - (x[n-1] + x[n+1]) / 2|`` (values' units); 3 where ``diff`` exceeds a truthy
     ``suspect_threshold``, 4 where it exceeds a truthy ``fail_threshold``, 1 elsewhere; 2 at both ends and where
-    a neighbour is missing (or their sum is within a factor 2 of overflow, as ``numpy.ma`` divides), 9 where the value itself is not finite.
+    a neighbour is missing (or their sum is within a factor 2 of overflow, as ``numpy.ma`` divides); 9 where the
+    value itself is not finite.
     """
     import numpy as np
 
