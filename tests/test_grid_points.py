@@ -343,3 +343,19 @@ def test_partition_in_many_chunks_matches_the_reference(monkeypatch):
     assert got["std"][c] == pytest.approx(np.std(v, ddof=1), rel=1e-12)
     cnt, mean, m2, _, _ = P.cell_moments(x, y, z, spec)
     np.testing.assert_allclose(m2[c], np.var(v) * len(v), rtol=1e-12)
+
+
+def test_distinct_xy_matches_numpy_unique_rows():
+    """distinct_xy (lexsort + neighbour comparison) returns np.unique(..., axis=0)'s rows, in its order."""
+    from hadal.grid.points import distinct_xy
+
+    rng = np.random.default_rng(7)
+    x = np.round(rng.uniform(0, 1, 20_000), 2)  # many exact duplicates and shared x with different y
+    y = np.round(rng.uniform(0, 1, 20_000), 2)
+    x[::5] = 0.5
+    want = np.unique(np.column_stack([x, y]), axis=0)
+    got = distinct_xy(x, y)
+    assert got.shape == want.shape and got.dtype == np.float64
+    np.testing.assert_array_equal(got, want)
+    assert distinct_xy(np.array([]), np.array([])).shape == (0, 2)
+    np.testing.assert_array_equal(distinct_xy([1.0], [2.0]), [[1.0, 2.0]])

@@ -30,6 +30,7 @@ from hadal.errors import InputError
 from hadal.grid.points import (
     DEFAULT_MAX_CELLS,
     cell_moments,
+    distinct_xy,
     make_grid_spec,
     point_extent,
     to_dataset,
@@ -57,7 +58,7 @@ def auto_resolution_m(points, *, quantile: float = 0.9, max_points: int = 1_000_
 
     p, _ = clean_cloud(points)
     step = max(1, int(np.ceil(len(p) / max_points)))
-    xy = np.unique(p[::step, :2], axis=0)
+    xy = distinct_xy(p[::step, 0], p[::step, 1])
     if len(xy) < 3:
         return G_RES_M, {"nn_quantile_m": float("nan"), "rule": "fewer than 3 distinct x/y positions: g_res"}
     d, _ = cKDTree(xy).query(xy, k=2)

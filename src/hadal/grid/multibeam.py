@@ -30,6 +30,7 @@ from hadal.errors import InputError
 from hadal.geo import LocalFrame
 from hadal.grid.points import (
     DEFAULT_MAX_CELLS,
+    distinct_xy,
     make_grid_spec,
     point_extent,
     reduce_cells,
@@ -63,11 +64,11 @@ def auto_resolution_m(x_m: np.ndarray, y_m: np.ndarray, *, quantile: float = 0.9
     x, y = np.asarray(x_m, np.float64), np.asarray(y_m, np.float64)
     ok = np.isfinite(x) & np.isfinite(y)
     x, y = x[ok], y[ok]
-    xy = np.unique(np.column_stack([x, y]), axis=0) if x.size <= max_points else None
+    xy = distinct_xy(x, y) if x.size <= max_points else None
     step = 1
     if xy is None:
         step = int(np.ceil(x.size / max_points))
-        xy = np.unique(np.column_stack([x[::step], y[::step]]), axis=0)
+        xy = distinct_xy(x[::step], y[::step])
     if len(xy) < 3:
         raise InputError("too few soundings with distinct positions to choose a DTM resolution")
     d, _ = cKDTree(xy).query(xy, k=2)

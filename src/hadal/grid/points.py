@@ -256,6 +256,24 @@ def typical_cell_sigma(idx: np.ndarray, z: np.ndarray, min_count: int = 5) -> fl
     return float(1.4826 * np.median(mad[big]))
 
 
+def distinct_xy(x, y) -> np.ndarray:
+    """The distinct ``(x, y)`` positions, ``(M, 2)`` float64 sorted by x then y: the rows of
+    ``np.unique(np.column_stack([x, y]), axis=0)`` from one ``np.lexsort`` and a neighbour comparison
+    (``np.unique`` with ``axis`` sorts the rows as opaque records, ~20x slower on a laser cloud)."""
+    import numpy as np
+
+    x, y = np.asarray(x, np.float64).ravel(), np.asarray(y, np.float64).ravel()
+    if x.size == 0:
+        return np.empty((0, 2))
+    o = np.lexsort((y, x))
+    xs, ys = x[o], y[o]
+    keep = np.empty(xs.size, bool)
+    keep[0] = True
+    np.not_equal(xs[1:], xs[:-1], out=keep[1:])
+    keep[1:] |= ys[1:] != ys[:-1]
+    return np.column_stack([xs[keep], ys[keep]])
+
+
 def point_extent(x: np.ndarray, y: np.ndarray, z: np.ndarray) -> tuple[tuple[float, float, float, float], int]:
     """``(xmin, ymin, xmax, ymax)`` of the points whose x, y and z are all finite, and the number of others.
 
