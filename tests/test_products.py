@@ -306,3 +306,14 @@ def test_small_sample_dive_products_are_geographic_strict_and_catalogued(small_r
     from hadal.products.stac import validate_store_catalog
 
     assert validate_store_catalog(ctx.store.root) == []
+
+
+@pytest.mark.parametrize("order", ["ascending", "shuffled", "one", "empty"])
+def test_time_coverage_resolution_unique_times_match_numpy(order):
+    """The time resolution's distinct times (sorted fast path or np.unique) are np.unique's."""
+    from hadal.products.io import _sorted_unique
+
+    rng = np.random.default_rng(5)
+    t = np.sort(rng.integers(0, 400, 3000)).astype("datetime64[s]").astype("datetime64[ns]")
+    t = {"ascending": t, "shuffled": rng.permutation(t), "one": t[:1], "empty": t[:0]}[order]
+    np.testing.assert_array_equal(_sorted_unique(t), np.unique(t))

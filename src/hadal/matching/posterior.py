@@ -25,15 +25,16 @@ Eq. 17, bias at its closed-form optimum] the log-likelihood, bias marginalised u
   worth for a smooth terrain): the reported covariance of the main mode is widened by
   ``(N_v - p) / (N_v - tr(P R))`` (``p`` = 5, plus the drift rates when the drift is applied;
   :func:`_fit_dof_inflation`; ``refinement.noise_dof_inflation``), while the likelihood that ranks the modes,
-  the masses and the flags keeps ``N_v - 5``. The tempering by ``gamma`` (below) is the equivalent sample size of a
-  *mean*; the start's error variance under the AR(1) residuals is the sandwich ``H^-1 (gamma^2 J^T R J) H^-1``,
-  smaller where the map gradients change faster along the track than the residuals: the main mode's width and the
-  drift's share are rescaled by that ratio (:func:`_sandwich_ratio`, ``refinement.sandwich_ratio``, <= 1). (Beyond the classical estimator; ``tests/test_posterior_noise.py``
+  the masses and the flags keeps ``N_v - 5``. (Beyond the classical estimator; ``tests/test_posterior_noise.py``
   checks it against Monte-Carlo: x1.22 for a smooth terrain at ``rho = 0.8``. On the sample dive's tracks (one
   sample a cell, the drift's prior as a ridge) it is 1.00-1.004, and on the real-terrain calibration bench it leaves
   the fractions within 1/2 sigma unchanged: the
   sample dive's overconfidence at seeds 4 and 5, errors of about 2.5 times their Cramér-Rao bound, is not noise
-  the fit absorbed.)
+  the fit absorbed. Tried and not adopted: rescaling the main mode by the White sandwich of the AR(1) residuals,
+  ``H^-1 (gamma^2 J^T R J) H^-1`` over ``H^-1``, which narrows it where the map gradients change faster than the
+  residuals; Monte-Carlo-exact for AR(1) noise, it took the real-terrain bench's fraction within the DRMS from
+  75 % to 73 % on seeds 3 and 4, but made the sample dive's fixes overconfident (1 sigma 5/10 -> 3/10, 2 sigma
+  8/10 -> 7/10): the sample's map errors are correlated further than AR(1) of the lag-1 ``rho`` says.)
 * ``gamma = N_eff / N_v``: the residuals along a track are correlated (map interpolation error and
   dead-reckoning drift vary smoothly), so ``N_v`` samples do not carry ``N_v`` independent pieces of
   information. ``N_eff = N_v (1 - rho) / (1 + rho)`` from the lag-1 autocorrelation ``rho`` of the
@@ -308,36 +309,8 @@ def _pose_jacobian(gx: np.ndarray, gy: np.ndarray, rq: np.ndarray, f: float, B: 
     return J
 
 
-def _fit_design(g: MapGrid, d: np.ndarray, rel: np.ndarray, pose, start_xy, drift_xy, B, gamma: float,
-                drift_ridge: float, free_heading: bool, free_scale: bool):
-    """The fit's design at the fix for :func:`_fit_dof_inflation` and :func:`_sandwich_ratio`: Jacobian ``J`` (x, y,
-    the free heading/scale, the ``2K`` drift rates, the bias; bilinear map gradients; rows of missing samples zero,
-    which keeps the along-track lags of the others), ``R J`` for the AR(1) correlation ``R_ij = rho^|i-j|`` of
-    ``gamma = (1 - rho) / (1 + rho)``, the ridge ``L`` (the drift prior in noise units), the valid count, the
-    number of fitted parameters and ``gamma``; None when too few samples are valid."""
-    from scipy.signal import lfilter
-
-    a, f = pose
-    rq = _rotate(rel, a)
-    q = rq * f + np.asarray(start_xy, float) + (0.0 if drift_xy is None else drift_xy)
-    z, gx, gy = _bilinear_with_gradient(g, q[:, 0], q[:, 1])
-    ok = np.isfinite(z) & np.isfinite(gx) & np.isfinite(gy) & np.isfinite(d)
-    n = int(ok.sum())
-    keep = [True, True, free_heading, free_scale] + [True] * (2 * B.shape[1] if B is not None else 0)
-    J = np.column_stack([_pose_jacobian(gx, gy, rq, f, B)[:, keep], np.ones(d.size)])  # + the bias
-    if n <= J.shape[1] + 1:
-        return None
-    lam = np.array([0.0] * int(sum(keep[:4])) + [drift_ridge] * (len(keep) - 4) + [0.0])
-    J = np.where(ok[:, None], J, 0.0)
-    gm = min(max(gamma, 1e-3), 1.0)
-    rho = (1.0 - gm) / (1.0 + gm)
-    # R J without forming R: causal + anti-causal AR(1) filters minus the diagonal
-    RJ = lfilter([1.0], [1.0, -rho], J, axis=0) + lfilter([1.0], [1.0, -rho], J[::-1], axis=0)[::-1] - J
-    return J, RJ, lam, n, N_PARAMS + len(keep) - 4, gm
-
-
 def _fit_dof_inflation(g: MapGrid, d: np.ndarray, rel: np.ndarray, pose, start_xy, drift_xy, B, gamma: float,
-                       drift_ridge: float, free_heading: bool, free_scale: bool, design=None) -> float:
+                       drift_ridge: float, free_heading: bool, free_scale: bool) -> float:
     """Widening ``(N_v - p) / (N_v - tr(P R))`` of the noise variance for residuals correlated along the track.
 
     The likelihood divides the residual sum of squares by ``N_v - p`` (``p`` fitted parameters: x, y, heading,
@@ -348,47 +321,31 @@ def _fit_dof_inflation(g: MapGrid, d: np.ndarray, rel: np.ndarray, pose, start_x
     correlation ``rho^|i - j|`` of the effective sample size ``gamma = (1 - rho) / (1 + rho)``. Regressors that vary
     slowly along the track (a smooth terrain) absorb up to ``p / gamma`` samples' worth of noise, rough ones about
     ``p``. Never below 1 (the likelihood's estimate is kept as the lower bound); the divisor kept
-    ``>= min(N_v - p, N_v / 4)``. ``design``: a precomputed :func:`_fit_design`."""
-    des = design if design is not None else _fit_design(g, d, rel, pose, start_xy, drift_xy, B, gamma, drift_ridge,
-                                                        free_heading, free_scale)
-    if des is None:
+    ``>= min(N_v - p, N_v / 4)``."""
+    from scipy.signal import lfilter
+
+    a, f = pose
+    rq = _rotate(rel, a)
+    q = rq * f + np.asarray(start_xy, float) + (0.0 if drift_xy is None else drift_xy)
+    z, gx, gy = _bilinear_with_gradient(g, q[:, 0], q[:, 1])
+    ok = np.isfinite(z) & np.isfinite(gx) & np.isfinite(gy) & np.isfinite(d)
+    n = int(ok.sum())
+    keep = [True, True, free_heading, free_scale] + [True] * (2 * B.shape[1] if B is not None else 0)
+    J = np.column_stack([_pose_jacobian(gx, gy, rq, f, B)[:, keep], np.ones(d.size)])  # + the bias
+    lam = np.array([0.0] * int(sum(keep[:4])) + [drift_ridge] * (len(keep) - 4) + [0.0])
+    p_used = N_PARAMS + len(keep) - 4
+    if n <= J.shape[1] + 1:
         return 1.0
-    J, RJ, lam, n, p_used, _ = des
+    J = np.where(ok[:, None], J, 0.0)  # missing samples: no rows (zeros keep the along-track lags of the others)
+    rho = (1.0 - min(max(gamma, 1e-3), 1.0)) / (1.0 + min(max(gamma, 1e-3), 1.0))
+    # R J for R_ij = rho^|i-j| without forming R: causal + anti-causal AR(1) filters minus the diagonal
+    RJ = lfilter([1.0], [1.0, -rho], J, axis=0) + lfilter([1.0], [1.0, -rho], J[::-1], axis=0)[::-1] - J
     A = J.T @ J + np.diag(lam)
     try:
         tr_pr = float(np.trace(np.linalg.solve(A, J.T @ RJ)))
     except np.linalg.LinAlgError:
         return 1.0
     return float(max(max(n - p_used, 1.0) / max(n - tr_pr, min(n - p_used, n / 4.0), 1.0), 1.0))
-
-
-def _sandwich_ratio(design) -> float:
-    """Ratio of the start's error variance under AR(1) residuals to the tempered likelihood's (trace of the x/y
-    block), the factor the main mode's width is rescaled by.
-
-    The likelihood accounts for correlated residuals by tempering with ``gamma = N_eff / N_v``, the equivalent
-    sample size of a *mean*: its Laplace covariance is ``H^-1`` with ``H = gamma (J^T J + L)`` (noise units). The
-    MSD estimator's error covariance under noise of correlation ``R`` is the sandwich
-    ``H^-1 (gamma^2 J^T R J + gamma L) H^-1`` (score covariance; the drift prior's share ``gamma L`` as the prior
-    it is). For regressors that vary as slowly as the noise (a smooth terrain) ``J^T R J ~ J^T J / gamma`` and the
-    ratio is 1 (the tempering is right); map gradients that change sign from sample to sample (rough terrain)
-    decorrelate the noise's effect, ``J^T R J ~ J^T J``, and the ratio falls towards ``gamma``. (Beyond the TERCOM
-    paper; the White/Huber sandwich of a misspecified likelihood with the AR(1) model of ``N_eff``.) On the
-    real-terrain calibration bench (seeds 3, 4) it takes the fraction of errors within the DRMS from 75 % to 73 %
-    and leaves the mean squared Mahalanobis distance at 2.1 (2 for a calibrated 2-D Gaussian)."""
-    if design is None:
-        return 1.0
-    J, RJ, lam, _, _, gm = design
-    H = gm * (J.T @ J + np.diag(lam))
-    try:
-        Hi = np.linalg.inv(H)
-    except np.linalg.LinAlgError:
-        return 1.0
-    V = Hi @ (gm * gm * (J.T @ RJ) + gm * np.diag(lam)) @ Hi
-    t_h, t_v = float(np.trace(Hi[:2, :2])), float(np.trace(V[:2, :2]))
-    if not (np.isfinite(t_h) and np.isfinite(t_v)) or t_h <= 0 or t_v <= 0:
-        return 1.0
-    return float(min(t_v / t_h, 1.0))
 
 
 def _s2_from(msd: float, nv: float, floor2: float) -> float:
@@ -1161,31 +1118,28 @@ def _fix_residuals(pb: _Problem, cs: _Coarse, cp: _CoarsePosterior, dr: _DriftSt
     return n_valid, bias
 
 
-def _main_mode_widening(pb: _Problem, dr: _DriftStep, s2f: float, gammaf: float) -> tuple[float, float, float]:
-    """Widening ``kappa`` of the main window's second moment, the noise-dof inflation (:func:`_fit_dof_inflation`)
-    and the sandwich ratio (:func:`_sandwich_ratio`); returns ``(kappa * dof * ratio, dof, ratio)``.
+def _main_mode_widening(pb: _Problem, dr: _DriftStep, s2f: float, gammaf: float) -> tuple[float, float]:
+    """Widening ``kappa`` of the main window's second moment, and the noise-dof inflation (:func:`_fit_dof_inflation`).
 
     With the drift modelled, the main mode's width is that of the joint likelihood (its noise and N_eff), the
     rigid grid's (tempered by the drift-correlated residuals) rescaled by the ratio of the two precisions. The
     likelihood's noise variance divides the residuals by N_v - p; with correlated residuals the fit absorbed more
     of the noise: the main mode's width (and the drift's share) is widened by the ratio, the MAP, window masses and
-    flags stay those of the likelihood. The tempering's equivalent sample size is that of a mean; the start's
-    variance is rescaled by the sandwich ratio for the map gradients along this track."""
+    flags stay those of the likelihood."""
     x_map, y_map, a_map, f_map = dr.pose
     info = dr.info
     kappa = (float(np.clip((gammaf / s2f) / (info["tempering"] / info["noise_sigma_m"] ** 2), 0.1, 1.0))
              if info.get("applied") else 1.0)
     free_a = min(pb.headings) < max(pb.headings)
     free_f = min(pb.fine_scale_list) < max(pb.fine_scale_list)
-    drift_xy, B, gamma, ridge = (None, None, float(gammaf), 0.0)
     if info.get("applied"):
-        drift_xy, B, gamma = dr.drift_xy, dr.B, float(info["tempering"])
-        ridge = float(info["noise_sigma_m"]) ** 2 / (gamma * dr.sigma * dr.sigma)
-    des = _fit_design(pb.g, pb.d, pb.rel, (a_map, f_map), (x_map, y_map), drift_xy, B, gamma, ridge, free_a, free_f)
-    dof_inflation = _fit_dof_inflation(pb.g, pb.d, pb.rel, (a_map, f_map), (x_map, y_map), drift_xy, B, gamma, ridge,
-                                       free_a, free_f, design=des)
-    ratio = _sandwich_ratio(des)
-    return kappa * dof_inflation * ratio, dof_inflation, ratio
+        dof_inflation = _fit_dof_inflation(
+            pb.g, pb.d, pb.rel, (a_map, f_map), (x_map, y_map), dr.drift_xy, dr.B, float(info["tempering"]),
+            float(info["noise_sigma_m"]) ** 2 / (float(info["tempering"]) * dr.sigma * dr.sigma), free_a, free_f)
+    else:
+        dof_inflation = _fit_dof_inflation(pb.g, pb.d, pb.rel, (a_map, f_map), (x_map, y_map), None, None,
+                                           float(gammaf), 0.0, free_a, free_f)
+    return kappa * dof_inflation, dof_inflation
 
 
 def _mixture_moments(g: MapGrid, windows: list[_Window], lls: list[np.ndarray], gm: _GridMap, pc: np.ndarray,
@@ -1304,8 +1258,7 @@ def _mismatch_flags(lim: _Limits, N: int, n_valid: int, relief: float, r2n: floa
 
 def _refinement_record(g: MapGrid, step: float, windows: list[_Window], gm: _GridMap, lls_record: dict,
                        coarse_pose: tuple[float, float], cp: _CoarsePosterior, gammaf: float, dr: _DriftStep,
-                       widening: tuple[float, float], has_holes: bool, mass_out_holes: float, holes_flag: bool
-                       ) -> dict:
+                       dof_inflation: float, has_holes: bool, mass_out_holes: float, holes_flag: bool) -> dict:
     """``PosteriorFix.refinement``: the fine grid, the log-likelihoods of the coarse fix, the grid MAP and the MAP,
     the coarse cell, the noise, the drift step and the holes test."""
     rc_c = windows[0].rc
@@ -1316,7 +1269,7 @@ def _refinement_record(g: MapGrid, step: float, windows: list[_Window], gm: _Gri
         "coarse_cell": {"x_east_m": float(g.x_m[rc_c[1]]), "y_north_m": float(g.y_m[rc_c[0]]),
                         "heading_error_deg": coarse_pose[0], "track_scale": coarse_pose[1]},
         "noise_sigma_coarse_m": float(np.sqrt(cp.s2)), "tempering": float(gammaf), "drift": dr.info,
-        "noise_dof_inflation": float(widening[0]), "sandwich_ratio": float(widening[1]),
+        "noise_dof_inflation": float(dof_inflation),
         "holes_test": {"map_has_interior_holes": has_holes, "mass_outside_if_holes_fit": mass_out_holes,
                        "flagged": holes_flag},
     }
@@ -1397,9 +1350,9 @@ def posterior_fix(
     # ---- posterior moments about the MAP: fine windows (mixture) + coarse cells outside the windows; the grid is
     # rigid, so its moments are about the rigid MAP; the joint drift fit moves the fix and widens the start's
     # posterior by the drift it cannot pin down (Laplace: joint minus rigid marginal covariance)
-    kappa, dof_inflation, sandwich = _main_mode_widening(pb, dr, s2f, gammaf)
+    kappa, dof_inflation = _main_mode_widening(pb, dr, s2f, gammaf)
     S, mean, modes, tot = _mixture_moments(g, windows, lls, gm, cp.pc, kappa, step, x_rigid)
-    S = S + dr.inflation * (dof_inflation * sandwich)
+    S = S + dr.inflation * dof_inflation
     mean = mean + (np.array([x_map, y_map]) - x_rigid)
     mass_out = float(1.0 - gm.mw[gm.best_w] / tot)
     second = _second_mode(g, modes, gm, mass_r, tot, x_map, y_map)
@@ -1413,7 +1366,7 @@ def posterior_fix(
     refinement = _refinement_record(
         g, step, windows, gm, {"loglik_coarse_fix": ll_coarse_pt, "loglik_grid_map": gm.ll_grid, "loglik_map": ll_map,
                                "polished": polished},
-        pb.poses[kc], cp, gammaf, dr, (dof_inflation, sandwich), cs.n_hole_all is not None, mass_out_holes,
+        pb.poses[kc], cp, gammaf, dr, dof_inflation, cs.n_hole_all is not None, mass_out_holes,
         mass_out_holes > max_mass_outside_holes)
     return PosteriorFix(
         start_x_m=x_map, start_y_m=y_map, heading_deg=a_map, scale=f_map, bias_m=bias,

@@ -438,6 +438,13 @@ def dive_attributes(dive: Any) -> dict[str, Any]:
     return out
 
 
+def _sorted_unique(a: np.ndarray) -> np.ndarray:
+    """``np.unique(a)`` (1-D), without the sort when ``a`` is already ascending (time series usually are)."""
+    if a.size > 1 and bool((a[1:] >= a[:-1]).all()):
+        return a[np.concatenate([[True], a[1:] != a[:-1]])]
+    return np.unique(a)
+
+
 def discovery_attributes(ds: xr.Dataset, hints: Mapping[str, Any] | None = None) -> dict[str, Any]:
     """ACDD geospatial/vertical/time coverage attributes computed from the data of ``ds``.
 
@@ -493,7 +500,8 @@ def discovery_attributes(ds: xr.Dataset, hints: Mapping[str, Any] | None = None)
         t0, t1 = t.min(), t.max()
         out.update(time_coverage_start=_iso(t0), time_coverage_end=_iso(t1),
                    time_coverage_duration=_iso_duration((t1 - t0) / np.timedelta64(1, "s")))
-        dt = np.median(np.diff(np.unique(t))) / np.timedelta64(1, "s") if np.unique(t).size > 1 else 0.0
+        u = _sorted_unique(t)
+        dt = np.median(np.diff(u)) / np.timedelta64(1, "s") if u.size > 1 else 0.0
         out["time_coverage_resolution"] = (_iso_duration(dt) if dt >= 1 else f"PT{dt:.3g}S") if dt else "point"
     return out
 
