@@ -18,7 +18,8 @@ from pathlib import Path
 from typing import Any
 
 from hadal.tasks.stage import configured, published_exist, route_hadal_logs
-from prefect import flow, tags
+from prefect import flow
+from prefect.context import TagsContext
 from prefect.futures import as_completed
 from prefect.task_runners import ThreadPoolTaskRunner
 
@@ -212,7 +213,10 @@ def post_cruise(
             rows.append({"stage": ps.name, "status": "skipped", "seconds": 0.0, "versions": {}, "reason": ps.reason})
     d = DiveRun(raw_dir, [ps.name for ps in plan if ps.run], {p: str(pv.path) for p, pv in ctx.pins.items()})
     d.rows = rows
-    with tags(*dtags):
+    # the dive/cruise tags are the flow run's; the stage task runs are left untagged: Prefect acquires a tag
+    # concurrency slot for every tagged task run, whose service restarts took ~2 s before each stage on a busy
+    # 2-core machine (the wait before derive, suitability and report: 6 s of a 67 s cold dive)
+    with TagsContext(current_tags=set()):
         run_stage_graph([d], store_root, config_path, force)
     order = {ps.name: i for i, ps in enumerate(plan)}
     d.rows.sort(key=lambda r: order.get(r["stage"], 99))

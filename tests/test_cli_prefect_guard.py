@@ -1,9 +1,10 @@
-"""The temporary-server guard costs nothing when a Prefect server is configured (issue 19: an unchanged single
-stage with ``--flow`` within 2 s of Prefect's own start): Prefect's server code is loaded only when a temporary
-server will start, and then the guard is installed."""
+"""hadal's temporary Prefect server (issue 19): started only when no Prefect API is configured, without loading
+Prefect's server code into hadal; it answers at the URL hadal gives Prefect, and stops when hadal exits (normally
+here; kill -9, Ctrl-C and SIGTERM in tests/test_process_hygiene.py)."""
 
 from __future__ import annotations
 
+import json
 import os
 import subprocess
 import sys
@@ -11,35 +12,59 @@ import sys
 import pytest
 
 _PROBE = """
-import sys
+import json, sys, urllib.request
 from hadal import cli
 cli._prefect_environment()
-srv = sys.modules.get("prefect.server.api.server")
-print("loaded" if srv is not None else "not-loaded",
-      bool(srv is not None and getattr(srv.SubprocessASGIServer, "_hadal_guarded", False)))
+from prefect.settings import get_current_settings
+out = {"server_code_loaded": "prefect.server.api.server" in sys.modules, "started": bool(cli._SERVERS),
+       "api_url": get_current_settings().api.url}
+if cli._SERVERS:
+    cli._wait_for_temporary_server()
+    with urllib.request.urlopen(out["api_url"] + "/health", timeout=10) as r:
+        out["health"] = r.status
+    out["pid"] = cli._SERVERS[0].proc.pid
+print(json.dumps(out))
 """
 
 
-def _probe(tmp_path, api_url: str | None) -> list[str]:
+def _probe(tmp_path, api_url: str | None) -> dict:
     env = {k: v for k, v in os.environ.items() if not k.startswith("PREFECT_API")}
     env["PREFECT_HOME"] = str(tmp_path / "prefect-home")
     if api_url:
         env["PREFECT_API_URL"] = api_url
     res = subprocess.run([sys.executable, "-c", _PROBE], env=env, capture_output=True, text=True, timeout=300)
     assert res.returncode == 0, res.stderr[-2000:]
-    return res.stdout.split()
+    return json.loads(res.stdout.strip().splitlines()[-1])
 
 
-@pytest.mark.parametrize(("api_url", "expected"), [
-    (None, ["loaded", "True"]),  # a temporary server will start: it is guarded
-    ("http://127.0.0.1:9/api", ["not-loaded", "False"]),  # a running server: nothing to guard, nothing loaded
-])
-def test_guard_only_for_a_temporary_server(tmp_path, api_url, expected):
-    assert _probe(tmp_path, api_url) == expected
+def _gone(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return True
+    try:  # a zombie not yet reaped by init counts as gone
+        with open(f"/proc/{pid}/stat") as f:
+            return f.read().split(")")[-1].split()[0] == "Z"
+    except OSError:
+        return True
+
+
+def test_temporary_server_starts_answers_and_stops(tmp_path):
+    out = _probe(tmp_path, None)
+    assert out["started"] and not out["server_code_loaded"], out
+    assert out["api_url"].startswith("http://127.0.0.1:") and out["health"] == 200, out
+    assert _gone(out["pid"]), "the temporary server outlived hadal"
+
+
+@pytest.mark.parametrize("api_url", ["http://127.0.0.1:9/api"])
+def test_no_server_when_an_api_is_configured(tmp_path, api_url):
+    out = _probe(tmp_path, api_url)
+    assert out == {"server_code_loaded": False, "started": False, "api_url": api_url}
 
 
 def test_api_url_in_the_active_profile_counts(tmp_path):
     home = tmp_path / "prefect-home"
     home.mkdir()
     (home / "profiles.toml").write_text('active = "srv"\n\n[profiles.srv]\nPREFECT_API_URL = "http://127.0.0.1:9/api"\n')
-    assert _probe(tmp_path, None) == ["not-loaded", "False"]
+    out = _probe(tmp_path, None)
+    assert out == {"server_code_loaded": False, "started": False, "api_url": "http://127.0.0.1:9/api"}

@@ -152,6 +152,38 @@ def test_robust_outlier_mask_finds_spikes_only():
     assert not robust_outlier_mask(np.array([0, 0]), np.array([0.0, 100.0])).any()
 
 
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_cell_robust_tests_match_a_per_cell_median_loop(seed):
+    """robust_outlier_mask and typical_cell_sigma (from one shared cell_robust_stats, as the multibeam spike test
+    calls them, and each on its own) against a plain loop over the cells with np.median: unsorted cells of 1-40
+    points, ties (quantised values), a callable floor."""
+    from hadal.grid.points import cell_robust_stats, typical_cell_sigma
+
+    rng = np.random.default_rng(seed)
+    idx = rng.integers(0, 300, 4000) * 7  # sparse cell ids, random order
+    z = np.round(rng.standard_t(3, idx.size) * 2.0, 1)  # heavy tails and ties
+    k, min_count = 3.0, 4
+
+    def floor(med):
+        return 0.05 * np.abs(med) + 0.2
+
+    want = np.zeros(idx.size, bool)
+    mads = []
+    for c in np.unique(idx):
+        sel = np.flatnonzero(idx == c)
+        med = np.median(z[sel])
+        mad = np.median(np.abs(z[sel] - med))
+        if sel.size >= 5:
+            mads.append(1.4826 * mad)
+        if sel.size >= min_count:
+            want[sel] = np.abs(z[sel] - med) > k * max(1.4826 * mad, float(floor(np.array([med]))[0]))
+    assert 0 < want.sum() < want.size // 10  # the oracle flags some, not most
+    stats = cell_robust_stats(idx, z)
+    for st in (stats, None):
+        np.testing.assert_array_equal(robust_outlier_mask(idx, z, k, floor=floor, min_count=min_count, stats=st), want)
+        assert typical_cell_sigma(idx, z, 5, stats=st) == pytest.approx(float(np.median(mads)), rel=1e-12)
+
+
 def test_ill_conditioned_cells_recomputed_exactly(monkeypatch):
     """Cells 10 km from the shift with 1 mm spread and quantised (identical) values: exact std."""
     calls = []

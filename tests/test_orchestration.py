@@ -318,6 +318,28 @@ def test_stage_graph_runs_independent_stages_concurrently_with_pins(tmp_path, pr
     assert d.failed == {"derive": "derive broke"}
 
 
+@pytest.mark.prefect
+def test_flow_run_is_named_and_tagged_for_the_dive_and_task_runs_after_stages(fake, prefect_harness, monkeypatch,
+                                                                           capsys):
+    """`hadal stage report --flow` records a flow run named ``<dive>-<UTC time>`` with the tags ``dive:<id>`` and
+    ``cruise:<dir>`` (read back from the Prefect API), and one task run per stage named after the stage, untagged
+    (a tagged task run makes Prefect acquire a tag concurrency slot before it starts)."""
+    import re
+
+    from prefect.client.orchestration import get_client
+    from prefect.client.schemas.filters import FlowRunFilter, FlowRunFilterId
+
+    raw, store = fake
+    rc, _, err = cli(monkeypatch, capsys, "stage", "report", str(raw), "--store", str(store), "--flow", "--force")
+    assert rc == 0, err
+    with get_client(sync_client=True) as client:
+        fr = max(client.read_flow_runs(), key=lambda r: r.created)
+        trs = client.read_task_runs(flow_run_filter=FlowRunFilter(id=FlowRunFilterId(any_=[fr.id])))
+    assert re.fullmatch(r"dive-a-\d{8}T\d{6}Z", fr.name), fr.name
+    assert {"dive:dive-a", f"cruise:{raw.parent.name}"} <= set(fr.tags), fr.tags
+    assert [(t.name, list(t.tags)) for t in trs] == [("report", [])]
+
+
 # ------------------------------------------------------------------------------ unchanged dive without Prefect
 def _tree(root: Path) -> dict[str, tuple[int, int]]:
     """Every file under ``root`` (products, manifests, cache records) with its size and mtime."""

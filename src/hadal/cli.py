@@ -117,9 +117,8 @@ def _run_flow(raw_dir: Path, store: Path | None, config: Path | None, stages: li
     from hadal.flows.post_cruise import dive_tags, post_cruise
 
     _quiet_prefect_tracebacks()
-
-    where = os.environ.get("PREFECT_API_URL") or "a temporary Prefect server (set PREFECT_API_URL to skip its start)"
-    console.print(f"[bold]hadal[/] {raw_dir} → stages: {', '.join(names)} (on {where})", highlight=False)
+    console.print(f"[bold]hadal[/] {raw_dir} → stages: {', '.join(names)} (on {_server_text()})", highlight=False)
+    _wait_for_temporary_server()
     meta = getattr(ctx.dive, "metadata", None)
     with tags(*dive_tags(ctx.raw_dir, ctx.dive_id, getattr(meta, "cruise", None))):
         out = post_cruise(str(raw_dir), str(_store_root(store)), str(config) if config else None, stages, force)
@@ -177,6 +176,7 @@ def _run_batch(raw_dirs: list[Path], store: Path | None, config: Path | None, wo
     from hadal.flows.batch import run_batch
 
     _quiet_prefect_tracebacks()
+    _wait_for_temporary_server()
 
     where = f"scheduler {scheduler}" if scheduler else f"LocalCluster, {workers} worker(s)"
     console.print(f"[bold]hadal[/] batch of {len(dives)} dive(s) on {where} → the stages each dive's data supports")
@@ -613,14 +613,15 @@ def schema(
 
 # ---------------------------------------------------------------------------------------------- process hygiene
 def _prefect_environment() -> None:
-    """Environment for the flows' temporary Prefect server, set up before Prefect is imported: a writable
-    PREFECT_HOME (checked: a one-line error instead of Prefect's tracebacks), and the server guarded so it never
-    outlives hadal (:func:`_guard_prefect_server`)."""
+    """Environment for the flows, set up before they are imported: a writable PREFECT_HOME (checked: a one-line
+    error instead of Prefect's tracebacks) and, unless a Prefect API is configured, hadal's temporary Prefect
+    server started in the background (:func:`_start_temporary_server`): it boots on the other core while hadal
+    imports the flows, and :func:`_wait_for_temporary_server` waits for it before the first flow run."""
     os.environ.setdefault("PREFECT_SERVER_ANALYTICS_ENABLED", "false")
     # the temporary server may need more than Prefect's default 20 s on a busy machine
     os.environ.setdefault("PREFECT_SERVER_EPHEMERAL_STARTUP_TIMEOUT_SECONDS", "120")
     _check_prefect_home()
-    _guard_prefect_server()
+    _start_temporary_server()
 
 
 def _check_prefect_home() -> None:
@@ -665,55 +666,130 @@ runpy.run_module("uvicorn", run_name="__main__", alter_sys=True)
 _GUARD_PIPES: list[int] = []  # hadal's (write) ends of the servers' guard pipes, open for hadal's lifetime
 
 
-def _guard_prefect_server() -> None:
-    """Start Prefect's temporary server (``SubprocessASGIServer``) in its own process group - a Ctrl-C at the
-    terminal reaches hadal only, which then stops the server, instead of killing the server under a running
-    flow - and through :data:`_SERVER_GUARD`, so it exits when hadal dies, even by ``kill -9``.
+class _TemporaryServer:
+    """hadal's temporary Prefect server process: its port, guard pipe and start time."""
 
-    Nothing to do (and Prefect's server code, ~3 s of imports, is not loaded) when a Prefect API is configured
-    (``PREFECT_API_URL`` in the environment or the active Prefect profile): then no temporary server starts."""
-    if _prefect_api_configured():
-        return
-    try:
-        from prefect.server.api import server as srv
-    except ImportError:  # a Prefect without the bundled server: nothing to guard
-        return
-    cls = getattr(srv, "SubprocessASGIServer", None)
-    if cls is None or getattr(cls, "_hadal_guarded", False):
-        return
-    original = cls._run_uvicorn_command
-    real = srv.subprocess
+    def __init__(self, proc, port: int, guard_w: int, started: float):
+        self.proc, self.port, self.guard_w, self.started = proc, port, guard_w, started
 
-    def run_guarded(self):
-        r, w = os.pipe()
+    @property
+    def api_url(self) -> str:
+        return f"http://127.0.0.1:{self.port}/api"
 
-        class _Subprocess:  # the subprocess module, with a Popen that starts uvicorn through the guard
-            def __getattr__(self, name):
-                return getattr(real, name)
+    def stop(self) -> None:
+        """Terminate the server (its guard pipe closed too); never raises."""
+        import subprocess
 
-            @staticmethod
-            def Popen(args, **kw):  # noqa: N802 - stands in for subprocess.Popen
-                args = list(args)
-                if args[1:3] == ["-m", "uvicorn"]:
-                    args = [args[0], "-c", _SERVER_GUARD, str(r), *args[3:]]
-                    kw["pass_fds"] = (*kw.get("pass_fds", ()), r)
-                kw.setdefault("process_group", 0)
-                return real.Popen(args, **kw)
-
-        srv.subprocess = _Subprocess()
         try:
-            proc = original(self)
-        except BaseException:
-            os.close(w)
-            raise
-        finally:
-            srv.subprocess = real
-            os.close(r)
-        _GUARD_PIPES.append(w)
-        return proc
+            os.close(self.guard_w)
+        except OSError:
+            pass
+        if self.proc.poll() is None:
+            try:
+                self.proc.terminate()
+                self.proc.wait(timeout=5)
+            except subprocess.TimeoutExpired:
+                self.proc.kill()
+                self.proc.wait()
+            except OSError:
+                pass
 
-    cls._run_uvicorn_command = run_guarded
-    cls._hadal_guarded = True
+
+_SERVERS: list[_TemporaryServer] = []  # this process's temporary server (at most one; stopped at exit)
+
+
+def _free_port() -> int:
+    import socket
+
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as sock:
+        sock.bind(("127.0.0.1", 0))
+        return int(sock.getsockname()[1])
+
+
+def _start_temporary_server() -> str | None:
+    """Start Prefect's server for this process's flow runs, unless a Prefect API is configured
+    (``PREFECT_API_URL`` in the environment or the active profile: :func:`_prefect_api_configured`); returns its
+    API URL (also set as ``PREFECT_API_URL`` for this process and its children, e.g. Dask workers) or None.
+
+    It is the server Prefect's own temporary server runs (``uvicorn prefect.server.api.server:create_app`` with
+    Prefect's ephemeral-server settings), started by hadal instead of by Prefect's first API call so that it boots
+    while hadal imports the flows (a flow run started ~2.4 s sooner here), without loading Prefect's server code
+    (~2 s of imports) into hadal. It runs in its own process group - a Ctrl-C at the terminal reaches hadal only,
+    which then stops the server instead of killing it under a running flow - and through :data:`_SERVER_GUARD`,
+    so it exits when hadal dies, even by ``kill -9``; a normal exit stops it (atexit)."""
+    import atexit
+    import importlib.util
+    import subprocess
+    import time
+
+    if _SERVERS:
+        return _SERVERS[0].api_url
+    if _prefect_api_configured():
+        return None
+    spec = importlib.util.find_spec("prefect")
+    if spec is None or spec.origin is None or importlib.util.find_spec("prefect.server") is None:
+        return None  # a Prefect without the bundled server: Prefect reports it at the flow run
+    from prefect.context import refresh_global_settings_context
+    from prefect.settings import get_current_settings
+
+    port = _free_port()
+    r, w = os.pipe()
+    env = {**os.environ, "PREFECT_UI_ENABLED": "0", "PREFECT__SERVER_EPHEMERAL": "1", "PREFECT__SERVER_FINAL": "1",
+           **get_current_settings().to_environment_variables(exclude_unset=True)}
+    args = [sys.executable, "-c", _SERVER_GUARD, str(r), "--app-dir", str(Path(spec.origin).parent.parent),
+            "--factory", "prefect.server.api.server:create_app", "--host", "127.0.0.1", "--port", str(port),
+            "--log-level", "error", "--lifespan", "on"]
+    try:
+        proc = subprocess.Popen(args, env=env, pass_fds=(r,), process_group=0)
+    finally:
+        os.close(r)
+    srv = _TemporaryServer(proc, port, w, time.monotonic())
+    _SERVERS.append(srv)
+    _GUARD_PIPES.append(w)
+    atexit.register(srv.stop)
+    os.environ["PREFECT_API_URL"] = srv.api_url
+    refresh_global_settings_context()  # Prefect read its settings at import: make it see the URL
+    return srv.api_url
+
+
+def _server_text() -> str:
+    """Where this process's flow runs are recorded, for the first line of ``hadal run``/``hadal stage``."""
+    if _SERVERS:
+        return f"a temporary Prefect server at {_SERVERS[0].api_url} (set PREFECT_API_URL to skip its start)"
+    return os.environ.get("PREFECT_API_URL") or "the Prefect API of the active profile"
+
+
+def _wait_for_temporary_server() -> None:
+    """Wait until hadal's temporary server answers ``/health`` (no-op without one); a server that does not come up
+    within ``PREFECT_SERVER_EPHEMERAL_STARTUP_TIMEOUT_SECONDS`` or exits is a one-line :class:`ConfigError`."""
+    import time
+    import urllib.error
+    import urllib.request
+
+    from hadal.errors import ConfigError
+
+    if not _SERVERS:
+        return
+    srv = _SERVERS[0]
+    try:
+        limit = float(os.environ.get("PREFECT_SERVER_EPHEMERAL_STARTUP_TIMEOUT_SECONDS", "120"))
+    except ValueError:
+        limit = 120.0
+    hint = "start one with `hadal server start` (or `prefect server start`) and set PREFECT_API_URL"
+    while True:
+        if srv.proc.poll() is not None:
+            raise ConfigError(f"the temporary Prefect server exited with status {srv.proc.returncode} before it "
+                              f"answered (its messages are above); {hint}")
+        try:
+            with urllib.request.urlopen(f"{srv.api_url}/health", timeout=2) as resp:
+                if resp.status == 200:
+                    return
+        except (urllib.error.URLError, OSError):
+            pass
+        if time.monotonic() - srv.started > limit:
+            raise ConfigError(f"the temporary Prefect server did not answer within {limit:g} s "
+                              f"(PREFECT_SERVER_EPHEMERAL_STARTUP_TIMEOUT_SECONDS); {hint}")
+        time.sleep(0.05)
 
 
 def _prefect_api_configured() -> bool:
@@ -776,13 +852,10 @@ def _stop_children(timeout: float = 5.0) -> None:
             signal.signal(sig, signal.SIG_IGN)
         except ValueError:  # not the main thread (the interrupt watchdog): the handler exits at once anyway
             pass
-    srv_mod = sys.modules.get("prefect.server.api.server")
-    servers = list(getattr(getattr(srv_mod, "SubprocessASGIServer", None), "_instances", {}).values())
-    for srv in servers:
-        proc = getattr(srv, "server_process", None)
-        if proc is not None and proc.poll() is None:
+    for srv in _SERVERS:
+        if srv.proc.poll() is None:
             try:
-                proc.terminate()
+                srv.proc.terminate()
             except OSError:
                 pass
     for w in _GUARD_PIPES:  # EOF for the guards, too

@@ -30,6 +30,7 @@ from hadal.errors import InputError
 from hadal.geo import LocalFrame
 from hadal.grid.points import (
     DEFAULT_MAX_CELLS,
+    cell_robust_stats,
     distinct_xy,
     make_grid_spec,
     point_extent,
@@ -219,9 +220,10 @@ def spike_mask(
     and simulated sonars are often better than their a-priori model, which would let spikes of a few
     a-priori sigmas through. The neighbour test (:func:`knn_spike_mask`) uses the same floor.
     """
-    sigma0 = typical_cell_sigma(idx, depth_m, min_count)
+    stats = cell_robust_stats(idx, depth_m)  # the cell medians and MADs both tests below need
+    sigma0 = typical_cell_sigma(idx, depth_m, min_count, stats=stats)
     sigma0 = max(sigma0, floor_m) if np.isfinite(sigma0) else floor_m
-    bad = robust_outlier_mask(idx, depth_m, k, floor=sigma0, min_count=min_count)
+    bad = robust_outlier_mask(idx, depth_m, k, floor=sigma0, min_count=min_count, stats=stats)
     bad |= knn_spike_mask(x, y, depth_m, k=k_neighbourhood, neighbours=neighbours, floor=sigma0)
     return bad, sigma0
 

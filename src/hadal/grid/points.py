@@ -31,7 +31,7 @@ import math
 import os
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, NamedTuple
 
 from hadal.errors import InputError
 
@@ -197,6 +197,33 @@ def segment_median(zs: np.ndarray, starts: np.ndarray, counts: np.ndarray) -> np
     return 0.5 * (lo + hi)
 
 
+class CellRobustStats(NamedTuple):
+    """Per-cell median and MAD of points grouped by cell (:func:`cell_robust_stats`)."""
+
+    order: np.ndarray  # z[order] sorted by (cell, z)
+    starts: np.ndarray  # segment start of each occupied cell in z[order]
+    counts: np.ndarray  # points per occupied cell
+    median: np.ndarray  # per occupied cell
+    mad: np.ndarray  # median absolute deviation from the cell median, per occupied cell
+    dev: np.ndarray  # |z - cell median| per point, in z[order] order
+
+
+def cell_robust_stats(idx: np.ndarray, z: np.ndarray) -> CellRobustStats:
+    """Median and median absolute deviation (MAD) of ``z`` within each cell ``idx``: two sorts, no Python loop.
+
+    Computed once and shared by :func:`typical_cell_sigma` and :func:`robust_outlier_mask` (the multibeam spike
+    test needs both on the same soundings)."""
+    import numpy as np
+
+    order, _cells, starts, counts = sorted_segments(idx, z)
+    zs = z[order]
+    seg = np.repeat(np.arange(len(starts)), counts)
+    med = segment_median(zs, starts, counts)
+    dev = np.abs(zs - med[seg])
+    mad = segment_median(dev[np.lexsort((dev, seg))], starts, counts)  # |dev| sorted within each cell segment
+    return CellRobustStats(order, starts, counts, med, mad, dev)
+
+
 def robust_outlier_mask(
     idx: np.ndarray,
     z: np.ndarray,
@@ -204,6 +231,7 @@ def robust_outlier_mask(
     *,
     floor=0.0,
     min_count: int = 3,
+    stats: CellRobustStats | None = None,
 ) -> np.ndarray:
     """Per-cell robust spike test: True where ``|z - median| > k * max(1.4826 * MAD, floor)``.
 
@@ -212,48 +240,40 @@ def robust_outlier_mask(
     ~0.05 % of pure Gaussian noise. ``floor`` is a minimum sigma (same units as ``z``): a scalar, or a
     callable mapping the cell medians to a per-cell sigma (e.g. a depth-proportional a-priori sounding
     uncertainty), so cells whose points agree closely do not reject ordinary noise. Cells with fewer
-    than ``min_count`` points cannot be judged robustly and keep all their points.
+    than ``min_count`` points cannot be judged robustly and keep all their points. ``stats``: the
+    :func:`cell_robust_stats` of ``(idx, z)`` when already computed.
     """
     import numpy as np
 
     n = len(z)
     if n == 0:
         return np.zeros(0, dtype=bool)
-    order, _cells, starts, counts = sorted_segments(idx, z)
-    zs = z[order]
-    seg = np.repeat(np.arange(len(starts)), counts)
-    med = segment_median(zs, starts, counts)
-    dev = np.abs(zs - med[seg])
-    order2 = np.lexsort((dev, seg))  # sort |dev| within each (contiguous) cell segment
-    sigma = 1.4826 * segment_median(dev[order2], starts, counts)
-    fl = floor(med) if callable(floor) else np.full(len(med), float(floor))
-    sigma = np.maximum(sigma, fl)
-    out_sorted = (dev > k * sigma[seg]) & (counts[seg] >= min_count)
+    st = cell_robust_stats(idx, z) if stats is None else stats
+    seg = np.repeat(np.arange(len(st.starts)), st.counts)
+    fl = floor(st.median) if callable(floor) else np.full(len(st.median), float(floor))
+    sigma = np.maximum(1.4826 * st.mad, fl)
+    out_sorted = (st.dev > k * sigma[seg]) & (st.counts[seg] >= min_count)
     mask = np.empty(n, dtype=bool)
-    mask[order] = out_sorted
+    mask[st.order] = out_sorted
     return mask
 
 
-def typical_cell_sigma(idx: np.ndarray, z: np.ndarray, min_count: int = 5) -> float:
+def typical_cell_sigma(idx: np.ndarray, z: np.ndarray, min_count: int = 5, *,
+                       stats: CellRobustStats | None = None) -> float:
     """Median over the cells with >= ``min_count`` points of their robust sigma ``1.4826 * MAD``.
 
     A data-driven, outlier-resistant estimate of the point noise (plus sub-cell relief); NaN when no
-    cell has enough points.
+    cell has enough points. ``stats``: the :func:`cell_robust_stats` of ``(idx, z)`` when already computed.
     """
     import numpy as np
 
     if len(z) == 0:
         return float("nan")
-    order, _cells, starts, counts = sorted_segments(idx, z)
-    big = counts >= min_count
+    st = cell_robust_stats(idx, z) if stats is None else stats
+    big = st.counts >= min_count
     if not big.any():
         return float("nan")
-    zs = z[order]
-    seg = np.repeat(np.arange(len(starts)), counts)
-    med = segment_median(zs, starts, counts)
-    dev = np.abs(zs - med[seg])
-    mad = segment_median(dev[np.lexsort((dev, seg))], starts, counts)
-    return float(1.4826 * np.median(mad[big]))
+    return float(1.4826 * np.median(st.mad[big]))
 
 
 def distinct_xy(x, y) -> np.ndarray:
