@@ -68,3 +68,29 @@ def test_api_url_in_the_active_profile_counts(tmp_path):
     (home / "profiles.toml").write_text('active = "srv"\n\n[profiles.srv]\nPREFECT_API_URL = "http://127.0.0.1:9/api"\n')
     out = _probe(tmp_path, None)
     assert out == {"server_code_loaded": False, "started": False, "api_url": "http://127.0.0.1:9/api"}
+
+
+@pytest.mark.parametrize(("code", "timeout", "message"), [
+    ("raise SystemExit(3)", "120", "exited with status 3 before it answered"),
+    ("import time; time.sleep(30)", "0.3", "did not answer within 0.3 s"),
+])
+def test_a_server_that_does_not_come_up_is_one_line(monkeypatch, code, timeout, message):
+    """A temporary server that dies or never answers /health: a one-line ConfigError naming the way out."""
+    import time
+
+    from hadal import cli
+    from hadal.errors import ConfigError
+
+    proc = subprocess.Popen([sys.executable, "-c", code])
+    r, w = os.pipe()
+    os.close(r)
+    srv = cli._TemporaryServer(proc, cli._free_port(), w, time.monotonic())
+    monkeypatch.setattr(cli, "_SERVERS", [srv])
+    monkeypatch.setenv("PREFECT_SERVER_EPHEMERAL_STARTUP_TIMEOUT_SECONDS", timeout)
+    try:
+        with pytest.raises(ConfigError, match=message) as exc:
+            cli._wait_for_temporary_server()
+        assert "\n" not in str(exc.value) and "PREFECT_API_URL" in str(exc.value)
+    finally:
+        srv.stop()
+    assert proc.poll() is not None
