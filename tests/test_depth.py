@@ -209,6 +209,22 @@ def test_segment_phases_numeric_seconds_and_edge_cases():
     assert segment_phases(np.array([]), np.array([])).size == 0
 
 
+def test_segment_phases_same_for_every_time_form():
+    """The phases from a time axis given as a tz-aware / naive pandas column, a DatetimeIndex, numpy datetime64 or
+    Python datetimes match those from plain seconds (irregular sampling, a non-UTC zone)."""
+    rng = np.random.default_rng(4)
+    sec = np.cumsum(rng.uniform(0.5, 3.5, 4000))
+    d = np.where(sec < 2500, sec, np.where(sec < 5000, 2500 + 5 * np.sin(sec / 90), 7500 - sec))
+    want = segment_phases(sec, d)
+    assert {"descent", "bottom", "ascent"} <= set(want)
+    t0 = pd.Timestamp("2018-10-07 08:00", tz="Asia/Tokyo")
+    aware = pd.Series(t0 + pd.to_timedelta(sec, unit="s"))
+    forms = [aware, aware.dt.tz_convert("UTC"), aware.dt.tz_localize(None), pd.DatetimeIndex(aware),
+             aware.dt.tz_convert("UTC").to_numpy(), list(aware)]
+    for form in forms:
+        np.testing.assert_array_equal(segment_phases(form, d), want)
+
+
 def test_real_cast_hydrostatic_minus_fm_is_geopotential_anomaly(shared_data):
     """Eq. (8) on a real SBE 9 cast (oce-issues 644, 566 dbar, 69.4 N): the hydrostatic depth exceeds the
     standard-ocean F-M depth by the geopotential anomaly term dD/9.8 (dD = integral of delta dp)."""
