@@ -17,7 +17,7 @@ from hadal import cli
 cli._prefect_environment()
 from prefect.settings import get_current_settings
 out = {"server_code_loaded": "prefect.server.api.server" in sys.modules, "started": bool(cli._SERVERS),
-       "api_url": get_current_settings().api.url}
+       "api_url": get_current_settings().api.url, "ui_url": get_current_settings().ui_url}
 if cli._SERVERS:
     cli._wait_for_temporary_server()
     with urllib.request.urlopen(out["api_url"] + "/health", timeout=10) as r:
@@ -53,13 +53,14 @@ def test_temporary_server_starts_answers_and_stops(tmp_path):
     out = _probe(tmp_path, None)
     assert out["started"] and not out["server_code_loaded"], out
     assert out["api_url"].startswith("http://127.0.0.1:") and out["health"] == 200, out
+    assert not out["ui_url"], out  # no UI on the temporary server: no "View at" link to nowhere
     assert _gone(out["pid"]), "the temporary server outlived hadal"
 
 
 @pytest.mark.parametrize("api_url", ["http://127.0.0.1:9/api"])
 def test_no_server_when_an_api_is_configured(tmp_path, api_url):
     out = _probe(tmp_path, api_url)
-    assert out == {"server_code_loaded": False, "started": False, "api_url": api_url}
+    assert out == {"server_code_loaded": False, "started": False, "api_url": api_url, "ui_url": "http://127.0.0.1:9"}
 
 
 def test_api_url_in_the_active_profile_counts(tmp_path):
@@ -67,7 +68,8 @@ def test_api_url_in_the_active_profile_counts(tmp_path):
     home.mkdir()
     (home / "profiles.toml").write_text('active = "srv"\n\n[profiles.srv]\nPREFECT_API_URL = "http://127.0.0.1:9/api"\n')
     out = _probe(tmp_path, None)
-    assert out == {"server_code_loaded": False, "started": False, "api_url": "http://127.0.0.1:9/api"}
+    assert out == {"server_code_loaded": False, "started": False, "api_url": "http://127.0.0.1:9/api",
+                   "ui_url": "http://127.0.0.1:9"}
 
 
 @pytest.mark.parametrize(("code", "timeout", "message"), [

@@ -748,6 +748,7 @@ def _start_temporary_server() -> str | None:
     _GUARD_PIPES.append(w)
     atexit.register(srv.stop)
     os.environ["PREFECT_API_URL"] = srv.api_url
+    os.environ.setdefault("PREFECT_UI_URL", "")  # the temporary server serves no UI: no "View at <url>" lines
     refresh_global_settings_context()  # Prefect read its settings at import: make it see the URL
     return srv.api_url
 
