@@ -206,6 +206,7 @@ def cli_compare(args) -> None:
     py = sys.executable
     try:
         codes = {"now": _snapshot(work / "code-now", None), args.cli: _snapshot(work / "code-old", args.cli)}
+        has_flow = {c: '"--flow"' in (src / "hadal" / "cli.py").read_text(encoding="utf-8") for c, src in codes.items()}
         raw = Path(args.raw) if args.raw else make_dive(work / "raw" / "sample", args.small)[0]
         srv_home = work / "prefect-server"
         srv_home.mkdir()
@@ -216,7 +217,7 @@ def cli_compare(args) -> None:
         api = f"http://127.0.0.1:{port}/api"
 
         def hadal(code: str, *argv: str, server_up: bool = False) -> float:
-            if code != "now":  # --flow (always a Prefect run) is what the older code does anyway
+            if code != "now" and not has_flow[code]:  # code before --flow always ran the Prefect flow anyway
                 argv = tuple(a for a in argv if a != "--flow")
             env = {**os.environ, "PYTHONPATH": str(codes[code]), "HADAL_PROGRESS": "0",
                    "PREFECT_HOME": str(work / f"prefect-home-{code}-{'srv' if server_up else 'tmp'}")}
