@@ -663,11 +663,9 @@ sys.argv[0] = "uvicorn"
 runpy.run_module("uvicorn", run_name="__main__", alter_sys=True)
 """
 
-_GUARD_PIPES: list[int] = []  # hadal's (write) ends of the servers' guard pipes, open for hadal's lifetime
-
-
 class _TemporaryServer:
-    """hadal's temporary Prefect server process: its port, guard pipe and start time."""
+    """hadal's temporary Prefect server process: its port, the (write) end of its guard pipe, open until the
+    server is stopped, and its start time."""
 
     def __init__(self, proc, port: int, guard_w: int, started: float):
         self.proc, self.port, self.guard_w, self.started = proc, port, guard_w, started
@@ -676,17 +674,28 @@ class _TemporaryServer:
     def api_url(self) -> str:
         return f"http://127.0.0.1:{self.port}/api"
 
-    def stop(self) -> None:
-        """Terminate the server (its guard pipe closed too); never raises."""
-        import subprocess
-
-        try:
-            os.close(self.guard_w)
-        except OSError:
-            pass
+    def signal_stop(self) -> None:
+        """EOF for the guard and SIGTERM for the server, without waiting; never raises. The guard pipe is closed
+        once (its descriptor number may be reused afterwards)."""
+        if self.guard_w >= 0:
+            try:
+                os.close(self.guard_w)
+            except OSError:
+                pass
+            self.guard_w = -1
         if self.proc.poll() is None:
             try:
                 self.proc.terminate()
+            except OSError:
+                pass
+
+    def stop(self) -> None:
+        """:meth:`signal_stop`, then wait for the server to exit (killed after 5 s); never raises."""
+        import subprocess
+
+        self.signal_stop()
+        if self.proc.poll() is None:
+            try:
                 self.proc.wait(timeout=5)
             except subprocess.TimeoutExpired:
                 self.proc.kill()
@@ -745,7 +754,6 @@ def _start_temporary_server() -> str | None:
         os.close(r)
     srv = _TemporaryServer(proc, port, w, time.monotonic())
     _SERVERS.append(srv)
-    _GUARD_PIPES.append(w)
     atexit.register(srv.stop)
     os.environ["PREFECT_API_URL"] = srv.api_url
     os.environ.setdefault("PREFECT_UI_URL", "")  # the temporary server serves no UI: no "View at <url>" lines
@@ -853,18 +861,8 @@ def _stop_children(timeout: float = 5.0) -> None:
             signal.signal(sig, signal.SIG_IGN)
         except ValueError:  # not the main thread (the interrupt watchdog): the handler exits at once anyway
             pass
-    for srv in _SERVERS:
-        if srv.proc.poll() is None:
-            try:
-                srv.proc.terminate()
-            except OSError:
-                pass
-    for w in _GUARD_PIPES:  # EOF for the guards, too
-        try:
-            os.close(w)
-        except OSError:
-            pass
-    _GUARD_PIPES.clear()
+    for srv in _SERVERS:  # the wait for them is the children's, below
+        srv.signal_stop()
     try:
         import psutil
 

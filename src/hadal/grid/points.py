@@ -203,6 +203,7 @@ class CellRobustStats(NamedTuple):
     order: np.ndarray  # z[order] sorted by (cell, z)
     starts: np.ndarray  # segment start of each occupied cell in z[order]
     counts: np.ndarray  # points per occupied cell
+    seg: np.ndarray  # per point in z[order] order: its occupied cell's number (0, 1, ...)
     median: np.ndarray  # per occupied cell
     mad: np.ndarray  # median absolute deviation from the cell median, per occupied cell
     dev: np.ndarray  # |z - cell median| per point, in z[order] order
@@ -221,7 +222,7 @@ def cell_robust_stats(idx: np.ndarray, z: np.ndarray) -> CellRobustStats:
     med = segment_median(zs, starts, counts)
     dev = np.abs(zs - med[seg])
     mad = segment_median(dev[np.lexsort((dev, seg))], starts, counts)  # |dev| sorted within each cell segment
-    return CellRobustStats(order, starts, counts, med, mad, dev)
+    return CellRobustStats(order, starts, counts, seg, med, mad, dev)
 
 
 def robust_outlier_mask(
@@ -249,10 +250,9 @@ def robust_outlier_mask(
     if n == 0:
         return np.zeros(0, dtype=bool)
     st = cell_robust_stats(idx, z) if stats is None else stats
-    seg = np.repeat(np.arange(len(st.starts)), st.counts)
     fl = floor(st.median) if callable(floor) else np.full(len(st.median), float(floor))
     sigma = np.maximum(1.4826 * st.mad, fl)
-    out_sorted = (st.dev > k * sigma[seg]) & (st.counts[seg] >= min_count)
+    out_sorted = (st.dev > k * sigma[st.seg]) & (st.counts[st.seg] >= min_count)
     mask = np.empty(n, dtype=bool)
     mask[st.order] = out_sorted
     return mask
