@@ -1,7 +1,10 @@
-"""The post-cruise flow: raw dive → ingest ‖ grid → derive ‖ suitability ‖ landing → match → report.
+"""The post-cruise flow: raw dive → ingest ‖ dtm ‖ laser → derive ‖ suitability ‖ landing → match → report.
 
 Stages run as soon as the stages whose products they read are done (:func:`hadal.plan.stage_dependencies`), on
-Prefect's thread-pool task runner: ``grid`` does not wait for ``ingest``/``derive``, ``landing`` not for ``match``.
+Prefect's thread-pool task runner: ``dtm`` and ``laser`` do not wait for ``ingest``/``derive``, ``landing`` not
+for ``match``, ``match`` not for ``laser``. At most ``resources.parallel_stages`` run at once (default the CPU
+cores, at least 2: :func:`hadal.budget.parallel_stages`), the ready ones first in stage order, so on a small
+machine the DTM chain (dtm → suitability → match, the longest) is not slowed by the laser clouds.
 Every stage reads the upstream versions the run found at its start or published itself (pins), never a concurrent
 run's newer ones. :func:`run_stage_graph` is shared with the Dask batch flow (``flows/batch.py``).
 """
@@ -23,6 +26,7 @@ from prefect.context import TagsContext
 from prefect.futures import as_completed
 from prefect.task_runners import ThreadPoolTaskRunner
 
+from hadal.budget import parallel_stages, resources_of
 from hadal.errors import HadalError
 from hadal.pipeline import (
     RunOutcome,
@@ -36,8 +40,8 @@ from hadal.plan import stage_dependencies
 
 log = logging.getLogger("hadal.flow")
 
-#: threads of the single-dive flow's task runner: at most three stages are ever ready together
-STAGE_THREADS = 4
+#: threads of the single-dive flow's task runner (one per stage: the scheduler, not the pool, limits how many run)
+STAGE_THREADS = 8
 
 
 def stage_tasks(names: list[str]):
@@ -73,26 +77,60 @@ class DiveRun:
         return RunOutcome(self.published, self.rows)
 
 
+def process_stages(names: list[str]) -> set[str]:
+    """The stages of ``names`` to run in their own process (:mod:`hadal.stage_process`): those whose module says
+    ``PROCESS = True`` (CPU-bound for seconds, much of it holding the GIL) and that may run at the same time as
+    another stage of the run (neither upstream nor downstream of it); a stage that always runs alone gains
+    nothing from a process but pays its start (about 2 s of imports)."""
+    from hadal.stages import stage_module
+
+    deps = stage_dependencies(names)
+    up = {n: set(deps[n]) for n in names}  # transitive upstream stages
+    changed = True
+    while changed:
+        changed = False
+        for n in names:
+            more = set().union(*(up[p] for p in up[n])) - up[n]
+            if more:
+                up[n] |= more
+                changed = True
+    out = set()
+    for n in names:
+        if not getattr(stage_module(n), "PROCESS", False):
+            continue
+        if any(o != n and o not in up[n] and n not in up[o] for o in names):
+            out.add(n)
+    return out
+
+
 def run_stage_graph(dives: list[DiveRun], store_root: str | None, config_path: str | None, force: bool,
-                    on_dive_done: Callable[[DiveRun], None] | None = None) -> None:
-    """Submit every dive's stages to the flow's task runner as soon as their upstream stages are done; record
-    each stage's outcome in its :class:`DiveRun`. A stage whose upstream failed in this run is skipped with the
-    reason; the report still runs (and lists the failures)."""
+                    on_dive_done: Callable[[DiveRun], None] | None = None, max_running: int | None = None,
+                    isolate: bool = False) -> None:
+    """Submit every dive's stages to the flow's task runner as soon as their upstream stages are done (at most
+    ``max_running`` at once, None: no limit; ready stages in plan order); record each stage's outcome in its
+    :class:`DiveRun`. A stage whose upstream failed in this run is skipped with the reason; the report still runs
+    (and lists the failures). ``isolate``: stages in :func:`process_stages` run in their own processes."""
     tasks = {n: t for d in dives for n, t in zip(d.names, stage_tasks(d.names), strict=True)}
     running: dict[Any, tuple[DiveRun, str, float, bool]] = {}
+    in_process = {id(d): process_stages(d.names) if isolate else set() for d in dives}
 
     def submit(d: DiveRun, name: str, forced: bool) -> None:
-        notes = {"failed": dict(d.failed), "failed_skips": dict(d.skips)} if name == "report" and d.failed else {}
+        notes: dict[str, Any] = {"isolate": True} if name in in_process[id(d)] else {}
+        if name == "report" and d.failed:
+            notes.update(failed=dict(d.failed), failed_skips=dict(d.skips))
         fut = configured(tasks[name], store_root, forced).submit(d.raw_dir, store_root, config_path, dict(d.pins),
                                                                  **notes)
         running[fut] = (d, name, time.monotonic(), forced)
         d.running.add(name)
 
     while True:
-        for d in dives:  # submit every stage whose upstream stages are done
+        for d in dives:  # submit every stage whose upstream stages are done (in plan order, while slots are free)
             for name in list(d.waiting):
                 if d.deps[name] & (set(d.waiting) | d.running):
                     continue
+                if max_running is not None and len(running) >= max_running \
+                        and blocked_by_failure(name, d.failed) is None:
+                    break
                 d.waiting.remove(name)
                 if (why := blocked_by_failure(name, d.failed)) is not None:
                     print(f"stage {name} skipped: {why}")
@@ -217,7 +255,8 @@ def post_cruise(
     # concurrency slot for every tagged task run, whose service restarts took ~2 s before each stage on a busy
     # 2-core machine (the wait before derive, suitability and report: 6 s of a 67 s cold dive)
     with TagsContext(current_tags=set()):
-        run_stage_graph([d], store_root, config_path, force)
+        run_stage_graph([d], store_root, config_path, force, max_running=parallel_stages(ctx.config),
+                        isolate=resources_of(ctx.config).stage_processes)
     order = {ps.name: i for i, ps in enumerate(plan)}
     d.rows.sort(key=lambda r: order.get(r["stage"], 99))
     if d.unexpected is not None:

@@ -7,7 +7,7 @@ Prefect-free, so ``hadal run`` can tell an unchanged dive without starting Prefe
 * the stage name, dive id and store root;
 * hadal's code version (package version + SHA-256 of every ``hadal/**/*.py`` source file);
 * the stage's configuration section (``ctx.params(stage)``, canonical JSON);
-* for stages that read raw files (``INPUTS.reads_raw``: ``ingest``, ``grid``), the SHA-256 of those files
+* for stages that read raw files (``INPUTS.reads_raw``: ``ingest``, ``dtm``, ``laser``), the SHA-256 of those files
   and of ``dive.yaml`` (cached with each file's size, mtime, inode and ctime in the store:
   :meth:`hadal.store.ProductStore.file_sha256`, so an unchanged re-run does not re-read ~280 MB of raw data);
   for every stage, the manifests (SHA-256) of the pinned (else latest) versions of its ``UPSTREAM`` products.
@@ -21,7 +21,7 @@ instead of publishing duplicates, while a changed parameter, input file, upstrea
 re-runs it. Because ingest's output version then stays the same, an unchanged pipeline is a chain of
 cache hits. ``force=True`` (``hadal stage --force``) bypasses the cache (``refresh_cache``).
 
-Retries: I/O-bound stages (ingest, grid) retry on ``OSError`` only (:func:`retry_on_io_error`); a
+Retries: I/O-bound stages (ingest, dtm, laser) retry on ``OSError`` only (:func:`retry_on_io_error`); a
 :class:`~hadal.errors.HadalError` (bad input, configuration) is never retried.
 """
 
@@ -53,7 +53,8 @@ from hadal.pipeline import (  # noqa: F401 - the fingerprint functions are re-ex
     stage_fingerprint,
 )
 from hadal.progress import default_progress
-from hadal.stages import StageContext
+from hadal.stage_process import can_isolate, run_stage_in_process
+from hadal.stages import NullProgress, StageContext
 
 __all__ = ["code_digest", "stage_fingerprint", "stage_task", "configured", "published_exist", "route_hadal_logs"]
 
@@ -179,7 +180,8 @@ def stage_task(name: str, *, retries: int = 0, after: Callable[[str, dict[str, s
 
     ``pins`` (``{product: version directory}``) are the upstream versions the flow run found at its start or
     published itself: the task reads those, never a concurrent run's newer ones. ``failed``/``failed_skips``:
-    stages that failed earlier in the run and those skipped because of them (the report lists them).
+    stages that failed earlier in the run and those skipped because of them (the report lists them). ``isolate``:
+    run the stage in its own process (:mod:`hadal.stage_process`; not part of the cache key).
 
     ``after(name, published)`` runs inside the task after a fresh (non-cached) run, e.g. to publish
     Prefect artifacts.
@@ -187,7 +189,7 @@ def stage_task(name: str, *, retries: int = 0, after: Callable[[str, dict[str, s
 
     def _run(raw_dir: str, store_root: str | None = None, config_path: str | None = None,
              pins: dict[str, str] | None = None, failed: dict[str, str] | None = None,
-             failed_skips: dict[str, str] | None = None) -> dict[str, str]:
+             failed_skips: dict[str, str] | None = None, isolate: bool = False) -> dict[str, str]:
         route_hadal_logs()
         ctx = make_context(raw_dir, store_root, config_path, progress=default_progress())
         pin_paths(ctx, pins)
@@ -199,7 +201,12 @@ def stage_task(name: str, *, retries: int = 0, after: Callable[[str, dict[str, s
         hlog.addHandler(collect)
         t0 = time.monotonic()
         try:
-            published = {product: str(pv.path) for product, pv in run_stage(name, ctx, _run_ids()).items()}
+            if isolate and can_isolate():
+                published = run_stage_in_process(
+                    name, raw_dir=raw_dir, store_root=store_root, config_path=config_path, pins=pins, failed=failed,
+                    failed_skips=failed_skips, run_info=_run_ids(), progress=not isinstance(ctx.progress, NullProgress))
+            else:
+                published = {product: str(pv.path) for product, pv in run_stage(name, ctx, _run_ids()).items()}
         finally:
             hlog.removeHandler(collect)
         try:

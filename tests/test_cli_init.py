@@ -56,7 +56,7 @@ def test_init_writes_validates_and_never_overwrites(tmp_path):
     res = hadal("init", str(raw), "--dry-run")
     _no_traceback(res)
     assert res.returncode == 0 and not (raw / "dive.yaml").exists()
-    assert "dive_id: My-Dive-3" in res.stdout and "run   grid" in res.stderr
+    assert "dive_id: My-Dive-3" in res.stdout and "run   dtm" in res.stderr
     res = hadal("init", str(raw))
     assert res.returncode == 0, res.stderr
     d = yaml.safe_load((raw / "dive.yaml").read_text())
@@ -67,7 +67,7 @@ def test_init_writes_validates_and_never_overwrites(tmp_path):
     assert hadal("init", str(raw), "--force", "--dive-id", "d7").returncode == 0
     assert yaml.safe_load((raw / "dive.yaml").read_text())["dive_id"] == "d7"
     chk = hadal("config", "--check", str(raw))
-    assert chk.returncode == 0 and "run   grid" in chk.stdout and "skip  landing" in chk.stdout
+    assert chk.returncode == 0 and "run   dtm" in chk.stdout and "skip  landing" in chk.stdout
     assert "lacks creator_name, creator_email, institution, project, license" in chk.stdout
     bad = hadal("init", str(raw), "--force", "--launch", "95,10")
     assert bad.returncode == 2 and "--launch" in bad.stderr
@@ -101,7 +101,7 @@ def test_init_then_run_a_compressed_real_cast(shared_data, tmp_path):
     listing = json.loads(hadal("products", "cast-dive", "--store", str(tmp_path / "store"), "--json").stdout)
     assert {"sensors", "ctd", "profile", "report"} <= {r["product"] for r in listing}
     summary = json.loads(next((tmp_path / "store" / "cast-dive" / "report").glob("v*/summary.json")).read_text())
-    assert {s["stage"] for s in summary["skipped_stages"]} == {"grid", "suitability", "match", "landing"}
+    assert {s["stage"] for s in summary["skipped_stages"]} == {"dtm", "laser", "suitability", "match", "landing"}
 
 
 def test_init_writes_a_commented_acdd_metadata_stub(tmp_path):

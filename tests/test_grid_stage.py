@@ -59,7 +59,13 @@ def _set_sources(raw, **sources):
 
 
 def test_stage_contract():
-    assert grid_stage.PRODUCTS == ("dtm", "laser_grids") and grid_stage.UPSTREAM == ()
+    from hadal.stages import STAGE_GROUPS, dtm, laser
+
+    assert STAGE_GROUPS["grid"] == ("dtm", "laser")
+    assert dtm.PRODUCTS == ("dtm",) and laser.PRODUCTS == ("laser_grids",) and dtm.UPSTREAM == laser.UPSTREAM == ()
+    assert dtm.SECTION == laser.SECTION == "grid"  # one configuration section, split by field
+    assert set(dtm.PARAM_FIELDS) | set(laser.PARAM_FIELDS) == set(grid_stage.Params.model_fields)
+    assert not set(dtm.PARAM_FIELDS) & {"laser_resolution_m", "laser_sor_neighbors"}
     p = grid_stage.Params()
     assert p.dtm_resolution_m == "auto" and p.laser_resolution_m == "auto"
     for bad in (0, -5, float("nan"), "fine"):
@@ -128,17 +134,47 @@ def test_missing_and_bad_inputs_publish_nothing(raw_dive, tmp_path):
     store = tmp_path / "store"
     (raw_dive / "laser" / "submap_02.ply").write_bytes(b"ply\nformat binary_little_endian 1.0\n")
     with pytest.raises(InputError, match="submap_02"):
-        run_stage("grid", make_context(raw_dive, store))
+        run_stage("laser", make_context(raw_dive, store))
     assert not (store / "T001").exists() or not any((store / "T001").glob("*/v*"))
+    with pytest.raises(InputError, match="submap_02"):  # the group: the DTM (good input) is published, laser not
+        run_stage("grid", make_context(raw_dive, store))
+    assert [p.name for p in (store / "T001").glob("*/v*")] == ["v001"] and (store / "T001" / "dtm").is_dir()
     _set_sources(raw_dive, multibeam=["multibeam/nope.xyz.gz"])
     with pytest.raises(InputError, match="does not exist"):
         run_stage("grid", make_context(raw_dive, store))
     _set_sources(raw_dive)
-    with pytest.raises(StageError, match="no multibeam, prior_grid or laser"):
+    with pytest.raises(StageError, match="lists no multibeam soundings or prior bathymetry grid"):
         run_stage("grid", make_context(raw_dive, store))
+    with pytest.raises(StageError, match="lists no laser"):
+        run_stage("laser", make_context(raw_dive, store))
 
 
 def test_multibeam_only_dive(raw_dive, tmp_path):
     _set_sources(raw_dive, multibeam=["multibeam/em122_line01.xyz.gz"])
     out = run_stage("grid", make_context(raw_dive, tmp_path / "store"))
     assert set(out) == {"dtm"}
+
+
+def test_dtm_and_laser_fingerprints_cover_only_their_own_parameters_and_files(raw_dive, tmp_path):
+    """The split's point for re-runs: a changed laser parameter or laser file re-runs `laser` (and landing), not the
+    DTM; a changed DTM parameter or multibeam file re-runs `dtm`, not the laser grids. Oracle: which fields of the
+    `grid:` section and which raw files each stage reads (docs/architecture.md)."""
+    from hadal.pipeline import stage_fingerprint
+
+    def prints(pipeline: str | None = None):
+        if pipeline is not None:
+            (raw_dive / "pipeline.yaml").write_text(pipeline)
+        ctx = make_context(raw_dive, tmp_path / "store")
+        return {n: stage_fingerprint(n, ctx) for n in ("dtm", "laser")}
+
+    base = prints()
+    laser_param = prints("grid: {laser_sor_neighbors: 7}\n")
+    assert laser_param["dtm"] == base["dtm"] and laser_param["laser"] != base["laser"]
+    dtm_param = prints("grid: {dtm_resolution_m: 50.0}\n")
+    assert dtm_param["laser"] == base["laser"] and dtm_param["dtm"] != base["dtm"]
+    (raw_dive / "pipeline.yaml").unlink()
+    assert prints() == base
+    with open(raw_dive / "laser" / "submap_02.ply", "ab") as fh:  # a changed laser file
+        fh.write(b"\0" * 24)
+    laser_file = prints()
+    assert laser_file["dtm"] == base["dtm"] and laser_file["laser"] != base["laser"]

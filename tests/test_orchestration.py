@@ -263,41 +263,51 @@ def test_serve_creates_scheduled_runs_on_a_real_server(tmp_path):
                 p.kill()
 
 
+_FAKE_MAKES = {"ingest": "sensors", "derive": "ctd", "dtm": "dtm", "laser": "laser_grids", "landing": "landing",
+               "report": "report"}
+
+
+def _fake_stage(name: str, log: dict, lock, seconds: float, fail: bool = False):
+    """A Prefect task standing in for stage ``name``: sleeps, logs its start/end/pins/isolate flag, then publishes
+    an empty version of the product it makes (or raises InputError if ``fail``)."""
+    from prefect import task
+
+    from hadal.errors import InputError
+
+    def run(raw_dir, store_root=None, config_path=None, pins=None, failed=None, failed_skips=None, isolate=False):
+        t0 = time.monotonic()
+        time.sleep(seconds)
+        with lock:
+            log[name] = {"t0": t0, "t1": time.monotonic(), "pins": dict(pins or {}), "failed": failed,
+                         "isolate": isolate}
+        if fail:
+            raise InputError(f"{name} broke")
+        v = Path(store_root, "d", _FAKE_MAKES[name], "v001")
+        v.mkdir(parents=True)
+        (v / "manifest.json").write_text("{}")
+        return {_FAKE_MAKES[name]: str(v)}
+
+    return task(name=name)(run)
+
+
 @pytest.mark.prefect
 def test_stage_graph_runs_independent_stages_concurrently_with_pins(tmp_path, prefect_harness, monkeypatch):
     """The flow's scheduler (run_stage_graph) starts a stage as soon as the stages it reads from are done:
-    ingest and grid overlap, derive waits for ingest, landing for grid (not for match); each stage gets the pins of
+    ingest and laser overlap, derive waits for ingest, landing for laser (not for match); each stage gets the pins of
     what its upstream published; a failed stage skips its dependents, the others and the report still run.
     Oracle: the dependency table of the stage docs (derive reads sensors, landing reads laser_grids)."""
     import threading
 
     from hadal.flows import post_cruise as pc
-    from prefect import flow, task
+    from prefect import flow
     from prefect.task_runners import ThreadPoolTaskRunner
-
-    from hadal.errors import InputError
 
     log: dict[str, dict] = {}
     lock = threading.Lock()
-    makes = {"ingest": "sensors", "derive": "ctd", "grid": "laser_grids", "landing": "landing", "report": "report"}
 
-    def fake(name: str, fail: bool = False):
-        def run(raw_dir, store_root=None, config_path=None, pins=None, failed=None, failed_skips=None):
-            t0 = time.monotonic()
-            time.sleep(1.0)
-            with lock:
-                log[name] = {"t0": t0, "t1": time.monotonic(), "pins": dict(pins or {}), "failed": failed}
-            if fail:
-                raise InputError(f"{name} broke")
-            v = Path(store_root, "d", makes[name], "v001")
-            v.mkdir(parents=True)
-            (v / "manifest.json").write_text("{}")
-            return {makes[name]: str(v)}
-
-        return task(name=name)(run)
-
-    names = ["ingest", "derive", "grid", "landing", "report"]
-    monkeypatch.setattr(pc, "stage_tasks", lambda ns: [fake(n, fail=(n == "derive")) for n in ns])
+    names = ["ingest", "derive", "laser", "landing", "report"]
+    monkeypatch.setattr(pc, "stage_tasks", lambda ns: [_fake_stage(n, log, lock, 1.0, fail=(n == "derive"))
+                                                       for n in ns])
 
     @flow(task_runner=ThreadPoolTaskRunner(max_workers=4))
     def graph():
@@ -306,16 +316,63 @@ def test_stage_graph_runs_independent_stages_concurrently_with_pins(tmp_path, pr
         return d
 
     d = graph()
-    assert log["grid"]["t0"] < log["ingest"]["t1"]  # concurrent: grid does not wait for ingest
+    assert log["laser"]["t0"] < log["ingest"]["t1"]  # concurrent: laser does not wait for ingest
     assert log["derive"]["t0"] >= log["ingest"]["t1"]  # derive reads sensors
-    assert log["landing"]["t0"] >= log["grid"]["t1"] and log["landing"]["t0"] < log["derive"]["t1"] + 0.9
+    assert log["landing"]["t0"] >= log["laser"]["t1"] and log["landing"]["t0"] < log["derive"]["t1"] + 0.9
     assert log["derive"]["pins"]["sensors"].endswith("sensors/v001") and log["derive"]["pins"]["dtm"] == "old-dtm"
-    assert log["report"]["t0"] >= max(log[n]["t1"] for n in ("ingest", "derive", "grid", "landing"))
+    assert log["report"]["t0"] >= max(log[n]["t1"] for n in ("ingest", "derive", "laser", "landing"))
     assert log["report"]["failed"] == {"derive": "derive broke"}  # the report lists the failure
     status = {r["stage"]: r["status"] for r in d.rows}
-    assert status == {"ingest": "published", "derive": "failed", "grid": "published", "landing": "published",
+    assert status == {"ingest": "published", "derive": "failed", "laser": "published", "landing": "published",
                       "report": "published"}
     assert d.failed == {"derive": "derive broke"}
+
+
+@pytest.mark.prefect
+def test_stage_graph_runs_at_most_max_running_stages_ready_ones_in_plan_order(tmp_path, prefect_harness,
+                                                                              monkeypatch):
+    """With ``max_running=2`` no more than two stages overlap although ingest, dtm and laser are ready together;
+    the first two in stage order (ingest, dtm) start first, laser takes the first free slot; stages the graph
+    marks for a process get ``isolate=True`` (dtm and laser overlap ingest/derive), the others not.
+    Oracle: the start/end times each fake stage logged."""
+    import threading
+
+    from hadal.flows import post_cruise as pc
+    from prefect import flow
+    from prefect.task_runners import ThreadPoolTaskRunner
+
+    log: dict[str, dict] = {}
+    lock = threading.Lock()
+
+    names = ["ingest", "derive", "dtm", "laser", "report"]
+    monkeypatch.setattr(pc, "stage_tasks", lambda ns: [_fake_stage(n, log, lock, 0.8) for n in ns])
+
+    @flow(task_runner=ThreadPoolTaskRunner(max_workers=8))
+    def graph():
+        d = pc.DiveRun("raw", names, {})
+        pc.run_stage_graph([d], str(tmp_path), None, False, max_running=2, isolate=True)
+        return d
+
+    d = graph()
+    assert {r["stage"]: r["status"] for r in d.rows} == dict.fromkeys(names, "published")
+    spans = sorted((v["t0"], v["t1"]) for v in log.values())
+    for t, _ in spans:  # at any stage start, at most two stages are running (itself included)
+        assert sum(a <= t < b for a, b in spans) <= 2
+    assert log["dtm"]["t0"] < log["ingest"]["t1"] and log["laser"]["t0"] >= min(log["ingest"]["t1"],
+                                                                                log["dtm"]["t1"]) - 0.05
+    assert {n for n, v in log.items() if v["isolate"]} == {"dtm", "laser"}
+
+
+def test_process_stages_are_the_cpu_bound_ones_that_can_overlap_another_stage():
+    """Oracle: the dependency diagram of docs/operations.md: in a full run dtm, laser, match and landing each have a
+    stage beside them; in a chain (dtm -> suitability -> match) nothing can overlap, so nothing pays a process."""
+    from hadal.flows.post_cruise import process_stages
+
+    full = ["ingest", "derive", "dtm", "laser", "suitability", "match", "landing", "report"]
+    assert process_stages(full) == {"dtm", "laser", "match", "landing"}
+    assert process_stages(["dtm", "suitability", "match", "report"]) == set()
+    assert process_stages(["ingest", "derive", "dtm", "suitability", "match", "report"]) == {"dtm"}
+    assert process_stages(["laser", "landing", "report"]) == set()
 
 
 @pytest.mark.prefect

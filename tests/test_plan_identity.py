@@ -30,12 +30,12 @@ def _runs(plan) -> list[str]:
 # ---------------------------------------------------------------- plan
 @pytest.mark.parametrize("sources, expected", [
     ({"cnv": ["a.cnv"]}, ["ingest", "derive", "report"]),
-    ({"multibeam": ["a.xyz"]}, ["grid", "suitability", "report"]),
-    ({"laser": ["a.ply"]}, ["grid", "landing", "report"]),
-    ({"prior_grid": ["g.nc"], "mcap": ["log.mcap"]}, ["ingest", "derive", "grid", "suitability", "match", "report"]),
-    ({"prior_grid": ["g.nc"], "cnv": ["a.cnv"]}, ["ingest", "derive", "grid", "suitability", "report"]),
+    ({"multibeam": ["a.xyz"]}, ["dtm", "suitability", "report"]),
+    ({"laser": ["a.ply"]}, ["laser", "landing", "report"]),
+    ({"prior_grid": ["g.nc"], "mcap": ["log.mcap"]}, ["ingest", "derive", "dtm", "suitability", "match", "report"]),
+    ({"prior_grid": ["g.nc"], "cnv": ["a.cnv"]}, ["ingest", "derive", "dtm", "suitability", "report"]),
     ({"mcap": ["a.mcap"], "multibeam": ["m.xyz"], "laser": ["l.ply"]},
-     ["ingest", "derive", "grid", "suitability", "match", "landing", "report"]),
+     ["ingest", "derive", "dtm", "laser", "suitability", "match", "landing", "report"]),
     ({}, ["report"]),
 ])
 def test_plan_runs_the_stages_the_data_supports(sources, expected):
@@ -47,11 +47,11 @@ def test_plan_runs_the_stages_the_data_supports(sources, expected):
 
 def test_plan_reasons_name_the_missing_data():
     plan = {p.name: p for p in plan_stages(_dive(cnv=["a.cnv"]))}
-    assert "multibeam" in plan["grid"].reason and "laser" in plan["grid"].reason
+    assert "multibeam" in plan["dtm"].reason and "laser" in plan["laser"].reason
     assert "dtm" in plan["suitability"].reason
     assert "laser_grids" in plan["landing"].reason
-    grid = {p.name: p for p in plan_stages(_dive(laser=["a.ply"]))}["grid"]
-    assert grid.products == ("laser_grids",)  # no dtm from laser files
+    only_laser = {p.name: p for p in plan_stages(_dive(laser=["a.ply"]))}
+    assert not only_laser["dtm"].run and only_laser["laser"].products == ("laser_grids",)  # no dtm from laser
 
 
 def test_launch_is_required_only_by_the_stages_that_need_it():
@@ -229,13 +229,16 @@ def test_stage_dependencies_follow_the_products_each_stage_reads():
     the grid's products; match also ctd and suitability; report everything)."""
     from hadal.plan import downstream_stages, stage_dependencies
 
-    deps = stage_dependencies(["ingest", "derive", "grid", "suitability", "match", "landing", "report"])
-    assert deps["ingest"] == set() and deps["grid"] == set()  # the two raw readers run side by side
+    deps = stage_dependencies(["ingest", "derive", "dtm", "laser", "suitability", "match", "landing", "report"])
+    assert deps["ingest"] == deps["dtm"] == deps["laser"] == set()  # the three raw readers run side by side
     assert deps["derive"] == {"ingest"}
-    assert deps["landing"] == {"grid"}  # landing does not wait for match
-    assert deps["match"] == {"derive", "grid", "suitability"}
-    assert deps["report"] == {"ingest", "derive", "grid", "suitability", "match", "landing"}
+    assert deps["suitability"] == {"dtm"}
+    assert deps["landing"] == {"laser"}  # landing waits neither for match nor for the DTM
+    assert deps["match"] == {"derive", "dtm", "suitability"}  # nor match for the laser grids
+    assert deps["report"] == {"ingest", "derive", "dtm", "laser", "suitability", "match", "landing"}
     assert stage_dependencies(["derive", "landing"]) == {"derive": set(), "landing": set()}  # only the run's stages
-    assert downstream_stages("grid") == ["suitability", "match", "landing", "report"]
+    assert downstream_stages("grid") == ["suitability", "match", "landing", "report"]  # the group: dtm + laser
+    assert downstream_stages("dtm") == ["suitability", "match", "report"]
+    assert downstream_stages("laser") == ["landing", "report"]
     assert downstream_stages("derive") == ["match", "report"]
     assert downstream_stages("report") == []

@@ -119,7 +119,7 @@ def test_stage_failure_does_not_stop_the_others_and_the_report_says_so(shared_da
     raw = _dive_of(tmp_path, shared_data, "ctd-real/seabird_sta0860.cnv", "bathy-real/tut_bathy.nc")
     (raw / "tut_bathy.nc").write_bytes((shared_data / "bathy-real/tut_bathy.nc").read_bytes()[:3000])
     ctx = make_context(raw, tmp_path / "store")
-    with pytest.raises(StageError, match=r"1 stage\(s\) failed \(grid: .*tut_bathy.nc"):
+    with pytest.raises(StageError, match=r"1 stage\(s\) failed \(dtm: .*tut_bathy.nc"):
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             run_pipeline(ctx)
@@ -127,7 +127,7 @@ def test_stage_failure_does_not_stop_the_others_and_the_report_says_so(shared_da
     assert not ctx.store.has(ctx.dive_id, "dtm")
     summary = json.loads(ctx.store.latest(ctx.dive_id, "report").file("summary.json").read_text())
     why = {s["stage"]: s["reason"] for s in summary["skipped_stages"]}
-    assert why["grid"].startswith("failed:") and "grid failed" in why["suitability"]
+    assert why["dtm"].startswith("failed:") and "dtm failed" in why["suitability"]
 
 
 def test_cast_far_from_the_prior_grid(shared_data, tmp_path):

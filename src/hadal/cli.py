@@ -233,7 +233,8 @@ def run(
 
 @app.command()
 def stage(
-    name: Annotated[str, typer.Argument(help="stage name (ingest, derive, grid, suitability, match, landing, report)")],
+    name: Annotated[str, typer.Argument(help="stage name (ingest, derive, dtm, laser, suitability, match, landing, "
+                                             "report; grid = dtm + laser)")],
     raw_dir: Annotated[Path, typer.Argument(help="raw dive directory containing dive.yaml")],
     store: StoreOpt = None,
     config: ConfigOpt = None,
@@ -244,12 +245,13 @@ def stage(
 ) -> None:
     """Re-run one stage, reusing the latest upstream products (a cache hit if nothing changed; --force re-runs).
 
-    The report is refreshed after it (a cache hit when nothing changed). Without --downstream, the stages that
-    depend on NAME keep their products made from its previous version: the command says which ones are stale."""
+    ``grid`` re-runs both gridding stages (dtm and laser) that the dive's data supports. The report is refreshed
+    after it (a cache hit when nothing changed). Without --downstream, the stages that depend on NAME keep their
+    products made from its previous version: the command says which ones are stale."""
     from hadal.pipeline import resolve_stages
     from hadal.plan import downstream_stages
 
-    (name,) = resolve_stages([name])  # unknown or unimplemented: one line
+    names = resolve_stages([name])  # unknown or unimplemented: one line; a group (grid): its stages
     dependents = downstream_stages(name)
     stages = [name, *dependents] if downstream else [name, *(["report"] if name != "report" else [])]
     stages = _runnable_with(stages, raw_dir, store, config)
@@ -257,7 +259,7 @@ def stage(
     _print_published(out)
     stale = [s for s in dependents if s != "report"]
     rows = {r["stage"]: r for r in getattr(out, "stages", [])}
-    if not downstream and stale and rows.get(name, {}).get("status") == "published":
+    if not downstream and stale and any(rows.get(n, {}).get("status") == "published" for n in names):
         console.print(f"note: {', '.join(stale)} still use(s) the previous {name} products; "
                       f"'hadal stage {name} {raw_dir} --downstream' re-runs them", highlight=False)
 

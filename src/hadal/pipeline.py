@@ -17,6 +17,7 @@ from typing import TYPE_CHECKING, Any
 from hadal.errors import HadalError, InputError, StageError
 from hadal.plan import PlannedStage, check_plan, plan_stages, runtime_skip_reason
 from hadal.stages import (
+    STAGE_GROUPS,
     STAGE_ORDER,
     NullProgress,
     Progress,
@@ -88,12 +89,22 @@ def run_stage(name: str, ctx: StageContext, run_info: dict[str, Any] | None = No
     """Run one stage; it reads the latest upstream products and publishes new versions.
 
     Each manifest it writes records ``stage_run`` (:data:`hadal.store.STAGE_RUN`): the stage, its start time, the
-    seconds from its start to that publish, and ``run_info`` (e.g. the Prefect flow/task run ids)."""
+    seconds from its start to that publish, and ``run_info`` (e.g. the Prefect flow/task run ids).
+    A group name (:data:`hadal.stages.STAGE_GROUPS`: ``grid``) runs its stages that the dive's data supports, in
+    order (an error saying why when it supports none)."""
     import datetime as _dt
     import time
 
     from hadal.store import STAGE_RUN
 
+    if name in STAGE_GROUPS:
+        claim_dive(ctx, check_only=True)  # refuse another directory's dive id before anything else
+        out: dict[str, ProductVersion] = {}
+        for ps in stage_plan(ctx, [name]):
+            if ps.run:
+                out.update(run_stage(ps.name, ctx, run_info))
+                ctx.pins.update(out)
+        return out
     mod = stage_module(name)
     if not callable(getattr(mod, "run", None)):
         raise StageError(f"stage {name!r} is not implemented in this version of hadal")
@@ -129,32 +140,39 @@ class RunOutcome(dict):
 
 
 def resolve_stages(stages: Sequence[str] | None = None) -> list[str]:
-    """Validate a stage selection and return it in execution order (all implemented stages by default)."""
+    """Validate a stage selection (group names such as ``grid`` expanded: :data:`hadal.stages.STAGE_GROUPS`) and
+    return it in execution order (all implemented stages by default)."""
     avail = available_stages()
     if not stages:
         return avail
-    unknown = [s for s in stages if s not in STAGE_ORDER]
+    named = {m for s in stages for m in STAGE_GROUPS.get(s, (s,))}
+    unknown = [s for s in named if s not in STAGE_ORDER]
     if unknown:
-        raise StageError(f"unknown stage(s) {', '.join(unknown)}; stages are: {', '.join(avail)}")
-    missing = [s for s in stages if s not in avail]
+        groups = "; ".join(f"{g} = {' + '.join(m)}" for g, m in STAGE_GROUPS.items())
+        raise StageError(f"unknown stage(s) {', '.join(sorted(unknown))}; stages are: {', '.join(avail)} "
+                         f"({groups})")
+    missing = [s for s in named if s not in avail]
     if missing:
-        raise StageError(f"stage(s) {', '.join(missing)} not implemented; available: {', '.join(avail)}")
-    return [s for s in STAGE_ORDER if s in stages]
+        raise StageError(f"stage(s) {', '.join(sorted(missing))} not implemented; available: {', '.join(avail)}")
+    return [s for s in STAGE_ORDER if s in named]
 
 
 def stage_plan(ctx: StageContext, stages: Sequence[str] | None = None) -> list[PlannedStage]:
     """The run plan (:func:`hadal.plan.plan_stages`) for ``ctx``'s dive, checked (:func:`hadal.plan.check_plan`).
 
     A stage named explicitly in ``stages`` that the data cannot support is an error (saying why); in a
-    whole-dive run (``stages`` empty) such stages are skipped and logged.
+    whole-dive run (``stages`` empty), and for a group name (``grid``) while another of its stages runs, such
+    stages are skipped and logged.
     """
     if not ctx.dive.sources.kinds() and not stages:
         raise InputError(f"{ctx.raw_dir}/dive.yaml lists no source files: nothing to process (hadal init "
                          f"{ctx.raw_dir} lists what it finds there)")
     plan = plan_stages(ctx.dive, stages, store=ctx.store if stages else None)
     check_plan(ctx.dive, plan)
-    if stages:
-        refused = [ps for ps in plan if not ps.run]
+    if stages:  # a group's stage the data cannot support is skipped while another of the group runs
+        runs = {ps.name for ps in plan if ps.run}
+        grouped = {m for g in stages for m in STAGE_GROUPS.get(g, ()) if runs & set(STAGE_GROUPS[g])}
+        refused = [ps for ps in plan if not ps.run and ps.name not in grouped]
         if refused:
             raise StageError("; ".join(f"stage {ps.name} cannot run on dive {ctx.dive_id!r}: {ps.reason}"
                                        for ps in refused))

@@ -16,7 +16,7 @@ from collections.abc import Sequence
 from dataclasses import asdict, dataclass
 from typing import TYPE_CHECKING, Any
 
-from hadal.stages import STAGE_ORDER, StageInputs, stage_module
+from hadal.stages import STAGE_GROUPS, STAGE_ORDER, StageInputs, stage_module
 
 if TYPE_CHECKING:
     from hadal.dive import Dive
@@ -187,15 +187,17 @@ def stage_dependencies(names: Sequence[str]) -> dict[str, set[str]]:
 
 
 def downstream_stages(name: str, stages: Sequence[str] | None = None) -> list[str]:
-    """The stages (of ``stages``, default all, in :data:`STAGE_ORDER`) that depend on ``name`` directly or through
-    other stages (``hadal stage NAME --downstream``); ``name`` itself not included."""
+    """The stages (of ``stages``, default all, in :data:`STAGE_ORDER`) that depend on ``name`` (a stage or a group
+    such as ``grid``) directly or through other stages (``hadal stage NAME --downstream``); ``name`` itself (the
+    group's stages) not included."""
     from hadal.pipeline import resolve_stages
 
     names = resolve_stages(stages)
     deps = stage_dependencies(names)
+    start = set(STAGE_GROUPS.get(name, (name,)))
     out: set[str] = set()
-    frontier = {name}
+    frontier = set(start)
     while frontier:
-        frontier = {n for n in names if n not in out and n != name and deps[n] & frontier}
+        frontier = {n for n in names if n not in out and n not in start and deps[n] & frontier}
         out |= frontier
     return [n for n in names if n in out]

@@ -20,8 +20,8 @@ from hadal.store import ProductStore, ProductVersion
 
 #: (product, stage that makes it) in pipeline order; the report reads all of them when present.
 REPORT_INPUTS: tuple[tuple[str, str], ...] = (
-    ("sensors", "ingest"), ("ctd", "derive"), ("profile", "derive"), ("dtm", "grid"),
-    ("laser_grids", "grid"), ("suitability", "suitability"), ("match", "match"), ("landing", "landing"),
+    ("sensors", "ingest"), ("ctd", "derive"), ("profile", "derive"), ("dtm", "dtm"),
+    ("laser_grids", "laser"), ("suitability", "suitability"), ("match", "match"), ("landing", "landing"),
 )
 #: products made only when the data calls for them (external Sea-Bird casts): read when present, never "missing"
 REPORT_OPTIONAL: tuple[tuple[str, str], ...] = (("casts", "ingest"), ("cast_profiles", "derive"),
@@ -127,7 +127,7 @@ def load_products(store: ProductStore, dive: str, skipped_stages: set[str] | Non
     ``skipped_stages``: stages the dive's data does not support (the report lists them with the reason, so
     their missing products get no note here; ``expected``: the products the run's plan makes, the only ones
     whose absence is noted). A dive with no product at all is a :class:`StageError` (any
-    source file makes ingest or grid run, so that means the pipeline has not run).
+    source file makes ingest, dtm or laser run, so that means the pipeline has not run).
     """
     versions = latest_versions(store, dive, pins)
     if not versions:

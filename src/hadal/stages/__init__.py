@@ -10,8 +10,13 @@ Each stage module ``hadal.stages.<name>`` defines
   stage would run (e.g. ``match`` needs an altimeter and dead reckoning in ``ctd``);
 * ``run(ctx: StageContext) -> dict[str, ProductVersion]`` — do the work and publish.
 
-The Prefect tasks in ``tasks/`` are thin wrappers around ``run``; the flow in ``flows/`` calls them
-in :data:`STAGE_ORDER`. Data flows one way: raw → ingest → derive → grid → suitability/match → landing → report.
+* optionally ``SECTION`` — the configuration section it reads when that is not named after it (``dtm`` and
+  ``laser`` share ``grid``) and ``PARAM_FIELDS`` — the fields of that section it uses (its cache fingerprint and
+  manifests record only those, so a laser setting does not re-run the DTM).
+
+The Prefect tasks in ``tasks/`` are thin wrappers around ``run``; the flow in ``flows/`` runs each as soon as the
+stages it reads from are done. Data flows one way: raw → ingest → derive; raw → dtm → suitability → match;
+raw → laser → landing; all → report. ``grid`` names the two gridding stages together (:data:`STAGE_GROUPS`).
 """
 
 from __future__ import annotations
@@ -33,8 +38,14 @@ if TYPE_CHECKING:
 
 T = TypeVar("T")
 
-#: Stages in execution order. Only stages whose module defines ``run`` are part of the pipeline.
-STAGE_ORDER: tuple[str, ...] = ("ingest", "derive", "grid", "suitability", "match", "landing", "report")
+#: Stages in execution order (also the flow's priority among ready stages). Only stages whose module defines
+#: ``run`` are part of the pipeline.
+STAGE_ORDER: tuple[str, ...] = ("ingest", "derive", "dtm", "laser", "suitability", "match", "landing", "report")
+
+#: Names that stand for several stages wherever a stage is named (``hadal stage grid``, ``run_stage("grid")``):
+#: ``grid`` is the DTM and the laser grids, one stage before they were split so that each runs (and re-runs)
+#: on its own inputs and parameters.
+STAGE_GROUPS: dict[str, tuple[str, ...]] = {"grid": ("dtm", "laser")}
 
 
 @dataclass(frozen=True)
@@ -48,7 +59,7 @@ class StageInputs:
       prior grid, ``laser_grids`` from laser files); products not named here are made whenever it runs;
     * ``always``: run even without any input (``report``: it says what was skipped and why);
     * ``needs_launch``: the dive's launch position is required (the plan is refused, naming the stage);
-    * ``reads_raw``: the stage reads the ``raw_any`` files themselves (ingest, grid), so they are part of its
+    * ``reads_raw``: the stage reads the ``raw_any`` files themselves (ingest, dtm, laser), so they are part of its
       cache fingerprint (``hadal.tasks.stage``); ``match`` only needs a vehicle log to exist;
     * ``frame_for``: products whose making needs the dive's map frame (``map_frame`` or ``launch``);
     * ``optional_products``: products made only when the data calls for them (not promised by the plan).
@@ -128,13 +139,20 @@ class StageContext:
                 self.pins[product] = self.store.latest(self.dive_id, product)
 
     def params(self, stage: str) -> dict[str, Any]:
-        section = self.config.section(stage)
-        return section.model_dump(mode="json") if section is not None else {}
+        """Stage ``stage``'s parameters: its configuration section (``SECTION``, default the stage's name), only
+        the fields it uses (``PARAM_FIELDS``) when the section is shared; canonical for fingerprints/manifests."""
+        mod = stage_module(stage) if stage in STAGE_ORDER else None
+        section = self.config.section(getattr(mod, "SECTION", stage))
+        if section is None:
+            return {}
+        fields = getattr(mod, "PARAM_FIELDS", None)
+        return section.model_dump(mode="json", include=set(fields) if fields is not None else None)
 
 
 def stage_module(name: str) -> ModuleType:
     if name not in STAGE_ORDER:
-        raise StageError(f"unknown stage {name!r}; stages are: {', '.join(available_stages())}")
+        group = f" ({name} stands for {', '.join(STAGE_GROUPS[name])})" if name in STAGE_GROUPS else ""
+        raise StageError(f"unknown stage {name!r}{group}; stages are: {', '.join(available_stages())}")
     return importlib.import_module(f"hadal.stages.{name}")
 
 

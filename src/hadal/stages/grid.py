@@ -1,18 +1,22 @@
-"""Stage ``grid``: multibeam soundings or a prior grid -> reference DTM (``dtm``), laser inputs -> ``laser_grids``.
+"""Gridding: the ``dtm`` and ``laser`` stages (:mod:`hadal.stages.dtm`, :mod:`hadal.stages.laser`), which share the
+configuration section ``grid`` (:class:`Params`); ``hadal stage grid`` runs both.
 
-Reads the raw files listed in ``dive.yaml``; no upstream product. Science in :mod:`hadal.grid`.
+Both read the raw files listed in ``dive.yaml``; no upstream product. Science in :mod:`hadal.grid`.
 
-* ``dtm``: ``sources.multibeam`` soundings gridded at ``dtm_resolution_m`` (:func:`make_dtm`); without
-  soundings, the first ``sources.prior_grid`` (GeoTIFF, NetCDF COARDS/CF, GMT netCDF .grd, other GDAL
+* ``dtm`` (:func:`run_dtm`): ``sources.multibeam`` soundings gridded at ``dtm_resolution_m`` (:func:`make_dtm`);
+  without soundings, the first ``sources.prior_grid`` (GeoTIFF, NetCDF COARDS/CF, GMT netCDF .grd, other GDAL
   rasters) resampled onto the map frame at about its native resolution (:mod:`hadal.grid.prior`: CRS,
   registration and elevation/depth sign handled and recorded in the attributes). With both, multibeam
   wins: the prior grid is not used, or (``prior_fill``) fills the DTM's empty cells (``filled`` = 2).
-* ``laser_grids``: one ``<stem>.nc`` per ``sources.laser`` entry whatever its name (stems made unique),
-  the kind detected from the content: point clouds (PLY, PCD, LAS/LAZ, xyz text) gridded at
+* ``laser_grids`` (:func:`run_laser`): one ``<stem>.nc`` per ``sources.laser`` entry whatever its name (stems made
+  unique), the kind detected from the content: point clouds (PLY, PCD, LAS/LAZ, xyz text) gridded at
   ``laser_resolution_m`` (:func:`hadal.grid.laser.grid_laser`), rasters (GeoTIFF, NetCDF) loaded at their
   own resolution (:func:`hadal.grid.laser.laser_grid_from_raster`). ``elevation_m`` is positive up.
 
-Every bad input is a one-line :class:`InputError` naming the file, and nothing is published.
+The two were one stage; split, the DTM chain (dtm -> suitability -> match) no longer waits for the laser clouds,
+and a laser setting re-runs only the laser grids (each stage's fingerprint holds only the fields it uses:
+:data:`DTM_FIELDS`, :data:`LASER_FIELDS`). Every bad input is a one-line :class:`InputError` naming the file, and
+the stage publishes nothing: all of a stage's inputs are gridded before its product is published.
 """
 
 from __future__ import annotations
@@ -25,19 +29,12 @@ from pydantic import BaseModel, ConfigDict, Field, field_validator
 from hadal.budget import check_memory, memory_limit_bytes
 from hadal.errors import ConfigError, InputError, StageError
 from hadal.grid.points import DEFAULT_MAX_CELLS
-from hadal.stages import StageInputs
 
 if TYPE_CHECKING:
     import numpy as np
 
     from hadal.stages import StageContext
     from hadal.store import ProductVersion
-
-PRODUCTS = ("dtm", "laser_grids")
-UPSTREAM: tuple[str, ...] = ()
-INPUTS = StageInputs(raw_any=("multibeam", "prior_grid", "laser"),
-                     product_sources={"dtm": ("multibeam", "prior_grid"), "laser_grids": ("laser",)},
-                     reads_raw=True, frame_for=("dtm",))
 
 
 class Params(BaseModel):
@@ -101,6 +98,13 @@ class Params(BaseModel):
         if v and importlib.util.find_spec("zarr") is None:
             raise ValueError("grid.zarr is on but the zarr package is not installed (pip install 'hadal[zarr]')")
         return v
+
+
+#: the ``grid`` fields the ``laser`` stage uses (its fingerprint and manifest); the ``dtm`` stage uses the others
+LASER_FIELDS: tuple[str, ...] = ("laser_resolution_m", "laser_voxel_m", "laser_sor_neighbors", "laser_sor_std_ratio",
+                                 "laser_surface_tol_m", "laser_frame", "max_cells", "zarr", "zarr_chunk")
+#: the ``grid`` fields the ``dtm`` stage uses
+DTM_FIELDS: tuple[str, ...] = tuple(f for f in Params.model_fields if not f.startswith("laser_"))
 
 
 #: float64 (y, x) layers a multibeam DTM holds at its peak (mean, median, count, std, uncertainty, filled and the
@@ -673,31 +677,29 @@ def _publish_laser_grids(ctx: StageContext, p: Params, params: dict, laser: list
     return draft.result
 
 
-def run(ctx: StageContext) -> dict[str, ProductVersion]:
+def run_dtm(ctx: StageContext) -> dict[str, ProductVersion]:
+    """Stage ``dtm``: the reference DTM from the dive's multibeam soundings, else from its first prior grid."""
     p: Params = ctx.config.grid
     src = ctx.dive.sources
-    if not src.multibeam and not src.laser and not src.prior_grid:
-        raise StageError(f"dive {ctx.dive_id!r} lists no multibeam, prior_grid or laser sources in dive.yaml; "
-                         "nothing to grid")
-    params = ctx.params("grid")
-    limit = memory_limit_bytes(ctx.config)
-
-    # compute everything first, then publish: a bad laser file must not leave a lone new dtm version
+    if not src.multibeam and not src.prior_grid:
+        raise StageError(f"dive {ctx.dive_id!r} lists no multibeam or prior_grid sources in dive.yaml; no DTM to "
+                         "make")
     readers: dict[str, str] = {}
     priors = _existing(ctx, src.prior_grid, "prior grid")
-    dtm = None
     if src.multibeam:
-        dtm = _multibeam_dtm(ctx, p, priors, readers, limit)
-    elif priors:
+        dtm = _multibeam_dtm(ctx, p, priors, readers, memory_limit_bytes(ctx.config))
+    else:
         dtm = _prior_grid_dtm(ctx, p, priors, readers)
-    if dtm is not None:
-        _compress(dtm.ds)
-    laser = _existing(ctx, src.laser, "laser")
-    grids = _grid_laser_inputs(ctx, p, laser, readers, limit)
+    _compress(dtm.ds)
+    return {"dtm": _publish_dtm(ctx, p, ctx.params("dtm"), dtm, readers)}
 
-    out: dict[str, ProductVersion] = {}
-    if dtm is not None:
-        out["dtm"] = _publish_dtm(ctx, p, params, dtm, readers)
-    if grids:
-        out["laser_grids"] = _publish_laser_grids(ctx, p, params, laser, grids, readers)
-    return out
+
+def run_laser(ctx: StageContext) -> dict[str, ProductVersion]:
+    """Stage ``laser``: every laser input gridded (all of them before anything is published)."""
+    p: Params = ctx.config.grid
+    if not ctx.dive.sources.laser:
+        raise StageError(f"dive {ctx.dive_id!r} lists no laser sources in dive.yaml; no laser grids to make")
+    readers: dict[str, str] = {}
+    laser = _existing(ctx, ctx.dive.sources.laser, "laser")
+    grids = _grid_laser_inputs(ctx, p, laser, readers, memory_limit_bytes(ctx.config))
+    return {"laser_grids": _publish_laser_grids(ctx, p, ctx.params("laser"), laser, grids, readers)}

@@ -1,0 +1,22 @@
+"""Stage ``dtm``: multibeam soundings (else a prior grid) -> the reference DTM (``dtm``).
+
+Parameters in section ``grid`` (the fields of :data:`hadal.stages.grid.DTM_FIELDS`); the work is
+:func:`hadal.stages.grid.run_dtm`. No upstream product: it starts with the run, beside ``ingest`` and ``laser``.
+"""
+
+from __future__ import annotations
+
+from hadal.stages import StageInputs
+from hadal.stages.grid import DTM_FIELDS, Params
+from hadal.stages.grid import run_dtm as run
+
+__all__ = ["Params", "run"]
+
+SECTION = "grid"
+PARAM_FIELDS = DTM_FIELDS
+#: CPU-bound for seconds (much of it holding the GIL): a flow runs it in its own process when another stage
+#: can run beside it (:func:`flows.post_cruise.process_stages`)
+PROCESS = True
+PRODUCTS = ("dtm",)
+UPSTREAM: tuple[str, ...] = ()
+INPUTS = StageInputs(raw_any=("multibeam", "prior_grid"), reads_raw=True, frame_for=("dtm",))

@@ -1,0 +1,23 @@
+"""Stage ``laser``: laser point clouds and rasters -> uniform elevation grids (``laser_grids``).
+
+Parameters in section ``grid`` (the fields of :data:`hadal.stages.grid.LASER_FIELDS`: ``laser_*``, ``max_cells``,
+``zarr``); the work is :func:`hadal.stages.grid.run_laser`. No upstream product: it starts with the run, and
+``landing`` waits for it alone.
+"""
+
+from __future__ import annotations
+
+from hadal.stages import StageInputs
+from hadal.stages.grid import LASER_FIELDS, Params
+from hadal.stages.grid import run_laser as run
+
+__all__ = ["Params", "run"]
+
+SECTION = "grid"
+PARAM_FIELDS = LASER_FIELDS
+#: CPU-bound for seconds (much of it holding the GIL): a flow runs it in its own process when another stage
+#: can run beside it (:func:`flows.post_cruise.process_stages`)
+PROCESS = True
+PRODUCTS = ("laser_grids",)
+UPSTREAM: tuple[str, ...] = ()
+INPUTS = StageInputs(raw_any=("laser",), reads_raw=True)
