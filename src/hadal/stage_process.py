@@ -74,7 +74,7 @@ def _child(q: Any, name: str, kwargs: dict[str, Any], log_level: int, progress: 
         lg.addHandler(logging.handlers.QueueHandler(q))
         lg.setLevel(level)
         lg.propagate = False
-    warnings.filters[:] = warning_filters  # the parent's (e.g. the CLI's ignores), else Python's defaults
+    warnings.filters[:] = warning_filters  # type: ignore[index]  # the parent's filters (e.g. the CLI's ignores)
     logging.captureWarnings(True)  # a warning goes back as a record of "py.warnings", shown by the parent
     try:
         from hadal.pipeline import make_context, pin_paths, run_stage
