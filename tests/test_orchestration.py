@@ -364,12 +364,13 @@ def test_stage_graph_runs_at_most_max_running_stages_ready_ones_in_plan_order(tm
 
 
 def test_process_stages_are_the_cpu_bound_ones_that_can_overlap_another_stage():
-    """Oracle: the dependency diagram of docs/operations.md: in a full run dtm, laser, match and landing each have a
-    stage beside them; in a chain (dtm -> suitability -> match) nothing can overlap, so nothing pays a process."""
+    """Oracle: the dependency diagram of docs/operations.md: in a full run dtm and laser each have a stage beside
+    them; in a chain (dtm -> suitability -> match) nothing can overlap, so nothing pays a process; match and
+    landing (no PROCESS flag) stay in threads."""
     from hadal.flows.post_cruise import process_stages
 
     full = ["ingest", "derive", "dtm", "laser", "suitability", "match", "landing", "report"]
-    assert process_stages(full) == {"dtm", "laser", "match", "landing"}
+    assert process_stages(full) == {"dtm", "laser"}
     assert process_stages(["dtm", "suitability", "match", "report"]) == set()
     assert process_stages(["ingest", "derive", "dtm", "suitability", "match", "report"]) == {"dtm"}
     assert process_stages(["laser", "landing", "report"]) == set()

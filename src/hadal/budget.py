@@ -55,7 +55,7 @@ class Params(BaseModel):
                     "against max_memory_gb on its own")
     stage_processes: bool = Field(
         True,
-        description="run the CPU-heavy stages (dtm, laser, match, landing) of a dive's flow run in their own "
+        description="run the gridding stages (dtm, laser) of a dive's flow run in their own "
                     "process while another stage can run beside them, so they do not share one Python GIL")
 
 

@@ -31,9 +31,6 @@ if TYPE_CHECKING:
     import pandas as pd
     import xarray as xr
 
-#: CPU-bound for seconds (much of it holding the GIL): a flow runs it in its own process when another stage
-#: can run beside it (:func:`flows.post_cruise.process_stages`)
-PROCESS = True
 PRODUCTS = ("landing",)
 UPSTREAM = ("laser_grids",)
 INPUTS = StageInputs(upstream=("laser_grids",))

@@ -68,9 +68,6 @@ if TYPE_CHECKING:
     import pandas as pd
     import xarray as xr
 
-#: CPU-bound for seconds (much of it holding the GIL): a flow runs it in its own process when another stage
-#: can run beside it (:func:`flows.post_cruise.process_stages`)
-PROCESS = True
 PRODUCTS = ("match", "navigation")
 UPSTREAM = ("dtm", "ctd")
 INPUTS = StageInputs(raw_any=("mcap", "csv"), upstream=("dtm", "ctd"), optional_upstream=("suitability",),
