@@ -488,3 +488,52 @@ def test_cached_result_reads_prefect_records_and_refuses_what_it_cannot_trust(tm
     assert cached_result(tmp_path, "future") == value
     for key in ("expired", "object", "garbled", "absent"):
         assert cached_result(tmp_path, key) is None, key
+
+
+@pytest.mark.prefect
+def test_stage_grid_runs_the_group_and_names_only_what_its_fresh_members_made_stale(tmp_path, prefect_harness,
+                                                                                   monkeypatch, capsys):
+    """`hadal stage grid` (the group dtm + laser) on a dive with multibeam and laser: after a changed laser
+    parameter only `laser` publishes (dtm is a cache hit), so the stale note names landing, not suitability;
+    `--downstream` then re-runs landing and leaves suitability's version. Oracle: the stage dependencies of
+    docs/operations.md and the versions in the store."""
+    import gzip
+
+    import numpy as np
+    import yaml
+
+    from hadal.geo import LocalFrame
+
+    rng = np.random.default_rng(3)
+    raw = tmp_path / "raw" / "g1"
+    (raw / "multibeam").mkdir(parents=True)
+    (raw / "laser").mkdir()
+    frame = LocalFrame(11.33, 142.2)
+    x, y = rng.uniform(-800, 800, 4000), rng.uniform(-800, 800, 4000)
+    lon, lat = frame.to_lonlat(x, y)
+    with gzip.open(raw / "multibeam" / "line.xyz.gz", "wt") as fh:
+        np.savetxt(fh, np.column_stack([lon, lat, 8000 + 0.01 * x + rng.normal(0, 1, 4000)]), fmt="%.8f %.8f %.3f")
+    pts = np.column_stack([rng.uniform(0, 1.0, 20000), rng.uniform(0, 1.0, 20000), -1400 + 0.001 * rng.normal(size=20000)])
+    head = (f"ply\nformat binary_little_endian 1.0\nelement vertex {len(pts)}\n"
+            "property double x\nproperty double y\nproperty double z\nend_header\n").encode()
+    (raw / "laser" / "s1.ply").write_bytes(head + pts.astype("<f8").tobytes())
+    (raw / "dive.yaml").write_text(yaml.safe_dump({
+        "dive_id": "g1", "platform": "test", "map_frame": {"origin_latitude_deg": 11.33, "origin_longitude_deg": 142.2},
+        "sources": {"multibeam": ["multibeam/line.xyz.gz"], "laser": ["laser/s1.ply"]}}))
+    store = tmp_path / "store"
+    rc, _, err = cli(monkeypatch, capsys, "run", str(raw), "--store", str(store))
+    assert rc == 0, err
+    st = ProductStore(store)
+    assert st.has("g1", "dtm") and st.has("g1", "laser_grids") and st.has("g1", "suitability")
+    cfg = tmp_path / "laser.yaml"
+    cfg.write_text("grid: {laser_sor_std_ratio: 2.5}\n")
+    rc, out, err = cli(monkeypatch, capsys, "stage", "grid", str(raw), "--store", str(store), "--config", str(cfg))
+    assert rc == 0, err
+    text = " ".join(err.split())  # notes go to stderr, the table to stdout
+    assert st.latest("g1", "dtm").label == "v001" and st.latest("g1", "laser_grids").label == "v002"
+    assert "note: landing still use(s) the previous laser products" in text, err
+    rc, out, err = cli(monkeypatch, capsys, "stage", "grid", str(raw), "--store", str(store), "--config", str(cfg),
+                       "--downstream")
+    assert rc == 0, err
+    assert st.latest("g1", "landing").label == "v002" and st.latest("g1", "suitability").label == "v001"
+    assert "still use" not in err

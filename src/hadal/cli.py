@@ -257,10 +257,12 @@ def stage(
     stages = _runnable_with(stages, raw_dir, store, config)
     out = _run_flow(raw_dir, store, config, stages, force, flow_run)
     _print_published(out)
-    stale = [s for s in dependents if s != "report"]
     rows = {r["stage"]: r for r in getattr(out, "stages", [])}
-    if not downstream and stale and any(rows.get(n, {}).get("status") == "published" for n in names):
-        console.print(f"note: {', '.join(stale)} still use(s) the previous {name} products; "
+    fresh = [n for n in names if rows.get(n, {}).get("status") == "published"]  # of a group: those that published
+    stale_set = {s for n in fresh for s in downstream_stages(n)} - {"report"}
+    stale = [s for s in dependents if s in stale_set]
+    if not downstream and stale:
+        console.print(f"note: {', '.join(stale)} still use(s) the previous {'/'.join(fresh)} products; "
                       f"'hadal stage {name} {raw_dir} --downstream' re-runs them", highlight=False)
 
 
