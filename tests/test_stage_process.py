@@ -151,3 +151,42 @@ def test_an_orphaned_child_stops_by_itself(tmp_path):
         psutil.Process(pid).kill()
         pytest.fail("the orphaned stage process kept running")
     assert not list((tmp_path / "s").glob("P001/dtm/v*/manifest.json"))  # it stopped before publishing
+
+
+def test_the_child_ignores_a_terminal_ctrl_c_the_parent_decides(tmp_path):
+    """Ctrl-C in a terminal sends SIGINT to the whole process group: the child keeps going (the CLI's handler
+    stops children with SIGTERM itself), so a library caller that catches it still gets the stage's result.
+    The SIGINT is sent once the child logged "stage dtm: start" (inside the stage, past its start-up)."""
+    import signal
+
+    psutil = pytest.importorskip("psutil")
+    raw = _dive(tmp_path / "raw", lines=2, n=100_000)
+    started = threading.Event()
+
+    class _Started(logging.Handler):
+        def emit(self, record):
+            if record.getMessage().startswith("stage dtm: start"):
+                started.set()
+
+    sent: list[int] = []
+
+    def interrupt():
+        if started.wait(60):
+            for k in psutil.Process().children():
+                if "spawn_main" in " ".join(k.cmdline()):
+                    os.kill(k.pid, signal.SIGINT)
+                    sent.append(k.pid)
+
+    hlog = logging.getLogger("hadal")
+    handler, old = _Started(logging.INFO), hlog.level
+    hlog.addHandler(handler)
+    hlog.setLevel(logging.INFO)
+    t = threading.Thread(target=interrupt, daemon=True)
+    t.start()
+    try:
+        out = run_stage_in_process("dtm", raw_dir=str(raw), store_root=str(tmp_path / "s"), progress=False)
+    finally:
+        hlog.removeHandler(handler)
+        hlog.setLevel(old)
+    t.join()
+    assert sent and out["dtm"].endswith("dtm/v001")

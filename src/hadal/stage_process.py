@@ -25,6 +25,7 @@ import multiprocessing as mp
 import os
 import pickle
 import queue as _queue
+import signal
 import sys
 import threading
 import time
@@ -67,6 +68,9 @@ def _portable(exc: BaseException) -> BaseException:
 
 def _child(q: Any, name: str, kwargs: dict[str, Any], log_level: int, progress: bool, parent_pid: int,
            warning_filters: list[Any]) -> None:
+    # Ctrl-C in a terminal reaches the whole process group: the parent decides (the CLI stops its children with
+    # SIGTERM and says what was left unpublished), so the child does not die half-way with its own traceback
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
     threading.Thread(target=_watch_parent, args=(parent_pid,), daemon=True, name="parent-watchdog").start()
     for logger_name, level in (("hadal", log_level), ("py.warnings", logging.WARNING)):
         lg = logging.getLogger(logger_name)
