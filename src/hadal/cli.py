@@ -23,7 +23,7 @@ import os
 import sys
 import threading
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Any
 
 import typer
 from rich.console import Console
@@ -856,6 +856,15 @@ def _install_signal_handlers() -> None:
             pass
 
 
+def _is_resource_tracker(proc: Any) -> bool:
+    """multiprocessing's resource tracker (started with the stage processes): it ignores SIGINT/SIGTERM by design
+    and exits by itself when this process does, so waiting for it would only delay the exit by the timeout."""
+    try:
+        return "multiprocessing.resource_tracker" in " ".join(proc.cmdline())
+    except Exception:  # noqa: BLE001 - gone or unreadable: treat it as an ordinary child
+        return False
+
+
 def _stop_children(timeout: float = 5.0) -> None:
     """Stop Prefect's temporary server(s) and every remaining child process (Dask workers, ...); never raises."""
     import signal
@@ -870,7 +879,7 @@ def _stop_children(timeout: float = 5.0) -> None:
     try:
         import psutil
 
-        kids = psutil.Process().children(recursive=True)
+        kids = [k for k in psutil.Process().children(recursive=True) if not _is_resource_tracker(k)]
         for k in kids:
             try:
                 k.terminate()

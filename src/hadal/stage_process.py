@@ -39,6 +39,8 @@ log = logging.getLogger("hadal.stage_process")
 
 #: seconds between the child's checks that its parent is still alive
 WATCHDOG_INTERVAL_S = 1.0
+#: -W option of the resource tracker: no "leaked semaphore objects to clean up" warning after an interrupt
+_QUIET_TRACKER = "ignore:resource_tracker:UserWarning"
 
 
 def can_isolate() -> bool:
@@ -137,6 +139,11 @@ def run_stage_in_process(name: str, *, raw_dir: str, store_root: str | None = No
                          progress: bool = True) -> dict[str, str]:
     """Run stage ``name`` (:func:`hadal.pipeline.run_stage`) in a fresh ``spawn`` child process; returns
     ``{product: version directory}``. Blocks the calling thread, which re-emits the child's log records."""
+    if _QUIET_TRACKER not in sys.warnoptions:
+        # multiprocessing's resource tracker (started with the first child, given this interpreter's -W flags)
+        # removes the queue's semaphores when a killed run leaves them, and would warn about it on the terminal
+        # after every Ctrl-C; the clean-up is its job, the warning only noise
+        sys.warnoptions.append(_QUIET_TRACKER)
     spawn = mp.get_context("spawn")
     q = spawn.Queue()
     kwargs = {"raw_dir": str(raw_dir), "store_root": None if store_root is None else str(store_root),
