@@ -79,28 +79,15 @@ class DiveRun:
 
 def process_stages(names: list[str]) -> set[str]:
     """The stages of ``names`` to run in their own process (:mod:`hadal.stage_process`): those whose module says
-    ``PROCESS = True`` (CPU-bound for seconds, much of it holding the GIL) and that may run at the same time as
-    another stage of the run (neither upstream nor downstream of it); a stage that always runs alone gains
-    nothing from a process but pays its start (about 2 s of imports)."""
+    ``PROCESS = True`` and that may run at the same time as another stage of the run (neither upstream nor
+    downstream of it: :func:`hadal.plan.downstream_stages`); a stage that always runs alone gains nothing from a
+    process but pays its start (about 1.5 s of imports)."""
+    from hadal.plan import downstream_stages
     from hadal.stages import stage_module
 
-    deps = stage_dependencies(names)
-    up = {n: set(deps[n]) for n in names}  # transitive upstream stages
-    changed = True
-    while changed:
-        changed = False
-        for n in names:
-            more = set().union(*(up[p] for p in up[n])) - up[n]
-            if more:
-                up[n] |= more
-                changed = True
-    out = set()
-    for n in names:
-        if not getattr(stage_module(n), "PROCESS", False):
-            continue
-        if any(o != n and o not in up[n] and n not in up[o] for o in names):
-            out.add(n)
-    return out
+    down = {n: set(downstream_stages(n, names)) for n in names}
+    return {n for n in names if getattr(stage_module(n), "PROCESS", False)
+            and any(o != n and o not in down[n] and n not in down[o] for o in names)}
 
 
 def run_stage_graph(dives: list[DiveRun], store_root: str | None, config_path: str | None, force: bool,

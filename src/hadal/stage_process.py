@@ -3,9 +3,10 @@
 Why: the flow runs stages whose inputs are ready concurrently (``flows/post_cruise.py``), but several of the heavy
 steps hold the GIL for seconds (open3d's ``remove_statistical_outlier`` was measured to hold it: a Python thread
 spinning beside it got 1/75 of its solo rate), so two threads gained little on a 2-core machine: the DTM stage took
-27–29 s beside the laser stage against 11 s alone. A stage module that declares ``PROCESS = True`` (dtm, laser) runs in its own ``spawn``-ed interpreter when it
-can overlap another stage of the run (match and landing too measured slower: a child pays ~1.5 s of imports, and
-their kernels already release the GIL; ``docs/operations.md``).
+27–29 s beside the laser stage against 11 s alone. A stage module that declares ``PROCESS = True`` (dtm, laser)
+runs in its own ``spawn``-ed interpreter when it can overlap another stage of the run (match and landing too
+measured slower: a child pays ~1.5 s of imports, and their kernels already release the GIL;
+``docs/operations.md``).
 
 The parent (a flow's task thread) keeps everything Prefect: the child is Prefect-free and gets plain values
 (raw dir, store root, config path, pins, run ids). Its log records come back through a queue and are re-emitted in
@@ -35,8 +36,6 @@ from typing import Any
 
 from hadal.errors import HadalError, StageError
 
-log = logging.getLogger("hadal.stage_process")
-
 #: seconds between the child's checks that its parent is still alive
 WATCHDOG_INTERVAL_S = 1.0
 #: -W option of the resource tracker: no "leaked semaphore objects to clean up" warning after an interrupt
@@ -56,8 +55,8 @@ def _watch_parent(parent_pid: int) -> None:
 
 
 def _portable(exc: BaseException) -> BaseException:
-    """``exc`` if it survives a pickle round trip, else a :class:`StageError` (HadalError) or RuntimeError with its
-    text and the child's traceback as a note."""
+    """``exc`` if it survives a pickle round trip, else a :class:`StageError` (HadalError) or RuntimeError with the
+    first line of its text (its type named for a RuntimeError)."""
     try:
         pickle.loads(pickle.dumps(exc))
         return exc

@@ -55,8 +55,8 @@ class StageInputs:
     * ``raw_any``: at least one of these ``dive.yaml`` source kinds must list a file (empty: no raw input);
     * ``upstream``: products that must be published by an earlier stage (or already be in the store);
     * ``optional_upstream``: products it uses when they exist (``report`` reads whatever is there);
-    * ``product_sources``: which raw kinds make which of its products (``grid``: ``dtm`` from multibeam or a
-      prior grid, ``laser_grids`` from laser files); products not named here are made whenever it runs;
+    * ``product_sources``: which raw kinds make which of its products (``ingest``: ``casts`` only from
+      Sea-Bird ``cnv`` files); products not named here are made whenever it runs;
     * ``always``: run even without any input (``report``: it says what was skipped and why);
     * ``needs_launch``: the dive's launch position is required (the plan is refused, naming the stage);
     * ``reads_raw``: the stage reads the ``raw_any`` files themselves (ingest, dtm, laser), so they are part of its

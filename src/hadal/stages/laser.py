@@ -15,8 +15,8 @@ __all__ = ["Params", "run"]
 
 SECTION = "grid"
 PARAM_FIELDS = LASER_FIELDS
-#: CPU-bound for seconds (much of it holding the GIL): a flow runs it in its own process when another stage
-#: can run beside it (:func:`flows.post_cruise.process_stages`)
+#: CPU-bound for seconds: a flow runs it in its own process when another stage can run beside it
+#: (:func:`flows.post_cruise.process_stages`; measured faster than in the flow's threads, docs/operations.md)
 PROCESS = True
 PRODUCTS = ("laser_grids",)
 UPSTREAM: tuple[str, ...] = ()
