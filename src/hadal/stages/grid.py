@@ -63,7 +63,7 @@ class Params(BaseModel):
                             "quantile; hadal.grid.laser.auto_resolution_m), recorded in the grid's "
                             "resolution_choice attribute")
     laser_voxel_m: float | None = Field(None, gt=0, le=100, description="open3d voxel down-sampling before gridding (m; off)")
-    laser_sor_neighbors: int = Field(20, ge=0, le=1000, description="open3d statistical outlier removal neighbours (0 = off; ~10 s per million points on 2 cores)")
+    laser_sor_neighbors: int = Field(20, ge=0, le=1000, description="statistical outlier removal neighbours, open3d's rule (0 = off; about 1 s of CPU per million points)")
     laser_sor_std_ratio: float = Field(3.0, gt=0, le=100, description="laser SOR threshold (standard deviations)")
     laser_surface_tol_m: float = Field(0.02, gt=0, le=100, description="SOR candidates within this (m) of their cell's surface stay")
     laser_frame: Literal["local", "map"] = Field(
