@@ -170,12 +170,17 @@ def sor_outlier_mask(points: np.ndarray, nb_neighbors: int, std_ratio: float) ->
     # the lateral plane: the pair of axes with the least search work, judged on a regular subsample
     step = max(1, n // 200_000)
     sub = pts[::step]
-    work = {ax: _sor_cells(sub, lo, *ax, k) for ax in ((0, 1), (0, 2), (1, 2))}
-    work = {ax: w[0] for ax, w in work.items() if w is not None}
-    binned = _sor_cells(pts, lo, *min(work, key=work.get), k) if work else None
+    work: dict[tuple[int, int], int] = {}
+    for ax in ((0, 1), (0, 2), (1, 2)):
+        trial = _sor_cells(sub, lo, ax[0], ax[1], k)
+        if trial is not None:
+            work[ax] = trial[0]
+    if not work:
+        return _open3d_sor_mask(pts, k, std_ratio)
+    a0, a1 = min(work, key=lambda ax: work[ax])
+    binned = _sor_cells(pts, lo, a0, a1, k)
     if binned is None:
         return _open3d_sor_mask(pts, k, std_ratio)
-    a0, a1 = min(work, key=work.get)
     _, cs, ncu, ncv, cell, counts = binned
     if counts.max() > max(64 * k, n // 100):
         return _open3d_sor_mask(pts, k, std_ratio)
@@ -185,7 +190,8 @@ def sor_outlier_mask(points: np.ndarray, nb_neighbors: int, std_ratio: float) ->
     del cell, counts
     cols = [pts[order, i] for i in range(3)]  # x, y, z in cell order (contiguous copies)
     avg_sorted = np.empty(n)
-    knn_mean_distance(*cols, cols[a0], cols[a1], starts, ncu, ncv, float(lo[a0]), float(lo[a1]), cs, k, avg_sorted)
+    knn_mean_distance(cols[0], cols[1], cols[2], cols[a0], cols[a1], starts, ncu, ncv, float(lo[a0]), float(lo[a1]),
+                      cs, k, avg_sorted)
     del cols
     avg = np.empty(n)
     avg[order] = avg_sorted
