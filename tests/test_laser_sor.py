@@ -82,3 +82,40 @@ def test_filter_cloud_uses_it():
     pts, cand, info = filter_cloud(p, sor_neighbors=20, sor_std_ratio=3.0)
     np.testing.assert_array_equal(cand, _open3d_sor_mask(p, 20, 3.0))
     assert info["n_sor_candidates"] == int(cand.sum()) > 0
+
+
+@pytest.mark.parametrize("kind", ["random", "lattice", "clustered", "line", "three"])
+def test_nearest_neighbour_equals_scipy(kind):
+    """:func:`hadal.grid.laser.nearest_neighbour_m` (the ``laser_resolution_m: auto`` spacing) against scipy's k-d tree."""
+    from scipy.spatial import cKDTree
+
+    from hadal.grid.laser import nearest_neighbour_m
+
+    rng = np.random.default_rng(11)
+    xy = rng.uniform(0, 3.0, (30_000, 2))
+    if kind == "lattice":  # a raster's points, jittered
+        g = np.arange(0, 2.0, 0.01)
+        xy = np.column_stack([a.ravel() for a in np.meshgrid(g, g)]) + rng.normal(0, 1e-4, (g.size**2, 2))
+    elif kind == "clustered":  # a dense blob: scipy fallback
+        xy = np.concatenate([xy, rng.normal(1.0, 1e-5, (5000, 2))])
+    elif kind == "line":
+        t = rng.uniform(0, 5, 10_000)
+        xy = np.column_stack([t, 0.5 * t])
+    elif kind == "three":
+        xy = xy[:3]
+    d, _ = cKDTree(xy).query(xy, k=2)
+    np.testing.assert_array_equal(nearest_neighbour_m(xy), d[:, 1])
+
+
+def test_nearest_neighbour_on_the_real_laser_raster(takuyo):
+    from scipy.spatial import cKDTree
+
+    from hadal.grid.laser import nearest_neighbour_m
+
+    z = np.asarray(takuyo.values, float)
+    yy, xx = np.meshgrid(np.asarray(takuyo[takuyo.dims[0]].values, float),
+                         np.asarray(takuyo[takuyo.dims[1]].values, float), indexing="ij")
+    ok = np.isfinite(z)
+    xy = np.column_stack([xx[ok], yy[ok]]) + np.random.default_rng(2).normal(0, 0.01, (int(ok.sum()), 2))
+    d, _ = cKDTree(xy).query(xy, k=2)
+    np.testing.assert_array_equal(nearest_neighbour_m(xy), d[:, 1])

@@ -57,15 +57,12 @@ def auto_resolution_m(points, *, quantile: float = 0.9, max_points: int = 1_000_
     Returns ``(size_m, {"nn_quantile_m", "rule"})``; above ``max_points`` a regular subsample is used and the
     distance scaled by sqrt(step) (2-D density scaling).
     """
-    from scipy.spatial import cKDTree
-
     p, _ = clean_cloud(points)
     step = max(1, int(np.ceil(len(p) / max_points)))
     xy = distinct_xy(p[::step, 0], p[::step, 1])
     if len(xy) < 3:
         return G_RES_M, {"nn_quantile_m": float("nan"), "rule": "fewer than 3 distinct x/y positions: g_res"}
-    d, _ = cKDTree(xy).query(xy, k=2)
-    q = float(np.quantile(d[:, 1], quantile)) / np.sqrt(step)
+    q = float(np.quantile(nearest_neighbour_m(xy), quantile)) / np.sqrt(step)
     target = AUTO_FACTOR * q
     if target <= G_RES_M * 1.0005:
         return G_RES_M, {"nn_quantile_m": q, "rule": f"points at least as dense as g_res (nearest-neighbour "
@@ -73,6 +70,20 @@ def auto_resolution_m(points, *, quantile: float = 0.9, max_points: int = 1_000_
     res = max(G_RES_M, float(f"{target:.3g}"))
     return res, {"nn_quantile_m": q, "rule": f"{AUTO_FACTOR:g} x the nearest-neighbour {100 * quantile:g} % "
                                              f"quantile {q:.4g} m (coarser than the paper's 10 mm g_res)"}
+
+
+def nearest_neighbour_m(xy: np.ndarray) -> np.ndarray:
+    """(M,) distance of every x/y point (distinct) to its nearest other: scipy ``cKDTree(xy).query(xy, k=2)``'s second
+    column, by the grid search of :func:`knn_mean_distance_m` on the points at z = 0 (twice the mean of 0 and that
+    distance, exact in binary) where the points suit it, else by scipy."""
+    pts = np.column_stack([np.asarray(xy, np.float64), np.zeros(len(xy))])
+    avg = knn_mean_distance_m(pts, 2) if len(pts) > 2 else None
+    if avg is None:
+        from scipy.spatial import cKDTree
+
+        d, _ = cKDTree(pts[:, :2]).query(pts[:, :2], k=2)
+        return d[:, 1]
+    return 2.0 * avg
 
 
 def coordinate_quantum_m(v, *, max_points: int = 5_000_000) -> float:
@@ -156,16 +167,28 @@ def sor_outlier_mask(points: np.ndarray, nb_neighbors: int, std_ratio: float) ->
     the ``nb_neighbors`` nearest points (the point itself included) not below ``mean + std_ratio * std`` of the
     cloud's mean distances, or zero (a point with ``nb_neighbors`` coincident copies).
 
-    Same arithmetic as open3d (:mod:`hadal.grid._sor_kernels`), with an exact neighbour search of a uniform cell grid
-    over two axes (the pair with the least search work: the lateral plane of a 2.5-D surface) instead of a k-d tree:
-    on a laser submap of even density it takes 0.55x open3d's CPU time, one thread (bench/bench_laser_sor.py;
-    ``tests/test_laser_sor.py`` checks the flags against open3d). A cloud the grid does not suit (no extent in any
-    plane, or a cell holding more than ``max(64 k, 1 %)`` of the points) goes to open3d itself."""
-    from hadal.grid._sor_kernels import knn_mean_distance, sor_keep
+    Same arithmetic as open3d (:mod:`hadal.grid._sor_kernels`), with the neighbour search of
+    :func:`knn_mean_distance_m` instead of a k-d tree: on a laser submap of even density it takes 0.55x open3d's CPU
+    time, one thread (bench/bench_laser_sor.py; ``tests/test_laser_sor.py`` checks the flags against open3d). A
+    cloud the grid does not suit goes to open3d itself."""
+    from hadal.grid._sor_kernels import sor_keep
+
+    pts = np.ascontiguousarray(points, dtype=np.float64)
+    avg = knn_mean_distance_m(pts, int(nb_neighbors))
+    if avg is None:
+        return _open3d_sor_mask(pts, int(nb_neighbors), std_ratio)
+    return ~sor_keep(avg, float(std_ratio))
+
+
+def knn_mean_distance_m(points: np.ndarray, k: int) -> np.ndarray | None:
+    """(N,) mean distance of every point to its ``k`` nearest points (itself included, at 0), by an exact search of
+    a uniform cell grid over two axes (the pair with the least search work: the lateral plane of a 2.5-D surface;
+    :func:`hadal.grid._sor_kernels.knn_mean_distance`); None when the cloud does not suit the grid (no extent in
+    any plane, or a cell holding more than ``max(64 k, 1 %)`` of the points)."""
+    from hadal.grid._sor_kernels import knn_mean_distance
 
     pts = np.ascontiguousarray(points, dtype=np.float64)
     n = len(pts)
-    k = int(nb_neighbors)
     lo = pts.min(axis=0)
     # the lateral plane: the pair of axes with the least search work, judged on a regular subsample
     step = max(1, n // 200_000)
@@ -176,14 +199,14 @@ def sor_outlier_mask(points: np.ndarray, nb_neighbors: int, std_ratio: float) ->
         if trial is not None:
             work[ax] = trial[0]
     if not work:
-        return _open3d_sor_mask(pts, k, std_ratio)
+        return None
     a0, a1 = min(work, key=lambda ax: work[ax])
     binned = _sor_cells(pts, lo, a0, a1, k)
     if binned is None:
-        return _open3d_sor_mask(pts, k, std_ratio)
+        return None
     _, cs, ncu, ncv, cell, counts = binned
     if counts.max() > max(64 * k, n // 100):
-        return _open3d_sor_mask(pts, k, std_ratio)
+        return None
     order = np.argsort(cell, kind="stable")
     starts = np.zeros(ncu * ncv + 1, np.int64)
     np.cumsum(counts, out=starts[1:])
@@ -195,7 +218,7 @@ def sor_outlier_mask(points: np.ndarray, nb_neighbors: int, std_ratio: float) ->
     del cols
     avg = np.empty(n)
     avg[order] = avg_sorted
-    return ~sor_keep(avg, float(std_ratio))
+    return avg
 
 
 def _sor_cells(pts: np.ndarray, lo: np.ndarray, a0: int, a1: int, k: int):
