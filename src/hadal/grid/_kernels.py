@@ -12,8 +12,17 @@ only by summation order. Compiled on first use and cached next to this file.
 
 from __future__ import annotations
 
+import os
+
+import numba
 import numpy as np
 from numba import njit, prange
+
+if not {"NUMBA_THREADING_LAYER", "NUMBA_THREADING_LAYER_PRIORITY"} & set(os.environ):
+    # numba's parallel kernels try its TBB threading layer first; next to the older TBB that open3d loads it warns
+    # ("requires TBB version 2021 update 6") and falls back to OpenMP. Asking for OpenMP first gives that same layer
+    # without the warning (every hadal run printed it). A user's NUMBA_THREADING_LAYER[_PRIORITY] is left alone.
+    numba.config.THREADING_LAYER_PRIORITY = ["omp", "workqueue", "tbb"]
 
 
 @njit(parallel=True, cache=True, nogil=True)

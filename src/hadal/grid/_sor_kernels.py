@@ -7,8 +7,8 @@ distances ``((qx - px)^2 + (qy - py)^2) + (qz - pz)^2`` in float64 (nanoflann's 
 points), square roots summed in ascending order, the cloud mean and standard deviation accumulated sequentially in
 point order over the points with a positive mean distance (Bessel-corrected over all points), a point kept when its
 mean distance is positive and below ``mean + std_ratio * std``. Ties between equal distances do not matter: only
-the multiset of the k smallest distances enters. IEEE arithmetic (no fastmath), one thread (the stage runs beside others; numba's parallel launch would also
-warn about the older TBB open3d loads). Compiled on first use and cached next to this file.
+the multiset of the k smallest distances enters. IEEE arithmetic (no fastmath), one thread (the laser stage runs
+beside other stages: its CPU time is what counts). Compiled on first use and cached next to this file.
 """
 
 from __future__ import annotations
