@@ -22,7 +22,7 @@ if not {"NUMBA_THREADING_LAYER", "NUMBA_THREADING_LAYER_PRIORITY"} & set(os.envi
     # numba's parallel kernels try its TBB threading layer first; next to the older TBB that open3d loads it warns
     # ("requires TBB version 2021 update 6") and falls back to OpenMP. Asking for OpenMP first gives that same layer
     # without the warning (every hadal run printed it). A user's NUMBA_THREADING_LAYER[_PRIORITY] is left alone.
-    numba.config.THREADING_LAYER_PRIORITY = ["omp", "workqueue", "tbb"]
+    numba.config.THREADING_LAYER_PRIORITY = ["omp", "workqueue", "tbb"]  # type: ignore[attr-defined]
 
 
 @njit(parallel=True, cache=True, nogil=True)
