@@ -38,14 +38,13 @@ def _insert(best, cnt, k, d2):  # pragma: no cover - compiled
 def _scan(x, y, z, qx, qy, qz, j0, j1, best, cnt, k, buf):  # pragma: no cover - compiled
     """Offer the points ``j0:j1`` (contiguous: cells of one row) to ``best``; returns the new count."""
     m = j1 - j0
-    for t in range(m):  # distances first: a tight loop the compiler vectorises
+    for t in range(m):  # the distances first, in a loop of their own
         dx = qx - x[j0 + t]
         dy = qy - y[j0 + t]
         dz = qz - z[j0 + t]
         buf[t] = dx * dx + dy * dy + dz * dz
     for t in range(m):
-        if cnt < k or buf[t] < best[k - 1]:
-            cnt = _insert(best, cnt, k, buf[t])
+        cnt = _insert(best, cnt, k, buf[t])  # rejects at once what is not below the k-th
     return cnt
 
 

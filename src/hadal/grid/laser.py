@@ -193,15 +193,12 @@ def knn_mean_distance_m(points: np.ndarray, k: int) -> np.ndarray | None:
     # the lateral plane: the pair of axes with the least search work, judged on a regular subsample
     step = max(1, n // 200_000)
     sub = pts[::step]
-    work: dict[tuple[int, int], int] = {}
-    for ax in ((0, 1), (0, 2), (1, 2)):
-        trial = _sor_cells(sub, lo, ax[0], ax[1], k)
-        if trial is not None:
-            work[ax] = trial[0]
+    trials = {ax: _sor_cells(sub, lo, ax[0], ax[1], k) for ax in ((0, 1), (0, 2), (1, 2))}
+    work = {ax: t[0] for ax, t in trials.items() if t is not None}
     if not work:
         return None
     a0, a1 = min(work, key=lambda ax: work[ax])
-    binned = _sor_cells(pts, lo, a0, a1, k)
+    binned = trials[(a0, a1)] if step == 1 else _sor_cells(pts, lo, a0, a1, k)  # the subsample is the cloud
     if binned is None:
         return None
     _, cs, ncu, ncv, cell, counts = binned
@@ -290,8 +287,7 @@ def grid_laser(
     """Grid a laser cloud ``(N, 3)`` (x, y, z metres, z up = elevation) at ``resolution`` (default 10 mm).
 
     Outliers: statistical outlier removal (open3d's rule, :func:`sor_outlier_mask`) proposes candidates; a
-    candidate is removed only if
-    it is also off the surface - its cell has no other point, or it lies more than
+    candidate is removed only if it is also off the surface - its cell has no other point, or it lies more than
     ``max(surface_tol_m, 4 * cell std)`` from the mean of the cell's other points. ``surface_tol_m``
     (20 mm) is ~3x the paper's 6 mm vertical resolution (Table I). This keeps the good edge points
     SOR flags along swath edges, gaps and holes, and removes returns from particles above the floor.

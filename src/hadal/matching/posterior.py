@@ -1178,14 +1178,14 @@ def _main_mode_widening(pb: _Problem, dr: _DriftStep, s2f: float, gammaf: float)
              if info.get("applied") else 1.0)
     free_a = min(pb.headings) < max(pb.headings)
     free_f = min(pb.fine_scale_list) < max(pb.fine_scale_list)
+    gamma_used = float(info["tempering"]) if info.get("applied") else float(gammaf)  # the tempering of the MAP fit
     if info.get("applied"):
         dof_inflation = _fit_dof_inflation(
-            pb.g, pb.d, pb.rel, (a_map, f_map), (x_map, y_map), dr.drift_xy, dr.B, float(info["tempering"]),
-            float(info["noise_sigma_m"]) ** 2 / (float(info["tempering"]) * dr.sigma * dr.sigma), free_a, free_f)
+            pb.g, pb.d, pb.rel, (a_map, f_map), (x_map, y_map), dr.drift_xy, dr.B, gamma_used,
+            float(info["noise_sigma_m"]) ** 2 / (gamma_used * dr.sigma * dr.sigma), free_a, free_f)
     else:
         dof_inflation = _fit_dof_inflation(pb.g, pb.d, pb.rel, (a_map, f_map), (x_map, y_map), None, None,
-                                           float(gammaf), 0.0, free_a, free_f)
-    gamma_used = float(info["tempering"]) if info.get("applied") else float(gammaf)
+                                           gamma_used, 0.0, free_a, free_f)
     sandwich = _position_variance_ratio(pb.g, pb.d, pb.rel, (a_map, f_map), (x_map, y_map), dr.drift_xy, gamma_used,
                                         free_a, free_f)
     return kappa * dof_inflation * sandwich, dof_inflation, sandwich
