@@ -66,6 +66,8 @@ def test_bad_clouds():
         grid_laser(np.zeros((10, 2)))
     with pytest.raises(InputError, match="NaN/inf"):
         grid_laser(np.full((5, 3), np.nan))
+    with pytest.raises(InputError, match="must hold numbers"):
+        grid_laser(np.array([["a", "b", "c"]] * 30))
     with pytest.raises(InputError, match="degenerate"):
         grid_laser(np.column_stack([np.zeros(50), np.linspace(0, 1, 50), np.zeros(50)]), sor_neighbors=0)
     with pytest.raises(InputError, match="exceeds the limit"):

@@ -146,7 +146,10 @@ def clean_cloud(points) -> tuple[np.ndarray, int]:
 
     Raises :class:`InputError` for a wrongly shaped, empty or all-non-finite cloud.
     """
-    p = np.asarray(points, dtype=np.float64)
+    try:
+        p = np.asarray(points, dtype=np.float64)
+    except (TypeError, ValueError) as exc:
+        raise InputError(f"a point cloud must hold numbers (x, y, z metres): {exc}") from None
     if p.ndim != 2 or p.shape[1] != 3:
         raise InputError(f"a point cloud must be an (N, 3) array of x, y, z metres, got shape {p.shape}")
     if len(p) == 0:
