@@ -239,3 +239,47 @@ def test_compiled_neighbour_spike_test_equals_reference_on_real_soundings(shared
     ref = knn_spike_mask_reference(x, y, z, floor=0.5)
     assert ref.any() and not ref.all()
     assert np.array_equal(knn_spike_mask(x, y, z, floor=0.5), ref)
+
+
+def _brute_force_neighbours(x, y, neighbours: int) -> np.ndarray:
+    """(n, neighbours) indices of every point's nearest others by (squared horizontal distance, index): the tie rule
+    the compiled grid search promises, by an all-pairs sort (independent of any tree or grid)."""
+    d2 = (x[:, None] - x[None, :]) ** 2 + (y[:, None] - y[None, :]) ** 2
+    np.fill_diagonal(d2, np.inf)  # never its own neighbour, also when a copy sits on it
+    idx = np.broadcast_to(np.arange(len(x)), d2.shape)
+    order = np.lexsort((idx, d2), axis=1)
+    return np.ascontiguousarray(order[:, :neighbours])
+
+
+@pytest.mark.parametrize("case", ["lattice", "duplicates", "blob"])
+def test_grid_neighbour_spike_test_ties_and_fallback(case):
+    """Where neighbour distances tie (a lattice of soundings, exact duplicate soundings) the grid search takes the
+    lower index, never the sounding itself: its flags equal the NumPy reference on brute-force neighbours with that
+    rule. A dense blob the grid does not suit goes to the cKDTree path: flags equal the cKDTree reference."""
+    from hadal.grid.knn_cells import lateral_cell_order
+    from hadal.grid.multibeam import knn_spike_mask, knn_spike_mask_reference
+
+    rng = np.random.default_rng(7)
+    if case == "lattice":
+        gx, gy = np.meshgrid(np.arange(40.0), np.arange(35.0))
+        x, y = gx.ravel() * 10.0, gy.ravel() * 10.0
+        perm = rng.permutation(x.size)  # index order unrelated to the cell order
+        x, y = x[perm], y[perm]
+    elif case == "duplicates":
+        x, y = rng.uniform(0, 400, 700), rng.uniform(0, 400, 700)
+        x, y = np.concatenate([x, x[:300]]), np.concatenate([y, y[:300]])  # 300 soundings twice
+    else:
+        x = np.concatenate([rng.uniform(0, 1e-3, 2000), rng.uniform(0, 500, 200)])
+        y = np.concatenate([rng.uniform(0, 1e-3, 2000), rng.uniform(0, 500, 200)])
+    z = 6000 + 0.3 * x - 0.2 * y + rng.normal(0, 1.0, x.size)
+    spikes = rng.random(x.size) < 0.03
+    z[spikes] += rng.choice([-1, 1], spikes.sum()) * rng.uniform(15, 80, spikes.sum())
+    fast = knn_spike_mask(x, y, z, floor=0.5)
+    if case == "blob":
+        assert lateral_cell_order(x, y, 16) is None  # the fallback is what is tested
+        ref = knn_spike_mask_reference(x, y, z, floor=0.5)
+    else:
+        assert lateral_cell_order(x, y, 16) is not None
+        ref = knn_spike_mask_reference(x, y, z, floor=0.5, neighbour_index=_brute_force_neighbours(x, y, 16))
+    assert ref.any() and not ref.all()
+    assert np.array_equal(fast, ref)

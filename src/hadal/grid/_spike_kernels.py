@@ -70,41 +70,139 @@ def _plane(dx, dy, v, w, nb):  # pragma: no cover - compiled
     return c0, c1, c2
 
 
+@njit(inline="always")
+def _spike_one(x, y, z, p, nbr, nb, k, floor, mad_to_sigma, dx, dy, v, w, res, tmp):  # pragma: no cover - compiled
+    """True where sounding ``p`` is a spike on the robust plane through its neighbours ``nbr[:nb]`` (indices into
+    ``x``, ``y``, ``z``; the other arguments from ``dx`` on are scratch arrays of length ``nb``)."""
+    for q in range(nb):
+        jq = nbr[q]
+        dx[q] = x[jq] - x[p]
+        dy[q] = y[jq] - y[p]
+        v[q] = z[jq]
+        w[q] = 1.0
+    c0 = 0.0
+    for _ in range(2):
+        c0, c1, c2 = _plane(dx, dy, v, w, nb)
+        for q in range(nb):
+            res[q] = v[q] - (c0 + c1 * dx[q] + c2 * dy[q])
+            tmp[q] = abs(res[q])
+        mad = mad_to_sigma * _median_sorted_prefix(tmp, nb)
+        thr = 3.0 * max(mad, floor)
+        for q in range(nb):
+            w[q] = 1.0 if abs(res[q]) <= thr else 0.0
+    n_kept = 0
+    for q in range(nb):
+        if w[q] > 0.0:
+            tmp[n_kept] = abs(res[q])
+            n_kept += 1
+    scale = mad_to_sigma * _median_sorted_prefix(tmp, n_kept)
+    if not np.isfinite(scale):
+        scale = floor
+    scale = max(scale, floor)
+    return abs(z[p] - c0) > k * scale
+
+
 @njit(parallel=True, cache=True, nogil=True)
 def knn_spike_flags(x, y, z, s0, nbr, k, floor, mad_to_sigma, out):  # pragma: no cover - compiled
     """``out[s0 + i]`` for every row ``i`` of ``nbr`` (the neighbour indices of sounding ``s0 + i``, itself
     excluded): True where the sounding is a spike (:func:`hadal.grid.multibeam.knn_spike_mask_reference`)."""
     m, nb = nbr.shape
     for i in prange(m):
-        p = s0 + i
         dx = np.empty(nb)
         dy = np.empty(nb)
         v = np.empty(nb)
-        w = np.ones(nb)
+        w = np.empty(nb)
         res = np.empty(nb)
         tmp = np.empty(nb)
-        for q in range(nb):
-            jq = nbr[i, q]
-            dx[q] = x[jq] - x[p]
-            dy[q] = y[jq] - y[p]
-            v[q] = z[jq]
-        c0 = 0.0
-        for _ in range(2):
-            c0, c1, c2 = _plane(dx, dy, v, w, nb)
-            for q in range(nb):
-                res[q] = v[q] - (c0 + c1 * dx[q] + c2 * dy[q])
-                tmp[q] = abs(res[q])
-            mad = mad_to_sigma * _median_sorted_prefix(tmp, nb)
-            thr = 3.0 * max(mad, floor)
-            for q in range(nb):
-                w[q] = 1.0 if abs(res[q]) <= thr else 0.0
-        n_kept = 0
-        for q in range(nb):
-            if w[q] > 0.0:
-                tmp[n_kept] = abs(res[q])
-                n_kept += 1
-        scale = mad_to_sigma * _median_sorted_prefix(tmp, n_kept)
-        if not np.isfinite(scale):
-            scale = floor
-        scale = max(scale, floor)
-        out[p] = abs(z[p] - c0) > k * scale
+        out[s0 + i] = _spike_one(x, y, z, s0 + i, nbr[i], nb, k, floor, mad_to_sigma, dx, dy, v, w, res, tmp)
+
+
+@njit(inline="always")
+def _offer(bd, bi, orig, cnt, nb, d2, j):  # pragma: no cover - compiled
+    """Insert point ``j`` at squared distance ``d2`` into ``bd[:cnt]``/``bi[:cnt]`` (capacity ``nb``), kept in
+    ascending ``(d2, orig[j])`` order; returns the new count."""
+    oj = orig[j]
+    if cnt == nb:
+        if d2 > bd[nb - 1] or (d2 == bd[nb - 1] and oj > orig[bi[nb - 1]]):
+            return cnt
+        t = nb - 1
+    else:
+        t = cnt
+        cnt += 1
+    while t > 0 and (bd[t - 1] > d2 or (bd[t - 1] == d2 and orig[bi[t - 1]] > oj)):
+        bd[t] = bd[t - 1]
+        bi[t] = bi[t - 1]
+        t -= 1
+    bd[t] = d2
+    bi[t] = j
+    return cnt
+
+
+@njit(inline="always")
+def _knn_cells(x, y, orig, i, starts, ncu, ncv, u0, v0, cs, nb, bd, bi):  # pragma: no cover - compiled
+    """The ``nb`` nearest points of point ``i`` (itself excluded; horizontal distance) into ``bi`` (indices in cell
+    order) by ascending ``(squared distance, original index)``; returns how many were found (``nb`` unless the
+    cloud is smaller). Rings of cells about the point's cell are scanned until the ``nb``-th squared distance is
+    below the squared distance to the searched block's edge (less a rounding margin), a lower bound of every
+    distance outside it: exact, ties broken by the original index."""
+    qx, qy = x[i], y[i]
+    cu = min(max(int((qx - u0) / cs), 0), ncu - 1)
+    cv = min(max(int((qy - v0) / cs), 0), ncv - 1)
+    cnt = 0
+    r = 0
+    while True:
+        lo_u, hi_u = max(cu - r, 0), min(cu + r, ncu - 1)
+        for gv in range(max(cv - r, 0), min(cv + r, ncv - 1) + 1):
+            row = gv * ncu
+            if gv == cv - r or gv == cv + r:  # the ring's top or bottom row: all its cells, one run of points
+                j0, j1 = starts[row + lo_u], starts[row + hi_u + 1]
+                for j in range(j0, j1):
+                    if j != i:
+                        ddx = qx - x[j]
+                        ddy = qy - y[j]
+                        cnt = _offer(bd, bi, orig, cnt, nb, ddx * ddx + ddy * ddy, j)
+            else:  # an interior row: only its two end cells are new
+                for c in (cu - r, cu + r):
+                    if 0 <= c <= ncu - 1:
+                        for j in range(starts[row + c], starts[row + c + 1]):
+                            if j != i:
+                                ddx = qx - x[j]
+                                ddy = qy - y[j]
+                                cnt = _offer(bd, bi, orig, cnt, nb, ddx * ddx + ddy * ddy, j)
+        bound = np.inf
+        if cu - r > 0:
+            bound = min(bound, qx - (u0 + (cu - r) * cs))
+        if cu + r < ncu - 1:
+            bound = min(bound, u0 + (cu + r + 1) * cs - qx)
+        if cv - r > 0:
+            bound = min(bound, qy - (v0 + (cv - r) * cs))
+        if cv + r < ncv - 1:
+            bound = min(bound, v0 + (cv + r + 1) * cs - qy)
+        if bound == np.inf:
+            return cnt  # the block covers the whole grid
+        bound -= 1e-6 * cs
+        if cnt == nb and bound > 0 and bd[nb - 1] < bound * bound:
+            return cnt
+        r += 1
+
+
+@njit(parallel=True, cache=True, nogil=True)
+def knn_spike_flags_cells(x, y, z, orig, starts, ncu, ncv, u0, v0, cs, nb, k, floor, mad_to_sigma, out,
+                          block):  # pragma: no cover - compiled
+    """``out[i]`` for every sounding ``i`` of ``x``, ``y``, ``z`` sorted by cell (:class:`hadal.grid.knn_cells.
+    CellOrder`; ``orig`` their original indices, the tie-break): the spike test of :func:`knn_spike_flags` on its
+    ``nb`` nearest soundings found by :func:`_knn_cells` (``nb`` < the number of soundings). Blocks of ``block``
+    soundings in parallel, with their scratch arrays allocated once a block."""
+    n = x.size
+    for b in prange((n + block - 1) // block):
+        bd = np.empty(nb)
+        bi = np.empty(nb, np.int64)
+        dx = np.empty(nb)
+        dy = np.empty(nb)
+        v = np.empty(nb)
+        w = np.empty(nb)
+        res = np.empty(nb)
+        tmp = np.empty(nb)
+        for i in range(b * block, min(n, (b + 1) * block)):
+            _knn_cells(x, y, orig, i, starts, ncu, ncv, u0, v0, cs, nb, bd, bi)
+            out[i] = _spike_one(x, y, z, i, bi, nb, k, floor, mad_to_sigma, dx, dy, v, w, res, tmp)

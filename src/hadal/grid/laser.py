@@ -161,10 +161,6 @@ def clean_cloud(points) -> tuple[np.ndarray, int]:
     return (p[ok] if n_bad else p), n_bad
 
 
-#: lateral cell of the SOR neighbour search: about this many points a cell at the cloud's mean density
-SOR_POINTS_PER_CELL = 0.5  # x k: the k-th neighbour then lies within the 3 x 3 block of cells for most points
-
-
 def sor_outlier_mask(points: np.ndarray, nb_neighbors: int, std_ratio: float) -> np.ndarray:
     """True for the points open3d's ``remove_statistical_outlier(nb_neighbors, std_ratio)`` removes: mean distance to
     the ``nb_neighbors`` nearest points (the point itself included) not below ``mean + std_ratio * std`` of the
@@ -189,6 +185,7 @@ def knn_mean_distance_m(points: np.ndarray, k: int) -> np.ndarray | None:
     :func:`hadal.grid._sor_kernels.knn_mean_distance`); None when the cloud does not suit the grid (no extent in
     any plane, or a cell holding more than ``max(64 k, 1 %)`` of the points)."""
     from hadal.grid._sor_kernels import knn_mean_distance
+    from hadal.grid.knn_cells import too_dense, uniform_cells
 
     pts = np.ascontiguousarray(points, dtype=np.float64)
     n = len(pts)
@@ -196,16 +193,16 @@ def knn_mean_distance_m(points: np.ndarray, k: int) -> np.ndarray | None:
     # the lateral plane: the pair of axes with the least search work, judged on a regular subsample
     step = max(1, n // 200_000)
     sub = pts[::step]
-    trials = {ax: _sor_cells(sub, lo, ax[0], ax[1], k) for ax in ((0, 1), (0, 2), (1, 2))}
+    trials = {ax: uniform_cells(sub, lo, ax[0], ax[1], k) for ax in ((0, 1), (0, 2), (1, 2))}
     work = {ax: t[0] for ax, t in trials.items() if t is not None}
     if not work:
         return None
     a0, a1 = min(work, key=lambda ax: work[ax])
-    binned = trials[(a0, a1)] if step == 1 else _sor_cells(pts, lo, a0, a1, k)  # the subsample is the cloud
+    binned = trials[(a0, a1)] if step == 1 else uniform_cells(pts, lo, a0, a1, k)  # the subsample is the cloud
     if binned is None:
         return None
     _, cs, ncu, ncv, cell, counts = binned
-    if counts.max() > max(64 * k, n // 100):
+    if too_dense(counts, n, k):
         return None
     order = np.argsort(cell, kind="stable")
     starts = np.zeros(ncu * ncv + 1, np.int64)
@@ -219,27 +216,6 @@ def knn_mean_distance_m(points: np.ndarray, k: int) -> np.ndarray | None:
     avg = np.empty(n)
     avg[order] = avg_sorted
     return avg
-
-
-def _sor_cells(pts: np.ndarray, lo: np.ndarray, a0: int, a1: int, k: int):
-    """Uniform cells over axes ``a0``, ``a1`` (about :data:`SOR_POINTS_PER_CELL` x ``k`` points a cell at the mean
-    density, at most ~4 cells a point): ``(search work sum(count^2), cell size, ncu, ncv, cell of every point,
-    counts)``, or None without extent in that plane."""
-    n = len(pts)
-    ext_u, ext_v = float(pts[:, a0].max() - lo[a0]), float(pts[:, a1].max() - lo[a1])
-    area = ext_u * ext_v
-    if not (area > 0 and np.isfinite(area)):
-        return None
-    cs = float(np.sqrt(SOR_POINTS_PER_CELL * k * area / n))
-    ncu, ncv = int(ext_u / cs) + 1, int(ext_v / cs) + 1
-    if ncu * ncv > 4 * n + 16:  # thin clouds
-        cs *= float(np.sqrt(ncu * ncv / (4 * n + 16)))
-        ncu, ncv = int(ext_u / cs) + 1, int(ext_v / cs) + 1
-    cu = np.minimum((pts[:, a0] - lo[a0]) / cs, ncu - 1).astype(np.int64)
-    cv = np.minimum((pts[:, a1] - lo[a1]) / cs, ncv - 1).astype(np.int64)
-    cell = cv * ncu + cu
-    counts = np.bincount(cell, minlength=ncu * ncv)
-    return int((counts.astype(np.int64) ** 2).sum()), cs, ncu, ncv, cell, counts
 
 
 def _open3d_sor_mask(pts: np.ndarray, k: int, std_ratio: float) -> np.ndarray:

@@ -144,7 +144,7 @@ def knn_spike_mask(x, y, z, *, k: float = 4.0, neighbours: int = 16, floor: floa
                    chunk: int = 100_000) -> np.ndarray:
     """True where a sounding deviates from the local surface of its ``neighbours`` nearest soundings.
 
-    For each sounding a plane is fitted to its neighbours (horizontal distance, scipy cKDTree), robustly:
+    For each sounding a plane is fitted to its neighbours (horizontal distance), robustly:
     least squares, then again without the neighbours whose residual exceeds ``3 * max(1.4826 MAD,
     floor)`` (spikes among the neighbours). The sounding is a spike if its own residual exceeds
     ``k * max(1.4826 MAD of the kept residuals, floor)``. The plane removes the terrain slope, which on a
@@ -152,18 +152,31 @@ def knn_spike_mask(x, y, z, *, k: float = 4.0, neighbours: int = 16, floor: floa
     test does not depend on the sounding density, so it works for sparse surveys where most 20 m cells
     hold 0-1 soundings and a per-cell test cannot judge anything.
 
-    The neighbour search is scipy's; the per-sounding fit and test run in a compiled loop
-    (:mod:`hadal.grid._spike_kernels`, which flags exactly what the NumPy reference
-    :func:`knn_spike_mask_reference` flags; the whole function is ~1.5x faster, the neighbour query now
-    dominating). The inputs must be finite (the gridder drops non-finite soundings first).
+    The neighbour search and the per-sounding fit and test run in one compiled loop
+    (:func:`hadal.grid._spike_kernels.knn_spike_flags_cells`): an exact search of a uniform cell grid
+    (:mod:`hadal.grid.knn_cells`), ties between equally distant neighbours broken by the lower index, a
+    sounding never its own neighbour. It flags exactly what the NumPy reference
+    :func:`knn_spike_mask_reference` (scipy cKDTree neighbours) flags where no two neighbour distances tie
+    (tests/test_grid_multibeam.py, also on real EX1604 soundings), at about a third of its CPU time
+    (bench/bench_grid.py ``spike``). Soundings the grid does not suit (no extent, a dense blob) use the
+    cKDTree neighbours (``chunk`` soundings at a time). The inputs must be finite (the gridder drops
+    non-finite soundings first).
     """
-    from hadal.grid._spike_kernels import knn_spike_flags
+    from hadal.grid._spike_kernels import knn_spike_flags, knn_spike_flags_cells
+    from hadal.grid.knn_cells import lateral_cell_order
 
     x = np.ascontiguousarray(x, dtype=np.float64)
     y = np.ascontiguousarray(y, dtype=np.float64)
     z = np.ascontiguousarray(z, dtype=np.float64)
     out = np.zeros(len(z), dtype=bool)
     if len(z) <= neighbours:
+        return out
+    co = lateral_cell_order(x, y, neighbours)
+    if co is not None:
+        flags = np.empty(len(z), dtype=bool)
+        knn_spike_flags_cells(x[co.order], y[co.order], z[co.order], co.order, co.starts, co.ncu, co.ncv, co.u0,
+                              co.v0, co.cs, int(neighbours), float(k), float(floor), MAD_TO_SIGMA, flags, 1024)
+        out[co.order] = flags
         return out
     for s0, _, j in _neighbour_chunks(x, y, neighbours, chunk):
         knn_spike_flags(x, y, z, s0, np.ascontiguousarray(j, dtype=np.int64), float(k), float(floor),
@@ -172,14 +185,18 @@ def knn_spike_mask(x, y, z, *, k: float = 4.0, neighbours: int = 16, floor: floa
 
 
 def knn_spike_mask_reference(x, y, z, *, k: float = 4.0, neighbours: int = 16, floor: float = 0.5,
-                             chunk: int = 100_000) -> np.ndarray:
+                             chunk: int = 100_000, neighbour_index: np.ndarray | None = None) -> np.ndarray:
     """The NumPy reference of :func:`knn_spike_mask` (the method is described there), the oracle of its
-    compiled kernel in the tests: ``(chunk, neighbours)`` arrays instead of one sounding at a time."""
+    compiled kernel in the tests: ``(chunk, neighbours)`` arrays instead of one sounding at a time. The neighbours
+    are scipy cKDTree's (:func:`_neighbour_chunks`) unless ``neighbour_index`` gives them, ``(n, neighbours)``
+    indices nearest first (e.g. a brute-force search with its own tie rule)."""
     n = len(z)
     out = np.zeros(n, dtype=bool)
     if n <= neighbours:
         return out
-    for s0, s1, j in _neighbour_chunks(x, y, neighbours, chunk):
+    chunks = (_neighbour_chunks(x, y, neighbours, chunk) if neighbour_index is None else
+              ((s0, min(n, s0 + chunk), neighbour_index[s0:s0 + chunk]) for s0 in range(0, n, chunk)))
+    for s0, s1, j in chunks:
         dx, dy, nb = x[j] - x[s0:s1, None], y[j] - y[s0:s1, None], z[j]
         w = np.ones_like(nb)
         for _ in range(2):
