@@ -199,6 +199,39 @@ def test_write_netcdf_rejects_non_dataset(tmp_path):
     assert not (tmp_path / "x.nc").exists()
 
 
+def test_netcdf_bytes_equal_xarray_to_netcdf(tmp_path):
+    """hadal writes NetCDF through xarray's h5netcdf store (no dask scheduler query): the file is byte for byte what
+    ``Dataset.to_netcdf(engine="h5netcdf")`` writes, for a grid (flags, NaN, grid mapping, compression), a profile
+    (string labels, NC_CHAR attributes) and a time series (datetimes, fill values)."""
+    from hadal.products.io import as_nc_char, netcdf_bytes, prepare_dataset
+
+    t = pd.date_range("2018-10-06T23:00:00", periods=500, freq="1s").to_numpy()
+    series = xr.Dataset({"depth_m": ("time", np.linspace(0, 10900, 500)),
+                         "loop_edit_bad": ("time", np.arange(500) % 3 == 0)}, coords={"time": t})
+    series["depth_m"].encoding.update(zlib=True, complevel=4, _FillValue=-9999.0)
+    for name, ds in (("dtm", dtm_like()), ("profile", profile_like()), ("series", series)):
+        out = as_nc_char(prepare_dataset(ds, tmp_path / f"{name}.nc", title=name, summary=f"{name} check"))
+        assert bytes(netcdf_bytes(out)) == bytes(out.to_netcdf(engine="h5netcdf")), name
+
+
+def test_writing_netcdf_does_not_import_dask_distributed(tmp_path):
+    """Writing a product must not pull in ``dask.distributed`` (the scheduler query of ``to_netcdf``), ~1.2 s of
+    imports in each stage process (a fresh interpreter, so earlier tests' imports do not count)."""
+    import subprocess
+    import sys
+
+    code = ("import sys, numpy as np, xarray as xr\n"
+            "from hadal.products import write_netcdf\n"
+            "ds = xr.Dataset({'depth_m': ('x', np.arange(3.0))}, coords={'x': np.arange(3.0)})\n"
+            f"write_netcdf(ds, {str(tmp_path / 'a.nc')!r}, title='t', summary='s')\n"
+            "print('distributed' in sys.modules, 'dask.distributed' in sys.modules)\n")
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0, r.stderr
+    assert r.stdout.split() == ["False", "False"]
+    with xr.open_dataset(tmp_path / "a.nc", engine="h5netcdf") as back:
+        assert back["depth_m"].values.tolist() == [0.0, 1.0, 2.0]
+
+
 def test_units_from_name_table():
     cases = {"pressure_dbar": "dbar", "temperature_its90_degc": "degree_C", "density_kg_m3": "kg m-3",
              "gravity_m_s2": "m s-2", "sound_speed_m_s": "m s-1", "conductivity_s_m": "S m-1", "depth_m": "m",

@@ -190,3 +190,59 @@ def test_the_child_ignores_a_terminal_ctrl_c_the_parent_decides(tmp_path):
         hlog.setLevel(old)
     t.join()
     assert sent and out["dtm"].endswith("dtm/v001")
+
+
+def test_a_stage_process_started_ahead_runs_the_job_and_an_unused_one_exits_with_the_parent(tmp_path):
+    """``prestart`` (what the CLI does while Prefect's server boots): the dtm job goes to the process started ahead
+    (it then exits, the pool no longer holds it) and publishes what the stage publishes in a thread (oracle: the
+    thread run on a second store); the laser process started ahead and never used exits when its parent does,
+    without delaying the parent's exit."""
+    psutil = pytest.importorskip("psutil")
+    raw = _dive(tmp_path / "raw")
+    script = textwrap.dedent(f"""
+        import os, sys
+        from hadal import stage_process as sp
+        assert sp.prestart(["dtm", "laser"]) == ["dtm", "laser"] and sp.prestart(["dtm"]) == []
+        warm_dtm = sp._WARM["dtm"].proc
+        out = sp.run_stage_in_process("dtm", raw_dir={str(raw)!r}, store_root={str(tmp_path / "a")!r}, progress=False)
+        warm_dtm.join(10)
+        assert "dtm" not in sp._WARM and warm_dtm.exitcode == 0, warm_dtm.exitcode
+        print(out["dtm"])
+        print(sp._WARM["laser"].proc.pid, flush=True)
+    """)
+    t0 = time.monotonic()
+    r = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=180)
+    assert r.returncode == 0, r.stderr[-2000:]
+    exited_after = time.monotonic() - t0
+    version_dir, laser_pid = r.stdout.split()
+    ref = run_stage("dtm", make_context(raw, tmp_path / "b"))
+    with xr.open_dataset(os.path.join(version_dir, "dtm.nc")) as a, xr.open_dataset(ref["dtm"].file("dtm.nc")) as b:
+        np.testing.assert_array_equal(a["depth_m"].values, b["depth_m"].values)
+    deadline = time.monotonic() + 10
+    while psutil.pid_exists(int(laser_pid)) and time.monotonic() < deadline:
+        time.sleep(0.1)
+    gone = not psutil.pid_exists(int(laser_pid)) or psutil.Process(int(laser_pid)).status() == psutil.STATUS_ZOMBIE
+    assert gone and exited_after < 120
+
+
+def test_warm_imports_stop_when_told_and_every_declared_module_imports():
+    """``warm_imports`` imports a stage's ``WARM_IMPORTS`` in order and stops as soon as ``stop()`` says so (the CLI:
+    once the server answers); every module a stage declares exists (a renamed module would silently warm nothing)."""
+    import importlib
+
+    from hadal.pipeline import warm_imports
+    from hadal.stages import STAGE_ORDER, stage_module
+
+    assert warm_imports(["ingest", "derive"], stop=lambda: True) == []
+    calls = []
+
+    def stop_after_two():
+        calls.append(1)
+        return len(calls) > 2
+
+    assert warm_imports(["derive"], stop=stop_after_two) == list(stage_module("derive").WARM_IMPORTS[:2])
+    for name in STAGE_ORDER:
+        mods = getattr(stage_module(name), "WARM_IMPORTS", ())
+        assert mods, f"stage {name} declares no WARM_IMPORTS"
+        for m in mods:
+            importlib.import_module(m)

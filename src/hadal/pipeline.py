@@ -404,3 +404,27 @@ def current_stages(raw_dir: str | Path, store_root: str | Path | None, config_pa
         rows.append({"stage": name, "status": "reused", "seconds": round(time.monotonic() - t0, 2),
                      "versions": {p: Path(v).name for p, v in out.items()}, "reason": ""})
     return RunOutcome(published, rows)
+
+
+def warm_imports(names: Sequence[str], *, stop: Any = None) -> list[str]:
+    """Import the modules that the stages ``names`` import when they run (their ``WARM_IMPORTS``), in stage order,
+    until ``stop()`` (checked before each module) says to stop; returns the modules imported.
+
+    The CLI calls it while Prefect's temporary server boots (:func:`hadal.cli._run_flow`): the main process would
+    otherwise sit idle for those seconds, and each stage thread would then pay for its imports (about 2 s for the
+    sample dive's thread stages) on the run's critical path. A module that fails to import is left to its stage,
+    which reports the failure in its own words. Imports run in the calling thread only: importing beside other
+    threads can deadlock on circular imports."""
+    import importlib
+
+    done: list[str] = []
+    for name in names:
+        for mod in getattr(stage_module(name), "WARM_IMPORTS", ()):
+            if stop is not None and stop():
+                return done
+            try:
+                importlib.import_module(mod)
+            except Exception:  # noqa: BLE001 - the stage itself reports a broken import
+                continue
+            done.append(mod)
+    return done

@@ -102,6 +102,107 @@ def _child(q: Any, name: str, kwargs: dict[str, Any], log_level: int, progress: 
         q.join_thread()
 
 
+class _Warm:
+    """A child started ahead by :func:`prestart`: its process, its log/answer queue and the parent's end of its job
+    pipe."""
+
+    def __init__(self, proc: Any, q: Any, conn: Any):
+        self.proc, self.q, self.conn = proc, q, conn
+
+
+#: children started ahead, by stage name (this process's own; taken by :func:`run_stage_in_process`)
+_WARM: dict[str, _Warm] = {}
+_WARM_LOCK = threading.Lock()
+
+
+def _warm_child(q: Any, conn: Any, parent_pid: int, modules: tuple[str, ...]) -> None:
+    """A stage process started ahead: import ``modules`` (the stage's ``WARM_IMPORTS``), then wait for the job
+    (the arguments of :func:`_child`) on ``conn`` and run it; EOF (the parent exits or no longer needs it): exit."""
+    import importlib
+
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    threading.Thread(target=_watch_parent, args=(parent_pid,), daemon=True, name="parent-watchdog").start()
+    for mod in modules:
+        try:
+            importlib.import_module(mod)
+        except Exception:  # noqa: BLE001 - the stage itself reports a broken import
+            pass
+    try:
+        job = conn.recv()
+    except (EOFError, OSError):
+        return
+    finally:
+        conn.close()
+    _child(q, *job)
+
+
+def prestart(names: Any) -> list[str]:
+    """Start the processes of the stages ``names`` ahead of their turn (each importing its stage's ``WARM_IMPORTS``,
+    :mod:`hadal.stages`), so that :func:`run_stage_in_process` hands a stage to a process that has already paid its
+    start, about 1-1.5 s of imports: the CLI calls it while Prefect's temporary server boots, when a core is idle.
+    A process not used by the time this one exits is told to stop (EOF on its job pipe) and joined. Returns the
+    stages started (not those already started or running)."""
+    from hadal.stages import stage_module
+
+    spawn = mp.get_context("spawn")
+    started = []
+    for name in names:
+        with _WARM_LOCK:
+            if name in _WARM:
+                continue
+            _quiet_tracker()
+            q = spawn.Queue()
+            parent_end, child_end = spawn.Pipe()
+            mods = tuple(getattr(stage_module(name), "WARM_IMPORTS", ()))
+            proc = spawn.Process(target=_warm_child, args=(q, child_end, os.getpid(), mods), name=f"hadal-stage-{name}",
+                                 daemon=False)
+            proc.start()
+            child_end.close()
+            if not _WARM:
+                import atexit
+
+                atexit.register(_stop_warm)  # after multiprocessing's own exit hook was registered: runs before it
+            _WARM[name] = _Warm(proc, q, parent_end)
+            started.append(name)
+    return started
+
+
+def _stop_warm() -> None:
+    """Stop the children started ahead and never used (EOF on their job pipes; terminated after 5 s)."""
+    with _WARM_LOCK:
+        left = list(_WARM.values())
+        _WARM.clear()
+    for w in left:
+        w.conn.close()
+    for w in left:
+        w.proc.join(timeout=5)
+        if w.proc.is_alive():
+            w.proc.terminate()
+            w.proc.join(timeout=5)
+        w.q.close()
+
+
+def _take_warm(name: str) -> _Warm | None:
+    """The live child started ahead for stage ``name`` (removed from the pool), or None."""
+    with _WARM_LOCK:
+        w = _WARM.pop(name, None)
+    if w is None:
+        return None
+    if w.proc.is_alive():
+        return w
+    w.conn.close()
+    w.q.close()
+    return None
+
+
+def _quiet_tracker() -> None:
+    if _QUIET_TRACKER not in sys.warnoptions:
+        # multiprocessing's resource tracker (started with the first child, given this interpreter's -W flags)
+        # removes the queue's semaphores when a killed run leaves them, and would warn about it on the terminal
+        # after every Ctrl-C; the clean-up is its job, the warning only noise
+        sys.warnoptions.append(_QUIET_TRACKER)
+
+
 def _warning_filters() -> list[Any]:
     """The parent's warning filters that can be sent to the child (those with a picklable category)."""
     out = []
@@ -136,22 +237,29 @@ def run_stage_in_process(name: str, *, raw_dir: str, store_root: str | None = No
                          pins: dict[str, str] | None = None, failed: dict[str, str] | None = None,
                          failed_skips: dict[str, str] | None = None, run_info: dict[str, Any] | None = None,
                          progress: bool = True) -> dict[str, str]:
-    """Run stage ``name`` (:func:`hadal.pipeline.run_stage`) in a fresh ``spawn`` child process; returns
-    ``{product: version directory}``. Blocks the calling thread, which re-emits the child's log records."""
-    if _QUIET_TRACKER not in sys.warnoptions:
-        # multiprocessing's resource tracker (started with the first child, given this interpreter's -W flags)
-        # removes the queue's semaphores when a killed run leaves them, and would warn about it on the terminal
-        # after every Ctrl-C; the clean-up is its job, the warning only noise
-        sys.warnoptions.append(_QUIET_TRACKER)
+    """Run stage ``name`` (:func:`hadal.pipeline.run_stage`) in a ``spawn`` child process (the one :func:`prestart`
+    started for it, else a fresh one); returns ``{product: version directory}``. Blocks the calling thread, which
+    re-emits the child's log records."""
+    _quiet_tracker()
     spawn = mp.get_context("spawn")
-    q = spawn.Queue()
     kwargs = {"raw_dir": str(raw_dir), "store_root": None if store_root is None else str(store_root),
               "config_path": None if config_path is None else str(config_path), "pins": dict(pins or {}),
               "failed": dict(failed or {}), "failed_skips": dict(failed_skips or {}), "run_info": dict(run_info or {})}
     level = logging.getLogger("hadal").getEffectiveLevel()
-    proc = spawn.Process(target=_child, args=(q, name, kwargs, level, progress, os.getpid(), _warning_filters()),
-                         name=f"hadal-stage-{name}", daemon=False)
-    proc.start()
+    job = (name, kwargs, level, progress, os.getpid(), _warning_filters())
+    warm = _take_warm(name)
+    if warm is not None:
+        proc, q = warm.proc, warm.q
+        try:
+            warm.conn.send(job)
+        except (OSError, ValueError):  # it died between the check and the send: the answer loop below reports it
+            pass
+        finally:
+            warm.conn.close()
+    else:
+        q = spawn.Queue()
+        proc = spawn.Process(target=_child, args=(q, *job), name=f"hadal-stage-{name}", daemon=False)
+        proc.start()
     answer: tuple[str, Any] | None = None
     try:
         while answer is None:

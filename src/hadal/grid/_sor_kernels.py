@@ -7,14 +7,14 @@ distances ``((qx - px)^2 + (qy - py)^2) + (qz - pz)^2`` in float64 (nanoflann's 
 points), square roots summed in ascending order, the cloud mean and standard deviation accumulated sequentially in
 point order over the points with a positive mean distance (Bessel-corrected over all points), a point kept when its
 mean distance is positive and below ``mean + std_ratio * std``. Ties between equal distances do not matter: only
-the multiset of the k smallest distances enters. IEEE arithmetic (no fastmath), one thread (the laser stage runs
-beside other stages: its CPU time is what counts). Compiled on first use and cached next to this file.
+the multiset of the k smallest distances enters. IEEE arithmetic (no fastmath); the points' searches in parallel
+blocks (numba threads), the cloud statistics sequential. Compiled on first use and cached next to this file.
 """
 
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
+from numba import njit, prange
 
 
 @njit(inline="always")
@@ -48,61 +48,72 @@ def _scan(x, y, z, qx, qy, qz, j0, j1, best, cnt, k, buf):  # pragma: no cover -
     return cnt
 
 
-@njit(cache=True, nogil=True)
-def knn_mean_distance(x, y, z, u, v, starts, ncu, ncv, u0, v0, cs, k, out):  # pragma: no cover - compiled
+@njit(inline="always")
+def _mean_knn_distance_one(x, y, z, u, v, i, starts, ncu, ncv, u0, v0, cs, k, best, buf):  # pragma: no cover - compiled
+    """Mean Euclidean distance of point ``i`` to its ``k`` nearest points (itself included); -1 without any (scratch:
+    ``best`` of length ``k``, ``buf`` of three cells' points)."""
+    qx, qy, qz = x[i], y[i], z[i]
+    cu = min(max(int((u[i] - u0) / cs), 0), ncu - 1)
+    cv = min(max(int((v[i] - v0) / cs), 0), ncv - 1)
+    cnt = 0
+    r = 0
+    while True:
+        lo_u, hi_u = max(cu - r, 0), min(cu + r, ncu - 1)
+        for gv in range(max(cv - r, 0), min(cv + r, ncv - 1) + 1):
+            row = gv * ncu
+            if gv == cv - r or gv == cv + r:  # the ring's top or bottom row: all its cells
+                c0 = lo_u
+                while c0 <= hi_u:  # in runs of at most 3 cells (the scratch buffer's size)
+                    c1 = min(c0 + 2, hi_u)
+                    cnt = _scan(x, y, z, qx, qy, qz, starts[row + c0], starts[row + c1 + 1], best, cnt, k, buf)
+                    c0 = c1 + 1
+            else:  # an interior row: only its two end cells are new
+                if cu - r >= 0:
+                    cnt = _scan(x, y, z, qx, qy, qz, starts[row + cu - r], starts[row + cu - r + 1], best, cnt,
+                                k, buf)
+                if cu + r <= ncu - 1:
+                    cnt = _scan(x, y, z, qx, qy, qz, starts[row + cu + r], starts[row + cu + r + 1], best, cnt,
+                                k, buf)
+        # lower bound of the distance to any point outside the searched block (inf where the block reaches
+        # the grid's side), with a margin for the rounding of the cell assignment
+        bound = np.inf
+        if cu - r > 0:
+            bound = min(bound, u[i] - (u0 + (cu - r) * cs))
+        if cu + r < ncu - 1:
+            bound = min(bound, u0 + (cu + r + 1) * cs - u[i])
+        if cv - r > 0:
+            bound = min(bound, v[i] - (v0 + (cv - r) * cs))
+        if cv + r < ncv - 1:
+            bound = min(bound, v0 + (cv + r + 1) * cs - v[i])
+        if bound == np.inf:
+            break  # the block covers the whole grid
+        bound -= 1e-6 * cs
+        if cnt == k and bound > 0 and best[k - 1] <= bound * bound:
+            break
+        r += 1
+    s = 0.0
+    for j in range(cnt):
+        s += np.sqrt(best[j])
+    return s / cnt if cnt > 0 else -1.0
+
+
+@njit(parallel=True, cache=True, nogil=True)
+def knn_mean_distance(x, y, z, u, v, starts, ncu, ncv, u0, v0, cs, k, out, block):  # pragma: no cover - compiled
     """``out[i]``: mean Euclidean distance of point ``i`` to its ``k`` nearest points (itself included).
 
     The points are sorted by lateral cell: cell ``c = cv * ncu + cu`` (``cu = floor((u - u0) / cs)``, clipped) holds
     points ``starts[c]:starts[c + 1]``; ``u``, ``v`` are the two binned coordinates (two of x, y, z). Rings of cells
     about the point's cell are searched until the k-th squared distance is no larger than the squared distance from
     the point to the searched block's edge (a lower bound of the distance of every point outside it); the cells of
-    a ring's row are contiguous in memory and scanned as one run."""
-    best = np.empty(k)
-    buf = np.empty(max(int(np.max(np.diff(starts))), 1) * 3)
-    for i in range(x.size):
-        qx, qy, qz = x[i], y[i], z[i]
-        cu = min(max(int((u[i] - u0) / cs), 0), ncu - 1)
-        cv = min(max(int((v[i] - v0) / cs), 0), ncv - 1)
-        cnt = 0
-        r = 0
-        while True:
-            lo_u, hi_u = max(cu - r, 0), min(cu + r, ncu - 1)
-            for gv in range(max(cv - r, 0), min(cv + r, ncv - 1) + 1):
-                row = gv * ncu
-                if gv == cv - r or gv == cv + r:  # the ring's top or bottom row: all its cells
-                    c0 = lo_u
-                    while c0 <= hi_u:  # in runs of at most 3 cells (the scratch buffer's size)
-                        c1 = min(c0 + 2, hi_u)
-                        cnt = _scan(x, y, z, qx, qy, qz, starts[row + c0], starts[row + c1 + 1], best, cnt, k, buf)
-                        c0 = c1 + 1
-                else:  # an interior row: only its two end cells are new
-                    if cu - r >= 0:
-                        cnt = _scan(x, y, z, qx, qy, qz, starts[row + cu - r], starts[row + cu - r + 1], best, cnt,
-                                    k, buf)
-                    if cu + r <= ncu - 1:
-                        cnt = _scan(x, y, z, qx, qy, qz, starts[row + cu + r], starts[row + cu + r + 1], best, cnt,
-                                    k, buf)
-            # lower bound of the distance to any point outside the searched block (inf where the block reaches
-            # the grid's side), with a margin for the rounding of the cell assignment
-            bound = np.inf
-            if cu - r > 0:
-                bound = min(bound, u[i] - (u0 + (cu - r) * cs))
-            if cu + r < ncu - 1:
-                bound = min(bound, u0 + (cu + r + 1) * cs - u[i])
-            if cv - r > 0:
-                bound = min(bound, v[i] - (v0 + (cv - r) * cs))
-            if cv + r < ncv - 1:
-                bound = min(bound, v0 + (cv + r + 1) * cs - v[i])
-            if bound == np.inf:
-                break  # the block covers the whole grid
-            bound -= 1e-6 * cs
-            if cnt == k and bound > 0 and best[k - 1] <= bound * bound:
-                break
-            r += 1
-        s = 0.0
-        for j in range(cnt):
-            s += np.sqrt(best[j])
-        out[i] = s / cnt if cnt > 0 else -1.0
+    a ring's row are contiguous in memory and scanned as one run. Blocks of ``block`` points in parallel (each
+    point's result is its own: the same values on any number of threads), scratch allocated once a block."""
+    nbuf = max(int(np.max(np.diff(starts))), 1) * 3
+    n = x.size
+    for b in prange((n + block - 1) // block):
+        best = np.empty(k)
+        buf = np.empty(nbuf)
+        for i in range(b * block, min(n, (b + 1) * block)):
+            out[i] = _mean_knn_distance_one(x, y, z, u, v, i, starts, ncu, ncv, u0, v0, cs, k, best, buf)
 
 
 @njit(cache=True, nogil=True)

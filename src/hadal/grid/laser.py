@@ -167,9 +167,9 @@ def sor_outlier_mask(points: np.ndarray, nb_neighbors: int, std_ratio: float) ->
     cloud's mean distances, or zero (a point with ``nb_neighbors`` coincident copies).
 
     Same arithmetic as open3d (:mod:`hadal.grid._sor_kernels`), with the neighbour search of
-    :func:`knn_mean_distance_m` instead of a k-d tree: on a laser submap of even density it takes 0.55x open3d's CPU
-    time, one thread (bench/bench_laser_sor.py; ``tests/test_laser_sor.py`` checks the flags against open3d). A
-    cloud the grid does not suit goes to open3d itself."""
+    :func:`knn_mean_distance_m` instead of a k-d tree: on a laser submap of even density it takes about half open3d's
+    CPU time, its searches in parallel blocks (bench/bench_laser_sor.py; ``tests/test_laser_sor.py`` checks the
+    flags against open3d). A cloud the grid does not suit goes to open3d itself."""
     from hadal.grid._sor_kernels import sor_keep
 
     pts = np.ascontiguousarray(points, dtype=np.float64)
@@ -211,7 +211,7 @@ def knn_mean_distance_m(points: np.ndarray, k: int) -> np.ndarray | None:
     cols = [pts[order, i] for i in range(3)]  # x, y, z in cell order (contiguous copies)
     avg_sorted = np.empty(n)
     knn_mean_distance(cols[0], cols[1], cols[2], cols[a0], cols[a1], starts, ncu, ncv, float(lo[a0]), float(lo[a1]),
-                      cs, k, avg_sorted)
+                      cs, k, avg_sorted, 4096)
     del cols
     avg = np.empty(n)
     avg[order] = avg_sorted

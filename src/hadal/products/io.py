@@ -800,8 +800,30 @@ def write_netcdf(ds: xr.Dataset, path: str | Path, *, title: str, summary: str, 
     # HDF5 never writes to the store: it encodes into memory, then the bytes are written with a free-space
     # check and plain os.write. HDF5 writing into a file on a full disk crashes the process (h5netcdf/h5py
     # close the file in __dealloc__ after a failed write: tracebacks, then a segfault), so it never does.
-    _write_file(path, as_nc_char(out).to_netcdf(engine="h5netcdf"))
+    _write_file(path, netcdf_bytes(as_nc_char(out)))
     return path
+
+
+def netcdf_bytes(ds: xr.Dataset) -> memoryview:
+    """The NetCDF-4 file of ``ds`` in memory, byte for byte what ``ds.to_netcdf(engine="h5netcdf")`` returns
+    (tests/test_products.py checks it), written through xarray's h5netcdf store with a plain lock.
+
+    Why not ``to_netcdf`` itself: with dask installed it asks dask which scheduler is active, and that imports
+    ``dask.distributed`` (~1.2 s of CPU, measured) in every process that writes a NetCDF file, the stage processes
+    included, for a lock an in-memory write of loaded data does not need. The variables are loaded first (a lazy
+    variable would otherwise be left to a dask writer that this path never runs)."""
+    import io
+    import threading
+
+    from xarray.backends import H5NetCDFStore
+
+    buf = io.BytesIO()
+    store = H5NetCDFStore.open(buf, mode="w", lock=threading.Lock(), invalid_netcdf=False)
+    try:
+        ds.load().dump_to_store(store)
+    finally:
+        store.close()
+    return buf.getbuffer()
 
 
 #: Zarr format written: v2 (consolidated metadata) is read by every Zarr reader (zarr-python 2 and 3, GDAL,

@@ -44,6 +44,11 @@ if TYPE_CHECKING:
     from hadal.stages import StageContext
     from hadal.store import ProductVersion
 
+#: modules its run imports (lazily), imported ahead while Prefect's server boots (:func:`hadal.pipeline.warm_imports`)
+WARM_IMPORTS = (
+    "hadal.ctd.chain", "hadal.ctd.teos10", "hadal.depth", "hadal.seawater", "hadal.profile", "hadal.qc_derived",
+    "hadal.ingest.cnv", "hadal.products.io", "hadal.products.navigation", "hadal.products.registry",
+)
 PRODUCTS = ("ctd", "profile", "cast_profiles")
 UPSTREAM = ("sensors",)
 INPUTS = StageInputs(upstream=("sensors",), optional_upstream=("casts",), optional_products=("cast_profiles",))

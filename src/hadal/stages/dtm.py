@@ -17,6 +17,10 @@ PARAM_FIELDS = DTM_FIELDS
 #: CPU-bound for seconds: a flow runs it in its own process when another stage can run beside it
 #: (:func:`flows.post_cruise.process_stages`; measured faster than in the flow's threads, docs/operations.md)
 PROCESS = True
+#: modules its run imports (lazily), imported ahead while Prefect's server boots (:func:`hadal.pipeline.warm_imports`)
+WARM_IMPORTS = (
+    "hadal.grid.multibeam", "hadal.grid.sonar", "hadal.grid.readers", "hadal.products.io", "hadal.products.geotiff",
+)
 PRODUCTS = ("dtm",)
 UPSTREAM: tuple[str, ...] = ()
 INPUTS = StageInputs(raw_any=("multibeam", "prior_grid"), reads_raw=True, frame_for=("dtm",))

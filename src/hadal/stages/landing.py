@@ -31,6 +31,8 @@ if TYPE_CHECKING:
     import pandas as pd
     import xarray as xr
 
+#: modules its run imports (lazily), imported ahead while Prefect's server boots (:func:`hadal.pipeline.warm_imports`)
+WARM_IMPORTS = ("hadal.landing.sites", "hadal.landing.figures", "hadal.products.geo_landing", "hadal.products.io",)
 PRODUCTS = ("landing",)
 UPSTREAM = ("laser_grids",)
 INPUTS = StageInputs(upstream=("laser_grids",))

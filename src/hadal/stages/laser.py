@@ -18,6 +18,8 @@ PARAM_FIELDS = LASER_FIELDS
 #: CPU-bound for seconds: a flow runs it in its own process when another stage can run beside it
 #: (:func:`flows.post_cruise.process_stages`; measured faster than in the flow's threads, docs/operations.md)
 PROCESS = True
+#: modules its run imports (lazily), imported ahead while Prefect's server boots (:func:`hadal.pipeline.warm_imports`)
+WARM_IMPORTS = ("open3d", "hadal.grid.laser", "hadal.grid.readers", "hadal.products.io", "hadal.products.geotiff",)
 PRODUCTS = ("laser_grids",)
 UPSTREAM: tuple[str, ...] = ()
 INPUTS = StageInputs(raw_any=("laser",), reads_raw=True)

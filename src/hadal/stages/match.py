@@ -68,6 +68,11 @@ if TYPE_CHECKING:
     import pandas as pd
     import xarray as xr
 
+#: modules its run imports (lazily), imported ahead while Prefect's server boots (:func:`hadal.pipeline.warm_imports`)
+WARM_IMPORTS = (
+    "hadal.matching.posterior", "hadal.matching.budget", "hadal.matching.fix", "hadal.products.readers",
+    "hadal.products.navigation", "hadal.products.geo_landing",
+)
 PRODUCTS = ("match", "navigation")
 UPSTREAM = ("dtm", "ctd")
 INPUTS = StageInputs(raw_any=("mcap", "csv"), upstream=("dtm", "ctd"), optional_upstream=("suitability",),

@@ -15,6 +15,8 @@ if TYPE_CHECKING:
     from hadal.report import FigureOptions
     from hadal.store import ProductVersion
 
+#: modules its run imports (lazily), imported ahead while Prefect's server boots (:func:`hadal.pipeline.warm_imports`)
+WARM_IMPORTS = ("hadal.report", "hadal.report.figures", "hadal.report.ctd_figures", "hadal.report.geo_figures", "hadal.plan")
 PRODUCTS = ("report",)
 #: every product the report can use; all optional (hadal.report.load.REPORT_INPUTS)
 UPSTREAM = ("sensors", "ctd", "profile", "dtm", "laser_grids", "suitability", "match", "landing")

@@ -18,6 +18,8 @@ from hadal.store import ProductVersion
 if TYPE_CHECKING:
     import xarray as xr
 
+#: modules its run imports (lazily), imported ahead while Prefect's server boots (:func:`hadal.pipeline.warm_imports`)
+WARM_IMPORTS = ("hadal.suitability", "hadal.matching.mapgrid", "hadal.products.readers", "hadal.products.geotiff",)
 PRODUCTS = ("suitability",)
 UPSTREAM = ("dtm",)
 INPUTS = StageInputs(upstream=("dtm",), frame_for=("suitability",))
