@@ -149,8 +149,12 @@ class Sources(BaseModel):
     laser: list[SourceFile] = Field(
         default_factory=list, description="laser bathymetry: point clouds (PLY, PCD, LAS/LAZ, xyz) or rasters "
                                           "(GeoTIFF, NetCDF)")
+    vehicle_swath: list[SourceFile] = Field(
+        default_factory=list, description="the vehicle's own swath (multibeam) soundings during the dive, in any "
+                                          "multibeam format, positioned by its dead-reckoned navigation: the 2-D "
+                                          "real-time terrain patch of MRF fine matching (match.mrf)")
 
-    @field_validator("cnv", "multibeam", "prior_grid", "laser", mode="before")
+    @field_validator("cnv", "multibeam", "prior_grid", "laser", "vehicle_swath", mode="before")
     @classmethod
     def _file_lists(cls, v: Any) -> Any:
         return _as_source_files(v)

@@ -26,6 +26,7 @@ if TYPE_CHECKING:
 _KIND_NAMES = {
     "mcap": "MCAP vehicle log", "csv": "CSV vehicle log", "cnv": "Sea-Bird cast (.cnv/.hex)",
     "multibeam": "multibeam soundings", "prior_grid": "prior bathymetry grid", "laser": "laser bathymetry",
+    "vehicle_swath": "vehicle swath soundings",
 }
 
 

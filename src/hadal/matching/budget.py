@@ -6,8 +6,9 @@
   quadrature;
 * :func:`posterior_record` -- the ``fix.json`` entries of the point-mass posterior (summary, ellipses about the
   profile start, the dead-reckoning-only track);
-* :func:`mrf_step` -- MRF fine matching of the matched track gridded on the map (:func:`grid_track_patch`), or the
-  reason it is not run (a single-beam track is no 2-D real-time terrain patch, MRF paper §2).
+* :func:`mrf_step` -- MRF fine matching of soundings placed on the map by the fix and gridded on its cells
+  (:func:`grid_track_patch`): the vehicle's own swath (:func:`swath_on_map`) when the dive has one, else the matched
+  track; or the reason it is not run (a single-beam track is no 2-D real-time terrain patch, MRF paper §2).
 """
 
 from __future__ import annotations
@@ -132,16 +133,70 @@ def grid_track_patch(xy: np.ndarray, depth: np.ndarray, g: MapGrid, margin_cells
     return patch, float(g.x_m[0] + c0 * h), float(g.y_m[0] + r0 * h)
 
 
+def swath_interior_fraction(patch: np.ndarray) -> float:
+    """Share of the sounded (finite) cells of ``patch`` whose four neighbours are sounded too (0 when none is)."""
+    v = np.isfinite(np.asarray(patch, float))
+    if v.sum() == 0:
+        return 0.0
+    inner = np.zeros_like(v)
+    inner[1:-1, 1:-1] = v[1:-1, 1:-1] & v[:-2, 1:-1] & v[2:, 1:-1] & v[1:-1, :-2] & v[1:-1, 2:]
+    return float(inner.sum() / v.sum())
+
+
+def swath_on_map(swath_dr_xy: np.ndarray, bottom_dr_xy: np.ndarray, track_map_xy: np.ndarray, res: TercomResult,
+                 max_offset_m: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Map positions of the vehicle's own swath soundings, placed by the match like the bottom track.
+
+    ``swath_dr_xy`` (M, 2): the soundings in the dead-reckoning frame of the bottom track (their logged position minus
+    the launch point: the vehicle's own navigation, launch + dead reckoning); ``bottom_dr_xy`` / ``track_map_xy``
+    (N, 2): the bottom-track samples in that frame and on the map (:func:`hadal.matching.fix.matched_track`, the
+    estimated dead-reckoning drift included). A sounding gets the rigid pose of the fix (``res.apply``: start,
+    heading, scale, so a beam's offset from nadir turns with the heading correction) plus the drift of the nearest
+    bottom-track sample (nearest in the dead-reckoning frame: the swath files carry no time per sounding). Soundings
+    more than ``max_offset_m`` from every bottom-track sample (logged before or after the bottom phase, or not
+    positioned by the vehicle's navigation) are not placed. Returns ``(map xy (K, 2), mask (M,) of those placed,
+    index (K,) of each placed sounding's bottom-track sample)``."""
+    from scipy.spatial import cKDTree
+
+    q = np.asarray(swath_dr_xy, float).reshape(-1, 2)
+    b = np.asarray(bottom_dr_xy, float).reshape(-1, 2)
+    ok_b = np.isfinite(b).all(axis=1) & np.isfinite(np.asarray(track_map_xy, float)).all(axis=1)
+    rows = np.flatnonzero(ok_b)
+    b, m = b[ok_b], np.asarray(track_map_xy, float)[ok_b]
+    if len(b) == 0 or len(q) == 0:
+        return np.empty((0, 2)), np.zeros(len(q), bool), np.empty(0, int)
+    dist, i = cKDTree(b).query(np.nan_to_num(q, nan=np.inf), k=1, distance_upper_bound=float(max_offset_m))
+    placed = np.isfinite(dist) & np.isfinite(q).all(axis=1)
+    drift = m - res.apply(b)  # what the match added to each sample beyond the rigid pose (the drift estimate)
+    return res.apply(q[placed]) + drift[i[placed]], placed, rows[i[placed]]
+
+
 def mrf_step(track_xy: np.ndarray, seafloor_depth_m: np.ndarray, g: MapGrid, g_raw: MapGrid,
              start_xy: tuple[float, float], frame: LocalFrame, *, max_shift_cells: float,
-             max_total_shift_cells: float, prior: str) -> tuple[dict[str, Any], list[str]]:
-    """MRF fine matching ([MRF Eqs. 4-14], :func:`hadal.matching.mrf.mrf_refine` on ``g_raw``) of the matched
-    track (map positions ``track_xy``, measured ``seafloor_depth_m``) gridded on the cells of ``g``; ``start_xy``:
-    the reported start, moved by the MRF shift. Returns ``(fix.json 'mrf' entry, warnings for fix.json)``."""
+             max_total_shift_cells: float, prior: str, patch_source: str = "bottom_track"
+             ) -> tuple[dict[str, Any], list[str]]:
+    """MRF fine matching ([MRF Eqs. 4-14], :func:`hadal.matching.mrf.mrf_refine` on ``g_raw``) of soundings placed
+    on the map by the fix (map positions ``track_xy``, measured ``seafloor_depth_m``: the matched bottom track, or
+    with ``patch_source="vehicle_swath"`` the vehicle's own swath soundings, :func:`swath_on_map`) gridded on the
+    cells of ``g``; ``start_xy``: the reported start, moved by the MRF shift. Returns ``(fix.json 'mrf' entry,
+    warnings for fix.json)``."""
     from hadal.matching.mrf import mrf_refine
 
     patch, x0, y0 = grid_track_patch(track_xy, seafloor_depth_m, g)
-    cover = float(np.isfinite(patch[3:-3, 3:-3]).mean()) if min(patch.shape) > 6 else 0.0
+    if patch_source == "vehicle_swath":
+        # a swath along a long, turning track fills little of its bounding box by geometry: it is judged by its own
+        # footprint, the share of its sounded cells whose four neighbours are sounded too (the Gibbs neighbourhood
+        # and the 2-D Taylor step need them; a swath under ~3 cells wide has almost none)
+        cover = swath_interior_fraction(patch)
+        if cover < MRF_MIN_COVERAGE:
+            entry = {"applied": False, "coverage": cover, "patch_source": patch_source,
+                     "reason": f"{100 * cover:.0f} % of the map cells the vehicle's swath sounds have all four "
+                               f"neighbours sounded (< {100 * MRF_MIN_COVERAGE:.0f} %): too narrow or sparse a swath "
+                               "at the map's cell size for a 2-D real-time terrain patch, so MRF is not run"}
+            return entry, ["match.mrf: the vehicle's swath is too narrow or sparse for a 2-D terrain patch at the "
+                           "map's cell size: MRF not run"]
+    else:
+        cover = float(np.isfinite(patch[3:-3, 3:-3]).mean()) if min(patch.shape) > 6 else 0.0
     if cover < MRF_MIN_COVERAGE:
         # MRF paper §2: the real-time terrain is a 2-D multibeam patch; a single-beam (altimeter) track gridded on
         # the map leaves most cells empty, and the Gibbs neighbourhood prior and the 2-D Taylor step are undefined
@@ -157,7 +212,8 @@ def mrf_step(track_xy: np.ndarray, seafloor_depth_m: np.ndarray, g: MapGrid, g_r
         return {"applied": False, "reason": str(exc)}, []
     sx, sy = start_xy[0] - m.dx_m, start_xy[1] - m.dy_m
     slon, slat = (float(v) for v in frame.to_lonlat(sx, sy))
-    entry = {"applied": m.converged, "dx_m": m.dx_m, "dy_m": m.dy_m, "iterations": m.iterations,
+    entry = {"applied": m.converged, "patch_source": patch_source, "coverage": cover, "dx_m": m.dx_m, "dy_m": m.dy_m,
+             "iterations": m.iterations,
              "sigma_n_m": m.sigma_n_m, "window_cells": list(m.n_window), "warnings": m.warnings,
              "coarse_shift_cells": list(m.coarse_d_cells),
              "sigma_cells": [v if np.isfinite(v) else None for v in m.sigma_cells],

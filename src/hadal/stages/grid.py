@@ -156,60 +156,6 @@ def _compress(ds) -> None:
                                    "chunksizes": (min(ny, 512), min(nx, 512))})
 
 
-def _project_chunk(f: Path, chunk, info: dict, frame, to_ll):
-    """One chunk of soundings -> (x, y) in the map frame, with the frame (made from the first positioned
-    soundings when None) and the CRS transformer carried to the next chunk; x is None when the chunk cannot be
-    placed yet (geographic soundings with no finite position and no frame)."""
-    import numpy as np
-
-    from hadal.geo import LocalFrame
-
-    if "longitude_deg" in chunk:
-        lon, lat = chunk["longitude_deg"].to_numpy(), chunk["latitude_deg"].to_numpy()
-        if frame is None:
-            ok = np.isfinite(lon) & np.isfinite(lat)
-            if ok.any():
-                frame = LocalFrame(float(np.median(lat[ok])), float(np.median(lon[ok])))
-        if frame is None:
-            return None, None, frame, to_ll
-        x, y = frame.to_xy(lon, lat)
-        return x, y, frame, to_ll
-    crs = info.get("crs")
-    xm, ym = chunk["x_m"].to_numpy(np.float64), chunk["y_m"].to_numpy(np.float64)
-    if crs is not None and str(crs).strip().lower() in ("local", "local_metric"):
-        if frame is None:
-            raise InputError(f"{f}: soundings are in the dive's local map frame (crs: local) but the "
-                             "dive has no map_frame or launch")
-        return xm, ym, frame, to_ll
-    if crs is None:
-        raise InputError(f"{f}: soundings are projected x/y metres with no CRS; declare it in dive.yaml "
-                         "(crs: 'EPSG:32654', or 'local' when they are in the dive's map frame)")
-    if to_ll is None:
-        from pyproj import Transformer
-
-        to_ll = Transformer.from_crs(crs, "EPSG:4326", always_xy=True)
-    lon, lat = to_ll.transform(xm, ym)
-    if frame is None:
-        ok = np.isfinite(lon) & np.isfinite(lat)
-        frame = LocalFrame(float(np.median(lat[ok])), float(np.median(lon[ok])))
-    x, y = frame.to_xy(lon, lat)
-    return x, y, frame, to_ll
-
-
-def _reader_description(info: dict) -> str:
-    """The manifest's text for how one multibeam file was read: ``reader (format, compression, ...)``."""
-    desc = f"{info.get('reader', '?')} ({info.get('format')}"
-    if info.get("compression"):
-        desc += f", {info['compression']}"
-    if info.get("crs_kind") == "projected":
-        desc += f", projected {info.get('crs') or ''}".rstrip()
-    if info.get("format") == "xyz" and info.get("z_positive") == "up":
-        desc += f", elevations negated ({info.get('z_positive_from')})"
-    if info.get("pings") is not None:
-        desc += f", {info['pings']} pings, {info.get('dropped', 0)} beams dropped"
-    return desc + ")"
-
-
 def _drop_implausible(files: list[Path], x: np.ndarray, y: np.ndarray, dep: np.ndarray):
     """Drop soundings deeper/higher than anywhere on Earth (fill values or a unit error; NaN/inf are the gridder's
     'nonfinite'); an error when they are most of them. Returns x, y, depth and the number dropped."""
@@ -247,40 +193,21 @@ def make_dtm(files: list[Path], frame, p: Params, hints: list | None = None, rea
 
     Each file is streamed through :func:`hadal.grid.sonar.iter_multibeam` (xyz text in any compression,
     GSF, Kongsberg .kmall/.all, Reson .s7k; format detected from the content) with the reading hints of
-    its ``dive.yaml`` entry (``hints[i]``, a :class:`hadal.dive.SourceFile` or None). Chunks are projected
+    its ``dive.yaml`` entry (``hints[i]``, a :class:`hadal.dive.SourceFile` or None; :func:`hadal.grid.soundings.
+    read_soundings_xy`). Chunks are projected
     as they arrive and only x, y, depth are kept (:class:`hadal.grid.sonar.ColumnAccumulator`: ~1x). Projected soundings are
     converted from their declared CRS (``crs:``) to the map frame; ``crs: local`` means they already are
     in the dive's map frame. ``frame`` None: a frame centred on the first file's first soundings.
     ``readers``, when given, receives ``{str(file): "reader (format ...)"}`` for the manifest; the same text
     is in ``ds.attrs["multibeam_readers"]``.
     """
-    import numpy as np
 
     from hadal.grid.multibeam import add_geo, grid_multibeam
-    from hadal.grid.sonar import ColumnAccumulator, iter_multibeam
+    from hadal.grid.soundings import read_soundings_xy
 
-    hints = list(hints) if hints is not None else [None] * len(files)
-    if len(hints) != len(files):
+    if hints is not None and len(hints) != len(files):
         raise ValueError("make_dtm: hints must have one entry per file")
-    acc = ColumnAccumulator(3)
-    used: list[str] = []
-    for f, h in zip(files, hints, strict=True):
-        info: dict = {}
-        to_ll = None
-        for chunk in iter_multibeam(f, h, chunk_points=chunk_points, info=info):
-            z = chunk["depth_m"].to_numpy(np.float64)
-            x, y, frame, to_ll = _project_chunk(f, chunk, info, frame, to_ll)
-            if x is None:
-                continue
-            acc.add(np.asarray(x, np.float64), np.asarray(y, np.float64), z)
-            del chunk, x, y, z
-        desc = _reader_description(info)
-        used.append(f"{Path(f).name}: {desc}")
-        if readers is not None:
-            readers[str(f)] = desc
-    if frame is None or acc.n == 0:
-        raise InputError(f"no soundings with positions in {', '.join(str(f) for f in files)}")
-    x, y, dep = acc.finish()
+    x, y, dep, frame, used = read_soundings_xy(files, frame, hints, chunk_points=chunk_points, readers=readers)
     x, y, dep, n_implausible = _drop_implausible(files, x, y, dep)
     res_m, how = _dtm_resolution(p, x, y)
     check_grid_memory("the DTM", x, y, float(res_m), DTM_LAYERS + (2 if p.prior_fill else 0), memory_limit_bytes,

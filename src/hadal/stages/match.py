@@ -64,6 +64,8 @@ from hadal.stages import StageContext, StageInputs
 from hadal.store import ProductVersion
 
 if TYPE_CHECKING:
+    from pathlib import Path
+
     import numpy as np
     import pandas as pd
     import xarray as xr
@@ -107,7 +109,15 @@ class Params(TercomOptions, DeadReckoningOptions):
         True,
         description="refine the MSD fix below the map resolution (bilinear map, continuous start/heading/scale; a deviation from the paper, see hadal.matching.refine_tercom)",
     )
-    mrf: bool = Field(False, description="refine the fix with MRF fine matching of a 2-D real-time terrain patch (MRF paper); a single-beam bottom track (< 50 % of the cells under it sounded) is recorded as not matchable by MRF and MRF is not run")
+    mrf: bool = Field(False, description="refine the fix with MRF fine matching of a 2-D real-time terrain patch (MRF paper): the vehicle's own swath soundings (dive.yaml sources.vehicle_swath) placed by the fix, else the bottom track; a single-beam bottom track (< 50 % of the cells under it sounded) or a swath too narrow for the map's cells (< 50 % of its cells with four sounded neighbours) is recorded as not matchable by MRF and MRF is not run")
+    mrf_patch_length_m: float | None = Field(
+        None, gt=0, le=1_000_000,
+        description="MRF on the vehicle's swath: the real-time terrain patch is the swath of the first this many metres of the bottom track (MRF moves the fix by one constant shift, which holds over a local patch, not over a track whose dead-reckoning error changes along it); null = 40 map cells, the MRF paper's patch (§4.3: 40 x 30 cells)",
+    )
+    mrf_swath_max_offset_m: float = Field(
+        1000.0, gt=0, le=50_000,
+        description="MRF on the vehicle's swath: soundings farther than this from every bottom-track sample (in the vehicle's dead-reckoned navigation) are not placed on the map (logged outside the bottom phase, or not positioned by the vehicle's navigation)",
+    )
     scale_range: float = Field(0.0, ge=0, lt=0.5, description="search DR scale errors 1 +- this range (0: none)")
     scale_step: float = Field(0.01, ge=1e-5, le=0.5, description="scale search step (1e-5 to 0.5, at most scale_range)")
     mrf_max_shift_cells: float = Field(1.5, gt=0, le=100, description="MRF fine stage (linearised MRF paper Eqs. 7-13): shift search range per iteration, in map cells")
@@ -355,6 +365,57 @@ def _search(ctx: StageContext, p: Params, prof, g, region, dtm_ds):
     return res, post, used
 
 
+def raw_files(ctx: StageContext) -> list[Path]:
+    """Raw files this stage reads besides its upstream products (for the cache fingerprint, tasks/stage.py): the
+    vehicle's swath soundings, when MRF is on."""
+    from hadal.dive import resolve_source
+
+    if not ctx.config.match.mrf:
+        return []
+    return [resolve_source(ctx.raw_dir, e) for e in ctx.dive.sources.files("vehicle_swath")]
+
+
+def _mrf_soundings(ctx: StageContext, p: Params, bottom, track, res, frame, cell_m: float):
+    """The soundings MRF grids into its real-time terrain patch, on the map: the vehicle's own swath
+    (``sources.vehicle_swath``, logged in its navigation = launch + dead reckoning, placed by the fix:
+    :func:`hadal.matching.budget.swath_on_map`) along the first ``mrf_patch_length_m`` of the bottom track (MRF's
+    one shift then corrects the reported start; ``cell_m`` the map's cell) when the dive has one, else the matched
+    bottom track. Returns
+    ``(map xy (K, 2), seafloor depth (K,), {"patch_source": ..., counts for fix.json})``."""
+    import numpy as np
+
+    from hadal.matching.budget import swath_on_map
+
+    files = raw_files(ctx)
+    if not files:
+        return (track[["x_east_m", "y_north_m"]].to_numpy(), track["seafloor_depth_m"].to_numpy(),
+                {"patch_source": "bottom_track"})
+    from hadal.grid.soundings import read_soundings_xy
+
+    hints = ctx.dive.sources.files("vehicle_swath")
+    launch = ctx.dive.require_launch("match", "the vehicle's swath soundings are logged in its navigation from the launch point")
+    x, y, dep, _, used = read_soundings_xy(files, frame, hints)
+    lx, ly = (float(v) for v in frame.to_xy(launch.longitude_deg, launch.latitude_deg))
+    dr = bottom[["dr_east_m", "dr_north_m"]].to_numpy(float)
+    xy, placed, row = swath_on_map(np.column_stack([x - lx, y - ly]), dr, track[["x_east_m", "y_north_m"]].to_numpy(float),
+                                   res, p.mrf_swath_max_offset_m)
+    n_out = int((~placed).sum())
+    if not placed.any():
+        raise InputError(f"{', '.join(str(f) for f in files)}: none of the {placed.size} vehicle swath soundings lies "
+                         f"within {p.mrf_swath_max_offset_m:g} m of the bottom track in the vehicle's dead-reckoned "
+                         "navigation (launch + dead reckoning); are they positioned by the vehicle's own navigation?")
+    along = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(dr, axis=0).T))])
+    length = p.mrf_patch_length_m if p.mrf_patch_length_m is not None else 40 * cell_m
+    near_start = along[row] <= length
+    ctx.log.info("match: MRF patch from %d vehicle swath soundings of the first %g m of the bottom track (%s); %d more "
+                 "placed, %d beyond %g m of the track not placed", int(near_start.sum()), length, "; ".join(used),
+                 int((~near_start).sum()), n_out, p.mrf_swath_max_offset_m)
+    return xy[near_start], dep[placed][near_start], {
+        "patch_source": "vehicle_swath", "patch_length_m": float(length), "n_swath_soundings": int(placed.size),
+        "n_swath_soundings_in_patch": int(near_start.sum()), "n_swath_soundings_not_placed": n_out,
+        "swath_readers": used}
+
+
 #: column attributes of ``matched_track.parquet``
 TRACK_FIELDS = {
     "x_east_m": {"units": "m", "long_name": "matched easting in the dive's map frame"},
@@ -417,10 +478,12 @@ def run(ctx: StageContext) -> dict[str, ProductVersion]:
                       "n_points_matched": int(used.sum()), "matched_length_m": float(prof.along_m[used][-1])}
     fix["dtm"] = {"empty_fraction": empty, "smooth_sigma_cells": sigma}
     if p.mrf:
+        pts, dep, source = _mrf_soundings(ctx, p, bottom, track, res, frame, g.resolution_m)
         fix["mrf"], mrf_warnings = mrf_step(
-            track[["x_east_m", "y_north_m"]].to_numpy(), track["seafloor_depth_m"].to_numpy(), g, g_raw,
-            (fix["start"]["x_east_m"], fix["start"]["y_north_m"]), frame, max_shift_cells=p.mrf_max_shift_cells,
-            max_total_shift_cells=p.mrf_max_total_shift_cells, prior=p.mrf_prior)
+            pts, dep, g, g_raw, (fix["start"]["x_east_m"], fix["start"]["y_north_m"]), frame,
+            max_shift_cells=p.mrf_max_shift_cells, max_total_shift_cells=p.mrf_max_total_shift_cells, prior=p.mrf_prior,
+            patch_source=source["patch_source"])
+        fix["mrf"].update({k: v for k, v in source.items() if k != "patch_source"})
         fix["warnings"].extend(mrf_warnings)
     for w in fix["warnings"]:
         ctx.log.warning("match: %s", w)
