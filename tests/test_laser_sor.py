@@ -122,7 +122,8 @@ def test_nearest_neighbour_on_the_real_laser_raster(takuyo):
 
 
 def test_no_numba_threading_warning_next_to_open3d(tmp_path):
-    """open3d loads an older TBB; numba's parallel kernels (gridding, the spike test) must not warn about it."""
+    """open3d loads an older TBB; numba's parallel kernels (the laser outlier filter run first, as in the laser stage's
+    own process, then gridding and the spike test) must not warn about it."""
     import subprocess
     import sys
 
@@ -131,8 +132,8 @@ def test_no_numba_threading_warning_next_to_open3d(tmp_path):
             "from hadal.grid.laser import grid_laser\n"
             "rng = np.random.default_rng(0)\n"
             "x, y = rng.uniform(0, 100, 3000), rng.uniform(0, 100, 3000)\n"
-            "knn_spike_mask(x, y, rng.normal(size=3000))\n"
-            "grid_laser(np.column_stack([x / 100, y / 100, rng.normal(0, 1e-3, 3000)]), 0.05)\n")
+            "grid_laser(np.column_stack([x / 100, y / 100, rng.normal(0, 1e-3, 3000)]), 0.05)\n"
+            "knn_spike_mask(x, y, rng.normal(size=3000))\n")
     env = {k: v for k, v in __import__("os").environ.items() if not k.startswith("NUMBA_THREADING")}
     out = subprocess.run([sys.executable, "-W", "error::Warning", "-c", code], capture_output=True, text=True,
                          env=env, cwd=tmp_path, timeout=300)

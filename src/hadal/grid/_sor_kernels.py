@@ -16,6 +16,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
+from hadal.grid import _kernels  # noqa: F401 - sets numba's threading layer (OpenMP first) before a parallel call
+
 
 @njit(inline="always")
 def _insert(best, cnt, k, d2):  # pragma: no cover - compiled
