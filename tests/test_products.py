@@ -293,6 +293,25 @@ def test_parquet_metadata_duckdb(ctd_parquet):
     assert duckdb.sql(f"SELECT max(depth_m) FROM '{path}'").fetchall()[0][0] == pytest.approx(99.0)
 
 
+def test_parquet_dictionary_encodes_labels_not_measurements(tmp_path):
+    """Strings and flags are dictionary-encoded, floats and times are not (pyarrow's own column metadata says so);
+    every value reads back exactly, with pandas and pyarrow."""
+    import pyarrow.parquet as pq
+
+    rng = np.random.default_rng(0)
+    n = 5000
+    df = pd.DataFrame({"time": pd.date_range("2018-10-06T23:00:00Z", periods=n, freq="100ms"),
+                       "depth_m": rng.uniform(0, 10900, n), "phase": np.repeat(["descent", "bottom"], n // 2),
+                       "loop_edit_bad": rng.random(n) < 0.1})
+    path = write_parquet(df, tmp_path / "t.parquet")
+    meta = pq.ParquetFile(path).metadata
+    enc = {meta.schema.column(i).name: set(meta.row_group(0).column(i).encodings) for i in range(meta.num_columns)}
+    dict_enc = {"PLAIN_DICTIONARY", "RLE_DICTIONARY"}
+    assert enc["phase"] & dict_enc and not enc["depth_m"] & dict_enc and not enc["time"] & dict_enc, enc
+    pd.testing.assert_frame_equal(pd.read_parquet(path), df, check_dtype=False)
+    assert pq.read_table(path).column("depth_m").to_numpy().tolist() == df["depth_m"].tolist()
+
+
 def test_write_parquet_rejects_non_dataframe(tmp_path):
     with pytest.raises(InputError, match="DataFrame"):
         write_parquet([1, 2], tmp_path / "x.parquet")  # type: ignore[arg-type]

@@ -309,6 +309,15 @@ def read_sensor_csv(path: str | Path, mapping: CsvSource, sensor: str = "sensor"
     return SensorSamples(sensor, rows.t_out.values(), values, f"csv:{path.name}", stats, conversions)
 
 
+def field_column(messages: list[Any], path: str) -> list[Any]:
+    """The (dotted) field ``path`` of every decoded message (:func:`field_getter`; a plain key read inline, without
+    a call per message: 0.5 s of the sample dive's MCAP ingest went to those calls)."""
+    if "." not in path:
+        return [m.get(path) for m in messages]
+    get = field_getter(path)
+    return [get(m) for m in messages]
+
+
 def field_getter(path: str) -> Any:
     """Getter for a (dotted) field of a decoded message: ``"pres"``, ``"header.stamp.sec"``,
     ``"position_covariance.0"``. A key containing the dots itself (a flat JSON key) is found first;
@@ -470,13 +479,12 @@ def sensor_from_records(name: str, log_time_ns: np.ndarray, messages: list[dict[
     if mapping.time.field == "log_time":
         t = parse_time(np.asarray(log_time_ns, dtype=np.int64), mapping.time.format)
     else:
-        get = field_getter(mapping.time.field)
         if n and not any(_has_field(m, mapping.time.field) for m in messages[:1000]):
             raise InputError(f"{source}: topic {mapping.topic} has no time field {mapping.time.field!r}")
         if mapping.time.format == "ros_time":
-            t = _ros_time_ns([get(m) for m in messages])
+            t = _ros_time_ns(field_column(messages, mapping.time.field))
         else:
-            tv, time_types = _time_values([get(m) for m in messages], mapping.time.format)
+            tv, time_types = _time_values(field_column(messages, mapping.time.field), mapping.time.format)
             t = parse_time(tv, mapping.time.format)
     values, conversions = {}, []
     rejected = np.zeros(n, dtype=bool)
@@ -484,8 +492,7 @@ def sensor_from_records(name: str, log_time_ns: np.ndarray, messages: list[dict[
     for var, fm in mapping.fields.items():
         cols = []
         for f in fm.inputs():
-            get = field_getter(f)
-            col = [get(m) for m in messages]
+            col = field_column(messages, f)
             if n and all(c is None for c in col) and not any(_has_field(m, f) for m in messages[:1000]):
                 raise InputError(f"{source}: topic {mapping.topic} has no field {f!r} "
                                  f"(vehicle config maps it to {var})")
@@ -500,8 +507,7 @@ def sensor_from_records(name: str, log_time_ns: np.ndarray, messages: list[dict[
         values[var], recs = map_variable(var, fm, cols, name, where)
         conversions.extend(recs)
     if mapping.valid_field:
-        get = field_getter(mapping.valid_field)
-        ok = np.array([(v := get(m)) is True or v == 1 for m in messages], dtype=bool)
+        ok = np.array([v is True or v == 1 for v in field_column(messages, mapping.valid_field)], dtype=bool)
         for var in values:
             values[var] = np.where(ok, values[var], np.nan)
     bad_t = _nat_mask(t)
