@@ -17,6 +17,7 @@ import numpy as np
 from numba import njit, prange
 
 from hadal.grid import _kernels  # noqa: F401 - sets numba's threading layer (OpenMP first) before a parallel call
+from hadal.grid._cell_search import home_cell, outside_bound
 
 
 @njit(inline="always")
@@ -55,8 +56,7 @@ def _mean_knn_distance_one(x, y, z, u, v, i, starts, ncu, ncv, u0, v0, cs, k, be
     """Mean Euclidean distance of point ``i`` to its ``k`` nearest points (itself included); -1 without any (scratch:
     ``best`` of length ``k``, ``buf`` of three cells' points)."""
     qx, qy, qz = x[i], y[i], z[i]
-    cu = min(max(int((u[i] - u0) / cs), 0), ncu - 1)
-    cv = min(max(int((v[i] - v0) / cs), 0), ncv - 1)
+    cu, cv = home_cell(u[i], v[i], u0, v0, cs, ncu, ncv)
     cnt = 0
     r = 0
     while True:
@@ -76,20 +76,9 @@ def _mean_knn_distance_one(x, y, z, u, v, i, starts, ncu, ncv, u0, v0, cs, k, be
                 if cu + r <= ncu - 1:
                     cnt = _scan(x, y, z, qx, qy, qz, starts[row + cu + r], starts[row + cu + r + 1], best, cnt,
                                 k, buf)
-        # lower bound of the distance to any point outside the searched block (inf where the block reaches
-        # the grid's side), with a margin for the rounding of the cell assignment
-        bound = np.inf
-        if cu - r > 0:
-            bound = min(bound, u[i] - (u0 + (cu - r) * cs))
-        if cu + r < ncu - 1:
-            bound = min(bound, u0 + (cu + r + 1) * cs - u[i])
-        if cv - r > 0:
-            bound = min(bound, v[i] - (v0 + (cv - r) * cs))
-        if cv + r < ncv - 1:
-            bound = min(bound, v0 + (cv + r + 1) * cs - v[i])
+        bound = outside_bound(u[i], v[i], cu, cv, r, u0, v0, cs, ncu, ncv)
         if bound == np.inf:
             break  # the block covers the whole grid
-        bound -= 1e-6 * cs
         if cnt == k and bound > 0 and best[k - 1] <= bound * bound:
             break
         r += 1

@@ -13,6 +13,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
+from hadal.grid._cell_search import home_cell, outside_bound
 from hadal.grid._kernels import _sort_small
 
 
@@ -102,18 +103,19 @@ def _spike_one(x, y, z, p, nbr, nb, k, floor, mad_to_sigma, dx, dy, v, w, res, t
     return abs(z[p] - c0) > k * scale
 
 
+@njit(inline="always")
+def _scratch(nb):  # pragma: no cover - compiled
+    """The scratch arrays of :func:`_spike_one` (``dx, dy, v, w, res, tmp``), length ``nb``."""
+    return np.empty(nb), np.empty(nb), np.empty(nb), np.empty(nb), np.empty(nb), np.empty(nb)
+
+
 @njit(parallel=True, cache=True, nogil=True)
 def knn_spike_flags(x, y, z, s0, nbr, k, floor, mad_to_sigma, out):  # pragma: no cover - compiled
     """``out[s0 + i]`` for every row ``i`` of ``nbr`` (the neighbour indices of sounding ``s0 + i``, itself
     excluded): True where the sounding is a spike (:func:`hadal.grid.multibeam.knn_spike_mask_reference`)."""
     m, nb = nbr.shape
     for i in prange(m):
-        dx = np.empty(nb)
-        dy = np.empty(nb)
-        v = np.empty(nb)
-        w = np.empty(nb)
-        res = np.empty(nb)
-        tmp = np.empty(nb)
+        dx, dy, v, w, res, tmp = _scratch(nb)
         out[s0 + i] = _spike_one(x, y, z, s0 + i, nbr[i], nb, k, floor, mad_to_sigma, dx, dy, v, w, res, tmp)
 
 
@@ -146,8 +148,7 @@ def _knn_cells(x, y, orig, i, starts, ncu, ncv, u0, v0, cs, nb, bd, bi):  # prag
     below the squared distance to the searched block's edge (less a rounding margin), a lower bound of every
     distance outside it: exact, ties broken by the original index."""
     qx, qy = x[i], y[i]
-    cu = min(max(int((qx - u0) / cs), 0), ncu - 1)
-    cv = min(max(int((qy - v0) / cs), 0), ncv - 1)
+    cu, cv = home_cell(qx, qy, u0, v0, cs, ncu, ncv)
     cnt = 0
     r = 0
     while True:
@@ -169,18 +170,9 @@ def _knn_cells(x, y, orig, i, starts, ncu, ncv, u0, v0, cs, nb, bd, bi):  # prag
                                 ddx = qx - x[j]
                                 ddy = qy - y[j]
                                 cnt = _offer(bd, bi, orig, cnt, nb, ddx * ddx + ddy * ddy, j)
-        bound = np.inf
-        if cu - r > 0:
-            bound = min(bound, qx - (u0 + (cu - r) * cs))
-        if cu + r < ncu - 1:
-            bound = min(bound, u0 + (cu + r + 1) * cs - qx)
-        if cv - r > 0:
-            bound = min(bound, qy - (v0 + (cv - r) * cs))
-        if cv + r < ncv - 1:
-            bound = min(bound, v0 + (cv + r + 1) * cs - qy)
+        bound = outside_bound(qx, qy, cu, cv, r, u0, v0, cs, ncu, ncv)
         if bound == np.inf:
             return cnt  # the block covers the whole grid
-        bound -= 1e-6 * cs
         if cnt == nb and bound > 0 and bd[nb - 1] < bound * bound:
             return cnt
         r += 1
@@ -197,12 +189,7 @@ def knn_spike_flags_cells(x, y, z, orig, starts, ncu, ncv, u0, v0, cs, nb, k, fl
     for b in prange((n + block - 1) // block):
         bd = np.empty(nb)
         bi = np.empty(nb, np.int64)
-        dx = np.empty(nb)
-        dy = np.empty(nb)
-        v = np.empty(nb)
-        w = np.empty(nb)
-        res = np.empty(nb)
-        tmp = np.empty(nb)
+        dx, dy, v, w, res, tmp = _scratch(nb)
         for i in range(b * block, min(n, (b + 1) * block)):
             _knn_cells(x, y, orig, i, starts, ncu, ncv, u0, v0, cs, nb, bd, bi)
             out[i] = _spike_one(x, y, z, i, bi, nb, k, floor, mad_to_sigma, dx, dy, v, w, res, tmp)
