@@ -832,7 +832,10 @@ def _prepare_while_server_boots(ctx: Any, names: list[str]) -> None:
     from hadal.stage_process import can_isolate, prestart
 
     isolated = process_stages(names) if resources_of(ctx.config).stage_processes and can_isolate() else set()
-    prestart([n for n in first_stages(names, parallel_stages(ctx.config)) if n in isolated])
+    try:
+        prestart([n for n in first_stages(names, parallel_stages(ctx.config)) if n in isolated])
+    except OSError:  # no process to spare now (e.g. a process limit): the flow starts the stage's own when it runs
+        pass
     if _SERVERS:
         warm_imports([n for n in names if n not in isolated], stop=_temporary_server_ready)
 
