@@ -91,11 +91,10 @@ def process_stages(names: list[str]) -> set[str]:
 
 
 def first_stages(names: list[str], max_running: int | None) -> list[str]:
-    """The stages of ``names`` (in plan order) that :func:`run_stage_graph` starts at once: those without an upstream
-    stage in ``names``, at most ``max_running`` (None: no limit)."""
-    from hadal.plan import downstream_stages
-
-    ready = [n for n in names if not any(n in downstream_stages(o, names) for o in names if o != n)]
+    """The stages of ``names`` (in plan order) that :func:`run_stage_graph` starts at once: those with nothing to wait
+    for (:func:`hadal.plan.stage_dependencies`, the graph's own), at most ``max_running`` (None: no limit)."""
+    deps = stage_dependencies(names)
+    ready = [n for n in names if not deps[n]]
     return ready if max_running is None else ready[:max_running]
 
 

@@ -283,3 +283,19 @@ def test_grid_neighbour_spike_test_ties_and_fallback(case):
         ref = knn_spike_mask_reference(x, y, z, floor=0.5, neighbour_index=_brute_force_neighbours(x, y, 16))
     assert ref.any() and not ref.all()
     assert np.array_equal(fast, ref)
+
+
+def test_dtm_sor_flags_what_open3d_flags():
+    """``grid.sor`` (the DTM's optional statistical outlier removal) flags exactly the soundings open3d's
+    ``remove_statistical_outlier`` removes (oracle: open3d itself), on a trench wall with spikes."""
+    o3d = pytest.importorskip("open3d")
+    from hadal.grid.multibeam import sor_mask
+
+    x, y, z = _trench_wall_soundings(20_000, 5.0, 4)
+    pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(np.column_stack([x, y, z])))
+    _, ind = pc.remove_statistical_outlier(nb_neighbors=16, std_ratio=3.0)
+    ref = np.ones(len(z), dtype=bool)
+    ref[np.asarray(ind, dtype=np.int64)] = False
+    got = sor_mask(x, y, z, 16, 3.0)
+    assert ref.any() and np.array_equal(got, ref)
+    assert not sor_mask(x[:16], y[:16], z[:16], 16, 3.0).any()

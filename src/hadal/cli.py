@@ -777,8 +777,6 @@ def _wait_for_temporary_server() -> None:
     """Wait until hadal's temporary server answers ``/health`` (no-op without one); a server that does not come up
     within ``PREFECT_SERVER_EPHEMERAL_STARTUP_TIMEOUT_SECONDS`` or exits is a one-line :class:`ConfigError`."""
     import time
-    import urllib.error
-    import urllib.request
 
     from hadal.errors import ConfigError
 
@@ -794,30 +792,29 @@ def _wait_for_temporary_server() -> None:
         if srv.proc.poll() is not None:
             raise ConfigError(f"the temporary Prefect server exited with status {srv.proc.returncode} before it "
                               f"answered (its messages are above); {hint}")
-        try:
-            with urllib.request.urlopen(f"{srv.api_url}/health", timeout=2) as resp:
-                if resp.status == 200:
-                    return
-        except (urllib.error.URLError, OSError):
-            pass
+        if _server_answers(srv, 2.0):
+            return
         if time.monotonic() - srv.started > limit:
             raise ConfigError(f"the temporary Prefect server did not answer within {limit:g} s "
                               f"(PREFECT_SERVER_EPHEMERAL_STARTUP_TIMEOUT_SECONDS); {hint}")
         time.sleep(0.05)
 
 
-def _temporary_server_ready() -> bool:
-    """Whether hadal's temporary server answers ``/health`` now (True without one: nothing to wait for)."""
+def _server_answers(srv: _TemporaryServer, timeout_s: float) -> bool:
+    """Whether ``srv`` answers ``/health`` with 200 within ``timeout_s``."""
     import urllib.error
     import urllib.request
 
-    if not _SERVERS:
-        return True
     try:
-        with urllib.request.urlopen(f"{_SERVERS[0].api_url}/health", timeout=0.2) as resp:
+        with urllib.request.urlopen(f"{srv.api_url}/health", timeout=timeout_s) as resp:
             return bool(resp.status == 200)
     except (urllib.error.URLError, OSError):
         return False
+
+
+def _temporary_server_ready() -> bool:
+    """Whether hadal's temporary server answers ``/health`` now (True without one: nothing to wait for)."""
+    return not _SERVERS or _server_answers(_SERVERS[0], 0.2)
 
 
 def _prepare_while_server_boots(ctx: Any, names: list[str]) -> None:

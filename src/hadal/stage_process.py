@@ -67,12 +67,23 @@ def _portable(exc: BaseException) -> BaseException:
         return out
 
 
-def _child(q: Any, name: str, kwargs: dict[str, Any], log_level: int, progress: bool, parent_pid: int,
-           warning_filters: list[Any]) -> None:
+def _guard(parent_pid: int) -> None:
+    """A stage process's first step: ignore a terminal's Ctrl-C and stop by itself when its parent is gone."""
     # Ctrl-C in a terminal reaches the whole process group: the parent decides (the CLI stops its children with
     # SIGTERM and says what was left unpublished), so the child does not die half-way with its own traceback
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     threading.Thread(target=_watch_parent, args=(parent_pid,), daemon=True, name="parent-watchdog").start()
+
+
+def _child(q: Any, name: str, kwargs: dict[str, Any], log_level: int, progress: bool, parent_pid: int,
+           warning_filters: list[Any]) -> None:
+    _guard(parent_pid)
+    _run_job(q, name, kwargs, log_level, progress, warning_filters)
+
+
+def _run_job(q: Any, name: str, kwargs: dict[str, Any], log_level: int, progress: bool,
+             warning_filters: list[Any]) -> None:
+    """Run stage ``name`` in this (stage) process, its log records, warnings and answer sent back on ``q``."""
     for logger_name, level in (("hadal", log_level), ("py.warnings", logging.WARNING)):
         lg = logging.getLogger(logger_name)
         for h in list(lg.handlers):
@@ -120,20 +131,19 @@ def _warm_child(q: Any, conn: Any, parent_pid: int, modules: tuple[str, ...]) ->
     (the arguments of :func:`_child`) on ``conn`` and run it; EOF (the parent exits or no longer needs it): exit."""
     import importlib
 
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
-    threading.Thread(target=_watch_parent, args=(parent_pid,), daemon=True, name="parent-watchdog").start()
+    _guard(parent_pid)
     for mod in modules:
         try:
             importlib.import_module(mod)
         except Exception:  # noqa: BLE001 - the stage itself reports a broken import
             pass
     try:
-        job = conn.recv()
+        name, kwargs, log_level, progress, _, warning_filters = conn.recv()  # the arguments of _child
     except (EOFError, OSError):
         return
     finally:
         conn.close()
-    _child(q, *job)
+    _run_job(q, name, kwargs, log_level, progress, warning_filters)
 
 
 def prestart(names: Any) -> list[str]:

@@ -66,10 +66,16 @@ def lateral_cell_order(x: np.ndarray, y: np.ndarray, k: int) -> CellOrder | None
     binned = uniform_cells(pts, lo, 0, 1, k)
     if binned is None:
         return None
-    _, cs, ncu, ncv, cell, counts = binned
-    if too_dense(counts, len(pts), k):
+    if too_dense(binned[5], len(pts), k):
         return None
+    return sorted_by_cell(binned, float(lo[0]), float(lo[1]))
+
+
+def sorted_by_cell(binned, u0: float, v0: float) -> CellOrder:
+    """The :class:`CellOrder` of points binned by :func:`uniform_cells` (its return value ``binned``) over a grid whose
+    corner is ``(u0, v0)``."""
+    _, cs, ncu, ncv, cell, counts = binned
     order = np.argsort(cell, kind="stable")
     starts = np.zeros(ncu * ncv + 1, np.int64)
     np.cumsum(counts, out=starts[1:])
-    return CellOrder(order, starts, ncu, ncv, float(lo[0]), float(lo[1]), cs)
+    return CellOrder(order, starts, ncu, ncv, u0, v0, cs)

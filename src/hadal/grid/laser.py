@@ -185,7 +185,7 @@ def knn_mean_distance_m(points: np.ndarray, k: int) -> np.ndarray | None:
     :func:`hadal.grid._sor_kernels.knn_mean_distance`); None when the cloud does not suit the grid (no extent in
     any plane, or a cell holding more than ``max(64 k, 1 %)`` of the points)."""
     from hadal.grid._sor_kernels import knn_mean_distance
-    from hadal.grid.knn_cells import too_dense, uniform_cells
+    from hadal.grid.knn_cells import sorted_by_cell, too_dense, uniform_cells
 
     pts = np.ascontiguousarray(points, dtype=np.float64)
     n = len(pts)
@@ -201,20 +201,17 @@ def knn_mean_distance_m(points: np.ndarray, k: int) -> np.ndarray | None:
     binned = trials[(a0, a1)] if step == 1 else uniform_cells(pts, lo, a0, a1, k)  # the subsample is the cloud
     if binned is None:
         return None
-    _, cs, ncu, ncv, cell, counts = binned
-    if too_dense(counts, n, k):
+    if too_dense(binned[5], n, k):
         return None
-    order = np.argsort(cell, kind="stable")
-    starts = np.zeros(ncu * ncv + 1, np.int64)
-    np.cumsum(counts, out=starts[1:])
-    del cell, counts
-    cols = [pts[order, i] for i in range(3)]  # x, y, z in cell order (contiguous copies)
+    co = sorted_by_cell(binned, float(lo[a0]), float(lo[a1]))
+    del binned, trials
+    cols = [pts[co.order, i] for i in range(3)]  # x, y, z in cell order (contiguous copies)
     avg_sorted = np.empty(n)
-    knn_mean_distance(cols[0], cols[1], cols[2], cols[a0], cols[a1], starts, ncu, ncv, float(lo[a0]), float(lo[a1]),
-                      cs, k, avg_sorted, 4096)
+    knn_mean_distance(cols[0], cols[1], cols[2], cols[a0], cols[a1], co.starts, co.ncu, co.ncv, co.u0, co.v0, co.cs,
+                      k, avg_sorted, 4096)
     del cols
     avg = np.empty(n)
-    avg[order] = avg_sorted
+    avg[co.order] = avg_sorted
     return avg
 
 

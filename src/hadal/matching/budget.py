@@ -160,9 +160,10 @@ def swath_on_map(swath_dr_xy: np.ndarray, bottom_dr_xy: np.ndarray, track_map_xy
 
     q = np.asarray(swath_dr_xy, float).reshape(-1, 2)
     b = np.asarray(bottom_dr_xy, float).reshape(-1, 2)
-    ok_b = np.isfinite(b).all(axis=1) & np.isfinite(np.asarray(track_map_xy, float)).all(axis=1)
+    m = np.asarray(track_map_xy, float).reshape(-1, 2)
+    ok_b = np.isfinite(b).all(axis=1) & np.isfinite(m).all(axis=1)
     rows = np.flatnonzero(ok_b)
-    b, m = b[ok_b], np.asarray(track_map_xy, float)[ok_b]
+    b, m = b[ok_b], m[ok_b]
     if len(b) == 0 or len(q) == 0:
         return np.empty((0, 2)), np.zeros(len(q), bool), np.empty(0, int)
     dist, i = cKDTree(b).query(np.nan_to_num(q, nan=np.inf), k=1, distance_upper_bound=float(max_offset_m))
@@ -188,23 +189,21 @@ def mrf_step(track_xy: np.ndarray, seafloor_depth_m: np.ndarray, g: MapGrid, g_r
         # footprint, the share of its sounded cells whose four neighbours are sounded too (the Gibbs neighbourhood
         # and the 2-D Taylor step need them; a swath under ~3 cells wide has almost none)
         cover = swath_interior_fraction(patch)
-        if cover < MRF_MIN_COVERAGE:
-            entry = {"applied": False, "coverage": cover, "patch_source": patch_source,
-                     "reason": f"{100 * cover:.0f} % of the map cells the vehicle's swath sounds have all four "
-                               f"neighbours sounded (< {100 * MRF_MIN_COVERAGE:.0f} %): too narrow or sparse a swath "
-                               "at the map's cell size for a 2-D real-time terrain patch, so MRF is not run"}
-            return entry, ["match.mrf: the vehicle's swath is too narrow or sparse for a 2-D terrain patch at the "
-                           "map's cell size: MRF not run"]
+        reason = (f"{100 * cover:.0f} % of the map cells the vehicle's swath sounds have all four neighbours sounded "
+                  f"(< {100 * MRF_MIN_COVERAGE:.0f} %): too narrow or sparse a swath at the map's cell size for a 2-D "
+                  "real-time terrain patch, so MRF is not run")
+        warning = "match.mrf: the vehicle's swath is too narrow or sparse for a 2-D terrain patch at the map's cell " \
+                  "size: MRF not run"
     else:
-        cover = float(np.isfinite(patch[3:-3, 3:-3]).mean()) if min(patch.shape) > 6 else 0.0
-    if cover < MRF_MIN_COVERAGE:
         # MRF paper §2: the real-time terrain is a 2-D multibeam patch; a single-beam (altimeter) track gridded on
         # the map leaves most cells empty, and the Gibbs neighbourhood prior and the 2-D Taylor step are undefined
-        entry = {"applied": False, "coverage": cover,
-                 "reason": f"MRF fine matching needs a 2-D real-time terrain patch (the vehicle's own swath/multibeam "
-                           f"soundings); this dive's bottom track is a single-beam altimeter profile covering "
-                           f"{100 * cover:.0f} % of the cells under it (< {100 * MRF_MIN_COVERAGE:.0f} %), so MRF is not run"}
-        return entry, ["match.mrf is on but the bottom track is single-beam (no 2-D terrain patch): MRF not run"]
+        cover = float(np.isfinite(patch[3:-3, 3:-3]).mean()) if min(patch.shape) > 6 else 0.0
+        reason = (f"MRF fine matching needs a 2-D real-time terrain patch (the vehicle's own swath/multibeam "
+                  f"soundings); this dive's bottom track is a single-beam altimeter profile covering "
+                  f"{100 * cover:.0f} % of the cells under it (< {100 * MRF_MIN_COVERAGE:.0f} %), so MRF is not run")
+        warning = "match.mrf is on but the bottom track is single-beam (no 2-D terrain patch): MRF not run"
+    if cover < MRF_MIN_COVERAGE:
+        return {"applied": False, "coverage": cover, "patch_source": patch_source, "reason": reason}, [warning]
     try:
         m = mrf_refine(patch, x0, y0, g_raw, max_shift_cells=max_shift_cells,
                        max_total_shift_cells=max_total_shift_cells, prior=prior)
