@@ -1,6 +1,7 @@
 """How well can the sample dive's prior map place the bottom-track start at all? (issue 16, sample-seed goal)
 
-For each generator seed (``hadal synth --small --seed S``, prepared as in bench/sample_seeds_tercom.py and
+For each generator seed (``hadal synth --small --seed S``; ``--full``: ``hadal synth --seed S``, the sample dive
+that ``make demo`` runs; prepared as in bench/sample_seeds_tercom.py and
 kept in ``--work``) this prints, for the start of the bottom track (map cell = 20 m):
 
 * **CRLB**: the Cramér-Rao lower bound of the start position (radial, ``sqrt(tr C)``) for any unbiased
@@ -11,20 +12,27 @@ kept in ``--work``) this prints, for the start of the bottom track (map cell = 2
   as ``N / k`` independent ones, ``k = 1 + 2 sum rho(lag)`` from the autocorrelation of that map error along
   the track (the smoothing correlates the DTM's errors). An independent oracle: it uses the truth, which
   the estimator never sees.
-* **P(within one cell)**: the probability that an efficient estimator (error ~ circular Gaussian with that
-  CRLB) lands within 20 m, and the product over the seeds: the chance that any unbiased estimator meets
-  "within one cell on every seed" with this map.
+* **With DR drift**: the same bound when the dead reckoning also drifts as the generator makes it drift
+  (``truth.json`` ``dr_error``: a velocity noise of 3 mm/s with a 300 s Gaussian smoothing kernel, integrated from
+  the bottom-track start): its depth error ``grad z . w`` is added to the measurement covariance (linearised), so
+  the drift the terrain cannot tell apart from the pose is marginalised (:func:`drift_bound_start_m`; the errors
+  ``s`` are the measured profile minus the map at the true positions, map and profile error together). Also on
+  the true terrain as the map: the bound the drift alone sets.
+* **P(within one cell)**: the probability that an efficient estimator (error ~ Gaussian with that bound's
+  covariance) lands within 20 m, and the product over the seeds: the chance that any estimator meeting the
+  bound is "within one cell on every seed" with this map.
 * The start error of the posterior fix (the match stage's ``posterior_fix`` with its parameters) on the
   prior **DTM**, and on the **true terrain** used as the map (same code, same profile): what the method
   achieves when the map is not the limit.
 
-Run: ``PYTHONPATH=src .venv/bin/python bench/sample_seeds_information.py [--seeds 20181006 1 2 ...] [--work DIR]``
+Run: ``PYTHONPATH=src .venv/bin/python bench/sample_seeds_information.py [--seeds 20181006 1 2 ...] [--work DIR] [--full]``
 (about 1-2 min a seed for a new seed, ~20 s for a prepared one).
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 import warnings
 from pathlib import Path
@@ -66,8 +74,9 @@ def load(d: Path):
     return p, g, unc, terrain, prof, tx, ty
 
 
-def crlb_start_m(g, terrain, tx, ty) -> tuple[float, float, float]:
-    """(radial CRLB of the start, DTM error sigma along the track, correlation factor k) -- module docstring."""
+def crlb_start_m(g, terrain, tx, ty) -> tuple[np.ndarray, float, float]:
+    """(2 x 2 CRLB covariance of the start, DTM error sigma along the track, correlation factor k) -- module
+    docstring."""
     from hadal.matching import MapGrid
 
     h = terrain.resolution_m
@@ -83,7 +92,57 @@ def crlb_start_m(g, terrain, tx, ty) -> tuple[float, float, float]:
     rx, ry = tx[ok] - tx[0], ty[ok] - ty[0]
     J = np.column_stack([zx[ok], zy[ok], zx[ok] * ry - zy[ok] * rx, zx[ok] * rx + zy[ok] * ry, -np.ones(ok.sum())])
     C = np.linalg.inv(J.T @ J / (s2 * k_corr))
-    return float(np.sqrt(C[0, 0] + C[1, 1])), float(np.sqrt(s2)), k_corr
+    return C[:2, :2], float(np.sqrt(s2)), k_corr
+
+
+def drift_covariance_m2(time_s: np.ndarray, sigma_v_m_s: float, corr_s: float, dt_s: float = 5.0) -> np.ndarray:
+    """(N, N) covariance, per axis, of the dead-reckoning drift ``w(t_i) - w(t_0)`` of the generator's model
+    (``truth.json`` ``dr_error``): a stationary velocity noise of ``sigma_v_m_s`` whose Gaussian smoothing kernel has
+    a standard deviation of ``corr_s`` (hadal.synth.track.smooth_noise), i.e. the autocorrelation
+    ``exp(-tau^2 / (4 corr_s^2))``, integrated on a ``dt_s`` grid."""
+    t = np.asarray(time_s, float) - float(time_s[0])
+    grid = np.arange(0.0, t[-1] + dt_s, dt_s)
+    tau = grid[:, None] - grid[None, :]
+    cv = sigma_v_m_s**2 * np.exp(-(tau**2) / (4.0 * corr_s**2))
+    L = np.clip(t[:, None] - grid[None, :], 0.0, dt_s)  # (N, M) time spent in each grid step before t_i
+    return L @ cv @ L.T
+
+
+def drift_bound_start_m(g, terrain, tx, ty, prof, dr_error: dict) -> tuple[np.ndarray, float]:
+    """(2 x 2 bound on the start's covariance, profile-minus-map error sigma at the truth) for any estimator of the rigid pose
+    (start x/y, heading, scale, depth bias; flat priors) when the dead reckoning also drifts as the generator's
+    velocity noise makes it: the drift's depth error ``grad z . w_i`` (linearised) is added to the measurement
+    covariance, ``Sigma = s^2 k I + Zx Sw Zx + Zy Sw Zy``, and the bound is ``(J^T Sigma^-1 J)^-1`` -- the
+    information the terrain has about the start once the drift it cannot tell apart from the pose is marginalised.
+    ``s^2``, ``k``: the measured profile minus the map at the true positions (map error and profile error), its
+    variance and AR integral time as in :func:`crlb_start_m`. Uses the truth (positions, terrain, drift model)."""
+    from hadal.matching import MapGrid
+
+    h = terrain.resolution_m
+    gy, gx = np.gradient(terrain.depth_m, h)
+    zx = MapGrid(gx, terrain.x_m, terrain.y_m, h).sample_bilinear(tx, ty)
+    zy = MapGrid(gy, terrain.x_m, terrain.y_m, h).sample_bilinear(tx, ty)
+    err = g.sample_bilinear(tx, ty) - np.asarray(prof.depth_m, float)
+    ok = np.isfinite(zx) & np.isfinite(zy) & np.isfinite(err)
+    e = err[ok] - err[ok].mean()
+    s2 = float(np.mean(e**2))
+    rho = [float(np.mean(e[:-k] * e[k:]) / s2) for k in range(1, 10)]
+    k_corr = 1.0 + 2.0 * sum(r for r in rho if r > 0)
+    sw = drift_covariance_m2(np.asarray(prof.time_s, float), float(dr_error["velocity_noise_m_s"]),
+                             float(dr_error["velocity_noise_correlation_s"]))[np.ix_(ok, ok)]
+    Zx, Zy = np.diag(zx[ok]), np.diag(zy[ok])
+    cov = s2 * k_corr * np.eye(ok.sum()) + Zx @ sw @ Zx + Zy @ sw @ Zy
+    rx, ry = tx[ok] - tx[0], ty[ok] - ty[0]
+    J = np.column_stack([zx[ok], zy[ok], zx[ok] * ry - zy[ok] * rx, zx[ok] * rx + zy[ok] * ry, -np.ones(ok.sum())])
+    C = np.linalg.inv(J.T @ np.linalg.solve(cov, J))
+    return C[:2, :2], float(np.sqrt(s2))
+
+
+def p_within(cov: np.ndarray, radius_m: float) -> float:
+    """P(|e| <= radius_m) for a start error e ~ N(0, cov) (fixed draws)."""
+    lam = np.clip(np.linalg.eigvalsh(cov), 0.0, None)
+    z = np.random.default_rng(7).standard_normal((200_000, 2))
+    return float(((z**2 @ lam) <= radius_m**2).mean())
 
 
 def start_error_m(p, grid, prof, tx, ty, uncertainty=None) -> tuple[float, float]:
@@ -103,29 +162,37 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", type=int, nargs="+", default=[20181006, 1, 2, 3, 4, 5, 6, 7, 8, 9])
     ap.add_argument("--work", type=Path, default=Path("/tmp/hadal-sample-seeds"))
+    ap.add_argument("--full", action="store_true", help="the full sample dive (as `make demo`), not the small one")
     args = ap.parse_args()
-    print("| seed | DTM error along track m | correlation k | CRLB start m | P(within 1 cell) | "
-          "posterior on DTM: error m / sigma m | posterior on true terrain: error m / sigma m |")
-    print("|---|---|---|---|---|---|---|")
-    probs, on_dtm, on_truth = [], [], []
+    print("| seed | DTM error along track m | correlation k | CRLB start m | P(within 1 cell) | with DR drift: bound m | "
+          "P(within 1 cell) | posterior on DTM: error m / sigma m | posterior on true terrain: error m / sigma m | "
+          "with DR drift, true terrain: bound m |")
+    print("|---|---|---|---|---|---|---|---|---|---|")
+    probs, probs_d, on_dtm, on_truth = [], [], [], []
     for seed in args.seeds:
-        d = prepare(args.work, seed)
+        d = prepare(args.work, seed, small=not args.full)
         p, g, unc, terrain, prof, tx, ty = load(d)
-        crlb, s_map, k = crlb_start_m(g, terrain, tx, ty)
-        per_axis = crlb / np.sqrt(2.0)
-        prob = 1.0 - np.exp(-(CELL_M**2) / (2 * per_axis**2))
+        dr_error = json.loads((d / "dive" / "truth.json").read_text())["dr_error"]
+        c_rigid, s_map, k = crlb_start_m(g, terrain, tx, ty)
+        c_drift, _ = drift_bound_start_m(g, terrain, tx, ty, prof, dr_error)
+        c_drift_true, _ = drift_bound_start_m(terrain, terrain, tx, ty, prof, dr_error)
         e_dtm, s_dtm = start_error_m(p, g, prof, tx, ty, unc)
         e_true, s_true = start_error_m(p, terrain, prof, tx, ty)
-        probs.append(prob)
+        probs.append(p_within(c_rigid, CELL_M))
+        probs_d.append(p_within(c_drift, CELL_M))
         on_dtm.append(e_dtm)
         on_truth.append(e_true)
-        print(f"| {seed} | {s_map:.2f} | {k:.1f} | {crlb:.1f} | {prob:.2f} | {e_dtm:.1f} / {s_dtm:.1f} | "
-              f"{e_true:.1f} / {s_true:.1f} |", flush=True)
+        print(f"| {seed} | {s_map:.2f} | {k:.1f} | {_radial(c_rigid):.1f} | {probs[-1]:.2f} | {_radial(c_drift):.1f} | "
+              f"{probs_d[-1]:.2f} | {e_dtm:.1f} / {s_dtm:.1f} | {e_true:.1f} / {s_true:.1f} | {_radial(c_drift_true):.1f} |",
+              flush=True)
     n = len(probs)
     print(f"\nchance that an efficient unbiased estimator is within one cell on all {n} seeds with this map: "
-          f"{np.prod(probs):.3f}; posterior within one cell: on the DTM {sum(e <= CELL_M for e in on_dtm)}/{n}, "
-          f"on the true terrain {sum(e <= CELL_M for e in on_truth)}/{n}")
+          f"{np.prod(probs):.3f} without the DR drift, {np.prod(probs_d):.3f} with it; posterior within one cell: "
+          f"on the DTM {sum(e <= CELL_M for e in on_dtm)}/{n}, on the true terrain {sum(e <= CELL_M for e in on_truth)}/{n}")
 
+
+def _radial(cov: np.ndarray) -> float:
+    return float(np.sqrt(np.trace(cov)))
 
 if __name__ == "__main__":
     main()
