@@ -90,14 +90,6 @@ def process_stages(names: list[str]) -> set[str]:
             and any(o != n and o not in down[n] and n not in down[o] for o in names)}
 
 
-def first_stages(names: list[str], max_running: int | None) -> list[str]:
-    """The stages of ``names`` (in plan order) that :func:`run_stage_graph` starts at once: those with nothing to wait
-    for (:func:`hadal.plan.stage_dependencies`, the graph's own), at most ``max_running`` (None: no limit)."""
-    deps = stage_dependencies(names)
-    ready = [n for n in names if not deps[n]]
-    return ready if max_running is None else ready[:max_running]
-
-
 def run_stage_graph(dives: list[DiveRun], store_root: str | None, config_path: str | None, force: bool,
                     on_dive_done: Callable[[DiveRun], None] | None = None, max_running: int | None = None,
                     isolate: bool = False) -> None:

@@ -86,6 +86,25 @@ def test_stage_publishes_sites_maps_and_figures(tmp_path):
     assert manifest_upstream(pv) == ["laser_grids"]
 
 
+def test_figures_drawn_beside_the_analysis_are_those_drawn_in_turn(tmp_path):
+    """``figure_processes: 2`` (figures in forked processes while the next submap is analysed, hadal.forkpool) gives
+    the same PNG files, byte for byte, as ``figure_processes: 1`` (drawn one after the other here: the oracle)."""
+    from hadal.forkpool import can_fork
+
+    if not can_fork():
+        pytest.skip("figures are drawn in forked processes on Linux only")
+    pngs = {}
+    for n in (1, 2):
+        ctx = _ctx(tmp_path / f"p{n}", heading_step_deg=30.0, figure_processes=n)
+        _publish_laser(ctx, {"submap_01": _submap(200, 90, 0.02, 8.0, 1),
+                             "submap_02": _submap(200, 90, 0.02, 12.0, 2, y0=4.0),
+                             "submap_03": _submap(200, 90, 0.02, 5.0, 3, y0=8.0)})
+        pv = stage.run(ctx)["landing"]
+        pngs[n] = {p.name: p.read_bytes() for p in (pv.path / "figures").glob("*.png")}
+    assert sum(k.startswith("fig19_") for k in pngs[1]) == 3 and sorted(pngs[1]) == sorted(pngs[2])
+    assert all(pngs[1][k] == pngs[2][k] for k in pngs[1])
+
+
 def manifest_upstream(pv) -> list[str]:
     return [u["product"] for u in pv.manifest()["upstream"]]
 

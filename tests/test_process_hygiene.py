@@ -20,7 +20,7 @@ import psutil
 import pytest
 
 HERE = Path(__file__).resolve().parent
-HADAL = [sys.executable, "-c", "import sys; from hadal.cli import main; sys.argv[0] = 'hadal'; main()"]
+HADAL = [sys.executable, "-m", "hadal.cli"]  # the `hadal` command's own entry (hadal.cli.entry)
 
 
 def _env(**extra: str) -> dict[str, str]:
@@ -150,3 +150,23 @@ def test_unwritable_prefect_home_is_one_line_exit_2(small_dive, tmp_path):
     out = r.stdout + r.stderr
     assert r.returncode == 2 and "Traceback" not in out, out[-3000:]
     assert sum(ln.startswith("error:") for ln in out.splitlines()) == 1, out
+
+
+def test_a_finished_run_exits_at_once_and_leaves_no_process(small_dive, tmp_path):
+    """``hadal run`` ends without the interpreter's teardown (:func:`hadal.cli.entry`) but as a normal exit would:
+    the flow's thread pool stopped (joining its threads without threading's exit hooks hung here), the temporary
+    server and the stage processes stopped, status 0, the closing table printed, nothing left in its session."""
+    store = tmp_path / "store"
+    proc = subprocess.Popen([*HADAL, "run", str(small_dive), "--store", str(store)], start_new_session=True,
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+                            env=_env(PREFECT_HOME=str(tmp_path / "prefect")))
+    try:
+        out, _ = proc.communicate(timeout=600)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    assert proc.returncode == 0, out[-3000:]
+    assert "report" in out and "published" in out and "Traceback" not in out, out[-3000:]
+    assert (store / small_dive.name / "report").is_dir() or any(store.glob("*/report/v001"))
+    _assert_none_left(proc.pid, set(), timeout=5.0)

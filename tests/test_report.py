@@ -441,3 +441,20 @@ def test_qc_flag_summary_counts_and_renders():
     assert rows["practical_salinity"] == {"variable": "practical_salinity", "good": 3, "not evaluated": 0,
                                           "suspect": 0, "fail": 1, "missing": 2, "flagged %": 25.0}
     assert rows["depth_m"]["suspect"] == 2 and rows["depth_m"]["flagged %"] == pytest.approx(100 * 2 / 6, abs=1e-3)
+
+
+def test_figures_drawn_in_two_processes_are_those_drawn_here(full_store):
+    """``FigureOptions(workers=2)`` (forked children, :mod:`hadal.forkpool`) gives the same figures, byte for byte and
+    in the same order, as drawing them one after the other in this process (the oracle)."""
+    from hadal.forkpool import can_fork
+    from hadal.report import make_figures
+
+    if not can_fork():
+        pytest.skip("figures are drawn in forked processes on Linux only")
+    dp = load_products(ProductStore(full_store), "dive-a")
+    here = make_figures(dp, FigureOptions(workers=1))
+    forked = make_figures(dp, FigureOptions(workers=2))
+    assert [f.key for f in forked] == [f.key for f in here]
+    assert sum(f.png is not None for f in here) >= 9
+    for a, b in zip(here, forked, strict=True):
+        assert (a.png, a.skipped, a.caption) == (b.png, b.skipped, b.caption), a.key

@@ -205,7 +205,10 @@ def test_a_stage_process_started_ahead_runs_the_job_and_an_unused_one_exits_with
         assert sp.prestart(["dtm", "laser"]) == ["dtm", "laser"] and sp.prestart(["dtm"]) == []
         warm_dtm = sp._WARM["dtm"].proc
         out = sp.run_stage_in_process("dtm", raw_dir={str(raw)!r}, store_root={str(tmp_path / "a")!r}, progress=False)
-        warm_dtm.join(10)
+        import time
+        deadline = time.monotonic() + 30  # reaped by run_stage_in_process's thread (its join and ours would race)
+        while warm_dtm.is_alive() and time.monotonic() < deadline:
+            time.sleep(0.05)
         assert "dtm" not in sp._WARM and warm_dtm.exitcode == 0, warm_dtm.exitcode
         print(out["dtm"])
         print(sp._WARM["laser"].proc.pid, flush=True)
@@ -231,7 +234,7 @@ def test_warm_imports_stop_when_told_and_every_declared_module_imports():
     import importlib
 
     from hadal.pipeline import warm_imports
-    from hadal.stages import STAGE_ORDER, stage_module
+    from hadal.stages import STAGE_ORDER, stage_module, warm
 
     assert warm_imports(["ingest", "derive"], stop=lambda: True) == []
     calls = []
@@ -245,4 +248,7 @@ def test_warm_imports_stop_when_told_and_every_declared_module_imports():
         mods = getattr(stage_module(name), "WARM_IMPORTS", ())
         assert mods, f"stage {name} declares no WARM_IMPORTS"
         for m in mods:
-            importlib.import_module(m)
+            mod, _, func = m.partition(":")
+            module = importlib.import_module(mod)
+            assert not func or callable(getattr(module, func, None)), f"{name}: {m} names no function"
+            assert warm(m), m

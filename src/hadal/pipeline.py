@@ -415,16 +415,13 @@ def warm_imports(names: Sequence[str], *, stop: Any = None) -> list[str]:
     sample dive's thread stages) on the run's critical path. A module that fails to import is left to its stage,
     which reports the failure in its own words. Imports run in the calling thread only: importing beside other
     threads can deadlock on circular imports."""
-    import importlib
+    from hadal.stages import warm
 
     done: list[str] = []
     for name in names:
         for mod in getattr(stage_module(name), "WARM_IMPORTS", ()):
             if stop is not None and stop():
                 return done
-            try:
-                importlib.import_module(mod)
-            except Exception:  # noqa: BLE001 - the stage itself reports a broken import
-                continue
-            done.append(mod)
+            if warm(mod):
+                done.append(mod)
     return done

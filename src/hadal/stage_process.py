@@ -129,14 +129,11 @@ _WARM_LOCK = threading.Lock()
 def _warm_child(q: Any, conn: Any, parent_pid: int, modules: tuple[str, ...]) -> None:
     """A stage process started ahead: import ``modules`` (the stage's ``WARM_IMPORTS``), then wait for the job
     (the arguments of :func:`_child`) on ``conn`` and run it; EOF (the parent exits or no longer needs it): exit."""
-    import importlib
+    from hadal.stages import warm
 
     _guard(parent_pid)
     for mod in modules:
-        try:
-            importlib.import_module(mod)
-        except Exception:  # noqa: BLE001 - the stage itself reports a broken import
-            pass
+        warm(mod)
     try:
         name, kwargs, log_level, progress, _, warning_filters = conn.recv()  # the arguments of _child
     except (EOFError, OSError):
@@ -243,6 +240,15 @@ def _reemit(record: logging.LogRecord) -> None:
         lg.handle(record)
 
 
+def _reap(proc: Any, q: Any) -> None:
+    """Wait for a stage process to exit (killed after 30 s) and close its queue."""
+    proc.join(timeout=30)
+    if proc.is_alive():
+        proc.kill()
+        proc.join(timeout=5)
+    q.close()
+
+
 def run_stage_in_process(name: str, *, raw_dir: str, store_root: str | None = None, config_path: str | None = None,
                          pins: dict[str, str] | None = None, failed: dict[str, str] | None = None,
                          failed_skips: dict[str, str] | None = None, run_info: dict[str, Any] | None = None,
@@ -291,13 +297,14 @@ def run_stage_in_process(name: str, *, raw_dir: str, store_root: str | None = No
     except BaseException:
         if proc.is_alive():
             proc.terminate()
+        _reap(proc, q)
         raise
-    finally:
-        proc.join(timeout=30)
-        if proc.is_alive():
-            proc.kill()
-            proc.join(timeout=5)
-        q.close()
+    if answer is not None:
+        # answered: its interpreter's exit (atexit hooks, module teardown: ~0.7 s after the heavy stages) is not
+        # waited for here, where the flow's next stage waits; a daemon thread reaps it
+        threading.Thread(target=_reap, args=(proc, q), daemon=True, name=f"reap-{proc.name}").start()
+    else:
+        _reap(proc, q)
     if answer is None:
         code = proc.exitcode
         if code is not None and code < 0:

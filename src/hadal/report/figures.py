@@ -68,6 +68,8 @@ class FigureOptions:
     width_in: float = 10.0
     max_points: int = 20000
     keep_figure: bool = False  # keep the Figure on the result (FigureResult.figure); off: freed after rendering
+    #: processes drawing the figures (:class:`hadal.forkpool.ForkPool`; 1 with ``keep_figure``: a Figure stays here)
+    workers: int = 1
 
 
 def _png(fig: Figure, dpi: int, tight: bool = True) -> bytes:
@@ -679,15 +681,22 @@ def all_figures() -> tuple[Callable[[DiveProducts, FigureOptions], FigureResult]
     return tuple(out)
 
 
+def _figure_or_skip(fn: Callable[[DiveProducts, FigureOptions], FigureResult], dp: DiveProducts,
+                    opt: FigureOptions) -> FigureResult:
+    try:
+        return fn(dp, opt)
+    except Exception as exc:  # defensive: unexpected product content must not sink the whole report
+        name = fn.__name__.removeprefix("fig_")
+        return FigureResult(name, name.replace("_", " "), "Other", "", skipped=f"could not draw ({type(exc).__name__}: {exc})")
+
+
 def make_figures(dp: DiveProducts, opt: FigureOptions | None = None) -> list[FigureResult]:
-    """All report figures; a figure that fails to draw is skipped with the reason (never fails the report)."""
+    """All report figures; a figure that fails to draw is skipped with the reason (never fails the report). With
+    ``opt.workers`` > 1 they are drawn in that many processes (:class:`hadal.forkpool.ForkPool`), in the same order."""
+    from hadal.forkpool import ForkPool
+
     opt = opt or FigureOptions()
-    out = []
-    for fn in all_figures():
-        try:
-            out.append(fn(dp, opt))
-        except Exception as exc:  # defensive: unexpected product content must not sink the whole report
-            name = fn.__name__.removeprefix("fig_")
-            out.append(FigureResult(name, name.replace("_", " "), "Other", "",
-                                    skipped=f"could not draw ({type(exc).__name__}: {exc})"))
-    return out
+    with ForkPool(1 if opt.keep_figure else opt.workers) as pool:
+        for fn in all_figures():
+            pool.submit(_figure_or_skip, fn, dp, opt)
+        return pool.results()

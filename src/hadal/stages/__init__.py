@@ -156,6 +156,21 @@ def stage_module(name: str) -> ModuleType:
     return importlib.import_module(f"hadal.stages.{name}")
 
 
+def warm(entry: str) -> bool:
+    """One entry of a stage's ``WARM_IMPORTS``, done ahead of the stage (while Prefect's server boots, or in a stage
+    process started ahead): ``"pkg.module"`` is imported; ``"pkg.module:function"`` is imported and the function
+    called (a first-use cost that is not an import, e.g. matplotlib's first figure: :func:`hadal.mplwarm.first_draw`).
+    False when it fails: the stage itself then reports the problem in its own words."""
+    mod, _, func = entry.partition(":")
+    try:
+        m = importlib.import_module(mod)
+        if func:
+            getattr(m, func)()
+    except Exception:  # noqa: BLE001 - the stage itself reports a broken import
+        return False
+    return True
+
+
 def available_stages() -> list[str]:
     """Stages that are implemented (define ``run``), in execution order."""
     out = []

@@ -21,6 +21,7 @@ from pydantic import ConfigDict, Field
 
 from hadal.budget import memory_limit_bytes
 from hadal.errors import InputError, StageError
+from hadal.forkpool import ForkPool, default_workers
 from hadal.landing.limits import COARSE_CELL_LIMIT
 from hadal.landing.options import AnalysisOptions
 from hadal.landing.vehicle import Vehicle
@@ -32,7 +33,8 @@ if TYPE_CHECKING:
     import xarray as xr
 
 #: modules its run imports (lazily), imported ahead while Prefect's server boots (:func:`hadal.pipeline.warm_imports`)
-WARM_IMPORTS = ("hadal.landing.sites", "hadal.landing.figures", "hadal.products.geo_landing", "hadal.products.io",)
+WARM_IMPORTS = ("hadal.landing.sites", "hadal.landing.figures", "hadal.products.geo_landing", "hadal.products.io",
+                "hadal.forkpool", "hadal.mplwarm:first_draw")
 PRODUCTS = ("landing",)
 UPSTREAM = ("laser_grids",)
 INPUTS = StageInputs(upstream=("laser_grids",))
@@ -57,6 +59,12 @@ class Params(AnalysisOptions):
     workers: int = Field(0, ge=0, le=64, description="headings analysed in parallel threads (0 = auto: "  # type: ignore[assignment]
                          "min(4, CPU cores); each thread beyond the first needs ~24 bytes per cell)")
     figures: bool = Field(True, description="write PNG figures into the product")
+    figure_processes: int | None = Field(
+        None, ge=1, le=64,
+        description="processes drawing the figures while the next submap is analysed (forked children beside the "
+                    "stage's own; null: 2 on a machine with 2 or more cores where processes can be forked (Linux, the "
+                    "main thread), "
+                    "else 1)")
 
 
 def _read_submap(path: Path) -> tuple[xr.DataArray, xr.DataArray | None]:
@@ -225,15 +233,15 @@ def _write_dive_products(ctx, p: Params, acc: _DiveSites, out: Path) -> tuple[pd
 
 
 def _write_dive_figures(ctx, acc: _DiveSites, sites_df: pd.DataFrame, finals_df: pd.DataFrame, best_res,
-                        figdir: Path) -> None:
-    """Figs. 25 and 21 of the dive, Figs. 13 and 18 of its best submap."""
+                        figdir: Path, pool: ForkPool) -> None:
+    """Figs. 25 and 21 of the dive, Figs. 13 and 18 of its best submap (drawn by ``pool``)."""
     from hadal.landing import figures as fg
 
-    fg.figure_transect(finals_df, acc.outlines, figdir / "fig25_transect.png")
-    fg.figure_costs_vs_heading(sites_df, figdir / "fig21_costs_vs_heading.png", f"{ctx.dive_id}: all submaps")
+    pool.submit(fg.figure_transect, finals_df, acc.outlines, figdir / "fig25_transect.png")
+    pool.submit(fg.figure_costs_vs_heading, sites_df, figdir / "fig21_costs_vs_heading.png", f"{ctx.dive_id}: all submaps")
     if best_res is not None and acc.best_overall is not None:
-        fg.figure_slope_exclusion(best_res, figdir / f"fig13_slope_{acc.best_overall[1]}.png")
-        fg.figure_protrusion_exclusion(best_res, figdir / f"fig18_protrusions_{acc.best_overall[1]}.png")
+        pool.submit(fg.figure_slope_exclusion, best_res, figdir / f"fig13_slope_{acc.best_overall[1]}.png")
+        pool.submit(fg.figure_protrusion_exclusion, best_res, figdir / f"fig18_protrusions_{acc.best_overall[1]}.png")
 
 
 def run(ctx) -> dict:
@@ -249,7 +257,8 @@ def run(ctx) -> dict:
     mem_limit = memory_limit_bytes(ctx.config)
     threads = p.workers or min(4, os.cpu_count() or 1)
     acc = _DiveSites()
-    with ctx.store.publish(ctx.dive_id, "landing", parameters=ctx.params("landing"), upstream=[laser]) as draft:
+    with ctx.store.publish(ctx.dive_id, "landing", parameters=ctx.params("landing"), upstream=[laser]) as draft, \
+            ForkPool((p.figure_processes or default_workers()) if p.figures else 1) as pool:
         figdir = draft.path / "figures"
         if p.figures:
             figdir.mkdir()
@@ -260,14 +269,15 @@ def run(ctx) -> dict:
             if res is None:
                 continue
             acc.add(name, res)
-            _write_submap_maps(ctx, res, draft.path / f"{name}_maps.nc", name)
-            if p.figures:
+            if p.figures:  # drawn beside the next submap's analysis when a process is free
                 from hadal.landing import figures as fg
 
-                fg.figure_sites(res, figdir / f"fig19_sites_{name}.png")
+                pool.submit(fg.figure_sites, res, figdir / f"fig19_sites_{name}.png")
                 if acc.best_overall is not None and acc.best_overall[1] == name:
                     best_res = res  # only the dive's best submap is kept for the detailed figures
+            _write_submap_maps(ctx, res, draft.path / f"{name}_maps.nc", name)
         sites_df, finals_df = _write_dive_products(ctx, p, acc, draft.path)
         if p.figures:
-            _write_dive_figures(ctx, acc, sites_df, finals_df, best_res, figdir)
+            _write_dive_figures(ctx, acc, sites_df, finals_df, best_res, figdir, pool)
+        pool.results()
     return {"landing": draft.result}

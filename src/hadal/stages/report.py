@@ -16,7 +16,8 @@ if TYPE_CHECKING:
     from hadal.store import ProductVersion
 
 #: modules its run imports (lazily), imported ahead while Prefect's server boots (:func:`hadal.pipeline.warm_imports`)
-WARM_IMPORTS = ("hadal.report", "hadal.report.figures", "hadal.report.ctd_figures", "hadal.report.geo_figures", "hadal.plan")
+WARM_IMPORTS = ("hadal.report", "hadal.report.figures", "hadal.report.ctd_figures", "hadal.report.geo_figures", "hadal.plan",
+                "hadal.forkpool", "hadal.mplwarm:first_draw")
 PRODUCTS = ("report",)
 #: every product the report can use; all optional (hadal.report.load.REPORT_INPUTS)
 UPSTREAM = ("sensors", "ctd", "profile", "dtm", "laser_grids", "suitability", "match", "landing")
@@ -31,13 +32,19 @@ class Params(BaseModel):
     figure_width_in: float = Field(10.0, gt=2, le=30, description="figure width in inches")
     max_points: int = Field(20000, ge=100, le=10_000_000, description="time series are thinned to at most this many points per figure")
     best_sites: int = Field(5, ge=1, le=100, description="number of best landing sites listed")
+    figure_processes: int | None = Field(
+        None, ge=1, le=64,
+        description="processes drawing the figures (forked children beside the stage's own; null: 2 on a machine with "
+                    "2 or more cores where processes can be forked (Linux, the main thread), else 1)")
     title: str | None = Field(None, description="report title (default: 'Dive report — <dive id>')")
 
 
 def options(p: Params) -> FigureOptions:
+    from hadal.forkpool import default_workers
     from hadal.report import FigureOptions
 
-    return FigureOptions(dpi=p.dpi, width_in=p.figure_width_in, max_points=p.max_points)
+    return FigureOptions(dpi=p.dpi, width_in=p.figure_width_in, max_points=p.max_points,
+                         workers=p.figure_processes or default_workers())
 
 
 def run(ctx: StageContext) -> dict[str, ProductVersion]:
