@@ -98,12 +98,14 @@ def test_a_killed_child_is_a_one_line_stage_error_and_publishes_nothing(tmp_path
     raw = _dive(tmp_path / "raw", lines=1)
     me = psutil.Process()
     killed: list[int] = []
+    # an earlier test's stage process may still be exiting (answered children are reaped by a thread): not this one
+    before = {k.pid for k in me.children()}
 
     def killer():
         deadline = time.monotonic() + 30
         while time.monotonic() < deadline and not killed:
             for k in me.children():
-                if "spawn_main" in " ".join(k.cmdline()):
+                if k.pid not in before and "spawn_main" in " ".join(k.cmdline()):
                     k.kill()
                     killed.append(k.pid)
             time.sleep(0.05)

@@ -27,8 +27,6 @@ import warnings
 from collections.abc import Callable
 from typing import Any
 
-from hadal.errors import StageError
-
 
 def can_fork() -> bool:
     """Whether :class:`ForkPool` forks here: Linux (fork is the platform's own start method), not inside a daemonic
@@ -66,14 +64,15 @@ class ForkPool:
             raise ValueError(f"workers must be at least 1, got {workers}")
         self.workers = int(workers) if can_fork() else 1
         self._ctx = mp.get_context("fork") if self.workers > 1 else None
-        self._calls: list[tuple[Callable[..., Any], tuple[Any, ...]]] = []
+        self._n = 0  # calls submitted
         self._done: dict[int, Any] = {}
-        self._running: dict[int, tuple[Any, Any]] = {}  # call index -> (process, parent end of its pipe)
+        # call index -> (process, parent end of its pipe, the call: kept only while a child runs it, for a re-run)
+        self._running: dict[int, tuple[Any, Any, Callable[..., Any], tuple[Any, ...]]] = {}
 
     def submit(self, fn: Callable[..., Any], *args: Any) -> None:
         """Run ``fn(*args)`` in a forked child if one is free, else here (now)."""
-        i = len(self._calls)
-        self._calls.append((fn, args))
+        i = self._n
+        self._n += 1
         self._reap(block=False)
         if self._ctx is None or len(self._running) >= self.workers - 1:
             self._done[i] = fn(*args)
@@ -90,12 +89,12 @@ class ForkPool:
                 self._done[i] = fn(*args)
                 return
         child_end.close()
-        self._running[i] = (proc, parent_end)
+        self._running[i] = (proc, parent_end, fn, args)
 
     def _reap(self, block: bool) -> None:
         """Collect the answers of finished children (all of them with ``block``); a child without an answer has its
         call re-run here."""
-        for i, (proc, conn) in list(self._running.items()):
+        for i, (proc, conn, fn, args) in list(self._running.items()):
             if not block and not conn.poll():
                 continue
             try:
@@ -109,20 +108,16 @@ class ForkPool:
             if ok:
                 self._done[i] = value
             else:  # re-run here: the same call raises the same error here (with its traceback), or succeeds
-                fn, args = self._calls[i]
                 self._done[i] = fn(*args)
 
     def results(self) -> list[Any]:
         """Every call's result, in submission order (waits for the children)."""
-        self._reap(block=True)
-        missing = [i for i in range(len(self._calls)) if i not in self._done]
-        if missing:  # cannot happen: every call is done here, by a child, or re-run here
-            raise StageError(f"fork pool: calls {missing} have no result")
-        return [self._done[i] for i in range(len(self._calls))]
+        self._reap(block=True)  # every call is now done: here, by a child, or re-run here
+        return [self._done[i] for i in range(self._n)]
 
     def close(self) -> None:
         """Stop children still running (after an error in this process)."""
-        for proc, conn in self._running.values():
+        for proc, conn, _, _ in self._running.values():
             if proc.is_alive():
                 proc.terminate()
             proc.join()

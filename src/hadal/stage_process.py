@@ -127,8 +127,9 @@ _WARM_LOCK = threading.Lock()
 
 
 def _warm_child(q: Any, conn: Any, parent_pid: int, modules: tuple[str, ...]) -> None:
-    """A stage process started ahead: import ``modules`` (the stage's ``WARM_IMPORTS``), then wait for the job
-    (the arguments of :func:`_child`) on ``conn`` and run it; EOF (the parent exits or no longer needs it): exit."""
+    """A stage process started ahead: warm ``modules`` (the stage's ``WARM_IMPORTS``, :func:`hadal.stages.warm`), then
+    wait for the job (the arguments of :func:`_child`) on ``conn`` and run it; EOF (the parent exits or no longer
+    needs it): exit."""
     from hadal.stages import warm
 
     _guard(parent_pid)
@@ -299,13 +300,8 @@ def run_stage_in_process(name: str, *, raw_dir: str, store_root: str | None = No
             proc.terminate()
         _reap(proc, q)
         raise
-    if answer is not None:
-        # answered: its interpreter's exit (atexit hooks, module teardown: ~0.7 s after the heavy stages) is not
-        # waited for here, where the flow's next stage waits; a daemon thread reaps it
-        threading.Thread(target=_reap, args=(proc, q), daemon=True, name=f"reap-{proc.name}").start()
-    else:
-        _reap(proc, q)
     if answer is None:
+        _reap(proc, q)
         code = proc.exitcode
         if code is not None and code < 0:
             sig = -code
@@ -313,6 +309,9 @@ def run_stage_in_process(name: str, *, raw_dir: str, store_root: str | None = No
         else:
             why = f"exit code {code}"
         raise StageError(f"stage {name}: its process ended without an answer ({why})")
+    # answered: its interpreter's exit (atexit hooks, module teardown: ~0.7 s after the heavy stages) is not waited
+    # for here, where the flow's next stage waits; a daemon thread reaps it
+    threading.Thread(target=_reap, args=(proc, q), daemon=True, name=f"reap-{proc.name}").start()
     kind, payload = answer
     if kind == "error":
         raise payload
