@@ -159,3 +159,23 @@ def test_options_declared_once_and_read_by_the_stage_and_navigation():
         params = inspect.signature(fn).parameters
         assert not set(params) & (set(TercomOptions.model_fields) - {"criterion"}), fn.__name__
     assert inspect.signature(tercom).parameters["criterion"].default is None
+
+
+def test_matched_track_keeps_the_time_column_and_places_samples_by_the_result():
+    """matched_track: the bottom samples' tz-aware times pass through unchanged (dtype and values; no object-array
+    round trip) and each sample is placed at start + (track - track[0]) (heading 0) plus the drift."""
+    import pandas as pd
+
+    from hadal.matching.fix import matched_track
+
+    n = 50
+    t = pd.date_range("2026-12-04 10:00", periods=n, freq="250ms", tz="UTC")
+    bottom = pd.DataFrame({"time": t, "dr_east_m": np.arange(n) * 2.0 + 7.0, "dr_north_m": np.full(n, -3.0),
+                           "depth_m": np.full(n, 5000.0), "seafloor_depth_m": np.full(n, 5010.0)},
+                          index=np.arange(100, 100 + n))
+    drift = np.column_stack([np.linspace(0, 1, n), np.zeros(n)])
+    out = matched_track(bottom, _result(start=(100.0, 200.0)), LocalFrame(11.33, 142.2), drift_xy=drift)
+    assert out["time"].dtype == bottom["time"].dtype
+    assert (out["time"].to_numpy() == bottom["time"].to_numpy()).all()
+    np.testing.assert_allclose(out["x_east_m"], 107.0 + np.arange(n) * 2.0 + drift[:, 0])
+    np.testing.assert_allclose(out["y_north_m"], 197.0)

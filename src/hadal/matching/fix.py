@@ -94,7 +94,7 @@ def matched_track(bottom: pd.DataFrame, res: TercomResult, frame: LocalFrame, ma
         xy = xy + np.asarray(drift_xy, float).reshape(-1, 2)
     lon, lat = frame.to_lonlat(xy[:, 0], xy[:, 1])
     out = pd.DataFrame({
-        "time": bottom["time"].to_numpy(),
+        "time": bottom["time"].array,  # its own dtype: to_numpy() of tz-aware times is an object array (0.3 s)
         "x_east_m": xy[:, 0],
         "y_north_m": xy[:, 1],
         "lon": np.asarray(lon, float),
