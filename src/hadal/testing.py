@@ -164,12 +164,14 @@ def meander_track(n: int, step_m: float, rng, turn_sd_rad: float = 0.35) -> np.n
 KINDS = ("clean", "drift", "holes", "off_map", "flat", "short")
 
 
-def simulate_case(g, truth, rng, kind: str = "clean", n: int | None = None, noise_frac: float | None = None):
+def simulate_case(g, truth, rng, kind: str = "clean", n: int | None = None, noise_frac: float | None = None,
+                  walk_cells: float = 0.03):
     """One simulated dive segment with known truth on a (real) map ``g`` whose seafloor is ``truth``.
 
     The vehicle's dead-reckoned track ``dr`` (one sample per map cell of travel) is related to the true
     track by ``true_i = start + f R(a) (dr_i - dr_0) + w_i`` (heading error ``a`` in +-4 deg, scale ``f``
-    in 1 +- 3 %, ``w`` a random walk plus a velocity bias, zero at the start); the profile is the true
+    in 1 +- 3 %, ``w`` a random walk of ``walk_cells`` cells per sample and axis (1 sigma; 0: none) plus a
+    velocity bias, zero at the start); the profile is the true
     seafloor minus a bias (+-50 m) plus noise (``noise_frac`` x the map relief, 0-2 %). ``kind``:
     ``clean``; ``drift`` (velocity bias up to 2 % of the distance); ``holes`` (NaN blobs under 40-50 %
     of the samples); ``off_map`` (25-35 % of the true track off the map); ``flat`` (a zero-relief map);
@@ -197,7 +199,7 @@ def simulate_case(g, truth, rng, kind: str = "clean", n: int | None = None, nois
         q = _rotate(rel, a) * f
         s = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(rel, axis=0).T))])
         ang = rng.uniform(0, 2 * np.pi)
-        w = np.cumsum(rng.normal(0, 0.03 * h, (n, 2)), axis=0)
+        w = np.cumsum(rng.normal(0, 1.0, (n, 2)) * (walk_cells * h), axis=0)  # same draws for any walk_cells
         w -= w[0]
         w += vb * s[:, None] * np.array([np.cos(ang), np.sin(ang)])
         q = q + w
