@@ -24,8 +24,8 @@ def test_results_in_order_and_equal_to_a_plain_loop():
             pool.submit(_pid_and_square, x)
         out = pool.results()
     assert [v for _, v in out] == [x * x for x in items]
-    pids = {p for p, _ in out}
-    assert os.getpid() in pids or len(pids) > 1  # some ran in children (what ran where depends on timing)
+    # the first call always goes to a child (none is busy yet); which of the others do depends on timing
+    assert out[0][0] != os.getpid()
 
 
 def test_one_worker_is_a_plain_loop_here():

@@ -163,7 +163,8 @@ def test_options_declared_once_and_read_by_the_stage_and_navigation():
 
 def test_matched_track_keeps_the_time_column_and_places_samples_by_the_result():
     """matched_track: the bottom samples' tz-aware times pass through unchanged (dtype and values; no object-array
-    round trip) and each sample is placed at start + (track - track[0]) (heading 0) plus the drift."""
+    round trip) and each sample is placed at start + (track - the result's track start, here (0, 0)) (heading 0)
+    plus the drift."""
     import pandas as pd
 
     from hadal.matching.fix import matched_track
