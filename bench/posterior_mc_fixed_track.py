@@ -1,7 +1,7 @@
 """Does the posterior fix's reported covariance match its own sampling spread on one fixed track? (issue 16)
 
-A diagnostic for the calibration bench (bench/calibration_tercom.py). There the errors of clean fixes are ~25 %
-smaller than reported while the tail is heavy, and the two cannot be told apart across random tracks. Here one
+A diagnostic for the calibration bench (bench/calibration_tercom.py), where the clean fixes' errors were ~25 %
+smaller than reported while the tail was heavy, two effects that cannot be told apart across random tracks. Here one
 track geometry is fixed on a real grid and only the noise is redrawn, so the Monte-Carlo spread of the fixed
 start is the oracle the reported covariance should match (trace ratio ~1):
 
@@ -16,19 +16,15 @@ Printed: the mean error (bias), the empirical standard deviations, the mean repo
 the ratio of the mean reported trace to the empirical mean squared error.
 
 Measured 2026-12-04 with the defaults (gmt_depth_pixel centre crop, track seed 3, 60 samples, noise 18.6 m, 80
-draws): empirical std 0.051-0.096 cell, reported 0.15-0.32 cell; the trace ratio is 3.7-6.1 with the drift and
-7.2-14.1 without, even where the measurement model holds exactly (the bilinear seafloor).
+draws). The reported covariance is the main mode's Laplace covariance at the continuous MAP
+(:mod:`hadal.matching.posterior`, *Reported*): empirical std 0.051-0.096 cell, reported 0.052-0.117 cell, trace
+ratio 1.29 / 1.00 with the drift (bilinear / bicubic seafloor), 1.02 / 0.85 without.
 
-The cause: the noise variance and the AR(1) tempering are estimated at the best pose of the discrete search grid
-(headings every 1 deg, scales every 3 %). The pose mismatch leaves structured residuals. On the same track placed in
-the crop at row/column 200 (true noise 18.4 m), this gave s = 29-35 m and N_eff = 21-25 of 60. At the continuous MAP
-(the polished pose) the residuals gave s = 16-20 m and gamma = 1, and a Laplace covariance of 0.021-0.028 cell, which
-matches the spread there (0.024-0.025 cell).
-
-Tried on the real-terrain bench (not adopted): the main mode's moment replaced by that Laplace covariance. The
-clean fixes' core became calibrated (median squared Mahalanobis distance 1.1-1.7, where a calibrated 2-D Gaussian
-gives 1.39). But within 2 DRMS fell to 0.91-0.92, because the random walk of the simulated dead reckoning is not
-modelled. The stop note of issue 16 has the details.
+Before (the grid's second moment, noise variance and AR(1) tempering from the best pose of the discrete search
+grid, headings every 1 deg, scales every 3 %): reported 0.15-0.32 cell, trace ratio 3.7-6.1 with the drift and
+7.2-14.1 without, even where the measurement model holds exactly. The pose mismatch of the discrete grid leaves
+structured residuals: s = 29-35 m and N_eff = 21-25 of 60 where the true noise is 18.4 m; at the continuous MAP the
+residuals give s = 16-20 m and gamma = 1.
 
 Run: ``PYTHONPATH=src .venv/bin/python bench/posterior_mc_fixed_track.py [--grid gmt_depth_pixel] [--seed 3]
 [--n 60] [--noise 0.01] [--trials 80] [--drift both]`` (about 0.15 s a fix).

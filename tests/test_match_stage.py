@@ -132,6 +132,10 @@ def test_match_stage_recovers_start_and_publishes_products(tmp_path):
     clon, clat = frame.to_lonlat(cen["x_east_m"], cen["y_north_m"])
     assert (cen["lon"], cen["lat"]) == pytest.approx((float(clon), float(clat)), abs=1e-9)
     assert "applied" in post["drift"]
+    main = post["refinement"]["main_mode_covariance"]  # the stage gives the navigation's random walk to the fix
+    assert main["method"] == "laplace" and main["random_walk"] == pytest.approx(0.07)
+    mix = np.asarray(post["mixture_covariance_m2"])  # every mode: never narrower than the main mode's share
+    assert np.trace(mix) >= (1 - post["mass_outside_main_mode"]) * np.trace(np.asarray(post["covariance_m2"])) - 1e-6
     out2 = match_stage.run(_ctx(dive, store, tmp_path, posterior=True))["match"]
     with xr.open_dataset(out2.file("msd_surface.nc")) as s:
         pps = s[post["surface"]["variable"]]

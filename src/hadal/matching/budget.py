@@ -1,7 +1,7 @@
 """The ``match`` stage's science after the search, pure (arrays and models in, results out; no I/O):
 
 * :func:`uncertainty_budget` -- the fix's 1-sigma budget: the match term (MSD likelihood, + jackknife when refined,
-  or the posterior second moment) and, for the refined score minimum (``match.posterior: false``), a
+  or the posterior main mode's covariance) and, for the refined score minimum (``match.posterior: false``), a
   dead-reckoning term ``dr_error_fraction`` x :func:`information_distance_m` (radial; per axis / sqrt 2), in
   quadrature;
 * :func:`posterior_record` -- the ``fix.json`` entries of the point-mass posterior (summary, ellipses about the
@@ -55,7 +55,7 @@ def uncertainty_budget(res: TercomResult, track_xy: np.ndarray, along_m: np.ndar
                        dr_error_fraction: float, posterior_used: bool) -> UncertaintyBudget:
     """The fix's 1-sigma budget. ``res``: the reported fix (its ``sigma_x_m``/``sigma_y_m`` are the match term);
     ``track_xy``/``along_m``: the matched profile points (relative track, along-track distance); ``g``: the map
-    matched on. With ``posterior_used`` the posterior second moment is the whole budget (no separate DR term);
+    matched on. With ``posterior_used`` the posterior main mode's covariance is the whole budget (no separate DR term);
     else the DR term ``dr_error_fraction x information_distance_m / sqrt(2)`` per axis is added in quadrature."""
     sigma_match = (res.sigma_x_m, res.sigma_y_m)
     d_info = information_distance_m(res, track_xy, along_m, g)
@@ -65,7 +65,8 @@ def uncertainty_budget(res: TercomResult, track_xy: np.ndarray, along_m: np.ndar
     components = {
         "match_radial": float(np.hypot(*sigma_match)), "dead_reckoning_radial": float(sigma_dr * np.sqrt(2.0)),
         "information_distance_m": d_info, "dr_error_fraction": dr_error_fraction,
-        "comment": ("posterior second moment about the MAP fix (point-mass grid over position x heading x scale, noise "
+        "comment": ("posterior main mode's covariance at the MAP fix (Laplace over position, heading, scale, drift and "
+                    "bias, with the dead reckoning's random walk; the mass elsewhere is posterior.mass_outside_main_mode; noise "
                     "and effective sample size estimated from the residuals); no separate dead-reckoning term")
         if posterior_used else
         ("match: MSD likelihood (+ jackknife when refined); dead reckoning: dr_error_fraction x the along-track "

@@ -19,33 +19,11 @@ Eq. 17, bias at its closed-form optimum] the log-likelihood, bias marginalised u
   map's difficult parts (without this a track 30 % off the map is "fixed" elsewhere on the map).
 * ``s^2`` is estimated from the data: the residual at the maximum-a-posteriori pose,
   ``s^2 = N_v MSD_b / (N_v - 5)`` (five fitted parameters: x, y, heading, scale, bias), floored by the
-  DTM's ``uncertainty_m`` layer (mean square along the matched track) when it exists, and by a tiny
-  numeric floor. With correlated residuals a fit absorbs more noise than that, ``E[RSS] = s^2 (N_v - tr(P R))``
-  (hat matrix ``P`` of the fit, AR(1) correlation ``R`` of the estimated ``gamma``; up to ``p / gamma`` samples'
-  worth for a smooth terrain): the reported covariance of the main mode is widened by
-  ``(N_v - p) / (N_v - tr(P R))`` (``p`` = 5, plus the drift rates when the drift is applied;
-  :func:`_fit_dof_inflation`; ``refinement.noise_dof_inflation``), while the likelihood that ranks the modes,
-  the masses and the flags keeps ``N_v - 5``. (Beyond the classical estimator; ``tests/test_posterior_noise.py``
-  checks it against Monte-Carlo: x1.22 for a smooth terrain at ``rho = 0.8``. On the sample dive's tracks (one
-  sample a cell, the drift's prior as a ridge) it is 1.00-1.004, and on the real-terrain calibration bench it leaves
-  the fractions within 1/2 sigma unchanged: the
-  sample dive's overconfidence at seeds 4 and 5, errors of about 2.5 times their Cramér-Rao bound, is not noise
-  the fit absorbed.
-* **Position variance under correlated residuals (sandwich).** Tempering by ``gamma`` treats the position
-  information as if it were as correlated as the residuals; it is not where the map gradients along the track
-  change faster than the residuals (rough terrain), and there the tempered posterior is too wide. The main
-  mode's second moment is rescaled by ``gamma tr[(H^-1 J^T R J H^-1)_xy] / tr[(H^-1)_xy]``, the White sandwich
-  (the least-squares estimator's covariance under noise correlation ``R``) over the tempered curvature's inverse
-  (``J`` the rigid pose + bias Jacobian at the fix, bilinear map gradients; ``H = J^T J``; ``R`` the same AR(1)
-  as above; :func:`_position_variance_ratio`; ``refinement.sandwich_ratio``). It lies in ``[gamma^2, 1]``
-  (``J^T R J <= J^T J / gamma``): 1 for a smooth terrain, down to ``gamma`` for uncorrelated gradients. Only
-  the reported covariance changes (the MAP, window masses and flags keep the tempered likelihood).
-  ``tests/test_posterior_noise.py`` checks it against Monte-Carlo. Measured on the real-terrain calibration bench
-  (bench/calibration_tercom.py, seeds 1-6, 320 trials each): errors within the DRMS 72-76 % -> 71-73 %, within
-  2 DRMS 95-97 % -> 95-97 %. Cost: the sample dive's 10 seeds, whose errors at seeds 4, 5 and 8 are 2.5-4 times
-  their Cramér-Rao bound (a map-smoothing bias, not noise: bench/sample_seeds_information.py), within 1 sigma
-  6/10 -> 4/10 and within 2 sigma 8/10 -> 7/10. (A Newey-West estimate of ``R`` from the residuals' own
-  autocorrelation, Bartlett taper, Andrews bandwidth, gave the same real-terrain figures and 3/10, 7/10 on the sample.)
+  DTM's ``uncertainty_m`` layer when it exists (the variance of the bilinear map it implies along the matched
+  track, independent cell errors: :func:`_map_sigma2_at`; on the sample dive 5.6-6.7 m, where the smoothed DTM's
+  error along the true track is 5.0-6.7 m with its common offset, 3.3-5.2 m without), and by a tiny
+  numeric floor (the likelihood that ranks the offsets and modes; the main mode's covariance re-estimates both at
+  the continuous MAP, *Reported*).
 * ``gamma = N_eff / N_v``: the residuals along a track are correlated (map interpolation error and
   dead-reckoning drift vary smoothly), so ``N_v`` samples do not carry ``N_v`` independent pieces of
   information. ``N_eff = N_v (1 - rho) / (1 + rho)`` from the lag-1 autocorrelation ``rho`` of the
@@ -77,9 +55,9 @@ profiled out, analytic bilinear gradient) plus the prior, over start x/y, headin
 bounds; ``fine_scales`` widens the scale range) and the ``2K`` rates. The rigid fit's residuals are correlated
 by the drift itself, so the noise variance and ``N_eff`` are re-estimated from the joint residuals (up to three
 passes, each started from the rigid MAP). The joint fit replaces the rigid MAP only when it raises the
-log-posterior over the rigid MAP (zero drift) under the same likelihood. Its Laplace covariance of the start
-with the rates marginalised minus the one without (the drift the terrain cannot pin down) is added to the grid's
-second moment. ``refinement.drift`` records the segments, rates, drift at the end and the inflation;
+log-posterior over the rigid MAP (zero drift) under the same likelihood. The rates are marginalised in the main
+mode's covariance (*Reported*: the drift the terrain cannot pin down widens it; in the grid fallback their Laplace
+inflation, joint minus rigid, is added to the window's second moment). ``refinement.drift`` records the segments, rates, drift at the end and the inflation;
 :meth:`PosteriorFix.apply` with ``tau`` places any track point with the drift. (A modelling choice beyond the
 TERCOM paper, which matches a rigid track.)
 
@@ -87,11 +65,32 @@ TERCOM paper, which matches a rigid track.)
 footprint (every heading x scale) and a margin; with a region (the suitability stage's proposed one) the cost
 and memory are those of the region, not of the map.
 
-**Reported.** The MAP fix (start, heading, scale, bias), the posterior second moment about it
-(covariance ``C``; ``sigma_x_m``/``sigma_y_m``; radial DRMS ``sqrt(tr C)``, which a calibrated 2-D
-Gaussian error stays within 63 % (circular) to 68 % (line-shaped ellipse) of the time and within twice 95-98 %), the 1-sigma and 2-sigma ellipses
-(eigen-decomposition of ``C``; 39 % / 86 % content for a Gaussian), the posterior mass outside the
-main mode and the second mode. **Mismatch** (``mismatch=True`` and a reason in ``reasons``):
+**Reported.** The MAP fix (start, heading, scale, bias) and the **main mode's covariance** ``C``
+(``sigma_x_m``/``sigma_y_m``; radial DRMS ``sqrt(tr C)``, which a calibrated 2-D Gaussian error stays within 63 %
+(circular) to 68 % (line-shaped ellipse) of the time and within twice 95-98 %; the 1-sigma and 2-sigma ellipses,
+39 % / 86 % content), the posterior mass outside the main mode and the second mode. The whole posterior's second
+moment about the MAP (every mode) is ``mixture_cov_m2``: it is not the fix's error scale (a mass of 1e-4 forty cells
+away adds 0.16 cell^2), the mass elsewhere is reported (and flagged) as a probability instead.
+
+``C`` is the Laplace covariance at the **continuous** MAP (:func:`_laplace_main_mode`): the fit of start x/y, the
+free heading and scale, the drift rates (when applied, marginalised under their prior) and the bias, linearised
+with the bilinear map gradients (``J``), with the noise variance ``s^2 = RSS / (N_v - p)`` and the tempering ``gamma``
+re-estimated from the residuals at that MAP: ``C = ((gamma / s^2) J^T J + L)^-1``. The grid's ``s^2`` comes from its
+best discrete pose (1 deg headings, 3 % scales), whose misfit is not noise: on a fixed real-terrain track it was
+1.6-1.9 times the true noise sigma and the grid's second moment 3.7-14 times the Monte-Carlo spread of the fix
+(bench/posterior_mc_fixed_track.py); the Laplace covariance at the continuous MAP matches that spread. A dead-reckoning
+**random walk** (``drift_random_walk``, from the navigation's specification: the part of the DR error the drift
+segments do not model) moves the start by the error it carries from the terrain that fixes the track: its share,
+the least-squares sandwich ``(gamma / s^2)^2 q C J^T W J C`` with ``W_ij = min(tau_i, tau_j) g_i . g_j`` (``g`` the
+map gradient at the samples, ``q = drift_random_walk^2``; :func:`_walk_information`), is added. Measured on the real-terrain calibration bench (bench/calibration_tercom.py,
+320 trials a seed, the simulated walk given): errors within the DRMS 0.67-0.74 and within 2 DRMS 0.955-0.974 on
+seeds 0-5 (the grid's second moment gave 0.71-0.78 and 0.95-0.97; with the walk withheld, seeds 0 and 1,
+0.55-0.59 and 0.905-0.918, the long tracks' errors then beyond it). When the linearised fit is degenerate (fewer
+valid samples with a map gradient than parameters + 3, a singular information matrix) the main window's own
+second moment is used instead, widened for correlated residuals (:func:`_fit_dof_inflation`: ``(N_v - p) /
+(N_v - tr(P R))``, the noise a fit absorbs from AR(1) residuals; :func:`_position_variance_ratio`: the White
+sandwich over the tempered curvature) plus the drift's Laplace inflation; ``refinement.main_mode_covariance``
+says which, with the noise and tempering used. **Mismatch** (``mismatch=True`` and a reason in ``reasons``):
 
 * ``ambiguous``: more than ``max_mass_outside`` (20 %) of the posterior outside the main mode;
 * ``over_holes``: the map has interior holes (empty cells not connected to its border; border-connected ones
@@ -174,6 +173,7 @@ class PosteriorFix:
     refinement: dict = field(default_factory=dict)
     modes: list[dict] = field(default_factory=list)
     drift_model: tuple | None = None  # (tau of the first sample, segment edges, (K, 2) rates, unit) or None
+    mixture_cov_m2: np.ndarray | None = None  # second moment of the whole posterior (every mode) about the MAP
 
     @property
     def sigma_x_m(self) -> float:
@@ -237,7 +237,12 @@ class PosteriorFix:
             "mean": {"x_east_m": self.mean_x_m, "y_north_m": self.mean_y_m},
             "covariance_m2": [[float(self.cov_m2[0, 0]), float(self.cov_m2[0, 1])],
                               [float(self.cov_m2[1, 0]), float(self.cov_m2[1, 1])]],
-            "covariance_comment": "second moment of the posterior about the MAP fix, east/north",
+            "covariance_comment": "covariance of the main mode (Laplace at the MAP), east/north; the posterior's mass "
+                                  "elsewhere is mass_outside_main_mode, its second moment over every mode "
+                                  "mixture_covariance_m2",
+            "mixture_covariance_m2": None if self.mixture_cov_m2 is None else
+            [[float(self.mixture_cov_m2[0, 0]), float(self.mixture_cov_m2[0, 1])],
+             [float(self.mixture_cov_m2[1, 0]), float(self.mixture_cov_m2[1, 1])]],
             "drms_m": self.sigma_m,
             "ellipse_1sigma": self.ellipse(1.0),
             "ellipse_2sigma": self.ellipse(2.0),
@@ -831,12 +836,24 @@ def _interior_hole_counts(V: np.ndarray, snapped, pad_lo, pad_hi, N: int) -> np.
 
 
 def _map_sigma2_at(unc: MapGrid | None, xy: np.ndarray) -> float:
-    """Mean square map uncertainty along the track points ``xy`` (0 without an uncertainty layer)."""
+    """Mean variance of the bilinearly interpolated map along the track points ``xy`` from the per-cell standard
+    uncertainty ``u`` (independent cell errors: ``sum_k w_k^2 u_k^2`` over the four cells of weights ``w_k``, between
+    1/4 and 1 of a cell's ``u^2``); 0 without an uncertainty layer."""
     if unc is None:
         return 0.0
-    u = unc.sample_bilinear(xy[:, 0], xy[:, 1])
-    u = u[np.isfinite(u)]
-    return float(np.mean(u * u)) if u.size else 0.0
+    c, r = unc.col_of(xy[:, 0]), unc.row_of(xy[:, 1])
+    ny, nx = unc.shape
+    ok = (c >= 0) & (c <= nx - 1) & (r >= 0) & (r <= ny - 1)
+    if nx < 2 or ny < 2 or not ok.any():
+        return 0.0
+    c0 = np.clip(np.floor(c[ok]).astype(int), 0, nx - 2)
+    r0 = np.clip(np.floor(r[ok]).astype(int), 0, ny - 2)
+    fc, fr = c[ok] - c0, r[ok] - r0
+    U2 = unc.depth_m ** 2
+    v = (U2[r0, c0] * ((1 - fc) * (1 - fr)) ** 2 + U2[r0, c0 + 1] * (fc * (1 - fr)) ** 2
+         + U2[r0 + 1, c0] * ((1 - fc) * fr) ** 2 + U2[r0 + 1, c0 + 1] * (fc * fr) ** 2)
+    v = v[np.isfinite(v)]
+    return float(np.mean(v)) if v.size else 0.0
 
 
 def _coarse_posterior(cs: _Coarse, N: int, s2: float, gamma: float, v_map: float, ll_all: np.ndarray):
@@ -1082,14 +1099,22 @@ def _polish(pb: _Problem, wb: _Window, pose: _Pose, ll_grid: float, s2f: float, 
 def _drift_coordinate(pb: _Problem, time_s, drift_segment: float | None, drift_sigma: float | None):
     """Along-track coordinate ``tau`` of the drift (the sample times when given, else the distance travelled), the
     segment length, the prior sigma of the rates and the unit."""
+    tau = _tau_of(pb, time_s)
+    if time_s is not None:
+        return tau, (drift_segment or 900.0), (drift_sigma or 0.003), "s"
+    return tau, (drift_segment or max(float(tau[-1]) / 3.0, pb.h)), (drift_sigma or 0.005), "m"
+
+
+def _tau_of(pb: _Problem, time_s) -> np.ndarray:
+    """Along-track coordinate of the drift and the random walk: the sample times (s) when given (validated), else the
+    distance travelled along the dead-reckoned track (m)."""
     N = pb.n
     if time_s is not None:
         tau = np.asarray(time_s, float).ravel()
         if tau.size != N or not np.isfinite(tau).all() or (np.diff(tau) < 0).any():
             raise InputError(f"time_s must be {N} finite, non-decreasing sample times")
-        return tau, (drift_segment or 900.0), (drift_sigma or 0.003), "s"
-    tau = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(pb.rel, axis=0).T))])
-    return tau, (drift_segment or max(float(tau[-1]) / 3.0, pb.h)), (drift_sigma or 0.005), "m"
+        return tau
+    return np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(pb.rel, axis=0).T))])
 
 
 def _joint_drift_passes(pb: _Problem, B: np.ndarray, sig: float, pose: _Pose, s2f: float, gammaf: float,
@@ -1191,11 +1216,80 @@ def _main_mode_widening(pb: _Problem, dr: _DriftStep, s2f: float, gammaf: float)
     return kappa * dof_inflation * sandwich, dof_inflation, sandwich
 
 
+def _walk_information(g: MapGrid, rel: np.ndarray, pose, start_xy, drift_xy, J: np.ndarray, ok: np.ndarray,
+                      tau: np.ndarray) -> np.ndarray:
+    """``J^T W J`` for the dead-reckoning random walk, ``W_ij = min(tau_i, tau_j) (g_i . g_j)`` (per unit intensity):
+    a position error ``w_i`` growing as a random walk from the first sample (``Cov(w_i, w_j) = q min(tau_i, tau_j)``
+    per axis) changes the residual of sample ``i`` by ``-g_i . w_i`` (``g_i`` the map gradient there). Computed
+    without forming ``W`` (``O(N p^2)``): ``sum_k dtau_k U_k^T U_k`` with ``U_k = sum_{i >= k} g_i J_i`` per axis."""
+    a, f = pose
+    q = _rotate(rel, a) * f + np.asarray(start_xy, float) + (0.0 if drift_xy is None else drift_xy)
+    _, gx, gy = _bilinear_with_gradient(g, q[:, 0], q[:, 1])
+    dtau = np.diff(tau - tau[0], prepend=0.0)
+    Jz = np.where(ok[:, None], J, 0.0)
+    M = np.zeros((J.shape[1], J.shape[1]))
+    for gg in (gx, gy):
+        U = np.cumsum((np.where(ok, gg, 0.0)[:, None] * Jz)[::-1], axis=0)[::-1]
+        M += U.T @ (dtau[:, None] * U)
+    return M
+
+
+def _laplace_main_mode(pb: _Problem, dr: _DriftStep, free_heading: bool, free_scale: bool, tau: np.ndarray | None,
+                       random_walk: float) -> tuple[np.ndarray | None, dict]:
+    """Covariance of the start in the main mode: Laplace at the continuous MAP (module docstring, *Reported*).
+
+    The fit at the MAP (start x/y, the free heading and scale, the drift rates when the drift is applied, the bias)
+    linearised with the bilinear map gradients, ``J``; the noise variance ``s^2 = RSS / (N_v - p)`` and the AR(1)
+    tempering ``gamma`` from the residuals **there** (floored by the map uncertainty along the track), the drift
+    rates marginalised under their prior: ``C = ((gamma / s^2) J^T J + L)^-1``. With a dead-reckoning random walk of
+    ``random_walk`` (m per sqrt of the unit of ``tau``, per axis) the estimator's covariance gains the walk's share,
+    ``(gamma / s^2)^2 q C J^T W J C`` (:func:`_walk_information`, ``q = random_walk^2``): the sandwich of the
+    least-squares fit under the walk-correlated residuals. None (and the reason) when the fit is degenerate."""
+    x_map, y_map, a_map, f_map = dr.pose
+    applied = bool(dr.info.get("applied"))
+    B = dr.B if applied else None
+    drift_xy = dr.drift_xy if applied else None
+    reg = _track_regression(pb.g, pb.d, pb.rel, (a_map, f_map), (x_map, y_map), drift_xy, B, 1.0, 0.0,
+                            free_heading, free_scale)
+    if reg is None:
+        return None, {"method": "grid", "why": "too few valid samples for the linearised fit"}
+    J = reg[0]
+    r = _bilinear_residuals(pb.g, pb.d, pb.rel, (a_map, f_map), np.array([[x_map, y_map]]), drift_xy)[0]
+    ok = np.isfinite(r) & np.any(J != 0, axis=1)
+    n, p = int(ok.sum()), J.shape[1]
+    if n <= p + 2:
+        return None, {"method": "grid", "why": f"{n} samples with a map gradient for {p} parameters"}
+    rc = r[ok] - r[ok].mean()
+    q_fix = _rotate(pb.rel, a_map) * f_map + np.array([x_map, y_map]) + (0.0 if drift_xy is None else drift_xy)
+    s2 = max(float(rc @ rc) / (n - p), _map_sigma2_at(pb.unc, q_fix) + pb.floor2)
+    gam = min(max(_n_eff(np.where(ok, r, np.nan)) / n, 1e-3), 1.0)
+    prior = np.zeros(p)
+    if B is not None:
+        k0 = p - 1 - 2 * B.shape[1]
+        prior[k0:p - 1] = 1.0 / dr.sigma ** 2
+    Jv = J[ok]
+    info = {"method": "laplace", "noise_sigma_m": float(np.sqrt(s2)), "tempering": float(gam), "n_valid": n,
+            "parameters": p, "random_walk": float(random_walk)}
+    try:
+        C = np.linalg.inv((gam / s2) * (Jv.T @ Jv) + np.diag(prior))
+        if random_walk > 0 and tau is not None:
+            M = _walk_information(pb.g, pb.rel, (a_map, f_map), (x_map, y_map), drift_xy, J, ok, tau)
+            walk = (gam / s2) ** 2 * random_walk ** 2 * (C @ M @ C)
+            info["random_walk_share_m2"] = float(np.trace(walk[:2, :2]))
+            C = C + walk
+    except np.linalg.LinAlgError:
+        return None, {"method": "grid", "why": "singular information matrix"}
+    C2 = 0.5 * (C[:2, :2] + C[:2, :2].T)
+    if not np.isfinite(C2).all() or np.linalg.eigvalsh(C2).min() <= 0:
+        return None, {"method": "grid", "why": "covariance not positive definite"}
+    return C2, info
+
+
 def _mixture_moments(g: MapGrid, windows: list[_Window], lls: list[np.ndarray], gm: _GridMap, pc: np.ndarray,
-                     kappa: float, step: float, xhat: np.ndarray):
-    """Second moment about the rigid MAP ``xhat`` and mean of the posterior: the fine windows (a mixture, the main
-    one widened by ``kappa``, plus the fine cells' own spread) and the coarse cells outside them; the windows'
-    means and masses (``modes``); the total mass."""
+                     main_cov: np.ndarray, step: float, xhat: np.ndarray):
+    """Second moment about the rigid MAP ``xhat`` and mean of the whole posterior: the fine windows (a mixture, the
+    main one's own covariance ``main_cov``, the others' fine cells' spread) and the coarse cells outside them; the
+    windows' means and masses (``modes``); the total mass."""
     h = g.resolution_m
     S = np.zeros((2, 2))
     mean = np.zeros(2)
@@ -1205,8 +1299,10 @@ def _mixture_moments(g: MapGrid, windows: list[_Window], lls: list[np.ndarray], 
         pw = pw / pw.sum() if pw.sum() > 0 else np.full(pw.size, 1.0 / pw.size)
         e = w.offs - xhat
         mu = (pw[:, None] * w.offs).sum(axis=0)
-        Sw = (pw[:, None, None] * e[:, :, None] * e[:, None, :]).sum(axis=0)
-        S += m_w * ((kappa * Sw if iw == gm.best_w else Sw) + np.eye(2) * step * step / 12)
+        if iw == gm.best_w:
+            S += m_w * main_cov
+        else:
+            S += m_w * ((pw[:, None, None] * e[:, :, None] * e[:, None, :]).sum(axis=0) + np.eye(2) * step * step / 12)
         mean += m_w * mu
         modes.append({"x_east_m": float(mu[0]), "y_north_m": float(mu[1]), "mass": float(m_w)})
     if gm.m_out_coarse > 0:
@@ -1220,6 +1316,15 @@ def _mixture_moments(g: MapGrid, windows: list[_Window], lls: list[np.ndarray], 
     S /= tot
     mean /= tot
     return S, mean, modes, tot
+
+
+def _grid_main_moment(w: _Window, x_ll: np.ndarray, kappa: float, step: float, xhat: np.ndarray) -> np.ndarray:
+    """The main window's own second moment about ``xhat`` widened by ``kappa`` (:func:`_main_mode_widening`), plus
+    the fine cells' spread: the main mode's covariance when the Laplace one is undefined."""
+    pw = np.exp(x_ll - x_ll.max()).sum(axis=0)
+    pw = pw / pw.sum() if pw.sum() > 0 else np.full(pw.size, 1.0 / pw.size)
+    e = w.offs - xhat
+    return kappa * (pw[:, None, None] * e[:, :, None] * e[:, None, :]).sum(axis=0) + np.eye(2) * step * step / 12
 
 
 def _second_mode(g: MapGrid, modes: list[dict], gm: _GridMap, mass_r: np.ndarray, tot: float, x_map: float,
@@ -1307,8 +1412,7 @@ def _mismatch_flags(lim: _Limits, N: int, n_valid: int, relief: float, r2n: floa
 
 def _refinement_record(g: MapGrid, step: float, windows: list[_Window], gm: _GridMap, lls_record: dict,
                        coarse_pose: tuple[float, float], cp: _CoarsePosterior, gammaf: float, dr: _DriftStep,
-                       dof_inflation: float, sandwich: float, has_holes: bool, mass_out_holes: float,
-                       holes_flag: bool) -> dict:
+                       main_info: dict, has_holes: bool, mass_out_holes: float, holes_flag: bool) -> dict:
     """``PosteriorFix.refinement``: the fine grid, the log-likelihoods of the coarse fix, the grid MAP and the MAP,
     the coarse cell, the noise, the drift step and the holes test."""
     rc_c = windows[0].rc
@@ -1319,7 +1423,7 @@ def _refinement_record(g: MapGrid, step: float, windows: list[_Window], gm: _Gri
         "coarse_cell": {"x_east_m": float(g.x_m[rc_c[1]]), "y_north_m": float(g.y_m[rc_c[0]]),
                         "heading_error_deg": coarse_pose[0], "track_scale": coarse_pose[1]},
         "noise_sigma_coarse_m": float(np.sqrt(cp.s2)), "tempering": float(gammaf), "drift": dr.info,
-        "noise_dof_inflation": float(dof_inflation), "sandwich_ratio": float(sandwich),
+        "main_mode_covariance": main_info,
         "holes_test": {"map_has_interior_holes": has_holes, "mass_outside_if_holes_fit": mass_out_holes,
                        "flagged": holes_flag},
     }
@@ -1353,6 +1457,7 @@ def posterior_fix(
     drift_sigma: float | None = None,
     heading_sigma_deg: float | None = None,
     scale_sigma: float | None = None,
+    drift_random_walk: float = 0.0,
 ) -> PosteriorFix:
     """Posterior fix of a measured depth profile on a map (module docstring).
 
@@ -1372,7 +1477,13 @@ def posterior_fix(
         time (``drift_segment`` s, prior ``drift_sigma`` m/s); without it in along-track distance
         (``drift_segment`` m, prior ``drift_sigma`` m per m travelled).
     drift : estimate the dead-reckoning drift jointly with the pose (module docstring, *Joint drift*).
+    drift_random_walk : the dead reckoning's random walk beyond the drift, 1-sigma per axis per square root of the
+        unit of ``tau`` (m/sqrt(s) with ``time_s``, else m/sqrt(m) travelled); it widens the main mode's covariance
+        by the error it carries from the terrain that fixes the track to the start (module docstring,
+        *Reported*). 0: none (a navigation error that is all drift).
     """
+    if not (np.isfinite(drift_random_walk) and drift_random_walk >= 0):
+        raise InputError(f"drift_random_walk must be a finite number >= 0, got {drift_random_walk!r}")
     pb = _prepare_inputs(profile_depth, track_xy, dtm, headings_deg, scales, fine_scales, uncertainty, region,
                          mode_radius_cells, min_valid_fraction)
     g, h, N = pb.g, pb.h, pb.n
@@ -1400,9 +1511,14 @@ def posterior_fix(
     # ---- posterior moments about the MAP: fine windows (mixture) + coarse cells outside the windows; the grid is
     # rigid, so its moments are about the rigid MAP; the joint drift fit moves the fix and widens the start's
     # posterior by the drift it cannot pin down (Laplace: joint minus rigid marginal covariance)
-    kappa, dof_inflation, sandwich = _main_mode_widening(pb, dr, s2f, gammaf)
-    S, mean, modes, tot = _mixture_moments(g, windows, lls, gm, cp.pc, kappa, step, x_rigid)
-    S = S + dr.inflation * dof_inflation
+    free_a, free_f = min(pb.headings) < max(pb.headings), min(pb.fine_scale_list) < max(pb.fine_scale_list)
+    c_main, main_info = _laplace_main_mode(pb, dr, free_a, free_f, _tau_of(pb, time_s), float(drift_random_walk))
+    if c_main is None:  # degenerate linearised fit: the main window's own (widened) second moment
+        kappa, dof_inflation, sandwich = _main_mode_widening(pb, dr, s2f, gammaf)
+        c_main = (_grid_main_moment(windows[gm.best_w], lls[gm.best_w], kappa, step, x_rigid)
+                  + dr.inflation * dof_inflation)
+        main_info.update({"noise_dof_inflation": float(dof_inflation), "sandwich_ratio": float(sandwich)})
+    S, mean, modes, tot = _mixture_moments(g, windows, lls, gm, cp.pc, c_main, step, x_rigid)
     mean = mean + (np.array([x_map, y_map]) - x_rigid)
     mass_out = float(1.0 - gm.mw[gm.best_w] / tot)
     second = _second_mode(g, modes, gm, mass_r, tot, x_map, y_map)
@@ -1416,11 +1532,12 @@ def posterior_fix(
     refinement = _refinement_record(
         g, step, windows, gm, {"loglik_coarse_fix": ll_coarse_pt, "loglik_grid_map": gm.ll_grid, "loglik_map": ll_map,
                                "polished": polished},
-        pb.poses[kc], cp, gammaf, dr, dof_inflation, sandwich, cs.n_hole_all is not None, mass_out_holes,
+        pb.poses[kc], cp, gammaf, dr, main_info, cs.n_hole_all is not None, mass_out_holes,
         mass_out_holes > max_mass_outside_holes)
     return PosteriorFix(
         start_x_m=x_map, start_y_m=y_map, heading_deg=a_map, scale=f_map, bias_m=bias,
-        mean_x_m=float(mean[0]), mean_y_m=float(mean[1]), cov_m2=S, mass_outside_main_mode=mass_out,
+        mean_x_m=float(mean[0]), mean_y_m=float(mean[1]), cov_m2=c_main, mixture_cov_m2=S,
+        mass_outside_main_mode=mass_out,
         mode_radius_m=R * h, second_mode=second, noise_sigma_m=s_f,
         map_sigma_m=float(np.sqrt(_map_sigma2_at(pb.unc, xy_fix))), n_eff=float(gammaf * max(n_valid, 1)),
         n_samples=N, n_valid=n_valid, relief_to_noise=r2n, mismatch=bool(reasons), reasons=reasons, warnings=warns,

@@ -26,12 +26,13 @@ the paper's cell-resolution search still provides ``msd_surface.nc`` and ``refin
 also estimates the dead-reckoning drift (a velocity bias piecewise constant over ``drift_segment_s``, prior
 ``drift_velocity_sigma_m_s``) jointly with the start, heading and scale (``1 +- refine_scale_range``); the
 matched track then follows the drift. It is computed for the record in any case (``fix.json`` ``posterior``,
-``msd_posterior_probability`` in ``msd_surface.nc``). ``posterior`` is on by default: on the sample dive's 10
-generator seeds its start errors equal the refined minimum's and its radial 1-sigma (19-32 m) is closer to them
-than the refined minimum's jackknife + DR sigma (57-75 m, all 10 within it), but overconfident there: 6/10 errors
-within 1-sigma, 8/10 within 2-sigma (seeds 4 and 5 at 2.4 and 3.4 sigma, about 2.5 times their Cramér-Rao bound; the
-posterior's correlated-noise widening is 1.00 there, so it is not noise the fit absorbed; on the real-terrain
-calibration bench 72-76 % / 96-97 %). Neither places the start within one cell on every seed: with this prior DTM (1.3 soundings a cell,
+``msd_posterior_probability`` in ``msd_surface.nc``). ``posterior`` is on by default:
+on the sample dive's 10 generator seeds its start errors equal the refined minimum's and its radial 1-sigma (the
+main mode's Laplace covariance with the DTM's uncertainty layer as the noise floor and the navigation's random
+walk, ``drift_random_walk_m_per_sqrt_s``: 30-51 m) covers them as a calibrated error would: 7/10 within 1-sigma,
+10/10 within 2-sigma (largest 1.37 sigma; bench/sample_seeds_tercom.py, 2026-12-04), where the refined minimum's
+jackknife + DR sigma (57-75 m) holds all 10 within 1-sigma. Neither places the start within one cell on every
+seed: with this prior DTM (1.3 soundings a cell,
 0.1 % of depth noise) the Cramér-Rao bound of the start is 14-24 m, and the same code on the true terrain is
 within one cell on 10/10 (bench/sample_seeds_information.py). With ``posterior: false`` the fix uncertainty combines the MSD likelihood, a jackknife over track blocks and a dead-reckoning term
 (``dr_error_fraction`` x the distance from the start to the track's terrain-information centroid; a
@@ -140,6 +141,11 @@ class Params(TercomOptions, DeadReckoningOptions):
     drift: bool = Field(True, description="posterior: estimate the dead-reckoning drift (a velocity bias, piecewise constant in time) jointly with the start, heading and scale")
     drift_segment_s: float = Field(900.0, ge=10, le=1_000_000, description="posterior: duration of each constant-velocity-bias segment of the drift, seconds")
     drift_velocity_sigma_m_s: float = Field(0.003, gt=0, le=10, description="posterior: prior standard deviation of the DR velocity bias in each segment, m/s")
+    drift_random_walk_m_per_sqrt_s: float = Field(
+        0.07, ge=0, le=100,
+        description="posterior: the dead reckoning's random walk beyond the drift segments, 1-sigma per axis per sqrt(s) (from the navigation's specification: a velocity noise sigma_v correlated over tau_c gives sqrt(2 sigma_v^2 tau_c)); "
+                    "it widens the main mode's covariance by the error carried from the terrain that fixes the track to the start. 0.07: 3 mm/s correlated over 5 min, the sample dive's DVL; 0: none",
+    )
 
     @model_validator(mode="after")
     def _steps(self) -> Params:
@@ -229,7 +235,8 @@ def posterior_options(p: Params) -> dict:
             "mode_radius_cells": p.mode_radius_cells, "max_mass_outside": p.max_mass_outside,
             "max_mass_outside_holes": p.max_mass_outside_holes, "min_samples": p.min_samples,
             "fine_scales": np.linspace(1 - r_s, 1 + r_s, 5) if r_s > 0 else None, "drift": p.drift,
-            "drift_segment": p.drift_segment_s, "drift_sigma": p.drift_velocity_sigma_m_s}
+            "drift_segment": p.drift_segment_s, "drift_sigma": p.drift_velocity_sigma_m_s,
+            "drift_random_walk": p.drift_random_walk_m_per_sqrt_s}
 
 
 def read_ctd(pv: ProductVersion) -> pd.DataFrame:
