@@ -106,3 +106,15 @@ def test_a_bad_random_walk_is_a_one_line_input_error(bad):
     d = z(start[0] + rel[:, 0], start[1] + rel[:, 1])
     with pytest.raises(InputError, match="drift_random_walk"):
         posterior_fix(d, rel, g, drift_random_walk=bad)
+
+
+def test_the_default_random_walk_is_the_stage_default_declared_once():
+    from hadal.matching.options import DeadReckoningOptions
+    from hadal.stages.match import Params, posterior_options
+
+    g, z, rel, start = _world()
+    d = z(start[0] + rel[:, 0], start[1] + rel[:, 1])
+    f = posterior_fix(d, rel, g)
+    declared = DeadReckoningOptions.model_fields["drift_random_walk_m_per_sqrt_s"].default
+    assert f.refinement["main_mode_covariance"]["random_walk"] == declared > 0
+    assert posterior_options(Params())["drift_random_walk"] == declared

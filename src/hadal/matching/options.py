@@ -5,7 +5,8 @@ extends them) and :mod:`hadal.products.navigation` load without the NumPy/SciPy 
   precision), its reference loop :func:`hadal.matching.tercom_direct` and :func:`hadal.matching.refine_tercom`
   (seeds, scale range);
 * :class:`DeadReckoningOptions` -- the dead-reckoning error model of the fix uncertainty
-  (:func:`hadal.matching.budget.uncertainty_budget`) and of the ``navigation`` product
+  (:func:`hadal.matching.budget.uncertainty_budget`; the posterior fix's random walk,
+  :func:`hadal.matching.posterior.posterior_fix`) and of the ``navigation`` product
   (:func:`hadal.products.navigation.navigation_table`).
 """
 
@@ -49,6 +50,11 @@ class DeadReckoningOptions(BaseModel):
         0.02, ge=0, lt=1,
         description="dead-reckoning error per distance dead-reckoned (1 sigma radial), for the fix uncertainty (the start is carried from where the terrain fixes the track) and the navigation product; "
                     "0.02: the DR-only error grown along the sample dive's bottom track is 1.2-2.3 % (median 1.6 %) of the distance on 10 generator seeds (bench/dr_uncertainty_tercom.py; compass bias 1-2.5 deg, speed scale 1-3 %)",
+    )
+    drift_random_walk_m_per_sqrt_s: float = Field(
+        0.07, ge=0, le=100,
+        description="posterior: the dead reckoning's random walk beyond the drift segments, 1-sigma per axis per sqrt(s) (from the navigation's specification: a velocity noise sigma_v correlated over tau_c gives sqrt(2 sigma_v^2 tau_c)); "
+                    "it widens the main mode's covariance by the error carried from the terrain that fixes the track to the start. 0.07: 3 mm/s correlated over 5 min, the sample dive's DVL; 0: none",
     )
     dr_unreferenced_drift_m_per_sqrt_s: float = Field(
         5.6, ge=0, le=1000,

@@ -1457,7 +1457,7 @@ def posterior_fix(
     drift_sigma: float | None = None,
     heading_sigma_deg: float | None = None,
     scale_sigma: float | None = None,
-    drift_random_walk: float = 0.0,
+    drift_random_walk: float | None = None,
 ) -> PosteriorFix:
     """Posterior fix of a measured depth profile on a map (module docstring).
 
@@ -1480,8 +1480,14 @@ def posterior_fix(
     drift_random_walk : the dead reckoning's random walk beyond the drift, 1-sigma per axis per square root of the
         unit of ``tau`` (m/sqrt(s) with ``time_s``, else m/sqrt(m) travelled); it widens the main mode's covariance
         by the error it carries from the terrain that fixes the track to the start (module docstring,
-        *Reported*). 0: none (a navigation error that is all drift).
+        *Reported*). 0: none (a navigation error that is all drift); None: the ``match`` stage's default
+        (:class:`hadal.matching.options.DeadReckoningOptions` ``drift_random_walk_m_per_sqrt_s``, per sqrt(m) when
+        the track has no times, as at 1 m/s). Give your navigation's: the reported uncertainty depends on it.
     """
+    if drift_random_walk is None:
+        from hadal.matching.options import DeadReckoningOptions
+
+        drift_random_walk = float(DeadReckoningOptions.model_fields["drift_random_walk_m_per_sqrt_s"].default)
     if not (np.isfinite(drift_random_walk) and drift_random_walk >= 0):
         raise InputError(f"drift_random_walk must be a finite number >= 0, got {drift_random_walk!r}")
     pb = _prepare_inputs(profile_depth, track_xy, dtm, headings_deg, scales, fine_scales, uncertainty, region,

@@ -141,11 +141,6 @@ class Params(TercomOptions, DeadReckoningOptions):
     drift: bool = Field(True, description="posterior: estimate the dead-reckoning drift (a velocity bias, piecewise constant in time) jointly with the start, heading and scale")
     drift_segment_s: float = Field(900.0, ge=10, le=1_000_000, description="posterior: duration of each constant-velocity-bias segment of the drift, seconds")
     drift_velocity_sigma_m_s: float = Field(0.003, gt=0, le=10, description="posterior: prior standard deviation of the DR velocity bias in each segment, m/s")
-    drift_random_walk_m_per_sqrt_s: float = Field(
-        0.07, ge=0, le=100,
-        description="posterior: the dead reckoning's random walk beyond the drift segments, 1-sigma per axis per sqrt(s) (from the navigation's specification: a velocity noise sigma_v correlated over tau_c gives sqrt(2 sigma_v^2 tau_c)); "
-                    "it widens the main mode's covariance by the error carried from the terrain that fixes the track to the start. 0.07: 3 mm/s correlated over 5 min, the sample dive's DVL; 0: none",
-    )
 
     @model_validator(mode="after")
     def _steps(self) -> Params:
