@@ -1216,25 +1216,23 @@ def _main_mode_widening(pb: _Problem, dr: _DriftStep, s2f: float, gammaf: float)
     return kappa * dof_inflation * sandwich, dof_inflation, sandwich
 
 
-def _walk_information(g: MapGrid, rel: np.ndarray, pose, start_xy, drift_xy, J: np.ndarray, ok: np.ndarray,
-                      tau: np.ndarray) -> np.ndarray:
+def _walk_information(J: np.ndarray, ok: np.ndarray, tau: np.ndarray) -> np.ndarray:
     """``J^T W J`` for the dead-reckoning random walk, ``W_ij = min(tau_i, tau_j) (g_i . g_j)`` (per unit intensity):
     a position error ``w_i`` growing as a random walk from the first sample (``Cov(w_i, w_j) = q min(tau_i, tau_j)``
-    per axis) changes the residual of sample ``i`` by ``-g_i . w_i`` (``g_i`` the map gradient there). Computed
-    without forming ``W`` (``O(N p^2)``): ``sum_k dtau_k U_k^T U_k`` with ``U_k = sum_{i >= k} g_i J_i`` per axis."""
-    a, f = pose
-    q = _rotate(rel, a) * f + np.asarray(start_xy, float) + (0.0 if drift_xy is None else drift_xy)
-    _, gx, gy = _bilinear_with_gradient(g, q[:, 0], q[:, 1])
+    per axis) changes the residual of sample ``i`` by ``-g_i . w_i``, ``g_i`` the map gradient there: the start
+    x/y columns of the fit's Jacobian ``J`` (:func:`_pose_jacobian`). Computed without forming ``W``
+    (``O(N p^2)``): ``sum_k dtau_k U_k^T U_k`` with ``U_k = sum_{i >= k} g_i J_i`` per axis (samples outside ``ok``
+    left out)."""
     dtau = np.diff(tau - tau[0], prepend=0.0)
     Jz = np.where(ok[:, None], J, 0.0)
     M = np.zeros((J.shape[1], J.shape[1]))
-    for gg in (gx, gy):
-        U = np.cumsum((np.where(ok, gg, 0.0)[:, None] * Jz)[::-1], axis=0)[::-1]
+    for axis in (0, 1):
+        U = np.cumsum((Jz[:, axis:axis + 1] * Jz)[::-1], axis=0)[::-1]
         M += U.T @ (dtau[:, None] * U)
     return M
 
 
-def _laplace_main_mode(pb: _Problem, dr: _DriftStep, free_heading: bool, free_scale: bool, tau: np.ndarray | None,
+def _laplace_main_mode(pb: _Problem, dr: _DriftStep, free_heading: bool, free_scale: bool, tau: np.ndarray,
                        random_walk: float) -> tuple[np.ndarray | None, dict]:
     """Covariance of the start in the main mode: Laplace at the continuous MAP (module docstring, *Reported*).
 
@@ -1272,8 +1270,8 @@ def _laplace_main_mode(pb: _Problem, dr: _DriftStep, free_heading: bool, free_sc
             "parameters": p, "random_walk": float(random_walk)}
     try:
         C = np.linalg.inv((gam / s2) * (Jv.T @ Jv) + np.diag(prior))
-        if random_walk > 0 and tau is not None:
-            M = _walk_information(pb.g, pb.rel, (a_map, f_map), (x_map, y_map), drift_xy, J, ok, tau)
+        if random_walk > 0:
+            M = _walk_information(J, ok, tau)
             walk = (gam / s2) ** 2 * random_walk ** 2 * (C @ M @ C)
             info["random_walk_share_m2"] = float(np.trace(walk[:2, :2]))
             C = C + walk
@@ -1283,6 +1281,15 @@ def _laplace_main_mode(pb: _Problem, dr: _DriftStep, free_heading: bool, free_sc
     if not np.isfinite(C2).all() or np.linalg.eigvalsh(C2).min() <= 0:
         return None, {"method": "grid", "why": "covariance not positive definite"}
     return C2, info
+
+
+def _window_moments(w: _Window, x_ll: np.ndarray, xhat: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Mean of a fine window's posterior over its start offsets (poses marginalised) and its second moment about
+    ``xhat``."""
+    pw = np.exp(x_ll - x_ll.max()).sum(axis=0)
+    pw = pw / pw.sum() if pw.sum() > 0 else np.full(pw.size, 1.0 / pw.size)
+    e = w.offs - xhat
+    return (pw[:, None] * w.offs).sum(axis=0), (pw[:, None, None] * e[:, :, None] * e[:, None, :]).sum(axis=0)
 
 
 def _mixture_moments(g: MapGrid, windows: list[_Window], lls: list[np.ndarray], gm: _GridMap, pc: np.ndarray,
@@ -1295,14 +1302,8 @@ def _mixture_moments(g: MapGrid, windows: list[_Window], lls: list[np.ndarray], 
     mean = np.zeros(2)
     modes = []
     for iw, (w, x_ll, m_w) in enumerate(zip(windows, lls, gm.mw, strict=True)):
-        pw = np.exp(x_ll - x_ll.max()).sum(axis=0)
-        pw = pw / pw.sum() if pw.sum() > 0 else np.full(pw.size, 1.0 / pw.size)
-        e = w.offs - xhat
-        mu = (pw[:, None] * w.offs).sum(axis=0)
-        if iw == gm.best_w:
-            S += m_w * main_cov
-        else:
-            S += m_w * ((pw[:, None, None] * e[:, :, None] * e[:, None, :]).sum(axis=0) + np.eye(2) * step * step / 12)
+        mu, Sw = _window_moments(w, x_ll, xhat)
+        S += m_w * (main_cov if iw == gm.best_w else Sw + np.eye(2) * step * step / 12)
         mean += m_w * mu
         modes.append({"x_east_m": float(mu[0]), "y_north_m": float(mu[1]), "mass": float(m_w)})
     if gm.m_out_coarse > 0:
@@ -1321,10 +1322,7 @@ def _mixture_moments(g: MapGrid, windows: list[_Window], lls: list[np.ndarray], 
 def _grid_main_moment(w: _Window, x_ll: np.ndarray, kappa: float, step: float, xhat: np.ndarray) -> np.ndarray:
     """The main window's own second moment about ``xhat`` widened by ``kappa`` (:func:`_main_mode_widening`), plus
     the fine cells' spread: the main mode's covariance when the Laplace one is undefined."""
-    pw = np.exp(x_ll - x_ll.max()).sum(axis=0)
-    pw = pw / pw.sum() if pw.sum() > 0 else np.full(pw.size, 1.0 / pw.size)
-    e = w.offs - xhat
-    return kappa * (pw[:, None, None] * e[:, :, None] * e[:, None, :]).sum(axis=0) + np.eye(2) * step * step / 12
+    return kappa * _window_moments(w, x_ll, xhat)[1] + np.eye(2) * step * step / 12
 
 
 def _second_mode(g: MapGrid, modes: list[dict], gm: _GridMap, mass_r: np.ndarray, tot: float, x_map: float,
@@ -1514,9 +1512,9 @@ def posterior_fix(
                      scale_sigma, min_samples)
     x_map, y_map, a_map, f_map = dr.pose
     n_valid, bias = _fix_residuals(pb, cs, cp, dr)
-    # ---- posterior moments about the MAP: fine windows (mixture) + coarse cells outside the windows; the grid is
-    # rigid, so its moments are about the rigid MAP; the joint drift fit moves the fix and widens the start's
-    # posterior by the drift it cannot pin down (Laplace: joint minus rigid marginal covariance)
+    # ---- the main mode's covariance (Laplace at the continuous MAP, drift rates marginalised, + the random walk;
+    # the grid window's widened second moment when the linearised fit is degenerate), then the whole posterior's
+    # moments: fine windows (mixture) + coarse cells outside them, about the rigid MAP (the grid is rigid)
     free_a, free_f = min(pb.headings) < max(pb.headings), min(pb.fine_scale_list) < max(pb.fine_scale_list)
     c_main, main_info = _laplace_main_mode(pb, dr, free_a, free_f, _tau_of(pb, time_s), float(drift_random_walk))
     if c_main is None:  # degenerate linearised fit: the main window's own (widened) second moment
