@@ -4,10 +4,11 @@
     .venv/bin/python bench/bench_pipeline.py --cli HEAD [--raw DIR] [--small]
 
 ``--cli REV``: ``hadal run``/``hadal stage`` as a user runs them (fresh processes), this working tree against git
-revision ``REV`` in the same run: a cold full dive, an unchanged re-run with a temporary Prefect server and with a
-long-running one (``prefect server start``, started by the benchmark), and an unchanged single stage; each unchanged
-case also with ``--flow`` (a recorded Prefect run of cache hits, what ``REV`` always does when it predates the
-Prefect-free currency check).
+revision ``REV`` in the same run: ``--cold-runs`` cold full dives per code, alternating, with a temporary Prefect
+server and with a long-running one (``prefect server start``, started by the benchmark), after one untimed run each
+(a snapshot compiles its numba kernels' caches first); then an unchanged re-run with either server and an unchanged
+single stage; each unchanged case also with ``--flow`` (a recorded Prefect run of cache hits, what ``REV`` always
+does when it predates the Prefect-free currency check).
 
 Measured in the same run (so the ratios are meaningful on a shared machine):
 
@@ -244,6 +245,9 @@ def cli_compare(args) -> None:
             return str(work / f"store-{code}")
 
         print(f"dive {raw}; load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores (shared machine?)")
+        for code in codes:  # a snapshot has no compiled-kernel caches yet: one run each compiles them (not timed)
+            hadal(code, "run", str(raw), "--store", str(work / f"store-warmup-{code}"))
+        cold_full_dives(args.cold_runs, list(codes), args.cli, hadal, work, raw)
         both("cold full dive, hadal run (temporary server)", lambda c: hadal(c, "run", str(raw), "--store", store(c)))
         both("unchanged re-run, hadal run (temporary server)",
              lambda c: hadal(c, "run", str(raw), "--store", store(c)))
@@ -267,6 +271,25 @@ def cli_compare(args) -> None:
         shutil.rmtree(work, ignore_errors=True)
 
 
+def cold_full_dives(n: int, codes: list[str], old: str, hadal, work: Path, raw: Path) -> None:
+    """``n`` cold full dives (a fresh store each) per code and Prefect setting, the codes alternating run by run (so a
+    machine that slows down or speeds up meanwhile affects both alike); each run, then per code the mean and range,
+    and the ratio of the means."""
+    for server_up, what in ((False, "temporary server"), (True, "long-running server")):
+        times: dict[str, list[float]] = {c: [] for c in codes}
+        for i in range(n):
+            for code in codes:
+                st = work / f"store-cold-{code}-{int(server_up)}-{i}"
+                times[code].append(hadal(code, "run", str(raw), "--store", str(st), server_up=server_up))
+                shutil.rmtree(st, ignore_errors=True)
+            print(f"  cold full dive ({what}) run {i + 1}: " + ", ".join(f"{c} {times[c][-1]:.1f} s" for c in codes),
+                  flush=True)
+        mean = {c: sum(v) / len(v) for c, v in times.items()}
+        print(f"cold full dive, {what}, {n} alternating runs: " + "; ".join(
+            f"{c} mean {mean[c]:.1f} s (range {min(times[c]):.1f}-{max(times[c]):.1f})" for c in codes)
+            + f"; speed-up {mean[old] / mean['now']:.2f}x", flush=True)
+
+
 def _timed_proc(cmd: list[str], env: dict[str, str]) -> float:
     import subprocess
 
@@ -281,6 +304,8 @@ if __name__ == "__main__":
         ap.add_argument("--cli", default="HEAD", help="git revision to compare with")
         ap.add_argument("--raw", help="an existing sample dive directory (default: generate one)")
         ap.add_argument("--small", action="store_true")
+        ap.add_argument("--cold-runs", type=int, default=3,
+                        help="alternating cold full dives per code, with a temporary and with a long-running server")
         cli_compare(ap.parse_args())
     else:
         main()

@@ -230,6 +230,66 @@ def test_a_stage_process_started_ahead_runs_the_job_and_an_unused_one_exits_with
     assert gone and exited_after < 120
 
 
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="stage processes are forked ahead on Linux only")
+def test_stage_processes_forked_ahead_run_the_job_and_an_unused_one_stops_at_once(tmp_path):
+    """``prestart(fork=True)`` (what the CLI does just before the flow starts, the main thread alone): the processes
+    are forked (they inherit the modules imported here), the dtm job publishes what the stage publishes in a thread
+    (oracle: the thread run on a second store), and the laser process never used stops as soon as it is told (EOF on
+    its job pipe reaches it: the fork's copy of the parent's end is closed in the child), not after the 5 s timeout.
+    Beside another thread nothing is forked (spawned instead)."""
+    raw = _dive(tmp_path / "raw")
+    script = textwrap.dedent(f"""
+        import threading, time
+        from hadal import stage_process as sp
+        assert sp.prestart(["dtm", "laser"], fork=True) == ["dtm", "laser"]
+        methods = {{n: w.proc._popen.method for n, w in sp._WARM.items()}}
+        out = sp.run_stage_in_process("dtm", raw_dir={str(raw)!r}, store_root={str(tmp_path / "a")!r}, progress=False)
+        laser = sp._WARM["laser"].proc
+        t0 = time.monotonic()
+        sp._stop_warm()
+        stop_s = time.monotonic() - t0
+        ev = threading.Event()
+        t = threading.Thread(target=ev.wait)
+        t.start()
+        beside = sp.prestart(["laser"], fork=True)
+        method_beside = sp._WARM["laser"].proc._popen.method
+        ev.set()
+        t.join()
+        sp._stop_warm()
+        print(out["dtm"], methods["dtm"], methods["laser"], laser.exitcode, round(stop_s, 2), method_beside)
+    """)
+    r = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=180)
+    assert r.returncode == 0, r.stderr[-2000:]
+    version_dir, m_dtm, m_laser, laser_exit, stop_s, m_beside = r.stdout.split()
+    assert (m_dtm, m_laser, m_beside) == ("fork", "fork", "spawn")
+    assert laser_exit == "0" and float(stop_s) < 4.0
+    ref = run_stage("dtm", make_context(raw, tmp_path / "b"))
+    with xr.open_dataset(os.path.join(version_dir, "dtm.nc")) as a, xr.open_dataset(ref["dtm"].file("dtm.nc")) as b:
+        np.testing.assert_array_equal(a["depth_m"].values, b["depth_m"].values)
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="stage processes are forked ahead on Linux only")
+def test_no_fork_ahead_once_a_parallel_kernel_ran_here():
+    """After a numba parallel kernel ran in this process its OpenMP pool would hang a forked child's own parallel
+    kernel: the stage processes are then spawned, not forked."""
+    script = textwrap.dedent("""
+        from numba import njit, prange
+        from hadal import stage_process as sp
+        before = sp.can_fork_ahead()
+        @njit(parallel=True)
+        def total(n):
+            s = 0
+            for i in prange(n):
+                s += i
+            return s
+        assert total(1000) == 499500
+        print(before, sp.can_fork_ahead())
+    """)
+    r = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=180)
+    assert r.returncode == 0, r.stderr[-2000:]
+    assert r.stdout.split() == ["True", "False"]
+
+
 def test_warm_imports_stop_when_told_and_every_declared_module_imports():
     """``warm_imports`` imports a stage's ``WARM_IMPORTS`` in order and stops as soon as ``stop()`` says so (the CLI:
     once the server answers); every module a stage declares exists (a renamed module would silently warm nothing)."""

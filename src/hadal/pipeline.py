@@ -375,35 +375,70 @@ def cached_result(storage: Path, key: str) -> dict[str, str] | None:
 def current_stages(raw_dir: str | Path, store_root: str | Path | None, config_path: str | Path | None,
                    names: Sequence[str]) -> RunOutcome | None:
     """Whether a flow run of stages ``names`` (in plan order) would be nothing but cache hits, decided without
-    Prefect: the stage graph's walk (``flows/post_cruise.py``) replayed - each stage's cache key
-    (:func:`stage_cache_key`) with the pins of the run so far, its persisted result (:func:`cached_result`), whose
-    versions must all still exist. Returns what that flow run would (a :class:`RunOutcome`: the versions reused,
+    Prefect (:func:`_cache_walk`). Returns what that flow run would (a :class:`RunOutcome`: the versions reused,
     every stage ``reused``) when all are current, else ``None`` (something changed, or it cannot be told: a flow
     run decides). Publishes nothing (it may add raw-file hashes to the store's hash cache, as a flow run does)."""
+    rows, published = [], {}
+    for name, out, seconds in _cache_walk(raw_dir, store_root, config_path, names, stop_at_miss=True):
+        if out is None:
+            return None
+        published.update(out)
+        rows.append({"stage": name, "status": "reused", "seconds": seconds,
+                     "versions": {p: Path(v).name for p, v in out.items()}, "reason": ""})
+    return RunOutcome(published, rows) if rows else None
+
+
+def stale_stages(raw_dir: str | Path, store_root: str | Path | None, config_path: str | Path | None,
+                 names: Sequence[str]) -> list[str]:
+    """The stages of ``names`` (in plan order) a flow run would run rather than reuse (:func:`_cache_walk`): those
+    without a current cached result and every stage downstream of one. The CLI starts processes and figure helpers
+    for these only; a stage it judges current that runs after all simply starts its own process."""
+    return [name for name, out, _ in _cache_walk(raw_dir, store_root, config_path, names) if out is None]
+
+
+def _cache_walk(raw_dir: str | Path, store_root: str | Path | None, config_path: str | Path | None,
+                names: Sequence[str], *, stop_at_miss: bool = False):
+    """The stage graph's walk (``flows/post_cruise.py``) replayed without Prefect: for each stage of ``names`` in plan
+    order ``(name, versions reused or None, seconds)``: its cache key (:func:`stage_cache_key`) with the pins of the
+    run so far, and its persisted result (:func:`cached_result`), whose versions must all still exist. None for a
+    stage whose key cannot be told or has no result, and for every stage downstream of such a one (its upstream
+    will publish new versions). Nothing cached yet (a first run) or Prefect told to refresh every cache: every
+    stage None. ``stop_at_miss``: stop after the first None."""
     import time
+
+    from hadal.plan import stage_dependencies
 
     storage = result_storage(store_root)
     if not names or not storage.is_dir() or \
             os.environ.get("PREFECT_TASKS_REFRESH_CACHE", "").lower() in ("1", "true", "yes"):
-        return None  # nothing cached yet (a first run), or Prefect told to refresh every cache
+        for name in names:
+            yield name, None, 0.0
+            if stop_at_miss:
+                return
+        return
+    deps = stage_dependencies(list(names))
     ctx = make_context(raw_dir, store_root, config_path)
     ctx.pin_existing(all_products())
     pins = {p: str(pv.path) for p, pv in ctx.pins.items()}
-    rows, published = [], {}
+    missed: set[str] = set()
     for name in names:
         t0 = time.monotonic()
-        try:
-            key = stage_cache_key(name, raw_dir, store_root, config_path, pins)
-        except (HadalError, OSError):
-            return None  # the task would not cache it either
-        out = cached_result(storage, key)
-        if out is None or not all(Path(p, "manifest.json").is_file() for p in out.values()):
-            return None
-        pins.update(out)
-        published.update(out)
-        rows.append({"stage": name, "status": "reused", "seconds": round(time.monotonic() - t0, 2),
-                     "versions": {p: Path(v).name for p, v in out.items()}, "reason": ""})
-    return RunOutcome(published, rows)
+        out = None
+        if not deps.get(name, set()) & missed:
+            try:
+                key = stage_cache_key(name, raw_dir, store_root, config_path, pins)
+            except (HadalError, OSError):
+                key = None  # the task would not cache it either
+            out = cached_result(storage, key) if key is not None else None
+            if out is not None and not all(Path(p, "manifest.json").is_file() for p in out.values()):
+                out = None
+        if out is None:
+            missed.add(name)
+        else:
+            pins.update(out)
+        yield name, out, round(time.monotonic() - t0, 2)
+        if out is None and stop_at_miss:
+            return
 
 
 def warm_imports(names: Sequence[str], *, stop: Any = None) -> list[str]:

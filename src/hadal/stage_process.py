@@ -4,7 +4,8 @@ Why: the flow runs stages whose inputs are ready concurrently (``flows/post_crui
 steps hold the GIL for seconds (open3d's ``remove_statistical_outlier`` was measured to hold it: a Python thread
 spinning beside it got 1/75 of its solo rate), so two threads gained little on a 2-core machine: the DTM stage took
 27–29 s beside the laser stage against 11 s alone. A stage module that declares ``PROCESS = True`` (dtm, laser)
-runs in its own ``spawn``-ed interpreter when it can overlap another stage of the run (match and landing too
+runs in its own process (forked ahead by the CLI, else a ``spawn``-ed interpreter) when it can overlap another
+stage of the run (match and landing too
 measured slower: a child pays ~1.5 s of imports, and their kernels already release the GIL;
 ``docs/operations.md``).
 
@@ -67,17 +68,21 @@ def _portable(exc: BaseException) -> BaseException:
         return out
 
 
-def _guard(parent_pid: int) -> None:
-    """A stage process's first step: ignore a terminal's Ctrl-C and stop by itself when its parent is gone."""
+def guard_child(parent_pid: int) -> None:
+    """A stage process's (or a figure helper's, :mod:`hadal.forkpool`) first step: ignore a terminal's Ctrl-C, stop
+    by itself when its parent is gone, and take SIGTERM/SIGHUP plainly (a forked child would otherwise run the
+    CLI's handlers, which end a whole run and say so)."""
     # Ctrl-C in a terminal reaches the whole process group: the parent decides (the CLI stops its children with
     # SIGTERM and says what was left unpublished), so the child does not die half-way with its own traceback
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    for sig in (signal.SIGTERM, signal.SIGHUP):
+        signal.signal(sig, signal.SIG_DFL)
     threading.Thread(target=_watch_parent, args=(parent_pid,), daemon=True, name="parent-watchdog").start()
 
 
 def _child(q: Any, name: str, kwargs: dict[str, Any], log_level: int, progress: bool, parent_pid: int,
            warning_filters: list[Any]) -> None:
-    _guard(parent_pid)
+    guard_child(parent_pid)
     _run_job(q, name, kwargs, log_level, progress, warning_filters)
 
 
@@ -126,13 +131,19 @@ _WARM: dict[str, _Warm] = {}
 _WARM_LOCK = threading.Lock()
 
 
-def _warm_child(q: Any, conn: Any, parent_pid: int, modules: tuple[str, ...]) -> None:
+def _warm_child(q: Any, conn: Any, parent_pid: int, modules: tuple[str, ...], parent_end: int = -1) -> None:
     """A stage process started ahead: warm ``modules`` (the stage's ``WARM_IMPORTS``, :func:`hadal.stages.warm`), then
     wait for the job (the arguments of :func:`_child`) on ``conn`` and run it; EOF (the parent exits or no longer
-    needs it): exit."""
+    needs it): exit. ``parent_end``: a forked child's copy of the parent's end of ``conn``, closed first (else the
+    parent closing its end would never reach this child as EOF)."""
     from hadal.stages import warm
 
-    _guard(parent_pid)
+    if parent_end >= 0:
+        try:
+            os.close(parent_end)
+        except OSError:
+            pass
+    guard_child(parent_pid)
     for mod in modules:
         warm(mod)
     try:
@@ -144,26 +155,41 @@ def _warm_child(q: Any, conn: Any, parent_pid: int, modules: tuple[str, ...]) ->
     _run_job(q, name, kwargs, log_level, progress, warning_filters)
 
 
-def prestart(names: Any) -> list[str]:
+def can_fork_ahead() -> bool:
+    """Whether :func:`prestart` can fork the stage processes here now: Linux, the main thread, no other thread (a
+    fork beside other threads may copy a lock one of them holds; :mod:`hadal.forkpool`), and no parallel region of
+    numba's kernels launched yet (its OpenMP threading layer hangs a forked child's first parallel kernel once the
+    parent has started its thread pool; the gridding stages run such kernels)."""
+    from hadal.forkpool import can_fork
+
+    par = sys.modules.get("numba.np.ufunc.parallel")
+    return can_fork() and threading.active_count() == 1 and not getattr(par, "_is_initialized", False)
+
+
+def prestart(names: Any, *, fork: bool = False) -> list[str]:
     """Start the processes of the stages ``names`` ahead of their turn (each importing its stage's ``WARM_IMPORTS``,
     :mod:`hadal.stages`), so that :func:`run_stage_in_process` hands a stage to a process that has already paid its
-    start, about 1-1.5 s of imports: the CLI calls it while Prefect's temporary server boots, when a core is idle.
-    A process not used by the time this one exits is told to stop (EOF on its job pipe) and joined. Returns the
-    stages started (not those already started or running)."""
+    start. ``fork`` (where :func:`can_fork_ahead`, else spawned): forked from this process, inheriting every module
+    it has imported (the CLI forks them just before the flow starts, having imported the stages' modules while
+    Prefect's temporary server booted); spawned, each pays about 1-1.5 s of imports (the CLI spawns them while the
+    server boots where it cannot fork). A process not used by the time this one exits is told to stop (EOF on its
+    job pipe) and joined. Returns the stages started (not those already started or running)."""
     from hadal.stages import stage_module
 
-    spawn = mp.get_context("spawn")
+    forked = fork and can_fork_ahead()
+    ctx: Any = mp.get_context("fork" if forked else "spawn")  # a fork or spawn context (both have Process)
     started = []
     for name in names:
         with _WARM_LOCK:
             if name in _WARM:
                 continue
             _quiet_tracker()
-            q = spawn.Queue()
-            parent_end, child_end = spawn.Pipe()
+            q = ctx.Queue()
+            parent_end, child_end = ctx.Pipe()
             mods = tuple(getattr(stage_module(name), "WARM_IMPORTS", ()))
-            proc = spawn.Process(target=_warm_child, args=(q, child_end, os.getpid(), mods), name=f"hadal-stage-{name}",
-                                 daemon=False)
+            own = parent_end.fileno() if forked else -1
+            proc = ctx.Process(target=_warm_child, args=(q, child_end, os.getpid(), mods, own),
+                               name=f"hadal-stage-{name}", daemon=False)
             proc.start()
             child_end.close()
             if not _WARM:

@@ -62,9 +62,8 @@ class Params(AnalysisOptions):
     figure_processes: int | None = Field(
         None, ge=1, le=64,
         description="processes drawing the figures while the next submap is analysed (forked children beside the "
-                    "stage's own; null: 2 on a machine with 2 or more cores where processes can be forked (Linux, the "
-                    "main thread), "
-                    "else 1)")
+                    "stage's own, or in a flow the helpers hadal forks before it starts; null: 2 on a machine with 2 "
+                    "or more cores where processes can be forked (Linux), else 1)")
 
 
 def _read_submap(path: Path) -> tuple[xr.DataArray, xr.DataArray | None]:
@@ -240,8 +239,9 @@ def _write_dive_figures(ctx, acc: _DiveSites, sites_df: pd.DataFrame, finals_df:
     pool.submit(fg.figure_transect, finals_df, acc.outlines, figdir / "fig25_transect.png")
     pool.submit(fg.figure_costs_vs_heading, sites_df, figdir / "fig21_costs_vs_heading.png", f"{ctx.dive_id}: all submaps")
     if best_res is not None and acc.best_overall is not None:
-        pool.submit(fg.figure_slope_exclusion, best_res, figdir / f"fig13_slope_{acc.best_overall[1]}.png")
-        pool.submit(fg.figure_protrusion_exclusion, best_res, figdir / f"fig18_protrusions_{acc.best_overall[1]}.png")
+        best = pool.share(best_res)  # two figures of it: sent to a helper process once
+        pool.submit(fg.figure_slope_exclusion, best, figdir / f"fig13_slope_{acc.best_overall[1]}.png")
+        pool.submit(fg.figure_protrusion_exclusion, best, figdir / f"fig18_protrusions_{acc.best_overall[1]}.png")
 
 
 def run(ctx) -> dict:
