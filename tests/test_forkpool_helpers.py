@@ -182,3 +182,35 @@ def test_helpers_are_not_forked_beside_other_threads_and_stop_promptly():
     assert out["refused"] is False and out["started"] is True
     assert not out["alive"] and not out["running"]
     assert out["stop_s"] < 4.0  # EOF reaches the helper at once (not the 5 s kill)
+
+
+def test_calls_do_not_pile_up_behind_a_helper_busy_with_another_pool():
+    """A pool whose helper is busy (another thread's pool holds it) runs its calls here at once, as a plain loop
+    would, instead of queueing them (and their arguments) behind the helper."""
+    out = _run("""
+        forkpool.start_helpers(1)
+        started = threading.Event()
+        def long_pool():
+            with forkpool.ForkPool(2) as pool:
+                pool.submit(time.sleep, 2.0)  # the helper's only call: it holds the helper for 2 s
+                started.set()
+                return pool.results()
+        def quick_pool():
+            started.wait()
+            t0 = time.monotonic()
+            with forkpool.ForkPool(2) as pool:
+                for x in range(3):
+                    pool.submit(pid_and_square, x)
+                res = pool.results()
+            return res, time.monotonic() - t0
+        box = {}
+        t = threading.Thread(target=lambda: box.update(long=long_pool()))
+        t.start()
+        res, quick_s = in_thread(quick_pool)["value"]
+        t.join()
+        forkpool.stop_helpers()
+        print(json.dumps({"pids": sorted({p for p, _ in res}), "values": [v for _, v in res], "me": os.getpid(),
+                          "quick_s": quick_s}))
+    """)
+    assert out["pids"] == [out["me"]] and out["values"] == [0, 1, 4]
+    assert out["quick_s"] < 1.5  # not held up behind the helper's 2 s call

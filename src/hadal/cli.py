@@ -857,17 +857,17 @@ def _prepare_while_server_boots(ctx: Any, names: list[str], running: list[str]) 
 def _fork_ahead(ctx: Any, names: list[str], isolated: list[str]) -> None:
     """Just before the flow starts, while the main thread is still the only thread: fork the processes of the stages
     that run in their own (:func:`hadal.stage_process.prestart` with ``fork``; each imports what the boot left
-    undone) and the figure helpers (:func:`_start_figure_helpers`). A fork is not possible: the stage processes are
-    spawned when their stages run, and the figures are drawn in the stages' threads."""
+    undone) and the figure helpers (:func:`_start_figure_helpers`). A fork no longer possible: the stage processes
+    are spawned (if not already, during the boot) and the figures are drawn in the stages' threads."""
     from hadal.stage_process import can_fork_ahead, prestart
 
-    if not can_fork_ahead():
-        return
-    try:
-        prestart(isolated, fork=True)
+    forking = can_fork_ahead()
+    try:  # spawned now if the fork became unsafe since the boot (another thread): not left to a cold start
+        prestart(isolated, fork=forking)
     except OSError:
         pass
-    _start_figure_helpers(ctx, names)
+    if forking:
+        _start_figure_helpers(ctx, names)
 
 
 def _start_figure_helpers(ctx: Any, names: list[str]) -> None:

@@ -17,8 +17,9 @@ Inside a flow the stages run in task threads, where a fork is not safe. For them
 process's only thread, which then draw for any thread's pool (:func:`helpers_running`). A helper has every module
 imported by then; the call and its arguments travel to it pickled, the result back. An argument many calls share
 (the report's products, 340 MB pickled on the sample dive) is wrapped by :meth:`ForkPool.share`: it is sent to a
-helper once, not with every call. A helper is used only when idle (greedy balancing as above) and a call it cannot
-answer (an exception, an unpicklable argument or result, a helper killed) is run again here.
+helper once, not with every call. A pool queues at most one call per helper it works with and draws the others
+itself (greedy balancing as above), and a call a helper cannot answer (an exception, an unpicklable argument or
+result, a helper killed) is run again here.
 
 Forked children exit with ``os._exit`` (no atexit hooks, no module teardown; multiprocessing flushes this process's
 standard streams before each fork, so pending output is not printed twice). Results travel through a pipe (pickled), so they must be
@@ -55,21 +56,14 @@ def default_workers() -> int:
 def _helper_main(conn: Any, parent_pid: int, modules: tuple[str, ...], parent_ends: tuple[int, ...]) -> None:
     """A helper's loop over the parent's messages (:meth:`_Helper.send`): ``s`` keeps a shared argument, ``d`` forgets
     it, ``c`` runs a call and answers ``(True, result)`` or ``(False, why)``; EOF (the parent stops it or is gone):
-    exit. ``parent_ends``: the parent's ends of the helpers' pipes (its own and the earlier helpers'), copied by the
-    fork and closed first, else the parent closing its end would never reach a helper as EOF."""
+    exit. ``parent_ends``: the parent's ends of the helpers' pipes (its own and the earlier helpers') and of the stage
+    processes' job pipes, copied by the fork and closed first, else the parent closing one would never reach its
+    child as EOF."""
     import pickle
 
-    from hadal.stage_process import guard_child
-    from hadal.stages import warm
+    from hadal.stage_process import start_child
 
-    for fd in parent_ends:
-        try:
-            os.close(fd)
-        except OSError:
-            pass
-    guard_child(parent_pid)
-    for mod in modules:
-        warm(mod)
+    start_child(parent_pid, parent_ends, modules)
     shared: dict[int, Any] = {}
     while True:
         try:
@@ -127,16 +121,19 @@ class Shared:
             self.token = Shared._next
         self.obj = obj
         self._bytes: bytes | None = None
+        self._lock = threading.Lock()
 
     def free(self) -> None:
         """Forget the pickle (every helper holds the object)."""
-        self._bytes = None
+        with self._lock:
+            self._bytes = None
 
     def message(self) -> bytes:
         """Its ``s`` message's body to a helper (pickled at the first helper that needs it, kept for the others)."""
-        if self._bytes is None:
-            self._bytes = _pickled((self.token, self.obj))
-        return self._bytes
+        with self._lock:  # two feeders must not pickle a large object twice at once
+            if self._bytes is None:
+                self._bytes = _pickled((self.token, self.obj))
+            return self._bytes
 
     def __reduce__(self):  # in a call's arguments only its token travels (the helper holds the object)
         return (_shared_ref, (self.token,))
@@ -144,7 +141,7 @@ class Shared:
 
 def _shared_ref(token: int) -> Shared:
     ref = Shared.__new__(Shared)
-    ref.token, ref.obj, ref._bytes = token, None, None
+    ref.token, ref.obj, ref._bytes, ref._lock = token, None, None, threading.Lock()
     return ref
 
 
@@ -155,7 +152,9 @@ class _Helper:
     def __init__(self, modules: tuple[str, ...], others: list[_Helper]):
         ctx = mp.get_context("fork")
         self.conn, child = ctx.Pipe(duplex=True)
-        ends = (self.conn.fileno(), *(o.conn.fileno() for o in others))
+        from hadal.stage_process import warm_pipe_ends
+
+        ends = (self.conn.fileno(), *(o.conn.fileno() for o in others), *warm_pipe_ends())
         self.proc = ctx.Process(target=_helper_main, args=(child, os.getpid(), modules, ends), daemon=True,
                                 name="hadal-figure-helper")
         self.proc.start()
@@ -308,18 +307,26 @@ class ForkPool:
         return sh
 
     def submit(self, fn: Callable[..., Any], *args: Any) -> None:
-        """Run ``fn(*args)`` in a forked child if one is free, else here (now). With helpers: queued, for an idle
-        helper (started now if one is idle) or for this thread in :meth:`results`."""
+        """Run ``fn(*args)`` in a forked child if one is free, else here (now). With helpers: queued for this pool's
+        helper (one taken now if idle), unless the queue already holds a call for each of them: then here (now),
+        so calls (and their arguments) do not pile up behind a busy or missing helper."""
         i = self._n
         self._n += 1
         if self._helpers is not None and self.workers > 1:
             with self._qlock:
                 self._queue.append((i, fn, args))
-            busy = sum(t.is_alive() for t in self._feeders)
-            if busy < self.workers - 1 and (h := self._helpers.acquire()) is not None:
+            live = sum(t.is_alive() for t in self._feeders)
+            if live < self.workers - 1 and (h := self._helpers.acquire()) is not None:
                 t = threading.Thread(target=self._feed, args=(h,), daemon=True, name="hadal-figure-feeder")
                 self._feeders.append(t)
                 t.start()
+                return
+            with self._qlock:  # no helper free: keep at most one waiting call per working helper
+                here = len(self._queue) > live and self._queue[-1][0] == i
+                if here:
+                    self._queue.pop()
+            if here:
+                self._done[i] = _call(fn, args)
             return
         self._reap(block=False)
         if self._ctx is None or len(self._running) >= self.workers - 1:
@@ -352,8 +359,12 @@ class ForkPool:
         try:
             while (job := self._take()) is not None:
                 i, fn, args = job
-                if not self._send_call(h, fn, args):
+                sent = self._send_call(h, fn, args)
+                if sent != "sent":
                     self._failed[i] = (fn, args)
+                    if sent == "gone":
+                        dead = True
+                        return
                     continue
                 try:
                     ok, value = h.conn.recv()
@@ -361,6 +372,8 @@ class ForkPool:
                     self._failed[i] = (fn, args)
                     dead = True
                     return
+                except Exception:  # noqa: BLE001 - an answer that does not unpickle here: re-run here
+                    ok, value = False, None
                 if ok:
                     self._done[i] = value
                 else:
@@ -368,24 +381,27 @@ class ForkPool:
         finally:
             helpers.release(h, dead=dead)
 
-    def _send_call(self, h: _Helper, fn: Callable[..., Any], args: tuple[Any, ...]) -> bool:
-        """Send a call (and the shared arguments ``h`` lacks) to helper ``h``; False if it cannot go (an unpicklable
-        call or shared argument; a helper gone: the next send fails too)."""
+    def _send_call(self, h: _Helper, fn: Callable[..., Any], args: tuple[Any, ...]) -> str:
+        """Send a call (and the shared arguments ``h`` lacks) to helper ``h``: ``"sent"``, ``"unpicklable"`` (the
+        call or a shared argument; nothing of it sent) or ``"gone"`` (the helper's pipe is broken)."""
         helpers = self._helpers
         assert helpers is not None
         try:
             call = _pickled((fn, args))
-            for a in args:
-                if isinstance(a, Shared) and a.token not in h.holds:
-                    h.send(b"s", a.message())
-                    with helpers.lock:
-                        h.holds.add(a.token)
-                        if all(a.token in o.holds for o in helpers.all):
-                            a.free()  # every helper has it: no need for its pickle here
+            shares = [(a, a.message()) for a in args if isinstance(a, Shared) and a.token not in h.holds]
+        except Exception:  # noqa: BLE001 - e.g. a lambda: run here
+            return "unpicklable"
+        try:
+            for a, body in shares:
+                h.send(b"s", body)
+                with helpers.lock:
+                    h.holds.add(a.token)
+                    if all(a.token in o.holds for o in helpers.all):
+                        a.free()  # every helper has it: no need for its pickle here
             h.send(b"c", call)
-        except Exception:  # noqa: BLE001 - e.g. a lambda, or a broken pipe: run here
-            return False
-        return True
+        except (OSError, ValueError):  # a broken pipe (the helper killed), or a closed one (stopped)
+            return "gone"
+        return "sent"
 
     def _reap(self, block: bool) -> None:
         """Collect the answers of finished children (all of them with ``block``); a child without an answer has its

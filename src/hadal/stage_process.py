@@ -80,6 +80,22 @@ def guard_child(parent_pid: int) -> None:
     threading.Thread(target=_watch_parent, args=(parent_pid,), daemon=True, name="parent-watchdog").start()
 
 
+def start_child(parent_pid: int, inherited: tuple[int, ...], modules: tuple[str, ...]) -> None:
+    """The first steps of a child started ahead (a stage process, a figure helper): close the ``inherited`` pipe
+    ends a fork copied (the parent's ends of other children's pipes, else the parent closing one would never reach
+    its child as EOF), :func:`guard_child`, then import ``modules`` (:func:`hadal.stages.warm`)."""
+    from hadal.stages import warm
+
+    for fd in inherited:
+        try:
+            os.close(fd)
+        except OSError:
+            pass
+    guard_child(parent_pid)
+    for mod in modules:
+        warm(mod)
+
+
 def _child(q: Any, name: str, kwargs: dict[str, Any], log_level: int, progress: bool, parent_pid: int,
            warning_filters: list[Any]) -> None:
     guard_child(parent_pid)
@@ -131,21 +147,14 @@ _WARM: dict[str, _Warm] = {}
 _WARM_LOCK = threading.Lock()
 
 
-def _warm_child(q: Any, conn: Any, parent_pid: int, modules: tuple[str, ...], parent_end: int = -1) -> None:
+def _warm_child(q: Any, conn: Any, parent_pid: int, modules: tuple[str, ...],
+                parent_ends: tuple[int, ...] = ()) -> None:
     """A stage process started ahead: warm ``modules`` (the stage's ``WARM_IMPORTS``, :func:`hadal.stages.warm`), then
     wait for the job (the arguments of :func:`_child`) on ``conn`` and run it; EOF (the parent exits or no longer
-    needs it): exit. ``parent_end``: a forked child's copy of the parent's end of ``conn``, closed first (else the
-    parent closing its end would never reach this child as EOF)."""
-    from hadal.stages import warm
-
-    if parent_end >= 0:
-        try:
-            os.close(parent_end)
-        except OSError:
-            pass
-    guard_child(parent_pid)
-    for mod in modules:
-        warm(mod)
+    needs it): exit. ``parent_ends``: a forked child's copies of the parent's ends of the job pipes (its own and
+    those of the processes started before it, :func:`warm_pipe_ends`), closed first, else the parent closing one
+    would never reach its child as EOF."""
+    start_child(parent_pid, parent_ends, modules)
     try:
         name, kwargs, log_level, progress, _, warning_filters = conn.recv()  # the arguments of _child
     except (EOFError, OSError):
@@ -187,8 +196,8 @@ def prestart(names: Any, *, fork: bool = False) -> list[str]:
             q = ctx.Queue()
             parent_end, child_end = ctx.Pipe()
             mods = tuple(getattr(stage_module(name), "WARM_IMPORTS", ()))
-            own = parent_end.fileno() if forked else -1
-            proc = ctx.Process(target=_warm_child, args=(q, child_end, os.getpid(), mods, own),
+            ends = (parent_end.fileno(), *_warm_pipe_ends_locked()) if forked else ()
+            proc = ctx.Process(target=_warm_child, args=(q, child_end, os.getpid(), mods, ends),
                                name=f"hadal-stage-{name}", daemon=False)
             proc.start()
             child_end.close()
@@ -199,6 +208,17 @@ def prestart(names: Any, *, fork: bool = False) -> list[str]:
             _WARM[name] = _Warm(proc, q, parent_end)
             started.append(name)
     return started
+
+
+def _warm_pipe_ends_locked() -> list[int]:
+    return [w.conn.fileno() for w in _WARM.values() if not w.conn.closed]
+
+
+def warm_pipe_ends() -> list[int]:
+    """This process's ends of the job pipes of the stage processes started ahead and not yet given their job: a
+    child forked later closes its copies of them (:mod:`hadal.forkpool`'s helpers), so that EOF reaches them."""
+    with _WARM_LOCK:
+        return _warm_pipe_ends_locked()
 
 
 def _stop_warm() -> None:
