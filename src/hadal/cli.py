@@ -91,7 +91,14 @@ def _run_flow(raw_dir: Path, store: Path | None, config: Path | None, stages: li
     import time
 
     from hadal.dive import load_dive
-    from hadal.pipeline import claim_dive, current_stages, make_context, stage_plan, stale_stages
+    from hadal.pipeline import (
+        claim_dive,
+        current_stages,
+        make_context,
+        stage_cache_status,
+        stage_plan,
+        stale_stages,
+    )
 
     t0 = time.monotonic()
     # validate everything cheap before starting Prefect, so bad input fails fast and in one line
@@ -103,8 +110,11 @@ def _run_flow(raw_dir: Path, store: Path | None, config: Path | None, stages: li
     for ps in plan:
         if not ps.run:
             console.print(f"[yellow]skip[/] {ps.name}: {ps.reason}", highlight=False)
+    cfg_path = str(config) if config else None
+    # one walk of the cache (no Prefect): whether all is current, and else what will run rather than be reused
+    status = [] if force else stage_cache_status(raw_dir, _store_root(store), cfg_path, names)
     if not force and not flow_run and (
-            cur := current_stages(raw_dir, _store_root(store), str(config) if config else None, names)) is not None:
+            cur := current_stages(raw_dir, _store_root(store), cfg_path, names, status=status)) is not None:
         for stale in ctx.store.clean_staging():  # as the flow does at its start
             console.print(f"removed abandoned staging directory {stale}", highlight=False)
         console.print(f"[bold]hadal[/] {raw_dir}: all {len(names)} stage(s) current (raw files, parameters and code "
@@ -118,8 +128,8 @@ def _run_flow(raw_dir: Path, store: Path | None, config: Path | None, stages: li
 
     _quiet_prefect_tracebacks()
     console.print(f"[bold]hadal[/] {raw_dir} → stages: {', '.join(names)} (on {_server_text()})", highlight=False)
-    # what will run rather than be reused (cache hits need no process, helper or imports ahead)
-    running = names if force else stale_stages(raw_dir, _store_root(store), str(config) if config else None, names)
+    # cache hits need no process, helper or imports ahead
+    running = names if force else stale_stages(raw_dir, _store_root(store), cfg_path, names, status=status)
     isolated = _prepare_while_server_boots(ctx, names, running)
     _wait_for_temporary_server()
     from hadal.forkpool import stop_helpers
@@ -128,7 +138,7 @@ def _run_flow(raw_dir: Path, store: Path | None, config: Path | None, stages: li
     meta = getattr(ctx.dive, "metadata", None)
     try:
         with tags(*dive_tags(ctx.raw_dir, ctx.dive_id, getattr(meta, "cruise", None))):
-            out = post_cruise(str(raw_dir), str(_store_root(store)), str(config) if config else None, stages, force)
+            out = post_cruise(str(raw_dir), str(_store_root(store)), cfg_path, stages, force)
     finally:
         stop_helpers()
     _print_stage_table(out, time.monotonic() - t0)

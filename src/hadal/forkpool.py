@@ -29,6 +29,7 @@ picklable (bytes, paths, small dataclasses); a matplotlib Figure is not.
 from __future__ import annotations
 
 import collections
+import itertools
 import multiprocessing as mp
 import os
 import sys
@@ -83,22 +84,12 @@ def _helper_main(conn: Any, parent_pid: int, modules: tuple[str, ...], parent_en
         if kind == b"d":
             shared.pop(body, None)
             continue
-        out: tuple[bool, Any]
-        if body is None:
-            out = (False, f"call not readable here ({why})")
-        else:
-            fn, args = body
-            try:
-                out = (True, fn(*(shared[a.token] if isinstance(a, Shared) else a for a in args)))
-            except BaseException as exc:  # noqa: BLE001 - sent back; the parent re-runs the call to raise it itself
-                out = (False, f"{type(exc).__name__}: {exc}")
         try:
-            try:
-                conn.send(out)
-            except (OSError, EOFError):
-                raise
-            except Exception as exc:  # noqa: BLE001 - an unpicklable result: the parent re-runs the call
-                conn.send((False, f"result not picklable ({type(exc).__name__}: {exc})"))
+            if body is None:
+                conn.send((False, f"call not readable here ({why})"))
+            else:
+                fn, args = body
+                _answer(conn, _call_with, (fn, args, shared))  # a missing shared object: an answer, not a crash
         except (OSError, EOFError):  # the parent is gone
             return
 
@@ -112,13 +103,10 @@ def _pickled(body: Any) -> bytes:
 class Shared:
     """An argument of many calls of a pool (:meth:`ForkPool.share`): pickled once and sent to a helper once."""
 
-    _next = 0
-    _next_lock = threading.Lock()
+    _tokens = itertools.count(1)  # next() on a count is atomic under the GIL: one token per object, any thread
 
     def __init__(self, obj: Any):
-        with Shared._next_lock:
-            Shared._next += 1
-            self.token = Shared._next
+        self.token = next(Shared._tokens)
         self.obj = obj
         self._bytes: bytes | None = None
         self._lock = threading.Lock()
@@ -261,16 +249,25 @@ def stop_helpers() -> None:
         _HELPERS.pop().stop()
 
 
+def _answer(conn: Any, fn: Callable[..., Any], args: tuple[Any, ...]) -> None:
+    """Run ``fn(*args)`` and send ``(True, result)`` on ``conn``, or ``(False, why)`` when it raises or its result does
+    not pickle (the parent then re-runs the call itself, which raises the error with its traceback). A broken
+    pipe (the parent gone) raises OSError."""
+    try:
+        out: tuple[bool, Any] = (True, fn(*args))
+    except BaseException as exc:  # noqa: BLE001 - sent back; the parent re-runs the call to raise it itself
+        out = (False, f"{type(exc).__name__}: {exc}")
+    try:
+        conn.send(out)
+    except (OSError, EOFError):
+        raise
+    except Exception as exc:  # noqa: BLE001 - an unpicklable result: the parent re-runs the call
+        conn.send((False, f"result not picklable ({type(exc).__name__}: {exc})"))
+
+
 def _child_main(conn: Any, fn: Callable[..., Any], args: tuple[Any, ...]) -> None:
     try:
-        try:
-            out: tuple[bool, Any] = (True, fn(*args))
-        except BaseException as exc:  # noqa: BLE001 - sent back; the parent re-runs the call to raise it itself
-            out = (False, f"{type(exc).__name__}: {exc}")
-        try:
-            conn.send(out)
-        except Exception as exc:  # noqa: BLE001 - an unpicklable result: the parent re-runs the call
-            conn.send((False, f"result not picklable ({type(exc).__name__}: {exc})"))
+        _answer(conn, fn, args)
     finally:
         conn.close()
 
@@ -282,8 +279,9 @@ class ForkPool:
         if int(workers) < 1:
             raise ValueError(f"workers must be at least 1, got {workers}")
         # a fork here when it is safe, else the helpers forked ahead (a flow's task thread), else a plain loop
-        self._helpers = _HELPERS[0] if not can_fork() and _HELPERS else None
-        self.workers = int(workers) if can_fork() or self._helpers is not None else 1
+        forks = can_fork()
+        self._helpers = _HELPERS[0] if not forks and _HELPERS else None
+        self.workers = int(workers) if forks or self._helpers is not None else 1
         self._ctx = mp.get_context("fork") if self.workers > 1 and self._helpers is None else None
         self._n = 0  # calls submitted
         self._done: dict[int, Any] = {}
@@ -469,3 +467,8 @@ class ForkPool:
 def _call(fn: Callable[..., Any], args: tuple[Any, ...]) -> Any:
     """``fn(*args)`` here, shared arguments unwrapped."""
     return fn(*(a.obj if isinstance(a, Shared) else a for a in args))
+
+
+def _call_with(fn: Callable[..., Any], args: tuple[Any, ...], shared: dict[int, Any]) -> Any:
+    """``fn(*args)`` in a helper, shared arguments taken from the objects it holds (``shared``, by token)."""
+    return fn(*(shared[a.token] if isinstance(a, Shared) else a for a in args))

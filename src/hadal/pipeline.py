@@ -372,38 +372,47 @@ def cached_result(storage: Path, key: str) -> dict[str, str] | None:
     return value
 
 
+#: per stage of a run, in plan order: ``(name, versions it would reuse or None, seconds the check took)``
+CacheStatus = list[tuple[str, dict[str, str] | None, float]]
+
+
 def current_stages(raw_dir: str | Path, store_root: str | Path | None, config_path: str | Path | None,
-                   names: Sequence[str]) -> RunOutcome | None:
+                   names: Sequence[str], *, status: CacheStatus | None = None) -> RunOutcome | None:
     """Whether a flow run of stages ``names`` (in plan order) would be nothing but cache hits, decided without
-    Prefect (:func:`_cache_walk`). Returns what that flow run would (a :class:`RunOutcome`: the versions reused,
-    every stage ``reused``) when all are current, else ``None`` (something changed, or it cannot be told: a flow
-    run decides). Publishes nothing (it may add raw-file hashes to the store's hash cache, as a flow run does)."""
-    rows, published = [], {}
-    for name, out, seconds in _cache_walk(raw_dir, store_root, config_path, names, stop_at_miss=True):
-        if out is None:
-            return None
-        published.update(out)
-        rows.append({"stage": name, "status": "reused", "seconds": seconds,
-                     "versions": {p: Path(v).name for p, v in out.items()}, "reason": ""})
-    return RunOutcome(published, rows) if rows else None
+    Prefect (:func:`stage_cache_status`, or its ``status`` already walked). Returns what that flow run would (a
+    :class:`RunOutcome`: the versions reused, every stage ``reused``) when all are current, else ``None``
+    (something changed, or it cannot be told: a flow run decides). Publishes nothing (it may add raw-file hashes to
+    the store's hash cache, as a flow run does)."""
+    if status is None:
+        status = stage_cache_status(raw_dir, store_root, config_path, names)
+    if not status or any(out is None for _, out, _ in status):
+        return None
+    published: dict[str, str] = {}
+    for _, out, _ in status:
+        published.update(out or {})
+    return RunOutcome(published, [{"stage": name, "status": "reused", "seconds": seconds,
+                                   "versions": {p: Path(v).name for p, v in (out or {}).items()}, "reason": ""}
+                                  for name, out, seconds in status])
 
 
 def stale_stages(raw_dir: str | Path, store_root: str | Path | None, config_path: str | Path | None,
-                 names: Sequence[str]) -> list[str]:
-    """The stages of ``names`` (in plan order) a flow run would run rather than reuse (:func:`_cache_walk`): those
-    without a current cached result and every stage downstream of one. The CLI starts processes and figure helpers
-    for these only; a stage it judges current that runs after all simply starts its own process."""
-    return [name for name, out, _ in _cache_walk(raw_dir, store_root, config_path, names) if out is None]
+                 names: Sequence[str], *, status: CacheStatus | None = None) -> list[str]:
+    """The stages of ``names`` (in plan order) a flow run would run rather than reuse (:func:`stage_cache_status`,
+    or its ``status`` already walked): those without a current cached result and every stage downstream of one.
+    The CLI starts processes and figure helpers for these only; a stage it judges current that runs after all
+    simply starts its own process."""
+    if status is None:
+        status = stage_cache_status(raw_dir, store_root, config_path, names)
+    return [name for name, out, _ in status if out is None]
 
 
-def _cache_walk(raw_dir: str | Path, store_root: str | Path | None, config_path: str | Path | None,
-                names: Sequence[str], *, stop_at_miss: bool = False):
+def stage_cache_status(raw_dir: str | Path, store_root: str | Path | None, config_path: str | Path | None,
+                       names: Sequence[str]) -> CacheStatus:
     """The stage graph's walk (``flows/post_cruise.py``) replayed without Prefect: for each stage of ``names`` in plan
-    order ``(name, versions reused or None, seconds)``: its cache key (:func:`stage_cache_key`) with the pins of the
-    run so far, and its persisted result (:func:`cached_result`), whose versions must all still exist. None for a
-    stage whose key cannot be told or has no result, and for every stage downstream of such a one (its upstream
-    will publish new versions). Nothing cached yet (a first run) or Prefect told to refresh every cache: every
-    stage None. ``stop_at_miss``: stop after the first None."""
+    order, its cache key (:func:`stage_cache_key`) with the pins of the run so far, and its persisted result
+    (:func:`cached_result`), whose versions must all still exist. None for a stage whose key cannot be told or has
+    no result, and for every stage downstream of such a one (its upstream will publish new versions). Nothing
+    cached yet (a first run) or Prefect told to refresh every cache: every stage None."""
     import time
 
     from hadal.plan import stage_dependencies
@@ -411,16 +420,13 @@ def _cache_walk(raw_dir: str | Path, store_root: str | Path | None, config_path:
     storage = result_storage(store_root)
     if not names or not storage.is_dir() or \
             os.environ.get("PREFECT_TASKS_REFRESH_CACHE", "").lower() in ("1", "true", "yes"):
-        for name in names:
-            yield name, None, 0.0
-            if stop_at_miss:
-                return
-        return
+        return [(name, None, 0.0) for name in names]
     deps = stage_dependencies(list(names))
     ctx = make_context(raw_dir, store_root, config_path)
     ctx.pin_existing(all_products())
     pins = {p: str(pv.path) for p, pv in ctx.pins.items()}
     missed: set[str] = set()
+    status: CacheStatus = []
     for name in names:
         t0 = time.monotonic()
         out = None
@@ -436,9 +442,8 @@ def _cache_walk(raw_dir: str | Path, store_root: str | Path | None, config_path:
             missed.add(name)
         else:
             pins.update(out)
-        yield name, out, round(time.monotonic() - t0, 2)
-        if out is None and stop_at_miss:
-            return
+        status.append((name, out, round(time.monotonic() - t0, 2)))
+    return status
 
 
 def warm_imports(names: Sequence[str], *, stop: Any = None) -> list[str]:
