@@ -184,6 +184,34 @@ def test_cell_robust_tests_match_a_per_cell_median_loop(seed):
         assert typical_cell_sigma(idx, z, 5, stats=st) == pytest.approx(float(np.median(mads)), rel=1e-12)
 
 
+def test_compiled_cell_robust_stats_match_lexsort_and_pandas(monkeypatch):
+    """The compiled cell_robust_stats (from 32768 points on) against np.lexsort's order, pandas' group medians and
+    MADs (an independent oracle) and the NumPy path field by field: random order, sparse cell ids, cells of 1 to
+    ~300 points (the insertion sort, the merge sort above 24 and the scratch growth above 64), ties."""
+    import pandas as pd
+
+    from hadal.grid.points import cell_robust_stats
+
+    rng = np.random.default_rng(11)
+    small = rng.integers(0, 20_000, 60_000) * 3
+    big = np.repeat(np.array([1, 7, 30_001]), [300, 65, 25])  # cells past the insertion sort and the scratch size
+    idx = rng.permutation(np.concatenate([small, big]))
+    z = np.round(rng.standard_t(3, idx.size) * 3.0 - 6000.0, 1)  # heavy tails and many ties
+    assert P._partition_kernels() is not None and idx.size >= P._COMPILED_MIN_POINTS
+    st = cell_robust_stats(idx, z)
+    np.testing.assert_array_equal(st.order, np.lexsort((z, idx)))
+    g = pd.Series(z).groupby(idx)
+    med = g.median()
+    mad = (pd.Series(z) - med.reindex(idx).to_numpy()).abs().groupby(idx).median()
+    np.testing.assert_array_equal(st.median, med.to_numpy())
+    np.testing.assert_array_equal(st.mad, mad.to_numpy())
+    np.testing.assert_array_equal(st.counts, g.size().to_numpy())
+    monkeypatch.setattr(P, "_partition_kernels", lambda: None)
+    ref = cell_robust_stats(idx, z)
+    for f in ref._fields:
+        np.testing.assert_array_equal(getattr(st, f), getattr(ref, f), err_msg=f)
+
+
 def test_ill_conditioned_cells_recomputed_exactly(monkeypatch):
     """Cells 10 km from the shift with 1 mm spread and quantised (identical) values: exact std."""
     calls = []

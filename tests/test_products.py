@@ -214,6 +214,27 @@ def test_netcdf_bytes_equal_xarray_to_netcdf(tmp_path):
         assert bytes(netcdf_bytes(out)) == bytes(out.to_netcdf(engine="h5netcdf")), name
 
 
+def test_gzip_encoding_read_by_netcdf_c(tmp_path):
+    """Variables compressed with :func:`hadal.products.compression.gzip_encoding` are plain deflate that netCDF-C
+    (netCDF4-python, an independent reader) decodes exactly, chunked as asked."""
+    netCDF4 = pytest.importorskip("netCDF4")
+    from hadal.products.compression import GZIP_LEVEL, gzip_encoding
+
+    rng = np.random.default_rng(3)
+    ds = dtm_like()
+    depth = np.round(ds["depth_m"].values + rng.normal(0, 0.01, ds["depth_m"].shape), 2)  # terrain-like noise
+    ds["depth_m"] = (ds["depth_m"].dims, depth, ds["depth_m"].attrs)
+    ds["depth_m"].encoding.update(gzip_encoding((4, 5)))
+    path = write_netcdf(ds, tmp_path / "g.nc", title="t", summary="s")
+    with netCDF4.Dataset(path) as nc:
+        v = nc.variables["depth_m"]
+        v.set_auto_mask(False)
+        filters = v.filters()
+        assert filters["zlib"] is True and filters["complevel"] == GZIP_LEVEL and not filters["shuffle"]
+        assert v.chunking() == [4, 5]
+        np.testing.assert_array_equal(np.asarray(v[:]), depth)
+
+
 def test_writing_netcdf_does_not_import_dask_distributed(tmp_path):
     """Writing a product must not pull in ``dask.distributed`` (the scheduler query of ``to_netcdf``), ~1.2 s of
     imports in each stage process (a fresh interpreter, so earlier tests' imports do not count)."""

@@ -314,3 +314,19 @@ def test_warm_imports_stop_when_told_and_every_declared_module_imports():
             module = importlib.import_module(mod)
             assert not func or callable(getattr(module, func, None)), f"{name}: {m} names no function"
             assert warm(m), m
+
+
+def test_numba_first_call_starts_no_parallel_region():
+    """The stages' ``hadal.numbawarm:first_call`` entry (run in the process that then forks the stage processes)
+    initialises numba without starting its thread pool, which would forbid those forks (can_fork_ahead)."""
+    import subprocess
+    import sys
+
+    code = ("import sys\nfrom hadal.stages import warm\n"
+            "assert warm('hadal.numbawarm:first_call')\n"
+            "par = sys.modules.get('numba.np.ufunc.parallel')\n"
+            "from hadal.stage_process import can_fork_ahead\n"
+            "print('numba' in sys.modules, getattr(par, '_is_initialized', False), can_fork_ahead())\n")
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0, r.stderr
+    assert r.stdout.split() == ["True", "False", "True"]

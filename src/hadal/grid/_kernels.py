@@ -371,3 +371,70 @@ def partition_points(x, y, z, x0, y0, inv_h, nx, ny, check_inside, shift, nblock
         bad[t] = nb
         out[t] = no
     return kb, zb, seg, bad.sum(), out.sum()
+
+
+@njit(cache=True, nogil=True)
+def cell_counting_order(idx, ncells):  # pragma: no cover - compiled
+    """``(order, starts)``: the points grouped by cell in a stable counting sort (``idx[order]`` ascending, points of
+    one cell in their input order, as ``np.argsort(idx, kind="stable")``); ``starts[c]:starts[c + 1]`` is cell
+    ``c``'s run in ``order`` (``ncells + 1`` entries)."""
+    n = idx.size
+    starts = np.zeros(ncells + 1, np.int64)
+    for i in range(n):
+        starts[idx[i] + 1] += 1
+    for c in range(ncells):
+        starts[c + 1] += starts[c]
+    pos = starts[:-1].copy()
+    order = np.empty(n, np.int64)
+    for i in range(n):
+        c = idx[i]
+        order[pos[c]] = i
+        pos[c] += 1
+    return order, starts
+
+
+@njit(inline="always")
+def _stable_sort_run_by_z(order, z, s, m):  # pragma: no cover - compiled
+    """Sort ``order[s:s + m]`` by ``z`` of its entries, equal values keeping their order (stable)."""
+    if m > 24:
+        run = order[s:s + m].copy()
+        zr = np.empty(m)
+        for q in range(m):
+            zr[q] = z[run[q]]
+        o = np.argsort(zr, kind="mergesort")
+        for q in range(m):
+            order[s + q] = run[o[q]]
+        return
+    for i in range(s + 1, s + m):
+        v = order[i]
+        zv = z[v]
+        j = i - 1
+        while j >= s and z[order[j]] > zv:
+            order[j + 1] = order[j]
+            j -= 1
+        order[j + 1] = v
+
+
+@njit(parallel=True, cache=True, nogil=True)
+def segment_median_mad(order, z, starts, counts, med, mad, dev, block):  # pragma: no cover - compiled
+    """For every segment ``order[starts[s]:starts[s] + counts[s]]`` (one cell's points): sort it by ``z`` (stable,
+    in place), then ``med[s]`` = its median, ``dev`` = ``|z - med|`` of its points (in ``order``'s order) and
+    ``mad[s]`` = the median of those deviations; a median of an even count is ``0.5 * (lower + upper)``, as
+    :func:`hadal.grid.points.segment_median`. Blocks of ``block`` segments in parallel, one scratch array a block."""
+    nseg = starts.size
+    for b in prange((nseg + block - 1) // block):
+        tmp = np.empty(64)
+        for s in range(b * block, min(nseg, (b + 1) * block)):
+            s0 = starts[s]
+            m = counts[s]
+            _stable_sort_run_by_z(order, z, s0, m)
+            md = 0.5 * (z[order[s0 + (m - 1) // 2]] + z[order[s0 + m // 2]])
+            med[s] = md
+            if m > tmp.size:
+                tmp = np.empty(2 * m)
+            for q in range(m):
+                d = abs(z[order[s0 + q]] - md)
+                dev[s0 + q] = d
+                tmp[q] = d
+            _sort_small(tmp[:m])
+            mad[s] = 0.5 * (tmp[(m - 1) // 2] + tmp[m // 2])

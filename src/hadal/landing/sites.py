@@ -180,7 +180,9 @@ class LandingResult:
         y = xr.Variable("y", self.y_m, {"units": "m", "long_name": "y (north) in the laser frame", "axis": "Y"})
         x = xr.Variable("x", self.x_m, {"units": "m", "long_name": "x (east) in the laser frame", "axis": "X"})
         hd = xr.Variable("heading", self.headings_deg, {"units": "degree", "long_name": "landing heading, clockwise from +y"})
-        enc = {"zlib": True, "complevel": 4}
+        from hadal.products.compression import gzip_encoding
+
+        enc = gzip_encoding()
         ds = xr.Dataset(
             {
                 "elevation_m": (("y", "x"), self.elevation_m.astype(np.float32), {"units": "m", "positive": "up", "long_name": "elevation"}),

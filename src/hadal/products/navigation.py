@@ -188,6 +188,7 @@ def trajectory_dataset(nav: pd.DataFrame, ctd: pd.DataFrame | None, dive_id: str
     asks the trajectory_id variable for a dimension of length 1, one platform per dataset.)"""
     import xarray as xr
 
+    from hadal.products.compression import gzip_encoding
     from hadal.products.registry import variable_attrs
 
     obs = np.arange(len(nav), dtype="i4")
@@ -221,9 +222,9 @@ def trajectory_dataset(nav: pd.DataFrame, ctd: pd.DataFrame | None, dive_id: str
     for n in ds.data_vars:
         if ds[n].dims == ("obs",):
             ds[n].attrs["coordinates"] = "time lat lon depth_m"
-            ds[n].encoding.update(zlib=True, complevel=4, chunksizes=(min(len(obs), 1 << 16),) if len(obs) else None)
+            ds[n].encoding.update(gzip_encoding((min(len(obs), 1 << 16),) if len(obs) else None))
     for n in ("time", "lat", "lon", "depth_m"):
-        ds[n].encoding.update(zlib=True, complevel=4)
+        ds[n].encoding.update(gzip_encoding())
     return ds
 
 

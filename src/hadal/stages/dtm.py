@@ -20,6 +20,7 @@ PROCESS = True
 #: modules its run imports (lazily), imported ahead while Prefect's server boots (:func:`hadal.pipeline.warm_imports`)
 WARM_IMPORTS = (
     "hadal.grid.multibeam", "hadal.grid.sonar", "hadal.grid.readers", "hadal.products.io", "hadal.products.geotiff",
+    "hadal.numbawarm:first_call",
 )
 PRODUCTS = ("dtm",)
 UPSTREAM: tuple[str, ...] = ()

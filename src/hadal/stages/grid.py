@@ -148,12 +148,14 @@ def _frame_attrs(ctx: StageContext) -> dict:
 
 
 def _compress(ds) -> None:
-    """gzip the (y, x) layers of large grids (a 25 m x 25 m submap at 10 mm is 6 M cells per layer)."""
+    """gzip the (y, x) layers of large grids (a 25 m x 25 m submap at 10 mm is 6 M cells per layer) in 512 x 512
+    chunks (:func:`hadal.products.compression.gzip_encoding`)."""
+    from hadal.products.compression import gzip_encoding
+
     for v in ds.data_vars:
         if ds[v].dims == ("y", "x"):
             ny, nx = ds[v].shape
-            ds[v].encoding.update({"compression": "gzip", "compression_opts": 4,
-                                   "chunksizes": (min(ny, 512), min(nx, 512))})
+            ds[v].encoding.update(gzip_encoding((min(ny, 512), min(nx, 512))))
 
 
 def _drop_implausible(files: list[Path], x: np.ndarray, y: np.ndarray, dep: np.ndarray):

@@ -41,7 +41,7 @@ if TYPE_CHECKING:
     from hadal.store import ProductVersion
 
 #: modules its run imports (lazily), imported ahead while Prefect's server boots (:func:`hadal.pipeline.warm_imports`)
-WARM_IMPORTS = ("hadal.ingest.build", "hadal.ingest.vehicle", "hadal.products.io",)
+WARM_IMPORTS = ("hadal.ingest.build", "hadal.ingest.vehicle", "hadal.products.io", "hadal.numbawarm:first_call")
 PRODUCTS = ("sensors", "casts")
 UPSTREAM: tuple[str, ...] = ()
 INPUTS = StageInputs(raw_any=("mcap", "csv", "cnv"), product_sources={"casts": ("cnv",)}, reads_raw=True,

@@ -34,7 +34,7 @@ if TYPE_CHECKING:
 
 #: modules its run imports (lazily), imported ahead while Prefect's server boots (:func:`hadal.pipeline.warm_imports`)
 WARM_IMPORTS = ("hadal.landing.sites", "hadal.landing.figures", "hadal.products.geo_landing", "hadal.products.io",
-                "hadal.mplwarm:first_draw")
+                "hadal.mplwarm:first_draw", "hadal.numbawarm:first_call")
 PRODUCTS = ("landing",)
 UPSTREAM = ("laser_grids",)
 INPUTS = StageInputs(upstream=("laser_grids",))

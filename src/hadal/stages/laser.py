@@ -19,7 +19,8 @@ PARAM_FIELDS = LASER_FIELDS
 #: (:func:`flows.post_cruise.process_stages`; measured faster than in the flow's threads, docs/operations.md)
 PROCESS = True
 #: modules its run imports (lazily), imported ahead while Prefect's server boots (:func:`hadal.pipeline.warm_imports`)
-WARM_IMPORTS = ("open3d", "hadal.grid.laser", "hadal.grid.readers", "hadal.products.io", "hadal.products.geotiff",)
+WARM_IMPORTS = ("open3d", "hadal.grid.laser", "hadal.grid.readers", "hadal.products.io", "hadal.products.geotiff",
+                "hadal.numbawarm:first_call")
 PRODUCTS = ("laser_grids",)
 UPSTREAM: tuple[str, ...] = ()
 INPUTS = StageInputs(raw_any=("laser",), reads_raw=True)
