@@ -164,6 +164,19 @@ def test_missing_columns_and_unreadable_files_skip_figures(tmp_path):
     assert figs["dtm_map"].png is not None
 
 
+def test_unreadable_sensors_table_is_a_note(tmp_path):
+    """The report draws nothing from ``sensors`` (the figures read ``ctd``) and does not load its table, but a
+    truncated sensors.parquet is still named in the notes, as every other unreadable product file."""
+    st = ProductStore(tmp_path)
+    pvs = publish_fake_products(st, "dive-s", products=("sensors", "ctd"))
+    path = pvs["sensors"].path / "sensors.parquet"
+    data = path.read_bytes()
+    path.write_bytes(data[: len(data) // 2])
+    rep = build_report(st, "dive-s", options=FAST)
+    assert any("sensors/v001/sensors.parquet is unreadable" in n for n in rep.summary["notes"]), rep.summary["notes"]
+    assert {f.key: f for f in rep.figures}["fig09_depth_time"].png is not None
+
+
 def test_nan_only_seafloor_depth_is_a_skipped_figure(tmp_path):
     st = ProductStore(tmp_path)
     df = fake_ctd()

@@ -746,9 +746,12 @@ def _start_temporary_server() -> str | None:
     It is the server Prefect's own temporary server runs (``uvicorn prefect.server.api.server:create_app`` with
     Prefect's ephemeral-server settings), started by hadal instead of by Prefect's first API call so that it boots
     while hadal imports the flows (a flow run started ~2.4 s sooner here), without loading Prefect's server code
-    (~2 s of imports) into hadal. It runs in its own process group - a Ctrl-C at the terminal reaches hadal only,
-    which then stops the server instead of killing it under a running flow - and through :data:`_SERVER_GUARD`,
-    so it exits when hadal dies, even by ``kill -9``; a normal exit stops it (atexit)."""
+    (~2 s of imports) into hadal. It is started before hadal imports Prefect itself (~0.8 s), the server's boot
+    being the longer of the two: when Prefect's settings then name an API after all (a profile, ``prefect.toml``),
+    that API wins and the server just started is stopped. It runs in its own process group - a Ctrl-C at the
+    terminal reaches hadal only, which then stops the server instead of killing it under a running flow - and
+    through :data:`_SERVER_GUARD`, so it exits when hadal dies, even by ``kill -9``; a normal exit stops it
+    (atexit)."""
     import atexit
     import importlib.util
     import subprocess
@@ -756,18 +759,15 @@ def _start_temporary_server() -> str | None:
 
     if _SERVERS:
         return _SERVERS[0].api_url
-    if _prefect_api_configured():
-        return None
-    spec = importlib.util.find_spec("prefect")
-    if spec is None or spec.origin is None or importlib.util.find_spec("prefect.server") is None:
+    if os.environ.get("PREFECT_API_URL"):
+        return None  # configured in the environment: known without importing Prefect
+    spec = importlib.util.find_spec("prefect")  # locates the package without importing it
+    if spec is None or spec.origin is None or not (Path(spec.origin).parent / "server" / "api" / "server.py").is_file():
         return None  # a Prefect without the bundled server: Prefect reports it at the flow run
-    from prefect.context import refresh_global_settings_context
-    from prefect.settings import get_current_settings
-
     port = _free_port()
     r, w = os.pipe()
-    env = {**os.environ, "PREFECT_UI_ENABLED": "0", "PREFECT__SERVER_EPHEMERAL": "1", "PREFECT__SERVER_FINAL": "1",
-           **get_current_settings().to_environment_variables(exclude_unset=True)}
+    # the server reads Prefect's settings (environment, profile, prefect.toml) itself, as this process does
+    env = {**os.environ, "PREFECT_UI_ENABLED": "0", "PREFECT__SERVER_EPHEMERAL": "1", "PREFECT__SERVER_FINAL": "1"}
     args = [sys.executable, "-c", _SERVER_GUARD, str(r), "--app-dir", str(Path(spec.origin).parent.parent),
             "--factory", "prefect.server.api.server:create_app", "--host", "127.0.0.1", "--port", str(port),
             "--log-level", "error", "--lifespan", "on"]
@@ -776,6 +776,11 @@ def _start_temporary_server() -> str | None:
     finally:
         os.close(r)
     srv = _TemporaryServer(proc, port, w, time.monotonic())
+    if _prefect_api_configured():  # an API in the active profile or prefect.toml: no temporary server after all
+        srv.stop()
+        return None
+    from prefect.context import refresh_global_settings_context
+
     _SERVERS.append(srv)
     atexit.register(srv.stop)
     os.environ["PREFECT_API_URL"] = srv.api_url

@@ -35,7 +35,6 @@ class DiveProducts:
     dive: str
     versions: dict[str, ProductVersion] = field(default_factory=dict)
     notes: list[str] = field(default_factory=list)
-    sensors: pd.DataFrame | None = None
     ctd: pd.DataFrame | None = None
     profile: xr.Dataset | None = None
     dtm: xr.Dataset | None = None
@@ -84,6 +83,22 @@ def _read_parquet(pv: ProductVersion, name: str, dp: DiveProducts) -> pd.DataFra
     except Exception as exc:  # corrupt/truncated file: report it, do not fail the report
         dp.note(f"{pv.product}/{pv.label}/{name} is unreadable ({type(exc).__name__})")
         return None
+
+
+def _check_parquet(pv: ProductVersion, name: str, dp: DiveProducts) -> None:
+    """Note a Parquet file of ``pv`` that is missing or whose footer (schema, row groups) does not read, without
+    loading its table: for products the report lists but draws nothing from (``sensors``: the figures read the
+    calibrated ``ctd`` table)."""
+    import pyarrow.parquet as pq
+
+    path = pv.path / name
+    if not path.is_file():
+        dp.note(f"{pv.product}/{pv.label} has no {name}")
+        return
+    try:
+        pq.read_metadata(path)
+    except Exception as exc:  # corrupt/truncated file: report it, do not fail the report
+        dp.note(f"{pv.product}/{pv.label}/{name} is unreadable ({type(exc).__name__})")
 
 
 def _read_netcdf(pv: ProductVersion, name: str, dp: DiveProducts) -> xr.Dataset | None:
@@ -140,7 +155,7 @@ def load_products(store: ProductStore, dive: str, skipped_stages: set[str] | Non
                                                                                    or product in expected):
             dp.note(f"product {product!r} is missing (stage {stage} has not run): its figures are skipped")
     if "sensors" in versions:
-        dp.sensors = _read_parquet(versions["sensors"], "sensors.parquet", dp)
+        _check_parquet(versions["sensors"], "sensors.parquet", dp)  # its notes below; its table is not drawn
         for n in _table_notes(versions["sensors"].path / "sensors.parquet"):
             dp.note(f"ingest: {n}")
     if "ctd" in versions:
