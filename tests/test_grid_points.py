@@ -212,6 +212,19 @@ def test_compiled_cell_robust_stats_match_lexsort_and_pandas(monkeypatch):
         np.testing.assert_array_equal(getattr(st, f), getattr(ref, f), err_msg=f)
 
 
+def test_cell_robust_stats_with_nan_keep_lexsort_order():
+    """A NaN value (public robust_outlier_mask input) keeps np.lexsort's order (NaN last in its cell) also where the
+    compiled path would otherwise run."""
+    from hadal.grid.points import cell_robust_stats
+
+    rng = np.random.default_rng(5)
+    idx = rng.integers(0, 5000, 40_000)
+    z = rng.normal(0.0, 1.0, idx.size)
+    z[::997] = np.nan
+    st = cell_robust_stats(idx, z)
+    np.testing.assert_array_equal(st.order, np.lexsort((z, idx)))
+
+
 def test_ill_conditioned_cells_recomputed_exactly(monkeypatch):
     """Cells 10 km from the shift with 1 mm spread and quantised (identical) values: exact std."""
     calls = []

@@ -210,8 +210,7 @@ class CellRobustStats(NamedTuple):
 
 
 def cell_robust_stats(idx: np.ndarray, z: np.ndarray) -> CellRobustStats:
-    """Median and median absolute deviation (MAD) of ``z`` within each cell ``idx`` (non-negative cell indices,
-    finite ``z``).
+    """Median and median absolute deviation (MAD) of ``z`` within each cell ``idx`` (non-negative cell indices).
 
     Computed once and shared by :func:`typical_cell_sigma` and :func:`robust_outlier_mask` (the multibeam spike
     test needs both on the same soundings). From :data:`_COMPILED_MIN_POINTS` points on, a compiled stable counting
@@ -225,7 +224,7 @@ def cell_robust_stats(idx: np.ndarray, z: np.ndarray) -> CellRobustStats:
     n = len(z)
     ncells = int(idx.max()) + 1 if n else 0
     if (kernels is not None and n >= _COMPILED_MIN_POINTS and z.dtype == np.float64 and ncells <= 8 * n + (1 << 20)
-            and int(idx.min()) >= 0):
+            and int(idx.min()) >= 0 and bool(np.isfinite(z).all())):  # NaN: lexsort's order (last) on the NumPy path
         return _cell_robust_stats_compiled(kernels, idx, z, ncells)
     order, _cells, starts, counts = sorted_segments(idx, z)
     zs = z[order]
