@@ -8,6 +8,7 @@ product at all.
 from __future__ import annotations
 
 import json
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -73,16 +74,23 @@ def _table_notes(path: Path) -> list[str]:
     return [str(n) for n in notes] if isinstance(notes, list) else []
 
 
-def _read_parquet(pv: ProductVersion, name: str, dp: DiveProducts) -> pd.DataFrame | None:
+def _read(pv: ProductVersion, name: str, dp: DiveProducts, reader: Callable[[Path], Any],
+          errors: tuple[type[BaseException], ...] = (Exception,)) -> Any:
+    """``reader(path)`` of the file ``name`` of ``pv``, or None with a note in ``dp`` when the file is missing or
+    ``reader`` raises one of ``errors`` (a corrupt/truncated file: reported, never failing the report)."""
     path = pv.path / name
     if not path.is_file():
         dp.note(f"{pv.product}/{pv.label} has no {name}")
         return None
     try:
-        return pd.read_parquet(path)
-    except Exception as exc:  # corrupt/truncated file: report it, do not fail the report
+        return reader(path)
+    except errors as exc:
         dp.note(f"{pv.product}/{pv.label}/{name} is unreadable ({type(exc).__name__})")
         return None
+
+
+def _read_parquet(pv: ProductVersion, name: str, dp: DiveProducts) -> pd.DataFrame | None:
+    return _read(pv, name, dp, pd.read_parquet)
 
 
 def _check_parquet(pv: ProductVersion, name: str, dp: DiveProducts) -> None:
@@ -91,39 +99,20 @@ def _check_parquet(pv: ProductVersion, name: str, dp: DiveProducts) -> None:
     calibrated ``ctd`` table)."""
     import pyarrow.parquet as pq
 
-    path = pv.path / name
-    if not path.is_file():
-        dp.note(f"{pv.product}/{pv.label} has no {name}")
-        return
-    try:
-        pq.read_metadata(path)
-    except Exception as exc:  # corrupt/truncated file: report it, do not fail the report
-        dp.note(f"{pv.product}/{pv.label}/{name} is unreadable ({type(exc).__name__})")
+    _read(pv, name, dp, pq.read_metadata)
+
+
+def _load_netcdf(path: Path) -> xr.Dataset:
+    with xr.open_dataset(path, engine="h5netcdf") as ds:
+        return ds.load()
 
 
 def _read_netcdf(pv: ProductVersion, name: str, dp: DiveProducts) -> xr.Dataset | None:
-    path = pv.path / name
-    if not path.is_file():
-        dp.note(f"{pv.product}/{pv.label} has no {name}")
-        return None
-    try:
-        with xr.open_dataset(path, engine="h5netcdf") as ds:
-            return ds.load()
-    except Exception as exc:
-        dp.note(f"{pv.product}/{pv.label}/{name} is unreadable ({type(exc).__name__})")
-        return None
+    return _read(pv, name, dp, _load_netcdf)
 
 
 def _read_json(pv: ProductVersion, name: str, dp: DiveProducts) -> dict[str, Any] | None:
-    path = pv.path / name
-    if not path.is_file():
-        dp.note(f"{pv.product}/{pv.label} has no {name}")
-        return None
-    try:
-        data = json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, ValueError) as exc:
-        dp.note(f"{pv.product}/{pv.label}/{name} is unreadable ({type(exc).__name__})")
-        return None
+    data = _read(pv, name, dp, lambda path: json.loads(path.read_text(encoding="utf-8")), (OSError, ValueError))
     return data if isinstance(data, dict) else None
 
 
