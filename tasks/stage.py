@@ -110,15 +110,26 @@ def _artifact_key(dive: str, what: str) -> str:
 
 def stage_artifact(name: str, ctx: StageContext, published: dict[str, str], seconds: float,
                    warnings: list[logging.LogRecord]) -> None:
-    """A markdown artifact ``<dive>-stage-<stage>`` for a fresh stage run: the versions it published (with sizes), its
-    time, and a table of the warnings it logged. No-op outside a Prefect task run."""
+    """A markdown artifact ``<dive>-stage-<stage>`` for a fresh stage run: no-op outside a Prefect task run."""
     from prefect.artifacts import create_markdown_artifact
     from prefect.context import TaskRunContext
 
     if TaskRunContext.get() is None:
         return
-    lines = [f"# {ctx.dive_id}: stage `{name}`", "", f"{seconds:.1f} s; published:", "",
-             "| product | version | files | MiB |", "|---|---|---|---|"]
+    create_markdown_artifact(artifact_markdown(name, ctx.dive_id, published, seconds, warnings),
+                             key=_artifact_key(ctx.dive_id, f"stage-{name}"),
+                             description=f"hadal stage {name} on dive {ctx.dive_id}")
+
+
+def artifact_markdown(name: str, dive: str, published: dict[str, str], seconds: float,
+                      warnings: list[logging.LogRecord]) -> str:
+    """The stage artifact's markdown: the results a user looks for first (:func:`hadal.tasks.results.result_lines`:
+    QC counts, the fix and its ellipse, the best landing sites, the report link), then the versions published (with
+    sizes) and the time, and a table of the warnings the stage logged."""
+    from hadal.tasks.results import result_lines
+
+    lines = [f"# {dive}: stage `{name}`", *result_lines(published), "", "## Published", "",
+             f"{seconds:.1f} s; published:", "", "| product | version | files | MiB |", "|---|---|---|---|"]
     for product, path in published.items():
         try:
             files = json.loads(Path(path, "manifest.json").read_text(encoding="utf-8")).get("files", [])
@@ -136,8 +147,7 @@ def stage_artifact(name: str, ctx: StageContext, published: dict[str, str], seco
             lines.append(f"| {r.levelname} | {r.name} | {msg[:500]} |")
     else:
         lines.append("none")
-    create_markdown_artifact("\n".join(lines), key=_artifact_key(ctx.dive_id, f"stage-{name}"),
-                             description=f"hadal stage {name} on dive {ctx.dive_id}")
+    return "\n".join(lines)
 
 
 def _run_ids() -> dict[str, str]:

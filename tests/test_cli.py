@@ -71,9 +71,9 @@ def test_unknown_stage(tmp_path):
 
 def test_products_path_traversal_and_empty(tmp_path):
     assert_one_line_error(hadal("products", "../../etc", "--store", str(tmp_path)), "invalid dive id")
-    res = hadal("products", "d1", "--store", str(tmp_path))
-    assert res.returncode == 1 and "no products" in res.stderr and "Traceback" not in res.stderr
-    assert list(tmp_path.iterdir()) == []
+    assert_one_line_error(hadal("products", "d1", "--store", str(tmp_path)), "no products for dive 'd1'")
+    assert_one_line_error(hadal("products", "d1", "--store", str(tmp_path), "--json"), "no products")
+    assert list(tmp_path.iterdir()) == []  # nothing created by a listing
 
 
 def test_help_lists_commands():

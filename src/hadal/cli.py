@@ -131,18 +131,117 @@ def _run_flow(raw_dir: Path, store: Path | None, config: Path | None, stages: li
     # cache hits need no process, helper or imports ahead
     running = names if force else stale_stages(raw_dir, _store_root(store), cfg_path, names, status=status)
     isolated = _prepare_while_server_boots(ctx, names, running)
-    _wait_for_temporary_server()
+    _wait_for_api()
     from hadal.forkpool import stop_helpers
 
     _fork_ahead(ctx, running, isolated)
     meta = getattr(ctx.dive, "metadata", None)
+    before = _store_versions(ctx.store, ctx.dive_id)
+    watch = _watch_api(lambda: _published_since(ctx.store, ctx.dive_id, before))
     try:
         with tags(*dive_tags(ctx.raw_dir, ctx.dive_id, getattr(meta, "cruise", None))):
             out = post_cruise(str(raw_dir), str(_store_root(store)), cfg_path, stages, force)
+    except HadalError:
+        raise
+    except Exception:
+        if watch is not None and not watch.answering():  # Prefect's client gave up on a server lost mid-run
+            raise _api_lost_error(watch, _published_since(ctx.store, ctx.dive_id, before)) from None
+        raise
     finally:
+        if watch is not None:
+            watch.stop()
         stop_helpers()
     _print_stage_table(out, time.monotonic() - t0)
     return out
+
+
+def _store_versions(store: Any, dive: str) -> set[str]:
+    """``product/version`` of every version of ``dive`` in the store now (what a run found at its start)."""
+    try:
+        return {f"{p}/{pv.label}" for p in store.products(dive) for pv in store.versions(dive, p)}
+    except (HadalError, OSError):
+        return set()
+
+
+def _published_since(store: Any, dive: str, before: set[str]) -> list[str]:
+    """The versions of ``dive`` published since ``before`` (:func:`_store_versions`), sorted."""
+    return sorted(_store_versions(store, dive) - before)
+
+
+def _api_url() -> str | None:
+    """The Prefect API this process's flow runs talk to (environment, else the active profile), or None."""
+    url = os.environ.get("PREFECT_API_URL")
+    if url:
+        return url
+    try:
+        from prefect.settings import get_current_settings
+    except ImportError:
+        return None
+    return get_current_settings().api.url or None
+
+
+def _wait_for_api() -> None:
+    """Before the first flow run: hadal's temporary server booted (:func:`_wait_for_temporary_server`), or the
+    configured API answering, waited for (bounded, a progress line on stderr: :func:`hadal.prefect_api.wait_for_api`)
+    or refused in one line (exit 2)."""
+    from hadal.prefect_api import api_settings, wait_for_api
+
+    if _SERVERS:
+        _wait_for_temporary_server()
+        return
+    url = _api_url()
+    if url:
+        wait_for_api(url, api_settings(), lambda line: console.print(line, highlight=False, soft_wrap=True))
+
+
+def _watch_api(published: Any) -> Any:
+    """Start watching the API during the flow run (:class:`hadal.prefect_api.ApiWatch`): silent for
+    ``HADAL_API_LOST_S``, the run ends (:func:`_api_lost`) with ``published()`` (the versions it published) listed.
+    None without an API URL."""
+    from hadal.prefect_api import ApiWatch, api_settings
+
+    url = _api_url()
+    if not url:
+        return None
+    watch: Any = None
+
+    def lost(_silent_s: float, _why: str) -> None:
+        _api_lost(_api_lost_error(watch, published()))
+
+    watch = ApiWatch(url, api_settings(), lost)
+    return watch.start()
+
+
+def _api_lost_error(watch: Any, published: list[str]) -> HadalError:
+    import time
+
+    from hadal.prefect_api import ApiUnreachable
+
+    silent = max(0.0, time.monotonic() - watch.last_ok)
+    done = f"published before it stopped: {', '.join(published)}" if published else "nothing was published"
+    return ApiUnreachable(f"the Prefect API at {watch.api_url} stopped answering mid-run ({watch.why or 'no answer'}, "
+                          f"silent for {silent:.0f} s; HADAL_API_LOST_S={watch.settings.lost_s:g}): run stopped; "
+                          f"{done} (they stay published)")
+
+
+def _api_lost(err: HadalError) -> None:
+    """From the API watch thread: the run cannot record itself any more; say so in one line (what was published
+    listed), stop the stage processes and helpers, exit 2. Half-written versions stay ``.staging-*`` directories,
+    which readers never see and the next run removes."""
+    if not _INTERRUPT_LOCK.acquire(blocking=False):  # an interrupt is already ending the run
+        return
+    try:
+        console.print(f"[red]error:[/] {err}", highlight=False, soft_wrap=True)
+    except Exception:  # noqa: BLE001 - a closed stderr: the exit status still says it
+        pass
+    _stop_children()
+    for stream in (sys.stdout, sys.stderr):
+        try:
+            stream.flush()
+        except Exception:  # noqa: BLE001
+            pass
+    logging.disable(logging.CRITICAL)
+    os._exit(2)
 
 
 def _print_stage_table(out: dict[str, str], seconds: float) -> None:
@@ -159,6 +258,14 @@ def _print_stage_table(out: dict[str, str], seconds: float) -> None:
         st = r.get("status", "")
         table.add_row(r.get("stage", ""), f"[{colour.get(st, 'white')}]{st}[/]", f"{r.get('seconds', 0):.1f}", what)
     Console().print(table)
+
+
+def _print_report_path(published: dict[str, str]) -> None:
+    """The last line of a run on stdout: ``report: <absolute path of report.html>`` of the report version the run
+    published or reused (nothing when the run has no report)."""
+    where = published.get("report")
+    if where and (html := Path(where, "report.html")).is_file():
+        print(f"report: {html.resolve()}")
 
 
 def _expand_dives(dirs: list[Path]) -> list[Path]:
@@ -195,7 +302,7 @@ def _run_batch(raw_dirs: list[Path], store: Path | None, config: Path | None, wo
     from hadal.flows.batch import run_batch
 
     _quiet_prefect_tracebacks()
-    _wait_for_temporary_server()
+    _wait_for_api()
 
     where = f"scheduler {scheduler}" if scheduler else f"LocalCluster, {workers} worker(s)"
     console.print(f"[bold]hadal[/] batch of {len(dives)} dive(s) on {where} → the stages each dive's data supports")
@@ -235,7 +342,9 @@ def run(
     A dive whose stages are all current (raw files, parameters, code and upstream versions unchanged since their
     products were published) is told in one line without starting Prefect; --flow runs (and records) the flow."""
     if not dives and len(raw_dirs) == 1:
-        _print_published(_run_flow(raw_dirs[0], store, config, None, force, flow_run))
+        out = _run_flow(raw_dirs[0], store, config, None, force, flow_run)
+        _print_published(out)
+        _print_report_path(out)
         return
     results = _run_batch(raw_dirs, store, config, workers, scheduler, force)
     table = Table(title="batch")
@@ -244,6 +353,8 @@ def run(
     for raw, r in results.items():
         table.add_row(raw, "ok" if r["ok"] else f"failed: {r.get('error', '')}", ", ".join(r.get("published", {})))
     Console().print(table)
+    for r in results.values():
+        _print_report_path(r.get("published") or {})
     failed = [raw for raw, r in results.items() if not r["ok"]]
     if failed:
         console.print(f"[red]error:[/] {len(failed)} of {len(results)} dive(s) failed", highlight=False)
@@ -276,6 +387,7 @@ def stage(
     stages = _runnable_with(stages, raw_dir, store, config)
     out = _run_flow(raw_dir, store, config, stages, force, flow_run)
     _print_published(out)
+    _print_report_path(out)
     rows = {r["stage"]: r for r in getattr(out, "stages", [])}
     fresh = [n for n in names if rows.get(n, {}).get("status") == "published"]  # of a group: those that published
     stale_set = {s for n in fresh for s in downstream_stages(n)} - {"report"}
@@ -402,12 +514,49 @@ def server_start(
     if not Path(exe).is_file():
         raise ConfigError("the 'prefect' command is not installed next to hadal (pip install prefect)")
     _check_prefect_home()
-    console.print(f"Prefect server on http://{host}:{port}; in the shell that runs hadal:\n"
-                  f"  export PREFECT_API_URL=http://{host}:{port}/api", highlight=False)
+    api_url = f"http://{_url_host(host)}:{port}/api"
+    console.print(f"Prefect server on {api_url[:-4]}; in the shell that runs hadal:\n"
+                  f"  export PREFECT_API_URL={api_url}", highlight=False)
     os.environ.setdefault("PREFECT_SERVER_ANALYTICS_ENABLED", "false")
+    os.environ.update(_server_ui_environment(api_url))
     sys.stdout.flush()
     sys.stderr.flush()
     os.execv(exe, [exe, "server", "start", "--host", host, "--port", str(port)])
+
+
+def _store_dives(st: Any) -> list[str]:
+    """The dives with products in store ``st`` (for an error naming what is there)."""
+    out = []
+    try:
+        entries = sorted(st.root.iterdir()) if st.root.is_dir() else []
+    except OSError:
+        return out
+    for d in entries:
+        try:
+            if d.is_dir() and st.products(d.name):
+                out.append(d.name)
+        except (HadalError, OSError):  # not a dive's directory (.prefect-results, ...)
+            continue
+    return out
+
+
+def _url_host(host: str) -> str:
+    """``host`` as the UI and hadal reach it: a wildcard address (listen on every interface) as loopback, an IPv6
+    address in brackets."""
+    if host in ("0.0.0.0", "::", ""):
+        return "127.0.0.1"
+    return f"[{host}]" if ":" in host and not host.startswith("[") else host
+
+
+def _server_ui_environment(api_url: str) -> dict[str, str]:
+    """Settings of ``hadal server start``'s server so that its UI talks to *its* API: the UI asks the API at
+    ``PREFECT_SERVER_UI_API_URL`` (Prefect 3.8; served at ``/ui-settings``), which defaults to ``PREFECT_API_URL`` if
+    set (e.g. a profile's ``http://127.0.0.1:4200/api``), else ``PREFECT_SERVER_API_HOST``/``PORT`` (4200): neither
+    the ``--port`` given. One set by the user (``PREFECT_SERVER_UI_API_URL`` or its alias ``PREFECT_UI_API_URL``,
+    e.g. behind a proxy) is kept."""
+    if os.environ.get("PREFECT_SERVER_UI_API_URL") or os.environ.get("PREFECT_UI_API_URL"):
+        return {}
+    return {"PREFECT_SERVER_UI_API_URL": api_url}
 
 
 @app.command()
@@ -430,12 +579,16 @@ def products(
                 m = {"created_utc": None, "code_version": "(unreadable manifest.json)"}
             rows.append({"product": product, "version": pv.label, "created_utc": m.get("created_utc"),
                          "code_version": m.get("code_version"), "path": str(pv.path)})
+    if not rows:
+        from hadal.errors import InputError
+
+        known = _store_dives(st)
+        raise InputError(f"no products for dive {dive!r} in {st.root}" + (
+            f" (dives there: {', '.join(known[:20])}{' ...' if len(known) > 20 else ''})" if known else
+            " (the store holds no dive)"))
     if as_json:
         print(json.dumps(rows, indent=2))
         return
-    if not rows:
-        console.print(f"no products for dive {dive!r} in {st.root}")
-        raise typer.Exit(1)
     table = Table(title=f"{dive} products in {st.root}")
     for col in ("product", "version", "created_utc", "code_version"):
         table.add_column(col)
@@ -579,8 +732,12 @@ def inspect(
             kind = i.get("kind", "?") + (f" ({i['compression']})" if i.get("compression") else "")
             table.add_row(i["path"], kind, i.get("source") or "-", summary_line(i))
         Console().print(table)
-    if any(i.get("kind") == "unreadable" for i in infos):
-        raise typer.Exit(2)
+    bad = [i for i in infos if i.get("kind") == "unreadable" or i.get("error")]
+    if bad:  # corrupt, truncated or unreadable: a non-zero exit a script can test (the table says why per file)
+        from hadal.errors import InputError
+
+        raise InputError(f"{len(bad)} of {len(infos)} file(s) cannot be read: "
+                         + ", ".join(str(i['path']) for i in bad[:10]) + (" ..." if len(bad) > 10 else ""))
 
 
 @app.command()
@@ -1033,6 +1190,7 @@ def entry() -> None:
     Prefect server and the stage processes are stopped, logging is flushed) and the standard streams are flushed.
     An exception other than :class:`SystemExit` propagates as usual. :func:`main` itself raises ``SystemExit`` (tests
     call it in-process)."""
+    sys.stdout = _StdoutGuard(sys.stdout)
     try:
         main()
         code: Any = 0
@@ -1042,6 +1200,55 @@ def entry() -> None:
         print(code, file=sys.stderr)
         code = 1
     _exit_now(code or 0)
+
+
+class _StdoutGuard:
+    """``sys.stdout`` of the ``hadal`` command: a closed pipe (``hadal run ... | head -1``, the reader gone: EPIPE,
+    SIGPIPE being ignored by Python) must not stop the run, nor end it with an exit status and no word (click's own
+    EPIPE handling: exit 1). The first failed write says so once on stderr, points the descriptor at ``/dev/null``
+    and the command goes on: what it would print there is dropped, its products are published as usual and its exit
+    status is the run's."""
+
+    def __init__(self, stream: Any):
+        self._stream = stream
+        self.broken = False
+
+    def _broken_pipe(self) -> None:
+        if not self.broken:
+            self.broken = True
+            try:
+                devnull = os.open(os.devnull, os.O_WRONLY)
+                os.dup2(devnull, self._stream.fileno())
+                os.close(devnull)
+            except (OSError, ValueError, AttributeError):
+                pass
+            try:
+                console.print("note: standard output was closed by its reader (broken pipe); hadal goes on "
+                              "without it: the rest of what it prints there is dropped; its work (published products, "
+                              "exit status) is not affected",
+                              highlight=False, soft_wrap=True)
+            except Exception:  # noqa: BLE001 - stderr closed too: the exit status still tells
+                pass
+
+    def write(self, text: str) -> int:
+        if self.broken:
+            return len(text)
+        try:
+            return self._stream.write(text)
+        except BrokenPipeError:
+            self._broken_pipe()
+            return len(text)
+
+    def flush(self) -> None:
+        if self.broken:
+            return
+        try:
+            self._stream.flush()
+        except BrokenPipeError:
+            self._broken_pipe()
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self._stream, name)
 
 
 def _exit_now(code: int) -> None:
