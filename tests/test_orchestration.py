@@ -99,6 +99,11 @@ def test_flow_reuses_unchanged_stage_and_reruns_changed(fake, tmp_path, prefect_
     with get_client(sync_client=True) as client:
         arts = client.read_artifacts(artifact_filter=ArtifactFilter(key=ArtifactFilterKey(any_=["dive-a-report"])))
     assert arts and "dive-a" in arts[0].data
+    with get_client(sync_client=True) as client:  # the stage artifact links the report (issue 46)
+        arts = client.read_artifacts(
+            artifact_filter=ArtifactFilter(key=ArtifactFilterKey(any_=["dive-a-stage-report"])))
+    link = f"({Path(out5['report'], 'report.html').resolve().as_uri()})"
+    assert any(link in a.data for a in arts), [a.data for a in arts]
 
 
 @pytest.mark.integration  # slow (> 9 s here): the integration tier (issue 20: make test <= 5 min)
@@ -548,10 +553,12 @@ def test_stage_grid_runs_the_group_and_names_only_what_its_fresh_members_made_st
         "dive_id": "g1", "platform": "test", "map_frame": {"origin_latitude_deg": 11.33, "origin_longitude_deg": 142.2},
         "sources": {"multibeam": ["multibeam/line.xyz.gz"], "laser": ["laser/s1.ply"]}}))
     store = tmp_path / "store"
-    rc, _, err = cli(monkeypatch, capsys, "run", str(raw), "--store", str(store))
+    rc, out, err = cli(monkeypatch, capsys, "run", str(raw), "--store", str(store))
     assert rc == 0, err
     st = ProductStore(store)
     assert st.has("g1", "dtm") and st.has("g1", "laser_grids") and st.has("g1", "suitability")
+    # the run ends by printing where its report is (issue 46)
+    assert out.strip().splitlines()[-1] == f"report: {(st.latest('g1', 'report').path / 'report.html').resolve()}"
     cfg = tmp_path / "laser.yaml"
     cfg.write_text("grid: {laser_sor_std_ratio: 2.5}\n")
     rc, out, err = cli(monkeypatch, capsys, "stage", "grid", str(raw), "--store", str(store), "--config", str(cfg))

@@ -1190,7 +1190,7 @@ def entry() -> None:
     Prefect server and the stage processes are stopped, logging is flushed) and the standard streams are flushed.
     An exception other than :class:`SystemExit` propagates as usual. :func:`main` itself raises ``SystemExit`` (tests
     call it in-process)."""
-    sys.stdout = _StdoutGuard(sys.stdout)
+    sys.stdout = _StdoutGuard(sys.stdout, say=len(sys.argv) > 1 and sys.argv[1] in _WORKING_COMMANDS)
     try:
         main()
         code: Any = 0
@@ -1202,15 +1202,21 @@ def entry() -> None:
     _exit_now(code or 0)
 
 
+#: commands that publish or write something: a closed stdout is said on stderr (:class:`_StdoutGuard`)
+_WORKING_COMMANDS = frozenset({"run", "stage", "report", "serve", "synth", "init"})
+
+
 class _StdoutGuard:
     """``sys.stdout`` of the ``hadal`` command: a closed pipe (``hadal run ... | head -1``, the reader gone: EPIPE,
     SIGPIPE being ignored by Python) must not stop the run, nor end it with an exit status and no word (click's own
     EPIPE handling: exit 1). The first failed write says so once on stderr, points the descriptor at ``/dev/null``
     and the command goes on: what it would print there is dropped, its products are published as usual and its exit
-    status is the run's."""
+    status is the run's. ``say``: a command that does work says so (``run``, ``report``, ...); a listing piped into
+    ``head`` (``hadal config | head``) stops printing silently, as Unix tools do."""
 
-    def __init__(self, stream: Any):
+    def __init__(self, stream: Any, say: bool = True):
         self._stream = stream
+        self.say = say
         self.broken = False
 
     def _broken_pipe(self) -> None:
@@ -1222,6 +1228,8 @@ class _StdoutGuard:
                 os.close(devnull)
             except (OSError, ValueError, AttributeError):
                 pass
+            if not self.say:
+                return
             try:
                 console.print("note: standard output was closed by its reader (broken pipe); hadal goes on "
                               "without it: the rest of what it prints there is dropped; its work (published products, "
