@@ -96,3 +96,25 @@ def test_a_server_that_does_not_come_up_is_one_line(monkeypatch, code, timeout, 
     finally:
         srv.stop()
     assert proc.poll() is not None
+
+
+def test_a_slow_temporary_server_start_says_so(monkeypatch, capsys):
+    """A start longer than 10 s (a new database on a busy machine) gets a progress line, then the bounded error."""
+    import time
+
+    from hadal import cli
+    from hadal.errors import ConfigError
+
+    proc = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(30)"])
+    r, w = os.pipe()
+    os.close(r)
+    srv = cli._TemporaryServer(proc, cli._free_port(), w, time.monotonic() - 10.0)  # booting for 10 s already
+    monkeypatch.setattr(cli, "_SERVERS", [srv])
+    monkeypatch.setenv("PREFECT_SERVER_EPHEMERAL_STARTUP_TIMEOUT_SECONDS", "11")
+    try:
+        with pytest.raises(ConfigError, match="did not answer within 11 s"):
+            cli._wait_for_temporary_server()
+    finally:
+        srv.stop()
+    err = capsys.readouterr().err
+    assert "waiting for the temporary Prefect server to start (10 s so far, up to 11 s" in err, err

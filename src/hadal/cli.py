@@ -218,10 +218,11 @@ def _api_lost_error(watch: Any, published: list[str]) -> HadalError:
     from hadal.prefect_api import ApiUnreachable
 
     silent = max(0.0, time.monotonic() - watch.last_ok)
-    done = f"published before it stopped: {', '.join(published)}" if published else "nothing was published"
+    done = f"published before it stopped (they stay published): {', '.join(published)}" if published else \
+        "nothing was published"
     return ApiUnreachable(f"the Prefect API at {watch.api_url} stopped answering mid-run ({watch.why or 'no answer'}, "
                           f"silent for {silent:.0f} s; HADAL_API_LOST_S={watch.settings.lost_s:g}): run stopped; "
-                          f"{done} (they stay published)")
+                          f"{done}")
 
 
 def _api_lost(err: HadalError) -> None:
@@ -306,8 +307,27 @@ def _run_batch(raw_dirs: list[Path], store: Path | None, config: Path | None, wo
 
     where = f"scheduler {scheduler}" if scheduler else f"LocalCluster, {workers} worker(s)"
     console.print(f"[bold]hadal[/] batch of {len(dives)} dive(s) on {where} → the stages each dive's data supports")
-    return run_batch([str(d) for d in dives], str(_store_root(store)), str(config) if config else None, None,
-                     workers=workers, scheduler=scheduler, force=force)
+    from hadal.store import ProductStore
+
+    st = ProductStore(_store_root(store))
+    before = {dive: _store_versions(st, dive) for dive in owner}
+
+    def published() -> list[str]:
+        return [f"{dive}/{v}" for dive in owner for v in _published_since(st, dive, before[dive])]
+
+    watch = _watch_api(published)  # a server lost mid-batch: the same bounded end as a single dive's run
+    try:
+        return run_batch([str(d) for d in dives], str(_store_root(store)), str(config) if config else None, None,
+                         workers=workers, scheduler=scheduler, force=force)
+    except HadalError:
+        raise
+    except Exception:
+        if watch is not None and not watch.answering():
+            raise _api_lost_error(watch, published()) from None
+        raise
+    finally:
+        if watch is not None:
+            watch.stop()
 
 
 def _print_published(published: dict[str, str]) -> None:
@@ -968,7 +988,13 @@ def _wait_for_temporary_server() -> None:
     except ValueError:
         limit = 120.0
     hint = "start one with `hadal server start` (or `prefect server start`) and set PREFECT_API_URL"
+    said = srv.started
     while True:
+        if time.monotonic() - said >= 10.0:  # a slow first start (a new database): a progress line every 10 s
+            said = time.monotonic()
+            console.print(f"waiting for the temporary Prefect server to start ({said - srv.started:.0f} s so far, "
+                          f"up to {limit:g} s: PREFECT_SERVER_EPHEMERAL_STARTUP_TIMEOUT_SECONDS)", highlight=False,
+                          soft_wrap=True)
         if srv.proc.poll() is not None:
             raise ConfigError(f"the temporary Prefect server exited with status {srv.proc.returncode} before it "
                               f"answered (its messages are above); {hint}")
