@@ -546,7 +546,7 @@ def server_start(
 
 def _store_dives(st: Any) -> list[str]:
     """The dives with products in store ``st`` (for an error naming what is there)."""
-    out = []
+    out: list[str] = []
     try:
         entries = sorted(st.root.iterdir()) if st.root.is_dir() else []
     except OSError:

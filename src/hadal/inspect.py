@@ -154,12 +154,12 @@ def _bounds(info: dict[str, Any]) -> str | None:
         return f"x {x[0]:.1f} to {x[1]:.1f} m, y {y[0]:.1f} to {y[1]:.1f} m"
     ext = info.get("extent")
     if isinstance(ext, dict) and all(k in ext for k in ("xmin", "xmax", "ymin", "ymax")):
-        cell = info.get("cell_size") if isinstance(info.get("cell_size"), dict) else {}
-        crs = info.get("crs") if isinstance(info.get("crs"), dict) else {}
+        cell: dict[str, Any] = info["cell_size"] if isinstance(info.get("cell_size"), dict) else {}
+        crs: dict[str, Any] = info["crs"] if isinstance(info.get("crs"), dict) else {}
         geographic = (crs.get("kind") or info.get("crs_kind")) == "geographic" or cell.get("units") == "degrees"
         try:
-            step = min(abs(float(cell.get("x"))), abs(float(cell.get("y"))))
-        except (TypeError, ValueError):
+            step = min(abs(float(cell["x"])), abs(float(cell["y"])))
+        except (KeyError, TypeError, ValueError):
             step = 1e-6 if geographic else 0.01  # point clouds: about 0.1 m / 1 mm
         nd = _decimals(step, hi=9 if geographic else 3)
         unit = "degrees" if geographic else (cell.get("units") or "m")
