@@ -181,7 +181,8 @@ class Dive(BaseModel):
 
     model_config = ConfigDict(extra="forbid")
     dive_id: str = Field(description="unique id of the dive in the product store: 1-64 letters, digits, '.', '_' "
-                                      "or '-', starting with a letter or digit")
+                                      "or '-', starting with a letter or digit; not a name of the store's own files "
+                                      "(catalog.json, dive.json, ...) nor ending in .json, .lock or .tmp")
     platform: str = Field("unknown", description="vehicle or ship name (product metadata)")
     vehicle_config: str | None = Field(
         None, description="vehicle channel mapping (vehicle.yaml) of the MCAP/CSV logs, relative to the dive "
