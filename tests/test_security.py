@@ -409,3 +409,18 @@ def test_ctd_chain_leaves_a_too_long_advance_as_a_flagged_no_op():
     np.testing.assert_array_equal(c_out, c)  # unaligned, not blanked
     entry = next(e for e in log if e["step"] == "align_ctd")
     assert "not shorter than the record" in entry["skipped_channels"]["conductivity"]
+
+
+@pytest.mark.parametrize("path", ["logs/ha\x00idou.mcap", "logs/\x1b[31m.mcap", "logs\\haidou.mcap",
+                                  "logs/" + "x" * 300 + ".mcap"])
+def test_source_path_components_follow_the_name_rule(tmp_path, path):
+    """A dive.yaml source path with a NUL, a control character, a backslash or an over-long name: a one-line
+    ConfigError naming it (a NUL used to reach ``os.stat`` as a ValueError)."""
+    from hadal.dive import load_dive, resolve_source
+
+    raw = write_dive(tmp_path / "raw", 5.0, csv=False)
+    dive, rd = load_dive(raw)
+    with pytest.raises(ConfigError, match="source path") as e:
+        resolve_source(rd, path)
+    _one_line(e.value)
+    assert resolve_source(rd, "./logs/haidou.mcap") == (raw / "logs" / "haidou.mcap").resolve()

@@ -251,11 +251,29 @@ def load_dive(raw_dir: str | Path) -> tuple[Dive, Path]:
     return dive, raw.resolve()
 
 
+def _check_source_path(rel: str) -> None:
+    """Each component of a ``dive.yaml`` path passes the one name rule (:func:`hadal.names.check_component`,
+    ``kind="path"``: no NUL or control characters, no ``\\``, at most 255 bytes); empty, ``.`` and ``..``
+    components are path structure, not names (``./x``, ``a//b``; a ``..`` that leaves the dive directory is refused
+    after resolving, as "escapes the dive directory"). A one-line :class:`ConfigError`."""
+    from hadal.errors import StoreError
+    from hadal.names import check_component
+
+    for part in rel.split("/")[1 if rel.startswith("/") else 0:]:
+        if part in ("", ".", ".."):
+            continue
+        try:
+            check_component(part, "source path component", kind="path")
+        except StoreError as exc:
+            raise ConfigError(f"source path {rel!r}: {exc}") from None
+
+
 def resolve_source(raw_dir: Path, rel: str | SourceFile) -> Path:
     """Resolve a source path (or :class:`SourceFile`) relative to the dive directory, refusing paths that escape it."""
     import stat
 
     rel = rel.path if isinstance(rel, SourceFile) else rel
+    _check_source_path(str(rel))
     try:
         p = (raw_dir / rel).resolve()
     except (RuntimeError, OSError) as exc:  # Python raises RuntimeError on a symbolic-link loop

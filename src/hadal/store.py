@@ -345,8 +345,8 @@ class ProductStore:
             raise StoreError(f"{f}: unreadable dive identity record ({exc}); remove it to re-claim the dive") from None
         return rec if isinstance(rec, dict) else None
 
-    def claim_dive(self, dive: str, raw_dir: str | os.PathLike[str], fingerprint: str, *, check_only: bool = False
-                   ) -> list[Path] | None:
+    def claim_dive(self, dive: str, raw_dir: str | os.PathLike[str], fingerprint: str, *, check_only: bool = False,
+                   update: bool = True) -> list[Path] | None:
         """Record that dive id ``dive`` belongs to ``raw_dir`` (content ``fingerprint``), or refuse.
 
         A dive id already recorded for another directory is accepted only when the content fingerprint is the
@@ -356,7 +356,10 @@ class ProductStore:
         The check and the write are one atomic step under an exclusive lock on the dive's directory, so of two
         runs claiming one dive id for two raw directories at the same time exactly one wins and the other is
         refused before it publishes anything (:func:`hadal.pipeline.run_stage` claims before a stage runs).
-        ``check_only``: refuse a conflicting directory but write nothing. Returns ``None`` when nothing was
+        ``check_only``: refuse a conflicting directory but write nothing. ``update=False`` (before a stage runs):
+        write only a new claim; a record this directory may keep (same directory with new content, or the same
+        content moved) is rewritten only by the call after a publish, so a failed stage changes nothing.
+        Returns ``None`` when nothing was
         written (already ours, or ``check_only``), else the directories this claim created (``[]`` when none):
         :meth:`release_claim` undoes a claim whose stage then published nothing.
         """
@@ -374,7 +377,8 @@ class ProductStore:
             with _dir_lock(d):
                 rec = self.dive_identity(dive)
                 self._check_claim(dive, rec, raw, fingerprint)
-                if rec is not None and rec.get("raw_dir") == raw and rec.get("fingerprint") == fingerprint:
+                if rec is not None and (not update or (rec.get("raw_dir") == raw
+                                                       and rec.get("fingerprint") == fingerprint)):
                     return None
                 new = {"dive": dive, "raw_dir": raw, "fingerprint": fingerprint,
                        "claimed_utc": _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds"),
