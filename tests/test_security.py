@@ -424,3 +424,20 @@ def test_source_path_components_follow_the_name_rule(tmp_path, path):
         resolve_source(rd, path)
     _one_line(e.value)
     assert resolve_source(rd, "./logs/haidou.mcap") == (raw / "logs" / "haidou.mcap").resolve()
+
+
+def test_stac_catalog_leaves_out_a_version_with_a_symlink(tmp_path):
+    """The STAC writer opens product files (NetCDF attributes): a version holding a symbolic link is left out of
+    the catalogue instead of being read through the link."""
+    from hadal.products.stac import write_store_catalog
+
+    store = ProductStore(tmp_path / "store")
+    _publish(store, product="ctd")
+    pv = _publish(store, product="dtm", files={"dtm.nc": b"x"})
+    (tmp_path / "outside.nc").write_bytes(b"CDF\x01")
+    (pv.path / "evil.nc").symlink_to(tmp_path / "outside.nc")
+    cat = write_store_catalog(store)
+    assert cat.is_file()
+    item = json.loads((store.root / "d1" / "stac-item.json").read_text())
+    assert not any("dtm" in str(a.get("href", "")) for a in item.get("assets", {}).values())
+    assert any("ctd" in str(a.get("href", "")) for a in item.get("assets", {}).values())
