@@ -167,17 +167,19 @@ def load_products(store: ProductStore, dive: str, skipped_stages: set[str] | Non
             f"dive {dive!r} has no products in {store.root}; run the pipeline first (hadal run RAW_DIR --store {store.root})"
         )
     dp = DiveProducts(dive=dive, store=store)
+    left_out = set()
     for product, pv in versions.items():  # only versions laid out as published are read (no link, no added file)
         try:
             store.check_layout(pv)
         except StoreError as exc:
             dp.note(f"product {product!r} is left out: {exc}")
+            left_out.add(product)
             continue
         dp.versions[product] = pv
     versions = dp.versions
     for product, stage in REPORT_INPUTS:
-        if product not in versions and stage not in (skipped_stages or set()) and (expected is None
-                                                                                   or product in expected):
+        if (product not in versions and product not in left_out and stage not in (skipped_stages or set())
+                and (expected is None or product in expected)):
             dp.note(f"product {product!r} is missing (stage {stage} has not run): its figures are skipped")
     if "sensors" in versions:
         _check_parquet(versions["sensors"], "sensors.parquet", dp)  # its notes below; its table is not drawn
