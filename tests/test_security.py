@@ -441,3 +441,15 @@ def test_stac_catalog_leaves_out_a_version_with_a_symlink(tmp_path):
     item = json.loads((store.root / "d1" / "stac-item.json").read_text())
     assert not any("dtm" in str(a.get("href", "")) for a in item.get("assets", {}).values())
     assert any("ctd" in str(a.get("href", "")) for a in item.get("assets", {}).values())
+
+
+def test_init_and_synth_never_propose_a_reserved_dive_id():
+    """``hadal init`` derives the dive id from the directory's name: a directory ``catalog.json`` gets a valid id
+    (accepted by the one rule), never the store's own file name."""
+    from hadal.dive_init import sanitise_dive_id
+    from hadal.synth.generate import default_dive_id
+
+    for name in ("catalog.json", "dive.json", "a..b", "x.lock"):
+        did = sanitise_dive_id(name)
+        assert check_component(did) == did and did.lower() not in ("catalog.json", "dive.json", "x.lock")
+    assert check_component(default_dive_id("/tmp/catalog.json"))
