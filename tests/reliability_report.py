@@ -49,6 +49,7 @@ sys.path.insert(0, str(HERE / "malformed"))
 
 import make_corpus  # noqa: E402
 import make_corpus_readers  # noqa: E402
+import security_cases  # noqa: E402
 
 
 # ---------------------------------------------------------------------------------------------- store state
@@ -139,8 +140,22 @@ def reader_items(dest: Path) -> list[Item]:
             for c, d in make_corpus_readers.build_corpus(dest)]
 
 
+def security_items(dest: Path) -> list[Item]:
+    """The ``security`` class (``tests/malformed/security_cases.py``): forged provenance, hand-edited stores,
+    hostile names and YAML, a symlinked file offered to the report, AlignCTD's edge."""
+    out = []
+    for c in security_cases.CASES:
+        d = Path(dest) / c.name
+        d.mkdir(parents=True, exist_ok=True)
+        out.append(Item(c.name, "security", d, (lambda store, c=c, d=d: c.run(d, store)), c.error, c.match,
+                        (lambda res, c=c, d=d: c.check(d, res)) if c.check else None,
+                        (lambda store, c=c, d=d: c.prepare(d, store))))
+    return out
+
+
 def all_items(dest: Path) -> list[Item]:
-    return ingest_items(Path(dest) / "ingest") + reader_items(Path(dest) / "readers")
+    return (ingest_items(Path(dest) / "ingest") + reader_items(Path(dest) / "readers")
+            + security_items(Path(dest) / "security"))
 
 
 # ---------------------------------------------------------------------------------------------- running

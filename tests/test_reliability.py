@@ -23,6 +23,7 @@ sys.path.insert(0, str(HERE))
 sys.path.insert(0, str(HERE / "malformed"))
 import make_corpus  # noqa: E402
 import make_corpus_readers  # noqa: E402
+import security_cases  # noqa: E402
 from reliability_report import (  # noqa: E402
     Outcome,
     all_items,
@@ -35,6 +36,8 @@ from reliability_report import (  # noqa: E402
 
 FAMILIES = ("mcap", "csv", "cnv", "soundings", "point_cloud", "raster", "dive_yaml", "pipeline_yaml",
             "vehicle_yaml", "upstream")
+#: case classes beyond the reader families (tests/malformed/security_cases.py)
+CLASSES = (*FAMILIES, "security")
 _OUTCOMES: dict[str, Outcome] = {}  # each case runs once per session; the report reuses the outcomes
 
 
@@ -71,14 +74,24 @@ def test_malformed_reader_input(items, work, name):
     assert not o.lost, o.lost
 
 
+@pytest.mark.parametrize("name", [c.name for c in security_cases.CASES])
+def test_security_case(items, work, name):
+    """Issue 45's security class: a clean one-line error with the store unchanged, or a result the case's oracle
+    accepts (the true SHA-256 in a manifest, no planted bytes in report.html)."""
+    o = _outcome(items[name], work)
+    assert o.traceback is None, o.traceback
+    assert o.handled, o.detail
+    assert not o.lost, o.lost
+
+
 def test_reliability_report(items, work, capsys):
     """Every case of both corpora: handled == tried, 0 tracebacks, 0 products lost."""
     outcomes = [_outcome(it, work) for it in items.values()]
     text, tot = table(outcomes)
     with capsys.disabled():
         print("\n" + text)
-    assert {o.reader for o in outcomes} == set(FAMILIES)
-    assert tot["tried"] == len(make_corpus.CASES) + len(make_corpus_readers.CASES) >= 50
+    assert {o.reader for o in outcomes} == set(CLASSES)
+    assert tot["tried"] == len(make_corpus.CASES) + len(make_corpus_readers.CASES) + len(security_cases.CASES) >= 50
     assert tot["tracebacks"] == 0, [o.detail for o in outcomes if o.traceback]
     assert tot["lost"] == 0, [(o.name, o.lost) for o in outcomes if o.lost]
     assert tot["handled"] == tot["tried"], [(o.name, o.detail) for o in outcomes if not o.handled]

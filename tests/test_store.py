@@ -79,7 +79,8 @@ def test_missing_input_refused(tmp_path):
     assert store.versions("dive-1", "ctd") == []
 
 
-@pytest.mark.parametrize("bad", ["../etc", "..", "a/b", "", ".hidden", "-x", "a" * 65, "dive 1", "x\x00y", "a..b"])
+@pytest.mark.parametrize("bad", ["../etc", "..", "a/b", "", ".hidden", "-x", "a" * 65, "dive 1", "x\x00y", "a..b",
+                                 "catalog.json", "Dive.JSON", "stac-item.json", ".cache", "d.lock"])
 def test_names_are_validated(tmp_path, bad):
     with pytest.raises(StoreError):
         validate_name(bad)
@@ -292,3 +293,38 @@ def test_manifest_records_the_stage_run_time(tmp_path):
     with st.publish("d1", "dtm") as draft:  # outside a stage run: no record
         (draft.path / "a.txt").write_text("y")
     assert "stage_run" not in draft.result.manifest()
+
+
+def test_manifest_input_hash_is_read_not_taken_from_the_cache(tmp_path, monkeypatch):
+    """A hash-cache record with the input's identity but a wrong SHA-256 never reaches a manifest (oracle:
+    hashlib over the file's bytes); the record is corrected. More cases: tests/test_security.py."""
+    import hashlib
+    import json
+
+    import hadal.store as hs
+
+    raw = tmp_path / "in.bin"
+    raw.write_bytes(b"provenance" * 1000)
+    store = ProductStore(tmp_path / "s")
+    _publish(store, "x", inputs=[raw])
+    cache = store.root / hs.HASH_CACHE
+    data = json.loads(cache.read_text())
+    data[str(raw.resolve())]["sha256"] = "1" * 64
+    cache.write_text(json.dumps(data))
+    monkeypatch.setattr(hs, "_PROCESS_HASHES", {})
+    v = _publish(ProductStore(store.root), "x", inputs=[raw])
+    truth = hashlib.sha256(raw.read_bytes()).hexdigest()
+    assert v.manifest()["inputs"][0]["sha256"] == truth
+    assert json.loads(cache.read_text())[str(raw.resolve())]["sha256"] == truth
+
+
+def test_read_refuses_a_manifest_name_outside_the_version(tmp_path):
+    import json
+
+    store = ProductStore(tmp_path)
+    v = _publish(store, "x")
+    m = v.manifest()
+    m["files"][0]["name"] = "../../../../etc/hostname"
+    v.manifest_path.write_text(json.dumps(m))
+    with pytest.raises(StoreError, match="outside the version"):
+        store.check_intact(v)

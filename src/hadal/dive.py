@@ -181,7 +181,8 @@ class Dive(BaseModel):
 
     model_config = ConfigDict(extra="forbid")
     dive_id: str = Field(description="unique id of the dive in the product store: 1-64 letters, digits, '.', '_' "
-                                      "or '-', starting with a letter or digit")
+                                      "or '-', starting with a letter or digit; not a name of the store's own files "
+                                      "(catalog.json, dive.json, ...) nor ending in .json, .lock or .tmp")
     platform: str = Field("unknown", description="vehicle or ship name (product metadata)")
     vehicle_config: str | None = Field(
         None, description="vehicle channel mapping (vehicle.yaml) of the MCAP/CSV logs, relative to the dive "
@@ -250,11 +251,29 @@ def load_dive(raw_dir: str | Path) -> tuple[Dive, Path]:
     return dive, raw.resolve()
 
 
+def _check_source_path(rel: str) -> None:
+    """Each component of a ``dive.yaml`` path passes the one name rule (:func:`hadal.names.check_component`,
+    ``kind="path"``: no NUL or control characters, no ``\\``, at most 255 bytes); empty, ``.`` and ``..``
+    components are path structure, not names (``./x``, ``a//b``; a ``..`` that leaves the dive directory is refused
+    after resolving, as "escapes the dive directory"). A one-line :class:`ConfigError`."""
+    from hadal.errors import StoreError
+    from hadal.names import check_component
+
+    for part in rel.split("/")[1 if rel.startswith("/") else 0:]:
+        if part in ("", ".", ".."):
+            continue
+        try:
+            check_component(part, "source path component", kind="path")
+        except StoreError as exc:
+            raise ConfigError(f"source path {rel!r}: {exc}") from None
+
+
 def resolve_source(raw_dir: Path, rel: str | SourceFile) -> Path:
     """Resolve a source path (or :class:`SourceFile`) relative to the dive directory, refusing paths that escape it."""
     import stat
 
     rel = rel.path if isinstance(rel, SourceFile) else rel
+    _check_source_path(str(rel))
     try:
         p = (raw_dir / rel).resolve()
     except (RuntimeError, OSError) as exc:  # Python raises RuntimeError on a symbolic-link loop

@@ -60,11 +60,19 @@ class InitResult:
 
 
 def sanitise_dive_id(name: str) -> str:
-    """A valid dive id from a directory name (letters, digits, ``._-``; at most 64 characters)."""
-    s = re.sub(r"[^A-Za-z0-9._-]+", "-", name).strip(".-_")[:64]
-    if not s or not s[0].isalnum():
-        raise ConfigError(f"cannot make a dive id from the directory name {name!r}; pass --dive-id")
-    return s
+    """A valid dive id from a directory name (letters, digits, ``._-``; at most 64 characters; the one name rule
+    :func:`hadal.names.check_component`: a name the store keeps for itself, e.g. ``catalog.json``, becomes
+    ``catalog-json``)."""
+    from hadal.errors import StoreError
+    from hadal.names import check_component
+
+    s = re.sub(r"\.{2,}", ".", re.sub(r"[^A-Za-z0-9._-]+", "-", name)).strip(".-_")[:64]
+    for candidate in (s, s.replace(".", "-")):
+        try:
+            return check_component(candidate, "dive id")
+        except StoreError:
+            continue
+    raise ConfigError(f"cannot make a dive id from the directory name {name!r}; pass --dive-id")
 
 
 def parse_latlon_pair(text: str) -> tuple[float, float]:

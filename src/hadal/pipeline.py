@@ -77,12 +77,14 @@ def make_context(
     )
 
 
-def claim_dive(ctx: StageContext, *, check_only: bool = False) -> None:
-    """Record (or, ``check_only``, just check) that the dive id belongs to this raw directory
-    (:meth:`ProductStore.claim_dive`)."""
+def claim_dive(ctx: StageContext, *, check_only: bool = False, update: bool = True) -> list[Path] | None:
+    """Record (or, ``check_only``, just check) that the dive id belongs to this raw directory, atomically
+    (:meth:`ProductStore.claim_dive`: ``None`` unless this call made a new claim; ``update=False``: only a new
+    claim is written)."""
     from hadal.dive import dive_fingerprint
 
-    ctx.store.claim_dive(ctx.dive_id, ctx.raw_dir, dive_fingerprint(ctx.dive, ctx.raw_dir), check_only=check_only)
+    return ctx.store.claim_dive(ctx.dive_id, ctx.raw_dir, dive_fingerprint(ctx.dive, ctx.raw_dir),
+                                check_only=check_only, update=update)
 
 
 def run_stage(name: str, ctx: StageContext, run_info: dict[str, Any] | None = None) -> dict[str, ProductVersion]:
@@ -108,11 +110,14 @@ def run_stage(name: str, ctx: StageContext, run_info: dict[str, Any] | None = No
     mod = stage_module(name)
     if not callable(getattr(mod, "run", None)):
         raise StageError(f"stage {name!r} is not implemented in this version of hadal")
-    claim_dive(ctx, check_only=True)  # refuse another directory's dive id before any work
+    # claim the dive id for this raw directory before any work, atomically: of two runs claiming one id for two
+    # directories at once, one is refused here before it publishes; a new claim is undone if nothing is published
+    created = claim_dive(ctx, update=False)
     ctx.log.info("stage %s: start", name)
     t0 = time.monotonic()
     token = STAGE_RUN.set({"stage": name, "started_utc": _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds"),
                            "t0": t0, **(run_info or {})})
+    out = {}
     try:
         from hadal.products.metadata import dive_context  # the writers take ACDD metadata/paths from the dive
 
@@ -120,6 +125,8 @@ def run_stage(name: str, ctx: StageContext, run_info: dict[str, Any] | None = No
             out = mod.run(ctx)
     finally:
         STAGE_RUN.reset(token)
+        if created is not None and not out:
+            ctx.store.release_claim(ctx.dive_id, ctx.raw_dir, created)
     if out:
         claim_dive(ctx)
     for product, pv in out.items():

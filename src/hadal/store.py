@@ -15,7 +15,13 @@ reader either sees a complete version or none; a process killed mid-publish leav
 ``.staging-*`` directory, which readers ignore and :meth:`ProductStore.clean_staging` removes.
 
 The manifest records the input files with their SHA-256, the parameters, the code version, the
-creation time and the upstream product versions (provenance).
+creation time and the upstream product versions (provenance). Input hashes in a manifest are always computed by
+reading the file (never taken from the hash cache, which only serves skip decisions: :meth:`ProductStore.file_sha256`).
+
+Reading is checked (issue 45): a version is used only when its directory is its own place in the store, its
+manifest names only regular files inside it, it holds nothing else, and every file's SHA-256 is the one recorded at
+publish time (:meth:`ProductStore.check_intact`). Names follow :func:`hadal.names.check_component`; a dive id is
+claimed atomically in ``<dive>/dive.json`` before a stage runs (:meth:`ProductStore.claim_dive`).
 """
 
 from __future__ import annotations
@@ -30,6 +36,7 @@ import json
 import os
 import re
 import shutil
+import stat
 import subprocess
 import threading
 import time
@@ -41,6 +48,8 @@ from typing import Any
 
 from hadal import __version__
 from hadal.errors import StoreError
+from hadal.names import check_component, check_relative_path
+from hadal.yamlfile import load_json_bounded
 
 NAME_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]{0,63}$")
 VERSION_RE = re.compile(r"^v(\d{3,})$")
@@ -51,16 +60,18 @@ _HASH_CHUNK = 1 << 20
 
 
 def validate_name(name: str, what: str = "name") -> str:
-    """Return ``name`` if it is a safe dive/product name, else raise :class:`StoreError`.
+    """``name`` (NFC) if it is a safe dive/product name, else a one-line :class:`StoreError`: the one rule of
+    :func:`hadal.names.check_component` (1-64 letters, digits, ``.``, ``_``, ``-``; no separators, no dot-names,
+    no ``..``, none of the store's own file names such as ``catalog.json`` or ``dive.json``)."""
+    return check_component(name, what)
 
-    Allowed: 1-64 characters of letters, digits, ``.``, ``_`` and ``-``, not starting with a dot
-    or dash, and not ``..``-like (no path separators, no traversal).
-    """
-    if not isinstance(name, str) or not NAME_RE.fullmatch(name) or ".." in name:
-        raise StoreError(
-            f"invalid {what} {name!r}: use 1-64 letters, digits, '.', '_' or '-', starting with a letter or digit"
-        )
-    return name
+
+def _is_name(name: str) -> bool:
+    """Whether a directory name found in the store is a dive/product name (not a store file, not a staging)."""
+    try:
+        return check_component(name) == name
+    except StoreError:
+        return False
 
 
 def sha256_file(path: str | os.PathLike[str]) -> str:
@@ -74,7 +85,9 @@ def sha256_file(path: str | os.PathLike[str]) -> str:
 
 #: per-store cache of raw-file hashes (``<root>/.cache/file-sha256.json``), see :meth:`ProductStore.file_sha256`
 HASH_CACHE = ".cache/file-sha256.json"
-_PROCESS_HASHES: dict[tuple, str] = {}  # (resolved path, size, mtime_ns, inode, ctime_ns) -> SHA-256, this process
+#: (resolved path, device, inode, size, mtime_ns, ctime_ns) -> SHA-256 that this process computed by reading the
+#: file (never a value taken from the store's cache file: see :meth:`ProductStore.file_sha256`)
+_PROCESS_HASHES: dict[tuple, str] = {}
 _HASH_LOCK = threading.Lock()
 #: the stage run publishing in this context (set by :func:`hadal.pipeline.run_stage`: ``stage``, ``started_utc``,
 #: ``t0`` = its ``time.monotonic()`` start, and e.g. the Prefect ``flow_run``/``task_run`` ids); every manifest
@@ -83,8 +96,10 @@ STAGE_RUN: contextvars.ContextVar[dict[str, Any] | None] = contextvars.ContextVa
 
 
 def _file_key(path: Path) -> tuple:
+    """The identity the hash cache trusts: (path, device, inode, size, mtime_ns, ctime_ns); ctime cannot be set
+    from user space, so an in-place edit with the old size and mtime restored still changes the key."""
     st = path.stat()
-    return (str(path), st.st_size, st.st_mtime_ns, st.st_ino, st.st_ctime_ns)
+    return (str(path), st.st_dev, st.st_ino, st.st_size, st.st_mtime_ns, st.st_ctime_ns)
 
 
 def code_version() -> str:
@@ -122,15 +137,27 @@ class ProductVersion:
         return self.path / MANIFEST
 
     def manifest(self) -> dict[str, Any]:
-        with open(self.manifest_path, encoding="utf-8") as fh:
-            return json.load(fh)
+        """The parsed ``manifest.json`` (bounded: :data:`MANIFEST_MAX_BYTES`, nesting depth); ``OSError`` when it
+        cannot be read, ``ValueError`` when it is not a bounded JSON object."""
+        if self.manifest_path.is_symlink():
+            raise ValueError("manifest.json is a symbolic link")
+        data = load_json_bounded(self.manifest_path.read_bytes(), max_bytes=MANIFEST_MAX_BYTES)
+        if not isinstance(data, dict):
+            raise ValueError("not a JSON object")
+        return data
 
     def file(self, name: str) -> Path:
-        """Path of a file of this version; raises :class:`StoreError` when it is not there."""
-        p = self.path / name
-        if not p.is_file():
-            raise StoreError(f"{self.dive}/{self.product}/{self.label} has no file {name!r}")
-        return p
+        """Path of a file of this version; a one-line :class:`StoreError` when it is not there, is not listed in
+        the version's manifest, or is not a regular file inside the version directory (a ``..`` name, an absolute
+        name or a symbolic link leading anywhere are refused: :func:`confined_file`)."""
+        label = f"{self.dive}/{self.product}/{self.label}"
+        try:
+            listed = {str(f.get("name")) for f in self.manifest().get("files", []) if isinstance(f, dict)}
+        except (OSError, ValueError) as exc:
+            raise StoreError(f"{label}: unreadable manifest ({exc}); re-run the stage that makes it") from None
+        if name not in listed:
+            raise StoreError(f"{label} has no file {name!r}")
+        return confined_file(self.path, name, label)
 
     def ref(self) -> dict[str, Any]:
         """Provenance reference recorded in downstream manifests."""
@@ -178,19 +205,24 @@ class ProductStore:
 
     def __init__(self, root: str | os.PathLike[str]):
         self.root = Path(root)
-        self._intact: set[tuple[str, int, int]] = set()  # files check_intact found unchanged
+        self._intact: set[tuple] = set()  # identities (_file_key) of files check_intact hashed and found intact
         self._hashes: dict[str, dict[str, Any]] | None = None  # HASH_CACHE, loaded on first use
 
     # ---------------------------------------------------------------- raw-file hashes
-    def file_sha256(self, path: str | os.PathLike[str]) -> str:
+    def file_sha256(self, path: str | os.PathLike[str], *, verified: bool = False) -> str:
         """SHA-256 of a (raw input) file without re-reading it when it is unchanged.
 
-        The hash is remembered with the file's size, mtime, inode and ctime, in this process and in the store
-        (``<root>/.cache/file-sha256.json``), so an unchanged re-run of a dive stats its ~280 MB of raw files
-        instead of hashing them (the stage cache keys and the manifests' ``inputs``). A file whose size, mtime,
-        inode or ctime differs - edited, replaced, touched, copied - is hashed again. ctime cannot be set from
-        user space, so a file rewritten with its old mtime restored is still seen as changed. The cache is
-        best effort: an unreadable or unwritable one only costs the hashing."""
+        The hash is remembered with the file's identity (device, inode, size, mtime, ctime: :func:`_file_key`), in
+        this process and in the store (``<root>/.cache/file-sha256.json``), so an unchanged re-run of a dive stats
+        its ~280 MB of raw files instead of hashing them for its stage cache keys (the skip decision). A file whose
+        identity differs - edited, replaced, touched, copied - is hashed again.
+
+        The store's cache file is an optimisation anyone who can write the store can edit, so it is never proof
+        of content: with ``verified=True`` (a manifest being written: :meth:`_write_manifest`) the answer is a
+        hash this process computed by reading the file under the same identity, else the file is read now; a
+        cache record that disagrees is replaced by the true hash. A poisoned cache entry can therefore change at
+        most a skip decision (the stage re-runs or is skipped), never what a manifest records. The cache is best
+        effort: an unreadable or unwritable one only costs the hashing."""
         p = Path(path).resolve()
         key = _file_key(p)
         with _HASH_LOCK:
@@ -200,15 +232,15 @@ class ProductStore:
         if known is not None:
             # hashed earlier in this process, perhaps before the store existed (a cold run hashes its inputs
             # before the first product creates the store): remember it in the store now that it can be written
-            if not stored and self.root.is_dir():
+            if (not stored or rec["sha256"] != known) and self.root.is_dir():
                 self._remember_hash(key, known)
             return known
-        if stored:
-            digest = rec["sha256"]
-        else:
-            digest = sha256_file(p)
-            if _file_key(p) != key:  # changed while it was read: do not remember either state
-                return digest
+        if stored and not verified:
+            return rec["sha256"]
+        digest = sha256_file(p)
+        if _file_key(p) != key:  # changed while it was read: do not remember either state
+            return digest
+        if not (stored and rec["sha256"] == digest):  # new, or a cache record that lied: write the truth
             self._remember_hash(key, digest)
         with _HASH_LOCK:
             _PROCESS_HASHES[key] = digest
@@ -255,13 +287,13 @@ class ProductStore:
     def dives(self) -> list[str]:
         if not self.root.is_dir():
             return []
-        return sorted(p.name for p in self.root.iterdir() if p.is_dir() and NAME_RE.match(p.name))
+        return sorted(p.name for p in self.root.iterdir() if p.is_dir() and _is_name(p.name))
 
     def products(self, dive: str) -> list[str]:
         d = self.root / validate_name(dive, "dive id")
         if not d.is_dir():
             return []
-        return sorted(p.name for p in d.iterdir() if p.is_dir() and NAME_RE.match(p.name) and self.versions(dive, p.name))
+        return sorted(p.name for p in d.iterdir() if p.is_dir() and _is_name(p.name) and self.versions(dive, p.name))
 
     def versions(self, dive: str, product: str) -> list[ProductVersion]:
         """All published versions, oldest first. Staging directories are never listed."""
@@ -304,43 +336,84 @@ class ProductStore:
         """The recorded raw directory (``raw_dir``, ``fingerprint``) of ``dive``, or ``None``."""
         f = self.root / validate_name(dive, "dive id") / DIVE_IDENTITY
         try:
-            rec = json.loads(f.read_text(encoding="utf-8"))
+            if f.is_symlink():
+                raise OSError("a symbolic link")
+            rec = load_json_bounded(f.read_bytes(), max_bytes=1 << 20)
         except FileNotFoundError:
             return None
         except (OSError, ValueError) as exc:
             raise StoreError(f"{f}: unreadable dive identity record ({exc}); remove it to re-claim the dive") from None
         return rec if isinstance(rec, dict) else None
 
-    def claim_dive(self, dive: str, raw_dir: str | os.PathLike[str], fingerprint: str, *, check_only: bool = False
-                   ) -> None:
+    def claim_dive(self, dive: str, raw_dir: str | os.PathLike[str], fingerprint: str, *, check_only: bool = False,
+                   update: bool = True) -> list[Path] | None:
         """Record that dive id ``dive`` belongs to ``raw_dir`` (content ``fingerprint``), or refuse.
-        ``check_only``: refuse a conflicting directory but write nothing (before a stage runs; the record is
-        written after it published, so a failed stage leaves the store as it was).
 
         A dive id already recorded for another directory is accepted only when the content fingerprint is the
         same (the directory was moved or copied); otherwise a second raw directory with the same dive id would
         mix its products with the first one's, so it is a one-line :class:`StoreError`.
+
+        The check and the write are one atomic step under an exclusive lock on the dive's directory, so of two
+        runs claiming one dive id for two raw directories at the same time exactly one wins and the other is
+        refused before it publishes anything (:func:`hadal.pipeline.run_stage` claims before a stage runs).
+        ``check_only``: refuse a conflicting directory but write nothing. ``update=False`` (before a stage runs):
+        write only a new claim; a record this directory may keep (same directory with new content, or the same
+        content moved) is rewritten only by the call after a publish, so a failed stage changes nothing.
+        Returns ``None`` when nothing was
+        written (already ours, or ``check_only``), else the directories this claim created (``[]`` when none):
+        :meth:`release_claim` undoes a claim whose stage then published nothing.
         """
         raw = str(Path(raw_dir).resolve())
-        rec = self.dive_identity(dive)
+        if check_only:
+            self._check_claim(dive, self.dive_identity(dive), raw, fingerprint)
+            return None
+        d = self.root / validate_name(dive, "dive id")
+        created = [x for x in (d, self.root) if not x.exists()]
+        try:
+            d.mkdir(parents=True, exist_ok=True)
+            if d.resolve() != self.root.resolve() / dive:  # the dive directory must not be a symbolic link
+                raise StoreError(f"cannot claim dive id {dive!r}: {d} resolves to {d.resolve()}, outside the store "
+                                 "(a symbolic link); remove the link")
+            with _dir_lock(d):
+                rec = self.dive_identity(dive)
+                self._check_claim(dive, rec, raw, fingerprint)
+                if rec is not None and (not update or (rec.get("raw_dir") == raw
+                                                       and rec.get("fingerprint") == fingerprint)):
+                    return None
+                new = {"dive": dive, "raw_dir": raw, "fingerprint": fingerprint,
+                       "claimed_utc": _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds"),
+                       "previous": ([*rec.get("previous", []), {"raw_dir": rec.get("raw_dir"),
+                                                                 "fingerprint": rec.get("fingerprint")}][-5:]
+                                    if rec else [])}
+                tmp = d / f".{DIVE_IDENTITY}.{os.getpid()}.{uuid.uuid4().hex[:8]}"
+                tmp.write_text(json.dumps(new, indent=2), encoding="utf-8")
+                os.replace(tmp, d / DIVE_IDENTITY)
+                return created if rec is None else None
+        except OSError as exc:
+            _remove_empty(created)
+            raise _store_error(exc, dive, DIVE_IDENTITY) from None
+        except StoreError:
+            _remove_empty(created)
+            raise
+
+    def _check_claim(self, dive: str, rec: dict[str, Any] | None, raw: str, fingerprint: str) -> None:
         if rec is not None and rec.get("raw_dir") != raw and rec.get("fingerprint") != fingerprint:
             raise StoreError(
                 f"dive id {dive!r} in store {self.root} belongs to raw directory {rec.get('raw_dir')}; {raw} is a "
                 "different dive with the same id (give it another dive_id in its dive.yaml, or use another --store)")
-        if check_only or (rec is not None and rec.get("raw_dir") == raw and rec.get("fingerprint") == fingerprint):
-            return
-        d = self.root / validate_name(dive, "dive id")
-        new = {"dive": dive, "raw_dir": raw, "fingerprint": fingerprint,
-               "claimed_utc": _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds"),
-               "previous": ([*rec.get("previous", []), {"raw_dir": rec.get("raw_dir"),
-                                                         "fingerprint": rec.get("fingerprint")}][-5:] if rec else [])}
-        try:
-            d.mkdir(parents=True, exist_ok=True)
-            tmp = d / f".{DIVE_IDENTITY}.{os.getpid()}.{uuid.uuid4().hex[:8]}"
-            tmp.write_text(json.dumps(new, indent=2), encoding="utf-8")
-            os.replace(tmp, d / DIVE_IDENTITY)
-        except OSError as exc:
-            raise _store_error(exc, dive, DIVE_IDENTITY) from None
+
+    def release_claim(self, dive: str, raw_dir: str | os.PathLike[str], created: Sequence[Path]) -> None:
+        """Undo a new claim (:meth:`claim_dive` returned ``created``) whose stage published nothing: the record
+        is removed when it is still this directory's, then the directories the claim created when empty; a
+        failed first stage leaves the store as it was (a stage of the same directory that publishes meanwhile
+        records the claim again after its publish). Never raises."""
+        d = self.root / dive
+        with contextlib.suppress(OSError, StoreError):
+            with _dir_lock(d):
+                rec = self.dive_identity(dive)
+                if rec is not None and rec.get("raw_dir") == str(Path(raw_dir).resolve()):
+                    (d / DIVE_IDENTITY).unlink()
+        _remove_empty(created)
 
     # ---------------------------------------------------------------- writing
     @contextlib.contextmanager
@@ -370,10 +443,14 @@ class ProductStore:
         staging = pdir / f".staging-{os.getpid()}-{uuid.uuid4().hex[:12]}"
         try:
             pdir.mkdir(parents=True, exist_ok=True)
+            self._check_product_dir(pdir, dive, product)
             staging.mkdir(parents=True)  # parents: a concurrent failed publish may have just removed pdir
         except OSError as exc:
             _remove_empty(created)
             raise _store_error(exc, dive, product) from exc
+        except StoreError:
+            _remove_empty(created)
+            raise
         draft = Draft(
             path=staging, dive=dive, product=product,
             parameters=dict(parameters or {}), inputs=[Path(p) for p in inputs],
@@ -390,6 +467,15 @@ class ProductStore:
                 raise _store_error(exc, dive, product) from exc
             raise
 
+    def _check_product_dir(self, pdir: Path, dive: str, product: str) -> None:
+        """Refuse (one-line :class:`StoreError`) to publish through a dive or product directory that is a symbolic
+        link: the version would be written wherever the link points, outside the store."""
+        want = self.root.resolve() / dive / product
+        real = pdir.resolve()
+        if real != want:
+            raise StoreError(f"cannot publish {dive}/{product}: {pdir} resolves to {real}, outside its place in the "
+                             "store (a symbolic link); remove the link; nothing was published")
+
     def _write_manifest(self, draft: Draft) -> None:
         files = []
         for p in sorted(draft.path.rglob("*")):
@@ -403,7 +489,9 @@ class ProductStore:
         for p in draft.inputs:
             if not p.is_file():
                 raise StoreError(f"input file {p} recorded for {draft.product} does not exist")
-            inputs.append({"path": str(p.resolve()), "bytes": p.stat().st_size, "sha256": self.file_sha256(p)})
+            # verified: hashed by reading the file (in this process, same identity), never the cache file's word
+            inputs.append({"path": str(p.resolve()), "bytes": p.stat().st_size,
+                           "sha256": self.file_sha256(p, verified=True)})
         manifest = {
             "dive": draft.dive,
             "product": draft.product,
@@ -432,8 +520,9 @@ class ProductStore:
 
     def _commit(self, pdir: Path, staging: Path, dive: str, product: str) -> ProductVersion:
         _fsync_tree(staging)
-        try:
-            lock_fh = open(pdir / ".lock", "a+")  # noqa: SIM115 - closed by the with below
+        try:  # O_NOFOLLOW: a .lock planted as a symbolic link never creates a file elsewhere
+            lock_fh = os.fdopen(os.open(pdir / ".lock", os.O_RDWR | os.O_CREAT | os.O_APPEND | os.O_NOFOLLOW, 0o644),
+                                "a+")
         except OSError as exc:  # e.g. .lock is a directory, or the store is read-only
             raise StoreError(f"cannot lock {pdir / '.lock'} to publish {dive}/{product} "
                              f"({exc.strerror or exc}); nothing was published") from None
@@ -472,34 +561,84 @@ class ProductStore:
                 removed.append(p)
         return removed
 
-    def check_intact(self, pv: ProductVersion) -> None:
-        """Refuse (one-line :class:`StoreError`) a version whose files changed since they were published.
+    def confined_version(self, pv: ProductVersion) -> Path:
+        """The real directory of ``pv``, when it is ``<root>/<dive>/<product>/vNNN`` itself (no directory on the
+        way is a symbolic link, so nothing read through it can lie outside the store); else a one-line
+        :class:`StoreError`."""
+        label = f"{pv.dive}/{pv.product}/{pv.label}"
+        root = self.root.resolve()
+        want = root / validate_name(pv.dive, "dive id") / validate_name(pv.product, "product name") / pv.label
+        try:
+            real = pv.path.resolve(strict=True)
+        except (OSError, RuntimeError):
+            raise StoreError(f"{label}: version directory {pv.path} is missing or unresolvable") from None
+        if real != want:
+            raise StoreError(f"{label}: {pv.path} resolves to {real}, not to its place in the store {want} (a "
+                             "symbolic link); refusing to read products from outside the store")
+        return real
 
-        Fast path: a file whose size and mtime equal the manifest's record is trusted; otherwise it is re-hashed
-        against the manifest's SHA-256. Results are remembered per (file, size, mtime) in this store object.
-        """
+    def check_intact(self, pv: ProductVersion) -> None:
+        """Refuse (one-line :class:`StoreError`) a version that is not exactly what was published: its directory
+        must be its own place in the store and hold only the files its manifest lists, as regular files
+        (:meth:`check_layout`), each with the SHA-256 recorded at publish time (:meth:`verified_file`)."""
+        for name, _ in self.check_layout(pv):
+            self.verified_file(pv, name)
+
+    def check_layout(self, pv: ProductVersion) -> list[tuple[str, dict[str, Any]]]:
+        """The manifest's ``(name, entry)`` records once the version's layout is what was published: its directory
+        is ``<root>/<dive>/<product>/vNNN`` itself (:meth:`confined_version`), every listed name is a regular
+        file inside it (:func:`confined_file`: no ``..``, no absolute name, no symbolic link) and it holds
+        nothing else (no symbolic link, no file added after publishing); else a one-line :class:`StoreError`.
+        Contents are not hashed here (:meth:`verified_file`)."""
+        label = f"{pv.dive}/{pv.product}/{pv.label}"
+        real = self.confined_version(pv)
+        entries = self._manifest_files(pv, label)
+        listed = {MANIFEST}
+        for name, _ in entries:
+            confined_file(real, name, label)
+            listed.add(name)
+        for extra in _tree_entries(real):
+            if extra not in listed:
+                raise StoreError(f"{label}: {extra!r} is not in its manifest (added after publishing, or a "
+                                 "symbolic link); remove it or re-run the stage that makes it")
+        return entries
+
+    def verified_file(self, pv: ProductVersion, name: str) -> Path:
+        """Path of file ``name`` of ``pv`` once its content is verified: listed in the manifest, a regular file
+        inside the version (:func:`confined_file`), with the size and SHA-256 recorded at publish time; else a
+        one-line :class:`StoreError`.
+
+        The file is hashed: size and mtime are never proof (an in-place edit can keep both). The one shortcut is
+        this store object's memory of a hash it computed itself for the same file identity (device, inode, size,
+        mtime and ctime - ctime changes on any write), so one run hashes a product file once. Cost on the sample
+        dive's largest product (ctd.parquet, 72.5 MB): 37 ms (docs/operations.md, "Integrity of products")."""
+        label = f"{pv.dive}/{pv.product}/{pv.label}"
+        real = self.confined_version(pv)
+        entry = next((e for n, e in self._manifest_files(pv, label) if n == name), None)
+        if entry is None:
+            raise StoreError(f"{label} has no file {name!r}")
+        p = confined_file(real, name, label)
+        key = _file_key(p)
+        if key in self._intact:
+            return p
+        if key[3] != entry.get("bytes") or sha256_file(p) != entry.get("sha256") or _file_key(p) != key:
+            raise StoreError(f"{label}: file {name!r} was modified after it was published (size or SHA-256 "
+                             "differs from its manifest); re-run the stage that makes it")
+        self._intact.add(key)
+        return p
+
+    def _manifest_files(self, pv: ProductVersion, label: str) -> list[tuple[str, dict[str, Any]]]:
+        """``(name, entry)`` of each file the manifest lists, or a one-line :class:`StoreError`."""
+        if (pv.path / MANIFEST).is_symlink():
+            raise StoreError(f"{label}: manifest.json is a symbolic link; refusing it")
         try:
             entries = pv.manifest().get("files", [])
         except (OSError, ValueError) as exc:
-            raise StoreError(f"{pv.dive}/{pv.product}/{pv.label}: unreadable manifest ({exc}); re-run the stage "
-                             "that makes it") from None
-        for f in entries:
-            p = pv.path / str(f.get("name", ""))
-            try:
-                st = p.stat()
-            except OSError:
-                raise StoreError(f"{pv.dive}/{pv.product}/{pv.label}: file {f.get('name')!r} of its manifest is "
-                                 "missing; re-run the stage that makes it") from None
-            key = (str(p), st.st_size, st.st_mtime_ns)
-            if key in self._intact:
-                continue
-            ok = st.st_size == f.get("bytes") and (st.st_mtime_ns == f.get("mtime_ns")
-                                                   or sha256_file(p) == f.get("sha256"))
-            if not ok:
-                raise StoreError(f"{pv.dive}/{pv.product}/{pv.label}: file {f.get('name')!r} was modified after it "
-                                 "was published (size or SHA-256 differs from its manifest); re-run the stage "
-                                 "that makes it")
-            self._intact.add(key)
+            raise StoreError(f"{label}: unreadable manifest ({exc}); re-run the stage that makes it") from None
+        if not isinstance(entries, list) or not all(isinstance(f, dict) for f in entries):
+            raise StoreError(f"{label}: its manifest's 'files' is not a list of records; re-run the stage that "
+                             "makes it")
+        return [(str(f.get("name", "")), f) for f in entries]
 
     def version_at(self, path: str | os.PathLike[str]) -> ProductVersion:
         """The published version whose directory is ``path`` (``<root>/<dive>/<product>/vNNN``)."""
@@ -510,15 +649,70 @@ class ProductStore:
         return ProductVersion(p.parent.parent.name, p.parent.name, int(m.group(1)), p)
 
     def verify(self, pv: ProductVersion) -> list[str]:
-        """Re-hash a version's files against its manifest; returns a list of problems (empty = intact)."""
+        """Re-hash a version's files against its manifest; returns a list of problems (empty = intact), including
+        a version outside its place in the store, a manifest naming a file outside the version, symbolic links
+        and files the manifest does not list."""
+        label = f"{pv.dive}/{pv.product}/{pv.label}"
+        try:
+            real = self.confined_version(pv)
+            entries = self._manifest_files(pv, label)
+        except StoreError as exc:
+            return [str(exc)]
         problems = []
-        for f in pv.manifest().get("files", []):
-            p = pv.path / f["name"]
-            if not p.is_file():
-                problems.append(f"missing {f['name']}")
-            elif sha256_file(p) != f["sha256"]:
-                problems.append(f"checksum mismatch {f['name']}")
+        listed = {MANIFEST}
+        for name, entry in entries:
+            listed.add(name)
+            try:
+                p = confined_file(real, name, label)
+            except StoreError as exc:
+                problems.append(f"missing {name}" if "is missing" in str(exc) else str(exc))
+                continue
+            if sha256_file(p) != entry.get("sha256"):
+                problems.append(f"checksum mismatch {name}")
+        problems += [f"not in manifest {x}" for x in _tree_entries(real) if x not in listed]
         return problems
+
+
+def _tree_entries(top: Path) -> list[str]:
+    """Every file, symbolic link or special file under ``top`` (relative ``/`` paths; symbolic links to
+    directories are listed, not followed)."""
+    out = []
+    for dirpath, dirnames, filenames in os.walk(top, followlinks=False):
+        rel = Path(dirpath).relative_to(top)
+        out += [(rel / n).as_posix() for n in filenames]
+        out += [(rel / n).as_posix() for n in dirnames if (Path(dirpath) / n).is_symlink()]
+    return out
+
+
+#: largest ``manifest.json`` read (a casts product lists one file per cast: a few hundred kB)
+MANIFEST_MAX_BYTES = 64 << 20
+
+
+def confined_file(version_dir: Path, name: object, label: str) -> Path:
+    """``version_dir / name`` when ``name`` is a relative path of plain components (no ``..``, not absolute:
+    :func:`hadal.names.check_relative_path`) naming a regular file that is not reached through any symbolic
+    link; else a one-line :class:`StoreError` (a manifest naming ``../../etc/passwd`` or a symlinked product
+    file is refused before anything opens it)."""
+    try:
+        rel = check_relative_path(name, "file name")
+    except StoreError as exc:
+        raise StoreError(f"{label}: its manifest names a file outside the version ({exc}); the store was edited "
+                         "by hand - re-run the stage that makes it") from None
+    p = version_dir / rel
+    here = version_dir
+    for part in rel.split("/"):
+        here = here / part
+        try:
+            st = here.lstat()
+        except OSError:
+            raise StoreError(f"{label}: file {rel!r} of its manifest is missing; re-run the stage that makes "
+                             "it") from None
+        if stat.S_ISLNK(st.st_mode):
+            raise StoreError(f"{label}: {rel!r} is a symbolic link (to {os.readlink(here)!r}); a product file "
+                             "must be a regular file inside its version - re-run the stage that makes it")
+    if not stat.S_ISREG(st.st_mode):
+        raise StoreError(f"{label}: {rel!r} is not a regular file; re-run the stage that makes it")
+    return p
 
 
 #: write failures that are about the store's storage (not the inputs): reported as a one-line StoreError
@@ -590,6 +784,17 @@ def write_bytes_checked(path: str | os.PathLike[str], data: bytes | memoryview, 
         with contextlib.suppress(OSError):
             os.unlink(path)
         raise
+
+
+@contextlib.contextmanager
+def _dir_lock(d: Path) -> Iterator[None]:
+    """Exclusive ``flock`` on directory ``d`` itself (no lock file that could collide with a name)."""
+    fd = os.open(d, os.O_RDONLY | os.O_DIRECTORY | os.O_NOFOLLOW)
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX)
+        yield
+    finally:
+        os.close(fd)  # releases the lock
 
 
 def _remove_empty(dirs: Sequence[Path]) -> None:

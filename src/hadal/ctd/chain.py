@@ -19,6 +19,7 @@ from hadal.ctd.filters import low_pass_filter
 from hadal.ctd.loop_edit import loop_edit
 from hadal.ctd.thermal_mass import cell_thermal_mass
 from hadal.ctd.wild_edit import wild_edit
+from hadal.errors import InputError
 
 #: ``derive`` parameters of the chain, by step (recorded in the product metadata when the step ran)
 STEP_PARAMETERS: dict[str, tuple[str, ...]] = {
@@ -83,12 +84,19 @@ def process_channels(conductivity_s_m: np.ndarray, temperature_degc: np.ndarray,
                 arr[:] = low_pass_filter(arr, tau, interval_s)
         log.append({"step": "filter", "parameters": _params(settings, "filter"), "sample_interval_s": interval_s})
     if "align_ctd" in time_steps:
-        if settings.align_conductivity_s:
-            c = align_ctd(c, settings.align_conductivity_s, interval_s)
-        if settings.align_temperature_s:
-            t = align_ctd(t, settings.align_temperature_s, interval_s)
-        log.append({"step": "align_ctd", "parameters": _params(settings, "align_ctd"),
-                    "sample_interval_s": interval_s})
+        entry: dict[str, Any] = {"step": "align_ctd", "parameters": _params(settings, "align_ctd"),
+                                 "sample_interval_s": interval_s}
+        try:  # an advance longer than the record: the channel is left unaligned, named in the log (no-op)
+            if settings.align_conductivity_s:
+                c = align_ctd(c, settings.align_conductivity_s, interval_s)
+        except InputError as exc:
+            entry.setdefault("skipped_channels", {})["conductivity"] = str(exc)
+        try:
+            if settings.align_temperature_s:
+                t = align_ctd(t, settings.align_temperature_s, interval_s)
+        except InputError as exc:
+            entry.setdefault("skipped_channels", {})["temperature"] = str(exc)
+        log.append(entry)
     if "cell_thermal_mass" in time_steps:
         corrected = cell_thermal_mass(t, c, settings.cell_thermal_mass_alpha,
                                       settings.cell_thermal_mass_beta_inverse_s, interval_s)

@@ -27,7 +27,6 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Literal
 
-import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
 from hadal.errors import ConfigError, first_validation_error
@@ -209,15 +208,9 @@ def load_vehicle_config(path: str | Path) -> VehicleConfig:
     p = Path(path)
     if not p.is_file():
         raise ConfigError(f"vehicle config {p} does not exist")
-    from hadal.yamlfile import DuplicateKeyError, safe_load_unique
+    from hadal.yamlfile import parse_yaml_text, read_config_text
 
-    try:
-        data = safe_load_unique(p.read_text(encoding="utf-8"))
-    except DuplicateKeyError as exc:
-        raise ConfigError(f"{p}: {exc}") from None
-    except (yaml.YAMLError, UnicodeDecodeError) as exc:
-        first = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
-        raise ConfigError(f"{p}: not valid YAML ({first})") from None
+    data = parse_yaml_text(read_config_text(p, "vehicle config"), p)  # bounded: size, depth, aliases, scalars
     if not isinstance(data, dict):
         raise ConfigError(f"{p}: expected a mapping with 'sensors' at the top level")
     try:

@@ -55,8 +55,10 @@ def _latest_versions(store: Any, dive: str) -> dict[str, Any]:
     out = {}
     for product in store.products(dive):
         try:
-            out[product] = store.latest(dive, product)
-        except Exception:  # noqa: BLE001 - a product without a readable version is left out
+            pv = store.latest(dive, product)
+            store.check_layout(pv)  # no symlinked file or directory, no name outside the version is catalogued
+            out[product] = pv
+        except Exception:  # noqa: BLE001 - a product without a readable, well-formed version is left out
             continue
     return out
 

@@ -3,6 +3,11 @@
 Every product is optional: a missing product, an unreadable file or a missing column becomes a *note*
 (shown in the report) instead of an exception. :func:`load_products` raises only when the dive has no
 product at all.
+
+Only files of the product versions read are opened, and only after the store's checks: a version outside its
+place in the store, holding a symbolic link or a file its manifest does not list is left out with a note
+(:meth:`ProductStore.check_layout`); every file read or embedded is first verified against the SHA-256 its
+manifest recorded (:meth:`ProductStore.verified_file`), so a symlinked or edited file never reaches report.html.
 """
 
 from __future__ import annotations
@@ -16,7 +21,7 @@ from typing import Any
 import pandas as pd
 import xarray as xr
 
-from hadal.errors import StageError
+from hadal.errors import StageError, StoreError
 from hadal.store import ProductStore, ProductVersion
 
 #: (product, stage that makes it) in pipeline order; the report reads all of them when present.
@@ -51,6 +56,7 @@ class DiveProducts:
     casts: list[dict[str, Any]] = field(default_factory=list)  # external casts: casts.json + cast_profiles.json
     navigation: pd.DataFrame | None = None  # best position of every sample (match's navigation product)
     landing_meta: dict[str, Any] = field(default_factory=dict)  # landing manifest parameters (vehicle geometry)
+    store: ProductStore | None = field(default=None, repr=False)  # where the versions are verified before reads
 
     @property
     def missing(self) -> list[str]:
@@ -78,15 +84,37 @@ def _read(pv: ProductVersion, name: str, dp: DiveProducts, reader: Callable[[Pat
           errors: tuple[type[BaseException], ...] = (Exception,)) -> Any:
     """``reader(path)`` of the file ``name`` of ``pv``, or None with a note in ``dp`` when the file is missing or
     ``reader`` raises one of ``errors`` (a corrupt/truncated file: reported, never failing the report)."""
-    path = pv.path / name
-    if not path.is_file():
-        dp.note(f"{pv.product}/{pv.label} has no {name}")
+    path = _verified(pv, name, dp)
+    if path is None:
         return None
     try:
         return reader(path)
     except errors as exc:
         dp.note(f"{pv.product}/{pv.label}/{name} is unreadable ({type(exc).__name__})")
         return None
+
+
+def _verified(pv: ProductVersion, name: str, dp: DiveProducts) -> Path | None:
+    """The file ``name`` of ``pv`` once the store verified it (listed, confined, SHA-256 as published), else None
+    with a note: ``has no`` when it is not there, ``is unreadable (why)`` when it fails a check."""
+    store = dp.store if dp.store is not None else ProductStore(pv.path.parent.parent.parent)
+    try:
+        return store.verified_file(pv, name)
+    except StoreError as exc:
+        if "has no file" in str(exc) or "is missing" in str(exc):
+            dp.note(f"{pv.product}/{pv.label} has no {name}")
+        else:
+            dp.note(f"{pv.product}/{pv.label}/{name} is unreadable ({exc})")
+        return None
+
+
+def _listed(pv: ProductVersion, dp: DiveProducts, keep: Callable[[str], bool]) -> list[Path]:
+    """Verified files of ``pv`` whose manifest name satisfies ``keep``, in name order."""
+    try:
+        names = sorted(str(f.get("name")) for f in pv.manifest().get("files", []) if isinstance(f, dict))
+    except (OSError, ValueError):
+        return []
+    return [p for n in names if keep(n) and (p := _verified(pv, n, dp)) is not None]
 
 
 def _read_parquet(pv: ProductVersion, name: str, dp: DiveProducts) -> pd.DataFrame | None:
@@ -138,14 +166,25 @@ def load_products(store: ProductStore, dive: str, skipped_stages: set[str] | Non
         raise StageError(
             f"dive {dive!r} has no products in {store.root}; run the pipeline first (hadal run RAW_DIR --store {store.root})"
         )
-    dp = DiveProducts(dive=dive, versions=versions)
+    dp = DiveProducts(dive=dive, store=store)
+    left_out = set()
+    for product, pv in versions.items():  # only versions laid out as published are read (no link, no added file)
+        try:
+            store.check_layout(pv)
+        except StoreError as exc:
+            dp.note(f"product {product!r} is left out: {exc}")
+            left_out.add(product)
+            continue
+        dp.versions[product] = pv
+    versions = dp.versions
     for product, stage in REPORT_INPUTS:
-        if product not in versions and stage not in (skipped_stages or set()) and (expected is None
-                                                                                   or product in expected):
+        if (product not in versions and product not in left_out and stage not in (skipped_stages or set())
+                and (expected is None or product in expected)):
             dp.note(f"product {product!r} is missing (stage {stage} has not run): its figures are skipped")
     if "sensors" in versions:
         _check_parquet(versions["sensors"], "sensors.parquet", dp)  # its notes below; its table is not drawn
-        for n in _table_notes(versions["sensors"].path / "sensors.parquet"):
+        sensors = _verified(versions["sensors"], "sensors.parquet", DiveProducts(dive=dive, store=store))
+        for n in _table_notes(sensors) if sensors is not None else ():
             dp.note(f"ingest: {n}")
     if "ctd" in versions:
         dp.ctd = _read_parquet(versions["ctd"], "ctd.parquet", dp)
@@ -172,8 +211,9 @@ def load_products(store: ProductStore, dive: str, skipped_stages: set[str] | Non
         dp.landing_sites = _read_parquet(pv, "landing_sites.parquet", dp)
         if (pv.path / "landing_summary.json").is_file():
             dp.landing_summary = _read_json(pv, "landing_summary.json", dp)
-        dp.landing_figures = sorted((pv.path / "figures").glob("*.png")) if (pv.path / "figures").is_dir() else []
-        dp.landing_maps = sorted(pv.path.glob("*_maps.nc"))
+        dp.landing_figures = _listed(pv, dp, lambda n: n.startswith("figures/") and n.endswith(".png")
+                                     and n.count("/") == 1)
+        dp.landing_maps = _listed(pv, dp, lambda n: "/" not in n and n.endswith("_maps.nc"))
         try:
             dp.landing_meta = dict(pv.manifest().get("parameters") or {})
         except (OSError, ValueError):

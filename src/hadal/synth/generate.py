@@ -45,8 +45,14 @@ def default_dive_id(dest: str | Path) -> str:
     ``._-``), else the scenario's own id."""
     import re
 
+    from hadal.errors import StoreError
+    from hadal.names import check_component
+
     name = re.sub(r"[^A-Za-z0-9._-]+", "-", Path(dest).resolve().name).strip(".-_")[:64]
-    return name if name and name[0].isalnum() else sc.DIVE_ID
+    try:
+        return check_component(name, "dive id")  # the one name rule (no '..', no store file name)
+    except StoreError:
+        return sc.DIVE_ID
 
 
 def generate_dive(dest: str | Path, *, seed: int = 20181006, small: bool = False, progress=None,

@@ -1,0 +1,235 @@
+"""Security cases of the reliability report (issue 45): a forged provenance, a hand-edited store, hostile names and
+YAML, a symlinked file offered to the report, AlignCTD's edge.
+
+Each case is ``(name, prepare(case_dir, store), run(case_dir, store), error, match, check)`` in the shape of
+``tests/reliability_report.py``'s ``Item``: a one-line :class:`hadal.errors.HadalError` of class ``error`` whose
+message matches ``match`` with the store unchanged, or (``error`` None) a result that ``check`` verifies against an
+independent oracle (:mod:`hashlib` of the file, the bytes the case planted).
+"""
+
+from __future__ import annotations
+
+import base64
+import contextlib
+import hashlib
+import json
+import os
+import warnings
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from tiny_dive import write_dive
+
+DIVE = "sec-dive"
+SECRET = b"\x89PNG\r\n\x1a\n" + b"SECRET-OUTSIDE-THE-STORE" * 40
+
+
+@dataclass
+class SecurityCase:
+    name: str
+    prepare: Callable[[Path, Path], None]
+    run: Callable[[Path, Path], Any]
+    error: str | None
+    match: str
+    check: Callable[[Path, Any], bool] | None = None
+
+
+# ------------------------------------------------------------------------------------ helpers
+def _publish(store: Path, product: str = "sensors", files: dict[str, bytes] | None = None, **kw: Any):
+    from hadal.store import ProductStore
+
+    with ProductStore(store).publish(DIVE, product, **kw) as draft:
+        for name, data in (files or {"sensors.parquet": b"0123456789" * 100}).items():
+            p = draft.path / name
+            p.parent.mkdir(parents=True, exist_ok=True)
+            p.write_bytes(data)
+    return draft.result
+
+
+def _read_upstream(store: Path, product: str = "sensors") -> Any:
+    """What a stage does to read an upstream product (``StageContext.upstream``)."""
+    from hadal.stages import StageContext
+    from hadal.store import ProductStore
+
+    ctx = StageContext(dive=None, raw_dir=store, store=ProductStore(store), config=None)  # type: ignore[arg-type]
+    ctx.pins[product] = ProductStore(store).latest(DIVE, product)
+    return ctx.upstream(product)
+
+
+@contextlib.contextmanager
+def _new_process_memory():
+    """As in a new process: no file hashed yet (``hadal.store._PROCESS_HASHES`` empty, restored after)."""
+    import hadal.store as hs
+
+    saved = hs._PROCESS_HASHES
+    hs._PROCESS_HASHES = {}
+    try:
+        yield
+    finally:
+        hs._PROCESS_HASHES = saved
+
+
+def _raw_input(d: Path) -> Path:
+    f = d / "raw.bin"
+    if not f.exists():
+        d.mkdir(parents=True, exist_ok=True)
+        f.write_bytes(hashlib.sha256(b"seed").digest() * 4096)
+    return f
+
+
+def _edit_manifest(store: Path, edit: Callable[[dict], None]) -> None:
+    pv = _publish(store)
+    m = json.loads(pv.manifest_path.read_text())
+    edit(m)
+    pv.manifest_path.write_text(json.dumps(m))
+
+
+# ------------------------------------------------------------------------------------ cases
+def _prep_poisoned(d: Path, store: Path) -> None:
+    from hadal.store import HASH_CACHE
+
+    raw = _raw_input(d)
+    _publish(store, inputs=[raw])
+    cache = store / HASH_CACHE
+    data = json.loads(cache.read_text())
+    data[str(raw.resolve())]["sha256"] = "0" * 64  # same identity (device, inode, size, mtime, ctime), wrong hash
+    cache.write_text(json.dumps(data))
+
+
+def _run_poisoned(d: Path, store: Path) -> Any:
+    with _new_process_memory():
+        return _publish(store, inputs=[_raw_input(d)])
+
+
+def _check_poisoned(d: Path, pv: Any) -> bool:
+    return pv.manifest()["inputs"][0]["sha256"] == hashlib.sha256(_raw_input(d).read_bytes()).hexdigest()
+
+
+def _prep_symlinked_file(d: Path, store: Path) -> None:
+    pv = _publish(store)
+    (d / "outside.bin").write_bytes((pv.path / "sensors.parquet").read_bytes())  # same bytes: only the link differs
+    (pv.path / "sensors.parquet").unlink()
+    (pv.path / "sensors.parquet").symlink_to(d / "outside.bin")
+
+
+def _prep_in_place_edit(d: Path, store: Path) -> None:
+    pv = _publish(store)
+    f = pv.path / "sensors.parquet"
+    st = f.stat()
+    with open(f, "r+b") as fh:
+        fh.seek(10)
+        fh.write(b"X")
+    os.utime(f, ns=(st.st_atime_ns, st.st_mtime_ns))  # size and mtime as published
+
+
+def _prep_symlinked_product_dir(d: Path, store: Path) -> None:
+    _publish(store, product="ctd")
+    (d / "elsewhere").mkdir(exist_ok=True)
+    (store / DIVE / "sensors").symlink_to(d / "elsewhere")
+
+
+def _prep_dive_yaml(text: str) -> Callable[[Path, Path], None]:
+    def prep(d: Path, store: Path) -> None:
+        write_dive(d, 5.0, csv=False, dive_id="sec-yaml")
+        (d / "dive.yaml").write_text((d / "dive.yaml").read_text() + text)
+    return prep
+
+
+def _run_make_context(d: Path, store: Path) -> Any:
+    from hadal.pipeline import make_context
+
+    return make_context(d, store)
+
+
+def _prep_catalog_id(d: Path, store: Path) -> None:
+    write_dive(d, 5.0, csv=False, dive_id="catalog.json")
+
+
+def _prep_twin(d: Path, store: Path) -> None:
+    from hadal.store import ProductStore
+
+    write_dive(d / "mine", 10.0, csv=False, dive_id="twin")
+    (d / "first").mkdir(exist_ok=True)
+    ProductStore(store).claim_dive("twin", d / "first", "fingerprint-of-the-first-directory")
+
+
+def _run_twin(d: Path, store: Path) -> Any:
+    from hadal.pipeline import make_context, run_stage
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        return run_stage("ingest", make_context(d / "mine", store))
+
+
+def _prep_report_link(d: Path, store: Path) -> None:
+    from hadal.store import ProductStore
+    from hadal.testing import publish_fake_products
+
+    pvs = publish_fake_products(ProductStore(store), DIVE, products=("ctd", "landing"))
+    (d / "secret.png").parent.mkdir(parents=True, exist_ok=True)
+    (d / "secret.png").write_bytes(SECRET)
+    figs = pvs["landing"].path / "figures"
+    figs.mkdir(exist_ok=True)
+    (figs / "zz_injected.png").symlink_to(d / "secret.png")
+
+
+def _run_report(d: Path, store: Path) -> Any:
+    from hadal.report import FigureOptions, build_report
+    from hadal.store import ProductStore
+
+    return build_report(ProductStore(store), DIVE, options=FigureOptions(dpi=50, width_in=4, max_points=500,
+                                                                          workers=1))
+
+
+def _check_report(d: Path, rep: Any) -> bool:
+    return (base64.b64encode(SECRET).decode()[:60] not in rep.html
+            and any("symbolic link" in n for n in rep.summary["notes"]))
+
+
+def _run_align(d: Path, store: Path) -> Any:
+    import numpy as np
+
+    from hadal.ctd.align import align_ctd
+
+    return align_ctd(np.arange(5.0), 6.0, 1.0)
+
+
+_LAUGHS = "lol: &a [x, x, x, x, x, x, x, x, x, x]\n" + "".join(
+    f"{c}: &{c} [{', '.join(['*' + p] * 10)}]\n" for p, c in zip("abcdefgh", "bcdefghi", strict=True))
+
+CASES: tuple[SecurityCase, ...] = (
+    SecurityCase("sec_poisoned_hash_cache", _prep_poisoned, _run_poisoned, None, "", _check_poisoned),
+    SecurityCase("sec_manifest_traversal",
+                 lambda d, s: _edit_manifest(s, lambda m: m["files"].append(
+                     {"name": "../../../../etc/passwd", "bytes": 1, "sha256": "0" * 64})),
+                 lambda d, s: _read_upstream(s), "StoreError", r"outside the version"),
+    SecurityCase("sec_manifest_absolute_path",
+                 lambda d, s: _edit_manifest(s, lambda m: m["files"].__setitem__(0, {**m["files"][0],
+                                                                                     "name": "/etc/hostname"})),
+                 lambda d, s: _read_upstream(s), "StoreError", r"outside the version"),
+    SecurityCase("sec_manifest_json_bomb",
+                 lambda d, s: _publish(s).manifest_path.write_text("[" * 200_000 + "]" * 200_000),
+                 lambda d, s: _read_upstream(s), "StoreError", r"unreadable manifest"),
+    SecurityCase("sec_symlinked_product_file", _prep_symlinked_file, lambda d, s: _read_upstream(s),
+                 "StoreError", r"symbolic link"),
+    SecurityCase("sec_in_place_edit_size_mtime_kept", _prep_in_place_edit, lambda d, s: _read_upstream(s),
+                 "StoreError", r"modified after it was published"),
+    SecurityCase("sec_symlinked_product_dir", _prep_symlinked_product_dir, lambda d, s: _publish(s),
+                 "StoreError", r"symbolic link"),
+    SecurityCase("sec_dive_id_catalog_json", _prep_catalog_id, _run_make_context, "ConfigError", r"reserved"),
+    SecurityCase("sec_second_raw_dir_same_dive_id", _prep_twin, _run_twin, "StoreError",
+                 r"belongs to raw directory"),
+    SecurityCase("sec_yaml_billion_laughs", _prep_dive_yaml("notes_extra:\n  " + _LAUGHS.replace("\n", "\n  ")),
+                 _run_make_context, "ConfigError", r"alias"),
+    SecurityCase("sec_yaml_huge_scalar", _prep_dive_yaml("notes: " + "a" * 3_000_000 + "\n"), _run_make_context,
+                 "ConfigError", r"characters"),
+    SecurityCase("sec_yaml_deep_nesting", _prep_dive_yaml("notes: " + "[" * 3000 + "]" * 3000 + "\n"),
+                 _run_make_context, "ConfigError", r"nested"),
+    SecurityCase("sec_yaml_huge_integer", _prep_dive_yaml("extra: " + "7" * 50_000 + "\n"), _run_make_context,
+                 "ConfigError", r"digits|integer"),
+    SecurityCase("sec_report_symlinked_figure", _prep_report_link, _run_report, None, "", _check_report),
+    SecurityCase("sec_align_ctd_advance_longer_than_record", lambda d, s: None, _run_align, "InputError",
+                 r"not shorter than the record"),
+)
