@@ -2,7 +2,8 @@
 
 * :func:`read_soundings` - XYZ/CSV text soundings ``longitude_deg latitude_deg depth_m`` (whitespace or
   comma separated, optional header, ``#`` comments, ``.gz``/``.bz2``/``.xz`` transparently);
-* :func:`read_point_cloud` - PLY/PCD (open3d) and LAS/LAZ (laspy; LAZ needs a laspy LAZ backend);
+* :func:`read_point_cloud` - PLY (open3d), PCD (pypcd4) and LAS/LAZ (laspy; LAZ needs a laspy LAZ backend),
+  LAS/PCD read by their metadata (:mod:`hadal.grid.clouds`);
 * :func:`read_grid` - GeoTIFF (rasterio) and NetCDF/GMT grids (xarray) as an ``(y, x)`` DataArray with
   ascending coordinates, detecting rasters whose geographic CRS tag is wrong (:func:`looks_metric`);
 * :func:`read_gsf` - GSF swath bathymetry via the maintained ``gsfpy`` bindings of libgsf.
@@ -119,8 +120,10 @@ def reader_of(kind: str) -> str:
         return f"rasterio {rasterio.__version__} (GDAL {rasterio.__gdal_version__})"
     if kind == "netcdf":
         return f"xarray {v('xarray')} (netCDF4 {v('netCDF4', 'netcdf4')})"
-    if kind in ("ply", "pcd"):
+    if kind == "ply":
         return f"open3d {v('open3d', 'open3d-cpu')}"
+    if kind == "pcd":
+        return f"pypcd4 {v('pypcd4')}"
     if kind == "las":
         return f"laspy {v('laspy')}"
     if kind == "xyz":
@@ -130,18 +133,27 @@ def reader_of(kind: str) -> str:
 
 def read_point_cloud(path: str | Path, *, format: str | None = None, columns: list[str] | None = None,
                      ) -> np.ndarray:
-    """Read a point cloud as an ``(N, 3)`` float64 array of x, y, z.
+    """Read a point cloud as an ``(N, 3)`` float64 array of x, y, z (:func:`read_point_cloud_meta` without its
+    metadata: LAS/LAZ coordinates in metres, z as stored for PLY and xyz text)."""
+    return read_point_cloud_meta(path, format=format, columns=columns)[0]
+
+
+def read_point_cloud_meta(path: str | Path, *, format: str | None = None, columns: list[str] | None = None,
+                          hints=None) -> tuple[np.ndarray, dict]:
+    """Read a point cloud as an ``(N, 3)`` float64 array of x, y, z and what its metadata says.
 
     The format is detected from the content (:func:`sniff_kind`), not the name; ``format`` overrides
-    (``ply``, ``pcd``, ``las``/``laz``, ``xyz``). PLY/PCD are read with open3d, LAS/LAZ with laspy (LAZ
-    needs a laspy LAZ backend such as ``lazrs``), xyz text (whitespace/comma separated, optional header,
-    ``#`` comments, gzip/bz2/xz) with pandas; ``columns`` names the text columns (``x``/``lon``/``easting``,
-    ``y``/``lat``/``northing``, ``z``/``depth``/``elevation``; default: the first three). z is returned as
-    stored (the caller applies the sign convention).
+    (``ply``, ``pcd``, ``las``/``laz``, ``xyz``). LAS/LAZ (laspy) and PCD (pypcd4) are read by their metadata
+    (:mod:`hadal.grid.clouds`: CRS and linear units from the file, x/y/z in metres, z elevation positive up;
+    ``hints`` - a dive.yaml :class:`hadal.dive.SourceFile` - may set ``crs``/``z_positive``); PLY with open3d,
+    xyz text (whitespace/comma separated, optional header, ``#`` comments, gzip/bz2/xz) with pandas;
+    ``columns`` names the text columns (``x``/``lon``/``easting``, ``y``/``lat``/``northing``,
+    ``z``/``depth``/``elevation``; default: the first three). PLY and xyz carry no vertical metadata: their z is
+    returned as stored and the metadata has no ``z_positive`` (the caller decides).
     """
     p = _require_file(path, "point cloud")
     kind = _kind_of(p, format)
-    if kind in ("ply", "pcd"):
+    if kind == "ply":
         import open3d as o3d
 
         with _quiet_open3d(o3d):
@@ -149,33 +161,18 @@ def read_point_cloud(path: str | Path, *, format: str | None = None, columns: li
         pts = np.asarray(pc.points, dtype=np.float64)
         if len(pts) == 0:
             raise InputError(f"{p}: no points read (truncated or not a {kind.upper()} point cloud)")
-        if kind == "ply":
-            _check_ply_count(p, len(pts))
-        return pts
-    if kind == "las":
-        import laspy
+        _check_ply_count(p, len(pts))
+        return pts, {"format": kind}
+    if kind == "pcd":
+        from hadal.grid.clouds import read_pcd
 
-        try:
-            _check_las_count(p, laspy)
-            las = laspy.read(str(p))
-        except InputError:
-            raise
-        except MemoryError:
-            raise InputError(f"{p}: cannot read LAS/LAZ (its point count does not fit in memory)") from None
-        except laspy.errors.LaspyException as exc:
-            msg = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
-            if "backend" in msg.lower() or "laz" in msg.lower():
-                msg += " (LAZ needs a backend: pip install lazrs)"
-            raise InputError(f"{p}: cannot read LAS/LAZ ({msg})") from None
-        except (OSError, ValueError, EOFError) as exc:
-            raise InputError(f"{p}: cannot read LAS/LAZ ({str(exc).splitlines()[0] if str(exc) else exc!r})") from None
-        pts = np.column_stack([np.asarray(las.x, np.float64), np.asarray(las.y, np.float64),
-                               np.asarray(las.z, np.float64)])
-        if len(pts) == 0:
-            raise InputError(f"{p}: LAS file has no points")
-        return pts
+        return read_pcd(p, hints)
+    if kind == "las":
+        from hadal.grid.clouds import read_las
+
+        return read_las(p, hints)
     if kind == "xyz":
-        return _read_xyz_cloud(p, columns)
+        return _read_xyz_cloud(p, columns), {"format": kind}
     if kind in _GRID_KINDS:
         raise InputError(f"{p}: is a {kind} raster, not a point cloud")
     raise InputError(f"{p}: unsupported point cloud format (content is not PLY, PCD, LAS/LAZ or xyz text; "
