@@ -1083,6 +1083,36 @@ def read_gsf(path: str | Path, *, include_flagged: bool = False, isolate: bool =
     raise InputError(f"{p}: the GSF reader failed ({last or f'exit status {proc.returncode}'})")
 
 
+def gsf_file_version(path: str | Path) -> str:
+    """The GSF version of a file (``"03.06"``) from its header record, the first record of every GSF file
+    (u32 size, u32 id 1, ``GSF-vNN.NN``); ``""`` when it is not there."""
+    import re
+
+    with open(path, "rb") as fh:
+        head = fh.read(32)
+    m = re.search(rb"GSF-v(\d{1,2}\.\d{1,2})", head)
+    return m.group(1).decode() if m else ""
+
+
+def _libgsf_version() -> str:
+    """The libgsf that gsfpy uses (its ``DEFAULT_GSF_VERSION``: ``3.08`` unless set)."""
+    try:
+        from gsfpy import get_default_gsf_version
+    except ImportError:  # pragma: no cover - older gsfpy
+        return "?"
+    return get_default_gsf_version().replace("_", ".")
+
+
+def _gsf_ping_position(ping) -> tuple[float, float]:
+    """``(latitude, longitude)`` of a gsfpy swath ping: libgsf's ``gsfSwathBathyPing`` holds the latitude in the
+    first double after ``ping_time`` and the longitude in the second, whatever names the ctypes binding gives
+    them (gsfpy 2.0.0 calls them longitude, latitude)."""
+    names = [f[0] for f in type(ping)._fields_]
+    i = names.index("ping_time")
+    first, second = names[i + 1], names[i + 2]
+    return float(getattr(ping, first)), float(getattr(ping, second))
+
+
 def _read_gsf_here(path: str | Path, *, include_flagged: bool = False) -> pd.DataFrame:
     """Soundings of a GSF file as ``longitude_deg, latitude_deg, depth_m, ping`` (one row per beam).
 
@@ -1091,10 +1121,16 @@ def _read_gsf_here(path: str | Path, *, include_flagged: bool = False) -> pd.Dat
     converted to degrees on the WGS84 ellipsoid with pyproj ``Geod.fwd``. Beams whose GSF beam flag
     has the *ignore* bit (0x01) set, and null depths, are dropped unless ``include_flagged``.
 
-    Note: gsfpy 2.0.0's ctypes ``c_gsfSwathBathyPing`` declares ``longitude`` before ``latitude``,
-    whereas libgsf's ``gsfSwathBathyPing`` stores latitude first, so the Python field named
-    ``longitude`` holds the latitude; we read them swapped (checked on the Okeanos Explorer EX1604
-    file: 8.71 N 167.48 E, Kwajalein).
+    Note: gsfpy 2.0.0's ctypes ``c_gsfSwathBathyPing`` (both its libgsf 3.08 and 3.09 bindings) declares
+    ``longitude`` before ``latitude``, whereas libgsf's ``gsfSwathBathyPing`` stores latitude first, so the
+    Python field named ``longitude`` holds the latitude; :func:`_gsf_ping_position` reads the first double after
+    ``ping_time`` as the latitude whatever the binding calls it (checked on the Okeanos Explorer EX1604 file:
+    8.71 N 167.48 E, Kwajalein), so a gsfpy that fixes the names keeps working.
+
+    GSF versions: libgsf reads every 3.x file version (its record layouts are decoded by the version in the file's
+    header record; newer sensor-specific subrecords are skipped by their size); the EX1604 file (GSF-v03.06) gives
+    the same soundings through gsfpy's libgsf 3.08 and 3.09 (``DEFAULT_GSF_VERSION``), also relabelled v03.01 ..
+    v03.11 (tests/test_gsf_versions.py). ``attrs`` record the file's ``gsf_version`` and the ``libgsf`` used.
 
     ``attrs``: ``reader`` ("gsfpy <version>"), ``format``, ``pings``, ``beams_per_ping``, ``soundings``,
     ``dropped`` (flagged or null beams), ``time_start``/``time_end`` (ISO 8601 UTC). A file with no swath
@@ -1131,7 +1167,7 @@ def _read_gsf_here(path: str | Path, *, include_flagged: bool = False) -> pd.Dat
                 continue
             beams_max = max(beams_max, n)
             times.append(ping.ping_time.tv_sec + 1e-9 * ping.ping_time.tv_nsec)
-            lat0, lon0 = float(ping.longitude), float(ping.latitude)  # swapped, see docstring
+            lat0, lon0 = _gsf_ping_position(ping)
             depth = np.ctypeslib.as_array(ping.depth, shape=(n,)).astype(np.float64)
             across = np.ctypeslib.as_array(ping.across_track, shape=(n,)).astype(np.float64) \
                 if ping.across_track else np.zeros(n)
@@ -1164,6 +1200,7 @@ def _read_gsf_here(path: str | Path, *, include_flagged: bool = False) -> pd.Dat
     from hadal.grid.sonar import _iso
 
     df.attrs.update({"reader": f"gsfpy {md.version('gsfpy')}", "format": "gsf", "pings": k,
+                     "gsf_version": gsf_file_version(p), "libgsf": _libgsf_version(),
                      "beams_per_ping": beams_max, "soundings": len(df), "dropped": dropped,
                      "crs_kind": "geographic", "z_positive": "down",
                      "time_start": _iso(min(times)), "time_end": _iso(max(times))})
