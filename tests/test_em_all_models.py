@@ -130,3 +130,58 @@ def test_em3000_little_endian_copy_reads_the_same(em3000, tmp_path):
     assert b.attrs["byte_order"] == "little" and len(a) == len(b)
     for c in ("longitude_deg", "latitude_deg", "depth_m"):
         np.testing.assert_allclose(a[c].to_numpy(), b[c].to_numpy(), rtol=0, atol=1e-9)
+
+
+def _rewrite(order, dgms, edit):
+    """The datagrams written back (big-endian as read) after ``edit(typ, bytearray body)``, checksums redone."""
+    out = bytearray()
+    for typ, _model, _date, _t, b in dgms:
+        nb = bytearray(b)
+        edit(typ, nb)
+        struct.pack_into(order + "H", nb, len(nb) - 2, sum(nb[1:-3]) & 0xFFFF)
+        out += struct.pack(order + "I", len(nb)) + nb
+    return bytes(out)
+
+
+@pytest.mark.parametrize("psv,shift_m", [(b"2.1.2", 655.36), (b"1.5.3", 0.0)])
+def test_em3000_offset_multiplier_follows_the_processor_software(em3000, tmp_path, psv, shift_m):
+    """MB-System's mbr_em300raw_rd_bath: the transducer-depth offset multiplier (x 655.36 m) counts for EM 3000
+    processors from software 2.0.0 on and is ignored before (they did not write it)."""
+    from hadal.grid.sonar import read_multibeam
+
+    order, dgms = _walk(em3000)
+    ref = read_multibeam(em3000)
+
+    def edit(typ, b):
+        if typ == 0x49:
+            i = bytes(b).index(b"PSV=") + 4
+            b[i:i + 5] = psv
+        elif typ == 0x44:
+            nvalid = b[23]  # HHHBBBBH at 16: heading, ssv, tdepth, max beams, N, ...
+            b[28 + 16 * nvalid] = 1  # offset multiplier 1 in every Depth datagram
+
+    (tmp_path / "m.all").write_bytes(_rewrite(order, dgms, edit))
+    got = read_multibeam(tmp_path / "m.all")
+    np.testing.assert_allclose(got["depth_m"].to_numpy(), ref["depth_m"].to_numpy() + shift_m, atol=1e-3)
+
+
+def test_em_all_broken_depth_datagram_is_dropped_and_counted(em3000, tmp_path):
+    from hadal.grid.sonar import read_multibeam
+
+    order, dgms = _walk(em3000)
+    ref = read_multibeam(em3000)
+    seen = []
+
+    def edit(typ, b):
+        if typ == 0x44:
+            seen.append(1)
+            if len(seen) == 5:  # beam numbers of the 5th ping in reverse order: a broken record
+                nvalid = b[23]  # HHHBBBBH at 16: heading, ssv, tdepth, max beams, N, ...
+                nums = [b[28 + 16 * i + 15] for i in range(nvalid)]
+                for i, v in enumerate(reversed(nums)):
+                    b[28 + 16 * i + 15] = v
+
+    (tmp_path / "b.all").write_bytes(_rewrite(order, dgms, edit))
+    got = read_multibeam(tmp_path / "b.all")
+    assert got.attrs["depth_datagrams_broken"] == 1 and got.attrs["pings"] == 66
+    assert len(got) == len(ref) - int((ref["ping"] == 4).sum())
