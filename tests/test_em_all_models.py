@@ -185,3 +185,18 @@ def test_em_all_broken_depth_datagram_is_dropped_and_counted(em3000, tmp_path):
     got = read_multibeam(tmp_path / "b.all")
     assert got.attrs["depth_datagrams_broken"] == 1 and got.attrs["pings"] == 66
     assert len(got) == len(ref) - int((ref["ping"] == 4).sum())
+
+
+def test_em_all_starting_with_any_datagram_type_is_detected(em3000, tmp_path):
+    """A file whose first datagram is a type not usually first (a Tide 'T' datagram here): recognised by its ETX and
+    checksum (formats.detect), read as before."""
+    from hadal.formats import detect
+    from hadal.grid.sonar import read_multibeam
+
+    order, dgms = _walk(em3000)
+    tide = bytearray(b"\x02T" + struct.pack(">HIIHH", 3000, 19990217, 55600000, 1, 207) + struct.pack(">HHhB", 1, 0, 12, 0)
+                     + b"\x03\x00\x00")
+    struct.pack_into(">H", tide, len(tide) - 2, sum(tide[1:-3]) & 0xFFFF)
+    (tmp_path / "t.bin").write_bytes(struct.pack(">I", len(tide)) + bytes(tide) + em3000.read_bytes())
+    assert detect(tmp_path / "t.bin").kind == "em_all"
+    assert len(read_multibeam(tmp_path / "t.bin")) == 7537

@@ -219,3 +219,15 @@ def test_las_in_feet_through_the_laser_stage(tmp_path):
                                np.mean(ref[:, 2]) * 0.3048, atol=0.05)
     assert abs(float(ds["x"].values[-1] - ds["x"].values[0]) - 60 * 0.3048) < 2 * 2.0
     assert "(axes in metres)" in ds.attrs["source_crs_wkt"]
+
+
+def test_pcd_declaring_more_points_than_memory_or_file_is_refused(tmp_path):
+    from hadal.grid.clouds import read_pcd
+
+    f = tmp_path / "big.pcd"
+    f.write_bytes(_pcd_header(["x", "y", "z"], [8, 8, 8], "FFF", 10**12, "binary_compressed") + b"\0" * 64)
+    with pytest.raises(InputError, match="declares 1,000,000,000,000 points"):
+        read_pcd(f)
+    f.write_bytes(_pcd_header(["x", "y", "z"], [8, 8, 8], "FFF", 1000, "binary") + b"\0" * 240)
+    with pytest.raises(InputError, match="holds at most 10 "):
+        read_pcd(f)

@@ -19,6 +19,7 @@ A ``crs`` / ``z_positive`` given in dive.yaml wins over the file. Failures are o
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 from typing import Any
 
@@ -229,6 +230,37 @@ def _pcd_field(fields: tuple[str, ...], name: str) -> str | None:
     return next((f for f in fields if f.lower() == name), None)
 
 
+def _check_pcd_size(p: Path) -> None:
+    """Refuse a PCD whose header declares more points than its binary data holds (truncated) or than the memory
+    budget allows (a compressed block decompresses to the declared size), before the data is read."""
+    from hadal.budget import format_bytes, memory_limit_bytes
+
+    with open(p, "rb") as fh:
+        head = fh.read(1 << 16)
+    fields: dict[str, list[str]] = {}
+    end = -1
+    for m in re.finditer(rb"[^\n]*\n", head):
+        tok = m.group().decode("ascii", errors="replace").split()
+        if tok and not tok[0].startswith("#"):
+            fields[tok[0].upper()] = tok[1:]
+        if tok and tok[0].upper() == "DATA":
+            end = m.end()
+            break
+    try:
+        n = int(fields["POINTS"][0])
+        record = sum(int(s) * int(c) for s, c in zip(fields["SIZE"], fields.get("COUNT", ["1"] * len(fields["SIZE"])),
+                                                      strict=False))
+    except (KeyError, IndexError, ValueError):
+        return  # not a header this check understands: pypcd4 says what is wrong
+    need = n * (record + 24)
+    if need > memory_limit_bytes(None):
+        raise InputError(f"{p}: PCD declares {n:,} points; reading them needs about {format_bytes(need)} "
+                         f"(limit {format_bytes(memory_limit_bytes(None))}): thin or tile the cloud first")
+    if end > 0 and fields.get("DATA", [""])[0].lower() == "binary" and end + n * record > p.stat().st_size:
+        have = max(p.stat().st_size - end, 0) // max(record, 1)
+        raise InputError(f"{p}: PCD header declares {n:,} points but the file holds at most {have:,} (truncated?)")
+
+
 def read_pcd(path: str | Path, hints=None) -> tuple[np.ndarray, dict[str, Any]]:
     """A PCD cloud (ascii, binary or binary_compressed; any field sizes/types; ``x y z`` in any case) as
     ``(N, 3)`` float64 x, y, z and its metadata (``format``, ``pcd_version``, ``pcd_data``, ``fields``,
@@ -239,6 +271,7 @@ def read_pcd(path: str | Path, hints=None) -> tuple[np.ndarray, dict[str, Any]]:
         from pypcd4 import PointCloud
     except ImportError:  # pragma: no cover - a declared dependency
         raise InputError(f"{p}: reading PCD needs pypcd4 (pip install pypcd4)") from None
+    _check_pcd_size(p)
     try:
         pc = PointCloud.from_path(p)
     except InputError:
