@@ -231,3 +231,39 @@ def test_pcd_declaring_more_points_than_memory_or_file_is_refused(tmp_path):
     f.write_bytes(_pcd_header(["x", "y", "z"], [8, 8, 8], "FFF", 1000, "binary") + b"\0" * 240)
     with pytest.raises(InputError, match="holds at most 10 "):
         read_pcd(f)
+
+
+def test_lonlat_las_is_gridded_in_the_dive_map_frame(tmp_path):
+    """A LAS in EPSG:4326 (x = lon, y = lat): `hadal init` centres the map frame on it and the laser grid is in that
+    transverse-Mercator frame (metres), its extent pyproj's projection of the file's lon/lat."""
+    import laspy
+    from pyproj import CRS, Transformer
+
+    from hadal.dive_init import scan_dive_dir, write_init
+    from hadal.pipeline import make_context, run_stage
+
+    rng = np.random.default_rng(8)
+    n = 3000
+    lon, lat = 142.2 + rng.uniform(0, 4e-4, n), 11.33 + rng.uniform(0, 4e-4, n)
+    h = laspy.LasHeader(point_format=6, version="1.4")
+    h.add_crs(CRS("EPSG:4326"))
+    h.scales, h.offsets = [1e-8, 1e-8, 0.001], [142.0, 11.0, 0.0]
+    las = laspy.LasData(h)
+    las.x, las.y, las.z = lon, lat, -10900 + rng.normal(0, 0.02, n)
+    raw = tmp_path / "raw"
+    raw.mkdir()
+    las.write(raw / "geo.las")
+    write_init(scan_dive_dir(raw))
+    d = yaml.safe_load((raw / "dive.yaml").read_text())
+    assert d["sources"]["laser"] == ["geo.las"] and abs(d["map_frame"]["origin_latitude_deg"] - 11.3302) < 1e-3
+    (raw / "pipeline.yaml").write_text("grid: {laser_resolution_m: 2.0, laser_sor_neighbors: 0}\n")
+    ds = _open(run_stage("laser", make_context(raw, tmp_path / "store"))["laser_grids"], "geo.nc")
+    mf = d["map_frame"]
+    tm = CRS.from_proj4(f"+proj=tmerc +lat_0={mf['origin_latitude_deg']} +lon_0={mf['origin_longitude_deg']} +k=1 "
+                        "+x_0=0 +y_0=0 +datum=WGS84 +units=m +no_defs")
+    x, y = Transformer.from_crs(4326, tm, always_xy=True).transform(np.asarray(las.x), np.asarray(las.y))
+    r = ds.attrs["resolution"]
+    assert abs(ds["x"].values[0] - x.min()) < r and abs(ds["x"].values[-1] - x.max()) < r
+    assert abs(ds["y"].values[0] - y.min()) < r and abs(ds["y"].values[-1] - y.max()) < r
+    assert ds.attrs["source_crs_kind"] == "geographic" and "map frame" in ds["x"].attrs["long_name"]
+    assert -10901 < float(np.nanmean(ds["elevation_m"])) < -10899

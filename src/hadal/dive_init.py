@@ -300,7 +300,8 @@ def _scan_files(res: InitResult, scan: _Scan, raw: Path) -> None:
         else:
             res.not_used.append(f"{rel}: {info.get('description') or kind} (not a dive source)")
             continue
-        c = _lonlat_centre(info)
+        # a projected point cloud keeps its own CRS (its laser grid is not in the map frame): no say in the frame
+        c = None if kind in ("ply", "pcd", "las") and _crs_kind(info) != "geographic" else _lonlat_centre(info)
         if c is not None:
             scan.centres.append(c)
             if (box := _lonlat_box(info)) is not None:
