@@ -267,3 +267,20 @@ def test_lonlat_las_is_gridded_in_the_dive_map_frame(tmp_path):
     assert abs(ds["y"].values[0] - y.min()) < r and abs(ds["y"].values[-1] - y.max()) < r
     assert ds.attrs["source_crs_kind"] == "geographic" and "map frame" in ds["x"].attrs["long_name"]
     assert -10901 < float(np.nanmean(ds["elevation_m"])) < -10899
+
+
+def test_laz_in_us_survey_feet(tmp_path):
+    """LAZ (lazrs) with a compound CRS in US survey feet (NAD83(2011) / Oregon GIC Lambert (ft) + NAVD88 (ftUS)):
+    metres by the CRS's own factors, not labelled metres as read."""
+    pytest.importorskip("lazrs")
+    from hadal.formats import detect
+    from hadal.grid.readers import read_point_cloud_meta
+
+    rng = np.random.default_rng(9)
+    xyz = np.column_stack([1.2e6 + rng.uniform(0, 100, 300), 4.0e5 + rng.uniform(0, 100, 300), rng.uniform(50, 90, 300)])
+    ref = _write_las(tmp_path / "c.laz", "EPSG:6557+6360", xyz, version="1.4", point_format=6)
+    assert detect(tmp_path / "c.laz").kind == "las"
+    pts, meta = read_point_cloud_meta(tmp_path / "c.laz")
+    np.testing.assert_allclose(pts[:, :2], ref[:, :2] * 0.3048, rtol=1e-15)
+    np.testing.assert_allclose(pts[:, 2], ref[:, 2] * 1200 / 3937, rtol=1e-12)
+    assert meta["vertical_units"] == "US survey foot" and meta["z_positive"] == "up"
