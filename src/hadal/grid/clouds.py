@@ -230,6 +230,19 @@ def _pcd_field(fields: tuple[str, ...], name: str) -> str | None:
     return next((f for f in fields if f.lower() == name), None)
 
 
+def _pcd_error(exc: BaseException) -> str:
+    """pypcd4's error in one line: a header pydantic refuses is named by its missing/invalid entries."""
+    errors = getattr(exc, "errors", None)
+    if callable(errors):
+        try:
+            bad = sorted({str(e["loc"][0]).upper() for e in errors() if e.get("loc")})
+        except Exception:  # noqa: BLE001 - not a pydantic error after all
+            bad = []
+        if bad:
+            return f"header entries missing or invalid: {', '.join(bad)}"
+    return _first_line(exc)
+
+
 def _check_pcd_size(p: Path) -> None:
     """Refuse a PCD whose header declares more points than its binary data holds (truncated) or than the memory
     budget allows (a compressed block decompresses to the declared size), before the data is read."""
@@ -279,7 +292,7 @@ def read_pcd(path: str | Path, hints=None) -> tuple[np.ndarray, dict[str, Any]]:
     except MemoryError:
         raise InputError(f"{p}: cannot read PCD (its point count does not fit in memory)") from None
     except Exception as exc:  # noqa: BLE001 - pypcd4 raises ValueError, KeyError, struct and LZF errors
-        raise InputError(f"{p}: not a readable PCD point cloud ({_first_line(exc)})") from None
+        raise InputError(f"{p}: no points read (not a readable PCD point cloud: {_pcd_error(exc)})") from None
     md = pc.metadata
     fields = tuple(md.fields)
     names = [_pcd_field(fields, n) for n in ("x", "y", "z")]
