@@ -60,7 +60,9 @@ def test_init_writes_validates_and_never_overwrites(tmp_path):
     res = hadal("init", str(raw))
     assert res.returncode == 0, res.stderr
     d = yaml.safe_load((raw / "dive.yaml").read_text())
-    assert d["sources"] == {"multibeam": ["soundings.xyz"]}
+    # lon/lat and depth were guessed from the values: written as explicit, commented hints (issue 43)
+    assert d["sources"] == {"multibeam": [{"path": "soundings.xyz", "crs": "EPSG:4326", "z_positive": "down"}]}
+    assert "# guessed by hadal init, change if wrong: x/y taken as longitude/latitude" in (raw / "dive.yaml").read_text()
     assert d["map_frame"]["origin_latitude_deg"] == pytest.approx(11.0095, abs=1e-3)
     again = hadal("init", str(raw))
     assert again.returncode == 2 and "already exist" in again.stderr and len(again.stderr.strip().splitlines()) == 1

@@ -278,16 +278,22 @@ def test_laser_point_clouds_of_any_name_are_analysed(tmp_path):
     las.x, las.y, las.z = pts[:, 0], pts[:, 1], pts[:, 2]
     las.write(raw / "survey.bin")
     np.savetxt(raw / "pts.txt", cloud(20_000), header="x,y,z", delimiter=",", comments="")
-    _dive(raw, {"laser": ["a/scan", "b/scan.ply", "dive3.cloud", "survey.bin", "pts.txt"]})
+    las.write(raw / "survey_up.bin")  # the same depths, not declared: LAS Z is elevation (ASPRS), kept as such
+    _dive(raw, {"laser": ["a/scan", "b/scan.ply", "dive3.cloud", {"path": "survey.bin", "z_positive": "down"},
+                         "survey_up.bin", "pts.txt"]})
     (raw / "pipeline.yaml").write_text("grid: {laser_resolution_m: 0.02, laser_sor_neighbors: 0}\n"
                                        "landing: {heading_step_deg: 45, figures: false, min_site_radius_m: 0.1}\n")
     ctx = make_context(raw, tmp_path / "store")
     lgv = run_stage("grid", ctx)["laser_grids"]
     names = sorted(f["name"] for f in lgv.manifest()["files"])
-    assert names == ["dive3.nc", "pts.nc", "scan.nc", "scan_ply.nc", "survey.nc"]
-    las_grid = _open(lgv, "survey.nc")
+    assert names == ["dive3.nc", "pts.nc", "scan.nc", "scan_ply.nc", "survey.nc", "survey_up.nc"]
+    las_grid = _open(lgv, "survey.nc")  # depths declared in dive.yaml: negated
     assert las_grid.attrs["source_format"] == "las" and las_grid.attrs["z_positive_source"] == "down"
+    assert las_grid.attrs["z_sign_detection"] == "z_positive given in dive.yaml"
     assert -1401 < float(np.nanmean(las_grid["elevation_m"])) < -1399
+    las_up = _open(lgv, "survey_up.nc")  # not declared: the file's Z is elevation, never negated by its sign
+    assert las_up.attrs["z_positive_source"] == "up" and las_up.attrs["z_sign_flipped"] == 0
+    assert 1399 < float(np.nanmean(las_up["elevation_m"])) < 1401
     for n in names:
         g = _open(lgv, n)
         assert {"elevation_m", "count"} <= set(g.data_vars) and g.attrs["resolution"] == 0.02

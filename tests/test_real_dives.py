@@ -39,6 +39,10 @@ EXPECTED: dict[str, set[str]] = {
     "formats-real/kongsberg_em_driver_MRZ_versionF.kmall": {"dtm"},
     "formats-real/mbsys_nbp1403-filtered-em120.all": {"dtm"},
     "formats-real/mbsys_TN136HS.309.snipped.s7k": set(),  # no pings: recognised, said so, nothing to grid
+    # point clouds read by their metadata (CRS, units, z up) and a big-endian EM3000 .all (content: below)
+    "dives-real/pdal_autzen-utm.las": {"laser_grids"},
+    "dives-real/pdal_autzen-utm.pcd": {"laser_grids"},
+    "dives-real/pdal_mbf_em300raw.all": {"dtm", "suitability"},
     "mcap-real/rosbag2_talker.mcap": set(),  # std_msgs/String only: nothing maps to a sensor
     "mcap-real/rosbag2_cdr_test_0.mcap": set(),
     "mcap-real/rosbag2_test_bag_for_seek_0.mcap": set(),
@@ -184,3 +188,45 @@ def test_report_lists_every_cast(shared_data, tmp_path):
     assert sorted(c["max_pressure_dbar"] for c in casts) == pytest.approx(oracle, abs=0.01)
     html = ctx.store.latest(ctx.dive_id, "report").file("report.html").read_text()
     assert "Other casts of this dive" in html
+
+
+@pytest.mark.parametrize("rel", ["dives-real/pdal_autzen-utm.las", "dives-real/pdal_autzen-utm.pcd",
+                                 "dives-real/pdal_mbf_em300raw.all"])
+def test_real_point_clouds_and_em3000_content(shared_data, tmp_path, rel):
+    """The dive of each file alone, after `hadal init`: the laser grid of PDAL's autzen LAS/PCD holds laspy's own
+    elevations (123.93..178.73 m, positive up, all 1065 points, NAD83 / UTM 10N for the LAS); the EM3000 DTM holds
+    depths of 4.0-4.85 m (2.42-3.23 m below the transducer + its 1.59-1.62 m) around 27.7594 N 82.6328 W."""
+    import laspy
+    import numpy as np
+    import xarray as xr
+
+    from hadal.pipeline import make_context, run_pipeline
+
+    src = shared_data / rel
+    if not src.is_file():
+        pytest.skip(f"{rel} not present")
+    raw = tmp_path / "dive"
+    raw.mkdir()
+    shutil.copy(src, raw / src.name)
+    write_init(scan_dive_dir(raw))
+    ctx = make_context(raw, tmp_path / "store")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        run_pipeline(ctx)
+    if rel.endswith(".all"):
+        with xr.open_dataset(ctx.store.latest(ctx.dive_id, "dtm").file("dtm.nc"), engine="h5netcdf") as ds:
+            dep, lat, lon = ds["depth_m"].values, ds["lat"].values, ds["lon"].values
+        ok = np.isfinite(dep)
+        assert ok.sum() > 10 and 4.0 <= np.nanmin(dep) < np.nanmax(dep) <= 4.85
+        assert np.all(np.abs(lat[ok] - 27.7594) < 2e-4) and np.all(np.abs(lon[ok] + 82.6328) < 2e-4)
+        assert ctx.store.has(ctx.dive_id, "suitability")
+        return
+    las = laspy.read(str(shared_data / "dives-real/pdal_autzen-utm.las"))
+    lg = ctx.store.latest(ctx.dive_id, "laser_grids")
+    with xr.open_dataset(lg.file(src.stem + ".nc"), engine="h5netcdf") as ds:
+        e, n, attrs = ds["elevation_m"].values, int(ds["count"].sum()), dict(ds.attrs)
+    z = np.asarray(las.z)
+    assert attrs["z_sign_flipped"] == 0 and ds["elevation_m"].attrs["positive"] == "up"
+    assert z.min() - 1e-9 <= np.nanmin(e) < np.nanmax(e) <= z.max() + 1e-9 and n + attrs["n_points_outliers"] == 1065
+    if src.suffix == ".las":
+        assert attrs["source_crs_epsg"] == 26910 and attrs["source_horizontal_units"] == "metre"

@@ -54,6 +54,8 @@ class InitResult:
     todo: list[str] = field(default_factory=list)
     #: the stages the data supports (:func:`hadal.plan.plan_stages`), filled by :func:`scan_dive_dir`
     plan: list[Any] = field(default_factory=list)
+    #: source path -> why its reading hints were written (a heuristic's choice): a comment above its entry
+    source_notes: dict[str, str] = field(default_factory=dict)
 
     def dive_yaml(self) -> str:
         return render_dive_yaml(self)
@@ -109,6 +111,27 @@ def xyz_role(info: dict[str, Any]) -> str:
         return "multibeam"
     ext = _extent_m(info)
     return "laser" if ext is not None and ext < LASER_MAX_EXTENT_M else "multibeam"
+
+
+def xyz_hints(rel: str, info: dict[str, Any]) -> tuple[str | dict[str, Any], str]:
+    """The ``dive.yaml`` entry of an xyz soundings file and why: what the reader could only guess from the values
+    (lon/lat by their ranges, depth or elevation by the sign of the median; :func:`hadal.grid.sonar._iter_xyz`) is
+    written as an explicit hint the user can change - ``crs: EPSG:4326`` for lon/lat, ``z_positive`` - so that the
+    run does not depend on the guess. A header or a declared hint already said it: the plain path."""
+    hints: dict[str, Any] = {}
+    why: list[str] = []
+    if info.get("crs_from") == "values" and info.get("crs_kind") == "geographic":
+        lo, la = info.get("longitude_deg") or [None, None], info.get("latitude_deg") or [None, None]
+        hints["crs"] = "EPSG:4326"
+        span = (f" (x {lo[0]:.4g}..{lo[1]:.4g}, y {la[0]:.4g}..{la[1]:.4g})" if _finite(*lo, *la) else "")
+        why.append(f"x/y taken as longitude/latitude from their value ranges{span}: crs EPSG:4326")
+    if info.get("z_positive_from") == "values" and info.get("z_positive") in ("up", "down"):
+        hints["z_positive"] = info["z_positive"]
+        why.append("z taken as " + ("elevation (negative median)" if info["z_positive"] == "up" else
+                                    "depth (positive median)") + f": z_positive {info['z_positive']}")
+    if not hints:
+        return rel, ""
+    return {"path": rel, **hints}, "guessed by hadal init, change if wrong: " + "; ".join(why)
 
 
 def _extent_m(info: dict[str, Any]) -> float | None:
@@ -270,8 +293,11 @@ def _scan_files(res: InitResult, scan: _Scan, raw: Path) -> None:
                 continue
         elif kind in ("xyz", "gsf", "kmall", "em_all", "s7k"):
             role = xyz_role(info) if kind == "xyz" else "multibeam"
-            sources[role].append(rel)
-            res.mapped.append(f"{rel}: {kind} -> sources.{role}")
+            entry, note = xyz_hints(rel, info) if kind == "xyz" and role == "multibeam" else (rel, "")
+            sources[role].append(entry)
+            res.mapped.append(f"{rel}: {kind} -> sources.{role}" + (f" ({note})" if note else ""))
+            if note:
+                res.source_notes[rel] = note
         elif kind in ("geotiff", "netcdf"):
             role = grid_role(info)
             sources[role].append(rel)
@@ -282,7 +308,8 @@ def _scan_files(res: InitResult, scan: _Scan, raw: Path) -> None:
         else:
             res.not_used.append(f"{rel}: {info.get('description') or kind} (not a dive source)")
             continue
-        c = _lonlat_centre(info)
+        # a projected point cloud keeps its own CRS (its laser grid is not in the map frame): no say in the frame
+        c = None if kind in ("ply", "pcd", "las") and _crs_kind(info) != "geographic" else _lonlat_centre(info)
         if c is not None:
             scan.centres.append(c)
             if (box := _lonlat_box(info)) is not None:
@@ -339,10 +366,17 @@ def _set_launch(res: InitResult, dive: dict[str, Any], scan: _Scan, launch: tupl
 def _set_map_frame(res: InitResult, dive: dict[str, Any], centres: list[tuple[float, float]]) -> None:
     """Set ``dive["map_frame"]`` to the centre of the soundings'/grids' geographic extents, if any."""
     if centres:
-        lon_c = sum(c[0] for c in centres) / len(centres)
+        lon_first = centres[0][0]  # mean of the longitudes unwrapped around the first (0-360 and -180-180 alike)
+        lon_c = sum(lon_first + _wrap180(c[0] - lon_first) for c in centres) / len(centres)
         lat_c = sum(c[1] for c in centres) / len(centres)
-        dive["map_frame"] = {"origin_latitude_deg": round(lat_c, 4), "origin_longitude_deg": round(lon_c, 4)}
+        dive["map_frame"] = {"origin_latitude_deg": round(lat_c, 4),
+                             "origin_longitude_deg": round(_wrap180(lon_c), 4)}
         res.mapped.append("map_frame: the centre of the geographic extent of the soundings/grids")
+
+
+def _wrap180(lon: float) -> float:
+    """A longitude in [-180, 180) (a 0-360 file's 245 is -115)."""
+    return (float(lon) + 180.0) % 360.0 - 180.0
 
 
 def _csv_key(p: Path, taken: dict[str, Path]) -> str:
@@ -485,13 +519,29 @@ def metadata_stub() -> list[str]:
     return out
 
 
+def _with_source_notes(block: str, notes: dict[str, str]) -> str:
+    """The ``sources`` YAML block with each noted entry's note as a comment line above it."""
+    if not notes:
+        return block
+    lines = []
+    for ln in block.split("\n"):
+        t = ln.strip()
+        if t.startswith("- path: "):
+            rel = yaml.safe_load(t[len("- path: "):])
+            if rel in notes:
+                lines.append(" " * (len(ln) - len(ln.lstrip())) + f"# {notes[rel]}")
+        lines.append(ln)
+    return "\n".join(lines)
+
+
 def render_dive_yaml(res: InitResult) -> str:
     """The commented dive.yaml text of ``res`` (the YAML itself round-trips to ``res.dive``); without a
     ``metadata`` entry it ends with the commented stub of :func:`metadata_stub`."""
     out = [_HEADER.format(date=_dt.date.today().isoformat(), dir=res.raw_dir.name)]
     for key, value in res.dive.items():
         out.append(f"# {_COMMENTS.get(key, key)}")
-        out.append(yaml.safe_dump({key: value}, sort_keys=False, default_flow_style=False).rstrip())
+        block = yaml.safe_dump({key: value}, sort_keys=False, default_flow_style=False).rstrip()
+        out.append(_with_source_notes(block, res.source_notes) if key == "sources" else block)
     if "metadata" not in res.dive:
         out += metadata_stub()
     if res.not_used:

@@ -403,12 +403,30 @@ def _binary_kind(head: bytes) -> str | None:
         return "s7k"
     if len(head) >= 16 and b"GSF-v" in head[8:16]:  # big-endian size, record id 1 (header), "GSF-v03.xx"
         return "gsf"
-    if len(head) >= 8 and head[4] == 0x02 and head[5] in _EM_ALL_TYPES:
-        for order in "<>":  # u32 length, STX 0x02, type, u16 model ... ETX 0x03, u16 checksum
-            n = struct.unpack(order + "I", head[:4])[0]
-            if 8 <= n < 2**24 and (len(head) < n + 4 or head[n + 1] == 0x03):
-                return "em_all"
+    if len(head) >= 8 and head[4] == 0x02 and _em_all_first_datagram(head):
+        return "em_all"
     return None
+
+
+def _em_all_first_datagram(head: bytes) -> bool:
+    """A Kongsberg .all file's first datagram in either byte order: u32 length, STX 0x02, type, u16 model ...
+    ETX 0x03, u16 checksum (the sum of the bytes between STX and ETX). A datagram whose end is in ``head`` is
+    recognised by its ETX and checksum whatever its type (any EM model writes its own first datagram); one longer
+    than ``head`` by a datagram type seen first in files."""
+    for order in "<>":
+        n = struct.unpack(order + "I", head[:4])[0]
+        if not 16 <= n < 2**24:
+            continue
+        if len(head) < n + 4:
+            if head[5] in _EM_ALL_TYPES:
+                return True
+            continue
+        body = head[4:n + 4]
+        if body[-3] == 0x03 and struct.unpack(order + "H", body[-2:])[0] == (sum(body[1:-3]) & 0xFFFF):
+            return True
+        if body[-3] == 0x03 and head[5] in _EM_ALL_TYPES:  # a writer that leaves the checksum 0 or wrong
+            return True
+    return False
 
 
 def _as_text(head: bytes) -> str | None:

@@ -18,7 +18,7 @@ from hadal.grid.readers import (
     GridCRSWarning,
     looks_metric,
     read_grid,
-    read_point_cloud,
+    read_point_cloud_meta,
     reader_of,
     sniff_kind,
 )
@@ -85,17 +85,27 @@ def describe_point_cloud(path: str | Path, *, format: str | None = None, columns
 
     p = Path(path)
     kind = _kind_of(p, format)
-    pts = read_point_cloud(p, format=format, columns=columns)
+    pts, meta = read_point_cloud_meta(p, format=format, columns=columns,
+                                      hints={"z_positive": z_positive} if z_positive else None)
     ok = np.isfinite(pts).all(axis=1)
     q = pts[ok]
-    pos, reason = sign_of(xr.DataArray(q[:, 2]), z_positive) if len(q) else ("up", "no finite points")
+    if meta.get("z_positive"):  # LAS/PCD: the format's convention (hadal.grid.clouds), not the values' sign
+        pos, reason = meta["z_positive"], meta["z_positive_from"]
+    else:
+        pos, reason = sign_of(xr.DataArray(q[:, 2]), z_positive) if len(q) else ("up", "no finite points")
     ext = {k: (_f(f(q[:, i])) if len(q) else None) for i, ax in enumerate("xyz")
            for k, f in ((f"{ax}min", np.min), (f"{ax}max", np.max))}
     area = ((ext["xmax"] - ext["xmin"]) * (ext["ymax"] - ext["ymin"])) if len(q) else 0.0
-    return {
+    out = {
         "path": str(p), "kind": "point_cloud", "format": kind, "reader": reader_of(kind),
         "points": int(len(pts)), "points_nonfinite": int((~ok).sum()),
         "extent": {k: ext[k] for k in ("xmin", "xmax", "ymin", "ymax")},
         "z": {"min": ext["zmin"], "max": ext["zmax"], "positive": pos, "sign_reason": reason},
         "density_per_m2": (float(len(q) / area) if area > 0 else None),
     }
+    if meta.get("crs_kind") not in (None, "none"):  # extent in metres (x/y in xy_crs_wkt) or lon/lat degrees
+        out["crs"] = {"kind": meta["crs_kind"], "name": meta.get("crs_name", ""), "wkt": meta.get("xy_crs_wkt", ""),
+                      "from": meta.get("crs_from", "")}
+        out["units"] = {"horizontal": meta.get("horizontal_units"), "vertical": meta.get("vertical_units"),
+                        "vertical_from": meta.get("z_units_from")}
+    return out

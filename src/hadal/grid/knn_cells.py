@@ -27,10 +27,14 @@ def uniform_cells(pts: np.ndarray, lo: np.ndarray, a0: int, a1: int, k: int):
     if not (area > 0 and np.isfinite(area)):
         return None
     cs = float(np.sqrt(POINTS_PER_CELL * k * area / n))
+    if not (cs > 0 and max(ext_u, ext_v) / cs < 2.0**62):
+        return None
     ncu, ncv = int(ext_u / cs) + 1, int(ext_v / cs) + 1
     if ncu * ncv > 4 * n + 16:  # thin clouds
         cs *= float(np.sqrt(ncu * ncv / (4 * n + 16)))
         ncu, ncv = int(ext_u / cs) + 1, int(ext_v / cs) + 1
+    if max(ncu, ncv) > 4 * n + 16:  # a needle-thin extent (e.g. 1e30 m by 1e-30 m): no uniform grid suits it
+        return None
     cu = np.minimum((pts[:, a0] - lo[a0]) / cs, ncu - 1).astype(np.int64)
     cv = np.minimum((pts[:, a1] - lo[a1]) / cs, ncv - 1).astype(np.int64)
     cell = cv * ncu + cu

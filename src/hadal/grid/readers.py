@@ -2,7 +2,8 @@
 
 * :func:`read_soundings` - XYZ/CSV text soundings ``longitude_deg latitude_deg depth_m`` (whitespace or
   comma separated, optional header, ``#`` comments, ``.gz``/``.bz2``/``.xz`` transparently);
-* :func:`read_point_cloud` - PLY/PCD (open3d) and LAS/LAZ (laspy; LAZ needs a laspy LAZ backend);
+* :func:`read_point_cloud` - PLY (open3d), PCD (pypcd4) and LAS/LAZ (laspy; LAZ needs a laspy LAZ backend),
+  LAS/PCD read by their metadata (:mod:`hadal.grid.clouds`);
 * :func:`read_grid` - GeoTIFF (rasterio) and NetCDF/GMT grids (xarray) as an ``(y, x)`` DataArray with
   ascending coordinates, detecting rasters whose geographic CRS tag is wrong (:func:`looks_metric`);
 * :func:`read_gsf` - GSF swath bathymetry via the maintained ``gsfpy`` bindings of libgsf.
@@ -119,8 +120,10 @@ def reader_of(kind: str) -> str:
         return f"rasterio {rasterio.__version__} (GDAL {rasterio.__gdal_version__})"
     if kind == "netcdf":
         return f"xarray {v('xarray')} (netCDF4 {v('netCDF4', 'netcdf4')})"
-    if kind in ("ply", "pcd"):
+    if kind == "ply":
         return f"open3d {v('open3d', 'open3d-cpu')}"
+    if kind == "pcd":
+        return f"pypcd4 {v('pypcd4')}"
     if kind == "las":
         return f"laspy {v('laspy')}"
     if kind == "xyz":
@@ -130,18 +133,27 @@ def reader_of(kind: str) -> str:
 
 def read_point_cloud(path: str | Path, *, format: str | None = None, columns: list[str] | None = None,
                      ) -> np.ndarray:
-    """Read a point cloud as an ``(N, 3)`` float64 array of x, y, z.
+    """Read a point cloud as an ``(N, 3)`` float64 array of x, y, z (:func:`read_point_cloud_meta` without its
+    metadata: LAS/LAZ coordinates in metres, z as stored for PLY and xyz text)."""
+    return read_point_cloud_meta(path, format=format, columns=columns)[0]
+
+
+def read_point_cloud_meta(path: str | Path, *, format: str | None = None, columns: list[str] | None = None,
+                          hints=None) -> tuple[np.ndarray, dict]:
+    """Read a point cloud as an ``(N, 3)`` float64 array of x, y, z and what its metadata says.
 
     The format is detected from the content (:func:`sniff_kind`), not the name; ``format`` overrides
-    (``ply``, ``pcd``, ``las``/``laz``, ``xyz``). PLY/PCD are read with open3d, LAS/LAZ with laspy (LAZ
-    needs a laspy LAZ backend such as ``lazrs``), xyz text (whitespace/comma separated, optional header,
-    ``#`` comments, gzip/bz2/xz) with pandas; ``columns`` names the text columns (``x``/``lon``/``easting``,
-    ``y``/``lat``/``northing``, ``z``/``depth``/``elevation``; default: the first three). z is returned as
-    stored (the caller applies the sign convention).
+    (``ply``, ``pcd``, ``las``/``laz``, ``xyz``). LAS/LAZ (laspy) and PCD (pypcd4) are read by their metadata
+    (:mod:`hadal.grid.clouds`: CRS and linear units from the file, x/y/z in metres, z elevation positive up;
+    ``hints`` - a dive.yaml :class:`hadal.dive.SourceFile` - may set ``crs``/``z_positive``); PLY with open3d,
+    xyz text (whitespace/comma separated, optional header, ``#`` comments, gzip/bz2/xz) with pandas;
+    ``columns`` names the text columns (``x``/``lon``/``easting``, ``y``/``lat``/``northing``,
+    ``z``/``depth``/``elevation``; default: the first three). PLY and xyz carry no vertical metadata: their z is
+    returned as stored and the metadata has no ``z_positive`` (the caller decides).
     """
     p = _require_file(path, "point cloud")
     kind = _kind_of(p, format)
-    if kind in ("ply", "pcd"):
+    if kind == "ply":
         import open3d as o3d
 
         with _quiet_open3d(o3d):
@@ -149,33 +161,18 @@ def read_point_cloud(path: str | Path, *, format: str | None = None, columns: li
         pts = np.asarray(pc.points, dtype=np.float64)
         if len(pts) == 0:
             raise InputError(f"{p}: no points read (truncated or not a {kind.upper()} point cloud)")
-        if kind == "ply":
-            _check_ply_count(p, len(pts))
-        return pts
-    if kind == "las":
-        import laspy
+        _check_ply_count(p, len(pts))
+        return pts, {"format": kind}
+    if kind == "pcd":
+        from hadal.grid.clouds import read_pcd
 
-        try:
-            _check_las_count(p, laspy)
-            las = laspy.read(str(p))
-        except InputError:
-            raise
-        except MemoryError:
-            raise InputError(f"{p}: cannot read LAS/LAZ (its point count does not fit in memory)") from None
-        except laspy.errors.LaspyException as exc:
-            msg = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
-            if "backend" in msg.lower() or "laz" in msg.lower():
-                msg += " (LAZ needs a backend: pip install lazrs)"
-            raise InputError(f"{p}: cannot read LAS/LAZ ({msg})") from None
-        except (OSError, ValueError, EOFError) as exc:
-            raise InputError(f"{p}: cannot read LAS/LAZ ({str(exc).splitlines()[0] if str(exc) else exc!r})") from None
-        pts = np.column_stack([np.asarray(las.x, np.float64), np.asarray(las.y, np.float64),
-                               np.asarray(las.z, np.float64)])
-        if len(pts) == 0:
-            raise InputError(f"{p}: LAS file has no points")
-        return pts
+        return read_pcd(p, hints)
+    if kind == "las":
+        from hadal.grid.clouds import read_las
+
+        return read_las(p, hints)
     if kind == "xyz":
-        return _read_xyz_cloud(p, columns)
+        return _read_xyz_cloud(p, columns), {"format": kind}
     if kind in _GRID_KINDS:
         raise InputError(f"{p}: is a {kind} raster, not a point cloud")
     raise InputError(f"{p}: unsupported point cloud format (content is not PLY, PCD, LAS/LAZ or xyz text; "
@@ -1086,6 +1083,36 @@ def read_gsf(path: str | Path, *, include_flagged: bool = False, isolate: bool =
     raise InputError(f"{p}: the GSF reader failed ({last or f'exit status {proc.returncode}'})")
 
 
+def gsf_file_version(path: str | Path) -> str:
+    """The GSF version of a file (``"03.06"``) from its header record, the first record of every GSF file
+    (u32 size, u32 id 1, ``GSF-vNN.NN``); ``""`` when it is not there."""
+    import re
+
+    with open(path, "rb") as fh:
+        head = fh.read(32)
+    m = re.search(rb"GSF-v(\d{1,2}\.\d{1,2})", head)
+    return m.group(1).decode() if m else ""
+
+
+def _libgsf_version() -> str:
+    """The libgsf that gsfpy uses (its ``DEFAULT_GSF_VERSION``: ``3.08`` unless set)."""
+    try:
+        from gsfpy import get_default_gsf_version
+    except ImportError:  # pragma: no cover - older gsfpy
+        return "?"
+    return get_default_gsf_version().replace("_", ".")
+
+
+def _gsf_ping_position(ping) -> tuple[float, float]:
+    """``(latitude, longitude)`` of a gsfpy swath ping: libgsf's ``gsfSwathBathyPing`` holds the latitude in the
+    first double after ``ping_time`` and the longitude in the second, whatever names the ctypes binding gives
+    them (gsfpy 2.0.0 calls them longitude, latitude)."""
+    names = [f[0] for f in type(ping)._fields_]
+    i = names.index("ping_time")
+    first, second = names[i + 1], names[i + 2]
+    return float(getattr(ping, first)), float(getattr(ping, second))
+
+
 def _read_gsf_here(path: str | Path, *, include_flagged: bool = False) -> pd.DataFrame:
     """Soundings of a GSF file as ``longitude_deg, latitude_deg, depth_m, ping`` (one row per beam).
 
@@ -1094,10 +1121,16 @@ def _read_gsf_here(path: str | Path, *, include_flagged: bool = False) -> pd.Dat
     converted to degrees on the WGS84 ellipsoid with pyproj ``Geod.fwd``. Beams whose GSF beam flag
     has the *ignore* bit (0x01) set, and null depths, are dropped unless ``include_flagged``.
 
-    Note: gsfpy 2.0.0's ctypes ``c_gsfSwathBathyPing`` declares ``longitude`` before ``latitude``,
-    whereas libgsf's ``gsfSwathBathyPing`` stores latitude first, so the Python field named
-    ``longitude`` holds the latitude; we read them swapped (checked on the Okeanos Explorer EX1604
-    file: 8.71 N 167.48 E, Kwajalein).
+    Note: gsfpy 2.0.0's ctypes ``c_gsfSwathBathyPing`` (both its libgsf 3.08 and 3.09 bindings) declares
+    ``longitude`` before ``latitude``, whereas libgsf's ``gsfSwathBathyPing`` stores latitude first, so the
+    Python field named ``longitude`` holds the latitude; :func:`_gsf_ping_position` reads the first double after
+    ``ping_time`` as the latitude whatever the binding calls it (checked on the Okeanos Explorer EX1604 file:
+    8.71 N 167.48 E, Kwajalein), so a gsfpy that fixes the names keeps working.
+
+    GSF versions: libgsf reads every 3.x file version (its record layouts are decoded by the version in the file's
+    header record; newer sensor-specific subrecords are skipped by their size); the EX1604 file (GSF-v03.06) gives
+    the same soundings through gsfpy's libgsf 3.08 and 3.09 (``DEFAULT_GSF_VERSION``), also relabelled v03.01 ..
+    v03.11 (tests/test_gsf_versions.py). ``attrs`` record the file's ``gsf_version`` and the ``libgsf`` used.
 
     ``attrs``: ``reader`` ("gsfpy <version>"), ``format``, ``pings``, ``beams_per_ping``, ``soundings``,
     ``dropped`` (flagged or null beams), ``time_start``/``time_end`` (ISO 8601 UTC). A file with no swath
@@ -1134,7 +1167,7 @@ def _read_gsf_here(path: str | Path, *, include_flagged: bool = False) -> pd.Dat
                 continue
             beams_max = max(beams_max, n)
             times.append(ping.ping_time.tv_sec + 1e-9 * ping.ping_time.tv_nsec)
-            lat0, lon0 = float(ping.longitude), float(ping.latitude)  # swapped, see docstring
+            lat0, lon0 = _gsf_ping_position(ping)
             depth = np.ctypeslib.as_array(ping.depth, shape=(n,)).astype(np.float64)
             across = np.ctypeslib.as_array(ping.across_track, shape=(n,)).astype(np.float64) \
                 if ping.across_track else np.zeros(n)
@@ -1167,6 +1200,7 @@ def _read_gsf_here(path: str | Path, *, include_flagged: bool = False) -> pd.Dat
     from hadal.grid.sonar import _iso
 
     df.attrs.update({"reader": f"gsfpy {md.version('gsfpy')}", "format": "gsf", "pings": k,
+                     "gsf_version": gsf_file_version(p), "libgsf": _libgsf_version(),
                      "beams_per_ping": beams_max, "soundings": len(df), "dropped": dropped,
                      "crs_kind": "geographic", "z_positive": "down",
                      "time_start": _iso(min(times)), "time_end": _iso(max(times))})

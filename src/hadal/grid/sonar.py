@@ -821,7 +821,12 @@ def _iter_em_all(p: Path, comp: str | None, chunk_points: int, info: dict) -> It
       level (cm), u8 max beams, u8 N, u8 z resolution (cm), u8 x/y resolution (cm), u16 sampling rate; N beams
       of {depth z (u16 for EM 120/300, else i16), i16 across y, i16 along x, i16 depression, u16 azimuth,
       u16 range, u8 quality, u8 window, i8 reflectivity, u8 beam number}; i8 transducer-depth offset
-      multiplier (x 65536 cm). Depth below the water line = z * zres + transducer depth; z = 0 is no detection;
+      multiplier (x 65536 cm). Depth below the water line = z * zres + transducer depth; z = 0 is no detection.
+      Model differences (MB-System ``mbr_em300raw_rd_bath``): z unsigned for EM 120/300; the offset multiplier
+      ignored for EM 3000-family (model >= 3000: EM3000, EM3000D heads 3001-3008, EM3002) processors older than
+      software 2.0.0 (``PSV=`` of the installation datagram ``I``); a Depth datagram with more beams than its
+      maximum or beam numbers out of order is a broken record, dropped and counted (``depth_datagrams_broken``);
+      EM3000D/EM3002 heads come as separate Depth datagrams (each positioned on its own);
     * XYZ 88 ``X``: u16 heading, u16 sound speed, f32 transducer depth (m), u16 N, u16 valid, f32 sampling
       rate, u8 scanning info, 3 spare; N beams of {f32 z, f32 y across, f32 x along, u16 window, u8 quality,
       i8 incidence adjustment, u8 detection info (bit 7 = invalid), i8 cleaning, i16 reflectivity}.
@@ -837,6 +842,8 @@ def _iter_em_all(p: Path, comp: str | None, chunk_points: int, info: dict) -> It
     pings: list[tuple] = []
     order = None
     model = None
+    psv: int | None = None  # processor software version (MB-System's i1*10000 + i2*100 + i3), from PSV=
+    broken = 0
 
     def order_of(lead: bytes) -> str:  # fixed by the first datagram's length
         nonlocal order
@@ -853,6 +860,8 @@ def _iter_em_all(p: Path, comp: str | None, chunk_points: int, info: dict) -> It
                 raise InputError(f"{p}: corrupt .all file (no STX at byte {off + 4}, datagram {k})")
             typ = body[1]
             types[chr(typ) if 32 < typ < 127 else hex(typ)] += 1
+            if typ == 0x49 and (v := _em_psv_version(body)) is not None:  # installation parameters: PSV=
+                psv = v
             if typ in (0x50, 0x44, 0x58):
                 if body[-3] != 0x03:
                     raise InputError(f"{p}: corrupt .all file (datagram {chr(typ)} at byte {off} has no ETX)")
@@ -867,7 +876,11 @@ def _iter_em_all(p: Path, comp: str | None, chunk_points: int, info: dict) -> It
                         if lat_i != _EM_INVALID_INT and lon_i != _EM_INVALID_INT:
                             fixes.append((t, lat_i * 5e-8, lon_i * 1e-7, spd * 0.01 if spd not in (0, 0xFFFF) else np.nan))
                     elif typ == 0x44:
-                        pings.append(_em_depth(body, order, model, t))
+                        ping = _em_depth(body, order, model, t, psv)
+                        if ping is None:
+                            broken += 1
+                        else:
+                            pings.append(ping)
                     else:
                         pings.append(_em_xyz88(body, order, t))
                 except struct.error:
@@ -876,6 +889,9 @@ def _iter_em_all(p: Path, comp: str | None, chunk_points: int, info: dict) -> It
     if not types:
         raise InputError(f"{p}: no datagrams in the .all file")
     listed = ", ".join(f"{t} x{c}" for t, c in types.items())
+    if not pings and broken:
+        raise InputError(f"{p}: .all file has {broken} Depth datagrams, all broken (beam numbers out of order or "
+                         "above the maximum)")
     if not pings:
         raise InputError(f"{p}: .all file contains no bathymetry pings (no Depth/XYZ 88 datagrams; has {listed})")
     if not fixes:
@@ -915,6 +931,7 @@ def _iter_em_all(p: Path, comp: str | None, chunk_points: int, info: dict) -> It
             yield out
     info.update({"pings": len(pings), "beams_per_ping": beams_max, "soundings": n_sound, "dropped": dropped,
                  "byte_order": "little" if order == "<" else "big", "em_model": model,
+                 "processor_software": psv, "depth_datagrams_broken": broken,
                  "position_fixes": len(fixes), "pings_extrapolated": extrap, "datagrams": dict(types),
                  "track_start": list(track[0]) if track else None, "track_end": list(track[-1]) if track else None,
                  "time_start": _iso(min(times)), "time_end": _iso(max(times))})
@@ -937,14 +954,31 @@ def _fix_speed(ft, flat, flon, fspd, j: int) -> float:
     return float(d) / float(ft[i1] - ft[i0])
 
 
-def _em_depth(body: bytes, order: str, model: int, t: float):
-    """Depth (0x44) datagram -> (time, heading deg, depth m, across m, along m, max beams)."""
+def _em_psv_version(body: bytes) -> int | None:
+    """The processor software version ``PSV=a.b.c`` of an installation parameters datagram as MB-System's
+    ``mbr_em300raw_rd_start`` codes it (``c + 100 b + 10000 a``), or None."""
+    import re
+
+    m = re.search(rb"PSV=(\d+)\.(\d+)\.(\d+)", body)
+    return int(m.group(3)) + 100 * int(m.group(2)) + 10000 * int(m.group(1)) if m else None
+
+
+def _em_depth(body: bytes, order: str, model: int, t: float, psv: int | None = None):
+    """Depth (0x44) datagram -> (time, heading deg, depth m, across m, along m, max beams), or None for a broken
+    record (MB-System ``mbr_em300raw_rd_bath``: more beams than the maximum, beam numbers not increasing or above
+    the maximum - "these do happen"). The transducer-depth offset multiplier is ignored for EM 3000-family
+    processors older than software 2.0.0 (PSV < 20000, as MB-System), which did not write it."""
     heading, _ssv, tdepth, nmax, nb, zres, xyres, _sr = struct.unpack_from(order + "HHHBBBBH", body, 16)
     beams = np.frombuffer(body, dtype=np.dtype([
         ("z", order + ("u2" if model in _EM_SIGNED_DEPTH_EXCEPT else "i2")), ("y", order + "i2"),
         ("x", order + "i2"), ("depr", order + "i2"), ("az", order + "u2"), ("range", order + "u2"),
         ("q", "u1"), ("win", "u1"), ("refl", "i1"), ("beam", "u1")]), count=nb, offset=28)
     mult = struct.unpack_from("b", body, 28 + 16 * nb)[0]
+    if model >= 3000 and psv is not None and 0 < psv < 20000:
+        mult = 0
+    bn = beams["beam"].astype(np.int64)
+    if nb > nmax or (nb and (bn[0] > nmax or np.any(np.diff(bn) < 0) or bn.max() > nmax)):
+        return None
     ok = beams["z"] != 0
     depth = beams["z"][ok] * (0.01 * zres) + 0.01 * tdepth + 655.36 * mult
     return (t, 0.01 * heading, depth.astype(np.float32), (beams["y"][ok] * (0.01 * xyres)).astype(np.float32),

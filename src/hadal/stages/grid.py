@@ -377,9 +377,10 @@ def _laser_grid(ctx: StageContext, f: Path, sf, p: Params, limit_bytes: float | 
 
     import xarray as xr
 
+    from hadal.grid.clouds import cloud_metadata, cloud_to_frame
     from hadal.grid.laser import grid_laser, laser_grid_from_raster
     from hadal.grid.prior import z_positive
-    from hadal.grid.readers import _CLOUD_KINDS, _kind_of, read_grid, read_point_cloud, reader_of
+    from hadal.grid.readers import _CLOUD_KINDS, _kind_of, read_grid, read_point_cloud_meta, reader_of
 
     try:
         kind = _kind_of(f, _hint(sf, "format"))
@@ -392,11 +393,16 @@ def _laser_grid(ctx: StageContext, f: Path, sf, p: Params, limit_bytes: float | 
             frame = ctx.dive.frame("grid") if da.attrs["crs_kind"] == "geographic" else None
             ds = laser_grid_from_raster(da, z_positive=pos, z_reason=reason, frame=frame)
             return ds, da.attrs.get("reader", reader_of(kind)), "raster"
-        pts = read_point_cloud(f, format=_hint(sf, "format"), columns=_hint(sf, "columns"))
-        pos, reason = z_positive(xr.DataArray(pts[:, 2]), _hint(sf, "z_positive"))
+        pts, meta = read_point_cloud_meta(f, format=_hint(sf, "format"), columns=_hint(sf, "columns"), hints=sf)
+        if meta.get("z_positive"):  # LAS/PCD: from the file's format (or dive.yaml), never from the values' sign
+            pos, reason = meta["z_positive"], meta["z_positive_from"]
+        else:
+            pos, reason = z_positive(xr.DataArray(pts[:, 2]), _hint(sf, "z_positive"))
         if pos == "down":
             pts = pts.copy()
             pts[:, 2] = -pts[:, 2]
+        if meta.get("crs_kind") == "geographic":  # lon/lat cloud: into the dive's map frame
+            pts = cloud_to_frame(f, pts, ctx.dive.frame("grid"))
         _check_laser_memory(pts, p, limit_bytes)
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", UserWarning)  # the quantisation note is logged below
@@ -407,6 +413,9 @@ def _laser_grid(ctx: StageContext, f: Path, sf, p: Params, limit_bytes: float | 
             ctx.log.warning("laser %s: %s", f.name, ds.attrs["coordinate_quantisation"])
         ds.attrs.update({"laser_input": "point cloud", "source_format": kind, "source_reader": reader_of(kind),
                          "z_positive_source": pos, "z_sign_detection": reason, "z_sign_flipped": int(pos == "down")})
+        cloud_metadata(ds, meta)
+        if meta.get("crs_note"):
+            ctx.log.warning("laser %s: %s", f.name, meta["crs_note"])
         return ds, reader_of(kind), "point cloud"
     except (OSError, ValueError, RuntimeError, KeyError, TypeError, MemoryError) as exc:
         raise _as_input_error(f, exc) from None
