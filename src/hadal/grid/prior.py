@@ -20,12 +20,25 @@ near its meridian, not across an ocean basin; ``grid.prior_max_extent_km``, defa
 never silent: the product records the kept lon/lat bounds, the fraction of the source's valid area and
 of its depth range outside the crop (:func:`crop_attrs`), and the ``grid`` stage logs a WARNING.
 
+**Units** come from the file and are converted to metres by :func:`hadal.grid.readers.read_grid`
+(``prior_grid_z_units``); 0-360 longitudes are shifted to -180..180 (``prior_grid_lon_convention``).
+
 **Sign** (:func:`z_positive`, first rule that decides): the ``z_positive`` hint of ``dive.yaml``; a CF
 ``positive`` attribute; a CF ``standard_name`` (``*depth*`` -> down; ``height``/``altitude``/
-``*elevation*`` -> up); values all of one sign (all <= 0 -> elevations below sea level; all >= 0 ->
-depths); names and units (``depth``/``below`` -> down; ``elevation``/``topo``/``height``/``above`` ->
-up); otherwise (mixed signs, as in ETOPO/GEBCO grids with land) elevation. The decision and its reason
-are recorded in the product's attributes.
+``*elevation*`` -> up); words of the variable's name, long_name and units (``depth``/``below`` -> down;
+``elevation``/``topo*``/``height``/``above`` -> up; GMT's generic ``z`` says nothing). Only then the values,
+as a guess whose reason starts with ``guessed:`` (``hadal init`` writes it into dive.yaml as a commented hint):
+all <= 0 -> elevations below sea level; mixed -> elevations (GMT/ETOPO/GEBCO, land above 0); all >= 0 with
+>= 1 % exactly 0 -> a land DEM with the sea at 0; other all >= 0 -> depths. The decision and its reason are
+recorded in the product's attributes.
+
+**Land** (:func:`depth_and_land`): a cell above sea level has no depth: ``depth_m`` NaN, flag layer ``land`` = 1.
+A grid with no cell below sea level is refused in one line (:func:`no_seafloor`: "NAME is land elevation
+(LO-HI m ...): no seafloor to grid").
+
+**Several grids** (:func:`prior_mosaic`, :data:`MOSAIC_RULE`): one grid at the finest resolution over the union
+of their outlines, each cell from the finest grid with a value there, then listing order; ``prior_grid_source``
+names each cell's grid, ``prior_grid_sources`` each grid's resolution, sign, units and cells used.
 
 Layers: a prior grid has no soundings, so ``count``, ``depth_median_m``, ``depth_std_m``, ``filled`` and
 ``uncertainty_m`` are absent (the source states no uncertainty); ``attrs['layers_absent']`` says so.
