@@ -257,3 +257,31 @@ def test_0360_grid_across_the_antimeridian_keeps_its_geolocation(tmp_path):
     j, i = np.argmin(np.abs(y)), np.argmin(np.abs(x))
     # at the frame origin (-175 = 185 E) the depth is 4000 + 10 x 15
     assert float(ds["depth_m"].values[j, i]) == pytest.approx(4150.0, abs=10.0 * 0.05 + 1.0)
+
+
+def test_one_minute_km_grid_beside_a_cast_goes_to_dtm(shared_data, tmp_path):
+    """A 1' geographic grid in km around a cast's position is a prior grid (dtm), never laser/landing: its
+    coordinates say degrees, its units say km (before: 0.3 'm' of relief over 0.5 'm' read as a laser raster)."""
+    from hadal.inspect import inspect_file
+
+    cast = _src(shared_data, "ctd-real/seabird_sta0860.cnv")
+    info = inspect_file(cast)
+    lat0, lon0 = float(info["latitude_deg"]), float(info["longitude_deg"])
+    raw = tmp_path / "castgrid"
+    raw.mkdir()
+    shutil.copy(cast, raw / cast.name)
+    lon = lon0 - 0.25 + np.arange(31) / 60.0
+    lat = lat0 - 0.25 + np.arange(31) / 60.0
+    z = -(1.2 + 0.3 * np.sin(lon[None, :] * 20.0) * np.cos(lat[:, None] * 20.0))  # km, below sea level
+    xr.Dataset({"z": (("lat", "lon"), z, {"units": "km"})},
+               coords={"lat": ("lat", lat, {"units": "degrees_north"}),
+                       "lon": ("lon", lon, {"units": "degrees_east"})}).to_netcdf(raw / "bathy_1min.nc")
+    res = _init(raw)
+    assert "laser" not in res.dive["sources"]
+    assert [e if isinstance(e, str) else e["path"] for e in res.dive["sources"]["prior_grid"]] == ["bathy_1min.nc"]
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        dtm = _open(run_stage("dtm", make_context(raw, tmp_path / "store"))["dtm"])
+    d = dtm["depth_m"].values
+    assert 900.0 - 1e-6 <= np.nanmin(d) and np.nanmax(d) <= 1500.0 + 1e-6  # metres: -1000 x z_km
+    assert 1000 < dtm.attrs["resolution"] < 2000  # 1' cells, not 0.0167 m
