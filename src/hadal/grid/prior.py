@@ -29,8 +29,8 @@ of its depth range outside the crop (:func:`crop_attrs`), and the ``grid`` stage
 ``elevation``/``topo*``/``height``/``above`` -> up; GMT's generic ``z`` says nothing). Only then the values,
 as a guess whose reason starts with ``guessed:`` (``hadal init`` writes it into dive.yaml as a commented hint):
 all <= 0 -> elevations below sea level; mixed -> elevations (GMT/ETOPO/GEBCO, land above 0); all >= 0 with
->= 1 % exactly 0 -> a land DEM with the sea at 0; other all >= 0 -> depths. The decision and its reason are
-recorded in the product's attributes.
+>= 1 % exactly 0, or in a GMT-written grid -> land elevations; other all >= 0 -> depths. The decision and its
+reason are recorded in the product's attributes.
 
 **Land** (:func:`depth_and_land`): a cell above sea level has no depth: ``depth_m`` NaN, flag layer ``land`` = 1.
 A grid with no cell below sea level is refused in one line (:func:`no_seafloor`: "NAME is land elevation
@@ -105,7 +105,8 @@ def z_positive(da: xr.DataArray, hint: str | None = None) -> tuple[str, str]:
     metadata land in the same attributes). Only when the file says nothing are the values used, and the reason
     then starts with ``guessed:`` (``hadal init`` writes the guess into dive.yaml): all <= 0 -> elevations below
     sea level; mixed -> elevations (GMT/ETOPO/GEBCO: land above 0); all >= 0 with >= 1 % of the cells exactly 0
-    -> a land DEM with the sea at 0 (up); other all >= 0 -> depths (down).
+    -> a land DEM with the sea at 0 (up); all >= 0 in a GMT-written grid -> elevations (GMT's convention);
+    other all >= 0 -> depths (down).
     """
     if hint is not None:
         if hint not in ("up", "down"):
@@ -129,10 +130,10 @@ def z_positive(da: xr.DataArray, hint: str | None = None) -> tuple[str, str]:
         return "down", f"name/units {' '.join(text.split())!r}"
     if up and not down:
         return "up", f"name/units {' '.join(text.split())!r}"
-    return _guess_sign(np.asarray(da.values, float))
+    return _guess_sign(np.asarray(da.values, float), gmt="GMT grid" in str(a.get("format", "")))
 
 
-def _guess_sign(values: np.ndarray) -> tuple[str, str]:
+def _guess_sign(values: np.ndarray, gmt: bool = False) -> tuple[str, str]:
     """The values-only sign guess of :func:`z_positive` (reason starts with :data:`GUESSED`)."""
     v = values[np.isfinite(values)]
     if not v.size:
@@ -143,6 +144,9 @@ def _guess_sign(values: np.ndarray) -> tuple[str, str]:
     if lo < 0:
         return "up", GUESSED + f"mixed signs ({lo:g}..{hi:g}): elevations, land above 0 (GMT/ETOPO/GEBCO)"
     zero = float(np.mean(v == 0))
+    if gmt:
+        return "up", GUESSED + (f"all values >= 0 ({lo:g}..{hi:g}) in a GMT grid: elevations (GMT's z is positive "
+                                "up, as in its relief grids)")
     if zero >= SEA_LEVEL_ZERO_FRACTION:
         return "up", GUESSED + (f"all values >= 0 ({lo:g}..{hi:g}) with {100 * zero:.1f} % exactly 0: land "
                                 "elevations with the sea at 0")
