@@ -285,3 +285,22 @@ def test_one_minute_km_grid_beside_a_cast_goes_to_dtm(shared_data, tmp_path):
     d = dtm["depth_m"].values
     assert 900.0 - 1e-6 <= np.nanmin(d) and np.nanmax(d) <= 1500.0 + 1e-6  # metres: -1000 x z_km
     assert 1000 < dtm.attrs["resolution"] < 2000  # 1' cells, not 0.0167 m
+
+
+def test_geotiff_vertical_crs_units(tmp_path):
+    """A GeoTIFF with a compound CRS whose vertical part is in US survey feet (EPSG:4326+6360, NAVD88 height
+    (ftUS)): values converted by the CRS's own unit (pyproj reads it back as the oracle)."""
+    rasterio = pytest.importorskip("rasterio")
+    from pyproj import CRS
+    from rasterio.transform import from_origin
+
+    from hadal.grid.readers import read_grid
+
+    ft = CRS.from_user_input("EPSG:4326+6360").sub_crs_list[1].axis_info[0].unit_conversion_factor
+    metres = np.linspace(-3000.0, -2000.0, 20)[None, :] * np.ones((20, 1))
+    with rasterio.open(tmp_path / "v.tif", "w", driver="GTiff", width=20, height=20, count=1, dtype="float64",
+                       crs="EPSG:4326+6360", transform=from_origin(-80, 30, 0.01, 0.01)) as dst:
+        dst.write(metres / ft, 1)
+    da = read_grid(tmp_path / "v.tif")
+    assert "US survey foot" in da.attrs["z_units_source"] and da.attrs["units"] == "m"
+    np.testing.assert_allclose(np.sort(da.values.ravel()), np.sort(metres.ravel()), rtol=1e-12)
