@@ -107,8 +107,9 @@ def test_geotiff_band_scale_offset_applied(tmp_path):
 
 # ------------------------------------------------------------------ 08: impossible depths
 def test_impossible_depths_masked_or_refused(tmp_path):
-    """A -32767 fill without a nodata tag becomes nodata (the rest matches the terrain); feet (tagged or not)
-    and a lone 20 km value are refused in one line; a real 9 999 m hadal depth is kept."""
+    """A -32767 fill without a nodata tag becomes nodata (the rest matches the terrain); a grid tagged feet is
+    converted to metres; untagged feet and a lone 20 km value are refused in one line; a real 9 999 m hadal depth
+    is kept."""
     from hadal.grid.prior import MAX_ABS_DEPTH_M, check_depth_plausible, prior_dtm
 
     assert 10_935 < MAX_ABS_DEPTH_M <= 12_000
@@ -127,10 +128,12 @@ def test_impossible_depths_masked_or_refused(tmp_path):
     assert np.median(err) < 0.5
     assert "-32767" in ds.attrs["prior_grid_depth_check"]
 
-    pb = tmp_path / "feet.tif"
+    pb = tmp_path / "feet.tif"  # tagged feet: converted to metres (the tag is the file's own word)
     _geo_tif(pb, truth / 0.3048, tags={"UNITS": "ft"})
-    with pytest.raises(InputError, match="feet"):
-        prior_dtm(pb, frame)
+    dsf = prior_dtm(pb, frame)
+    okf = np.isfinite(dsf["depth_m"].values)
+    errf = np.abs(dsf["depth_m"].values[okf] - (-_elev(dsf["lat"].values[okf], dsf["lon"].values[okf])))
+    assert np.median(errf) < 0.5 and "x 0.3048" in dsf.attrs["prior_grid_z_units"]
     pc = tmp_path / "feet_untagged.tif"
     _geo_tif(pc, truth / 0.3048)
     with pytest.raises(InputError, match=r"look like feet"):

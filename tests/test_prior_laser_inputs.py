@@ -168,9 +168,9 @@ def test_prior_grid_sign_hint_and_bad_input(tmp_path):
     _dive(raw, {"prior_grid": [{"path": "depths.tif", "z_positive": "up"}]},
           map_frame={"origin_latitude_deg": 32.5, "origin_longitude_deg": 141.0})
     (raw / "pipeline.yaml").write_text("grid: {dtm_resolution_m: 20}\n")
-    dtm = _open(run_stage("grid", make_context(raw, tmp_path / "s1"))["dtm"])
-    assert dtm.attrs["z_sign_detection"] == "z_positive given in dive.yaml"
-    assert float(np.nanmax(dtm["depth_m"])) < 0  # as declared (wrongly): the hint wins
+    # as declared (wrongly): the hint wins, so 5500-6200 m "elevations" are all land: refused, never negative depths
+    with pytest.raises(InputError, match=r"depths.tif is land elevation .*z_positive given in dive.yaml.*no seafloor"):
+        run_stage("grid", make_context(raw, tmp_path / "s1"))
     _dive(raw, {"prior_grid": ["junk.nc"]}, map_frame={"origin_latitude_deg": 32.5, "origin_longitude_deg": 141.0})
     with pytest.raises(InputError, match="junk.nc") as ei:
         run_stage("grid", make_context(raw, tmp_path / "s2"))

@@ -32,6 +32,10 @@ EXPECTED: dict[str, set[str]] = {
     "formats-real/sbs_19plus_V2.hex": {"sensors", "ctd", "profile"},
     "bathy-real/tut_bathy.nc": {"dtm", "suitability"},
     "formats-real/gmt_depth_pixel.nc": {"dtm", "suitability"},
+    # COARDS lon 195-210 (0-360), z in km: a prior grid (never laser), depths = -1000 x z, land masked
+    "dives-real/gmt_HI_topo_04.nc": {"dtm", "suitability"},
+    # a land DEM (0-1505 m, 0 = sea): no seafloor to grid; init lists it as not used with why, nothing published
+    "dives-real/gmt_Kilauea.utm.nc": set(),
     # 0.1 m cells are 1/5 of the 0.5 m vehicle: landing is skipped by the 1/10 rule (with the reason in the report)
     # unless landing.max_cell_fraction is raised (tests/test_prior_laser_inputs.py runs it with 0.2)
     "bathy-real/LAD_Takuyo_B1_raster_100mm.tif": {"laser_grids"},

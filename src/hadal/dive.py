@@ -112,6 +112,10 @@ class SourceFile(BaseModel):
                                                  "'xyz', 'gsf', 'kmall', 'em_all', 'geotiff', 'netcdf_grid', 'ply')")
     z_positive: Literal["down", "up"] | None = Field(
         None, description="vertical values are depths (down) or elevations (up); default: detected")
+    z_units: str | None = Field(None, max_length=40,
+                                description="units of a grid's values when the file does not say (m, km, ft, "
+                                            "us survey foot, fathom ...; converted to metres); default: from "
+                                            "the file, metres when it gives none")
     crs: str | None = Field(None, description="CRS of x/y (e.g. 'EPSG:4326', 'EPSG:32654') or 'local' for a local "
                                               "metric frame; default: from the file, else detected")
     variable: str | None = Field(None, description="NetCDF variable holding the grid (default: the first 2-D one)")

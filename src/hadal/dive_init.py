@@ -9,8 +9,11 @@ Every file under the directory is identified by content (:func:`hadal.formats.de
 * Sea-Bird ``.cnv`` (also compressed) and ``.hex`` -> ``cnv``;
 * multibeam (xyz text, GSF, .kmall, .all, .s7k) -> ``multibeam``; xyz text in a small metric frame is laser
   bathymetry (see :func:`xyz_role`);
-* rasters (GeoTIFF, NetCDF grids) -> ``laser`` when their cells are at most :data:`LASER_MAX_CELL_M`, else
-  ``prior_grid``; point clouds (PLY, PCD, LAS/LAZ) -> ``laser``.
+* rasters (GeoTIFF, NetCDF grids) -> ``laser`` when their cells are at most :data:`LASER_MAX_CELL_M` in a
+  metric frame, else ``prior_grid`` (a geographic grid is always a prior grid); what the file leaves open is
+  written as a commented hint (:func:`grid_hints`: ``z_positive: up  # guessed: ...``, ``z_units: m  # assumed``);
+  a grid with no cell below sea level (a land DEM) is listed as not used, with why; point clouds (PLY, PCD,
+  LAS/LAZ) -> ``laser``.
 
 Positions come from the data where it has them: the map frame from the centre of the geographic extent of
 the soundings/grids (or the cast position), the launch from ``--launch`` or a Sea-Bird header position.
@@ -56,6 +59,8 @@ class InitResult:
     plan: list[Any] = field(default_factory=list)
     #: source path -> why its reading hints were written (a heuristic's choice): a comment above its entry
     source_notes: dict[str, str] = field(default_factory=dict)
+    #: source path -> {hint: comment}: why a hint was written (a guess the file leaves open), as YAML comments
+    source_comments: dict[str, dict[str, str]] = field(default_factory=dict)
 
     def dive_yaml(self) -> str:
         return render_dive_yaml(self)
@@ -299,9 +304,8 @@ def _scan_files(res: InitResult, scan: _Scan, raw: Path) -> None:
             if note:
                 res.source_notes[rel] = note
         elif kind in ("geotiff", "netcdf"):
-            role = grid_role(info)
-            sources[role].append(rel)
-            res.mapped.append(f"{rel}: {kind} grid -> sources.{role}")
+            if not _map_grid(res, sources, rel, kind, info):
+                continue
         elif kind in ("ply", "pcd", "las"):
             sources["laser"].append(rel)
             res.mapped.append(f"{rel}: {kind} point cloud -> sources.laser")
@@ -314,6 +318,38 @@ def _scan_files(res: InitResult, scan: _Scan, raw: Path) -> None:
             scan.centres.append(c)
             if (box := _lonlat_box(info)) is not None:
                 scan.extents.append((rel, *box))
+
+
+def grid_hints(info: dict[str, Any]) -> dict[str, tuple[str, str]]:
+    """The reading hints ``hadal init`` writes for a grid whose file leaves a gap: ``{hint: (value, comment)}``.
+    A sign guessed from the values (:func:`hadal.grid.prior.z_positive`) -> ``z_positive``; no units in the file
+    -> ``z_units: m``. Each comment says it was not read from the file, so the user can change it."""
+    z = info.get("z") if isinstance(info.get("z"), dict) else {}
+    out: dict[str, tuple[str, str]] = {}
+    if z.get("sign_guessed") and z.get("positive") in ("up", "down"):
+        out["z_positive"] = (z["positive"], f"{z.get('sign_reason', 'guessed')}; the file does not say: check it")
+    if z.get("units_assumed"):
+        out["z_units"] = ("m", "assumed: the file gives no units for its values")
+    return out
+
+
+def _map_grid(res: InitResult, sources: dict[str, Any], rel: str, kind: str, info: dict[str, Any]) -> bool:
+    """Map a raster grid to ``sources.prior_grid`` or ``sources.laser`` (:func:`grid_role`), with the hints of
+    :func:`grid_hints`; ``False`` when it has no seafloor to grid (a land DEM: listed as not used, with why)."""
+    z = info.get("z") if isinstance(info.get("z"), dict) else {}
+    if z.get("no_seafloor"):
+        res.not_used.append(f"{rel}: {z['no_seafloor']}")
+        return False
+    role = grid_role(info)
+    hints = grid_hints(info)
+    if hints:
+        sources[role].append({"path": rel, **{k: v for k, (v, _) in hints.items()}})
+        res.source_comments[rel] = {k: c for k, (_, c) in hints.items()}
+    else:
+        sources[role].append(rel)
+    how = "; ".join(f"{k}: {v} ({c})" for k, (v, c) in hints.items())
+    res.mapped.append(f"{rel}: {kind} grid -> sources.{role}" + (f" [{how}]" if how else ""))
+    return True
 
 
 def _map_cast(res: InitResult, scan: _Scan, rel: str, kind: str, info: dict[str, Any]) -> bool:
@@ -461,7 +497,7 @@ _COMMENTS = {
     "vehicle_config": "channel mapping of the vehicle logs (suggested by hadal init; check the units)",
     "launch": "launch position (origin of the dead-reckoned track)",
     "map_frame": "origin of the local transverse-Mercator map frame of grids and matching",
-    "sources": "raw files by kind, relative to this directory",
+    "sources": "raw files by kind, relative to this directory (a hint with a comment is a guess: check it)",
 }
 
 
@@ -541,7 +577,9 @@ def render_dive_yaml(res: InitResult) -> str:
     for key, value in res.dive.items():
         out.append(f"# {_COMMENTS.get(key, key)}")
         block = yaml.safe_dump({key: value}, sort_keys=False, default_flow_style=False).rstrip()
-        out.append(_with_source_notes(block, res.source_notes) if key == "sources" else block)
+        if key == "sources":
+            block = _with_source_notes(_comment_hints(block, res.source_comments), res.source_notes)
+        out.append(block)
     if "metadata" not in res.dive:
         out += metadata_stub()
     if res.not_used:
@@ -551,6 +589,24 @@ def render_dive_yaml(res: InitResult) -> str:
         out.append("# still to check or fill in:")
         out += [f"#   {line}" for line in res.todo]
     return "\n".join(out) + "\n"
+
+
+def _comment_hints(text: str, comments: dict[str, dict[str, str]]) -> str:
+    """``text`` (the dumped ``sources:`` block) with each commented hint's line ending in ``  # why``."""
+    if not comments:
+        return text
+    out, current = [], None
+    for line in text.splitlines():
+        m = re.match(r"^\s*-\s+path:\s*(.+?)\s*$", line)
+        if m:
+            current = yaml.safe_load(m.group(1))
+        else:
+            k = re.match(r"^\s+(\w+):", line)
+            why = comments.get(current, {}).get(k.group(1)) if k and current is not None else None
+            if why:
+                line = f"{line}  # {' '.join(why.split())}"
+        out.append(line)
+    return "\n".join(out)
 
 
 def write_init(res: InitResult, *, force: bool = False) -> list[Path]:

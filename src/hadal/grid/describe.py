@@ -30,16 +30,20 @@ def _f(v) -> float | None:
 
 
 def describe_grid(path: str | Path, *, variable: str | None = None, format: str | None = None,
-                  crs: str | None = None, z_positive: str | None = None) -> dict[str, Any]:
+                  crs: str | None = None, z_positive: str | None = None, z_units: str | None = None
+                  ) -> dict[str, Any]:
     """Format, reader and version, size, cell size, CRS (and ``looks_metric``: a geographic tag that only
-    makes sense in metres), registration, extent, z range, sign guess and nodata fraction of a grid."""
-    from hadal.grid.prior import describe_crs, native_resolution_m
+    makes sense in metres), registration, extent (longitudes -180..180 for a 0-360 grid), z range in metres
+    (``z.units_source``: from the file, converted, or assumed), sign (``z.positive``, ``z.sign_guessed`` when
+    the file says nothing), ``z.land_fraction`` and ``z.no_seafloor`` (why a land DEM has nothing to grid)
+    and nodata fraction of a grid."""
+    from hadal.grid.prior import depth_and_land, describe_crs, is_guessed, native_resolution_m, no_seafloor
     from hadal.grid.prior import z_positive as sign_of
 
     p = Path(path)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", GridCRSWarning)
-        da = read_grid(p, variable=variable, format=format, crs=crs)
+        da = read_grid(p, variable=variable, format=format, crs=crs, z_units=z_units)
     a = da.attrs
     z = da.values[np.isfinite(da.values)]
     dx, dy = float(a.get("cell_size_x", 0)), float(a.get("cell_size_y", 0))
@@ -66,10 +70,16 @@ def describe_grid(path: str | Path, *, variable: str | None = None, format: str 
                 "note": a.get("crs_override", a.get("crs_note", ""))},
         "extent": {"xmin": xmin, "xmax": xmax, "ymin": ymin, "ymax": ymax},
         "z": {"min": _f(z.min()) if z.size else None, "max": _f(z.max()) if z.size else None,
-              "units": a.get("units", ""), "positive": pos, "sign_reason": reason},
+              "units": a.get("units", ""), "units_in_file": a.get("z_units_file", ""),
+              "units_source": a.get("z_units_source", ""), "units_assumed": bool(a.get("z_units_assumed", 0)),
+              "positive": pos, "sign_reason": reason, "sign_guessed": is_guessed(reason),
+              "land_fraction": float(depth_and_land(z, pos)[1].mean()) if z.size else 0.0,
+              "no_seafloor": no_seafloor(p.name, da, pos, reason)},
         "nodata": a.get("nodata", "") if a.get("nodata", "") != "" else None,
         "nodata_fraction": float(a.get("nodata_fraction", 0.0)),
     }
+    if a.get("lon_convention"):
+        out["lon_convention"] = a["lon_convention"]
     if caught:
         out["warnings"] = [str(w.message) for w in caught]
     return out

@@ -20,12 +20,25 @@ near its meridian, not across an ocean basin; ``grid.prior_max_extent_km``, defa
 never silent: the product records the kept lon/lat bounds, the fraction of the source's valid area and
 of its depth range outside the crop (:func:`crop_attrs`), and the ``grid`` stage logs a WARNING.
 
+**Units** come from the file and are converted to metres by :func:`hadal.grid.readers.read_grid`
+(``prior_grid_z_units``); 0-360 longitudes are shifted to -180..180 (``prior_grid_lon_convention``).
+
 **Sign** (:func:`z_positive`, first rule that decides): the ``z_positive`` hint of ``dive.yaml``; a CF
 ``positive`` attribute; a CF ``standard_name`` (``*depth*`` -> down; ``height``/``altitude``/
-``*elevation*`` -> up); values all of one sign (all <= 0 -> elevations below sea level; all >= 0 ->
-depths); names and units (``depth``/``below`` -> down; ``elevation``/``topo``/``height``/``above`` ->
-up); otherwise (mixed signs, as in ETOPO/GEBCO grids with land) elevation. The decision and its reason
-are recorded in the product's attributes.
+``*elevation*`` -> up); words of the variable's name, long_name and units (``depth``/``below`` -> down;
+``elevation``/``topo*``/``height``/``above`` -> up; GMT's generic ``z`` says nothing). Only then the values,
+as a guess whose reason starts with ``guessed:`` (``hadal init`` writes it into dive.yaml as a commented hint):
+all <= 0 -> elevations below sea level; mixed -> elevations (GMT/ETOPO/GEBCO, land above 0); all >= 0 with
+>= 1 % exactly 0, or in a GMT-written grid -> land elevations; other all >= 0 -> depths. The decision and its
+reason are recorded in the product's attributes.
+
+**Land** (:func:`depth_and_land`): a cell above sea level has no depth: ``depth_m`` NaN, flag layer ``land`` = 1.
+A grid with no cell below sea level is refused in one line (:func:`no_seafloor`: "NAME is land elevation
+(LO-HI m ...): no seafloor to grid").
+
+**Several grids** (:func:`prior_mosaic`, :data:`MOSAIC_RULE`): one grid at the finest resolution over the union
+of their outlines, each cell from the finest grid with a value there, then listing order; ``prior_grid_source``
+names each cell's grid, ``prior_grid_sources`` each grid's resolution, sign, units and cells used.
 
 Layers: a prior grid has no soundings, so ``count``, ``depth_median_m``, ``depth_std_m``, ``filled`` and
 ``uncertainty_m`` are absent (the source states no uncertainty); ``attrs['layers_absent']`` says so.
@@ -34,6 +47,7 @@ Layers: a prior grid has no soundings, so ``count``, ``depth_median_m``, ``depth
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -54,8 +68,46 @@ RESAMPLING = ("bilinear in the source grid's index space at the target cell cent
 
 
 # ------------------------------------------------------------------ sign
+#: CF standard names of grid values that are depths (positive down) / heights (positive up)
+DEPTH_STANDARD_NAMES = ("depth", "sea_floor_depth", "sea_floor_depth_below_sea_surface", "sea_floor_depth_below_geoid",
+                        "sea_floor_depth_below_mean_sea_level", "sea_floor_depth_below_reference_ellipsoid",
+                        "depth_below_geoid", "depth_below_sea_floor")
+HEIGHT_STANDARD_NAMES = ("height", "altitude", "surface_altitude", "height_above_mean_sea_level",
+                         "height_above_reference_ellipsoid", "height_above_geopotential_datum", "bedrock_altitude",
+                         "height_above_geoid", "land_surface_altitude", "sea_floor_altitude")
+#: words of a variable's name/long_name/units that say up (elevations) or down (depths); GMT's generic ``z``
+#: and the ambiguous ``bathymetry`` say neither
+UP_WORDS = ("elevation", "elev", "topo", "height", "altitude", "above", "dem", "orography")
+DOWN_WORDS = ("depth", "below", "sounding")
+#: all values >= 0 with at least this fraction exactly 0: a land DEM with the sea at 0 (guessed "up")
+SEA_LEVEL_ZERO_FRACTION = 0.01
+GUESSED = "guessed: "
+
+
+def _words(text: str) -> set[str]:
+    import re
+
+    return {w for w in re.split(r"[^a-z]+", text.lower()) if w}
+
+
+def _says(words: set[str], vocabulary: tuple[str, ...]) -> bool:
+    """A word of ``words`` is a word of ``vocabulary`` or (for words of 4+ letters) starts with one
+    (``topography`` by ``topo``, ``depths`` by ``depth``)."""
+    return any(w == v or (len(v) >= 4 and w.startswith(v)) for w in words for v in vocabulary)
+
+
 def z_positive(da: xr.DataArray, hint: str | None = None) -> tuple[str, str]:
-    """``("up" | "down", reason)``: whether a grid's values are elevations or depths (module docstring)."""
+    """``("up" | "down", reason)``: whether a grid's values are elevations or depths (module docstring).
+
+    Metadata first: the ``z_positive`` hint of dive.yaml, CF ``positive``, CF ``standard_name``
+    (:data:`DEPTH_STANDARD_NAMES`, :data:`HEIGHT_STANDARD_NAMES`, ``*depth*``/``*altitude*``/``*height*``), the
+    words of the variable's name, ``long_name`` and units (:data:`UP_WORDS`, :data:`DOWN_WORDS`; GDAL band
+    metadata land in the same attributes). Only when the file says nothing are the values used, and the reason
+    then starts with ``guessed:`` (``hadal init`` writes the guess into dive.yaml): all <= 0 -> elevations below
+    sea level; mixed -> elevations (GMT/ETOPO/GEBCO: land above 0); all >= 0 with >= 1 % of the cells exactly 0
+    -> a land DEM with the sea at 0 (up); all >= 0 in a GMT-written grid -> elevations (GMT's convention);
+    other all >= 0 -> depths (down).
+    """
     if hint is not None:
         if hint not in ("up", "down"):
             raise InputError(f"z_positive must be 'up' or 'down', got {hint!r}")
@@ -66,22 +118,44 @@ def z_positive(da: xr.DataArray, hint: str | None = None) -> tuple[str, str]:
         return pos, f"CF attribute positive={pos!r}"
     sn = str(a.get("standard_name", "")).strip().lower()
     if sn:
-        if "depth" in sn:
+        if sn in DEPTH_STANDARD_NAMES or "depth" in sn:
             return "down", f"standard_name {sn!r}"
-        if sn in ("height", "altitude", "surface_altitude", "height_above_mean_sea_level",
-                  "height_above_reference_ellipsoid", "height_above_geopotential_datum") or "elevation" in sn:
+        if sn in HEIGHT_STANDARD_NAMES or any(w in sn for w in ("elevation", "altitude", "height")):
             return "up", f"standard_name {sn!r}"
-    v = da.values[np.isfinite(da.values)]
-    if v.size and np.all(v <= 0) and np.any(v < 0):
-        return "up", f"all values <= 0 ({v.min():g}..{v.max():g}): elevations below sea level"
-    if v.size and np.all(v >= 0) and np.any(v > 0):
-        return "down", f"all values >= 0 ({v.min():g}..{v.max():g}): depths"
-    words = " ".join(str(a.get(k, "")) for k in ("var_name", "long_name", "units")).lower()
-    if "depth" in words or "below" in words:
-        return "down", f"name/units {words.strip()!r}"
-    if any(w in words for w in ("elev", "topo", "height", "altitude", "above")):
-        return "up", f"name/units {words.strip()!r}"
-    return "up", "mixed signs: elevation (the GMT/ETOPO/GEBCO convention, land above 0)"
+    keys = ("var_name", "long_name", "description", "z_units_file" if "z_units_file" in a else "units")
+    text = " ".join(str(a.get(k, "")) for k in keys)
+    words = _words(text)
+    down, up = _says(words, DOWN_WORDS), _says(words, UP_WORDS)
+    if down and not up:
+        return "down", f"name/units {' '.join(text.split())!r}"
+    if up and not down:
+        return "up", f"name/units {' '.join(text.split())!r}"
+    return _guess_sign(np.asarray(da.values, float), gmt="GMT grid" in str(a.get("format", "")))
+
+
+def _guess_sign(values: np.ndarray, gmt: bool = False) -> tuple[str, str]:
+    """The values-only sign guess of :func:`z_positive` (reason starts with :data:`GUESSED`)."""
+    v = values[np.isfinite(values)]
+    if not v.size:
+        return "up", GUESSED + "no valid values: elevation"
+    lo, hi = float(v.min()), float(v.max())
+    if hi <= 0:
+        return "up", GUESSED + f"all values <= 0 ({lo:g}..{hi:g}): elevations below sea level"
+    if lo < 0:
+        return "up", GUESSED + f"mixed signs ({lo:g}..{hi:g}): elevations, land above 0 (GMT/ETOPO/GEBCO)"
+    zero = float(np.mean(v == 0))
+    if gmt:
+        return "up", GUESSED + (f"all values >= 0 ({lo:g}..{hi:g}) in a GMT grid: elevations (GMT's z is positive "
+                                "up, as in its relief grids)")
+    if zero >= SEA_LEVEL_ZERO_FRACTION:
+        return "up", GUESSED + (f"all values >= 0 ({lo:g}..{hi:g}) with {100 * zero:.1f} % exactly 0: land "
+                                "elevations with the sea at 0")
+    return "down", GUESSED + f"all values >= 0 ({lo:g}..{hi:g}), none at sea level: depths"
+
+
+def is_guessed(reason: str) -> bool:
+    """True when a :func:`z_positive` reason is a values-only guess (the file said nothing)."""
+    return str(reason).startswith(GUESSED)
 
 
 # ------------------------------------------------------------------ plausibility
@@ -244,16 +318,11 @@ def bilinear(da: xr.DataArray, xs: np.ndarray, ys: np.ndarray) -> np.ndarray:
     return out
 
 
-def resample_to_frame(da: xr.DataArray, frame: LocalFrame | None, resolution_m: float | None = None, *,
-                      max_extent_m: float | None = DEFAULT_MAX_EXTENT_M,
-                      max_cells: int = DEFAULT_MAX_CELLS) -> tuple[xr.Dataset, dict[str, Any]]:
-    """Resample a :func:`read_grid` array onto square cells of ``frame`` (``None``/local grid: identity).
-
-    Returns ``(Dataset with "z" (y, x) in the source's units and sign, info)``; ``info`` holds the
-    resolution, method and crop. All-NaN border rows/columns are cropped.
-    """
-    res = float(resolution_m) if resolution_m else native_resolution_m(da)
-    inv, fwd = _transformers(da, frame)
+def frame_bounds(da: xr.DataArray, frame: LocalFrame | None,
+                 max_extent_m: float | None = DEFAULT_MAX_EXTENT_M) -> tuple[list[float], bool]:
+    """The grid's outline in the map frame ``[xmin, ymin, xmax, ymax]`` (its edges projected at 257 points each),
+    cropped to ``max_extent_m`` around the frame origin; and whether it was cropped."""
+    _, fwd = _transformers(da, frame)
     x, y = np.asarray(da.x.values, float), np.asarray(da.y.values, float)
     dx, dy = _cell_sizes(da)
     h = 0.5 if da.attrs.get("registration", "pixel") == "pixel" else 0.0
@@ -277,17 +346,37 @@ def resample_to_frame(da: xr.DataArray, frame: LocalFrame | None, resolution_m: 
             raise InputError(f"{da.attrs.get('source', 'grid')}: the grid does not cover the dive's map frame "
                              f"(origin {frame.origin_latitude_deg:g}, {frame.origin_longitude_deg:g}) within "
                              f"{half / 1000:g} km")
+    return bounds, cropped
+
+
+def sample_on_cells(da: xr.DataArray, frame: LocalFrame | None, xc: np.ndarray, yc: np.ndarray) -> np.ndarray:
+    """``da`` (source units and sign) bilinear at the map-frame cell centres ``xc`` x ``yc`` -> ``(ny, nx)``."""
+    inv, _ = _transformers(da, frame)
+    z = np.empty((len(yc), len(xc)))
+    step = max(1, 2_000_000 // max(1, len(xc)))
+    for r0 in range(0, len(yc), step):
+        yy, xx = np.meshgrid(yc[r0:r0 + step], xc, indexing="ij")
+        sx, sy = inv(xx.ravel(), yy.ravel())
+        z[r0:r0 + step] = bilinear(da, np.asarray(sx), np.asarray(sy)).reshape(xx.shape)
+    return z
+
+
+def resample_to_frame(da: xr.DataArray, frame: LocalFrame | None, resolution_m: float | None = None, *,
+                      max_extent_m: float | None = DEFAULT_MAX_EXTENT_M,
+                      max_cells: int = DEFAULT_MAX_CELLS) -> tuple[xr.Dataset, dict[str, Any]]:
+    """Resample a :func:`read_grid` array onto square cells of ``frame`` (``None``/local grid: identity).
+
+    Returns ``(Dataset with "z" (y, x) in the source's units and sign, info)``; ``info`` holds the
+    resolution, method and crop. All-NaN border rows/columns are cropped.
+    """
+    res = float(resolution_m) if resolution_m else native_resolution_m(da)
+    _, fwd = _transformers(da, frame)
+    bounds, cropped = frame_bounds(da, frame, max_extent_m)
     try:
         spec = make_grid_spec(res, bounds, max_cells=max_cells, snap=True)
     except InputError as exc:
         raise InputError(f"{da.attrs.get('source', 'grid')}: {exc} (set grid.prior_resolution_m coarser)") from None
-    xc, yc = spec.x, spec.y
-    z = np.empty((spec.ny, spec.nx))
-    step = max(1, 2_000_000 // max(1, spec.nx))
-    for r0 in range(0, spec.ny, step):
-        yy, xx = np.meshgrid(yc[r0:r0 + step], xc, indexing="ij")
-        sx, sy = inv(xx.ravel(), yy.ravel())
-        z[r0:r0 + step] = bilinear(da, np.asarray(sx), np.asarray(sy)).reshape(xx.shape)
+    z = sample_on_cells(da, frame, spec.x, spec.y)
     valid = np.isfinite(z)
     if not valid.any():
         raise InputError(f"{da.attrs.get('source', 'grid')}: no valid grid values inside the map-frame area")
@@ -345,35 +434,73 @@ def describe_crs(da: xr.DataArray) -> str:
     return f"{c.name}" + (f" (EPSG:{epsg})" if epsg else "")
 
 
-def prior_dtm(path: str | Path, frame: LocalFrame, *, z_positive_hint: str | None = None, crs: str | None = None,
-              variable: str | None = None, format: str | None = None, resolution_m: float | None = None,
-              max_extent_m: float | None = DEFAULT_MAX_EXTENT_M, max_cells: int = DEFAULT_MAX_CELLS,
-              max_read_bytes: float | None = None) -> xr.Dataset:
-    """A prior grid as a reference DTM in ``frame`` (module docstring): ``depth_m`` positive down + metadata.
-    ``max_read_bytes``: refuse a file whose read needs more (default: the memory budget)."""
+@dataclass
+class PriorGrid:
+    """One prior grid read (:func:`load_prior`): values in metres, sign decided, land-only grids refused."""
+
+    path: Path
+    da: xr.DataArray
+    z_positive: str
+    z_reason: str
+    depth_note: str = ""
+    warning: str = ""
+
+    @property
+    def name(self) -> str:
+        return self.path.name
+
+
+def depth_and_land(z: np.ndarray, pos: str) -> tuple[np.ndarray, np.ndarray]:
+    """``(depth_m positive down with land NaN, land mask)`` of values ``z`` (metres) of sign ``pos``.
+    Land: above sea level (elevation > 0, i.e. depth < 0). Sea level itself (0) is a depth of 0."""
+    depth = -np.asarray(z, float) if pos == "up" else np.asarray(z, float)
+    with np.errstate(invalid="ignore"):
+        land = np.isfinite(depth) & (depth < 0)
+    return np.where(land, np.nan, depth), land
+
+
+def no_seafloor(name: str, da: xr.DataArray, pos: str, reason: str) -> str:
+    """Why grid ``name`` has nothing to grid (no cell below sea level, e.g. a land DEM), else ``""``:
+    "NAME is land elevation (LO-HI m, ...): no seafloor to grid"."""
+    depth, _ = depth_and_land(da.values, pos)
+    if np.any(np.nan_to_num(depth, nan=0.0) > 0):
+        return ""
+    v = da.values[np.isfinite(da.values)]
+    what = "land elevation" if pos == "up" else "depths at or above sea level"
+    return (f"{name} is {what} ({float(v.min()):g}-{float(v.max()):g} m, z_positive {pos}: {reason}): no seafloor "
+            "to grid" + (f"; if these are depths, list {name} with z_positive: down in dive.yaml"
+                         if pos == "up" and is_guessed(reason) else ""))
+
+
+def load_prior(path: str | Path, *, z_positive_hint: str | None = None, crs: str | None = None,
+               variable: str | None = None, format: str | None = None, z_units: str | None = None,
+               max_read_bytes: float | None = None) -> PriorGrid:
+    """Read a prior grid (:func:`read_grid`: metres, -180..180), mask fill values (:func:`check_depth_plausible`)
+    and decide its sign (:func:`z_positive`). A grid with no cell below sea level is refused in one line:
+    "NAME is land elevation (LO-HI m): no seafloor to grid" (a land DEM is never read as depths)."""
     import warnings
 
-    from hadal.grid.multibeam import add_geo
     from hadal.grid.readers import GridCRSWarning
 
     p = Path(path)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", GridCRSWarning)
-        da = read_grid(p, variable=variable, format=format, crs=crs, max_bytes=max_read_bytes)
+        da = read_grid(p, variable=variable, format=format, crs=crs, max_bytes=max_read_bytes, z_units=z_units)
     da, depth_note = check_depth_plausible(da)
     pos, reason = z_positive(da, z_positive_hint)
-    ds, info = resample_to_frame(da, frame, resolution_m, max_extent_m=max_extent_m, max_cells=max_cells)
-    z = ds["z"].values
-    depth = -z if pos == "up" else z
-    ds = ds.drop_vars("z")
-    ds["depth_m"] = (("y", "x"), depth, {
-        "standard_name": "sea_floor_depth_below_sea_surface", "units": "m", "positive": "down",
-        "long_name": f"depth from the prior grid {p.name}, resampled bilinearly onto the map frame"})
+    why = no_seafloor(p.name, da, pos, reason)
+    if why:
+        raise InputError(why)
+    return PriorGrid(p, da, pos, reason, depth_note, str(caught[0].message) if caught else "")
+
+
+def _prior_attrs(g: PriorGrid) -> dict[str, Any]:
+    """The ``prior_grid_*`` attributes describing one source grid."""
+    da = g.da
     dx, dy = _cell_sizes(da)
     unit = "degrees" if da.attrs["crs_kind"] == "geographic" else "m"
-    ds.attrs.update({
-        "dtm_source": "prior_grid",
-        "prior_grid_file": p.name,
+    out: dict[str, Any] = {
+        "prior_grid_file": g.name,
         "prior_grid_format": da.attrs.get("format", ""),
         "prior_grid_reader": da.attrs.get("reader", ""),
         "prior_grid_variable": da.attrs.get("var_name", ""),
@@ -383,25 +510,160 @@ def prior_dtm(path: str | Path, frame: LocalFrame, *, z_positive_hint: str | Non
         "prior_grid_cell_size": f"{dx:.8g} x {dy:.8g} {unit}",
         "prior_grid_shape": f"{da.sizes['y']} x {da.sizes['x']}",
         "prior_grid_nodata_fraction": float(da.attrs.get("nodata_fraction", 0.0)),
-        "z_positive_source": pos,
-        "z_sign_detection": reason,
-        "z_sign_flipped": int(pos == "up"),
-        "resampling": info["resampling"],
-        "n_cells_valid": info["n_cells_valid"],
-        "layers_absent": "count, depth_median_m, depth_std_m, filled, uncertainty_m: a prior grid has no "
-                         "soundings and states no uncertainty",
-    })
-    for k in ("crs_override", "crs_note"):
+        "prior_grid_z_units": da.attrs.get("z_units_source", ""),
+        "z_positive_source": g.z_positive,
+        "z_sign_detection": g.z_reason,
+        "z_sign_flipped": int(g.z_positive == "up"),
+    }
+    for k in ("crs_override", "crs_note", "lon_convention", "scale_offset"):
         if k in da.attrs:
-            ds.attrs[f"prior_grid_{k}"] = da.attrs[k]
-    if caught:
-        ds.attrs["prior_grid_warning"] = str(caught[0].message)
-    if depth_note:
-        ds.attrs["prior_grid_depth_check"] = depth_note
-    if "scale_offset" in da.attrs:
-        ds.attrs["prior_grid_scale_offset"] = da.attrs["scale_offset"]
+            out[f"prior_grid_{k}"] = da.attrs[k]
+    if g.warning:
+        out["prior_grid_warning"] = g.warning
+    if g.depth_note:
+        out["prior_grid_depth_check"] = g.depth_note
+    return out
+
+
+_LAYERS_ABSENT = ("count, depth_median_m, depth_std_m, filled, uncertainty_m: a prior grid has no soundings and "
+                  "states no uncertainty")
+_LAND_ATTRS = {"long_name": "land (above sea level in the prior grid): no depth, depth_m is NaN",
+               "flag_values": np.array([0, 1], np.int8), "flag_meanings": "not_land land"}
+
+
+def _depth_vars(ds: xr.Dataset, depth: np.ndarray, land: np.ndarray, long_name: str) -> None:
+    ds["depth_m"] = (("y", "x"), depth, {
+        "standard_name": "sea_floor_depth_below_sea_surface", "units": "m", "positive": "down",
+        "long_name": long_name})
+    ds["land"] = (("y", "x"), land.astype(np.int8), dict(_LAND_ATTRS))
+    ds.attrs["n_cells_land"] = int(land.sum())
+
+
+def prior_dtm(path: str | Path, frame: LocalFrame, *, z_positive_hint: str | None = None, crs: str | None = None,
+              variable: str | None = None, format: str | None = None, resolution_m: float | None = None,
+              max_extent_m: float | None = DEFAULT_MAX_EXTENT_M, max_cells: int = DEFAULT_MAX_CELLS,
+              max_read_bytes: float | None = None, z_units: str | None = None) -> xr.Dataset:
+    """A prior grid as a reference DTM in ``frame`` (module docstring): ``depth_m`` positive down (land NaN),
+    ``land`` (1 above sea level) + metadata. ``max_read_bytes``: refuse a file whose read needs more (default:
+    the memory budget)."""
+    g = load_prior(path, z_positive_hint=z_positive_hint, crs=crs, variable=variable, format=format,
+                   z_units=z_units, max_read_bytes=max_read_bytes)
+    return _single_dtm(g, frame, resolution_m, max_extent_m, max_cells)
+
+
+def _single_dtm(g: PriorGrid, frame: LocalFrame, resolution_m, max_extent_m, max_cells) -> xr.Dataset:
+    from hadal.grid.multibeam import add_geo
+
+    ds, info = resample_to_frame(g.da, frame, resolution_m, max_extent_m=max_extent_m, max_cells=max_cells)
+    depth, land = depth_and_land(ds["z"].values, g.z_positive)
+    if not np.any(np.nan_to_num(depth, nan=0.0) > 0):
+        raise InputError(f"{g.name}: no seafloor inside the map-frame area (every valid cell there is land or at "
+                         "sea level)")
+    ds = ds.drop_vars("z")
+    _depth_vars(ds, depth, land, f"depth from the prior grid {g.name}, resampled bilinearly onto the map frame; "
+                                 "NaN on land")
+    ds.attrs.update({"dtm_source": "prior_grid", **_prior_attrs(g), "resampling": info["resampling"],
+                     "n_cells_valid": int(np.isfinite(depth).sum()), "layers_absent": _LAYERS_ABSENT})
     if info["cropped_to_m"]:
-        ds.attrs.update(crop_attrs(info, pos))
+        ds.attrs.update(crop_attrs(info, g.z_positive))
+    return add_geo(ds, frame)
+
+
+MOSAIC_RULE = ("prior grids mosaicked onto one map-frame grid at the finest grid's resolution (or "
+               "grid.prior_resolution_m): each cell comes from the finest grid that has a value (depth or land) "
+               "there, ties in dive.yaml listing order; coarser grids only fill cells the finer ones leave empty; "
+               "layer prior_grid_source names the grid of each cell")
+
+
+def prior_mosaic(grids: list[PriorGrid], frame: LocalFrame, *, resolution_m: float | None = None,
+                 max_extent_m: float | None = DEFAULT_MAX_EXTENT_M, max_cells: int = DEFAULT_MAX_CELLS
+                 ) -> xr.Dataset:
+    """Several prior grids as one DTM (:data:`MOSAIC_RULE`); one grid: :func:`prior_dtm`'s product.
+
+    Priority: finer native resolution first (:func:`native_resolution_m`), then listing order. The target cells
+    are square at the finest resolution (or ``resolution_m``), over the union of the grids' outlines; when that
+    exceeds ``max_cells`` the cell is coarsened to fit (recorded in ``prior_grid_mosaic_resolution_note``).
+    ``prior_grid_source`` (int8) is the index in ``prior_grid_files`` of the grid each cell came from (-1: none);
+    a grid that contributes no cell is still named, with ``0`` cells, in ``prior_grid_sources``.
+    """
+    import json
+
+    from hadal.grid.multibeam import add_geo
+
+    if len(grids) == 1:
+        return _single_dtm(grids[0], frame, resolution_m, max_extent_m, max_cells)
+    natives = [native_resolution_m(g.da) for g in grids]
+    order = sorted(range(len(grids)), key=lambda i: (natives[i], i))
+    res = float(resolution_m) if resolution_m else min(natives)
+    boxes = [frame_bounds(g.da, frame, max_extent_m) for g in grids]
+    bounds = [min(b[0][0] for b in boxes), min(b[0][1] for b in boxes), max(b[0][2] for b in boxes),
+              max(b[0][3] for b in boxes)]
+    note = ""
+    n = ((bounds[2] - bounds[0]) / res + 2) * ((bounds[3] - bounds[1]) / res + 2)
+    if n > max_cells:
+        new = float(f"{res * math.sqrt(n / max_cells) * 1.01:.3g}")
+        note = (f"the union of the grids at {res:g} m would be {n:,.0f} cells (grid.max_cells {max_cells:,}): "
+                f"cells coarsened to {new:g} m")
+        res = new
+    spec = make_grid_spec(res, bounds, max_cells=max_cells, snap=True)
+    depth = np.full((spec.ny, spec.nx), np.nan)
+    land = np.zeros((spec.ny, spec.nx), bool)
+    source = np.full((spec.ny, spec.nx), -1, np.int8)
+    used = [0] * len(grids)
+    for i in order:
+        d, lnd = depth_and_land(sample_on_cells(grids[i].da, frame, spec.x, spec.y), grids[i].z_positive)
+        free = source < 0
+        take = free & (np.isfinite(d) | lnd)
+        depth[take], land[take], source[take] = d[take], lnd[take], i
+        used[i] = int(take.sum())
+    decided = source >= 0
+    if not np.any(np.nan_to_num(depth, nan=0.0) > 0):
+        raise InputError(f"{', '.join(g.name for g in grids)}: no seafloor inside the map-frame area")
+    rows, cols = np.flatnonzero(decided.any(axis=1)), np.flatnonzero(decided.any(axis=0))
+    r0, r1, c0, c1 = rows[0], rows[-1] + 1, cols[0], cols[-1] + 1
+    spec = make_grid_spec(res, (spec.x0 + c0 * res, spec.y0 + r0 * res, spec.x0 + c1 * res, spec.y0 + r1 * res),
+                          max_cells=max_cells)
+    depth, land, source = depth[r0:r1, c0:c1], land[r0:r1, c0:c1], source[r0:r1, c0:c1]
+    ds = to_dataset(spec, {})
+    names = [g.name for g in grids]
+    _depth_vars(ds, depth, land, "depth from the prior grids " + ", ".join(names) + " mosaicked onto the map frame "
+                                 "(bilinear in each); NaN on land")
+    ds["prior_grid_source"] = (("y", "x"), source, {
+        "long_name": "index of the prior grid each cell comes from (prior_grid_files order; -1 none)",
+        "flag_values": np.arange(-1, len(grids), dtype=np.int8),
+        "flag_meanings": " ".join(["none"] + [f"grid_{k}" for k in range(len(grids))])})
+    per = [{"file": g.name, "priority": order.index(k) + 1, "resolution_m": natives[k], "crs": describe_crs(g.da),
+            "z_positive": g.z_positive, "z_sign_detection": g.z_reason,
+            "z_units": g.da.attrs.get("z_units_source", ""), "n_cells_used": used[k],
+            **({"lon_convention": g.da.attrs["lon_convention"]} if "lon_convention" in g.da.attrs else {})}
+           for k, g in enumerate(grids)]
+    first = _prior_attrs(grids[order[0]])
+    ds.attrs.update({
+        "dtm_source": "prior_grid", **first,
+        "prior_grid_file": ", ".join(names), "prior_grid_files": ", ".join(names),
+        "prior_grid_format": "; ".join(g.da.attrs.get("format", "") for g in grids),
+        "prior_grid_reader": "; ".join(sorted({g.da.attrs.get("reader", "") for g in grids})),
+        "prior_grid_crs": "; ".join(describe_crs(g.da) for g in grids),
+        "prior_grid_registration": "; ".join(g.da.attrs.get("registration", "") for g in grids),
+        "prior_grid_mosaic": MOSAIC_RULE, "prior_grid_sources": json.dumps(per),
+        "z_positive_source": "; ".join(f"{g.name}: {g.z_positive}" for g in grids),
+        "z_sign_detection": "; ".join(f"{g.name}: {g.z_reason}" for g in grids),
+        "z_sign_flipped": int(any(g.z_positive == "up" for g in grids)),
+        "resampling": RESAMPLING, "n_cells_valid": int(np.isfinite(depth).sum()), "layers_absent": _LAYERS_ABSENT,
+    })
+    warn = [f"{g.name}: {g.warning}" for g in grids if g.warning]
+    checks = [f"{g.name}: {g.depth_note}" for g in grids if g.depth_note]
+    ds.attrs.pop("prior_grid_warning", None)
+    ds.attrs.pop("prior_grid_depth_check", None)
+    if warn:
+        ds.attrs["prior_grid_warning"] = "; ".join(warn)
+    if checks:
+        ds.attrs["prior_grid_depth_check"] = "; ".join(checks)
+    if note:
+        ds.attrs["prior_grid_mosaic_resolution_note"] = note
+    cropped = [g.name for g, b in zip(grids, boxes, strict=True) if b[1]]
+    if cropped:
+        ds.attrs["prior_grid_cropped"] = f"{', '.join(cropped)} cropped to {max_extent_m / 1000:g} km around the origin"
     return add_geo(ds, frame)
 
 
@@ -434,7 +696,7 @@ def crop_attrs(info: dict[str, Any], pos: str) -> dict[str, Any]:
 
 def sample_depth(path_or_da, frame: LocalFrame, x_m, y_m, *, z_positive_hint: str | None = None,
                  **read_kw) -> np.ndarray:
-    """Prior-grid depth (positive down, bilinear) at map-frame points ``x_m, y_m`` (NaN outside/nodata)."""
+    """Prior-grid depth (positive down, bilinear) at map-frame points ``x_m, y_m`` (NaN outside/nodata/land)."""
     da = path_or_da if isinstance(path_or_da, xr.DataArray) else read_grid(path_or_da, **read_kw)
     da, _ = check_depth_plausible(da)
     pos, _ = z_positive(da, z_positive_hint)
@@ -442,4 +704,4 @@ def sample_depth(path_or_da, frame: LocalFrame, x_m, y_m, *, z_positive_hint: st
     xx, yy = np.broadcast_arrays(np.asarray(x_m, float), np.asarray(y_m, float))
     sx, sy = inv(xx.ravel(), yy.ravel())
     v = bilinear(da, np.asarray(sx), np.asarray(sy)).reshape(xx.shape)
-    return -v if pos == "up" else v
+    return depth_and_land(v, pos)[0]

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import io
 import math
+import re
 import warnings
 from pathlib import Path
 
@@ -572,8 +573,9 @@ def check_grid_read_size(p: Path, ny: int, nx: int, max_bytes: float | None) -> 
 
 
 def read_grid(path: str | Path, *, crs_kind: str | None = None, variable: str | None = None,
-              format: str | None = None, crs: str | None = None, max_bytes: float | None = None) -> xr.DataArray:
-    """Read a gridded surface as a 2-D DataArray ``z(y, x)`` (values as stored: the sign is the caller's).
+              format: str | None = None, crs: str | None = None, max_bytes: float | None = None,
+              z_units: str | None = None) -> xr.DataArray:
+    """Read a gridded surface as a 2-D DataArray ``z(y, x)`` in metres (the sign as stored: it is the caller's).
 
     The format is detected from the content (:func:`sniff_kind`; ``format`` overrides): GeoTIFF and any
     other GDAL raster (ESRI ASCII, Surfer, BAG ...) via rasterio; NetCDF COARDS/CF and GMT netCDF ``.grd``
@@ -593,9 +595,20 @@ def read_grid(path: str | Path, *, crs_kind: str | None = None, variable: str | 
     several times: no slice is picked silently); a CF lat/lon netCDF is never handed to GDAL's band 1.
     Longitudes in -180..180 that jump at the antimeridian are unwrapped (> 180 after the jump).
 
+    **Units** (:func:`apply_z_units`): the values' units come from the file (NetCDF ``units``, GDAL band unit or
+    ``UNITS`` tag, the linear unit of a GeoTIFF's vertical CRS) or the ``z_units`` hint of ``dive.yaml``, and are
+    converted to metres (``km`` x 1000, ``ft`` x 0.3048, ...); ``attrs["units"]`` is then ``m`` and
+    ``attrs["z_units_source"]`` says what was done. Units hadal cannot convert are refused in one line; no units
+    at all: metres assumed (``attrs["z_units_assumed"] = 1``; ``hadal init`` writes ``z_units: m`` into dive.yaml).
+
+    **Longitudes** of a geographic grid wholly east of 180° (0-360 convention, e.g. 195..210) are shifted by -360
+    to -180..180 (``attrs["lon_convention"]`` records it); a grid across 180° keeps continuous longitudes (> 180
+    after the antimeridian), which every lookup wraps mod 360.
+
     ``crs_kind`` or ``crs`` (``'EPSG:32654'``, WKT, PROJ, or ``'local'``) override the file. Without them a
-    raster tagged geographic whose extent/relief make no sense in degrees (:func:`looks_metric`) is returned
-    as ``local_metric`` with a :class:`GridCRSWarning`. Every failure is a one-line :class:`InputError`; a grid
+    raster whose only geographic evidence is a CRS tag (GeoTIFF/GDAL; not a NetCDF with ``degrees_east``/
+    ``degrees_north`` coordinates, which say so themselves) and whose extent/relief make no sense in degrees
+    (:func:`looks_metric`) is returned as ``local_metric`` with a :class:`GridCRSWarning`. Every failure is a one-line :class:`InputError`; a grid
     whose read would need more than ``max_bytes`` (default: the memory budget) is refused before it is read
     (:func:`check_grid_read_size`).
     """
@@ -618,7 +631,80 @@ def read_grid(path: str | Path, *, crs_kind: str | None = None, variable: str | 
     if not finite.any():
         raise InputError(f"{p}: grid has no valid (non-nodata) cells")
     da.attrs["nodata_fraction"] = float(1.0 - finite.mean())
+    da = apply_z_units(p, da, z_units)
     _apply_crs(p, da, crs, crs_kind)
+    return _lon_convention(da)
+
+
+#: linear units of grid values -> metres (CF/UDUNITS spellings, GDAL band units, PROJ unit names)
+Z_UNIT_FACTORS: dict[str, float] = {
+    **dict.fromkeys(("m", "meter", "meters", "metre", "metres", "metre(s)", "meter(s)"), 1.0),
+    **dict.fromkeys(("km", "kilometer", "kilometers", "kilometre", "kilometres"), 1000.0),
+    **dict.fromkeys(("cm", "centimeter", "centimeters", "centimetre", "centimetres"), 0.01),
+    **dict.fromkeys(("mm", "millimeter", "millimeters", "millimetre", "millimetres"), 0.001),
+    **dict.fromkeys(("dm", "decimeter", "decimetre", "decimeters", "decimetres"), 0.1),
+    **dict.fromkeys(("ft", "feet", "foot", "international foot", "international_foot", "international feet"),
+                    0.3048),
+    **dict.fromkeys(("us survey foot", "us_survey_foot", "us survey feet", "ftus", "us-ft", "us_ft", "survey foot",
+                     "foot_us", "us-foot"), 1200.0 / 3937.0),
+    **dict.fromkeys(("fathom", "fathoms", "fm", "ftm"), 1.8288),
+}
+#: ``units`` values that say nothing (treated as absent)
+_NO_UNITS = ("", "none", "unknown", "n/a", "na", "-", "?", "1", "unitless")
+
+
+def z_unit_factor(units: str) -> float | None:
+    """Metres per unit of ``units`` (``m``, ``km``, ``ft``, ``feet``, ``metres above sea level`` ...), else ``None``.
+    A compound name (``metres above mean sea level``, ``m (positive up)``) is read by its first word."""
+    u = str(units).strip().lower()
+    if u in Z_UNIT_FACTORS:
+        return Z_UNIT_FACTORS[u]
+    first = re.split(r"[\s(,;]+", u, maxsplit=1)[0] if u else ""
+    return Z_UNIT_FACTORS.get(first)
+
+
+def apply_z_units(p: Path, da: xr.DataArray, hint: str | None = None) -> xr.DataArray:
+    """``da`` converted to metres from its units (module :func:`read_grid` rules); a one-line :class:`InputError`
+    for units that are not a length hadal knows. Records ``units`` (now ``m``), ``z_units_file`` (as the file
+    says), ``z_units_source`` (what was done) and ``z_units_assumed`` (1 when nothing said)."""
+    given = str(da.attrs.get("units", "") or "").strip()
+    if hint is not None:
+        f = z_unit_factor(hint)
+        if f is None:
+            raise InputError(f"{p}: z_units {hint!r} in dive.yaml is not a length unit hadal converts "
+                             f"(use one of m, km, cm, mm, ft, us survey foot, fathom)")
+        how, assumed = f"z_units {hint!r} given in dive.yaml", 0
+    elif given.lower() in _NO_UNITS:
+        f, how, assumed = 1.0, "no units in the file: metres assumed", 1
+    else:
+        f = z_unit_factor(given)
+        if f is None:
+            raise InputError(f"{p}: grid values are in {given!r}, not a length unit hadal converts to metres "
+                             "(m, km, cm, mm, ft, us survey foot, fathom): give z_units in dive.yaml if it is one")
+        how, assumed = f"units {given!r} in the file", 0
+    if f != 1.0:
+        attrs = dict(da.attrs)
+        da = da * f
+        da.attrs = attrs
+        how += f": x {f:g} to metres"
+    da.attrs.update(units="m", z_units_file=given, z_units_source=how, z_units_assumed=assumed)
+    return da
+
+
+def _lon_convention(da: xr.DataArray) -> xr.DataArray:
+    """Shift the longitudes of a geographic grid wholly east of 180° (0-360 convention) to -180..180."""
+    if da.attrs.get("crs_kind") != "geographic":
+        return da
+    x = np.asarray(da.x.values, float)
+    h = 0.5 * abs(float(da.attrs.get("cell_size_x") or 0.0)) if da.attrs.get("registration") == "pixel" else 0.0
+    if x.size and x[0] - h >= 180.0 and x[-1] + h <= 360.0 + 1e-9:
+        xattrs = dict(da["x"].attrs)
+        da = da.assign_coords(x=("x", x - 360.0, xattrs))
+        da.attrs["lon_convention"] = (f"0-360 in the file ({x[0] - h:g}..{x[-1] + h:g}); shifted by -360 to "
+                                      f"{x[0] - h - 360:g}..{x[-1] + h - 360:g}")
+    elif x.size and x[-1] > 180.0:
+        da.attrs["lon_convention"] = (f"{x[0] - h:g}..{x[-1] + h:g}: across 180°, kept continuous (lookups wrap "
+                                      "longitudes mod 360)")
     return da
 
 
@@ -679,7 +765,7 @@ def _apply_crs(p: Path, da: xr.DataArray, crs: str | None, crs_kind: str | None)
                             crs_override=f"crs {crs!r} given in dive.yaml")
     if crs_kind is not None:
         da.attrs["crs_kind"] = crs_kind
-    elif crs is None and detected == "geographic":
+    elif crs is None and detected == "geographic" and not da.attrs.get("coords_in_degrees"):
         xe = float(da.x[-1] - da.x[0]) + abs(float(da.attrs.get("cell_size_x", 0)))
         ye = float(da.y[-1] - da.y[0]) + abs(float(da.attrs.get("cell_size_y", 0)))
         relief = float(np.nanmax(da.values) - np.nanmin(da.values))
@@ -728,7 +814,7 @@ def _read_geotiff(p: Path, max_bytes: float | None = None) -> xr.DataArray:
                 t = src.transform
                 crs = src.crs
                 driver = src.driver
-                units = (src.units[0] if src.units and src.units[0] else None)
+                units = (src.units[0] if src.units and src.units[0] else None) or _vertical_unit(crs)
                 tags = {**src.tags(), **src.tags(1)}
                 desc = src.descriptions[0] if src.descriptions else None
                 georef = not t.is_identity
@@ -768,6 +854,22 @@ def _read_geotiff(p: Path, max_bytes: float | None = None) -> xr.DataArray:
     if desc:
         attrs.setdefault("long_name", str(desc))
     return xr.DataArray(np.ascontiguousarray(a), dims=("y", "x"), coords={"x": x, "y": y}, name="z", attrs=attrs)
+
+
+def _vertical_unit(crs) -> str | None:
+    """The linear unit name of a raster CRS's vertical component (a compound CRS), else ``None``."""
+    if crs is None:
+        return None
+    try:
+        from pyproj import CRS
+
+        c = CRS.from_wkt(crs.to_wkt())
+        for sub in c.sub_crs_list or []:
+            if sub.is_vertical and sub.axis_info:
+                return str(sub.axis_info[0].unit_name)
+    except Exception:  # noqa: BLE001 - an unusual CRS: no vertical unit read from it
+        return None
+    return None
 
 
 _X_DIM_NAMES = ("lon", "longitude", "x", "easting", "nav_lon", "long")
@@ -829,8 +931,10 @@ def _read_netcdf_grid(p: Path, variable: str | None, max_bytes: float | None = N
             raise InputError(f"{p}: grid dimension {d!r} has no coordinate values")
     xv, yv = da[d1], da[d0]
     xu, yu = str(xv.attrs.get("units", "")).lower(), str(yv.attrs.get("units", "")).lower()
-    geographic = xu.startswith("degree") or yu.startswith("degree") or (
-        d1.lower() in ("lon", "longitude") and d0.lower() in ("lat", "latitude"))
+    xs, ys = str(xv.attrs.get("standard_name", "")).lower(), str(yv.attrs.get("standard_name", "")).lower()
+    #: the coordinates themselves say degrees (COARDS/CF units or standard names): never re-read as metres
+    in_degrees = xu.startswith("degree") or yu.startswith("degree") or (xs, ys) == ("longitude", "latitude")
+    geographic = in_degrees or (d1.lower() in ("lon", "longitude") and d0.lower() in ("lat", "latitude"))
     vattrs = dict(da.attrs)
     da = da.rename({d0: "y", d1: "x"}).astype(np.float64)
     da = da.where(np.isfinite(da))  # inf cells are nodata, as in GeoTIFFs (_FillValue: masked by xarray)
@@ -852,6 +956,8 @@ def _read_netcdf_grid(p: Path, variable: str | None, max_bytes: float | None = N
     attrs = {"crs_kind": kind, "crs_wkt": crs_wkt, "cell_size_x": cells[0], "cell_size_y": cells[1],
              "units": str(vattrs.get("units", "")), "source": str(p), "format": fmt, "reader": reader_of("netcdf"),
              "registration": reg, "registration_source": reg_src, "var_name": var_name, "nodata": ""}
+    if in_degrees and kind == "geographic":
+        attrs["coords_in_degrees"] = 1
     if crs_note:
         attrs["crs_note"] = crs_note
     for k in ("positive", "standard_name", "long_name"):

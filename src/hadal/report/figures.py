@@ -326,11 +326,36 @@ def fig_dtm(dp: DiveProducts, opt: FigureOptions) -> FigureResult:
     fig = Figure(figsize=(opt.width_in * 0.75, opt.width_in * 0.6))
     ax = fig.subplots()
     _map(ax, dp.dtm, "depth_m", CMAPS["depth"], "depth (m)", fig)
+    handles = _draw_land(ax, dp.dtm)
+    if handles:
+        r.caption += " Land (above sea level in the source grid) is drawn as land: it has no depth."
     if dp.track is not None and {"x_east_m", "y_north_m"} <= set(dp.track.columns):
         tr = _thin(dp.track, opt.max_points)
         ax.plot(tr["x_east_m"] * 1e-3, tr["y_north_m"] * 1e-3, "-", color="w", lw=1.5, label="matched track")
-        ax.legend(fontsize=8, loc="upper right")
+    if handles or (dp.track is not None and {"x_east_m", "y_north_m"} <= set(dp.track.columns)):
+        ax.legend(handles=[*ax.get_legend_handles_labels()[0], *handles], fontsize=8, loc="upper right")
     return _render(r, fig, opt)
+
+
+#: colour of land cells on DTM maps
+LAND_COLOUR = "#c9b27c"
+
+
+def _draw_land(ax, ds: xr.Dataset) -> list:
+    """Land cells of a DTM (``land`` = 1: above sea level in the prior grid, no depth) drawn in
+    :data:`LAND_COLOUR` over the depth map (km axes); returns the legend handle (empty without land)."""
+    if "land" not in ds or not {"x", "y"} <= set(ds["land"].dims):
+        return []
+    land = np.asarray(ds["land"].transpose("y", "x").values) == 1
+    if not land.any():
+        return []
+    from matplotlib.colors import ListedColormap
+    from matplotlib.patches import Patch
+
+    ext = [e * 1e-3 for e in _xy_extent(ds)]
+    ax.imshow(np.ma.masked_where(~land, np.ones(land.shape)), origin="lower", extent=ext,
+              cmap=ListedColormap([LAND_COLOUR]), aspect="equal", interpolation="nearest", vmin=0, vmax=1)
+    return [Patch(facecolor=LAND_COLOUR, edgecolor="none", label="land")]
 
 
 def _region(ds: xr.Dataset) -> dict | None:

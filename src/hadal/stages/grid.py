@@ -311,18 +311,6 @@ def _unique_stems(files: list[Path]) -> list[str]:
     return out
 
 
-def _prior_dtm(ctx: StageContext, f: Path, sf, frame, p: Params):
-    from hadal.grid.prior import prior_dtm
-
-    try:
-        return prior_dtm(f, frame, z_positive_hint=_hint(sf, "z_positive"), crs=_hint(sf, "crs"),
-                         variable=_hint(sf, "variable"), format=_hint(sf, "format"),
-                         resolution_m=p.prior_resolution_m, max_extent_m=p.prior_max_extent_km * 1000.0,
-                         max_cells=p.max_cells, max_read_bytes=memory_limit_bytes(ctx.config))
-    except (OSError, ValueError, RuntimeError, KeyError, TypeError) as exc:
-        raise _as_input_error(f, exc) from None
-
-
 def _fill_from_prior(dtm, f: Path, sf, frame) -> int:
     """Fill the multibeam DTM's empty cells from a prior grid (``filled`` = 2); returns the cells filled."""
     import numpy as np
@@ -333,7 +321,8 @@ def _fill_from_prior(dtm, f: Path, sf, frame) -> int:
         empty = ~np.isfinite(dtm["depth_m"].values)
         xx, yy = np.meshgrid(dtm["x"].values, dtm["y"].values)
         v = sample_depth(f, frame, xx[empty], yy[empty], z_positive_hint=_hint(sf, "z_positive"),
-                         crs=_hint(sf, "crs"), variable=_hint(sf, "variable"), format=_hint(sf, "format"))
+                         crs=_hint(sf, "crs"), variable=_hint(sf, "variable"), format=_hint(sf, "format"),
+                         z_units=_hint(sf, "z_units"))
     except (OSError, ValueError, RuntimeError, KeyError, TypeError) as exc:
         raise _as_input_error(f, exc) from None
     ok = np.isfinite(v)
@@ -388,7 +377,7 @@ def _laser_grid(ctx: StageContext, f: Path, sf, p: Params, limit_bytes: float | 
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")  # a mislabelled CRS is expected for laser rasters; recorded
                 da = read_grid(f, variable=_hint(sf, "variable"), format=_hint(sf, "format"), crs=_hint(sf, "crs"),
-                               max_bytes=memory_limit_bytes(ctx.config))
+                               max_bytes=memory_limit_bytes(ctx.config), z_units=_hint(sf, "z_units"))
             pos, reason = z_positive(da, _hint(sf, "z_positive"))
             frame = ctx.dive.frame("grid") if da.attrs["crs_kind"] == "geographic" else None
             ds = laser_grid_from_raster(da, z_positive=pos, z_reason=reason, frame=frame)
@@ -500,24 +489,72 @@ def _log_prior_dtm(ctx: StageContext, f: Path, dtm) -> None:
             a.get("prior_grid_kept_depth_min_m", float("nan")), a.get("prior_grid_kept_depth_max_m", float("nan")))
 
 
+def _load_priors(ctx: StageContext, p: Params, priors: list[tuple[Path, object]], frame):
+    """Every listed prior grid read (:func:`hadal.grid.prior.load_prior`) and checked against the map frame:
+    ``(usable, refused)``; a refused grid is named with its one-line reason (logged as a WARNING)."""
+    from hadal.grid.prior import frame_bounds, load_prior
+
+    usable, refused = [], []
+    for f, sf in priors:
+        try:
+            g = load_prior(f, z_positive_hint=_hint(sf, "z_positive"), crs=_hint(sf, "crs"),
+                           variable=_hint(sf, "variable"), format=_hint(sf, "format"), z_units=_hint(sf, "z_units"),
+                           max_read_bytes=memory_limit_bytes(ctx.config))
+            frame_bounds(g.da, frame, p.prior_max_extent_km * 1000.0)
+        except InputError as exc:
+            refused.append((f, str(exc)))
+            continue
+        except (OSError, ValueError, RuntimeError, KeyError, TypeError) as exc:
+            refused.append((f, str(_as_input_error(f, exc))))
+            continue
+        usable.append(g)
+    return usable, refused
+
+
 def _prior_grid_dtm(ctx: StageContext, p: Params, priors: list[tuple[Path, object]], readers: dict[str, str]) -> _Dtm:
-    """The DTM from the first listed prior grid (no multibeam), resampled onto the map frame."""
+    """The DTM from every listed prior grid (no multibeam): one grid resampled onto the map frame, several
+    mosaicked (:func:`hadal.grid.prior.prior_mosaic`); a grid that cannot be used is refused by name."""
+    from hadal.grid.prior import prior_mosaic
+
     frame = ctx.dive.frame("grid")
-    f, sf = priors[0]
-    dtm = _prior_dtm(ctx, f, sf, frame, p)
-    readers[str(f)] = dtm.attrs.get("prior_grid_reader", "")
-    if len(priors) > 1:
-        rest = ", ".join(g.name for g, _ in priors[1:])
-        dtm.attrs["prior_grid_use"] = f"first listed prior grid {f.name} used; {rest} not used"
-        ctx.log.warning("dtm: %d prior grids listed; the first (%s) is the DTM, %s not used", len(priors),
-                        f.name, rest)
-    _log_prior_dtm(ctx, f, dtm)
-    summary = (f"Prior bathymetry grid {f.name} ({dtm.attrs['prior_grid_crs']}) resampled bilinearly onto "
-               f"the dive's transverse-Mercator map frame at {dtm.attrs['resolution']:g} m (about its native "
-               "resolution); depth positive down. No soundings: count, uncertainty and fill layers are "
-               "absent.")
-    return _Dtm(dtm, [f], f"Reference DTM of dive {ctx.dive_id} from the prior grid {f.name}", summary,
-                "bathymetry, prior grid, digital terrain model")
+    usable, refused = _load_priors(ctx, p, priors, frame)
+    if not usable:
+        if len(refused) == 1:
+            raise InputError(refused[0][1])
+        raise InputError("no prior grid can be used: " + "; ".join(why for _, why in refused))
+    try:
+        dtm = prior_mosaic(usable, frame, resolution_m=p.prior_resolution_m,
+                           max_extent_m=p.prior_max_extent_km * 1000.0, max_cells=p.max_cells)
+    except (OSError, ValueError, RuntimeError, KeyError, TypeError) as exc:
+        raise _as_input_error(usable[0].path, exc) from None
+    for g in usable:
+        readers[str(g.path)] = g.da.attrs.get("reader", "")
+    if refused:
+        dtm.attrs["prior_grid_refused"] = "; ".join(why for _, why in refused)
+        for f, why in refused:
+            ctx.log.warning("dtm: prior grid %s refused: %s", f.name, why)
+    names = ", ".join(g.name for g in usable)
+    if len(usable) > 1:
+        ctx.log.info("dtm: %d prior grids mosaicked (%s) at %g m: %s", len(usable), names,
+                     dtm.attrs["resolution"], dtm.attrs["prior_grid_sources"])
+        for k in ("prior_grid_depth_check", "prior_grid_warning", "prior_grid_mosaic_resolution_note",
+                  "prior_grid_cropped"):
+            if dtm.attrs.get(k):
+                ctx.log.warning("dtm: prior grids: %s", dtm.attrs[k])
+    else:
+        _log_prior_dtm(ctx, usable[0].path, dtm)
+    if dtm.attrs.get("n_cells_land"):
+        ctx.log.info("dtm: %d cell(s) are land in the prior grid(s): masked (depth_m NaN, land = 1)",
+                     dtm.attrs["n_cells_land"])
+    what = (f"Prior bathymetry grid {names} ({dtm.attrs['prior_grid_crs']}) resampled bilinearly onto"
+            if len(usable) == 1 else f"Prior bathymetry grids {names} mosaicked (finer grid wins, then listing "
+                                     "order; layer prior_grid_source) and resampled bilinearly onto")
+    summary = (f"{what} the dive's transverse-Mercator map frame at {dtm.attrs['resolution']:g} m; depth positive "
+               "down, land (above sea level) masked (layer 'land'). No soundings: count, uncertainty and fill "
+               "layers are absent.")
+    return _Dtm(dtm, [g.path for g in usable],
+                f"Reference DTM of dive {ctx.dive_id} from the prior grid{'s' if len(usable) > 1 else ''} {names}",
+                summary, "bathymetry, prior grid, digital terrain model")
 
 
 def _grid_laser_inputs(ctx: StageContext, p: Params, laser: list[tuple[Path, object]], readers: dict[str, str],
