@@ -145,3 +145,21 @@ def test_false_echoes_of_a_cast_are_flagged():
     out = flag_false_echoes(df, depth, [1, 2, 3])
     assert df["altitude_m_qc"].tolist() == [9, 4, 4, 9, 1, 1]
     assert out["readings_flagged"] == 2 and out["deepest_depth_m"] == 1000.0
+
+
+def test_sbe37_hex_is_refused_in_one_line_naming_the_model(tmp_path):
+    """SBE 37 .hex (not decoded yet): one line naming the model, and hadal init lists it as not used."""
+    from hadal.dive_init import scan_dive_dir
+    from hadal.errors import InputError
+    from hadal.ingest.cnv import read_seabird
+
+    raw = tmp_path / "d"
+    raw.mkdir()
+    p = raw / "sbe37.hex"
+    p.write_text("* Sea-Bird SBE37SMP-ODO Data File:\n* FileName = C:\\x.hex\n* Temperature SN = 12345\n"
+                 "*END*\n0A1B2C3D4E5F60718293A4B5C6D7E8F9\n0A1B2C3D4E5F60718293A4B5C6D7E8F9\n")
+    with pytest.raises(InputError, match=r"SBE 37SMP-ODO \.hex files are not supported") as ei:
+        read_seabird(p)
+    assert "\n" not in str(ei.value)
+    res = scan_dive_dir(raw)
+    assert not res.dive.get("sources") and any("SBE 37SMP-ODO" in n for n in res.not_used)

@@ -438,7 +438,7 @@ def _check_supported(h: HexHeader, path: Path) -> None:
     if not first.startswith("sea-bird") or "data file" not in first:
         raise InputError(f"{path}: not a Sea-Bird .hex file (first header line is {h.instrument!r}); "
                          f"{_SUPPORTED_TXT}")
-    m = re.search(r"sbe\s*(\w+)", h.instrument or "", re.I)
+    m = re.search(r"sbe\s*(\w+(?:-\w+)*)", h.instrument or "", re.I)  # 'SBE37SMP-ODO': the whole model
     fam = m.group(1).lower() if m else "?"
     model = h.model or ""
     if fam not in ("19plus", "16plus"):
