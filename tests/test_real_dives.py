@@ -11,6 +11,7 @@ import shutil
 import warnings
 from pathlib import Path
 
+import numpy as np
 import pytest
 import yaml
 
@@ -39,6 +40,10 @@ EXPECTED: dict[str, set[str]] = {
     # 0.1 m cells are 1/5 of the 0.5 m vehicle: landing is skipped by the 1/10 rule (with the reason in the report)
     # unless landing.max_cell_fraction is raised (tests/test_prior_laser_inputs.py runs it with 0.2)
     "bathy-real/LAD_Takuyo_B1_raster_100mm.tif": {"laser_grids"},
+    # no conductivity channel: salinity is SeaSoft's sal00 (method in the metadata); start_time 1903 -> 2003
+    "dives-real/oce_SBE25_ctd.cnv": {"sensors", "ctd", "profile"},
+    # 24 Hz raw SBE 9 with altM: no-bottom readings missing, false echoes flagged, not refused
+    "dives-real/pyctd_CTD-spiked-unfiltered.cnv.bz2": {"sensors", "ctd", "profile"},
     "bathy-real/0029_20160323_185603_EX1604_MB.gsf.mb121": {"dtm"},
     "formats-real/kongsberg_em_driver_MRZ_versionF.kmall": {"dtm"},
     "formats-real/mbsys_nbp1403-filtered-em120.all": {"dtm"},
@@ -184,6 +189,109 @@ def test_report_lists_every_cast(shared_data, tmp_path):
     summary = json.loads(ctx.store.latest(ctx.dive_id, "report").file("summary.json").read_text())
     casts = summary["casts"]
     assert len(casts) == 2  # the first cast makes `ctd`; the other two are listed with their own positions
+
+
+def _run_alone(shared: Path, tmp_path: Path, rel: str):
+    """The dive made of ``rel`` alone (init + every stage); returns the run context."""
+    from hadal.pipeline import make_context, run_pipeline
+
+    src = shared / rel
+    if not src.is_file():
+        pytest.skip(f"{rel} not in this copy of the shared data")
+    raw = tmp_path / "dive"
+    (raw / "raw").mkdir(parents=True)
+    shutil.copy(src, raw / "raw" / src.name)
+    write_init(scan_dive_dir(raw))
+    ctx = make_context(raw, tmp_path / "store")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        run_pipeline(ctx)
+    return ctx
+
+
+def _cnv_body(path: Path, opener=open) -> np.ndarray:
+    """The data rows after ``*END*`` read with NumPy alone (the oracle, not hadal's reader)."""
+    with opener(path, "rt", encoding="latin-1") as fh:
+        text = fh.read()
+    return np.loadtxt(text.split("*END*", 1)[1].strip().splitlines(), ndmin=2)
+
+
+def test_cast_without_conductivity_uses_sal00(shared_data, tmp_path):
+    """oce_SBE25_ctd.cnv (SBE 25, SeaSoft 4): scan, timeS, pr, depS, t068, sal00, flag; start_time 1903."""
+    import gsw
+    import pandas as pd
+
+    rel = "dives-real/oce_SBE25_ctd.cnv"
+    ctx = _run_alone(shared_data, tmp_path, rel)
+    a = _cnv_body(shared_data / rel)
+    pr, dep_s, t68, sal = a[:, 2], a[:, 3], a[:, 4], a[:, 5]
+    ctd = pd.read_parquet(ctx.store.latest(ctx.dive_id, "ctd").file("ctd.parquet"))
+    meta = ctd.attrs["hadal"]
+    assert meta["salinity_method"] == "SeaSoft sal00 (vendor), no conductivity channel"
+    assert len(ctd) == len(a)
+    np.testing.assert_allclose(ctd["practical_salinity"], sal)  # passes through
+    np.testing.assert_allclose(ctd["temperature_its90_degc"], t68 / 1.00024)  # T90 = T68 / 1.00024
+    assert ctd["conductivity_s_m"].isna().all() and (ctd["conductivity_s_m_qc"] == 9).all()  # not invented
+    lat = 44 + 41.056 / 60  # ** Latitude: N44 41.056
+    assert meta["latitude_deg"] == pytest.approx(lat, abs=1e-6)
+    # SeaSoft's depS is the UNESCO (Fofonoff-Millard) depth: within its printed precision (+ rounding of lat)
+    np.testing.assert_allclose(ctd["depth_fofonoff_millard_m"], dep_s, atol=0.0025)
+    # density: EOS-80 of sal00 against gsw (TEOS-10) in situ density, which differs by a few 0.001 kg/m3
+    sa = gsw.SA_from_SP(sal, pr, -(63 + 38.633 / 60), lat)
+    rho = gsw.rho(sa, gsw.CT_from_t(sa, t68 / 1.00024, pr), pr)
+    np.testing.assert_allclose(ctd["density_kg_m3"], rho, atol=0.01)
+    # hydrostatic depth: the integral of dp / (rho g) with gsw's density and gravity (from the surface)
+    dz = 1e4 / (rho * gsw.grav(lat, pr))
+    z = pr[0] * dz[0] + np.r_[0, np.cumsum(np.diff(pr) * (dz[1:] + dz[:-1]) / 2)]
+    np.testing.assert_allclose(ctd["depth_m"], z, atol=0.01)
+    # the year: 2003 from the System UpLoad Time, not the header's 1903 start_time, and said so
+    t = pd.to_datetime(ctd["time"], utc=True)
+    assert t.iloc[0] == pd.Timestamp("2003-10-15 11:38:38", tz="UTC") + pd.Timedelta(seconds=a[0, 1])
+    sensors = ctx.store.latest(ctx.dive_id, "sensors").file("sensors.parquet")
+    smeta = pd.read_parquet(sensors).attrs["hadal"]
+    assert "disagrees with System UpLoad Time" in smeta["cast"]["start_time_correction"]
+    assert smeta["cast"]["start_time_file"].startswith("1903-10-15")
+    assert any("1903" in n for n in smeta["notes"]) and any("sal00" in n for n in smeta["notes"])
+
+
+def test_cast_altimeter_read_and_its_no_bottom_missing(shared_data, tmp_path):
+    """pyctd_CTD-spiked-unfiltered.cnv.bz2 (SBE 9, 24 Hz, altM, AltimeterSensor ScaleFactor 15 = 100 m full
+    scale). Measured: 70 253 of 71 325 altM readings are the altimeter's no-echo output (98.6-100 m); the other
+    1 072 (8-97 m) come between 150 and 310 dbar, while the cast went to 1 036 dbar at the same place: depth +
+    altM there is 180-400 m, above the cast's own deepest point, so they are false echoes, not the bottom (no
+    echo at all was received within 100 m of the bottom). Oracle: altM and gsw depth from the file."""
+    import bz2
+
+    import gsw
+    import pandas as pd
+
+    rel = "dives-real/pyctd_CTD-spiked-unfiltered.cnv.bz2"
+    ctx = _run_alone(shared_data, tmp_path, rel)
+    a = _cnv_body(shared_data / rel, bz2.open)
+    alt_m, pr = a[:, 11], a[:, 2]
+    sensors = pd.read_parquet(ctx.store.latest(ctx.dive_id, "sensors").file("sensors.parquet"))
+    assert len(sensors) == len(a)  # 24 Hz raw cast: not refused, every scan kept
+    no_echo = alt_m >= 0.97 * 100.0  # AN95: 300 x 5 V / 15 = 100 m; no echo at ~4.94-5 V
+    assert no_echo.sum() == 70253
+    got = sensors["altitude_m"].to_numpy()
+    np.testing.assert_allclose(got[~no_echo], alt_m[~no_echo])
+    assert np.isnan(got[no_echo]).all() and (sensors["altitude_m_qc"].to_numpy()[no_echo] == 9).all()
+    # the QARTOD spike test flags the altimeter's jumps (suspect); the CTD channels pass it
+    assert (sensors["altitude_m_qc"] == 3).sum() > 0
+    ctd = pd.read_parquet(ctx.store.latest(ctx.dive_id, "ctd").file("ctd.parquet"))
+    lat = float(np.mean(a[:, 20]))
+    depth = -gsw.z_from_p(pr, lat)
+    seafloor = depth + alt_m
+    false_echo = ~no_echo & (seafloor < depth.max() - 0.01 * depth.max())
+    assert false_echo.sum() == (~no_echo).sum() == 1072
+    assert (ctd["altitude_m_qc"].to_numpy()[false_echo] == 4).all()
+    assert ctd["seafloor_depth_m"].isna().all()  # no echo from the seafloor anywhere in this cast
+    assert ctd.attrs["hadal"]["altimeter_false_echoes"]["readings_flagged"] == 1072
+    # gsw.z_from_p is the standard ocean; this warm, salty water column is 0.15 % lighter: 1.6 m at 1 030 m
+    assert float(ctd["depth_m"].max()) == pytest.approx(depth.max(), rel=3e-3)
+    summary = json.loads(ctx.store.latest(ctx.dive_id, "report").file("summary.json").read_text())
+    assert "altimeter out of range" not in summary["figures"]["fig10_seafloor_depth"]
+    assert any("no-bottom output" in n for n in summary["notes"])
     # the casts in file order: oceissues644_02dk (566 dbar) makes ctd; dPIRX010 (~1014 dbar) and sta0860 (90 dbar)
     from hadal.ingest.cnv import read_cnv
 

@@ -217,7 +217,8 @@ def test_no_calibration_at_all(hex_path, tmp_path):
 
 @pytest.mark.parametrize("first,expect", [
     ("* Sea-Bird SBE 9 Data File:", "SBE 9 .hex files are not supported; supported: SBE 19plus V2"),
-    ("* Sea-Bird SBE37SM Data File:", "SBE 37SM .hex files are not supported; supported: SBE 19plus V2"),
+    # SBE 37 .hex files are decoded (issue 43): with a 19plus calibration block the SBE 37 coefficients are missing
+    ("* Sea-Bird SBE37SM Data File:", "SBE 37SM .hex header lacks calibration coefficients for temperature (A0"),
     ("* Sea-Bird SBE 25plus Data File:", "SBE 25plus .hex files are not supported"),
 ])
 def test_unsupported_instrument(hex_path, tmp_path, first, expect):
@@ -495,3 +496,120 @@ def test_random_corruption_never_tracebacks(hex_path, tmp_path):
             assert "\n" not in str(exc) and str(p) in str(exc)
             outcomes["error"] += 1
     assert outcomes["ok"] and outcomes["error"]
+
+
+# ------------------------------------------------------------------------------------------------ SBE 37
+#: an SBE 37-SM header as SeatermV2 writes it (GetHD / GetCD / GetCC echo); coefficients of a real cal sheet
+_SBE37_HEADER = """* Sea-Bird SBE37SM-RS232  Data File:
+* FileName = C:\\\\x\\\\SBE37SM-RS232_03716125.hex
+* Software version SeatermV2 2.6.3.104
+* Temperature SN = 16125
+* Conductivity SN = 16125
+* System UpLoad Time = Nov 16 2017 20:32:55
+* <InstrumentState>
+* <HardwareData DeviceType='SBE37SM-RS232' SerialNumber='03716125'>
+*    <FirmwareVersion>4.1</FirmwareVersion>
+*    <InternalSensors>
+*       <Sensor id='Temperature'><type>temperature-1</type><SerialNumber>03716125</SerialNumber></Sensor>
+*       <Sensor id='Conductivity'><type>conductivity-1</type><SerialNumber>03716125</SerialNumber></Sensor>
+*       <Sensor id='Pressure'><type>strain-0</type><SerialNumber>10685588</SerialNumber></Sensor>
+*    </InternalSensors>
+* </HardwareData>
+* <ConfigurationData DeviceType='SBE37SM-RS232' SerialNumber='03716125'>
+*    <PressureInstalled>{pressure}</PressureInstalled>
+*    <SampleInterval>90</SampleInterval>
+* </ConfigurationData>
+* <CalibrationCoefficients DeviceType='SBE37SM-RS232' SerialNumber='03716125'>
+*    <Calibration format='TEMP1' id='Temperature'><SerialNum>03716125</SerialNum><CalDate>17-Aug-17</CalDate>
+*       <A0>-1.898409e-04</A0><A1>3.136087e-04</A1><A2>-4.461848e-06</A2><A3>2.019781e-07</A3>
+*    </Calibration>
+*    <Calibration format='WBCOND0' id='Conductivity'><SerialNum>03716125</SerialNum><CalDate>17-Aug-17</CalDate>
+*       <G>-1.001932e+00</G><H>1.284250e-01</H><I>-9.960452e-05</I><J>2.347041e-05</J>
+*       <PCOR>-9.570000e-08</PCOR><TCOR>3.250000e-06</TCOR><WBOTC>-1.491050e-07</WBOTC>
+*    </Calibration>
+{pressure_cal}* </CalibrationCoefficients>
+* </InstrumentState>
+*END*
+"""
+_SBE37_PRESSURE_CAL = """*    <Calibration format='STRAIN0' id='Pressure'><SerialNum>10685588</SerialNum><CalDate>15-Aug-17</CalDate>
+*       <PA0>1.054949e-03</PA0><PA1>4.853700e-04</PA1><PA2>-2.070713e-12</PA2>
+*       <PTCA0>5.236075e+05</PTCA0><PTCA1>4.346490e+00</PTCA1><PTCA2>-1.758472e-01</PTCA2>
+*       <PTCB0>2.526225e+01</PTCB0><PTCB1>6.500000e-04</PTCB1><PTCB2>0.000000e+00</PTCB2>
+*       <PTEMPA0>-6.152156e+01</PTEMPA0><PTEMPA1>5.181662e-02</PTEMPA1><PTEMPA2>-2.894098e-07</PTEMPA2>
+*       <POFFSET>0.000000e+00</POFFSET><PRANGE>1.600000e+02</PRANGE>
+*    </Calibration>
+"""
+
+
+def _sbe37_file(tmp_path, pressure: bool = True):
+    """An SBE 37-SM .hex built from the documented scan format (T counts 6, C frequency x 256 6, P counts 6,
+    P temperature compensation counts 4, seconds since 2000 8 hex characters)."""
+    rng = np.random.default_rng(37)
+    n = 50
+    t_counts = rng.integers(600_000, 700_000, n)
+    c_x256 = rng.integers(int(4800 * 256), int(5600 * 256), n)
+    p_counts = rng.integers(600_000, 640_000, n)
+    ptc = rng.integers(1100, 1200, n)
+    secs = 564_100_000 + 90 * np.arange(n)  # 2017-11-16, every 90 s
+    lines = []
+    for k in range(n):
+        s = f"{t_counts[k]:06X}{c_x256[k]:06X}"
+        if pressure:
+            s += f"{p_counts[k]:06X}{ptc[k]:04X}"
+        lines.append(s + f"{secs[k]:08X}")
+    p = tmp_path / ("sbe37.hex" if pressure else "sbe37_nop.hex")
+    header = _SBE37_HEADER.replace("{pressure}", "yes" if pressure else "no").replace(
+        "{pressure_cal}", _SBE37_PRESSURE_CAL if pressure else "")
+    p.write_text(header + "\n".join(lines) + "\n", encoding="latin-1")
+    return p, secs
+
+
+def test_sbe37_hex_against_seabirdscientific(tmp_path):
+    """Oracle: seabirdscientific's own decoder (read_hex_file, SBE37SM) and conversions with the header's
+    coefficients, and the SBE 37 manual's temperature / pressure equations written out here."""
+    import seabirdscientific.cal_coefficients as sbc
+    import seabirdscientific.conversion as sbconv
+    import seabirdscientific.instrument_data as sbid
+
+    from hadal.ingest.seabird_hex import read_hex
+
+    path, secs = _sbe37_file(tmp_path)
+    df = read_hex(path)
+    ref = sbid.read_hex_file(path, sbid.InstrumentType.SBE37SM,
+                             [sbid.Sensors.Temperature, sbid.Sensors.Conductivity, sbid.Sensors.Pressure])
+    t_counts = ref["temperature"].values.astype(float)
+    a0, a1, a2, a3 = -1.898409e-04, 3.136087e-04, -4.461848e-06, 2.019781e-07
+    ln = np.log(t_counts)
+    t90 = 1 / (a0 + a1 * ln + a2 * ln**2 + a3 * ln**3) - 273.15  # SBE 37 manual, no MV-R step
+    np.testing.assert_allclose(df["tv290C"], t90, atol=1e-9)
+    assert -5 < t90.min() and t90.max() < 35
+    pc = sbc.PressureCoefficients(1.054949e-03, 4.853700e-04, -2.070713e-12, 5.236075e+05, 4.346490e+00,
+                                  -1.758472e-01, 2.526225e+01, 6.500000e-04, 0.0, -6.152156e+01, 5.181662e-02,
+                                  -2.894098e-07, offset=0.0)
+    p_ref = sbconv.convert_pressure(ref["pressure"].values.astype(float),
+                                    ref["temperature compensation"].values.astype(float), pc, "dbar")
+    np.testing.assert_allclose(df["prdM"], p_ref, atol=1e-9)
+    cc = sbc.ConductivityCoefficients(-1.001932e+00, 1.284250e-01, -9.960452e-05, 2.347041e-05, -9.57e-08,
+                                      3.25e-06, -1.491050e-07)
+    c_ref = sbconv.convert_conductivity(ref["conductivity"].values.astype(float), t90, p_ref, cc,
+                                        sbid.InstrumentType.SBE37SM, "S/m")
+    np.testing.assert_allclose(df["c0S/m"], c_ref, atol=1e-12)
+    # time: seconds since 2000-01-01 UTC (seabirdscientific's naive datetimes are UTC)
+    t0 = pd.Timestamp(ref["date time"].values[0]).tz_localize("UTC")
+    assert pd.Timestamp(df.attrs["start_time_utc"]) == t0 == pd.Timestamp("2000-01-01", tz="UTC") + pd.Timedelta(
+        seconds=int(secs[0]))
+    np.testing.assert_allclose(df["timeS"], secs - secs[0])
+    assert df.attrs["model"] == "SBE 37SM-RS232" and df.attrs["mode"] == "moored"
+
+
+def test_sbe37_hex_without_pressure_and_odo_refused(tmp_path):
+    from hadal.errors import InputError
+    from hadal.ingest.seabird_hex import read_hex
+
+    path, _ = _sbe37_file(tmp_path, pressure=False)
+    df = read_hex(path)
+    assert df["prdM"].isna().all() and np.isfinite(df["c0S/m"]).all()
+    odo = tmp_path / "odo.hex"
+    odo.write_text(path.read_text().replace("SBE37SM-RS232  Data File", "SBE37SMP-ODO-RS232 Data File"))
+    with pytest.raises(InputError, match="SBE 37SMP-ODO-RS232 .hex files .*not supported"):
+        read_hex(odo)

@@ -31,6 +31,15 @@ __all__ = ["SENSOR_VARIABLES", "sensors_schema", "read_mcap_sensors", "read_csv_
 
 #: the variables of ``sensors.parquet`` in column order (architecture.md)
 SENSOR_VARIABLES: tuple[str, ...] = tuple(CANONICAL_UNITS)
+#: variables a sensors table holds only when its source provides them (``optional_columns`` of
+#: ``schemas/sensors.yaml``): a Sea-Bird cast's own salinity when it has no conductivity channel
+OPTIONAL_SENSOR_VARIABLES: tuple[str, ...] = ("practical_salinity_vendor",)
+
+
+def table_variables(columns: Mapping[str, Any]) -> tuple[str, ...]:
+    """The variables of a sensors table built from ``columns``: every :data:`SENSOR_VARIABLES` and the
+    :data:`OPTIONAL_SENSOR_VARIABLES` present in ``columns``."""
+    return SENSOR_VARIABLES + tuple(v for v in OPTIONAL_SENSOR_VARIABLES if v in columns)
 
 
 @lru_cache(maxsize=1)
@@ -63,6 +72,7 @@ def field_metadata() -> dict[str, dict[str, str]]:
         if name != "time":
             out[f"{name}_qc"] = column_attrs(f"{name}_qc", where="sensors.yaml")
     return out
+
 
 
 def qc_flag_values() -> list[int]:
@@ -222,7 +232,8 @@ def read_csv_sensors(files: Mapping[str, Path], vehicle: VehicleConfig) -> dict[
 
 #: header metadata of a cast carried into the table metadata (``cast``) of ``sensors`` / ``casts``
 CAST_ATTRS = ("source", "format", "compression", "instrument", "instrument_serial", "latitude_deg", "longitude_deg",
-              "position_source", "start_time_utc", "start_time_note", "nmea_utc", "interval", "binned", "bad_flag",
+              "position_source", "start_time_utc", "start_time_note", "start_time_file", "start_time_correction",
+              "upload_time_utc", "nmea_utc", "interval", "binned", "bad_flag",
               "bad_values", "processing", "sensors", "sensors_xml", "channel_latitude_deg", "user_header",
               "nquan", "nvalues_declared", "nvalues", "truncated", "rows_dropped", "time_channels")
 
@@ -286,13 +297,14 @@ def apply_seasoft_flags(flags: dict[str, np.ndarray], counts: dict[str, dict[str
     if bad is None:
         return
     b = np.asarray(bad, np.float64) > 0.5
-    for var in SEASOFT_FLAGGED_VARIABLES:
+    flagged = SEASOFT_FLAGGED_VARIABLES + tuple(v for v in OPTIONAL_SENSOR_VARIABLES if f"{v}_qc" in flags)
+    for var in flagged:
         f = flags[f"{var}_qc"]
         f[b & (f != 9)] = 4
         vals, n = np.unique(f, return_counts=True)
         counts[var] = {str(int(k)): int(c) for k, c in zip(vals, n, strict=True)}
     meta["seasoft_flags"] = {"scans_flagged": int(b.sum()), "scans": int(b.size), "qartod_flag": 4,
-                             "variables": list(SEASOFT_FLAGGED_VARIABLES), "source": source,
+                             "variables": list(flagged), "source": source,
                              "rule": "scans whose SeaSoft 'flag' channel is non-zero or bad_flag (LoopEdit, "
                                      "WildEdit ...) are flagged 4, not deleted"}
     if b.any():
@@ -336,15 +348,19 @@ def build_profile_table(samples: SensorSamples, qc: Mapping[str, VariableQC] | N
     meta["alignment"][samples.name] = {"source": samples.source, "samples": n, "method": "profile (no time base)"}
     no_flat = {k: v.model_copy(update={"flat_line_suspect_s": None}) for k, v in qc.items()}
     index_ns = np.arange(n, dtype=np.int64) * 1_000_000_000  # sample index (the spike test only uses order)
-    flags, counts = qc_table({v: columns[v] for v in SENSOR_VARIABLES}, index_ns, no_flat)
+    for var in OPTIONAL_SENSOR_VARIABLES:
+        if var in samples.values:
+            columns[var] = np.where(np.isinf(samples.values[var]), np.nan, samples.values[var])
+    table_vars = table_variables(columns)
+    flags, counts = qc_table({v: columns[v] for v in table_vars}, index_ns, no_flat)
     apply_seasoft_flags(flags, counts, samples.values.get(SEASOFT_BAD_SCAN), meta, samples.source)
     meta["qc_counts"] = counts
     meta["qc_note"] = ("profile without time: gross range as usual, spike test on the bin index, flat-line test "
                        "not evaluated")
     df = pd.DataFrame({"time": pd.Series(pd.NaT, index=range(n), dtype="datetime64[ns, UTC]")})
-    for var in SENSOR_VARIABLES:
+    for var in table_vars:
         df[var] = columns[var].astype(np.float64)
-    for var in SENSOR_VARIABLES:
+    for var in table_vars:
         df[f"{var}_qc"] = flags[f"{var}_qc"].astype(np.uint8)
     validate_sensor_table(df, profile=True)
     return df, meta
@@ -584,13 +600,14 @@ def build_sensor_table(
     for var in SENSOR_VARIABLES:
         if var not in columns:
             columns[var] = np.full(n, np.nan)
-    flags, counts = qc_table({v: columns[v] for v in SENSOR_VARIABLES}, base_t, qc)
+    table_vars = table_variables(columns)
+    flags, counts = qc_table({v: columns[v] for v in table_vars}, base_t, qc)
     apply_seasoft_flags(flags, counts, base_vals.get(SEASOFT_BAD_SCAN), meta, sensors[base_name].source)
     meta["qc_counts"] = counts
     df = pd.DataFrame({"time": pd.to_datetime(base_t, unit="ns", utc=True)})
-    for var in SENSOR_VARIABLES:
+    for var in table_vars:
         df[var] = columns[var].astype(np.float64)
-    for var in SENSOR_VARIABLES:
+    for var in table_vars:
         df[f"{var}_qc"] = flags[f"{var}_qc"].astype(np.uint8)
     validate_sensor_table(df)
     return df, meta
@@ -674,6 +691,9 @@ def validate_sensor_table(df: pd.DataFrame, *, profile: bool = False) -> None:
         else:
             cols[name] = pa.Column(c.get("dtype", "float64"), nullable=True)
             cols[f"{name}_qc"] = pa.Column("uint8", checks=pa.Check.isin(flag_values), nullable=False)
+    for name, c in (sch.get("optional_columns") or {}).items():
+        cols[name] = pa.Column(c.get("dtype", "float64"), nullable=True, required=False)
+        cols[f"{name}_qc"] = pa.Column("uint8", checks=pa.Check.isin(flag_values), nullable=False, required=False)
     schema = pa.DataFrameSchema(cols, strict=True, ordered=False)
     try:
         schema.validate(df, lazy=False)

@@ -113,6 +113,74 @@ def _parse_time(text: str) -> tuple[str | None, str | None]:
     return None, note
 
 
+#: a header ``start_time`` more than this after the clock it is checked against disagrees with it (a day: the
+#: instrument's and the PC's clocks, time zones)
+START_TIME_AFTER_TOLERANCE_S = 86_400.0
+#: a ``start_time`` more than this before the ``System UpLoad Time`` is implausible (an instrument's memory is
+#: uploaded days to a few years after its deployment, never decades: 1903 for 2003 is a two-digit year)
+START_TIME_MAX_AGE_YEARS = 10
+
+
+def checked_start_time(start_iso: str | None, start_text: str, nmea_utc: str | None,
+                       clock: dict[str, tuple[str | None, str]]) -> tuple[str | None, str | None]:
+    """The header's ``start_time`` checked against the header's own clocks; returns (the time to use, a note
+    saying what was corrected, or ``None`` when nothing was).
+
+    The reference is the first of ``NMEA UTC (Time)`` (GPS, written when acquisition started), ``System UTC``
+    (the acquisition PC's clock, same moment) and ``System UpLoad Time`` (when the data were read from the
+    instrument: after the cast). With NMEA or System UTC, a ``start_time`` more than
+    :data:`START_TIME_AFTER_TOLERANCE_S` from it disagrees and the reference is used. With only the upload
+    time, a ``start_time`` after it (beyond the tolerance) or more than :data:`START_TIME_MAX_AGE_YEARS` years
+    before it disagrees; then a start_time that falls within that window once its century is the upload's
+    (SeaSoft's two-digit years: ``Oct 15 1903`` uploaded ``Oct 15 2003``) gets that century, else the upload
+    time is used (an upper bound of the cast's time)."""
+    import pandas as pd
+
+    if start_iso is None:
+        return None, None
+    start = pd.Timestamp(start_iso)
+    shown = " ".join(start_text.split("[")[0].split())
+    for key, label in (("nmea", "NMEA UTC (Time)"), ("system_utc", "System UTC")):
+        iso, text = (nmea_utc, nmea_utc) if key == "nmea" else clock.get(key, (None, ""))
+        if iso is None:
+            continue
+        ref = pd.Timestamp(iso)
+        if abs((start - ref).total_seconds()) <= START_TIME_AFTER_TOLERANCE_S:
+            return start_iso, None
+        return ref.isoformat(), (f"start_time {shown} disagrees with {label} {text} (by "
+                                 f"{_span_text((start - ref).total_seconds())}); used {label}: {ref.isoformat()}")
+    iso, text = clock.get("upload_time", (None, ""))
+    if iso is None:
+        return start_iso, None
+    up = pd.Timestamp(iso)
+    earliest = up - pd.DateOffset(years=START_TIME_MAX_AGE_YEARS)
+    late = (start - up).total_seconds() > START_TIME_AFTER_TOLERANCE_S
+    if not late and start >= earliest:
+        return start_iso, None
+    why = (f"start_time {shown} disagrees with System UpLoad Time {text} (it is "
+           f"{_span_text((start - up).total_seconds())} {'after' if late else 'before'} it)")
+    century = up.year // 100 * 100 + start.year % 100
+    for year in (century, century - 100):
+        try:
+            fixed = start.replace(year=year)
+        except ValueError:  # Feb 29 of a year that is not a leap year
+            continue
+        if earliest <= fixed and (fixed - up).total_seconds() <= START_TIME_AFTER_TOLERANCE_S:
+            return fixed.isoformat(), (f"{why}; used the start_time with the upload's century (a two-digit "
+                                       f"year): {fixed.isoformat()}")
+    return up.isoformat(), f"{why}; used System UpLoad Time (the cast ended before it): {up.isoformat()}"
+
+
+def _span_text(seconds: float) -> str:
+    """``'100 years'``, ``'3 days'``, ``'5 h'`` for a time difference (sign dropped)."""
+    s = abs(seconds)
+    if s >= 365.25 * 86_400:
+        return f"{s / (365.25 * 86_400):.0f} years"
+    if s >= 86_400:
+        return f"{s / 86_400:.0f} days"
+    return f"{s / 3600:.1f} h"
+
+
 def _unique_names(names: Sequence[str]) -> list[str]:
     """Duplicate column names get pandas' ``.1``, ``.2`` suffixes (``scan``, ``scan.1``)."""
     seen: dict[str, int] = {}
@@ -408,6 +476,8 @@ class _HeaderLines:
         self.lat_src: str | None = None
         self.lon_src: str | None = None
         self.nmea_utc: str | None = None
+        #: ``System UpLoad Time`` / ``System UTC`` lines: key -> (ISO time or None, text as written)
+        self.clock: dict[str, tuple[str | None, str]] = {}
 
     def star_line(self, s: str) -> None:
         """A ``*`` (instrument) or ``**`` (user) line: kept, and read for the position and NMEA time."""
@@ -426,6 +496,10 @@ class _HeaderLines:
         m = re.match(r"^\*\s*NMEA UTC \(Time\)\s*=\s*(.+)$", s, re.I)
         if m:
             self.nmea_utc = _parse_time(m.group(1))[0]
+        m = re.match(r"^\*\s*System\s+(UpLoad Time|UTC)\s*=\s*(.+)$", s, re.I)
+        if m:
+            key = "system_utc" if m.group(1).upper() == "UTC" else "upload_time"
+            self.clock[key] = (_parse_time(m.group(2))[0], " ".join(m.group(2).split()))
 
     def hash_line(self, s: str) -> None:
         """A ``#`` line: sensor XML, channel name / span, sensor, processing or key = value line, else a comment."""
@@ -519,7 +593,8 @@ def _parse_header(header: list[str], path: Path) -> dict[str, Any]:
     bad_flag, nvalues_hint = _header_hints(h.kv)
     return {"names": h.names, "spans": h.spans, "kv": h.kv, "processing": h.processing, "sensors": h.sensors,
             "user": h.user, "instr": h.instr, "comments": h.comments, "xml_lines": h.xml_lines, "lat": h.lat,
-            "lon": h.lon, "lat_src": h.lat_src, "lon_src": h.lon_src, "nmea_utc": h.nmea_utc, "nquan": nquan,
+            "lon": h.lon, "lat_src": h.lat_src, "lon_src": h.lon_src, "nmea_utc": h.nmea_utc, "clock": h.clock,
+            "nquan": nquan,
             "columns": columns, "bad_flag": bad_flag, "nvalues_hint": nvalues_hint}
 
 
@@ -680,6 +755,10 @@ def _cnv_attrs(path: Path, compression: str | None, h: dict[str, Any], channels:
     """read_cnv's ``df.attrs``; warns (at read_cnv's caller) about a wrong ``nvalues`` or unreadable sensor XML."""
     kv, processing, instr, xml_lines, columns = h["kv"], h["processing"], h["instr"], h["xml_lines"], h["columns"]
     start_iso, start_note = _parse_time(kv.get("start_time", ""))
+    start_file = start_iso
+    start_iso, start_fix = checked_start_time(start_iso, kv.get("start_time", ""), h["nmea_utc"], h["clock"])
+    if start_fix:
+        warnings.warn(f"{path.name}: {start_fix}", stacklevel=3)
     interval = _cnv_interval(kv)
     try:
         nvalues_declared: int | None = int(kv["nvalues"])
@@ -707,7 +786,11 @@ def _cnv_attrs(path: Path, compression: str | None, h: dict[str, Any], channels:
         "position_source": {"latitude": h["lat_src"], "longitude": h["lon_src"]},
         "start_time_utc": start_iso,
         "start_time_note": start_note,
+        "start_time_file": start_file,
+        "start_time_correction": start_fix,
         "nmea_utc": h["nmea_utc"],
+        "upload_time_utc": (h["clock"].get("upload_time") or (None,))[0],
+        "system_utc": (h["clock"].get("system_utc") or (None,))[0],
         "interval": interval,
         "bad_flag": h["bad_flag"],
         "bad_values": n_bad,
@@ -780,6 +863,19 @@ CNV_PRESSURE = (("prDM", "dbar"), ("prdM", "dbar"), ("prSM", "dbar"), ("prM", "d
 CNV_TEMPERATURE = (("t090C", "degC_its90"), ("tv290C", "degC_its90"), ("t090", "degC_its90"),
                    ("t068C", "degC_its68"), ("tv268C", "degC_its68"), ("t068", "degC_its68"))
 CNV_CONDUCTIVITY = (("c0S/m", "S/m"), ("c0mS/cm", "mS/cm"), ("c0uS/cm", "uS/cm"))
+#: SeaSoft's practical salinity channels (PSS-78), primary first: used only when the cast has no conductivity
+#: channel (seabirdscientific's sbs_variables.json: ``sal00`` = ``psal0``/``practicalSalinity``, ``sal11`` =
+#: ``psal1``)
+CNV_SALINITY = ("sal00", "psal0", "practicalSalinity", "sal11", "psal1")
+#: the sensors-table variable of the vendor's salinity (an optional column of ``schemas/sensors.yaml``)
+VENDOR_SALINITY = "practical_salinity_vendor"
+#: A/D full-scale voltage of the Sea-Bird CTDs an altimeter is cabled to (SBE 9plus, 19plus, 25: 0-5 V)
+SEABIRD_AD_FULL_SCALE_V = 5.0
+#: an altimeter reading at or above this fraction of its full-scale range is "no bottom" (no echo). Sea-Bird
+#: application note AN95: a Benthos PSA-916 outputs 4.98 V of 5 V (99.6 %) when no echo is received; units in
+#: the field read 4.93-4.94 V (98.6-98.8 %, measured on pyctd_CTD-spiked-unfiltered.cnv), and the A/D clips
+#: at 5 V (100 %): 97 % leaves a margin below both and costs the top 3 % of the range
+ALTIMETER_NO_ECHO_FRACTION = 0.97
 
 
 _NAT = np.iinfo(np.int64).min
@@ -893,11 +989,15 @@ def cnv_sensor_samples(df: pd.DataFrame, name: str = "ctd", *, allow_no_time: bo
         df = df.loc[~bad_t]
         t = t[~bad_t]
     values, conversions, used = {}, [], {}
+    stats: dict[str, Any] = {}
     for var, table in (("pressure_ctd_dbar", CNV_PRESSURE), ("temperature_its90_degc", CNV_TEMPERATURE),
                        ("conductivity_s_m", CNV_CONDUCTIVITY)):
         col = next(((c, u) for c, u in table if c in df.columns), None)
+        if col is None and var == "conductivity_s_m" and _vendor_salinity(df, values, used, stats):
+            continue
         if col is None:
-            raise InputError(f"{path}: no {var.split('_')[0]} channel (looked for {', '.join(c for c, _ in table)})")
+            raise InputError(f"{path}: no {var.split('_')[0]} channel (looked for {', '.join(c for c, _ in table)}"
+                             f"{'' if var != 'conductivity_s_m' else '; nor a SeaSoft salinity channel: ' + ', '.join(CNV_SALINITY)})")
         raw = df[col[0]].to_numpy(dtype=np.float64)
         if len(raw) and not np.isfinite(raw).any():
             warnings.warn(f"{Path(path).name}: CTD {var.split('_')[0]} channel '{col[0]}' has no valid value on any "
@@ -908,8 +1008,15 @@ def cnv_sensor_samples(df: pd.DataFrame, name: str = "ctd", *, allow_no_time: bo
         used[var] = col[0]
         if rec:
             conversions.append({**rec, "sensor": name, "source": f"cnv:{Path(path).name}:{col[0]}"})
+    alt = _altimeter(df, name, path)
+    if alt is not None:
+        values["altitude_m"], alt_rec, alt_conv = alt
+        used["altitude_m"] = alt_rec["channel"]
+        stats["altimeter"] = alt_rec
+        if alt_conv:
+            conversions.append({**alt_conv, "sensor": name, "source": f"cnv:{Path(path).name}:{alt_rec['channel']}"})
     stats = {"rows": int(len(df)), "time": how, "channels": used, "bad_values": int(df.attrs.get("bad_values", 0)),
-             "rows_dropped": len(df.attrs.get("rows_dropped", [])), "bad_times": n_bad_t}
+             "rows_dropped": len(df.attrs.get("rows_dropped", [])), "bad_times": n_bad_t, **stats}
     bad = seasoft_bad_scans(df)
     if bad is not None:
         # SeaSoft's scan flags (LoopEdit, WildEdit, ...): carried as a 0/1 pseudo-variable so that it follows the
@@ -918,6 +1025,113 @@ def cnv_sensor_samples(df: pd.DataFrame, name: str = "ctd", *, allow_no_time: bo
         stats["seasoft_flagged_scans"] = int(bad.sum())
         stats["seasoft_flag_channel"] = str(next(c for c in df.columns if str(c).strip().lower() == "flag"))
     return SensorSamples(name, t, values, f"cnv:{Path(path).name}", stats, conversions)
+
+
+def _vendor_salinity(df: pd.DataFrame, values: dict[str, np.ndarray], used: dict[str, str],
+                     stats: dict[str, Any]) -> bool:
+    """A cast without a conductivity channel: SeaSoft's practical salinity (:data:`CNV_SALINITY`) as
+    :data:`VENDOR_SALINITY`; conductivity is left out (the sensors table has it all missing, flag 9; it is never
+    back-computed from the salinity). Fills
+    ``values``/``used``/``stats`` (``salinity_method``) and warns; ``False`` when the cast has no salinity
+    channel either."""
+    col = next((c for c in CNV_SALINITY if c in df.columns), None)
+    if col is None:
+        return False
+    path = Path(str(df.attrs.get("source", "cnv")))
+    values[VENDOR_SALINITY] = df[col].to_numpy(dtype=np.float64)
+    used[VENDOR_SALINITY] = col
+    method = f"SeaSoft {col} (vendor), no conductivity channel"
+    stats["salinity_method"] = method
+    warnings.warn(f"{path.name}: no conductivity channel: practical salinity is the vendor's ({method}); "
+                  "conductivity is published as missing (flag 9)", stacklevel=3)
+    return True
+
+
+def _sbs_altimeter_channels() -> dict[str, str]:
+    """SeaSoft altimeter channel names -> unit token: the entries titled 'Altimeter' of seabirdscientific's
+    variable list (``resources/sbs_variables.json``: ``altM`` [m], ``altF`` [ft]; ``altV``, in volts, is not a
+    range and is left out). Without seabirdscientific: ``altM`` and ``altF``."""
+    import json
+    from importlib import resources
+
+    out: dict[str, str] = {}
+    try:
+        text = resources.files("seabirdscientific").joinpath("resources/sbs_variables.json").read_text("utf-8")
+        entries = json.loads(text)
+    except (ImportError, OSError, ValueError):
+        entries = []
+    for e in entries:
+        if not isinstance(e, dict) or e.get("title") != "Altimeter" or e.get("units") not in ("m", "ft"):
+            continue
+        for n in [e.get("name"), *(e.get("aliases") or [])]:
+            if n:
+                out[str(n)] = str(e["units"])
+    return out or {"altM": "m", "altF": "ft"}
+
+
+def altimeter_full_scale_m(attrs: dict[str, Any]) -> tuple[float | None, str | None]:
+    """The altimeter's full-scale range (m) from the cast's sensor XML (``AltimeterSensor`` ScaleFactor and
+    Offset) and how it was found: SeaSoft's altimeter equation (Sea-Bird application note AN95) is
+    ``height = 300 * V / ScaleFactor + Offset``, so the full scale of the CTD's 0-5 V A/D channel is
+    ``300 * 5 / ScaleFactor + Offset``. ``(None, None)`` when the header has no altimeter calibration."""
+    for sen in attrs.get("sensors_xml") or []:
+        if sen.get("type") != "AltimeterSensor":
+            continue
+        co = sen.get("coefficients") or {}
+        sf, off = co.get("ScaleFactor"), co.get("Offset", 0.0)
+        if isinstance(sf, float) and sf > 0 and isinstance(off, float):
+            fs = 300.0 * SEABIRD_AD_FULL_SCALE_V / sf + off
+            return fs, (f"sensor XML AltimeterSensor (S/N {sen.get('serial_number')}): 300 x "
+                        f"{SEABIRD_AD_FULL_SCALE_V:g} V / ScaleFactor {sf:g} + Offset {off:g} = {fs:.4g} m")
+    return None, None
+
+
+def _altimeter(df: pd.DataFrame, name: str, path: str) -> tuple[np.ndarray, dict[str, Any], dict[str, Any] | None] | None:
+    """The cast's altimeter channel (:func:`_sbs_altimeter_channels`) as ``altitude_m`` (m), with its no-echo
+    readings made missing: readings at or above :data:`ALTIMETER_NO_ECHO_FRACTION` of the full-scale range
+    (:func:`altimeter_full_scale_m`, from the header's calibration) are the altimeter's "no bottom" output, not
+    ranges. Without a calibration in the header the full scale is the channel's maximum when at least
+    :data:`_PLATEAU_MIN_FRACTION` of the readings sit within the same margin of it (a plateau: the saturated
+    output), warned as a fallback. Returns (values, record for the read stats, unit conversion record) or
+    ``None`` without an altimeter channel."""
+    from hadal.ingest.units import convert
+
+    names = _sbs_altimeter_channels()
+    col = next((c for c in df.columns if str(c) in names), None)
+    if col is None:
+        return None
+    unit = names[str(col)]
+    v, conv = convert(df[col].to_numpy(dtype=np.float64), unit, "altitude_m")
+    v = np.array(v, dtype=np.float64)
+    fs, how = altimeter_full_scale_m(df.attrs)
+    fin = v[np.isfinite(v)]
+    if fs is None and fin.size:
+        top = float(fin.max())
+        near = np.count_nonzero(fin >= ALTIMETER_NO_ECHO_FRACTION * top)
+        if top > 0 and near >= _PLATEAU_MIN_FRACTION * fin.size:
+            fs = top
+            how = (f"no altimeter calibration in the header: the channel's maximum {top:.4g} m, where "
+                   f"{near} of {fin.size} readings sit (a saturated plateau)")
+    rec: dict[str, Any] = {"channel": str(col), "units": unit, "full_scale_m": fs, "full_scale_source": how,
+                           "no_echo_fraction": ALTIMETER_NO_ECHO_FRACTION, "no_echo_readings": 0}
+    if fs is not None:
+        limit = ALTIMETER_NO_ECHO_FRACTION * fs
+        no_echo = np.isfinite(v) & (v >= limit)
+        n = int(no_echo.sum())
+        v[no_echo] = np.nan
+        rec.update({"no_echo_threshold_m": limit, "no_echo_readings": n})
+        if n:
+            warnings.warn(f"{Path(path).name}: altimeter '{col}': {n} of {v.size} readings at or above "
+                          f"{limit:.4g} m ({100 * ALTIMETER_NO_ECHO_FRACTION:g} % of its {fs:.4g} m full scale) are "
+                          "its no-bottom output: missing (flag 9)", stacklevel=3)
+    else:
+        rec["no_echo_note"] = ("no altimeter calibration in the header and no saturated plateau: no reading is "
+                               "treated as the no-bottom output")
+    return v, rec, conv
+
+
+#: fallback full scale (no calibration): the maximum is the saturated output when this fraction of readings sit at it
+_PLATEAU_MIN_FRACTION = 0.1
 
 
 #: the :class:`SensorSamples` pseudo-variable of SeaSoft's scan flags (1.0 = scan marked bad)

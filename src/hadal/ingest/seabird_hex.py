@@ -38,9 +38,15 @@ What is taken from ``seabirdscientific`` (Sea-Bird's community toolkit) and what
   number; and runs per line in Python (~20 us/scan, 20 s for 1 M scans). The test suite checks that both
   decoders give identical raw values on the real file.
 
-Not supported (refused with a one-line :class:`~hadal.errors.InputError`): other instruments (SBE 9/911plus,
-SBE 19 / original 19plus "SeacatPlus" firmware, SBE 25plus, 37, 39, 49 ...), Digiquartz pressure sensors, and
-non raw-hex output formats. The voltage channels are output in volts (SeaSoft's ``v0``..``vN``, numbered in
+SBE 37 MicroCAT (SM, SMP, SI, SIP, IM, IMP) ``.hex`` files from SeatermV2: the ``GetCC`` XML calibration
+(``A0``..``A3``, ``G``..``J``, ``PCOR``, ``TCOR``, ``WBOTC``, strain-gauge ``PA0``...), scans of temperature counts
+(6), conductivity frequency x 256 (6), pressure counts (6) + compensation counts (4) when ``PressureInstalled``,
+and the time (8, seconds since 2000); converted with seabirdscientific (no MV-R step, ``WBOTC`` applied) and
+checked against seabirdscientific's own ``read_hex_file`` decoder in the tests.
+
+Not supported (refused with a one-line :class:`~hadal.errors.InputError` naming the model): other instruments
+(SBE 9/911plus, SBE 19 / original 19plus "SeacatPlus" firmware, SBE 25plus, 39, 49 ...), SBE 37 with SBE 63
+oxygen (ODO), Digiquartz pressure sensors, and non raw-hex output formats. The voltage channels are output in volts (SeaSoft's ``v0``..``vN``, numbered in
 scan order as SeaSoft numbers them; the physical ``Ext Volt`` number is kept in ``attrs['channels']``); the
 header's per-channel ``volt N: offset/slope`` (used by the instrument for its own engineering-unit output) are
 kept as metadata and not applied, as DatCnv does not apply them either. Auxiliary sensor conversions (oxygen,
@@ -66,8 +72,12 @@ from hadal.formats import read_bytes
 
 __all__ = ["read_hex", "describe_hex", "parse_hex_header", "HexHeader", "SUPPORTED_INSTRUMENTS"]
 
-SUPPORTED_INSTRUMENTS = ("SBE 19plus V2 (profile or moored mode)", "SBE 16plus V2")
+SUPPORTED_INSTRUMENTS = ("SBE 19plus V2 (profile or moored mode)", "SBE 16plus V2",
+                         "SBE 37 (SM, SMP, SI, SIP, IM, IMP; raw hex, no SBE 63 oxygen)")
 _SUPPORTED_TXT = "supported: " + ", ".join(SUPPORTED_INSTRUMENTS) + " with a strain-gauge pressure sensor"
+#: the SBE 37's calibration keys (its GetCC XML: Calibration id='Temperature' / 'Conductivity' / 'Pressure')
+_SBE37_TEMP_KEYS = ("A0", "A1", "A2", "A3")
+_SBE37_COND_KEYS = ("G", "H", "I", "J", "PCOR", "TCOR", "WBOTC")
 COUNTS_TO_VOLTS = 13107.0  # 19plus V2 / 16plus V2 A/D: volts = counts / 13107
 PROFILE_SCAN_RATE_HZ = 4.0  # 19plus V2 profiling mode samples at 4 Hz
 _EPOCH_2000 = _dt.datetime(2000, 1, 1, tzinfo=_dt.UTC)
@@ -221,6 +231,12 @@ def _xml_configuration(h: HexHeader, el: ET.Element) -> None:
         for key in ("SBE38", "WETLABS", "OPTODE", "SBE63", "GTD", "DualGTD"):
             if dc.find(key) is not None:
                 h.aux[key] = _yes(dc.findtext(key))
+    installed = el.findtext("PressureInstalled")  # SBE 37 GetCD
+    if installed:
+        if not _yes(installed):
+            h.pressure_type = "none"
+        elif h.pressure_type is None:
+            h.pressure_type = "strain gauge"
     of = el.findtext("OutputFormat")
     if of:
         h.output_format = of.strip()
@@ -438,9 +454,12 @@ def _check_supported(h: HexHeader, path: Path) -> None:
     if not first.startswith("sea-bird") or "data file" not in first:
         raise InputError(f"{path}: not a Sea-Bird .hex file (first header line is {h.instrument!r}); "
                          f"{_SUPPORTED_TXT}")
-    m = re.search(r"sbe\s*(\w+)", h.instrument or "", re.I)
+    m = re.search(r"sbe\s*(\w+(?:-\w+)*)", h.instrument or "", re.I)  # 'SBE37SMP-ODO': the whole model
     fam = m.group(1).lower() if m else "?"
     model = h.model or ""
+    if fam.startswith("37"):
+        _check_sbe37(h, path, f"SBE {m.group(1)}" if m else "SBE 37")
+        return
     if fam not in ("19plus", "16plus"):
         name = f"SBE {m.group(1)}" if m else h.instrument
         raise InputError(f"{path}: {name} .hex files are not supported; {_SUPPORTED_TXT}")
@@ -474,8 +493,44 @@ def _check_supported(h: HexHeader, path: Path) -> None:
 
 
 # ------------------------------------------------------------------------------------------------ scan decoding
+def is_sbe37(h: HexHeader) -> bool:
+    """The header is an SBE 37's (MicroCAT family: SM, SMP, SI, SIP, IM, IMP)."""
+    return bool(re.search(r"sbe\s*37", h.instrument or "", re.I))
+
+
+def _check_sbe37(h: HexHeader, path: Path, name: str) -> None:
+    """What an SBE 37 .hex needs: no SBE 63 oxygen (ODO: its phase is not converted), raw hex output, a
+    strain-gauge pressure sensor or none, and the temperature, conductivity (and pressure) coefficients of the
+    header's ``GetCC`` XML. SBE 37 scans are always time-stamped (moored)."""
+    if "odo" in name.lower() or "odo" in (h.model or "").lower():
+        raise InputError(f"{path}: {name} .hex files (with SBE 63 oxygen) are not supported; {_SUPPORTED_TXT}")
+    if h.pressure_type == "quartz":
+        raise InputError(f"{path}: {name} with a Digiquartz pressure sensor is not supported; {_SUPPORTED_TXT}")
+    h.mode = "moored"
+    h.model = name
+    missing = []
+    keys = [("temperature", _SBE37_TEMP_KEYS), ("conductivity", _SBE37_COND_KEYS)]
+    if h.pressure_type is not None and h.pressure_type != "none":
+        keys.append(("pressure", _PRES_KEYS))
+    for kind, ks in keys:
+        lack = [k for k in ks if h.coefficients.get(kind, {}).get(k) is None]
+        if lack:
+            missing.append(f"{kind} ({', '.join(lack)})")
+    if missing:
+        raise InputError(f"{path}: {name} .hex header lacks calibration coefficients for {'; '.join(missing)}; "
+                         "cannot convert (a header with the instrument's GetCC output is needed)")
+
+
 def _layout(h: HexHeader, moored: bool) -> list[tuple[str, int]]:
-    """``[(field, hex characters)]`` of one scan, in the order of the manual's OutputFormat=0."""
+    """``[(field, hex characters)]`` of one scan, in the order of the manual's OutputFormat=0 (SBE 37: temperature
+    counts (6), conductivity frequency x 256 (6), with a pressure sensor its counts (6) and its temperature
+    compensation counts (4), then the time (8, seconds since 2000-01-01), as seabirdscientific's
+    ``read_sbe37sm_data`` decodes them)."""
+    if is_sbe37(h):
+        f37 = [("temperature", 6), ("conductivity", 6)]
+        if h.pressure_type not in (None, "none"):
+            f37 += [("pressure", 6), ("ptc", 4)]
+        return f37 + [("time", 8)]
     f = [("temperature", 6), ("conductivity", 6), ("pressure", 6), ("ptc", 4)]
     f += [(f"volt{k}", 4) for k in h.volts]
     aux = h.aux
@@ -557,6 +612,8 @@ def _convert(path: Path, h: HexHeader, raw: dict[str, np.ndarray]) -> dict[str, 
         raise InputError(f"{path}: converting a Sea-Bird .hex needs the 'seabirdscientific' package "
                          f"(pip install seabirdscientific)") from None
 
+    if is_sbe37(h):
+        return _convert_sbe37(h, raw, sbc, sbconv, sbid)
     ct, cc, cp = h.coefficients["temperature"], h.coefficients["conductivity"], h.coefficients["pressure"]
     tcoef = sbc.TemperatureCoefficients(ct["TA0"], ct["TA1"], ct["TA2"], ct["TA3"])
     t90 = sbconv.convert_temperature(raw["temperature"].astype(np.float64), tcoef, "ITS90", "C", use_mv_r=True)
@@ -567,6 +624,26 @@ def _convert(path: Path, h: HexHeader, raw: dict[str, np.ndarray]) -> dict[str, 
     itype = sbid.InstrumentType.SBE16Plus if "16" in (h.model or "") else sbid.InstrumentType.SBE19Plus
     c = sbconv.convert_conductivity(raw["conductivity"] / 256.0, t90, p, ccoef, itype, "S/m")
     c = c * (cc.get("CSLOPE") or 1.0)  # seabirdscientific has no slope term
+    return {"tv290C": t90, "c0S/m": c, "prdM": p}
+
+
+def _convert_sbe37(h: HexHeader, raw: dict[str, np.ndarray], sbc: Any, sbconv: Any, sbid: Any
+                   ) -> dict[str, np.ndarray]:
+    """SBE 37 counts to ITS-90 degC, dbar and S/m with seabirdscientific's conversions (SBE 37 manual, "Data
+    Format": T90 = 1 / (a0 + a1 ln n + a2 ln^2 n + a3 ln^3 n) - 273.15 on the raw counts, no MV-R step; the
+    pressure temperature compensation in counts; conductivity from frequency = counts / 256 Hz, corrected by
+    WBOTC). Without a pressure sensor the pressure is missing (NaN) and conductivity uses 0 dbar."""
+    ct, cc, cp = h.coefficients["temperature"], h.coefficients["conductivity"], h.coefficients.get("pressure", {})
+    tcoef = sbc.TemperatureCoefficients(ct["A0"], ct["A1"], ct["A2"], ct["A3"])
+    t90 = sbconv.convert_temperature(raw["temperature"].astype(np.float64), tcoef, "ITS90", "C", use_mv_r=False)
+    if "pressure" in raw:
+        pcoef = sbc.PressureCoefficients(*(cp[k] for k in _PRES_KEYS), offset=cp.get("POFFSET") or 0.0)
+        p = sbconv.convert_pressure(raw["pressure"].astype(np.float64), raw["ptc"].astype(np.float64), pcoef, "dbar")
+    else:
+        p = np.full(t90.shape, np.nan)
+    ccoef = sbc.ConductivityCoefficients(cc["G"], cc["H"], cc["I"], cc["J"], cc["PCOR"], cc["TCOR"], cc["WBOTC"])
+    c = sbconv.convert_conductivity(raw["conductivity"] / 256.0, t90, np.nan_to_num(p, nan=0.0), ccoef,
+                                    sbid.InstrumentType.SBE37SM, "S/m")
     return {"tv290C": t90, "c0S/m": c, "prdM": p}
 
 

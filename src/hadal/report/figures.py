@@ -242,7 +242,8 @@ def fig_seafloor_depth(dp: DiveProducts, opt: FigureOptions) -> FigureResult:
     if "phase" in d and (d["phase"].astype(str) == "bottom").any():
         d = d[d["phase"].astype(str) == "bottom"]
     if d.empty:
-        r.skipped = "no valid seafloor depth samples (altimeter out of range for the whole dive)"
+        r.skipped = ("no valid seafloor depth samples (no accepted altimeter reading: no bottom in range, missing "
+                     "or flagged bad for the whole dive)")
         return r
     d = _thin(d, opt.max_points)
     t = _time(d)

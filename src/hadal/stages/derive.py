@@ -345,6 +345,40 @@ def _fused_pressure(df: pd.DataFrame, p: Params, acc: list[int], no_time: bool) 
     return fusion
 
 
+#: how ``practical_salinity`` is computed (``salinity_method`` of the ``ctd`` metadata)
+SALINITY_FROM_CONDUCTIVITY = "PSS-78 from conductivity, temperature and pressure (hadal.seawater.practical_salinity)"
+
+
+def _salinity(df: pd.DataFrame, acc: list[int], pres: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Practical salinity and the temperature that goes with it (NaN where not accepted): PSS-78 from the
+    accepted conductivity/temperature pairs; for a table without any accepted conductivity that carries the
+    vendor's salinity (``practical_salinity_vendor``: a Sea-Bird cast without a conductivity channel, SeaSoft's
+    ``sal00``), that salinity where it and the temperature are accepted. The vendor column is dropped from
+    ``df`` (``practical_salinity`` holds it) and ``df.attrs["salinity_method"]`` says which was used."""
+    import numpy as np
+
+    from hadal.ingest.build import OPTIONAL_SENSOR_VARIABLES
+    from hadal.seawater import practical_salinity
+
+    vendor = OPTIONAL_SENSOR_VARIABLES[0]
+    t_ok = _flag_ok(df, "temperature_its90_degc", acc)
+    tc_ok = _flag_ok(df, "conductivity_s_m", acc) & t_ok
+    if not tc_ok.any() and vendor in df.columns and (ts_ok := _flag_ok(df, vendor, acc) & t_ok).any():
+        sp = np.where(ts_ok, df[vendor].to_numpy(np.float64), np.nan)
+        temp = np.where(ts_ok, df["temperature_its90_degc"].to_numpy(np.float64), np.nan)
+        df.attrs["salinity_method"] = (f"the vendor's practical salinity ({vendor}, from the instrument's own "
+                                       "salinity channel); no conductivity")
+    else:
+        cond = np.where(tc_ok, df["conductivity_s_m"].to_numpy(np.float64), np.nan)
+        temp = np.where(tc_ok, df["temperature_its90_degc"].to_numpy(np.float64), np.nan)
+        sp = practical_salinity(cond, temp, pres)
+        df.attrs["salinity_method"] = SALINITY_FROM_CONDUCTIVITY
+    for c in (vendor, f"{vendor}_qc"):
+        if c in df.columns:
+            del df[c]
+    return sp, temp
+
+
 def _seawater(df: pd.DataFrame, p: Params, acc: list[int], pres: np.ndarray, latitude_deg: float,
               longitude_deg: float, overlying_profile: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, Any]:
     """Salinity, density, gravity, the depths, sound speed and the TEOS-10 columns of accepted C/T samples;
@@ -357,14 +391,10 @@ def _seawater(df: pd.DataFrame, p: Params, acc: list[int], pres: np.ndarray, lat
         density_eos80,
         depth_fofonoff_millard,
         gravity,
-        practical_salinity,
         sound_speed_chen_millero,
     )
 
-    tc_ok = _flag_ok(df, "conductivity_s_m", acc) & _flag_ok(df, "temperature_its90_degc", acc)
-    cond = np.where(tc_ok, df["conductivity_s_m"].to_numpy(np.float64), np.nan)
-    temp = np.where(tc_ok, df["temperature_its90_degc"].to_numpy(np.float64), np.nan)
-    sp = practical_salinity(cond, temp, pres)
+    sp, temp = _salinity(df, acc, pres)
     rho = density_eos80(sp, temp, pres)
     if not np.isfinite(rho).any():
         raise InputError("sensors table has no valid conductivity/temperature: cannot compute density")
@@ -447,15 +477,52 @@ def _altitude_seafloor(df: pd.DataFrame, p: Params, acc: list[int], pres: np.nda
     df["seafloor_depth_m"] = seafloor_depth(depth, df["altitude_corrected_m"].to_numpy())
 
 
+#: a cast's altimeter reading whose seafloor (depth + altitude) is more than this above the deepest point the CTD
+#: reached is a false echo (m; at least, or this fraction of that depth: SEAFLOOR_ABOVE_CAST_FRACTION)
+SEAFLOOR_ABOVE_CAST_M = 2.0
+SEAFLOOR_ABOVE_CAST_FRACTION = 0.01
+
+
+def flag_false_echoes(df: pd.DataFrame, depth_m: np.ndarray, acc: list[int]) -> dict[str, Any] | None:
+    """Altimeter readings of a vertical cast that put the seafloor above the deepest point the CTD reached
+    (depth + altitude < deepest depth - max(:data:`SEAFLOOR_ABOVE_CAST_M`, :data:`SEAFLOOR_ABOVE_CAST_FRACTION` x
+    that depth)): the instrument went deeper at the same place, so the echo is not the bottom (scattering layer,
+    the wire, the ship). ``altitude_m_qc`` becomes 4 there (the value is kept); returns the count and the rule,
+    ``None`` without an accepted altimeter reading. Only for a cast: a vehicle moving over the seafloor can be
+    above ground it was deeper than elsewhere."""
+    import numpy as np
+
+    if "altitude_m" not in df.columns:
+        return None
+    alt = df["altitude_m"].to_numpy(np.float64)
+    ok = _flag_ok(df, "altitude_m", acc) & (alt > 0) & np.isfinite(depth_m)
+    if not ok.any() or not np.isfinite(depth_m).any():
+        return None
+    deepest = float(np.nanmax(depth_m))
+    tol = max(SEAFLOOR_ABOVE_CAST_M, SEAFLOOR_ABOVE_CAST_FRACTION * deepest)
+    bad = ok & (depth_m + alt < deepest - tol)
+    n = int(bad.sum())
+    if n:
+        qc = df["altitude_m_qc"].to_numpy().copy() if "altitude_m_qc" in df else np.ones(len(df), np.uint8)
+        qc[bad] = 4
+        df["altitude_m_qc"] = qc.astype(np.uint8)
+    return {"readings_flagged": n, "accepted_readings": int(ok.sum()), "deepest_depth_m": round(deepest, 3),
+            "tolerance_m": round(tol, 3), "qartod_flag": 4,
+            "rule": "a vertical cast's altimeter reading whose seafloor (depth + altitude) lies above the deepest "
+                    "depth the cast reached, less the tolerance, is a false echo"}
+
+
 def derive_ctd(sensors: pd.DataFrame, latitude_deg: float, longitude_deg: float, p: Params,
                frame: Any = None, launch_xy: tuple[float, float] = (0.0, 0.0), *,
-               memory_limit_bytes: float | None = None, overlying_profile: Any = None) -> tuple[pd.DataFrame, dict]:
+               memory_limit_bytes: float | None = None, overlying_profile: Any = None,
+               vertical_cast: bool = False) -> tuple[pd.DataFrame, dict]:
     """Pure science of the stage: the ``ctd`` table and its metadata from a ``sensors`` table.
 
     ``frame`` (a :class:`hadal.geo.LocalFrame`) and ``launch_xy`` (the launch point in it) turn the
     dead-reckoned offsets of the deepest point into longitude/latitude when given. ``overlying_profile`` (a
     :class:`hadal.depth.UserProfile`, from ``p.overlying_profile``) is the water above a record that does not
-    start at the surface (:func:`hadal.depth.overlying_column`).
+    start at the surface (:func:`hadal.depth.overlying_column`). ``vertical_cast`` (a Sea-Bird cast): altimeter
+    readings above the cast's deepest point are flagged as false echoes (:func:`flag_false_echoes`).
     """
     from hadal.ctd.chain import apply_channel_steps, loop_edit_flags
     from hadal.ingest.cnv import NO_TIME_BASE
@@ -476,12 +543,16 @@ def derive_ctd(sensors: pd.DataFrame, latitude_deg: float, longitude_deg: float,
         ctd_steps.append(loop_step)
     _phases(df, p, pres, depth, no_time)  # needed for the descent profile of the TEOS-10 cross-check
     teos_note = _teos10_depth(df, p, pres, temp, latitude_deg, longitude_deg)
+    echoes = flag_false_echoes(df, depth, acc) if vertical_cast else None
     _altitude_seafloor(df, p, acc, pres, sp, temp, rho, depth, latitude_deg)
     # QARTOD flags on the derived variables and range checks on the inputs (hadal.qc_derived)
     qc_meta = apply_derived_qc(df, load_qc_config(p.qc_thresholds), latitude_deg=latitude_deg,
                                longitude_deg=longitude_deg)
 
     meta = _metadata(df, fusion, latitude_deg, longitude_deg, p, teos_note, frame, launch_xy)
+    meta["salinity_method"] = df.attrs.pop("salinity_method", SALINITY_FROM_CONDUCTIVITY)
+    if echoes is not None:
+        meta["altimeter_false_echoes"] = echoes
     meta["qc_derived"] = qc_meta
     meta["pressure_fusion"] = fusion.to_dict()
     meta["overlying_column"] = column.to_dict()
@@ -650,8 +721,19 @@ def derive_table(table: pd.DataFrame, sensors_meta: dict[str, Any], p: Params, d
     pos = choose_position(p, dive, sensors_meta, header_first=external_cast)
     frame, launch_xy = (None, (0.0, 0.0)) if external_cast else _frame(dive)
     df, meta = derive_ctd(table, pos["latitude_deg"], pos["longitude_deg"], p, frame=frame, launch_xy=launch_xy,
-                          memory_limit_bytes=memory_limit_bytes, overlying_profile=overlying_profile)
+                          memory_limit_bytes=memory_limit_bytes, overlying_profile=overlying_profile,
+                          vertical_cast=external_cast or sensors_meta.get("source_kind") == "cnv")
     meta.update({k: pos[k] for k in ("latitude_source", "longitude_source")})
+    if (meta.get("altimeter_false_echoes") or {}).get("readings_flagged"):
+        fe = meta["altimeter_false_echoes"]
+        log.warning("derive: %s: %d of %d altimeter readings put the seafloor above the cast's deepest point "
+                    "(%.1f m): false echoes, flagged 4", what, fe["readings_flagged"], fe["accepted_readings"],
+                    fe["deepest_depth_m"])
+    vendor_method = next((st.get("salinity_method") for st in (sensors_meta.get("read_stats") or {}).values()
+                          if isinstance(st, dict) and st.get("salinity_method")), None)
+    if vendor_method and meta["salinity_method"] != SALINITY_FROM_CONDUCTIVITY:
+        meta["salinity_method"] = vendor_method
+        log.warning("derive: %s: practical salinity is %s", what, vendor_method)
     if pos["fallback"]:
         pmax = float(np.nanmax(df["pressure_dbar"].to_numpy()))
         err = _latitude_error_m(pmax)

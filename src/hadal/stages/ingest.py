@@ -273,8 +273,30 @@ def _external_casts(ctx: StageContext, p: Params, vehicle: VehicleConfig, cast_p
         s_k, m_k = read_cast(q, vehicle.time_base)
         t_k, tm_k = _cast_table(s_k, vehicle, p, _launch_ns(ctx))
         tm_k["cast"] = m_k
+        _add_cast_notes(tm_k)
         external.append((_cast_id(k, q), q, t_k, tm_k))
     return external
+
+
+def _add_cast_notes(meta: dict[str, Any]) -> None:
+    """What was read from a cast's metadata instead of taken as written, in the table's ``notes`` (the report
+    lists them): a ``start_time`` corrected from the header's clocks, the vendor's salinity used for want of a
+    conductivity channel, altimeter readings that are its no-bottom output."""
+    cast = meta.get("cast") or {}
+    notes = meta.setdefault("notes", [])
+    src = Path(str(cast.get("source", "cast"))).name
+    if cast.get("start_time_correction"):
+        notes.append(f"{src}: {cast['start_time_correction']}")
+    for st in (meta.get("read_stats") or {}).values():
+        if not isinstance(st, dict):
+            continue
+        if st.get("salinity_method"):
+            notes.append(f"{src}: practical salinity is {st['salinity_method']}; conductivity is missing (flag 9)")
+        alt = st.get("altimeter") or {}
+        if alt.get("no_echo_readings"):
+            notes.append(f"{src}: altimeter '{alt['channel']}': {alt['no_echo_readings']} reading(s) at or above "
+                         f"{alt['no_echo_threshold_m']:.4g} m are its no-bottom output (missing, flag 9); full scale "
+                         f"from the {alt['full_scale_source']}")
 
 
 def _source_entry(q: Path) -> dict[str, Any]:
@@ -306,6 +328,7 @@ def _sensors_metadata(ctx: StageContext, meta: dict[str, Any], df: pd.DataFrame,
         meta["cast"] = read.cast_meta
         meta["cast_latitude_deg"] = read.cast_meta.get("latitude_deg")
         meta["cast_longitude_deg"] = read.cast_meta.get("longitude_deg")
+        _add_cast_notes(meta)
     meta["readers"] = {q.name: reader_of(q) for q in inputs}
 
 
