@@ -51,6 +51,10 @@ class DiveProducts:
     casts: list[dict[str, Any]] = field(default_factory=list)  # external casts: casts.json + cast_profiles.json
     navigation: pd.DataFrame | None = None  # best position of every sample (match's navigation product)
     landing_meta: dict[str, Any] = field(default_factory=dict)  # landing manifest parameters (vehicle geometry)
+    #: the laser grids drawn (at most :data:`MAX_LASER_FIGURES`, thinned to :data:`LASER_FIGURE_CELLS` a side)
+    laser_grids: list[tuple[str, xr.Dataset]] = field(default_factory=list)
+    #: per laser grid (all of them): name, extent (m, its own frame), elevation range, cells, resolution
+    laser_info: list[dict[str, Any]] = field(default_factory=list)
 
     @property
     def missing(self) -> list[str]:
@@ -116,6 +120,61 @@ def _read_json(pv: ProductVersion, name: str, dp: DiveProducts) -> dict[str, Any
     return data if isinstance(data, dict) else None
 
 
+#: laser grids drawn in the report (one map each); the others are listed in the summary with a note
+MAX_LASER_FIGURES = 6
+#: a laser grid is thinned (every k-th cell) to at most this many cells a side for its map
+LASER_FIGURE_CELLS = 800
+
+
+def _laser_grid_info(name: str, ds: xr.Dataset) -> dict[str, Any]:
+    """Name, extent (cell edges, m, in the grid's own frame), elevation range, size and resolution of one grid."""
+    import numpy as np
+
+    x, y = ds["x"].values, ds["y"].values
+    dx = float(np.median(np.diff(x))) if x.size > 1 else float(ds.attrs.get("resolution_m", 0.0) or 0.0)
+    dy = float(np.median(np.diff(y))) if y.size > 1 else dx
+    z = ds["elevation_m"].values
+    fin = np.isfinite(z)
+    return {"name": name, "x_range_m": [float(x.min() - abs(dx) / 2), float(x.max() + abs(dx) / 2)],
+            "y_range_m": [float(y.min() - abs(dy) / 2), float(y.max() + abs(dy) / 2)],
+            "elevation_range_m": [float(z[fin].min()), float(z[fin].max())] if fin.any() else None,
+            "cells": [int(y.size), int(x.size)], "mapped_cells": int(fin.sum()),
+            "resolution_m": float(ds.attrs.get("resolution_m", abs(dx)) or abs(dx)),
+            "source_file": ds.attrs.get("source_file"), "crs_kind": ds.attrs.get("source_crs_kind")}
+
+
+def _read_laser_grids(pv: ProductVersion, dp: DiveProducts) -> None:
+    """The ``laser_grids`` product's grids (``*.nc``, ``*.zarr``): :attr:`DiveProducts.laser_info` for every one,
+    the first :data:`MAX_LASER_FIGURES` thinned into :attr:`DiveProducts.laser_grids` for their maps."""
+    import numpy as np
+
+    files = sorted([*pv.path.glob("*.nc"), *pv.path.glob("*.zarr")])
+    for path in files:
+        name = path.name.removesuffix(".nc").removesuffix(".zarr")
+        try:
+            with (xr.open_zarr(path) if path.suffix == ".zarr" else xr.open_dataset(path)) as ds:
+                if "elevation_m" not in ds or not {"x", "y"} <= set(ds["elevation_m"].dims):
+                    dp.note(f"laser grid {path.name} has no elevation_m(y, x): not drawn")
+                    continue
+                k = max(1, int(np.ceil(max(ds.sizes["x"], ds.sizes["y"]) / LASER_FIGURE_CELLS)))
+                small = ds[["elevation_m"]].isel(x=slice(None, None, k), y=slice(None, None, k)).load()
+                small.attrs = {a: ds.attrs[a] for a in ("resolution_m", "source_file", "source_crs_kind", "submap")
+                               if a in ds.attrs}
+                small.attrs["thinned_by"] = k
+                info = _laser_grid_info(name, ds)  # the full grid's extent and range, not the thinned copy's
+                if k > 1:
+                    info["drawn_every_nth_cell"] = k
+        except (OSError, ValueError, KeyError, RuntimeError) as exc:
+            dp.note(f"laser grid {path.name} could not be read ({type(exc).__name__}: {exc})")
+            continue
+        dp.laser_info.append(info)
+        if len(dp.laser_grids) < MAX_LASER_FIGURES:
+            dp.laser_grids.append((name, small))
+    if len(dp.laser_info) > MAX_LASER_FIGURES:
+        dp.note(f"{len(dp.laser_info)} laser grids: the first {MAX_LASER_FIGURES} are drawn, all are listed in "
+                "summary.json (laser_grids)")
+
+
 def latest_versions(store: ProductStore, dive: str, pins: dict[str, ProductVersion] | None = None
                     ) -> dict[str, ProductVersion]:
     """The version of every report input product that exists: the run's pinned one, else the latest."""
@@ -130,15 +189,19 @@ def load_products(store: ProductStore, dive: str, skipped_stages: set[str] | Non
 
     ``skipped_stages``: stages the dive's data does not support (the report lists them with the reason, so
     their missing products get no note here; ``expected``: the products the run's plan makes, the only ones
-    whose absence is noted). A dive with no product at all is a :class:`StageError` (any
-    source file makes ingest, dtm or laser run, so that means the pipeline has not run).
+    whose absence is noted). Without any product: when called with the run's plan (``skipped_stages`` given, as the
+    report stage does) an empty :class:`DiveProducts` with a note - the report still says what was found, read,
+    skipped and failed; without it (``hadal report DIVE`` on a store the pipeline never wrote) a
+    :class:`StageError`.
     """
     versions = latest_versions(store, dive, pins)
-    if not versions:
+    if not versions and skipped_stages is None:
         raise StageError(
             f"dive {dive!r} has no products in {store.root}; run the pipeline first (hadal run RAW_DIR --store {store.root})"
         )
     dp = DiveProducts(dive=dive, versions=versions)
+    if not versions:
+        dp.note("no product was published upstream: the stages below failed or were skipped, with the reasons")
     for product, stage in REPORT_INPUTS:
         if product not in versions and stage not in (skipped_stages or set()) and (expected is None
                                                                                    or product in expected):
@@ -153,6 +216,8 @@ def load_products(store: ProductStore, dive: str, skipped_stages: set[str] | Non
         dp.profile = _read_netcdf(versions["profile"], "profile.nc", dp)
     if "dtm" in versions:
         dp.dtm = _read_netcdf(versions["dtm"], "dtm.nc", dp)
+    if "laser_grids" in versions:
+        _read_laser_grids(versions["laser_grids"], dp)
     if "suitability" in versions:
         dp.suitability = _read_netcdf(versions["suitability"], "suitability.nc", dp)
     if "match" in versions:
