@@ -62,6 +62,8 @@ def build_report(store: ProductStore, dive: str, *, launch: dict[str, float] | N
     if dp.laser_info:
         summary["laser_grids"] = dp.laser_info
     figures = _drop_skipped(make_figures(dp, options), skipped or [])
+    if "laser_grids" not in dp.versions:  # optional data (most dives have no laser survey): no placeholder
+        figures = [f for f in figures if f.key != "laser_grids" or f.png is not None]
     summary["figures"] = {f.key: ("ok" if f.png is not None else f"skipped: {f.skipped}") for f in figures}
     html = render_html(dp, summary, figures, _provenance(dp), title=title)
     return Report(dive=dive, html=html, summary=summary, figures=figures, upstream=list(dp.versions.values()))

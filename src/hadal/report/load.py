@@ -2,7 +2,7 @@
 
 Every product is optional: a missing product, an unreadable file or a missing column becomes a *note*
 (shown in the report) instead of an exception. :func:`load_products` raises only when the dive has no
-product at all.
+product at all and no run plan says why (the report stage passes the plan: it always publishes).
 """
 
 from __future__ import annotations
