@@ -131,6 +131,8 @@ def test_dead_conductivity_channel_gives_standard_ocean_depth(shared_data, untou
     assert b["practical_salinity"].isna().all() and (b["conductivity_s_m_qc"] == 9).all()
     notes = " ".join(_summary(ctx)["notes"])
     assert "conductivity_s_m is dead" in notes and "vehicle config" not in notes
+    assert _summary(ctx)["dead_channels"]["conductivity_s_m"]["reason"] == "all fill values"
+    assert "Dead sensor channels" in ctx.store.latest(ctx.dive_id, "report").file("report.html").read_text()
 
 
 def test_conductivity_in_the_wrong_units_is_a_dead_channel_with_a_hint(shared_data, tmp_path):

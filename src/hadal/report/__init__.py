@@ -61,6 +61,8 @@ def build_report(store: ProductStore, dive: str, *, launch: dict[str, float] | N
         summary["sources"] = {k: list(v) for k, v in sources.items() if v}
     if dp.laser_info:
         summary["laser_grids"] = dp.laser_info
+    if dp.dead_channels:
+        summary["dead_channels"] = dp.dead_channels
     figures = _drop_skipped(make_figures(dp, options), skipped or [])
     if "laser_grids" not in dp.versions:  # optional data (most dives have no laser survey): no placeholder
         figures = [f for f in figures if f.key != "laser_grids" or f.png is not None]

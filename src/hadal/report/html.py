@@ -196,6 +196,9 @@ def render_html(dp: DiveProducts, summary: Mapping[str, Any], figures: list[Figu
                                       "x range (m)": _span(g["x_range_m"]), "y range (m)": _span(g["y_range_m"]),
                                       "elevation range (m)": _span(g["elevation_range_m"])}
                                      for g in summary["laser_grids"]]))
+    if summary.get("dead_channels"):
+        parts.append("<h2>Dead sensor channels (flagged, left out; the other channels processed)</h2>")
+        parts.append(_records_table([{"channel": k, **v} for k, v in summary["dead_channels"].items()]))
     skipped = summary.get("skipped_stages") or []
     if skipped:
         parts.append("<h2>Stages not run on this dive</h2>")

@@ -55,6 +55,8 @@ class DiveProducts:
     laser_grids: list[tuple[str, xr.Dataset]] = field(default_factory=list)
     #: per laser grid (all of them): name, extent (m, its own frame), elevation range, cells, resolution
     laser_info: list[dict[str, Any]] = field(default_factory=list)
+    #: the sensor channels ingest found dead (all fill values / out of range): variable -> reason, flag, source
+    dead_channels: dict[str, Any] = field(default_factory=dict)
 
     @property
     def missing(self) -> list[str]:
@@ -65,17 +67,16 @@ class DiveProducts:
             self.notes.append(text)
 
 
-def _table_notes(path: Path) -> list[str]:
-    """The ``notes`` a stage recorded in a Parquet product's table metadata (loud data problems: times out of
-    the dive's window, rejected samples, ...); none when the file or its metadata cannot be read."""
+def _table_meta(path: Path) -> dict[str, Any]:
+    """A Parquet product's table metadata (its ``notes``: loud data problems such as times out of the dive's window,
+    rejected samples, dead channels); empty when the file or its metadata cannot be read."""
     try:
         from hadal.products.io import read_parquet_metadata
 
         meta, _ = read_parquet_metadata(path)
     except Exception:  # noqa: BLE001 - the table itself is read (and its problems noted) separately
-        return []
-    notes = meta.get("notes") if isinstance(meta, dict) else None
-    return [str(n) for n in notes] if isinstance(notes, list) else []
+        return {}
+    return meta if isinstance(meta, dict) else {}
 
 
 def _read(pv: ProductVersion, name: str, dp: DiveProducts, reader: Callable[[Path], Any],
@@ -208,8 +209,13 @@ def load_products(store: ProductStore, dive: str, skipped_stages: set[str] | Non
             dp.note(f"product {product!r} is missing (stage {stage} has not run): its figures are skipped")
     if "sensors" in versions:
         _check_parquet(versions["sensors"], "sensors.parquet", dp)  # its notes below; its table is not drawn
-        for n in _table_notes(versions["sensors"].path / "sensors.parquet"):
+        smeta = _table_meta(versions["sensors"].path / "sensors.parquet")
+        for n in smeta.get("notes") or []:
             dp.note(f"ingest: {n}")
+        if isinstance(smeta.get("dead_channels"), dict):
+            dp.dead_channels = {k: {f: v.get(f) for f in ("reason", "qartod_flag", "source", "hint")
+                                    if isinstance(v, dict) and v.get(f) is not None}
+                                for k, v in smeta["dead_channels"].items()}
     if "ctd" in versions:
         dp.ctd = _read_parquet(versions["ctd"], "ctd.parquet", dp)
     if "profile" in versions:
