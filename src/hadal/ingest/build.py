@@ -558,8 +558,10 @@ def build_sensor_table(
         mapped = [var for var in vals if var != SEASOFT_BAD_SCAN]
         if name == base_name and empty and (len(empty) == len(mapped) or "pressure_ctd_dbar" in empty):
             raise InputError(f"{s.source}: the time-base sensor {name!r} has no valid value in "
-                             f"{', '.join(empty)} ({len(s)} row(s), all missing): nothing to build the sensor "
-                             "table on - check the vehicle.yaml mapping and the file")
+                             f"{', '.join(empty)} ({len(s)} row(s), all missing or fill values): nothing to build "
+                             "the sensor table on - check "
+                             + ("the vehicle.yaml mapping and the file" if _declares_units_in_config(s.source)
+                                else "the file"))
         try:
             t, vals, st = clean_times(s.time_ns, vals)
         except InputError as exc:
