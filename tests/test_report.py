@@ -210,11 +210,20 @@ def test_report_stage_run_publishes_with_parameters(tmp_path, full_store):
     assert summary["launch"]["lat"] == pytest.approx(ctx.dive.launch.latitude_deg)
 
 
-def test_report_stage_without_products_fails_clearly(tmp_path):
+def test_report_stage_without_products_still_publishes(tmp_path):
+    """Issue 43: the report always runs (was: a StageError "no products"): with nothing upstream it lists the
+    dive's sources (dive.yaml), the stages not run with the reasons, and says that nothing was published."""
     raw = write_fake_dive(tmp_path / "raw", "dive-empty")
-    with pytest.raises(StageError, match="no products"):
-        run_stage("report", make_context(raw, tmp_path / "store"))
-    assert not (tmp_path / "store" / "dive-empty" / "report").exists()
+    ctx = make_context(raw, tmp_path / "store")
+    run_stage("report", ctx)
+    rep = ctx.store.latest("dive-empty", "report")
+    summary = json.loads(rep.file("summary.json").read_text())
+    assert summary["products"] == {}
+    assert any("no product was published upstream" in n for n in summary["notes"])
+    assert summary["sources"] == {}  # its dive.yaml lists none (tests/test_degrade_channels.py: a real cast)
+    html = rep.file("report.html").read_text()
+    for s in summary["skipped_stages"]:
+        assert s["reason"] and s["stage"] in html
 
 
 def test_cli_report_writes_html(tmp_path, full_store, monkeypatch, capsys):

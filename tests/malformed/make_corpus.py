@@ -70,6 +70,24 @@ def _flip_chunk(b: bytes) -> bytes:
     return bytes(a)
 
 
+#: rows of altimeter.csv set to -1 by :func:`_no_bottom` (the oracle of the csv_altitude_no_bottom case)
+_NO_BOTTOM: dict[str, int] = {}
+
+
+def _no_bottom(lines: list[str]) -> list[str]:
+    """altimeter.csv with the altitude of every third row set to -1 (an altimeter's "no bottom")."""
+    head, rows = lines[:1], lines[1:]
+    col = head[0].split(",").index(next(c for c in head[0].split(",") if c.startswith("alt")))
+    out = []
+    for i, r in enumerate(rows):
+        f = r.split(",")
+        if i % 3 == 0:
+            f[col] = "-1"
+        out.append(",".join(f))
+    _NO_BOTTOM["rows"] = len(rows[::3])
+    return head + out
+
+
 def _edit_csv(d: Path, name: str, fn: Callable[[list[str]], list[str]]) -> None:
     p = d / "csv" / name
     p.write_text("\n".join(fn(p.read_text().splitlines())) + "\n")
@@ -136,9 +154,15 @@ CASES: list[Case] = [
     Case("mcap_missing_optional_topic", "no altimeter channel: column empty, flag 9",
          lambda d: _rewrite_mcap(d, lambda m: {k: v for k, v in m.items() if k != "/haidou/altimeter"}),
          check=lambda df, m: bool((df["altitude_m_qc"] == 9).all()) and df["altitude_m"].isna().all()),
-    Case("mcap_wrong_units", "conductivity logged in mS/cm, declared S/m: out-of-range detection",
+    # issue 43 (degrade per channel): the unit mistake kills the conductivity channel only (flag 4, the unit hint
+    # in the warning and the metadata); temperature and pressure are processed (was: the whole dive refused)
+    Case("mcap_wrong_units", "conductivity logged in mS/cm, declared S/m: dead channel with a unit hint",
          lambda d: _rewrite_mcap(d, _set_field("/haidou/ctd", "cond", lambda i, v: v * 10.0)),
-         "InputError", "outside the plausible range.*wrong units"),
+         check=lambda df, m: bool((df["conductivity_s_m_qc"].isin([4, 9])).all())
+         and "mS/cm" in m["dead_channels"]["conductivity_s_m"]["hint"]
+         and "vehicle config" in m["dead_channels"]["conductivity_s_m"]["hint"]
+         and bool((df["temperature_its90_degc_qc"] != 4).mean() > 0.9)
+         and any("conductivity_s_m is dead" in n for n in m["notes"])),
     Case("mcap_field_renamed", "vehicle maps 'cond' but the messages carry 'conductivity'",
          lambda d: _rewrite_mcap(d, lambda m: {**m, "/haidou/ctd": [
              (t, {("conductivity" if k == "cond" else k): v for k, v in x.items()}) for t, x in m["/haidou/ctd"]]}),
@@ -196,10 +220,23 @@ CASES: list[Case] = [
     Case("csv_renamed_column", "keller.csv header says pressure_dbar instead of pressure_bar",
          lambda d: (_csv_only(d), _edit_csv(d, "keller.csv", lambda L: ["time,pressure_dbar"] + L[1:])),
          "InputError", "missing column.*pressure_bar"),
-    Case("csv_mixed_units", "keller.csv logged in dbar but declared bar: out-of-range detection",
+    # issue 43 (degrade per channel): the gauge channel is dead with a unit hint; the CTD is processed (was: refused)
+    Case("csv_mixed_units", "keller.csv logged in dbar but declared bar: dead gauge channel with a unit hint",
          lambda d: (_csv_only(d), _edit_csv(d, "keller.csv", lambda L: L[:1] + [
              f"{x.split(',')[0]},{float(x.split(',')[1]) * 10:.3f}" for x in L[1:]])),
-         "InputError", "outside the plausible range"),
+         check=lambda df, m: bool(df["pressure_gauge_dbar_qc"].isin([4, 9]).all())
+         and "logged in dbar rather than bar" in m["dead_channels"]["pressure_gauge_dbar"]["hint"]
+         and bool((df["pressure_ctd_dbar_qc"] == 1).mean() > 0.5)),
+    # issue 43: an altimeter writing -1 for "no bottom" (a fill value for altitude only): those rows are missing
+    # (flag 9), the rest is kept and the dive is processed. Oracle: the file's own -1 count and values
+    Case("csv_altitude_no_bottom", "altimeter.csv with altitude -1 ('no bottom') in every third row: missing, not fatal",
+         lambda d: (_csv_only(d), _edit_csv(d, "altimeter.csv", _no_bottom)),
+         check=lambda df, m: m["fill_values"]["altitude_m"]["count"] == _NO_BOTTOM["rows"]
+         and m["fill_values"]["altitude_m"]["values_as_logged"] == [-1.0]
+         and "altitude_m" not in m.get("dead_channels", {})
+         and bool((df["altitude_m"].dropna() >= 0).all()) and bool((df["altitude_m_qc"] == 9).any())
+         and bool(df["altitude_m"].notna().mean() > 0.3)
+         and bool(df["temperature_its90_degc"].notna().all())),
     Case("csv_duplicated_time", "every ctd.csv row twice: duplicates dropped and counted",
          lambda d: (_csv_only(d), _edit_csv(d, "ctd.csv", lambda L: L[:1] + [x for x in L[1:] for _ in (0, 1)])),
          check=lambda df, m: m["alignment"]["ctd"]["duplicates"] == 320 and len(df) == 320 and df["time"].is_unique),

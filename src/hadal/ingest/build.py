@@ -339,12 +339,8 @@ def build_profile_table(samples: SensorSamples, qc: Mapping[str, VariableQC] | N
         if bad.any():
             meta["non_finite_values"][var] = int(bad.sum())
             v = np.where(bad, np.nan, v)
-        cfg = qc.get(var)
-        if cfg is not None and (ff := fail_fraction(v, cfg)) > cfg.max_fail_fraction:
-            lo, hi = sorted(cfg.fail_span or (np.nan, np.nan))
-            raise InputError(f"{samples.source}: {ff:.0%} of {var} values are outside the plausible range "
-                             f"[{lo:g}, {hi:g}] {CANONICAL_UNITS[var]} - wrong units?")
-        columns[var] = v
+        columns[var] = channel_health(v, var, qc.get(var), meta, source=samples.source, sensor=samples.name,
+                                      conversions=samples.conversions)
     meta["alignment"][samples.name] = {"source": samples.source, "samples": n, "method": "profile (no time base)"}
     no_flat = {k: v.model_copy(update={"flat_line_suspect_s": None}) for k, v in qc.items()}
     index_ns = np.arange(n, dtype=np.int64) * 1_000_000_000  # sample index (the spike test only uses order)
@@ -354,6 +350,7 @@ def build_profile_table(samples: SensorSamples, qc: Mapping[str, VariableQC] | N
     table_vars = table_variables(columns)
     flags, counts = qc_table({v: columns[v] for v in table_vars}, index_ns, no_flat)
     apply_seasoft_flags(flags, counts, samples.values.get(SEASOFT_BAD_SCAN), meta, samples.source)
+    flag_dead_channels(flags, counts, meta)
     meta["qc_counts"] = counts
     meta["qc_note"] = ("profile without time: gross range as usual, spike test on the bin index, flat-line test "
                        "not evaluated")
@@ -539,8 +536,9 @@ def build_sensor_table(
     """Align all sensors on the time-base sensor's samples and add QARTOD flags.
 
     Steps: non-finite values (``inf``) -> NaN (counted); per sensor sort + de-duplicate times (counted);
-    unit-mistake check (more than ``max_fail_fraction`` of a variable outside its fail span ->
-    :class:`InputError`); alignment with per-sensor ``max_gap_s``; ``ioos_qc`` flags; schema validation.
+    per channel (:func:`channel_health`) fill values -> NaN and dead channels (all fill, or more than
+    ``max_fail_fraction`` outside the fail span: a failed sensor or a unit mistake, with a unit hint) flagged and
+    named in ``meta["dead_channels"]``, the others processed; alignment with per-sensor ``max_gap_s``; ``ioos_qc`` flags; schema validation.
 
     Time sanity (:class:`_TimeChecks`, recorded in ``meta["time_checks"]``, loud ones also in ``meta["notes"]``
     for the report and as warnings): sample times outside the plausible range (1980 .. now + 1 day) are
@@ -567,14 +565,19 @@ def build_sensor_table(
         vals = _checked_values(s, qc, meta)
         empty = [var for var, v in vals.items() if var != SEASOFT_BAD_SCAN and v.size and not np.isfinite(v).any()]
         for var in empty:
+            if var in meta.get("dead_channels", {}):
+                continue  # named already (all fill values)
             tc._loud(f"{s.source}: {name} {var} has no valid value in any of its {len(s)} row(s) (all missing or "
-                     f"non-numeric): the column is empty (flag 9) - check the vehicle.yaml mapping and the file")
+                     f"non-numeric): the column is empty (flag 9) - check "
+                     + ("the vehicle.yaml mapping and the file" if _declares_units_in_config(s.source) else "the file"))
         meta.setdefault("empty_variables", {})[name] = empty
         mapped = [var for var in vals if var != SEASOFT_BAD_SCAN]
         if name == base_name and empty and (len(empty) == len(mapped) or "pressure_ctd_dbar" in empty):
             raise InputError(f"{s.source}: the time-base sensor {name!r} has no valid value in "
-                             f"{', '.join(empty)} ({len(s)} row(s), all missing): nothing to build the sensor "
-                             "table on - check the vehicle.yaml mapping and the file")
+                             f"{', '.join(empty)} ({len(s)} row(s), all missing or fill values): nothing to build "
+                             "the sensor table on - check "
+                             + ("the vehicle.yaml mapping and the file" if _declares_units_in_config(s.source)
+                                else "the file"))
         try:
             t, vals, st = clean_times(s.time_ns, vals)
         except InputError as exc:
@@ -603,6 +606,7 @@ def build_sensor_table(
     table_vars = table_variables(columns)
     flags, counts = qc_table({v: columns[v] for v in table_vars}, base_t, qc)
     apply_seasoft_flags(flags, counts, base_vals.get(SEASOFT_BAD_SCAN), meta, sensors[base_name].source)
+    flag_dead_channels(flags, counts, meta)
     meta["qc_counts"] = counts
     df = pd.DataFrame({"time": pd.to_datetime(base_t, unit="ns", utc=True)})
     for var in table_vars:
@@ -625,8 +629,9 @@ def _require_time_base(sensors: Mapping[str, SensorSamples], base_name: str) -> 
 
 
 def _checked_values(s: SensorSamples, qc: Mapping[str, VariableQC], meta: dict[str, Any]) -> dict[str, np.ndarray]:
-    """``s``'s values with ``inf`` set to NaN (counted, warned); an :class:`InputError` on a unit mistake
-    (more than ``max_fail_fraction`` of a variable outside its fail span). Called by :func:`build_sensor_table`."""
+    """``s``'s values with ``inf`` set to NaN (counted, warned) and each variable checked by
+    :func:`channel_health` (fill values -> NaN; a dead channel recorded in ``meta["dead_channels"]``, flagged by
+    :func:`flag_dead_channels`). Nothing here refuses the input: a bad channel never stops the others."""
     vals = {}
     for var, v in s.values.items():
         bad = np.isinf(v)
@@ -634,14 +639,110 @@ def _checked_values(s: SensorSamples, qc: Mapping[str, VariableQC], meta: dict[s
             meta["non_finite_values"][var] = int(bad.sum())
             warnings.warn(f"{s.source}: {int(bad.sum())} infinite {var} value(s) set to NaN (flag 9)", stacklevel=3)
             v = np.where(bad, np.nan, v)
-        cfg = qc.get(var)
-        if cfg is not None and (ff := fail_fraction(v, cfg)) > cfg.max_fail_fraction:
-            lo, hi = sorted(cfg.fail_span or (np.nan, np.nan))
-            raise InputError(
-                f"{s.source}: {ff:.0%} of {var} values are outside the plausible range [{lo:g}, {hi:g}] "
-                f"{CANONICAL_UNITS[var]} - wrong units in the vehicle config?")
+        if var in CANONICAL_UNITS:
+            v = channel_health(v, var, qc.get(var), meta, source=s.source, sensor=s.name, conversions=s.conversions)
         vals[var] = v
     return vals
+
+
+def _declares_units_in_config(source: str) -> bool:
+    """True when a source's units come from the vehicle config (MCAP/CSV mappings), not from the file (.cnv/.hex
+    headers name their own units)."""
+    return source.startswith(("mcap:", "csv:"))
+
+
+def _unit_hint(v: np.ndarray, var: str, unit: str | None, cfg: VariableQC, source: str) -> str | None:
+    """A hint naming the unit in which most of ``v`` (canonical values, mostly outside the fail span) would lie
+    inside it (``mS/cm`` logged as ``S/m``), or ``None`` when no unit of the dimension fits 90 % of them."""
+    from hadal.ingest.units import unit_alternatives
+
+    x = v[np.isfinite(v)]
+    if x.size == 0 or cfg.fail_span is None:
+        return None
+    lo, hi = sorted(cfg.fail_span)
+    slo, shi = sorted(cfg.suspect_span) if cfg.suspect_span else (lo, hi)
+    best = None
+    for alt, ratio in unit_alternatives(var, unit):
+        y = x / ratio
+        inside = float(np.count_nonzero((y >= lo) & (y <= hi)) / x.size)
+        typical = float(np.count_nonzero((y >= slo) & (y <= shi)) / x.size)  # tie-break: the usual range
+        score = (inside, typical, -abs(np.log10(ratio)))  # then the smallest factor
+        if inside >= 0.9 and (best is None or score > best[2:]):
+            best = (alt, ratio, *score)
+    if best is None:
+        return None
+    declared = unit or CANONICAL_UNITS[var]
+    where = "in the vehicle config" if _declares_units_in_config(source) else "for this channel"
+    return (f"{best[2]:.0%} of them fit the range if logged in {best[0]} rather than {declared} (values x "
+            f"{1 / best[1]:g}): wrong units {where}?")
+
+
+def channel_health(v: np.ndarray, var: str, cfg: VariableQC | None, meta: dict[str, Any], *, source: str,
+                   sensor: str, conversions: Sequence[Mapping[str, Any]] = ()) -> np.ndarray:
+    """One channel's values with its fill values made NaN, and the channel judged (degrade per channel, not per
+    dive: nothing here raises).
+
+    * Fill values (:func:`hadal.ingest.qc.fill_mask` on the values as logged, recovered through the conversion
+      records by :func:`hadal.ingest.units.raw_values`: 9.9e5 uS/cm, -9.99e-29, -1 "no bottom" of an altitude)
+      are missing data (NaN, flag 9), counted in ``meta["fill_values"][var]`` and warned about.
+    * A channel whose values are all fill values, or with more than ``cfg.max_fail_fraction`` of its remaining
+      values outside ``cfg.fail_span`` (a failed sensor or a unit mistake), is dead: recorded in
+      ``meta["dead_channels"][var]`` (reason, QARTOD flag 9 or 4, unit hint), named in a warning and in
+      ``meta["notes"]`` for the report. :func:`flag_dead_channels` flags it 4 throughout after the QC tests.
+    """
+    from hadal.ingest.qc import fill_mask
+    from hadal.ingest.units import raw_values
+
+    raw, unit = raw_values(v, list(conversions), var)
+    finite = np.isfinite(v)
+    fills = fill_mask(raw, v, cfg) & finite
+    n_fill, n_finite = int(fills.sum()), int(finite.sum())
+    if n_fill:
+        shown = sorted({float(f"{x:.6g}") for x in np.unique(raw[fills])[:5]})
+        meta.setdefault("fill_values", {})[var] = {"sensor": sensor, "source": source, "count": n_fill,
+                                                   "of": int(v.size), "values_as_logged": shown,
+                                                   "unit_as_logged": unit or CANONICAL_UNITS[var], "qartod_flag": 9}
+        text = (f"{source}: {n_fill} of {v.size} {var} value(s) are fill values "
+                f"({', '.join(f'{x:g}' for x in shown)} as logged): missing data (flag 9)")
+        if cfg is not None and n_fill > cfg.max_fail_fraction * max(n_finite, 1):
+            meta.setdefault("notes", []).append(text)  # mostly missing: for the report too
+        warnings.warn(text, stacklevel=4)
+        v = np.where(fills, np.nan, v)
+    dead: dict[str, Any] | None = None
+    if n_fill and n_fill == n_finite:
+        dead = {"reason": "all fill values", "qartod_flag": 9,
+                "text": f"every one of its {n_fill} value(s) is a fill value (no data)"}
+    elif cfg is not None and cfg.fail_span is not None and (ff := fail_fraction(v, cfg)) > cfg.max_fail_fraction:
+        lo, hi = sorted(cfg.fail_span)
+        hint = _unit_hint(v, var, unit, cfg, source)
+        dead = {"reason": "out of range", "qartod_flag": 4, "fraction_out_of_range": round(ff, 4),
+                "range": [lo, hi], "unit": CANONICAL_UNITS[var],
+                "text": f"{ff:.0%} of its values are outside the plausible range [{lo:g}, {hi:g}] "
+                        f"{CANONICAL_UNITS[var]}" + (f"; {hint}" if hint else
+                                                     " (a failed sensor, or wrong units)")}
+        if hint:
+            dead["hint"] = hint
+    if dead is not None:
+        dead.update({"sensor": sensor, "source": source, "fill_values": n_fill, "values": int(v.size)})
+        meta.setdefault("dead_channels", {})[var] = dead
+        text = (f"{source}: {sensor} channel {var} is dead - {dead['text']}: flagged {dead['qartod_flag']} "
+                "throughout and left out of what needs it; the other channels are processed")
+        meta.setdefault("notes", []).append(text)
+        warnings.warn(text, stacklevel=4)
+    return v
+
+
+def flag_dead_channels(flags: dict[str, np.ndarray], counts: dict[str, dict[str, int]], meta: Mapping[str, Any]
+                       ) -> None:
+    """QARTOD flag 4 on every present value of the channels :func:`channel_health` found dead out of range (the few
+    in-range values of a failed sensor are not trusted either; missing values keep 9). In place."""
+    for var, d in (meta.get("dead_channels") or {}).items():
+        f = flags.get(f"{var}_qc")
+        if f is None:
+            continue
+        f[f != 9] = 4 if d.get("qartod_flag") == 4 else 9
+        vals, n = np.unique(f, return_counts=True)
+        counts[var] = {str(int(k)): int(c) for k, c in zip(vals, n, strict=True)}
 
 
 def _aligned_columns(sensors: Mapping[str, SensorSamples], cleaned: dict[str, tuple[np.ndarray, dict[str, np.ndarray]]],

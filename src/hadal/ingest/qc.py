@@ -33,7 +33,7 @@ if TYPE_CHECKING:
     import numpy as np
 
 __all__ = ["VariableQC", "DEFAULT_QC", "merge_qc", "qc_flags", "qc_table", "flat_line_flags", "combine_flags",
-           "spike_test_flags"]
+           "spike_test_flags", "FILL_VALUES_ANY", "FILL_ALWAYS", "fill_mask", "fail_fraction"]
 
 GOOD, NOT_EVALUATED, SUSPECT, BAD, MISSING = 1, 2, 3, 4, 9
 
@@ -54,9 +54,15 @@ class VariableQC(BaseModel):
     flat_line_fail_s: float | None = Field(None, gt=0, le=31_536_000,
                                            description="flat line longer than this (s, up to a year): fail")
     flat_line_tolerance: float = Field(0.0, ge=0, description="flat line: changes up to this count as flat")
-    #: reject the whole input (InputError) when more than this fraction of finite values is outside the
-    #: fail span: a unit mistake (mS/cm logged as S/m) rather than bad samples
+    #: a channel with more than this fraction of its (non-fill) finite values outside the fail span is dead (a
+    #: failed sensor or a unit mistake, mS/cm logged as S/m): flagged 4 throughout and named in a warning, the
+    #: other channels are processed (degrade per channel, not per dive)
     max_fail_fraction: float = Field(0.5, ge=0, le=1)
+    #: values that mean "no data" for this variable only, as logged (the source's units, before any conversion):
+    #: e.g. -1 "no bottom" of an altimeter. Missing (flag 9) when they also lie outside ``fail_span`` once
+    #: converted (a -1 temperature is a temperature). :data:`FILL_VALUES_ANY` apply to every variable.
+    fill_values: tuple[float, ...] = Field((), max_length=32, description="per-variable fill values, as logged "
+                                           "(source units): missing (flag 9) when outside fail_span")
 
     @model_validator(mode="after")
     def _spans(self) -> VariableQC:
@@ -82,7 +88,8 @@ DEFAULT_QC: dict[str, VariableQC] = {
     "pressure_ctd_dbar": _q(fail_span=(-10.0, 11_000.0), saturation=10_500.0, spike_suspect=5.0, spike_fail=20.0,
                             flat_line_suspect_s=60, flat_line_fail_s=300, flat_line_tolerance=1e-6),
     "pressure_gauge_dbar": _q(fail_span=(-10.0, 12_000.0), spike_suspect=5.0, spike_fail=20.0),
-    "altitude_m": _q(fail_span=(0.0, 150.0), suspect_span=(0.0, 100.0), spike_suspect=10.0, spike_fail=50.0),
+    "altitude_m": _q(fail_span=(0.0, 150.0), suspect_span=(0.0, 100.0), spike_suspect=10.0, spike_fail=50.0,
+                     fill_values=(-1.0,)),
     "heading_deg": _q(fail_span=(0.0, 360.0)),
     "pitch_deg": _q(fail_span=(-90.0, 90.0), suspect_span=(-45.0, 45.0), spike_suspect=10.0, spike_fail=30.0),
     "roll_deg": _q(fail_span=(-180.0, 180.0), suspect_span=(-45.0, 45.0), spike_suspect=10.0, spike_fail=30.0),
@@ -217,6 +224,43 @@ def flat_line_flags(x: np.ndarray, suspect_count: int, fail_count: int, toleranc
         flags[hit] = flag
     flags[~np.isfinite(x)] = MISSING
     return flags
+
+
+#: Sea-Bird's ``bad_flag`` (SeaSoft, "Seasave V7 manual", .cnv format): a fill value for every variable, whatever
+#: its range (it is ~0, inside most ranges: no real sensor reports it)
+FILL_ALWAYS: tuple[float, ...] = (-9.99e-29,)
+#: saturation/"nines" sentinels loggers write for a dead or absent sensor (9.9e5 uS/cm of a failed conductivity
+#: cell, 9.99e5, 9.999e5, 9.9999e5, the netCDF default fill 9.96921e36 and 9.9e37): fill values for every variable
+#: as logged, but only where they also lie outside the variable's fail span once converted (990000 Pa is a real
+#: 99 dbar). A lone 99 999 is not among them: it stays a value, flagged 4 by the gross-range test.
+FILL_VALUES_ANY: tuple[float, ...] = (9.9e5, 9.99e5, 9.999e5, 9.9999e5, 9.96921e36, 9.9e37, -9.9e37)
+
+
+def fill_mask(raw: np.ndarray, canonical: np.ndarray, cfg: VariableQC | None) -> np.ndarray:
+    """True where a value is a fill value (missing data, flag 9), by the explicit rule: ``raw`` (the values as
+    logged) equals (relative tolerance 1e-6) one of :data:`FILL_ALWAYS`, or one of :data:`FILL_VALUES_ANY` or the
+    variable's own ``cfg.fill_values`` while ``canonical`` (the same values in the variable's unit) lies outside
+    ``cfg.fail_span`` (without a fail span: always). NaN is missing already and not counted here."""
+    import numpy as np
+
+    raw = np.asarray(raw, dtype=np.float64)
+    can = np.asarray(canonical, dtype=np.float64)
+
+    def _hits(values: tuple[float, ...]) -> np.ndarray:
+        m = np.zeros(raw.shape, dtype=bool)
+        for f in values:
+            m |= np.isclose(raw, f, rtol=1e-6, atol=0.0)
+        return m
+
+    out = _hits(FILL_ALWAYS)
+    cand = _hits(FILL_VALUES_ANY + tuple(cfg.fill_values if cfg is not None else ()))
+    if cand.any():
+        if cfg is not None and cfg.fail_span is not None:
+            lo, hi = sorted(cfg.fail_span)
+            with np.errstate(invalid="ignore"):
+                cand &= (can < lo) | (can > hi)
+        out |= cand
+    return out
 
 
 def fail_fraction(values: np.ndarray, cfg: VariableQC) -> float:

@@ -20,7 +20,7 @@ import numpy as np
 from hadal.errors import ConfigError
 
 __all__ = ["CANONICAL_UNITS", "TRANSFORMS", "Transform", "apply_transform", "convert", "normalise_unit",
-           "quaternion_to_euler_deg", "unit_dimension"]
+           "quaternion_to_euler_deg", "unit_dimension", "unit_alternatives", "raw_values"]
 
 #: variable -> canonical unit token
 CANONICAL_UNITS: dict[str, str] = {
@@ -135,6 +135,51 @@ def convert(values: Any, unit: str, variable: str) -> tuple[np.ndarray, dict[str
             return x - 273.15, {"variable": variable, "from": "K", "to": "degC (ITS-90)", "formula": "T - 273.15"}
     factor = _LINEAR[u][1] / _LINEAR[target][1]
     return x * factor, {"variable": variable, "from": u, "to": target, "formula": f"x * {factor:.10g}"}
+
+
+def unit_alternatives(variable: str, declared: str | None = None) -> list[tuple[str, float]]:
+    """The other units of ``variable``'s dimension as ``(unit, ratio)``: a value converted from ``declared`` (default:
+    the canonical unit) is ``ratio`` times what it would be had it been logged in ``unit`` (mS/cm read as S/m:
+    ``("mS/cm", 0.1)``). Temperature scales are not linear and have none. For the unit-mistake hint of a channel
+    that is mostly out of range (:func:`hadal.ingest.build.channel_health`)."""
+    target = CANONICAL_UNITS.get(variable)
+    if target is None or target.startswith("degC"):
+        return []
+    try:
+        decl = normalise_unit(declared) if declared else target
+    except ConfigError:
+        return []
+    if decl not in _LINEAR:
+        return []
+    dim, f_decl = _LINEAR[decl]
+    return [(u, f_decl / f) for u, (d, f) in _LINEAR.items() if d == dim and u != decl]
+
+
+def raw_values(values: np.ndarray, records: list[dict[str, Any]], variable: str) -> tuple[np.ndarray, str | None]:
+    """``values`` (canonical units) taken back through the conversion records of ``variable`` (as written by
+    :func:`convert` and the readers: ``x * f``, ``x + o``, IPTS-68, kelvin) to the values as logged, and the unit
+    they were logged in (``None``: canonical). A transform (several fields) stops the way back: its output is
+    returned. Used to recognise fill values, which are written in the logger's units (9.9e5 uS/cm)."""
+    x = np.asarray(values, dtype=np.float64)
+    unit = None
+    for rec in reversed([r for r in records if r.get("variable") == variable]):
+        formula = str(rec.get("formula", ""))
+        m = re.fullmatch(r"x ([*+]) (\S+)", formula)
+        if m:
+            try:
+                k = float(m.group(2))
+            except ValueError:
+                break
+            x = x / k if m.group(1) == "*" and k != 0 else (x - k if m.group(1) == "+" else x)
+            if m.group(1) == "*":
+                unit = str(rec.get("from"))
+        elif formula == "T90 = T68 / 1.00024":
+            x, unit = x * 1.00024, "degC_its68"
+        elif formula == "T - 273.15":
+            x, unit = x + 273.15, "K"
+        else:  # a transform of several fields: its output is what there is
+            break
+    return x, unit
 
 
 # --------------------------------------------------------------------------------------------------------------

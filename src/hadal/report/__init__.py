@@ -45,16 +45,27 @@ def _provenance(dp: DiveProducts) -> list[dict[str, Any]]:
 def build_report(store: ProductStore, dive: str, *, launch: dict[str, float] | None = None,
                  options: FigureOptions | None = None, best_sites: int = 5, title: str | None = None,
                  skipped: list[dict[str, str]] | None = None, pins: dict[str, ProductVersion] | None = None,
-                 expected: set[str] | None = None) -> Report:
+                 expected: set[str] | None = None, sources: dict[str, list[str]] | None = None) -> Report:
     """Load the dive's products, compute the summary and figures, render the HTML (nothing is written).
 
     ``skipped``: stages the dive's data does not support, ``[{"stage", "reason"}]`` (:func:`hadal.plan.skipped_stages`),
-    listed in the summary and the HTML. ``pins``: the versions a pipeline run used (default: the latest)."""
+    listed in the summary and the HTML (a failed stage with its one-line error). ``pins``: the versions a pipeline run
+    used (default: the latest). ``sources``: the dive's raw files by kind (dive.yaml ``sources``), listed as what was
+    found. With no product at all (every stage failed or skipped) the report still renders: sources, stages and
+    reasons."""
     dp = load_products(store, dive, None if skipped is None else {s["stage"] for s in skipped}, pins, expected)
     dp.launch = launch
     summary = dive_summary(dp, launch=launch, best_sites=best_sites)
     summary["skipped_stages"] = list(skipped or [])
+    if sources is not None:
+        summary["sources"] = {k: list(v) for k, v in sources.items() if v}
+    if dp.laser_info:
+        summary["laser_grids"] = dp.laser_info
+    if dp.dead_channels:
+        summary["dead_channels"] = dp.dead_channels
     figures = _drop_skipped(make_figures(dp, options), skipped or [])
+    if "laser_grids" not in dp.versions:  # optional data (most dives have no laser survey): no placeholder
+        figures = [f for f in figures if f.key != "laser_grids" or f.png is not None]
     summary["figures"] = {f.key: ("ok" if f.png is not None else f"skipped: {f.skipped}") for f in figures}
     html = render_html(dp, summary, figures, _provenance(dp), title=title)
     return Report(dive=dive, html=html, summary=summary, figures=figures, upstream=list(dp.versions.values()))

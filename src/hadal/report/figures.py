@@ -524,6 +524,50 @@ def fig_matched_track(dp: DiveProducts, opt: FigureOptions) -> FigureResult:
     return _render(r, fig, opt)
 
 
+# ------------------------------------------------------------------------------------------ laser grids
+def fig_laser_grids(dp: DiveProducts, opt: FigureOptions) -> FigureResult:
+    """The ``laser_grids`` product: one map per grid (at most :data:`hadal.report.load.MAX_LASER_FIGURES`, the rest
+    listed in the summary) of ``elevation_m`` in the grid's own metric frame (x/y of its cell centres, m, as
+    published), each with its colour bar, its extent and its elevation range in the panel title."""
+    r = FigureResult("laser_grids", "Laser elevation grids", "Terrain",
+                     "Elevation (m, positive up) of each laser grid in its own metric frame (x/y in m as published; "
+                     "local laser frame unless the source had a projected CRS); NaN cells (no points) are blank.")
+    if not dp.laser_grids:
+        r.skipped = "no laser_grids product"
+        return r
+    n = len(dp.laser_grids)
+    ncols = 1 if n == 1 else 2
+    nrows = (n + ncols - 1) // ncols
+    w = opt.width_in * (0.7 if n == 1 else 1.0)
+    fig = Figure(figsize=(w, w / ncols * 0.85 * nrows), layout="constrained")
+    axes = np.atleast_1d(fig.subplots(nrows, ncols)).ravel()
+    thinned = []
+    for ax, (name, ds) in zip(axes, dp.laser_grids, strict=False):
+        z = ds["elevation_m"].values
+        ext = _xy_extent(ds)
+        im = ax.imshow(z, origin="lower" if ds["y"].values[0] < ds["y"].values[-1] else "upper",
+                       extent=[ext[0], ext[1], min(ext[2], ext[3]), max(ext[2], ext[3])], cmap=CMAPS["elev"],
+                       aspect="equal", interpolation="nearest")
+        _inset_colorbar(fig, im, ax, "elevation (m)", fontsize=8)
+        fin = z[np.isfinite(z)]
+        rng = f"{fin.min():.2f} .. {fin.max():.2f} m" if fin.size else "no data"
+        res = ds.attrs.get("resolution_m")
+        ax.set_title(f"{name}\n{'cell ' + format(float(res), 'g') + ' m, ' if res else ''}elevation {rng}", fontsize=9)
+        frame = "local frame" if ds.attrs.get("source_crs_kind") in (None, "local_metric") else "grid CRS"
+        ax.set_xlabel(f"x (m, {frame})", fontsize=8)
+        ax.set_ylabel(f"y (m, {frame})", fontsize=8)
+        ax.tick_params(labelsize=7)
+        if int(ds.attrs.get("thinned_by", 1)) > 1:
+            thinned.append(f"{name} every {int(ds.attrs['thinned_by'])}th cell")
+    for ax in axes[n:]:
+        ax.set_visible(False)
+    if thinned:
+        r.caption += f" Drawn thinned: {', '.join(thinned)}."
+    if len(dp.laser_info) > n:
+        r.caption += f" {len(dp.laser_info)} grids: the first {n} are drawn; all are listed in the Laser grids table."
+    return _render(r, fig, opt, tight=True)
+
+
 # ------------------------------------------------------------------------------------------ landing
 def _inset_colorbar(fig: Figure, im, ax, label: str, fontsize: float | None = None):
     """A vertical colour bar just right of ``ax``'s drawn (aspect-adjusted) box, as tall as it: it moves with
@@ -688,7 +732,7 @@ def _landing_frame_caption(r: FigureResult, dp: DiveProducts, rot: float) -> tup
 
 
 FIGURES: tuple[Callable[[DiveProducts, FigureOptions], FigureResult], ...] = (
-    fig_depth_time, fig_ctd_profiles, fig_seafloor_depth, fig_dtm, fig_suitability,
+    fig_depth_time, fig_ctd_profiles, fig_seafloor_depth, fig_dtm, fig_laser_grids, fig_suitability,
     fig_msd_surface, fig_matched_depth, fig_matched_track, fig_landing_map,
 )
 

@@ -160,6 +160,11 @@ def landing_caption(name: str) -> str:
     return stem.replace("_", " ")
 
 
+def _span(r: Any) -> str:
+    """``[lo, hi]`` as ``lo .. hi`` (3 significant decimals), ``-`` when absent."""
+    return "-" if not r else f"{r[0]:.3f} .. {r[1]:.3f}"
+
+
 def render_html(dp: DiveProducts, summary: Mapping[str, Any], figures: list[FigureResult],
                 provenance: list[dict[str, Any]], title: str | None = None) -> str:
     """The complete report as one HTML string (no external resources)."""
@@ -181,6 +186,19 @@ def render_html(dp: DiveProducts, summary: Mapping[str, Any], figures: list[Figu
         parts.append("<p class='muted'>1 good, 2 not evaluated, 3 suspect, 4 fail, 9 missing; derived variables "
                      "inherit the worst range flag of their inputs (hadal.qc_derived)</p>")
         parts.append(_records_table(summary["qc_flags"]))
+    if summary.get("sources"):
+        parts.append("<h2>Sources found (dive.yaml)</h2>")
+        parts.append(_table([(k, ", ".join(v)) for k, v in summary["sources"].items()]))
+    if summary.get("laser_grids"):
+        parts.append("<h2>Laser grids</h2>")
+        parts.append(_records_table([{"grid": g["name"], "cells (rows x cols)": "x".join(map(str, g["cells"])),
+                                      "resolution (m)": g["resolution_m"],
+                                      "x range (m)": _span(g["x_range_m"]), "y range (m)": _span(g["y_range_m"]),
+                                      "elevation range (m)": _span(g["elevation_range_m"])}
+                                     for g in summary["laser_grids"]]))
+    if summary.get("dead_channels"):
+        parts.append("<h2>Dead sensor channels (flagged, left out; the other channels processed)</h2>")
+        parts.append(_records_table([{"channel": k, **v} for k, v in summary["dead_channels"].items()]))
     skipped = summary.get("skipped_stages") or []
     if skipped:
         parts.append("<h2>Stages not run on this dive</h2>")

@@ -2,7 +2,7 @@
 
 Every product is optional: a missing product, an unreadable file or a missing column becomes a *note*
 (shown in the report) instead of an exception. :func:`load_products` raises only when the dive has no
-product at all.
+product at all and no run plan says why (the report stage passes the plan: it always publishes).
 
 Only files of the product versions read are opened, and only after the store's checks: a version outside its
 place in the store, holding a symbolic link or a file its manifest does not list is left out with a note
@@ -57,6 +57,12 @@ class DiveProducts:
     navigation: pd.DataFrame | None = None  # best position of every sample (match's navigation product)
     landing_meta: dict[str, Any] = field(default_factory=dict)  # landing manifest parameters (vehicle geometry)
     store: ProductStore | None = field(default=None, repr=False)  # where the versions are verified before reads
+    #: the laser grids drawn (at most :data:`MAX_LASER_FIGURES`, thinned to :data:`LASER_FIGURE_CELLS` a side)
+    laser_grids: list[tuple[str, xr.Dataset]] = field(default_factory=list)
+    #: per laser grid (all of them): name, extent (m, its own frame), elevation range, cells, resolution
+    laser_info: list[dict[str, Any]] = field(default_factory=list)
+    #: the sensor channels ingest found dead (all fill values / out of range): variable -> reason, flag, source
+    dead_channels: dict[str, Any] = field(default_factory=dict)
 
     @property
     def missing(self) -> list[str]:
@@ -67,17 +73,16 @@ class DiveProducts:
             self.notes.append(text)
 
 
-def _table_notes(path: Path) -> list[str]:
-    """The ``notes`` a stage recorded in a Parquet product's table metadata (loud data problems: times out of
-    the dive's window, rejected samples, ...); none when the file or its metadata cannot be read."""
+def _table_meta(path: Path) -> dict[str, Any]:
+    """A Parquet product's table metadata (its ``notes``: loud data problems such as times out of the dive's window,
+    rejected samples, dead channels); empty when the file or its metadata cannot be read."""
     try:
         from hadal.products.io import read_parquet_metadata
 
         meta, _ = read_parquet_metadata(path)
     except Exception:  # noqa: BLE001 - the table itself is read (and its problems noted) separately
-        return []
-    notes = meta.get("notes") if isinstance(meta, dict) else None
-    return [str(n) for n in notes] if isinstance(notes, list) else []
+        return {}
+    return meta if isinstance(meta, dict) else {}
 
 
 def _read(pv: ProductVersion, name: str, dp: DiveProducts, reader: Callable[[Path], Any],
@@ -144,6 +149,61 @@ def _read_json(pv: ProductVersion, name: str, dp: DiveProducts) -> dict[str, Any
     return data if isinstance(data, dict) else None
 
 
+#: laser grids drawn in the report (one map each); the others are listed in the summary with a note
+MAX_LASER_FIGURES = 6
+#: a laser grid is thinned (every k-th cell) to at most this many cells a side for its map
+LASER_FIGURE_CELLS = 800
+
+
+def _laser_grid_info(name: str, ds: xr.Dataset) -> dict[str, Any]:
+    """Name, extent (cell edges, m, in the grid's own frame), elevation range, size and resolution of one grid."""
+    import numpy as np
+
+    x, y = ds["x"].values, ds["y"].values
+    dx = float(np.median(np.diff(x))) if x.size > 1 else float(ds.attrs.get("resolution_m", 0.0) or 0.0)
+    dy = float(np.median(np.diff(y))) if y.size > 1 else dx
+    z = ds["elevation_m"].values
+    fin = np.isfinite(z)
+    return {"name": name, "x_range_m": [float(x.min() - abs(dx) / 2), float(x.max() + abs(dx) / 2)],
+            "y_range_m": [float(y.min() - abs(dy) / 2), float(y.max() + abs(dy) / 2)],
+            "elevation_range_m": [float(z[fin].min()), float(z[fin].max())] if fin.any() else None,
+            "cells": [int(y.size), int(x.size)], "mapped_cells": int(fin.sum()),
+            "resolution_m": float(ds.attrs.get("resolution_m", abs(dx)) or abs(dx)),
+            "source_file": ds.attrs.get("source_file"), "crs_kind": ds.attrs.get("source_crs_kind")}
+
+
+def _read_laser_grids(pv: ProductVersion, dp: DiveProducts) -> None:
+    """The ``laser_grids`` product's grids (``*.nc``, ``*.zarr``): :attr:`DiveProducts.laser_info` for every one,
+    the first :data:`MAX_LASER_FIGURES` thinned into :attr:`DiveProducts.laser_grids` for their maps."""
+    import numpy as np
+
+    files = sorted([*pv.path.glob("*.nc"), *pv.path.glob("*.zarr")])
+    for path in files:
+        name = path.name.removesuffix(".nc").removesuffix(".zarr")
+        try:
+            with (xr.open_zarr(path) if path.suffix == ".zarr" else xr.open_dataset(path)) as ds:
+                if "elevation_m" not in ds or not {"x", "y"} <= set(ds["elevation_m"].dims):
+                    dp.note(f"laser grid {path.name} has no elevation_m(y, x): not drawn")
+                    continue
+                k = max(1, int(np.ceil(max(ds.sizes["x"], ds.sizes["y"]) / LASER_FIGURE_CELLS)))
+                small = ds[["elevation_m"]].isel(x=slice(None, None, k), y=slice(None, None, k)).load()
+                small.attrs = {a: ds.attrs[a] for a in ("resolution_m", "source_file", "source_crs_kind", "submap")
+                               if a in ds.attrs}
+                small.attrs["thinned_by"] = k
+                info = _laser_grid_info(name, ds)  # the full grid's extent and range, not the thinned copy's
+                if k > 1:
+                    info["drawn_every_nth_cell"] = k
+        except (OSError, ValueError, KeyError, RuntimeError) as exc:
+            dp.note(f"laser grid {path.name} could not be read ({type(exc).__name__}: {exc})")
+            continue
+        dp.laser_info.append(info)
+        if len(dp.laser_grids) < MAX_LASER_FIGURES:
+            dp.laser_grids.append((name, small))
+    if len(dp.laser_info) > MAX_LASER_FIGURES:
+        dp.note(f"{len(dp.laser_info)} laser grids: the first {MAX_LASER_FIGURES} are drawn, all are listed in "
+                "summary.json (laser_grids)")
+
+
 def latest_versions(store: ProductStore, dive: str, pins: dict[str, ProductVersion] | None = None
                     ) -> dict[str, ProductVersion]:
     """The version of every report input product that exists: the run's pinned one, else the latest."""
@@ -158,11 +218,13 @@ def load_products(store: ProductStore, dive: str, skipped_stages: set[str] | Non
 
     ``skipped_stages``: stages the dive's data does not support (the report lists them with the reason, so
     their missing products get no note here; ``expected``: the products the run's plan makes, the only ones
-    whose absence is noted). A dive with no product at all is a :class:`StageError` (any
-    source file makes ingest, dtm or laser run, so that means the pipeline has not run).
+    whose absence is noted). Without any product: when called with the run's plan (``skipped_stages`` given, as the
+    report stage does) an empty :class:`DiveProducts` with a note - the report still says what was found, read,
+    skipped and failed; without it (``hadal report DIVE`` on a store the pipeline never wrote) a
+    :class:`StageError`.
     """
     versions = latest_versions(store, dive, pins)
-    if not versions:
+    if not versions and skipped_stages is None:
         raise StageError(
             f"dive {dive!r} has no products in {store.root}; run the pipeline first (hadal run RAW_DIR --store {store.root})"
         )
@@ -177,6 +239,8 @@ def load_products(store: ProductStore, dive: str, skipped_stages: set[str] | Non
             continue
         dp.versions[product] = pv
     versions = dp.versions
+    if not versions:
+        dp.note("no product was published upstream: the stages below failed or were skipped, with the reasons")
     for product, stage in REPORT_INPUTS:
         if (product not in versions and product not in left_out and stage not in (skipped_stages or set())
                 and (expected is None or product in expected)):
@@ -184,14 +248,21 @@ def load_products(store: ProductStore, dive: str, skipped_stages: set[str] | Non
     if "sensors" in versions:
         _check_parquet(versions["sensors"], "sensors.parquet", dp)  # its notes below; its table is not drawn
         sensors = _verified(versions["sensors"], "sensors.parquet", DiveProducts(dive=dive, store=store))
-        for n in _table_notes(sensors) if sensors is not None else ():
+        smeta = _table_meta(sensors) if sensors is not None else {}
+        for n in smeta.get("notes") or []:
             dp.note(f"ingest: {n}")
+        if isinstance(smeta.get("dead_channels"), dict):
+            dp.dead_channels = {k: {f: v.get(f) for f in ("reason", "qartod_flag", "source", "hint")
+                                    if isinstance(v, dict) and v.get(f) is not None}
+                                for k, v in smeta["dead_channels"].items()}
     if "ctd" in versions:
         dp.ctd = _read_parquet(versions["ctd"], "ctd.parquet", dp)
     if "profile" in versions:
         dp.profile = _read_netcdf(versions["profile"], "profile.nc", dp)
     if "dtm" in versions:
         dp.dtm = _read_netcdf(versions["dtm"], "dtm.nc", dp)
+    if "laser_grids" in versions:
+        _read_laser_grids(versions["laser_grids"], dp)
     if "suitability" in versions:
         dp.suitability = _read_netcdf(versions["suitability"], "suitability.nc", dp)
     if "match" in versions:

@@ -397,11 +397,27 @@ def _seawater(df: pd.DataFrame, p: Params, acc: list[int], pres: np.ndarray, lat
     sp, temp = _salinity(df, acc, pres)
     rho = density_eos80(sp, temp, pres)
     if not np.isfinite(rho).any():
-        raise InputError("sensors table has no valid conductivity/temperature: cannot compute density")
-    column = overlying_column(pres, sp, temp, latitude_deg, density_kg_m3=rho, surface_dbar=p.surface_start_dbar,
-                              bin_dbar=p.profile_bin_dbar, profile=overlying_profile)
-    depth = hydrostatic_depth(pres, sp, temp, latitude_deg, integration=p.depth_integration, density_kg_m3=rho,
-                              start_depth_m=column.start_depth_m)
+        t_ok = _flag_ok(df, "temperature_its90_degc", acc)
+        if not t_ok.any():
+            raise InputError("sensors table has no valid temperature: cannot compute salinity, density or depth")
+        # degrade per channel: no valid conductivity (a dead channel) -> no salinity/density/sound speed, but the
+        # depth of the valid pressures from the TEOS-10 standard ocean (pressure only)
+        temp = np.where(t_ok, df["temperature_its90_degc"].to_numpy(np.float64), np.nan)
+        depth, column = _standard_ocean_depth(pres, latitude_deg)
+    else:
+        # the overlying column starts at the record's first valid pressure, as the integral does: a density gap
+        # there (a conductivity dropout at the start) is filled as hydrostatic_depth fills it
+        rho_start = rho
+        valid_p = np.isfinite(pres)
+        if valid_p.any() and not np.isfinite(rho[int(np.argmax(valid_p))]):
+            from hadal.depth import _fill_density_gaps
+
+            rho_start = _fill_density_gaps(np.array(rho, dtype=np.float64), True, valid_p)
+        column = overlying_column(pres, sp, temp, latitude_deg, density_kg_m3=rho_start,
+                                  surface_dbar=p.surface_start_dbar, bin_dbar=p.profile_bin_dbar,
+                                  profile=overlying_profile)
+        depth = hydrostatic_depth(pres, sp, temp, latitude_deg, integration=p.depth_integration, density_kg_m3=rho,
+                                  start_depth_m=column.start_depth_m)
     df["practical_salinity"] = sp
     df["density_kg_m3"] = rho
     df["gravity_m_s2"] = np.where(np.isfinite(depth), gravity(latitude_deg, depth), np.nan)
@@ -413,6 +429,24 @@ def _seawater(df: pd.DataFrame, p: Params, acc: list[int], pres: np.ndarray, lat
     for name, values in teos10_columns(sp, temp, pres, longitude_deg, latitude_deg).items():
         df[name] = values
     return sp, temp, rho, depth, column
+
+
+def _standard_ocean_depth(pres: np.ndarray, latitude_deg: float) -> tuple[np.ndarray, Any]:
+    """Depth (m) of the valid pressures in the TEOS-10 standard ocean (``gsw.z_from_p``, no salinity needed) and the
+    :class:`hadal.depth.OverlyingColumn` saying so: the depth of a record without any valid salinity (its
+    conductivity channel dead); NaN where the pressure is."""
+    import gsw
+    import numpy as np
+
+    from hadal.depth import OverlyingColumn, _warm_column_psi
+
+    depth = np.where(np.isfinite(pres), -gsw.z_from_p(pres, latitude_deg), np.nan)
+    i0 = int(np.argmax(np.isfinite(pres)))
+    p_max = float(np.nanmax(pres))
+    err = abs(_warm_column_psi(p_max, latitude_deg)) / float(gsw.grav(latitude_deg, p_max))
+    note = ("no valid salinity (conductivity missing or flagged bad throughout): depth from the TEOS-10 standard "
+            "ocean (gsw.z_from_p, pressure only); salinity, density and sound speed are missing")
+    return depth, OverlyingColumn(float(pres[i0]), float(depth[i0]), "standard ocean (TEOS-10)", err, note)
 
 
 def _phases(df: pd.DataFrame, p: Params, pres: np.ndarray, depth: np.ndarray, no_time: bool) -> None:
@@ -524,6 +558,8 @@ def derive_ctd(sensors: pd.DataFrame, latitude_deg: float, longitude_deg: float,
     start at the surface (:func:`hadal.depth.overlying_column`). ``vertical_cast`` (a Sea-Bird cast): altimeter
     readings above the cast's deepest point are flagged as false echoes (:func:`flag_false_echoes`).
     """
+    import numpy as np
+
     from hadal.ctd.chain import apply_channel_steps, loop_edit_flags
     from hadal.ingest.cnv import NO_TIME_BASE
     from hadal.qc_derived import apply_to_table as apply_derived_qc
@@ -556,6 +592,8 @@ def derive_ctd(sensors: pd.DataFrame, latitude_deg: float, longitude_deg: float,
     meta["qc_derived"] = qc_meta
     meta["pressure_fusion"] = fusion.to_dict()
     meta["overlying_column"] = column.to_dict()
+    if not np.isfinite(sp).any():
+        meta["depth_method"] = column.warning
     if overlying_profile is not None:
         meta["overlying_column"]["user_profile"] = overlying_profile.to_dict()
     meta["duplicate_times_dropped"] = int(dup.sum())

@@ -1,6 +1,7 @@
 """Stage `report`: the dive report (summary, paper-style figures, self-contained HTML) from whichever
-products exist. Missing upstream products are listed in the report; a dive with no product at all is a
-clear :class:`~hadal.errors.StageError`. Science-free: see :mod:`hadal.report`.
+products exist. Missing upstream products are listed in the report; it always runs: a dive whose every other
+stage failed or was skipped still gets a report listing its sources and why each stage did not publish.
+Science-free: see :mod:`hadal.report`.
 """
 
 from __future__ import annotations
@@ -48,6 +49,12 @@ def options(p: Params) -> FigureOptions:
                          workers=p.figure_processes or default_workers())
 
 
+def _sources(ctx: StageContext) -> dict[str, list[str]]:
+    """The dive's raw files by kind (dive.yaml ``sources``), for the report's list of what was found."""
+    src = ctx.dive.sources
+    return {kind: [str(e.path) for e in src.files(kind)] for kind in type(src).model_fields}
+
+
 def run(ctx: StageContext) -> dict[str, ProductVersion]:
     from hadal.report import build_report, publish_report
 
@@ -63,7 +70,7 @@ def run(ctx: StageContext) -> dict[str, ProductVersion]:
 
     expected = {prod for ps in plan_stages(ctx.dive) if ps.run for prod in ps.products}
     rep = build_report(ctx.store, ctx.dive_id, launch=launch, options=options(p), best_sites=p.best_sites, title=p.title,
-                       skipped=skipped, pins=ctx.pins, expected=expected)
+                       skipped=skipped, pins=ctx.pins, expected=expected, sources=_sources(ctx))
     for s in skipped:
         ctx.log.info("report: stage %s not run: %s", s["stage"], s["reason"])
     for note in rep.summary.get("notes", []):
