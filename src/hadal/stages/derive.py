@@ -1354,12 +1354,12 @@ def _run_underway(ctx: StageContext, p: Params, limit: float | None, sensors: An
 
 def planned_products(dive: Any, made: tuple[str, ...]) -> tuple[str, ...]:
     """What derive promises for ``dive`` (:func:`hadal.plan.plan_stages`): ``trajectory`` when a ``sources.cnv``
-    entry says ``kind: underway``; without ``ctd``/``profile`` when that record is the dive's sensor record (no
-    MCAP/CSV log and it is the first Sea-Bird record, as ``ingest.source: auto`` chooses)."""
+    entry says ``kind: underway``; without ``ctd``/``profile`` when such a record is the dive's sensor record (no
+    MCAP/CSV log and no Sea-Bird cast: ingest takes casts before underway records)."""
     entries = dive.sources.files("cnv")
     if not any(e.kind == "underway" for e in entries):
         return made
     out = tuple(made) + (() if "trajectory" in made else ("trajectory",))
-    if not dive.sources.mcap and not dive.sources.csv and entries[0].kind == "underway":
+    if not dive.sources.mcap and not dive.sources.csv and all(e.kind == "underway" for e in entries):
         out = tuple(x for x in out if x not in ("ctd", "profile"))
     return out

@@ -349,7 +349,9 @@ def run(ctx: StageContext) -> dict[str, ProductVersion]:
     vpath = _vehicle_path(ctx, p)
     vehicle = load_vehicle_config(vpath)
     kind = _source_kind(p, ctx.dive.sources)
-    cast_paths = [resolve_source(ctx.raw_dir, r) for r in ctx.dive.sources.cnv]
+    # an underway record (kind: underway, a thermosalinograph) makes sensors only when the dive has no cast
+    cnv_entries = sorted(ctx.dive.sources.cnv, key=lambda e: e.kind == "underway")
+    cast_paths = [resolve_source(ctx.raw_dir, r) for r in cnv_entries]
     for q in cast_paths:
         if not q.is_file():
             raise InputError(f"{q}: Sea-Bird cast listed in dive.yaml sources.cnv does not exist")
