@@ -174,6 +174,10 @@ class Params(BaseModel):
     loop_edit_min_soak_depth_m: float = Field(5.0, ge=0, le=1000, description="LoopEdit minimum soak depth (m, 0-1000)")
     loop_edit_max_soak_depth_m: float = Field(20.0, ge=0, le=1000, description="LoopEdit maximum soak depth (m, 0-1000)")
     loop_edit_deck_pressure_offset: bool = Field(True, description="LoopEdit soak depths relative to the first scan")
+    profile_source_bins: Literal["keep", "rebin"] = Field(
+        "keep", description="a cast SeaSoft's BinAvg already binned by pressure or depth (header binavg_bintype/"
+                            "binavg_binsize or '# interval = decibars: N'): keep its own bins in profile.nc (one "
+                            "level per row, casts split at the deepest row) or rebin it like any record")
     profile_binning: Literal["floor", "seabird"] = Field(
         "floor", description="profile.nc bins: floor ([k, k+1) x bin, by phase) or seabird (BinAvg: centred on "
                              "k x bin, split at the deepest scan)")
@@ -285,11 +289,12 @@ def profile_axis_text(p: Params) -> str:
     return f"{p.profile_bin_m:g} m depth" if p.profile_axis == "depth" else f"{p.profile_bin_dbar:g} dbar pressure"
 
 
-def _checked_samples(sensors: pd.DataFrame, p: Params, memory_limit_bytes: float | None
-                     ) -> tuple[pd.DataFrame, bool, np.ndarray]:
+def _checked_samples(sensors: pd.DataFrame, p: Params, memory_limit_bytes: float | None,
+                     keep_file_order: bool = False) -> tuple[pd.DataFrame, bool, np.ndarray]:
     """The sensors table checked (required columns, memory of the profile), in time order (a pressure-binned
-    cast without times: in pressure order) with repeated times dropped; returns it, whether it has no time
-    base and the dropped rows' mask."""
+    cast without times: in pressure order, unless ``keep_file_order``: a SeaSoft-binned cast's rows are its
+    descent then its ascent) with repeated times dropped; returns it, whether it has no time base and the
+    dropped rows' mask."""
     import numpy as np
     import pandas as pd
 
@@ -306,7 +311,7 @@ def _checked_samples(sensors: pd.DataFrame, p: Params, memory_limit_bytes: float
     no_time = bool(df["time"].isna().all())  # a pressure-binned cast: rows in pressure order, no times
     if no_time:
         pr = pd.to_numeric(df.get("pressure_ctd_dbar", df.get("pressure_gauge_dbar")), errors="coerce")
-        if not (pr.dropna().is_monotonic_increasing or pr.dropna().is_monotonic_decreasing):
+        if not (keep_file_order or pr.dropna().is_monotonic_increasing or pr.dropna().is_monotonic_decreasing):
             df = df.iloc[np.argsort(pr.to_numpy(), kind="stable")].reset_index(drop=True)
         dup = np.zeros(len(df), dtype=bool)
     else:
@@ -474,7 +479,7 @@ def derive_ctd(sensors: pd.DataFrame, latitude_deg: float, longitude_deg: float,
     from hadal.qc_derived import apply_to_table as apply_derived_qc
     from hadal.qc_derived import load_qc_config
 
-    df, no_time, dup = _checked_samples(sensors, p, memory_limit_bytes)
+    df, no_time, dup = _checked_samples(sensors, p, memory_limit_bytes, keep_file_order=prebinned)
     acc = list(p.accept_flags)
     # --- Sea-Bird processing chain on the raw channels (hadal.ctd.chain; every step off unless enabled)
     interval_s, ctd_steps = apply_channel_steps(df, p, no_time)
@@ -661,7 +666,8 @@ def derive_table(table: pd.DataFrame, sensors_meta: dict[str, Any], p: Params, d
 
     pos = choose_position(p, dive, sensors_meta, header_first=external_cast)
     frame, launch_xy = (None, (0.0, 0.0)) if external_cast else _frame(dive)
-    bins = source_bins(sensors_meta.get("cast"))  # a cast SeaSoft already binned keeps its own bins
+    # a cast SeaSoft already binned keeps its own bins (derive.profile_source_bins)
+    bins = source_bins(sensors_meta.get("cast")) if p.profile_source_bins == "keep" else None
     df, meta = derive_ctd(table, pos["latitude_deg"], pos["longitude_deg"], p, frame=frame, launch_xy=launch_xy,
                           memory_limit_bytes=memory_limit_bytes, overlying_profile=overlying_profile,
                           prebinned=bins is not None)
@@ -776,7 +782,7 @@ def _derive_external_casts(ctx: StageContext, p: Params, sensors_meta: dict[str,
                      "cast_longitude_deg": (cmeta.get("cast") or {}).get("longitude_deg")}
             raw = underway_source(ctx, cmeta, ctab, f"cast {cid}")
             if raw is not None and underway is not None:
-                underway.append((cid, ctab, cmeta, raw))
+                underway.append((cid.replace("cast", "underway", 1), ctab, cmeta, raw))
                 continue
             try:
                 cdf, cm, cprof = derive_table(ctab, cmeta, p, ctx.dive, ctx.log, f"cast {cid}",
