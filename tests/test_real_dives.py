@@ -345,3 +345,38 @@ def test_seasoft_binned_cast_keeps_its_own_bins(shared_data, tmp_path, rel, pcol
             assert (prof["count"].values[k, levels] == 1).all()
             assert int(prof["count"].values[k].sum()) == int(sel.sum())
             assert np.isfinite(prof["temperature_its90_degc"].values[k]).any()
+
+
+def test_underway_record_without_a_pressure_channel(shared_data, tmp_path):
+    """The real TSG with its pressure channel renamed away (an SBE 45 has none): still a trajectory, salinity at
+    0 dbar (oracle: gsw.SP_from_C on the file's own T/C at p = 0), the assumption said in a warning."""
+    import gsw
+    import numpy as np
+    import xarray as xr
+
+    from hadal.pipeline import make_context, run_pipeline
+
+    if not (shared_data / TSG).is_file():
+        pytest.skip(f"{TSG} not in this copy of the shared data")
+    raw = tmp_path / "dive"
+    (raw / "raw").mkdir(parents=True)
+    text = (shared_data / TSG).read_bytes().replace(b"# name 5 = prM: Pressure [db]", b"# name 5 = v0: Voltage 0")
+    (raw / "raw" / "tsg.cnv").write_bytes(text)
+    write_init(scan_dive_dir(raw))
+    assert yaml.safe_load((raw / "dive.yaml").read_text())["sources"]["cnv"][0]["kind"] == "underway"
+    ctx = make_context(raw, tmp_path / "store")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        run_pipeline(ctx)
+    pv = ctx.store.latest(ctx.dive_id, "trajectory")
+    rec = json.loads(pv.file("trajectory.json").read_text())["records"][0]
+    col, _ = _seasoft_columns(shared_data / TSG)
+    with xr.open_dataset(pv.path / rec["file"]) as ds:
+        assert (ds["pressure_dbar"].values == 0).all()
+        sp = ds["practical_salinity"].values
+        ok = np.isfinite(sp)
+        np.testing.assert_allclose(sp[ok], gsw.SP_from_C(col["c0S/m"] * 10.0, col["t090C"], 0.0)[ok], atol=2e-4)
+    from hadal.products.io import read_parquet_metadata
+
+    meta, _ = read_parquet_metadata(ctx.store.latest(ctx.dive_id, "sensors").path / "sensors.parquet")
+    assert any("without a pressure channel" in w for w in meta["warnings"]), meta["warnings"]
