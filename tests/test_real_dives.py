@@ -280,6 +280,8 @@ def test_underway_tsg_is_a_trajectory_with_its_own_positions(shared_data, tmp_pa
     assert summary["underway"][0]["scans"] == 602
     assert summary["underway"][0]["latitude_range_deg"] == pytest.approx([col["latitude"].min(), col["latitude"].max()])
     assert not [n for n in summary["notes"] if "missing" in n], summary["notes"]
+    html = ctx.store.latest(ctx.dive_id, "report").file("report.html").read_text()
+    assert "Underway records (thermosalinograph trajectories)" in html and "underway00_seabird_SBE21" in html
 
 
 def test_underway_tsg_beside_a_cast(shared_data, tmp_path):

@@ -16,7 +16,13 @@ CTD time base) and computes, per sample:
   ``seafloor_depth_m`` = depth + corrected altitude (Fig. 10); ``phase`` (descent/bottom/ascent).
 
 Publishes ``ctd`` (``ctd.parquet``) and ``profile`` (``profile.nc``, descent and ascent casts binned by pressure,
-or by depth with ``profile_axis: depth``).
+or by depth with ``profile_axis: depth``; a cast SeaSoft's BinAvg already binned keeps its own bins and only the
+casts it holds: :func:`hadal.profile.prebinned_profile`, ``profile_source_bins``).
+
+Underway records (a ``sources.cnv`` entry with ``kind: underway``: a thermosalinograph, :mod:`hadal.ctd.underway`)
+are not casts: each is published in ``trajectory`` (one CF trajectory NetCDF per record, positions from the
+record's own per-scan latitude/longitude channels, :func:`underway_table`), never binned by depth; when such a
+record is the dive's sensor record, derive publishes ``trajectory`` instead of ``ctd``/``profile``.
 
 A record that does not start at the surface gets the water above from :func:`hadal.depth.overlying_column`: a
 user profile (``overlying_profile``, a CSV or Sea-Bird file read by :func:`hadal.depth.read_overlying_profile`),
