@@ -335,7 +335,8 @@ def test_seasoft_binned_cast_keeps_its_own_bins(shared_data, tmp_path, rel, pcol
     assert pv.manifest()["summary"]["binning"] == "source"
     assert pv.manifest()["summary"]["bin_dbar"] == size
     with xr.open_dataset(pv.path / "profile.nc") as prof:
-        assert prof.attrs["bin_size_dbar"] == size
+        assert prof.attrs["bin_size_dbar"] == size == prof.attrs["seasoft_binavg_binsize"]
+        assert prof.attrs["seasoft_binavg_bintype"] == "decibars"
         casts = str(prof["cast"].attrs["flag_meanings"]).split()
         assert casts == [c for c in ("descent", "ascent") if (phase == c).any()]  # no empty cast
         centres = prof["pressure_dbar"].values

@@ -319,20 +319,23 @@ def prebinned_phases(pressure_dbar: ArrayLike) -> np.ndarray:
 
 
 def prebinned_profile(df: pd.DataFrame, bins: Mapping, *, phase_column: str = "phase",
-                      latitude_deg: float | None = None) -> xr.Dataset:
+                      latitude_deg: float | None = None, bin_column: str | None = None) -> xr.Dataset:
     """The ``profile`` of a cast SeaSoft's BinAvg already binned (``bins`` from :func:`source_bins`): its own bins
     kept, not re-binned. Each row of the file is one bin: the coordinate is the bin centre ``k x bin_size`` with
     ``k = round(z / bin_size)`` (``z``: the row's pressure, or hydrostatic depth for ``meters`` bins; BinAvg writes
     the bin's mean, within half a bin of the centre), each variable is the row's value (the derived ones computed
     on it), ``count`` the rows in the bin (1; two only if the file repeats a bin). Only the casts the file holds
     (descent, ascent: ``phase``) appear, never an empty one; dims ``(cast, pressure_dbar)`` or ``(cast, depth_m)``
-    like :func:`make_profile`."""
+    like :func:`make_profile`. ``bin_column``: the column whose value gives each row's bin (default the axis
+    column; for ``meters`` bins the depth SeaSoft binned by, e.g. the Fofonoff-Millard depth of ``depSM``).
+    """
     axis: Axis = bins["axis"]
     size = float(bins["bin_size"])
     coord, unit, _ = _axis(axis)
-    if coord not in df or phase_column not in df:
-        raise InputError(f"profile: table lacks {coord!r} or {phase_column!r}")
-    z = df[coord].to_numpy(np.float64)
+    zcol = bin_column or coord
+    if coord not in df or zcol not in df or phase_column not in df:
+        raise InputError(f"profile: table lacks {zcol!r} or {phase_column!r}")
+    z = df[zcol].to_numpy(np.float64)
     fin = np.isfinite(z)
     if not fin.any():
         raise InputError(f"profile: no finite {'pressure' if axis == 'pressure' else 'depth'} to bin")
@@ -359,6 +362,9 @@ def prebinned_profile(df: pd.DataFrame, bins: Mapping, *, phase_column: str = "p
     ds["cast"].attrs.update({"long_name": "cast (file order: up to the deepest bin, then after it)",
                              "comment": "descent or ascent; only the casts the file holds"})
     ds.attrs["binning"] = "source file (SeaSoft BinAvg)"
+    ds.attrs["seasoft_binavg_bintype"] = str(bins["bintype"])
+    ds.attrs["seasoft_binavg_binsize"] = size
+    ds.attrs["seasoft_bins_source"] = str(bins["source"])
     _finish(ds, axis, size, latitude_deg)
     ds["count"].attrs["long_name"] = "number of rows of the SeaSoft-binned file in the bin"
     return ds

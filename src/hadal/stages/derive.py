@@ -701,7 +701,19 @@ def derive_table(table: pd.DataFrame, sensors_meta: dict[str, Any], p: Params, d
     if "loop_edit_bad" in binned:  # LoopEdit's bad scans take no part in the bins (as in SeaSoft's BinAvg)
         binned = binned.loc[~binned["loop_edit_bad"].to_numpy(bool)]
     if bins is not None:
-        prof = prebinned_profile(binned, bins, latitude_deg=meta["latitude_deg"])
+        bin_column = None
+        if bins["axis"] == "depth":  # SeaSoft's depth bins are of its depSM: Fofonoff-Millard at its latitude
+            from hadal.seawater import depth_fofonoff_millard
+
+            chan_lat = [v for v in ((sensors_meta.get("cast") or {}).get("channel_latitude_deg") or {}).values()
+                        if v is not None]
+            lat_bins = float(chan_lat[0]) if chan_lat else meta["latitude_deg"]
+            binned = binned.assign(_seasoft_depth_m=depth_fofonoff_millard(
+                binned["pressure_dbar"].to_numpy(np.float64), lat_bins))
+            bin_column = "_seasoft_depth_m"
+            bins = {**bins, "source": f"{bins['source']}; rows placed by their Fofonoff-Millard depth at "
+                                      f"{lat_bins:g} deg (SeaSoft's depSM)"}
+        prof = prebinned_profile(binned, bins, latitude_deg=meta["latitude_deg"], bin_column=bin_column)
         meta["profile_axis"] = {"axis": bins["axis"], "bin_size": bins["bin_size"], "units": bins["units"],
                                 "binning": "source", "source_bins": bins["source"]}
         log.info("derive: %s: binned by SeaSoft BinAvg (%s): its own %d bins kept, casts %s", what,
