@@ -383,3 +383,31 @@ def test_underway_record_without_a_pressure_channel(shared_data, tmp_path):
 
     meta, _ = read_parquet_metadata(ctx.store.latest(ctx.dive_id, "sensors").path / "sensors.parquet")
     assert any("without a pressure channel" in w for w in meta["warnings"]), meta["warnings"]
+
+
+def test_seasoft_depth_binned_cast_keeps_its_own_depth_bins(shared_data, tmp_path):
+    """A depth-binned cast (the 1 dbar oceissues644 cast relabelled as SeaSoft 'meters' bins; no real BinAvg-by-depth
+    file is in ../shared/data): the profile is on depth_m with one level per row at rint(depSM) (oracle: the file's
+    own depSM column), bin type and size recorded."""
+    import numpy as np
+    import xarray as xr
+
+    from hadal.pipeline import make_context, run_pipeline
+
+    rel = "ctd-real/oceissues644_02dk.cnv"
+    if not (shared_data / rel).is_file():
+        pytest.skip(f"{rel} not in this copy of the shared data")
+    raw = tmp_path / "dive"
+    (raw / "raw").mkdir(parents=True)
+    text = (shared_data / rel).read_bytes().replace(b"binavg_bintype = decibars", b"binavg_bintype = meters")
+    (raw / "raw" / "m.cnv").write_bytes(text.replace(b"# interval = decibars: 1", b"# interval = meters: 1"))
+    write_init(scan_dive_dir(raw))
+    ctx = make_context(raw, tmp_path / "store")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        run_pipeline(ctx)
+    col, _ = _seasoft_columns(shared_data / rel)
+    with xr.open_dataset(ctx.store.latest(ctx.dive_id, "profile").file("profile.nc")) as prof:
+        assert prof.attrs["seasoft_binavg_bintype"] == "meters" and prof.attrs["bin_size_m"] == 1.0
+        np.testing.assert_array_equal(prof["depth_m"].values, np.unique(np.rint(col["depSM"])))
+        assert int(prof["count"].values.sum()) == len(col["depSM"])
