@@ -212,6 +212,9 @@ def fig_underway(dp: DiveProducts, opt: FigureOptions) -> FigureResult:
             ax_t.plot(t, ds["temperature_its90_degc"].values.astype(float), lw=0.8, marker=".", ms=2, label=name)
     if sc is not None:
         fig.colorbar(sc, ax=ax_map, label="practical salinity", shrink=0.8)
+    lat_all = np.concatenate([ds["lat"].values.astype(float) for _, ds in recs])
+    if np.isfinite(lat_all).any():  # metres the same both ways on the map
+        ax_map.set_aspect(1.0 / max(np.cos(np.radians(float(np.nanmean(lat_all)))), 0.05), adjustable="datalim")
     ax_map.ticklabel_format(useOffset=False)
     ax_map.tick_params(axis="x", labelrotation=30, labelsize=7)
     ax_map.set_xlabel("longitude (°E)")
