@@ -411,3 +411,26 @@ def test_seasoft_depth_binned_cast_keeps_its_own_depth_bins(shared_data, tmp_pat
         assert prof.attrs["seasoft_binavg_bintype"] == "meters" and prof.attrs["bin_size_m"] == 1.0
         np.testing.assert_array_equal(prof["depth_m"].values, np.unique(np.rint(col["depSM"])))
         assert int(prof["count"].values.sum()) == len(col["depSM"])
+
+
+def test_underway_record_listed_without_kind_is_a_cast_with_a_warning(shared_data, tmp_path, caplog):
+    """A hand-written dive.yaml listing the TSG without 'kind': the pipeline follows dive.yaml (a cast, as before)
+    and derive says in a warning that the content looks underway and how to change it."""
+    import logging
+
+    from hadal.pipeline import make_context, run_pipeline
+
+    if not (shared_data / TSG).is_file():
+        pytest.skip(f"{TSG} not in this copy of the shared data")
+    raw = tmp_path / "dive"
+    raw.mkdir()
+    shutil.copy(shared_data / TSG, raw / "tsg.cnv")
+    (raw / "dive.yaml").write_text("dive_id: tsg\nsources:\n  cnv: [tsg.cnv]\n")
+    ctx = make_context(raw, tmp_path / "store")
+    with warnings.catch_warnings(), caplog.at_level(logging.WARNING, logger="hadal"):
+        warnings.simplefilter("ignore")
+        run_pipeline(ctx)
+    assert {"ctd", "profile"} <= set(ctx.store.products(ctx.dive_id))
+    assert not ctx.store.has(ctx.dive_id, "trajectory")
+    assert any("looks like an underway record" in r.getMessage() and "kind: underway" in r.getMessage()
+               for r in caplog.records), [r.getMessage() for r in caplog.records]

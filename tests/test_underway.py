@@ -40,7 +40,7 @@ def test_casts_are_not_underway():
     lat = np.linspace(10.0, 10.01, 50)  # drifts 1.1 km
     profiling = _record(lat, np.full(50, 140.0), np.linspace(0, 1000, 50), "* Sea-Bird SBE 9 Data File:")
     ev = underway_evidence(profiling)
-    assert not ev.underway and "1000.000 dbar" in ev.reason
+    assert not ev.underway and "(> 2 dbar)" in ev.reason and ev.pressure_range_dbar > 900
     on_station = _record(10.0 + np.linspace(0, 0.5 * MIN_TRACK_M / 111_195.0, 50), np.full(50, 140.0), np.zeros(50))
     assert not underway_evidence(on_station).underway
     no_positions = _record(lat, np.full(50, 140.0), np.zeros(50)).drop(columns=["latitude", "longitude"])
@@ -122,3 +122,10 @@ def test_init_writes_the_choice_as_an_explicit_commented_entry(tmp_path):
     i = lines.index("  - path: tsg.cnv")
     assert lines[i - 1] == "  # kind: underway, hadal init's choice (evidence)"
     assert yaml.safe_load(text)["sources"]["cnv"] == ["cast.cnv", {"path": "tsg.cnv", "kind": "underway"}]
+
+
+def test_pressure_spikes_do_not_make_a_tsg_a_cast():
+    lat = np.linspace(-0.863, -0.739, 500)
+    pr = np.full(500, 3.0)
+    pr[[10, 200]] = [40.0, -5.0]  # two spikes of the intake pressure sensor
+    assert underway_evidence(_record(lat, np.full(500, -38.0), pr)).underway

@@ -13,8 +13,9 @@ Rule (:func:`underway_evidence`; ``hadal init`` writes its outcome into ``dive.y
 * the record has per-scan position channels (SeaSoft ``latitude``/``longitude``, units ``deg``), and
 * those positions move: the largest great-circle distance of a scan's position from the first scan's is at least
   :data:`MIN_TRACK_M` (a ship on station drifts less during a cast; a cast has pressure range anyway), and
-* its pressure is near-constant: no pressure channel, or the range of its finite values is at most
-  :data:`MAX_PRESSURE_RANGE_DBAR` (a cast profiles, a seawater line does not).
+* its pressure is near-constant: no pressure channel, or the span of its finite values between their 1st and 99th
+  percentiles (a few spikes do not count) is at most :data:`MAX_PRESSURE_RANGE_DBAR` (a cast profiles, a seawater
+  line does not).
 
 The instrument model (``* Sea-Bird SBE 21 Data File:``: a thermosalinograph model, :data:`TSG_MODELS`) is recorded
 in the evidence but neither needed nor sufficient: per-scan moving positions at constant pressure are what make a
@@ -111,7 +112,7 @@ def underway_evidence(df: pd.DataFrame) -> UnderwayEvidence:
     if pcol is not None:
         pr = pd.to_numeric(df[pcol], errors="coerce").to_numpy(np.float64)
         pr = pr[np.isfinite(pr)]
-        prange = float(pr.max() - pr.min()) if pr.size else None
+        prange = float(np.diff(np.percentile(pr, [1, 99]))[0]) if pr.size else None
     ev = UnderwayEvidence(False, "", pressure_channel=pcol, pressure_range_dbar=prange, instrument_model=model)
     cols = position_channels(df)
     if cols is None:
@@ -127,7 +128,7 @@ def underway_evidence(df: pd.DataFrame) -> UnderwayEvidence:
     d = distance_m(lat[ok[0]], lon[ok[0]], lat[ok], lon[ok])
     ev.max_distance_m = round(float(d.max()), 1)
     ptxt = ("no pressure channel" if pcol is None else
-            f"{pcol} spans {prange:.3f} dbar" if prange is not None else f"{pcol} has no valid value")
+            f"{pcol} spans {prange:.3f} dbar (1st-99th percentile)" if prange is not None else f"{pcol} has no valid value")
     if ev.max_distance_m < MIN_TRACK_M:
         ev.reason = (f"cast: per-scan positions ({cols[0]}/{cols[1]}) stay within {ev.max_distance_m:.0f} m of the "
                      f"first (< {MIN_TRACK_M:g} m){tsg}")
