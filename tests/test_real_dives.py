@@ -10,6 +10,7 @@ import json
 import shutil
 import warnings
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -55,6 +56,8 @@ EXPECTED: dict[str, set[str]] = {
     "mcap-real/rosbag2_talker.mcap": set(),  # std_msgs/String only: nothing maps to a sensor
     "mcap-real/rosbag2_cdr_test_0.mcap": set(),
     "mcap-real/rosbag2_test_bag_for_seek_0.mcap": set(),
+    # an underway thermosalinograph (per-scan lat/lon, prM = 0): a trajectory, never a 0 m cast or a profile
+    "dives-real/seabird_SBE21_TSG_PIR_010.cnv": {"sensors", "trajectory"},
 }
 
 
@@ -342,3 +345,250 @@ def test_real_point_clouds_and_em3000_content(shared_data, tmp_path, rel):
     assert z.min() - 1e-9 <= np.nanmin(e) < np.nanmax(e) <= z.max() + 1e-9 and n + attrs["n_points_outliers"] == 1065
     if src.suffix == ".las":
         assert attrs["source_crs_epsg"] == 26910 and attrs["source_horizontal_units"] == "metre"
+
+
+# ---------------------------------------------------------------- underway records and SeaSoft-binned casts
+TSG = "dives-real/seabird_SBE21_TSG_PIR_010.cnv"
+
+
+def _seasoft_columns(path: Path) -> tuple[dict[str, Any], str]:
+    """The oracle: a .cnv's own columns parsed here with NumPy (not hadal's reader), by its ``# name i = x:`` lines,
+    and its header text."""
+    import re
+
+    import numpy as np
+
+    text = path.read_bytes().decode("latin-1")
+    head, body = re.split(r"^\*END\*\s*$", text, maxsplit=1, flags=re.M)
+    names = {int(i): n.strip() for i, n in re.findall(r"^# name (\d+) = ([^:]+):", head, flags=re.M)}
+    rows = np.array([[float(v) for v in ln.split()] for ln in body.splitlines() if ln.strip()])
+    return {names[i]: rows[:, i] for i in sorted(names)}, head
+
+
+def _run_dive(tmp_path: Path, shared: Path, *rels: str):
+    from hadal.pipeline import make_context, run_pipeline
+
+    raw = tmp_path / "dive"
+    (raw / "raw").mkdir(parents=True)
+    for rel in rels:
+        shutil.copy(shared / rel, raw / "raw" / Path(rel).name)
+    res = scan_dive_dir(raw)
+    write_init(res)
+    ctx = make_context(raw, tmp_path / "store")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        run_pipeline(ctx)
+    return raw, res, ctx
+
+
+def test_underway_tsg_is_a_trajectory_with_its_own_positions(shared_data, tmp_path):
+    """Oracle: the file's own per-scan latitude/longitude/timeJ/T/C/P columns (parsed here), gsw.SP_from_C and
+    gsw's TEOS-10 at each scan's own position."""
+    import gsw
+    import numpy as np
+    import pandas as pd
+    import xarray as xr
+
+    if not (shared_data / TSG).is_file():
+        pytest.skip(f"{TSG} not in this copy of the shared data")
+    raw, res, ctx = _run_dive(tmp_path, shared_data, TSG)
+    # init: the choice is explicit in dive.yaml, with its evidence in a comment the user can read and change
+    text = (raw / "dive.yaml").read_text()
+    assert yaml.safe_load(text)["sources"]["cnv"] == [{"path": "raw/seabird_SBE21_TSG_PIR_010.cnv", "kind": "underway"}]
+    assert "# kind: underway, hadal init's choice" in text and "13.79 km" in text and "prM spans 0.000 dbar" in text
+    assert "launch" not in res.dive  # the header position is not a cast position
+    published = set(ctx.store.products(ctx.dive_id))
+    assert {"sensors", "trajectory", "report"} <= published and not {"ctd", "profile"} & published, published
+    col, _ = _seasoft_columns(shared_data / TSG)
+    pv = ctx.store.latest(ctx.dive_id, "trajectory")
+    index = json.loads(pv.file("trajectory.json").read_text())["records"]
+    assert len(index) == 1 and index[0]["scans"] == len(col["latitude"]) == 602
+    with xr.open_dataset(pv.path / index[0]["file"]) as ds:
+        assert ds.attrs["featureType"] == "trajectory" and ds.attrs["cdm_data_type"] == "Trajectory"
+        assert ds["trajectory"].attrs["cf_role"] == "trajectory_id" and int(ds["row_size"][0]) == 602
+        assert "pressure_dbar" not in ds.dims and "cast" not in ds.dims  # not binned, not a profile
+        # the file's own per-scan positions (not the header's 0 51.788 S 38 0.000 W)
+        np.testing.assert_allclose(ds["lat"].values, col["latitude"], rtol=0, atol=1e-9)
+        np.testing.assert_allclose(ds["lon"].values, col["longitude"], rtol=0, atol=1e-9)
+        assert np.ptp(ds["lat"].values) > 0.12  # moves ~14 km
+        # times: start year 2011 + timeJ (day of year, 1 = Jan 1 00:00)
+        t_file = pd.Timestamp("2011-01-01") + pd.to_timedelta(col["timeJ"] - 1.0, unit="D")
+        dt = np.abs((pd.to_datetime(ds["time"].values) - t_file).total_seconds())
+        assert dt.max() < 1e-3
+        np.testing.assert_allclose(ds["temperature_its90_degc"].values[np.isfinite(ds["temperature_its90_degc"])],
+                                   col["t090C"][np.isfinite(ds["temperature_its90_degc"].values)], atol=1e-9)
+        # PSS-78 salinity vs gsw on the file's own T/C/P; NaN only where ingest's QC flagged T or C bad
+        sp_oracle = gsw.SP_from_C(col["c0S/m"] * 10.0, col["t090C"], col["prM"])
+        sp = ds["practical_salinity"].values
+        ok = np.isfinite(sp)
+        np.testing.assert_allclose(sp[ok], sp_oracle[ok], rtol=0, atol=2e-4)
+        flagged = ~np.isin(ds["conductivity_s_m_qc"].values, [1, 2, 3]) | \
+            ~np.isin(ds["temperature_its90_degc_qc"].values, [1, 2, 3])
+        assert np.array_equal(~ok, flagged)
+        assert ok.sum() > 400
+        # TEOS-10 at each scan's own position (a wrong position changes SA)
+        sa = gsw.SA_from_SP(sp_oracle, col["prM"], col["longitude"], col["latitude"])
+        np.testing.assert_allclose(ds["absolute_salinity_g_kg"].values[ok], sa[ok], rtol=0, atol=2e-4)
+        ct = gsw.CT_from_t(sa, col["t090C"], col["prM"])
+        np.testing.assert_allclose(ds["sigma0_kg_m3"].values[ok], gsw.sigma0(sa, ct)[ok], rtol=0, atol=2e-4)
+    # the report draws the track/section figure instead of cast figures, and lists the record
+    summary = json.loads(ctx.store.latest(ctx.dive_id, "report").file("summary.json").read_text())
+    assert summary["figures"].get("underway_tsg") == "ok", summary["figures"]
+    assert not {"fig08_ctd_profiles", "fig09_depth_time", "ctd_ts_theta_n2"} & set(summary["figures"])
+    assert summary["underway"][0]["scans"] == 602
+    assert summary["underway"][0]["latitude_range_deg"] == pytest.approx([col["latitude"].min(), col["latitude"].max()])
+    assert not [n for n in summary["notes"] if "missing" in n], summary["notes"]
+    html = ctx.store.latest(ctx.dive_id, "report").file("report.html").read_text()
+    assert "Underway records (thermosalinograph trajectories)" in html and "underway00_seabird_SBE21" in html
+
+
+def test_underway_tsg_beside_a_cast(shared_data, tmp_path):
+    """A cast and a TSG in one dive: the cast makes ctd/profile (whatever the file order), the TSG a trajectory."""
+    import numpy as np
+    import xarray as xr
+
+    if not (shared_data / TSG).is_file():
+        pytest.skip(f"{TSG} not in this copy of the shared data")
+    _, res, ctx = _run_dive(tmp_path, shared_data, "ctd-real/seabird_sta0860.cnv", TSG)
+    published = set(ctx.store.products(ctx.dive_id))
+    assert {"sensors", "ctd", "profile", "trajectory"} <= published and "cast_profiles" not in published, published
+    assert res.dive["launch"]["latitude_deg"] == pytest.approx(-(25 + 27.85 / 60), abs=1e-4)  # the cast's header
+    col, _ = _seasoft_columns(shared_data / "ctd-real/seabird_sta0860.cnv")
+    with xr.open_dataset(ctx.store.latest(ctx.dive_id, "profile").file("profile.nc")) as prof:
+        assert prof["pressure_dbar"].values.max() == pytest.approx(col["prDM"].max())
+    pv = ctx.store.latest(ctx.dive_id, "trajectory")
+    rec = json.loads(pv.file("trajectory.json").read_text())["records"][0]
+    with xr.open_dataset(pv.path / rec["file"]) as ds:
+        tsg, _ = _seasoft_columns(shared_data / TSG)
+        np.testing.assert_allclose(ds["lat"].values, tsg["latitude"], atol=1e-9)
+
+
+#: SeaSoft-binned casts: (file, pressure column, temperature column, ITS-68?)
+BINNED = [("ctd-real/pyctd_CTD_with_sigma_e00.cnv", "prDM", "t068C", True),
+          ("formats-real/sbs_SBE19plus_01906398_2019_07_15_0033_cropped_binavg.cnv", "prdM", "tv290C", False),
+          ("ctd-real/seabird_sta0860.cnv", "prDM", "t068C", True)]
+
+
+@pytest.mark.parametrize("rel,pcol,tcol,t68", BINNED)
+def test_seasoft_binned_cast_keeps_its_own_bins(shared_data, tmp_path, rel, pcol, tcol, t68):
+    """Oracle: the file's own rows (bin pressure and temperature per row) and its header's binavg_binsize. Before:
+    re-binned to 10 dbar (the 2 dbar SBE 19plus cast became one bin) with an all-NaN ascent."""
+    import re
+
+    import numpy as np
+    import xarray as xr
+
+    if not (shared_data / rel).is_file():
+        pytest.skip(f"{rel} not in this copy of the shared data")
+    _, _, ctx = _run_dive(tmp_path, shared_data, rel)
+    col, head = _seasoft_columns(shared_data / rel)
+    size = float(re.search(r"^# binavg_binsize = ([0-9.]+)", head, flags=re.M).group(1))
+    p = col[pcol]
+    t = col[tcol] / 1.00024 if t68 else col[tcol]  # ITS-68 -> ITS-90
+    deepest = int(np.argmax(p))
+    first_is_deepest = deepest == 0
+    phase = np.where(np.arange(p.size) <= deepest, "descent", "ascent") if not first_is_deepest else \
+        np.full(p.size, "ascent")
+    pv = ctx.store.latest(ctx.dive_id, "profile")
+    assert pv.manifest()["summary"]["binning"] == "source"
+    assert pv.manifest()["summary"]["bin_dbar"] == size
+    with xr.open_dataset(pv.path / "profile.nc") as prof:
+        assert prof.attrs["bin_size_dbar"] == size == prof.attrs["seasoft_binavg_binsize"]
+        assert prof.attrs["seasoft_binavg_bintype"] == "decibars"
+        casts = str(prof["cast"].attrs["flag_meanings"]).split()
+        assert casts == [c for c in ("descent", "ascent") if (phase == c).any()]  # no empty cast
+        centres = prof["pressure_dbar"].values
+        np.testing.assert_allclose(centres, np.unique(np.rint(p / size)) * size)
+        for k, cast in enumerate(casts):
+            sel = phase == cast
+            levels = np.searchsorted(centres, np.rint(p[sel] / size) * size)
+            np.testing.assert_allclose(prof["temperature_its90_degc"].values[k, levels], t[sel], atol=1e-6)
+            assert (prof["count"].values[k, levels] == 1).all()
+            assert int(prof["count"].values[k].sum()) == int(sel.sum())
+            assert np.isfinite(prof["temperature_its90_degc"].values[k]).any()
+
+
+def test_underway_record_without_a_pressure_channel(shared_data, tmp_path):
+    """The real TSG with its pressure channel renamed away (an SBE 45 has none): still a trajectory, salinity at
+    0 dbar (oracle: gsw.SP_from_C on the file's own T/C at p = 0), the assumption said in a warning."""
+    import gsw
+    import numpy as np
+    import xarray as xr
+
+    from hadal.pipeline import make_context, run_pipeline
+
+    if not (shared_data / TSG).is_file():
+        pytest.skip(f"{TSG} not in this copy of the shared data")
+    raw = tmp_path / "dive"
+    (raw / "raw").mkdir(parents=True)
+    text = (shared_data / TSG).read_bytes().replace(b"# name 5 = prM: Pressure [db]", b"# name 5 = v0: Voltage 0")
+    (raw / "raw" / "tsg.cnv").write_bytes(text)
+    write_init(scan_dive_dir(raw))
+    assert yaml.safe_load((raw / "dive.yaml").read_text())["sources"]["cnv"][0]["kind"] == "underway"
+    ctx = make_context(raw, tmp_path / "store")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        run_pipeline(ctx)
+    pv = ctx.store.latest(ctx.dive_id, "trajectory")
+    rec = json.loads(pv.file("trajectory.json").read_text())["records"][0]
+    col, _ = _seasoft_columns(shared_data / TSG)
+    with xr.open_dataset(pv.path / rec["file"]) as ds:
+        assert (ds["pressure_dbar"].values == 0).all()
+        sp = ds["practical_salinity"].values
+        ok = np.isfinite(sp)
+        np.testing.assert_allclose(sp[ok], gsw.SP_from_C(col["c0S/m"] * 10.0, col["t090C"], 0.0)[ok], atol=2e-4)
+    from hadal.products.io import read_parquet_metadata
+
+    meta, _ = read_parquet_metadata(ctx.store.latest(ctx.dive_id, "sensors").path / "sensors.parquet")
+    assert any("without a pressure channel" in w for w in meta["warnings"]), meta["warnings"]
+
+
+def test_seasoft_depth_binned_cast_keeps_its_own_depth_bins(shared_data, tmp_path):
+    """A depth-binned cast (the 1 dbar oceissues644 cast relabelled as SeaSoft 'meters' bins; no real BinAvg-by-depth
+    file is in ../shared/data): the profile is on depth_m with one level per row at rint(depSM) (oracle: the file's
+    own depSM column), bin type and size recorded."""
+    import numpy as np
+    import xarray as xr
+
+    from hadal.pipeline import make_context, run_pipeline
+
+    rel = "ctd-real/oceissues644_02dk.cnv"
+    if not (shared_data / rel).is_file():
+        pytest.skip(f"{rel} not in this copy of the shared data")
+    raw = tmp_path / "dive"
+    (raw / "raw").mkdir(parents=True)
+    text = (shared_data / rel).read_bytes().replace(b"binavg_bintype = decibars", b"binavg_bintype = meters")
+    (raw / "raw" / "m.cnv").write_bytes(text.replace(b"# interval = decibars: 1", b"# interval = meters: 1"))
+    write_init(scan_dive_dir(raw))
+    ctx = make_context(raw, tmp_path / "store")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        run_pipeline(ctx)
+    col, _ = _seasoft_columns(shared_data / rel)
+    with xr.open_dataset(ctx.store.latest(ctx.dive_id, "profile").file("profile.nc")) as prof:
+        assert prof.attrs["seasoft_binavg_bintype"] == "meters" and prof.attrs["bin_size_m"] == 1.0
+        np.testing.assert_array_equal(prof["depth_m"].values, np.unique(np.rint(col["depSM"])))
+        assert int(prof["count"].values.sum()) == len(col["depSM"])
+
+
+def test_underway_record_listed_without_kind_is_a_cast_with_a_warning(shared_data, tmp_path, caplog):
+    """A hand-written dive.yaml listing the TSG without 'kind': the pipeline follows dive.yaml (a cast, as before)
+    and derive says in a warning that the content looks underway and how to change it."""
+    import logging
+
+    from hadal.pipeline import make_context, run_pipeline
+
+    if not (shared_data / TSG).is_file():
+        pytest.skip(f"{TSG} not in this copy of the shared data")
+    raw = tmp_path / "dive"
+    raw.mkdir()
+    shutil.copy(shared_data / TSG, raw / "tsg.cnv")
+    (raw / "dive.yaml").write_text("dive_id: tsg\nsources:\n  cnv: [tsg.cnv]\n")
+    ctx = make_context(raw, tmp_path / "store")
+    with warnings.catch_warnings(), caplog.at_level(logging.WARNING, logger="hadal"):
+        warnings.simplefilter("ignore")
+        run_pipeline(ctx)
+    assert {"ctd", "profile"} <= set(ctx.store.products(ctx.dive_id))
+    assert not ctx.store.has(ctx.dive_id, "trajectory")
+    assert any("looks like an underway record" in r.getMessage() and "kind: underway" in r.getMessage()
+               for r in caplog.records), [r.getMessage() for r in caplog.records]

@@ -121,6 +121,12 @@ class SourceFile(BaseModel):
     variable: str | None = Field(None, description="NetCDF variable holding the grid (default: the first 2-D one)")
     columns: list[str] | None = Field(
         None, description="xyz text: column names in file order, using x/lon, y/lat, z/depth/elevation")
+    kind: Literal["cast", "underway"] | None = Field(
+        None, description="Sea-Bird record (sources.cnv): 'cast' (a vertical profile: ctd/profile products) or "
+                          "'underway' (a thermosalinograph in the ship's seawater line: per-scan positions, "
+                          "constant pressure; published as the 'trajectory' product, never binned by depth). "
+                          "hadal init writes the choice of hadal.ctd.underway's rule; default (absent): cast, and "
+                          "derive warns when the content looks underway")
 
     def __str__(self) -> str:  # so a SourceFile prints (and resolves) like the plain path it names
         return self.path

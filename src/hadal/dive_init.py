@@ -294,7 +294,7 @@ def _scan_files(res: InitResult, scan: _Scan, raw: Path) -> None:
         elif kind == "csv":
             scan.logs_csv[_csv_key(p, scan.logs_csv)] = p
         elif kind in ("cnv", "seabird_hex"):
-            if not _map_cast(res, scan, rel, kind, info):
+            if not _map_cast(res, scan, rel, kind, info, p):
                 continue
         elif kind in ("xyz", "gsf", "kmall", "em_all", "s7k"):
             role = xyz_role(info) if kind == "xyz" else "multibeam"
@@ -352,8 +352,25 @@ def _map_grid(res: InitResult, sources: dict[str, Any], rel: str, kind: str, inf
     return True
 
 
-def _map_cast(res: InitResult, scan: _Scan, rel: str, kind: str, info: dict[str, Any]) -> bool:
-    """Map a Sea-Bird cast to ``sources.cnv``; ``False`` when it duplicates a cast already kept."""
+def _underway(path: Path) -> Any:
+    """:func:`hadal.ctd.underway.underway_evidence` of a Sea-Bird file (``None`` when it cannot be read)."""
+    import warnings
+
+    from hadal.ctd.underway import underway_evidence
+    from hadal.ingest.cnv import read_seabird
+
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            return underway_evidence(read_seabird(path))
+    except InputError:
+        return None
+
+
+def _map_cast(res: InitResult, scan: _Scan, rel: str, kind: str, info: dict[str, Any], path: Path) -> bool:
+    """Map a Sea-Bird cast to ``sources.cnv``; ``False`` when it duplicates a cast already kept. An underway record
+    (:func:`hadal.ctd.underway.underway_evidence`: per-scan positions that move, constant pressure) is listed as
+    ``{path, kind: underway}`` with the evidence as a comment, and its header position is no launch candidate."""
     sources, casts_seen = scan.sources, scan.casts_seen
     key = (info.get("start_time_utc"), info.get("scans"))
     if key[0] and key[1] and key in casts_seen:  # e.g. a .hex and SeaSoft's .cnv conversion of it
@@ -369,6 +386,13 @@ def _map_cast(res: InitResult, scan: _Scan, rel: str, kind: str, info: dict[str,
             return False
     else:
         casts_seen[key] = (rel, kind)
+    ev = _underway(path) if kind == "cnv" else None
+    if ev is not None and ev.underway:
+        sources["cnv"].append({"path": rel, "kind": "underway"})
+        res.source_notes[rel] = (f"kind: underway, hadal init's choice by hadal.ctd.underway's rule ({ev.reason}): "
+                                 "published as a trajectory; set kind: cast to process it as a CTD cast")
+        res.mapped.append(f"{rel}: Sea-Bird underway record ({kind}; {ev.reason}) -> sources.cnv, kind: underway")
+        return True
     sources["cnv"].append(rel)
     res.mapped.append(f"{rel}: Sea-Bird cast ({kind}) -> sources.cnv")
     lat, lon = info.get("latitude_deg"), info.get("longitude_deg")
@@ -387,7 +411,8 @@ def _set_launch(res: InitResult, dive: dict[str, Any], scan: _Scan, launch: tupl
         dive["launch"] = {"latitude_deg": round(lat, 6), "longitude_deg": round(lon, 6)}
         if t:
             dive["launch"]["time_utc"] = t
-        res.mapped.append("launch: the position in the Sea-Bird header of " + scan.sources["cnv"][0])
+        first = next(c for c in scan.sources["cnv"] if isinstance(c, str))
+        res.mapped.append("launch: the position in the Sea-Bird header of " + first)
     elif cast_positions:
         res.mapped.append(f"launch: not set, the casts are {_spread_km(cast_positions):.0f} km apart; each cast "
                           "uses the position in its own header")
@@ -475,7 +500,7 @@ def _todo(res: InitResult) -> None:
         if need:
             res.todo.append(f"launch position: stage(s) {', '.join(need)} need it (hadal init DIR --launch LAT,LON "
                             "--force, or edit dive.yaml)")
-        if "cnv" in dive.sources.kinds():
+        if any(e.kind != "underway" for e in dive.sources.files("cnv")):
             res.todo.append("the casts' headers carry no position: gravity and depth will use 45° latitude unless "
                             "dive.yaml gets a launch position (--launch LAT,LON)")
     if dive.map_frame is None and dive.launch is None and ({"multibeam", "prior_grid"} & set(dive.sources.kinds())):

@@ -83,6 +83,9 @@ def plan_stages(dive: Dive, stages: Sequence[str] | None = None, store: ProductS
             continue
         made = tuple(p for p in produces if p not in inp.optional_products
                      and (p not in inp.product_sources or present.intersection(inp.product_sources[p])))
+        hook = getattr(mod, "planned_products", None)  # a stage whose products depend on dive.yaml hints (derive)
+        if callable(hook):
+            made = tuple(hook(dive, made))
         available.update(made)
         out.append(PlannedStage(name, True, "", made))
     return out

@@ -269,3 +269,102 @@ def n_squared_per_sample(df: pd.DataFrame, ds: xr.Dataset, *, phase_column: str 
         if sel.any():
             out[sel] = n_squared_at(pr[sel], levels[k], ds[N_SQUARED].values[k])
     return out
+
+
+# ------------------------------------------------------------------------------ casts SeaSoft has already binned
+#: SeaSoft BinAvg bin types that bin by a vertical coordinate -> the profile axis (``scans``/``seconds`` bins are
+#: time averages of a time series: such a record is binned like any other)
+SEASOFT_VERTICAL_BINS: dict[str, Axis] = {"decibars": "pressure", "meters": "depth"}
+
+
+def source_bins(cast_meta: Mapping | None) -> dict | None:
+    """The vertical bins of a cast that SeaSoft's BinAvg already averaged, from its header (the ``cast`` metadata of
+    :func:`hadal.ingest.build.cast_metadata`): the ``# binavg_bintype`` and ``# binavg_binsize`` processing lines,
+    else the ``# interval = decibars: 1`` (or ``meters``) line. Returns ``{"axis", "bin_size", "units",
+    "bintype", "source"}`` or ``None`` (not binned, or binned by scans/time, or an unreadable bin size)."""
+    if not cast_meta:
+        return None
+    proc = {str(k): str(v).strip() for k, v in (cast_meta.get("processing") or []) if k is not None}
+    bintype, size, source = proc.get("binavg_bintype", "").split(",")[0].strip().lower(), proc.get("binavg_binsize"), \
+        "binavg_bintype / binavg_binsize"
+    if not bintype or size is None:
+        iv = cast_meta.get("interval") or {}
+        bintype, size, source = str(iv.get("kind") or "").lower(), iv.get("value"), "interval"
+    try:
+        bin_size = float(str(size).split()[0]) if size is not None else float("nan")
+    except ValueError:
+        return None
+    axis = SEASOFT_VERTICAL_BINS.get(bintype)
+    if axis is None or not (np.isfinite(bin_size) and bin_size > 0):
+        return None
+    return {"axis": axis, "bin_size": bin_size, "units": AXES[axis][1], "bintype": bintype,
+            "source": f"Sea-Bird header ({source}): {bintype}, {bin_size:g} {AXES[axis][1]}"}
+
+
+def prebinned_phases(pressure_dbar: ArrayLike) -> np.ndarray:
+    """Casts of a SeaSoft-binned record in file order, as BinAvg wrote them: the rows up to and including the
+    deepest are the descent, those after it the ascent (BinAvg puts the turn-around bin in the downcast); a record
+    whose first row is its deepest is one ascent. Only the casts the file holds appear."""
+    p = np.asarray(pressure_dbar, dtype=np.float64)
+    out = np.full(p.size, "descent", dtype=object)
+    fin = np.flatnonzero(np.isfinite(p))
+    if fin.size < 2:
+        return out
+    deep = int(fin[np.argmax(p[fin])])
+    if deep == fin[0]:
+        out[:] = "ascent"
+    else:
+        out[deep + 1:] = "ascent"
+    return out
+
+
+def prebinned_profile(df: pd.DataFrame, bins: Mapping, *, phase_column: str = "phase",
+                      latitude_deg: float | None = None, bin_column: str | None = None) -> xr.Dataset:
+    """The ``profile`` of a cast SeaSoft's BinAvg already binned (``bins`` from :func:`source_bins`): its own bins
+    kept, not re-binned. Each row of the file is one bin: the coordinate is the bin centre ``k x bin_size`` with
+    ``k = round(z / bin_size)`` (``z``: the row's pressure, or hydrostatic depth for ``meters`` bins; BinAvg writes
+    the bin's mean, within half a bin of the centre), each variable is the row's value (the derived ones computed
+    on it), ``count`` the rows in the bin (1; two only if the file repeats a bin). Only the casts the file holds
+    (descent, ascent: ``phase``) appear, never an empty one; dims ``(cast, pressure_dbar)`` or ``(cast, depth_m)``
+    like :func:`make_profile`. ``bin_column``: the column whose value gives each row's bin (default the axis
+    column; for ``meters`` bins the depth SeaSoft binned by, e.g. the Fofonoff-Millard depth of ``depSM``).
+    """
+    axis: Axis = bins["axis"]
+    size = float(bins["bin_size"])
+    coord, unit, _ = _axis(axis)
+    zcol = bin_column or coord
+    if coord not in df or zcol not in df or phase_column not in df:
+        raise InputError(f"profile: table lacks {zcol!r} or {phase_column!r}")
+    z = df[zcol].to_numpy(np.float64)
+    fin = np.isfinite(z)
+    if not fin.any():
+        raise InputError(f"profile: no finite {'pressure' if axis == 'pressure' else 'depth'} to bin")
+    k = np.rint(z[fin] / size).astype(np.int64)
+    used = np.unique(k)
+    edges = np.arange(int(used.min()) - 0.5, int(used.max()) + 1.0) * size
+    names = [c for c in profile_variables(axis) if c in df.columns]
+    cols = {n: _numpy(df[n]) for n in names}
+    phase = df[phase_column].astype(str).to_numpy()
+    casts = [c for c in CASTS if (phase == c).any()]
+    per_cast = []
+    for cast in casts:
+        sel = phase == cast
+        per_cast.append(bin_by_pressure(z[sel], {n: v[sel] for n, v in cols.items()}, edges))
+    keep = used - int(used.min())
+    ds = xr.Dataset(coords={"cast": np.array(casts, dtype=object), coord: used.astype(np.float64) * size})
+    dims = ("cast", coord)
+    for n in names:
+        ds[n] = (dims, np.stack([m[n][keep] for m, _ in per_cast]))
+    ds["count"] = (dims, np.stack([c[keep] for _, c in per_cast]).astype(np.int32))
+    ds[coord].attrs.update({**AXIS_ATTRS[axis], "comment": (
+        f"the source file's own bins ({bins['source']}): bin k centred on k x {size:g} {unit}; the cast was "
+        "binned by SeaSoft BinAvg and is not re-binned: each value is the file's row of that bin")})
+    ds["cast"].attrs.update({"long_name": "cast (file order: up to the deepest bin, then after it)",
+                             "comment": "descent or ascent; only the casts the file holds"})
+    ds.attrs["binning"] = "source file (SeaSoft BinAvg)"
+    ds.attrs["seasoft_binavg_bintype"] = str(bins["bintype"])
+    ds.attrs["seasoft_binavg_binsize"] = size
+    ds.attrs["seasoft_bins_source"] = str(bins["source"])
+    _finish(ds, axis, size, latitude_deg)
+    ds["count"].attrs["long_name"] = "number of rows of the SeaSoft-binned file in the bin"
+    return ds

@@ -79,10 +79,12 @@ _MULTIBEAM = "Active Remote Sensing > Profilers/Sounders > Acoustic Sounders > M
 _LASER = "Active Remote Sensing > Profilers/Sounders > Lidar/Laser Sounders > LIDAR"
 _ALTIMETER = "Active Remote Sensing > Profilers/Sounders > Acoustic Sounders > ALTIMETERS"
 _DVL = "In Situ/Laboratory Instruments > Current/Wind Meters > ADCP"
+_TSG = "In Situ/Laboratory Instruments > Conductivity Sensors > THERMOSALINOGRAPHS"
 #: GCMD instrument keywords of each product (its measuring instruments); ``metadata.instruments`` overrides
 PRODUCT_INSTRUMENTS: dict[str, str] = {
     "sensors": f"{_CTD}, {_ALTIMETER}, {_DVL}",
     "ctd": _CTD, "profile": _CTD, "casts": _CTD, "cast_profiles": _CTD,
+    "trajectory": _TSG,
     "dtm": _MULTIBEAM, "suitability": _MULTIBEAM,
     "laser_grids": _LASER, "landing": _LASER,
     "match": f"{_MULTIBEAM}, {_ALTIMETER}, {_CTD}",

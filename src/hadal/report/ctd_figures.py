@@ -15,7 +15,7 @@ import numpy as np
 import pandas as pd
 from matplotlib.figure import Figure
 
-from hadal.report.figures import PHASE_COLOURS, FigureOptions, FigureResult, _render
+from hadal.report.figures import CMAPS, PHASE_COLOURS, FigureOptions, FigureResult, _render
 from hadal.report.load import DiveProducts
 
 #: derive's TEOS-10 columns of profile.nc -> the names used here (used instead of recomputing when present)
@@ -176,4 +176,61 @@ def fig_water_column(dp: DiveProducts, opt: FigureOptions) -> FigureResult:
     ax_n2.set_xlim(max(lo, 1e-10), hi)
     if n_nonpos:
         r.caption += f" {n_nonpos} depth bin(s) with mean N² ≤ 0 are not drawn."
+    return _render(r, fig, opt)
+
+
+def fig_underway(dp: DiveProducts, opt: FigureOptions) -> FigureResult:
+    """Underway (thermosalinograph) records of derive's ``trajectory``: (a) the ship's track from the records' own
+    per-scan positions, coloured by practical salinity; (b) salinity and (c) temperature along time."""
+    r = FigureResult("underway_tsg", "Underway thermosalinograph: track and section", "Water column",
+                     "(a) Track of each underway record from its own per-scan latitude/longitude, coloured by "
+                     "practical salinity (PSS-78); (b) practical salinity and (c) temperature against time. "
+                     "Scans whose temperature or conductivity QC flag is not accepted have no salinity and are "
+                     "not drawn. Underway records are trajectories, not casts: they have no depth profile.")
+    recs = [(rec, ds) for rec, ds in dp.trajectories
+            if {"lat", "lon", "time"} <= set(ds.variables) and "practical_salinity" in ds]
+    if not recs:
+        r.skipped = "no trajectory product with positions and salinity (no underway record)"
+        return r
+    fig = Figure(figsize=(opt.width_in, opt.width_in * 0.45), layout="constrained")
+    ax_map, ax_s, ax_t = fig.subplots(1, 3, gridspec_kw={"width_ratios": [1.1, 1, 1]})
+    sp_all = np.concatenate([ds["practical_salinity"].values.astype(float) for _, ds in recs])
+    fin = sp_all[np.isfinite(sp_all)]
+    vmin, vmax = (np.percentile(fin, [2, 98]) if fin.size else (0.0, 1.0))
+    sc = None
+    for rec, ds in recs:
+        lon, lat = ds["lon"].values.astype(float), ds["lat"].values.astype(float)
+        sp = ds["practical_salinity"].values.astype(float)
+        t = pd.to_datetime(ds["time"].values)
+        name = str(rec.get("record_id", ""))
+        ax_map.plot(lon, lat, color="0.7", lw=0.8, zorder=1)
+        ok = np.isfinite(sp) & np.isfinite(lon) & np.isfinite(lat)
+        sc = ax_map.scatter(lon[ok], lat[ok], c=sp[ok], s=6, cmap=CMAPS["salt"], vmin=vmin, vmax=vmax, zorder=2)
+        ax_map.plot(lon[np.isfinite(lon)][:1], lat[np.isfinite(lat)][:1], "k^", ms=5, zorder=3)
+        ax_s.plot(t, sp, lw=0.8, marker=".", ms=2, label=name)
+        if "temperature_its90_degc" in ds:
+            ax_t.plot(t, ds["temperature_its90_degc"].values.astype(float), lw=0.8, marker=".", ms=2, label=name)
+    if sc is not None:
+        fig.colorbar(sc, ax=ax_map, label="practical salinity", shrink=0.8)
+    lat_all = np.concatenate([ds["lat"].values.astype(float) for _, ds in recs])
+    if np.isfinite(lat_all).any():  # metres the same both ways on the map
+        ax_map.set_aspect(1.0 / max(np.cos(np.radians(float(np.nanmean(lat_all)))), 0.05), adjustable="datalim")
+    ax_map.ticklabel_format(useOffset=False)
+    ax_map.tick_params(axis="x", labelrotation=30, labelsize=7)
+    ax_map.set_xlabel("longitude (°E)")
+    ax_map.set_ylabel("latitude (°N)")
+    ax_map.set_title("(a) track (▲ start)", fontsize=9)
+    ax_s.set_ylabel("practical salinity (PSS-78)")
+    ax_s.set_title("(b) salinity", fontsize=9)
+    ax_t.set_ylabel("temperature (°C, ITS-90)")
+    ax_t.set_title("(c) temperature", fontsize=9)
+    for ax in (ax_map, ax_s, ax_t):
+        ax.grid(alpha=0.3)
+    for ax in (ax_s, ax_t):
+        ax.set_xlabel("time (UTC)")
+        ax.tick_params(axis="x", labelrotation=30, labelsize=7)
+    if len(recs) > 1:
+        ax_s.legend(fontsize=7)
+    km = sum(float(rec.get("track_length_km") or 0.0) for rec, _ in recs)
+    r.caption += f" {len(recs)} record(s), {km:.2f} km of track."
     return _render(r, fig, opt)

@@ -737,17 +737,27 @@ FIGURES: tuple[Callable[[DiveProducts, FigureOptions], FigureResult], ...] = (
 )
 
 
-def all_figures() -> tuple[Callable[[DiveProducts, FigureOptions], FigureResult], ...]:
+def all_figures(dp: DiveProducts | None = None) -> tuple[Callable[[DiveProducts, FigureOptions], FigureResult], ...]:
     """The report's figures in order: :data:`FIGURES` with the geographic overview first, the T-S/θ/N² figure
-    after the CTD profiles and the residual panel in place of the plain matched-depth figure."""
-    from hadal.report.ctd_figures import fig_water_column
+    after the CTD profiles (then, when ``dp`` has underway records or is not given, their track/section figure)
+    and the residual panel in place of the plain matched-depth figure."""
+    from hadal.report.ctd_figures import fig_underway, fig_water_column
     from hadal.report.geo_figures import fig_overview, fig_residuals
 
     out: list[Callable[[DiveProducts, FigureOptions], FigureResult]] = [fig_overview]
+    # a dive whose only CTD record is underway has a trajectory instead of ctd/profile: no cast figures for it
+    underway_only = dp is not None and bool(dp.trajectories) and "ctd" not in dp.versions
+    cast_figures = (fig_depth_time, fig_ctd_profiles, fig_seafloor_depth)
     for fn in FIGURES:
+        if underway_only and fn in cast_figures:
+            if fn is fig_ctd_profiles:
+                out.append(fig_underway)
+            continue
         out.append(fig_residuals if fn is fig_matched_depth else fn)
         if fn is fig_ctd_profiles:
             out.append(fig_water_column)
+            if dp is None or dp.trajectories:
+                out.append(fig_underway)
     return tuple(out)
 
 
@@ -768,6 +778,6 @@ def make_figures(dp: DiveProducts, opt: FigureOptions | None = None) -> list[Fig
     opt = opt or FigureOptions()
     with ForkPool(1 if opt.keep_figure else opt.workers) as pool:
         products = pool.share(dp)  # every figure reads them: sent to a helper process once
-        for fn in all_figures():
+        for fn in all_figures(dp):
             pool.submit(_figure_or_skip, fn, products, opt)
         return pool.results()

@@ -181,6 +181,11 @@ def render_html(dp: DiveProducts, summary: Mapping[str, Any], figures: list[Figu
     if summary.get("casts"):
         parts.append("<h2>Other casts of this dive</h2>")
         parts.append(_records_table(summary["casts"]))
+    if summary.get("underway"):
+        parts.append("<h2>Underway records (thermosalinograph trajectories)</h2>")
+        parts.append("<p class='muted'>published as derive's trajectory product (CF trajectory, the records' own "
+                     "per-scan positions), not as casts</p>")
+        parts.append(_records_table(summary["underway"]))
     if summary.get("qc_flags"):
         parts.append("<h2>Quality flags (QARTOD) of the CTD product</h2>")
         parts.append("<p class='muted'>1 good, 2 not evaluated, 3 suspect, 4 fail, 9 missing; derived variables "

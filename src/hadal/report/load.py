@@ -31,7 +31,7 @@ REPORT_INPUTS: tuple[tuple[str, str], ...] = (
 )
 #: products made only when the data calls for them (external Sea-Bird casts): read when present, never "missing"
 REPORT_OPTIONAL: tuple[tuple[str, str], ...] = (("casts", "ingest"), ("cast_profiles", "derive"),
-                                                ("navigation", "match"))
+                                                ("navigation", "match"), ("trajectory", "derive"))
 
 
 @dataclass
@@ -63,6 +63,8 @@ class DiveProducts:
     laser_info: list[dict[str, Any]] = field(default_factory=list)
     #: the sensor channels ingest found dead (all fill values / out of range): variable -> reason, flag, source
     dead_channels: dict[str, Any] = field(default_factory=dict)
+    #: underway records (derive's ``trajectory``): (trajectory.json entry, its CF trajectory dataset)
+    trajectories: list[tuple[dict[str, Any], xr.Dataset]] = field(default_factory=list)
 
     @property
     def missing(self) -> list[str]:
@@ -277,6 +279,13 @@ def load_products(store: ProductStore, dive: str, skipped_stages: set[str] | Non
         listed = (_read_json(versions["casts"], "casts.json", dp) or {}) if "casts" in versions else {}
         info = {c.get("cast_id"): c for c in listed.get("casts", []) if isinstance(c, dict)}
         dp.casts = [{**info.get(c.get("cast_id"), {}), **c} for c in derived.get("casts", []) if isinstance(c, dict)]
+    if "trajectory" in versions:
+        index = _read_json(versions["trajectory"], "trajectory.json", dp) or {}
+        for rec in index.get("records", []):
+            if isinstance(rec, dict) and isinstance(rec.get("file"), str):
+                ds = _read_netcdf(versions["trajectory"], rec["file"], dp)
+                if ds is not None:
+                    dp.trajectories.append((rec, ds))
     if "landing" in versions:
         pv = versions["landing"]
         dp.landing_sites = _read_parquet(pv, "landing_sites.parquet", dp)

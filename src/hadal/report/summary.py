@@ -124,6 +124,14 @@ def _casts_summary(s: dict[str, Any], dp: DiveProducts) -> None:
                        "max_depth_m": _f((c.get("deepest_point") or {}).get("depth_m")),
                        "max_pressure_dbar": _f((c.get("deepest_point") or {}).get("pressure_dbar")),
                        "latitude_source": c.get("latitude_source")} for c in dp.casts]
+    # ---- underway records (trajectories: thermosalinographs)
+    if dp.trajectories:
+        s["underway"] = [{"record": r.get("record_id"), "instrument": r.get("instrument"), "scans": r.get("scans"),
+                          "start_utc": r.get("time_coverage_start"), "end_utc": r.get("time_coverage_end"),
+                          "track_length_km": _f(r.get("track_length_km")),
+                          "latitude_range_deg": r.get("latitude_range_deg"),
+                          "longitude_range_deg": r.get("longitude_range_deg"),
+                          "practical_salinity_range": r.get("practical_salinity_range")} for r, _ in dp.trajectories]
 
 
 def _dtm_summary(s: dict[str, Any], dp: DiveProducts) -> None:

@@ -16,7 +16,13 @@ CTD time base) and computes, per sample:
   ``seafloor_depth_m`` = depth + corrected altitude (Fig. 10); ``phase`` (descent/bottom/ascent).
 
 Publishes ``ctd`` (``ctd.parquet``) and ``profile`` (``profile.nc``, descent and ascent casts binned by pressure,
-or by depth with ``profile_axis: depth``).
+or by depth with ``profile_axis: depth``; a cast SeaSoft's BinAvg already binned keeps its own bins and only the
+casts it holds: :func:`hadal.profile.prebinned_profile`, ``profile_source_bins``).
+
+Underway records (a ``sources.cnv`` entry with ``kind: underway``: a thermosalinograph, :mod:`hadal.ctd.underway`)
+are not casts: each is published in ``trajectory`` (one CF trajectory NetCDF per record, positions from the
+record's own per-scan latitude/longitude channels, :func:`underway_table`), never binned by depth; when such a
+record is the dive's sensor record, derive publishes ``trajectory`` instead of ``ctd``/``profile``.
 
 A record that does not start at the surface gets the water above from :func:`hadal.depth.overlying_column`: a
 user profile (``overlying_profile``, a CSV or Sea-Bird file read by :func:`hadal.depth.read_overlying_profile`),
@@ -49,9 +55,11 @@ WARM_IMPORTS = (
     "hadal.ctd.chain", "hadal.ctd.teos10", "hadal.depth", "hadal.seawater", "hadal.profile", "hadal.qc_derived",
     "hadal.ingest.cnv", "hadal.products.io", "hadal.products.navigation", "hadal.products.registry",
 )
-PRODUCTS = ("ctd", "profile", "cast_profiles")
+PRODUCTS = ("ctd", "profile", "cast_profiles", "trajectory")
 UPSTREAM = ("sensors",)
-INPUTS = StageInputs(upstream=("sensors",), optional_upstream=("casts",), optional_products=("cast_profiles",))
+#: ``trajectory`` (underway records) is promised by :func:`planned_products` when dive.yaml lists one
+INPUTS = StageInputs(upstream=("sensors",), optional_upstream=("casts",),
+                     optional_products=("cast_profiles", "trajectory"))
 
 REQUIRED_COLUMNS = ("time", "conductivity_s_m", "temperature_its90_degc")
 
@@ -172,6 +180,10 @@ class Params(BaseModel):
     loop_edit_min_soak_depth_m: float = Field(5.0, ge=0, le=1000, description="LoopEdit minimum soak depth (m, 0-1000)")
     loop_edit_max_soak_depth_m: float = Field(20.0, ge=0, le=1000, description="LoopEdit maximum soak depth (m, 0-1000)")
     loop_edit_deck_pressure_offset: bool = Field(True, description="LoopEdit soak depths relative to the first scan")
+    profile_source_bins: Literal["keep", "rebin"] = Field(
+        "keep", description="a cast SeaSoft's BinAvg already binned by pressure or depth (header binavg_bintype/"
+                            "binavg_binsize or '# interval = decibars: N'): keep its own bins in profile.nc (one "
+                            "level per row, casts split at the deepest row) or rebin it like any record")
     profile_binning: Literal["floor", "seabird"] = Field(
         "floor", description="profile.nc bins: floor ([k, k+1) x bin, by phase) or seabird (BinAvg: centred on "
                              "k x bin, split at the deepest scan)")
@@ -283,11 +295,12 @@ def profile_axis_text(p: Params) -> str:
     return f"{p.profile_bin_m:g} m depth" if p.profile_axis == "depth" else f"{p.profile_bin_dbar:g} dbar pressure"
 
 
-def _checked_samples(sensors: pd.DataFrame, p: Params, memory_limit_bytes: float | None
-                     ) -> tuple[pd.DataFrame, bool, np.ndarray]:
+def _checked_samples(sensors: pd.DataFrame, p: Params, memory_limit_bytes: float | None,
+                     keep_file_order: bool = False) -> tuple[pd.DataFrame, bool, np.ndarray]:
     """The sensors table checked (required columns, memory of the profile), in time order (a pressure-binned
-    cast without times: in pressure order) with repeated times dropped; returns it, whether it has no time
-    base and the dropped rows' mask."""
+    cast without times: in pressure order, unless ``keep_file_order``: a SeaSoft-binned cast's rows are its
+    descent then its ascent) with repeated times dropped; returns it, whether it has no time base and the
+    dropped rows' mask."""
     import numpy as np
     import pandas as pd
 
@@ -304,7 +317,7 @@ def _checked_samples(sensors: pd.DataFrame, p: Params, memory_limit_bytes: float
     no_time = bool(df["time"].isna().all())  # a pressure-binned cast: rows in pressure order, no times
     if no_time:
         pr = pd.to_numeric(df.get("pressure_ctd_dbar", df.get("pressure_gauge_dbar")), errors="coerce")
-        if not (pr.dropna().is_monotonic_increasing or pr.dropna().is_monotonic_decreasing):
+        if not (keep_file_order or pr.dropna().is_monotonic_increasing or pr.dropna().is_monotonic_decreasing):
             df = df.iloc[np.argsort(pr.to_numpy(), kind="stable")].reset_index(drop=True)
         dup = np.zeros(len(df), dtype=bool)
     else:
@@ -449,15 +462,21 @@ def _standard_ocean_depth(pres: np.ndarray, latitude_deg: float) -> tuple[np.nda
     return depth, OverlyingColumn(float(pres[i0]), float(depth[i0]), "standard ocean (TEOS-10)", err, note)
 
 
-def _phases(df: pd.DataFrame, p: Params, pres: np.ndarray, depth: np.ndarray, no_time: bool) -> None:
-    """``phase``: descent/bottom/ascent from the depth record; a binned cast is one profile (descent when pressure
-    increases down the file, else ascent)."""
+def _phases(df: pd.DataFrame, p: Params, pres: np.ndarray, depth: np.ndarray, no_time: bool,
+            prebinned: bool = False) -> None:
+    """``phase``: descent/bottom/ascent from the depth record; a cast SeaSoft already binned: its casts in file
+    order (:func:`hadal.profile.prebinned_phases`); else a record without time is one profile (descent when
+    pressure increases down the file, else ascent)."""
     import numpy as np
     import pandas as pd
 
     from hadal.depth import segment_phases
 
-    if no_time:
+    if prebinned:
+        from hadal.profile import prebinned_phases
+
+        phase = prebinned_phases(pres)
+    elif no_time:
         fin = pres[np.isfinite(pres)]
         phase = np.full(len(df), "descent" if fin.size < 2 or fin[-1] >= fin[0] else "ascent", dtype=object)
     else:
@@ -549,8 +568,11 @@ def flag_false_echoes(df: pd.DataFrame, depth_m: np.ndarray, acc: list[int]) -> 
 def derive_ctd(sensors: pd.DataFrame, latitude_deg: float, longitude_deg: float, p: Params,
                frame: Any = None, launch_xy: tuple[float, float] = (0.0, 0.0), *,
                memory_limit_bytes: float | None = None, overlying_profile: Any = None,
-               vertical_cast: bool = False) -> tuple[pd.DataFrame, dict]:
+               vertical_cast: bool = False, prebinned: bool = False) -> tuple[pd.DataFrame, dict]:
     """Pure science of the stage: the ``ctd`` table and its metadata from a ``sensors`` table.
+
+    ``prebinned``: the table is a cast SeaSoft's BinAvg already binned (one row per bin; its descent and ascent
+    are the rows up to and after the deepest, :func:`hadal.profile.prebinned_phases`).
 
     ``frame`` (a :class:`hadal.geo.LocalFrame`) and ``launch_xy`` (the launch point in it) turn the
     dead-reckoned offsets of the deepest point into longitude/latitude when given. ``overlying_profile`` (a
@@ -565,7 +587,7 @@ def derive_ctd(sensors: pd.DataFrame, latitude_deg: float, longitude_deg: float,
     from hadal.qc_derived import apply_to_table as apply_derived_qc
     from hadal.qc_derived import load_qc_config
 
-    df, no_time, dup = _checked_samples(sensors, p, memory_limit_bytes)
+    df, no_time, dup = _checked_samples(sensors, p, memory_limit_bytes, keep_file_order=prebinned)
     acc = list(p.accept_flags)
     # --- Sea-Bird processing chain on the raw channels (hadal.ctd.chain; every step off unless enabled)
     interval_s, ctd_steps = apply_channel_steps(df, p, no_time)
@@ -577,7 +599,7 @@ def derive_ctd(sensors: pd.DataFrame, latitude_deg: float, longitude_deg: float,
         df["loop_edit_bad"] = loop_bad
     if loop_step is not None:
         ctd_steps.append(loop_step)
-    _phases(df, p, pres, depth, no_time)  # needed for the descent profile of the TEOS-10 cross-check
+    _phases(df, p, pres, depth, no_time, prebinned)  # needed for the descent profile of the TEOS-10 cross-check
     teos_note = _teos10_depth(df, p, pres, temp, latitude_deg, longitude_deg)
     echoes = flag_false_echoes(df, depth, acc) if vertical_cast else None
     _altitude_seafloor(df, p, acc, pres, sp, temp, rho, depth, latitude_deg)
@@ -753,14 +775,17 @@ def derive_table(table: pd.DataFrame, sensors_meta: dict[str, Any], p: Params, d
     import numpy as np
 
     from hadal.ingest.cnv import NO_TIME_BASE
-    from hadal.profile import N_SQUARED, make_profile, n_squared_per_sample
+    from hadal.profile import N_SQUARED, make_profile, n_squared_per_sample, prebinned_profile, source_bins
     from hadal.qc_derived import load_qc_config, qc_profile
 
     pos = choose_position(p, dive, sensors_meta, header_first=external_cast)
     frame, launch_xy = (None, (0.0, 0.0)) if external_cast else _frame(dive)
+    # a cast SeaSoft already binned keeps its own bins (derive.profile_source_bins)
+    bins = source_bins(sensors_meta.get("cast")) if p.profile_source_bins == "keep" else None
     df, meta = derive_ctd(table, pos["latitude_deg"], pos["longitude_deg"], p, frame=frame, launch_xy=launch_xy,
                           memory_limit_bytes=memory_limit_bytes, overlying_profile=overlying_profile,
-                          vertical_cast=external_cast or sensors_meta.get("source_kind") == "cnv")
+                          vertical_cast=external_cast or sensors_meta.get("source_kind") == "cnv",
+                          prebinned=bins is not None)
     meta.update({k: pos[k] for k in ("latitude_source", "longitude_source")})
     if (meta.get("altimeter_false_echoes") or {}).get("readings_flagged"):
         fe = meta["altimeter_false_echoes"]
@@ -794,10 +819,30 @@ def derive_table(table: pd.DataFrame, sensors_meta: dict[str, Any], p: Params, d
     binned = df.assign(**masked)
     if "loop_edit_bad" in binned:  # LoopEdit's bad scans take no part in the bins (as in SeaSoft's BinAvg)
         binned = binned.loc[~binned["loop_edit_bad"].to_numpy(bool)]
-    prof = make_profile(binned, profile_bin_size(p), binning=p.profile_binning, latitude_deg=meta["latitude_deg"],
-                        axis=p.profile_axis)
-    meta["profile_axis"] = {"axis": p.profile_axis, "bin_size": profile_bin_size(p),
-                            "units": "m" if p.profile_axis == "depth" else "dbar", "binning": p.profile_binning}
+    if bins is not None:
+        bin_column = None
+        if bins["axis"] == "depth":  # SeaSoft's depth bins are of its depSM: Fofonoff-Millard at its latitude
+            from hadal.seawater import depth_fofonoff_millard
+
+            chan_lat = [v for v in ((sensors_meta.get("cast") or {}).get("channel_latitude_deg") or {}).values()
+                        if v is not None]
+            lat_bins = float(chan_lat[0]) if chan_lat else meta["latitude_deg"]
+            binned = binned.assign(_seasoft_depth_m=depth_fofonoff_millard(
+                binned["pressure_dbar"].to_numpy(np.float64), lat_bins))
+            bin_column = "_seasoft_depth_m"
+            bins = {**bins, "source": f"{bins['source']}; rows placed by their Fofonoff-Millard depth at "
+                                      f"{lat_bins:g} deg (SeaSoft's depSM)"}
+        prof = prebinned_profile(binned, bins, latitude_deg=meta["latitude_deg"], bin_column=bin_column)
+        meta["profile_axis"] = {"axis": bins["axis"], "bin_size": bins["bin_size"], "units": bins["units"],
+                                "binning": "source", "source_bins": bins["source"]}
+        log.info("derive: %s: binned by SeaSoft BinAvg (%s): its own %d bins kept, casts %s", what,
+                 bins["source"], int(prof.sizes["depth_m" if bins["axis"] == "depth" else "pressure_dbar"]),
+                 ", ".join(map(str, prof["cast"].values)))
+    else:
+        prof = make_profile(binned, profile_bin_size(p), binning=p.profile_binning,
+                            latitude_deg=meta["latitude_deg"], axis=p.profile_axis)
+        meta["profile_axis"] = {"axis": p.profile_axis, "bin_size": profile_bin_size(p),
+                                "units": "m" if p.profile_axis == "depth" else "dbar", "binning": p.profile_binning}
     if "qc_derived" in meta:
         meta["qc_derived"]["profile"] = qc_profile(prof, load_qc_config(p.qc_thresholds))
         if "depth_m_qc" in prof and "depth_m" in prof.dims:  # the depth axis: bin centres are not checked
@@ -856,10 +901,12 @@ def _read_user_profile(ctx: StageContext, p: Params) -> Any:
     return read_overlying_profile(overlying_profile_path(p, ctx.raw_dir), surface_dbar=p.surface_start_dbar)
 
 
-def _derive_external_casts(ctx: StageContext, p: Params, sensors_meta: dict[str, Any], limit: float | None
+def _derive_external_casts(ctx: StageContext, p: Params, sensors_meta: dict[str, Any], limit: float | None,
+                           underway: list[tuple[str, pd.DataFrame, dict[str, Any], Path]] | None = None
                            ) -> tuple[Any, list[tuple[str, pd.DataFrame, dict[str, Any], Any]]]:
     """External casts ingested next to the vehicle logs ('casts' of the same ingest run), derived each:
-    the ``casts`` version read and (cast id, ctd table, metadata, profile) per cast."""
+    the ``casts`` version read and (cast id, ctd table, metadata, profile) per cast. An underway record among
+    them (:func:`underway_source`) is not a cast: it goes to ``underway`` as (id, table, metadata, raw path)."""
     casts_pv = None
     cast_results: list[tuple[str, pd.DataFrame, dict[str, Any], Any]] = []
     listed = [c["cast_id"] for c in sensors_meta.get("external_casts") or []]
@@ -870,6 +917,10 @@ def _derive_external_casts(ctx: StageContext, p: Params, sensors_meta: dict[str,
             ctab, cmeta, _ = _read_table(cpath, "cast")
             cmeta = {**cmeta, "cast_latitude_deg": (cmeta.get("cast") or {}).get("latitude_deg"),
                      "cast_longitude_deg": (cmeta.get("cast") or {}).get("longitude_deg")}
+            raw = underway_source(ctx, cmeta, ctab, f"cast {cid}")
+            if raw is not None and underway is not None:
+                underway.append((cid.replace("cast", "underway", 1), ctab, cmeta, raw))
+                continue
             try:
                 cdf, cm, cprof = derive_table(ctab, cmeta, p, ctx.dive, ctx.log, f"cast {cid}",
                                               external_cast=True, memory_limit_bytes=limit)
@@ -924,12 +975,39 @@ def _ctd_summary(meta: dict[str, Any]) -> dict[str, Any]:
     return summary
 
 
-def _profile_summary(p: Params, profile: Any, is_prof: bool) -> str:
+def _source_binned(meta: dict[str, Any]) -> dict[str, Any] | None:
+    """The profile's axis record when the cast kept SeaSoft's own bins (``binning: source``), else ``None``."""
+    ax = meta.get("profile_axis") or {}
+    return ax if ax.get("binning") == "source" else None
+
+
+def _bins_text(p: Params, meta: dict[str, Any]) -> str:
+    """The bins of a profile in words: the configured ones, or a SeaSoft-binned cast's own."""
+    ax = _source_binned(meta)
+    if ax is None:
+        return f"Means in {profile_axis_text(p)} bins"
+    return (f"The source file's own {ax['bin_size']:g} {ax['units']} {ax['axis']} bins (binned by SeaSoft BinAvg, "
+            f"not re-binned; {ax['source_bins']})")
+
+
+def _title_axis(p: Params, meta: dict[str, Any]) -> str:
+    ax = _source_binned(meta)
+    return _axis_title(p) if ax is None else ("Depth-binned" if ax["axis"] == "depth" else "Pressure-binned")
+
+
+def _is_depth_axis(p: Params, meta: dict[str, Any]) -> bool:
+    ax = _source_binned(meta)
+    return p.profile_axis == "depth" if ax is None else ax["axis"] == "depth"
+
+
+def _profile_summary(p: Params, profile: Any, is_prof: bool, meta: dict[str, Any] | None = None) -> str:
     """The ``summary`` attribute of ``profile.nc``."""
-    return (f"Means in {profile_axis_text(p)} bins of the dive's CTD samples, separately for "
-            "the descent and ascent casts: temperature, conductivity, PSS-78 salinity, EOS-80 density, "
+    meta = meta or {}
+    casts = " and ".join(str(c) for c in profile["cast"].values) if _source_binned(meta) else "descent and ascent"
+    return (f"{_bins_text(p, meta)} of the dive's CTD samples, separately for "
+            f"the {casts} casts: temperature, conductivity, PSS-78 salinity, EOS-80 density, "
             "gravity, Chen-Millero sound speed, and "
-            + ("hydrostatic / Fofonoff-Millard / TEOS-10 depths." if p.profile_axis == "pressure" else
+            + ("hydrostatic / Fofonoff-Millard / TEOS-10 depths." if not _is_depth_axis(p, meta) else
                "pressure and Fofonoff-Millard / TEOS-10 depths; the depth axis is the hydrostatic depth "
                "(depth_m, Eqs. 11-12).")
             + ((" The cast has no time channel (pressure-binned): its time is the header start time."
@@ -946,16 +1024,20 @@ def _publish_profile(ctx: StageContext, p: Params, params: dict, upstream: list,
 
     is_prof = meta.get("time_base") == NO_TIME_BASE
     _profile_attrs(profile, meta)
-    zdim = "depth_m" if p.profile_axis == "depth" else "pressure_dbar"
-    psummary = {"bin_dbar": p.profile_bin_dbar, "levels": int(profile.sizes[zdim])}
+    zdim = "depth_m" if _is_depth_axis(p, meta) else "pressure_dbar"
+    psummary: dict[str, Any] = {"bin_dbar": p.profile_bin_dbar, "levels": int(profile.sizes[zdim])}
     if p.profile_axis == "depth":  # the pressure-axis summary stays as it was
         psummary = {"axis": "depth", "bin_m": p.profile_bin_m, "levels": int(profile.sizes[zdim])}
+    if (ax := _source_binned(meta)) is not None:  # a SeaSoft-binned cast: its own bins
+        psummary = {"axis": ax["axis"], ("bin_m" if ax["axis"] == "depth" else "bin_dbar"): ax["bin_size"],
+                    "levels": int(profile.sizes[zdim]), "binning": "source", "source_bins": ax["source_bins"],
+                    "casts": [str(c) for c in profile["cast"].values]}
     with ctx.store.publish(ctx.dive_id, "profile", parameters=params, upstream=upstream,
                            extra={"summary": psummary}) as draft:
         write_netcdf(
             profile, draft.path / "profile.nc",
-            title=f"{_axis_title(p)} CTD profiles (descent and ascent) of dive {ctx.dive_id}",
-            summary=_profile_summary(p, profile, is_prof),
+            title=f"{_title_axis(p, meta)} CTD profiles (descent and ascent) of dive {ctx.dive_id}",
+            summary=_profile_summary(p, profile, is_prof, meta),
             keywords="CTD, salinity, density, depth, pressure, profile",
             processing_level="L2 binned profile", provenance_from=draft,
             dive_id=ctx.dive_id, latitude_used_deg=meta["latitude_deg"], latitude_source=meta["latitude_source"],
@@ -977,10 +1059,10 @@ def _publish_cast_profiles(ctx: StageContext, p: Params, params: dict, upstream:
             write_parquet(cdf, draft.path / f"{cid}.parquet", fields=fields, metadata=cm, provenance_from=draft)
             _profile_attrs(cprof, cm)
             write_netcdf(cprof, draft.path / f"{cid}.nc",
-                         title=f"{_axis_title(p)} CTD profile of cast {cid} (dive {ctx.dive_id})",
-                         summary=(f"Means in {profile_axis_text(p)} bins of an external Sea-Bird "
+                         title=f"{_title_axis(p, cm)} CTD profile of cast {cid} (dive {ctx.dive_id})",
+                         summary=(f"{_bins_text(p, cm)} of an external Sea-Bird "
                                   "cast of the dive: temperature, conductivity, PSS-78 salinity, EOS-80 density, "
-                                  "gravity, sound speed and " + ("depths." if p.profile_axis == "pressure"
+                                  "gravity, sound speed and " + ("depths." if not _is_depth_axis(p, cm)
                                                                  else "pressure and depths.")),
                          keywords="CTD, salinity, density, depth, pressure, profile",
                          processing_level="L2 binned profile", provenance_from=draft, dive_id=ctx.dive_id,
@@ -990,7 +1072,8 @@ def _publish_cast_profiles(ctx: StageContext, p: Params, params: dict, upstream:
                           "samples": int(len(cdf)), "time_base": cm.get("time_base", "time"),
                           "latitude_deg": cm["latitude_deg"], "latitude_source": cm["latitude_source"],
                           "latitude_warning": cm.get("latitude_warning"),
-                          "deepest_point": cm["deepest_point"]})
+                          "deepest_point": cm["deepest_point"],
+                          **({"bins": cm["profile_axis"]} if _source_binned(cm) else {})})
         (draft.path / "cast_profiles.json").write_text(json.dumps(json_clean({"casts": index}), indent=2),
                                                        encoding="utf-8")
     return draft.result, index
@@ -1004,6 +1087,9 @@ def run(ctx: StageContext) -> dict[str, ProductVersion]:
     sensors = ctx.upstream("sensors")
     path = sensors.file("sensors.parquet")
     table, sensors_meta, sensor_fields = _read_table(path, "sensors")
+    raw = underway_source(ctx, sensors_meta, table, f"dive {ctx.dive_id}")
+    if raw is not None:  # an underway record (thermosalinograph): a trajectory, no ctd/profile
+        return _run_underway(ctx, p, limit, sensors, table, sensors_meta, sensor_fields, raw)
     user_profile = _read_user_profile(ctx, p)
     try:
         df, meta, profile = derive_table(table, sensors_meta, p, ctx.dive, ctx.log, f"dive {ctx.dive_id}",
@@ -1013,7 +1099,8 @@ def run(ctx: StageContext) -> dict[str, ProductVersion]:
             raise
         raise InputError(f"{path}: {exc}") from None
     meta["dive_id"] = ctx.dive_id
-    casts_pv, cast_results = _derive_external_casts(ctx, p, sensors_meta, limit)
+    underway: list[tuple[str, pd.DataFrame, dict[str, Any], Path]] = []
+    casts_pv, cast_results = _derive_external_casts(ctx, p, sensors_meta, limit, underway)
     _log_dive(ctx, df, meta, user_profile)
 
     fields = _ctd_fields(ctx, p, df, table, sensor_fields)
@@ -1027,6 +1114,8 @@ def run(ctx: StageContext) -> dict[str, ProductVersion]:
         out["cast_profiles"], index = _publish_cast_profiles(ctx, p, params, [sensors, casts_pv], cast_results,
                                                              fields)
         ctx.log.info("derive: %d external cast(s) derived into 'cast_profiles'", len(index))
+    if underway:
+        out["trajectory"] = _publish_trajectories(ctx, params, [sensors, casts_pv], underway)
     return out
 
 
@@ -1045,8 +1134,13 @@ def overlying_profile_path(p: Params, raw_dir: Any) -> Path:
 def raw_files(ctx: StageContext) -> list[Path]:
     """Raw files this stage reads besides its upstream products (for the cache fingerprint, tasks/stage.py):
     the overlying profile, when configured."""
+    from hadal.dive import resolve_source
+
     p: Params = ctx.config.derive
-    return [] if p.overlying_profile is None else [overlying_profile_path(p, ctx.raw_dir)]
+    files = [] if p.overlying_profile is None else [overlying_profile_path(p, ctx.raw_dir)]
+    # underway records: their per-scan positions are read from the raw file
+    files += [resolve_source(ctx.raw_dir, e) for e in ctx.dive.sources.files("cnv") if e.kind == "underway"]
+    return files
 
 
 def _cast_times(ds: Any, df: pd.DataFrame) -> None:
@@ -1128,3 +1222,287 @@ def _profile_attrs(ds: Any, meta: dict[str, Any]) -> None:
     # the profile's nominal position (the latitude used for gravity/depth, the launch longitude)
     ds.coords["lat"] = np.float64(meta["latitude_deg"])
     ds.coords["lon"] = np.float64(meta["longitude_deg"])
+
+
+# ------------------------------------------------------------------------------ underway records: trajectory
+def _cnv_entry(ctx: StageContext, source_path: str | None) -> tuple[Any, Path] | None:
+    """The ``sources.cnv`` entry of dive.yaml (and its resolved path) that a table was ingested from."""
+    from pathlib import Path
+
+    from hadal.dive import resolve_source
+    from hadal.errors import HadalError
+
+    if not source_path:
+        return None
+    want = Path(source_path)
+    entries = []
+    for e in ctx.dive.sources.files("cnv"):
+        try:
+            entries.append((e, resolve_source(ctx.raw_dir, e)))
+        except HadalError:
+            continue
+    for e, q in entries:
+        if q == want or q.resolve() == want.resolve():
+            return e, q
+    return next(((e, q) for e, q in entries if q.name == want.name), None)  # the raw directory was moved
+
+
+def _source_path(meta: dict[str, Any]) -> str | None:
+    """The raw file a one-record ``sensors``/``casts`` table came from (its header's ``source``)."""
+    cast = meta.get("cast") or {}
+    if cast.get("source"):
+        return str(cast["source"])
+    srcs = meta.get("sources") or []
+    return str(srcs[0].get("path")) if len(srcs) == 1 and isinstance(srcs[0], dict) else None
+
+
+def underway_source(ctx: StageContext, meta: dict[str, Any], table: pd.DataFrame, what: str) -> Path | None:
+    """The raw file of a ``sensors``/``casts`` table when dive.yaml says it is an underway record (``kind:
+    underway`` on its ``sources.cnv`` entry), else ``None``. Without ``kind``, a record whose pressure is
+    near-constant is checked against :func:`hadal.ctd.underway.underway_evidence` and, when it looks underway, a
+    warning says so (it is processed as a cast: the choice is dive.yaml's, written by ``hadal init``)."""
+    import numpy as np
+
+    from hadal.ctd.underway import MAX_PRESSURE_RANGE_DBAR
+
+    if meta.get("source_kind") not in (None, "cnv") or "cast" not in meta:
+        return None
+    found = _cnv_entry(ctx, _source_path(meta))
+    if found is None:
+        return None
+    entry, path = found
+    if entry.kind == "underway":
+        return path
+    if entry.kind is None and "pressure_ctd_dbar" in table:
+        pr = table["pressure_ctd_dbar"].to_numpy(np.float64)
+        pr = pr[np.isfinite(pr)]
+        if pr.size and float(pr.max() - pr.min()) <= MAX_PRESSURE_RANGE_DBAR:
+            ev = _evidence(path)
+            if ev is not None and ev.underway:
+                ctx.log.warning("derive: %s: %s looks like an underway record (%s) but dive.yaml gives it no "
+                                "'kind': processed as a cast; add 'kind: underway' to its sources.cnv entry (hadal "
+                                "init writes it) to publish it as a trajectory", what, entry.path, ev.reason)
+    return None
+
+
+def _evidence(path: Path) -> Any:
+    """:func:`hadal.ctd.underway.underway_evidence` of a raw Sea-Bird file (``None`` when it cannot be read)."""
+    import warnings
+
+    from hadal.ctd.underway import underway_evidence
+    from hadal.ingest.cnv import read_seabird
+
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # the ingest stage has already warned about the file
+            return underway_evidence(read_seabird(path))
+    except InputError:
+        return None
+
+
+def _record_id(k: int, path: Path) -> str:
+    import re
+
+    stem = path.name
+    for ext in (".gz", ".bz2", ".xz", ".cnv", ".hex", ".txt"):
+        if stem.lower().endswith(ext):
+            stem = stem[: -len(ext)]
+    stem = re.sub(r"[^A-Za-z0-9_-]+", "_", stem).strip("_") or "record"
+    return f"underway{k:02d}_{stem}"
+
+
+def underway_table(table: pd.DataFrame, raw_path: Path, p: Params) -> tuple[pd.DataFrame, dict[str, Any]]:
+    """The per-scan trajectory table of an underway record: the ingested (QC'd) samples in time order with the
+    file's own per-scan positions (:func:`hadal.ctd.underway.positions_at`, matched by time), temperature and
+    conductivity where their QC flags are accepted (``accept_flags``), the record's pressure (missing pressure:
+    0 dbar, the sea surface, counted in the metadata) and the derived columns of
+    :func:`hadal.ctd.underway.underway_columns`. A record without per-scan positions or times is a one-line
+    :class:`InputError`."""
+    import warnings
+
+    import numpy as np
+    import pandas as pd
+
+    from hadal.ctd.underway import (
+        distance_m,
+        positions_at,
+        scan_positions,
+        underway_columns,
+        underway_evidence,
+    )
+    from hadal.ingest.cnv import cnv_time_ns, read_seabird
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # the ingest stage has already warned about the file
+        raw = read_seabird(raw_path)
+    ev = underway_evidence(raw)
+    try:
+        lat, lon = scan_positions(raw)
+        scan_t, how = cnv_time_ns(raw)
+    except KeyError:
+        raise InputError(f"{raw_path}: dive.yaml says 'kind: underway' but the record has no per-scan "
+                         "latitude/longitude channels: a trajectory needs them (set kind: cast)") from None
+    df = table.copy()
+    df["time"] = pd.to_datetime(df["time"], utc=True)
+    if df["time"].isna().any():
+        raise InputError(f"{raw_path}: an underway record needs a time for every scan ({how})")
+    df = df.sort_values("time", kind="stable").drop_duplicates("time").reset_index(drop=True)
+    t_ns = df["time"].dt.tz_convert("UTC").dt.tz_localize(None).to_numpy("datetime64[ns]").astype(np.int64)
+    df["lat"], df["lon"] = positions_at(t_ns, scan_t, lat, lon)
+    acc = list(p.accept_flags)
+    out = pd.DataFrame({"time": df["time"], "lat": df["lat"], "lon": df["lon"]})
+    for c in ("temperature_its90_degc", "conductivity_s_m"):
+        out[c] = np.where(_flag_ok(df, c, acc), df[c].to_numpy(np.float64), np.nan)
+        if f"{c}_qc" in df:
+            out[f"{c}_qc"] = df[f"{c}_qc"].to_numpy()
+    pr = (np.where(_flag_ok(df, "pressure_ctd_dbar", acc), df["pressure_ctd_dbar"].to_numpy(np.float64), np.nan)
+          if "pressure_ctd_dbar" in df else np.full(len(df), np.nan))
+    n_surface = int((~np.isfinite(pr)).sum())
+    out["pressure_dbar"] = np.where(np.isfinite(pr), pr, 0.0)
+    for name, v in underway_columns(out["conductivity_s_m"].to_numpy(), out["temperature_its90_degc"].to_numpy(),
+                                    out["pressure_dbar"].to_numpy(), out["lat"].to_numpy(),
+                                    out["lon"].to_numpy()).items():
+        out[name] = v
+    ok = np.flatnonzero(np.isfinite(out["lat"].to_numpy()))
+    steps = (distance_m(out["lat"].to_numpy()[ok[:-1]], out["lon"].to_numpy()[ok[:-1]],
+                        out["lat"].to_numpy()[ok[1:]], out["lon"].to_numpy()[ok[1:]]) if ok.size > 1 else np.zeros(0))
+    sp = out["practical_salinity"].to_numpy()
+    meta = {"source": str(raw_path), "rule": ev.to_dict(), "time_base": how,
+            "positions": "the record's own per-scan latitude/longitude channels "
+                         f"({ev.latitude_channel}/{ev.longitude_channel}), matched to the samples by time",
+            "scans": int(len(out)), "scans_without_position": int(len(out) - ok.size),
+            "pressure_missing_set_to_surface": n_surface,
+            "track_length_km": round(float(steps.sum()) / 1000, 3),
+            "time_coverage_start": out["time"].iloc[0].isoformat() if len(out) else None,
+            "time_coverage_end": out["time"].iloc[-1].isoformat() if len(out) else None,
+            "latitude_range_deg": [float(np.nanmin(out["lat"])), float(np.nanmax(out["lat"]))] if ok.size else None,
+            "longitude_range_deg": [float(np.nanmin(out["lon"])), float(np.nanmax(out["lon"]))] if ok.size else None,
+            "practical_salinity_range": ([float(np.nanmin(sp)), float(np.nanmax(sp))]
+                                         if np.isfinite(sp).any() else None),
+            "salinity_method": "PSS-78 from the record's conductivity, temperature and pressure (hadal.seawater)"}
+    if ok.size == 0:
+        raise InputError(f"{raw_path}: no scan of the underway record has a valid per-scan position")
+    return out, meta
+
+
+#: long_name of the trajectory's variables (units and standard_name: the variable registry)
+_TRAJECTORY_LONG_NAMES: dict[str, str] = {
+    "temperature_its90_degc": "sea water temperature in the ship's seawater line (thermosalinograph, ITS-90)",
+    "conductivity_s_m": "sea water conductivity (thermosalinograph)",
+    "pressure_dbar": "sea water pressure of the record (its own channel; 0 dbar where it has none)",
+    "practical_salinity": "practical salinity (PSS-78)",
+    "density_kg_m3": "in situ density (EOS-80)",
+    "sound_speed_m_s": "sound speed (Chen-Millero)",
+    "absolute_salinity_g_kg": "Absolute Salinity (TEOS-10, gsw.SA_from_SP at the scan's position)",
+    "conservative_temperature_degc": "Conservative Temperature (TEOS-10, gsw.CT_from_t)",
+    "potential_temperature_degc": "potential temperature, 0 dbar (TEOS-10, gsw.pt0_from_t)",
+    "sigma0_kg_m3": "potential density anomaly, 0 dbar (TEOS-10, gsw.sigma0)",
+}
+
+
+def trajectory_dataset(df: pd.DataFrame, record_id: str) -> Any:
+    """An underway record as a CF-1.8 Discrete Sampling Geometry trajectory (contiguous ragged array, one
+    trajectory, as :func:`hadal.products.navigation.trajectory_dataset`): dimension ``obs`` with ``time``/``lat``/
+    ``lon`` coordinates (the file's own per-scan positions), ``trajectory(traj=1)`` with ``cf_role =
+    trajectory_id`` and ``row_size``, and per scan the measured and derived variables of :func:`underway_table`."""
+    import numpy as np
+    import pandas as pd
+    import xarray as xr
+
+    from hadal.products.registry import variable_attrs
+
+    obs = np.arange(len(df), dtype="i4")
+    t = pd.to_datetime(df["time"], utc=True).dt.tz_convert(None).to_numpy(dtype="datetime64[ns]")
+    coords = {
+        "time": ("obs", t, {"standard_name": "time", "long_name": "scan time (UTC)", "axis": "T"}),
+        "lat": ("obs", df["lat"].to_numpy(float), {"standard_name": "latitude", "units": "degrees_north",
+                                                   "axis": "Y", "long_name": "latitude of the scan (NMEA, the "
+                                                   "record's own per-scan channel)"}),
+        "lon": ("obs", df["lon"].to_numpy(float), {"standard_name": "longitude", "units": "degrees_east",
+                                                   "axis": "X", "long_name": "longitude of the scan (NMEA, the "
+                                                   "record's own per-scan channel)"}),
+        "obs": obs,
+    }
+    data: dict[str, Any] = {
+        "trajectory": (("traj",), np.array([record_id], dtype=object),
+                       {"cf_role": "trajectory_id", "long_name": "underway record id"}),
+        "row_size": (("traj",), np.array([len(obs)], dtype="i4"),
+                     {"sample_dimension": "obs", "long_name": "number of observations of the trajectory"}),
+    }
+    for c, long_name in _TRAJECTORY_LONG_NAMES.items():
+        if c in df:
+            attrs = {k: v for k, v in variable_attrs(c, where="trajectory").items()
+                     if k in ("standard_name", "units")}
+            data[c] = ("obs", df[c].to_numpy(float), {**attrs, "long_name": long_name})
+            if f"{c}_qc" in df:
+                data[f"{c}_qc"] = ("obs", df[f"{c}_qc"].to_numpy().astype("i1"), {})
+                data[c][2]["ancillary_variables"] = f"{c}_qc"
+    ds = xr.Dataset(data, coords=coords)
+    for n in ds.data_vars:
+        if ds[n].dims == ("obs",):
+            ds[n].attrs["coordinates"] = "time lat lon"
+    return ds
+
+
+def _publish_trajectories(ctx: StageContext, params: dict, upstream: list,
+                          records: list[tuple[str, pd.DataFrame, dict[str, Any], Path]]) -> Any:
+    """Publish ``trajectory``: per underway record ``<id>.nc`` (CF trajectory) and the ``trajectory.json`` index."""
+    from hadal.products.io import json_clean, write_netcdf
+
+    p: Params = ctx.config.derive
+    index = []
+    with ctx.store.publish(ctx.dive_id, "trajectory", parameters=params, upstream=[u for u in upstream if u],
+                           extra={"records": [r[0] for r in records]}) as draft:
+        for rid, table, tmeta, raw in records:
+            df, meta = underway_table(table, raw, p)
+            instrument = (tmeta.get("cast") or {}).get("instrument")
+            write_netcdf(trajectory_dataset(df, rid), draft.path / f"{rid}.nc",
+                         title=f"Underway thermosalinograph record {rid} (dive {ctx.dive_id})",
+                         summary=("An underway record (thermosalinograph in the ship's seawater line) as a CF "
+                                  "trajectory: for every scan its time, the record's own latitude and longitude, "
+                                  "temperature, conductivity, PSS-78 salinity, EOS-80 density, sound speed and "
+                                  "TEOS-10 variables; not binned by depth (its pressure is constant)."),
+                         keywords="thermosalinograph, underway, trajectory, salinity, temperature",
+                         featureType="trajectory", cdm_data_type="Trajectory", processing_level="L2 underway",
+                         provenance_from=draft, dive_id=ctx.dive_id, record_id=rid,
+                         source_file=raw.name, underway_rule=meta["rule"]["reason"],
+                         source_instrument=instrument or "")
+            ctx.log.info("derive: %s: underway record (%s): trajectory of %d scans, %.2f km, %s to %s", rid,
+                         meta["rule"]["reason"], meta["scans"], meta["track_length_km"],
+                         meta["time_coverage_start"], meta["time_coverage_end"])
+            index.append({"record_id": rid, "file": f"{rid}.nc", "instrument": instrument, **meta})
+        (draft.path / "trajectory.json").write_text(json.dumps(json_clean({"records": index}), indent=2),
+                                                    encoding="utf-8")
+    return draft.result
+
+
+def _run_underway(ctx: StageContext, p: Params, limit: float | None, sensors: Any, table: pd.DataFrame,
+                  sensors_meta: dict[str, Any], sensor_fields: dict[str, dict[str, str]], raw: Path
+                  ) -> dict[str, ProductVersion]:
+    """derive for a dive whose ``sensors`` is an underway record: ``trajectory`` (no ``ctd``/``profile``: nothing
+    vertical to derive or bin), and the external casts' ``cast_profiles`` as usual."""
+    underway: list[tuple[str, pd.DataFrame, dict[str, Any], Path]] = [(_record_id(0, raw), table, sensors_meta, raw)]
+    casts_pv, cast_results = _derive_external_casts(ctx, p, sensors_meta, limit, underway)
+    params = ctx.params("derive")
+    ctx.log.info("derive: dive %s: the sensor record %s is an underway record (dive.yaml kind: underway): "
+                 "published as a trajectory, no ctd/profile", ctx.dive_id, raw.name)
+    out = {"trajectory": _publish_trajectories(ctx, params, [sensors, casts_pv], underway)}
+    if cast_results:
+        fields = _ctd_fields(ctx, p, cast_results[0][1].copy(), table, sensor_fields)
+        out["cast_profiles"], index = _publish_cast_profiles(ctx, p, params, [sensors, casts_pv], cast_results,
+                                                             fields)
+        ctx.log.info("derive: %d external cast(s) derived into 'cast_profiles'", len(index))
+    return out
+
+
+def planned_products(dive: Any, made: tuple[str, ...]) -> tuple[str, ...]:
+    """What derive promises for ``dive`` (:func:`hadal.plan.plan_stages`): ``trajectory`` when a ``sources.cnv``
+    entry says ``kind: underway``; without ``ctd``/``profile`` when such a record is the dive's sensor record (no
+    MCAP/CSV log and no Sea-Bird cast: ingest takes casts before underway records)."""
+    entries = dive.sources.files("cnv")
+    if not any(e.kind == "underway" for e in entries):
+        return made
+    out = tuple(made) + (() if "trajectory" in made else ("trajectory",))
+    if not dive.sources.mcap and not dive.sources.csv and all(e.kind == "underway" for e in entries):
+        out = tuple(x for x in out if x not in ("ctd", "profile"))
+    return out

@@ -208,8 +208,33 @@ def _read_mcap(ctx: StageContext, p: Params, vehicle: VehicleConfig) -> _Read:
     return _Read(sensors, paths, mcap_reports, ignored)
 
 
+def _read_record(ctx: StageContext, path: Path, name: str) -> tuple[Any, dict[str, Any]]:
+    """One Sea-Bird record (:func:`hadal.ingest.build.read_cast`). An underway record (dive.yaml ``kind:
+    underway``: a thermosalinograph in the seawater line) may have no pressure channel: its pressure is then
+    0 dbar, the sea surface where the ship's seawater intake is (the metadata and a warning say so)."""
+    from hadal.dive import resolve_source
+    from hadal.ingest.build import cast_metadata, read_cast
+    from hadal.ingest.cnv import CNV_PRESSURE, cnv_sensor_samples, read_seabird
+
+    underway = any(e.kind == "underway" and resolve_source(ctx.raw_dir, e) == path for e in ctx.dive.sources.cnv)
+    if not underway:
+        return read_cast(path, name)
+    df = read_seabird(path)
+    if any(c in df.columns for c, _ in CNV_PRESSURE):
+        return read_cast(path, name)
+    df["prM"] = 0.0  # the seawater line is at the sea surface
+    s = cnv_sensor_samples(df, name, allow_no_time=True)
+    note = "underway record without a pressure channel: 0 dbar (the sea surface) assumed for every scan"
+    s.stats["pressure"] = note
+    s.stats["channels"]["pressure_ctd_dbar"] = "none (0 dbar assumed)"
+    warnings.warn(f"{path.name}: {note}", stacklevel=2)
+    meta = cast_metadata(df.attrs)
+    meta["pressure_assumed"] = note
+    return s, meta
+
+
 def _read_cnv(ctx: StageContext, p: Params, vehicle: VehicleConfig, cast_paths: list[Path]) -> _Read:
-    from hadal.ingest.build import read_cast, read_cnv_sensors
+    from hadal.ingest.build import read_cnv_sensors
 
     src = ctx.dive.sources
     if not cast_paths:
@@ -223,7 +248,7 @@ def _read_cnv(ctx: StageContext, p: Params, vehicle: VehicleConfig, cast_paths: 
                             "why": "ingest.source is 'cnv': the Sea-Bird cast makes sensors"})
     if p.merge_casts and len(cast_paths) > 1:
         return _Read(read_cnv_sensors(cast_paths, vehicle), cast_paths, ignored=ignored)
-    s0, cast_meta = read_cast(cast_paths[0], vehicle.time_base)
+    s0, cast_meta = _read_record(ctx, cast_paths[0], vehicle.time_base)
     return _Read({vehicle.time_base: s0}, cast_paths[:1], ignored=ignored, cast_meta=cast_meta)
 
 
@@ -264,13 +289,12 @@ def _sensor_table(ctx: StageContext, p: Params, vehicle: VehicleConfig, kind: st
 def _external_casts(ctx: StageContext, p: Params, vehicle: VehicleConfig, cast_paths: list[Path],
                     in_sensors: set[Path]) -> list[tuple[str, Path, pd.DataFrame, dict[str, Any]]]:
     """Every cast not used for sensors, ingested on its own (never silently ignored): (cast id, path, table, meta)."""
-    from hadal.ingest.build import read_cast
 
     external = []
     for k, q in enumerate(cast_paths):
         if q in in_sensors:
             continue
-        s_k, m_k = read_cast(q, vehicle.time_base)
+        s_k, m_k = _read_record(ctx, q, vehicle.time_base)
         t_k, tm_k = _cast_table(s_k, vehicle, p, _launch_ns(ctx))
         tm_k["cast"] = m_k
         _add_cast_notes(tm_k)
@@ -372,7 +396,9 @@ def run(ctx: StageContext) -> dict[str, ProductVersion]:
     vpath = _vehicle_path(ctx, p)
     vehicle = load_vehicle_config(vpath)
     kind = _source_kind(p, ctx.dive.sources)
-    cast_paths = [resolve_source(ctx.raw_dir, r) for r in ctx.dive.sources.cnv]
+    # an underway record (kind: underway, a thermosalinograph) makes sensors only when the dive has no cast
+    cnv_entries = sorted(ctx.dive.sources.cnv, key=lambda e: e.kind == "underway")
+    cast_paths = [resolve_source(ctx.raw_dir, r) for r in cnv_entries]
     for q in cast_paths:
         if not q.is_file():
             raise InputError(f"{q}: Sea-Bird cast listed in dive.yaml sources.cnv does not exist")
