@@ -572,6 +572,10 @@ def _csv_sources(csv_files: Mapping[str, str | Path], origin: tuple[float, float
             continue
         src = _Src("csv", key, str(p), {"field": d["time_column"], "format": d["time_format"]}, d["rate_hz"],
                    d["rows"], delimiter=d["delimiter"], label=label)
+        if d.get("glider"):
+            if _glider_source(src, d, origin, unmapped):
+                out.append(src)
+            continue
         leaves: dict[str, Any] = {}
         for c in d["columns"]:
             if c == d["time_column"]:
@@ -598,6 +602,43 @@ def _csv_sources(csv_files: Mapping[str, str | Path], origin: tuple[float, float
             continue
         out.append(src)
     return out
+
+
+_GLIDER_NAME = {"seaexplorer": "ALSEAMAR SeaExplorer", "slocum": "Teledyne Slocum dbd2asc"}
+
+
+def _glider_source(src: _Src, d: Mapping[str, Any], origin: tuple[float, float] | None,
+                   unmapped: list[dict[str, Any]]) -> bool:
+    """Candidates of a glider log by its kind's column conventions (:mod:`hadal.ingest.glider`; Slocum units from
+    the file's units line); ``False`` when none of its columns is a hadal variable."""
+    from hadal.ingest.glider import glider_fields
+
+    kind = d["glider"]
+    _, fields, skipped = glider_fields(kind, d["columns"], d.get("units") or {})
+    what = f"{_GLIDER_NAME[kind]} column"
+    for f in fields:
+        fm = _fm(f.field, f.units, f.transform)
+        if f.fill_values:
+            fm["fill_values"] = [float(v) for v in f.fill_values]
+        if f.transform and origin is not None:
+            fm["origin"] = [float(origin[0]), float(origin[1])]
+        src.cands.append(_Cand("csv", src.source, src.file, f.variable, fm, f.score,
+                               f"{what} {f.field if isinstance(f.field, str) else '/'.join(f.field)!r}: "
+                               f"{f.why.split(' ', 1)[1]}",
+                               False, src.count))
+    if src.cands and src.time["format"].startswith("%d"):
+        src.cands[0].checks.append(f"{src.label}: times read day first ({src.time['format']}), the {_GLIDER_NAME[kind]}"
+                                   " convention")
+    if src.cands and any(c.fm.get("transform", "").startswith("latlon_") for c in src.cands) and origin is None:
+        src.cands[0].checks.append(f"{src.label}: glider positions are metres from its first valid position; set "
+                                   "'origin: [lat, lon]' (or hadal init --launch) for another origin")
+    for name, reason in skipped:
+        unmapped.append({"source": src.source, "file": src.file, "field": name, "reason": reason})
+    if not src.cands:
+        unmapped.append({"source": src.source, "file": src.file, "field": None,
+                         "reason": f"{_GLIDER_NAME[kind]} log: no column recognised as a hadal variable (columns: "
+                                   f"{', '.join(d['columns'][:10])})"})
+    return bool(src.cands)
 
 
 def _resolve(srcs: list[_Src], unmapped: list[dict[str, Any]]) -> dict[str, dict[str, _Cand]]:
@@ -630,10 +671,10 @@ def _role(variables: set[str]) -> str:
         return "ctd"
     if "pressure_gauge_dbar" in variables:
         return "gauge"
-    if "altitude_m" in variables:
-        return "altimeter"
     att = bool(variables & {"heading_deg", "pitch_deg", "roll_deg"})
     pos = bool(variables & {"dr_east_m", "dr_north_m", "speed_m_s"})
+    if "altitude_m" in variables and not (att and pos):  # else a navigation board that logs the altimeter too
+        return "altimeter"
     if att and pos:
         return "navigation"
     if att:
