@@ -352,10 +352,23 @@ def read_sensor_csv(path: str | Path, mapping: CsvSource, sensor: str = "sensor"
         raise InputError(f"{path}: no usable rows (all {rows.n_rows} rows have an unparseable time or value"
                          + (f"; time column {mapping.time.field!r} {hint}" if hint else "") + ")")
     values, conversions = _mapped_values(path, mapping, rows, sensor)
+    times = rows.t_out.values()
+    n_not_updated = 0
+    if layout.dbd is not None:  # dbd2asc: NaN = not updated in that cycle; a row with none of ours is no sample
+        keep = np.zeros(times.shape, dtype=bool)
+        for v in values.values():
+            keep |= np.isfinite(v)
+        n_not_updated = int((~keep).sum())
+        if not keep.any():
+            raise InputError(f"{path}: no row holds a value of sensor {sensor!r} "
+                             f"({', '.join(fm.label() for fm in mapping.fields.values())})")
+        times, values = times[keep], {k: v[keep] for k, v in values.items()}
     stats = {"rows": int(n_lines - 1 - n_comment_text), "comment_lines": n_comment_text, "corrupt_rows": n_corrupt,
              "bad_times": rows.n_bad_time, "wrong_field_count": bad_shape, "rejected_samples": rows.n_rejected,
              "rejected_values": rows.per_col, "time_field": mapping.time.field, "time_format": mapping.time.format}
-    return SensorSamples(sensor, rows.t_out.values(), values, f"csv:{path.name}", stats, conversions)
+    if layout.dbd is not None:
+        stats["rows_not_updated"] = n_not_updated
+    return SensorSamples(sensor, times, values, f"csv:{path.name}", stats, conversions)
 
 
 def field_column(messages: list[Any], path: str) -> list[Any]:
@@ -654,6 +667,7 @@ def describe_csv(path: str | Path, *, sample_rows: int = 2000) -> dict[str, Any]
             delim = max(counts, key=counts.__getitem__) if max(counts.values()) else ","
     skip = layout.skip() if layout.dbd is not None else {}
     glider = None
+    track = None
     # one streamed pass in chunks: the first chunk gives the columns, the sample row, which columns are numeric
     # and the time column; every chunk adds its rows, first values still missing and its time span
     columns: list[str] = []
@@ -682,6 +696,10 @@ def describe_csv(path: str | Path, *, sample_rows: int = 2000) -> dict[str, Any]
                         numeric.append(c)
         if k == 0:
             tcol, tfmt, glider = _time_of_table(columns, numeric, df.head(sample_rows), layout)
+            if glider is not None:
+                track = _GliderTrack(glider, columns, layout)
+        if track is not None:
+            track.add(df)
         if tcol is not None:
             t = parse_time(df[tcol].str.strip(), tfmt)
             t = t[~_nat_mask(t)]
@@ -698,12 +716,49 @@ def describe_csv(path: str | Path, *, sample_rows: int = 2000) -> dict[str, Any]
         "time_column": tcol, "time_format": tfmt, "start_time": None, "end_time": None, "duration_s": None,
         "rate_hz": None, "glider": glider, "units": layout.dbd.units_of() if layout.dbd is not None else {},
         "header_tags": dict(layout.dbd.tags) if layout.dbd is not None else {},
+        "track": track.summary() if track is not None else None,
     }
     if n_t and t0 is not None and t1 is not None:
         iso = [str(np.datetime64(x, "ns").astype("datetime64[ms]")) + "Z" for x in (t0, t1)]
         out.update(start_time=iso[0], end_time=iso[1], duration_s=(t1 - t0) / 1e9,
                    rate_hz=(n_t - 1) / ((t1 - t0) / 1e9) if t1 > t0 else None)
     return out
+
+
+class _GliderTrack:
+    """The geographic extent and first position of a glider log's NMEA position columns, chunk by chunk."""
+
+    def __init__(self, kind: str, columns: list[str], layout: _Layout) -> None:
+        from hadal.ingest.glider import glider_fields
+
+        _, fields, _ = glider_fields(kind, columns, layout.dbd.units_of() if layout.dbd is not None else {})
+        pair = next((f.field for f in fields if f.transform and f.transform.startswith("latlon_ddmm")), None)
+        self.pair = list(pair) if isinstance(pair, list) else None
+        self.lat: list[float] = []
+        self.lon: list[float] = []
+        self.first: tuple[float, float] | None = None
+
+    def add(self, df: pd.DataFrame) -> None:
+        from hadal.ingest.glider import nmea_to_deg
+
+        if self.pair is None:
+            return
+        la, lo = (nmea_to_deg(pd.to_numeric(df[c].str.strip(), errors="coerce").to_numpy(np.float64))
+                  for c in self.pair)
+        ok = np.isfinite(la) & np.isfinite(lo) & (np.abs(la) <= 90) & (np.abs(lo) <= 180)
+        if not ok.any():
+            return
+        if self.first is None:
+            i = int(np.argmax(ok))
+            self.first = (float(la[i]), float(lo[i]))
+        self.lat += [float(la[ok].min()), float(la[ok].max())]
+        self.lon += [float(lo[ok].min()), float(lo[ok].max())]
+
+    def summary(self) -> dict[str, Any] | None:
+        if self.first is None or self.pair is None:
+            return None
+        return {"columns": self.pair, "first_deg": list(self.first), "latitude_deg": [min(self.lat), max(self.lat)],
+                "longitude_deg": [min(self.lon), max(self.lon)]}
 
 
 def _time_of_table(columns: list[str], numeric: list[str], head_df: pd.DataFrame, layout: _Layout

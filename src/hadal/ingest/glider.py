@@ -11,7 +11,9 @@ What is read from the files themselves, and what is the kind's published convent
   position follows GUTILS (``gutils/slocum/__init__.py`` ``SlocumReader``: time ``m_present_time`` else
   ``sci_m_present_time``; pressure ``sci_water_pressure`` (bar -> dbar x 10); ``sci_water_temp``;
   ``sci_water_cond``; NMEA positions, latitudes above 9000 / longitudes of 18000 and above being the
-  masterdata's "no value" defaults).
+  masterdata's "no value" defaults). A ``NaN`` is a sensor not updated in that cycle: each sensor group (CTD,
+  navigation, altimeter) is its own sensor of the vehicle mapping, and a row without any of its values is no
+  sample of it.
 * **SeaExplorer** navigation (``*.gli.sub.*``: ``Timestamp`` ``DD/MM/YYYY HH:MM:SS``, ``Heading``/``Pitch``/``Roll`` in
   degrees, ``Lat``/``Lon`` NMEA ``DDMM.mmm``, ``Altitude`` in m with -1 for "no bottom detected") and payload
   (``*.pld1.sub.*``: ``PLD_REALTIMECLOCK`` ``DD/MM/YYYY HH:MM:SS.fff``, ``GPCTD_CONDUCTIVITY`` S/m,
@@ -130,15 +132,15 @@ _SEAEXPLORER_NOT = {
 }
 
 #: Slocum: variable -> masterdata sensor names in order of preference (GUTILS ``SlocumReader``), with the score
-_SLOCUM: dict[str, tuple[tuple[str, ...], int, str]] = {
-    "conductivity_s_m": (("sci_water_cond",), 3, "science CTD conductivity"),
-    "temperature_its90_degc": (("sci_water_temp",), 3, "science CTD temperature"),
-    "pressure_ctd_dbar": (("sci_water_pressure",), 3, "science CTD pressure"),
-    "pressure_gauge_dbar": (("m_water_pressure", "m_pressure"), 2, "glider pressure sensor"),
-    "altitude_m": (("m_altitude",), 2, "altimeter range to the bottom"),
-    "heading_deg": (("m_heading",), 2, "glider compass heading"),
-    "pitch_deg": (("m_pitch",), 2, "glider pitch"),
-    "roll_deg": (("m_roll",), 2, "glider roll"),
+_SLOCUM: dict[str, tuple[tuple[str, ...], int, str, str]] = {
+    "conductivity_s_m": (("sci_water_cond",), 3, "science CTD conductivity", "ctd"),
+    "temperature_its90_degc": (("sci_water_temp",), 3, "science CTD temperature", "ctd"),
+    "pressure_ctd_dbar": (("sci_water_pressure",), 3, "science CTD pressure", "ctd"),
+    "pressure_gauge_dbar": (("m_water_pressure", "m_pressure"), 2, "glider pressure sensor", "gauge"),
+    "altitude_m": (("m_altitude",), 2, "altimeter range to the bottom", "altimeter"),
+    "heading_deg": (("m_heading",), 2, "glider compass heading", "navigation"),
+    "pitch_deg": (("m_pitch",), 2, "glider pitch", "navigation"),
+    "roll_deg": (("m_roll",), 2, "glider roll", "navigation"),
 }
 _SLOCUM_TIME = ("m_present_time", "sci_m_present_time")
 _SLOCUM_POS = (("m_lat", "m_lon", 2, "glider position (dead reckoned between GPS fixes)"),
@@ -186,6 +188,9 @@ class GliderField:
     why: str
     fill_values: tuple[float, ...] = ()
     transform: str | None = None
+    #: the sensor of the log this column belongs to (Slocum: ``ctd``, ``navigation``, ``altimeter``, ``gauge``; one
+    #: SeaExplorer file is one sensor: ``None``)
+    group: str | None = None
 
 
 def glider_fields(kind: str, columns: list[str], units: dict[str, str] | None = None
@@ -226,7 +231,7 @@ def _slocum_fields(columns: list[str], units: dict[str, str]) -> tuple[dict[str,
     time = {"field": tcol, "format": "unix_s"} if tcol else None
     out: list[GliderField] = []
     skipped: list[tuple[str, str]] = []
-    for var, (names, score, why) in _SLOCUM.items():
+    for var, (names, score, why, group) in _SLOCUM.items():
         name = next((n for n in names if n in cols), None)
         if name is None:
             continue
@@ -236,22 +241,22 @@ def _slocum_fields(columns: list[str], units: dict[str, str]) -> tuple[dict[str,
         except ConfigError as exc:
             skipped.append((name, f"units line says {raw!r}: {exc}"))
             continue
-        out.append(GliderField(var, name, unit, score, f"Slocum {why} {name!r}, units line {raw!r}"))
+        out.append(GliderField(var, name, unit, score, f"Slocum {why} {name!r}, units line {raw!r}", group=group))
     for lat, lon, score, why in _SLOCUM_POS:
         if lat in cols and lon in cols:
             ul, uo = units.get(lat, "lat"), units.get(lon, "lon")
             if (ul, uo) != ("lat", "lon"):
                 skipped.append((lat, f"units line says {ul!r}/{uo!r}, not NMEA lat/lon"))
                 continue
-            out += _positions(lat, lon, score, f"Slocum {why}")
+            out += _positions(lat, lon, score, f"Slocum {why}", "navigation")
             break
     if "m_depth" in cols:
         skipped.append(("m_depth", "depth is not read: hadal derives depth from pressure (TEOS-10)"))
     return time, out, skipped
 
 
-def _positions(lat: str, lon: str, score: int, why: str) -> list[GliderField]:
+def _positions(lat: str, lon: str, score: int, why: str, group: str | None = None) -> list[GliderField]:
     return [GliderField(var, [lat, lon], "m", score,
                         f"{why} {lat!r}/{lon!r} (NMEA DDMM.mmm -> degrees) -> metres {d} of the origin",
-                        transform=f"latlon_ddmm_to_{d}_m")
+                        transform=f"latlon_ddmm_to_{d}_m", group=group)
             for var, d in (("dr_east_m", "east"), ("dr_north_m", "north"))]
