@@ -314,3 +314,26 @@ def test_init_warns_when_sources_are_apart_and_frames_the_soundings(shared_data,
     frame = res.dive["map_frame"]
     assert frame["origin_latitude_deg"] == pytest.approx(27.7594, abs=1e-3)
     assert frame["origin_longitude_deg"] == pytest.approx(-82.6328, abs=1e-3)
+
+
+def test_seaexplorer_payload_rows_of_other_instruments_are_no_ctd_samples(shared_data, tmp_path):
+    """A raw payload log interleaves instruments row by row (pyglider drops the rows without CTD values); a
+    gzip-compressed, renamed copy with an empty-CTD row after each real one reads as the 26 CTD samples."""
+    import gzip
+
+    from hadal.ingest.csv_reader import read_sensor_csv
+    from hadal.ingest.suggest import suggest_vehicle
+
+    lines = (shared_data / PLD).read_text().splitlines()
+    n = len(lines[0].split(";"))
+    out = [lines[0]]
+    for ln in lines[1:]:
+        out += [ln, ";".join([ln.split(";")[0], "117"] + [""] * (n - 2))]
+    f = tmp_path / "payload.log.gz"
+    f.write_bytes(gzip.compress(("\n".join(out) + "\n").encode()))
+    v = suggest_vehicle([], {"p": f}).config()
+    assert v is not None and v.sensors["ctd"].csv.fields["pressure_ctd_dbar"].field == "GPCTD_PRESSURE"
+    ctd = read_sensor_csv(f, v.sensors["ctd"].csv, "ctd")
+    rows = _semicolon_table(shared_data / PLD)
+    assert len(ctd) == len(rows) and ctd.stats["rows_not_updated"] == len(rows)
+    assert ctd.values["pressure_ctd_dbar"] == pytest.approx([float(r["GPCTD_PRESSURE"]) for r in rows], abs=1e-9)

@@ -18,6 +18,7 @@ import pandas as pd
 from hadal.errors import ConfigError, InputError
 from hadal.formats import decompress_errors, open_binary, read_text_head, text_encoding_of
 from hadal.ingest.align import time_unit_hint
+from hadal.ingest.glider import glider_kind
 from hadal.ingest.units import CANONICAL_UNITS, TRANSFORMS, apply_transform, convert, normalise_unit
 from hadal.ingest.vehicle import CsvSource, FieldMap, McapSource
 from hadal.textstream import (
@@ -354,19 +355,19 @@ def read_sensor_csv(path: str | Path, mapping: CsvSource, sensor: str = "sensor"
     values, conversions = _mapped_values(path, mapping, rows, sensor)
     times = rows.t_out.values()
     n_not_updated = 0
-    if layout.dbd is not None:  # dbd2asc: NaN = not updated in that cycle; a row with none of ours is no sample
+    sparse = glider_kind(columns, layout.dbd) is not None
+    if sparse:  # glider logs: an empty cell / NaN is a sensor not sampled in that row (dbd2asc cycles, SeaExplorer
+        # payload rows of other instruments); a row with none of this sensor's values is no sample of it
         keep = np.zeros(times.shape, dtype=bool)
         for v in values.values():
             keep |= np.isfinite(v)
-        n_not_updated = int((~keep).sum())
-        if not keep.any():
-            raise InputError(f"{path}: no row holds a value of sensor {sensor!r} "
-                             f"({', '.join(fm.label() for fm in mapping.fields.values())})")
-        times, values = times[keep], {k: v[keep] for k, v in values.items()}
+        if keep.any():  # else every value is missing: kept as such, the channels are flagged downstream
+            n_not_updated = int((~keep).sum())
+            times, values = times[keep], {k: v[keep] for k, v in values.items()}
     stats = {"rows": int(n_lines - 1 - n_comment_text), "comment_lines": n_comment_text, "corrupt_rows": n_corrupt,
              "bad_times": rows.n_bad_time, "wrong_field_count": bad_shape, "rejected_samples": rows.n_rejected,
              "rejected_values": rows.per_col, "time_field": mapping.time.field, "time_format": mapping.time.format}
-    if layout.dbd is not None:
+    if sparse:
         stats["rows_not_updated"] = n_not_updated
     return SensorSamples(sensor, times, values, f"csv:{path.name}", stats, conversions)
 
