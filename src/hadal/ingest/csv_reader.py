@@ -645,7 +645,9 @@ def describe_csv(path: str | Path, *, sample_rows: int = 2000) -> dict[str, Any]
     of each column), ``rows`` (data rows), ``numeric_columns``,
     ``time_column`` / ``time_format`` (guessed from the name and the values: ``iso8601``, ``unix_s``,
     ``unix_ms``, ``unix_ns``; ``None`` when no column looks like a time), ``start_time`` / ``end_time``
-    (ISO 8601 UTC), ``duration_s`` and ``rate_hz``. Raises :class:`InputError` when the file is missing, empty,
+    (ISO 8601 UTC), ``duration_s`` and ``rate_hz``; for glider logs (:mod:`hadal.ingest.glider`) ``glider``
+    (``seaexplorer``/``slocum``, else ``None``), ``units`` and ``header_tags`` (a Slocum dbd2asc file's units line
+    and header block) and ``track`` (first position and lat/lon ranges of its NMEA positions). Raises :class:`InputError` when the file is missing, empty,
     binary or has no header row.
     """
     import csv as _csv

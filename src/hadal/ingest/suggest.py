@@ -23,6 +23,12 @@ How channels are recognised
    A channel with conductivity, temperature and pressure is a CTD (``pressure_ctd_dbar``); other pressures are
    a gauge (``pressure_gauge_dbar``). A boolean ``valid`` field becomes ``valid_field``.
 
+3. Glider logs (ALSEAMAR SeaExplorer navigation/payload, Teledyne Slocum dbd2asc; :mod:`hadal.ingest.glider`), by
+   their kind's column conventions: day-first SeaExplorer times, NMEA ``DDMM.mmm`` positions
+   (``latlon_ddmm_to_*``), fill values (``fill_values``: the altimeter's -1, the payload's 9999) and, for Slocum,
+   every unit from the file's own units line; a Slocum file gives one sensor per group (CTD, navigation,
+   altimeter) reading the same ``sources.csv`` key.
+
 When several channels give one variable, the most specific wins (a CTD's temperature over a thermometer's, an
 IMU's attitude over an odometry's, a dead-reckoning over GNSS fixes; then the higher message count); the others
 are listed as not mapped. CSV files giving the same variables as an MCAP topic become that sensor's ``csv``
