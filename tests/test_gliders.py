@@ -337,3 +337,26 @@ def test_seaexplorer_payload_rows_of_other_instruments_are_no_ctd_samples(shared
     rows = _semicolon_table(shared_data / PLD)
     assert len(ctd) == len(rows) and ctd.stats["rows_not_updated"] == len(rows)
     assert ctd.values["pressure_ctd_dbar"] == pytest.approx([float(r["GPCTD_PRESSURE"]) for r in rows], abs=1e-9)
+
+
+def test_map_frame_on_the_glider_track_not_between_it_and_a_far_grid(shared_data, tmp_path):
+    """The SeaExplorer pair beside lon/lat soundings (a 0.4° survey box around it) and a grid near Bermuda: the
+    frame is at the glider's track (the data the match follows), the far grid is named, never the midpoint."""
+    raw = tmp_path / "framed"
+    raw.mkdir()
+    for rel in (GLI, PLD, "bathy-real/tut_bathy.nc"):
+        shutil.copy(shared_data / rel, raw / Path(rel).name)
+    gli = _semicolon_table(shared_data / GLI)
+    lat = [_nmea(float(r["Lat"])) for r in gli]
+    lon = [_nmea(float(r["Lon"])) for r in gli]
+    (raw / "survey.xyz").write_text("".join(f"{min(lon) - 0.1 + i * 0.02:.5f} {min(lat) - 0.2 + j * 0.02:.5f} "
+                                            f"{2500 + i + j}\n" for i in range(21) for j in range(21)))
+    res = scan_dive_dir(raw)
+    assert sorted(res.dive["sources"]) == ["csv", "multibeam", "prior_grid"], res.dive["sources"]
+    frame = res.dive["map_frame"]
+    assert frame["origin_latitude_deg"] == pytest.approx((min(lat) + max(lat)) / 2, abs=1e-4)
+    assert frame["origin_longitude_deg"] == pytest.approx((min(lon) + max(lon)) / 2, abs=1e-4)
+    note = next(m for m in res.mapped if m.startswith("map_frame"))
+    assert "vehicle track" in note and "not of tut_bathy.nc" in note, note
+    space = [t for t in res.todo if "do not overlap in space" in t]
+    assert len(space) == 1 and "tut_bathy.nc" in space[0] and "survey.xyz" in space[0], res.todo  # 2 groups
