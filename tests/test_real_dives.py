@@ -1,5 +1,5 @@
 """Real dives in: every file of ../shared/data is recognised by `hadal inspect`, and a dive made of each file alone
-(after `hadal init`, the generated yaml unedited) runs the stages its data supports and publishes their products.
+(or with the files it needs, TOGETHER) (after `hadal init`, the generated yaml unedited) runs the stages its data supports and publishes their products.
 
 Data is copied to a temporary directory; the tests skip cleanly when ../shared/data is absent.
 """
@@ -56,8 +56,19 @@ EXPECTED: dict[str, set[str]] = {
     "mcap-real/rosbag2_talker.mcap": set(),  # std_msgs/String only: nothing maps to a sensor
     "mcap-real/rosbag2_cdr_test_0.mcap": set(),
     "mcap-real/rosbag2_test_bag_for_seek_0.mcap": set(),
+    # glider logs (content checked against the files and pyglider's L0 product in tests/test_gliders.py)
+    "dives-real/pyglider_sea035.12.gli.sub.36": {"sensors", "ctd", "profile"},
+    "dives-real/pyglider_sea035.12.pld1.sub.36": {"sensors", "ctd", "profile"},
+    "dives-real/gutils_usf_bass_2016_252_1_14_sbd.dat": {"sensors", "ctd", "profile"},
     # an underway thermosalinograph (per-scan lat/lon, prM = 0): a trajectory, never a 0 m cast or a profile
     "dives-real/seabird_SBE21_TSG_PIR_010.cnv": {"sensors", "trajectory"},
+}
+
+#: files that make one dive only together (copied into the dive of each of them): a SeaExplorer's navigation and
+#: payload logs
+TOGETHER: dict[str, tuple[str, ...]] = {
+    "dives-real/pyglider_sea035.12.gli.sub.36": ("dives-real/pyglider_sea035.12.pld1.sub.36",),
+    "dives-real/pyglider_sea035.12.pld1.sub.36": ("dives-real/pyglider_sea035.12.gli.sub.36",),
 }
 
 
@@ -90,7 +101,8 @@ def test_init_then_run_each_real_file_alone(shared_data, tmp_path, rel):
         pytest.skip(f"{rel} not in this copy of the shared data")
     raw = tmp_path / ("dive-" + src.stem.replace(".", "-")[:40])
     (raw / "raw").mkdir(parents=True)
-    shutil.copy(src, raw / "raw" / src.name)
+    for f in (src, *(shared_data / r for r in TOGETHER.get(rel, ()))):
+        shutil.copy(f, raw / "raw" / f.name)
     res = scan_dive_dir(raw)
     write_init(res)
     dive_yaml = yaml.safe_load((raw / "dive.yaml").read_text())

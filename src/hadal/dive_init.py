@@ -235,6 +235,30 @@ def _lonlat_centre(info: dict[str, Any]) -> tuple[float, float] | None:
     return None
 
 
+#: sources farther apart than this (km, geodesic, between the nearest points of their extents) do not overlap
+SOURCES_APART_KM = 20.0
+#: sources whose time spans are farther apart than this (hours) do not overlap in time
+SOURCES_APART_H = 24.0
+#: roles whose data is gridded or matched in the local map frame (a cast or a TSG track needs none)
+_FRAME_ROLES = ("multibeam", "prior_grid", "laser")
+
+
+@dataclass
+class _Footprint:
+    """Where and when one source file's data is: its geographic box and time span (when the file says)."""
+
+    rel: str
+    role: str  # cast | track | multibeam | prior_grid | laser
+    box: tuple[float, float, float, float]  # lon0, lon1, lat0, lat1 (degrees; longitudes as the file gives them)
+    t0: float | None = None  # s since the epoch
+    t1: float | None = None
+    first: tuple[float, float] | None = None  # (lat, lon) of a vehicle track's first position
+
+    def centre(self) -> tuple[float, float]:
+        """(lon, lat) of the box centre."""
+        return (self.box[0] + self.box[1]) / 2, (self.box[2] + self.box[3]) / 2
+
+
 @dataclass
 class _Scan:
     """What :func:`_scan_files` gathered from the raw directory for :func:`scan_dive_dir`."""
@@ -246,6 +270,7 @@ class _Scan:
     logs_csv: dict[str, Path] = field(default_factory=dict)
     casts_seen: dict[tuple[Any, Any], tuple[str, str]] = field(default_factory=dict)
     extents: list[tuple[str, float, float, float, float]] = field(default_factory=list)  # rel, lon0, lon1, lat0, lat1
+    footprints: list[_Footprint] = field(default_factory=list)
 
 
 def scan_dive_dir(raw_dir: str | Path, *, dive_id: str | None = None,
@@ -259,7 +284,8 @@ def scan_dive_dir(raw_dir: str | Path, *, dive_id: str | None = None,
     scan = _Scan({"mcap": [], "csv": {}, "cnv": [], "multibeam": [], "prior_grid": [], "laser": []})
     _scan_files(res, scan, raw)
     sources = scan.sources
-    _map_vehicle_logs(res, sources, scan.logs_mcap, scan.logs_csv, raw, launch)
+    track = _track_start(scan) if launch is None else None
+    _map_vehicle_logs(res, sources, scan.logs_mcap, scan.logs_csv, raw, launch or (track[:2] if track else None))
 
     did = dive_id or sanitise_dive_id(raw.resolve().name)
     dive: dict[str, Any] = {"dive_id": did, "platform": "unknown"}
@@ -269,8 +295,9 @@ def scan_dive_dir(raw_dir: str | Path, *, dive_id: str | None = None,
                           "suggested one)")
     elif res.vehicle_yaml is not None:
         dive["vehicle_config"] = VEHICLE_FILE
-    _set_launch(res, dive, scan, launch)
-    _set_map_frame(res, dive, scan.centres)
+    _set_launch(res, dive, scan, launch, track)
+    _set_map_frame(res, dive, scan)
+    _check_overlap(res, scan.footprints)
     dive["sources"] = {k: v for k, v in sources.items() if v}
     res.dive = dive
     _todo(res)
@@ -313,7 +340,10 @@ def _scan_files(res: InitResult, scan: _Scan, raw: Path) -> None:
             res.not_used.append(f"{rel}: {info.get('description') or kind} (not a dive source)")
             continue
         # a projected point cloud keeps its own CRS (its laser grid is not in the map frame): no say in the frame
-        c = None if kind in ("ply", "pcd", "las") and _crs_kind(info) != "geographic" else _lonlat_centre(info)
+        projected_cloud = kind in ("ply", "pcd", "las") and _crs_kind(info) != "geographic"
+        if not projected_cloud:
+            _add_footprint(scan, rel, kind, info)
+        c = None if projected_cloud else _lonlat_centre(info)
         if c is not None:
             scan.centres.append(c)
             if (box := _lonlat_box(info)) is not None:
@@ -401,11 +431,20 @@ def _map_cast(res: InitResult, scan: _Scan, rel: str, kind: str, info: dict[str,
     return True
 
 
-def _set_launch(res: InitResult, dive: dict[str, Any], scan: _Scan, launch: tuple[float, float] | None) -> None:
-    """Set ``dive["launch"]`` (given, or the casts' common header position) and check it against the extents."""
+def _set_launch(res: InitResult, dive: dict[str, Any], scan: _Scan, launch: tuple[float, float] | None,
+                track: tuple[float, float, str | None, str] | None = None) -> None:
+    """Set ``dive["launch"]`` (given, else the first position of the vehicle's own track, else the casts' common
+    header position) and check it against the extents."""
     cast_positions = scan.cast_positions
     if launch is not None:
         dive["launch"] = {"latitude_deg": launch[0], "longitude_deg": launch[1]}
+    elif track is not None:
+        lat, lon, t, rel = track
+        dive["launch"] = {"latitude_deg": round(lat, 6), "longitude_deg": round(lon, 6)}
+        if t:
+            dive["launch"]["time_utc"] = t
+        res.mapped.append(f"launch: the first position of the vehicle track in {rel} (also the origin of its "
+                          "positions in vehicle.yaml)")
     elif cast_positions and _spread_km(cast_positions) <= CASTS_TOGETHER_KM:
         lat, lon, t = cast_positions[0]
         dive["launch"] = {"latitude_deg": round(lat, 6), "longitude_deg": round(lon, 6)}
@@ -424,15 +463,156 @@ def _set_launch(res: InitResult, dive: dict[str, Any], scan: _Scan, launch: tupl
                             "one dive")
 
 
-def _set_map_frame(res: InitResult, dive: dict[str, Any], centres: list[tuple[float, float]]) -> None:
-    """Set ``dive["map_frame"]`` to the centre of the soundings'/grids' geographic extents, if any."""
-    if centres:
-        lon_first = centres[0][0]  # mean of the longitudes unwrapped around the first (0-360 and -180-180 alike)
-        lon_c = sum(lon_first + _wrap180(c[0] - lon_first) for c in centres) / len(centres)
-        lat_c = sum(c[1] for c in centres) / len(centres)
-        dive["map_frame"] = {"origin_latitude_deg": round(lat_c, 4),
-                             "origin_longitude_deg": round(_wrap180(lon_c), 4)}
-        res.mapped.append("map_frame: the centre of the geographic extent of the soundings/grids")
+def _set_map_frame(res: InitResult, dive: dict[str, Any], scan: _Scan) -> None:
+    """Set ``dive["map_frame"]`` where the data that is gridded or matched in it is, never halfway between
+    sources that are apart. The sources that need a frame (soundings, grids, point clouds; the vehicle track the
+    match follows) are grouped by :data:`SOURCES_APART_KM`; the group is the one holding the vehicle track and a
+    grid, else the one with the soundings, else the largest. The origin is the centre of the vehicle track in that
+    group, else the mean centre of its soundings, else of its grids."""
+    grids = [f for f in scan.footprints if f.role in _FRAME_ROLES]
+    if not grids:
+        if scan.centres:  # a position without an extent (no footprint): as before, the mean centre
+            _frame_at(dive, scan.centres)
+            res.mapped.append("map_frame: the centre of the geographic extent of the soundings/grids")
+        return
+    groups = _groups(grids + [f for f in scan.footprints if f.role == "track"])
+    with_grids = [g for g in groups if any(f.role in _FRAME_ROLES for f in g)]
+    pick = (next((g for g in with_grids if any(f.role == "track" for f in g)), None)
+            or next((g for g in with_grids if any(f.role == "multibeam" for f in g)), None)
+            or max(with_grids, key=lambda g: sum(f.role in _FRAME_ROLES for f in g)))
+    what, chosen = next((w, c) for w, c in (
+        ("the vehicle track", [f for f in pick if f.role == "track"]),
+        ("the soundings", [f for f in pick if f.role == "multibeam"]),
+        ("the grids", [f for f in pick if f.role in _FRAME_ROLES])) if c)
+    _frame_at(dive, [f.centre() for f in chosen])
+    left = [f.rel for g in groups if g is not pick for f in g if f.role in _FRAME_ROLES]
+    res.mapped.append(f"map_frame: the centre of {what} ({', '.join(f.rel for f in chosen[:3])}"
+                      f"{', ...' if len(chosen) > 3 else ''})"
+                      + (f"; not of {', '.join(left[:3])}, which lie(s) apart" if left else ""))
+
+
+def _frame_at(dive: dict[str, Any], centres: list[tuple[float, float]]) -> None:
+    """``dive["map_frame"]`` at the mean of (lon, lat) ``centres`` (longitudes unwrapped to the first's, the origin
+    in -180..180)."""
+    lon0 = centres[0][0]
+    lons = [lon0 + ((c[0] - lon0 + 180.0) % 360.0 - 180.0) for c in centres]
+    lon_c = (sum(lons) / len(lons) + 180.0) % 360.0 - 180.0
+    lat_c = sum(c[1] for c in centres) / len(centres)
+    dive["map_frame"] = {"origin_latitude_deg": round(lat_c, 4), "origin_longitude_deg": round(lon_c, 4)}
+
+
+def _add_footprint(scan: _Scan, rel: str, kind: str, info: dict[str, Any]) -> None:
+    """The :class:`_Footprint` of a mapped file, when its describer gives a position or an extent."""
+    t0 = _epoch_s(info.get("start_time") or info.get("time_start") or info.get("start_time_utc"))
+    t1 = _epoch_s(info.get("end_time") or info.get("time_end")) or t0
+    first = None
+    if kind == "csv":
+        track = info.get("track")
+        if not isinstance(track, dict):
+            return
+        lo, la = track["longitude_deg"], track["latitude_deg"]
+        box, role, first = (lo[0], lo[1], la[0], la[1]), "track", (track["first_deg"][0], track["first_deg"][1])
+    elif kind in ("cnv", "seabird_hex"):
+        role = "cast"
+        box = _lonlat_box(info)
+        lat, lon = info.get("latitude_deg"), info.get("longitude_deg")
+        if box is None and _finite(lat, lon):
+            box = (float(lon), float(lon), float(lat), float(lat))
+    else:
+        role = next((k for k, v in scan.sources.items() if isinstance(v, list) and rel in v), "multibeam")
+        box = _lonlat_box(info)
+        c = _lonlat_centre(info) if box is None else None
+        if c is not None:
+            box = (c[0], c[0], c[1], c[1])
+    if box is not None and _finite(*box):
+        scan.footprints.append(_Footprint(rel, role, box, t0, t1, first))
+
+
+def _epoch_s(text: Any) -> float | None:
+    """Seconds since the epoch of an ISO 8601 time (naive: UTC), ``None`` when absent or unreadable."""
+    if not isinstance(text, str) or not text:
+        return None
+    try:
+        t = _dt.datetime.fromisoformat(text.strip().replace("Z", "+00:00"))
+    except ValueError:
+        return None
+    return (t if t.tzinfo else t.replace(tzinfo=_dt.UTC)).timestamp()
+
+
+def _track_start(scan: _Scan) -> tuple[float, float, str | None, str] | None:
+    """(lat, lon, time, file) of the earliest vehicle track's first position (glider logs), if any."""
+    tracks = [f for f in scan.footprints if f.role == "track" and f.first is not None]
+    if not tracks:
+        return None
+    f = min(tracks, key=lambda f: (f.t0 is None, f.t0 or 0.0))
+    t = None if f.t0 is None else _dt.datetime.fromtimestamp(round(f.t0), _dt.UTC).isoformat().replace("+00:00", "Z")
+    assert f.first is not None
+    return f.first[0], f.first[1], t, f.rel
+
+
+def _box_km(a: tuple[float, float, float, float], b: tuple[float, float, float, float]) -> float:
+    """Geodesic distance (km, WGS84) between the nearest points of two lon/lat boxes (0 when they overlap);
+    longitudes compared modulo 360."""
+    from pyproj import Geod
+
+    def near(a0: float, a1: float, b0: float, b1: float) -> tuple[float, float]:
+        if a1 < b0:
+            return a1, b0
+        if b1 < a0:
+            return a0, b1
+        m = max(a0, b0)
+        return m, m
+
+    lat_a, lat_b = near(a[2], a[3], b[2], b[3])
+    shift = min((-360.0, 0.0, 360.0), key=lambda k: abs((b[0] + b[1]) / 2 + k - (a[0] + a[1]) / 2))
+    lon_a, lon_b = near(a[0], a[1], b[0] + shift, b[1] + shift)
+    if lat_a == lat_b and lon_a == lon_b:
+        return 0.0
+    return float(Geod(ellps="WGS84").inv(lon_a, lat_a, lon_b, lat_b)[2]) / 1000.0
+
+
+def _groups(fps: list[_Footprint]) -> list[list[_Footprint]]:
+    """Footprints grouped by single linkage: within :data:`SOURCES_APART_KM` of some member of the group."""
+    groups: list[list[_Footprint]] = []
+    for f in fps:
+        near = [g for g in groups if any(_box_km(f.box, o.box) <= SOURCES_APART_KM for o in g)]
+        merged = [f] + [x for g in near for x in g]
+        groups = [g for g in groups if not any(g is n for n in near)] + [merged]
+    return groups
+
+
+def _names(group: list[_Footprint]) -> str:
+    return ", ".join(f.rel for f in group[:3]) + (f" and {len(group) - 3} more" if len(group) > 3 else "")
+
+
+def _check_overlap(res: InitResult, fps: list[_Footprint]) -> None:
+    """To-dos naming sources that do not overlap in space (more than :data:`SOURCES_APART_KM` apart, with the
+    distance) or in time (time spans more than :data:`SOURCES_APART_H` apart; prior grids and point clouds carry
+    no time of the dive)."""
+    groups = _groups(fps)
+    for i, a in enumerate(groups):
+        for b in groups[i + 1:]:
+            d = min(_box_km(x.box, y.box) for x in a for y in b)
+            res.todo.append(f"sources do not overlap in space: {_names(a)} and {_names(b)} are {d:.0f} km apart "
+                            "(nearest points): check that they belong to one dive")
+    timed = sorted((f for f in fps if f.t0 is not None and f.role in ("cast", "track", "multibeam")),
+                   key=lambda f: f.t0 or 0.0)
+    spans: list[list[_Footprint]] = []
+    for f in timed:
+        if spans and (f.t0 or 0.0) - max(x.t1 or x.t0 or 0.0 for x in spans[-1]) <= SOURCES_APART_H * 3600:
+            spans[-1].append(f)
+        else:
+            spans.append([f])
+    for a, b in zip(spans, spans[1:], strict=False):
+        end = max(x.t1 or x.t0 or 0.0 for x in a)
+        gap_h = ((b[0].t0 or 0.0) - end) / 3600
+        when = (f"{gap_h / 24:.0f} days" if gap_h >= 48 else f"{gap_h:.0f} h")
+        res.todo.append(f"sources do not overlap in time: {_names(a)} (until {_day(end)}) and {_names(b)} (from "
+                        f"{_day(b[0].t0)}) are {when} apart: check that they belong to one dive")
+
+
+def _day(t: float | None) -> str:
+    return "?" if t is None else _dt.datetime.fromtimestamp(t, _dt.UTC).strftime("%Y-%m-%d %H:%M")
 
 
 def _wrap180(lon: float) -> float:

@@ -24,6 +24,7 @@ Signatures (public format documentation):
 * Reson .s7k: data record frame with sync pattern ``0x0000FFFF`` at byte 4;
 * GSF: first record is ``GSF_RECORD_HEADER`` whose text starts ``GSF-v`` at byte 8;
 * Sea-Bird .cnv: ``*END*`` after ``# name 0 = ...`` lines; Sea-Bird .hex: ``*END*`` followed by hex scans;
+* Teledyne Slocum ``dbd2asc`` text: first line ``dbd_label: DBD_ASC...`` (a ``csv`` table after its header block);
 * GMT native binary grid (``.grd`` "bf"/"bs" etc.) is not sniffed; GMT's default netCDF grids are netCDF.
 """
 
@@ -364,7 +365,8 @@ def sniff(head: bytes, name: str = "", path: str | Path = "", compression: str |
     """:func:`detect` on a file's (decompressed) first bytes already in hand; ``name`` is the tie-breaker."""
     text = _as_text(head) if head else None
     kind = _sniff(head, text, name.lower())
-    points = text is not None and kind in ("xyz", "csv", "unknown") and _points(_data_rows(_lines(text)))
+    points = (text is not None and kind in ("xyz", "csv", "unknown") and not _DBD_ASC.match(text.lstrip()[:64])
+              and _points(_data_rows(_lines(text))))
     return FileKind(str(path), kind, compression, SOURCE_OF.get(kind), KINDS[kind], text is not None, points)
 
 
@@ -453,6 +455,8 @@ def _is_pcd(stripped: list[str]) -> bool:
         any(s.startswith("VERSION") for s in stripped[:12]) and any(s.startswith("FIELDS") for s in stripped[:15]))
 
 
+#: first line of a Teledyne Slocum ``dbd2asc`` text file (``dbd_label: DBD_ASC(dinkum_binary_data)file``)
+_DBD_ASC = re.compile(r"^dbd_label:\s*DBD_ASC", re.IGNORECASE)
 _CNV_HEADER = re.compile(r"^#\s*(?:name\s+\d+\s*=|nquan\b)")
 
 
@@ -469,6 +473,8 @@ def _text_kind(text: str, name: str) -> str:
         if any(s.startswith("* Sea-Bird") or s.startswith("*Sea-Bird") for s in header):
             return "seabird_hex" if not after else "cnv"
     first = stripped[0] if stripped else ""
+    if _DBD_ASC.match(first):  # Teledyne Slocum dbd2asc: a header block, then a space-delimited table
+        return "csv"
     if _is_pcd(stripped):
         return "pcd"
     if first.startswith("%YAML") or first == "---" or (":" in first and not _numeric_row(first)

@@ -115,6 +115,10 @@ class ScannedStream:
     """A binary stream that feeds every block it hands out to a :class:`LineScan`: pandas reads the file once,
     and a runaway line is refused before the parser holds it."""
 
+    #: pandas asks a stream's ``mode`` whether it is binary; a gzip/bz2 file answers with an int (issue 43: init
+    #: could not describe a compressed CSV log)
+    mode = "rb"
+
     def __init__(self, fh: Any, scan: LineScan):
         self._fh, self._scan = fh, scan
 

@@ -15,10 +15,11 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from hadal.errors import InputError
+from hadal.errors import ConfigError, InputError
 from hadal.formats import decompress_errors, open_binary, read_text_head, text_encoding_of
 from hadal.ingest.align import time_unit_hint
-from hadal.ingest.units import CANONICAL_UNITS, TRANSFORMS, apply_transform, convert
+from hadal.ingest.glider import glider_kind
+from hadal.ingest.units import CANONICAL_UNITS, TRANSFORMS, apply_transform, convert, normalise_unit
 from hadal.ingest.vehicle import CsvSource, FieldMap, McapSource
 from hadal.textstream import (
     MAX_LINE_BYTES,
@@ -92,6 +93,8 @@ def _csv_chunks(path: Path, sep: str, compression: str | None, scan: LineScan | 
     """``pandas.read_csv`` chunks of the (decompressed) stream (``nrows``: one frame), damaged streams and parser
     failures as one-line errors. With ``scan``, the stream passes through it (line lengths, row count)."""
     kw = {"dtype": str, "keep_default_na": False, "encoding": "utf-8", **kw}
+    if sep == " ":  # space-delimited text (Slocum dbd2asc, loggers' aligned columns): any run of blanks
+        sep = r"\s+"
     with open_binary(path) as fh, decompress_errors(path, compression, "CSV"):
         try:
             reader = pd.read_csv(fh if scan is None else ScannedStream(fh, scan), sep=sep, on_bad_lines="skip",
@@ -119,6 +122,48 @@ def _leading_comments(head: bytes, encoding: str) -> tuple[int, int, str]:
     if not (n < len(lines) and n_text):
         return 0, 0, (lines[0] if lines else "")
     return n, n_text, lines[n]
+
+
+class _Layout:
+    """Where a text table's column names and data are: the lines skipped (``skiprows`` for pandas), how many of
+    them are not blank, the column-name line, the delimiter the format fixes (``None``: the mapping's) and a
+    Slocum dbd2asc header block (:func:`hadal.ingest.glider.dbd_asc_header`) when there is one."""
+
+    def __init__(self, head: bytes, encoding: str) -> None:
+        from hadal.ingest.glider import dbd_asc_header
+
+        text = head.decode(encoding, errors="replace")
+        self.dbd = dbd_asc_header(text)
+        self.delimiter: str | None = None
+        if self.dbd is not None:  # the header block says how many tag and label lines there are
+            n, k = self.dbd.n_tag_lines, self.dbd.n_label_lines
+            self.skiprows: int | list[int] = [*range(n), *range(n + 1, n + k)]
+            self.n_text = n + k - 1
+            self.header_line = " ".join(self.dbd.names)
+            self.delimiter = " "
+            return
+        n_comment, self.n_text, self.header_line = _leading_comments(head, encoding)
+        self.skiprows = n_comment
+
+    def skip(self) -> dict[str, Any]:
+        return {"skiprows": self.skiprows} if self.skiprows else {}
+
+
+def _check_file_units(path: Path, mapping: CsvSource, units: dict[str, str]) -> None:
+    """Warn when a mapped column's unit in the file's own units line (Slocum dbd2asc) is not the mapping's."""
+    from hadal.ingest.glider import unit_of_label
+
+    for var, fm in mapping.fields.items():
+        if fm.transform is not None or fm.field not in units:
+            continue
+        unit = unit_of_label(units[fm.field])
+        try:
+            same = unit is not None and normalise_unit(unit) == normalise_unit(fm.units)
+        except ConfigError:
+            same = False
+        if not same:
+            warnings.warn(f"{path.name}: column {fm.field!r} is in {units[fm.field]!r} by the file's units line, "
+                          f"but the vehicle config says {fm.units!r} for {var}: check vehicle.yaml", stacklevel=3)
 
 
 def _check_header(path: Path, line: str, delimiter: str, needed: list[str], sensor: str) -> None:
@@ -272,11 +317,16 @@ def read_sensor_csv(path: str | Path, mapping: CsvSource, sensor: str = "sensor"
     scan_head = LineScan(path, "CSV row")
     scan_head.feed(head)  # the header line itself is bounded before pandas reads it
     encoding = text_encoding_of(head)
-    n_comment, n_comment_text, header_line = _leading_comments(head, encoding)
-    skip = {"skiprows": n_comment} if n_comment else {}
-    header = next(_csv_chunks(path, mapping.delimiter, compression, nrows=0, encoding=encoding, **skip))
+    layout = _Layout(head, encoding)
+    n_comment_text, header_line, skip = layout.n_text, layout.header_line, layout.skip()
+    delimiter = layout.delimiter or mapping.delimiter
+    if delimiter != mapping.delimiter:
+        mapping = mapping.model_copy(update={"delimiter": delimiter})
+    header = next(_csv_chunks(path, delimiter, compression, nrows=0, encoding=encoding, **skip))
     columns = [str(c).strip() for c in header.columns]
     _check_columns(path, columns, header_line, mapping, sensor)
+    if layout.dbd is not None:
+        _check_file_units(path, mapping, layout.dbd.units_of())
     rows = _CsvRows(path, mapping)
     # numbers are parsed by pandas' C parser (a column with any other cell comes back as text and is checked
     # cell by cell); the time column stays text unless it is a plain number, the validity column always.
@@ -303,10 +353,23 @@ def read_sensor_csv(path: str | Path, mapping: CsvSource, sensor: str = "sensor"
         raise InputError(f"{path}: no usable rows (all {rows.n_rows} rows have an unparseable time or value"
                          + (f"; time column {mapping.time.field!r} {hint}" if hint else "") + ")")
     values, conversions = _mapped_values(path, mapping, rows, sensor)
+    times = rows.t_out.values()
+    n_not_updated = 0
+    sparse = glider_kind(columns, layout.dbd) is not None
+    if sparse:  # glider logs: an empty cell / NaN is a sensor not sampled in that row (dbd2asc cycles, SeaExplorer
+        # payload rows of other instruments); a row with none of this sensor's values is no sample of it
+        keep = np.zeros(times.shape, dtype=bool)
+        for v in values.values():
+            keep |= np.isfinite(v)
+        if keep.any():  # else every value is missing: kept as such, the channels are flagged downstream
+            n_not_updated = int((~keep).sum())
+            times, values = times[keep], {k: v[keep] for k, v in values.items()}
     stats = {"rows": int(n_lines - 1 - n_comment_text), "comment_lines": n_comment_text, "corrupt_rows": n_corrupt,
              "bad_times": rows.n_bad_time, "wrong_field_count": bad_shape, "rejected_samples": rows.n_rejected,
              "rejected_values": rows.per_col, "time_field": mapping.time.field, "time_format": mapping.time.format}
-    return SensorSamples(sensor, rows.t_out.values(), values, f"csv:{path.name}", stats, conversions)
+    if sparse:
+        stats["rows_not_updated"] = n_not_updated
+    return SensorSamples(sensor, times, values, f"csv:{path.name}", stats, conversions)
 
 
 def field_column(messages: list[Any], path: str) -> list[Any]:
@@ -436,6 +499,12 @@ def _ros_time_ns(values: list[Any]) -> np.ndarray:
     return out
 
 
+def _fill_to_nan(x: np.ndarray, fill_values: list[float]) -> np.ndarray:
+    """``x`` with its fill values (source values meaning "no measurement") as NaN."""
+    x = np.asarray(x, dtype=np.float64)
+    return np.where(np.isin(x, np.asarray(fill_values, dtype=np.float64)), np.nan, x)
+
+
 def map_variable(var: str, fm: FieldMap, columns: list[np.ndarray], sensor: str, source: str
                  ) -> tuple[np.ndarray, list[dict[str, Any]]]:
     """One variable from its source column(s): transform (if any), unit conversion, offset.
@@ -443,6 +512,11 @@ def map_variable(var: str, fm: FieldMap, columns: list[np.ndarray], sensor: str,
     Returns the canonical-unit values and the conversion records (for the product metadata)."""
     records: list[dict[str, Any]] = []
     where = f"{source}:{fm.label()}"
+    if fm.fill_values:
+        columns = [_fill_to_nan(c, fm.fill_values) for c in columns]
+        records.append({"variable": var, "from": ", ".join(fm.inputs()), "to": "missing (NaN)",
+                        "formula": "fill value(s) " + ", ".join(f"{v:g}" for v in fm.fill_values) + " -> missing",
+                        "sensor": sensor, "source": where})
     if fm.transform is not None:
         x = apply_transform(fm.transform, columns, fm.origin)
         t = TRANSFORMS[fm.transform][0]
@@ -553,7 +627,14 @@ def _guess_time_format(values: list[str]) -> str | None:
     t = parse_time(vals, "iso8601")
     if not _nat_mask(t).any():
         return "iso8601"
+    for fmt in _DAY_FIRST:  # European loggers (SeaExplorer 21/07/2019 23:24:49): day first, never month first
+        if not _nat_mask(parse_time(vals, fmt)).any():
+            return fmt
     return None
+
+
+#: day-first date-time patterns tried after ISO 8601 (``DD/MM/YYYY``, ``DD.MM.YYYY``, with or without fractions)
+_DAY_FIRST = ("%d/%m/%Y %H:%M:%S", "%d/%m/%Y %H:%M:%S.%f", "%d.%m.%Y %H:%M:%S", "%d.%m.%Y %H:%M:%S.%f")
 
 
 def describe_csv(path: str | Path, *, sample_rows: int = 2000) -> dict[str, Any]:
@@ -564,7 +645,9 @@ def describe_csv(path: str | Path, *, sample_rows: int = 2000) -> dict[str, Any]
     of each column), ``rows`` (data rows), ``numeric_columns``,
     ``time_column`` / ``time_format`` (guessed from the name and the values: ``iso8601``, ``unix_s``,
     ``unix_ms``, ``unix_ns``; ``None`` when no column looks like a time), ``start_time`` / ``end_time``
-    (ISO 8601 UTC), ``duration_s`` and ``rate_hz``. Raises :class:`InputError` when the file is missing, empty,
+    (ISO 8601 UTC), ``duration_s`` and ``rate_hz``; for glider logs (:mod:`hadal.ingest.glider`) ``glider``
+    (``seaexplorer``/``slocum``, else ``None``), ``units`` and ``header_tags`` (a Slocum dbd2asc file's units line
+    and header block) and ``track`` (first position and lat/lon ranges of its NMEA positions). Raises :class:`InputError` when the file is missing, empty,
     binary or has no header row.
     """
     import csv as _csv
@@ -574,13 +657,20 @@ def describe_csv(path: str | Path, *, sample_rows: int = 2000) -> dict[str, Any]
     LineScan(path, "CSV row").feed(head)
     encoding = text_encoding_of(head)
     text = head.decode("utf-8-sig" if encoding == "utf-8" else encoding, errors="replace")
+    layout = _Layout(head, encoding)
     lines = [ln for ln in text.splitlines()[:200] if ln.strip()]
     sniff = "\n".join(lines[:50])
-    try:
-        delim = _csv.Sniffer().sniff(sniff, delimiters=",;\t|").delimiter
-    except _csv.Error:
-        counts = {d: lines[0].count(d) for d in ",;\t|"}
-        delim = max(counts, key=counts.__getitem__) if max(counts.values()) else ","
+    if layout.delimiter is not None:  # the format fixes it (Slocum dbd2asc: blanks)
+        delim = layout.delimiter
+    else:
+        try:
+            delim = _csv.Sniffer().sniff(sniff, delimiters=",;\t|").delimiter
+        except _csv.Error:
+            counts = {d: lines[0].count(d) for d in ",;\t|"}
+            delim = max(counts, key=counts.__getitem__) if max(counts.values()) else ","
+    skip = layout.skip() if layout.dbd is not None else {}
+    glider = None
+    track = None
     # one streamed pass in chunks: the first chunk gives the columns, the sample row, which columns are numeric
     # and the time column; every chunk adds its rows, first values still missing and its time span
     columns: list[str] = []
@@ -591,7 +681,7 @@ def describe_csv(path: str | Path, *, sample_rows: int = 2000) -> dict[str, Any]
     n_rows, n_t, t0, t1 = 0, 0, None, None
     for k, df in enumerate(_csv_chunks(path, delim, compression, LineScan(path, "CSV row"),
                                        chunksize=max(sample_rows, CSV_CHUNK_ROWS),
-                                       encoding="utf-8-sig" if encoding == "utf-8" else encoding)):
+                                       encoding="utf-8-sig" if encoding == "utf-8" else encoding, **skip)):
         df.columns = [str(c).strip() for c in df.columns]
         if k == 0:
             columns = list(df.columns)
@@ -608,7 +698,11 @@ def describe_csv(path: str | Path, *, sample_rows: int = 2000) -> dict[str, Any]
                     if pd.to_numeric(filled.head(sample_rows), errors="coerce").notna().mean() > 0.95:
                         numeric.append(c)
         if k == 0:
-            tcol, tfmt = _time_column(columns, numeric, df.head(sample_rows))
+            tcol, tfmt, glider = _time_of_table(columns, numeric, df.head(sample_rows), layout)
+            if glider is not None:
+                track = _GliderTrack(glider, columns, layout)
+        if track is not None:
+            track.add(df)
         if tcol is not None:
             t = parse_time(df[tcol].str.strip(), tfmt)
             t = t[~_nat_mask(t)]
@@ -623,13 +717,68 @@ def describe_csv(path: str | Path, *, sample_rows: int = 2000) -> dict[str, Any]
         "path": str(path), "format": "csv", "size_bytes": path.stat().st_size, "delimiter": delim, "columns": columns,
         "sample_row": sample, "first_values": first_values, "rows": int(n_rows), "numeric_columns": numeric,
         "time_column": tcol, "time_format": tfmt, "start_time": None, "end_time": None, "duration_s": None,
-        "rate_hz": None,
+        "rate_hz": None, "glider": glider, "units": layout.dbd.units_of() if layout.dbd is not None else {},
+        "header_tags": dict(layout.dbd.tags) if layout.dbd is not None else {},
+        "track": track.summary() if track is not None else None,
     }
     if n_t and t0 is not None and t1 is not None:
         iso = [str(np.datetime64(x, "ns").astype("datetime64[ms]")) + "Z" for x in (t0, t1)]
         out.update(start_time=iso[0], end_time=iso[1], duration_s=(t1 - t0) / 1e9,
                    rate_hz=(n_t - 1) / ((t1 - t0) / 1e9) if t1 > t0 else None)
     return out
+
+
+class _GliderTrack:
+    """The geographic extent and first position of a glider log's NMEA position columns, chunk by chunk."""
+
+    def __init__(self, kind: str, columns: list[str], layout: _Layout) -> None:
+        from hadal.ingest.glider import glider_fields
+
+        _, fields, _ = glider_fields(kind, columns, layout.dbd.units_of() if layout.dbd is not None else {})
+        pair = next((f.field for f in fields if f.transform and f.transform.startswith("latlon_ddmm")), None)
+        self.pair = list(pair) if isinstance(pair, list) else None
+        self.lat: list[float] = []
+        self.lon: list[float] = []
+        self.first: tuple[float, float] | None = None
+
+    def add(self, df: pd.DataFrame) -> None:
+        from hadal.ingest.glider import nmea_to_deg
+
+        if self.pair is None:
+            return
+        la, lo = (nmea_to_deg(pd.to_numeric(df[c].str.strip(), errors="coerce").to_numpy(np.float64))
+                  for c in self.pair)
+        ok = np.isfinite(la) & np.isfinite(lo) & (np.abs(la) <= 90) & (np.abs(lo) <= 180)
+        if not ok.any():
+            return
+        if self.first is None:
+            i = int(np.argmax(ok))
+            self.first = (float(la[i]), float(lo[i]))
+        self.lat += [float(la[ok].min()), float(la[ok].max())]
+        self.lon += [float(lo[ok].min()), float(lo[ok].max())]
+
+    def summary(self) -> dict[str, Any] | None:
+        if self.first is None or self.pair is None:
+            return None
+        return {"columns": self.pair, "first_deg": list(self.first), "latitude_deg": [min(self.lat), max(self.lat)],
+                "longitude_deg": [min(self.lon), max(self.lon)]}
+
+
+def _time_of_table(columns: list[str], numeric: list[str], head_df: pd.DataFrame, layout: _Layout
+                   ) -> tuple[str | None, str | None, str | None]:
+    """The time column, its format and the glider kind (:func:`hadal.ingest.glider.glider_kind`) of a table: a
+    glider log's time column by its kind's convention (checked against the values), else :func:`_time_column`."""
+    from hadal.ingest.glider import glider_fields, glider_kind
+
+    glider = glider_kind(columns, layout.dbd)
+    if glider is not None:
+        time, _, _ = glider_fields(glider, columns, layout.dbd.units_of() if layout.dbd is not None else {})
+        if time is not None:
+            vals = [str(v).strip() for v in head_df[time["field"]].tolist() if str(v).strip() not in _EMPTY_CELLS]
+            if vals and not _nat_mask(parse_time(vals, time["format"])).all():
+                return time["field"], time["format"], glider
+    tcol, tfmt = _time_column(columns, numeric, head_df)
+    return tcol, tfmt, glider
 
 
 def _time_column(columns: list[str], numeric: list[str], head_df: pd.DataFrame) -> tuple[str | None, str | None]:
@@ -640,6 +789,7 @@ def _time_column(columns: list[str], numeric: list[str], head_df: pd.DataFrame) 
         [c for c in columns if c not in by_name and c in numeric]
     for c in candidates:
         fmt = _guess_time_format(head_df[c].tolist())
-        if fmt is not None and (c in by_name or fmt == "iso8601" or c.lower().startswith(("time", "unix", "epoch"))):
+        if fmt is not None and (c in by_name or fmt == "iso8601" or "%" in fmt
+                                or c.lower().startswith(("time", "unix", "epoch"))):
             return c, fmt
     return None, None

@@ -23,6 +23,12 @@ How channels are recognised
    A channel with conductivity, temperature and pressure is a CTD (``pressure_ctd_dbar``); other pressures are
    a gauge (``pressure_gauge_dbar``). A boolean ``valid`` field becomes ``valid_field``.
 
+3. Glider logs (ALSEAMAR SeaExplorer navigation/payload, Teledyne Slocum dbd2asc; :mod:`hadal.ingest.glider`), by
+   their kind's column conventions: day-first SeaExplorer times, NMEA ``DDMM.mmm`` positions
+   (``latlon_ddmm_to_*``), fill values (``fill_values``: the altimeter's -1, the payload's 9999) and, for Slocum,
+   every unit from the file's own units line; a Slocum file gives one sensor per group (CTD, navigation,
+   altimeter) reading the same ``sources.csv`` key.
+
 When several channels give one variable, the most specific wins (a CTD's temperature over a thermometer's, an
 IMU's attitude over an odometry's, a dead-reckoning over GNSS fixes; then the higher message count); the others
 are listed as not mapped. CSV files giving the same variables as an MCAP topic become that sensor's ``csv``
@@ -158,6 +164,8 @@ class _Src:
     delimiter: str = ","
     cands: list[_Cand] = field(default_factory=list)
     label: str = ""
+    #: the dive.yaml ``sources.csv`` key when ``source`` names one sensor of a file holding several (glider logs)
+    csv_key: str | None = None
 
 
 # ------------------------------------------------------------------------------------------------ name / unit parsing
@@ -572,6 +580,9 @@ def _csv_sources(csv_files: Mapping[str, str | Path], origin: tuple[float, float
             continue
         src = _Src("csv", key, str(p), {"field": d["time_column"], "format": d["time_format"]}, d["rate_hz"],
                    d["rows"], delimiter=d["delimiter"], label=label)
+        if d.get("glider"):
+            out += _glider_sources(src, d, origin, unmapped)
+            continue
         leaves: dict[str, Any] = {}
         for c in d["columns"]:
             if c == d["time_column"]:
@@ -600,6 +611,54 @@ def _csv_sources(csv_files: Mapping[str, str | Path], origin: tuple[float, float
     return out
 
 
+_GLIDER_NAME = {"seaexplorer": "ALSEAMAR SeaExplorer", "slocum": "Teledyne Slocum dbd2asc"}
+
+
+def _glider_sources(src: _Src, d: Mapping[str, Any], origin: tuple[float, float] | None,
+                    unmapped: list[dict[str, Any]]) -> list[_Src]:
+    """A glider log's sources, by its kind's column conventions (:mod:`hadal.ingest.glider`; Slocum units from the
+    file's units line): one per sensor group of the log (Slocum CTD, navigation, altimeter), all reading the same
+    ``sources.csv`` key; none when no column is a hadal variable."""
+    from hadal.ingest.glider import glider_fields
+
+    kind = d["glider"]
+    _, fields, skipped = glider_fields(kind, d["columns"], d.get("units") or {})
+    groups = list(dict.fromkeys(f.group for f in fields))
+    srcs = []
+    for g in groups:
+        part = _Src("csv", src.source if len(groups) == 1 else f"{src.source}@{g}", src.file, dict(src.time),
+                    src.rate_hz, src.count, delimiter=src.delimiter, label=src.label, csv_key=src.source)
+        _glider_cands(part, kind, [f for f in fields if f.group == g], origin)
+        srcs.append(part)
+    for name, reason in skipped:
+        unmapped.append({"source": src.source, "file": src.file, "field": name, "reason": reason})
+    if not fields:
+        unmapped.append({"source": src.source, "file": src.file, "field": None,
+                         "reason": f"{_GLIDER_NAME[kind]} log: no column recognised as a hadal variable (columns: "
+                                   f"{', '.join(d['columns'][:10])})"})
+    return srcs
+
+
+def _glider_cands(src: _Src, kind: str, fields: list[Any], origin: tuple[float, float] | None) -> None:
+    what = f"{_GLIDER_NAME[kind]} column"
+    for f in fields:
+        fm = _fm(f.field, f.units, f.transform)
+        if f.fill_values:
+            fm["fill_values"] = [float(v) for v in f.fill_values]
+        if f.transform and origin is not None:
+            fm["origin"] = [float(origin[0]), float(origin[1])]
+        src.cands.append(_Cand("csv", src.source, src.file, f.variable, fm, f.score,
+                               f"{what} {f.field if isinstance(f.field, str) else '/'.join(f.field)!r}: "
+                               f"{f.why.split(' ', 1)[1]}",
+                               False, src.count))
+    if src.cands and src.time["format"].startswith("%d"):
+        src.cands[0].checks.append(f"{src.label}: times read day first ({src.time['format']}), the {_GLIDER_NAME[kind]}"
+                                   " convention")
+    if src.cands and any(c.fm.get("transform", "").startswith("latlon_") for c in src.cands) and origin is None:
+        src.cands[0].checks.append(f"{src.label}: glider positions are metres from its first valid position; set "
+                                   "'origin: [lat, lon]' (or hadal init --launch) for another origin")
+
+
 def _resolve(srcs: list[_Src], unmapped: list[dict[str, Any]]) -> dict[str, dict[str, _Cand]]:
     """Best candidate per variable -> {source: {variable: cand}}; the losers go to ``unmapped``."""
     best: dict[str, _Cand] = {}
@@ -611,13 +670,19 @@ def _resolve(srcs: list[_Src], unmapped: list[dict[str, Any]]) -> dict[str, dict
     for c in allc:
         w = best[c.variable]
         if w is not c:
-            unmapped.append({"source": c.source, "file": c.file, "field": _label(c.fm),
+            unmapped.append({"source": _key_of(c), "file": c.file, "field": _label(c.fm),
                              "reason": f"{c.variable} is taken from {w.source} ({_label(w.fm)}) instead"})
     out: dict[str, dict[str, _Cand]] = {}
     for var in CANONICAL_UNITS:
         if var in best:
             out.setdefault(best[var].source, {})[var] = best[var]
     return out
+
+
+def _key_of(c: _Cand) -> str:
+    """The topic or ``sources.csv`` key of a candidate (a glider log's sensor groups read one key: ``key@ctd``;
+    the keys hadal init writes hold no ``@``)."""
+    return c.source.split("@", 1)[0] if c.kind == "csv" else c.source
 
 
 def _label(fm: Mapping[str, Any]) -> str:
@@ -630,10 +695,10 @@ def _role(variables: set[str]) -> str:
         return "ctd"
     if "pressure_gauge_dbar" in variables:
         return "gauge"
-    if "altitude_m" in variables:
-        return "altimeter"
     att = bool(variables & {"heading_deg", "pitch_deg", "roll_deg"})
     pos = bool(variables & {"dr_east_m", "dr_north_m", "speed_m_s"})
+    if "altitude_m" in variables and not (att and pos):  # else a navigation board that logs the altimeter too
+        return "altimeter"
     if att and pos:
         return "navigation"
     if att:
@@ -650,7 +715,7 @@ def _source_block(src: _Src, cands: Mapping[str, _Cand]) -> dict[str, Any]:
     if src.kind == "mcap":
         block["topic"] = src.source
     else:
-        block["source"] = src.source
+        block["source"] = src.csv_key or src.source
         if src.delimiter != ",":
             block["delimiter"] = src.delimiter
     block["time"] = dict(src.time)
@@ -720,7 +785,7 @@ def suggest_vehicle(mcap_paths: Iterable[str | Path] = (), csv_files: Mapping[st
     mapped: list[dict[str, Any]] = []
     for name, i in info.items():
         for c in i["cands"]:
-            mapped.append({"variable": c.variable, "sensor": name, "kind": c.kind, "source": c.source,
+            mapped.append({"variable": c.variable, "sensor": name, "kind": c.kind, "source": _key_of(c),
                            "file": c.file, "field": c.fm["field"], "units": c.fm["units"],
                            "transform": c.fm.get("transform"), "offset": c.fm.get("offset"), "why": c.why,
                            "assumed": c.assumed})

@@ -226,11 +226,15 @@ def _quat(which: int, frame: str):
     return f
 
 
-def _latlon(which: int):
+def _latlon(which: int, nmea: bool = False):
     def f(inputs, origin=None, **_):
         from hadal.geo import LocalFrame
 
         lat, lon = (np.asarray(v, dtype=np.float64) for v in inputs)
+        if nmea:  # [-]DDMM.mmm (glider logs) -> decimal degrees
+            from hadal.ingest.glider import nmea_to_deg
+
+            lat, lon = nmea_to_deg(lat), nmea_to_deg(lon)
         ok = np.isfinite(lat) & np.isfinite(lon) & (np.abs(lat) <= 90) & (np.abs(lon) <= 360)
         out = np.full(lat.shape, np.nan)
         if not ok.any():
@@ -274,6 +278,12 @@ TRANSFORMS: dict[str, tuple[Transform, Any]] = {
         (Transform("latlon_to_north_m", 2, "m", "length",
                    "metres north of `origin` [lat, lon] (default: the first valid fix) from [latitude, longitude] "
                    "in degrees (transverse Mercator centred on the origin, as hadal.geo.LocalFrame)"), _latlon(1)),
+        (Transform("latlon_ddmm_to_east_m", 2, "m", "length",
+                   "latlon_to_east_m of [latitude, longitude] logged as NMEA [-]DDMM.mmm (glider logs; "
+                   "origin in decimal degrees)"), _latlon(0, nmea=True)),
+        (Transform("latlon_ddmm_to_north_m", 2, "m", "length",
+                   "latlon_to_north_m of [latitude, longitude] logged as NMEA [-]DDMM.mmm (glider logs; "
+                   "origin in decimal degrees)"), _latlon(1, nmea=True)),
         (Transform("vector_norm", None, None, "any",
                    "Euclidean norm of the input components (e.g. speed from twist.linear.x and .y), "
                    "in the mapping's `units`"), _norm),

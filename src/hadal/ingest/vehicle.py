@@ -57,6 +57,12 @@ class FieldMap(BaseModel):
     origin: tuple[float, float] | None = Field(None, description="[latitude, longitude] origin of the latlon_to_* "
                                                                  "transforms (default: the first valid fix)")
 
+    #: values that mean "no measurement" in the source (an altimeter's -1 "no bottom", a logger's 9999): missing
+    fill_values: list[float] | None = Field(None, max_length=16,
+                                            description="source values that mean 'no measurement' (e.g. -1 for an "
+                                                        "altimeter's 'no bottom', 9999): read as missing values, "
+                                                        "before any transform or unit conversion")
+
     @model_validator(mode="after")
     def _check_transform(self) -> FieldMap:
         names = [self.field] if isinstance(self.field, str) else list(self.field)
