@@ -204,6 +204,14 @@ def test_report_lists_every_cast(shared_data, tmp_path):
     summary = json.loads(ctx.store.latest(ctx.dive_id, "report").file("summary.json").read_text())
     casts = summary["casts"]
     assert len(casts) == 2  # the first cast makes `ctd`; the other two are listed with their own positions
+    # the casts in file order: oceissues644_02dk (566 dbar) makes ctd; dPIRX010 (~1014 dbar) and sta0860 (90 dbar)
+    from hadal.ingest.cnv import read_cnv
+
+    oracle = sorted(float(read_cnv(shared_data / "ctd-real" / f)[c].max()) for f, c in
+                    (("seabird_dPIRX010.cnv", "prDM"), ("seabird_sta0860.cnv", "prDM")))
+    assert sorted(c["max_pressure_dbar"] for c in casts) == pytest.approx(oracle, abs=0.01)
+    html = ctx.store.latest(ctx.dive_id, "report").file("report.html").read_text()
+    assert "Other casts of this dive" in html
 
 
 def _run_alone(shared: Path, tmp_path: Path, rel: str):
@@ -307,14 +315,6 @@ def test_cast_altimeter_read_and_its_no_bottom_missing(shared_data, tmp_path):
     summary = json.loads(ctx.store.latest(ctx.dive_id, "report").file("summary.json").read_text())
     assert "altimeter out of range" not in summary["figures"]["fig10_seafloor_depth"]
     assert any("no-bottom output" in n for n in summary["notes"])
-    # the casts in file order: oceissues644_02dk (566 dbar) makes ctd; dPIRX010 (~1014 dbar) and sta0860 (90 dbar)
-    from hadal.ingest.cnv import read_cnv
-
-    oracle = sorted(float(read_cnv(shared_data / "ctd-real" / f)[c].max()) for f, c in
-                    (("seabird_dPIRX010.cnv", "prDM"), ("seabird_sta0860.cnv", "prDM")))
-    assert sorted(c["max_pressure_dbar"] for c in casts) == pytest.approx(oracle, abs=0.01)
-    html = ctx.store.latest(ctx.dive_id, "report").file("report.html").read_text()
-    assert "Other casts of this dive" in html
 
 
 @pytest.mark.parametrize("rel", ["dives-real/pdal_autzen-utm.las", "dives-real/pdal_autzen-utm.pcd",
