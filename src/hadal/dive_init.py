@@ -222,7 +222,7 @@ def _lonlat_centre(info: dict[str, Any]) -> tuple[float, float] | None:
     kind = _crs_kind(info)
     if kind == "geographic":
         return cx, cy
-    crs = info.get("crs") if isinstance(info.get("crs"), dict) else {}
+    crs: dict[str, Any] = info["crs"] if isinstance(info.get("crs"), dict) else {}
     if kind == "projected" and (crs.get("wkt") or crs.get("name")):
         try:
             from pyproj import CRS, Transformer
@@ -354,7 +354,7 @@ def grid_hints(info: dict[str, Any]) -> dict[str, tuple[str, str]]:
     """The reading hints ``hadal init`` writes for a grid whose file leaves a gap: ``{hint: (value, comment)}``.
     A sign guessed from the values (:func:`hadal.grid.prior.z_positive`) -> ``z_positive``; no units in the file
     -> ``z_units: m``. Each comment says it was not read from the file, so the user can change it."""
-    z = info.get("z") if isinstance(info.get("z"), dict) else {}
+    z: dict[str, Any] = info["z"] if isinstance(info.get("z"), dict) else {}
     out: dict[str, tuple[str, str]] = {}
     if z.get("sign_guessed") and z.get("positive") in ("up", "down"):
         out["z_positive"] = (z["positive"], f"{z.get('sign_reason', 'guessed')}; the file does not say: check it")
@@ -366,7 +366,7 @@ def grid_hints(info: dict[str, Any]) -> dict[str, tuple[str, str]]:
 def _map_grid(res: InitResult, sources: dict[str, Any], rel: str, kind: str, info: dict[str, Any]) -> bool:
     """Map a raster grid to ``sources.prior_grid`` or ``sources.laser`` (:func:`grid_role`), with the hints of
     :func:`grid_hints`; ``False`` when it has no seafloor to grid (a land DEM: listed as not used, with why)."""
-    z = info.get("z") if isinstance(info.get("z"), dict) else {}
+    z: dict[str, Any] = info["z"] if isinstance(info.get("z"), dict) else {}
     if z.get("no_seafloor"):
         res.not_used.append(f"{rel}: {z['no_seafloor']}")
         return False
@@ -457,6 +457,7 @@ def _set_launch(res: InitResult, dive: dict[str, Any], scan: _Scan, launch: tupl
                           "uses the position in its own header")
     pos = (dive["launch"]["latitude_deg"], dive["launch"]["longitude_deg"]) if "launch" in dive else None
     for rel, lon0, lon1, lat0, lat1 in scan.extents if pos is not None else ():
+        assert pos is not None
         if not (lat0 <= pos[0] <= lat1 and _lon_in(pos[1], lon0, lon1)):
             res.todo.append(f"the launch/cast position ({pos[0]:.4f}, {pos[1]:.4f}) lies outside {rel} "
                             f"(lon {lon0:.4f}..{lon1:.4f}, lat {lat0:.4f}..{lat1:.4f}): check that they belong to "
@@ -511,7 +512,8 @@ def _add_footprint(scan: _Scan, rel: str, kind: str, info: dict[str, Any]) -> No
         if not isinstance(track, dict):
             return
         lo, la = track["longitude_deg"], track["latitude_deg"]
-        box, role, first = (lo[0], lo[1], la[0], la[1]), "track", (track["first_deg"][0], track["first_deg"][1])
+        box: tuple[float, float, float, float] | None = (lo[0], lo[1], la[0], la[1])
+        role, first = "track", (track["first_deg"][0], track["first_deg"][1])
     elif kind in ("cnv", "seabird_hex"):
         role = "cast"
         box = _lonlat_box(info)

@@ -227,7 +227,7 @@ class ProductStore:
         key = _file_key(p)
         with _HASH_LOCK:
             known = _PROCESS_HASHES.get(key)
-            rec = self._hash_records().get(key[0])
+            rec: Any = self._hash_records().get(key[0])
         stored = isinstance(rec, dict) and rec.get("stat") == list(key[1:]) and isinstance(rec.get("sha256"), str)
         if known is not None:
             # hashed earlier in this process, perhaps before the store existed (a cold run hashes its inputs

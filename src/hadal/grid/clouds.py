@@ -302,7 +302,7 @@ def read_pcd(path: str | Path, hints=None) -> tuple[np.ndarray, dict[str, Any]]:
         i = fields.index(n)
         if md.count[i] != 1:
             raise InputError(f"{p}: PCD field {n} has COUNT {md.count[i]} (one value per point expected)")
-    pts = np.ascontiguousarray(pc.numpy(tuple(names)), dtype=np.float64)
+    pts = np.ascontiguousarray(pc.numpy(tuple(str(n) for n in names)), dtype=np.float64)
     if pts.ndim != 2 or len(pts) == 0:
         raise InputError(f"{p}: PCD has no points")
     if len(pts) != int(md.points):

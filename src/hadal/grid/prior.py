@@ -388,9 +388,10 @@ def resample_to_frame(da: xr.DataArray, frame: LocalFrame | None, resolution_m: 
     if z.shape[0] < 2 or z.shape[1] < 2:
         raise InputError(f"{da.attrs.get('source', 'grid')}: fewer than 2 x 2 valid cells at {res:g} m in the map frame")
     ds = to_dataset(spec, {"z": z.ravel()})
-    info = {"resolution_m": res, "resampling": RESAMPLING, "cropped_to_m": float(max_extent_m) if cropped else 0.0,
+    info = {"resolution_m": res, "resampling": RESAMPLING,
+            "cropped_to_m": float(max_extent_m) if cropped and max_extent_m else 0.0,
             "n_cells_valid": int(np.isfinite(z).sum())}
-    if cropped:
+    if cropped and frame is not None:  # a crop needs the frame (frame_bounds)
         info["crop"] = _crop_loss(da, fwd, frame, bounds)
     return ds, info
 
@@ -662,7 +663,7 @@ def prior_mosaic(grids: list[PriorGrid], frame: LocalFrame, *, resolution_m: flo
     if note:
         ds.attrs["prior_grid_mosaic_resolution_note"] = note
     cropped = [g.name for g, b in zip(grids, boxes, strict=True) if b[1]]
-    if cropped:
+    if cropped and max_extent_m:
         ds.attrs["prior_grid_cropped"] = f"{', '.join(cropped)} cropped to {max_extent_m / 1000:g} km around the origin"
     return add_geo(ds, frame)
 

@@ -376,7 +376,7 @@ def rejected_summary(sensors: Mapping[str, SensorSamples], meta: dict[str, Any])
     out: dict[str, Any] = {}
     for name, s in sensors.items():
         st = s.stats if isinstance(s.stats, dict) else {}
-        parts = st.get("files") if isinstance(st.get("files"), list) else [st]
+        parts: list[Any] = st["files"] if isinstance(st.get("files"), list) else [st]
         n = sum(int(x.get("rejected_samples", 0) or 0) for x in parts if isinstance(x, dict))
         if n:
             fields: dict[str, Any] = {}
@@ -693,7 +693,7 @@ def channel_health(v: np.ndarray, var: str, cfg: VariableQC | None, meta: dict[s
     from hadal.ingest.qc import fill_mask
     from hadal.ingest.units import raw_values
 
-    raw, unit = raw_values(v, list(conversions), var)
+    raw, unit = raw_values(v, [dict(c) for c in conversions], var)
     finite = np.isfinite(v)
     fills = fill_mask(raw, v, cfg) & finite
     n_fill, n_finite = int(fills.sum()), int(finite.sum())

@@ -988,7 +988,9 @@ def cnv_sensor_samples(df: pd.DataFrame, name: str = "ctd", *, allow_no_time: bo
                       "or not a number", stacklevel=2)
         df = df.loc[~bad_t]
         t = t[~bad_t]
-    values, conversions, used = {}, [], {}
+    values: dict[str, Any] = {}
+    conversions: list[Any] = []
+    used: dict[str, Any] = {}
     stats: dict[str, Any] = {}
     for var, table in (("pressure_ctd_dbar", CNV_PRESSURE), ("temperature_its90_degc", CNV_TEMPERATURE),
                        ("conductivity_s_m", CNV_CONDUCTIVITY)):

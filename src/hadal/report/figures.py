@@ -143,6 +143,7 @@ def fig_ctd_profiles(dp: DiveProducts, opt: FigureOptions) -> FigureResult:
     zcol = "depth_m" if df is not None and "depth_m" in df else "pressure_dbar"
     if _lacks(r, df, (zcol,), "ctd product"):
         return r
+    assert df is not None  # _lacks said so
     panels = [p for p in CTD_PANELS if p[0] in df.columns]
     if not panels:
         r.skipped = "ctd product has none of " + ", ".join(p[0] for p in CTD_PANELS)
