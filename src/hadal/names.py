@@ -12,6 +12,7 @@ use (``.json``, ``.lock``, ``.tmp``), compared case-insensitively (case-insensit
 from __future__ import annotations
 
 import unicodedata
+from pathlib import Path
 from typing import Literal
 
 from hadal.errors import StoreError
@@ -78,3 +79,16 @@ def check_relative_path(path: object, what: str = "path") -> str:
     if path.startswith("/") or "\\" in path:
         raise StoreError(f"invalid {what} {path!r}: must be relative, with '/' separators")
     return "/".join(check_component(c, what, kind="path") for c in path.split("/"))
+
+
+def record_id(prefix: str, k: int, path: str | Path) -> str:
+    """``<prefix><k:02d>_<stem>``: a product file id for the ``k``-th record of a dive (a cast, an underway record),
+    from its file name without compression/format suffixes, reduced to ``[A-Za-z0-9_-]``."""
+    import re
+
+    stem = Path(path).name
+    for ext in (".gz", ".bz2", ".xz", ".cnv", ".hex", ".txt"):
+        if stem.lower().endswith(ext):
+            stem = stem[: -len(ext)]
+    stem = re.sub(r"[^A-Za-z0-9_-]+", "_", stem).strip("_") or prefix
+    return f"{prefix}{k:02d}_{stem}"

@@ -26,6 +26,7 @@ from typing import Any
 import numpy as np
 
 from hadal.errors import InputError
+from hadal.grid.sonar import _hint
 
 #: GeoTIFF ProjLinearUnitsGeoKey / VerticalUnitsGeoKey codes (EPSG units) -> metres per unit
 _EPSG_LINEAR_UNITS = {9001: 1.0, 9002: 0.3048, 9003: 1200.0 / 3937.0, 9036: 1000.0, 9030: 1852.0,
@@ -38,13 +39,6 @@ def _first_line(exc: BaseException) -> str:
     s = str(exc)
     return s.splitlines()[0] if s else type(exc).__name__
 
-
-def _hint(hints, name: str):
-    if hints is None:
-        return None
-    if isinstance(hints, dict):
-        return hints.get(name)
-    return getattr(hints, name, None)
 
 
 def metric_crs(crs):

@@ -38,6 +38,7 @@ from pydantic import BaseModel, ConfigDict, Field, field_validator
 
 from hadal.budget import check_memory, memory_limit_bytes
 from hadal.errors import InputError
+from hadal.names import record_id as file_record_id
 from hadal.qc_derived import DerivedVariableQC
 from hadal.stages import StageInputs
 
@@ -1300,16 +1301,6 @@ def _evidence(path: Path) -> Any:
         return None
 
 
-def _record_id(k: int, path: Path) -> str:
-    import re
-
-    stem = path.name
-    for ext in (".gz", ".bz2", ".xz", ".cnv", ".hex", ".txt"):
-        if stem.lower().endswith(ext):
-            stem = stem[: -len(ext)]
-    stem = re.sub(r"[^A-Za-z0-9_-]+", "_", stem).strip("_") or "record"
-    return f"underway{k:02d}_{stem}"
-
 
 def underway_table(table: pd.DataFrame, raw_path: Path, p: Params) -> tuple[pd.DataFrame, dict[str, Any]]:
     """The per-scan trajectory table of an underway record: the ingested (QC'd) samples in time order with the
@@ -1481,7 +1472,8 @@ def _run_underway(ctx: StageContext, p: Params, limit: float | None, sensors: An
                   ) -> dict[str, ProductVersion]:
     """derive for a dive whose ``sensors`` is an underway record: ``trajectory`` (no ``ctd``/``profile``: nothing
     vertical to derive or bin), and the external casts' ``cast_profiles`` as usual."""
-    underway: list[tuple[str, pd.DataFrame, dict[str, Any], Path]] = [(_record_id(0, raw), table, sensors_meta, raw)]
+    rid0 = file_record_id("underway", 0, raw)
+    underway: list[tuple[str, pd.DataFrame, dict[str, Any], Path]] = [(rid0, table, sensors_meta, raw)]
     casts_pv, cast_results = _derive_external_casts(ctx, p, sensors_meta, limit, underway)
     params = ctx.params("derive")
     ctx.log.info("derive: dive %s: the sensor record %s is an underway record (dive.yaml kind: underway): "

@@ -19,7 +19,6 @@ the metadata (``cast``, ``cast_latitude_deg``/``cast_longitude_deg``) for derive
 from __future__ import annotations
 
 import json
-import re
 import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -29,6 +28,7 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from hadal.errors import InputError
 from hadal.ingest.qc import DEFAULT_QC, VariableQC
+from hadal.names import record_id as file_record_id
 from hadal.stages import StageInputs
 from hadal.store import sha256_file
 
@@ -98,14 +98,6 @@ def _vehicle_path(ctx: StageContext, p: Params) -> Path:
         ctx.log.warning("dive %s names no vehicle_config; using the packaged haidou mapping", ctx.dive_id)
     return default_vehicle_config_path()
 
-
-def _cast_id(k: int, path: Path) -> str:
-    stem = path.name
-    for ext in (".gz", ".bz2", ".xz", ".cnv", ".hex", ".txt"):
-        if stem.lower().endswith(ext):
-            stem = stem[: -len(ext)]
-    stem = re.sub(r"[^A-Za-z0-9_-]+", "_", stem).strip("_") or "cast"
-    return f"cast{k:02d}_{stem}"
 
 
 def _cast_table(samples: SensorSamples, vehicle: VehicleConfig, p: Params, launch_ns: int | None = None
@@ -298,7 +290,7 @@ def _external_casts(ctx: StageContext, p: Params, vehicle: VehicleConfig, cast_p
         t_k, tm_k = _cast_table(s_k, vehicle, p, _launch_ns(ctx))
         tm_k["cast"] = m_k
         _add_cast_notes(tm_k)
-        external.append((_cast_id(k, q), q, t_k, tm_k))
+        external.append((file_record_id("cast", k, q), q, t_k, tm_k))
     return external
 
 
