@@ -232,7 +232,8 @@ def _api_lost(err: HadalError) -> None:
     if not _INTERRUPT_LOCK.acquire(blocking=False):  # an interrupt is already ending the run
         return
     try:
-        console.print(f"[red]error:[/] {err}", highlight=False, soft_wrap=True)
+        # on a line of its own: Prefect's log worker may have left a partial line ("All connection attempts failed")
+        console.print(f"\n[red]error:[/] {err}", highlight=False, soft_wrap=True)
     except Exception:  # noqa: BLE001 - a closed stderr: the exit status still says it
         pass
     _stop_children()
