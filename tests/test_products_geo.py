@@ -151,42 +151,86 @@ def test_footprints_geojson_polygons_at_the_site_heading():
     assert footprints_geojson(sites, None, 1.7, 0.5) is None
 
 
-def test_dtm_cog_in_the_utm_zone_matches_the_grid(tmp_path):
+
+def _pixel_lonlat(f, rows, cols):
+    """Pixel centres of an open COG -> lon/lat with the CRS the file carries (pyproj from its WKT)."""
+    import rasterio
+
+    ex, ny = rasterio.transform.xy(f.transform, rows, cols)
+    to_ll = Transformer.from_crs(CRS.from_wkt(f.crs.to_wkt()), CRS.from_epsg(4326), always_xy=True)
+    return to_ll.transform(np.asarray(ex, float), np.asarray(ny, float))
+
+
+def test_dtm_cog_is_the_grid_cell_for_cell_with_elevation_up(tmp_path):
+    """The DTM COG is in the grid's own frame: every cell equals -depth of the NetCDF cell (float32), placed where
+    geodesics from the frame origin put the cell centre (distance and azimuth, pyproj Geod: independent of the
+    transverse Mercator formulae); uncertainty and count bands, band descriptions, units, nodata."""
     rasterio = pytest.importorskip("rasterio")
     pytest.importorskip("rio_cogeo")
-    from pyproj.aoi import AreaOfInterest
-    from pyproj.database import query_utm_crs_info
     from rio_cogeo.cogeo import cog_validate
-    from scipy.interpolate import RegularGridInterpolator
 
-    from hadal.products.geotiff import NODATA, write_grid_cog
+    from hadal.products.geotiff import NODATA, thumbnail_path, write_grid_cog
 
     x, y = np.arange(-2000.0, 2000.0, 20.0), np.arange(-1500.0, 1500.0, 20.0)
     X, Y = np.meshgrid(x, y)
     depth = 10000 + 0.05 * X - 0.02 * Y + 20 * np.sin(X / 300)
     depth[:10, :10] = np.nan
+    depth[70, 100] = 10955.5  # the deepest cell: a warp would smooth it away
+    unc = 2.0 + 0.001 * np.abs(X)
+    cnt = (np.abs(X + Y) // 300).astype(np.int32)
     ds = xr.Dataset({"depth_m": (("y", "x"), depth, {"units": "m", "positive": "down", "long_name": "depth"}),
+                     "uncertainty_m": (("y", "x"), unc, {"units": "m"}), "count": (("y", "x"), cnt),
                      "crs": ((), 0, {"crs_wkt": FRAME.crs.to_wkt()})}, coords={"x": x, "y": y})
     path = write_grid_cog(ds, tmp_path / "dtm.tif")
     ok, errors, _ = cog_validate(str(path), quiet=True)
     assert ok, errors
-    utm = query_utm_crs_info(datum_name="WGS 84", area_of_interest=AreaOfInterest(142.2, 11.33, 142.2, 11.33))
+    assert thumbnail_path(path).is_file() and thumbnail_path(path).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     with rasterio.open(path) as f:
-        assert f.crs.to_epsg() == int(utm[0].code) == 32654
-        assert f.nodata == NODATA and f.units == ("m",) and f.res == (20.0, 20.0)
-        band = f.read(1)
-        rows, cols = np.meshgrid(np.arange(20, f.height - 20, 17), np.arange(20, f.width - 20, 23), indexing="ij")
-        ex, ny = rasterio.transform.xy(f.transform, rows.ravel(), cols.ravel())
-        vals = band[rows.ravel(), cols.ravel()]
-    # independent: UTM pixel centres -> map frame (pyproj) -> bilinear in the source grid (scipy)
-    to_map = Transformer.from_crs(CRS.from_epsg(32654), FRAME.crs, always_xy=True)
-    mx, my = to_map.transform(np.asarray(ex), np.asarray(ny))
-    ref = RegularGridInterpolator((y, x), depth, bounds_error=False, fill_value=np.nan)(np.c_[my, mx])
-    good = np.isfinite(ref) & (vals != NODATA)
-    assert good.mean() > 0.8
-    assert np.nanmax(np.abs(vals[good] - ref[good])) < 0.05  # float32 of ~1e4 m: ~1e-3 m
-    assert (band == NODATA).any()  # the empty corner and outside the rotated grid are nodata
+        assert f.count == 3 and f.nodata == NODATA and f.units == ("m", "m", "1")
+        assert [d.split(":")[0] for d in f.descriptions] == ["elevation", "uncertainty", "count"]
+        assert "positive up" in f.descriptions[0] and f.tags(1)["positive"] == "up"
+        assert f.res == (20.0, 20.0) and (f.width, f.height) == (x.size, y.size)
+        assert CRS.from_wkt(f.crs.to_wkt()).equals(FRAME.crs, ignore_axis_order=True)
+        el, u, n = f.read(1), f.read(2), f.read(3)
+        rows, cols = np.meshgrid(np.arange(0, f.height, 7), np.arange(0, f.width, 11), indexing="ij")
+        lon, lat = _pixel_lonlat(f, rows.ravel(), cols.ravel())
+        st = f.tags(1)
+    # north-up: COG row r is the NetCDF's row (ny - 1 - r)
+    flip = depth[::-1]
+    assert np.array_equal(el == NODATA, np.isnan(flip))
+    ok = ~np.isnan(flip)
+    assert np.array_equal(el[ok], (-flip[ok]).astype("float32"))
+    assert np.array_equal(u, unc[::-1].astype("float32")) and np.array_equal(n, cnt[::-1].astype("float32"))
+    assert el[el != NODATA].min() == pytest.approx(-10955.5, abs=1e-3)  # the extreme survives exactly
+    assert float(st["STATISTICS_MINIMUM"]) == pytest.approx(-np.nanmax(depth), abs=1e-3)
+    # placement: the cell centre (x, y) is at distance hypot(x, y) and azimuth atan2(x, y) from the origin
+    cx, cy = x[cols.ravel()], y[::-1][rows.ravel()]
+    az, _, dist = GEOD.inv(np.full(lon.size, FRAME.origin_longitude_deg), np.full(lat.size, FRAME.origin_latitude_deg),
+                           lon, lat)
+    far = dist > 1.0
+    assert np.allclose(dist, np.hypot(cx, cy), atol=2e-3)
+    assert np.allclose(np.radians(az[far]), np.arctan2(cx, cy)[far], atol=2e-6)
 
+
+def test_dtm_bands_read_positive_by_metadata(tmp_path):
+    from hadal.products.geotiff import dtm_bands
+
+    z = np.full((3, 4), 100.0)
+    mk = lambda attrs: xr.Dataset({"depth_m": (("y", "x"), z, attrs)}, coords={"x": np.arange(4.0), "y": np.arange(3.0)})  # noqa: E731
+    assert dtm_bands(mk({"positive": "down"}))[0].values.max() == -100.0
+    assert dtm_bands(mk({"positive": "up"}))[0].values.max() == 100.0
+    assert dtm_bands(mk({"standard_name": "sea_floor_depth_below_sea_surface"}))[0].values.max() == -100.0
+    with pytest.raises(ValueError, match="positive"):
+        dtm_bands(mk({}))
+
+
+def test_irregular_grid_is_refused(tmp_path):
+    from hadal.products.geotiff import write_grid_cog
+
+    x = np.array([0.0, 1.0, 2.5, 3.0])
+    ds = xr.Dataset({"v": (("y", "x"), np.ones((2, 4)))}, coords={"x": x, "y": [0.0, 1.0]})
+    with pytest.raises(ValueError, match="not regular"):
+        write_grid_cog(ds, tmp_path / "v.tif", "v", frame=FRAME)
 
 def test_utm_zone_selection():
     from hadal.products.geotiff import utm_epsg
@@ -197,37 +241,16 @@ def test_utm_zone_selection():
     assert utm_epsg(10.0, 86.0) == 4326
 
 
-def _cog_vs_independent(path, value_at_lonlat, epsg_expected, res_m):
-    """Open a COG, check its layout (rio-cogeo), CRS and cell size; compare sampled pixels with
-    ``value_at_lonlat`` (an independent interpolation of the source grid). Returns (max |diff|, fraction kept)."""
+
+
+def test_suitability_cog_is_the_block_grid(tmp_path):
+    """The suitability stage's COGs (its own build + write calls) hold its block values cell for cell, in the map
+    frame (block centres placed by geodesics from the origin)."""
     rasterio = pytest.importorskip("rasterio")
+    pytest.importorskip("rio_cogeo")
     from rio_cogeo.cogeo import cog_validate
 
-    from hadal.products.geotiff import NODATA
-
-    ok, errors, _ = cog_validate(str(path), quiet=True)
-    assert ok, errors
-    with rasterio.open(path) as f:
-        assert f.crs.to_epsg() == epsg_expected and f.nodata == NODATA
-        assert f.res == pytest.approx((res_m, res_m))
-        band = f.read(1)
-        rows, cols = np.meshgrid(np.arange(2, f.height - 2, 3), np.arange(2, f.width - 2, 5), indexing="ij")
-        ex, ny = rasterio.transform.xy(f.transform, rows.ravel(), cols.ravel())
-        vals = band[rows.ravel(), cols.ravel()]
-    lon, lat = Transformer.from_crs(CRS.from_epsg(epsg_expected), "EPSG:4326", always_xy=True).transform(
-        np.asarray(ex), np.asarray(ny))
-    ref = value_at_lonlat(lon, lat)
-    good = np.isfinite(ref) & (vals != NODATA)
-    return float(np.max(np.abs(vals[good] - ref[good]))), float(good.mean()), band
-
-
-def test_suitability_cog_in_the_utm_zone_matches_the_blocks(tmp_path):
-    """The suitability stage's COGs (its own build + write calls) against scipy bilinear interpolation of the
-    block grid at the UTM pixel centres taken back to the map frame with pyproj."""
-    pytest.importorskip("rio_cogeo")
-    from scipy.interpolate import RegularGridInterpolator
-
-    from hadal.products.geotiff import write_grid_cog
+    from hadal.products.geotiff import NODATA, write_grid_cog
     from hadal.stages.suitability import COG_VARIABLES, Params, build_suitability
 
     x, y = np.arange(-6000.0, 6000.0, 50.0), np.arange(-4000.0, 4000.0, 50.0)
@@ -237,49 +260,54 @@ def test_suitability_cog_in_the_utm_zone_matches_the_blocks(tmp_path):
     dtm = xr.Dataset({"depth_m": (("y", "x"), depth, {"units": "m", "positive": "down"}),
                       "crs": ((), 0, {"crs_wkt": FRAME.crs.to_wkt()})}, coords={"x": x, "y": y})
     suit = build_suitability(dtm, FRAME, 11.33, 142.20, Params())
-    to_map = Transformer.from_crs("EPSG:4326", FRAME.crs, always_xy=True)
     bx, by = suit["x"].values, suit["y"].values
     for v in COG_VARIABLES:
         path = write_grid_cog(suit, tmp_path / f"suitability_{v}.tif", v)
-        vals = suit[v].values.astype(float)
-        interp = RegularGridInterpolator((by, bx), vals, bounds_error=False, fill_value=np.nan)
-
-        def at(lon, lat, interp=interp):
-            mx, my = to_map.transform(lon, lat)
-            return interp(np.c_[my, mx])
-
-        res = min(np.median(np.diff(bx)), np.median(np.diff(by)))  # 200 x 150 m blocks: the finer one
-        err, kept, _ = _cog_vs_independent(path, at, 32654, float(res))
-        assert kept > 0.5
-        assert err < 1e-3 * max(1.0, float(np.nanmax(np.abs(vals))))  # float32 rounding only
+        assert cog_validate(str(path), quiet=True)[0]
+        vals = suit[v].transpose("y", "x").values.astype(float)
+        with rasterio.open(path) as f:
+            band = f.read(1)
+            lon, lat = _pixel_lonlat(f, [0, f.height - 1], [0, f.width - 1])
+        want = vals[::-1] if by[1] > by[0] else vals
+        assert np.array_equal(band == NODATA, np.isnan(want))
+        assert np.allclose(band[band != NODATA], want[~np.isnan(want)], rtol=1e-6)
+        cy = [by.max(), by.min()]
+        _, _, dist = GEOD.inv([FRAME.origin_longitude_deg] * 2, [FRAME.origin_latitude_deg] * 2, lon, lat)
+        assert np.allclose(dist, np.hypot([bx[0], bx[-1]], cy), atol=5e-3)
 
 
 def test_laser_grid_cog_from_the_georeferenced_laser_frame(tmp_path):
-    """A laser grid in its own frame, turned 35° and placed by dive.yaml laser_frame: the COG's pixels equal
-    scipy bilinear interpolation of the grid at (UTM centre -> lon/lat -> laser frame), the last step by
-    geodesics (pyproj Geod: distance and azimuth from the origin), independent of the TM frame used in the writer."""
+    """A laser grid in its own frame, turned 35° and placed by dive.yaml laser_frame: the COG holds the grid's
+    cells (rotated geotransform, no resampling) and each pixel centre lies where geodesics from the origin put the
+    cell (distance and azimuth from the frame's +y axis, pyproj Geod). No vertical CRS is claimed."""
+    rasterio = pytest.importorskip("rasterio")
     pytest.importorskip("rio_cogeo")
-    from scipy.interpolate import RegularGridInterpolator
+    from rio_cogeo.cogeo import cog_validate
 
-    from hadal.products.geotiff import write_grid_cog
+    from hadal.products.geotiff import NODATA, write_grid_cog
 
     lf = LaserFrame(origin_latitude_deg=11.3371, origin_longitude_deg=142.2097, heading_deg=35.0)
     x, y = np.arange(0.0, 6.0, 0.02), np.arange(-2.0, 2.0, 0.02)
     X, Y = np.meshgrid(x, y)
     elev = -10900 + 0.3 * X - 0.1 * Y + 0.05 * np.sin(X * 3)
-    ds = xr.Dataset({"elevation_m": (("y", "x"), elev, {"units": "m", "positive": "up"})}, coords={"x": x, "y": y})
+    elev[:5, :5] = np.nan
+    cnt = np.where(np.isnan(elev), 0, 3)
+    ds = xr.Dataset({"elevation_m": (("y", "x"), elev, {"units": "m", "positive": "up"}),
+                     "count": (("y", "x"), cnt)}, coords={"x": x, "y": y})
     path = write_grid_cog(ds, tmp_path / "submap_00.tif", "elevation_m", laser_frame=lf)
-    interp = RegularGridInterpolator((y, x), elev, bounds_error=False, fill_value=np.nan)
-
-    def at(lon, lat):
-        az, _, dist = GEOD.inv(np.full_like(lon, lf.origin_longitude_deg), np.full_like(lat, lf.origin_latitude_deg),
-                               lon, lat)
-        rel = np.radians(np.asarray(az) - lf.heading_deg)  # azimuth from the frame's +y axis, clockwise
-        return interp(np.c_[dist * np.cos(rel), dist * np.sin(rel)])
-
-    err, kept, band = _cog_vs_independent(path, at, 32654, 0.02)
-    assert kept > 0.3  # a turned rectangle fills about half of its north-up bounding box
-    assert err < 0.01  # float32 of ~1e4 m (1e-3) + bilinear of the gentle sine at 2 cm cells
-    from hadal.products.geotiff import NODATA
-
-    assert (band == NODATA).any()
+    assert cog_validate(str(path), quiet=True)[0]
+    with rasterio.open(path) as f:
+        assert f.count == 2 and [d.split(":")[0] for d in f.descriptions] == ["elevation", "count"]
+        assert not CRS.from_wkt(f.crs.to_wkt()).is_compound  # no vertical datum for relative elevations
+        assert "5829" not in f.crs.to_wkt() and "5831" not in f.crs.to_wkt()
+        band = f.read(1)
+        rows, cols = np.meshgrid(np.arange(0, f.height, 9), np.arange(0, f.width, 13), indexing="ij")
+        lon, lat = _pixel_lonlat(f, rows.ravel(), cols.ravel())
+    flip = elev[::-1]
+    assert np.array_equal(band == NODATA, np.isnan(flip))
+    assert np.array_equal(band[band != NODATA], flip[~np.isnan(flip)].astype("float32"))
+    az, _, dist = GEOD.inv(np.full(lon.size, lf.origin_longitude_deg), np.full(lat.size, lf.origin_latitude_deg),
+                           lon, lat)
+    rel = np.radians(np.asarray(az) - lf.heading_deg)  # azimuth from the frame's +y axis, clockwise
+    fx, fy = dist * np.sin(rel), dist * np.cos(rel)
+    assert np.allclose(fx, x[cols.ravel()], atol=1e-4) and np.allclose(fy, y[::-1][rows.ravel()], atol=1e-4)

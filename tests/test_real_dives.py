@@ -357,6 +357,17 @@ def test_real_point_clouds_and_em3000_content(shared_data, tmp_path, rel):
     assert z.min() - 1e-9 <= np.nanmin(e) < np.nanmax(e) <= z.max() + 1e-9 and n + attrs["n_points_outliers"] == 1065
     if src.suffix == ".las":
         assert attrs["source_crs_epsg"] == 26910 and attrs["source_horizontal_units"] == "metre"
+        # its COG: the grid's cells in the cloud's own CRS (laspy's reading of the LAS header), no resampling,
+        # no vertical datum claimed for the elevations (issue 46)
+        import rasterio
+        from pyproj import CRS
+
+        with rasterio.open(lg.file(src.stem + ".tif")) as f:
+            crs = CRS.from_wkt(f.crs.to_wkt())
+            el = f.read(1, masked=True)
+        assert crs.equals(las.header.parse_crs(), ignore_axis_order=True) and not crs.is_compound
+        assert abs(float(el.min()) - np.nanmin(e)) < 0.1 and abs(float(el.max()) - np.nanmax(e)) < 0.1
+        assert int((~el.mask).sum()) == int(np.isfinite(e).sum())
 
 
 # ---------------------------------------------------------------- underway records and SeaSoft-binned casts

@@ -134,13 +134,21 @@ def write_parquet(
     "provenance": {...}}``; the same JSON is stored as ``PANDAS_ATTRS`` so ``pd.read_parquet(p).attrs``
     returns it. ``provenance_from`` may be the store ``Draft`` being written (adds dive, product,
     parameters, upstream versions).
+
+    A table with a latitude and a longitude column (by their metadata) also gets a WKB ``geometry`` column and
+    the GeoParquet 1.1 ``geo`` metadata (:mod:`hadal.products.geoparquet`).
     """
+    from hadal.products.geoparquet import GEOMETRY_COLUMN, add_point_geometry
+
     path = Path(path)
     if not isinstance(df, pd.DataFrame):
         raise InputError(f"write_parquet({path.name}): expected a pandas DataFrame, got {type(df).__name__}")
     table = pa.Table.from_pandas(df, preserve_index=False)
     fields = fields or {}
     cols = {f.name: column_attrs(f.name, fields.get(f.name), where=path.name) for f in table.schema}
+    table, geo = add_point_geometry(table, cols)  # GeoParquet 1.1: WKB points from the position columns
+    if geo is not None:
+        cols[GEOMETRY_COLUMN] = column_attrs(GEOMETRY_COLUMN, fields.get(GEOMETRY_COLUMN), where=path.name)
     new_fields = [f.with_metadata(cols[f.name]) if cols[f.name] else f for f in table.schema]
     dive, product = _store_location(path)
     prov_src = provenance_from if provenance_from is not None else (
@@ -151,6 +159,8 @@ def write_parquet(
     schema_meta.pop(b"PANDAS_ATTRS", None)
     schema_meta[b"hadal"] = text.encode()
     schema_meta[b"PANDAS_ATTRS"] = json.dumps({"hadal": block}, default=_json_default).encode()
+    if geo is not None:
+        schema_meta[b"geo"] = json.dumps(geo, allow_nan=False).encode()
     table = table.cast(pa.schema(new_fields, metadata=schema_meta))
     # encoded in memory (a few MiB: compressed), then written with a free-space check and plain os.write:
     # a full disk is one OSError (ENOSPC) and no partial file

@@ -231,7 +231,8 @@ def trajectory_dataset(nav: pd.DataFrame, ctd: pd.DataFrame | None, dive_id: str
 def publish_navigation(ctx: Any, ctd: pd.DataFrame, track: pd.DataFrame | None, fix: dict[str, Any] | None,
                        upstream: list[Any], dr_error_fraction: float,
                        unreferenced_drift_m_per_sqrt_s: float | None = None) -> Any:
-    """Publish the ``navigation`` product (``navigation.parquet`` + CF trajectory ``navigation.nc``) of a
+    """Publish the ``navigation`` product (``navigation.parquet`` + CF trajectory ``navigation.nc`` + the track as
+    GeoJSON, ``navigation_track.geojson``) of a
     stage context ``ctx`` (``match`` calls it after publishing ``match``). Returns the ProductVersion."""
     from hadal.products.io import write_netcdf, write_parquet
 
@@ -262,6 +263,9 @@ def publish_navigation(ctx: Any, ctd: pd.DataFrame, track: pd.DataFrame | None, 
                      keywords="navigation, trajectory, terrain-aided navigation, CTD, deep-sea vehicle",
                      featureType="trajectory", cdm_data_type="Trajectory", processing_level="L2 navigation",
                      provenance_from=draft, dive_id=ctx.dive_id)
+        from hadal.products import geoparquet  # the track for GIS (GeoJSON)
+
+        geoparquet.write_navigation_track(nav, draft.path / geoparquet.TRACK_FILE, ctx.dive_id)
     return draft.result
 
 

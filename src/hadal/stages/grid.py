@@ -602,7 +602,7 @@ def _publish_dtm(ctx: StageContext, p: Params, params: dict, dtm: _Dtm, readers:
                            extra=_dtm_manifest_extra(dtm, readers)) as draft:
         write_netcdf(dtm.ds, draft.path / "dtm.nc", title=dtm.title, summary=dtm.summary, keywords=dtm.keywords,
                      processing_level="L3 gridded", provenance_from=draft, **_frame_attrs(ctx))
-        from hadal.products.geotiff import write_grid_cog  # the same DTM as a COG in the dive's UTM zone
+        from hadal.products.geotiff import write_grid_cog  # the DTM as a COG in its own frame, cell for cell
 
         write_grid_cog(dtm.ds, draft.path / "dtm.tif", "depth_m")
         if p.zarr:  # the same DTM as a chunked Zarr store (hadal.products.io.write_zarr)
@@ -645,7 +645,7 @@ def _publish_laser_grids(ctx: StageContext, p: Params, params: dict, laser: list
 
                 write_zarr(draft.path / f"{stem}.nc", draft.path / f"{stem}.zarr", chunk=p.zarr_chunk)
             lf = None if p.laser_frame == "map" else getattr(ctx.dive, "laser_frame", None)
-            if p.laser_frame == "map" or lf is not None:  # georeferenced: also a COG in the dive's UTM zone
+            if p.laser_frame == "map" or lf is not None or ds.attrs.get("source_crs_wkt"):  # georeferenced: a COG
                 from hadal.products.geotiff import write_grid_cog
 
                 write_grid_cog(ds, draft.path / f"{stem}.tif", "elevation_m", laser_frame=lf)
