@@ -454,6 +454,15 @@ def test_underway_tsg_is_a_trajectory_with_its_own_positions(shared_data, tmp_pa
         np.testing.assert_allclose(ds["absolute_salinity_g_kg"].values[ok], sa[ok], rtol=0, atol=2e-4)
         ct = gsw.CT_from_t(sa, col["t090C"], col["prM"])
         np.testing.assert_allclose(ds["sigma0_kg_m3"].values[ok], gsw.sigma0(sa, ct)[ok], rtol=0, atol=2e-4)
+    # its track for GIS beside the NetCDF: GDAL/OGR (pyogrio, what ogrinfo reads) finds one LineString in lon/lat
+    pyogrio = pytest.importorskip("pyogrio")
+    track = pv.path / index[0]["file"].replace(".nc", "_track.geojson")
+    info = pyogrio.read_info(track)
+    assert info["features"] == 1 and info["geometry_type"] == "LineString" and info["crs"] == "EPSG:4326"
+    ok_pos = np.isfinite(col["latitude"]) & np.isfinite(col["longitude"])
+    assert info["total_bounds"] == pytest.approx([col["longitude"][ok_pos].min(), col["latitude"][ok_pos].min(),
+                                                   col["longitude"][ok_pos].max(), col["latitude"][ok_pos].max()],
+                                                  abs=1e-7)
     # the report draws the track/section figure instead of cast figures, and lists the record
     summary = json.loads(ctx.store.latest(ctx.dive_id, "report").file("summary.json").read_text())
     assert summary["figures"].get("underway_tsg") == "ok", summary["figures"]

@@ -27,8 +27,8 @@ GEOMETRY_COLUMN = "geometry"
 #: WKB of one 2-D point: byte order (1 byte), geometry type (uint32), x, y (float64)
 WKB_POINT_BYTES = 21
 _WKB_POINT = np.dtype([("order", "u1"), ("type", "<u4"), ("x", "<f8"), ("y", "<f8")])
-#: coordinate decimals in GeoJSON: 1e-8 degree is 1.1 mm, finer than any position hadal makes
-GEOJSON_DECIMALS = 8
+#: coordinate decimals in GeoJSON: 1e-7 degree is 1.1 cm, below any position uncertainty hadal reports
+GEOJSON_DECIMALS = 7
 
 
 def wkb_points(x: Any, y: Any) -> pa.BinaryArray:
@@ -107,7 +107,7 @@ def _thin(lon: np.ndarray, lat: np.ndarray, max_vertices: int) -> tuple[np.ndarr
 
 def track_geojson(lon: Any, lat: Any, properties: Mapping[str, Any], *, max_vertices: int = 20_000) -> dict | None:
     """A GeoJSON FeatureCollection (RFC 7946) with the track as one ``LineString`` feature (longitude, latitude,
-    WGS 84, 8 decimals), thinned evenly to at most ``max_vertices``; None with fewer than two distinct positions.
+    WGS 84, 7 decimals), thinned evenly to at most ``max_vertices``; None with fewer than two distinct positions.
     The bbox member is the track's."""
     x, y = _thin(np.asarray(lon, float), np.asarray(lat, float), max_vertices)
     if x.size < 2:
@@ -157,6 +157,26 @@ def write_navigation_track(nav: Any, path: Any, dive_id: str) -> Any:
     from pathlib import Path
 
     gj = navigation_track(nav, dive_id)
+    if gj is None:
+        return None
+    path = Path(path)
+    path.write_text(dumps(gj), encoding="utf-8")
+    return path
+
+
+def write_record_track(df: Any, path: Any, record_id: str) -> Any:
+    """An underway record's track (its own per-scan ``lat``/``lon``, ``time``) as GeoJSON beside its NetCDF;
+    nothing with fewer than two positions. Returns the path or None."""
+    from pathlib import Path
+
+    import pandas as pd
+
+    props: dict[str, Any] = {"name": f"{record_id} track", "record_id": record_id, "scans": int(len(df))}
+    t = pd.to_datetime(df["time"], utc=True).dropna() if "time" in df else None
+    if t is not None and len(t):
+        props["start_time"] = t.min().isoformat().replace("+00:00", "Z")
+        props["end_time"] = t.max().isoformat().replace("+00:00", "Z")
+    gj = track_geojson(np.asarray(df["lon"], float), np.asarray(df["lat"], float), props)
     if gj is None:
         return None
     path = Path(path)

@@ -1400,6 +1400,9 @@ def _publish_trajectories(ctx: StageContext, params: dict, upstream: list,
                          provenance_from=draft, dive_id=ctx.dive_id, record_id=rid,
                          source_file=raw.name, underway_rule=meta["rule"]["reason"],
                          source_instrument=instrument or "")
+            from hadal.products.geoparquet import write_record_track  # its track for GIS: <id>_track.geojson
+
+            write_record_track(df, draft.path / f"{rid}_track.geojson", rid)
             ctx.log.info("derive: %s: underway record (%s): trajectory of %d scans, %.2f km, %s to %s", rid,
                          meta["rule"]["reason"], meta["scans"], meta["track_length_km"],
                          meta["time_coverage_start"], meta["time_coverage_end"])
