@@ -1,5 +1,5 @@
 """Geographic products (issue 18): navigation (best position per sample), landing sites in lat/lon with GeoJSON
-footprints, the DTM as a Cloud-Optimized GeoTIFF in UTM, CF-DSG trajectory/profile files."""
+footprints, the DTM as a Cloud-Optimized GeoTIFF in its own frame, cell for cell (issue 46), CF-DSG trajectory/profile files."""
 
 from __future__ import annotations
 
@@ -231,17 +231,6 @@ def test_irregular_grid_is_refused(tmp_path):
     ds = xr.Dataset({"v": (("y", "x"), np.ones((2, 4)))}, coords={"x": x, "y": [0.0, 1.0]})
     with pytest.raises(ValueError, match="not regular"):
         write_grid_cog(ds, tmp_path / "v.tif", "v", frame=FRAME)
-
-def test_utm_zone_selection():
-    from hadal.products.geotiff import utm_epsg
-
-    assert utm_epsg(142.2, 11.3) == 32654
-    assert utm_epsg(-70.5, -33.0) == 32719
-    assert utm_epsg(179.99, 0.0) == 32660 and utm_epsg(-180.0, 0.0) == 32601
-    assert utm_epsg(10.0, 86.0) == 4326
-
-
-
 
 def test_suitability_cog_is_the_block_grid(tmp_path):
     """The suitability stage's COGs (its own build + write calls) hold its block values cell for cell, in the map

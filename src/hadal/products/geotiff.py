@@ -50,14 +50,6 @@ class Band:
     tags: dict[str, str] = field(default_factory=dict)
 
 
-def utm_epsg(lon_deg: float, lat_deg: float) -> int:
-    """EPSG code of the WGS 84 UTM zone containing (lon, lat); 4326 outside UTM's latitude range."""
-    if not -80.0 <= lat_deg <= 84.0:
-        return 4326
-    zone = int(math.floor(((lon_deg + 180.0) % 360.0) / 6.0)) + 1
-    return (32600 if lat_deg >= 0 else 32700) + min(zone, 60)
-
-
 def named_crs(wkt: str, name: str) -> str:
     """``wkt`` with ``name`` when PROJ calls it ``unknown``/``unnamed`` (a PROJ-string CRS): the name is what
     GIS tools show (GeoTIFF ``PCSCitationGeoKey``)."""

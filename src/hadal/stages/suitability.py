@@ -138,7 +138,7 @@ def run(ctx: StageContext) -> dict[str, ProductVersion]:
             summary="Per-block terrain elevation standard deviation and topographic entropy of the reference DTM, "
                     "with the proposed terrain-matching region (TERCOM paper §3.1, §4.1.2).",
         )
-        from hadal.products.geotiff import write_grid_cog  # block statistics as COGs in the dive's UTM zone
+        from hadal.products.geotiff import write_grid_cog  # block statistics as COGs in the map frame
 
         for v in COG_VARIABLES:
             write_grid_cog(suit, draft.path / f"suitability_{v}.tif", v)
