@@ -30,8 +30,10 @@ from typing import Any
 
 #: ACDD attributes a dive must give (``hadal config --check`` lists the missing ones)
 ACDD_REQUIRED: tuple[str, ...] = ("creator_name", "creator_email", "institution", "project", "license")
-#: IOOS-1.2 attributes (required there) only the operator can give; ``hadal config --check`` lists them too
-IOOS_REQUIRED: tuple[str, ...] = ("creator_country", "creator_sector", "infoUrl")
+#: IOOS-1.2 attributes (required there: high priority in the IOOS compliance-checker) only the operator can give,
+#: beyond the ACDD ones; ``hadal config --check`` lists them too. The other IOOS-required operator attributes follow
+#: from these: ``creator_institution`` = ``institution``, ``publisher_*`` = the creator's unless given.
+IOOS_REQUIRED: tuple[str, ...] = ("creator_country", "creator_sector", "infoUrl", "creator_url", "naming_authority")
 #: every attribute ``hadal config --check`` asks dive.yaml ``metadata`` for
 REQUIRED_FIELDS: tuple[str, ...] = (*ACDD_REQUIRED, *IOOS_REQUIRED)
 #: IOOS-1.2 required attributes checked in a product's final attributes (``hadal_metadata_missing``)
@@ -50,10 +52,10 @@ ACDD_SUGGESTED: tuple[str, ...] = ("creator_type", "creator_institution", "publi
                                    "program", "metadata_link", "platform", "platform_vocabulary", "instrument",
                                    "instrument_vocabulary")
 #: every operator attribute read from dive.yaml ``metadata`` / ``HADAL_<NAME>``
-OPERATOR_FIELDS: tuple[str, ...] = (*ACDD_REQUIRED, *ACDD_RECOMMENDED, *IOOS_REQUIRED, "creator_type",
-                                    "creator_institution", "publisher_type", "publisher_institution",
-                                    "publisher_country", "program", "acknowledgment", "contributor_name",
-                                    "contributor_role", "cruise", "metadata_link")
+OPERATOR_FIELDS: tuple[str, ...] = tuple(dict.fromkeys((
+    *ACDD_REQUIRED, *ACDD_RECOMMENDED, *IOOS_REQUIRED, "creator_type", "creator_institution", "publisher_type",
+    "publisher_institution", "publisher_country", "program", "acknowledgment", "contributor_name", "contributor_role",
+    "cruise", "metadata_link")))
 
 #: facts about every hadal product (not about its operator): always written
 HADAL_FACTS: dict[str, str] = {
@@ -151,7 +153,7 @@ def missing_acdd_fields(dive: Any, recommended: bool = False) -> list[str]:
     recommended ACDD ones) that neither ``dive.yaml`` ``metadata`` nor a ``HADAL_<NAME>`` environment variable
     gives."""
     have = operator_attributes(dive)
-    want = REQUIRED_FIELDS + (ACDD_RECOMMENDED if recommended else ())
+    want = dict.fromkeys(REQUIRED_FIELDS + (ACDD_RECOMMENDED if recommended else ()))
     return [k for k in want if k not in have]
 
 

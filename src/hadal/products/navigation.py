@@ -182,13 +182,14 @@ def trajectory_dataset(nav: pd.DataFrame, ctd: pd.DataFrame | None, dive_id: str
     """The dive time series as a CF-1.8 Discrete Sampling Geometry: one trajectory in the contiguous ragged
     array representation (CF §H.4.3): dimension ``obs`` with ``time``/``lat``/``lon``/``depth_m`` coordinates,
     dimension ``traj`` of length 1 with the id variable ``trajectory`` (``cf_role = trajectory_id``, the dive
-    id; a string, so not a coordinate variable of its dimension) and ``row_size`` (``sample_dimension = obs``:
+    id as a NC_CHAR array, :func:`hadal.products.dsg.char_id`) and ``row_size`` (``sample_dimension = obs``:
     every sample), the best positions and, from ``ctd``,
     the listed measurement columns. (A length-1 instance dimension rather than CF §H.4.1's scalar id: IOOS-1.2
     asks the trajectory_id variable for a dimension of length 1, one platform per dataset.)"""
     import xarray as xr
 
     from hadal.products.compression import gzip_encoding
+    from hadal.products.dsg import char_id
     from hadal.products.registry import variable_attrs
 
     obs = np.arange(len(nav), dtype="i4")
@@ -201,8 +202,7 @@ def trajectory_dataset(nav: pd.DataFrame, ctd: pd.DataFrame | None, dive_id: str
     }
     src = nav["position_source"].astype(str).to_numpy()
     data = {
-        "trajectory": (("traj",), np.array([dive_id], dtype=object),
-                       {"cf_role": "trajectory_id", "long_name": "dive id"}),
+        "trajectory": char_id([dive_id], "traj", {"cf_role": "trajectory_id", "long_name": "dive id"}),
         "row_size": (("traj",), np.array([len(obs)], dtype="i4"),
                      {"sample_dimension": "obs", "long_name": "number of observations of the trajectory"}),
         "x_east_m": ("obs", nav["x_east_m"].to_numpy(float), dict(NAV_FIELDS["x_east_m"])),
