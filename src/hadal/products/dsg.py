@@ -266,7 +266,7 @@ def orthogonal_profile(ds: xr.Dataset) -> xr.Dataset:
     levels = np.unique(zall[np.isfinite(zall)])
     starts = np.concatenate([[0], np.cumsum(rows)[:-1]])
     out = xr.Dataset(coords={"cast": ("cast", np.array(labels, dtype=object), {"flag_meanings": " ".join(labels)}),
-                             axis: levels})
+                             axis: (axis, levels, dict(ds[axis].attrs))})
     for name, v in ds.variables.items():
         if v.dims != ("obs",) or name == axis:
             continue

@@ -404,6 +404,9 @@ def _z_coordinate(ds: xr.Dataset) -> str | None:
     """The vertical coordinate as the compliance checker finds it: a (dimension or auxiliary)
     coordinate with standard_name depth/height/altitude, else one with pressure units or ``positive``."""
     coords = [str(n) for n in ds.coords if np.issubdtype(ds[n].dtype, np.number)]
+    for n in coords:  # a declared length Z axis first (a ragged profile's depth_m)
+        if ds[n].attrs.get("axis") == "Z" and ds[n].attrs.get("standard_name") in ("depth", "height", "altitude"):
+            return n
     for n in ds.dims:  # a depth dimension coordinate first (a depth-binned profile), before depth-like data
         if n in ds.coords and ds[n].attrs.get("standard_name") in ("depth", "height", "altitude"):
             return str(n)
