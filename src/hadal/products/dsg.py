@@ -77,6 +77,8 @@ def cast_positions(ctd: pd.DataFrame, casts: Sequence[str], phase_column: str = 
             k, where = idx[int(np.nanargmin(p[idx]))], "shallowest sample of the cast"
         else:
             k, where = idx[0], "first sample of the cast"
+        if "dr_east_m" in ctd and not np.isfinite(ctd["dr_east_m"].to_numpy(float)[: k + 1]).any():
+            where += ", at the launch/header position (no dead-reckoned offset yet)"
         rows.append({"cast": str(cast), "time": t.iloc[k] if t is not None else pd.NaT, "lat": lat[k], "lon": lon[k],
                      "position_note": where})
     return pd.DataFrame(rows)
@@ -90,7 +92,7 @@ def place_casts(profile: xr.Dataset, ctd: pd.DataFrame, phase_column: str = "pha
     pos = cast_positions(ctd, [str(c) for c in profile["cast"].values], phase_column)
     if pos is None or not np.isfinite(pos["lat"].to_numpy(float)).any():
         return profile
-    note = "; ".join(f"{r.cast}: {r.position_note}" for r in pos.itertuples() if r.position_note)
+    note = "; ".join(f"{r.cast}: {r.position_note}" for r in pos.itertuples() if isinstance(r.position_note, str))
     src = ("the dive's navigation at the cast's time, as derive knows it (launch + dead reckoning; the "
            f"terrain-matched track is the navigation product): {note}")
     out = profile.drop_vars([n for n in ("lat", "lon", "time") if n in profile.variables])
@@ -172,6 +174,10 @@ def ragged_profiles(ds: xr.Dataset, dive_id: str | None, *, latitude_deg: float 
             keep |= np.isfinite(v) if v.dtype.kind == "f" else True
     keep &= np.isfinite(depth2)
     rows = keep.sum(axis=1).astype("i4")
+    if rows.any() and not rows.all():  # a cast without a single bin is no profile (e.g. a downcast-only file)
+        held = np.flatnonzero(rows > 0)
+        full, depth2, keep, rows = full.isel({cdim: held}), depth2[held], keep[held], rows[held]
+        labels, n = [labels[i] for i in held], held.size
     ci, li = np.nonzero(keep)  # row-major: cast by cast, levels in order (contiguous ragged array)
     obs: dict[str, Any] = {}
     for k in data_names:
