@@ -689,6 +689,28 @@ def _local_grid_footprint(out: xr.Dataset, dive: Any) -> tuple[xr.Dataset, dict[
     return out, attrs
 
 
+def _crs_grid_footprint(out: xr.Dataset, gm: str) -> tuple[xr.Dataset, dict[str, Any] | None]:
+    """A projected y/x grid without latitude/longitude variables: its ACDD extent from the mapped cells' rectangle
+    in its grid mapping's CRS (:func:`hadal.products.footprint.crs_grid_footprint`), the scalar reference position
+    its centre."""
+    from hadal.products.footprint import crs_grid_footprint
+
+    wkt = out[gm].attrs.get("crs_wkt")
+    try:
+        fp = crs_grid_footprint(out, str(wkt)) if wkt else None
+    except Exception:  # noqa: BLE001 - pyproj cannot use the CRS: the grid keeps what it had
+        fp = None
+    if fp is None:
+        return out, None
+    out = out.drop_vars([n for n in ("lat", "lon") if n in out.variables and out[n].ndim == 0])
+    (lon, lat), attrs = fp
+    what = "centre of the grid's mapped footprint (its own CRS)"
+    out = out.assign_coords(
+        lat=xr.Variable((), lat, {"standard_name": "latitude", "units": "degrees_north", "long_name": what}),
+        lon=xr.Variable((), lon, {"standard_name": "longitude", "units": "degrees_east", "long_name": what}))
+    return out, attrs
+
+
 def _global_attributes(ds: xr.Dataset, out: xr.Dataset, path: Path, attrs: dict[str, Any], *, title: str,
                        summary: str, dive_model: Any, provenance_from: Any, yx: tuple[str, str] | None,
                        now_iso: str) -> dict[str, Any]:
@@ -748,6 +770,8 @@ def prepare_dataset(ds: xr.Dataset, path: str | Path, *, title: str, summary: st
     footprint = None
     if yx and not gm_names:  # a grid in the laser survey's frame: its true footprint from dive.yaml laser_frame
         out, footprint = _local_grid_footprint(out, dive_model)
+    elif yx and not any(_is_lat(str(n), v) for n, v in out.variables.items() if v.ndim > 0):
+        out, footprint = _crs_grid_footprint(out, gm_names[0])  # a projected grid without lat/lon (a LAS in UTM)
     out = _prepare_variables(out, gm_names, grid_mapping, yx, path.name)
     dsg = dsg_global_attributes(out) if not yx else {}
     attrs = {**dsg, **attrs}

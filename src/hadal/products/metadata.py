@@ -151,10 +151,13 @@ def operator_attributes(dive: Any = None) -> dict[str, str]:
 def missing_acdd_fields(dive: Any, recommended: bool = False) -> list[str]:
     """The required ACDD-1.3 and IOOS-1.2 attributes (:data:`REQUIRED_FIELDS`; with ``recommended``: also the
     recommended ACDD ones) that neither ``dive.yaml`` ``metadata`` nor a ``HADAL_<NAME>`` environment variable
-    gives."""
+    gives; ``platform`` when dive.yaml names no platform (the vehicle; IOOS-1.2 requires ``platform_name``)."""
     have = operator_attributes(dive)
     want = dict.fromkeys(REQUIRED_FIELDS + (ACDD_RECOMMENDED if recommended else ()))
-    return [k for k in want if k not in have]
+    out = [k for k in want if k not in have]
+    if dive is not None and getattr(dive, "platform", None) in (None, "", "unknown"):
+        out.append("platform")  # dive.yaml's top-level platform (the vehicle): IOOS-1.2 platform/platform_name
+    return out
 
 
 def product_attributes(dive: Any, product: str | None, given: Mapping[str, Any] | None = None) -> dict[str, Any]:
