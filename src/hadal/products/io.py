@@ -765,6 +765,11 @@ def prepare_dataset(ds: xr.Dataset, path: str | Path, *, title: str, summary: st
         dive_id = attrs.get("dive_id") or ds.attrs.get("dive_id") or _store_location(path)[0]
         la = attrs.get("latitude_used_deg", ds.attrs.get("latitude_used_deg"))
         out = ragged_profiles(out, dive_id, latitude_deg=float(la) if la is not None else None)
+    src_wkt = {**ds.attrs, **attrs}.get("source_crs_wkt")
+    if {"y", "x"} <= set(out.dims) and src_wkt and not any(_is_grid_mapping(v) for v in out.variables.values()):
+        # a grid on its source file's own projected CRS (a point cloud in UTM): CF grid mapping from that metadata
+        out["crs"] = xr.Variable((), np.int32(0), {"crs_wkt": str(src_wkt),
+                                                   "long_name": "coordinate reference system of the source file"})
     out, gm_names, grid_mapping = _complete_grid_mappings(out)
     yx = ("y", "x") if {"y", "x"} <= set(out.dims) else None
     footprint = None
