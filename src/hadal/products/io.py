@@ -680,13 +680,23 @@ def _local_grid_footprint(out: xr.Dataset, dive: Any) -> tuple[xr.Dataset, dict[
     if fp is None:
         return out, {"hadal_georeference": "none: the grid is in the laser survey's local frame and dive.yaml gives "
                                            "no laser_frame; geospatial_* give the dive's launch position"}
-    out = out.drop_vars([n for n in ("lat", "lon") if n in out.variables and out[n].ndim == 0])
     centre, attrs = fp
-    what = "centre of the grid's mapped footprint (laser_frame of dive.yaml)"
+    return _footprint_reference(out, centre, attrs, "centre of the grid's mapped footprint (laser_frame of dive.yaml)"), attrs
+
+
+def _footprint_reference(out: xr.Dataset, centre: tuple[float, float], attrs: Mapping[str, Any],
+                         what: str) -> xr.Dataset:
+    """``out`` with scalar ``lat``/``lon`` at the footprint's ``centre`` (lon, lat) and the footprint polygon's
+    vertices ``footprint_lat``/``footprint_lon`` (the ring of ``attrs``' ``geospatial_bounds``), so readers and the
+    ACDD extent checks find the extent in the data."""
+    ring = [tuple(map(float, p.split())) for p in str(attrs["geospatial_bounds"])[10:-2].split(", ")]
+    out = out.drop_vars([n for n in ("lat", "lon") if n in out.variables and out[n].ndim == 0])
     out = out.assign_coords(
         lat=xr.Variable((), centre[1], {"standard_name": "latitude", "units": "degrees_north", "long_name": what}),
         lon=xr.Variable((), centre[0], {"standard_name": "longitude", "units": "degrees_east", "long_name": what}))
-    return out, attrs
+    out["footprint_lat"] = xr.Variable(("footprint_vertex",), np.array([r[0] for r in ring]), {})
+    out["footprint_lon"] = xr.Variable(("footprint_vertex",), np.array([r[1] for r in ring]), {})
+    return out
 
 
 def _crs_grid_footprint(out: xr.Dataset, gm: str) -> tuple[xr.Dataset, dict[str, Any] | None]:
@@ -702,13 +712,8 @@ def _crs_grid_footprint(out: xr.Dataset, gm: str) -> tuple[xr.Dataset, dict[str,
         fp = None
     if fp is None:
         return out, None
-    out = out.drop_vars([n for n in ("lat", "lon") if n in out.variables and out[n].ndim == 0])
-    (lon, lat), attrs = fp
-    what = "centre of the grid's mapped footprint (its own CRS)"
-    out = out.assign_coords(
-        lat=xr.Variable((), lat, {"standard_name": "latitude", "units": "degrees_north", "long_name": what}),
-        lon=xr.Variable((), lon, {"standard_name": "longitude", "units": "degrees_east", "long_name": what}))
-    return out, attrs
+    centre, attrs = fp
+    return _footprint_reference(out, centre, attrs, "centre of the grid's mapped footprint (its own CRS)"), attrs
 
 
 def _global_attributes(ds: xr.Dataset, out: xr.Dataset, path: Path, attrs: dict[str, Any], *, title: str,
