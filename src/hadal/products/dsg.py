@@ -95,12 +95,12 @@ def place_casts(profile: xr.Dataset, ctd: pd.DataFrame, phase_column: str = "pha
     note = "; ".join(f"{r.cast}: {r.position_note}" for r in pos.itertuples() if isinstance(r.position_note, str))
     src = ("the dive's navigation at the cast's time, as derive knows it (launch + dead reckoning; the "
            f"terrain-matched track is the navigation product): {note}")
-    out = profile.drop_vars([n for n in ("lat", "lon", "time") if n in profile.variables])
     t = pd.to_datetime(pos["time"], utc=True).dt.tz_convert(None).to_numpy(dtype="datetime64[ns]")
     coords = {"lat": ("cast", pos["lat"].to_numpy(float), {"long_name": "latitude of the cast", "comment": src}),
               "lon": ("cast", pos["lon"].to_numpy(float), {"long_name": "longitude of the cast", "comment": src})}
-    if not np.isnat(t).all():
+    if not np.isnat(t).any():  # else the profile keeps its own times (e.g. a timeless cast's header start time)
         coords["time"] = ("cast", t, {"long_name": "time of the cast (at its position)"})
+    out = profile.drop_vars([n for n in coords if n in profile.variables])
     return out.assign_coords(coords)
 
 
