@@ -197,3 +197,17 @@ def test_config_check_names_every_ioos_required_operator_field(monkeypatch):
                     "publisher_url", "publisher_name"}
     missing = set(missing_acdd_fields(_dive()))
     assert {a for a in req if a not in hadal_writes} <= missing, sorted(set(req) - hadal_writes - missing)
+
+
+def test_navigation_summary_gives_the_surfacing_position():
+    """The manifest's surfacing position: the last sample's best position (here dead reckoning 1 m/s east for
+    1000 s: 1000 m east of the launch by geodesic, azimuth 90 deg), with its uncertainty and source."""
+    from hadal.products.navigation import navigation_summary
+
+    ctd = _ctd()
+    nav = navigation_table(ctd, FRAME, *LAUNCH)
+    s = navigation_summary(nav)["surfacing"]
+    az, _, d = GEOD.inv(LAUNCH[1], LAUNCH[0], s["longitude_deg"], s["latitude_deg"])
+    assert d == pytest.approx(1000.0, abs=0.5) and az == pytest.approx(90.0, abs=0.2)
+    assert s["source"] == "dead_reckoned" and s["uncertainty_m"] > 0
+    assert s["time_utc"].startswith(str(ctd["time"].iloc[-1].isoformat())[:19])

@@ -166,13 +166,26 @@ def dead_reckoned_lonlat(ctd: pd.DataFrame, frame: LocalFrame, launch_lat: float
 
 
 def navigation_summary(nav: pd.DataFrame) -> dict[str, Any]:
-    """Counts per source and the uncertainty range (manifest summary)."""
+    """Counts per source, the uncertainty range and the best position of the surfacing (manifest summary)."""
     src = nav["position_source"].astype(str)
     u = nav["position_uncertainty_m"].to_numpy(float)
     return {"samples": int(len(nav)), "sources": {s: int((src == s).sum()) for s in SOURCES},
             "uncertainty_m": {"min": float(np.nanmin(u)) if len(u) else None,
                               "median": float(np.nanmedian(u)) if len(u) else None,
-                              "max": float(np.nanmax(u)) if len(u) else None}}
+                              "max": float(np.nanmax(u)) if len(u) else None},
+            "surfacing": surfacing_position(nav)}
+
+
+def surfacing_position(nav: pd.DataFrame) -> dict[str, Any] | None:
+    """The best position of the last sample (where the ascent cast ends, the vehicle surfacing): time, lat, lon
+    (8 decimals, ~1 mm), its 1-sigma radial uncertainty and source; ``None`` for an empty table."""
+    if not len(nav):
+        return None
+    last = nav.iloc[-1]
+    t = last["time"] if "time" in nav else None
+    return {"time_utc": pd.Timestamp(t).isoformat() if t is not None and not pd.isna(t) else None,
+            "latitude_deg": round(float(last["lat"]), 8), "longitude_deg": round(float(last["lon"]), 8),
+            "uncertainty_m": float(last["position_uncertainty_m"]), "source": str(last["position_source"])}
 
 
 def trajectory_dataset(nav: pd.DataFrame, ctd: pd.DataFrame | None, dive_id: str,
