@@ -38,9 +38,9 @@ PROFILE_VARIABLES = ("profile_id", "time", "lat", "lon")
 def char_id(values: Sequence[str], dim: str, attrs: dict[str, Any]) -> xr.Variable:
     """Ids ``values`` as a NC_CHAR array ``(dim, <dim>_strlen)`` (CF §2.2: a string is a char array whose last
     dimension is the maximum length). xarray writes the fixed-width bytes as ``S1`` characters."""
-    data = np.array([str(v).encode("utf-8") for v in values], dtype=f"S{max(1, *(len(str(v).encode()) for v in values))}"
-                    if len(values) else "S1")
-    var = xr.Variable((dim,), data, attrs)
+    encoded = [str(v).encode("utf-8") for v in values]
+    width = max([1, *(len(b) for b in encoded)])
+    var = xr.Variable((dim,), np.array(encoded, dtype=f"S{width}"), attrs)
     var.encoding.update({"dtype": "S1", "char_dim_name": f"{dim}_strlen"})
     return var
 
@@ -164,14 +164,15 @@ def ragged_profiles(ds: xr.Dataset, dive_id: str | None, *, latitude_deg: float 
         z_attrs = {"long_name": f"depth of the pressure bin (TEOS-10 gsw.z_from_p at {lat:.4f} deg N)"}
     depth2 = np.asarray(depth2, float)
     # an observation per non-empty bin: counted samples, else any finite measurement
-    data_names = [str(k) for k, v in full.data_vars.items() if v.dims == (cdim, zdim) and str(k) != Z_NAME]
+    full = full.transpose(cdim, zdim, ...)
+    data_names = [str(k) for k, v in full.data_vars.items() if set(v.dims) == {cdim, zdim} and str(k) != Z_NAME]
     if "count" in full and full["count"].dims == (cdim, zdim):
         keep = np.asarray(full["count"].values) > 0
     else:
         keep = np.zeros((n, ds.sizes[zdim]), bool)
         for k in data_names:
-            v = np.asarray(full[k].values)
-            keep |= np.isfinite(v) if v.dtype.kind == "f" else True
+            vals = np.asarray(full[k].values)
+            keep |= np.isfinite(vals) if vals.dtype.kind == "f" else True
     keep &= np.isfinite(depth2)
     rows = keep.sum(axis=1).astype("i4")
     if rows.any() and not rows.all():  # a cast without a single bin is no profile (e.g. a downcast-only file)
@@ -219,6 +220,7 @@ def ragged_profiles(ds: xr.Dataset, dive_id: str | None, *, latitude_deg: float 
     for name in ("lat", "lon"):
         if name in out.coords:
             out[name].attrs.pop("axis", None)
+    _carry_other_variables(full, out, cdim, zdim, li, set(obs) | {Z_NAME, "time", "lat", "lon", cdim, zdim})
     if n > 1:
         out["trajectory"] = char_id([dive_id or "dive"], "trajectory",
                                     {"cf_role": "trajectory_id", "long_name": "dive id"})
@@ -231,6 +233,21 @@ def ragged_profiles(ds: xr.Dataset, dive_id: str | None, *, latitude_deg: float 
             out[k].attrs["cell_methods"] = str(out[k].attrs["cell_methods"]).replace(f"{zdim}:", "obs:")
     out.attrs = dict(ds.attrs)
     return out
+
+
+def _carry_other_variables(full: xr.Dataset, out: xr.Dataset, cdim: str, zdim: str, li: np.ndarray,
+                           done: set[str]) -> None:
+    """In place: the variables of ``full`` not yet in ``out`` - per cast on ``profile``, per level on ``obs``
+    (each observation's level ``li``), anything else (scalars, other dimensions) as it is: nothing is dropped."""
+    for name, v in full.variables.items():
+        if str(name) in done or name in out.variables:
+            continue
+        if v.dims == (cdim,):
+            out[str(name)] = xr.Variable(("profile",), v.values, dict(v.attrs))
+        elif v.dims == (zdim,):
+            out[str(name)] = xr.Variable(("obs",), np.asarray(v.values)[li], dict(v.attrs))
+        elif cdim not in v.dims and zdim not in v.dims:
+            out[str(name)] = v
 
 
 def dsg_global_attributes(ds: xr.Dataset) -> dict[str, str]:

@@ -210,7 +210,7 @@ def _json_default(obj: Any) -> Any:
 
 
 # ---------------------------------------------------------------------------------------------- NetCDF
-def _standard_name(name: str, var: xr.DataArray) -> str | None:
+def _standard_name(name: str, var: xr.DataArray | xr.Variable) -> str | None:
     """The variable's own standard_name, else the one the registry declares for its name."""
     if var.attrs.get("standard_name"):
         return str(var.attrs["standard_name"])
@@ -218,15 +218,15 @@ def _standard_name(name: str, var: xr.DataArray) -> str | None:
     return spec.standard_name if spec is not None else None
 
 
-def _is_lat(name: str, var: xr.DataArray) -> bool:
+def _is_lat(name: str, var: xr.DataArray | xr.Variable) -> bool:
     return _standard_name(name, var) == "latitude"
 
 
-def _is_lon(name: str, var: xr.DataArray) -> bool:
+def _is_lon(name: str, var: xr.DataArray | xr.Variable) -> bool:
     return _standard_name(name, var) == "longitude"
 
 
-def _is_grid_mapping(var: xr.DataArray) -> bool:
+def _is_grid_mapping(var: xr.DataArray | xr.Variable) -> bool:
     return any(k in var.attrs for k in ("grid_mapping_name", "crs_wkt", "spatial_ref", "proj4", "proj4text"))
 
 
@@ -241,7 +241,7 @@ def _finite_range(values: np.ndarray) -> tuple[Any, Any] | None:
     return v.min(), v.max()
 
 
-def _fill_grid_mapping(var: xr.DataArray) -> None:
+def _fill_grid_mapping(var: xr.DataArray | xr.Variable) -> None:
     """Complete a grid-mapping variable's CF attributes from its WKT/proj4 with pyproj."""
     wkt = var.attrs.get("crs_wkt")
     wkt_ok = isinstance(wkt, str) and wkt.lstrip()[:6].upper() in ("PROJCR", "GEOGCR", "PROJCS", "GEOGCS", "COMPOU", "BOUNDC")
@@ -404,9 +404,9 @@ def _z_coordinate(ds: xr.Dataset) -> str | None:
     """The vertical coordinate as the compliance checker finds it: a (dimension or auxiliary)
     coordinate with standard_name depth/height/altitude, else one with pressure units or ``positive``."""
     coords = [str(n) for n in ds.coords if np.issubdtype(ds[n].dtype, np.number)]
-    for n in coords:  # a declared length Z axis first (a ragged profile's depth_m)
-        if ds[n].attrs.get("axis") == "Z" and ds[n].attrs.get("standard_name") in ("depth", "height", "altitude"):
-            return n
+    for c in coords:  # a declared length Z axis first (a ragged profile's depth_m)
+        if ds[c].attrs.get("axis") == "Z" and ds[c].attrs.get("standard_name") in ("depth", "height", "altitude"):
+            return c
     for n in ds.dims:  # a depth dimension coordinate first (a depth-binned profile), before depth-like data
         if n in ds.coords and ds[n].attrs.get("standard_name") in ("depth", "height", "altitude"):
             return str(n)
