@@ -30,7 +30,8 @@ these high-priority findings are documented exceptions (not applicable, or not t
 * "NDBC/GTS Ingest Requirements": the checker fails it always, to list the variables that qualify for GTS
   ingest (compliance-checker#759); no hadal product is meant for the GTS.
 * "<attribute>: <attribute> not present" for IOOS operator attributes (``creator_country``, ``creator_sector``,
-  ``infoUrl``, ...) that ``dive.yaml`` does not give: listed in ``hadal_metadata_missing`` like the ACDD ones.
+  ``infoUrl``, ...) that ``dive.yaml`` does not give: listed in ``hadal_metadata_missing`` like the ACDD ones;
+  likewise "platform ... it is None" when dive.yaml names no platform (vehicle).
 * "featureType not present" and "CF DSG: Invalid featureType" on grids (DTM, laser grids, suitability, landing
   maps, MSD surface): a grid is not a CF Discrete Sampling Geometry, and CF allows ``featureType`` only on DSGs.
 
