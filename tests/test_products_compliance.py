@@ -29,7 +29,8 @@ GRID_ONLY = {"featureType"}  # IOOS asks every file for a featureType; CF allows
 REAL = {"dives-real/oce_SBE25_ctd.cnv": {"profile.nc"},
         "dives-real/seabird_SBE21_TSG_PIR_010.cnv": set(),  # an underway record: <record id>.nc trajectory
         "dives-real/gmt_HI_topo_04.nc": {"dtm.nc", "suitability.nc"},
-        "dives-real/pdal_autzen-utm.las": set()}
+        "dives-real/pdal_autzen-utm.las": set(),  # a grid on the file's own UTM CRS: footprint, grid mapping
+        "dives-real/gutils_usf_bass_2016_252_1_14_sbd.dat": {"profile.nc"}}  # a glider's casts
 
 
 def _cfchecks(path: Path, tmp_path: Path) -> list[str]:
