@@ -13,12 +13,17 @@ export PREFECT_SERVER_ANALYTICS_ENABLED ?= false
 
 setup: $(VENV)/.installed
 
-# open3d needs the system library libusb-1.0 to import
+# open3d needs the system library libusb-1.0 to import; cfchecker (tests) needs UDUNITS-2
 sysdeps:
 	@if ! ldconfig -p 2>/dev/null | grep -q 'libusb-1.0.so.0'; then \
 	  echo "installing libusb-1.0-0 (needed by open3d)"; \
 	  SUDO=$$( [ "$$(id -u)" = 0 ] || echo sudo ); \
 	  $$SUDO apt-get update -qq && $$SUDO apt-get install -y -qq libusb-1.0-0 >/dev/null; \
+	fi
+	@if ! ldconfig -p 2>/dev/null | grep -q 'libudunits2.so.0'; then \
+	  echo "installing libudunits2-0 (needed by cfchecker, the NCAS CF checker of the integration tests)"; \
+	  SUDO=$$( [ "$$(id -u)" = 0 ] || echo sudo ); \
+	  $$SUDO apt-get install -y -qq libudunits2-0 >/dev/null || echo "libudunits2-0 not installed: cfchecks tests skip"; \
 	fi
 
 $(VENV)/.installed: pyproject.toml | sysdeps

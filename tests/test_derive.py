@@ -15,6 +15,7 @@ from pydantic import ValidationError
 
 from hadal.errors import InputError, StageError
 from hadal.pipeline import make_context, run_stage
+from hadal.products.dsg import orthogonal_profile
 from hadal.products.io import read_parquet_metadata, write_parquet
 from hadal.stages import derive
 
@@ -164,10 +165,12 @@ def test_ctd_metadata(derived, synth):
 
 def test_profile_product(derived):
     _, out = derived
-    ds = xr.open_dataset(out["profile"].file("profile.nc"), engine="h5netcdf")
-    # string coordinates are written as CF flags by hadal.products.write_netcdf
-    assert ds.sizes["cast"] == 2 and ds["cast"].attrs["flag_meanings"] == "descent ascent"
-    assert list(ds["cast"].values) == [0, 1]
+    raw = xr.open_dataset(out["profile"].file("profile.nc"), engine="h5netcdf")
+    # the casts as CF flags of the ragged file's profiles (hadal.products.dsg), read back on their bins
+    assert raw.sizes["profile"] == 2 and raw["cast"].attrs["flag_meanings"] == "descent ascent"
+    assert int(raw["row_size"].sum()) == raw.sizes["obs"]
+    ds = orthogonal_profile(raw.load())
+    assert list(ds["cast"].values) == ["descent", "ascent"]
     assert float(ds["pressure_dbar"][1] - ds["pressure_dbar"][0]) == pytest.approx(10.0)
     for v in ("temperature_its90_degc", "conductivity_s_m", "practical_salinity", "density_kg_m3",
               "gravity_m_s2", "depth_m", "depth_fofonoff_millard_m", "depth_teos10_m", "sound_speed_m_s", "count"):
@@ -278,7 +281,7 @@ def test_teos10_columns_in_ctd_and_profile(derived, synth):
     # the synthetic column is stably stratified: N² > 0 nearly everywhere, ~1e-5 s-2 or less in the deep
     n2 = df["buoyancy_frequency_squared_s2"].to_numpy()
     assert np.isfinite(n2).mean() > 0.95 and (n2[np.isfinite(n2)] > 0).mean() > 0.95
-    ds = xr.open_dataset(out["profile"].file("profile.nc"), engine="h5netcdf")
+    ds = orthogonal_profile(xr.open_dataset(out["profile"].file("profile.nc"), engine="h5netcdf").load())
     for name, std in TEOS10.items():
         assert ds[name].attrs["standard_name"] == std and ds[name].dims == ("cast", "pressure_dbar"), name
     assert float(ds["sigma0_kg_m3"].isel(cast=0).max()) == pytest.approx(
@@ -304,5 +307,8 @@ def test_chain_parameters_in_manifest(tmp_path, synth):
     # the bottom phase (slow, back and forth) is what LoopEdit removes
     bad = df["loop_edit_bad"].to_numpy()
     assert bad[(df["phase"] == "bottom").to_numpy()].mean() > 0.5 and bad[(df["phase"] == "descent").to_numpy()].mean() < 0.05
-    ds = xr.open_dataset(out["profile"].file("profile.nc"), engine="h5netcdf")
-    assert ds.attrs.get("binning") == "seabird BinAvg" and float(ds["pressure_dbar"][0]) == 10.0
+    ds = orthogonal_profile(xr.open_dataset(out["profile"].file("profile.nc"), engine="h5netcdf").load())
+    # SeaSoft BinAvg centres k x 10 dbar, k >= 1 (the ragged file keeps the non-empty bins only)
+    centres = ds["pressure_dbar"].values
+    assert ds.attrs.get("binning") == "seabird BinAvg" and centres[0] >= 10.0
+    np.testing.assert_allclose(centres / 10.0, np.rint(centres / 10.0))

@@ -195,7 +195,8 @@ def test_real_cloud_laser_grid_is_elevation_in_its_crs(shared_data, tmp_path, re
     e = ds["elevation_m"].values
     assert ref[:, 2].min() - 1e-9 <= np.nanmin(e) < np.nanmax(e) <= ref[:, 2].max() + 1e-9
     assert int(ds["count"].sum()) == 1065
-    np.testing.assert_allclose(e, _cell_means(ref, ds), rtol=0, atol=1e-9, equal_nan=True)
+    # stored as float32: within half the 1 mm precision schemas/variables.yaml declares (the LAS holds z in cm)
+    np.testing.assert_allclose(e, _cell_means(ref, ds), rtol=0, atol=5e-4, equal_nan=True)
     x = ds["x"].values
     assert ref[:, 0].min() - ds.attrs["resolution"] <= x[0] and x[-1] <= ref[:, 0].max() + ds.attrs["resolution"]
     if rel == AUTZEN_LAS:

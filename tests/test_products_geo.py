@@ -109,10 +109,11 @@ def test_profiles_are_cf_dsg_profiles(tmp_path):
     path = write_netcdf(ds, tmp_path / "profile.nc", title="t", summary="s")
     rep = check_compliance(path)
     assert rep.ok, rep.describe()
-    with xr.open_dataset(path) as out:
-        assert out.attrs["featureType"] == "profile"
-        assert out["cast"].attrs["cf_role"] == "profile_id"
-        assert out["lat"].dims == ("cast",) and out["time"].dims == ("cast",)
+    with xr.open_dataset(path) as out:  # two casts of a dive: a ragged trajectoryProfile (hadal.products.dsg)
+        assert out.attrs["featureType"] == "trajectoryProfile"
+        assert out["profile_id"].attrs["cf_role"] == "profile_id" and out["profile_id"].dims == ("profile",)
+        assert out["lat"].dims == ("profile",) and out["time"].dims == ("profile",)
+        assert int(out["row_size"].sum()) == out.sizes["obs"] == 2 * p.size
 
 
 LF = LaserFrame(origin_latitude_deg=11.3371, origin_longitude_deg=142.2097, heading_deg=30.0)

@@ -6,9 +6,9 @@ in :mod:`hadal.products.compliance`), asserted here by name so a new failure can
 
 * grids (DTM, laser grids, suitability, landing maps, MSD surface) are not CF Discrete Sampling Geometries: no
   ``featureType`` (CF allows it only on DSGs), so IOOS's featureType / cf_role checks do not apply;
-* ``profile.nc`` holds the descent and ascent casts of one vehicle (IOOS-1.2: one profile per file), and when
-  binned on pressure (the default) its dimension coordinate is in dbar (IOOS-1.2: lengths only; the bins'
-  depth ``depth_m`` is an auxiliary coordinate and passes; ``derive.profile_axis: depth`` passes outright);
+* binned casts are CF ragged arrays with depth as the Z axis (``hadal.products.dsg``): the descent and ascent of a
+  dive are one trajectoryProfile (one trajectory, two profiles), so IOOS's one-platform and length-only vertical
+  coordinate checks pass;
 * "NDBC/GTS Ingest Requirements" always fails by design (it lists the variables that qualify for the GTS);
 * operator attributes a dive.yaml lacks are listed in ``hadal_metadata_missing`` (nothing is invented).
 """
@@ -23,6 +23,7 @@ import xarray as xr
 from hadal.dive import Dive
 from hadal.geo import LocalFrame
 from hadal.products import dive_attributes, missing_acdd_fields, write_netcdf
+from hadal.products.dsg import id_values
 
 pytest.importorskip("compliance_checker")
 from hadal.products.compliance import IOOS_CHECKERS, check_compliance  # noqa: E402
@@ -87,7 +88,9 @@ def test_navigation_trajectory_passes_ioos_1_2(tmp_path):
     assert _high(rep) == {GTS: True}, rep.describe()
     with xr.open_dataset(path) as ds:
         assert ds.attrs["Conventions"] == "CF-1.8, ACDD-1.3, IOOS-1.2"
-        assert ds["trajectory"].dims == ("traj",) and ds["trajectory"].values.tolist() == ["dive-7"]
+        assert ds["trajectory"].dims == ("traj",) and id_values(ds["trajectory"]) == ["dive-7"]
+        assert ds.attrs["cdm_data_type"] == "Trajectory" and ds.attrs["cdm_trajectory_variables"] == "trajectory"
+        assert ds.attrs["subsetVariables"] == "trajectory"
         assert ds["trajectory"].attrs["cf_role"] == "trajectory_id"
         assert int(ds["row_size"].values[0]) == ds.sizes["obs"] and ds["row_size"].attrs["sample_dimension"] == "obs"
         assert ds.attrs["platform"] == "submersible" and ds.attrs["platform_name"] == "Haidou"
@@ -100,10 +103,10 @@ def test_navigation_trajectory_passes_ioos_1_2(tmp_path):
 
 
 @pytest.mark.parametrize("axis", ["pressure", "depth"])
-def test_profile_passes_ioos_1_2_but_the_two_casts(tmp_path, axis):
-    """profile.nc as derive builds it (hadal.profile.make_profile): on a pressure axis the bins' depth is an
-    auxiliary length coordinate (positive down), and only the dbar axis itself and the two-cast layout are the
-    documented exceptions; on a depth axis only the two-cast layout."""
+def test_profile_passes_ioos_1_2(tmp_path, axis):
+    """profile.nc as derive builds it (hadal.profile.make_profile): a ragged trajectoryProfile with depth as its Z
+    axis passes every high-priority IOOS-1.2 check but the GTS listing, on either binning axis; depth is the
+    stage's own binned depth (0.993 x pressure here), not a relabelled pressure."""
     from hadal.profile import make_profile
 
     prof = make_profile(_ctd(), 10.0, latitude_deg=LAUNCH[0], axis=axis)
@@ -111,22 +114,16 @@ def test_profile_passes_ioos_1_2_but_the_two_casts(tmp_path, axis):
                         **dive_attributes(_dive()))
     rep = check_compliance(path, IOOS_CHECKERS)
     _assert_cf_acdd_ok(rep)
-    want = {GTS: True, "CF DSG: featureType=profile": True}
-    if axis == "pressure":
-        want["Vertical coordinates"] = True  # pressure_dbar (dbar); the depth_m result passes (not a finding)
-    assert _high(rep) == want, rep.describe()
-    vert = [m for f in rep.findings if f.name == "Vertical coordinates" for m in f.messages]
-    assert all(m.startswith("pressure_dbar's units attribute dbar") for m in vert), vert
+    assert _high(rep) == {GTS: True}, rep.describe()
     with xr.open_dataset(path) as ds:
-        assert ds.attrs["featureType"] == "profile"
-        assert "depth_m" in ds.coords and ds["depth_m"].attrs["positive"] == "down" and ds["depth_m"].attrs[
-            "units"] == "m"
-        if axis == "pressure":  # the pressure axis is kept, depth is an auxiliary coordinate of the data
-            assert "pressure_dbar" in ds.dims and "depth_m" in ds["temperature_its90_degc"].encoding["coordinates"]
-            # the stage's depth (the samples' depth_m = 0.993 x pressure, binned), not a relabelled pressure:
-            # within half a bin of 0.993 x the bin centre
-            d = ds["depth_m"].values - 0.993 * ds["pressure_dbar"].values[None, :]
-            assert np.nanmax(np.abs(d)) <= 0.993 * 5.0 + 1e-9 and np.nanmax(np.abs(d)) > 1.0
+        assert ds.attrs["featureType"] == "trajectoryProfile" and ds.attrs["cdm_data_type"] == "TrajectoryProfile"
+        z = ds["depth_m"]
+        assert z.dims == ("obs",) and z.attrs["axis"] == "Z" and z.attrs["positive"] == "down"
+        assert z.attrs["units"] == "m" and z.attrs["standard_name"] == "depth"
+        assert "depth_m" in ds["temperature_its90_degc"].encoding["coordinates"]
+        if axis == "pressure":  # within half a bin of 0.993 x the bin centre
+            d = ds["depth_m"].values - 0.993 * ds["pressure_dbar"].values
+            assert np.nanmax(np.abs(d)) <= 0.993 * 5.0 + 1e-3 and np.nanmax(np.abs(d)) > 1.0
 
 
 def test_grid_passes_ioos_1_2_but_the_dsg_checks(tmp_path):
@@ -188,4 +185,4 @@ def test_real_products_of_the_small_sample_dive_pass_ioos_1_2(small_run):
                 assert ds.attrs["cdm_data_type"] == "Grid", f
     assert not bad, "\n".join(bad)
     with xr.open_dataset(out["navigation"].file("navigation.nc")) as ds:
-        assert ds.sizes["traj"] == 1 and ds["trajectory"].values.tolist() == [ctx.dive_id]
+        assert ds.sizes["traj"] == 1 and id_values(ds["trajectory"]) == [ctx.dive_id]

@@ -61,7 +61,8 @@ def test_missing_acdd_fields_lists_exactly_what_dive_yaml_lacks(monkeypatch):
     assert missing_acdd_fields(_dive()) == list(REQUIRED_FIELDS)
     assert missing_acdd_fields(_dive(FULL_METADATA)) == []
     assert missing_acdd_fields(_dive({"creator_name": "x", "license": "CC0-1.0"})) == [
-        "creator_email", "institution", "project", "creator_country", "creator_sector", "infoUrl"]
+        "creator_email", "institution", "project", "creator_country", "creator_sector", "infoUrl", "creator_url",
+        "naming_authority"]  # IOOS-1.2 requires creator_url and naming_authority too (compliance-checker ioos:1.2)
     monkeypatch.setenv("HADAL_INSTITUTION", "Operator Institute")  # a deployment's operator counts
     assert "institution" not in missing_acdd_fields(_dive())
 

@@ -293,7 +293,7 @@ def test_timeless_cast_uses_header_start_time(shared_data, tmp_path):
     with xr.open_dataset(out["profile"].file("profile.nc"), engine="h5netcdf") as ds:
         assert ds.attrs["time_coverage_start"] == oracle.strftime("%Y-%m-%dT%H:%M:%SZ") == "2008-08-28T12:33:46Z"
         assert ds.attrs["time_coverage_end"] == ds.attrs["time_coverage_start"]
-        assert ds["time"].dims == ("cast",)
+        assert ds["time"].dims == ("profile",)  # one time per cast (ragged profiles, hadal.products.dsg)
         assert (pd.to_datetime(ds["time"].values) == pd.Timestamp(oracle)).all()
         assert "processing" not in ds["time"].attrs.get("long_name", "")
 
@@ -348,8 +348,10 @@ def test_loopedit_flags_become_qartod_4(shared_data, tmp_path):
 
     # derive: the binned profile is the mean of the unflagged scans only (oracle: numpy on the raw columns)
     ctd = pd.read_parquet(out["ctd"].file("ctd.parquet"))
+    from hadal.products.dsg import orthogonal_profile  # the ragged casts back on their bins
+
     with xr.open_dataset(out["profile"].file("profile.nc"), engine="h5netcdf") as prof:
-        prof = prof.load()
+        prof = orthogonal_profile(prof.load())
     binsz = float(prof["pressure_dbar"].values[1] - prof["pressure_dbar"].values[0]) if prof.sizes[
         "pressure_dbar"] > 1 else 10.0
     edges = bin_edges(ctd["pressure_dbar"].to_numpy(), binsz)
@@ -361,7 +363,7 @@ def test_loopedit_flags_become_qartod_4(shared_data, tmp_path):
             v = raw[sel, 3][idx == b]
             got = float(prof["temperature_its90_degc"].values[k, b])
             if v.size:
-                assert got == pytest.approx(v.mean(), abs=1e-9), (cast, b)
+                assert got == pytest.approx(v.mean(), abs=5e-5), (cast, b)  # float32: registry 1e-4 degC
             else:
                 assert np.isnan(got)
     # and no flagged scan is counted

@@ -18,10 +18,12 @@ from typing import Any
 GZIP_LEVEL = 1
 
 
-def gzip_encoding(chunksizes: tuple[int, ...] | None = None) -> dict[str, Any]:
+def gzip_encoding(chunksizes: tuple[int, ...] | None = None, shuffle: bool = False) -> dict[str, Any]:
     """The xarray (h5netcdf/netCDF4) encoding of a gzip-compressed variable at :data:`GZIP_LEVEL`, chunked
-    ``chunksizes`` (None: the writer's default chunks)."""
-    enc: dict[str, Any] = {"zlib": True, "complevel": GZIP_LEVEL, "shuffle": False}
+    ``chunksizes`` (None: the writer's default chunks); ``shuffle`` for smooth fields (2-D latitude/longitude of a
+    grid, float32 layers: the sample DTM's lat/lon went from 16.9 MB uncompressed to 2.8 MB with shuffle + level 1,
+    against 6.0 MB without shuffle, written no slower)."""
+    enc: dict[str, Any] = {"zlib": True, "complevel": GZIP_LEVEL, "shuffle": shuffle}
     if chunksizes is not None:
         enc["chunksizes"] = tuple(int(c) for c in chunksizes)
     return enc

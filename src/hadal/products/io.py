@@ -41,8 +41,9 @@ from hadal.errors import InputError
 from hadal.products.cf import (
     STANDARD_NAME_VOCABULARY,
     is_axis_edge,
-    units_from_name,
 )
+from hadal.products.compression import gzip_encoding
+from hadal.products.dsg import dsg_global_attributes, is_binned_casts, ragged_profiles
 from hadal.products.metadata import (
     HADAL_FACTS,
     current_dive,
@@ -51,7 +52,7 @@ from hadal.products.metadata import (
     relative_to_raw,
     store_relative,
 )
-from hadal.products.registry import registry, variable_attrs
+from hadal.products.registry import registry, storage_dtype, variable_attrs
 
 #: Attributes of every NetCDF product that are facts about hadal (no operator placeholders: who made the data
 #: comes from dive.yaml ``metadata`` or ``HADAL_<NAME>``, see :mod:`hadal.products.metadata`).
@@ -219,7 +220,7 @@ def _json_default(obj: Any) -> Any:
 
 
 # ---------------------------------------------------------------------------------------------- NetCDF
-def _standard_name(name: str, var: xr.DataArray) -> str | None:
+def _standard_name(name: str, var: xr.DataArray | xr.Variable) -> str | None:
     """The variable's own standard_name, else the one the registry declares for its name."""
     if var.attrs.get("standard_name"):
         return str(var.attrs["standard_name"])
@@ -227,15 +228,15 @@ def _standard_name(name: str, var: xr.DataArray) -> str | None:
     return spec.standard_name if spec is not None else None
 
 
-def _is_lat(name: str, var: xr.DataArray) -> bool:
+def _is_lat(name: str, var: xr.DataArray | xr.Variable) -> bool:
     return _standard_name(name, var) == "latitude"
 
 
-def _is_lon(name: str, var: xr.DataArray) -> bool:
+def _is_lon(name: str, var: xr.DataArray | xr.Variable) -> bool:
     return _standard_name(name, var) == "longitude"
 
 
-def _is_grid_mapping(var: xr.DataArray) -> bool:
+def _is_grid_mapping(var: xr.DataArray | xr.Variable) -> bool:
     return any(k in var.attrs for k in ("grid_mapping_name", "crs_wkt", "spatial_ref", "proj4", "proj4text"))
 
 
@@ -250,7 +251,7 @@ def _finite_range(values: np.ndarray) -> tuple[Any, Any] | None:
     return v.min(), v.max()
 
 
-def _fill_grid_mapping(var: xr.DataArray) -> None:
+def _fill_grid_mapping(var: xr.DataArray | xr.Variable) -> None:
     """Complete a grid-mapping variable's CF attributes from its WKT/proj4 with pyproj."""
     wkt = var.attrs.get("crs_wkt")
     wkt_ok = isinstance(wkt, str) and wkt.lstrip()[:6].upper() in ("PROJCR", "GEOGCR", "PROJCS", "GEOGCS", "COMPOU", "BOUNDC")
@@ -307,6 +308,14 @@ def _prepare_variable(name: str, var: xr.Variable, *, is_coord: bool, is_dim_coo
     enc.pop("coordinates", None)  # xarray writes `coordinates` from the dataset's coordinates
     var = _cf_integer_type(xr.Variable(var.dims, var.data, attrs))
     enc.pop("dtype", None) if var.dtype.kind in "iu" else None
+    if not is_dim_coord and storage_dtype(name, var.values) == "float32":  # precision declared in the registry
+        var = var.astype("float32")
+        enc.pop("dtype", None)
+        if enc.get("zlib"):
+            enc["shuffle"] = True  # byte-shuffled float32 deflates better (hadal.products.compression)
+    if is_coord and var.ndim >= 2 and var.dtype.kind == "f" and not enc.get("zlib"):
+        # 2-D latitude/longitude of a grid: smooth, so shuffle + deflate shrink them ~6x (float64 kept: cm positions)
+        enc.update(gzip_encoding(tuple(min(s, 512) for s in var.shape), shuffle=True))
     if np.issubdtype(var.dtype, np.bool_):
         var = var.astype("i1")
         attrs.setdefault("flag_values", np.array([0, 1], dtype="i1"))
@@ -405,6 +414,9 @@ def _z_coordinate(ds: xr.Dataset) -> str | None:
     """The vertical coordinate as the compliance checker finds it: a (dimension or auxiliary)
     coordinate with standard_name depth/height/altitude, else one with pressure units or ``positive``."""
     coords = [str(n) for n in ds.coords if np.issubdtype(ds[n].dtype, np.number)]
+    for c in coords:  # a declared length Z axis first (a ragged profile's depth_m)
+        if ds[c].attrs.get("axis") == "Z" and ds[c].attrs.get("standard_name") in ("depth", "height", "altitude"):
+            return c
     for n in ds.dims:  # a depth dimension coordinate first (a depth-binned profile), before depth-like data
         if n in ds.coords and ds[n].attrs.get("standard_name") in ("depth", "height", "altitude"):
             return str(n)
@@ -462,6 +474,13 @@ def _sorted_unique(a: np.ndarray) -> np.ndarray:
     return np.unique(a)
 
 
+#: vertical CRS of the standard names that are measured from the sea surface (ACDD geospatial_bounds_vertical_crs):
+#: EPSG:5831 (instantaneous/mean sea level depth), EPSG:5829 (instantaneous height above sea level)
+_VERTICAL_DATUM: dict[str, str] = {"depth": "EPSG:5831", "sea_floor_depth_below_sea_surface": "EPSG:5831",
+                                   "sea_floor_depth_below_mean_sea_level": "EPSG:5831",
+                                   "height_above_mean_sea_level": "EPSG:5829", "altitude": "EPSG:5829"}
+
+
 def discovery_attributes(ds: xr.Dataset, hints: Mapping[str, Any] | None = None) -> dict[str, Any]:
     """ACDD geospatial/vertical/time coverage attributes computed from the data of ``ds``.
 
@@ -491,23 +510,28 @@ def discovery_attributes(ds: xr.Dataset, hints: Mapping[str, Any] | None = None)
             r = _resolution(line) if line.size > 1 else None
             out[key] = f"{abs(r):.6g} degree" if r else "point"
     z = _z_coordinate(ds)
-    zvals = None
+    zvals, zstd = None, None
     if z is not None:
         zvals, zunits = ds[z].values, ds[z].attrs.get("units", "m")
         positive = ds[z].attrs.get("positive", "down")
+        zstd = ds[z].attrs.get("standard_name")
     else:
         for pos in ("down", "up"):
             for v in ds.variables.values():
-                if np.issubdtype(v.dtype, np.number) and v.attrs.get("positive") == pos:
+                # a vertical field with a CF standard name (a seafloor depth or height); an elevation relative to
+                # an arbitrary origin (laser grids) has none and gives no vertical extent (no datum it lacks)
+                if np.issubdtype(v.dtype, np.number) and v.attrs.get("positive") == pos and \
+                        v.attrs.get("standard_name") in _VERTICAL_DATUM:
                     zvals, zunits, positive = v.values, v.attrs.get("units", "m"), pos
+                    zstd = v.attrs.get("standard_name")
                     break
             if zvals is not None:
                 break
     if zvals is not None and (vr := _finite_range(zvals)) is not None:
         out.update(geospatial_vertical_min=float(vr[0]), geospatial_vertical_max=float(vr[1]),
                    geospatial_vertical_units=zunits, geospatial_vertical_positive=positive)
-        if zunits == "m":
-            out["geospatial_bounds_vertical_crs"] = "EPSG:5831" if positive == "down" else "EPSG:5829"
+        if zunits == "m" and zstd in _VERTICAL_DATUM:  # a depth below / height above the sea surface (MSL)
+            out["geospatial_bounds_vertical_crs"] = _VERTICAL_DATUM[zstd]
         r = _resolution(np.ravel(zvals)) if z is not None and np.ndim(zvals) == 1 else None
         out["geospatial_vertical_resolution"] = f"{r:.6g} {zunits}" if r else "point"
     times = [v.values for v in ds.variables.values() if np.issubdtype(v.dtype, np.datetime64)]
@@ -566,66 +590,6 @@ def _string_dims_to_index(out: xr.Dataset) -> xr.Dataset:
 
 #: the conventions every NetCDF product follows (IOOS-1.2 where it applies: see hadal.products.compliance)
 CONVENTIONS = "CF-1.8, ACDD-1.3, IOOS-1.2"
-
-#: instance dimensions of pressure-binned casts (``derive``'s ``profile``/``cast_profiles``)
-PROFILE_DIMS = ("cast", "profile")
-
-
-def _profile_dsg(out: xr.Dataset) -> tuple[xr.Dataset, bool]:
-    """Casts on a common vertical axis as a CF-1.8 DSG in the orthogonal multidimensional representation
-    (CF §H.3.1): the cast dimension's coordinate gets ``cf_role = profile_id``; ``time``, ``lat`` and ``lon``
-    become per-cast coordinates (a scalar position is the position of every cast)."""
-    dims = [d for d in PROFILE_DIMS if d in out.dims]
-    z = next((str(n) for n in out.dims if n in out.coords and (
-        (out[n].attrs.get("units") or units_from_name(str(n))) in ("dbar", "decibar", "Pa", "m") and (
-            out[n].attrs.get("positive") or out[n].attrs.get("axis") == "Z" or str(n).startswith(("pressure", "depth"))))),
-        None)
-    if not dims or z is None or {"y", "x"} <= set(out.dims):
-        return out, False
-    out = _depth_auxiliary(out, z)
-    d = dims[0]
-    if d not in out.coords:
-        out = out.assign_coords({d: np.arange(out.sizes[d], dtype="i4")})
-    out[d].attrs["cf_role"] = "profile_id"
-    for n in ("time", "lat", "lon"):
-        if n in out.variables and out[n].ndim == 0:
-            v = out[n]
-            out = out.drop_vars(n).assign_coords({n: ((d,), np.repeat(v.values[None], out.sizes[d]), v.attrs)})
-        elif n in out.data_vars and out[n].dims == (d,):
-            out = out.set_coords(n)
-    return out, True
-
-
-def _depth_auxiliary(out: xr.Dataset, z: str) -> xr.Dataset:
-    """Casts binned by pressure get a length vertical coordinate as well (IOOS-1.2 accepts only lengths): the
-    stage's own depth of every bin (``depth_m``, standard_name depth, positive down) becomes an auxiliary
-    coordinate; without one, ``depth`` from TEOS-10 ``gsw.z_from_p`` at the casts' latitude (depth = -z, the
-    standard ocean's hydrostatic depth). The pressure axis is kept as it is."""
-    units = out[z].attrs.get("units") or units_from_name(z)
-    if units not in ("dbar", "decibar"):
-        return out
-    def attr(n: str, v: xr.DataArray, key: str) -> Any:  # the variable's own, else the registry's
-        spec = registry().find(n)
-        return v.attrs.get(key) or (spec.attrs().get(key) if spec is not None else None)
-
-    cand = [str(n) for n, v in out.data_vars.items() if z in v.dims and attr(str(n), v, "standard_name") == "depth"
-            and attr(str(n), v, "positive") == "down" and attr(str(n), v, "units") == "m"]
-    if cand:
-        name = "depth_m" if "depth_m" in cand else cand[0]
-        return out.set_coords(name)
-    if "depth" in out.variables:
-        return out
-    import gsw
-
-    lat = out["lat"] if "lat" in out.variables else None
-    if lat is None or not np.isfinite(np.asarray(lat.values, float)).any():
-        return out
-    lat_v = float(np.nanmean(np.asarray(lat.values, float)))
-    depth = -gsw.z_from_p(np.asarray(out[z].values, float), lat_v)
-    attrs = {"standard_name": "depth", "units": "m", "positive": "down",
-             "long_name": "depth of the pressure bin (TEOS-10 gsw.z_from_p at the casts' mean latitude)"}
-    return out.assign_coords(depth=((z,), depth, attrs))
-
 
 #: name of the IOOS-1.2 platform container variable every data variable refers to (``platform`` attribute)
 PLATFORM_VARIABLE = "platform"
@@ -712,6 +676,56 @@ def _fix_platform(glob: dict[str, Any], own_platform: str | None) -> None:
         glob.pop("platform_vocabulary", None)  # a caller's free-text platform is not a term of the vocabulary
 
 
+def _local_grid_footprint(out: xr.Dataset, dive: Any) -> tuple[xr.Dataset, dict[str, Any] | None]:
+    """A y/x grid without a grid mapping and without lat/lon is in the laser survey's local frame (the only
+    un-projected frame hadal grids in): with ``dive.yaml`` ``laser_frame`` its ACDD extent is the rotated rectangle
+    of its mapped cells (:func:`hadal.products.footprint.grid_footprint`) and its scalar reference position the
+    footprint's centre; without one the grid is not georeferenced and the reference position says so."""
+    if any(_is_lat(str(n), v) or _is_lon(str(n), v) for n, v in out.variables.items() if v.ndim > 0):
+        return out, None
+    from hadal.products.footprint import grid_footprint
+
+    lf = getattr(dive, "laser_frame", None)
+    fp = grid_footprint(out, lf) if lf is not None else None
+    if fp is None:
+        return out, {"hadal_georeference": "none: the grid is in the laser survey's local frame and dive.yaml gives "
+                                           "no laser_frame; geospatial_* give the dive's launch position"}
+    centre, attrs = fp
+    return _footprint_reference(out, centre, attrs, "centre of the grid's mapped footprint (laser_frame of dive.yaml)"), attrs
+
+
+def _footprint_reference(out: xr.Dataset, centre: tuple[float, float], attrs: Mapping[str, Any],
+                         what: str) -> xr.Dataset:
+    """``out`` with scalar ``lat``/``lon`` at the footprint's ``centre`` (lon, lat) and the footprint polygon's
+    vertices ``footprint_lat``/``footprint_lon`` (the ring of ``attrs``' ``geospatial_bounds``), so readers and the
+    ACDD extent checks find the extent in the data."""
+    ring = [tuple(map(float, p.split())) for p in str(attrs["geospatial_bounds"])[10:-2].split(", ")]
+    out = out.drop_vars([n for n in ("lat", "lon") if n in out.variables and out[n].ndim == 0])
+    out = out.assign_coords(
+        lat=xr.Variable((), centre[1], {"standard_name": "latitude", "units": "degrees_north", "long_name": what}),
+        lon=xr.Variable((), centre[0], {"standard_name": "longitude", "units": "degrees_east", "long_name": what}))
+    out["footprint_lat"] = xr.Variable(("footprint_vertex",), np.array([r[0] for r in ring]), {})
+    out["footprint_lon"] = xr.Variable(("footprint_vertex",), np.array([r[1] for r in ring]), {})
+    return out
+
+
+def _crs_grid_footprint(out: xr.Dataset, gm: str) -> tuple[xr.Dataset, dict[str, Any] | None]:
+    """A projected y/x grid without latitude/longitude variables: its ACDD extent from the mapped cells' rectangle
+    in its grid mapping's CRS (:func:`hadal.products.footprint.crs_grid_footprint`), the scalar reference position
+    its centre."""
+    from hadal.products.footprint import crs_grid_footprint
+
+    wkt = out[gm].attrs.get("crs_wkt")
+    try:
+        fp = crs_grid_footprint(out, str(wkt)) if wkt else None
+    except Exception:  # noqa: BLE001 - pyproj cannot use the CRS: the grid keeps what it had
+        fp = None
+    if fp is None:
+        return out, None
+    centre, attrs = fp
+    return _footprint_reference(out, centre, attrs, "centre of the grid's mapped footprint (its own CRS)"), attrs
+
+
 def _global_attributes(ds: xr.Dataset, out: xr.Dataset, path: Path, attrs: dict[str, Any], *, title: str,
                        summary: str, dive_model: Any, provenance_from: Any, yx: tuple[str, str] | None,
                        now_iso: str) -> dict[str, Any]:
@@ -762,14 +776,31 @@ def prepare_dataset(ds: xr.Dataset, path: str | Path, *, title: str, summary: st
     out = _string_dims_to_index(out)
     dive_hints = {k: v for k, v in dive_attributes(dive_model).items() if k != _DIVE_KEY} if dive_model else {}
     out = _add_scalar_fallbacks(out, {**dive_hints, **ds.attrs, **attrs}, now_ts)
-    out, dsg = _profile_dsg(out)
-    if dsg:
-        attrs = {"featureType": "profile", "cdm_data_type": "Profile", **attrs}
+    if is_binned_casts(out):  # binned casts: a contiguous ragged array, one profile per cast (hadal.products.dsg)
+        dive_id = attrs.get("dive_id") or ds.attrs.get("dive_id") or _store_location(path)[0]
+        la = attrs.get("latitude_used_deg", ds.attrs.get("latitude_used_deg"))
+        out = ragged_profiles(out, dive_id, latitude_deg=float(la) if la is not None else None)
+    src_wkt = {**ds.attrs, **attrs}.get("source_crs_wkt")
+    if {"y", "x"} <= set(out.dims) and src_wkt and not any(_is_grid_mapping(v) for v in out.variables.values()):
+        # a grid on its source file's own projected CRS (a point cloud in UTM): CF grid mapping from that metadata
+        out["crs"] = xr.Variable((), np.int32(0), {"crs_wkt": str(src_wkt),
+                                                   "long_name": "coordinate reference system of the source file"})
     out, gm_names, grid_mapping = _complete_grid_mappings(out)
     yx = ("y", "x") if {"y", "x"} <= set(out.dims) else None
+    footprint = None
+    if yx and not gm_names:  # a grid in the laser survey's frame: its true footprint from dive.yaml laser_frame
+        out, footprint = _local_grid_footprint(out, dive_model)
+    elif yx and not any(_is_lat(str(n), v) for n, v in out.variables.items() if v.ndim > 0):
+        out, footprint = _crs_grid_footprint(out, gm_names[0])  # a projected grid without lat/lon (a LAS in UTM)
     out = _prepare_variables(out, gm_names, grid_mapping, yx, path.name)
+    dsg = dsg_global_attributes(out) if not yx else {}
+    attrs = {**dsg, **attrs}
     glob = _global_attributes(ds, out, path, attrs, title=title, summary=summary, dive_model=dive_model,
                               provenance_from=provenance_from, yx=yx, now_iso=now)
+    if footprint:
+        glob.update(footprint)
+    if yx:
+        glob.pop("featureType", None)  # CF: featureType names a discrete sampling geometry, never a grid
     out = _add_platform_variable(out, glob, grid_mapping)
     glob.pop("hadal_metadata_missing", None)
     glob["hadal_metadata_missing"] = metadata_missing(glob)

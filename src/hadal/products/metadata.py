@@ -30,8 +30,10 @@ from typing import Any
 
 #: ACDD attributes a dive must give (``hadal config --check`` lists the missing ones)
 ACDD_REQUIRED: tuple[str, ...] = ("creator_name", "creator_email", "institution", "project", "license")
-#: IOOS-1.2 attributes (required there) only the operator can give; ``hadal config --check`` lists them too
-IOOS_REQUIRED: tuple[str, ...] = ("creator_country", "creator_sector", "infoUrl")
+#: IOOS-1.2 attributes (required there: high priority in the IOOS compliance-checker) only the operator can give,
+#: beyond the ACDD ones; ``hadal config --check`` lists them too. The other IOOS-required operator attributes follow
+#: from these: ``creator_institution`` = ``institution``, ``publisher_*`` = the creator's unless given.
+IOOS_REQUIRED: tuple[str, ...] = ("creator_country", "creator_sector", "infoUrl", "creator_url", "naming_authority")
 #: every attribute ``hadal config --check`` asks dive.yaml ``metadata`` for
 REQUIRED_FIELDS: tuple[str, ...] = (*ACDD_REQUIRED, *IOOS_REQUIRED)
 #: IOOS-1.2 required attributes checked in a product's final attributes (``hadal_metadata_missing``)
@@ -50,10 +52,10 @@ ACDD_SUGGESTED: tuple[str, ...] = ("creator_type", "creator_institution", "publi
                                    "program", "metadata_link", "platform", "platform_vocabulary", "instrument",
                                    "instrument_vocabulary")
 #: every operator attribute read from dive.yaml ``metadata`` / ``HADAL_<NAME>``
-OPERATOR_FIELDS: tuple[str, ...] = (*ACDD_REQUIRED, *ACDD_RECOMMENDED, *IOOS_REQUIRED, "creator_type",
-                                    "creator_institution", "publisher_type", "publisher_institution",
-                                    "publisher_country", "program", "acknowledgment", "contributor_name",
-                                    "contributor_role", "cruise", "metadata_link")
+OPERATOR_FIELDS: tuple[str, ...] = tuple(dict.fromkeys((
+    *ACDD_REQUIRED, *ACDD_RECOMMENDED, *IOOS_REQUIRED, "creator_type", "creator_institution", "publisher_type",
+    "publisher_institution", "publisher_country", "program", "acknowledgment", "contributor_name", "contributor_role",
+    "cruise", "metadata_link")))
 
 #: facts about every hadal product (not about its operator): always written
 HADAL_FACTS: dict[str, str] = {
@@ -149,10 +151,13 @@ def operator_attributes(dive: Any = None) -> dict[str, str]:
 def missing_acdd_fields(dive: Any, recommended: bool = False) -> list[str]:
     """The required ACDD-1.3 and IOOS-1.2 attributes (:data:`REQUIRED_FIELDS`; with ``recommended``: also the
     recommended ACDD ones) that neither ``dive.yaml`` ``metadata`` nor a ``HADAL_<NAME>`` environment variable
-    gives."""
+    gives; ``platform`` when dive.yaml names no platform (the vehicle; IOOS-1.2 requires ``platform_name``)."""
     have = operator_attributes(dive)
-    want = REQUIRED_FIELDS + (ACDD_RECOMMENDED if recommended else ())
-    return [k for k in want if k not in have]
+    want = dict.fromkeys(REQUIRED_FIELDS + (ACDD_RECOMMENDED if recommended else ()))
+    out = [k for k in want if k not in have]
+    if dive is not None and getattr(dive, "platform", None) in (None, "", "unknown"):
+        out.append("platform")  # dive.yaml's top-level platform (the vehicle): IOOS-1.2 platform/platform_name
+    return out
 
 
 def product_attributes(dive: Any, product: str | None, given: Mapping[str, Any] | None = None) -> dict[str, Any]:

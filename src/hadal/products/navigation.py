@@ -166,13 +166,26 @@ def dead_reckoned_lonlat(ctd: pd.DataFrame, frame: LocalFrame, launch_lat: float
 
 
 def navigation_summary(nav: pd.DataFrame) -> dict[str, Any]:
-    """Counts per source and the uncertainty range (manifest summary)."""
+    """Counts per source, the uncertainty range and the best position of the surfacing (manifest summary)."""
     src = nav["position_source"].astype(str)
     u = nav["position_uncertainty_m"].to_numpy(float)
     return {"samples": int(len(nav)), "sources": {s: int((src == s).sum()) for s in SOURCES},
             "uncertainty_m": {"min": float(np.nanmin(u)) if len(u) else None,
                               "median": float(np.nanmedian(u)) if len(u) else None,
-                              "max": float(np.nanmax(u)) if len(u) else None}}
+                              "max": float(np.nanmax(u)) if len(u) else None},
+            "surfacing": surfacing_position(nav)}
+
+
+def surfacing_position(nav: pd.DataFrame) -> dict[str, Any] | None:
+    """The best position of the last sample (where the ascent cast ends, the vehicle surfacing): time, lat, lon
+    (8 decimals, ~1 mm), its 1-sigma radial uncertainty and source; ``None`` for an empty table."""
+    if not len(nav):
+        return None
+    last = nav.iloc[-1]
+    t = last["time"] if "time" in nav else None
+    return {"time_utc": pd.Timestamp(t).isoformat() if t is not None and not pd.isna(t) else None,
+            "latitude_deg": round(float(last["lat"]), 8), "longitude_deg": round(float(last["lon"]), 8),
+            "uncertainty_m": float(last["position_uncertainty_m"]), "source": str(last["position_source"])}
 
 
 def trajectory_dataset(nav: pd.DataFrame, ctd: pd.DataFrame | None, dive_id: str,
@@ -182,13 +195,14 @@ def trajectory_dataset(nav: pd.DataFrame, ctd: pd.DataFrame | None, dive_id: str
     """The dive time series as a CF-1.8 Discrete Sampling Geometry: one trajectory in the contiguous ragged
     array representation (CF §H.4.3): dimension ``obs`` with ``time``/``lat``/``lon``/``depth_m`` coordinates,
     dimension ``traj`` of length 1 with the id variable ``trajectory`` (``cf_role = trajectory_id``, the dive
-    id; a string, so not a coordinate variable of its dimension) and ``row_size`` (``sample_dimension = obs``:
+    id as a NC_CHAR array, :func:`hadal.products.dsg.char_id`) and ``row_size`` (``sample_dimension = obs``:
     every sample), the best positions and, from ``ctd``,
     the listed measurement columns. (A length-1 instance dimension rather than CF §H.4.1's scalar id: IOOS-1.2
     asks the trajectory_id variable for a dimension of length 1, one platform per dataset.)"""
     import xarray as xr
 
     from hadal.products.compression import gzip_encoding
+    from hadal.products.dsg import char_id
     from hadal.products.registry import variable_attrs
 
     obs = np.arange(len(nav), dtype="i4")
@@ -201,8 +215,7 @@ def trajectory_dataset(nav: pd.DataFrame, ctd: pd.DataFrame | None, dive_id: str
     }
     src = nav["position_source"].astype(str).to_numpy()
     data = {
-        "trajectory": (("traj",), np.array([dive_id], dtype=object),
-                       {"cf_role": "trajectory_id", "long_name": "dive id"}),
+        "trajectory": char_id([dive_id], "traj", {"cf_role": "trajectory_id", "long_name": "dive id"}),
         "row_size": (("traj",), np.array([len(obs)], dtype="i4"),
                      {"sample_dimension": "obs", "long_name": "number of observations of the trajectory"}),
         "x_east_m": ("obs", nav["x_east_m"].to_numpy(float), dict(NAV_FIELDS["x_east_m"])),

@@ -31,6 +31,7 @@ def trajectory_dataset(df: pd.DataFrame, record_id: str) -> Any:
     import pandas as pd
     import xarray as xr
 
+    from hadal.products.dsg import char_id
     from hadal.products.registry import variable_attrs
 
     obs = np.arange(len(df), dtype="i4")
@@ -46,8 +47,7 @@ def trajectory_dataset(df: pd.DataFrame, record_id: str) -> Any:
         "obs": obs,
     }
     data: dict[str, Any] = {
-        "trajectory": (("traj",), np.array([record_id], dtype=object),
-                       {"cf_role": "trajectory_id", "long_name": "underway record id"}),
+        "trajectory": char_id([record_id], "traj", {"cf_role": "trajectory_id", "long_name": "underway record id"}),
         "row_size": (("traj",), np.array([len(obs)], dtype="i4"),
                      {"sample_dimension": "obs", "long_name": "number of observations of the trajectory"}),
     }

@@ -261,6 +261,10 @@ def load_products(store: ProductStore, dive: str, skipped_stages: set[str] | Non
         dp.ctd = _read_parquet(versions["ctd"], "ctd.parquet", dp)
     if "profile" in versions:
         dp.profile = _read_netcdf(versions["profile"], "profile.nc", dp)
+        if dp.profile is not None:  # a ragged-array profile file: back to the (cast, level) layout the figures use
+            from hadal.products.dsg import orthogonal_profile
+
+            dp.profile = orthogonal_profile(dp.profile)
     if "dtm" in versions:
         dp.dtm = _read_netcdf(versions["dtm"], "dtm.nc", dp)
     if "laser_grids" in versions:

@@ -1111,7 +1111,9 @@ def run(ctx: StageContext) -> dict[str, ProductVersion]:
                            extra={"summary": _ctd_summary(meta)}) as draft:
         write_parquet(df, draft.path / "ctd.parquet", fields=fields, metadata=meta, provenance_from=draft)
     ctd = draft.result
-    out = {"ctd": ctd, "profile": _publish_profile(ctx, p, params, [sensors, ctd], profile, meta)}
+    from hadal.products.dsg import place_casts  # each cast at its time on the dive's (dead-reckoned) track
+
+    out = {"ctd": ctd, "profile": _publish_profile(ctx, p, params, [sensors, ctd], place_casts(profile, df), meta)}
     if cast_results:
         out["cast_profiles"], index = _publish_cast_profiles(ctx, p, params, [sensors, casts_pv], cast_results,
                                                              fields)
@@ -1221,9 +1223,10 @@ def _profile_attrs(ds: Any, meta: dict[str, Any]) -> None:
                                     "comment": "gsw.Nsquared on the binned Absolute Salinity and Conservative "
                                                "Temperature, at the mid-points between levels, linearly "
                                                "interpolated to the bin centres"})
-    # the profile's nominal position (the latitude used for gravity/depth, the launch longitude)
-    ds.coords["lat"] = np.float64(meta["latitude_deg"])
-    ds.coords["lon"] = np.float64(meta["longitude_deg"])
+    # the profile's nominal position (the latitude used for gravity/depth, the launch longitude) unless placed
+    if "lat" not in ds.variables:
+        ds.coords["lat"] = np.float64(meta["latitude_deg"])
+        ds.coords["lon"] = np.float64(meta["longitude_deg"])
 
 
 # ------------------------------------------------------------------------------ underway records: trajectory
