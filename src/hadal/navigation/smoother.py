@@ -54,21 +54,37 @@ class SmootherOptions(BaseModel):
         0.05, gt=0, le=5,
         description="prior 1-sigma per axis of the drift velocity (current) at the first sample, m/s")
     current_random_walk_m_s_per_sqrt_s: float = Field(
-        0.0008, ge=0, le=1,
+        0.0012, ge=0, le=1,
         description="random walk of the drift velocity, 1-sigma per axis per sqrt(s) (currents change with depth "
                     "and time)")
     position_random_walk_m_per_sqrt_s: float = Field(
-        1.2, ge=0, le=100,
+        2.2, ge=0, le=100,
         description="unreferenced steps (DR held): position random walk beyond the drift velocity, 1-sigma per "
                     "axis per sqrt(s)")
     dr_variance_m2_per_m: float = Field(
-        0.05, ge=0, le=1000,
+        0.1, ge=0, le=1000,
         description="referenced steps: dead-reckoning position variance per axis added per metre travelled "
-                    "(m^2/m); 0.05: 10 m per axis after 2 km")
+                    "(m^2/m); 0.1: 14 m per axis after 2 km (the matched track's residual heading/scale error)")
     gate_probability: float = Field(
         0.999, gt=0.5, lt=1,
         description="chi-square gate (2 dof) of the fixes' leave-one-out residuals: a fix beyond it is rejected and named")
     max_rejections: int = Field(5, ge=0, le=100, description="at most this many fixes rejected by the gate")
+    gnss_max_depth_m: float = Field(
+        2.0, ge=0, le=50, description="GNSS fixes are used only where the vehicle is this shallow (at the surface)")
+    gnss_uere_m: float = Field(
+        4.0, gt=0, le=100,
+        description="GNSS user-equivalent range error (m): a fix with an HDOP and no covariance gets a 1-sigma of "
+                    "HDOP x this per axis")
+    gnss_sigma_m: float = Field(5.0, gt=0, le=1000, description="1-sigma per axis (m) of a GNSS fix with neither covariance nor HDOP")
+    usbl_sigma_m: float = Field(
+        20.0, gt=0, le=10000,
+        description="1-sigma per axis (m) of a USBL/LBL fix without a covariance (configure the system's accuracy)")
+    fix_min_interval_s: float = Field(
+        10.0, ge=0, le=3600,
+        description="at most one fix per source in this interval (a 16 Hz table repeats a 1 Hz fix: its errors are "
+                    "not independent)")
+    launch_sigma_m: float = Field(
+        7.0, gt=0, le=10000, description="1-sigma per axis (m) of the launch position (dive.yaml launch, a GNSS fix)")
 
 
 @dataclass(frozen=True)
