@@ -54,13 +54,16 @@ class SmootherOptions(BaseModel):
         0.05, gt=0, le=5,
         description="prior 1-sigma per axis of the drift velocity (current) at the first sample, m/s")
     current_random_walk_m_s_per_sqrt_s: float = Field(
-        0.0012, ge=0, le=1,
+        0.0005, ge=0, le=1,
         description="random walk of the drift velocity, 1-sigma per axis per sqrt(s) (currents change with depth "
                     "and time)")
     position_random_walk_m_per_sqrt_s: float = Field(
-        2.2, ge=0, le=100,
+        1.4, ge=0, le=100,
         description="unreferenced steps (DR held): position random walk beyond the drift velocity, 1-sigma per "
-                    "axis per sqrt(s)")
+                    "axis per sqrt(s). With the drift-velocity terms, calibrated on the sample dive's 10 generator "
+                    "seeds (bench/bench_navigation_coverage.py --sample: 72 % of the samples within the 1-sigma "
+                    "ellipse, 99.6 % within 2-sigma); dives whose descent drift is larger or more front-loaded than "
+                    "the TERCOM paper's 533 m need more (bench --sim)")
     dr_variance_m2_per_m: float = Field(
         0.1, ge=0, le=1000,
         description="referenced steps: dead-reckoning position variance per axis added per metre travelled "
