@@ -110,7 +110,7 @@ def test_gate_statistic_equals_leave_one_out_innovation_and_names_the_bad_fix():
                                opt.model_copy(update={"gate_probability": 0.99999999}))
         r = np.array([f.x_m - loo.x_m[f.index], f.y_m - loo.y_m[f.index]])
         d2 = r @ np.linalg.solve(f.cov_m2 + loo.cov_m2[f.index], r)
-        assert good.fixes["d2"][i] == pytest.approx(d2, rel=1e-5)
+        assert good.fixes["d2"][i] == pytest.approx(d2, rel=1e-4)  # the diffuse prior (1e8 m^2) is centred on the first fix
     # a USBL fix 400 m off: rejected and named, the others kept, the track not pulled towards it
     bad = [*fixes[:2], Fix(33, fixes[2].x_m + 400.0, fixes[2].y_m, fixes[2].cov_m2, "usbl"), fixes[3]]
     out = smooth_positions(t, d, ref, bad, opt)

@@ -40,6 +40,11 @@ CANONICAL_UNITS: dict[str, str] = {
     "gnss_longitude_deg": "deg",
     "gnss_east_variance_m2": "m2",
     "gnss_north_variance_m2": "m2",
+    # USBL/LBL fixes (optional columns, as the GNSS ones)
+    "usbl_latitude_deg": "deg",
+    "usbl_longitude_deg": "deg",
+    "usbl_east_variance_m2": "m2",
+    "usbl_north_variance_m2": "m2",
 }
 
 # unit token -> (dimension, factor to the dimension's canonical unit)  [value_canonical = value * factor]

@@ -28,8 +28,9 @@ Consistency of the fixes (the "w-test" of geodesy generalised to 2-D, Baarda 196
 *Testing theory*): for a fix used in the solution the residual ``r = z - x_s`` has covariance ``R - P_s``
 and ``d^2 = r' (R - P_s)^-1 r`` is exactly the squared Mahalanobis distance of the fix from the smoothed
 track computed *without it* (leave-one-out innovation), chi-square with 2 degrees of freedom. The fix with the
-largest ``d^2`` above the gate (``gate_probability``) is rejected, named, and the smoother re-run, until every
-remaining fix passes; a fix no other source checks (``R - P_s`` ~ 0, no redundancy) is reported untestable.
+``d^2`` above the gate (``gate_probability``) whose removal leaves the others most consistent (smallest sum of
+their ``d^2``; a bad fix also inflates its neighbours' statistics) is rejected, named, and the smoother re-run,
+until every remaining fix passes; a fix no other source checks (``R - P_s`` ~ 0, no redundancy) is reported untestable.
 """
 
 from __future__ import annotations
@@ -263,13 +264,26 @@ def smooth_positions(t_s, dr_increment_m, referenced, fixes: list[Fix],
     d_m = np.where(np.isfinite(d_m), d_m, 0.0)
     gate = chi2_2dof_quantile(options.gate_probability)
     use = np.ones(len(fixes), bool)
-    while True:
-        xs, Ps = _run(t_s, d_m, referenced, fixes, use, options)
-        res, d2 = _fix_tests(xs, Ps, fixes, use)
-        cand = np.where(use & np.isfinite(d2) & (d2 > gate), d2, -np.inf)
-        if (~use).sum() >= options.max_rejections or not np.isfinite(cand.max()) or use.sum() <= 1:
+    xs, Ps = _run(t_s, d_m, referenced, fixes, use, options)
+    res, d2 = _fix_tests(xs, Ps, fixes, use)
+    while (~use).sum() < options.max_rejections and use.sum() > 1:
+        failing = np.flatnonzero(use & np.isfinite(d2) & (d2 > gate))
+        if failing.size == 0:
             break
-        use[int(np.argmax(cand))] = False
+        # one bad fix also pulls the others' leave-one-out residuals (a precise recovery fix can fail for a bad
+        # USBL fix before it): reject the failing fix whose removal leaves the others most consistent (smallest
+        # sum of their chi-squares), not merely the largest chi-square
+        best = None
+        for i in failing[np.argsort(-d2[failing])][:20]:
+            u = use.copy()
+            u[i] = False
+            xs_i, Ps_i = _run(t_s, d_m, referenced, fixes, u, options)
+            res_i, d2_i = _fix_tests(xs_i, Ps_i, fixes, u)
+            score = float(np.nansum(np.where(u, d2_i, 0.0)))
+            if best is None or score < best[0]:
+                best = (score, i, xs_i, Ps_i, res_i, d2_i)
+        _, i, xs, Ps, res, d2 = best
+        use[i] = False
     fx = pd.DataFrame({
         "source": [f.source for f in fixes], "index": [f.index for f in fixes], "time": [f.time for f in fixes],
         "x_east_m": [f.x_m for f in fixes], "y_north_m": [f.y_m for f in fixes],
