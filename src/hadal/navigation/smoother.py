@@ -20,9 +20,13 @@ Measurements: absolute position fixes ``z = [x, y] + v``, ``v ~ N(0, R)`` with t
 (launch and recovery GNSS, USBL/LBL, the terrain fix's posterior covariance).
 
 Estimator: Kalman filter forward, Rauch-Tung-Striebel backward pass (Rauch, Tung & Striebel 1965, AIAA J.
-3(8); Särkkä 2013, *Bayesian Filtering and Smoothing*, Alg. 8.2), the scheme oplab_pipeline's AUV navigation
-uses (its ``auv_nav`` EKF with an RTS smoother over DVL/USBL/depth/GNSS; here linear, so the smoother is exact:
-its mean and covariance equal the batch least-squares solution, tests/test_navigation_smoother.py).
+3(8); Särkkä 2013, *Bayesian Filtering and Smoothing*, Alg. 8.2), the scheme of oplab_pipeline's AUV
+navigation (``src/auv_nav/localisation/ekf.py``: a 12-state EKF over position, attitude and body velocities
+fed by DVL, depth, orientation and USBL fixes, whose USBL sigma defaults to offset + factor x slant range, with a
+forward Mahalanobis gate on the innovations and an RTS pass over the stored states). Here the state is linear
+(the DR/DVL integration is done upstream), so the smoother is exact: its mean and covariance equal the batch
+least-squares solution (tests/test_navigation_smoother.py); and the gate tests every fix against the smoothed
+track of all the *other* fixes, not only the past ones.
 
 Consistency of the fixes (the "w-test" of geodesy generalised to 2-D, Baarda 1968; Teunissen 2006,
 *Testing theory*): for a fix used in the solution the residual ``r = z - x_s`` has covariance ``R - P_s``
