@@ -404,8 +404,8 @@ def _write_ros_mcap(path: Path, *, odometry: bool = True, duration: float = 60.0
             linear_acceleration=V3(x=0.0, y=0.0, z=9.8), linear_acceleration_covariance=z9))),
         "/vehicle/fix": ("sensor_msgs/msg/NavSatFix", msgs(0.5, lambda tn, v: T["sensor_msgs/msg/NavSatFix"](
             header=hdr(tn), status=T["sensor_msgs/msg/NavSatStatus"](status=0, service=1),
-            latitude=11.33 + v["north"] / 110_000.0, longitude=142.2, altitude=0.0, position_covariance=z9,
-            position_covariance_type=0))),
+            latitude=11.33 + v["north"] / 110_000.0, longitude=142.2, altitude=0.0,
+            position_covariance=np.array([4.0, 0.5, 0, 0.5, 9.0, 0, 0, 0, 16.0]), position_covariance_type=2))),
         "/vehicle/log": ("std_msgs/msg/String", msgs(0.2, lambda tn, v: T["std_msgs/msg/String"](data="hello"))),
     }
     if odometry:
@@ -449,7 +449,8 @@ def test_ros2_standard_types_suggest_and_ingest(ros_mcap):
                    "pressure_ctd_dbar": "/vehicle/ctd", "pressure_gauge_dbar": "/vehicle/depth",
                    "altitude_m": "/vehicle/altimeter", "heading_deg": "/vehicle/imu", "pitch_deg": "/vehicle/imu",
                    "roll_deg": "/vehicle/imu", "dr_east_m": "/vehicle/odom", "dr_north_m": "/vehicle/odom",
-                   "speed_m_s": "/vehicle/odom"}
+                   "speed_m_s": "/vehicle/odom", "gnss_latitude_deg": "/vehicle/fix", "gnss_longitude_deg": "/vehicle/fix",
+                   "gnss_east_variance_m2": "/vehicle/fix", "gnss_north_variance_m2": "/vehicle/fix"}
     gauge = cfg.sensors["gauge"].mcap
     assert gauge.fields["pressure_gauge_dbar"].units == "Pa" and gauge.fields["pressure_gauge_dbar"].offset == -10.1325
     assert gauge.time.field == "header.stamp" and gauge.time.format == "ros_time"
@@ -490,6 +491,13 @@ def test_ros2_standard_types_suggest_and_ingest(ros_mcap):
     assert np.allclose(nav.values["dr_east_m"], trn["east"]) and np.allclose(nav.values["dr_north_m"], trn["north"])
     assert np.allclose(nav.values["speed_m_s"], 0.5)
     assert np.allclose(sensors["altimeter"].values["altitude_m"], _truth(sensors["altimeter"].time_ns / 1e9)["alt"])
+    # a NavSatFix is a GNSS fix (issue 47), not a dead-reckoned offset: latitude/longitude as written, the
+    # position_covariance's east [0] and north [4] variances (ENU)
+    fx = sensors[cfg.sensor_of("gnss_latitude_deg")]
+    trf = _truth(fx.time_ns / 1e9)
+    assert np.allclose(fx.values["gnss_latitude_deg"], 11.33 + trf["north"] / 110_000.0)
+    assert np.allclose(fx.values["gnss_longitude_deg"], 142.2)
+    assert np.allclose(fx.values["gnss_east_variance_m2"], 4.0) and np.allclose(fx.values["gnss_north_variance_m2"], 9.0)
 
     # and the whole table builds on the CTD time base
     from hadal.ingest.build import build_sensor_table
@@ -497,25 +505,26 @@ def test_ros2_standard_types_suggest_and_ingest(ros_mcap):
     table, meta = build_sensor_table(sensors, cfg, max_gap_s={})
     assert meta["time_base"] == "ctd" and table["pressure_gauge_dbar"].notna().mean() > 0.9
     assert table["heading_deg"].notna().mean() > 0.9
+    assert table["gnss_latitude_deg"].notna().mean() > 0.9  # an optional column, present with its source
 
 
 def test_ros2_gnss_positions_and_twist(tmp_path):
-    from pyproj import Geod
-
+    """A NavSatFix is a GNSS fix (gnss_latitude/longitude_deg with its covariance; the navigation smoother uses
+    it at the surface), not dead-reckoned offsets from the launch (issue 47)."""
     p = _write_ros_mcap(tmp_path / "nav.mcap", odometry=False)
     s = suggest_vehicle([p], launch=(11.33, 142.2))
     cfg = s.config()
-    nav = cfg.sensors[cfg.sensor_of("dr_north_m")].mcap
-    assert nav.topic == "/vehicle/fix" and nav.fields["dr_north_m"].transform == "latlon_to_north_m"
-    assert nav.fields["dr_north_m"].origin == (11.33, 142.2)
+    nav = cfg.sensors[cfg.sensor_of("gnss_latitude_deg")].mcap
+    assert nav.topic == "/vehicle/fix" and nav.fields["gnss_latitude_deg"].field == "latitude"
+    assert nav.fields["gnss_north_variance_m2"].field == "position_covariance.4"
+    assert "dr_north_m" not in cfg.variables() and "dr_east_m" not in cfg.variables()
     assert cfg.sensors[cfg.sensor_of("speed_m_s")].mcap.topic == "/vehicle/velocity"
     sensors, _ = read_mcap_sensors([p], cfg)
-    fix = sensors[cfg.sensor_of("dr_north_m")]
-    lat = 11.33 + _truth(fix.time_ns / 1e9)["north"] / 110_000.0
-    _, _, dist = Geod(ellps="WGS84").inv(np.full_like(lat, 142.2), np.full_like(lat, 11.33),
-                                         np.full_like(lat, 142.2), lat)
-    assert np.allclose(np.abs(fix.values["dr_north_m"]), dist, atol=0.01)
-    assert np.allclose(fix.values["dr_east_m"], 0.0, atol=1e-6)
+    fix = sensors[cfg.sensor_of("gnss_latitude_deg")]
+    lat = 11.33 + _truth(fix.time_ns / 1e9)["north"] / 110_000.0  # the values written into the messages
+    assert np.allclose(fix.values["gnss_latitude_deg"], lat, atol=1e-12)
+    assert np.allclose(fix.values["gnss_longitude_deg"], 142.2)
+    assert np.allclose(fix.values["gnss_east_variance_m2"], 4.0)
     assert np.allclose(sensors[cfg.sensor_of("speed_m_s")].values["speed_m_s"], 0.5)
 
 

@@ -76,10 +76,10 @@ def _ctd(n_desc=600, n_asc=600):
 def test_navigation_trajectory_passes_ioos_1_2(tmp_path):
     """The navigation product (the stage's own table and CF trajectory builders): every high-priority IOOS-1.2
     check passes but the GTS listing; one trajectory of length 1 (cf_role trajectory_id), a platform variable."""
-    from hadal.products.navigation import navigation_table, trajectory_dataset
+    from hadal.products.navigation import smoothed_navigation, trajectory_dataset
 
     ctd = _ctd()
-    nav = navigation_table(ctd, FRAME, *LAUNCH)
+    nav = smoothed_navigation(ctd, FRAME, *LAUNCH)[0]  # the published table: with the smoother's covariance
     path = write_netcdf(trajectory_dataset(nav, ctd, "dive-7"), _path(tmp_path, "navigation", "navigation.nc"),
                         title="t", summary="s", featureType="trajectory", cdm_data_type="Trajectory",
                         **dive_attributes(_dive()))

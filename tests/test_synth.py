@@ -28,11 +28,13 @@ from hadal.synth import generate_dive
 SYNTH_SRC = Path(__file__).resolve().parents[1] / "src" / "hadal" / "synth"
 TOPICS = {"/haidou/ctd": ("stamp", "cond", "temp", "pres"), "/haidou/keller": ("stamp", "pressure"),
           "/haidou/altimeter": ("stamp", "range", "valid"), "/haidou/attitude": ("stamp", "heading", "pitch", "roll"),
-          "/haidou/dr": ("stamp", "east", "north", "speed")}
+          "/haidou/dr": ("stamp", "east", "north", "speed"),
+          "/haidou/gnss": ("stamp", "latitude", "longitude", "east_variance", "north_variance")}
 CSV_COLUMNS = {"ctd": ["time", "conductivity_mS_cm", "temperature_ITS90", "pressure_dbar"],
                "keller": ["time", "pressure_bar"], "altimeter": ["time", "altitude_m"],
                "attitude": ["time", "heading_deg", "pitch_deg", "roll_deg"],
-               "dr": ["time", "east_m", "north_m", "speed_m_s"]}
+               "dr": ["time", "east_m", "north_m", "speed_m_s"],
+               "gnss": ["time", "latitude_deg", "longitude_deg", "east_variance_m2", "north_variance_m2"]}
 
 
 @pytest.fixture(scope="module")
@@ -167,7 +169,7 @@ def test_dive_yaml_loads_and_lists_every_source(sample):
     assert dive.map_frame is not None
     listed = [*dive.sources.mcap, *dive.sources.csv.values(), *(e.path for e in dive.sources.multibeam),
               *(e.path for e in dive.sources.laser)]
-    assert set(dive.sources.csv) == {"ctd", "gauge", "altimeter", "attitude", "dr"}
+    assert set(dive.sources.csv) == {"ctd", "gauge", "altimeter", "attitude", "dr", "gnss"}
     for rel in listed:
         assert resolve_source(raw, rel).is_file(), rel
     on_disk = {f for f in _files(sample) if f.startswith(("logs/", "csv/", "multibeam/", "laser/"))}
@@ -176,7 +178,7 @@ def test_dive_yaml_loads_and_lists_every_source(sample):
         assert dive.vehicle_config == "vehicle.yaml"
 
 
-def test_mcap_has_five_json_channels_at_their_rates(mcap_messages, truth):
+def test_mcap_has_six_json_channels_at_their_rates(mcap_messages, truth):
     s = mcap_messages["summary"]
     assert mcap_messages["ordered"]
     assert {c.topic for c in s.channels.values()} == set(TOPICS)
@@ -191,6 +193,9 @@ def test_mcap_has_five_json_channels_at_their_rates(mcap_messages, truth):
         assert js["type"] == "object" and set(js["required"]) == set(TOPICS[c.topic])
         n = s.statistics.channel_message_counts[c.id]
         key = c.topic.rsplit("/", 1)[1]
+        if key == "gnss":  # fixes only at the surface: the first and last seconds of the dive
+            assert n == 2 * truth["sensors"]["gnss"]["surface_seconds"]
+            continue
         assert n == pytest.approx(rates[key] * dur_s, rel=0.001)
     for topic, msgs in mcap_messages["messages"].items():
         t, data = msgs[len(msgs) // 2]
@@ -400,3 +405,24 @@ def test_water_column_depth_pressure_is_teos10(truth):
     dh = np.interp(d["pressure_dbar"], tab["p"], tab["dyn_height"])
     z = gsw.z_from_p(d["pressure_dbar"], w.latitude_deg, geo_strf_dyn_height=dh)
     assert -z == pytest.approx(d["depth_m"], abs=0.01)
+
+
+def test_gnss_fixes_at_launch_and_recovery(sample):
+    """The generator logs GNSS fixes only at the surface (first and last 5 s), about the true positions of
+    truth.json (launch, surfacing) within their stated accuracy (issue 47)."""
+    from pyproj import Geod
+
+    truth = json.loads((sample / "truth.json").read_text())
+    g = pd.read_csv(sample / "csv" / "gnss.csv")
+    t = pd.to_datetime(g["time"], utc=True)
+    launch, surf = pd.Timestamp(truth["launch"]["time"]), pd.Timestamp(truth["surfacing"]["time"])
+    at_launch = (t - launch).dt.total_seconds().to_numpy()
+    at_surf = (surf - t).dt.total_seconds().to_numpy()
+    assert ((at_launch >= 0) & (at_launch < 5) | (at_surf >= 0) & (at_surf < 5)).all()
+    sigma = truth["sensors"]["gnss"]["sigma_m_per_axis"]
+    assert np.allclose(g["east_variance_m2"], sigma ** 2) and np.allclose(g["north_variance_m2"], sigma ** 2)
+    geod = Geod(ellps="WGS84")
+    for sel, ref in ((at_launch < 5, truth["launch"]), (at_surf < 5, truth["surfacing"])):
+        _, _, d = geod.inv(g["longitude_deg"][sel], g["latitude_deg"][sel], np.full(sel.sum(), ref["longitude_deg"]),
+                           np.full(sel.sum(), ref["latitude_deg"]))
+        assert sel.sum() == 5 and np.all(d < 5 * sigma + 1.0)  # the vehicle moves < 1 m in those seconds

@@ -29,11 +29,15 @@ __all__ = ["SENSOR_VARIABLES", "sensors_schema", "read_mcap_sensors", "read_csv_
            "is_profile", "build_profile_table", "build_sensor_table",
            "validate_sensor_table"]
 
-#: the variables of ``sensors.parquet`` in column order (architecture.md)
-SENSOR_VARIABLES: tuple[str, ...] = tuple(CANONICAL_UNITS)
 #: variables a sensors table holds only when its source provides them (``optional_columns`` of
-#: ``schemas/sensors.yaml``): a Sea-Bird cast's own salinity when it has no conductivity channel
-OPTIONAL_SENSOR_VARIABLES: tuple[str, ...] = ("practical_salinity_vendor",)
+#: ``schemas/sensors.yaml``): a Sea-Bird cast's own salinity when it has no conductivity channel; GNSS fixes
+#: (latitude/longitude and their variances, at the surface) and USBL/LBL fixes: the navigation smoother's fixes
+OPTIONAL_SENSOR_VARIABLES: tuple[str, ...] = ("practical_salinity_vendor", "gnss_latitude_deg", "gnss_longitude_deg",
+                                              "gnss_east_variance_m2", "gnss_north_variance_m2",
+                                              "usbl_latitude_deg", "usbl_longitude_deg", "usbl_east_variance_m2",
+                                              "usbl_north_variance_m2")
+#: the variables of ``sensors.parquet`` in column order (architecture.md)
+SENSOR_VARIABLES: tuple[str, ...] = tuple(v for v in CANONICAL_UNITS if v not in OPTIONAL_SENSOR_VARIABLES)
 
 
 def table_variables(columns: Mapping[str, Any]) -> tuple[str, ...]:

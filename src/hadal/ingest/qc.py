@@ -96,6 +96,15 @@ DEFAULT_QC: dict[str, VariableQC] = {
     "dr_east_m": _q(fail_span=(-100_000.0, 100_000.0)),
     "dr_north_m": _q(fail_span=(-100_000.0, 100_000.0)),
     "speed_m_s": _q(fail_span=(0.0, 10.0), suspect_span=(0.0, 3.0), spike_suspect=0.5, spike_fail=2.0),
+    # optional columns (schemas/sensors.yaml optional_columns): GNSS and USBL fixes
+    "gnss_latitude_deg": _q(fail_span=(-90.0, 90.0)),
+    "gnss_longitude_deg": _q(fail_span=(-180.0, 360.0)),
+    "gnss_east_variance_m2": _q(fail_span=(0.0, 1e8)),
+    "gnss_north_variance_m2": _q(fail_span=(0.0, 1e8)),
+    "usbl_latitude_deg": _q(fail_span=(-90.0, 90.0)),
+    "usbl_longitude_deg": _q(fail_span=(-180.0, 360.0)),
+    "usbl_east_variance_m2": _q(fail_span=(0.0, 1e8)),
+    "usbl_north_variance_m2": _q(fail_span=(0.0, 1e8)),
     # optional column (schemas/sensors.yaml optional_columns): a Sea-Bird cast's own salinity (SeaSoft sal00)
     "practical_salinity_vendor": _q(fail_span=(0.0, 42.0), suspect_span=(2.0, 41.0), spike_suspect=0.3,
                                     spike_fail=1.0),

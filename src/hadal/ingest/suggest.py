@@ -337,15 +337,23 @@ def _ros_standard(mtype: str, msg: dict[str, Any] | None, origin: tuple[float, f
                 ["{src}: +/-inf ranges (REP 117: no detection) become missing values; check that this range "
                  "finder looks down"])
     if t == "sensor_msgs/msg/NavSatFix":
-        o = f"launch {origin}" if origin else "the first valid fix"
-        return ([("dr_east_m", _fm(["latitude", "longitude"], "m", "latlon_to_east_m", origin=origin), 1,
-                  f"sensor_msgs/NavSatFix latitude/longitude -> metres east of {o}"),
-                 ("dr_north_m", _fm(["latitude", "longitude"], "m", "latlon_to_north_m", origin=origin), 1,
-                  f"sensor_msgs/NavSatFix latitude/longitude -> metres north of {o}")],
-                [("altitude", "GNSS altitude is not a hadal variable")],
-                ([] if origin else ["{src}: NavSatFix positions are relative to the first valid fix; set "
-                                    "'origin: [lat, lon]' to the launch point if they should be relative to it"])
-                + ["{src}: fixes with status -1 (no fix) are not filtered; a submerged vehicle has no GNSS"])
+        # a GNSS fix, not a dead-reckoned offset: the navigation smoother uses it where the vehicle is at the
+        # surface, weighted by its position_covariance (ENU: [0] east, [4] north variance, m^2)
+        cands = [("gnss_latitude_deg", _fm("latitude", "deg"), 3, "sensor_msgs/NavSatFix.latitude (GNSS fix)"),
+                 ("gnss_longitude_deg", _fm("longitude", "deg"), 3, "sensor_msgs/NavSatFix.longitude (GNSS fix)")]
+        cov = _get(msg, "position_covariance") if msg else None
+        ctype = _get(msg, "position_covariance_type") if msg else None
+        if isinstance(cov, list) and len(cov) == 9 and ctype not in (None, 0):
+            cands += [("gnss_east_variance_m2", _fm("position_covariance.0", "m2"), 3,
+                       "sensor_msgs/NavSatFix.position_covariance[0] (east variance, ENU)"),
+                      ("gnss_north_variance_m2", _fm("position_covariance.4", "m2"), 3,
+                       "sensor_msgs/NavSatFix.position_covariance[4] (north variance, ENU)")]
+        return (cands, [("altitude", "GNSS altitude is not a hadal variable")]
+                + ([] if isinstance(cov, list) and ctype not in (None, 0) else
+                   [("position_covariance", "position_covariance_type 0 (unknown): the smoother's configured "
+                                            "GNSS accuracy is used")]),
+                ["{src}: NavSatFix fixes are used only where the vehicle is at the surface (depth <= "
+                 "navigation gnss_max_depth_m); fixes with status -1 (no fix) are not filtered"])
     if t == "sensor_msgs/msg/Imu":
         cov = _get(msg, "orientation_covariance") if msg else None
         if isinstance(cov, list) and cov and cov[0] == -1:

@@ -35,6 +35,16 @@ CANONICAL_UNITS: dict[str, str] = {
     "dr_east_m": "m",
     "dr_north_m": "m",
     "speed_m_s": "m/s",
+    # GNSS fixes (optional columns: hadal.ingest.build.OPTIONAL_SENSOR_VARIABLES), e.g. a ROS 2 NavSatFix
+    "gnss_latitude_deg": "deg",
+    "gnss_longitude_deg": "deg",
+    "gnss_east_variance_m2": "m2",
+    "gnss_north_variance_m2": "m2",
+    # USBL/LBL fixes (optional columns, as the GNSS ones)
+    "usbl_latitude_deg": "deg",
+    "usbl_longitude_deg": "deg",
+    "usbl_east_variance_m2": "m2",
+    "usbl_north_variance_m2": "m2",
 }
 
 # unit token -> (dimension, factor to the dimension's canonical unit)  [value_canonical = value * factor]
@@ -51,6 +61,7 @@ _LINEAR: dict[str, tuple[str, float]] = {
     "Pa": ("pressure", 1e-4),
     "psi": ("pressure", 0.689475729),
     "m": ("length", 1.0),
+    "m2": ("area", 1.0),
     "cm": ("length", 0.01),
     "mm": ("length", 0.001),
     "km": ("length", 1000.0),
@@ -70,6 +81,7 @@ _ALIASES: dict[str, str] = {
     "ms/m": "mS/m",
     "dbar": "dbar", "db": "dbar", "decibar": "dbar",
     "bar": "bar", "mbar": "mbar", "hpa": "mbar", "kpa": "kPa", "mpa": "MPa", "pa": "Pa", "psi": "psi", "psia": "psi",
+    "m2": "m2", "m^2": "m2", "m**2": "m2",
     "m": "m", "metre": "m", "meter": "m", "cm": "cm", "mm": "mm", "km": "km", "ft": "ft",
     "deg": "deg", "degree": "deg", "degrees": "deg", "°": "deg", "rad": "rad", "radian": "rad",
     "m/s": "m/s", "m s-1": "m/s", "cm/s": "cm/s", "kn": "kn", "knot": "kn", "knots": "kn", "kt": "kn",

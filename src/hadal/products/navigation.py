@@ -1,6 +1,16 @@
 """The ``navigation`` product: the vehicle's best position for every sample of the dive.
 
-Sources, per sample (column ``position_source``):
+Published positions (issue 47): :func:`smoothed_navigation`, one Kalman filter + Rauch-Tung-Striebel smoother
+over the whole dive (:mod:`hadal.navigation.smoother`): the launch position, GNSS fixes at the surface, USBL
+fixes and the terrain fix (with its posterior 2x2 covariance) as measurements, the dead reckoning and the
+terrain-matched bottom track as the process; every sample gets its 2x2 covariance
+(``position_covariance_east_m2``/``_north_m2``/``_east_north_m2``; ``position_uncertainty_m`` is the square root
+of its trace, the DRMS) and the manifest summary ``smoother`` the per-fix residuals and chi-square status and the
+surfacing / deepest-point ellipses (:func:`smoother_summary`). On the sample dive's 10 generator seeds its RMS
+error is about half of the rule below (bench/bench_navigation_coverage.py).
+
+:func:`navigation_table` (the rule of thumb below; still ``derive``'s dead-reckoned positions and the
+``position_source`` column) -- sources, per sample (column ``position_source``):
 
 * ``matched`` - bottom-phase samples positioned by terrain matching (``match``'s ``matched_track``);
 * ``dead_reckoned`` - the dead-reckoned track (launch point + DR offsets ``dr_east_m``/``dr_north_m``). With a
@@ -64,11 +74,20 @@ def unreferenced_seconds(ts: np.ndarray, e: np.ndarray, n: np.ndarray, window_s:
     counted too, which only overstates the uncertainty)."""
     if ts.size == 0:
         return np.zeros(0)
+    dt = np.clip(np.diff(ts, prepend=ts[0]), 0.0, None)
+    return np.cumsum(np.where(dr_referenced(ts, e, n, window_s, min_move_m), 0.0, dt))
+
+
+def dr_referenced(ts: np.ndarray, e: np.ndarray, n: np.ndarray, window_s: float = 60.0,
+                  min_move_m: float = 0.5) -> np.ndarray:
+    """Per sample: the dead reckoning had a velocity reference (its offsets moved at least ``min_move_m``
+    within +-``window_s``/2; see :func:`unreferenced_seconds`)."""
+    if ts.size == 0:
+        return np.zeros(0, bool)
     h = window_s / 2
     move = np.hypot(np.interp(ts + h, ts, e) - np.interp(ts - h, ts, e),
                     np.interp(ts + h, ts, n) - np.interp(ts - h, ts, n))
-    dt = np.clip(np.diff(ts, prepend=ts[0]), 0.0, None)
-    return np.cumsum(np.where(move < min_move_m, dt, 0.0))
+    return ~(move < min_move_m)  # NaN moves count as referenced, as before
 
 
 def navigation_table(ctd: pd.DataFrame, frame: LocalFrame, launch_lat: float, launch_lon: float, *,
@@ -157,6 +176,125 @@ def navigation_table(ctd: pd.DataFrame, frame: LocalFrame, launch_lat: float, la
     return out
 
 
+SMOOTHED_FIELDS: dict[str, dict[str, str]] = {
+    "position_covariance_east_m2": {"units": "m2", "long_name": "variance of the easting (smoothed position)"},
+    "position_covariance_north_m2": {"units": "m2", "long_name": "variance of the northing (smoothed position)"},
+    "position_covariance_east_north_m2": {"units": "m2",
+                                          "long_name": "covariance of the easting and northing (smoothed position)"},
+    "drift_velocity_east_m_s": {"units": "m s-1", "long_name": "smoothed drift velocity (current) the dead reckoning "
+                                                               "does not see, east"},
+    "drift_velocity_north_m_s": {"units": "m s-1", "long_name": "smoothed drift velocity (current) the dead "
+                                                                "reckoning does not see, north"},
+}
+
+
+def _times_ns(ctd: pd.DataFrame) -> np.ndarray:
+    return pd.to_datetime(ctd["time"], utc=True).reset_index(drop=True).dt.as_unit("ns").astype("int64").to_numpy()
+
+
+def smoothed_navigation(ctd: pd.DataFrame, frame: LocalFrame, launch_lat: float, launch_lon: float, *,
+                        matched: pd.DataFrame | None = None, fix: dict[str, Any] | None = None,
+                        extra_fixes: list | None = None, launch_time: Any = None, options: Any = None,
+                        ) -> tuple[pd.DataFrame, Any, dict[str, str]]:
+    """The ``navigation`` table by :func:`hadal.navigation.smoother.smooth_positions` (issue 47): every sample's
+    smoothed position (``x_east_m``/``y_north_m``/``lat``/``lon``), its 2x2 covariance
+    (``position_covariance_*_m2``; ``position_uncertainty_m`` = sqrt(trace), the DRMS) and drift velocity, from
+    the launch position, the GNSS/USBL fixes of ``ctd`` (:func:`hadal.navigation.sources.table_fixes`), the
+    terrain fix (``fix``) and ``extra_fixes`` (:class:`~hadal.navigation.smoother.Fix`), with the DR offsets and
+    the matched track as the process. ``position_source`` and the other columns as :func:`navigation_table`
+    (today's adjusted dead reckoning, kept for comparison). Returns (table, :class:`SmoothedTrack`, notes per
+    source)."""
+    from hadal.navigation.smoother import Fix, SmootherOptions, smooth_positions
+    from hadal.navigation.sources import increments, table_fixes, terrain_fix
+
+    opt = options or SmootherOptions()
+    base = navigation_table(ctd, frame, launch_lat, launch_lon, matched=matched, fix=fix)
+    n = len(ctd)
+    tns = _times_ns(ctd) if "time" in ctd else np.arange(n, dtype=np.int64) * 10**9
+    ts = (tns - tns[0]) / 1e9 if n else np.zeros(0)
+    e = ctd["dr_east_m"].to_numpy(float) if "dr_east_m" in ctd else np.full(n, np.nan)
+    nn = ctd["dr_north_m"].to_numpy(float) if "dr_north_m" in ctd else np.full(n, np.nan)
+    have = np.isfinite(e) & np.isfinite(nn)
+    ef = pd.Series(np.where(have, e, np.nan)).ffill().fillna(0.0).to_numpy()
+    nf = pd.Series(np.where(have, nn, np.nan)).ffill().fillna(0.0).to_numpy()
+    is_m = (base["position_source"].astype(str) == "matched").to_numpy()
+    mxy = base[["x_east_m", "y_north_m"]].to_numpy(float) if is_m.any() else None
+    d, ref = increments(ef, nf, mxy, is_m if is_m.any() else None, dr_referenced(ts, ef, nf))
+    times = base["time"] if "time" in base else None
+    lx, ly = (float(v) for v in frame.to_xy(launch_lon, launch_lat))
+    i0 = 0  # the launch fix at the first sample at or after the launch time (default: the first sample)
+    if launch_time is not None and n and "time" in ctd:
+        lt = pd.Timestamp(launch_time)
+        lt = lt.tz_localize("UTC") if lt.tzinfo is None else lt.tz_convert("UTC")
+        i0 = int(min(np.searchsorted(tns, lt.as_unit("ns").value), n - 1))
+    fixes = [Fix(i0, lx, ly, np.eye(2) * opt.launch_sigma_m ** 2, "launch", None if times is None else times[i0])]
+    tf = terrain_fix(fix, int(np.argmax(is_m)), times[int(np.argmax(is_m))] if times is not None else None) \
+        if is_m.any() else None
+    notes = {"launch": f"dive.yaml launch position, 1-sigma {opt.launch_sigma_m:g} m per axis"}
+    if tf is not None:
+        fixes.append(tf)
+        notes["terrain"] = "match fix.json start with its posterior covariance"
+    elif is_m.any():
+        notes["terrain"] = "refused: fix.json has no usable uncertainty"
+    tab, tnotes = table_fixes(ctd, frame, ts, opt, times)
+    fixes += tab
+    notes.update(tnotes)
+    for f in extra_fixes or []:
+        fixes.append(f)
+    sm = smooth_positions(ts, d, ref, fixes, opt)
+    lon, lat = frame.to_lonlat(sm.x_m, sm.y_m)
+    out = base.copy()
+    out["lat"], out["lon"] = np.asarray(lat, float), np.asarray(lon, float)
+    out["x_east_m"], out["y_north_m"] = sm.x_m, sm.y_m
+    out["position_uncertainty_m"] = np.sqrt(sm.cov_m2[:, 0, 0] + sm.cov_m2[:, 1, 1])
+    out["position_covariance_east_m2"] = sm.cov_m2[:, 0, 0]
+    out["position_covariance_north_m2"] = sm.cov_m2[:, 1, 1]
+    out["position_covariance_east_north_m2"] = sm.cov_m2[:, 0, 1]
+    out["drift_velocity_east_m_s"] = sm.current_m_s[:, 0]
+    out["drift_velocity_north_m_s"] = sm.current_m_s[:, 1]
+    return out, sm, notes
+
+
+def _point(nav: pd.DataFrame, i: int) -> dict[str, Any]:
+    """Position, covariance and 1-/2-sigma ellipses (2-D contents 68.3 / 95.4 %) of sample ``i``."""
+    from hadal.geo import format_position
+    from hadal.navigation.smoother import CHI2_2DOF_1SIGMA, CHI2_2DOF_2SIGMA, ellipse
+
+    r = nav.iloc[i]
+    c = np.array([[r["position_covariance_east_m2"], r["position_covariance_east_north_m2"]],
+                  [r["position_covariance_east_north_m2"], r["position_covariance_north_m2"]]], float)
+    out = {"lat": float(r["lat"]), "lon": float(r["lon"]), "x_east_m": float(r["x_east_m"]),
+           "y_north_m": float(r["y_north_m"]), "position_degmin": format_position(float(r["lat"]), float(r["lon"])),
+           "covariance_m2": c.tolist(), "drms_m": float(np.sqrt(np.trace(c))),
+           "ellipse_1sigma": ellipse(c, CHI2_2DOF_1SIGMA), "ellipse_2sigma": ellipse(c, CHI2_2DOF_2SIGMA)}
+    if "time" in nav:
+        out["time"] = pd.Timestamp(r["time"]).isoformat()
+    if "depth_m" in nav:
+        out["depth_m"] = float(r["depth_m"])
+    return out
+
+
+def smoother_summary(nav: pd.DataFrame, sm: Any, notes: dict[str, str]) -> dict[str, Any]:
+    """The smoother's record (navigation metadata and manifest summary): the surfacing (last sample) and
+    deepest-point positions with their ellipses, every fix's residual and chi-square status, the sources used."""
+    fx = sm.fixes
+    recs = [{"source": str(r.source), "sample": int(r.index),
+             "time": None if r.time is None or pd.isna(r.time) else pd.Timestamp(r.time).isoformat(),
+             "residual_east_m": float(r.residual_east_m), "residual_north_m": float(r.residual_north_m),
+             "chi2_2dof": None if not np.isfinite(r.d2) else float(r.d2), "status": str(r.status)}
+            for r in fx.itertuples()]
+    depth = nav["depth_m"].to_numpy(float) if "depth_m" in nav else np.full(len(nav), np.nan)
+    out: dict[str, Any] = {
+        "method": "Kalman filter + Rauch-Tung-Striebel smoother of position and drift velocity "
+                  "(hadal.navigation.smoother)",
+        "sources": notes, "gate_chi2_2dof": sm.gate_d2, "fixes": recs, "rejected_fixes": sm.rejected,
+        "surfacing": _point(nav, len(nav) - 1) if len(nav) else None,
+        "deepest_point": _point(nav, int(np.nanargmax(depth))) if np.isfinite(depth).any() else None,
+        "ellipse_comment": "ellipses x' C^-1 x = d2 with d2 = 2.30 (1 sigma, 68.3 % in 2-D) and 6.18 (2 sigma, 95.4 %)",
+    }
+    return out
+
+
 def dead_reckoned_lonlat(ctd: pd.DataFrame, frame: LocalFrame, launch_lat: float, launch_lon: float
                          ) -> tuple[np.ndarray, np.ndarray]:
     """(lat, lon) of every ``ctd`` sample by dead reckoning alone (launch + DR offsets; launch where no DR yet):
@@ -222,6 +360,7 @@ def trajectory_dataset(nav: pd.DataFrame, ctd: pd.DataFrame | None, dive_id: str
         "y_north_m": ("obs", nav["y_north_m"].to_numpy(float), dict(NAV_FIELDS["y_north_m"])),
         "position_uncertainty_m": ("obs", nav["position_uncertainty_m"].to_numpy(float),
                                    {"units": "m", "long_name": NAV_FIELDS["position_uncertainty_m"]["long_name"]}),
+        **{c: ("obs", nav[c].to_numpy(float), dict(SMOOTHED_FIELDS[c])) for c in SMOOTHED_FIELDS if c in nav},
         "position_source": ("obs", pd.Categorical(src, categories=list(SOURCES)).codes.astype("i1"),
                             {"long_name": "source of the position", "flag_values": np.arange(len(SOURCES), dtype="i1"),
                              "flag_meanings": " ".join(SOURCES)}),
@@ -243,36 +382,40 @@ def trajectory_dataset(nav: pd.DataFrame, ctd: pd.DataFrame | None, dive_id: str
 
 def publish_navigation(ctx: Any, ctd: pd.DataFrame, track: pd.DataFrame | None, fix: dict[str, Any] | None,
                        upstream: list[Any], dr_error_fraction: float,
-                       unreferenced_drift_m_per_sqrt_s: float | None = None) -> Any:
+                       unreferenced_drift_m_per_sqrt_s: float | None = None, smoother: Any = None) -> Any:
     """Publish the ``navigation`` product (``navigation.parquet`` + CF trajectory ``navigation.nc`` + the track as
-    GeoJSON, ``navigation_track.geojson``) of a
-    stage context ``ctx`` (``match`` calls it after publishing ``match``). Returns the ProductVersion."""
+    GeoJSON, ``navigation_track.geojson``) of a stage context ``ctx`` (``match`` calls it after publishing
+    ``match``): the smoothed positions and their covariances (:func:`smoothed_navigation`; ``smoother``: its
+    :class:`~hadal.navigation.smoother.SmootherOptions`). Returns the ProductVersion."""
+    from hadal.navigation.smoother import SmootherOptions
     from hadal.products.io import write_netcdf, write_parquet
 
     launch = ctx.dive.require_launch("navigation")
     frame = ctx.dive.frame()
-    if unreferenced_drift_m_per_sqrt_s is None:
-        from hadal.matching.options import DeadReckoningOptions
-
-        unreferenced_drift_m_per_sqrt_s = DeadReckoningOptions.model_fields["dr_unreferenced_drift_m_per_sqrt_s"].default
-    nav = navigation_table(ctd, frame, launch.latitude_deg, launch.longitude_deg, matched=track, fix=fix,
-                           dr_error_fraction=dr_error_fraction,
-                           unreferenced_drift_m_per_sqrt_s=unreferenced_drift_m_per_sqrt_s)
+    opt = smoother or SmootherOptions()
+    nav, sm, notes = smoothed_navigation(ctd, frame, launch.latitude_deg, launch.longitude_deg, matched=track,
+                                         fix=fix, launch_time=launch.time_utc, options=opt)
+    for w in sm.rejected:
+        ctx.log.warning("navigation: fix %s rejected: inconsistent with the other sources (chi-square gate %.1f)",
+                        w, sm.gate_d2)
     summary = navigation_summary(nav)
-    meta = {"dive_id": ctx.dive_id, "summary": summary, "method": __doc__.strip().splitlines()[0],
+    summary["smoother"] = smoother_summary(nav, sm, notes)
+    meta = {"dive_id": ctx.dive_id, "summary": summary, "method": "Kalman filter + RTS smoother over every "
+            "position source (hadal.navigation.smoother)",
             "map_frame": {"origin_latitude_deg": frame.origin_latitude_deg,
                           "origin_longitude_deg": frame.origin_longitude_deg, "crs_wkt": frame.crs.to_wkt()}}
     with ctx.store.publish(ctx.dive_id, "navigation", parameters={"dr_error_fraction": dr_error_fraction,
-                                                         "unreferenced_drift_m_per_sqrt_s": unreferenced_drift_m_per_sqrt_s},
+                                                         "unreferenced_drift_m_per_sqrt_s": unreferenced_drift_m_per_sqrt_s,
+                                                         "smoother": opt.model_dump()},
                            upstream=upstream, extra={"summary": summary}) as draft:
-        write_parquet(nav, draft.path / "navigation.parquet", fields=NAV_FIELDS, metadata=meta,
-                      provenance_from=draft)
+        write_parquet(nav, draft.path / "navigation.parquet", fields={**NAV_FIELDS, **SMOOTHED_FIELDS},
+                      metadata=meta, provenance_from=draft)
         write_netcdf(trajectory_dataset(nav, ctd, ctx.dive_id), draft.path / "navigation.nc",
                      title=f"Best vehicle position and CTD time series of dive {ctx.dive_id}",
                      summary=("The dive's time series as a CF trajectory: for every sample the best position "
-                              "(terrain-matched on the bottom, dead-reckoned and adjusted between the launch and the "
-                              "matched start elsewhere), its 1-sigma uncertainty and source, and the CTD "
-                              "measurements."),
+                              "(Kalman filter + RTS smoother over the launch position, GNSS/USBL fixes, the terrain "
+                              "fix and the dead-reckoned / terrain-matched track), its 2x2 covariance, 1-sigma "
+                              "radial uncertainty and source, and the CTD measurements."),
                      keywords="navigation, trajectory, terrain-aided navigation, CTD, deep-sea vehicle",
                      featureType="trajectory", cdm_data_type="Trajectory", processing_level="L2 navigation",
                      provenance_from=draft, dive_id=ctx.dive_id)

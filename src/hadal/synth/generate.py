@@ -104,7 +104,7 @@ def _steps(progress) -> Callable:
 def _generate(out: Path, seed: int, small: bool, progress, dive_id: str) -> None:
     step = _steps(progress)
     r = _rngs(seed)
-    r_terrain, r_track, r_track2, r_err, r_sens, r_mb, r_laser = (r[k] for k in RNG_STREAMS)
+    r_terrain, r_track, r_track2, r_err, r_sens, r_mb, r_laser = (r[k] for k in RNG_STREAMS[:7])
 
     frame = LocalFrame(sc.MAP_ORIGIN_LAT_DEG, sc.MAP_ORIGIN_LON_DEG)
     launch_xy = np.array(frame.to_xy(sc.LAUNCH_LON_DEG, sc.LAUNCH_LAT_DEG), float)
@@ -117,6 +117,7 @@ def _generate(out: Path, seed: int, small: bool, progress, dive_id: str) -> None
     err = _sensors.SensorErrors.draw(r_err)
     rates = _sensors.SMALL_RATES_HZ if small else _sensors.FULL_RATES_HZ
     channels = step("sensors", _sensors.simulate, track, ter, water, err, rates, r_sens)
+    channels["gnss"] = _sensors.simulate_gnss(track, frame, r["gnss"])  # launch and recovery fixes
 
     t0_ms = int(sc.LAUNCH_TIME_UTC.timestamp() * 1000)
     (out / "logs").mkdir()
@@ -171,7 +172,7 @@ def _generate(out: Path, seed: int, small: bool, progress, dive_id: str) -> None
     (out / "truth.json").write_text(json.dumps(truth, indent=2) + "\n", encoding="utf-8")
 
 
-RNG_STREAMS = ("terrain", "track", "track2", "errors", "sensors", "multibeam", "laser")
+RNG_STREAMS = ("terrain", "track", "track2", "errors", "sensors", "multibeam", "laser", "gnss")
 
 
 def _rngs(seed: int) -> dict[str, np.random.Generator]:
@@ -385,6 +386,9 @@ def _truth_sensors(err, rates, counts) -> dict:
                       "max_range_m": _sensors.ALTIMETER_MAX_RANGE_M,
                       "noise_m": err.altimeter_noise_m, "dropout_fraction": err.altimeter_dropout_fraction},
         "attitude": {"compass_bias_deg": err.compass_bias_deg, "heading_noise_deg": err.heading_noise_deg},
+        "gnss": {"sigma_m_per_axis": _sensors.GNSS_SIGMA_M, "surface_seconds": _sensors.GNSS_SURFACE_S,
+                 "comment": "1 Hz fixes the first and last surface_seconds of the dive (launch, recovery): true "
+                            "position + white noise"},
     }
 
 

@@ -13,6 +13,10 @@ written with, so the MCAP (JSON) and CSV files hold exactly the same numbers.
   ~1650 m/s at the bottom, so the raw range reads ~10 % short), 0.3 m resolution, nothing beyond 100 m,
   ~2 % random dropouts.
 * Attitude: compass heading = true heading + a constant compass bias + noise; small pitch/roll motions.
+* GNSS (issue 47): 1 Hz fixes while the vehicle is at the surface, the first and last ``GNSS_SURFACE_S``
+  seconds of the dive (launch and recovery), true position + white noise of ``GNSS_SIGMA_M`` per axis, with
+  that variance logged as NavSatFix's position covariance; its own random stream, so the other channels are
+  unchanged.
 * Dead reckoning: integrates the compass-rotated, scale-biased true velocity (+ correlated noise) from the
   start of the bottom track, where it believes it is at the launch point; 0 during the descent (no
   velocity reference), held during the ascent.
@@ -156,3 +160,21 @@ def simulate(track: Track, terrain: Terrain, water: WaterColumn, err: SensorErro
     out["dr"] = {"t_ms": t_ms, "east": np.round(east, 3), "north": np.round(north, 3),
                  "speed": np.round(np.hypot(ve, vn), 3)}
     return out
+
+
+GNSS_SIGMA_M = 3.0
+GNSS_SURFACE_S = 5
+
+
+def simulate_gnss(track: Track, frame, rng: np.random.Generator, t0_phase_ms: int = 0) -> dict[str, np.ndarray]:
+    """GNSS fixes at the surface (module docstring): ``{"t_ms", "latitude", "longitude", "east_variance",
+    "north_variance"}``; positions in degrees (WGS 84) from the true map position through ``frame``."""
+    dur = float(track.t[-1])
+    t_s = np.concatenate([np.arange(GNSS_SURFACE_S, dtype=float), dur - np.arange(GNSS_SURFACE_S)[::-1]])
+    t_ms = np.round(t_s * 1000).astype(np.int64) + t0_phase_ms
+    x = np.interp(t_s, track.t, track.x) + rng.normal(0.0, GNSS_SIGMA_M, t_s.size)
+    y = np.interp(t_s, track.t, track.y) + rng.normal(0.0, GNSS_SIGMA_M, t_s.size)
+    lon, lat = frame.to_lonlat(x, y)
+    var = np.full(t_s.size, GNSS_SIGMA_M ** 2)
+    return {"t_ms": t_ms, "latitude": np.round(np.asarray(lat, float), 8), "longitude": np.round(np.asarray(lon, float), 8),
+            "east_variance": var, "north_variance": var.copy()}

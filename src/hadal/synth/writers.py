@@ -20,7 +20,7 @@ from mcap.writer import CompressionType, Writer
 from hadal.synth.sensors import KELLER_MAX_DBAR, SBE49_MAX_DBAR
 
 #: MCAP topic and JSON Schema file (``schemas/mcap/<file>``, package data of ``hadal.schemas``) of each of the
-#: five channels (architecture.md "MCAP channels"). The schemas are declared once, in those files; the MCAP
+#: six channels (architecture.md "MCAP channels"). The schemas are declared once, in those files; the MCAP
 #: schema name is the schema's ``title``.
 _CHANNEL_FILES: dict[str, tuple[str, str]] = {
     "ctd": ("/haidou/ctd", "haidou_ctd.json"),
@@ -28,6 +28,7 @@ _CHANNEL_FILES: dict[str, tuple[str, str]] = {
     "altimeter": ("/haidou/altimeter", "haidou_altimeter.json"),
     "attitude": ("/haidou/attitude", "haidou_attitude.json"),
     "dr": ("/haidou/dr", "haidou_dr.json"),
+    "gnss": ("/haidou/gnss", "haidou_gnss.json"),
 }
 
 
@@ -49,9 +50,9 @@ def _channels() -> dict[str, dict]:
     return out
 
 
-#: MCAP topics, schema names and JSON Schemas of the five channels, read from ``schemas/mcap/*.json``
+#: MCAP topics, schema names and JSON Schemas of the six channels, read from ``schemas/mcap/*.json``
 CHANNELS: dict[str, dict] = _channels()
-CHANNEL_ORDER = ("ctd", "keller", "altimeter", "attitude", "dr")
+CHANNEL_ORDER = ("ctd", "keller", "altimeter", "attitude", "dr", "gnss")
 
 
 def _stamps(t_unix_ms: np.ndarray) -> list[str]:
@@ -79,6 +80,11 @@ def payloads(name: str, ch: dict[str, np.ndarray], t0_unix_ms: int) -> list[byte
     if name == "dr":
         rows = zip(st, ch["east"].tolist(), ch["north"].tolist(), ch["speed"].tolist(), strict=True)
         return [f'{{"stamp":{s},"east":{e:.3f},"north":{n:.3f},"speed":{v:.3f}}}'.encode() for s, e, n, v in rows]
+    if name == "gnss":
+        rows = zip(st, ch["latitude"].tolist(), ch["longitude"].tolist(), ch["east_variance"].tolist(),
+                   ch["north_variance"].tolist(), strict=True)
+        return [f'{{"stamp":{s},"latitude":{a:.8f},"longitude":{o:.8f},"east_variance":{e:.2f},"north_variance":{n:.2f}}}'
+                .encode() for s, a, o, e, n in rows]
     raise KeyError(name)
 
 
@@ -149,6 +155,9 @@ def write_csvs(csv_dir: Path, channels: dict[str, dict[str, np.ndarray]], t0_uni
          lambda a, h, p, r: f"{a},{h:.2f},{p:.2f},{r:.2f}", "heading", "pitch", "roll")
     emit("dr", "dr", "dr.csv", "time,east_m,north_m,speed_m_s",
          lambda a, e, n, v: f"{a},{e:.3f},{n:.3f},{v:.3f}", "east", "north", "speed")
+    emit("gnss", "gnss", "gnss.csv", "time,latitude_deg,longitude_deg,east_variance_m2,north_variance_m2",
+         lambda a, la, lo, e, n: f"{a},{la:.8f},{lo:.8f},{e:.2f},{n:.2f}", "latitude", "longitude", "east_variance",
+         "north_variance")
     return files
 
 

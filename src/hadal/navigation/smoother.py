@@ -1,0 +1,296 @@
+"""One linear-Gaussian smoother of the vehicle's horizontal position over the whole dive (issue 47).
+
+State (map frame, metres; per sample ``k``)::
+
+    s_k = [x_east_m, y_north_m, c_east_m_s, c_north_m_s]
+
+``c`` is the drift velocity the dead reckoning does not see: the current that carries an unpowered vehicle
+while its DR has no velocity reference (descent, ascent, DR held), and any slow DR velocity bias. It is a
+random walk (``current_random_walk_m_s_per_sqrt_s``) started from ``N(0, current_sigma_m_s^2)``.
+
+Process, from sample ``k-1`` to ``k`` (``dt`` s, DR increment ``d``, per axis independent)::
+
+    referenced step (DR moving: DVL/INS velocity reference, or the terrain-matched track)
+        x_k = x_{k-1} + d + w_x,   var(w_x) = dr_variance_m2_per_m * |d| + floor
+    unreferenced step (DR held: the vehicle drifts with the water)
+        x_k = x_{k-1} + d + c_{k-1} dt + w_x,   var(w_x) = position_random_walk_m_per_sqrt_s^2 * dt + floor
+    c_k = c_{k-1} + w_c  (integrated random walk: the exact discretisation's dt^3/3, dt^2/2, dt terms)
+
+Measurements: absolute position fixes ``z = [x, y] + v``, ``v ~ N(0, R)`` with their full 2x2 covariance ``R``
+(launch and recovery GNSS, USBL/LBL, the terrain fix's posterior covariance).
+
+Estimator: Kalman filter forward, Rauch-Tung-Striebel backward pass (Rauch, Tung & Striebel 1965, AIAA J.
+3(8); Särkkä 2013, *Bayesian Filtering and Smoothing*, Alg. 8.2), the scheme of oplab_pipeline's AUV
+navigation (``src/auv_nav/localisation/ekf.py``: a 12-state EKF over position, attitude and body velocities
+fed by DVL, depth, orientation and USBL fixes, whose USBL sigma defaults to offset + factor x slant range, with a
+forward Mahalanobis gate on the innovations and an RTS pass over the stored states). Here the state is linear
+(the DR/DVL integration is done upstream), so the smoother is exact: its mean and covariance equal the batch
+least-squares solution (tests/test_navigation_smoother.py); and the gate tests every fix against the smoothed
+track of all the *other* fixes, not only the past ones.
+
+Consistency of the fixes (the "w-test" of geodesy generalised to 2-D, Baarda 1968; Teunissen 2006,
+*Testing theory*): for a fix used in the solution the residual ``r = z - x_s`` has covariance ``R - P_s``
+and ``d^2 = r' (R - P_s)^-1 r`` is exactly the squared Mahalanobis distance of the fix from the smoothed
+track computed *without it* (leave-one-out innovation), chi-square with 2 degrees of freedom. The fix with the
+``d^2`` above the gate (``gate_probability``) whose removal leaves the others most consistent (smallest sum of
+their ``d^2``; a bad fix also inflates its neighbours' statistics) is rejected, named, and the smoother re-run,
+until every remaining fix passes; a fix no other source checks (``R - P_s`` ~ 0, no redundancy) is reported untestable.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import pandas as pd
+from numba import njit
+from pydantic import BaseModel, ConfigDict, Field
+
+#: chi-square 2 dof quantiles of the 1-sigma and 2-sigma contents (68.27 %, 95.45 %): the 2-D ellipses
+CHI2_2DOF_1SIGMA = 2.2957489
+CHI2_2DOF_2SIGMA = 6.1800743
+
+
+class SmootherOptions(BaseModel):
+    """Options of :func:`smooth_positions`, declared once (bounded numbers)."""
+
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+    current_sigma_m_s: float = Field(
+        0.05, gt=0, le=5,
+        description="prior 1-sigma per axis of the drift velocity (current) at the first sample, m/s")
+    current_random_walk_m_s_per_sqrt_s: float = Field(
+        0.0005, ge=0, le=1,
+        description="random walk of the drift velocity, 1-sigma per axis per sqrt(s) (currents change with depth "
+                    "and time)")
+    position_random_walk_m_per_sqrt_s: float = Field(
+        1.4, ge=0, le=100,
+        description="unreferenced steps (DR held): position random walk beyond the drift velocity, 1-sigma per "
+                    "axis per sqrt(s). With the drift-velocity terms, calibrated on the sample dive's 10 generator "
+                    "seeds (bench/bench_navigation_coverage.py --sample: 72 % of the samples within the 1-sigma "
+                    "ellipse, 99.6 % within 2-sigma); dives whose descent drift is larger or more front-loaded than "
+                    "the TERCOM paper's 533 m need more (bench --sim)")
+    dr_variance_m2_per_m: float = Field(
+        0.1, ge=0, le=1000,
+        description="referenced steps: dead-reckoning position variance per axis added per metre travelled "
+                    "(m^2/m); 0.1: 14 m per axis after 2 km (the matched track's residual heading/scale error)")
+    gate_probability: float = Field(
+        0.999, gt=0.5, lt=1,
+        description="chi-square gate (2 dof) of the fixes' leave-one-out residuals: a fix beyond it is rejected and named")
+    max_rejections: int = Field(5, ge=0, le=100, description="at most this many fixes rejected by the gate")
+    gnss_max_depth_m: float = Field(
+        2.0, ge=0, le=50, description="GNSS fixes are used only where the vehicle is this shallow (at the surface)")
+    gnss_uere_m: float = Field(
+        4.0, gt=0, le=100,
+        description="GNSS user-equivalent range error (m): a fix with an HDOP and no covariance gets a 1-sigma of "
+                    "HDOP x this per axis")
+    gnss_sigma_m: float = Field(5.0, gt=0, le=1000, description="1-sigma per axis (m) of a GNSS fix with neither covariance nor HDOP")
+    usbl_sigma_m: float = Field(
+        20.0, gt=0, le=10000,
+        description="1-sigma per axis (m) of a USBL/LBL fix without a covariance (configure the system's accuracy)")
+    fix_min_interval_s: float = Field(
+        10.0, ge=0, le=3600,
+        description="at most one fix per source in this interval (a 16 Hz table repeats a 1 Hz fix: its errors are "
+                    "not independent)")
+    launch_sigma_m: float = Field(
+        7.0, gt=0, le=10000, description="1-sigma per axis (m) of the launch position (dive.yaml launch, a GNSS fix)")
+
+
+@dataclass(frozen=True)
+class Fix:
+    """One absolute position fix at sample ``index``: map frame ``x_m``/``y_m`` and its 2x2 covariance (m^2)."""
+
+    index: int
+    x_m: float
+    y_m: float
+    cov_m2: np.ndarray
+    source: str
+    time: object = None
+
+
+@dataclass(frozen=True)
+class SmoothedTrack:
+    """:func:`smooth_positions`' result: per sample the smoothed position, its 2x2 covariance and the drift
+    velocity; per fix its residual, chi-square and status (``fixes``)."""
+
+    x_m: np.ndarray
+    y_m: np.ndarray
+    cov_m2: np.ndarray  # (n, 2, 2)
+    current_m_s: np.ndarray  # (n, 2)
+    fixes: pd.DataFrame
+    gate_d2: float
+
+    @property
+    def rejected(self) -> list[str]:
+        f = self.fixes
+        return [f"{s} at sample {i}" for s, i in zip(f["source"][f["status"] == "rejected"],
+                                                     f["index"][f["status"] == "rejected"], strict=True)]
+
+
+def chi2_2dof_quantile(p: float) -> float:
+    """Quantile of the chi-square distribution with 2 degrees of freedom (closed form: -2 ln(1 - p))."""
+    return float(-2.0 * np.log1p(-p))
+
+
+def ellipse(cov_m2: np.ndarray, d2: float = CHI2_2DOF_1SIGMA) -> dict[str, float]:
+    """The ellipse ``x' C^-1 x = d2`` of a 2x2 covariance: semi-axes (m) and the major axis' azimuth (deg
+    clockwise from north); ``d2`` 2.30 -> 68.3 % (1-sigma) content, 6.18 -> 95.4 % (2-sigma)."""
+    w, v = np.linalg.eigh(np.asarray(cov_m2, float))
+    w = np.maximum(w, 0.0)
+    major = v[:, 1]
+    return {"semi_major_m": float(np.sqrt(d2 * w[1])), "semi_minor_m": float(np.sqrt(d2 * w[0])),
+            "azimuth_deg": float(np.degrees(np.arctan2(major[0], major[1])) % 180.0),
+            "content": float(1.0 - np.exp(-0.5 * d2))}
+
+
+def process_variances(dt_s: np.ndarray, d_m: np.ndarray, referenced: np.ndarray,
+                      options: SmootherOptions) -> np.ndarray:
+    """Per-step position variance per axis (m^2) of the process model (module docstring)."""
+    step = np.hypot(d_m[:, 0], d_m[:, 1])
+    q = np.where(referenced, options.dr_variance_m2_per_m * step,
+                 options.position_random_walk_m_per_sqrt_s ** 2 * dt_s)
+    return q + 1e-6  # floor: keeps every step's covariance positive definite
+
+
+@njit(cache=True, nogil=True)
+def _transition(dt, ref, qpos, qc2):  # pragma: no cover - compiled
+    F = np.eye(4)
+    Q = np.zeros((4, 4))
+    for a in range(2):
+        if ref:
+            Q[a, a] = qpos
+            Q[a + 2, a + 2] = qc2 * dt
+        else:
+            F[a, a + 2] = dt
+            Q[a, a] = qpos + qc2 * dt ** 3 / 3.0
+            Q[a, a + 2] = Q[a + 2, a] = qc2 * dt ** 2 / 2.0
+            Q[a + 2, a + 2] = qc2 * dt
+    return F, Q
+
+
+@njit(cache=True, nogil=True)
+def _rts(dt, d, ref, qpos, qc2, x0, P0, fidx, fz, fR):  # pragma: no cover - compiled
+    """Kalman filter + RTS smoother (module docstring). Fixes sorted by sample index ``fidx``."""
+    n = dt.shape[0]
+    xf = np.empty((n, 4))
+    Pf = np.empty((n, 4, 4))
+    x = x0.copy()
+    P = P0.copy()
+    j = 0
+    m = fidx.shape[0]
+    for k in range(n):
+        if k > 0:
+            F, Q = _transition(dt[k], ref[k], qpos[k], qc2)
+            x = F @ x
+            x[0] += d[k, 0]
+            x[1] += d[k, 1]
+            P = F @ P @ F.T + Q
+        while j < m and fidx[j] == k:
+            S = P[:2, :2] + fR[j]
+            K = np.ascontiguousarray(P[:, :2]) @ np.linalg.inv(S)
+            x = x + K @ (fz[j] - x[:2])
+            IKH = np.eye(4)
+            IKH[:, :2] -= K
+            P = IKH @ P @ IKH.T + K @ fR[j] @ K.T  # Joseph form
+            j += 1
+        xf[k] = x
+        Pf[k] = 0.5 * (P + P.T)
+    xs = np.empty((n, 4))
+    Ps2 = np.empty((n, 2, 2))
+    xs[n - 1] = xf[n - 1]
+    Ps = Pf[n - 1].copy()
+    Ps2[n - 1] = Ps[:2, :2]
+    for k in range(n - 2, -1, -1):
+        F, Q = _transition(dt[k + 1], ref[k + 1], qpos[k + 1], qc2)
+        Pp = F @ Pf[k] @ F.T + Q
+        xp = F @ xf[k]
+        xp[0] += d[k + 1, 0]
+        xp[1] += d[k + 1, 1]
+        G = Pf[k] @ F.T @ np.linalg.inv(Pp)
+        xs[k] = xf[k] + G @ (xs[k + 1] - xp)
+        Ps = Pf[k] + G @ (Ps - Pp) @ G.T
+        Ps = 0.5 * (Ps + Ps.T)
+        Ps2[k] = Ps[:2, :2]
+    return xs, Ps2
+
+
+def _run(t_s, d_m, referenced, fixes: list[Fix], use: np.ndarray, options: SmootherOptions):
+    dt = np.diff(np.asarray(t_s, float), prepend=float(t_s[0]))
+    dt = np.clip(dt, 0.0, None)
+    qpos = process_variances(dt, d_m, referenced, options)
+    sel = [f for f, u in zip(fixes, use, strict=True) if u]
+    order = np.argsort([f.index for f in sel], kind="stable")
+    sel = [sel[i] for i in order]
+    fidx = np.array([f.index for f in sel], np.int64)
+    fz = np.array([[f.x_m, f.y_m] for f in sel], float).reshape(-1, 2)
+    fR = np.array([f.cov_m2 for f in sel], float).reshape(-1, 2, 2)
+    # prior: diffuse position about the first fix (the fixes carry the information), drift velocity N(0, sc^2)
+    x0 = np.zeros(4)
+    if len(sel):
+        x0[:2] = fz[0]
+    P0 = np.diag([1e8, 1e8, options.current_sigma_m_s ** 2, options.current_sigma_m_s ** 2])
+    return _rts(dt, np.ascontiguousarray(d_m, float), np.asarray(referenced, np.bool_), qpos,
+                options.current_random_walk_m_s_per_sqrt_s ** 2, x0, P0, fidx, fz, fR)
+
+
+def _fix_tests(xs: np.ndarray, Ps: np.ndarray, fixes: list[Fix], use: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Residual (z - x_s) and leave-one-out squared Mahalanobis distance of every fix (NaN: untestable)."""
+    res = np.empty((len(fixes), 2))
+    d2 = np.full(len(fixes), np.nan)
+    for i, f in enumerate(fixes):
+        r = np.array([f.x_m - xs[f.index, 0], f.y_m - xs[f.index, 1]])
+        res[i] = r
+        R = np.asarray(f.cov_m2, float)
+        C = R - Ps[f.index] if use[i] else R + Ps[f.index]
+        w = np.linalg.eigvalsh(C)
+        if w[0] > 1e-6 * max(float(np.trace(R)), 1e-12):
+            d2[i] = float(r @ np.linalg.solve(C, r))
+    return res, d2
+
+
+def smooth_positions(t_s, dr_increment_m, referenced, fixes: list[Fix],
+                     options: SmootherOptions | None = None) -> SmoothedTrack:
+    """Smoothed position and 2x2 covariance of every sample (module docstring).
+
+    ``t_s`` (n,) sample times (s, non-decreasing); ``dr_increment_m`` (n, 2) east/north dead-reckoned
+    displacement from sample ``k-1`` to ``k`` (row 0 unused); ``referenced`` (n,) bool, the step to ``k`` had a
+    velocity reference (DR moving); ``fixes``: absolute fixes (at least one). Inconsistent fixes are rejected by
+    the chi-square gate, one at a time, worst first (``fixes`` table: ``status`` used / rejected, ``d2``)."""
+    from hadal.errors import InputError
+
+    options = options or SmootherOptions()
+    t_s = np.asarray(t_s, float)
+    d_m = np.asarray(dr_increment_m, float).reshape(-1, 2)
+    n = t_s.size
+    if n == 0:
+        raise InputError("navigation smoother: no samples")
+    if not fixes:
+        raise InputError("navigation smoother: no position fix (launch, GNSS, USBL or terrain); nothing anchors the track")
+    d_m = np.where(np.isfinite(d_m), d_m, 0.0)
+    gate = chi2_2dof_quantile(options.gate_probability)
+    use = np.ones(len(fixes), bool)
+    xs, Ps = _run(t_s, d_m, referenced, fixes, use, options)
+    res, d2 = _fix_tests(xs, Ps, fixes, use)
+    while (~use).sum() < options.max_rejections and use.sum() > 1:
+        failing = np.flatnonzero(use & np.isfinite(d2) & (d2 > gate))
+        if failing.size == 0:
+            break
+        # one bad fix also pulls the others' leave-one-out residuals (a precise recovery fix can fail for a bad
+        # USBL fix before it): reject the failing fix whose removal leaves the others most consistent (smallest
+        # sum of their chi-squares), not merely the largest chi-square
+        best = None
+        for i in failing[np.argsort(-d2[failing])][:20]:
+            u = use.copy()
+            u[i] = False
+            xs_i, Ps_i = _run(t_s, d_m, referenced, fixes, u, options)
+            res_i, d2_i = _fix_tests(xs_i, Ps_i, fixes, u)
+            score = float(np.nansum(np.where(u, d2_i, 0.0)))
+            if best is None or score < best[0]:
+                best = (score, i, xs_i, Ps_i, res_i, d2_i)
+        _, i, xs, Ps, res, d2 = best
+        use[i] = False
+    fx = pd.DataFrame({
+        "source": [f.source for f in fixes], "index": [f.index for f in fixes], "time": [f.time for f in fixes],
+        "x_east_m": [f.x_m for f in fixes], "y_north_m": [f.y_m for f in fixes],
+        "residual_east_m": res[:, 0], "residual_north_m": res[:, 1], "d2": d2,
+        "status": np.where(use, "used", "rejected")})
+    return SmoothedTrack(xs[:, 0].copy(), xs[:, 1].copy(), Ps, xs[:, 2:].copy(), fx, gate)

@@ -1,0 +1,128 @@
+"""The navigation smoother (hadal.navigation.smoother) against independent oracles: the batch weighted
+least-squares solution of the same linear-Gaussian problem (numpy.linalg.lstsq; its estimate and inverse normal
+matrix are the exact smoothed mean and covariance), the closed-form information-weighted mean of two fixes, an
+explicit leave-one-out re-run for the gate statistic."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from hadal.navigation.smoother import Fix, SmootherOptions, process_variances, smooth_positions
+
+
+def _batch_oracle(t, d, ref, fixes, opt):
+    """Stack prior, process and fix equations of all states [x, y, cx, cy] x n, whitened; solve by lstsq."""
+    n = t.size
+    dt = np.diff(t, prepend=t[0])
+    qpos = process_variances(dt, d, ref, opt)
+    qc2 = opt.current_random_walk_m_s_per_sqrt_s ** 2
+    rows, rhs = [], []
+
+    def add(block_cols, mats, r, cov):
+        L = np.linalg.cholesky(np.linalg.inv(cov))  # whitening: W = L', W'W = cov^-1
+        A = np.zeros((len(r), 4 * n))
+        for c, M in zip(block_cols, mats, strict=True):
+            A[:, 4 * c:4 * c + 4] = M
+        rows.append(L.T @ A)
+        rhs.append(L.T @ r)
+
+    x0 = np.array([fixes[0].x_m, fixes[0].y_m, 0, 0]) if fixes else np.zeros(4)
+    add([0], [np.eye(4)], x0, np.diag([1e8, 1e8, opt.current_sigma_m_s ** 2, opt.current_sigma_m_s ** 2]))
+    for k in range(1, n):
+        F = np.eye(4)
+        Q = np.zeros((4, 4))
+        for a in range(2):
+            if ref[k]:
+                Q[a, a] = qpos[k]
+                Q[a + 2, a + 2] = qc2 * dt[k]
+            else:
+                F[a, a + 2] = dt[k]
+                Q[a, a] = qpos[k] + qc2 * dt[k] ** 3 / 3
+                Q[a, a + 2] = Q[a + 2, a] = qc2 * dt[k] ** 2 / 2
+                Q[a + 2, a + 2] = qc2 * dt[k]
+        u = np.array([d[k, 0], d[k, 1], 0, 0])
+        add([k, k - 1], [np.eye(4), -F], u, Q)
+    for f in fixes:
+        H = np.zeros((2, 4))
+        H[0, 0] = H[1, 1] = 1
+        add([f.index], [H], np.array([f.x_m, f.y_m]), f.cov_m2)
+    A, b = np.vstack(rows), np.concatenate(rhs)
+    sol = np.linalg.lstsq(A, b, rcond=None)[0].reshape(n, 4)
+    cov = np.linalg.inv(A.T @ A)
+    P = np.array([cov[4 * k:4 * k + 2, 4 * k:4 * k + 2] for k in range(n)])
+    return sol, P
+
+
+def _problem(seed=3, n=40):
+    """A dive-like track: drift with a current when unreferenced, DR increments when referenced; fixes drawn
+    about the truth from their own covariance."""
+    rng = np.random.default_rng(seed)
+    t = np.cumsum(rng.uniform(5, 60, n)) - 5
+    ref = np.zeros(n, bool)
+    ref[12:28] = True  # a bottom track with a DR velocity reference in the middle
+    d = np.where(ref[:, None], rng.normal(0, 20, (n, 2)), 0.0)
+    dt = np.diff(t, prepend=t[0])
+    truth = np.cumsum(d + np.where(ref[:, None], 0.0, np.array([0.03, 0.02]) * dt[:, None]), axis=0)
+    spec = [(0, np.diag([25.0, 16.0]), "launch_gnss"), (14, np.array([[900.0, 300.0], [300.0, 400.0]]), "terrain"),
+            (33, np.array([[100.0, -20.0], [-20.0, 60.0]]), "usbl"), (n - 1, np.diag([9.0, 9.0]), "recovery_gnss")]
+    fixes = [Fix(i, *(truth[i] + rng.multivariate_normal([0, 0], R)), R, s) for i, R, s in spec]
+    return t, d, ref, fixes
+
+
+def test_rts_equals_batch_least_squares():
+    t, d, ref, fixes = _problem()
+    opt = SmootherOptions(current_sigma_m_s=0.1, current_random_walk_m_s_per_sqrt_s=0.002,
+                          position_random_walk_m_per_sqrt_s=0.8, dr_variance_m2_per_m=0.3, gate_probability=0.99999999)
+    out = smooth_positions(t, d, ref, fixes, opt)
+    assert (out.fixes["status"] == "used").all()
+    sol, P = _batch_oracle(t, d, ref, fixes, opt)
+    np.testing.assert_allclose(out.x_m, sol[:, 0], atol=1e-5 * 1000)
+    np.testing.assert_allclose(out.y_m, sol[:, 1], atol=1e-5 * 1000)
+    np.testing.assert_allclose(out.current_m_s, sol[:, 2:], atol=1e-6)
+    np.testing.assert_allclose(out.cov_m2, P, rtol=1e-6, atol=1e-6)
+
+
+def test_two_gnss_fixes_on_a_still_vehicle_give_the_information_weighted_mean():
+    # no process noise, no drift: the posterior of a constant position is the information-weighted mean
+    t = np.arange(5.0)
+    d = np.zeros((5, 2))
+    ref = np.ones(5, bool)
+    R1, R2 = np.array([[4.0, 1.0], [1.0, 9.0]]), np.array([[16.0, -2.0], [-2.0, 1.0]])
+    z1, z2 = np.array([3.0, -1.0]), np.array([-2.0, 4.0])
+    opt = SmootherOptions(dr_variance_m2_per_m=0.0, current_random_walk_m_s_per_sqrt_s=0.0, gate_probability=0.9999)
+    out = smooth_positions(t, d, ref, [Fix(0, *z1, R1, "gnss"), Fix(4, *z2, R2, "gnss")], opt)
+    I1, I2 = np.linalg.inv(R1), np.linalg.inv(R2)
+    P = np.linalg.inv(I1 + I2)
+    m = P @ (I1 @ z1 + I2 @ z2)
+    for k in range(5):  # floor 1e-6 m^2 per step: negligible
+        np.testing.assert_allclose([out.x_m[k], out.y_m[k]], m, atol=1e-4)
+        np.testing.assert_allclose(out.cov_m2[k], P, atol=1e-4)
+
+
+def test_gate_statistic_equals_leave_one_out_innovation_and_names_the_bad_fix():
+    t, d, ref, fixes = _problem()
+    opt = SmootherOptions(current_random_walk_m_s_per_sqrt_s=0.002, dr_variance_m2_per_m=0.3)
+    good = smooth_positions(t, d, ref, fixes, opt.model_copy(update={"gate_probability": 0.99999999}))
+    # oracle: re-run without fix i; its innovation against that track, covariance R + P_loo
+    for i, f in enumerate(fixes):
+        loo = smooth_positions(t, d, ref, [g for j, g in enumerate(fixes) if j != i],
+                               opt.model_copy(update={"gate_probability": 0.99999999}))
+        r = np.array([f.x_m - loo.x_m[f.index], f.y_m - loo.y_m[f.index]])
+        d2 = r @ np.linalg.solve(f.cov_m2 + loo.cov_m2[f.index], r)
+        assert good.fixes["d2"][i] == pytest.approx(d2, rel=1e-4)  # the diffuse prior (1e8 m^2) is centred on the first fix
+    # a USBL fix 400 m off: rejected and named, the others kept, the track not pulled towards it
+    bad = [*fixes[:2], Fix(33, fixes[2].x_m + 400.0, fixes[2].y_m, fixes[2].cov_m2, "usbl"), fixes[3]]
+    out = smooth_positions(t, d, ref, bad, opt)
+    assert list(out.fixes["status"]) == ["used", "used", "rejected", "used"]
+    assert out.rejected == ["usbl at sample 33"]
+    assert out.fixes["d2"][2] > 100
+    without = smooth_positions(t, d, ref, [fixes[0], fixes[1], fixes[3]], opt)
+    np.testing.assert_allclose(out.x_m, without.x_m, atol=1e-6)
+
+
+def test_no_fix_is_a_clear_error():
+    from hadal.errors import InputError
+
+    with pytest.raises(InputError, match="no position fix"):
+        smooth_positions(np.arange(3.0), np.zeros((3, 2)), np.zeros(3, bool), [])
