@@ -251,8 +251,27 @@ def _slocum_fields(columns: list[str], units: dict[str, str]) -> tuple[dict[str,
             out += _positions(lat, lon, score, f"Slocum {why}", "navigation")
             break
     if "m_depth" in cols:
-        skipped.append(("m_depth", "depth is not read: hadal derives depth from pressure (TEOS-10)"))
+        depth_field = _slocum_depth_as_pressure(cols, units, out)
+        if depth_field is None:
+            skipped.append(("m_depth", "depth is not read: hadal derives depth from pressure (TEOS-10)"))
+        else:
+            out.append(depth_field)
     return time, out, skipped
+
+
+def _slocum_depth_as_pressure(cols: set[str], units: dict[str, str], out: list[GliderField]) -> GliderField | None:
+    """A flight-computer log without any pressure channel (no ``sci_water_pressure``, ``m_pressure``,
+    ``m_water_pressure``) but with ``m_depth`` in metres (computed on board from the glider's pressure sensor):
+    the gauge pressure from it by TEOS-10 ``gsw.p_from_z`` at the log's NMEA latitude; ``None`` otherwise."""
+    if any(f.variable in ("pressure_ctd_dbar", "pressure_gauge_dbar") for f in out):
+        return None
+    lat = next((la for la, _lo, _s, _w in _SLOCUM_POS if la in cols and units.get(la, "lat") == "lat"), None)
+    if lat is None or units.get("m_depth", "m").strip().lower() != "m":
+        return None
+    return GliderField("pressure_gauge_dbar", ["m_depth", lat], "dbar", 1,
+                       f"Slocum glider depth 'm_depth' (units line 'm'; no pressure channel in this log) -> pressure "
+                       f"by TEOS-10 gsw.p_from_z at the latitude {lat!r}",
+                       transform="depth_ddmm_lat_to_pressure_dbar", group="gauge")
 
 
 def _positions(lat: str, lon: str, score: int, why: str, group: str | None = None) -> list[GliderField]:

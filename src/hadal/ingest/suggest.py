@@ -645,7 +645,7 @@ def _glider_cands(src: _Src, kind: str, fields: list[Any], origin: tuple[float, 
         fm = _fm(f.field, f.units, f.transform)
         if f.fill_values:
             fm["fill_values"] = [float(v) for v in f.fill_values]
-        if f.transform and origin is not None:
+        if f.transform and f.transform.startswith("latlon_") and origin is not None:
             fm["origin"] = [float(origin[0]), float(origin[1])]
         src.cands.append(_Cand("csv", src.source, src.file, f.variable, fm, f.score,
                                f"{what} {f.field if isinstance(f.field, str) else '/'.join(f.field)!r}: "
