@@ -244,3 +244,26 @@ def geotiff_projected(shared: Path, out: Path) -> Path:
                        crs="EPSG:32605", transform=from_origin(xs[0] - h / 2, ys[0] + h / 2, h, h), nodata=-9999.0) as ds:
         ds.write(z, 1)
     return p
+
+
+def seaexplorer_legato(shared: Path, out: Path) -> tuple[Path, Path]:
+    """The SeaExplorer pair with an RBR Legato payload instead of the GPCTD (as SeaExplorers carry either):
+    ``LEGATO_CONDUCTIVITY`` in mS/cm (S/m x 10), ``LEGATO_TEMPERATURE``, ``LEGATO_PRESSURE``; the navigation file
+    unchanged. Same ``;`` layout, same fill value 9999."""
+    nav = shared / "dives-real/pyglider_sea035.12.gli.sub.36"
+    pld = shared / "dives-real/pyglider_sea035.12.pld1.sub.36"
+    lines = pld.read_text("latin-1").splitlines()
+    head = lines[0].split(";")
+    ic = head.index("GPCTD_CONDUCTIVITY")
+    rows = []
+    for ln in lines[1:]:
+        f = ln.split(";")
+        if len(f) > ic and f[ic] not in ("", "9999.00", "9999"):
+            f[ic] = f"{float(f[ic]) * 10:.5f}"
+        rows.append(";".join(f))
+    head = [h.replace("GPCTD_", "LEGATO_") if h != "GPCTD_DOF" else h for h in head]
+    out_pld = out / pld.name.replace("sea035", "sea099")
+    out_pld.write_text("\n".join([";".join(head), *rows]) + "\n", encoding="latin-1")
+    out_nav = out / nav.name.replace("sea035", "sea099")
+    out_nav.write_bytes(nav.read_bytes())
+    return out_nav, out_pld

@@ -260,3 +260,18 @@ def test_cast_with_the_secondary_sensor_pair_only(shared, tmp_path):
     np.testing.assert_allclose(ctd["temperature_its90_degc"], orig["t190C"], atol=1e-4)
     np.testing.assert_allclose(ctd["conductivity_s_m"], orig["c1S/m"], rtol=1e-6)
     np.testing.assert_allclose(ctd["practical_salinity"], orig["sal11"], atol=2e-3)
+
+
+def test_seaexplorer_with_a_legato_payload(shared, tmp_path):
+    """An RBR Legato payload (conductivity in mS/cm): the conductivities are the original GPCTD_CONDUCTIVITY
+    values in S/m (the file's own column, fill 9999 left out)."""
+    nav, pld = rv.seaexplorer_legato(shared, tmp_path)
+    ctx = _run(tmp_path, [nav, pld], ("ingest",))
+    s = pd.read_parquet(ctx.store.latest(ctx.dive_id, "sensors").file("sensors.parquet"))
+    orig = pd.read_csv(shared / "dives-real/pyglider_sea035.12.pld1.sub.36", sep=";")
+    c = orig["GPCTD_CONDUCTIVITY"].to_numpy(float)
+    c = c[np.isfinite(c) & (c != 9999.0)]
+    got = s["conductivity_s_m"].to_numpy(float)
+    got = got[np.isfinite(got)]
+    assert got.size == c.size
+    np.testing.assert_allclose(np.sort(got), np.sort(c), atol=1e-5)
