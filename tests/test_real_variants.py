@@ -275,3 +275,24 @@ def test_seaexplorer_with_a_legato_payload(shared, tmp_path):
     got = got[np.isfinite(got)]
     assert got.size == c.size
     np.testing.assert_allclose(np.sort(got), np.sort(c), atol=1e-5)
+
+
+@pytest.mark.parametrize("encoding", ["ascii", "binary"])
+def test_pcd_version_06_without_viewpoint(shared, tmp_path, encoding):
+    """A PCD v0.6 header (no VIEWPOINT line; PCL's older writer) around the same data: the same points, its own
+    version recorded (pypcd4 alone refuses the VERSION)."""
+    from pypcd4 import PointCloud
+
+    from hadal.grid.clouds import read_pcd
+
+    p = rv.pcd_variant(shared, tmp_path, encoding=encoding, upper=False)
+    raw = p.read_bytes()
+    i = raw.index(b"DATA")
+    head = b"\n".join(ln for ln in raw[:i].split(b"\n") if not ln.startswith(b"VIEWPOINT"))
+    head = head.replace(b"VERSION 0.7", b"VERSION .6").replace(b"VERSION .7", b"VERSION .6")
+    p.write_bytes(head + raw[i:])
+    assert b"VERSION .6" in p.read_bytes()[:200]
+    ref = PointCloud.from_path(shared / "dives-real/pdal_autzen-utm.pcd").numpy(("X", "Y", "Z"))
+    pts, meta = read_pcd(p)
+    assert meta["pcd_version"] == ".6"
+    np.testing.assert_allclose(pts, ref, atol=1e-6 if encoding == "ascii" else 0)
