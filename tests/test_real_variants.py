@@ -296,3 +296,26 @@ def test_pcd_version_06_without_viewpoint(shared, tmp_path, encoding):
     pts, meta = read_pcd(p)
     assert meta["pcd_version"] == ".6"
     np.testing.assert_allclose(pts, ref, atol=1e-6 if encoding == "ascii" else 0)
+
+
+def test_las_feet_horizontal_metre_vertical_compound_crs(shared, tmp_path):
+    """NAD83(HARN) / Oregon GIC Lambert (ft) + NAVD88 height (m), EPSG:2994+5703, written by laspy: x/y in feet,
+    z in metres by the vertical CRS (not scaled by the horizontal foot)."""
+    import laspy
+    from pyproj import CRS, Transformer
+
+    from hadal.grid.clouds import read_las
+
+    src = laspy.read(shared / "dives-real/pdal_autzen-utm.las")
+    x, y = Transformer.from_crs(src.header.parse_crs(), CRS.from_epsg(2994), always_xy=True).transform(
+        np.asarray(src.x), np.asarray(src.y))
+    hdr = laspy.LasHeader(version="1.4", point_format=6)
+    hdr.scales = np.array([0.01, 0.01, 0.01])
+    hdr.offsets = np.array([np.floor(x.min()), np.floor(y.min()), 0.0])
+    hdr.add_crs(CRS.from_user_input("EPSG:2994+5703"))
+    las = laspy.LasData(hdr)
+    las.x, las.y, las.z = x, y, np.asarray(src.z)
+    las.write(tmp_path / "ft_vm.las")
+    pts, meta = read_las(tmp_path / "ft_vm.las")
+    assert meta["horizontal_units"] == "foot" and meta["vertical_units"] == "metre"
+    np.testing.assert_allclose(pts[:, 2], np.asarray(src.z), atol=0.006)
