@@ -207,24 +207,32 @@ def block_counts(ny: int, nx: int, n_blocks_y: int, n_blocks_x: int) -> tuple[in
     return min(n_blocks_y, ny // 2), min(n_blocks_x, nx // 2)
 
 
+def _coverage(depth_m: np.ndarray, n_evaluated: int, n_blocks: int, min_valid_fraction: float) -> str:
+    return (f"{100 * float(np.isfinite(depth_m).mean()):.1f} % of the DTM's {depth_m.shape[0]} x {depth_m.shape[1]} "
+            f"cells have a depth; {n_evaluated} of {n_blocks} blocks have >= {100 * min_valid_fraction:g} % valid cells")
+
+
 def coverage_text(suit: xr.Dataset, depth_m: np.ndarray, min_valid_fraction: float) -> str:
     """One line naming a DTM's coverage: the share of cells with a depth and of blocks evaluated."""
     ok = np.isfinite(suit["std_m"].values)
-    return (f"{100 * float(np.isfinite(depth_m).mean()):.1f} % of the DTM's {depth_m.shape[0]} x {depth_m.shape[1]} "
-            f"cells have a depth; {int(ok.sum())} of {ok.size} blocks have >= {100 * min_valid_fraction:g} % valid cells")
+    return _coverage(depth_m, int(ok.sum()), int(ok.size), min_valid_fraction)
 
 
 def sparse_skip_reason(dtm, n_blocks_y: int, n_blocks_x: int, min_valid_fraction: float) -> str | None:
     """Why no block of the DTM can be evaluated (a DTM gridded from sparse ship soundings is mostly empty cells:
-    no block reaches ``min_valid_fraction``), naming the coverage; ``None`` when at least one block can."""
+    no block reaches ``min_valid_fraction`` valid cells, the rule of :func:`suitability_map`), naming the coverage;
+    ``None`` when at least one block can. Counts valid cells only (cheap: run before the stage and by the report)."""
     g = MapGrid.from_any(dtm, name="dtm")
-    nby, nbx = block_counts(*g.shape, n_blocks_y, n_blocks_x)
+    ny, nx = g.shape
+    nby, nbx = block_counts(ny, nx, n_blocks_y, n_blocks_x)
     if nby < 1 or nbx < 1:
-        return f"the DTM has only {g.shape[0]} x {g.shape[1]} cells (a block needs >= 2 x 2)"
-    suit = suitability_map(g, nby, nbx, min_valid_fraction=min_valid_fraction)
-    if np.isfinite(suit["std_m"].values).any():
+        return f"the DTM has only {ny} x {nx} cells (a block needs >= 2 x 2)"
+    m, n = ny // nby, nx // nbx
+    valid = np.isfinite(g.depth_m[: m * nby, : n * nbx]).reshape(nby, m, nbx, n).sum(axis=(1, 3))
+    ok = valid >= max(1, int(np.ceil(min_valid_fraction * m * n)))
+    if ok.any():
         return None
-    return (f"no block of the DTM can be evaluated ({coverage_text(suit, g.depth_m, min_valid_fraction)}); "
+    return (f"no block of the DTM can be evaluated ({_coverage(g.depth_m, 0, int(ok.size), min_valid_fraction)}); "
             "lower suitability.min_valid_fraction or grid the soundings coarser (dtm resolution)")
 
 
