@@ -319,3 +319,30 @@ def test_las_feet_horizontal_metre_vertical_compound_crs(shared, tmp_path):
     pts, meta = read_las(tmp_path / "ft_vm.las")
     assert meta["horizontal_units"] == "foot" and meta["vertical_units"] == "metre"
     np.testing.assert_allclose(pts[:, 2], np.asarray(src.z), atol=0.006)
+
+
+def test_glider_depth_is_pressure_only_when_no_log_has_pressure(shared, tmp_path):
+    """The Slocum flight log without pressure beside its science log (sci_water_pressure): init maps the CTD
+    pressure and leaves m_depth unread with the reason; alone, m_depth gives the gauge pressure."""
+    from hadal.dive_init import scan_dive_dir
+
+    flight = rv.slocum_other_sensors(shared, tmp_path)
+    lines = (shared / "dives-real/gutils_usf_bass_2016_252_1_14_sbd.dat").read_text("latin-1").splitlines()
+    names = lines[14].split()
+    keep = [i for i, n in enumerate(names) if n.startswith("sci_")]
+    head = [f"sensors_per_cycle: {len(keep)}" if ln.startswith("sensors_per_cycle") else ln for ln in lines[:14]]
+    rows = [ln.split() for ln in lines[17:] if ln.strip()]
+    rows = [r for r in rows if any(r[i] != "NaN" for i in keep)]
+    sci = tmp_path / "usf_bass_tbd.dat"
+    sci.write_text("\n".join(head + [" ".join(x.split()[i] for i in keep) for x in lines[14:17]]
+                             + [" ".join(r[i] for i in keep) for r in rows]) + "\n")
+    for files, want_depth in (([flight], True), ([flight, sci], False)):
+        raw = tmp_path / f"d{len(files)}"
+        (raw / "raw").mkdir(parents=True)
+        for f in files:
+            shutil.copy(f, raw / "raw" / f.name)
+        res = scan_dive_dir(raw)
+        text = str(res.vehicle) if hasattr(res, "vehicle") else str(res.__dict__)
+        assert ("depth_ddmm_lat_to_pressure_dbar" in text) == want_depth
+        if not want_depth:
+            assert any("m_depth" in u and "another log" in u for u in res.not_used)
