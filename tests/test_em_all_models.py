@@ -200,3 +200,122 @@ def test_em_all_starting_with_any_datagram_type_is_detected(em3000, tmp_path):
     (tmp_path / "t.bin").write_bytes(struct.pack(">I", len(tide)) + bytes(tide) + em3000.read_bytes())
     assert detect(tmp_path / "t.bin").kind == "em_all"
     assert len(read_multibeam(tmp_path / "t.bin")) == 7537
+
+
+def _repack(dgms, order_out, model=None, edit=None):
+    """The EM3000 datagrams (big-endian as read) re-packed in ``order_out`` field by field with struct (header,
+    Depth and Position fields; other types keep their body bytes), the model number optionally replaced, the
+    checksum redone: an independent byte-order conversion written from 850-160692."""
+    out = bytearray()
+    for typ, _m, _date, _t, b in dgms:
+        nb = bytearray(b)
+        hdr = list(struct.unpack_from(">HIIHH", b, 2))
+        if model is not None:
+            hdr[0] = model
+        struct.pack_into(order_out + "HIIHH", nb, 2, *hdr)
+        if typ == 0x44:
+            f = struct.unpack_from(">HHHBBBBH", b, 16)
+            struct.pack_into(order_out + "HHHBBBBH", nb, 16, *f)
+            for i in range(f[4]):
+                v = list(struct.unpack_from(">HhhhHH", b, 28 + 16 * i))
+                if edit is not None:
+                    v = edit(v)
+                struct.pack_into(order_out + "HhhhHH", nb, 28 + 16 * i, *v)
+        elif typ == 0x50:
+            f = struct.unpack_from(">iiHHHH", b, 16)
+            struct.pack_into(order_out + "iiHHHH", nb, 16, *f)
+        struct.pack_into(order_out + "H", nb, len(nb) - 2, sum(nb[1:-3]) & 0xFFFF)
+        out += struct.pack(order_out + "I", len(nb)) + nb
+    return bytes(out)
+
+
+@pytest.mark.parametrize("order", ["<", ">"])
+@pytest.mark.parametrize("model", [120, 122, 300, 302, 710, 1002, 2000, 2040, 3003, 3020])
+def test_em_all_every_model_and_byte_order_reads_the_same_soundings(em3000, tmp_path, model, order):
+    """The EM3000 file re-packed as another EM model (MB-System mbsys_simrad2.h/mbsys_simrad3.h numbers) in
+    either byte order: the order is found from the model number, the soundings equal the original's."""
+    from hadal.grid.sonar import read_multibeam
+
+    _order, dgms = _walk(em3000)
+    p = tmp_path / "m.all"
+    p.write_bytes(_repack(dgms, order, model))
+    ref, got = read_multibeam(em3000), read_multibeam(p)
+    assert got.attrs["byte_order"] == ("little" if order == "<" else "big") and got.attrs["em_model"] == model
+    for c in ("longitude_deg", "latitude_deg", "depth_m"):
+        np.testing.assert_allclose(got[c].to_numpy(), ref[c].to_numpy(), rtol=0, atol=1e-9)
+
+
+@pytest.mark.parametrize("model,unsigned", [(120, True), (300, True), (3000, False), (710, False)])
+def test_em_all_depth_z_is_unsigned_for_em120_and_em300_only(em3000, tmp_path, model, unsigned):
+    """850-160692 / MB-System mbr_em300raw_rd_bath: the Depth datagram's z is u16 for EM 120/300 (deep water,
+    up to 655 m x z resolution), i16 for the others. z + 40000 (above 32767) is 400 m deeper when unsigned;
+    signed, the same bits are a negative depth below the transducer (z - 25536 cm)."""
+    from hadal.grid.sonar import read_multibeam
+
+    _order, dgms = _walk(em3000)
+    p = tmp_path / "u.all"
+    p.write_bytes(_repack(dgms, ">", model, edit=lambda v: [v[0] + 40000 if v[0] else 0, *v[1:]]))
+    ref = _depth_pings(">", dgms)
+    zres_cm = [b[24] for typ, *_r, b in dgms if typ == 0x44]  # HHHBBBBH at 16: ..., N at 23, z resolution at 24
+    shift_m = 40000 if unsigned else 40000 - 65536
+    want = np.concatenate([p_[2] + 0.01 * shift_m * zr for p_, zr in zip(ref, zres_cm, strict=True)])
+    got = read_multibeam(p)
+    np.testing.assert_allclose(got["depth_m"].to_numpy(), want, atol=1e-4)
+
+
+def test_em_all_big_endian_length_multiple_of_256_is_read_big_endian(em3000, tmp_path):
+    """A big-endian first datagram of 256 bytes reads 65536 little-endian, also a plausible length: the byte order
+    comes from the model number (3000 big-endian, 47115 little-endian), not from the length."""
+    from hadal.grid.sonar import read_multibeam
+
+    body = b"\x02T" + struct.pack(">HIIHH", 3000, 19990217, 55600000, 1, 207) + struct.pack(">HHhB", 1, 0, 12, 0)
+    body = bytearray(body + b"\x00" * (256 - len(body) - 3) + b"\x03\x00\x00")
+    struct.pack_into(">H", body, len(body) - 2, sum(body[1:-3]) & 0xFFFF)
+    assert len(body) == 256 and 16 <= struct.unpack("<I", struct.pack(">I", 256))[0] <= 1 << 24
+    (tmp_path / "t.all").write_bytes(struct.pack(">I", 256) + bytes(body) + em3000.read_bytes())
+    got = read_multibeam(tmp_path / "t.all")
+    assert got.attrs["byte_order"] == "big" and len(got) == 7537
+
+
+@pytest.mark.parametrize("order", ["<", ">"])
+def test_em_all_unknown_model_is_refused_in_one_line_naming_it(em3000, tmp_path, order):
+    from hadal.errors import InputError
+    from hadal.grid.sonar import read_multibeam
+
+    _order, dgms = _walk(em3000)
+    (tmp_path / "x.all").write_bytes(_repack(dgms, order, 4242))
+    with pytest.raises(InputError, match=r"unknown EM model number .*4242") as ei:
+        read_multibeam(tmp_path / "x.all")
+    assert "\n" not in str(ei.value)
+
+
+@pytest.mark.parametrize("order", ["<", ">"])
+def test_em_all_xyz88_of_an_em2040_in_either_order(em3000, tmp_path, order):
+    """Every Depth datagram rewritten as an XYZ 88 (0x58) datagram of an EM 2040 (f32 z re transducer + f32
+    transducer depth, 850-160692): depths equal the Depth datagrams' z*zres + transducer depth of the walk."""
+    from hadal.grid.sonar import read_multibeam
+
+    _order, dgms = _walk(em3000)
+    out = bytearray()
+    for typ, _m, date, t, b in dgms:
+        if typ == 0x50:
+            out += _repack([(typ, _m, date, t, b)], order, 2040)
+            continue
+        if typ != 0x44:
+            continue
+        heading, ssv, tdepth, _nmax, nb, zres, xyres, _sr = struct.unpack_from(">HHHBBBBH", b, 16)
+        cnt, ser = struct.unpack_from(">HH", b, 12)
+        body = struct.pack(order + "HHfHHfB3x", heading, ssv, 0.01 * tdepth, nb, nb, 1000.0, 0)
+        for i in range(nb):
+            z, y, x = struct.unpack_from(">hhh", b, 28 + 16 * i)
+            det = 0 if z != 0 else 0x80  # z = 0 (no detection) is flagged invalid in XYZ 88
+            body += struct.pack(order + "fffHBbBbh", z * 0.01 * zres, y * 0.01 * xyres, x * 0.01 * xyres,
+                                0, 0, 0, det, 0, 0)
+        pl = b"X" + struct.pack(order + "HIIHH", 2040, date, int(round(t * 1000)), cnt, ser) + body + b"\x00"
+        d = b"\x02" + pl + b"\x03" + struct.pack(order + "H", sum(pl) & 0xFFFF)
+        out += struct.pack(order + "I", len(d)) + d
+    (tmp_path / "x88.all").write_bytes(bytes(out))
+    got = read_multibeam(tmp_path / "x88.all")
+    want = np.concatenate([p[2] for p in _depth_pings(">", dgms)])
+    assert got.attrs["em_model"] == 2040 and got.attrs["datagrams"]["X"] == 67
+    np.testing.assert_allclose(got["depth_m"].to_numpy(), want, atol=1e-4)

@@ -29,7 +29,7 @@ Missing (NaN) cells: a block is evaluated from its ``K`` valid cells when at lea
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 import xarray as xr
@@ -199,3 +199,65 @@ def propose_region(
             f"no matching region of {size_x_m:.0f} x {size_y_m:.0f} m with valid blocks near ({center_x_m:.0f}, {center_y_m:.0f}) m"
         )
     return best
+
+
+def block_counts(ny: int, nx: int, n_blocks_y: int, n_blocks_x: int) -> tuple[int, int]:
+    """The block grid used on a ``ny x nx`` DTM: the requested one, reduced to at most ``ny // 2 x nx // 2`` blocks
+    (every block needs >= 2 x 2 cells)."""
+    return min(n_blocks_y, ny // 2), min(n_blocks_x, nx // 2)
+
+
+def _coverage(depth_m: np.ndarray, n_evaluated: int, n_blocks: int, min_valid_fraction: float) -> str:
+    return (f"{100 * float(np.isfinite(depth_m).mean()):.1f} % of the DTM's {depth_m.shape[0]} x {depth_m.shape[1]} "
+            f"cells have a depth; {n_evaluated} of {n_blocks} blocks have >= {100 * min_valid_fraction:g} % valid cells")
+
+
+def coverage_text(suit: xr.Dataset, depth_m: np.ndarray, min_valid_fraction: float) -> str:
+    """One line naming a DTM's coverage: the share of cells with a depth and of blocks evaluated."""
+    ok = np.isfinite(suit["std_m"].values)
+    return _coverage(depth_m, int(ok.sum()), int(ok.size), min_valid_fraction)
+
+
+def sparse_skip_reason(dtm, n_blocks_y: int, n_blocks_x: int, min_valid_fraction: float) -> str | None:
+    """Why no block of the DTM can be evaluated (a DTM gridded from sparse ship soundings is mostly empty cells:
+    no block reaches ``min_valid_fraction`` valid cells, the rule of :func:`suitability_map`), naming the coverage;
+    ``None`` when at least one block can. Counts valid cells only (cheap: run before the stage and by the report)."""
+    g = MapGrid.from_any(dtm, name="dtm")
+    ny, nx = g.shape
+    nby, nbx = block_counts(ny, nx, n_blocks_y, n_blocks_x)
+    if nby < 1 or nbx < 1:
+        return f"the DTM has only {ny} x {nx} cells (a block needs >= 2 x 2)"
+    m, n = ny // nby, nx // nbx
+    valid = np.isfinite(g.depth_m[: m * nby, : n * nbx]).reshape(nby, m, nbx, n).sum(axis=(1, 3))
+    ok = valid >= max(1, int(np.ceil(min_valid_fraction * m * n)))
+    if ok.any():
+        return None
+    return (f"no block of the DTM can be evaluated ({_coverage(g.depth_m, 0, int(ok.size), min_valid_fraction)}); "
+            "lower suitability.min_valid_fraction or grid the soundings coarser (dtm resolution)")
+
+
+def propose_region_near(
+    suit: xr.Dataset,
+    center_x_m: float,
+    center_y_m: float,
+    size_x_m: float,
+    size_y_m: float,
+    search_radius_m: float = 0.0,
+) -> tuple[Region, str]:
+    """:func:`propose_region`; when no window there holds an evaluated block (a DTM of sparse ship tracks: the
+    launch point between two tracks), the window centred on the evaluated block nearest to the centre, with a
+    one-line note naming the distance (``""`` otherwise). No evaluated block at all is an InputError."""
+    try:
+        return propose_region(suit, center_x_m, center_y_m, size_x_m, size_y_m, search_radius_m), ""
+    except InputError:
+        pass
+    ok = np.isfinite(suit["std_m"].values)
+    if not ok.any():
+        raise InputError(f"no block of the DTM could be evaluated ({int(ok.size)} blocks, none with enough valid cells)")
+    xx, yy = np.meshgrid(suit["x"].values, suit["y"].values)
+    dist = np.hypot(xx[ok] - center_x_m, yy[ok] - center_y_m)
+    i = int(np.argmin(dist))
+    reg = propose_region(suit, float(xx[ok][i]), float(yy[ok][i]), size_x_m, size_y_m, 0.0)
+    note = (f"no evaluated block within the {size_x_m:g} x {size_y_m:g} m window at ({center_x_m:.0f}, {center_y_m:.0f}) m; "
+            f"the region is centred on the nearest evaluated block, {dist[i] / 1000:.2f} km away")
+    return replace(reg, method="nearest evaluated blocks"), note

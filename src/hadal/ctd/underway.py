@@ -116,8 +116,7 @@ def underway_evidence(df: pd.DataFrame) -> UnderwayEvidence:
     ev = UnderwayEvidence(False, "", pressure_channel=pcol, pressure_range_dbar=prange, instrument_model=model)
     cols = position_channels(df)
     if cols is None:
-        ev.reason = f"cast: no per-scan latitude/longitude channels{tsg}"
-        return ev
+        return _header_position_evidence(ev, df, model, tsg)
     ev.latitude_channel, ev.longitude_channel = cols
     lat, lon = scan_positions(df)
     ok = np.flatnonzero(np.isfinite(lat))
@@ -142,6 +141,49 @@ def underway_evidence(df: pd.DataFrame) -> UnderwayEvidence:
                  f"{ev.max_distance_m / 1000:.2f} km from the first, {ptxt} (<= {MAX_PRESSURE_RANGE_DBAR:g} dbar)"
                  f"{tsg}")
     return ev
+
+
+def header_position(df: pd.DataFrame) -> tuple[float, float] | None:
+    """The record's header position (``* NMEA Latitude/Longitude`` or ``** Latitude/Longitude``, as read by
+    :func:`hadal.ingest.cnv.read_seabird` into ``attrs``), or ``None``."""
+    lat, lon = df.attrs.get("latitude_deg"), df.attrs.get("longitude_deg")
+    if lat is None or lon is None or not (np.isfinite(lat) and np.isfinite(lon)):
+        return None
+    return float(lat), float(lon)
+
+
+def _header_position_evidence(ev: UnderwayEvidence, df: pd.DataFrame, model: str | None, tsg: str) -> UnderwayEvidence:
+    """No per-scan position channels: a thermosalinograph model (the header's ``* Sea-Bird SBE 21 Data File:``)
+    at near-constant (or no) pressure is an underway record whose every scan is at the header position (Seasave
+    without "Append to Every Scan"); anything else is a cast."""
+    pos = header_position(df)
+    flat = ev.pressure_range_dbar is None or ev.pressure_range_dbar <= MAX_PRESSURE_RANGE_DBAR
+    if model not in TSG_MODELS or pos is None or not flat:
+        ev.reason = f"cast: no per-scan latitude/longitude channels{tsg}"
+        return ev
+    ptxt = ("no pressure channel" if ev.pressure_channel is None else
+            f"{ev.pressure_channel} spans {ev.pressure_range_dbar:.3f} dbar (1st-99th percentile)")
+    ev.underway, ev.positions = True, 1
+    ev.reason = (f"underway: {model}, a thermosalinograph model, {ptxt} (<= {MAX_PRESSURE_RANGE_DBAR:g} dbar); no "
+                 f"per-scan position channels: every scan at the header position ({pos[0]:.5f}, {pos[1]:.5f})")
+    return ev
+
+
+def record_positions(df: pd.DataFrame) -> tuple[np.ndarray, np.ndarray, str]:
+    """Per-scan positions of an underway record and where they come from: its own per-scan channels
+    (:func:`scan_positions`), else its header position for every scan (a thermosalinograph logged without
+    per-scan positions). ``KeyError`` when it has neither."""
+    cols = position_channels(df)
+    if cols is not None:
+        lat, lon = scan_positions(df)
+        return lat, lon, (f"the record's own per-scan latitude/longitude channels ({cols[0]}/{cols[1]}), matched "
+                          "to the samples by time")
+    pos = header_position(df)
+    if pos is None:
+        raise KeyError("no per-scan latitude/longitude channels and no header position")
+    n = len(df)
+    return (np.full(n, pos[0]), np.full(n, pos[1]),
+            "the record's header position (no per-scan position channels): every scan at the same place")
 
 
 def positions_at(times_ns: np.ndarray, scan_times_ns: np.ndarray, lat: np.ndarray, lon: np.ndarray

@@ -19,6 +19,7 @@ A ``crs`` / ``z_positive`` given in dive.yaml wins over the file. Failures are o
 
 from __future__ import annotations
 
+import io
 import re
 from pathlib import Path
 from typing import Any
@@ -280,7 +281,7 @@ def read_pcd(path: str | Path, hints=None) -> tuple[np.ndarray, dict[str, Any]]:
         raise InputError(f"{p}: reading PCD needs pypcd4 (pip install pypcd4)") from None
     _check_pcd_size(p)
     try:
-        pc = PointCloud.from_path(p)
+        pc, version = _pcd_open(p, PointCloud)
     except InputError:
         raise
     except MemoryError:
@@ -310,7 +311,7 @@ def read_pcd(path: str | Path, hints=None) -> tuple[np.ndarray, dict[str, Any]]:
     meta.update({
         "format": "pcd", "crs_from": "dive.yaml" if crs is not None else "none (PCD has no CRS)",
         "crs_wkt": crs.to_wkt() if crs is not None else "", "xy_crs_wkt": _xy_crs_wkt(crs, meta) if crs else "",
-        "pcd_version": str(md.version), "pcd_data": str(getattr(md.data, "value", md.data)),
+        "pcd_version": version or str(md.version), "pcd_data": str(getattr(md.data, "value", md.data)),
         "fields": " ".join(fields), "viewpoint": " ".join(f"{v:g}" for v in md.viewpoint),
     })
     zpos = _hint(hints, "z_positive")
@@ -318,6 +319,28 @@ def read_pcd(path: str | Path, hints=None) -> tuple[np.ndarray, dict[str, Any]]:
     meta["z_positive_from"] = ("z_positive given in dive.yaml" if zpos else
                                "PCD: z is the third axis of the cloud's frame, elevation (positive up)")
     return pts, meta
+
+
+#: PCD header versions older than pypcd4's ``.7`` with the same layout (PCL's ``pcd_io``: v0.6 has no VIEWPOINT
+#: line, whose default is the identity; v0.5 has no VIEWPOINT and no WIDTH/HEIGHT split beyond POINTS)
+_PCD_OLD_VERSIONS = (b".6", b"0.6", b".5", b"0.5")
+
+
+def _pcd_open(p: Path, PointCloud) -> tuple[Any, str | None]:
+    """pypcd4's reader and the file's own VERSION when it was not ``.7``; a v0.5/v0.6 header (which pypcd4 refuses by its VERSION only) is read with the VERSION
+    line set to ``.7`` and the PCL default VIEWPOINT, the data block untouched."""
+    with open(p, "rb") as fh:
+        head = fh.read(4096)
+    m = re.search(rb"^VERSION\s+(\S+)[ \t]*\r?$", head, re.M)
+    if m is None or m.group(1) not in _PCD_OLD_VERSIONS:
+        return PointCloud.from_path(p), None
+    raw = p.read_bytes()
+    fixed = raw[:m.start()] + b"VERSION .7" + raw[m.end():]
+    if not re.search(rb"^VIEWPOINT", fixed[:4096], re.M):
+        d = re.search(rb"^DATA\s", fixed[:4096], re.M)
+        if d is not None:
+            fixed = fixed[:d.start()] + b"VIEWPOINT 0 0 0 1 0 0 0\n" + fixed[d.start():]
+    return PointCloud.from_fileobj(io.BytesIO(fixed)), m.group(1).decode()
 
 
 # ------------------------------------------------------------------ into the laser grid

@@ -791,6 +791,33 @@ def _decode_mrz(p: Path, KMALL, dgm: bytes, off: int):
 # ------------------------------------------------------------------ Kongsberg EM .all
 _EM_SIGNED_DEPTH_EXCEPT = (120, 300)  # Depth datagram: z is unsigned for EM 120 / EM 300, signed otherwise
 _EM_INVALID_INT = 0x7FFFFFFF
+#: EM model numbers of ``.all`` datagrams (MB-System mbsys_simrad2.h / mbsys_simrad3.h, the models its
+#: mbr_em300raw / mbr_em710raw readers accept; 3001-3008 are EM 3000D heads, 3020 is the EM 3002)
+EM_ALL_MODELS: dict[int, str] = {
+    120: "EM 120", 122: "EM 122", 124: "EM 124", 300: "EM 300", 302: "EM 302", 304: "EM 304", 710: "EM 710",
+    712: "EM 712", 850: "ME 70/EM 850", 1002: "EM 1002", 2000: "EM 2000", 2040: "EM 2040", 2045: "EM 2040C",
+    3000: "EM 3000", **{3000 + h: f"EM 3000D head {h}" for h in range(1, 9)}, 3020: "EM 3002",
+    30: "M3"}
+
+
+def em_all_byte_order(p: Path, head: bytes) -> str:
+    """Byte order (``<``/``>``) of a Kongsberg ``.all`` file from its first datagram's own fields: u32 length,
+    STX 0x02, type, u16 EM model. The model number names the order: it is a known EM model
+    (:data:`EM_ALL_MODELS`) read one way only (MB-System ``mbr_em300raw_rd_data`` decides the same way). A
+    model known in neither order is a one-line InputError naming the number; should a number be known both ways,
+    the length that fits decides."""
+    if len(head) < 8:
+        raise InputError(f"{p}: truncated .all file ({len(head)} bytes)")
+    if head[4] != 0x02:
+        raise InputError(f"{p}: not a Kongsberg .all file (no STX 0x02 after the first datagram length)")
+    m_le, m_be = struct.unpack("<H", head[6:8])[0], struct.unpack(">H", head[6:8])[0]
+    le_ok, be_ok = m_le in EM_ALL_MODELS, m_be in EM_ALL_MODELS
+    if le_ok != be_ok:
+        return "<" if le_ok else ">"
+    if le_ok:  # a number valid both ways (none of today's models): the length within bounds decides
+        return "<" if 16 <= struct.unpack("<I", head[:4])[0] <= (1 << 24) else ">"
+    raise InputError(f"{p}: Kongsberg .all datagram of an unknown EM model number {m_le} (little-endian; "
+                     f"{m_be} big-endian): not one of {', '.join(str(m) for m in sorted(EM_ALL_MODELS))}")
 
 
 def _em_time(date: int, ms: int) -> float:
@@ -813,7 +840,8 @@ def _iter_em_all(p: Path, comp: str | None, chunk_points: int, info: dict) -> It
 
     * every datagram: u32 byte count (excluding itself), STX 0x02, u8 type, u16 EM model, u32 date yyyymmdd,
       u32 ms since midnight, u16 counter, u16 serial, ..., ETX 0x03, u16 checksum = sum of the bytes between
-      STX and ETX. The byte order (little- or big-endian) is detected from the first datagram's length and ETX;
+      STX and ETX. The byte order (little- or big-endian) is the one in which the first datagram's model number
+      is a known EM model (:func:`em_all_byte_order`; an unknown model is refused naming its number);
       checksums of the datagrams read are verified (a mismatch is a corrupt file);
     * Position ``P``: i32 latitude (deg * 2e7), i32 longitude (deg * 1e7), u16 fix quality (cm), u16 speed over
       ground (cm/s), u16 course, u16 heading (0.01 deg), u8 system, u8 n, n bytes input sentence;
@@ -840,22 +868,16 @@ def _iter_em_all(p: Path, comp: str | None, chunk_points: int, info: dict) -> It
     types: Counter = Counter()
     fixes: list[tuple[float, float, float, float]] = []  # time, lat, lon, speed m/s
     pings: list[tuple] = []
-    order = None
     model = None
     psv: int | None = None  # processor software version (MB-System's i1*10000 + i2*100 + i3), from PSV=
     broken = 0
 
-    def order_of(lead: bytes) -> str:  # fixed by the first datagram's length
-        nonlocal order
-        if order is None:
-            le, be = struct.unpack("<I", lead)[0], struct.unpack(">I", lead)[0]
-            order = "<" if 16 <= le <= (1 << 24) else (">" if 16 <= be <= (1 << 24) else None)
-            if order is None:
-                raise InputError(f"{p}: not a Kongsberg .all file (first datagram length {le})")
-        return order
-
-    with _reading(p, comp) as fh:
-        for k, off, _lead, body in _datagrams(p, fh, ".all", order_of, (16, 1 << 24), length_counts_itself=False):
+    with _reading(p, comp) as raw:
+        head = _read_exact(raw, 8)
+        order = em_all_byte_order(p, head) if head else "<"
+        fh = io.BufferedReader(_Reader(head, raw))
+        for k, off, _lead, body in _datagrams(p, fh, ".all", lambda _lead: order, (16, 1 << 24),
+                                              length_counts_itself=False):
             if body[0] != 0x02:
                 raise InputError(f"{p}: corrupt .all file (no STX at byte {off + 4}, datagram {k})")
             typ = body[1]
@@ -869,6 +891,8 @@ def _iter_em_all(p: Path, comp: str | None, chunk_points: int, info: dict) -> It
                 if cs != (sum(body[1:-3]) & 0xFFFF):
                     raise InputError(f"{p}: corrupt .all file (checksum mismatch in {chr(typ)} datagram at byte {off})")
                 model, date, ms = struct.unpack_from(order + "HII", body, 2)
+                if model not in EM_ALL_MODELS:
+                    raise InputError(f"{p}: {chr(typ)} datagram at byte {off} of an unknown EM model number {model}")
                 t = _em_time(date, ms)
                 try:
                     if typ == 0x50:

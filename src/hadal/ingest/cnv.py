@@ -861,8 +861,14 @@ def read_cnv(path: str | Path) -> pd.DataFrame:
 #: SeaSoft short names of the primary CTD channels, in order of preference -> unit for hadal.ingest.units
 CNV_PRESSURE = (("prDM", "dbar"), ("prdM", "dbar"), ("prSM", "dbar"), ("prM", "dbar"), ("pr", "dbar"))
 CNV_TEMPERATURE = (("t090C", "degC_its90"), ("tv290C", "degC_its90"), ("t090", "degC_its90"),
-                   ("t068C", "degC_its68"), ("tv268C", "degC_its68"), ("t068", "degC_its68"))
-CNV_CONDUCTIVITY = (("c0S/m", "S/m"), ("c0mS/cm", "mS/cm"), ("c0uS/cm", "uS/cm"))
+                   ("t068C", "degC_its68"), ("tv268C", "degC_its68"), ("t068", "degC_its68"),
+                   # the secondary sensor pair of a dual CTD (SeaSoft "Temperature, 2"), when the file has no primary
+                   ("t190C", "degC_its90"), ("t190", "degC_its90"), ("t168C", "degC_its68"), ("t168", "degC_its68"))
+CNV_CONDUCTIVITY = (("c0S/m", "S/m"), ("c0mS/cm", "mS/cm"), ("c0uS/cm", "uS/cm"),
+                    ("c1S/m", "S/m"), ("c1mS/cm", "mS/cm"), ("c1uS/cm", "uS/cm"))
+#: SeaSoft depth channels (salt water, Fofonoff-Millard / UNESCO 44): the pressure of a cast exported with depth
+#: and no pressure channel is recovered from it (:func:`pressure_from_depsm`)
+CNV_DEPTH = ("depSM", "depS")
 #: SeaSoft's practical salinity channels (PSS-78), primary first: used only when the cast has no conductivity
 #: channel (seabirdscientific's sbs_variables.json: ``sal00`` = ``psal0``/``practicalSalinity``, ``sal11`` =
 #: ``psal1``)
@@ -997,6 +1003,8 @@ def cnv_sensor_samples(df: pd.DataFrame, name: str = "ctd", *, allow_no_time: bo
         col = next(((c, u) for c, u in table if c in df.columns), None)
         if col is None and var == "conductivity_s_m" and _vendor_salinity(df, values, used, stats):
             continue
+        if col is None and var == "pressure_ctd_dbar" and _pressure_from_depth(df, values, used, stats):
+            continue
         if col is None:
             raise InputError(f"{path}: no {var.split('_')[0]} channel (looked for {', '.join(c for c, _ in table)}"
                              f"{'' if var != 'conductivity_s_m' else '; nor a SeaSoft salinity channel: ' + ', '.join(CNV_SALINITY)})")
@@ -1027,6 +1035,42 @@ def cnv_sensor_samples(df: pd.DataFrame, name: str = "ctd", *, allow_no_time: bo
         stats["seasoft_flagged_scans"] = int(bad.sum())
         stats["seasoft_flag_channel"] = str(next(c for c in df.columns if str(c).strip().lower() == "flag"))
     return SensorSamples(name, t, values, f"cnv:{Path(path).name}", stats, conversions)
+
+
+def pressure_from_depsm(depth_m: np.ndarray, latitude_deg: float, iterations: int = 6) -> np.ndarray:
+    """Sea pressure (dbar) whose Fofonoff-Millard depth (:func:`hadal.seawater.depth_fofonoff_millard`, SeaSoft's
+    ``depSM``, UNESCO 44) is ``depth_m`` at ``latitude_deg``: the formula inverted by Newton's method (derivative
+    by a 0.01 dbar difference); < 1e-6 dbar after 6 steps from ``p = 1.01 d``."""
+    from hadal.seawater import depth_fofonoff_millard
+
+    d = np.asarray(depth_m, np.float64)
+    p = 1.01 * d
+    for _ in range(iterations):
+        f = depth_fofonoff_millard(p, latitude_deg) - d
+        df_dp = (depth_fofonoff_millard(p + 0.01, latitude_deg) - depth_fofonoff_millard(p, latitude_deg)) / 0.01
+        p = p - f / df_dp
+    return p
+
+
+def _pressure_from_depth(df: pd.DataFrame, values: dict[str, np.ndarray], used: dict[str, str],
+                         stats: dict[str, Any]) -> bool:
+    """A cast exported with a depth channel (:data:`CNV_DEPTH`) but no pressure channel: the pressure whose
+    SeaSoft depth it is (:func:`pressure_from_depsm`) at the latitude SeaSoft used (the channel's ``lat =`` note,
+    else the header position; without either 45°, said in the warning). ``False`` without a depth channel."""
+    col = next((c for c in CNV_DEPTH if c in df.columns), None)
+    if col is None:
+        return False
+    lat = (df.attrs.get("channel_latitude_deg") or {}).get(col, df.attrs.get("latitude_deg"))
+    where = "its header" if lat is not None else "none in the file: 45°"
+    lat = 45.0 if lat is None else float(lat)
+    values["pressure_ctd_dbar"] = pressure_from_depsm(df[col].to_numpy(dtype=np.float64), lat)
+    used["pressure_ctd_dbar"] = col
+    stats["pressure_method"] = (f"from SeaSoft {col} (Fofonoff-Millard depth, UNESCO 44) inverted at latitude "
+                                f"{lat:g} ({where}); the file has no pressure channel")
+    path = Path(str(df.attrs.get("source", "cnv")))
+    warnings.warn(f"{path.name}: no pressure channel: pressure {stats['pressure_method'].split('; ')[0]}",
+                  stacklevel=3)
+    return True
 
 
 def _vendor_salinity(df: pd.DataFrame, values: dict[str, np.ndarray], used: dict[str, str],

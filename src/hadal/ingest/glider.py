@@ -218,7 +218,29 @@ def _seaexplorer_fields(columns: list[str]) -> tuple[dict[str, str] | None, list
         if lat in cols and lon in cols:
             out += _positions(lat, lon, score, f"SeaExplorer {why}")
             break
+    for dcol, lat in (("Depth", "Lat"), ("NAV_DEPTH", "NAV_LATITUDE")):
+        if dcol in cols and lat in cols and not _has_pressure(out):
+            out.append(_depth_pressure_field(dcol, lat, f"SeaExplorer navigation depth {dcol!r} (m)"))
+            skipped = [(c, r) for c, r in skipped if c != dcol]
+            break
     return time, out, skipped
+
+
+#: the transform that turns a glider's on-board depth into pressure (used only when its logs have no pressure)
+DEPTH_PRESSURE_TRANSFORM = "depth_ddmm_lat_to_pressure_dbar"
+
+
+def _has_pressure(out: list[GliderField]) -> bool:
+    return any(f.variable in ("pressure_ctd_dbar", "pressure_gauge_dbar") for f in out)
+
+
+def _depth_pressure_field(depth_col: str, lat_col: str, what: str) -> GliderField:
+    """Gauge pressure from a glider's on-board depth (computed from its own pressure sensor) by TEOS-10
+    ``gsw.p_from_z`` at its NMEA latitude: offered for a log without any pressure channel; ``hadal init`` keeps it
+    only when none of the dive's logs has one (:func:`hadal.ingest.suggest`)."""
+    return GliderField("pressure_gauge_dbar", [depth_col, lat_col], "dbar", 1,
+                       f"{what}; no pressure channel in this log -> pressure by TEOS-10 gsw.p_from_z at the latitude "
+                       f"{lat_col!r}", transform=DEPTH_PRESSURE_TRANSFORM, group="gauge")
 
 
 def _slocum_fields(columns: list[str], units: dict[str, str]) -> tuple[dict[str, str] | None, list[GliderField],
@@ -251,8 +273,24 @@ def _slocum_fields(columns: list[str], units: dict[str, str]) -> tuple[dict[str,
             out += _positions(lat, lon, score, f"Slocum {why}", "navigation")
             break
     if "m_depth" in cols:
-        skipped.append(("m_depth", "depth is not read: hadal derives depth from pressure (TEOS-10)"))
+        depth_field = _slocum_depth_as_pressure(cols, units, out)
+        if depth_field is None:
+            skipped.append(("m_depth", "depth is not read: hadal derives depth from pressure (TEOS-10)"))
+        else:
+            out.append(depth_field)
     return time, out, skipped
+
+
+def _slocum_depth_as_pressure(cols: set[str], units: dict[str, str], out: list[GliderField]) -> GliderField | None:
+    """A flight-computer log without any pressure channel (no ``sci_water_pressure``, ``m_pressure``,
+    ``m_water_pressure``) but with ``m_depth`` in metres (computed on board from the glider's pressure sensor):
+    the gauge pressure from it by TEOS-10 ``gsw.p_from_z`` at the log's NMEA latitude; ``None`` otherwise."""
+    if _has_pressure(out):
+        return None
+    lat = next((la for la, _lo, _s, _w in _SLOCUM_POS if la in cols and units.get(la, "lat") == "lat"), None)
+    if lat is None or units.get("m_depth", "m").strip().lower() != "m":
+        return None
+    return _depth_pressure_field("m_depth", lat, "Slocum glider depth 'm_depth' (units line 'm')")
 
 
 def _positions(lat: str, lon: str, score: int, why: str, group: str | None = None) -> list[GliderField]:

@@ -653,7 +653,7 @@ def _glider_cands(src: _Src, kind: str, fields: list[Any], origin: tuple[float, 
         fm = _fm(f.field, f.units, f.transform)
         if f.fill_values:
             fm["fill_values"] = [float(v) for v in f.fill_values]
-        if f.transform and origin is not None:
+        if f.transform and f.transform.startswith("latlon_") and origin is not None:
             fm["origin"] = [float(origin[0]), float(origin[1])]
         src.cands.append(_Cand("csv", src.source, src.file, f.variable, fm, f.score,
                                f"{what} {f.field if isinstance(f.field, str) else '/'.join(f.field)!r}: "
@@ -670,7 +670,7 @@ def _glider_cands(src: _Src, kind: str, fields: list[Any], origin: tuple[float, 
 def _resolve(srcs: list[_Src], unmapped: list[dict[str, Any]]) -> dict[str, dict[str, _Cand]]:
     """Best candidate per variable -> {source: {variable: cand}}; the losers go to ``unmapped``."""
     best: dict[str, _Cand] = {}
-    allc = [c for s in srcs for c in s.cands]
+    allc = _without_depth_pressure([c for s in srcs for c in s.cands], unmapped)
     for c in allc:
         b = best.get(c.variable)
         if b is None or (c.score, c.count) > (b.score, b.count):
@@ -685,6 +685,22 @@ def _resolve(srcs: list[_Src], unmapped: list[dict[str, Any]]) -> dict[str, dict
         if var in best:
             out.setdefault(best[var].source, {})[var] = best[var]
     return out
+
+
+def _without_depth_pressure(allc: list[_Cand], unmapped: list[dict[str, Any]]) -> list[_Cand]:
+    """A glider's on-board depth offered as pressure (:data:`hadal.ingest.glider.DEPTH_PRESSURE_TRANSFORM`) is kept
+    only when no log of the dive has a pressure channel (hadal derives depth from pressure); else it is unmapped."""
+    from hadal.ingest.glider import DEPTH_PRESSURE_TRANSFORM
+
+    depth = [c for c in allc if c.fm.get("transform") == DEPTH_PRESSURE_TRANSFORM]
+    if not depth or not any(c.variable in ("pressure_ctd_dbar", "pressure_gauge_dbar") and c not in depth
+                            for c in allc):
+        return allc
+    for c in depth:
+        unmapped.append({"source": _key_of(c), "file": c.file, "field": c.fm["field"][0],
+                         "reason": "depth is not read: hadal derives depth from pressure (TEOS-10), which another "
+                                   "log of the dive has"})
+    return [c for c in allc if c not in depth]
 
 
 def _key_of(c: _Cand) -> str:

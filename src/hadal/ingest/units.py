@@ -261,6 +261,21 @@ def _latlon(which: int, nmea: bool = False):
     return f
 
 
+def _depth_to_pressure(inputs, **_):
+    """TEOS-10 sea pressure (dbar) of a depth (m, positive down) at a latitude logged as NMEA [-]DDMM.mmm:
+    ``gsw.p_from_z(-depth, lat)`` (IOC et al. 2010, TEOS-10 manual; hydrostatic, standard ocean). A row without
+    a latitude uses the median of the log's valid latitudes (p depends on latitude by < 0.6 %)."""
+    import gsw
+
+    from hadal.ingest.glider import nmea_to_deg
+
+    depth, lat = (np.asarray(v, dtype=np.float64) for v in inputs)
+    lat = nmea_to_deg(lat)
+    lat = np.where(np.isfinite(lat) & (np.abs(lat) <= 90), lat, np.nan)
+    fill = float(np.nanmedian(lat)) if np.isfinite(lat).any() else 45.0
+    return np.asarray(gsw.p_from_z(-depth, np.where(np.isfinite(lat), lat, fill)), dtype=np.float64)
+
+
 def _norm(inputs, **_):
     arr = [np.asarray(v, dtype=np.float64) for v in inputs]
     return np.sqrt(sum(a * a for a in arr))
@@ -296,6 +311,10 @@ TRANSFORMS: dict[str, tuple[Transform, Any]] = {
         (Transform("latlon_ddmm_to_north_m", 2, "m", "length",
                    "latlon_to_north_m of [latitude, longitude] logged as NMEA [-]DDMM.mmm (glider logs; "
                    "origin in decimal degrees)"), _latlon(1, nmea=True)),
+        (Transform("depth_ddmm_lat_to_pressure_dbar", 2, "dbar", "pressure",
+                   "TEOS-10 sea pressure gsw.p_from_z(-depth, lat) of [depth (m, positive down), latitude logged as "
+                   "NMEA [-]DDMM.mmm] (a glider's on-board depth when its log has no pressure channel)"),
+         _depth_to_pressure),
         (Transform("vector_norm", None, None, "any",
                    "Euclidean norm of the input components (e.g. speed from twist.linear.x and .y), "
                    "in the mapping's `units`"), _norm),

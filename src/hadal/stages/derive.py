@@ -1321,7 +1321,7 @@ def underway_table(table: pd.DataFrame, raw_path: Path, p: Params) -> tuple[pd.D
     from hadal.ctd.underway import (
         distance_m,
         positions_at,
-        scan_positions,
+        record_positions,
         underway_columns,
         underway_evidence,
     )
@@ -1332,11 +1332,12 @@ def underway_table(table: pd.DataFrame, raw_path: Path, p: Params) -> tuple[pd.D
         raw = read_seabird(raw_path)
     ev = underway_evidence(raw)
     try:
-        lat, lon = scan_positions(raw)
+        lat, lon, where = record_positions(raw)
         scan_t, how = cnv_time_ns(raw)
     except KeyError:
         raise InputError(f"{raw_path}: dive.yaml says 'kind: underway' but the record has no per-scan "
-                         "latitude/longitude channels: a trajectory needs them (set kind: cast)") from None
+                         "latitude/longitude channels and no header position: a trajectory needs them (set kind: cast)"
+                         ) from None
     df = table.copy()
     df["time"] = pd.to_datetime(df["time"], utc=True)
     if df["time"].isna().any():
@@ -1363,8 +1364,7 @@ def underway_table(table: pd.DataFrame, raw_path: Path, p: Params) -> tuple[pd.D
                         out["lat"].to_numpy()[ok[1:]], out["lon"].to_numpy()[ok[1:]]) if ok.size > 1 else np.zeros(0))
     sp = out["practical_salinity"].to_numpy()
     meta = {"source": str(raw_path), "rule": ev.to_dict(), "time_base": how,
-            "positions": "the record's own per-scan latitude/longitude channels "
-                         f"({ev.latitude_channel}/{ev.longitude_channel}), matched to the samples by time",
+            "positions": where,
             "scans": int(len(out)), "scans_without_position": int(len(out) - ok.size),
             "pressure_missing_set_to_surface": n_surface,
             "track_length_km": round(float(steps.sum()) / 1000, 3),

@@ -39,6 +39,19 @@ class Params(BaseModel):
     )
 
 
+def skip_reason(ctx) -> str | None:
+    """Why no block of the DTM can be evaluated (sparse ship soundings: mostly empty cells), naming the
+    coverage (:func:`hadal.suitability.sparse_skip_reason`); ``None`` = run."""
+    from hadal.products.readers import open_dtm
+    from hadal.suitability import sparse_skip_reason
+
+    pv = ctx.optional_upstream("dtm")
+    if pv is None:
+        return None
+    p: Params = ctx.config.suitability
+    return sparse_skip_reason(open_dtm(pv), p.n_blocks_y, p.n_blocks_x, p.min_valid_fraction)
+
+
 def region_centre(dive, dtm: xr.Dataset, frame) -> tuple[float, float, str]:
     """Centre (lat, lon) of the proposed matching region: the launch point (TERCOM paper §4.1.2), else the
     map-frame origin; when that lies outside the DTM (a cast taken far from the prior map), the DTM's centre,
@@ -75,17 +88,19 @@ def build_suitability(dtm: xr.Dataset, frame, launch_lat_deg: float, launch_lon_
     import numpy as np
 
     from hadal.matching.mapgrid import MapGrid
-    from hadal.suitability import propose_region, suitability_map
+    from hadal.suitability import block_counts, coverage_text, propose_region_near, suitability_map
 
     g = MapGrid.from_any(dtm, name="dtm.nc")
     ny, nx = g.shape
-    nby, nbx = min(p.n_blocks_y, ny // 2), min(p.n_blocks_x, nx // 2)
+    nby, nbx = block_counts(ny, nx, p.n_blocks_y, p.n_blocks_x)
     suit = suitability_map(g, nby, nbx, min_valid_fraction=p.min_valid_fraction)
     lx, ly = (float(v) for v in frame.to_xy(launch_lon_deg, launch_lat_deg))
     # a map coarser than the paper's 5.8 x 3.7 km window (a km-scale prior grid) gets a window of at least
     # two blocks each way, so a region exists on any map that has blocks at all (recorded below)
     sx, sy = _min_window(suit, "x", p.region_size_x_m), _min_window(suit, "y", p.region_size_y_m)
-    region = propose_region(suit, lx, ly, sx, sy, p.region_search_radius_m)
+    region, far_note = propose_region_near(suit, lx, ly, sx, sy, p.region_search_radius_m)
+    if far_note:  # sparse ship-track DTM: the launch point lies between tracks
+        suit.attrs["region_coverage_note"] = f"{far_note} ({coverage_text(suit, g.depth_m, p.min_valid_fraction)})"
     xx, yy = np.meshgrid(suit["x"].values, suit["y"].values)
     lon, lat = frame.to_lonlat(xx, yy)
     suit["lat"] = (("y", "x"), np.asarray(lat), {"standard_name": "latitude", "units": "degrees_north"})
@@ -130,6 +145,8 @@ def run(ctx: StageContext) -> dict[str, ProductVersion]:
     suit = build_suitability(dtm, frame, lat, lon, p)
     if note:
         suit.attrs["region_centre_note"] = note
+    if "region_coverage_note" in suit.attrs:
+        ctx.log.warning("suitability: %s", suit.attrs["region_coverage_note"])
     ctx.log.info("suitability: %d x %d blocks, region %s", suit.sizes["y"], suit.sizes["x"], suit.attrs["proposed_region"])
     with ctx.store.publish(ctx.dive_id, "suitability", parameters=ctx.params("suitability"), upstream=[dtm_pv]) as draft:
         write_netcdf(
