@@ -110,7 +110,8 @@ class SourceFile(BaseModel):
     path: str = Field(min_length=1, description="path relative to the dive directory")
     format: str | None = Field(None, description="file format, overriding detection (a hadal.formats kind, e.g. "
                                                  "'xyz', 'gsf', 'kmall', 'em_all', 'geotiff', 'netcdf_grid', 'ply')")
-    z_positive: Literal["down", "up"] | None = Field(
+    # the same order as products.registry: typing caches Literal by its set of values, so the first order made wins
+    z_positive: Literal["up", "down"] | None = Field(
         None, description="vertical values are depths (down) or elevations (up); default: detected")
     z_units: str | None = Field(None, max_length=40,
                                 description="units of a grid's values when the file does not say (m, km, ft, "
