@@ -56,7 +56,7 @@ def test_packaged_vehicle_config():
     assert v.time_base == "ctd" and v.sensors["ctd"].required
     assert v.sensors["ctd"].mcap.topic == "/haidou/ctd"
     assert v.sensors["gauge"].csv.fields["pressure_gauge_dbar"].units == "bar"
-    assert len(v.variables()) == 11
+    assert len(v.variables()) == 15  # 11 + the GNSS fix and its variances
 
 
 @pytest.mark.parametrize(

@@ -286,7 +286,7 @@ def _profile_time_missing(res: dict) -> bool:
     import xarray as xr
 
     with xr.open_dataset(res["profile"].file("profile.nc"), engine="h5netcdf") as ds:
-        return bool(ds["time"].isnull().all()) and ds.sizes["cast"] == 2
+        return bool(ds["time"].isnull().all()) and ds.sizes["profile"] == 2
 
 
 def _half(b: bytes) -> bytes:

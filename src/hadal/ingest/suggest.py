@@ -91,8 +91,8 @@ _KIND_WORD = {"cond": "conductivity", "alt": "altitude (range to the bottom)", "
               "heading": "heading", "pitch": "pitch", "roll": "roll", "speed": "speed"}
 _TIME_TOKENS = {"stamp", "time", "sec", "secs", "nanosec", "nsecs", "timestamp", "utc", "epoch", "seq", "t"}
 _VALID_NAMES = {"valid", "is_valid", "ok", "good", "valid_flag", "isvalid"}
-_ROLE_ORDER = ("ctd", "gauge", "altimeter", "attitude", "position", "navigation", "thermometer", "conductivity",
-               "sensor")
+_ROLE_ORDER = ("ctd", "gauge", "altimeter", "attitude", "position", "navigation", "gnss", "usbl", "thermometer",
+               "conductivity", "sensor")
 
 
 # ------------------------------------------------------------------------------------------------ result types
@@ -400,9 +400,15 @@ def _by_names(src: _Src, leaves: Mapping[str, Any], docs: Mapping[str, str], wha
     """Candidates from field/column names; ``leaves``: name -> first value (None when unknown)."""
     found: dict[str, list[tuple[str, str | None]]] = {}
     unmapped: list[tuple[str, str]] = []
+    gnss = _is_gnss(src.source, leaves)
+    variances: dict[str, str] = {}
     for name, value in leaves.items():
         if isinstance(value, (bool, str, list, tuple, dict)):
             continue  # text, arrays and flags are not measurements (valid flags: see _valid_field)
+        axis = _variance_axis(name) if gnss else None
+        if axis is not None:
+            variances.setdefault(axis, name)
+            continue
         kind, unit = _kind_of(name)
         if kind is None:
             base = _split_unit(name)[0]
@@ -455,7 +461,19 @@ def _by_names(src: _Src, leaves: Mapping[str, Any], docs: Mapping[str, str], wha
             continue
         else:
             add(_KIND_VAR[kind], name, unit, 3 if is_ctd and kind == "cond" else 2, _KIND_WORD.get(kind, kind))
-    if "lat" in first and "lon" in first:
+    if "lat" in first and "lon" in first and gnss:
+        # a channel named as GNSS (topic/file/field says gnss, gps, fix): fixes for the navigation smoother, with
+        # their logged variances when the channel has them
+        lat, lon = first["lat"][0], first["lon"][0]
+        for var, name in (("gnss_latitude_deg", lat), ("gnss_longitude_deg", lon)):
+            cands.append(_Cand(src.kind, src.source, src.file, var, _fm(name, "deg"), 2,
+                               f"{what} {name!r}: GNSS fix (the channel is named as GNSS), degrees", False,
+                               src.count))
+        for axis, name in variances.items():
+            var = f"gnss_{axis}_variance_m2"
+            cands.append(_Cand(src.kind, src.source, src.file, var, _fm(name, "m2"), 2,
+                               f"{what} {name!r}: {axis} variance of the GNSS fix (m^2)", False, src.count))
+    elif "lat" in first and "lon" in first:
         lat, lon = first["lat"][0], first["lon"][0]
         for var, tr in (("dr_east_m", "latlon_to_east_m"), ("dr_north_m", "latlon_to_north_m")):
             cands.append(_Cand(src.kind, src.source, src.file, var, _fm([lat, lon], "m", tr), 1,
@@ -464,6 +482,28 @@ def _by_names(src: _Src, leaves: Mapping[str, Any], docs: Mapping[str, str], wha
                                [f"{src.label}: positions from {lat}/{lon} are relative to the first valid fix; set "
                                 "'origin: [lat, lon]' to the launch point if needed"]))
     return cands, unmapped
+
+
+_GNSS_WORDS = {"gnss", "gps", "fix", "navsat", "navsatfix", "gpsfix"}
+
+
+def _is_gnss(source: str, leaves: Mapping[str, Any]) -> bool:
+    """Whether a channel is a GNSS receiver by its name: the topic / CSV key, or a field (``m_gps_lat``), says
+    gnss, gps or fix. Other latitude/longitude channels (a vehicle's own navigation estimate) stay dead reckoning."""
+    words = {t.lower() for t in _tokens(source)}
+    for name in leaves:
+        words |= {t.lower() for t in _tokens(name)}
+    return bool(words & _GNSS_WORDS)
+
+
+def _variance_axis(name: str) -> str | None:
+    """``east``/``north`` for a field named as that axis's position variance (``east_variance``,
+    ``north_variance_m2``, ``var_north``), else None."""
+    base = {t.lower() for t in _split_unit(name)[0]}
+    if not base & {"variance", "var"}:
+        return None
+    axes = base & {"east", "north"}
+    return axes.pop() if len(axes) == 1 else None
 
 
 def _valid_field(leaves: Mapping[str, Any]) -> str | None:
@@ -729,6 +769,10 @@ def _role(variables: set[str]) -> str:
         return "attitude"
     if pos:
         return "position"
+    if any(v.startswith("gnss_") for v in variables):
+        return "gnss"
+    if any(v.startswith("usbl_") for v in variables):
+        return "usbl"
     if "temperature_its90_degc" in variables:
         return "thermometer"
     return "sensor"

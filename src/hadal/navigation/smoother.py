@@ -286,6 +286,7 @@ def smooth_positions(t_s, dr_increment_m, referenced, fixes: list[Fix],
             score = float(np.nansum(np.where(u, d2_i, 0.0)))
             if best is None or score < best[0]:
                 best = (score, i, xs_i, Ps_i, res_i, d2_i)
+        assert best is not None  # failing is not empty
         _, i, xs, Ps, res, d2 = best
         use[i] = False
     fx = pd.DataFrame({

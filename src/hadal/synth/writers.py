@@ -81,10 +81,10 @@ def payloads(name: str, ch: dict[str, np.ndarray], t0_unix_ms: int) -> list[byte
         rows = zip(st, ch["east"].tolist(), ch["north"].tolist(), ch["speed"].tolist(), strict=True)
         return [f'{{"stamp":{s},"east":{e:.3f},"north":{n:.3f},"speed":{v:.3f}}}'.encode() for s, e, n, v in rows]
     if name == "gnss":
-        rows = zip(st, ch["latitude"].tolist(), ch["longitude"].tolist(), ch["east_variance"].tolist(),
-                   ch["north_variance"].tolist(), strict=True)
+        fixes = zip(st, ch["latitude"].tolist(), ch["longitude"].tolist(), ch["east_variance"].tolist(),
+                    ch["north_variance"].tolist(), strict=True)
         return [f'{{"stamp":{s},"latitude":{a:.8f},"longitude":{o:.8f},"east_variance":{e:.2f},"north_variance":{n:.2f}}}'
-                .encode() for s, a, o, e, n in rows]
+                .encode() for s, a, o, e, n in fixes]
     raise KeyError(name)
 
 
