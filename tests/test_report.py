@@ -278,9 +278,85 @@ def test_new_figures_are_drawn(full_store, full_report):
     assert np.allclose(res, np.asarray(meas) - np.asarray(ref))
     # T-S / θ / N²: every axis says its quantity and unit
     labels = [(a.get_xlabel(), a.get_ylabel()) for a in figs["ctd_ts_theta_n2"].figure.axes]
-    assert labels[0] == ("absolute salinity SA (g/kg)", "potential temperature θ (°C)")
-    assert labels[1] == ("potential temperature θ (°C)", "depth (m, log scale)")
+    # a consistent pair (issue 46): Conservative Temperature with Absolute Salinity, not θ with S_A
+    assert labels[0] == ("Absolute Salinity S_A (g/kg)", "Conservative Temperature Θ (°C)")
+    assert labels[1] == ("Conservative Temperature Θ (°C)", "depth (m, log scale)")
     assert labels[2][0] == "N² (s⁻²)"
+
+
+def test_ts_diagram_axes_are_gsw_values_of_the_profile():
+    """The T-S panel draws (S_A, Θ) of each cast computed here with gsw from the profile's own in-situ temperature,
+    practical salinity and pressure (the oracle), its axes span exactly those values (plus a 5 % margin), and its
+    isopycnals are gsw.sigma0(S_A, Θ) at the points they pass through."""
+    import gsw
+    import xarray as xr
+
+    from hadal.report.ctd_figures import fig_water_column
+    from hadal.report.load import DiveProducts
+
+    p = np.arange(5.0, 10_900.0, 50.0)
+    t = np.stack([1.5 + 26.0 * np.exp(-p / 400.0), 1.6 + 25.0 * np.exp(-p / 420.0)])
+    sp = np.stack([34.6 + 0.4 * np.exp(-((p - 150) / 120) ** 2), 34.62 + 0.3 * np.exp(-((p - 170) / 100) ** 2)])
+    lat, lon = 11.34, 142.21
+    prof = xr.Dataset({"temperature_its90_degc": (("cast", "pressure_dbar"), t),
+                       "practical_salinity": (("cast", "pressure_dbar"), sp)},
+                      coords={"cast": ("cast", [0, 1], {"flag_meanings": "descent ascent"}), "pressure_dbar": p,
+                              "lat": lat, "lon": lon})
+    fr = fig_water_column(DiveProducts(dive="x", profile=prof), FAST)
+    ax = fr.figure.axes[0]
+    sa_all, ct_all = [], []
+    for i, cast in enumerate(("descent", "ascent")):
+        sa = gsw.SA_from_SP(sp[i], p, lon, lat)
+        ct = gsw.CT_from_t(sa, t[i], p)
+        ln = _line(ax, cast)
+        assert np.allclose(ln.get_xdata(), sa, atol=1e-9) and np.allclose(ln.get_ydata(), ct, atol=1e-9), cast
+        sa_all.append(sa)
+        ct_all.append(ct)
+    sa, ct = np.concatenate(sa_all), np.concatenate(ct_all)
+    ps, pt = 0.05 * max(np.ptp(sa), 0.01), 0.05 * max(np.ptp(ct), 0.1)
+    assert ax.get_xlim() == pytest.approx((sa.min() - ps, sa.max() + ps), abs=1e-9)
+    assert ax.get_ylim() == pytest.approx((ct.min() - pt, ct.max() + pt), abs=1e-9)
+    cs = next(c for c in ax.collections if hasattr(c, "levels") and len(getattr(c, "levels", [])) > 1)
+    for level, path in zip(cs.levels, cs.get_paths(), strict=False):
+        if len(path.vertices):
+            x, y = path.vertices[len(path.vertices) // 2]
+            assert gsw.sigma0(x, y) == pytest.approx(level, abs=2e-3)
+
+
+def test_coordinate_decimals_hand_computed():
+    """Decimals of a lat/lon at the precision of the thing located: a 0.32 m landing site needs 6 decimals of a
+    degree (111 694 m / 0.32 m = 349 044 -> 10^5.54 -> 6; the last digit 0.11 m) and 4 of a minute (1 861.6 m /
+    0.32 m = 5 817 -> 10^3.76 -> 4; 0.19 m); a 10 m ship position 5 and 3; a 2 km search area 2 and 0."""
+    from hadal.report.units import coordinate_decimals
+
+    assert coordinate_decimals(0.32) == 6 and coordinate_decimals(0.32, "min") == 4
+    assert coordinate_decimals(10.0) == 5 and coordinate_decimals(10.0, "min") == 3
+    assert coordinate_decimals(2000.0) == 2 and coordinate_decimals(2000.0, "min") == 0
+    assert coordinate_decimals(0.0) == 9 and coordinate_decimals(float("nan")) == 9
+    for size in (0.05, 0.32, 3.0, 40.0, 700.0):  # the last digit is never coarser than the size, and not 10x finer
+        d = coordinate_decimals(size)
+        assert 111_694.0 * 10.0 ** -d <= size < 111_694.0 * 10.0 ** -(d - 1)
+
+
+def test_landing_table_labels_and_site_precision():
+    """The best-sites table: people's column labels with units (no snake_case key), each site's lat/lon with the
+    decimals of its inscribed circle (0.32 m: 6 decimals) and a degrees-minutes position to 4 decimals of a minute
+    that parses back to within the site's radius."""
+    from hadal.geo import parse_degmin
+    from hadal.report.html import _records_table, landing_site_records
+
+    site = {"submap": "submap_01", "heading_deg": 30.0, "x_m": 12.5, "y_m": 0.4, "lat": 11.3371234567,
+            "lon": 142.2097123456, "radius_m": 0.32, "slope_deg": 4.2, "roughness_m": 0.012, "c_s": 0.2}
+    rec = landing_site_records([site])[0]
+    assert rec["lat"] == "11.337123" and rec["lon"] == "142.209712"
+    lon_txt, lat_txt = rec["position"].split(", ")
+    assert lat_txt == "11°20.2274'N"  # 0.3371234567 * 60 = 20.227407'
+    assert abs(parse_degmin(lat_txt) - site["lat"]) * 111_694 < 0.32
+    assert abs(parse_degmin(lon_txt) - site["lon"]) * 111_694 < 0.32
+    html = _records_table([rec])
+    heads = re.findall(r"<th>(.*?)</th>", html)
+    assert not [h for h in heads if "_" in h.replace("C_s", "")], heads
+    assert "slope (°)" in heads and "largest inscribed circle radius (m)" in heads
 
 
 @pytest.mark.parametrize("opt", [FAST, FigureOptions(dpi=110, width_in=10, keep_figure=True)], ids=["fast", "default"])

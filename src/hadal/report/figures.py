@@ -68,6 +68,10 @@ class FigureOptions:
     width_in: float = 10.0
     max_points: int = 20000
     keep_figure: bool = False  # keep the Figure on the result (FigureResult.figure); off: freed after rendering
+    #: smallest text (points) on a figure: every smaller label, tick label and legend entry is raised to it. At the
+    #: default dpi and width the PNG is shown at ~97 % of its size in the page (1100 px wide at most), so 9 pt stays
+    #: >= 9 pt (12 CSS px) on screen (checked in headless Chromium, tests/test_report.py)
+    min_font_pt: float = 9.0
     #: processes drawing the figures (:class:`hadal.forkpool.ForkPool`; 1 with ``keep_figure``: a Figure stays here)
     workers: int = 1
 
@@ -81,7 +85,11 @@ def _png(fig: Figure, dpi: int, tight: bool = True) -> bytes:
 
 
 def _render(r: FigureResult, fig: Figure, opt: FigureOptions, tight: bool = True) -> FigureResult:
-    """``r`` with the PNG of ``fig`` (and ``fig`` itself when ``opt.keep_figure``); ``tight``: see :func:`_png`."""
+    """``r`` with the PNG of ``fig`` (and ``fig`` itself when ``opt.keep_figure``); ``tight``: see :func:`_png`.
+    Text smaller than ``opt.min_font_pt`` is raised to it first (:func:`hadal.figtext.min_fonts`)."""
+    from hadal.figtext import min_fonts
+
+    min_fonts(fig, opt.min_font_pt)
     r.png = _png(fig, opt.dpi, tight)
     if opt.keep_figure:
         r.figure = fig
@@ -743,7 +751,13 @@ def all_figures(dp: DiveProducts | None = None) -> tuple[Callable[[DiveProducts,
     after the CTD profiles (then, when ``dp`` has underway records or is not given, their track/section figure)
     and the residual panel in place of the plain matched-depth figure."""
     from hadal.report.ctd_figures import fig_underway, fig_water_column
-    from hadal.report.geo_figures import fig_overview, fig_residuals
+    from hadal.report.geo_figures import (
+        fig_dtm_geo,
+        fig_dtm_quality,
+        fig_nav_uncertainty,
+        fig_overview,
+        fig_residuals,
+    )
 
     out: list[Callable[[DiveProducts, FigureOptions], FigureResult]] = [fig_overview]
     # a dive whose only CTD record is underway has a trajectory instead of ctd/profile: no cast figures for it
@@ -754,7 +768,12 @@ def all_figures(dp: DiveProducts | None = None) -> tuple[Callable[[DiveProducts,
             if fn is fig_ctd_profiles:
                 out.append(fig_underway)
             continue
+        if fn is fig_dtm:  # the DTM on a geographic map, with its coverage, density and uncertainty
+            out += [fig_dtm_geo, fig_dtm_quality]
+            continue
         out.append(fig_residuals if fn is fig_matched_depth else fn)
+        if fn is fig_depth_time:
+            out.append(fig_nav_uncertainty)
         if fn is fig_ctd_profiles:
             out.append(fig_water_column)
             if dp is None or dp.trajectories:
