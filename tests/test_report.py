@@ -493,6 +493,11 @@ def test_log_bin_mean_against_brute_force():
     assert np.allclose(zb, [w[0] for w in want]) and np.allclose(vb, [w[1] for w in want])
 
 
+def full_store_path(report) -> str:
+    """The store a report was built from (its upstream versions' store root)."""
+    return str(report.upstream[0].path.parent.parent.parent)
+
+
 def test_report_html_in_headless_chromium(full_report, tmp_path):
     """Every embedded figure decodes and the page logs no error, in a real browser (skipped without one)."""
     from hadal.testing import browser_check, chromium
@@ -502,6 +507,23 @@ def test_report_html_in_headless_chromium(full_report, tmp_path):
     res = browser_check(full_report.html, tmp_path)
     assert res["images"] >= sum(f.png is not None for f in full_report.figures)
     assert res["broken"] == [] and res["errors"] == [], res
+    # at the report's own resolution, in a 1280 px wide window: every figure's smallest text is at least 9 pt on
+    # screen (12 CSS px: its points x dpi / 72 x the displayed / natural width the browser laid out), no figure is a
+    # strip (the landing transect was 2475 x 440 px, shown 1068 x 190) and each is shown at least 250 px tall
+    default = build_report(ProductStore(full_store_path(full_report)), "dive-a", options=FigureOptions())
+    res = browser_check(default.html, tmp_path, width=1280)
+    assert res["broken"] == [] and res["errors"] == [], res
+    figs = res["figures"]
+    assert len(figs) == sum(f.png is not None for f in default.figures) + len(
+        load_products(ProductStore(full_store_path(full_report)), "dive-a").landing_figures)
+    for f in figs:
+        scale = f["shown_w"] / f["natural_w"]
+        assert f["min_font_pt"] * f["dpi"] / 72 * scale >= 12.0 - 0.3, f  # 0.3 px: the img's 1 px border
+        assert f["shown_w"] / f["shown_h"] <= 4.0 and f["shown_h"] >= 250, f
+    from hadal.testing import browser_screenshot
+
+    shot = browser_screenshot(default.html, tmp_path / "report.png", 1280, 2400)
+    assert shot is not None and _image(shot.read_bytes())[..., :3].std() > 0.05  # the page drew something
     # the probe sees a broken image and a console error (it can fail)
     bad = browser_check("<html><head></head><body><img alt='x' src='data:image/png;base64,AAAA'>"
                         "<script>console.error('boom')</script></body></html>", tmp_path)
@@ -556,3 +578,142 @@ def test_figures_drawn_in_two_processes_are_those_drawn_here(full_store):
     assert sum(f.png is not None for f in here) >= 9
     for a, b in zip(here, forked, strict=True):
         assert (a.png, a.skipped, a.caption) == (b.png, b.skipped, b.caption), a.key
+
+
+def test_dtm_map_is_geographic_at_the_products_lon_lat_bounds(full_store):
+    """The DTM map's axes span the product's own lon/lat (read here with xarray from dtm.nc, the oracle), with
+    equal ground distances (aspect 1/cos(latitude)) and a hillshaded image; the quality figure draws the count and
+    uncertainty layers at the same bounds, and its coverage share is the file's share of cells with count > 0."""
+    import xarray as xr
+
+    from hadal.report.geo_figures import fig_dtm_geo, fig_dtm_quality
+
+    st = ProductStore(full_store)
+    with xr.open_dataset(st.latest("dive-a", "dtm").file("dtm.nc")) as ds:
+        lon, lat = ds["lon"].values, ds["lat"].values
+        count = ds["count"].values if "count" in ds else None
+    dp = load_products(st, "dive-a")
+    fr = fig_dtm_geo(dp, FAST)
+    ax = fr.figure.axes[0]
+    assert ax.get_xlim() == pytest.approx((np.nanmin(lon), np.nanmax(lon)), abs=1e-12)
+    assert ax.get_ylim() == pytest.approx((np.nanmin(lat), np.nanmax(lat)), abs=1e-12)
+    assert ax.get_aspect() == pytest.approx(1 / math.cos(math.radians(0.5 * (np.nanmin(lat) + np.nanmax(lat)))))
+    assert "°" in ax.xaxis.get_major_formatter()(float(np.nanmean(lon)), 0)  # degrees and minutes graticule
+    assert_drawn(fr)
+    q = fig_dtm_quality(dp, FAST)
+    if count is None:
+        assert q.png is None and "count" in q.skipped
+        return
+    for a in q.figure.axes[::2][:2]:
+        if a.get_title():
+            assert a.get_xlim() == pytest.approx((np.nanmin(lon), np.nanmax(lon)), abs=1e-12)
+    assert f"{100 * float(np.mean(count > 0)):.1f} % of the" in q.caption
+
+
+def test_overview_scale_bar_is_not_under_the_inset(full_store):
+    """The overview's scale bar (its label) does not overlap the zoom inset on the fix, wherever the inset goes."""
+    from hadal.report.geo_figures import fig_overview
+
+    dp = load_products(ProductStore(full_store), "dive-a")
+    fr = fig_overview(dp, FAST)
+    fig = fr.figure
+    ax = fig.axes[0]
+    r = fig.canvas.get_renderer()
+    label = next(t for t in ax.texts if t.get_gid() == "scale_bar")
+    insets = [a for a in ax.child_axes]
+    assert insets, "no inset drawn"
+    for ins in insets:
+        assert not label.get_window_extent(r).overlaps(ins.get_window_extent(r))
+
+
+def test_surfacing_and_along_track_uncertainty_from_navigation():
+    """The surfacing position is the navigation product's last ascent sample and its 1-sigma radius; the uncertainty
+    figure draws position_uncertainty_m and, from an east/north covariance, the 1-sigma ellipse's semi-major axis
+    sqrt(largest eigenvalue) (oracle: numpy.linalg.eigvalsh on each 2x2 matrix)."""
+    from hadal.report.geo_figures import fig_nav_uncertainty, nav_uncertainty_series, surfacing_position
+    from hadal.report.load import DiveProducts
+
+    n = 300
+    t = pd.date_range("2018-10-06T23:00:00Z", periods=n, freq="60s")
+    phase = np.array(["descent"] * 100 + ["bottom"] * 100 + ["ascent"] * 100)
+    rng = np.random.default_rng(3)
+    ee, nn = rng.uniform(10, 400, n), rng.uniform(10, 400, n)
+    en = rng.uniform(-1, 1, n) * np.sqrt(ee * nn) * 0.9
+    nav = pd.DataFrame({"time": t, "lat": 11.3 + np.arange(n) * 1e-5, "lon": 142.2 + np.arange(n) * 1e-5,
+                        "position_uncertainty_m": np.linspace(10, 600, n), "phase": phase,
+                        "position_cov_ee_m2": ee, "position_cov_nn_m2": nn, "position_cov_en_m2": en})
+    nav.loc[n - 1, ["lat", "lon"]] = np.nan  # a last sample without position: the one before it surfaced
+    s = surfacing_position(nav)
+    assert (s["lat"], s["lon"], s["uncertainty_m"]) == (nav["lat"][n - 2], nav["lon"][n - 2],
+                                                        nav["position_uncertainty_m"][n - 2])
+    series = nav_uncertainty_series(nav)
+    want = np.sqrt([np.linalg.eigvalsh([[a, c], [c, b]]).max() for a, b, c in zip(ee, nn, en, strict=True)])
+    assert np.allclose(series["ellipse semi-major 1σ (covariance)"], want)
+    opt = FigureOptions(dpi=40, width_in=10, max_points=500, keep_figure=True)  # the report's width, few pixels
+    fr = fig_nav_uncertainty(DiveProducts(dive="x", navigation=nav), opt)
+    labels = [ln.get_label() for ln in fr.figure.axes[0].get_lines()]
+    assert "radial 1σ (DRMS)" in labels and "ellipse semi-major 1σ (covariance)" in labels
+    assert_drawn(fr, opt)
+    assert surfacing_position(nav.drop(columns=["lat"])) is None
+
+
+def test_progress_lines_of_a_step_and_a_tracked_loop(caplog):
+    """:func:`hadal.steps.step` through :class:`hadal.progress.LogProgress`: a start and an end line (with the
+    duration) on the hadal.progress logger; a loop's lines give its count and percentage; nothing without progress."""
+    import logging
+
+    from hadal.progress import LogProgress
+    from hadal.steps import step, tracked
+
+    prog = LogProgress(interval_s=0.0, echo=False)
+    with caplog.at_level(logging.INFO, logger="hadal.progress"):
+        with step(prog, "dtm: gridding 5 soundings"):
+            pass
+        assert list(tracked(prog, range(4), "dtm: reading", total=4)) == [0, 1, 2, 3]
+        with step(None, "silent"):
+            pass
+    msgs = [r.getMessage() for r in caplog.records if r.name == "hadal.progress"]
+    assert msgs[0] == "dtm: gridding 5 soundings: started" and msgs[1].startswith("dtm: gridding 5 soundings: done")
+    assert "dtm: reading: 2/4 (50 %)" in " ".join(msgs) and msgs[-1].startswith("dtm: reading: done, 4 step(s)")
+    assert not [m for m in msgs if "silent" in m]
+
+
+def test_long_landing_transect_is_split_into_legible_panels(tmp_path):
+    """An 83 m x 1.5 m transect (3 submaps of 25 m, the sample dive's; drawn on one axis it was a 2475 x 440 px
+    strip) becomes stacked panels at one scale, each within the panel aspect, the PNG at most ~1000 px wide (shown
+    1:1 in the page) and not a strip; every site is drawn once, in the panel holding its x, coloured by its C_s."""
+    from matplotlib.image import imread
+
+    import hadal.landing.figures as lf
+
+    rng = np.random.default_rng(2)
+    outlines = {f"submap_{i:02d}": np.column_stack([np.linspace(29 * i, 29 * i + 25, 300),
+                                                    rng.uniform(-0.75, 0.75, 300)]) for i in range(3)}
+    best = pd.DataFrame({"submap": ["submap_00", "submap_01", "submap_02"], "x_m": [5.0, 40.0, 70.0],
+                         "y_m": [0.1, -0.2, 0.3], "c_s": [0.2, 0.35, 0.5]})
+    seen = {}
+    real_save = lf._save
+
+    def keep(fig, path):
+        seen["axes"] = [a for a in fig.axes if a.get_label() != "<colorbar>"]
+        return real_save(fig, path)
+
+    lf._save = keep
+    try:
+        path = lf.figure_transect(best, outlines, tmp_path / "fig25_transect.png")
+    finally:
+        lf._save = real_save
+    h, w = imread(path).shape[:2]
+    assert w <= 1000 and w / h <= 2.5, (w, h)
+    panels = [a for a in seen["axes"] if a.get_xlabel() or a.get_ylabel() == "y (m)"]
+    assert len(panels) >= 3
+    drawn = []
+    for a in panels:
+        x0, x1 = a.get_xlim()
+        y0, y1 = a.get_ylim()
+        assert (x1 - x0) / (y1 - y0) <= lf.TRANSECT_PANEL_ASPECT + 1e-9
+        for c in a.collections:
+            for (x, _), v in zip(c.get_offsets(), c.get_array(), strict=True):
+                assert x0 <= x <= x1
+                drawn.append((float(x), float(v)))
+    assert sorted(drawn) == sorted(zip(best["x_m"], best["c_s"], strict=True))

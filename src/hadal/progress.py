@@ -44,7 +44,7 @@ class _Ticker:
 
     def tick(self, n: int) -> None:
         now = time.monotonic()
-        if now - self.last >= self.interval_s:
+        if now - self.last >= self.interval_s and not (self.total and n >= self.total):  # the end line says it
             self.last = now
             self.say(f"{self.description}: {_fmt_count(n, self.total)}, {now - self.t0:.0f} s")
 

@@ -60,6 +60,10 @@ class FigureResult:
     skipped: str | None = None
     #: the drawn matplotlib Figure, kept only with ``FigureOptions(keep_figure=True)`` (tests inspect its artists)
     figure: Figure | None = field(default=None, repr=False, compare=False)
+    #: resolution (dots per inch) of :attr:`png` and its smallest text (points): the page tells the browser test
+    #: (``data-dpi``, ``data-min-font-pt``) so it can check the text's size as displayed
+    dpi: float | None = None
+    min_font_pt: float | None = None
 
 
 @dataclass
@@ -91,6 +95,7 @@ def _render(r: FigureResult, fig: Figure, opt: FigureOptions, tight: bool = True
 
     min_fonts(fig, opt.min_font_pt)
     r.png = _png(fig, opt.dpi, tight)
+    r.dpi, r.min_font_pt = float(opt.dpi), float(opt.min_font_pt)
     if opt.keep_figure:
         r.figure = fig
     return r

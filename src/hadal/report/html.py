@@ -11,6 +11,7 @@ from pathlib import Path
 from typing import Any
 
 from hadal import __version__
+from hadal.figtext import MIN_FONT_PT  # the landing stage's figures: 110 dpi (hadal.landing.figures._save)
 from hadal.report.figures import FigureResult
 from hadal.report.load import DiveProducts
 from hadal.report.units import coordinate_decimals, human_label, units_of
@@ -114,6 +115,11 @@ def summary_rows(s: Mapping[str, Any]) -> list[tuple[str, str]]:
         rows.append((f"reference DTM ({'prior grid' if t['source'] == 'prior_grid' else 'multibeam'})",
                      f"{t['cells'][1]} x {t['cells'][0]} {res}depth {t['depth_range_m'][0]:,.1f} – "
                      f"{t['depth_range_m'][1]:,.1f} m, {100 * t['mapped_fraction']:.0f} % mapped{snd}"))
+    if s.get("surfacing"):
+        sf = s["surfacing"]
+        unc = f" ±{sf['uncertainty_m']:,.0f} m (1σ)" if sf.get("uncertainty_m") else ""
+        rows.append(("surfacing position (end of the ascent)", f"{sf['position_degmin']}{unc}"
+                     + (f" at {sf['time_utc']}" if sf.get("time_utc") else "")))
     if "matched_start" in s:
         rows.append(("matched start of the bottom track", s["matched_start"]["position_degmin"]))
     if s.get("drift_m") is not None:
@@ -255,7 +261,9 @@ def render_html(dp: DiveProducts, summary: Mapping[str, Any], figures: list[Figu
                 parts.append(f"<div class='note'><b>{_e(f.title)}</b>: figure skipped — {_e(f.skipped)}</div>")
                 continue
             b64 = base64.b64encode(f.png).decode("ascii")
-            parts.append(f"<figure id='{_e(f.key)}'><img alt='{_e(f.title)}' src='data:image/png;base64,{b64}'>"
+            size = (f" data-dpi='{f.dpi:g}' data-min-font-pt='{f.min_font_pt:g}'"
+                    if f.dpi is not None and f.min_font_pt is not None else "")
+            parts.append(f"<figure id='{_e(f.key)}'><img alt='{_e(f.title)}'{size} src='data:image/png;base64,{b64}'>"
                          f"<figcaption><b>{_e(f.title)}.</b> {_e(f.caption)}</figcaption></figure>")
         if section == "Landing sites" and any(f.png is not None for f in figs):
             parts.append("<h3>Best landing sites (lowest cost per submap)</h3>")
@@ -268,7 +276,8 @@ def render_html(dp: DiveProducts, summary: Mapping[str, Any], figures: list[Figu
         for p in dp.landing_figures:
             b64 = base64.b64encode(Path(p).read_bytes()).decode("ascii")
             cap = landing_caption(Path(p).name)
-            parts.append(f"<figure><img alt='{_e(cap)}' src='data:image/png;base64,{b64}'>"
+            parts.append(f"<figure><img alt='{_e(cap)}' data-dpi='110' data-min-font-pt='{MIN_FONT_PT:g}' "
+                         f"src='data:image/png;base64,{b64}'>"
                          f"<figcaption><b>{_e(cap)}</b> <span class='muted'>({_e(Path(p).name)}, landing product; "
                          "laser frame: local x/y of the laser survey, m)</span></figcaption></figure>")
     if summary.get("landing_table_v"):
