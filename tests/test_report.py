@@ -641,7 +641,9 @@ def test_surfacing_and_along_track_uncertainty_from_navigation():
     en = rng.uniform(-1, 1, n) * np.sqrt(ee * nn) * 0.9
     nav = pd.DataFrame({"time": t, "lat": 11.3 + np.arange(n) * 1e-5, "lon": 142.2 + np.arange(n) * 1e-5,
                         "position_uncertainty_m": np.linspace(10, 600, n), "phase": phase,
-                        "position_cov_ee_m2": ee, "position_cov_nn_m2": nn, "position_cov_en_m2": en})
+                        # the smoother's names (issue 47, hadal.navigation): east/north variances and covariance
+                        "position_covariance_east_m2": ee, "position_covariance_north_m2": nn,
+                        "position_covariance_east_north_m2": en})
     nav.loc[n - 1, ["lat", "lon"]] = np.nan  # a last sample without position: the one before it surfaced
     s = surfacing_position(nav)
     assert (s["lat"], s["lon"], s["uncertainty_m"]) == (nav["lat"][n - 2], nav["lon"][n - 2],
@@ -655,6 +657,10 @@ def test_surfacing_and_along_track_uncertainty_from_navigation():
     assert "radial 1σ (DRMS)" in labels and "ellipse semi-major 1σ (covariance)" in labels
     assert_drawn(fr, opt)
     assert surfacing_position(nav.drop(columns=["lat"])) is None
+    from hadal.report.geo_figures import _cov_role
+
+    assert [_cov_role(c) for c in ("cov_xx", "cov_yy", "cov_xy", "pos_cov_ee_m2", "position_covariance_type")] == [
+        "ee", "nn", "en", "ee", None]
 
 
 def test_progress_lines_of_a_step_and_a_tracked_loop(caplog):

@@ -535,6 +535,22 @@ def _surfacing(ax, dp: DiveProducts, handles: list[Any]) -> None:
 SIGMA_HINTS = ("sigma", "_std_")
 
 
+def _cov_role(name: str) -> str | None:
+    """Which element of a horizontal position covariance a column holds, from its name: ``ee`` (east variance),
+    ``nn`` (north) or ``en`` (east-north covariance); ``position_covariance_east_m2`` -> ``ee``,
+    ``..._east_north_m2`` -> ``en``, ``cov_xx`` -> ``ee``; ``None`` for anything else."""
+    import re
+
+    words = set(re.split(r"[^a-z]+", name.lower()))
+    east, north = bool(words & {"east", "e", "x", "easting"}), bool(words & {"north", "n", "y", "northing"})
+    pair = next((w for w in words if w in ("ee", "nn", "en", "ne", "xx", "yy", "xy", "yx")), None)
+    if pair:
+        return {"ee": "ee", "xx": "ee", "nn": "nn", "yy": "nn"}.get(pair, "en")
+    if east and north:
+        return "en"
+    return "ee" if east else "nn" if north else None
+
+
 def nav_uncertainty_series(nav: pd.DataFrame) -> dict[str, np.ndarray]:
     """Per-sample horizontal position uncertainty (m, 1 sigma) of the navigation product by what it is:
     ``position_uncertainty_m`` (radial DRMS), every ``*sigma*`` column in metres, and, from a covariance
@@ -549,10 +565,8 @@ def nav_uncertainty_series(nav: pd.DataFrame) -> dict[str, np.ndarray]:
             v = pd.to_numeric(nav[c], errors="coerce").to_numpy(float)
             if np.isfinite(v).any():
                 out[str(c).replace("_", " ")] = v
-    cov = [c for c in nav.columns if "cov" in str(c).lower()]
-    ee = next((c for c in cov if any(t in str(c).lower() for t in ("_ee", "xx", "east_east"))), None)
-    nn = next((c for c in cov if any(t in str(c).lower() for t in ("_nn", "yy", "north_north"))), None)
-    en = next((c for c in cov if any(t in str(c).lower() for t in ("_en", "_ne", "xy", "east_north"))), None)
+    roles = {_cov_role(str(c)): c for c in nav.columns if "cov" in str(c).lower()}
+    ee, nn, en = roles.get("ee"), roles.get("nn"), roles.get("en")
     if ee and nn:
         a = pd.to_numeric(nav[ee], errors="coerce").to_numpy(float)
         b = pd.to_numeric(nav[nn], errors="coerce").to_numpy(float)
