@@ -27,7 +27,8 @@ from hadal.landing.exclusion import HIGH_PROTRUSION, SLOPE, UNMAPPED  # noqa: E4
 from hadal.landing.sites import LandingResult  # noqa: E402
 
 _BIN = ListedColormap(["#f2f2f2", "#1f4e79"])
-_EXCL = ListedColormap(["#2ca02c", "#b22222"])
+#: allowed / excluded in Okabe-Ito colours (sky blue / vermillion: told apart with any common colour-vision deficiency)
+_EXCL = ListedColormap(["#56B4E9", "#D55E00"])
 
 
 def _panels(res: LandingResult, n: int, title: str):

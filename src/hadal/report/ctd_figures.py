@@ -159,7 +159,7 @@ def fig_water_column(dp: DiveProducts, opt: FigureOptions) -> FigureResult:
                      "isopycnals (kg/m³); (b) Θ and (c) buoyancy frequency N² against depth on a "
                      "logarithmic depth axis (the upper ocean is where the water column changes), down to the "
                      "deepest level; N² from adjacent pressure bins (gsw.Nsquared), averaged in bins of 1/12 "
-                     "decade of depth. Descent solid blue, ascent dashed red; pressure-binned profiles.")
+                     "decade of depth. Descent solid blue, ascent dashed vermillion; pressure-binned profiles.")
     casts, lat, lon = _casts(dp)
     if not casts:
         r.skipped = "no profile or ctd product with temperature and salinity"

@@ -47,7 +47,12 @@ try:  # cmocean is a dependency; fall back to matplotlib maps if it is broken
 except Exception:  # pragma: no cover
     CMAPS = {k: "viridis" for k in ("depth", "temp", "salt", "dens", "cond", "grav", "std", "entropy", "msd", "elev")}
 
-PHASE_COLOURS = {"descent": "#1f77b4", "bottom": "#2ca02c", "ascent": "#d62728"}
+#: Okabe & Ito's colour-blind-safe categorical palette (Color Universal Design, 2008)
+OKABE_ITO = {"black": "#000000", "orange": "#E69F00", "sky_blue": "#56B4E9", "bluish_green": "#009E73",
+             "yellow": "#F0E442", "blue": "#0072B2", "vermillion": "#D55E00", "reddish_purple": "#CC79A7"}
+#: dive phases in Okabe-Ito colours (descent blue, bottom bluish green, ascent vermillion: told apart with any
+#: common colour-vision deficiency; red/green was not)
+PHASE_COLOURS = {"descent": OKABE_ITO["blue"], "bottom": OKABE_ITO["bluish_green"], "ascent": OKABE_ITO["vermillion"]}
 
 
 @dataclass
@@ -150,7 +155,7 @@ CTD_PANELS = (
 def fig_ctd_profiles(dp: DiveProducts, opt: FigureOptions) -> FigureResult:
     r = FigureResult("fig08_ctd_profiles", "Water-column profiles", "Water column",
                      "Measured conductivity and temperature, and the salinity, density and gravity derived from them, "
-                     "against depth: descent wide pale blue, bottom green, ascent thin dashed red (cf. TERCOM paper "
+                     "against depth: descent wide pale blue, bottom bluish green, ascent thin dashed vermillion (cf. TERCOM paper "
                      "Fig. 8).")
     df = dp.ctd
     zcol = "depth_m" if df is not None and "depth_m" in df else "pressure_dbar"
@@ -263,8 +268,9 @@ def fig_seafloor_depth(dp: DiveProducts, opt: FigureOptions) -> FigureResult:
     t = _time(d)
     fig = Figure(figsize=(opt.width_in, opt.width_in * 0.6))
     axes = fig.subplots(3, 1, sharex=True)
-    for ax, col, lab, c in ((axes[0], "depth_m", "(a) depth (m)", "#1f77b4"), (axes[1], alt, "(b) altitude (m)", "#ff7f0e"),
-                            (axes[2], "seafloor_depth_m", "(c) seafloor depth (m)", "#2ca02c")):
+    for ax, col, lab, c in ((axes[0], "depth_m", "(a) depth (m)", OKABE_ITO["blue"]),
+                            (axes[1], alt, "(b) altitude (m)", OKABE_ITO["orange"]),
+                            (axes[2], "seafloor_depth_m", "(c) seafloor depth (m)", OKABE_ITO["bluish_green"])):
         ax.plot(t, d[col], ".", ms=1.5, color=c, rasterized=True)
         ax.set_ylabel(lab, fontsize=8)
         ax.grid(alpha=0.3)
@@ -473,10 +479,10 @@ def _track_depths(tr: pd.DataFrame, max_points: int) -> tuple[pd.DataFrame, Any,
 
 def _plot_track_depths(ax, tr: pd.DataFrame, xaxis, ref: str, rasterized: bool = False) -> None:
     """Measured seafloor depth (dots) and the reference map's (line) along the matched track, depth down."""
-    ax.plot(xaxis, tr["seafloor_depth_m"], ".", ms=2, label="measured (depth + altitude)", color="#1f77b4",
+    ax.plot(xaxis, tr["seafloor_depth_m"], ".", ms=2, label="measured (depth + altitude)", color=OKABE_ITO["blue"],
             rasterized=rasterized)
     ax.plot(xaxis, tr[ref], "-", lw=1.5, label="reference map" + (" − bias" if ref != "map_depth_m" else ""),
-            color="#d62728")
+            color=OKABE_ITO["vermillion"])
     ax.invert_yaxis()
     ax.set_ylabel("seafloor depth (m)")
     ax.grid(alpha=0.3)

@@ -319,7 +319,7 @@ def fig_residuals(dp: DiveProducts, opt: FigureOptions) -> FigureResult:
     ok = np.isfinite(res)
     rms = float(np.sqrt(np.mean(res[ok] ** 2))) if ok.any() else float("nan")
     ax2.plot(xaxis, res, ".", ms=1.5, color="k", rasterized=True)
-    ax2.axhline(0, color="#d62728", lw=1)
+    ax2.axhline(0, color="#D55E00", lw=1)
     ax2.set_ylabel("residual (m)")
     ax2.set_xlabel("time (UTC)" if "time" in tr else "sample")
     ax2.grid(alpha=0.3)
