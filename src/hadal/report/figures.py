@@ -768,6 +768,7 @@ def all_figures(dp: DiveProducts | None = None) -> tuple[Callable[[DiveProducts,
         fig_nav_uncertainty,
         fig_overview,
         fig_residuals,
+        fig_suitability_geo,
     )
 
     out: list[Callable[[DiveProducts, FigureOptions], FigureResult]] = [fig_overview]
@@ -781,6 +782,9 @@ def all_figures(dp: DiveProducts | None = None) -> tuple[Callable[[DiveProducts,
             continue
         if fn is fig_dtm:  # the DTM on a geographic map, with its coverage, density and uncertainty
             out += [fig_dtm_geo, fig_dtm_quality]
+            continue
+        if fn is fig_suitability:
+            out.append(fig_suitability_geo)
             continue
         out.append(fig_residuals if fn is fig_matched_depth else fn)
         if fn is fig_depth_time:

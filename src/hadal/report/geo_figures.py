@@ -619,3 +619,50 @@ def fig_nav_uncertainty(dp: DiveProducts, opt: FigureOptions) -> FigureResult:
     ax.legend(loc="upper left")
     fig.autofmt_xdate()
     return _render(r, fig, opt)
+
+
+def fig_suitability_geo(dp: DiveProducts, opt: FigureOptions) -> FigureResult:
+    """TERCOM Figs. 5-6 (block elevation standard deviation and information entropy) on geographic axes: the
+    suitability product's blocks placed by its map frame (``map_frame_origin_*``), the proposed matching region's
+    outline and the launch point in longitude/latitude; the map-frame figure when the product has no frame origin."""
+    from hadal.report.figures import _grid_ok, _region, fig_suitability
+
+    ds = dp.suitability
+    if ds is None or "map_frame_origin_latitude_deg" not in ds.attrs:
+        return fig_suitability(dp, opt)
+    r = FigureResult("fig05_06_suitability", "Terrain suitability for matching", "Terrain",
+                     "(left) terrain elevation standard deviation and (right) topographic information entropy per "
+                     "block (cf. TERCOM paper Figs. 5-6) in longitude/latitude (WGS 84, equal ground distances); "
+                     "dashed: proposed matching region, x: launch point.")
+    panels = [(v, lab, cm) for v, lab, cm in (("std_m", "elevation std (m)", CMAPS["std"]),
+                                              ("entropy", "information entropy", "viridis"))
+              if _grid_ok(ds, v, "suitability") is None]
+    if not panels:
+        r.skipped = "suitability product has neither std_m(y, x) nor entropy(y, x)"
+        return r
+    from hadal.geo import LocalFrame
+
+    fr = LocalFrame(float(ds.attrs["map_frame_origin_latitude_deg"]), float(ds.attrs["map_frame_origin_longitude_deg"]))
+    X, Y = np.meshgrid(ds["x"].values.astype(float), ds["y"].values.astype(float))
+    lon, lat = (np.asarray(v, float) for v in fr.to_lonlat(X, Y))
+    fig = Figure(figsize=(opt.width_in, opt.width_in * 0.45), layout="constrained")
+    axes = np.atleast_1d(fig.subplots(1, len(panels)))
+    reg = _region(ds)
+    launch = dp.launch or ((dp.fix or {}).get("launch") if isinstance((dp.fix or {}).get("launch"), dict) else None)
+    for ax, (v, lab, cm) in zip(axes, panels, strict=True):
+        im = ax.pcolormesh(lon, lat, ds[v].transpose("y", "x").values.astype(float), shading="nearest", cmap=cm,
+                           rasterized=True)
+        fig.colorbar(im, ax=ax, orientation="horizontal", shrink=0.8, label=lab)
+        if reg:
+            t = np.linspace(0.0, 1.0, 50)
+            x0, x1, y0, y1 = reg["x_min_m"], reg["x_max_m"], reg["y_min_m"], reg["y_max_m"]
+            xs = np.concatenate([x0 + (x1 - x0) * t, np.full(50, x1), x1 - (x1 - x0) * t, np.full(50, x0)])
+            ys = np.concatenate([np.full(50, y0), y0 + (y1 - y0) * t, np.full(50, y1), y1 - (y1 - y0) * t])
+            rlon, rlat = fr.to_lonlat(xs, ys)
+            ax.plot(rlon, rlat, "--", color="k", lw=1.2)
+        if launch and launch.get("lon") is not None:
+            ax.plot(float(launch["lon"]), float(launch["lat"]), "x", color="#D55E00", ms=10, mew=2.5)
+        _geo_axes(ax, lon, lat)
+    if not (launch and launch.get("lon") is not None):
+        r.caption = r.caption.replace(", x: launch point.", ".")
+    return _render(r, fig, opt)
