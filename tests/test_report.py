@@ -684,6 +684,18 @@ def test_progress_lines_of_a_step_and_a_tracked_loop(caplog):
     assert not [m for m in msgs if "silent" in m]
 
 
+def test_progress_lines_echo_on_a_terminal(capsys):
+    """A stage in its own process has no bar: with ``echo`` (its stderr is a terminal) the same lines are printed
+    there, so dtm's phases show on the terminal as well as in the Prefect logs."""
+    from hadal.progress import LogProgress
+    from hadal.steps import step
+
+    with step(LogProgress(interval_s=60.0, echo=True), "dtm: spike test of 3 soundings"):
+        pass
+    err = capsys.readouterr().err.splitlines()
+    assert err[0] == "  dtm: spike test of 3 soundings: started" and "done, 1 step(s) in" in err[1]
+
+
 def test_long_landing_transect_is_split_into_legible_panels(tmp_path):
     """An 83 m x 1.5 m transect (3 submaps of 25 m, the sample dive's; drawn on one axis it was a 2475 x 440 px
     strip) becomes stacked panels at one scale, each within the panel aspect, the PNG at most ~1000 px wide (shown

@@ -18,6 +18,12 @@ fig_matched_depth      TERCOM Fig. 16: measured vs reference depth along the mat
 fig_matched_track      TERCOM Fig. 17: matched track on the reference map, launch (x), deepest point (*)
 fig_landing_map        landing paper Figs. 19/25: elevation of the best submap and the selected site
 =====================  =====================================================================
+
+In the report (:func:`all_figures`) ``fig_dtm`` and ``fig_suitability`` are drawn on geographic axes instead
+(:mod:`hadal.report.geo_figures`: ``fig_dtm_geo`` hillshaded with the track, ``fig_dtm_quality`` coverage, sounding
+density and uncertainty, ``fig_suitability_geo``), beside the overview and the position uncertainty along the dive
+(``fig_nav_uncertainty``). Text is at least :attr:`FigureOptions.min_font_pt` (9 pt) and categorical colours are
+Okabe-Ito's (:data:`OKABE_ITO`).
 """
 
 from __future__ import annotations

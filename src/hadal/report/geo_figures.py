@@ -278,7 +278,7 @@ def _overview_fix(ax: Any, dp: DiveProducts, fix: dict[str, Any], st: dict[str, 
             outlines.append((pts, ls_))
     if not outlines:
         return None
-    if outlines:  # the ellipses are tens of metres on a map of kilometres: an inset zoom on the fix
+    if outlines:  # always here: the ellipses are tens of metres on a map of kilometres, an inset zooms on the fix
         box = _emptiest_corner(handles, (float(np.nanmin(LON)), float(np.nanmax(LON))),
                                (float(np.nanmin(LAT)), float(np.nanmax(LAT))))
         ins = ax.inset_axes(box)
