@@ -31,7 +31,7 @@ def _casts(dp: DiveProducts) -> tuple[list[tuple[str, pd.DataFrame]], float, flo
     out: list[tuple[str, pd.DataFrame]] = []
     prof = dp.profile
     ragged = _ragged_profiles(prof) if prof is not None else None
-    if ragged:  # a CF DSG contiguous ragged array: one profile per instance
+    if ragged and prof is not None:  # a CF DSG contiguous ragged array: one profile per instance
         lat = float(np.nanmean(prof["lat"].values)) if "lat" in prof.variables else np.nan
         lon = float(np.nanmean(prof["lon"].values)) if "lon" in prof.variables else np.nan
         out = ragged
@@ -92,7 +92,7 @@ def _ragged_profiles(prof) -> list[tuple[str, pd.DataFrame]] | None:
     for i, (a, n) in enumerate(zip(starts, counts, strict=True)):
         sl = prof.isel({obs: slice(int(a), int(a + n))})
         name = ids[i].decode() if ids is not None and isinstance(ids[i], bytes) else (
-            "".join(ids[i].astype(str)) if ids is not None and getattr(ids[i], "ndim", 0) else
+            "".join(ids[i].astype(str)) if ids is not None and bool(getattr(ids[i], "ndim", 0)) else
             (str(ids[i]) if ids is not None else f"cast {i}"))
         z = "pressure_dbar" if "pressure_dbar" in sl.variables else "depth"
         df = pd.DataFrame({"pressure_dbar": sl[z].values.astype(float),

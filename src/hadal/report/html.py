@@ -6,7 +6,7 @@ import base64
 import datetime as _dt
 import html
 import re
-from collections.abc import Iterable, Mapping
+from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -54,7 +54,7 @@ def _table(rows: Iterable[tuple[str, Any]]) -> str:
     return f"<table>{body}</table>"
 
 
-def _records_table(records: list[Mapping[str, Any]], nd: int = 3, position_m: float = SHIP_POSITION_M) -> str:
+def _records_table(records: Sequence[Mapping[str, Any]], nd: int = 3, position_m: float = SHIP_POSITION_M) -> str:
     """Rows of ``records`` under people's column labels (:func:`hadal.report.units.human_label`); ``lat``/``lon``
     with the decimals of a ``position_m`` thing (:func:`coordinate_decimals`), other floats with ``nd``."""
     if not records:
