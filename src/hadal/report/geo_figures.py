@@ -414,6 +414,18 @@ def fig_dtm_geo(dp: DiveProducts, opt: FigureOptions) -> FigureResult:
     _shaded_dtm(fig, ax, lon, lat, x, z)
     handles = _overview_tracks(ax, dp, dp.fix or {}, (dp.fix or {}).get("dead_reckoning_track") or {},
                                _frame(dp), opt) if _frame(dp) is not None else []
+    if "land" in ds and ds["land"].dims == ("y", "x"):  # above sea level in the source grid: no depth, drawn as land
+        from matplotlib.colors import ListedColormap
+        from matplotlib.patches import Patch
+
+        from hadal.report.figures import LAND_COLOUR
+
+        land = np.asarray(ds["land"].values[::k, ::k]) == 1
+        if land.any():
+            ax.pcolormesh(lon, lat, np.ma.masked_where(~land, np.ones(land.shape)), shading="nearest",
+                          cmap=ListedColormap([LAND_COLOUR]), vmin=0, vmax=1, rasterized=True)
+            handles.append(Patch(facecolor=LAND_COLOUR, edgecolor="none", label="land"))
+            r.caption += " Land (above sea level in the source grid) is drawn as land: it has no depth."
     _surfacing(ax, dp, handles)
     lat0 = _geo_axes(ax, *dtm_lonlat(ds))
     _scale_bar(ax, lat0)
