@@ -660,3 +660,28 @@ def test_real_cast_profile_is_a_ragged_dsg_at_the_header_position(shared_data, t
         np.testing.assert_allclose(nc["lat"][:], lat, atol=1e-6)
         np.testing.assert_allclose(nc["lon"][:], lon, atol=1e-6)
         assert "header position" in nc["lat"].comment and "dead-reckoned" in nc["lat"].comment
+
+
+def test_report_draws_a_real_prior_grid_on_a_geographic_map(shared_data, tmp_path):
+    """A real COARDS grid (0-360 longitudes, z in km) as the dive's DTM: the report's DTM map spans the dtm product's
+    own lon/lat (read here with xarray, the oracle) on equal ground distances, and the coverage/uncertainty figure is
+    skipped with the reason (a prior grid has no soundings), in summary.json and the page."""
+    import math
+
+    import numpy as np
+    import xarray as xr
+
+    from hadal.report import FigureOptions, load_products
+    from hadal.report.geo_figures import fig_dtm_geo
+
+    _, _, ctx = _run_dive(tmp_path, shared_data, "dives-real/gmt_HI_topo_04.nc")
+    with xr.open_dataset(ctx.store.latest(ctx.dive_id, "dtm").file("dtm.nc")) as ds:
+        lon, lat = ds["lon"].values, ds["lat"].values
+    summary = json.loads(ctx.store.latest(ctx.dive_id, "report").file("summary.json").read_text())
+    assert summary["figures"]["dtm_map"] == "ok"
+    assert "prior grid" in summary["figures"]["dtm_quality"]
+    fr = fig_dtm_geo(load_products(ctx.store, ctx.dive_id), FigureOptions(dpi=40, keep_figure=True))
+    ax = fr.figure.axes[0]
+    assert ax.get_xlim() == pytest.approx((np.nanmin(lon), np.nanmax(lon)), abs=1e-12)
+    assert ax.get_ylim() == pytest.approx((np.nanmin(lat), np.nanmax(lat)), abs=1e-12)
+    assert ax.get_aspect() == pytest.approx(1 / math.cos(math.radians(0.5 * (np.nanmin(lat) + np.nanmax(lat)))))

@@ -278,9 +278,85 @@ def test_new_figures_are_drawn(full_store, full_report):
     assert np.allclose(res, np.asarray(meas) - np.asarray(ref))
     # T-S / θ / N²: every axis says its quantity and unit
     labels = [(a.get_xlabel(), a.get_ylabel()) for a in figs["ctd_ts_theta_n2"].figure.axes]
-    assert labels[0] == ("absolute salinity SA (g/kg)", "potential temperature θ (°C)")
-    assert labels[1] == ("potential temperature θ (°C)", "depth (m, log scale)")
+    # a consistent pair (issue 46): Conservative Temperature with Absolute Salinity, not θ with S_A
+    assert labels[0] == ("Absolute Salinity S_A (g/kg)", "Conservative Temperature Θ (°C)")
+    assert labels[1] == ("Conservative Temperature Θ (°C)", "depth (m, log scale)")
     assert labels[2][0] == "N² (s⁻²)"
+
+
+def test_ts_diagram_axes_are_gsw_values_of_the_profile():
+    """The T-S panel draws (S_A, Θ) of each cast computed here with gsw from the profile's own in-situ temperature,
+    practical salinity and pressure (the oracle), its axes span exactly those values (plus a 5 % margin), and its
+    isopycnals are gsw.sigma0(S_A, Θ) at the points they pass through."""
+    import gsw
+    import xarray as xr
+
+    from hadal.report.ctd_figures import fig_water_column
+    from hadal.report.load import DiveProducts
+
+    p = np.arange(5.0, 10_900.0, 50.0)
+    t = np.stack([1.5 + 26.0 * np.exp(-p / 400.0), 1.6 + 25.0 * np.exp(-p / 420.0)])
+    sp = np.stack([34.6 + 0.4 * np.exp(-((p - 150) / 120) ** 2), 34.62 + 0.3 * np.exp(-((p - 170) / 100) ** 2)])
+    lat, lon = 11.34, 142.21
+    prof = xr.Dataset({"temperature_its90_degc": (("cast", "pressure_dbar"), t),
+                       "practical_salinity": (("cast", "pressure_dbar"), sp)},
+                      coords={"cast": ("cast", [0, 1], {"flag_meanings": "descent ascent"}), "pressure_dbar": p,
+                              "lat": lat, "lon": lon})
+    fr = fig_water_column(DiveProducts(dive="x", profile=prof), FAST)
+    ax = fr.figure.axes[0]
+    sa_all, ct_all = [], []
+    for i, cast in enumerate(("descent", "ascent")):
+        sa = gsw.SA_from_SP(sp[i], p, lon, lat)
+        ct = gsw.CT_from_t(sa, t[i], p)
+        ln = _line(ax, cast)
+        assert np.allclose(ln.get_xdata(), sa, atol=1e-9) and np.allclose(ln.get_ydata(), ct, atol=1e-9), cast
+        sa_all.append(sa)
+        ct_all.append(ct)
+    sa, ct = np.concatenate(sa_all), np.concatenate(ct_all)
+    ps, pt = 0.05 * max(np.ptp(sa), 0.01), 0.05 * max(np.ptp(ct), 0.1)
+    assert ax.get_xlim() == pytest.approx((sa.min() - ps, sa.max() + ps), abs=1e-9)
+    assert ax.get_ylim() == pytest.approx((ct.min() - pt, ct.max() + pt), abs=1e-9)
+    cs = next(c for c in ax.collections if hasattr(c, "levels") and len(getattr(c, "levels", [])) > 1)
+    for level, path in zip(cs.levels, cs.get_paths(), strict=False):
+        if len(path.vertices):
+            x, y = path.vertices[len(path.vertices) // 2]
+            assert gsw.sigma0(x, y) == pytest.approx(level, abs=2e-3)
+
+
+def test_coordinate_decimals_hand_computed():
+    """Decimals of a lat/lon at the precision of the thing located: a 0.32 m landing site needs 6 decimals of a
+    degree (111 694 m / 0.32 m = 349 044 -> 10^5.54 -> 6; the last digit 0.11 m) and 4 of a minute (1 861.6 m /
+    0.32 m = 5 817 -> 10^3.76 -> 4; 0.19 m); a 10 m ship position 5 and 3; a 2 km search area 2 and 0."""
+    from hadal.report.units import coordinate_decimals
+
+    assert coordinate_decimals(0.32) == 6 and coordinate_decimals(0.32, "min") == 4
+    assert coordinate_decimals(10.0) == 5 and coordinate_decimals(10.0, "min") == 3
+    assert coordinate_decimals(2000.0) == 2 and coordinate_decimals(2000.0, "min") == 0
+    assert coordinate_decimals(0.0) == 9 and coordinate_decimals(float("nan")) == 9
+    for size in (0.05, 0.32, 3.0, 40.0, 700.0):  # the last digit is never coarser than the size, and not 10x finer
+        d = coordinate_decimals(size)
+        assert 111_694.0 * 10.0 ** -d <= size < 111_694.0 * 10.0 ** -(d - 1)
+
+
+def test_landing_table_labels_and_site_precision():
+    """The best-sites table: people's column labels with units (no snake_case key), each site's lat/lon with the
+    decimals of its inscribed circle (0.32 m: 6 decimals) and a degrees-minutes position to 4 decimals of a minute
+    that parses back to within the site's radius."""
+    from hadal.geo import parse_degmin
+    from hadal.report.html import _records_table, landing_site_records
+
+    site = {"submap": "submap_01", "heading_deg": 30.0, "x_m": 12.5, "y_m": 0.4, "lat": 11.3371234567,
+            "lon": 142.2097123456, "radius_m": 0.32, "slope_deg": 4.2, "roughness_m": 0.012, "c_s": 0.2}
+    rec = landing_site_records([site])[0]
+    assert rec["lat"] == "11.337123" and rec["lon"] == "142.209712"
+    lon_txt, lat_txt = rec["position"].split(", ")
+    assert lat_txt == "11°20.2274'N"  # 0.3371234567 * 60 = 20.227407'
+    assert abs(parse_degmin(lat_txt) - site["lat"]) * 111_694 < 0.32
+    assert abs(parse_degmin(lon_txt) - site["lon"]) * 111_694 < 0.32
+    html = _records_table([rec])
+    heads = re.findall(r"<th>(.*?)</th>", html)
+    assert not [h for h in heads if "_" in h.replace("C_s", "")], heads
+    assert "slope (°)" in heads and "largest inscribed circle radius (m)" in heads
 
 
 @pytest.mark.parametrize("opt", [FAST, FigureOptions(dpi=110, width_in=10, keep_figure=True)], ids=["fast", "default"])
@@ -417,6 +493,11 @@ def test_log_bin_mean_against_brute_force():
     assert np.allclose(zb, [w[0] for w in want]) and np.allclose(vb, [w[1] for w in want])
 
 
+def full_store_path(report) -> str:
+    """The store a report was built from (its upstream versions' store root)."""
+    return str(report.upstream[0].path.parent.parent.parent)
+
+
 def test_report_html_in_headless_chromium(full_report, tmp_path):
     """Every embedded figure decodes and the page logs no error, in a real browser (skipped without one)."""
     from hadal.testing import browser_check, chromium
@@ -426,6 +507,23 @@ def test_report_html_in_headless_chromium(full_report, tmp_path):
     res = browser_check(full_report.html, tmp_path)
     assert res["images"] >= sum(f.png is not None for f in full_report.figures)
     assert res["broken"] == [] and res["errors"] == [], res
+    # at the report's own resolution, in a 1280 px wide window: every figure's smallest text is at least 9 pt on
+    # screen (12 CSS px: its points x dpi / 72 x the displayed / natural width the browser laid out), no figure is a
+    # strip (the landing transect was 2475 x 440 px, shown 1068 x 190) and each is shown at least 250 px tall
+    default = build_report(ProductStore(full_store_path(full_report)), "dive-a", options=FigureOptions())
+    res = browser_check(default.html, tmp_path, width=1280)
+    assert res["broken"] == [] and res["errors"] == [], res
+    figs = res["figures"]
+    assert len(figs) == sum(f.png is not None for f in default.figures) + len(
+        load_products(ProductStore(full_store_path(full_report)), "dive-a").landing_figures)
+    for f in figs:
+        scale = f["shown_w"] / f["natural_w"]
+        assert f["min_font_pt"] * f["dpi"] / 72 * scale >= 12.0 - 0.3, f  # 0.3 px: the img's 1 px border
+        assert f["shown_w"] / f["shown_h"] <= 4.0 and f["shown_h"] >= 250, f
+    from hadal.testing import browser_screenshot
+
+    shot = browser_screenshot(default.html, tmp_path / "report.png", 1280, 2400)
+    assert shot is not None and _image(shot.read_bytes())[..., :3].std() > 0.05  # the page drew something
     # the probe sees a broken image and a console error (it can fail)
     bad = browser_check("<html><head></head><body><img alt='x' src='data:image/png;base64,AAAA'>"
                         "<script>console.error('boom')</script></body></html>", tmp_path)
@@ -480,3 +578,160 @@ def test_figures_drawn_in_two_processes_are_those_drawn_here(full_store):
     assert sum(f.png is not None for f in here) >= 9
     for a, b in zip(here, forked, strict=True):
         assert (a.png, a.skipped, a.caption) == (b.png, b.skipped, b.caption), a.key
+
+
+def test_dtm_map_is_geographic_at_the_products_lon_lat_bounds(full_store):
+    """The DTM map's axes span the product's own lon/lat (read here with xarray from dtm.nc, the oracle), with
+    equal ground distances (aspect 1/cos(latitude)) and a hillshaded image; the quality figure draws the count and
+    uncertainty layers at the same bounds, and its coverage share is the file's share of cells with count > 0."""
+    import xarray as xr
+
+    from hadal.report.geo_figures import fig_dtm_geo, fig_dtm_quality
+
+    st = ProductStore(full_store)
+    with xr.open_dataset(st.latest("dive-a", "dtm").file("dtm.nc")) as ds:
+        lon, lat = ds["lon"].values, ds["lat"].values
+        count = ds["count"].values if "count" in ds else None
+    dp = load_products(st, "dive-a")
+    fr = fig_dtm_geo(dp, FAST)
+    ax = fr.figure.axes[0]
+    assert ax.get_xlim() == pytest.approx((np.nanmin(lon), np.nanmax(lon)), abs=1e-12)
+    assert ax.get_ylim() == pytest.approx((np.nanmin(lat), np.nanmax(lat)), abs=1e-12)
+    assert ax.get_aspect() == pytest.approx(1 / math.cos(math.radians(0.5 * (np.nanmin(lat) + np.nanmax(lat)))))
+    assert "°" in ax.xaxis.get_major_formatter()(float(np.nanmean(lon)), 0)  # degrees and minutes graticule
+    assert_drawn(fr)
+    q = fig_dtm_quality(dp, FAST)
+    if count is None:
+        assert q.png is None and "count" in q.skipped
+        return
+    for a in q.figure.axes[::2][:2]:
+        if a.get_title():
+            assert a.get_xlim() == pytest.approx((np.nanmin(lon), np.nanmax(lon)), abs=1e-12)
+    assert f"{100 * float(np.mean(count > 0)):.1f} % of the" in q.caption
+
+
+def test_overview_scale_bar_is_not_under_the_inset(full_store):
+    """The overview's scale bar (its label) does not overlap the zoom inset on the fix, wherever the inset goes."""
+    from hadal.report.geo_figures import fig_overview
+
+    dp = load_products(ProductStore(full_store), "dive-a")
+    fr = fig_overview(dp, FAST)
+    fig = fr.figure
+    ax = fig.axes[0]
+    r = fig.canvas.get_renderer()
+    label = next(t for t in ax.texts if t.get_gid() == "scale_bar")
+    insets = [a for a in ax.child_axes]
+    assert insets, "no inset drawn"
+    for ins in insets:
+        assert not label.get_window_extent(r).overlaps(ins.get_window_extent(r))
+
+
+def test_surfacing_and_along_track_uncertainty_from_navigation():
+    """The surfacing position is the navigation product's last ascent sample and its 1-sigma radius; the uncertainty
+    figure draws position_uncertainty_m and, from an east/north covariance, the 1-sigma ellipse's semi-major axis
+    sqrt(largest eigenvalue) (oracle: numpy.linalg.eigvalsh on each 2x2 matrix)."""
+    from hadal.report.geo_figures import fig_nav_uncertainty, nav_uncertainty_series, surfacing_position
+    from hadal.report.load import DiveProducts
+
+    n = 300
+    t = pd.date_range("2018-10-06T23:00:00Z", periods=n, freq="60s")
+    phase = np.array(["descent"] * 100 + ["bottom"] * 100 + ["ascent"] * 100)
+    rng = np.random.default_rng(3)
+    ee, nn = rng.uniform(10, 400, n), rng.uniform(10, 400, n)
+    en = rng.uniform(-1, 1, n) * np.sqrt(ee * nn) * 0.9
+    nav = pd.DataFrame({"time": t, "lat": 11.3 + np.arange(n) * 1e-5, "lon": 142.2 + np.arange(n) * 1e-5,
+                        "position_uncertainty_m": np.linspace(10, 600, n), "phase": phase,
+                        # the smoother's names (issue 47, hadal.navigation): east/north variances and covariance
+                        "position_covariance_east_m2": ee, "position_covariance_north_m2": nn,
+                        "position_covariance_east_north_m2": en})
+    nav.loc[n - 1, ["lat", "lon"]] = np.nan  # a last sample without position: the one before it surfaced
+    s = surfacing_position(nav)
+    assert (s["lat"], s["lon"], s["uncertainty_m"]) == (nav["lat"][n - 2], nav["lon"][n - 2],
+                                                        nav["position_uncertainty_m"][n - 2])
+    series = nav_uncertainty_series(nav)
+    want = np.sqrt([np.linalg.eigvalsh([[a, c], [c, b]]).max() for a, b, c in zip(ee, nn, en, strict=True)])
+    assert np.allclose(series["ellipse semi-major 1σ (covariance)"], want)
+    opt = FigureOptions(dpi=40, width_in=10, max_points=500, keep_figure=True)  # the report's width, few pixels
+    fr = fig_nav_uncertainty(DiveProducts(dive="x", navigation=nav), opt)
+    labels = [ln.get_label() for ln in fr.figure.axes[0].get_lines()]
+    assert "radial 1σ (DRMS)" in labels and "ellipse semi-major 1σ (covariance)" in labels
+    assert_drawn(fr, opt)
+    assert surfacing_position(nav.drop(columns=["lat"])) is None
+    from hadal.report.geo_figures import _cov_role
+
+    assert [_cov_role(c) for c in ("cov_xx", "cov_yy", "cov_xy", "pos_cov_ee_m2", "position_covariance_type")] == [
+        "ee", "nn", "en", "ee", None]
+
+
+def test_progress_lines_of_a_step_and_a_tracked_loop(caplog):
+    """:func:`hadal.steps.step` through :class:`hadal.progress.LogProgress`: a start and an end line (with the
+    duration) on the hadal.progress logger; a loop's lines give its count and percentage; nothing without progress."""
+    import logging
+
+    from hadal.progress import LogProgress
+    from hadal.steps import step, tracked
+
+    prog = LogProgress(interval_s=0.0, echo=False)
+    with caplog.at_level(logging.INFO, logger="hadal.progress"):
+        with step(prog, "dtm: gridding 5 soundings"):
+            pass
+        assert list(tracked(prog, range(4), "dtm: reading", total=4)) == [0, 1, 2, 3]
+        with step(None, "silent"):
+            pass
+    msgs = [r.getMessage() for r in caplog.records if r.name == "hadal.progress"]
+    assert msgs[0] == "dtm: gridding 5 soundings: started" and msgs[1].startswith("dtm: gridding 5 soundings: done")
+    assert "dtm: reading: 2/4 (50 %)" in " ".join(msgs) and msgs[-1].startswith("dtm: reading: done, 4 step(s)")
+    assert not [m for m in msgs if "silent" in m]
+
+
+def test_progress_lines_echo_on_a_terminal(capsys):
+    """A stage in its own process has no bar: with ``echo`` (its stderr is a terminal) the same lines are printed
+    there, so dtm's phases show on the terminal as well as in the Prefect logs."""
+    from hadal.progress import LogProgress
+    from hadal.steps import step
+
+    with step(LogProgress(interval_s=60.0, echo=True), "dtm: spike test of 3 soundings"):
+        pass
+    err = capsys.readouterr().err.splitlines()
+    assert err[0] == "  dtm: spike test of 3 soundings: started" and "done, 1 step(s) in" in err[1]
+
+
+def test_long_landing_transect_is_split_into_legible_panels(tmp_path):
+    """An 83 m x 1.5 m transect (3 submaps of 25 m, the sample dive's; drawn on one axis it was a 2475 x 440 px
+    strip) becomes stacked panels at one scale, each within the panel aspect, the PNG at most ~1000 px wide (shown
+    1:1 in the page) and not a strip; every site is drawn once, in the panel holding its x, coloured by its C_s."""
+    from matplotlib.image import imread
+
+    import hadal.landing.figures as lf
+
+    rng = np.random.default_rng(2)
+    outlines = {f"submap_{i:02d}": np.column_stack([np.linspace(29 * i, 29 * i + 25, 300),
+                                                    rng.uniform(-0.75, 0.75, 300)]) for i in range(3)}
+    best = pd.DataFrame({"submap": ["submap_00", "submap_01", "submap_02"], "x_m": [5.0, 40.0, 70.0],
+                         "y_m": [0.1, -0.2, 0.3], "c_s": [0.2, 0.35, 0.5]})
+    seen = {}
+    real_save = lf._save
+
+    def keep(fig, path):
+        seen["axes"] = [a for a in fig.axes if a.get_label() != "<colorbar>"]
+        return real_save(fig, path)
+
+    lf._save = keep
+    try:
+        path = lf.figure_transect(best, outlines, tmp_path / "fig25_transect.png")
+    finally:
+        lf._save = real_save
+    h, w = imread(path).shape[:2]
+    assert w <= 1000 and w / h <= 2.5, (w, h)
+    panels = [a for a in seen["axes"] if a.get_xlabel() or a.get_ylabel() == "y (m)"]
+    assert len(panels) >= 3
+    drawn = []
+    for a in panels:
+        x0, x1 = a.get_xlim()
+        y0, y1 = a.get_ylim()
+        assert (x1 - x0) / (y1 - y0) <= lf.TRANSECT_PANEL_ASPECT + 1e-9
+        for c in a.collections:
+            for (x, _), v in zip(c.get_offsets(), c.get_array(), strict=True):
+                assert x0 <= x <= x1
+                drawn.append((float(x), float(v)))
+    assert sorted(drawn) == sorted(zip(best["x_m"], best["c_s"], strict=True))

@@ -559,7 +559,10 @@ window.addEventListener('load', () => {
   const d = document.createElement('pre'); d.id = 'hadal-probe';
   d.textContent = JSON.stringify({images: imgs.length,
     broken: imgs.filter(i => !(i.complete && i.naturalWidth > 0)).map(i => i.alt || i.src.slice(0, 40)),
-    errors: window.__hadalErrs});
+    errors: window.__hadalErrs,
+    figures: imgs.map(i => { const r = i.getBoundingClientRect(); return {alt: i.alt, natural_w: i.naturalWidth,
+      natural_h: i.naturalHeight, shown_w: r.width, shown_h: r.height, dpi: parseFloat(i.dataset.dpi || 'NaN'),
+      min_font_pt: parseFloat(i.dataset.minFontPt || 'NaN')}; })});
   document.body.appendChild(d);
 });
 </script>"""
@@ -575,9 +578,31 @@ def chromium() -> str | None:
     return None
 
 
-def browser_check(html: str, workdir: str | Path, timeout_s: float = 120.0) -> dict[str, Any] | None:
-    """Load ``html`` in headless Chromium and return ``{images, broken: [...], errors: [...]}`` (images that did
-    not decode, script errors and console.error messages), or ``None`` when no Chromium is installed."""
+def browser_screenshot(html: str, png: str | Path, width: int = 1200, height: int = 3000,
+                       timeout_s: float = 120.0) -> Path | None:
+    """A PNG screenshot (``width`` x ``height`` CSS px window) of ``html`` rendered by headless Chromium, or ``None``
+    without one."""
+    import subprocess
+
+    exe = chromium()
+    if exe is None:
+        return None
+    png = Path(png)
+    page = png.with_suffix(".html")
+    page.write_text(html, encoding="utf-8")
+    subprocess.run([exe, "--headless=new", "--no-sandbox", "--disable-gpu", "--disable-background-networking",
+                    "--disable-dev-shm-usage", f"--user-data-dir={png.parent / 'chromium-shot-profile'}",
+                    "--hide-scrollbars", f"--window-size={width},{height}", f"--screenshot={png.resolve()}",
+                    page.resolve().as_uri()], capture_output=True, text=True, timeout=timeout_s, check=False)
+    return png if png.is_file() else None
+
+
+def browser_check(html: str, workdir: str | Path, timeout_s: float = 120.0, width: int = 1280
+                  ) -> dict[str, Any] | None:
+    """Load ``html`` in headless Chromium and return ``{images, broken: [...], errors: [...], figures: [...]}``
+    (images that did not decode, script errors and console.error messages; per image its natural and displayed
+    size and its ``data-dpi``/``data-min-font-pt``, in a ``width`` CSS px wide window), or ``None`` when no Chromium
+    is installed."""
     import re
     import subprocess
 
@@ -588,7 +613,7 @@ def browser_check(html: str, workdir: str | Path, timeout_s: float = 120.0) -> d
     probed = html.replace("<head>", "<head>" + _PROBE, 1) if "<head>" in html else _PROBE + html
     page.write_text(probed, encoding="utf-8")
     out = subprocess.run([exe, "--headless=new", "--no-sandbox", "--disable-gpu", "--disable-dev-shm-usage",
-                          f"--user-data-dir={Path(workdir) / 'chromium-profile'}", "--virtual-time-budget=10000",
+                          f"--user-data-dir={Path(workdir) / 'chromium-profile'}", "--virtual-time-budget=10000", f"--window-size={int(width)},2000",
                           "--dump-dom", page.resolve().as_uri()], capture_output=True, text=True,
                          timeout=timeout_s, check=False)
     m = re.search(r'<pre id="hadal-probe">(.*?)</pre>', out.stdout, re.S)

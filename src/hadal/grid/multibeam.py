@@ -320,8 +320,12 @@ def grid_multibeam(
     apriori_b: float = 0.001,
     prior_weight: float = 3.0,
     max_cells: int = DEFAULT_MAX_CELLS,
+    progress=None,
 ) -> xr.Dataset:
     """Grid soundings ``(x, y, depth_m)`` (metres, depth positive down) into a DTM.
+
+    ``progress`` (optional, ``.track``): a start and an end line for the spike test and the gridding
+    (:func:`hadal.steps.step`).
 
     Returns a Dataset on cell centres with ``depth_m`` (mean of the kept soundings),
     ``depth_median_m``, ``count``, ``depth_std_m``, ``uncertainty_m`` and ``filled`` (1 where
@@ -340,21 +344,26 @@ def grid_multibeam(
         spec = make_grid_spec(resolution, ext, max_cells=max_cells, snap=True)
     else:
         spec = make_grid_spec(resolution, bounds, max_cells=max_cells)
+    from hadal.steps import step
+
     x, y, z, idx, n_bad, n_out = _soundings_in_grid(spec, x, y, z, bounds)
     n_in = len(z)
     spikes = np.zeros(n_in, dtype=bool)
     sigma0 = float("nan")
     if remove_spikes:
-        sp, sigma0 = spike_mask(idx, x, y, z, k=spike_k, k_neighbourhood=spike_k_neighbourhood,
-                                neighbours=spike_neighbours, min_count=spike_min_count, floor_m=spike_floor_m)
+        with step(progress, f"dtm: spike test of {n_in:,} soundings (per cell and {spike_neighbours} nearest)"):
+            sp, sigma0 = spike_mask(idx, x, y, z, k=spike_k, k_neighbourhood=spike_k_neighbourhood,
+                                    neighbours=spike_neighbours, min_count=spike_min_count, floor_m=spike_floor_m)
         spikes |= sp
     n_sor = 0
     if sor:
-        s = sor_mask(x, y, z, sor_neighbors, sor_std_ratio)
+        with step(progress, f"dtm: statistical outlier removal of {n_in:,} soundings"):
+            s = sor_mask(x, y, z, sor_neighbors, sor_std_ratio)
         n_sor = int((s & ~spikes).sum())
         spikes |= s
     keep = ~spikes
-    flat, filled = _dtm_layers(spec, idx[keep], z[keep], fill_max_cells, apriori_a_m, apriori_b, prior_weight)
+    with step(progress, f"dtm: gridding {int(keep.sum()):,} soundings into {spec.nx} x {spec.ny} cells"):
+        flat, filled = _dtm_layers(spec, idx[keep], z[keep], fill_max_cells, apriori_a_m, apriori_b, prior_weight)
     names = {"mean": "depth_m", "median": "depth_median_m", "std": "depth_std_m", "uncertainty": "uncertainty_m"}
     attrs = {
         "n_soundings_input": int(n_in + n_bad + n_out),

@@ -27,7 +27,8 @@ from hadal.landing.exclusion import HIGH_PROTRUSION, SLOPE, UNMAPPED  # noqa: E4
 from hadal.landing.sites import LandingResult  # noqa: E402
 
 _BIN = ListedColormap(["#f2f2f2", "#1f4e79"])
-_EXCL = ListedColormap(["#2ca02c", "#b22222"])
+#: allowed / excluded in Okabe-Ito colours (sky blue / vermillion: told apart with any common colour-vision deficiency)
+_EXCL = ListedColormap(["#56B4E9", "#D55E00"])
 
 
 def _panels(res: LandingResult, n: int, title: str):
@@ -165,32 +166,75 @@ def figure_costs_vs_heading(sites: pd.DataFrame, path: str | Path, title: str = 
     return _save(fig, path)
 
 
+#: widest panel of the transect figure (width / height, axes at equal scale): a longer transect is split
+TRANSECT_PANEL_ASPECT = 8.0
+#: at most this many panels; the transect figure's width (inches, at 110 dpi: shown 1:1 in the report's page)
+TRANSECT_MAX_PANELS = 4
+TRANSECT_WIDTH_IN = 9.0
+
+
+def transect_segments(x_min: float, x_max: float, height_m: float, *, aspect: float = TRANSECT_PANEL_ASPECT,
+                      max_panels: int = TRANSECT_MAX_PANELS) -> list[tuple[float, float]]:
+    """Consecutive, equal x ranges covering ``[x_min, x_max]``, as few as keep each panel within ``aspect``
+    (width / ``height_m``), at most ``max_panels``."""
+    w = max(float(x_max - x_min), 1e-9)
+    k = int(min(max_panels, max(1, math.ceil(w / (aspect * max(height_m, 1e-9))))))
+    edges = np.linspace(x_min, x_max, k + 1)
+    return [(float(a), float(b)) for a, b in zip(edges[:-1], edges[1:], strict=True)]
+
+
 def figure_transect(best_sites: pd.DataFrame, outlines: Mapping[str, np.ndarray], path: str | Path) -> Path:
     """Fig. 25: the selected site of each submap coloured by its landing cost C_s, over the mapped
-    outlines (``outlines[name]`` = N×2 array of x, y of mapped cells, decimated)."""
+    outlines (``outlines[name]`` = N×2 array of x, y of mapped cells, decimated). A long transect is split into
+    stacked panels (:func:`transect_segments`) so the figure keeps a legible shape (a 3 x 25 m transect on one
+    axis was a 2475 x 440 px strip, shrunk to illegibility in the report); viridis (colour-blind safe) for C_s."""
     allxy = np.concatenate([xy for xy in outlines.values() if len(xy)] or [np.zeros((1, 2))])
-    w, h = np.ptp(allxy[:, 0]) + 1.0, np.ptp(allxy[:, 1]) + 1.0
-    r = float(np.clip(h / w, 0.4, 3.0))
-    fig, ax = plt.subplots(figsize=(max(4.5, 9.0 / r), max(4.0, 3.0 * r)), layout="compressed")
-    for _name, xy in outlines.items():
-        if len(xy):
-            ax.plot(xy[:, 0], xy[:, 1], ",", color="#bbbbbb", alpha=0.5)
     if len(best_sites):
-        sc = ax.scatter(best_sites["x_m"], best_sites["y_m"], c=best_sites["c_s"], cmap=cmocean.cm.matter,
-                        vmin=0, vmax=max(0.7, float(best_sites["c_s"].max())), s=60, edgecolors="k", zorder=3)
-        plt.colorbar(sc, ax=ax, label="landing cost C_s")
-        for _, s in best_sites.iterrows():
-            ax.annotate(str(s.get("submap", "")).replace("submap_", ""), (s["x_m"], s["y_m"]), fontsize=6,
-                        xytext=(4, 4), textcoords="offset points")
-    ax.set_aspect("equal")
-    ax.set_xlabel("x (m)")
-    ax.set_ylabel("y (m)")
-    ax.set_title("Final landing site per submap and its landing cost")
+        allxy = np.concatenate([allxy, best_sites[["x_m", "y_m"]].to_numpy(float)])
+    x0, x1 = float(allxy[:, 0].min()) - 0.5, float(allxy[:, 0].max()) + 0.5
+    y0, y1 = float(allxy[:, 1].min()) - 0.5, float(allxy[:, 1].max()) + 0.5
+    segs = transect_segments(x0, x1, y1 - y0)
+    seg_w = segs[0][1] - segs[0][0]
+    panel_h_m = max(y1 - y0, seg_w / TRANSECT_PANEL_ASPECT)  # every panel at one scale and one height
+    panel_in = TRANSECT_WIDTH_IN * 0.9 * panel_h_m / seg_w
+    fig, axes = plt.subplots(len(segs), 1, figsize=(TRANSECT_WIDTH_IN, max(3.2, len(segs) * (panel_in + 0.55) + 1.6)),
+                             squeeze=False, layout="constrained")
+    axes = axes[:, 0]
+    vmax = max(0.7, float(best_sites["c_s"].max())) if len(best_sites) else 1.0
+    sc = None
+    for ax, (a, b) in zip(axes, segs, strict=True):
+        for _name, xy in outlines.items():
+            if len(xy):
+                m = (xy[:, 0] >= a - 1) & (xy[:, 0] <= b + 1)
+                ax.plot(xy[m, 0], xy[m, 1], ".", ms=1, color="#bbbbbb", alpha=0.6)
+        if len(best_sites):
+            sel = best_sites[(best_sites["x_m"] >= a) & (best_sites["x_m"] <= b)]
+            sc = ax.scatter(sel["x_m"], sel["y_m"], c=sel["c_s"], cmap="viridis", vmin=0, vmax=vmax, s=70,
+                            edgecolors="k", zorder=3)
+            for _, s in sel.iterrows():
+                ax.annotate(str(s.get("submap", "")).replace("submap_", ""), (s["x_m"], s["y_m"]), fontsize=9,
+                            xytext=(5, 5), textcoords="offset points")
+        ym = 0.5 * (y0 + y1)
+        ax.set_xlim(a, b)
+        ax.set_ylim(ym - panel_h_m / 2, ym + panel_h_m / 2)
+        ax.set_aspect("equal")
+        ax.set_ylabel("y (m)")
+        ax.tick_params(labelsize=9)
+        ax.grid(alpha=0.3)
+    axes[-1].set_xlabel("x (m, laser frame)")
+    if sc is not None:
+        fig.colorbar(sc, ax=list(axes), label="landing cost C_s", orientation="horizontal", shrink=0.6, aspect=40)
+    part = f" ({len(segs)} consecutive panels along x)" if len(segs) > 1 else ""
+    axes[0].set_title(f"Final landing site per submap and its landing cost{part}", fontsize=10)
     return _save(fig, path)
 
 
 def _save(fig, path: str | Path) -> Path:
+    """Write ``fig`` as a 110 dpi PNG, every text at least :data:`hadal.figtext.MIN_FONT_PT` (legible in the report)."""
+    from hadal.figtext import min_fonts
+
     path = Path(path)
+    min_fonts(fig)
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return path

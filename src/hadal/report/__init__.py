@@ -64,8 +64,9 @@ def build_report(store: ProductStore, dive: str, *, launch: dict[str, float] | N
     if dp.dead_channels:
         summary["dead_channels"] = dp.dead_channels
     figures = _drop_skipped(make_figures(dp, options), skipped or [])
-    if "laser_grids" not in dp.versions:  # optional data (most dives have no laser survey): no placeholder
-        figures = [f for f in figures if f.key != "laser_grids" or f.png is not None]
+    for product, key in (("laser_grids", "laser_grids"), ("navigation", "nav_uncertainty")):
+        if product not in dp.versions:  # optional data (most dives have no laser survey): no placeholder
+            figures = [f for f in figures if f.key != key or f.png is not None]
     summary["figures"] = {f.key: ("ok" if f.png is not None else f"skipped: {f.skipped}") for f in figures}
     html = render_html(dp, summary, figures, _provenance(dp), title=title)
     return Report(dive=dive, html=html, summary=summary, figures=figures, upstream=list(dp.versions.values()))
@@ -73,7 +74,7 @@ def build_report(store: ProductStore, dive: str, *, launch: dict[str, float] | N
 
 #: what a figure's "skipped" reason names when it lacks a stage's products (report figures' own wording)
 _STAGE_TOKENS = {"dtm": ("dtm", "reference terrain"), "laser": ("laser_grids",), "suitability": ("suitability",),
-                 "match": ("match", "matched track"), "landing": ("landing",), "derive": ("ctd", "profile"),
+                 "match": ("match", "matched track", "navigation"), "landing": ("landing",), "derive": ("ctd", "profile"),
                  "ingest": ("sensors",)}
 
 

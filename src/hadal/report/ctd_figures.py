@@ -30,7 +30,12 @@ def _casts(dp: DiveProducts) -> tuple[list[tuple[str, pd.DataFrame]], float, flo
     lat = lon = np.nan
     out: list[tuple[str, pd.DataFrame]] = []
     prof = dp.profile
-    if prof is not None and {"temperature_its90_degc", "practical_salinity"} <= set(prof.data_vars):
+    ragged = _ragged_profiles(prof) if prof is not None else None
+    if ragged and prof is not None:  # a CF DSG contiguous ragged array: one profile per instance
+        lat = float(np.nanmean(prof["lat"].values)) if "lat" in prof.variables else np.nan
+        lon = float(np.nanmean(prof["lon"].values)) if "lon" in prof.variables else np.nan
+        out = ragged
+    elif prof is not None and {"temperature_its90_degc", "practical_salinity"} <= set(prof.data_vars):
         lat = float(np.nanmean(prof["lat"].values)) if "lat" in prof.variables else np.nan
         lon = float(np.nanmean(prof["lon"].values)) if "lon" in prof.variables else np.nan
         zname = next((d for d in prof["temperature_its90_degc"].dims if d != "cast"), None)
@@ -69,6 +74,40 @@ def _casts(dp: DiveProducts) -> tuple[list[tuple[str, pd.DataFrame]], float, flo
     if not np.isfinite(lon):
         lon = float(dp.launch["lon"]) if dp.launch else 0.0
     return out, lat, lon
+
+
+def _ragged_profiles(prof) -> list[tuple[str, pd.DataFrame]] | None:
+    """The profiles of a CF-1.8 contiguous ragged array (H.3.4: a count variable whose ``sample_dimension`` names the
+    observation dimension) as [(name, table)], or ``None`` when ``prof`` is not laid out so. The name is the
+    instance's ``cf_role = profile_id`` text (``descent``/``ascent`` when it says so)."""
+    cnt = next((v for v in prof.variables if "sample_dimension" in prof[v].attrs), None)
+    if cnt is None or not {"temperature_its90_degc", "practical_salinity"} <= set(prof.variables):
+        return None
+    obs, inst = str(prof[cnt].attrs["sample_dimension"]), prof[cnt].dims[0]
+    counts = prof[cnt].values.astype(int)
+    starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
+    ids = next((prof[v].values for v in prof.variables
+                if prof[v].attrs.get("cf_role") == "profile_id" and prof[v].dims[:1] == (inst,)), None)
+    out = []
+    for i, (a, n) in enumerate(zip(starts, counts, strict=True)):
+        sl = prof.isel({obs: slice(int(a), int(a + n))})
+        name = ids[i].decode() if ids is not None and isinstance(ids[i], bytes) else (
+            "".join(ids[i].astype(str)) if ids is not None and bool(getattr(ids[i], "ndim", 0)) else
+            (str(ids[i]) if ids is not None else f"cast {i}"))
+        z = "pressure_dbar" if "pressure_dbar" in sl.variables else "depth"
+        df = pd.DataFrame({"pressure_dbar": sl[z].values.astype(float),
+                           "t": sl["temperature_its90_degc"].values.astype(float),
+                           "SP": sl["practical_salinity"].values.astype(float)})
+        for col in ("depth_m", "depth"):
+            if col in sl.variables and sl[col].dims == (obs,):
+                df["depth_m"] = sl[col].values.astype(float)
+                break
+        for col, key in TEOS_COLUMNS.items():
+            if col in sl.variables and sl[col].dims == (obs,):
+                df[key] = sl[col].values.astype(float)
+        phase = next((p for p in ("descent", "ascent") if p in name.lower()), name)
+        out.append((phase, df))
+    return out
 
 
 def teos10(df: pd.DataFrame, lat: float, lon: float) -> pd.DataFrame:
@@ -114,12 +153,13 @@ def log_bin_mean(z: np.ndarray, v: np.ndarray, per_decade: int = 12) -> tuple[np
 
 
 def fig_water_column(dp: DiveProducts, opt: FigureOptions) -> FigureResult:
-    r = FigureResult("ctd_ts_theta_n2", "T–S diagram, potential temperature and stratification", "Water column",
-                     "(a) Potential temperature θ against absolute salinity (TEOS-10) with potential density "
-                     "anomaly σ0 contours (kg/m³); (b) θ and (c) buoyancy frequency N² against depth on a "
+    r = FigureResult("ctd_ts_theta_n2", "T–S diagram, conservative temperature and stratification", "Water column",
+                     "(a) Conservative temperature Θ against Absolute Salinity S_A (TEOS-10, a consistent pair: "
+                     "gsw.CT_from_t, gsw.SA_from_SP) with potential density anomaly σ0 = gsw.sigma0(S_A, Θ) "
+                     "isopycnals (kg/m³); (b) Θ and (c) buoyancy frequency N² against depth on a "
                      "logarithmic depth axis (the upper ocean is where the water column changes), down to the "
                      "deepest level; N² from adjacent pressure bins (gsw.Nsquared), averaged in bins of 1/12 "
-                     "decade of depth. Descent solid blue, ascent dashed red; pressure-binned profiles.")
+                     "decade of depth. Descent solid blue, ascent dashed vermillion; pressure-binned profiles.")
     casts, lat, lon = _casts(dp)
     if not casts:
         r.skipped = "no profile or ctd product with temperature and salinity"
@@ -136,8 +176,8 @@ def fig_water_column(dp: DiveProducts, opt: FigureOptions) -> FigureResult:
         st = CAST_STYLE.get(name, {"color": "k", "ls": "-", "marker": None})
         z = d["depth_m"].to_numpy(float) if "depth_m" in d else d["pressure_dbar"].to_numpy(float)
         zmax = max(zmax, float(np.nanmax(z)))
-        ax_ts.plot(d["SA"], d["theta"], ls=st["ls"], color=st["color"], lw=1.2, label=name)
-        ax_th.plot(d["theta"], np.maximum(z, 1.0), ls=st["ls"], color=st["color"], lw=1.2, label=name)
+        ax_ts.plot(d["SA"], d["CT"], ls=st["ls"], color=st["color"], lw=1.2, label=name)
+        ax_th.plot(d["CT"], np.maximum(z, 1.0), ls=st["ls"], color=st["color"], lw=1.2, label=name)
         if d["p_mid"].notna().any():
             zmid = np.interp(d["p_mid"], d["pressure_dbar"], z)
             zb, n2b = log_bin_mean(zmid, d["N2"].to_numpy(float))
@@ -145,7 +185,7 @@ def fig_water_column(dp: DiveProducts, opt: FigureOptions) -> FigureResult:
             n2b = np.where(n2b > 0, n2b, np.nan)
             ax_n2.plot(n2b, zb, ls=st["ls"], color=st["color"], lw=1.2, marker=".", ms=3, label=name)
         all_sa.append(d["SA"].to_numpy(float))
-        all_th.append(d["theta"].to_numpy(float))
+        all_th.append(d["CT"].to_numpy(float))
     if all_sa:
         import gsw
 
@@ -155,15 +195,17 @@ def fig_water_column(dp: DiveProducts, opt: FigureOptions) -> FigureResult:
         t0, t1 = np.nanmin(th), np.nanmax(th)
         ps, pt = 0.05 * max(s1 - s0, 0.01), 0.05 * max(t1 - t0, 0.1)
         S, T = np.meshgrid(np.linspace(s0 - ps, s1 + ps, 120), np.linspace(t0 - pt, t1 + pt, 120))
-        sig = gsw.sigma0(S, gsw.CT_from_pt(S, T))
+        sig = gsw.sigma0(S, T)  # T is Θ here: σ0 of the pair drawn
         cs = ax_ts.contour(S, T, sig, levels=10, colors="0.5", linewidths=0.6)
-        ax_ts.clabel(cs, fontsize=6, fmt="%.2f")
-    ax_ts.set_xlabel("absolute salinity SA (g/kg)")
-    ax_ts.set_ylabel("potential temperature θ (°C)")
+        ax_ts.clabel(cs, fontsize=8, fmt="%.2f")
+        ax_ts.set_xlim(float(S.min()), float(S.max()))
+        ax_ts.set_ylim(float(T.min()), float(T.max()))
+    ax_ts.set_xlabel("Absolute Salinity S_A (g/kg)")
+    ax_ts.set_ylabel("Conservative Temperature Θ (°C)")
     ax_ts.set_title("(a) T–S", fontsize=9)
     ax_ts.grid(alpha=0.3)
     ax_ts.legend(fontsize=8)
-    for ax, lab, title in ((ax_th, "potential temperature θ (°C)", "(b) θ"),
+    for ax, lab, title in ((ax_th, "Conservative Temperature Θ (°C)", "(b) Θ"),
                            (ax_n2, "N² (s⁻²)", "(c) buoyancy frequency N²")):
         ax.set_yscale("log")
         ax.set_ylim(zmax * 1.05, 1.0)

@@ -18,6 +18,12 @@ fig_matched_depth      TERCOM Fig. 16: measured vs reference depth along the mat
 fig_matched_track      TERCOM Fig. 17: matched track on the reference map, launch (x), deepest point (*)
 fig_landing_map        landing paper Figs. 19/25: elevation of the best submap and the selected site
 =====================  =====================================================================
+
+In the report (:func:`all_figures`) ``fig_dtm`` and ``fig_suitability`` are drawn on geographic axes instead
+(:mod:`hadal.report.geo_figures`: ``fig_dtm_geo`` hillshaded with the track, ``fig_dtm_quality`` coverage, sounding
+density and uncertainty, ``fig_suitability_geo``), beside the overview and the position uncertainty along the dive
+(``fig_nav_uncertainty``). Text is at least :attr:`FigureOptions.min_font_pt` (9 pt) and categorical colours are
+Okabe-Ito's (:data:`OKABE_ITO`).
 """
 
 from __future__ import annotations
@@ -47,7 +53,12 @@ try:  # cmocean is a dependency; fall back to matplotlib maps if it is broken
 except Exception:  # pragma: no cover
     CMAPS = {k: "viridis" for k in ("depth", "temp", "salt", "dens", "cond", "grav", "std", "entropy", "msd", "elev")}
 
-PHASE_COLOURS = {"descent": "#1f77b4", "bottom": "#2ca02c", "ascent": "#d62728"}
+#: Okabe & Ito's colour-blind-safe categorical palette (Color Universal Design, 2008)
+OKABE_ITO = {"black": "#000000", "orange": "#E69F00", "sky_blue": "#56B4E9", "bluish_green": "#009E73",
+             "yellow": "#F0E442", "blue": "#0072B2", "vermillion": "#D55E00", "reddish_purple": "#CC79A7"}
+#: dive phases in Okabe-Ito colours (descent blue, bottom bluish green, ascent vermillion: told apart with any
+#: common colour-vision deficiency; red/green was not)
+PHASE_COLOURS = {"descent": OKABE_ITO["blue"], "bottom": OKABE_ITO["bluish_green"], "ascent": OKABE_ITO["vermillion"]}
 
 
 @dataclass
@@ -60,6 +71,10 @@ class FigureResult:
     skipped: str | None = None
     #: the drawn matplotlib Figure, kept only with ``FigureOptions(keep_figure=True)`` (tests inspect its artists)
     figure: Figure | None = field(default=None, repr=False, compare=False)
+    #: resolution (dots per inch) of :attr:`png` and its smallest text (points): the page tells the browser test
+    #: (``data-dpi``, ``data-min-font-pt``) so it can check the text's size as displayed
+    dpi: float | None = None
+    min_font_pt: float | None = None
 
 
 @dataclass
@@ -68,6 +83,10 @@ class FigureOptions:
     width_in: float = 10.0
     max_points: int = 20000
     keep_figure: bool = False  # keep the Figure on the result (FigureResult.figure); off: freed after rendering
+    #: smallest text (points) on a figure: every smaller label, tick label and legend entry is raised to it. At the
+    #: default dpi and width the PNG is shown at ~97 % of its size in the page (1100 px wide at most), so 9 pt stays
+    #: >= 9 pt (12 CSS px) on screen (checked in headless Chromium, tests/test_report.py)
+    min_font_pt: float = 9.0
     #: processes drawing the figures (:class:`hadal.forkpool.ForkPool`; 1 with ``keep_figure``: a Figure stays here)
     workers: int = 1
 
@@ -81,8 +100,13 @@ def _png(fig: Figure, dpi: int, tight: bool = True) -> bytes:
 
 
 def _render(r: FigureResult, fig: Figure, opt: FigureOptions, tight: bool = True) -> FigureResult:
-    """``r`` with the PNG of ``fig`` (and ``fig`` itself when ``opt.keep_figure``); ``tight``: see :func:`_png`."""
+    """``r`` with the PNG of ``fig`` (and ``fig`` itself when ``opt.keep_figure``); ``tight``: see :func:`_png`.
+    Text smaller than ``opt.min_font_pt`` is raised to it first (:func:`hadal.figtext.min_fonts`)."""
+    from hadal.figtext import min_fonts
+
+    min_fonts(fig, opt.min_font_pt)
     r.png = _png(fig, opt.dpi, tight)
+    r.dpi, r.min_font_pt = float(opt.dpi), float(opt.min_font_pt)
     if opt.keep_figure:
         r.figure = fig
     return r
@@ -137,7 +161,7 @@ CTD_PANELS = (
 def fig_ctd_profiles(dp: DiveProducts, opt: FigureOptions) -> FigureResult:
     r = FigureResult("fig08_ctd_profiles", "Water-column profiles", "Water column",
                      "Measured conductivity and temperature, and the salinity, density and gravity derived from them, "
-                     "against depth: descent wide pale blue, bottom green, ascent thin dashed red (cf. TERCOM paper "
+                     "against depth: descent wide pale blue, bottom bluish green, ascent thin dashed vermillion (cf. TERCOM paper "
                      "Fig. 8).")
     df = dp.ctd
     zcol = "depth_m" if df is not None and "depth_m" in df else "pressure_dbar"
@@ -250,8 +274,9 @@ def fig_seafloor_depth(dp: DiveProducts, opt: FigureOptions) -> FigureResult:
     t = _time(d)
     fig = Figure(figsize=(opt.width_in, opt.width_in * 0.6))
     axes = fig.subplots(3, 1, sharex=True)
-    for ax, col, lab, c in ((axes[0], "depth_m", "(a) depth (m)", "#1f77b4"), (axes[1], alt, "(b) altitude (m)", "#ff7f0e"),
-                            (axes[2], "seafloor_depth_m", "(c) seafloor depth (m)", "#2ca02c")):
+    for ax, col, lab, c in ((axes[0], "depth_m", "(a) depth (m)", OKABE_ITO["blue"]),
+                            (axes[1], alt, "(b) altitude (m)", OKABE_ITO["orange"]),
+                            (axes[2], "seafloor_depth_m", "(c) seafloor depth (m)", OKABE_ITO["bluish_green"])):
         ax.plot(t, d[col], ".", ms=1.5, color=c, rasterized=True)
         ax.set_ylabel(lab, fontsize=8)
         ax.grid(alpha=0.3)
@@ -460,10 +485,10 @@ def _track_depths(tr: pd.DataFrame, max_points: int) -> tuple[pd.DataFrame, Any,
 
 def _plot_track_depths(ax, tr: pd.DataFrame, xaxis, ref: str, rasterized: bool = False) -> None:
     """Measured seafloor depth (dots) and the reference map's (line) along the matched track, depth down."""
-    ax.plot(xaxis, tr["seafloor_depth_m"], ".", ms=2, label="measured (depth + altitude)", color="#1f77b4",
+    ax.plot(xaxis, tr["seafloor_depth_m"], ".", ms=2, label="measured (depth + altitude)", color=OKABE_ITO["blue"],
             rasterized=rasterized)
     ax.plot(xaxis, tr[ref], "-", lw=1.5, label="reference map" + (" − bias" if ref != "map_depth_m" else ""),
-            color="#d62728")
+            color=OKABE_ITO["vermillion"])
     ax.invert_yaxis()
     ax.set_ylabel("seafloor depth (m)")
     ax.grid(alpha=0.3)
@@ -743,7 +768,14 @@ def all_figures(dp: DiveProducts | None = None) -> tuple[Callable[[DiveProducts,
     after the CTD profiles (then, when ``dp`` has underway records or is not given, their track/section figure)
     and the residual panel in place of the plain matched-depth figure."""
     from hadal.report.ctd_figures import fig_underway, fig_water_column
-    from hadal.report.geo_figures import fig_overview, fig_residuals
+    from hadal.report.geo_figures import (
+        fig_dtm_geo,
+        fig_dtm_quality,
+        fig_nav_uncertainty,
+        fig_overview,
+        fig_residuals,
+        fig_suitability_geo,
+    )
 
     out: list[Callable[[DiveProducts, FigureOptions], FigureResult]] = [fig_overview]
     # a dive whose only CTD record is underway has a trajectory instead of ctd/profile: no cast figures for it
@@ -754,7 +786,15 @@ def all_figures(dp: DiveProducts | None = None) -> tuple[Callable[[DiveProducts,
             if fn is fig_ctd_profiles:
                 out.append(fig_underway)
             continue
+        if fn is fig_dtm:  # the DTM on a geographic map, with its coverage, density and uncertainty
+            out += [fig_dtm_geo, fig_dtm_quality]
+            continue
+        if fn is fig_suitability:
+            out.append(fig_suitability_geo)
+            continue
         out.append(fig_residuals if fn is fig_matched_depth else fn)
+        if fn is fig_depth_time:
+            out.append(fig_nav_uncertainty)
         if fn is fig_ctd_profiles:
             out.append(fig_water_column)
             if dp is None or dp.trajectories:

@@ -54,18 +54,24 @@ def _nice_length(m: float) -> float:
     return max(v * e for v in (1, 2, 5) if v * e <= m) if m > 0 else 1.0
 
 
-def _scale_bar(ax, lat0: float) -> None:
+def _scale_bar(ax, lat0: float, avoid: list[float] | None = None) -> Any:
+    """A 1-2-5 scale bar in the lower left corner of a lon/lat map, or the lower right one when ``avoid`` (an inset's
+    box, axes fraction x0, y0, w, h) covers the lower left; returns its label (a Text)."""
     x0, x1 = ax.get_xlim()
     y0, y1 = ax.get_ylim()
     m_per_deg_lon = 111_320.0 * math.cos(math.radians(lat0))
     width_m = (x1 - x0) * m_per_deg_lon
     L = _nice_length(width_m / 5)
     dlon = L / m_per_deg_lon
-    bx, by = x0 + 0.05 * (x1 - x0), y0 + 0.06 * (y1 - y0)
+    fx = 0.05
+    if avoid is not None and avoid[0] < 0.3 and avoid[1] < 0.2:  # the inset sits in the lower left corner
+        fx = 0.95 - dlon / (x1 - x0)
+    bx, by = x0 + fx * (x1 - x0), y0 + 0.06 * (y1 - y0)
     ax.plot([bx, bx + dlon], [by, by], "-", color="k", lw=4, solid_capstyle="butt")
     ax.plot([bx, bx + dlon], [by, by], "-", color="w", lw=2, solid_capstyle="butt")
-    ax.text(bx + dlon / 2, by + 0.02 * (y1 - y0), f"{L / 1000:g} km" if L >= 1000 else f"{L:g} m",
-            ha="center", va="bottom", fontsize=8, bbox={"fc": "w", "ec": "none", "alpha": 0.7, "pad": 1})
+    return ax.text(bx + dlon / 2, by + 0.02 * (y1 - y0), f"{L / 1000:g} km" if L >= 1000 else f"{L:g} m",
+                   ha="center", va="bottom", fontsize=9, bbox={"fc": "w", "ec": "none", "alpha": 0.7, "pad": 1},
+                   gid="scale_bar")
 
 
 #: inset corners (axes fraction: x0, y0, width, height), tried in this order
@@ -104,7 +110,7 @@ def _ellipse_lonlat(frame, x: float, y: float, e: dict[str, Any]) -> tuple[np.nd
 
 def fig_overview(dp: DiveProducts, opt: FigureOptions) -> FigureResult:
     r = FigureResult("overview_map", "Geographic overview of the dive", "Dive",
-                     "The dive on the hillshaded reference DTM (contours every 100 m of depth) in longitude/latitude "
+                     "The dive on the hillshaded reference DTM (depth contours) in longitude/latitude "
                      "(WGS 84; equal ground distances on both axes; washed-out cells: no soundings): best track of the whole dive (navigation: "
                      "terrain-matched on the bottom, dead reckoning adjusted to the launch and the match elsewhere), "
                      "the dead-reckoning-only track, the launch point, the matched start of the bottom track with "
@@ -129,8 +135,10 @@ def fig_overview(dp: DiveProducts, opt: FigureOptions) -> FigureResult:
     _shaded_dtm(fig, ax, LON, LAT, x, z)
     handles = _overview_tracks(ax, dp, fix, dr, frame, opt)
     st = fix.get("start")
+    _surfacing(ax, dp, handles)
+    inset_box = None
     if isinstance(st, dict) and st.get("lon") is not None:
-        _overview_fix(ax, dp, fix, st, frame, handles, LON, LAT, lat0)
+        inset_box = _overview_fix(ax, dp, fix, st, frame, handles, LON, LAT, lat0)
     sm2 = _second_mode(fix)
     if sm2 is not None:
         slon, slat = frame.to_lonlat(float(sm2["x"]), float(sm2["y"]))
@@ -152,7 +160,7 @@ def fig_overview(dp: DiveProducts, opt: FigureOptions) -> FigureResult:
     ax.set_ylabel("latitude (°N)")
     ax.ticklabel_format(useOffset=False)
     ax.tick_params(labelsize=8)
-    _scale_bar(ax, lat0)
+    _scale_bar(ax, lat0, inset_box)
     if handles:
         ax.legend(handles=handles, fontsize=7, loc="upper right", framealpha=0.85)
     reasons = fix.get("mismatch_reasons") or []
@@ -212,11 +220,11 @@ def _shaded_dtm(fig: Figure, ax: Any, LON: np.ndarray, LAT: np.ndarray, x: np.nd
     sm = ScalarMappable(norm=Normalize(np.nanmin(z), np.nanmax(z)), cmap=cmap)
     cb = fig.colorbar(sm, ax=ax, shrink=0.8, label="reference depth (m, positive down)")
     cb.ax.invert_yaxis()
-    step = 100.0 if np.nanmax(z) - np.nanmin(z) > 300 else 20.0
+    step = _nice_length(max(float(np.nanmax(z) - np.nanmin(z)) / 10.0, 1.0))  # about 10 contours, 1-2-5 m
     levels = np.arange(math.ceil(np.nanmin(z) / step) * step, np.nanmax(z), step)
     if levels.size:
         cs = ax.contour(LON, LAT, z, levels=levels, colors="k", linewidths=0.4, alpha=0.6)
-        ax.clabel(cs, levels=levels[::2], fontsize=6, fmt="%.0f")
+        ax.clabel(cs, levels=levels[::2], fontsize=9, fmt="%.0f")
 
 
 def _overview_tracks(ax: Any, dp: DiveProducts, fix: dict[str, Any], dr: dict[str, Any], frame: Any,
@@ -247,8 +255,9 @@ def _overview_tracks(ax: Any, dp: DiveProducts, fix: dict[str, Any], dr: dict[st
 
 
 def _overview_fix(ax: Any, dp: DiveProducts, fix: dict[str, Any], st: dict[str, Any], frame: Any,
-                  handles: list[Any], LON: np.ndarray, LAT: np.ndarray, lat0: float) -> None:
-    """The matched start, its uncertainty ellipses and an inset zoom on them (:func:`fig_overview`)."""
+                  handles: list[Any], LON: np.ndarray, LAT: np.ndarray, lat0: float) -> list[float] | None:
+    """The matched start, its uncertainty ellipses and an inset zoom on them (:func:`fig_overview`); returns the
+    inset's box (axes fraction) or ``None`` without one."""
     handles += ax.plot(st["lon"], st["lat"], "o", mfc="none", mec="yellow", mew=2, ms=9, ls="none",
                        label="matched start of the bottom track")
     unc = fix.get("uncertainty_m") or {}
@@ -267,9 +276,12 @@ def _overview_fix(ax: Any, dp: DiveProducts, fix: dict[str, Any], st: dict[str, 
         if pts is not None:
             handles += ax.plot(pts[0], pts[1], ls_, color="yellow", lw=1.4, label=lab)
             outlines.append((pts, ls_))
-    if outlines:  # the ellipses are tens of metres on a map of kilometres: an inset zoom on the fix
-        ins = ax.inset_axes(_emptiest_corner(handles, (float(np.nanmin(LON)), float(np.nanmax(LON))),
-                                             (float(np.nanmin(LAT)), float(np.nanmax(LAT)))))
+    if not outlines:
+        return None
+    if outlines:  # always here: the ellipses are tens of metres on a map of kilometres, an inset zooms on the fix
+        box = _emptiest_corner(handles, (float(np.nanmin(LON)), float(np.nanmax(LON))),
+                               (float(np.nanmin(LAT)), float(np.nanmax(LAT))))
+        ins = ax.inset_axes(box)
         ins.set_facecolor("0.15")
         for pts, ls_ in outlines:
             ins.plot(pts[0], pts[1], ls_, color="yellow", lw=1.4)
@@ -285,8 +297,9 @@ def _overview_fix(ax: Any, dp: DiveProducts, fix: dict[str, Any], st: dict[str, 
         ins.set_xticks([])
         ins.set_yticks([])
         wm = w * 111_320.0 * math.cos(math.radians(lat0))
-        ins.set_title(f"zoom on the fix ({2 * wm:.0f} m wide)", fontsize=7, color="k", pad=2,
+        ins.set_title(f"zoom on the fix ({2 * wm:.0f} m wide)", fontsize=9, color="k", pad=2,
                       bbox={"fc": "w", "ec": "none", "alpha": 0.8, "pad": 1})
+    return box
 
 
 def fig_residuals(dp: DiveProducts, opt: FigureOptions) -> FigureResult:
@@ -306,7 +319,7 @@ def fig_residuals(dp: DiveProducts, opt: FigureOptions) -> FigureResult:
     ok = np.isfinite(res)
     rms = float(np.sqrt(np.mean(res[ok] ** 2))) if ok.any() else float("nan")
     ax2.plot(xaxis, res, ".", ms=1.5, color="k", rasterized=True)
-    ax2.axhline(0, color="#d62728", lw=1)
+    ax2.axhline(0, color="#D55E00", lw=1)
     ax2.set_ylabel("residual (m)")
     ax2.set_xlabel("time (UTC)" if "time" in tr else "sample")
     ax2.grid(alpha=0.3)
@@ -314,4 +327,354 @@ def fig_residuals(dp: DiveProducts, opt: FigureOptions) -> FigureResult:
              va="top", bbox={"fc": "w", "ec": "none", "alpha": 0.8})
     if "time" in tr:
         fig.autofmt_xdate()
+    return _render(r, fig, opt)
+
+
+# ------------------------------------------------------------------------------------------ geographic DTM maps
+#: a DTM drawn on a geographic map is thinned (every k-th cell) to at most this many cells a side
+DTM_FIGURE_CELLS = 700
+
+
+def degmin_formatter(axis: str, span_deg: float):
+    """A tick formatter writing a longitude (``axis="lon"``) or latitude as degrees and decimal minutes
+    (``142°12.5'E``), with as many decimals of a minute as the tick spacing (about ``span_deg`` / 5) needs."""
+    from matplotlib.ticker import FuncFormatter
+
+    from hadal.geo import format_degmin
+
+    step_min = max(abs(span_deg) * 60.0 / 5.0, 1e-9)
+    dec = int(min(4, max(1, math.ceil(-math.log10(step_min) + 0.3))))
+    return FuncFormatter(lambda v, _pos: format_degmin(v, axis, dec))
+
+
+def dtm_lonlat(ds, k: int = 1) -> tuple[np.ndarray, np.ndarray]:
+    """Longitude/latitude (degrees) of every ``k``-th cell centre of a DTM: its own ``lon``/``lat`` (y, x)
+    coordinates when it has them, else its map frame (``map_frame_origin_*`` attributes) projected."""
+    if {"lon", "lat"} <= set(ds.variables) and ds["lon"].ndim == 2:
+        return (np.asarray(ds["lon"].transpose("y", "x").values[::k, ::k], float),
+                np.asarray(ds["lat"].transpose("y", "x").values[::k, ::k], float))
+    from hadal.geo import LocalFrame
+
+    fr = LocalFrame(float(ds.attrs["map_frame_origin_latitude_deg"]), float(ds.attrs["map_frame_origin_longitude_deg"]))
+    X, Y = np.meshgrid(ds["x"].values[::k].astype(float), ds["y"].values[::k].astype(float))
+    lon, lat = fr.to_lonlat(X, Y)
+    return np.asarray(lon, float), np.asarray(lat, float)
+
+
+def _geo_axes(ax, lon: np.ndarray, lat: np.ndarray) -> float:
+    """Limits at the cells' lon/lat bounds, equal ground distances (aspect 1/cos(latitude)), graticule labels in
+    degrees and minutes; returns the mean latitude."""
+    lo0, lo1, la0, la1 = (float(np.nanmin(lon)), float(np.nanmax(lon)), float(np.nanmin(lat)), float(np.nanmax(lat)))
+    lat0 = 0.5 * (la0 + la1)
+    ax.set_xlim(lo0, lo1)
+    ax.set_ylim(la0, la1)
+    ax.set_aspect(1.0 / math.cos(math.radians(lat0)))
+    ax.xaxis.set_major_formatter(degmin_formatter("lon", lo1 - lo0))
+    ax.yaxis.set_major_formatter(degmin_formatter("lat", la1 - la0))
+    from matplotlib.ticker import MaxNLocator
+
+    ax.xaxis.set_major_locator(MaxNLocator(4))
+    ax.yaxis.set_major_locator(MaxNLocator(5))
+    ax.set_xlabel("longitude (WGS 84)")
+    ax.set_ylabel("latitude (WGS 84)")
+    ax.grid(color="w", alpha=0.35, lw=0.6)
+    return lat0
+
+
+def _thin_k(ds) -> int:
+    return max(1, int(math.ceil(max(ds.sizes["x"], ds.sizes["y"]) / DTM_FIGURE_CELLS)))
+
+
+def fig_dtm_geo(dp: DiveProducts, opt: FigureOptions) -> FigureResult:
+    """The reference DTM on a geographic map (what ``mbm_grdplot`` draws): depth coloured and hillshaded
+    (:class:`matplotlib.colors.LightSource`, sun from the north-west), depth contours, the dive's best track and
+    launch point, a scale bar, graticule in degrees and minutes; axes at the product's lon/lat bounds."""
+    r = FigureResult("dtm_map", "Reference terrain (multibeam DTM)", "Terrain",
+                     "Reference DTM gridded from the ship's multibeam soundings (depth positive down), hillshaded "
+                     "(sun from the north-west, 45° high) in longitude/latitude (WGS 84, equal ground distances on "
+                     "both axes) with depth contours, the dive's track and the launch point; washed-out cells have "
+                     "no sounding (the coverage figure below shows them).")
+    ds = dp.dtm
+    if ds is None or "depth_m" not in ds or not {"x", "y"} <= set(ds["depth_m"].dims):
+        r.skipped = "no dtm product (reference terrain)" if ds is None else "dtm product has no depth_m(y, x)"
+        return r
+    if not ({"lon", "lat"} <= set(ds.variables) or "map_frame_origin_latitude_deg" in ds.attrs):
+        r.skipped = "dtm product has neither lon/lat nor its map frame's origin: it cannot be placed on a map"
+        return r
+    if ds.attrs.get("dtm_source") == "prior_grid":
+        r.title = "Reference terrain (prior bathymetry grid)"
+        r.caption = r.caption.replace("gridded from the ship's multibeam soundings",
+                                      "resampled from the prior bathymetry grid")
+    k = _thin_k(ds)
+    lon, lat = dtm_lonlat(ds, k)
+    z = np.asarray(ds["depth_m"].transpose("y", "x").values[::k, ::k], float)
+    x = ds["x"].values[::k].astype(float)
+    fig = Figure(figsize=(opt.width_in, opt.width_in * 0.72), layout="constrained")
+    ax = fig.subplots()
+    _shaded_dtm(fig, ax, lon, lat, x, z)
+    handles = _overview_tracks(ax, dp, dp.fix or {}, (dp.fix or {}).get("dead_reckoning_track") or {},
+                               _frame(dp), opt) if _frame(dp) is not None else []
+    if "land" in ds and ds["land"].dims == ("y", "x"):  # above sea level in the source grid: no depth, drawn as land
+        from matplotlib.colors import ListedColormap
+        from matplotlib.patches import Patch
+
+        from hadal.report.figures import LAND_COLOUR
+
+        land = np.asarray(ds["land"].values[::k, ::k]) == 1
+        if land.any():
+            ax.pcolormesh(lon, lat, np.ma.masked_where(~land, np.ones(land.shape)), shading="nearest",
+                          cmap=ListedColormap([LAND_COLOUR]), vmin=0, vmax=1, rasterized=True)
+            handles.append(Patch(facecolor=LAND_COLOUR, edgecolor="none", label="land"))
+            r.caption += " Land (above sea level in the source grid) is drawn as land: it has no depth."
+    _surfacing(ax, dp, handles)
+    lat0 = _geo_axes(ax, *dtm_lonlat(ds))
+    _scale_bar(ax, lat0)
+    if handles:
+        ax.legend(handles=handles, loc="upper right", framealpha=0.85)
+    if k > 1:
+        r.caption += f" Drawn every {k}th cell ({ds.sizes['x']} x {ds.sizes['y']} cells)."
+    return _render(r, fig, opt)
+
+
+def fig_dtm_quality(dp: DiveProducts, opt: FigureOptions) -> FigureResult:
+    """Coverage/sounding density (``count``, soundings per cell, log scale; empty cells shown) and the standard
+    uncertainty (``uncertainty_m``) of the multibeam DTM on geographic axes (Kluster's and ``mbgrid``'s density and
+    uncertainty layers)."""
+    r = FigureResult("dtm_quality", "Reference terrain: coverage, sounding density and uncertainty", "Terrain",
+                     "(a) Soundings per DTM cell (log scale; grey: no sounding, i.e. no coverage) and (b) standard "
+                     "uncertainty of each cell's depth (m; a-priori sonar error and the soundings' spread over "
+                     "sqrt(count), the DTM's uncertainty_m), in longitude/latitude (WGS 84).")
+    ds = dp.dtm
+    if ds is None:
+        r.skipped = "no dtm product (reference terrain)"
+        return r
+    panels = [v for v in ("count", "uncertainty_m") if v in ds and ds[v].dims == ("y", "x")]
+    if not panels or not ({"lon", "lat"} <= set(ds.variables) or "map_frame_origin_latitude_deg" in ds.attrs):
+        r.skipped = ("dtm product has no count/uncertainty_m layers (a prior grid has no soundings)" if not panels
+                     else "dtm product cannot be placed on a map (no lon/lat)")
+        return r
+    from matplotlib.colors import LogNorm
+
+    k = _thin_k(ds)
+    full_lon, full_lat = dtm_lonlat(ds)
+    fig = Figure(figsize=(opt.width_in, opt.width_in * 0.52), layout="constrained")
+    axes = np.atleast_1d(fig.subplots(1, len(panels)))
+    cov = None
+    for ax, v in zip(axes, panels, strict=True):
+        # block means of k x k cells (a density map must not skip cells): soundings per cell, uncertainty
+        a = np.asarray(ds[v].transpose("y", "x").values, float)
+        lon, lat, a = (_block_mean(b, k) for b in (full_lon, full_lat, a))
+        ax.set_facecolor("0.75")
+        if v == "count":
+            cnt = np.where(a > 0, a, np.nan)
+            fin = cnt[np.isfinite(cnt)]
+            cov = float(np.mean(np.asarray(ds[v].values) > 0))
+            im = ax.pcolormesh(lon, lat, cnt, shading="nearest", cmap="viridis", rasterized=True,
+                               norm=LogNorm(max(0.1, float(fin.min())) if fin.size else 1.0,
+                                            max(2.0, float(fin.max())) if fin.size else 2.0))
+            cb = fig.colorbar(im, ax=ax, orientation="horizontal", shrink=0.8, label="soundings per cell")
+            from matplotlib.ticker import LogLocator, NullFormatter, ScalarFormatter
+
+            cb.ax.xaxis.set_major_locator(LogLocator(subs=(1.0, 2.0, 5.0)))
+            cb.ax.xaxis.set_major_formatter(ScalarFormatter())
+            cb.ax.xaxis.set_minor_formatter(NullFormatter())
+            ax.set_title("(a) sounding density (grey: no sounding)")
+        else:
+            fin = a[np.isfinite(a)]
+            vmax = float(np.nanpercentile(fin, 99)) if fin.size else 1.0
+            im = ax.pcolormesh(lon, lat, a, shading="nearest", cmap="cividis", vmin=0.0, vmax=vmax, rasterized=True)
+            fig.colorbar(im, ax=ax, orientation="horizontal", shrink=0.8, label="standard uncertainty of depth (m)",
+                         extend="max")
+            ax.set_title("(b) depth uncertainty" + (f" (median {np.nanmedian(fin):.2f} m)" if fin.size else ""))
+        _geo_axes(ax, full_lon, full_lat)
+    if cov is not None:
+        r.caption += f" {100 * cov:.1f} % of the {ds.sizes['x'] * ds.sizes['y']:,} cells hold at least one sounding."
+    if k > 1:
+        r.caption += f" Drawn as means of {k} x {k} cells."
+    return _render(r, fig, opt)
+
+
+def _block_mean(a: np.ndarray, k: int) -> np.ndarray:
+    """Means of the ``k`` x ``k`` blocks of a 2-D array (NaN ignored; a partial last block trimmed); ``a`` for k = 1."""
+    if k <= 1:
+        return a
+    ny, nx = (a.shape[0] // k) * k, (a.shape[1] // k) * k
+    b = a[:ny, :nx].reshape(ny // k, k, nx // k, k)
+    with np.errstate(invalid="ignore"):
+        import warnings
+
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)
+            return np.nanmean(b, axis=(1, 3))
+
+
+def surfacing_position(nav: pd.DataFrame | None) -> dict[str, Any] | None:
+    """The vehicle's surfacing position: the last sample of the navigation product (end of the ascent) with a
+    position, its time, 1-sigma radial uncertainty (``position_uncertainty_m``) and source; ``None`` without one."""
+    if nav is None or not {"lat", "lon"} <= set(nav.columns) or not len(nav):
+        return None
+    ok = np.isfinite(nav["lat"].to_numpy(float)) & np.isfinite(nav["lon"].to_numpy(float))
+    if "phase" in nav and (nav["phase"].astype(str) == "ascent").any():
+        ok &= (nav["phase"].astype(str) == "ascent").to_numpy()
+    if not ok.any():
+        return None
+    row = nav[ok].iloc[-1]
+    out: dict[str, Any] = {"lat": float(row["lat"]), "lon": float(row["lon"])}
+    if "time" in nav and pd.notna(row["time"]):
+        out["time_utc"] = pd.Timestamp(row["time"]).isoformat()
+    if "position_uncertainty_m" in nav and np.isfinite(float(row["position_uncertainty_m"])):
+        out["uncertainty_m"] = float(row["position_uncertainty_m"])
+    if "position_source" in nav:
+        out["source"] = str(row["position_source"])
+    return out
+
+
+def _surfacing(ax, dp: DiveProducts, handles: list[Any]) -> None:
+    """The surfacing position (and its 1-sigma circle) on a lon/lat map."""
+    s = surfacing_position(dp.navigation)
+    if s is None:
+        return
+    lab = "surfacing position" + (f" (±{s['uncertainty_m']:.0f} m, 1σ)" if s.get("uncertainty_m") else "")
+    handles += ax.plot(s["lon"], s["lat"], "s", color="#E69F00", mec="k", ms=9, ls="none", label=lab)
+    if s.get("uncertainty_m"):
+        t = np.linspace(0, 2 * np.pi, 91)
+        rr = float(s["uncertainty_m"])
+        ax.plot(s["lon"] + rr * np.sin(t) / (111_320.0 * math.cos(math.radians(s["lat"]))),
+                s["lat"] + rr * np.cos(t) / 111_320.0, "-", color="#E69F00", lw=1.4)
+
+
+#: columns of the navigation product read as per-sample position uncertainty (besides ``position_uncertainty_m``)
+SIGMA_HINTS = ("sigma", "_std_")
+
+
+def _cov_role(name: str) -> str | None:
+    """Which element of a horizontal position covariance a column holds, from its name: ``ee`` (east variance),
+    ``nn`` (north) or ``en`` (east-north covariance); ``position_covariance_east_m2`` -> ``ee``,
+    ``..._east_north_m2`` -> ``en``, ``cov_xx`` -> ``ee``; ``None`` for anything else."""
+    import re
+
+    words = set(re.split(r"[^a-z]+", name.lower()))
+    east, north = bool(words & {"east", "e", "x", "easting"}), bool(words & {"north", "n", "y", "northing"})
+    pair = next((w for w in words if w in ("ee", "nn", "en", "ne", "xx", "yy", "xy", "yx")), None)
+    if pair:
+        return {"ee": "ee", "xx": "ee", "nn": "nn", "yy": "nn"}.get(pair, "en")
+    if east and north:
+        return "en"
+    return "ee" if east else "nn" if north else None
+
+
+def nav_uncertainty_series(nav: pd.DataFrame) -> dict[str, np.ndarray]:
+    """Per-sample horizontal position uncertainty (m, 1 sigma) of the navigation product by what it is:
+    ``position_uncertainty_m`` (radial DRMS), every ``*sigma*`` column in metres, and, from a covariance
+    (``*_cov_*``: east/north variances and covariance, m²), the semi-major axis of the 1-sigma ellipse
+    sqrt(largest eigenvalue). Columns it cannot read are left out."""
+    out: dict[str, np.ndarray] = {}
+    if "position_uncertainty_m" in nav:
+        out["radial 1σ (DRMS)"] = nav["position_uncertainty_m"].to_numpy(float)
+    for c in nav.columns:
+        lc = str(c).lower()
+        if c != "position_uncertainty_m" and any(h in lc for h in SIGMA_HINTS) and lc.endswith("_m"):
+            v = pd.to_numeric(nav[c], errors="coerce").to_numpy(float)
+            if np.isfinite(v).any():
+                out[str(c).replace("_", " ")] = v
+    roles = {_cov_role(str(c)): c for c in nav.columns if "cov" in str(c).lower()}
+    ee, nn, en = roles.get("ee"), roles.get("nn"), roles.get("en")
+    if ee and nn:
+        a = pd.to_numeric(nav[ee], errors="coerce").to_numpy(float)
+        b = pd.to_numeric(nav[nn], errors="coerce").to_numpy(float)
+        c = pd.to_numeric(nav[en], errors="coerce").to_numpy(float) if en else np.zeros_like(a)
+        lam = 0.5 * (a + b) + np.sqrt(0.25 * (a - b) ** 2 + c ** 2)
+        out["ellipse semi-major 1σ (covariance)"] = np.sqrt(np.clip(lam, 0, None))
+    return out
+
+
+def fig_nav_uncertainty(dp: DiveProducts, opt: FigureOptions) -> FigureResult:
+    """Horizontal position uncertainty along the dive (navigation product), phases shaded, the surfacing
+    position's uncertainty marked."""
+    r = FigureResult("nav_uncertainty", "Position uncertainty along the dive", "Dive",
+                     "Horizontal position uncertainty (1 sigma, m) of the best track (navigation product) against "
+                     "time: small on the bottom where the track is terrain-matched, growing while the vehicle is "
+                     "dead-reckoned (descent, ascent); the square marks the surfacing position's uncertainty.")
+    nav = dp.navigation
+    if nav is None or "time" not in nav:
+        r.skipped = "no navigation product" if nav is None else "navigation product has no time"
+        return r
+    series = nav_uncertainty_series(nav)
+    if not series:
+        r.skipped = "navigation product has no position uncertainty column"
+        return r
+    n = _thin(nav, opt.max_points)
+    idx = nav.index.get_indexer(n.index)
+    t = pd.to_datetime(n["time"], utc=True).dt.tz_localize(None)
+    fig = Figure(figsize=(opt.width_in, opt.width_in * 0.4), layout="constrained")
+    ax = fig.subplots()
+    okabe = ("#0072B2", "#D55E00", "#009E73", "#CC79A7", "#56B4E9")
+    for (lab, v), col in zip(series.items(), okabe * 3, strict=False):
+        ax.plot(t, v[idx], "-", lw=1.5, color=col, label=lab)
+    if "phase" in n:
+        ph = n["phase"].astype(str).to_numpy()
+        for name, shade in (("descent", "#56B4E9"), ("bottom", "#009E73"), ("ascent", "#E69F00")):
+            m = ph == name
+            if m.any():
+                ax.axvspan(t[m].min(), t[m].max(), color=shade, alpha=0.12, lw=0)
+                ax.text(t[m].min() + (t[m].max() - t[m].min()) / 2, 1.0, name, transform=ax.get_xaxis_transform(),
+                        ha="center", va="bottom")
+    s = surfacing_position(nav)
+    if s and s.get("uncertainty_m") and s.get("time_utc"):
+        ax.plot(pd.Timestamp(s["time_utc"]).tz_localize(None) if pd.Timestamp(s["time_utc"]).tzinfo is None else
+                pd.Timestamp(s["time_utc"]).tz_convert(None), s["uncertainty_m"], "s", color="#E69F00", mec="k",
+                ms=9, label=f"surfacing: ±{s['uncertainty_m']:.0f} m")
+    ax.set_ylabel("horizontal position uncertainty, 1σ (m)")
+    ax.set_xlabel("time (UTC)")
+    ax.set_ylim(bottom=0)
+    ax.grid(alpha=0.3)
+    ax.legend(loc="upper left")
+    fig.autofmt_xdate()
+    return _render(r, fig, opt)
+
+
+def fig_suitability_geo(dp: DiveProducts, opt: FigureOptions) -> FigureResult:
+    """TERCOM Figs. 5-6 (block elevation standard deviation and information entropy) on geographic axes: the
+    suitability product's blocks placed by its map frame (``map_frame_origin_*``), the proposed matching region's
+    outline and the launch point in longitude/latitude; the map-frame figure when the product has no frame origin."""
+    from hadal.report.figures import _grid_ok, _region, fig_suitability
+
+    ds = dp.suitability
+    if ds is None or "map_frame_origin_latitude_deg" not in ds.attrs:
+        return fig_suitability(dp, opt)
+    r = FigureResult("fig05_06_suitability", "Terrain suitability for matching", "Terrain",
+                     "(left) terrain elevation standard deviation and (right) topographic information entropy per "
+                     "block (cf. TERCOM paper Figs. 5-6) in longitude/latitude (WGS 84, equal ground distances); "
+                     "dashed: proposed matching region, x: launch point.")
+    panels = [(v, lab, cm) for v, lab, cm in (("std_m", "elevation std (m)", CMAPS["std"]),
+                                              ("entropy", "information entropy", "viridis"))
+              if _grid_ok(ds, v, "suitability") is None]
+    if not panels:
+        r.skipped = "suitability product has neither std_m(y, x) nor entropy(y, x)"
+        return r
+    from hadal.geo import LocalFrame
+
+    fr = LocalFrame(float(ds.attrs["map_frame_origin_latitude_deg"]), float(ds.attrs["map_frame_origin_longitude_deg"]))
+    X, Y = np.meshgrid(ds["x"].values.astype(float), ds["y"].values.astype(float))
+    lon, lat = (np.asarray(v, float) for v in fr.to_lonlat(X, Y))
+    fig = Figure(figsize=(opt.width_in, opt.width_in * 0.45), layout="constrained")
+    axes = np.atleast_1d(fig.subplots(1, len(panels)))
+    reg = _region(ds)
+    launch = dp.launch or ((dp.fix or {}).get("launch") if isinstance((dp.fix or {}).get("launch"), dict) else None)
+    for ax, (v, lab, cm) in zip(axes, panels, strict=True):
+        im = ax.pcolormesh(lon, lat, ds[v].transpose("y", "x").values.astype(float), shading="nearest", cmap=cm,
+                           rasterized=True)
+        fig.colorbar(im, ax=ax, orientation="horizontal", shrink=0.8, label=lab)
+        if reg:
+            t = np.linspace(0.0, 1.0, 50)
+            x0, x1, y0, y1 = reg["x_min_m"], reg["x_max_m"], reg["y_min_m"], reg["y_max_m"]
+            xs = np.concatenate([x0 + (x1 - x0) * t, np.full(50, x1), x1 - (x1 - x0) * t, np.full(50, x0)])
+            ys = np.concatenate([np.full(50, y0), y0 + (y1 - y0) * t, np.full(50, y1), y1 - (y1 - y0) * t])
+            rlon, rlat = fr.to_lonlat(xs, ys)
+            ax.plot(rlon, rlat, "--", color="k", lw=1.2)
+        if launch and launch.get("lon") is not None:
+            ax.plot(float(launch["lon"]), float(launch["lat"]), "x", color="#D55E00", ms=10, mew=2.5)
+        _geo_axes(ax, lon, lat)
+    if not (launch and launch.get("lon") is not None):
+        r.caption = r.caption.replace(", x: launch point.", ".")
     return _render(r, fig, opt)

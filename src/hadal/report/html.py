@@ -6,14 +6,19 @@ import base64
 import datetime as _dt
 import html
 import re
-from collections.abc import Iterable, Mapping
+from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
 from hadal import __version__
+from hadal.figtext import MIN_FONT_PT  # the landing stage's figures: 110 dpi (hadal.landing.figures._save)
 from hadal.report.figures import FigureResult
 from hadal.report.load import DiveProducts
-from hadal.report.units import units_of
+from hadal.report.units import coordinate_decimals, human_label, units_of
+
+#: horizontal size (m) a ship's GPS position locates (casts, launch): the decimals of its lat/lon
+#: (:func:`hadal.report.units.coordinate_decimals`: 5 decimals of a degree)
+SHIP_POSITION_M = 10.0
 
 CSS = """
 body{font-family:-apple-system,Segoe UI,Helvetica,Arial,sans-serif;margin:2em auto;max-width:1100px;color:#222;padding:0 1em}
@@ -49,13 +54,41 @@ def _table(rows: Iterable[tuple[str, Any]]) -> str:
     return f"<table>{body}</table>"
 
 
-def _records_table(records: list[Mapping[str, Any]], nd: int = 3) -> str:
+def _records_table(records: Sequence[Mapping[str, Any]], nd: int = 3, position_m: float = SHIP_POSITION_M) -> str:
+    """Rows of ``records`` under people's column labels (:func:`hadal.report.units.human_label`); ``lat``/``lon``
+    with the decimals of a ``position_m`` thing (:func:`coordinate_decimals`), other floats with ``nd``."""
     if not records:
         return "<p class='muted'>none</p>"
     cols = list(records[0].keys())
-    head = "".join(f"<th>{_e(c)}</th>" for c in cols)
-    rows = "".join("<tr>" + "".join(f"<td>{_e(_fmt(r.get(c), nd))}</td>" for c in cols) + "</tr>" for r in records)
+    head = "".join(f"<th>{_e(human_label(str(c)))}</th>" for c in cols)
+    dec = coordinate_decimals(position_m)
+
+    def cell(c: str, v: Any) -> str:
+        return _fmt(v, dec if c in ("lat", "lon") else nd)
+
+    rows = "".join("<tr>" + "".join(f"<td>{_e(cell(c, r.get(c)))}</td>" for c in cols) + "</tr>" for r in records)
     return f"<table><tr>{head}</tr>{rows}</table>"
+
+
+def landing_site_records(sites: list[Mapping[str, Any]]) -> list[dict[str, str]]:
+    """The best landing sites for the table: every value as text, the latitude/longitude of each site with the
+    decimals of its size (its largest inscribed circle's radius, :func:`coordinate_decimals`; 6 decimals of a degree
+    for a 0.32 m site), plus its degrees-minutes ``position`` at the same precision."""
+    from hadal.geo import format_position
+
+    out = []
+    for r in sites:
+        size = r.get("radius_m")
+        size = float(size) if isinstance(size, (int, float)) else 0.5  # no radius: a vehicle-sized site
+        deg, mins = coordinate_decimals(size, "deg"), coordinate_decimals(size, "min")
+        row: dict[str, str] = {}
+        for k, v in r.items():
+            row[k] = (f"{float(v):.{deg}f}" if k in ("lat", "lon") and isinstance(v, (int, float))
+                      else _fmt(v, 3))
+        if isinstance(r.get("lat"), (int, float)) and isinstance(r.get("lon"), (int, float)):
+            row["position"] = format_position(float(r["lat"]), float(r["lon"]), decimals=mins)
+        out.append(row)
+    return out
 
 
 def summary_rows(s: Mapping[str, Any]) -> list[tuple[str, str]]:
@@ -82,6 +115,11 @@ def summary_rows(s: Mapping[str, Any]) -> list[tuple[str, str]]:
         rows.append((f"reference DTM ({'prior grid' if t['source'] == 'prior_grid' else 'multibeam'})",
                      f"{t['cells'][1]} x {t['cells'][0]} {res}depth {t['depth_range_m'][0]:,.1f} – "
                      f"{t['depth_range_m'][1]:,.1f} m, {100 * t['mapped_fraction']:.0f} % mapped{snd}"))
+    if s.get("surfacing"):
+        sf = s["surfacing"]
+        unc = f" ±{sf['uncertainty_m']:,.0f} m (1σ)" if sf.get("uncertainty_m") else ""
+        rows.append(("surfacing position (end of the ascent)", f"{sf['position_degmin']}{unc}"
+                     + (f" at {sf['time_utc']}" if sf.get("time_utc") else "")))
     if "matched_start" in s:
         rows.append(("matched start of the bottom track", s["matched_start"]["position_degmin"]))
     if s.get("drift_m") is not None:
@@ -109,6 +147,8 @@ def summary_rows(s: Mapping[str, Any]) -> list[tuple[str, str]]:
             txt += f", slope {_fmt(b.get('slope_deg'), 1)}°"
         if b.get("heading_deg") is not None:
             txt += f", heading {_fmt(b.get('heading_deg'), 0)}°"
+        if b.get("lat") is not None and b.get("lon") is not None:
+            txt += f", at {landing_site_records([b])[0]['position']}"
         rows.append(("best landing site", txt))
     for name, label in (("temperature_its90_degc", "temperature"), ("practical_salinity", "practical salinity"),
                         ("density_kg_m3", "in situ density")):
@@ -221,25 +261,30 @@ def render_html(dp: DiveProducts, summary: Mapping[str, Any], figures: list[Figu
                 parts.append(f"<div class='note'><b>{_e(f.title)}</b>: figure skipped — {_e(f.skipped)}</div>")
                 continue
             b64 = base64.b64encode(f.png).decode("ascii")
-            parts.append(f"<figure id='{_e(f.key)}'><img alt='{_e(f.title)}' src='data:image/png;base64,{b64}'>"
+            size = (f" data-dpi='{f.dpi:g}' data-min-font-pt='{f.min_font_pt:g}'"
+                    if f.dpi is not None and f.min_font_pt is not None else "")
+            parts.append(f"<figure id='{_e(f.key)}'><img alt='{_e(f.title)}'{size} src='data:image/png;base64,{b64}'>"
                          f"<figcaption><b>{_e(f.title)}.</b> {_e(f.caption)}</figcaption></figure>")
         if section == "Landing sites" and any(f.png is not None for f in figs):
             parts.append("<h3>Best landing sites (lowest cost per submap)</h3>")
-            parts.append(_records_table(summary.get("best_landing_sites") or []))
+            parts.append(_records_table(landing_site_records(summary.get("best_landing_sites") or [])))
     if (summary.get("best_landing_sites") or dp.landing_figures) and "Landing sites" not in sections:
-        parts.append("<h2>Landing sites</h2>" + _records_table(summary.get("best_landing_sites") or []))
+        parts.append("<h2>Landing sites</h2>"
+                     + _records_table(landing_site_records(summary.get("best_landing_sites") or [])))
     if dp.landing_figures:
         parts.append("<h3>Figures of the landing stage</h3>")
         for p in dp.landing_figures:
             b64 = base64.b64encode(Path(p).read_bytes()).decode("ascii")
             cap = landing_caption(Path(p).name)
-            parts.append(f"<figure><img alt='{_e(cap)}' src='data:image/png;base64,{b64}'>"
+            parts.append(f"<figure><img alt='{_e(cap)}' data-dpi='110' data-min-font-pt='{MIN_FONT_PT:g}' "
+                         f"src='data:image/png;base64,{b64}'>"
                          f"<figcaption><b>{_e(cap)}</b> <span class='muted'>({_e(Path(p).name)}, landing product; "
                          "laser frame: local x/y of the laser survey, m)</span></figcaption></figure>")
     if summary.get("landing_table_v"):
         tv = summary["landing_table_v"]
         parts.append("<h3>Landing analysis summary (landing paper Table V)</h3>")
-        parts.append(_table((k, _fmt(v, 2)) for k, v in tv.items()) if isinstance(tv, Mapping) else f"<pre>{_e(tv)}</pre>")
+        parts.append(_table((human_label(str(k)), _fmt(v, 2)) for k, v in tv.items()) if isinstance(tv, Mapping)
+                     else f"<pre>{_e(tv)}</pre>")
     parts.append("<h2>Provenance</h2>")
     parts.append(_records_table(provenance))
     parts.append("</body></html>")

@@ -169,6 +169,16 @@ def _position_summary(s: dict[str, Any], dp: DiveProducts, fix: dict[str, Any],
     if launch and launch.get("lat") is not None and launch.get("lon") is not None:
         s["launch"] = {"lat": launch["lat"], "lon": launch["lon"],
                        "position_degmin": format_position(launch["lat"], launch["lon"])}
+    from hadal.report.geo_figures import surfacing_position
+
+    surf = surfacing_position(dp.navigation)
+    if surf is not None:
+        dec = 3 if surf.get("uncertainty_m") is None else None
+        from hadal.report.units import coordinate_decimals
+
+        dec = dec if dec is not None else coordinate_decimals(float(surf["uncertainty_m"]), "min")
+        s["surfacing"] = {**surf, "position_degmin": format_position(surf["lat"], surf["lon"], decimals=dec),
+                          "source": "navigation (last sample of the ascent)"}
     start = fix.get("start") if isinstance(fix.get("start"), dict) else None
     if start and _f(start.get("lat")) is not None:
         s["matched_start"] = {"lat": _f(start["lat"]), "lon": _f(start["lon"]),

@@ -1088,14 +1088,18 @@ def run(ctx: StageContext) -> dict[str, ProductVersion]:
     limit = memory_limit_bytes(ctx.config)
     sensors = ctx.upstream("sensors")
     path = sensors.file("sensors.parquet")
-    table, sensors_meta, sensor_fields = _read_table(path, "sensors")
+    from hadal.steps import step  # progress lines (issue 46)
+
+    with step(ctx.progress, f"derive: reading {path.name}"):
+        table, sensors_meta, sensor_fields = _read_table(path, "sensors")
     raw = underway_source(ctx, sensors_meta, table, f"dive {ctx.dive_id}")
     if raw is not None:  # an underway record (thermosalinograph): a trajectory, no ctd/profile
         return _run_underway(ctx, p, limit, sensors, table, sensors_meta, sensor_fields, raw)
     user_profile = _read_user_profile(ctx, p)
     try:
-        df, meta, profile = derive_table(table, sensors_meta, p, ctx.dive, ctx.log, f"dive {ctx.dive_id}",
-                                         memory_limit_bytes=limit, overlying_profile=user_profile)
+        with step(ctx.progress, f"derive: {len(table):,} samples -> depth, TEOS-10, QC, profiles"):
+            df, meta, profile = derive_table(table, sensors_meta, p, ctx.dive, ctx.log, f"dive {ctx.dive_id}",
+                                             memory_limit_bytes=limit, overlying_profile=user_profile)
     except InputError as exc:
         if user_profile is not None and str(exc).startswith(user_profile.source):
             raise
@@ -1107,8 +1111,8 @@ def run(ctx: StageContext) -> dict[str, ProductVersion]:
 
     fields = _ctd_fields(ctx, p, df, table, sensor_fields)
     params = ctx.params("derive")
-    with ctx.store.publish(ctx.dive_id, "ctd", parameters=params, upstream=[sensors],
-                           extra={"summary": _ctd_summary(meta)}) as draft:
+    with step(ctx.progress, "derive: writing ctd"), ctx.store.publish(
+            ctx.dive_id, "ctd", parameters=params, upstream=[sensors], extra={"summary": _ctd_summary(meta)}) as draft:
         write_parquet(df, draft.path / "ctd.parquet", fields=fields, metadata=meta, provenance_from=draft)
     ctd = draft.result
     from hadal.products.dsg import place_casts  # each cast at its time on the dive's (dead-reckoned) track

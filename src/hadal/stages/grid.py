@@ -190,7 +190,7 @@ def _dtm_resolution(p: Params, x: np.ndarray, y: np.ndarray) -> tuple[float | st
 
 
 def make_dtm(files: list[Path], frame, p: Params, hints: list | None = None, readers: dict | None = None,
-             chunk_points: int = 1_000_000, *, memory_limit_bytes: float | None = None):
+             chunk_points: int = 1_000_000, *, memory_limit_bytes: float | None = None, progress=None):
     """Read multibeam sounding files, project them into ``frame`` and grid them (returns the DTM Dataset).
 
     Each file is streamed through :func:`hadal.grid.sonar.iter_multibeam` (xyz text in any compression,
@@ -209,7 +209,8 @@ def make_dtm(files: list[Path], frame, p: Params, hints: list | None = None, rea
 
     if hints is not None and len(hints) != len(files):
         raise ValueError("make_dtm: hints must have one entry per file")
-    x, y, dep, frame, used = read_soundings_xy(files, frame, hints, chunk_points=chunk_points, readers=readers)
+    x, y, dep, frame, used = read_soundings_xy(files, frame, hints, chunk_points=chunk_points, readers=readers,
+                                               progress=progress)
     x, y, dep, n_implausible = _drop_implausible(files, x, y, dep)
     res_m, how = _dtm_resolution(p, x, y)
     check_grid_memory("the DTM", x, y, float(res_m), DTM_LAYERS + (2 if p.prior_fill else 0), memory_limit_bytes,
@@ -221,6 +222,7 @@ def make_dtm(files: list[Path], frame, p: Params, hints: list | None = None, rea
         spike_floor_m=p.spike_floor_m, sor=p.sor,
         sor_neighbors=p.sor_neighbors, sor_std_ratio=p.sor_std_ratio, fill_max_cells=p.fill_max_cells,
         apriori_a_m=p.apriori_a_m, apriori_b=p.apriori_b, prior_weight=p.prior_weight, max_cells=p.max_cells,
+        progress=progress,
     )
     ds = add_geo(ds, frame)
     ds.attrs["multibeam_readers"] = "; ".join(used)
@@ -447,8 +449,8 @@ def _multibeam_dtm(ctx: StageContext, p: Params, priors: list[tuple[Path, object
     mb = _drop_duplicates(_existing(ctx, ctx.dive.sources.multibeam, "multibeam"), "multibeam", ctx.log)
     mb_files = [f for f, _ in mb]
     frame = ctx.dive.frame("grid")
-    dtm = make_dtm(list(ctx.progress.track(mb_files, "reading multibeam", total=len(mb_files))), frame, p,
-                   hints=[sf for _, sf in mb], readers=readers, memory_limit_bytes=limit)
+    dtm = make_dtm(mb_files, frame, p, hints=[sf for _, sf in mb], readers=readers, memory_limit_bytes=limit,
+                   progress=ctx.progress)
     inputs = list(mb_files)
     ctx.log.info("dtm: %d x %d cells at %g m, %d soundings (%d spikes removed, %d cells filled)",
                  dtm.sizes["x"], dtm.sizes["y"], dtm.attrs["resolution_m"], dtm.attrs["n_soundings_used"],

@@ -394,7 +394,9 @@ def run(ctx: StageContext) -> dict[str, ProductVersion]:
     for q in cast_paths:
         if not q.is_file():
             raise InputError(f"{q}: Sea-Bird cast listed in dive.yaml sources.cnv does not exist")
-    with warnings.catch_warnings(record=True) as caught:
+    from hadal.steps import step  # progress lines (issue 46)
+
+    with warnings.catch_warnings(record=True) as caught, step(ctx.progress, f"ingest: reading the {kind} logs"):
         warnings.simplefilter("always")
         if kind == "mcap":
             read = _read_mcap(ctx, p, vehicle)
@@ -403,7 +405,8 @@ def run(ctx: StageContext) -> dict[str, ProductVersion]:
         else:
             read = _read_csv(ctx, vehicle)
         inputs: list[Path] = [vpath, *read.used]
-        df, meta = _sensor_table(ctx, p, vehicle, kind, read)
+        with step(ctx.progress, "ingest: aligning, converting and QC of the sensors table"):
+            df, meta = _sensor_table(ctx, p, vehicle, kind, read)
         external = _external_casts(ctx, p, vehicle, cast_paths, set(inputs))
     messages = [str(w.message) for w in caught]
     for m in messages:
@@ -412,10 +415,10 @@ def run(ctx: StageContext) -> dict[str, ProductVersion]:
         ctx.log.warning("ingest: %s logs not used (%s): %s", ig["kind"], ig["files"], ig["why"])
     _sensors_metadata(ctx, meta, df, vehicle=vehicle, vpath=vpath, kind=kind, inputs=inputs, read=read,
                       messages=messages, external=external)
-    with ctx.store.publish(ctx.dive_id, "sensors", parameters=ctx.params("ingest"), inputs=inputs,
-                           extra={"ingest": {k: meta[k] for k in ("source_kind", "rows", "messages_lost",
-                                                                  "unit_conversions", "time_base", "readers")}}
-                           ) as draft:
+    with step(ctx.progress, f"ingest: writing sensors ({len(df):,} rows)"), ctx.store.publish(
+            ctx.dive_id, "sensors", parameters=ctx.params("ingest"), inputs=inputs,
+            extra={"ingest": {k: meta[k] for k in ("source_kind", "rows", "messages_lost", "unit_conversions",
+                                                   "time_base", "readers")}}) as draft:
         write_parquet(df, draft.path / "sensors.parquet", fields=field_metadata(), metadata=meta,
                       provenance_from=draft)
     out = {"sensors": draft.result}
