@@ -710,7 +710,10 @@ def _lon_convention(da: xr.DataArray) -> xr.DataArray:
 
 def _read_netcdf_or_gdal(p: Path, variable: str | None, max_bytes: float | None) -> xr.DataArray:
     """A NetCDF grid via xarray, falling back to GDAL for HDF5/layouts xarray cannot map (see :func:`read_grid`)."""
+    from hadal.confine import check_hdf5_self_contained
+
     check_grid_truncation(p)  # classic netCDF is read zero-filled past a cut, as a valid-looking grid
+    check_hdf5_self_contained(p)  # no value read from an external raw file or a virtual dataset's sources
     try:
         return _read_netcdf_grid(p, variable, max_bytes)
     except InputError as first:
@@ -736,10 +739,12 @@ def _read_netcdf_or_gdal(p: Path, variable: str | None, max_bytes: float | None)
 
 def _read_gdal_raster(p: Path, max_bytes: float | None) -> xr.DataArray:
     """Any other GDAL raster; a one-line error (with a GMT hint for ``.grd``) when GDAL cannot read it."""
+    from hadal.confine import ConfinementError
+
     try:
         return _read_geotiff(p, max_bytes)
     except InputError as exc:
-        if "reading it needs about" in str(exc):
+        if "reading it needs about" in str(exc) or isinstance(exc, ConfinementError):
             raise
         hint = (" (a GMT native binary grid? GDAL cannot read those: convert it with "
                 "'gmt grdconvert IN.grd OUT.nc')" if p.suffix.lower() == ".grd" else "")
@@ -796,10 +801,14 @@ def _read_geotiff(p: Path, max_bytes: float | None = None) -> xr.DataArray:
     import rasterio
     from rasterio.errors import RasterioError
 
+    from hadal.confine import check_gdal_file, check_opened_files, gdal_env
+
+    check_gdal_file(p)  # a VRT naming a file outside the dive, a URL or /vsicurl/: refused before GDAL opens it
     try:
-        with warnings.catch_warnings():
+        with warnings.catch_warnings(), gdal_env():
             warnings.simplefilter("ignore", rasterio.errors.NotGeoreferencedWarning)
             with rasterio.open(p) as src:
+                check_opened_files(p, list(src.files))
                 if src.count < 1:
                     raise InputError(f"{p}: raster has no bands")
                 check_grid_read_size(p, src.height, src.width, max_bytes)
