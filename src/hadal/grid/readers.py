@@ -189,10 +189,16 @@ _Z_NAMES = ("z", "depth", "depth_m", "elevation", "elevation_m", "height", "h", 
 XYZ_CHUNK_ROWS = 500_000
 
 
+#: working copies of an xyz point cloud's coordinates counted by its memory budget (:class:`hadal.budget.DecodeBudget`):
+#: the growable columns, their trimmed values and the stacked (n, 3) array
+XYZ_WORKING_COPIES = 3.0
+
+
 def _read_xyz_cloud(p: Path, columns: list[str] | None) -> np.ndarray:
     """x y z (and more) numeric text columns, streamed: the (decompressed) file passes once through a
     :class:`~hadal.textstream.LineScan` (line-length bound) into pandas in chunks of :data:`XYZ_CHUNK_ROWS`,
     and only the three coordinate columns are kept, as float64. Peak memory: the points plus one chunk."""
+    from hadal.budget import DecodeBudget
     from hadal.grid.sonar import _not_number
     from hadal.textstream import MAX_LINE_BYTES, GrowableColumn, LineScan, ScannedStream
 
@@ -205,6 +211,7 @@ def _read_xyz_cloud(p: Path, columns: list[str] | None) -> np.ndarray:
     sep = "," if "," in first else ";" if ";" in first else r"\s+"
     header = 0 if any(_not_number(t) for t in first.replace(",", " ").replace(";", " ").split()) else None
     out = [GrowableColumn(max(p.stat().st_size // 24, 1024), np.float64) for _ in range(3)]
+    budget = DecodeBudget(p, "point cloud", copies=XYZ_WORKING_COPIES)
     idx: list[int] | None = None
     n_rows = 0
     with open_binary(p) as fh, decompress_errors(p, compression, "point cloud"):
@@ -226,6 +233,7 @@ def _read_xyz_cloud(p: Path, columns: list[str] | None) -> np.ndarray:
                     for k in range(3):
                         out[k].extend(sub.iloc[:, k].to_numpy(np.float64))
                     n_rows += len(df)
+                    budget.hold(sum(c.a.nbytes for c in out), f"{n_rows:,} points so far")
         except InputError:
             raise
         except (pd.errors.ParserError, pd.errors.EmptyDataError, ValueError) as exc:
@@ -554,8 +562,11 @@ def looks_metric(x_extent: float, y_extent: float, relief_m: float) -> bool:
     return slope_deg_reading < 1e-5 and 1e-3 <= slope_m_reading <= 10
 
 
-#: bytes a grid read needs per cell at its peak (the stored values, the mask and the float64 copy)
-GRID_READ_BYTES_PER_CELL = 17
+#: bytes a grid read needs per cell at its peak, working copies included: the stored values, the mask, the float64
+#: copy, the finite mask, a unit conversion, and the prior-grid DTM made from it (sign, land mask, resampling onto
+#: the map frame). Measured (issue 45): prior_dtm of a 6,000 x 6,000 float32 GeoTIFF peaked 55.9 B/cell above the
+#: interpreter (2.05 GiB); the 17 B/cell counted before let a GeoTIFF "just under the budget" peak at 3x it
+GRID_READ_BYTES_PER_CELL = 64
 
 
 def check_grid_read_size(p: Path, ny: int, nx: int, max_bytes: float | None) -> None:
