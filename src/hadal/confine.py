@@ -38,10 +38,11 @@ from hadal.errors import InputError
 __all__ = ["GDAL_SAFE_OPTIONS", "ConfinementError", "check_gdal_file", "check_hdf5_self_contained", "check_opened_files",
            "dive_root_of", "files_read", "gdal_env", "is_vrt"]
 
-#: GDAL configuration options of every hadal GDAL open: no network, no Python, no directory listing. The proxy is
+#: GDAL configuration options of every hadal GDAL open: no network, no Python, no directory listing, a 64 MB
+#: block cache. The proxy is
 #: a closed loopback port (discard, 9): an HTTP request of a driver that does not honour the vsicurl option fails
 #: at once on the processing host and reaches no other server.
-GDAL_SAFE_OPTIONS: dict[str, str] = {
+GDAL_SAFE_OPTIONS: dict[str, str | int] = {
     "CPL_VSIL_CURL_ALLOWED_EXTENSIONS": ".hadal-network-off",
     "GDAL_HTTP_PROXY": "http://127.0.0.1:9",
     "GDAL_HTTPS_PROXY": "http://127.0.0.1:9",
@@ -51,6 +52,8 @@ GDAL_SAFE_OPTIONS: dict[str, str] = {
     "GDAL_VRT_ENABLE_PYTHON": "NO",
     "GDAL_DISABLE_READDIR_ON_OPEN": "EMPTY_DIR",
     "CPL_VSIL_CURL_USE_HEAD": "NO",
+    # GDAL's block cache (default 5 % of the machine's memory) is a working copy no read budget would see
+    "GDAL_CACHEMAX": 64,
 }
 
 #: largest VRT read (a VRT mosaicking thousands of tiles is a few MB)

@@ -564,9 +564,10 @@ def looks_metric(x_extent: float, y_extent: float, relief_m: float) -> bool:
 
 #: bytes a grid read needs per cell at its peak, working copies included: the stored values, the mask, the float64
 #: copy, the finite mask, a unit conversion, and the prior-grid DTM made from it (sign, land mask, resampling onto
-#: the map frame). Measured (issue 45): prior_dtm of a 6,000 x 6,000 float32 GeoTIFF peaked 55.9 B/cell above the
-#: interpreter (2.05 GiB); the 17 B/cell counted before let a GeoTIFF "just under the budget" peak at 3x it
-GRID_READ_BYTES_PER_CELL = 64
+#: the map frame at about the grid's cell count). Measured (issue 45, GDAL block cache 64 MB): load_prior of a
+#: 2,000 x 2,000 float32 GeoTIFF 41 B/cell (tracemalloc), prior_dtm 105 B/cell (tracemalloc), 120 B/cell RSS; the
+#: 17 B/cell counted before let a GeoTIFF "just under the budget" peak at several times the budget
+GRID_READ_BYTES_PER_CELL = 128
 
 
 def check_grid_read_size(p: Path, ny: int, nx: int, max_bytes: float | None) -> None:
