@@ -205,3 +205,35 @@ def test_self_contained_hdf5_grid_still_reads(tmp_path):
     d = _dive(tmp_path)
     _h5_grid(d / "grid.nc")
     check_hdf5_self_contained(d / "grid.nc")  # no error
+
+
+def test_vrt_prior_grid_dtm_manifest_lists_the_source(tmp_path):
+    """Through the grid stage: a VRT prior grid whose source is inside the dive makes the DTM, and the dtm
+    manifest's inputs name the VRT *and* the raster it reads (hashlib of each file: the oracle)."""
+    import hashlib
+
+    import yaml
+    from test_prior_laser_inputs import _write_utm_tiff
+
+    from hadal.pipeline import make_context, run_stage
+
+    raw = tmp_path / "raw"
+    (raw / "tiles").mkdir(parents=True)
+    _write_utm_tiff(raw / "tiles" / "t.tif", depths=True)
+    import rasterio
+
+    with rasterio.open(raw / "tiles" / "t.tif") as s:
+        n_x, n_y, t = s.width, s.height, s.transform
+    (raw / "prior.vrt").write_text(
+        f'<VRTDataset rasterXSize="{n_x}" rasterYSize="{n_y}"><SRS>EPSG:32654</SRS>'
+        f'<GeoTransform>{t.c}, {t.a}, 0, {t.f}, 0, {t.e}</GeoTransform>'
+        '<VRTRasterBand dataType="Float32" band="1"><NoDataValue>-9999</NoDataValue><SimpleSource>'
+        '<SourceFilename relativeToVRT="1">tiles/t.tif</SourceFilename><SourceBand>1</SourceBand>'
+        '</SimpleSource></VRTRasterBand></VRTDataset>')
+    (raw / "dive.yaml").write_text(yaml.safe_dump({"dive_id": "V001", "platform": "test",
+                                                   "sources": {"prior_grid": ["prior.vrt"]},
+                                                   "launch": {"latitude_deg": 32.5, "longitude_deg": 141.0}}))
+    pv = run_stage("grid", make_context(raw, tmp_path / "store"))["dtm"]
+    inputs = {Path(i["path"]).name: i["sha256"] for i in pv.manifest()["inputs"]}
+    for f in (raw / "prior.vrt", raw / "tiles" / "t.tif"):
+        assert inputs[f.name] == hashlib.sha256(f.read_bytes()).hexdigest()

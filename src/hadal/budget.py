@@ -9,7 +9,9 @@ one-line :class:`hadal.errors.ConfigError` naming the setting, the estimate and 
     derive.profile_bin_dbar or raise resources.max_memory_gb
 
 The limits are the ``resources`` section of ``config/pipeline.yaml`` (:class:`Params`): by default
-``memory_fraction`` (0.5) of the machine's physical memory (psutil), or an explicit ``max_memory_gb``.
+``memory_fraction`` (0.5) of the memory this process can have (:func:`machine_memory_bytes`: physical memory,
+a cgroup limit, what ``RLIMIT_AS`` leaves), or an explicit ``max_memory_gb``. Readers check the same limit on the
+stream as they decode (:class:`DecodeBudget`, decoded bytes times their working copies).
 """
 
 from __future__ import annotations
@@ -40,10 +42,12 @@ class Params(BaseModel):
     max_memory_gb: float | None = Field(
         None, gt=0, le=65_536,
         description="memory (GiB) one stage may plan to allocate for its largest arrays; default: memory_fraction "
-                    "x the machine's physical memory")
+                    "x the memory this process can have (physical memory, lowered to a cgroup limit or to what "
+                    "ulimit -v leaves)")
     memory_fraction: float = Field(
         DEFAULT_MEMORY_FRACTION, gt=0, le=1,
-        description="share (0-1] of the machine's physical memory used when max_memory_gb is not set")
+        description="share (0-1] of the memory this process can have (physical, cgroup limit or ulimit -v) "
+                    "used when max_memory_gb is not set")
     max_match_evaluations: float = Field(
         DEFAULT_MAX_MATCH_EVALUATIONS, ge=1, le=1e15,
         description="terrain matching: refuse searches with more (heading x scale poses) x (map offsets) "
