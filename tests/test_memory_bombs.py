@@ -212,3 +212,53 @@ def test_geotiff_just_under_and_over_the_read_budget(tmp_path, margin):
     else:
         _one_line_error(out, "reading it needs about")
         assert out["peak"] - out["base"] < 0.1 * GIB
+
+
+def _mcap_bomb(path: Path, decompressed: int, how: str) -> Path:
+    """An MCAP file (spec: magic, Header, one Chunk, Footer, magic) whose chunk holds ``decompressed`` bytes of
+    zeros, zstd- or lz4-compressed as written (a few MB on disk)."""
+    import struct
+
+    def string(s: bytes) -> bytes:
+        return struct.pack("<I", len(s)) + s
+
+    def record(op: int, body: bytes) -> bytes:
+        return struct.pack("<BQ", op, len(body)) + body
+
+    tmp = path.with_suffix(".z")
+    block = b"\x00" * (16 << 20)
+    with open(tmp, "wb") as f:
+        if how == "zstd":
+            import zstandard
+
+            c = zstandard.ZstdCompressor(level=1).compressobj(size=decompressed)
+        else:
+            import lz4.frame
+
+            c = lz4.frame.LZ4FrameCompressor()
+            f.write(c.begin(source_size=decompressed))
+        for _ in range(decompressed // len(block)):
+            f.write(c.compress(block))
+        f.write(c.flush())
+    data = tmp.read_bytes()
+    chunk = (struct.pack("<QQQI", 0, 10, decompressed, 0) + string(how.encode())
+             + struct.pack("<Q", len(data)) + data)
+    magic = b"\x89MCAP0\r\n"
+    with open(path, "wb") as f:
+        f.write(magic + record(0x01, string(b"ros2") + string(b"bomb")) + record(0x06, chunk)
+                + record(0x02, struct.pack("<QQI", 0, 0, 0)) + magic)
+    return path
+
+
+@pytest.mark.parametrize("how", ["zstd", "lz4"])
+def test_mcap_chunk_bomb(tmp_path, how):
+    """One MCAP chunk of 1 GiB of zeros (a few MB on disk): its declared size with its working copies is over the
+    budget left by the 4 GiB cap; refused before decompressing, in one line."""
+    p = _mcap_bomb(tmp_path / "bomb.mcap", GIB, how)
+    out = _run_capped(f"""
+        from hadal.ingest.mcap_reader import read_mcap
+        def run():
+            return len(read_mcap({str(p)!r}))
+    """)
+    _one_line_error(out, "decoding this MCAP chunk needs more than")
+    assert out["peak"] - out["base"] < 0.5 * GIB, out
