@@ -9,7 +9,9 @@ one-line :class:`hadal.errors.ConfigError` naming the setting, the estimate and 
     derive.profile_bin_dbar or raise resources.max_memory_gb
 
 The limits are the ``resources`` section of ``config/pipeline.yaml`` (:class:`Params`): by default
-``memory_fraction`` (0.5) of the machine's physical memory (psutil), or an explicit ``max_memory_gb``.
+``memory_fraction`` (0.5) of the memory this process can have (:func:`machine_memory_bytes`: physical memory,
+a cgroup limit, what ``RLIMIT_AS`` leaves), or an explicit ``max_memory_gb``. Readers check the same limit on the
+stream as they decode (:class:`DecodeBudget`, decoded bytes times their working copies).
 """
 
 from __future__ import annotations
@@ -40,10 +42,12 @@ class Params(BaseModel):
     max_memory_gb: float | None = Field(
         None, gt=0, le=65_536,
         description="memory (GiB) one stage may plan to allocate for its largest arrays; default: memory_fraction "
-                    "x the machine's physical memory")
+                    "x the memory this process can have (physical memory, lowered to a cgroup limit or to what "
+                    "ulimit -v leaves)")
     memory_fraction: float = Field(
         DEFAULT_MEMORY_FRACTION, gt=0, le=1,
-        description="share (0-1] of the machine's physical memory used when max_memory_gb is not set")
+        description="share (0-1] of the memory this process can have (physical, cgroup limit or ulimit -v) "
+                    "used when max_memory_gb is not set")
     max_match_evaluations: float = Field(
         DEFAULT_MAX_MATCH_EVALUATIONS, ge=1, le=1e15,
         description="terrain matching: refuse searches with more (heading x scale poses) x (map offsets) "
@@ -68,14 +72,45 @@ def parallel_stages(config: Any) -> int:
     return int(n) if n is not None else max(2, os.cpu_count() or 2)
 
 
+def _cgroup_limit_bytes() -> int | None:
+    """The memory limit of this process's cgroup (v2 ``memory.max``, v1 ``memory.limit_in_bytes``), if any."""
+    for f in ("/sys/fs/cgroup/memory.max", "/sys/fs/cgroup/memory/memory.limit_in_bytes"):
+        try:
+            text = open(f).read().strip()
+        except OSError:
+            continue
+        if text.isdigit() and int(text) < (1 << 60):
+            return int(text)
+    return None
+
+
+def _address_space_left_bytes() -> int | None:
+    """What ``RLIMIT_AS`` (a ``ulimit -v`` cap) leaves this process: the soft limit minus its address space now."""
+    try:
+        import resource
+
+        soft = resource.getrlimit(resource.RLIMIT_AS)[0]
+        if soft == resource.RLIM_INFINITY:
+            return None
+        import psutil
+
+        return max(int(soft) - int(psutil.Process().memory_info().vms), 0)
+    except Exception:  # pragma: no cover - no resource module / psutil
+        return None
+
+
 def machine_memory_bytes() -> int:
-    """Physical memory of this machine (bytes); 8 GiB when psutil cannot tell."""
+    """The memory this process can have (bytes): physical memory (psutil; 8 GiB when it cannot tell), lowered to
+    the cgroup's memory limit (a container started with ``--memory 4g``) and to what ``RLIMIT_AS`` leaves (a run
+    under ``ulimit -v``), so a budget computed from it holds under the cap the process actually runs in."""
     try:
         import psutil
 
-        return int(psutil.virtual_memory().total)
+        total = int(psutil.virtual_memory().total)
     except Exception:  # pragma: no cover - psutil missing or unsupported platform
-        return 8 * GIB
+        total = 8 * GIB
+    caps = [c for c in (_cgroup_limit_bytes(), _address_space_left_bytes()) if c is not None]
+    return min([total, *caps])
 
 
 def resources_of(config: Any) -> Params:
@@ -153,3 +188,32 @@ def finite_positive(name: str, value: Any) -> float:
     if not math.isfinite(v) or v <= 0:
         raise ConfigError(f"{name} must be a finite number > 0, got {value!r}")
     return v
+
+
+class DecodeBudget:
+    """One memory budget for a reader, checked on the stream as it decodes (compressed inputs have no trustworthy
+    size, and a header's counts are claims): the reader calls :meth:`hold` with the bytes its decoded arrays hold
+    (their capacity, before growing them), and the budget counts them ``copies`` times - the working copies the
+    reader and its first consumer make of them (float64 conversions, masks, a DataFrame), measured per reader.
+    Past ``limit_bytes`` (default :func:`memory_limit_bytes`: the machine, cgroup or ``RLIMIT_AS`` cap) it raises
+    a one-line :class:`hadal.errors.InputError` naming the file, what was decoded so far and the limit::
+
+        ctd.cnv.xz: decoding it needs more than 1.95 GiB (8.1e+07 rows of 4 values so far, counted with their
+        working copies; limit 1.95 GiB): split the file or raise resources.max_memory_gb
+    """
+
+    def __init__(self, path: Any, what: str, *, copies: float = 1.0, limit_bytes: float | None = None):
+        self.path, self.what, self.copies = path, what, float(copies)
+        self.limit = float(memory_limit_bytes(None) if limit_bytes is None else limit_bytes)
+
+    def hold(self, nbytes: float, so_far: str = "") -> None:
+        """Refuse when ``nbytes`` of decoded arrays (x ``copies``) exceed the limit; ``so_far`` says what they are."""
+        need = float(nbytes) * self.copies
+        if need <= self.limit and math.isfinite(need):
+            return
+        from hadal.errors import InputError
+
+        detail = f"{so_far}, " if so_far else ""
+        raise InputError(f"{self.path}: decoding this {self.what} needs more than {format_bytes(need)} ({detail}"
+                         f"counted with its working copies; limit {format_bytes(self.limit)}): split the file, "
+                         "decimate it, or raise resources.max_memory_gb")

@@ -77,7 +77,6 @@ SOURCE_OF: dict[str, str | None] = {
 _HEAD_BYTES = 65536
 _COMPRESSION = ((b"\x1f\x8b", "gzip"), (b"BZh", "bz2"), (b"\xfd7zXZ\x00", "xz"))
 _OPENERS = {"gzip": gzip.open, "bz2": bz2.open, "xz": lzma.open}
-_DECOMPRESSORS = {"gzip": gzip.decompress, "bz2": bz2.decompress, "xz": lzma.decompress}
 #: what a damaged gzip/bz2/xz stream raises (``gzip.BadGzipFile`` is an ``OSError``)
 DECOMPRESS_ERRORS = (OSError, EOFError, lzma.LZMAError, zlib.error, ValueError)
 #: the multibeam kinds :func:`detect` recognises in binary content (xyz soundings are text)
@@ -234,24 +233,51 @@ def read_text_head(path: str | Path, what: str, n: int) -> tuple[bytes, str | No
     return head, comp
 
 
-def read_bytes(path: str | Path, what: str = "", *, text: bool = False) -> tuple[bytes, str | None]:
+def _decompress_bounded(p: Path, comp: str, what: str, label: str, text: bool, budget: Any) -> bytes:
+    """A compressed file's content decoded block by block, each block counted by ``budget`` (a
+    :class:`hadal.budget.DecodeBudget`) before the next is read; with ``text``, binary content (a NUL in the first
+    4 KiB: a gzip of NUL bytes) is refused after the first block, never decompressed whole."""
+    out = bytearray()
+    with decompress_errors(p, comp, what), _OPENERS[comp](p, "rb") as fh:
+        while True:
+            b = fh.read(STREAM_BLOCK_BYTES)
+            if not b:
+                break
+            if text and not out and b"\x00" in b[:4096]:
+                raise InputError(f"{p}: not a {label} (binary content)")
+            out += b
+            budget.hold(len(out), f"{len(out):,} bytes decompressed so far")
+    return bytes(out)
+
+
+def read_bytes(path: str | Path, what: str = "", *, text: bool = False, copies: float = 3.0,
+               max_bytes: float | None = None) -> tuple[bytes, str | None]:
     """A file's whole content, decompressed when its first bytes are a gzip/bz2/xz magic (whatever the
     name), and the compression found. Every failure is a one-line :class:`InputError` naming the file and
     ``what`` it should be (e.g. ``"CNV"``): ``CNV file does not exist``, ``cannot read CNV file (...)``, or
     :func:`decompress_errors`' ``corrupt or truncated gzip-compressed CNV file (...)``. ``text``: the content
     must be text, so blank content is ``CNV file is empty`` and a NUL byte in the first 4 KiB is
-    ``not a CNV file (binary content)``."""
+    ``not a CNV file (binary content)``.
+
+    Memory: the content (decompressed as it streams, never trusting a size) times ``copies`` (the working copies
+    the caller makes: its text, its parsed values) is held against ``max_bytes`` (default: the memory budget),
+    one :class:`hadal.budget.DecodeBudget`; a compression bomb is a one-line error at the limit."""
+    from hadal.budget import DecodeBudget
+
     p = Path(path)
     label = f"{what} file" if what else "file"
     _require_file(p, label)
+    budget = DecodeBudget(p, label, copies=copies, limit_bytes=max_bytes)
     try:
-        raw = p.read_bytes()
+        with open(p, "rb") as fh:
+            comp = compression_of(fh.read(8))
+        if comp is None:
+            budget.hold(p.stat().st_size, f"{p.stat().st_size:,} bytes")
+            raw = p.read_bytes()
     except OSError as exc:
         raise InputError(f"{p}: cannot read {label} ({exc.strerror or exc})") from None
-    comp = compression_of(raw)
     if comp is not None:
-        with decompress_errors(p, comp, what):
-            raw = _DECOMPRESSORS[comp](raw)
+        raw = _decompress_bounded(p, comp, what, label, text, budget)
     if utf16_of(raw[:4096]):
         raw = raw.decode("utf-16", errors="replace").encode("utf-8")
     if text:

@@ -273,6 +273,7 @@ def raw_inputs(name: str, ctx: StageContext) -> list[Path]:
     """Raw files stage ``name`` reads: ``dive.yaml`` always; those its module's ``raw_files(ctx)`` names (derive's
     ``overlying_profile``); the files of its ``INPUTS.raw_any`` source kinds when it reads raw data
     (``INPUTS.reads_raw``), and the vehicle mapping for ``ingest``."""
+    from hadal.confine import files_read
     from hadal.dive import resolve_source
     from hadal.plan import stage_inputs
 
@@ -286,7 +287,9 @@ def raw_inputs(name: str, ctx: StageContext) -> list[Path]:
     if name == "ingest" and ctx.dive.vehicle_config:
         files.append(resolve_source(ctx.raw_dir, ctx.dive.vehicle_config))
     for kind in inp.raw_any:
-        files.extend(resolve_source(ctx.raw_dir, e) for e in ctx.dive.sources.files(kind))
+        for e in ctx.dive.sources.files(kind):
+            f = resolve_source(ctx.raw_dir, e)
+            files.extend([f, *files_read(f, ctx.raw_dir)[1:]])  # and a VRT's sources (hadal.confine)
     return files
 
 

@@ -1,5 +1,6 @@
 """Security cases of the reliability report (issue 45): a forged provenance, a hand-edited store, hostile names and
-YAML, a symlinked file offered to the report, AlignCTD's edge.
+YAML, a symlinked file offered to the report, AlignCTD's edge, grid files reaching outside the dive or to the network
+(a VRT, HDF5 external storage) and compression bombs against the decode budget.
 
 Each case is ``(name, prepare(case_dir, store), run(case_dir, store), error, match, check)`` in the shape of
 ``tests/reliability_report.py``'s ``Item``: a one-line :class:`hadal.errors.HadalError` of class ``error`` whose
@@ -196,6 +197,134 @@ def _run_align(d: Path, store: Path) -> Any:
     return align_ctd(np.arange(5.0), 6.0, 1.0)
 
 
+# ------------------------------------------------------------------- confinement and memory (issue 45, round 3)
+def _dive_dir(d: Path) -> Path:
+    dive = d / "dive"
+    dive.mkdir(parents=True, exist_ok=True)
+    (dive / "dive.yaml").write_text("dive_id: sec-conf\n")
+    return dive
+
+
+def _vrt_text(source: str, relative: bool = False) -> str:
+    return ('<VRTDataset rasterXSize="8" rasterYSize="8"><SRS>EPSG:32654</SRS>'
+            '<GeoTransform>500000, 10, 0, 4000000, 0, -10</GeoTransform>'
+            '<VRTRasterBand dataType="Float32" band="1"><SimpleSource>'
+            f'<SourceFilename relativeToVRT="{int(relative)}">{source}</SourceFilename><SourceBand>1</SourceBand>'
+            '</SimpleSource></VRTRasterBand></VRTDataset>')
+
+
+def _prep_vrt_outside(d: Path, store: Path) -> None:
+    import numpy as np
+    import rasterio
+    from rasterio.transform import from_origin
+
+    with rasterio.open(d / "outside.tif", "w", driver="GTiff", width=8, height=8, count=1, dtype="float32",
+                       crs="EPSG:32654", transform=from_origin(500000, 4000000, 10, 10)) as dst:
+        dst.write(np.full((8, 8), -4000, np.float32), 1)
+    (_dive_dir(d) / "prior.vrt").write_text(_vrt_text("../outside.tif", relative=True))
+
+
+def _run_read_grid(name: str) -> Callable[[Path, Path], Any]:
+    def run(d: Path, store: Path) -> Any:
+        from hadal.grid.readers import read_grid
+
+        return read_grid(d / "dive" / name)
+    return run
+
+
+def _run_vrt_network(d: Path, store: Path) -> Any:
+    """A VRT whose source is a /vsicurl/ URL of a loopback server; the server must get no request (else the case
+    ends in an AssertionError: a security finding, whatever hadal said)."""
+    import http.server
+    import threading
+
+    from hadal.grid.readers import read_grid
+
+    hits: list[str] = []
+
+    class Handler(http.server.BaseHTTPRequestHandler):
+        def do_GET(self):  # noqa: N802
+            hits.append(self.path)
+            self.send_response(404)
+            self.end_headers()
+
+        do_HEAD = do_GET  # noqa: N815
+
+        def log_message(self, *a: Any) -> None:
+            pass
+
+    srv = http.server.ThreadingHTTPServer(("127.0.0.1", 0), Handler)
+    threading.Thread(target=srv.serve_forever, daemon=True).start()
+    try:
+        (_dive_dir(d) / "net.vrt").write_text(_vrt_text(f"/vsicurl/http://127.0.0.1:{srv.server_address[1]}/a.tif"))
+        try:
+            return read_grid(d / "dive" / "net.vrt")
+        finally:
+            if hits:
+                raise AssertionError(f"the VRT made HTTP requests {hits}")
+    finally:
+        srv.shutdown()
+        srv.server_close()
+
+
+def _prep_hdf5_external(d: Path, store: Path) -> None:
+    import h5py
+    import numpy as np
+
+    z = np.full((8, 8), -4000.0)
+    (d / "secret.raw").write_bytes(z.tobytes())
+    with h5py.File(_dive_dir(d) / "prior.nc", "w") as h:
+        h["x"] = np.arange(8.0)
+        h["y"] = np.arange(8.0)
+        h["x"].make_scale("x")
+        h["y"].make_scale("y")
+        ds = h.create_dataset("z", shape=z.shape, dtype="f8", external=[(str(d / "secret.raw"), 0, z.nbytes)])
+        ds.dims[0].attach_scale(h["y"])
+        ds.dims[1].attach_scale(h["x"])
+
+
+def _prep_hex_bomb(d: Path, store: Path) -> None:
+    import gzip
+
+    d.mkdir(parents=True, exist_ok=True)
+    with gzip.open(d / "bomb.hex", "wb", compresslevel=1) as f:
+        f.write(b"* Sea-Bird SBE 9 Data File:\n*END*\n")
+        block = b"0123456789ABCDEF0123\n" * 800_000
+        for _ in range(200):  # 3.3 GB of scan lines
+            f.write(block)
+
+
+def _prep_nul_gzip(d: Path, store: Path) -> None:
+    import gzip
+
+    d.mkdir(parents=True, exist_ok=True)
+    with gzip.open(d / "nul.cnv", "wb", compresslevel=1) as f:
+        for _ in range(64):
+            f.write(b"\x00" * (16 << 20))
+
+
+def _prep_cnv_xz(d: Path, store: Path) -> None:
+    import lzma
+
+    d.mkdir(parents=True, exist_ok=True)
+    head = ("* Sea-Bird SBE 9 Data File:\n# nquan = 2\n# nvalues = 10\n# name 0 = prDM: Pressure [db]\n"
+            "# name 1 = timeS: Time, Elapsed [seconds]\n# bad_flag = -9.990e-29\n*END*\n")
+    with lzma.open(d / "rows.cnv", "wb", preset=1) as f:
+        f.write(head.encode())
+        block = b"  1.000  0.000\n" * 1_000_000
+        for _ in range(8):  # 8e6 scans: 128 MB of float64 scans, 4x that with the working copies
+            f.write(block)
+
+
+def _run_file(fn: str, name: str, **kw: Any) -> Callable[[Path, Path], Any]:
+    def run(d: Path, store: Path) -> Any:
+        import importlib
+
+        mod, func = fn.rsplit(".", 1)
+        return getattr(importlib.import_module(mod), func)(d / name, **kw)
+    return run
+
+
 _LAUGHS = "lol: &a [x, x, x, x, x, x, x, x, x, x]\n" + "".join(
     f"{c}: &{c} [{', '.join(['*' + p] * 10)}]\n" for p, c in zip("abcdefgh", "bcdefghi", strict=True))
 
@@ -230,6 +359,19 @@ CASES: tuple[SecurityCase, ...] = (
     SecurityCase("sec_yaml_huge_integer", _prep_dive_yaml("extra: " + "7" * 50_000 + "\n"), _run_make_context,
                  "ConfigError", r"digits|integer"),
     SecurityCase("sec_report_symlinked_figure", _prep_report_link, _run_report, None, "", _check_report),
+    SecurityCase("sec_vrt_source_outside_the_dive", _prep_vrt_outside, _run_read_grid("prior.vrt"), "ConfinementError",
+                 r"outside the dive directory"),
+    SecurityCase("sec_vrt_vsicurl_source_makes_no_request", lambda d, s: None, _run_vrt_network, "ConfinementError",
+                 r"URL, virtual file system"),
+    SecurityCase("sec_hdf5_external_storage_outside_the_dive", _prep_hdf5_external, _run_read_grid("prior.nc"),
+                 "ConfinementError", r"external file"),
+    SecurityCase("sec_gzip_hex_bomb", _prep_hex_bomb, _run_file("hadal.ingest.seabird_hex.read_hex", "bomb.hex"),
+                 "InputError", r"decoding this Sea-Bird \.hex file needs more than"),
+    SecurityCase("sec_gzip_nul_bytes_as_cnv", _prep_nul_gzip, _run_file("hadal.ingest.cnv.read_cnv", "nul.cnv"),
+                 "InputError", r"bytes long: not a \.cnv"),
+    SecurityCase("sec_xz_cnv_rows_past_the_budget", _prep_cnv_xz,
+                 _run_file("hadal.ingest.cnv.read_cnv", "rows.cnv", max_bytes=256 << 20), "InputError",
+                 r"decoding this CNV file needs more than"),
     SecurityCase("sec_align_ctd_advance_longer_than_record", lambda d, s: None, _run_align, "InputError",
                  r"not shorter than the record"),
 )

@@ -189,10 +189,16 @@ _Z_NAMES = ("z", "depth", "depth_m", "elevation", "elevation_m", "height", "h", 
 XYZ_CHUNK_ROWS = 500_000
 
 
+#: working copies of an xyz point cloud's coordinates counted by its memory budget (:class:`hadal.budget.DecodeBudget`):
+#: the growable columns, their trimmed values and the stacked (n, 3) array
+XYZ_WORKING_COPIES = 3.0
+
+
 def _read_xyz_cloud(p: Path, columns: list[str] | None) -> np.ndarray:
     """x y z (and more) numeric text columns, streamed: the (decompressed) file passes once through a
     :class:`~hadal.textstream.LineScan` (line-length bound) into pandas in chunks of :data:`XYZ_CHUNK_ROWS`,
     and only the three coordinate columns are kept, as float64. Peak memory: the points plus one chunk."""
+    from hadal.budget import DecodeBudget
     from hadal.grid.sonar import _not_number
     from hadal.textstream import MAX_LINE_BYTES, GrowableColumn, LineScan, ScannedStream
 
@@ -205,6 +211,7 @@ def _read_xyz_cloud(p: Path, columns: list[str] | None) -> np.ndarray:
     sep = "," if "," in first else ";" if ";" in first else r"\s+"
     header = 0 if any(_not_number(t) for t in first.replace(",", " ").replace(";", " ").split()) else None
     out = [GrowableColumn(max(p.stat().st_size // 24, 1024), np.float64) for _ in range(3)]
+    budget = DecodeBudget(p, "point cloud", copies=XYZ_WORKING_COPIES)
     idx: list[int] | None = None
     n_rows = 0
     with open_binary(p) as fh, decompress_errors(p, compression, "point cloud"):
@@ -226,6 +233,7 @@ def _read_xyz_cloud(p: Path, columns: list[str] | None) -> np.ndarray:
                     for k in range(3):
                         out[k].extend(sub.iloc[:, k].to_numpy(np.float64))
                     n_rows += len(df)
+                    budget.hold(sum(c.a.nbytes for c in out), f"{n_rows:,} points so far")
         except InputError:
             raise
         except (pd.errors.ParserError, pd.errors.EmptyDataError, ValueError) as exc:
@@ -554,8 +562,12 @@ def looks_metric(x_extent: float, y_extent: float, relief_m: float) -> bool:
     return slope_deg_reading < 1e-5 and 1e-3 <= slope_m_reading <= 10
 
 
-#: bytes a grid read needs per cell at its peak (the stored values, the mask and the float64 copy)
-GRID_READ_BYTES_PER_CELL = 17
+#: bytes a grid read needs per cell at its peak, working copies included: the stored values, the mask, the float64
+#: copy, the finite mask, a unit conversion, and the prior-grid DTM made from it (sign, land mask, resampling onto
+#: the map frame at about the grid's cell count). Measured (issue 45, GDAL block cache 64 MB): load_prior of a
+#: 2,000 x 2,000 float32 GeoTIFF 41 B/cell (tracemalloc), prior_dtm 105 B/cell (tracemalloc), 120 B/cell RSS; the
+#: 17 B/cell counted before let a GeoTIFF "just under the budget" peak at several times the budget
+GRID_READ_BYTES_PER_CELL = 128
 
 
 def check_grid_read_size(p: Path, ny: int, nx: int, max_bytes: float | None) -> None:
@@ -710,7 +722,10 @@ def _lon_convention(da: xr.DataArray) -> xr.DataArray:
 
 def _read_netcdf_or_gdal(p: Path, variable: str | None, max_bytes: float | None) -> xr.DataArray:
     """A NetCDF grid via xarray, falling back to GDAL for HDF5/layouts xarray cannot map (see :func:`read_grid`)."""
+    from hadal.confine import check_hdf5_self_contained
+
     check_grid_truncation(p)  # classic netCDF is read zero-filled past a cut, as a valid-looking grid
+    check_hdf5_self_contained(p)  # no value read from an external raw file or a virtual dataset's sources
     try:
         return _read_netcdf_grid(p, variable, max_bytes)
     except InputError as first:
@@ -736,10 +751,12 @@ def _read_netcdf_or_gdal(p: Path, variable: str | None, max_bytes: float | None)
 
 def _read_gdal_raster(p: Path, max_bytes: float | None) -> xr.DataArray:
     """Any other GDAL raster; a one-line error (with a GMT hint for ``.grd``) when GDAL cannot read it."""
+    from hadal.confine import ConfinementError
+
     try:
         return _read_geotiff(p, max_bytes)
     except InputError as exc:
-        if "reading it needs about" in str(exc):
+        if "reading it needs about" in str(exc) or isinstance(exc, ConfinementError):
             raise
         hint = (" (a GMT native binary grid? GDAL cannot read those: convert it with "
                 "'gmt grdconvert IN.grd OUT.nc')" if p.suffix.lower() == ".grd" else "")
@@ -796,10 +813,14 @@ def _read_geotiff(p: Path, max_bytes: float | None = None) -> xr.DataArray:
     import rasterio
     from rasterio.errors import RasterioError
 
+    from hadal.confine import check_gdal_file, check_opened_files, gdal_env
+
+    check_gdal_file(p)  # a VRT naming a file outside the dive, a URL or /vsicurl/: refused before GDAL opens it
     try:
-        with warnings.catch_warnings():
+        with warnings.catch_warnings(), gdal_env():
             warnings.simplefilter("ignore", rasterio.errors.NotGeoreferencedWarning)
             with rasterio.open(p) as src:
+                check_opened_files(p, list(src.files))
                 if src.count < 1:
                     raise InputError(f"{p}: raster has no bands")
                 check_grid_read_size(p, src.height, src.width, max_bytes)

@@ -32,6 +32,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from hadal.budget import DecodeBudget
 from hadal.errors import InputError
 from hadal.formats import compression_of, detect, iter_blocks, read_bytes
 from hadal.ingest.csv_reader import MAX_LINE_BYTES
@@ -324,8 +325,10 @@ class _RowSink:
     A piece whose every non-blank line has ``nquan`` tokens is converted in one NumPy call; otherwise its lines
     are read one by one (fixed-width fallback, unreadable lines dropped and their numbers kept)."""
 
-    def __init__(self, nquan: int, bad_flag: float, capacity_hint: int | None, body_bytes: int | None):
+    def __init__(self, nquan: int, bad_flag: float, capacity_hint: int | None, body_bytes: int | None,
+                 budget: DecodeBudget | None = None):
         self.nquan, self.bad_flag = nquan, bad_flag
+        self.budget = budget
         self.hint, self.body_bytes = capacity_hint, body_bytes
         self.a: np.ndarray | None = None
         self.n = 0
@@ -347,11 +350,20 @@ class _RowSink:
             elif cap:
                 cap = min(cap, max(_FIRST_CAPACITY_BYTES // (8 * self.nquan), 16))
             cap = max(cap, need, 16)
+            self._hold(cap, need)
             self.a = np.empty((cap, self.nquan), dtype=np.float64)
         elif need > self.a.shape[0]:
-            grown = np.empty((max(need, int(self.a.shape[0] * 1.5) + 16), self.nquan), dtype=np.float64)
+            cap = max(need, int(self.a.shape[0] * 1.5) + 16)
+            self._hold(cap, need)
+            grown = np.empty((cap, self.nquan), dtype=np.float64)
             grown[:self.n] = self.a[:self.n]
             self.a = grown
+
+    def _hold(self, cap: int, rows: int) -> None:
+        """The budget (:class:`hadal.budget.DecodeBudget`) before an array of ``cap`` rows is allocated."""
+        if self.budget is not None:
+            self.budget.hold(cap * self.nquan * 8.0,
+                             f"{rows:,} scans of {self.nquan} channels so far")
 
     def _store(self, vals: np.ndarray, piece_bytes: int) -> None:
         # bad_flag = 0 is substituted after the whole body is read (_apply_zero_bad_flag: per channel, not in the
@@ -650,7 +662,15 @@ def _strip_label_line(piece: bytes) -> tuple[list[str] | None, bytes]:
     return None, piece
 
 
-def _stream_cnv(path: Path) -> tuple[str | None, dict[str, Any], _RowSink, list[str] | None]:
+#: working copies of a .cnv's scans counted by its memory budget: the row array, the growth copy (1.5x) and the
+#: float64 channel arrays of the sensor samples and the sensors table the ingest stage builds from it (measured:
+#: read_cnv + cnv_sensor_samples of 5e6 scans x 4 channels peaked 2.4x the array above the
+#: interpreter; the stage's table adds one more)
+CNV_WORKING_COPIES = 4.0
+
+
+def _stream_cnv(path: Path, max_bytes: float | None = None) -> tuple[str | None, dict[str, Any], _RowSink,
+                                                                     list[str] | None]:
     """One streaming pass over ``path``: the header lines up to ``*END*`` (parsed by :func:`_parse_header`),
     then each body piece fed to a :class:`_RowSink` (never the whole file in memory). Returns (compression,
     parsed header, the filled sink, the labels of a label line after ``*END*`` or None)."""
@@ -680,7 +700,8 @@ def _stream_cnv(path: Path) -> tuple[str | None, dict[str, Any], _RowSink, list[
             header_bytes = sum(len(x) + 1 for x in header) + len(lines[k]) + 1
             sink = _RowSink(hdr["nquan"], hdr["bad_flag"], hdr["nvalues_hint"],
                             None if compression is not None or file_size is None
-                            else max(file_size - header_bytes, 0))
+                            else max(file_size - header_bytes, 0),
+                            DecodeBudget(path, "CNV file", copies=CNV_WORKING_COPIES, limit_bytes=max_bytes))
             rest = lines[k + 1:]
             piece = ("\n".join(rest) + "\n").encode("latin-1") if rest else b""
             if not piece:
@@ -815,7 +836,7 @@ def _cnv_attrs(path: Path, compression: str | None, h: dict[str, Any], channels:
     }
 
 
-def read_cnv(path: str | Path) -> pd.DataFrame:
+def read_cnv(path: str | Path, *, max_bytes: float | None = None) -> pd.DataFrame:
     """Read a Sea-Bird ``.cnv`` file into a DataFrame with the file's column names.
 
     ``df.attrs`` holds the header (all JSON-serialisable):
@@ -843,10 +864,11 @@ def read_cnv(path: str | Path) -> pd.DataFrame:
 
     Raises :class:`~hadal.errors.InputError` (one line, naming the file) when the file is missing, empty,
     has no ``*END*`` line, no ``# name`` lines, or no readable data rows (naming a column-count mismatch: rows
-    of N values under a header of M columns).
+    of N values under a header of M columns), and when its scans with their working copies would need more than
+    ``max_bytes`` (default: the memory budget, :class:`hadal.budget.DecodeBudget`), checked as the body decodes.
     """
     path = Path(path)
-    compression, h, sink, column_labels = _stream_cnv(path)
+    compression, h, sink, column_labels = _stream_cnv(path, max_bytes)
     data, bad_lines, n_bad, bad_counts = sink.result(), sink.bad_lines, sink.n_bad, sink.bad_counts
     del sink
     _check_rows(path, h, data, bad_lines, bad_counts)

@@ -15,6 +15,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from hadal.budget import DecodeBudget
 from hadal.errors import ConfigError, InputError
 from hadal.formats import decompress_errors, open_binary, read_text_head, text_encoding_of
 from hadal.ingest.align import time_unit_hint
@@ -229,6 +230,11 @@ def _chunk_numbers(chunk: pd.DataFrame, inputs: list[tuple[str, str]], per_col: 
     return nums
 
 
+#: working copies of the kept columns a sensor CSV's memory budget counts (:class:`hadal.budget.DecodeBudget`):
+#: the growable columns, their trimmed values, the unit-converted and validity-masked variables of the samples
+CSV_WORKING_COPIES = 3.0
+
+
 class _CsvRows:
     """The good rows of a sensor CSV, kept as numbers chunk by chunk (:func:`read_sensor_csv`), and the counts
     of the rows dropped."""
@@ -243,6 +249,11 @@ class _CsvRows:
         self.per_col: dict[str, dict[str, Any]] = {}
         self.n_rows = self.n_bad_time = self.n_rejected = 0
         self.bad_time_values: list[np.ndarray] = []
+
+    def nbytes(self) -> int:
+        """Bytes the kept columns hold (their capacity)."""
+        cols = [self.t_out, *self.num_out.values(), *([self.ok_out] if self.ok_out is not None else [])]
+        return sum(c.a.nbytes for c in cols)
 
     def add(self, chunk: pd.DataFrame) -> None:
         """One parsed chunk: its rows with a good time and good numbers are kept."""
@@ -328,6 +339,7 @@ def read_sensor_csv(path: str | Path, mapping: CsvSource, sensor: str = "sensor"
     if layout.dbd is not None:
         _check_file_units(path, mapping, layout.dbd.units_of())
     rows = _CsvRows(path, mapping)
+    budget = DecodeBudget(path, "CSV file", copies=CSV_WORKING_COPIES)
     # numbers are parsed by pandas' C parser (a column with any other cell comes back as text and is checked
     # cell by cell); the time column stays text unless it is a plain number, the validity column always.
     # Every column is parsed (``usecols`` would hide rows with too many fields from ``on_bad_lines``); a
@@ -340,6 +352,7 @@ def read_sensor_csv(path: str | Path, mapping: CsvSource, sensor: str = "sensor"
                              dtype={raw_name[c]: str for c in as_text}, na_values=_EMPTY_CELLS, encoding=encoding,
                              **skip):
         rows.add(chunk)
+        budget.hold(rows.nbytes(), f"{rows.n_rows:,} rows so far")
         del chunk
     n_lines = scan.finish()
     bad_shape = max(n_lines - 1 - n_comment_text - rows.n_rows, 0)  # rows pandas skipped for a wrong field count

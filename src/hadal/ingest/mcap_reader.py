@@ -138,8 +138,17 @@ _MSG = struct.Struct("<HIQQ")
 _OP_SCHEMA, _OP_CHANNEL, _OP_MESSAGE = 0x03, 0x04, 0x05
 
 
-def _chunk_bytes(chunk: Any) -> bytes:
-    """Decompressed, CRC-checked payload of a Chunk record (ValueError when damaged)."""
+#: working copies of a decompressed MCAP chunk its memory budget counts (the payload, its parsed records, the
+#: channel buffers they are copied into)
+MCAP_CHUNK_COPIES = 4.0
+
+
+def _chunk_bytes(chunk: Any, budget: Any = None) -> bytes:
+    """Decompressed, CRC-checked payload of a Chunk record (ValueError when damaged). ``budget`` (a
+    :class:`hadal.budget.DecodeBudget`) is held against the declared decompressed size before anything is
+    decompressed, and neither decompressor may give more than that size (a compression bomb declaring little)."""
+    if budget is not None:
+        budget.hold(float(chunk.uncompressed_size), f"one chunk declaring {chunk.uncompressed_size:,} bytes")
     if chunk.compression == "zstd":
         import zstandard
 
@@ -147,7 +156,8 @@ def _chunk_bytes(chunk: Any) -> bytes:
     elif chunk.compression == "lz4":
         import lz4.frame
 
-        data = lz4.frame.decompress(chunk.data)
+        dec = lz4.frame.LZ4FrameDecompressor()
+        data = dec.decompress(chunk.data, max_length=int(chunk.uncompressed_size) + 1)
     elif chunk.compression == "":
         data = chunk.data
     else:
@@ -225,6 +235,9 @@ class _Walk:
         self._fh, self._records = fh, _stream_reader(fh, keep).records
         self.problem: str | None = None
         self.corrupt = 0
+        from hadal.budget import DecodeBudget
+
+        self.budget = DecodeBudget(getattr(fh, "name", "MCAP file"), "MCAP chunk", copies=MCAP_CHUNK_COPIES)
 
     def __iter__(self) -> Iterator[Any]:
         while True:
@@ -239,7 +252,9 @@ class _Walk:
 
     def chunk(self, rec: Any) -> list[tuple[int, Any]] | None:
         try:
-            return _parse_chunk(_chunk_bytes(rec))
+            return _parse_chunk(_chunk_bytes(rec, self.budget))
+        except InputError:
+            raise
         except Exception:  # noqa: BLE001 - bad compression / CRC / framing: skip this chunk only
             self.corrupt += 1
             return None
@@ -247,7 +262,9 @@ class _Walk:
     def chunk_channels(self, rec: Any, kern: Any) -> Any:
         """:func:`_chunk_channels` of a chunk, or ``None`` for a damaged chunk (counted)."""
         try:
-            return _chunk_channels(_chunk_bytes(rec), kern)
+            return _chunk_channels(_chunk_bytes(rec, self.budget), kern)
+        except InputError:
+            raise
         except Exception:  # noqa: BLE001 - bad compression / CRC / framing: skip this chunk only
             self.corrupt += 1
             return None

@@ -20,7 +20,10 @@ def open_dtm(pv: ProductVersion) -> xr.Dataset:
     """
     import xarray as xr
 
+    from hadal.confine import check_hdf5_self_contained
+
     path = pv.file("dtm.nc")
+    check_hdf5_self_contained(path)
     try:
         with xr.open_dataset(path, engine="h5netcdf") as ds:
             ds = ds.load()

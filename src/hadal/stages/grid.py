@@ -27,6 +27,7 @@ from typing import TYPE_CHECKING, Annotated, Any, Literal, NamedTuple
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
 from hadal.budget import check_memory, memory_limit_bytes
+from hadal.confine import files_read
 from hadal.errors import ConfigError, InputError, StageError
 from hadal.grid.points import DEFAULT_MAX_CELLS
 
@@ -431,7 +432,7 @@ def _fill_dtm_from_priors(ctx: StageContext, p: Params, dtm, priors: list[tuple[
         for f, sf in priors:
             n += _fill_from_prior(dtm, f, sf, frame)
             readers[str(f)] = "prior grid fill"
-        inputs += [f for f, _ in priors]
+        inputs += [q for f, _ in priors for q in files_read(f)]  # a VRT's sources too (hadal.confine)
         dtm.attrs["prior_grid_use"] = f"multibeam wins; empty cells filled from {names} (filled = 2)"
         dtm.attrs["n_cells_prior_filled"] = n
         ctx.log.info("dtm: multibeam wins over the prior grid(s) %s; %d empty cells filled from them", names, n)
@@ -554,7 +555,7 @@ def _prior_grid_dtm(ctx: StageContext, p: Params, priors: list[tuple[Path, objec
     summary = (f"{what} the dive's transverse-Mercator map frame at {dtm.attrs['resolution']:g} m; depth positive "
                "down, land (above sea level) masked (layer 'land'). No soundings: count, uncertainty and fill "
                "layers are absent.")
-    return _Dtm(dtm, [g.path for g in usable],
+    return _Dtm(dtm, [q for g in usable for q in files_read(g.path)],
                 f"Reference DTM of dive {ctx.dive_id} from the prior grid{'s' if len(usable) > 1 else ''} {names}",
                 summary, "bathymetry, prior grid, digital terrain model")
 
