@@ -111,14 +111,14 @@ def test_mrf_edge_flag_outside_the_search_and_not_inside():
     edge = SearchEdgeOptions(mrf_edge_max_radius_cells=10.0)
     m = mrf_refine(patch, px + 20 * H, py, g, max_total_shift_cells=6.0, edge=edge)
     assert not m.converged and (m.x0_m, m.y0_m) == (px + 20 * H, py)
-    assert any(w.startswith("possible mismatch: search edge") for w in m.warnings)
+    assert any(w.startswith("possible mismatch: search edge") for w in m.warnings) and m.search_edge["at_edge"]
     # truth 4 cells away inside a 10-cell search: no edge warning, fix within a quarter cell
     m = mrf_refine(patch, px + 4 * H, py - 2 * H, g, max_total_shift_cells=10.0, edge=edge)
     assert not any("search edge" in w for w in m.warnings)
     assert m.converged and np.hypot(m.x0_m - px, m.y0_m - py) < 0.25 * H
     # truth 9 cells away, search 6 (at its edge) -> widened once to 12: recovered
     m = mrf_refine(patch, px + 9 * H, py, g, max_total_shift_cells=6.0, edge=SearchEdgeOptions())
-    assert any("searched again" in w for w in m.warnings) and not any("search edge" in w for w in m.warnings)
+    assert m.search_edge["retried"] and not m.search_edge["at_edge"] and not any("search edge" in w for w in m.warnings)
     assert m.converged and np.hypot(m.x0_m - px, m.y0_m - py) < 0.25 * H
 
 

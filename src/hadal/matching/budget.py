@@ -219,5 +219,6 @@ def mrf_step(track_xy: np.ndarray, seafloor_depth_m: np.ndarray, g: MapGrid, g_r
              "coarse_shift_cells": list(m.coarse_d_cells),
              "sigma_cells": [v if np.isfinite(v) else None for v in m.sigma_cells],
              "gibbs_temperature_m2": m.temperature if np.isfinite(m.temperature) else None,
+             "search_edge": m.search_edge,
              "start": {"x_east_m": sx, "y_north_m": sy, "lat": slat, "lon": slon}}
     return entry, list(m.warnings)

@@ -114,6 +114,7 @@ class MrfResult:
     sigma_cells: tuple[float, float] = (float("nan"), float("nan"))  # Cramér-Rao 1 sigma of (dx, dy)
     temperature: float = float("nan")  # Gibbs temperature T used (NaN: no prior)
     energy_gap: float = float("nan")  # coarse: second minimum minus best, log-likelihood units
+    search_edge: dict = field(default_factory=dict)  # coarse minimum at the search radius: retry and flag (docstring, 8)
 
 
 def _shift_axis(a: np.ndarray, d: np.ndarray, axis: int) -> np.ndarray:
@@ -545,25 +546,28 @@ def mrf_refine(
     if search is None:
         return flagged("MRF: the patch does not overlap the map enough at any shift; no fix")
     at_edge = coarse and _at_search_edge(search, max_total_shift_cells, edge.mrf_edge_cells)
+    edge_record: dict = {"at_edge": False, "retried": False, "radius_cells": float(max_total_shift_cells)}
     if at_edge and edge.edge_retry:  # widen once (module docstring, 8)
         wider = min(edge.edge_widen_factor * max_total_shift_cells, edge.mrf_edge_max_radius_cells)
         if wider > max_total_shift_cells + edge.mrf_edge_cells:
             retry = search_within(wider)
             if retry is not None:
-                warnings.append(f"MRF: the coarse minimum sat at the edge of the {max_total_shift_cells:g}-cell search; "
-                                f"searched again within {wider:g} cells")
+                edge_record.update({"retried": True, "first_radius_cells": float(max_total_shift_cells),
+                                    "first_minimum_cells": [search.cx, search.cy], "radius_cells": float(wider)})
                 search, max_total_shift_cells = retry, wider
                 at_edge = _at_search_edge(search, max_total_shift_cells, edge.mrf_edge_cells)
+    edge_record["at_edge"] = bool(at_edge)
     if at_edge:
         return flagged(f"possible mismatch: search edge: the MRF coarse minimum ({np.hypot(search.cx, search.cy):.1f} "
                        f"cells) is within {edge.mrf_edge_cells:g} cell of the {max_total_shift_cells:g}-cell search "
                        "radius; the initial error may be larger: no fix", s_n=search.s_n,
-                       coarse_d_cells=(search.cx, search.cy), temperature=search.T, energy_gap=search.gap)
+                       coarse_d_cells=(search.cx, search.cy), temperature=search.T, energy_gap=search.gap,
+                       search_edge=edge_record)
     s_n = search.s_n
     # texture (Cramér-Rao of [MRF Eq. 7]) on the terrain the fine stage uses
     sig_t = _texture_sigma(search.ir_fine, s_n, min_cells)
     common = {"coarse_d_cells": (search.cx, search.cy), "sigma_cells": sig_t, "temperature": search.T,
-              "energy_gap": search.gap}
+              "energy_gap": search.gap, "search_edge": edge_record}
     if coarse:
         refused = _refusal(sig_t, search.cx, search.cy, search.gap, max_sigma_cells=max_sigma_cells,
                            max_total_shift_cells=max_total_shift_cells, min_energy_gap=min_energy_gap,
