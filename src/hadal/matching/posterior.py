@@ -166,7 +166,6 @@ checked on seeds 2 and 3 (bench/calibration_tercom.py).
 
 from __future__ import annotations
 
-import os
 import warnings as _warnings
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
@@ -1396,11 +1395,6 @@ def _laplace_main_mode(pb: _Problem, dr: _DriftStep, free_heading: bool, free_sc
                 C_white = np.linalg.inv((1.0 / s2) * (Jv.T @ Jv) + np.diag(prior))  # independent samples
                 ev, V = np.linalg.eigh(0.5 * ((C @ meat @ C - C_white) + (C @ meat @ C - C_white).T))
                 C = C_white + (V * np.maximum(ev, 0.0)) @ V.T  # never narrower than independent samples'
-                if os.environ.get("HADAL_HAC_DOF") == "1":
-                    kap = _fit_dof_inflation(pb.g, pb.d, pb.rel, (a_map, f_map), (x_map, y_map), drift_xy, B, gam,
-                                             s2 / (gam * dr.sigma ** 2) if B is not None else 0.0,
-                                             free_heading, free_scale)
-                    C = C * kap
                 info.update({"correlation": "hac", "correlation_lags": int(np.count_nonzero(rho)),
                              "integrated_autocorrelation": float(1.0 + 2.0 * rho.sum())})
         if random_walk > 0:
