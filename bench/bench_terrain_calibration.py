@@ -44,7 +44,7 @@ Measured 2026-12-05, 240 tracks a run, unflagged fixes (calibrated reference: me
 | real, 0 | after | 0.617 | 0.977 | 1.62 | 1.000 | 0.069 |
 | real, 1 | before | 0.720 | 0.967 | 0.98 | 1.000 (51) | 0.037 |
 | real, 1 | edge_only | 0.694 | 0.965 | 0.99 | 1.000 | 0.080 |
-| real, 1 | after | 0.561 | 0.931 | 1.64 | 1.000 | 0.080 |
+| real, 1 | after | 0.561 | 0.931 | 1.60 | 1.000 | 0.080 |
 | gauss, 0 | before | 0.720 | 0.948 | 1.24 | 0.932 (44) | 0.031 |
 | gauss, 0 | edge_only | 0.699 | 0.951 | 1.24 | 0.977 | 0.071 |
 | gauss, 0 | after | 0.678 | 0.945 | 1.35 | 0.977 | 0.071 |
