@@ -11,6 +11,7 @@ import pytest
 from hadal.errors import InputError
 from hadal.matching import MapGrid, tercom
 from hadal.matching.mrf import GibbsFilter, _gibbs, _shift_axis, gibbs_temperature, mrf_refine
+from hadal.matching.options import SearchEdgeOptions
 from hadal.testing import AnalyticTerrain, cut_patch
 
 H = 20.0
@@ -125,8 +126,13 @@ def test_converges_from_20_to_25_cells_on_real_terrain(real):
             assert not old.converged or np.hypot(old.x0_m - x0, old.y0_m - y0) > 5 * h
         for _ in range(2):  # beyond the range (25 cells + guard ring): flagged, not a wrong fix
             patch, x0, y0 = cut_patch(g, truth, rng, 0.01)
-            far = mrf_refine(patch, *_start(x0, y0, h, 34, rng), g)
+            start = _start(x0, y0, h, 34, rng)
+            far = mrf_refine(patch, *start, g, edge=SearchEdgeOptions(edge_retry=False))
             assert not far.converged and far.warnings, name
+            # issue 47: a minimum at the search edge widens the search once (50 cells): recovered, or refused
+            wide = mrf_refine(patch, *start, g)
+            assert not wide.converged or (wide.search_edge["retried"]
+                                          and np.hypot(wide.x0_m - x0, wide.y0_m - y0) < 0.5 * h), name
 
 
 def test_subcell_accuracy_on_real_terrain(real):

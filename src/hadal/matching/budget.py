@@ -175,12 +175,13 @@ def swath_on_map(swath_dr_xy: np.ndarray, bottom_dr_xy: np.ndarray, track_map_xy
 
 def mrf_step(track_xy: np.ndarray, seafloor_depth_m: np.ndarray, g: MapGrid, g_raw: MapGrid,
              start_xy: tuple[float, float], frame: LocalFrame, *, max_shift_cells: float,
-             max_total_shift_cells: float, prior: str, patch_source: str = "bottom_track"
+             max_total_shift_cells: float, prior: str, patch_source: str = "bottom_track", edge: Any = None
              ) -> tuple[dict[str, Any], list[str]]:
     """MRF fine matching ([MRF Eqs. 4-14], :func:`hadal.matching.mrf.mrf_refine` on ``g_raw``) of soundings placed
     on the map by the fix (map positions ``track_xy``, measured ``seafloor_depth_m``: the matched bottom track, or
     with ``patch_source="vehicle_swath"`` the vehicle's own swath soundings, :func:`swath_on_map`) gridded on the
-    cells of ``g``; ``start_xy``: the reported start, moved by the MRF shift. Returns ``(fix.json 'mrf' entry,
+    cells of ``g``; ``start_xy``: the reported start, moved by the MRF shift; ``edge``: the search-edge options
+    (:class:`hadal.matching.options.SearchEdgeOptions`, default when None). Returns ``(fix.json 'mrf' entry,
     warnings for fix.json)``."""
     from hadal.matching.mrf import mrf_refine
 
@@ -207,7 +208,7 @@ def mrf_step(track_xy: np.ndarray, seafloor_depth_m: np.ndarray, g: MapGrid, g_r
         return {"applied": False, "coverage": cover, "patch_source": patch_source, "reason": reason}, [warning]
     try:
         m = mrf_refine(patch, x0, y0, g_raw, max_shift_cells=max_shift_cells,
-                       max_total_shift_cells=max_total_shift_cells, prior=prior)
+                       max_total_shift_cells=max_total_shift_cells, prior=prior, edge=edge)
     except InputError as exc:
         return {"applied": False, "reason": str(exc)}, []
     sx, sy = start_xy[0] - m.dx_m, start_xy[1] - m.dy_m
@@ -218,5 +219,6 @@ def mrf_step(track_xy: np.ndarray, seafloor_depth_m: np.ndarray, g: MapGrid, g_r
              "coarse_shift_cells": list(m.coarse_d_cells),
              "sigma_cells": [v if np.isfinite(v) else None for v in m.sigma_cells],
              "gibbs_temperature_m2": m.temperature if np.isfinite(m.temperature) else None,
+             "search_edge": m.search_edge,
              "start": {"x_east_m": sx, "y_north_m": sy, "lat": slat, "lon": slon}}
     return entry, list(m.warnings)

@@ -143,6 +143,7 @@ def fix_summary(res: TercomResult, track: pd.DataFrame, frame: LocalFrame, launc
         "second_optimum": {"score": res.second_score, "x_east_m": res.second_x_m, "y_north_m": res.second_y_m,
                            "separation_ratio": res.separation_ratio},
         "mismatch": res.mismatch,
+        "search_edge": res.search_edge,
         "n_samples": res.n_samples,
         "n_valid": res.n_valid,
         "deepest_point": {

@@ -70,7 +70,13 @@ What this module does (``mrf_refine``, defaults) and where it deviates from the 
    a wrong match leaves correlated terrain in the residual, a right one mostly white noise).
 6. **Missing cells.** ``W`` holds the cells where ``I_R``, its gradient along the axis and the shifted
    values are finite; the Gibbs sums use the neighbour pairs that are finite.
-7. **Sign.** ``d = (dx, dy)`` is *assumed minus true* position of the patch (``I_R`` content is displaced
+8. **Search edge (issue 47).** A coarse minimum within ``SearchEdgeOptions.mrf_edge_cells`` (1) of the search
+   radius ``max_total_shift_cells`` says the true deviation may lie beyond it (the paper's method diverges beyond
+   its range; on real terrain such minima gave confident fixes 11-14 cells wrong): the coarse search is repeated
+   once within ``edge_widen_factor`` x the radius (at most ``mrf_edge_max_radius_cells``); a minimum still at the
+   edge of the wider search is refused (``converged = False``, a warning naming the search edge, no fix).
+   (Deviation: the paper has no search-range check; its Taylor step has no range at all.)
+9. **Sign.** ``d = (dx, dy)`` is *assumed minus true* position of the patch (``I_R`` content is displaced
    by ``+d`` against the map), so the corrected patch origin is ``origin - d`` ([MRF Eq. 14]).
 
 The previous implementation (linearised estimate only, the Gibbs term of the measured window, a 3-cell
@@ -87,6 +93,7 @@ import numpy as np
 
 from hadal.errors import InputError
 from hadal.matching.mapgrid import MapGrid
+from hadal.matching.options import SearchEdgeOptions
 
 
 @dataclass
@@ -107,6 +114,7 @@ class MrfResult:
     sigma_cells: tuple[float, float] = (float("nan"), float("nan"))  # Cramér-Rao 1 sigma of (dx, dy)
     temperature: float = float("nan")  # Gibbs temperature T used (NaN: no prior)
     energy_gap: float = float("nan")  # coarse: second minimum minus best, log-likelihood units
+    search_edge: dict = field(default_factory=dict)  # coarse minimum at the search radius: retry and flag (docstring, 8)
 
 
 def _shift_axis(a: np.ndarray, d: np.ndarray, axis: int) -> np.ndarray:
@@ -393,6 +401,11 @@ def _search_and_prior(g, ir, patch_x0_m, patch_y0_m, *, sigma_n_m, temperature, 
     return _Search(cx, cy, s_n, gap, T, ir_fine, filt)
 
 
+def _at_search_edge(search: _Search, radius_cells: float, edge_cells: float) -> bool:
+    """The coarse minimum within ``edge_cells`` of the search radius (module docstring, 8)."""
+    return bool(np.hypot(search.cx, search.cy) >= radius_cells - edge_cells - 1e-9)
+
+
 def _texture_sigma(ir_fine: np.ndarray, s_n: float, min_cells: int) -> tuple[float, float]:
     """Cramér-Rao 1 sigma (cells) of ``(dx, dy)`` from the linearised data term ([MRF Eq. 7]):
     ``s_n / sqrt(sum_W (dI_R/dx)^2)`` on the terrain the fine stage uses (``inf`` without a gradient)."""
@@ -499,6 +512,7 @@ def mrf_refine(
     ambiguity_radius_cells: float = 3.0,
     min_energy_gap: float = 3.0,
     gibbs_coarse: bool = True,
+    edge: SearchEdgeOptions | None = None,
 ) -> MrfResult:
     """Refine the position of a real-time terrain patch on the prior DTM ([MRF Eqs. 1-14]).
 
@@ -519,18 +533,41 @@ def mrf_refine(
 
     if not np.nanstd(ir) > 0:
         return flagged("MRF: the real-time terrain patch has no relief (no texture); no fix")
-    R = int(np.floor(max_total_shift_cells)) + 1  # one guard ring: a minimum on it is flagged below
     min_n = max(min_cells, int(np.ceil(min_overlap * int(np.isfinite(ir).sum()))))
-    search = _search_and_prior(g, ir, patch_x0_m, patch_y0_m, sigma_n_m=sigma_n_m, temperature=temperature,
-                               prior=prior, coarse=coarse, gibbs_coarse=gibbs_coarse, R=R, min_n=min_n,
-                               min_cells=min_cells, ambiguity_radius_cells=ambiguity_radius_cells)
+    edge = edge if edge is not None else SearchEdgeOptions()
+
+    def search_within(radius_cells: float):
+        return _search_and_prior(g, ir, patch_x0_m, patch_y0_m, sigma_n_m=sigma_n_m, temperature=temperature,
+                                 prior=prior, coarse=coarse, gibbs_coarse=gibbs_coarse,
+                                 R=int(np.floor(radius_cells)) + 1, min_n=min_n, min_cells=min_cells,
+                                 ambiguity_radius_cells=ambiguity_radius_cells)
+
+    search = search_within(max_total_shift_cells)
     if search is None:
         return flagged("MRF: the patch does not overlap the map enough at any shift; no fix")
+    at_edge = coarse and _at_search_edge(search, max_total_shift_cells, edge.mrf_edge_cells)
+    edge_record: dict = {"at_edge": False, "retried": False, "radius_cells": float(max_total_shift_cells)}
+    if at_edge and edge.edge_retry:  # widen once (module docstring, 8)
+        wider = min(edge.edge_widen_factor * max_total_shift_cells, edge.mrf_edge_max_radius_cells)
+        if wider > max_total_shift_cells + edge.mrf_edge_cells:
+            retry = search_within(wider)
+            if retry is not None:
+                edge_record.update({"retried": True, "first_radius_cells": float(max_total_shift_cells),
+                                    "first_minimum_cells": [search.cx, search.cy], "radius_cells": float(wider)})
+                search, max_total_shift_cells = retry, wider
+                at_edge = _at_search_edge(search, max_total_shift_cells, edge.mrf_edge_cells)
+    edge_record["at_edge"] = bool(at_edge)
+    if at_edge:
+        return flagged(f"possible mismatch: search edge: the MRF coarse minimum ({np.hypot(search.cx, search.cy):.1f} "
+                       f"cells) is within {edge.mrf_edge_cells:g} cell of the {max_total_shift_cells:g}-cell search "
+                       "radius; the initial error may be larger: no fix", s_n=search.s_n,
+                       coarse_d_cells=(search.cx, search.cy), temperature=search.T, energy_gap=search.gap,
+                       search_edge=edge_record)
     s_n = search.s_n
     # texture (Cramér-Rao of [MRF Eq. 7]) on the terrain the fine stage uses
     sig_t = _texture_sigma(search.ir_fine, s_n, min_cells)
     common = {"coarse_d_cells": (search.cx, search.cy), "sigma_cells": sig_t, "temperature": search.T,
-              "energy_gap": search.gap}
+              "energy_gap": search.gap, "search_edge": edge_record}
     if coarse:
         refused = _refusal(sig_t, search.cx, search.cy, search.gap, max_sigma_cells=max_sigma_cells,
                            max_total_shift_cells=max_total_shift_cells, min_energy_gap=min_energy_gap,

@@ -7,7 +7,10 @@ extends them) and :mod:`hadal.products.navigation` load without the NumPy/SciPy 
 * :class:`DeadReckoningOptions` -- the dead-reckoning error model of the fix uncertainty
   (:func:`hadal.matching.budget.uncertainty_budget`; the posterior fix's random walk,
   :func:`hadal.matching.posterior.posterior_fix`) and of the ``navigation`` product
-  (:func:`hadal.products.navigation.navigation_table`).
+  (:func:`hadal.products.navigation.navigation_table`);
+* :class:`PosteriorNoiseOptions` -- the posterior fix's model of the residuals' along-track correlation;
+* :class:`SearchEdgeOptions` -- widen-and-retry and the flag of a fix at the edge of its search (TERCOM, posterior,
+  MRF).
 """
 
 from __future__ import annotations
@@ -62,6 +65,41 @@ class DeadReckoningOptions(BaseModel):
                     "1-sigma radial error = this x sqrt(unreferenced seconds), a random walk (currents change with depth). 5.6: the TERCOM paper's 533 m descent drift in 3 h 35 min taken as the median "
                     "of a Rayleigh distribution (533 / sqrt(ln 2 x 12 900 s))",
     )
+
+
+class PosteriorNoiseOptions(BaseModel):
+    """The posterior fix's model of the residuals' along-track correlation
+    (:func:`hadal.matching.posterior.posterior_fix`, module docstring *Correlated residuals*), declared once."""
+
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+    correlation_model: Literal["hac", "acf", "ar1"] = Field(
+        "hac",
+        description="residual correlation along the track: 'hac' = the main mode's covariance is the HAC sandwich with the "
+                    "residuals' autocorrelation (Geyer's initial positive sequence), the likelihood tempered as before; "
+                    "'acf' = the same and the likelihood tempered by the effective sample size n / (1 + 2 sum rho_k); "
+                    "'ar1' = the previous model (lag-1 AR(1) equivalent n (1 - rho) / (1 + rho), tempered Laplace covariance)",
+    )
+    correlation_max_lag: int = Field(
+        50, ge=1, le=10_000, description="largest lag (samples) of the residual autocorrelation sum (also at most n / 4)")
+
+
+class SearchEdgeOptions(BaseModel):
+    """What happens when a terrain fix sits at the edge of its search (issue 47), declared once: the TERCOM/posterior
+    heading or scale at a bound of its search, the MRF coarse optimum within ``mrf_edge_cells`` of its search radius.
+    The search is widened once (``edge_widen_factor``, capped) and, if still at the edge, the fix is flagged
+    (mismatch ``at_search_edge``, a named warning): its covariance is not a confident fix's."""
+
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+    edge_retry: bool = Field(True, description="widen a search whose optimum sits at its edge once and search again")
+    edge_widen_factor: float = Field(2.0, gt=1, le=5, description="the retry's search half-range = this x the first one (capped below)")
+    edge_max_heading_range_deg: float = Field(30.0, gt=0, le=45, description="largest heading half-range of the retry, degrees")
+    edge_max_scale_range: float = Field(0.2, gt=0, lt=0.5, description="largest scale half-range of the retry (1 +- this)")
+    mrf_edge_cells: float = Field(1.0, ge=0, le=10, description="MRF: a coarse optimum within this many cells of the search radius is at the edge")
+    mrf_edge_max_radius_cells: float = Field(60.0, gt=0, le=200, description="MRF: largest search radius of the retry, cells")
+
+
+#: the :class:`SearchEdgeOptions` fields :func:`hadal.matching.mrf.mrf_refine` takes
+MRF_EDGE_FIELDS = ("edge_retry", "edge_widen_factor", "mrf_edge_cells", "mrf_edge_max_radius_cells")
 
 
 def tercom_options(options: TercomOptions | None, values: dict, allowed: tuple[str, ...], what: str) -> TercomOptions:

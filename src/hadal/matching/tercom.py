@@ -96,6 +96,7 @@ class TercomResult:
     warnings: list[str] = field(default_factory=list)
     scale: float = 1.0
     refinement: dict | None = None
+    search_edge: dict = field(default_factory=dict)  # heading/scale at a bound of the search (issue 47)
 
     @property
     def sigma_m(self) -> float:
@@ -546,6 +547,10 @@ def tercom(
     if r in (0, ny - 1) or c in (0, nx - 1) or not np.isfinite(nb).all():
         warnings.append("best offset lies on the edge of the feasible search region; the true position may be outside it")
 
+    edge = pose_at_search_edge({"heading_deg": (a_best, headings), "scale": (f_best, scale_list)})
+    if edge:
+        mismatch = True
+        warnings.append(search_edge_warning(edge, "TERCOM"))
     sig_x, sig_y = _likelihood_sigma(surf if o.criterion == "msd" else None, r, c, score, n_valid, g.resolution_m)
     return TercomResult(
         criterion=o.criterion, start_x_m=float(g.x_m[c]), start_y_m=float(g.y_m[r]), start_row=r, start_col=c,
@@ -554,7 +559,33 @@ def tercom(
         heading_scores=heading_scores, second_score=second, second_x_m=sx, second_y_m=sy,
         separation_ratio=float(ratio), mismatch=mismatch, sigma_x_m=sig_x, sigma_y_m=sig_y,
         track_start_xy=(float(t[0, 0]), float(t[0, 1])), warnings=warnings, scale=f_best,
+        search_edge={"at_edge": bool(edge), "retried": False, "bounds_hit": edge or None},
     )
+
+
+def pose_at_search_edge(values: dict, tol_steps: float = 0.25, bounds: dict | None = None) -> dict:
+    """The pose parameters at a bound of their search: ``values`` maps a name (``heading_deg``, ``scale``) to
+    ``(estimate, searched grid)``; a grid of two or more values whose estimate lies within ``tol_steps`` of its step
+    from its smallest or largest value is at the edge (``bounds`` may give continuous ``(lo, hi)`` bounds instead
+    of the grid's). Returns ``{name: {"value", "bounds"}}``, empty when every estimate is inside."""
+    out = {}
+    for name, (value, grid) in values.items():
+        gr = np.unique(np.asarray(grid, float))
+        lo, hi = (bounds or {}).get(name, (gr[0], gr[-1]) if gr.size else (np.nan, np.nan))
+        if gr.size < 2 or not hi > lo:
+            continue
+        tol = tol_steps * float(np.min(np.diff(gr)))
+        if value <= lo + tol or value >= hi - tol:
+            out[name] = {"value": float(value), "bounds": [float(lo), float(hi)]}
+    return out
+
+
+def search_edge_warning(edge: dict, what: str, retried: bool = False) -> str:
+    """The named warning of a fix at the edge of its search (``edge`` from :func:`pose_at_search_edge`)."""
+    at = " and ".join(f"{k} {v['value']:.4g} at the bound of its search [{v['bounds'][0]:.4g}, {v['bounds'][1]:.4g}]"
+                      for k, v in edge.items())
+    return (f"possible mismatch: search edge: the {what} {at}" + (" after widening the search once" if retried else "")
+            + "; the true pose may lie outside the search: the fix and its covariance are not trusted")
 
 
 def _likelihood_sigma(msd: np.ndarray | None, r: int, c: int, msd_min: float, n: int, h: float) -> tuple[float, float]:
@@ -743,11 +774,19 @@ def _refined_verdict(fits: list, coarse: TercomResult, pose, score: float, rank:
     if moved > h:
         warnings.append(f"sub-cell refinement moved the fix {moved:.0f} m from the coarse optimum"
                         + (f" (seed {rank} of {n_seeds_tried} fitted better)" if rank > 0 else ""))
-    at_bound = [name for name, i in (("heading", 2), ("scale", 3))
-                if pf.free[i] and (np.isclose(pose[i], pf.lo[i]) or np.isclose(pose[i], pf.hi[i]))]
-    if at_bound:
-        warnings.append(f"refined {' and '.join(at_bound)} on the search bound; widen heading_range_deg / refine_scale_range")
+    edge = _refined_edge(pf, pose)
+    if edge:  # a refined pose on its bound: the optimum may lie outside (issue 47): flagged
+        mismatch = True
+        warnings.append(search_edge_warning(edge, "refined TERCOM")
+                        + " (widen heading_range_deg / refine_scale_range)")
     return second, sx, sy, ratio, mismatch, warnings
+
+
+def _refined_edge(pf: _PoseFit, pose) -> dict:
+    """The refined heading / scale on a bound of the refinement (as :func:`pose_at_search_edge`)."""
+    return {name: {"value": float(pose[i]), "bounds": [float(pf.lo[i]), float(pf.hi[i])]}
+            for name, i in (("heading_deg", 2), ("scale", 3))
+            if pf.free[i] and (np.isclose(pose[i], pf.lo[i]) or np.isclose(pose[i], pf.hi[i]))}
 
 
 def _jackknife_sigma(pf: _PoseFit, pose, n: int, blocks: int) -> tuple[float, float, int]:
@@ -854,6 +893,7 @@ def refine_tercom(
         start_col=int(np.clip(np.rint(g.col_of(x0)), 0, g.shape[1] - 1)),
         second_score=second, second_x_m=sx, second_y_m=sy, separation_ratio=float(ratio), mismatch=mismatch,
         sigma_x_m=sig_x, sigma_y_m=sig_y, warnings=warnings,
+        search_edge={"at_edge": bool(_refined_edge(pf, pose)), "retried": False, "bounds_hit": _refined_edge(pf, pose) or None},
         refinement={"method": "Nelder-Mead on the bilinear MSD (Eq. 17) over start x/y, heading, scale",
                     "coarse": {"x_east_m": coarse.start_x_m, "y_north_m": coarse.start_y_m,
                                "heading_deg": coarse.heading_deg, "scale": coarse.scale, "score": coarse.score,

@@ -60,7 +60,12 @@ from pydantic import ConfigDict, Field, model_validator
 
 from hadal.budget import check_memory, check_work, memory_limit_bytes, work_limit
 from hadal.errors import ConfigError, InputError
-from hadal.matching.options import DeadReckoningOptions, TercomOptions
+from hadal.matching.options import (
+    DeadReckoningOptions,
+    PosteriorNoiseOptions,
+    SearchEdgeOptions,
+    TercomOptions,
+)
 from hadal.stages import StageContext, StageInputs
 from hadal.store import ProductVersion
 
@@ -82,7 +87,7 @@ INPUTS = StageInputs(raw_any=("mcap", "csv"), upstream=("dtm", "ctd"), optional_
                      needs_launch=True, frame_for=("match",))
 
 
-class Params(TercomOptions, DeadReckoningOptions):
+class Params(TercomOptions, DeadReckoningOptions, PosteriorNoiseOptions, SearchEdgeOptions):
     """Terrain matching (TERCOM MSD search over the map, optional MRF fine matching).
 
     The search options are :class:`hadal.matching.options.TercomOptions` and the dead-reckoning error model
@@ -231,7 +236,9 @@ def posterior_options(p: Params) -> dict:
             "max_mass_outside_holes": p.max_mass_outside_holes, "min_samples": p.min_samples,
             "fine_scales": np.linspace(1 - r_s, 1 + r_s, 5) if r_s > 0 else None, "drift": p.drift,
             "drift_segment": p.drift_segment_s, "drift_sigma": p.drift_velocity_sigma_m_s,
-            "drift_random_walk": p.drift_random_walk_m_per_sqrt_s}
+            "drift_random_walk": p.drift_random_walk_m_per_sqrt_s,
+            "noise": PosteriorNoiseOptions(**p.model_dump(include=set(PosteriorNoiseOptions.model_fields))),
+            "edge": SearchEdgeOptions(**p.model_dump(include=set(SearchEdgeOptions.model_fields)))}
 
 
 def read_ctd(pv: ProductVersion) -> pd.DataFrame:
@@ -484,7 +491,7 @@ def run(ctx: StageContext) -> dict[str, ProductVersion]:
         fix["mrf"], mrf_warnings = mrf_step(
             pts, dep, g, g_raw, (fix["start"]["x_east_m"], fix["start"]["y_north_m"]), frame,
             max_shift_cells=p.mrf_max_shift_cells, max_total_shift_cells=p.mrf_max_total_shift_cells, prior=p.mrf_prior,
-            patch_source=source["patch_source"])
+            patch_source=source["patch_source"], edge=SearchEdgeOptions(**p.model_dump(include=set(SearchEdgeOptions.model_fields))))
         fix["mrf"].update({k: v for k, v in source.items() if k != "patch_source"})
         fix["warnings"].extend(mrf_warnings)
     for w in fix["warnings"]:
