@@ -12,10 +12,10 @@ import pyarrow.parquet as pq
 import pytest
 import yaml
 
-from hadal.config import PipelineConfig
 from hadal.dive import load_dive
 from hadal.errors import InputError
 from hadal.products import read_parquet_metadata
+from hadal.settings import PipelineConfig
 from hadal.stages import StageContext, ingest
 from hadal.store import ProductStore, sha256_file
 

@@ -9,10 +9,10 @@ import pandas as pd
 import pytest
 import xarray as xr
 
-from hadal.config import PipelineConfig
 from hadal.dive import Dive, Launch, MapFrame
 from hadal.errors import InputError, StageError
 from hadal.geo import geodesic_distance_m, parse_degmin
+from hadal.settings import MatchParams, PipelineConfig, SuitabilityParams
 from hadal.stages import StageContext
 from hadal.stages import match as match_stage
 from hadal.stages import suitability as suit_stage
@@ -79,9 +79,9 @@ def _wiggle(n, length):
 
 
 def _ctx(dive, store, tmp_path, **match_params):
-    cfg = PipelineConfig(suitability=suit_stage.Params(n_blocks_y=10, n_blocks_x=12, region_size_x_m=1500.0,
+    cfg = PipelineConfig(suitability=SuitabilityParams(n_blocks_y=10, n_blocks_x=12, region_size_x_m=1500.0,
                                                        region_size_y_m=1200.0),
-                         match=match_stage.Params(**match_params))
+                         match=MatchParams(**match_params))
     return StageContext(dive=dive, raw_dir=tmp_path, store=store, config=cfg)
 
 
@@ -206,13 +206,13 @@ def test_missing_upstream_and_truncated_dtm(tmp_path):
 
 
 def test_params_defaults_are_the_papers():
-    p = suit_stage.Params()
+    p = SuitabilityParams()
     assert (p.n_blocks_y, p.n_blocks_x, p.region_size_x_m, p.region_size_y_m) == (44, 60, 5800.0, 3700.0)
-    m = match_stage.Params()
+    m = MatchParams()
     assert m.criterion == "msd" and match_stage._headings(m).size == 37  # +-9 deg in 0.5 deg steps
-    assert match_stage._headings(match_stage.Params(heading_range_deg=0.0)).tolist() == [0.0]
+    assert match_stage._headings(MatchParams(heading_range_deg=0.0)).tolist() == [0.0]
     assert match_stage._scales(m).tolist() == [1.0]
-    assert match_stage._scales(match_stage.Params(scale_range=0.02)).tolist() == [0.98, 0.99, 1.0, 1.01, 1.02]
+    assert match_stage._scales(MatchParams(scale_range=0.02)).tolist() == [0.98, 0.99, 1.0, 1.01, 1.02]
     assert suit_stage.PRODUCTS == ("suitability",) and match_stage.UPSTREAM == ("dtm", "ctd")
 
 

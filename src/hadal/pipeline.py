@@ -28,8 +28,8 @@ from hadal.stages import (
 )
 from hadal.store import ProductStore, ProductVersion
 
-if TYPE_CHECKING:  # hadal.config imports every stage (and their science): only where a run needs it
-    from hadal.config import PipelineConfig
+if TYPE_CHECKING:
+    from hadal.settings import PipelineConfig
 
 DIVE_CONFIG_FILE = "pipeline.yaml"
 
@@ -60,8 +60,8 @@ def make_context(
     progress: Progress | None = None,
 ) -> StageContext:
     """Load ``dive.yaml`` and the configuration (explicit file, else ``<raw_dir>/pipeline.yaml``, else defaults)."""
-    from hadal.config import PipelineConfig, load_config
     from hadal.dive import load_dive
+    from hadal.settings import PipelineConfig, load_config
 
     dive, raw = load_dive(raw_dir)
     if not isinstance(config, PipelineConfig):

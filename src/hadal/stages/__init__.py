@@ -2,7 +2,8 @@
 
 Each stage module ``hadal.stages.<name>`` defines
 
-* ``Params`` — a pydantic model, its section of :class:`hadal.config.PipelineConfig`;
+* ``Params`` — its options, a pydantic model declared in :mod:`hadal.settings` (its section of
+  :class:`hadal.settings.PipelineConfig`);
 * ``PRODUCTS`` — the product names it publishes; ``UPSTREAM`` — the products it reads;
 * ``INPUTS`` — a :class:`StageInputs`: the raw source kinds and upstream products it needs, from which
   :mod:`hadal.plan` decides whether it runs on a dive (stages without their inputs are skipped with a reason);
@@ -32,8 +33,8 @@ from typing import TYPE_CHECKING, Any, Protocol, TypeVar
 from hadal.errors import StageError
 
 if TYPE_CHECKING:
-    from hadal.config import PipelineConfig
     from hadal.dive import Dive
+    from hadal.settings import PipelineConfig
     from hadal.store import ProductStore, ProductVersion
 
 T = TypeVar("T")

@@ -6,8 +6,9 @@ Parameters in section ``grid`` (the fields of :data:`hadal.stages.grid.DTM_FIELD
 
 from __future__ import annotations
 
+from hadal.settings.grid import DTM_FIELDS
+from hadal.settings.grid import GridParams as Params
 from hadal.stages import StageInputs
-from hadal.stages.grid import DTM_FIELDS, Params
 from hadal.stages.grid import run_dtm as run
 
 __all__ = ["Params", "run"]

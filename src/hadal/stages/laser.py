@@ -7,8 +7,9 @@ Parameters in section ``grid`` (the fields of :data:`hadal.stages.grid.LASER_FIE
 
 from __future__ import annotations
 
+from hadal.settings.grid import LASER_FIELDS
+from hadal.settings.grid import GridParams as Params
 from hadal.stages import StageInputs
-from hadal.stages.grid import LASER_FIELDS, Params
 from hadal.stages.grid import run_laser as run
 
 __all__ = ["Params", "run"]
