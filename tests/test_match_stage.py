@@ -12,6 +12,7 @@ import xarray as xr
 from hadal.dive import Dive, Launch, MapFrame
 from hadal.errors import InputError, StageError
 from hadal.geo import geodesic_distance_m, parse_degmin
+from hadal.matching.budget import MRF_MIN_COVERAGE, grid_track_patch
 from hadal.settings import MatchParams, PipelineConfig, SuitabilityParams
 from hadal.stages import StageContext
 from hadal.stages import match as match_stage
@@ -170,7 +171,7 @@ def test_match_stage_does_not_claim_mrf_on_a_single_beam_track(tmp_path):
     ctx = _ctx(dive, store, tmp_path, mrf=True, heading_range_deg=0.0, refine=False, posterior=False)
     fix = json.loads(match_stage.run(ctx)["match"].file("fix.json").read_text())
     assert fix["mrf"]["applied"] is False and "single-beam" in fix["mrf"]["reason"]
-    assert fix["mrf"]["coverage"] < match_stage.MRF_MIN_COVERAGE and "start" not in fix["mrf"]
+    assert fix["mrf"]["coverage"] < MRF_MIN_COVERAGE and "start" not in fix["mrf"]
     assert any("MRF not run" in w for w in fix["warnings"])
     e_tercom = np.hypot(fix["start"]["x_east_m"] - truth["start"][0], fix["start"]["y_north_m"] - truth["start"][1])
     assert e_tercom <= 1.5 * H
@@ -236,7 +237,7 @@ def test_grid_track_patch_cell_means():
 
     g = MapGrid.from_any(np.zeros((10, 10)), np.arange(10) * H, np.arange(10) * H)
     xy = np.array([[40.0, 40.0], [44.0, 38.0], [60.0, 40.0]])
-    patch, x0, y0 = match_stage.grid_track_patch(xy, np.array([1.0, 3.0, 5.0]), g, margin_cells=1)
+    patch, x0, y0 = grid_track_patch(xy, np.array([1.0, 3.0, 5.0]), g, margin_cells=1)
     assert (x0, y0) == (20.0, 20.0) and patch.shape == (3, 4)
     assert patch[1, 1] == 2.0 and patch[1, 2] == 5.0 and np.isnan(patch[0, 0])
 

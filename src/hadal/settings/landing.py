@@ -30,7 +30,7 @@ class Vehicle(BaseModel):  # the equations that use it: hadal.landing.vehicle.Ve
     """Physical properties of the landing vehicle (Table II of Sangekar et al.).
 
     The forces are derived from the masses with ``gravity_m_s2`` (65 kg and 62 kg give the paper's
-    F_G = 637 N, F_B = 608 N, F_R = 29 N; with g = 9.81 m/s² Eq. 2 gives the paper's θc = 17.7°).
+    F_G = 637 N, F_B = 608 N, F_R = 29 N; with g = 9.81 m/s² [Landing Eq. 2] gives the paper's θc = 17.7°).
     """
 
     model_config = ConfigDict(extra="forbid", frozen=True)

@@ -219,18 +219,6 @@ def surface_dataset(res, frame, criterion: str, post=None) -> xr.Dataset:
 #: ``ctd`` columns the bottom track is made of (seafloor depth = depth + altitude, on the dead-reckoned track)
 TRACK_COLUMNS = ("seafloor_depth_m", "dr_east_m", "dr_north_m")
 
-#: science that moved to :mod:`hadal.matching.budget`, still importable from here (loaded on first access)
-_MOVED = ("MRF_MIN_COVERAGE", "grid_track_patch", "information_distance_m")
-
-
-def __getattr__(name: str):
-    if name in _MOVED:
-        from hadal.matching import budget
-
-        return getattr(budget, name)
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-
-
 def skip_reason(ctx: StageContext) -> str | None:
     """Why ``match`` cannot run on this dive's ``ctd`` (no altimeter or no dead-reckoned track), or ``None``."""
     import numpy as np
