@@ -105,7 +105,8 @@ def derived(synth, tmp_path_factory):
 
 
 def test_stage_contract():
-    assert derive.PRODUCTS == ("ctd", "profile", "cast_profiles", "trajectory") and derive.UPSTREAM == ("sensors",)
+    assert derive.STAGE.products == ("ctd", "profile", "cast_profiles", "trajectory")
+    assert derive.STAGE.reads == ("sensors", "casts")
     p = DeriveParams()
     assert p.profile_bin_dbar == 10.0 and p.nominal_sound_speed_m_s == 1500.0 and p.latitude_deg is None
     with pytest.raises(ValidationError):

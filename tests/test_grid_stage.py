@@ -62,10 +62,11 @@ def test_stage_contract():
     from hadal.stages import STAGE_GROUPS, dtm, laser
 
     assert STAGE_GROUPS["grid"] == ("dtm", "laser")
-    assert dtm.PRODUCTS == ("dtm",) and laser.PRODUCTS == ("laser_grids",) and dtm.UPSTREAM == laser.UPSTREAM == ()
-    assert dtm.SECTION == laser.SECTION == "grid"  # one configuration section, split by field
-    assert set(dtm.PARAM_FIELDS) | set(laser.PARAM_FIELDS) == set(GridParams.model_fields)
-    assert not set(dtm.PARAM_FIELDS) & {"laser_resolution_m", "laser_sor_neighbors"}
+    d, la = dtm.STAGE, laser.STAGE
+    assert d.products == ("dtm",) and la.products == ("laser_grids",) and d.reads == la.reads == ()
+    assert d.config_section == la.config_section == "grid"  # one configuration section, split by field
+    assert set(d.param_fields) | set(la.param_fields) == set(GridParams.model_fields)
+    assert not set(d.param_fields) & {"laser_resolution_m", "laser_sor_neighbors"}
     p = GridParams()
     assert p.dtm_resolution_m == "auto" and p.laser_resolution_m == "auto"
     for bad in (0, -5, float("nan"), "fine"):

@@ -214,7 +214,8 @@ def test_params_defaults_are_the_papers():
     assert match_stage._headings(MatchParams(heading_range_deg=0.0)).tolist() == [0.0]
     assert match_stage._scales(m).tolist() == [1.0]
     assert match_stage._scales(MatchParams(scale_range=0.02)).tolist() == [0.98, 0.99, 1.0, 1.01, 1.02]
-    assert suit_stage.PRODUCTS == ("suitability",) and match_stage.UPSTREAM == ("dtm", "ctd")
+    assert suit_stage.STAGE.products == ("suitability",)
+    assert match_stage.STAGE.reads == ("dtm", "ctd", "suitability")  # the fingerprint covers the optional region
 
 
 def test_resample_along_track_bins_and_hover():

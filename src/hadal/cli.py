@@ -1076,7 +1076,7 @@ def _start_figure_helpers(ctx: Any, names: list[str]) -> None:
     forked just before the flow starts any other thread (:func:`_fork_ahead`). Each imports the drawing stages'
     modules first (on its own core: the flow's first stages do not draw)."""
     from hadal.forkpool import default_workers, start_helpers
-    from hadal.stages import stage_module
+    from hadal.stages.graph import stage
 
     cfg = ctx.config
     drawing = {"landing": cfg.landing.figure_processes if cfg.landing.figures else 1,
@@ -1085,7 +1085,7 @@ def _start_figure_helpers(ctx: Any, names: list[str]) -> None:
     if not drawing:
         return
     n = max((n or default_workers()) for n in drawing.values()) - 1
-    start_helpers(n, tuple(m for s in drawing for m in getattr(stage_module(s), "WARM_IMPORTS", ())))
+    start_helpers(n, tuple(m for s in drawing for m in stage(s).warm_imports))
 
 
 def _prefect_api_configured() -> bool:

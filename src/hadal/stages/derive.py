@@ -39,7 +39,7 @@ from hadal.errors import InputError
 from hadal.names import record_id as file_record_id
 from hadal.products.underway import trajectory_dataset
 from hadal.settings.derive import DeriveParams as Params
-from hadal.stages import StageInputs
+from hadal.stages import Stage, StageInputs
 
 if TYPE_CHECKING:
     from pathlib import Path
@@ -50,16 +50,6 @@ if TYPE_CHECKING:
     from hadal.stages import StageContext
     from hadal.store import ProductVersion
 
-#: modules its run imports (lazily), imported ahead while Prefect's server boots (:func:`hadal.pipeline.warm_imports`)
-WARM_IMPORTS = (
-    "hadal.ctd.chain", "hadal.ctd.teos10", "hadal.depth", "hadal.seawater", "hadal.profile", "hadal.qc_derived",
-    "hadal.ingest.cnv", "hadal.products.io", "hadal.products.navigation", "hadal.products.registry",
-)
-PRODUCTS = ("ctd", "profile", "cast_profiles", "trajectory")
-UPSTREAM = ("sensors",)
-#: ``trajectory`` (underway records) is promised by :func:`planned_products` when dive.yaml lists one
-INPUTS = StageInputs(upstream=("sensors",), optional_upstream=("casts",),
-                     optional_products=("cast_profiles", "trajectory"))
 
 REQUIRED_COLUMNS = ("time", "conductivity_s_m", "temperature_its90_degc")
 
@@ -1165,7 +1155,6 @@ def _evidence(path: Path) -> Any:
         return None
 
 
-
 def underway_table(table: pd.DataFrame, raw_path: Path, p: Params) -> tuple[pd.DataFrame, dict[str, Any]]:
     """The per-scan trajectory table of an underway record: the ingested (QC'd) samples in time order with the
     file's own per-scan positions (:func:`hadal.ctd.underway.positions_at`, matched by time), temperature and
@@ -1303,3 +1292,15 @@ def planned_products(dive: Any, made: tuple[str, ...]) -> tuple[str, ...]:
     if not dive.sources.mcap and not dive.sources.csv and all(e.kind == "underway" for e in entries):
         out = tuple(x for x in out if x not in ("ctd", "profile"))
     return out
+
+
+#: ``trajectory`` (underway records) is promised by :func:`planned_products` when dive.yaml lists one
+STAGE = Stage(
+    name="derive", products=("ctd", "profile", "cast_profiles", "trajectory"),
+    inputs=StageInputs(upstream=("sensors",), optional_upstream=("casts",),
+                       optional_products=("cast_profiles", "trajectory")),
+    options=Params, run=run, raw_files=raw_files, planned_products=planned_products,
+    warm_imports=("hadal.ctd.chain", "hadal.ctd.teos10", "hadal.depth", "hadal.seawater", "hadal.profile",
+                  "hadal.qc_derived", "hadal.ingest.cnv", "hadal.products.io", "hadal.products.navigation",
+                  "hadal.products.registry"),
+)

@@ -27,7 +27,7 @@ from typing import TYPE_CHECKING, Any
 from hadal.errors import InputError
 from hadal.names import record_id as file_record_id
 from hadal.settings.ingest import IngestParams as Params
-from hadal.stages import StageInputs
+from hadal.stages import Stage, StageInputs
 from hadal.store import sha256_file
 
 if TYPE_CHECKING:
@@ -37,13 +37,6 @@ if TYPE_CHECKING:
     from hadal.ingest.vehicle import VehicleConfig
     from hadal.stages import StageContext
     from hadal.store import ProductVersion
-
-#: modules its run imports (lazily), imported ahead while Prefect's server boots (:func:`hadal.pipeline.warm_imports`)
-WARM_IMPORTS = ("hadal.ingest.build", "hadal.ingest.vehicle", "hadal.products.io", "hadal.numbawarm:first_call")
-PRODUCTS = ("sensors", "casts")
-UPSTREAM: tuple[str, ...] = ()
-INPUTS = StageInputs(raw_any=("mcap", "csv", "cnv"), product_sources={"casts": ("cnv",)}, reads_raw=True,
-                     optional_products=("casts",))
 
 
 def _gap_limits(p: Params) -> dict[str, float]:
@@ -67,7 +60,6 @@ def _vehicle_path(ctx: StageContext, p: Params) -> Path:
     if ctx.dive.sources.mcap or ctx.dive.sources.csv:  # a cast-only dive needs no vehicle channel mapping
         ctx.log.warning("dive %s names no vehicle_config; using the packaged haidou mapping", ctx.dive_id)
     return default_vehicle_config_path()
-
 
 
 def _cast_table(samples: SensorSamples, vehicle: VehicleConfig, p: Params, launch_ns: int | None = None
@@ -395,3 +387,12 @@ def run(ctx: StageContext) -> dict[str, ProductVersion]:
         ctx.log.info("ingest: %d external cast(s) in 'casts': %s", len(index),
                      ", ".join(c["source"] for c in index))
     return out
+
+
+STAGE = Stage(
+    name="ingest", products=("sensors", "casts"),
+    inputs=StageInputs(raw_any=("mcap", "csv", "cnv"), product_sources={"casts": ("cnv",)}, reads_raw=True,
+                       optional_products=("casts",)),
+    options=Params, run=run,
+    warm_imports=("hadal.ingest.build", "hadal.ingest.vehicle", "hadal.products.io", "hadal.numbawarm:first_call"),
+)

@@ -22,19 +22,12 @@ from hadal.errors import InputError, StageError
 from hadal.forkpool import ForkPool, default_workers
 from hadal.settings.landing import COARSE_CELL_LIMIT, AnalysisOptions
 from hadal.settings.landing import LandingParams as Params
-from hadal.stages import StageInputs
+from hadal.stages import Stage, StageInputs
 
 if TYPE_CHECKING:
     import numpy as np
     import pandas as pd
     import xarray as xr
-
-#: modules its run imports (lazily), imported ahead while Prefect's server boots (:func:`hadal.pipeline.warm_imports`)
-WARM_IMPORTS = ("hadal.landing.sites", "hadal.landing.figures", "hadal.products.geo_landing", "hadal.products.io",
-                "hadal.mplwarm:first_draw", "hadal.numbawarm:first_call")
-PRODUCTS = ("landing",)
-UPSTREAM = ("laser_grids",)
-INPUTS = StageInputs(upstream=("laser_grids",))
 
 
 def _read_submap(path: Path) -> tuple[xr.DataArray, xr.DataArray | None]:
@@ -260,3 +253,11 @@ def run(ctx) -> dict:
             _write_dive_figures(ctx, acc, sites_df, finals_df, best_res, figdir, pool)
         pool.results()
     return {"landing": draft.result}
+
+
+STAGE = Stage(
+    name="landing", products=("landing",), inputs=StageInputs(upstream=("laser_grids",)),
+    options=Params, run=run, skip_reason=skip_reason,
+    warm_imports=("hadal.landing.sites", "hadal.landing.figures", "hadal.products.geo_landing", "hadal.products.io",
+                  "hadal.mplwarm:first_draw", "hadal.numbawarm:first_call"),
+)

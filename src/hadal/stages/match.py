@@ -59,7 +59,7 @@ from typing import TYPE_CHECKING
 from hadal.budget import check_memory, check_work, memory_limit_bytes, work_limit
 from hadal.errors import ConfigError, InputError
 from hadal.settings.match import MatchParams as Params
-from hadal.stages import StageContext, StageInputs
+from hadal.stages import Stage, StageContext, StageInputs
 from hadal.store import ProductVersion
 
 if TYPE_CHECKING:
@@ -68,16 +68,6 @@ if TYPE_CHECKING:
     import numpy as np
     import pandas as pd
     import xarray as xr
-
-#: modules its run imports (lazily), imported ahead while Prefect's server boots (:func:`hadal.pipeline.warm_imports`)
-WARM_IMPORTS = (
-    "hadal.matching.posterior", "hadal.matching.budget", "hadal.matching.fix", "hadal.products.readers",
-    "hadal.products.navigation", "hadal.products.geo_landing",
-)
-PRODUCTS = ("match", "navigation")
-UPSTREAM = ("dtm", "ctd")
-INPUTS = StageInputs(raw_any=("mcap", "csv"), upstream=("dtm", "ctd"), optional_upstream=("suitability",),
-                     needs_launch=True, frame_for=("match",))
 
 
 def _symmetric_steps(centre: float, half_range: float, step: float, keys: tuple[str, str], what: str) -> np.ndarray:
@@ -420,3 +410,13 @@ def run(ctx: StageContext) -> dict[str, ProductVersion]:
     nav = publish_navigation(ctx, ctd, track, fix, [ctd_pv, draft.result], p.dr_error_fraction,
                              unreferenced_drift_m_per_sqrt_s=p.dr_unreferenced_drift_m_per_sqrt_s)
     return {"match": draft.result, "navigation": nav}
+
+
+STAGE = Stage(
+    name="match", products=("match", "navigation"),
+    inputs=StageInputs(raw_any=("mcap", "csv"), upstream=("dtm", "ctd"), optional_upstream=("suitability",),
+                       needs_launch=True, frame_for=("match",)),
+    options=Params, run=run, skip_reason=skip_reason, raw_files=raw_files,
+    warm_imports=("hadal.matching.posterior", "hadal.matching.budget", "hadal.matching.fix", "hadal.products.readers",
+                  "hadal.products.navigation", "hadal.products.geo_landing"),
+)

@@ -9,19 +9,11 @@ from __future__ import annotations
 from typing import TYPE_CHECKING
 
 from hadal.settings.report import ReportParams as Params
-from hadal.stages import StageContext, StageInputs
+from hadal.stages import Stage, StageContext, StageInputs
 
 if TYPE_CHECKING:
     from hadal.report import FigureOptions
     from hadal.store import ProductVersion
-
-#: modules its run imports (lazily), imported ahead while Prefect's server boots (:func:`hadal.pipeline.warm_imports`)
-WARM_IMPORTS = ("hadal.report", "hadal.report.figures", "hadal.report.ctd_figures", "hadal.report.geo_figures", "hadal.plan",
-                "hadal.forkpool", "hadal.mplwarm:first_draw")
-PRODUCTS = ("report",)
-#: every product the report can use; all optional (hadal.report.load.REPORT_INPUTS)
-UPSTREAM = ("sensors", "ctd", "profile", "dtm", "laser_grids", "suitability", "match", "landing")
-INPUTS = StageInputs(optional_upstream=UPSTREAM, always=True)
 
 
 def options(p: Params) -> FigureOptions:
@@ -59,3 +51,16 @@ def run(ctx: StageContext) -> dict[str, ProductVersion]:
     for note in rep.summary.get("notes", []):
         ctx.log.info("report: %s", note)
     return {"report": publish_report(ctx.store, rep, parameters=ctx.params("report"))}
+
+
+#: every product the report can use, all optional (hadal.report.load.REPORT_INPUTS and REPORT_OPTIONAL): its cache
+#: fingerprint covers each of them (casts, cast_profiles, navigation and trajectory were left out before)
+STAGE = Stage(
+    name="report", products=("report",),
+    inputs=StageInputs(optional_upstream=("sensors", "ctd", "profile", "dtm", "laser_grids", "suitability", "match",
+                                          "landing", "casts", "cast_profiles", "navigation", "trajectory"),
+                       always=True),
+    options=Params, run=run,
+    warm_imports=("hadal.report", "hadal.report.figures", "hadal.report.ctd_figures", "hadal.report.geo_figures",
+                  "hadal.plan", "hadal.forkpool", "hadal.mplwarm:first_draw"),
+)

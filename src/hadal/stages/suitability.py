@@ -11,17 +11,11 @@ import json
 from typing import TYPE_CHECKING
 
 from hadal.settings.suitability import SuitabilityParams as Params
-from hadal.stages import StageContext, StageInputs
+from hadal.stages import Stage, StageContext, StageInputs
 from hadal.store import ProductVersion
 
 if TYPE_CHECKING:
     import xarray as xr
-
-#: modules its run imports (lazily), imported ahead while Prefect's server boots (:func:`hadal.pipeline.warm_imports`)
-WARM_IMPORTS = ("hadal.suitability", "hadal.matching.mapgrid", "hadal.products.readers", "hadal.products.geotiff",)
-PRODUCTS = ("suitability",)
-UPSTREAM = ("dtm",)
-INPUTS = StageInputs(upstream=("dtm",), frame_for=("suitability",))
 
 
 def region_centre(dive, dtm: xr.Dataset, frame) -> tuple[float, float, str]:
@@ -132,3 +126,10 @@ def run(ctx: StageContext) -> dict[str, ProductVersion]:
 
 #: suitability layers also written as Cloud-Optimized GeoTIFF (``suitability_<name>.tif``)
 COG_VARIABLES = ("std_m", "entropy")
+
+
+STAGE = Stage(
+    name="suitability", products=("suitability",), inputs=StageInputs(upstream=("dtm",), frame_for=("suitability",)),
+    options=Params, run=run,
+    warm_imports=("hadal.suitability", "hadal.matching.mapgrid", "hadal.products.readers", "hadal.products.geotiff"),
+)
