@@ -11,8 +11,8 @@ import pandas as pd
 import pytest
 
 from hadal import ctd
+from hadal.ctd import derive
 from hadal.settings import DeriveParams
-from hadal.stages import derive
 
 gsw = pytest.importorskip("gsw")
 

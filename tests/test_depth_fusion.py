@@ -182,7 +182,7 @@ def test_derive_recovers_depth_with_clipped_ctd_gain_error_and_lag():
     ingest range test), a 5e-4 gain error and a gauge 2 s late still give the true depth within 1 m at 10 900 m."""
     from test_derive import LON, synth_sensors
 
-    from hadal.stages import derive
+    from hadal.ctd import derive
 
     df, z, _ = synth_sensors(dt=4.0)
     t = (df["time"] - df["time"].iloc[0]).dt.total_seconds().to_numpy()

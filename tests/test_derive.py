@@ -13,6 +13,7 @@ import xarray as xr
 import yaml
 from pydantic import ValidationError
 
+from hadal.ctd.derive import derive_ctd
 from hadal.errors import InputError, StageError
 from hadal.pipeline import make_context, run_stage
 from hadal.products.io import read_parquet_metadata, write_parquet
@@ -247,13 +248,13 @@ def test_derive_ctd_without_gauge_or_altimeter(synth):
     """A CTD-only cast (e.g. read from a .cnv): no gauge, no altimeter; depth still computed, seafloor NaN."""
     df = synth[0].drop(columns=["pressure_gauge_dbar", "pressure_gauge_dbar_qc", "altitude_m", "altitude_m_qc"])
     df = df[df["pressure_ctd_dbar"] < 5000].iloc[::5].reset_index(drop=True)
-    out, meta = derive.derive_ctd(df, LAT, LON, DeriveParams())
+    out, meta = derive_ctd(df, LAT, LON, DeriveParams())
     assert set(out["pressure_source"]) == {"ctd"} and meta["gauge_bias_dbar"] == 0.0
     assert out["seafloor_depth_m"].isna().all() and out["altitude_corrected_m"].isna().all()
     assert np.isfinite(out["depth_m"]).all() and "deepest_seafloor" not in meta
     # flagged-bad temperature samples give NaN salinity/density but the depth integral bridges them
     df.loc[100:110, "temperature_its90_degc_qc"] = 4
-    out2, _ = derive.derive_ctd(df, LAT, LON, DeriveParams())
+    out2, _ = derive_ctd(df, LAT, LON, DeriveParams())
     assert out2["practical_salinity"].iloc[100:111].isna().all()
     assert np.nanmax(np.abs(out2["depth_m"] - out["depth_m"])) < 0.05
 

@@ -17,9 +17,9 @@ import xarray as xr
 import yaml
 from pydantic import ValidationError
 
+from hadal.ctd import derive
 from hadal.errors import ConfigError
 from hadal.settings import DeriveParams
-from hadal.stages import derive
 
 gsw = pytest.importorskip("gsw")
 
