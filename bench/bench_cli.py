@@ -100,9 +100,9 @@ def main() -> None:
             print(line + ("  ok" if now <= GOAL_S else "  SLOW"))
 
         # what every run and cache-hit stage pays before Prefect's own start (issue 19): every stage's Params
-        # (hadal.config) and the flow/tasks; the science (pandas, xarray, numba, ioos_qc, ...) must stay unimported
+        # (hadal.settings) and the flow/tasks; the science (pandas, xarray, numba, ioos_qc, ...) must stay unimported
         imports = {
-            "import all stages": "import hadal.config, hadal.pipeline; hadal.pipeline.all_products()",
+            "import all stages": "import hadal.settings, hadal.pipeline; hadal.pipeline.all_products()",
             "import flow+tasks": "import hadal.flows.post_cruise, hadal.tasks.ingest, hadal.tasks.report",
         }
         probe = ("; import sys; bad = [m for m in ('pandas', 'xarray', 'numba', 'ioos_qc', 'scipy', 'open3d', "

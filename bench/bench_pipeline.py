@@ -261,10 +261,10 @@ def cli_compare(args) -> None:
              lambda c: hadal(c, "stage", "landing", str(raw), "--store", store(c), "--flow", server_up=True))
         t_prefect = min(_timed_proc([py, "-c", "from prefect import flow; flow(lambda: 1)()"],
                                     {**os.environ, "PREFECT_API_URL": api}) for _ in range(2))
-        t_import = min(_timed_proc([py, "-c", "import hadal.config"], {**os.environ, "PYTHONPATH": str(codes["now"])})
+        t_import = min(_timed_proc([py, "-c", "import hadal.settings"], {**os.environ, "PYTHONPATH": str(codes["now"])})
                        for _ in range(2))
         print(f"reference: a trivial Prefect flow run against the server, fresh process: {t_prefect:.2f} s; "
-              f"importing every stage (hadal.config): {t_import:.2f} s")
+              f"importing every stage (hadal.settings): {t_import:.2f} s")
         server.terminate()
         server.wait(30)
     finally:

@@ -44,10 +44,11 @@ def prepare(work: Path, seed: int, small: bool = True) -> Path:
 
 def start_error(d: Path, **params) -> dict:
     from hadal.pipeline import make_context
+    from hadal.settings import MatchParams
     from hadal.stages import match as ms
 
     ctx = make_context(d / "dive", d / "store")
-    ctx.config = ctx.config.model_copy(update={"match": ms.Params(**{**ctx.config.match.model_dump(), **params})})
+    ctx.config = ctx.config.model_copy(update={"match": MatchParams(**{**ctx.config.match.model_dump(), **params})})
     t0 = time.perf_counter()
     with warnings.catch_warnings(record=True) as leaked:
         warnings.simplefilter("always")

@@ -78,15 +78,15 @@ class DiveRun:
 
 
 def process_stages(names: list[str]) -> set[str]:
-    """The stages of ``names`` to run in their own process (:mod:`hadal.stage_process`): those whose module says
-    ``PROCESS = True`` and that may run at the same time as another stage of the run (neither upstream nor
+    """The stages of ``names`` to run in their own process (:mod:`hadal.stage_process`): those whose record says
+    ``process=True`` (:class:`hadal.stages.Stage`) and that may run at the same time as another stage of the run (neither upstream nor
     downstream of it: :func:`hadal.plan.downstream_stages`); a stage that always runs alone gains nothing from a
     process but pays its start (about 1.5 s of imports)."""
     from hadal.plan import downstream_stages
-    from hadal.stages import stage_module
+    from hadal.stages.graph import stage
 
     down = {n: set(downstream_stages(n, names)) for n in names}
-    return {n for n in names if getattr(stage_module(n), "PROCESS", False)
+    return {n for n in names if stage(n).process
             and any(o != n and o not in down[n] and n not in down[o] for o in names)}
 
 

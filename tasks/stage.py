@@ -7,10 +7,10 @@ Prefect-free, so ``hadal run`` can tell an unchanged dive without starting Prefe
 * the stage name, dive id and store root;
 * hadal's code version (package version + SHA-256 of every ``hadal/**/*.py`` source file);
 * the stage's configuration section (``ctx.params(stage)``, canonical JSON);
-* for stages that read raw files (``INPUTS.reads_raw``: ``ingest``, ``dtm``, ``laser``), the SHA-256 of those files
+* for stages that read raw files (``Stage.inputs.reads_raw``: ``ingest``, ``dtm``, ``laser``), the SHA-256 of those files
   and of ``dive.yaml`` (cached with each file's size, mtime, inode and ctime in the store:
   :meth:`hadal.store.ProductStore.file_sha256`, so an unchanged re-run does not re-read ~280 MB of raw data);
-  for every stage, the manifests (SHA-256) of the pinned (else latest) versions of its ``UPSTREAM`` products.
+  for every stage, the manifests (SHA-256) of the pinned (else latest) versions of every product it reads (``Stage.reads``).
 
 Inside a flow, hadal's log records go to the Prefect run (:func:`route_hadal_logs`), task runs are named after
 their stage, and each fresh run leaves a markdown artifact ``<dive>-stage-<stage>`` (:func:`stage_artifact`).

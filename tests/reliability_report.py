@@ -105,8 +105,8 @@ class Item:
 
 
 def ingest_items(dest: Path) -> list[Item]:
-    from hadal.config import PipelineConfig
     from hadal.pipeline import make_context, run_stage
+    from hadal.settings import PipelineConfig
 
     def runner(case: make_corpus.Case, d: Path) -> Callable[[Path], Any]:
         def run(store: Path) -> Any:

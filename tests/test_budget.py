@@ -18,10 +18,10 @@ import yaml
 from pydantic import BaseModel, ValidationError
 
 from hadal import budget
-from hadal.config import PipelineConfig, load_config
 from hadal.errors import ConfigError
 from hadal.pipeline import make_context, run_stage
 from hadal.products.io import write_parquet
+from hadal.settings import IngestParams, PipelineConfig, load_config
 
 # --------------------------------------------------------------------------------------------- helpers
 
@@ -245,7 +245,7 @@ def test_ingest_max_gap_must_be_finite_and_positive(tmp_path, value):
 def test_ingest_stage_rechecks_gap_limits():
     from hadal.stages import ingest
 
-    p = ingest.Params().model_copy(update={"max_gap_s": {"gauge": float("nan")}})
+    p = IngestParams().model_copy(update={"max_gap_s": {"gauge": float("nan")}})
     with pytest.raises(ConfigError, match=r"ingest\.max_gap_s\.gauge must be a finite number > 0"):
         ingest._gap_limits(p)
 

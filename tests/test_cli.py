@@ -113,7 +113,7 @@ def test_entry_point_smoke():
 def test_config_output_is_cached_per_code_version(tmp_path):
     """`hadal config` (cached per code version) prints exactly what the generator makes; a cache file of another
     code version is never used."""
-    from hadal.config import default_yaml
+    from hadal.settings import default_yaml
 
     (tmp_path / "pipeline-defaults-0.0.0+stale.yaml").write_text("stale: true\n")
     oracle = default_yaml()

@@ -137,7 +137,7 @@ def test_no_conductivity_and_no_salinity_is_refused_in_one_line(tmp_path):
 
 
 def test_false_echoes_of_a_cast_are_flagged():
-    from hadal.stages.derive import flag_false_echoes
+    from hadal.ctd.derive import flag_false_echoes
 
     depth = np.array([10.0, 100.0, 500.0, 1000.0, 990.0, 995.0])
     alt = np.array([np.nan, 50.0, 20.0, np.nan, 12.0, 4.0])  # 150 m and 520 m: above the 1000 m reached

@@ -5,8 +5,8 @@ from pathlib import Path
 import pytest
 import yaml
 
-from hadal.config import PipelineConfig, default_yaml, load_config
 from hadal.errors import ConfigError
+from hadal.settings import PipelineConfig, default_yaml, load_config
 
 REPO = Path(__file__).resolve().parents[1]
 

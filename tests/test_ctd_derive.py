@@ -11,7 +11,8 @@ import pandas as pd
 import pytest
 
 from hadal import ctd
-from hadal.stages import derive
+from hadal.ctd import derive
+from hadal.settings import DeriveParams
 
 gsw = pytest.importorskip("gsw")
 
@@ -35,7 +36,7 @@ def example(shared_cnv):
 
 @pytest.fixture(scope="module")
 def example_derived(example):
-    return derive.derive_ctd(_sensors(example, "c0S/m", "tv290C", "prdM"), LAT, LON, derive.Params())
+    return derive.derive_ctd(_sensors(example, "c0S/m", "tv290C", "prdM"), LAT, LON, DeriveParams())
 
 
 def test_teos10_columns_against_gsw_and_seasoft_salinity(example, example_derived):
@@ -65,7 +66,7 @@ def test_teos10_theta_and_sigma0_close_to_seasoft_eos80(rel, t_col, c_col, c_sca
         t = t / 1.00024  # IPTS-68 -> ITS-90
     sens = pd.DataFrame({"time": pd.NaT, "conductivity_s_m": df[c_col].to_numpy() * c_scale,
                          "temperature_its90_degc": t, "pressure_ctd_dbar": df["prDM"].to_numpy()})
-    out, _ = derive.derive_ctd(sens, LAT, LON, derive.Params())
+    out, _ = derive.derive_ctd(sens, LAT, LON, DeriveParams())
     pr = df["prDM"].to_numpy()
     # derive puts a binned cast in pressure order when it is not monotonic
     order = np.arange(pr.size) if (np.all(np.diff(pr) >= 0) or np.all(np.diff(pr) <= 0)) else np.argsort(
@@ -111,7 +112,7 @@ def test_profile_n_squared_against_gsw(example, example_derived):
 
 def test_chain_channels_match_seabirdscientific(example):
     """Wild edit -> filter -> align -> cell thermal mass inside derive = seabirdscientific's functions chained."""
-    p = derive.Params(wild_edit=True, filter_pressure_s=1.0, filter_temperature_s=0.5, filter_conductivity_s=0.5,
+    p = DeriveParams(wild_edit=True, filter_pressure_s=1.0, filter_temperature_s=0.5, filter_conductivity_s=0.5,
                       align_conductivity_s=0.5, align_temperature_s=-0.25, cell_thermal_mass=True,
                       cell_thermal_mass_alpha=0.04, cell_thermal_mass_beta_inverse_s=8.0, loop_edit=True,
                       loop_edit_remove_surface_soak=False)
@@ -152,7 +153,7 @@ def test_seabird_binning_reproduces_sbe_binavg(shared_cnv):
     """derive with profile_binning=seabird on SeaSoft's DatCnv output = SeaSoft's BinAvg output (2 dbar)."""
     src, sbe = shared_cnv(f"{CROPPED}.cnv"), shared_cnv(f"{CROPPED}_binavg.cnv")
     sens = _sensors(src, "c0mS/cm", "tv290C", "prdM", c_scale=0.1)
-    p = derive.Params(profile_binning="seabird", profile_bin_dbar=2.0, latitude_deg=LAT, longitude_deg=LON)
+    p = DeriveParams(profile_binning="seabird", profile_bin_dbar=2.0, latitude_deg=LAT, longitude_deg=LON)
 
     class _Log:
         def warning(self, *a):
@@ -180,7 +181,7 @@ def test_chain_skipped_without_time(shared_cnv):
     df = shared_cnv("ctd-real/seabird_dPIRX010.cnv")
     sens = pd.DataFrame({"time": pd.NaT, "conductivity_s_m": df["c0S/m"].to_numpy(),
                          "temperature_its90_degc": df["t090C"].to_numpy(), "pressure_ctd_dbar": df["prDM"].to_numpy()})
-    out, meta = derive.derive_ctd(sens, LAT, LON, derive.Params(filter_temperature_s=0.5, loop_edit=True))
+    out, meta = derive.derive_ctd(sens, LAT, LON, DeriveParams(filter_temperature_s=0.5, loop_edit=True))
     assert all("skipped" in s for s in meta["ctd_processing"])
     assert "loop_edit_bad" not in out
     assert np.array_equal(out["temperature_its90_degc"].to_numpy(), df["t090C"].to_numpy())
@@ -189,8 +190,8 @@ def test_chain_skipped_without_time(shared_cnv):
 def test_params_bounds():
     from pydantic import ValidationError
 
-    assert derive.Params().loop_edit is False and derive.Params().filter_pressure_s is None
+    assert DeriveParams().loop_edit is False and DeriveParams().filter_pressure_s is None
     for bad in ({"wild_edit_std_pass_1": 0}, {"filter_pressure_s": 0}, {"align_conductivity_s": 100},
                 {"cell_thermal_mass_alpha": 2}, {"loop_edit_min_velocity_type": "x"}, {"profile_binning": "y"}):
         with pytest.raises(ValidationError):
-            derive.Params(**bad)
+            DeriveParams(**bad)

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from hadal.depth import fuse_pressure
+from hadal.settings import DeriveParams
 
 DT = 2.0
 
@@ -181,7 +182,7 @@ def test_derive_recovers_depth_with_clipped_ctd_gain_error_and_lag():
     ingest range test), a 5e-4 gain error and a gauge 2 s late still give the true depth within 1 m at 10 900 m."""
     from test_derive import LON, synth_sensors
 
-    from hadal.stages import derive
+    from hadal.ctd import derive
 
     df, z, _ = synth_sensors(dt=4.0)
     t = (df["time"] - df["time"].iloc[0]).dt.total_seconds().to_numpy()
@@ -190,7 +191,7 @@ def test_derive_recovers_depth_with_clipped_ctd_gain_error_and_lag():
     pc = df["pressure_ctd_dbar"].to_numpy() * (1 + 5e-4)
     df["pressure_ctd_dbar"] = np.minimum(pc, 10_490.0)
     df["pressure_ctd_dbar_qc"] = np.where(np.isfinite(pc), 1, 9).astype("uint8")  # clipping not flagged
-    out, meta = derive.derive_ctd(df, LAT, LON, derive.Params())
+    out, meta = derive.derive_ctd(df, LAT, LON, DeriveParams())
     i = int(np.argmax(z))
     assert abs(out["depth_m"].iloc[i] - z[i]) < 1.0 and np.nanmax(np.abs(out["depth_m"] - z)) < 1.0
     f = meta["pressure_fusion"]

@@ -13,10 +13,12 @@ import xarray as xr
 import yaml
 from pydantic import ValidationError
 
+from hadal.ctd.derive import derive_ctd
 from hadal.errors import InputError, StageError
 from hadal.pipeline import make_context, run_stage
 from hadal.products.dsg import orthogonal_profile
 from hadal.products.io import read_parquet_metadata, write_parquet
+from hadal.settings import DeriveParams
 from hadal.stages import derive
 
 gsw = pytest.importorskip("gsw")
@@ -105,15 +107,16 @@ def derived(synth, tmp_path_factory):
 
 
 def test_stage_contract():
-    assert derive.PRODUCTS == ("ctd", "profile", "cast_profiles", "trajectory") and derive.UPSTREAM == ("sensors",)
-    p = derive.Params()
+    assert derive.STAGE.products == ("ctd", "profile", "cast_profiles", "trajectory")
+    assert derive.STAGE.reads == ("sensors", "casts")
+    p = DeriveParams()
     assert p.profile_bin_dbar == 10.0 and p.nominal_sound_speed_m_s == 1500.0 and p.latitude_deg is None
     with pytest.raises(ValidationError):
-        derive.Params(profile_bin_dbar=0)
+        DeriveParams(profile_bin_dbar=0)
     with pytest.raises(ValidationError):
-        derive.Params(gauge_bias_window_dbar=(10_000, 6000))
+        DeriveParams(gauge_bias_window_dbar=(10_000, 6000))
     with pytest.raises(ValidationError):
-        derive.Params(unknown=1)
+        DeriveParams(unknown=1)
 
 
 def test_ctd_product_recovers_true_depth(derived, synth):
@@ -248,13 +251,13 @@ def test_derive_ctd_without_gauge_or_altimeter(synth):
     """A CTD-only cast (e.g. read from a .cnv): no gauge, no altimeter; depth still computed, seafloor NaN."""
     df = synth[0].drop(columns=["pressure_gauge_dbar", "pressure_gauge_dbar_qc", "altitude_m", "altitude_m_qc"])
     df = df[df["pressure_ctd_dbar"] < 5000].iloc[::5].reset_index(drop=True)
-    out, meta = derive.derive_ctd(df, LAT, LON, derive.Params())
+    out, meta = derive_ctd(df, LAT, LON, DeriveParams())
     assert set(out["pressure_source"]) == {"ctd"} and meta["gauge_bias_dbar"] == 0.0
     assert out["seafloor_depth_m"].isna().all() and out["altitude_corrected_m"].isna().all()
     assert np.isfinite(out["depth_m"]).all() and "deepest_seafloor" not in meta
     # flagged-bad temperature samples give NaN salinity/density but the depth integral bridges them
     df.loc[100:110, "temperature_its90_degc_qc"] = 4
-    out2, _ = derive.derive_ctd(df, LAT, LON, derive.Params())
+    out2, _ = derive_ctd(df, LAT, LON, DeriveParams())
     assert out2["practical_salinity"].iloc[100:111].isna().all()
     assert np.nanmax(np.abs(out2["depth_m"] - out["depth_m"])) < 0.05
 

@@ -17,10 +17,11 @@ import xarray as xr
 import yaml
 from pydantic import ValidationError
 
+from hadal.ctd import derive
 from hadal.errors import ConfigError
 from hadal.products.dsg import orthogonal_profile
 from hadal.products.registry import registry
-from hadal.stages import derive
+from hadal.settings import DeriveParams
 
 gsw = pytest.importorskip("gsw")
 
@@ -45,7 +46,7 @@ def sensors(shared_cnv):
 
 
 def _derive(sensors, **kw):
-    p = derive.Params(latitude_deg=LAT, longitude_deg=LON, **kw)
+    p = DeriveParams(latitude_deg=LAT, longitude_deg=LON, **kw)
     return derive.derive_table(sensors, {}, p, None, _Log(), "cast")
 
 
@@ -55,11 +56,11 @@ def floor_depth(sensors):
 
 
 def test_params():
-    p = derive.Params()
+    p = DeriveParams()
     assert p.profile_axis == "pressure" and p.profile_bin_m == 10.0 and p.overlying_profile is None
     for bad in ({"profile_axis": "height"}, {"profile_bin_m": 0}, {"profile_bin_m": 1001}, {"profile_bin_m": float("nan")}):
         with pytest.raises(ValidationError):
-            derive.Params(**bad)
+            DeriveParams(**bad)
 
 
 def test_floor_depth_bins_equal_brute_force_means(floor_depth):
@@ -126,10 +127,10 @@ def test_memory_check_on_the_depth_axis(sensors, floor_depth):
 
     sens = pd.DataFrame({"pressure_ctd_dbar": np.linspace(0.0, 11_000.0, 100)})
     with pytest.raises(ConfigError, match=r"derive\.profile_bin_m.*depth-binned profile \(up to 11440 m"):
-        derive.check_profile_memory(sens, derive.Params(profile_axis="depth", profile_bin_m=1e-4), 1e8)
-    derive.check_profile_memory(sens, derive.Params(profile_bin_m=1e-4), 1e8)  # pressure axis: bin_m unused
+        derive.check_profile_memory(sens, DeriveParams(profile_axis="depth", profile_bin_m=1e-4), 1e8)
+    derive.check_profile_memory(sens, DeriveParams(profile_bin_m=1e-4), 1e8)  # pressure axis: bin_m unused
     # the bound covers the real cast's depth bins (the depth is not known when the check runs)
-    p = derive.Params(profile_axis="depth", profile_bin_m=BIN_M)
+    p = DeriveParams(profile_axis="depth", profile_bin_m=BIN_M)
     z_bound = sensors["pressure_ctd_dbar"].to_numpy() * derive.DEPTH_PER_DBAR_MAX
     n_est = (np.nanmax(z_bound) - min(0.0, np.nanmin(z_bound))) / BIN_M + 2
     assert n_est >= floor_depth[2].sizes["depth_m"]
@@ -138,16 +139,16 @@ def test_memory_check_on_the_depth_axis(sensors, floor_depth):
 
 # ------------------------------------------------------------------------------------ the stage's product
 def _stage(tmp_path, sensors, axis):
-    from hadal.config import PipelineConfig
     from hadal.pipeline import make_context, run_stage
     from hadal.products.io import write_parquet
+    from hadal.settings import PipelineConfig
 
     raw = tmp_path / "raw"
     raw.mkdir()
     (raw / "dive.yaml").write_text(yaml.safe_dump({
         "dive_id": "D17", "platform": "test", "launch": {"latitude_deg": LAT, "longitude_deg": LON},
         "map_frame": {"origin_latitude_deg": LAT, "origin_longitude_deg": LON}}))
-    cfg = PipelineConfig(derive=derive.Params(profile_axis=axis, profile_bin_m=BIN_M, profile_bin_dbar=BIN_M))
+    cfg = PipelineConfig(derive=DeriveParams(profile_axis=axis, profile_bin_m=BIN_M, profile_bin_dbar=BIN_M))
     ctx = make_context(raw, tmp_path / "store", cfg)
     with ctx.store.publish(ctx.dive_id, "sensors", parameters={}) as draft:
         write_parquet(sensors, draft.path / "sensors.parquet", metadata={"dive_id": ctx.dive_id})

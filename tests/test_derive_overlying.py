@@ -17,8 +17,10 @@ import pytest
 import yaml
 from pydantic import ValidationError
 
+from hadal.ctd.derive import derive_ctd
 from hadal.depth import read_overlying_profile
 from hadal.errors import ConfigError, InputError
+from hadal.settings import DeriveParams
 from hadal.stages import derive
 
 gsw = pytest.importorskip("gsw")
@@ -49,19 +51,19 @@ def test_cut_cast_with_its_top_as_user_profile_gives_the_full_depth(tmp_path, re
     src = shared_cnv(rel)
     c_col, c_scale, lat = CASTS[rel]
     sens = _sensors(src, c_col, c_scale)
-    full, _ = derive.derive_ctd(sens, lat, 0.0, derive.Params())
+    full, _ = derive_ctd(sens, lat, 0.0, DeriveParams())
     sel = src["prDM"].to_numpy() >= cut_dbar
     cut = sens.loc[sel].reset_index(drop=True)
     ref = full["depth_m"].to_numpy()[sel]
     prof = read_overlying_profile(_top_csv(tmp_path / "top.csv", src.loc[~sel]))
-    out, meta = derive.derive_ctd(cut, lat, 0.0, derive.Params(), overlying_profile=prof)
+    out, meta = derive_ctd(cut, lat, 0.0, DeriveParams(), overlying_profile=prof)
     oc = meta["overlying_column"]
     assert oc["method"] == "user profile" and oc["first_pressure_dbar"] == cut_dbar
     assert oc["user_profile"]["file"] == str(tmp_path / "top.csv") and len(oc["user_profile"]["sha256"]) == 64
     assert oc["user_profile"]["pressure_range_dbar"] == [1.0, cut_dbar - 1.0]
     assert np.nanmax(np.abs(out["depth_m"].to_numpy() - ref)) < TOL_M
     # without it: the standard ocean, decimetres off (and said so, within its stated error)
-    std, m2 = derive.derive_ctd(cut, lat, 0.0, derive.Params())
+    std, m2 = derive_ctd(cut, lat, 0.0, DeriveParams())
     err_std = np.nanmax(np.abs(std["depth_m"].to_numpy() - ref))
     assert m2["overlying_column"]["method"].startswith("standard ocean") and 0.1 < err_std
     assert err_std <= m2["overlying_column"]["estimated_error_m"]
@@ -75,7 +77,7 @@ def test_density_csv_and_cnv_file_as_user_profile(shared_data, tmp_path, shared_
     src = shared_cnv(ARCTIC)
     c_col, c_scale, lat = CASTS[ARCTIC]
     sens = _sensors(src, c_col, c_scale)
-    full, _ = derive.derive_ctd(sens, lat, 0.0, derive.Params())
+    full, _ = derive_ctd(sens, lat, 0.0, DeriveParams())
     sel = src["prDM"].to_numpy() >= 300.0
     top = src.loc[~sel]
     p = top["prDM"].to_numpy()
@@ -88,16 +90,16 @@ def test_density_csv_and_cnv_file_as_user_profile(shared_data, tmp_path, shared_
             warnings.simplefilter("ignore")
             prof = read_overlying_profile(f)
         assert prof.basis.startswith(basis)
-        out, meta = derive.derive_ctd(sens.loc[sel].reset_index(drop=True), lat, 0.0, derive.Params(),
+        out, meta = derive_ctd(sens.loc[sel].reset_index(drop=True), lat, 0.0, DeriveParams(),
                                       overlying_profile=prof)
         assert meta["overlying_column"]["method"] == "user profile"
         assert np.nanmax(np.abs(out["depth_m"].to_numpy() - full["depth_m"].to_numpy()[sel])) < TOL_M
 
 
 def test_stage_uses_records_and_fingerprints_the_profile(tmp_path, shared_cnv):
-    from hadal.config import PipelineConfig
     from hadal.pipeline import make_context, run_stage
     from hadal.products.io import read_parquet_metadata, write_parquet
+    from hadal.settings import PipelineConfig
 
     src = shared_cnv(ARCTIC)
     c_col, c_scale, lat = CASTS[ARCTIC]
@@ -109,7 +111,7 @@ def test_stage_uses_records_and_fingerprints_the_profile(tmp_path, shared_cnv):
         "map_frame": {"origin_latitude_deg": lat, "origin_longitude_deg": 0.0}}))
     (raw / "site").mkdir()
     _top_csv(raw / "site" / "top.csv", src.loc[~sel])
-    cfg = PipelineConfig(derive=derive.Params(overlying_profile="site/top.csv"))
+    cfg = PipelineConfig(derive=DeriveParams(overlying_profile="site/top.csv"))
     ctx = make_context(raw, tmp_path / "store", cfg)
     with ctx.store.publish(ctx.dive_id, "sensors", parameters={}) as draft:
         write_parquet(_sensors(src, c_col, c_scale).loc[sel].reset_index(drop=True), draft.path / "sensors.parquet",
@@ -129,7 +131,7 @@ def test_stage_uses_records_and_fingerprints_the_profile(tmp_path, shared_cnv):
     ctd = pd.read_parquet(out["ctd"].file("ctd.parquet"))
     assert abs(ctd["depth_m"].iloc[0] - oc["first_depth_m"]) < 1e-3
     # a missing file is a one-line ConfigError naming the setting, before anything is published
-    ctx.config = PipelineConfig(derive=derive.Params(overlying_profile="site/none.csv"))
+    ctx.config = PipelineConfig(derive=DeriveParams(overlying_profile="site/none.csv"))
     with pytest.raises(ConfigError, match=r"none\.csv: derive\.overlying_profile does not exist") as exc:
         run_stage("derive", ctx)
     assert "\n" not in str(exc.value)
@@ -182,7 +184,7 @@ def test_real_bad_files(shared_data, tmp_path, shared_cnv):
     rec = _sensors(arc, c_col, c_scale).loc[arc["prDM"].to_numpy() >= 400].reset_index(drop=True)
     with pytest.raises(InputError, match=r"top\.csv: overlying profile covers 1.0 to 199.0 dbar but the record "
                                          r"starts at 400.0 dbar") as exc:
-        derive.derive_ctd(rec, lat, 0.0, derive.Params(), overlying_profile=prof)
+        derive_ctd(rec, lat, 0.0, DeriveParams(), overlying_profile=prof)
     assert "\n" not in str(exc.value)
     # a binary file, a missing one
     (tmp_path / "x.bin").write_bytes(b"\x00\x01" * 100)
@@ -195,5 +197,5 @@ def test_real_bad_files(shared_data, tmp_path, shared_cnv):
 def test_params_validation():
     for bad in ("", "   ", "a\x00b"):
         with pytest.raises(ValidationError):
-            derive.Params(overlying_profile=bad)
-    assert derive.Params(overlying_profile="/abs/top.csv").overlying_profile == "/abs/top.csv"
+            DeriveParams(overlying_profile=bad)
+    assert DeriveParams(overlying_profile="/abs/top.csv").overlying_profile == "/abs/top.csv"

@@ -237,7 +237,8 @@ def test_float32_utm_cloud_quantisation_detected():
 def test_multibeam_fill_soundings_dropped_feet_refused(tmp_path):
     """Soundings beyond 11.5 km (a 32767 / 99999 fill in the depth column) are dropped: the DTM counts exactly
     the plausible ones written; a file whose depths are all in feet is refused in one line."""
-    from hadal.stages.grid import Params, make_dtm
+    from hadal.settings import GridParams as Params
+    from hadal.stages.grid import make_dtm
 
     rng = np.random.default_rng(3)
     n = 3000

@@ -173,7 +173,8 @@ def test_sample_dive_round_trip(small_dive):
     20 m cell adds a little), and the spikes must be gone (max error well below the spike size).
     """
     from hadal.dive import load_dive, resolve_source
-    from hadal.stages.grid import Params, make_dtm
+    from hadal.settings import GridParams as Params
+    from hadal.stages.grid import make_dtm
 
     dive, raw = load_dive(small_dive)
     mb = _section_with(json.loads((raw / "truth.json").read_text()), "bias_m")

@@ -13,7 +13,7 @@ from pydantic import ValidationError
 from hadal.errors import InputError, StageError
 from hadal.geo import LocalFrame
 from hadal.pipeline import make_context, run_stage
-from hadal.stages import grid as grid_stage
+from hadal.settings import GridParams
 
 FRAME = LocalFrame(11.33, 142.2)
 
@@ -62,15 +62,16 @@ def test_stage_contract():
     from hadal.stages import STAGE_GROUPS, dtm, laser
 
     assert STAGE_GROUPS["grid"] == ("dtm", "laser")
-    assert dtm.PRODUCTS == ("dtm",) and laser.PRODUCTS == ("laser_grids",) and dtm.UPSTREAM == laser.UPSTREAM == ()
-    assert dtm.SECTION == laser.SECTION == "grid"  # one configuration section, split by field
-    assert set(dtm.PARAM_FIELDS) | set(laser.PARAM_FIELDS) == set(grid_stage.Params.model_fields)
-    assert not set(dtm.PARAM_FIELDS) & {"laser_resolution_m", "laser_sor_neighbors"}
-    p = grid_stage.Params()
+    d, la = dtm.STAGE, laser.STAGE
+    assert d.products == ("dtm",) and la.products == ("laser_grids",) and d.reads == la.reads == ()
+    assert d.config_section == la.config_section == "grid"  # one configuration section, split by field
+    assert set(d.param_fields) | set(la.param_fields) == set(GridParams.model_fields)
+    assert not set(d.param_fields) & {"laser_resolution_m", "laser_sor_neighbors"}
+    p = GridParams()
     assert p.dtm_resolution_m == "auto" and p.laser_resolution_m == "auto"
     for bad in (0, -5, float("nan"), "fine"):
         with pytest.raises(ValidationError):
-            grid_stage.Params(dtm_resolution_m=bad)
+            GridParams(dtm_resolution_m=bad)
 
 
 @pytest.mark.parametrize("spacing_m, expected_m", [(10.0, 20.0), (3.0, 5.0), (0.05, 0.1), (40.0, 100.0), (230.0, 500.0)])

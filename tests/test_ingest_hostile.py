@@ -186,7 +186,7 @@ def test_csv_semicolon_named_and_comment_lines_skipped(tmp_path):
 # ---------------------------------------------------------------------------- 18: QC overrides, key names
 def test_partial_qc_override_merged_per_test_and_misspelt_names_refused():
     from hadal.ingest.qc import merge_qc, qc_flags
-    from hadal.stages.ingest import Params
+    from hadal.settings import IngestParams as Params
 
     p = Params.model_validate({"qc": {"pressure_ctd_dbar": {"fail_span": [-10, 11000]}}})
     q = merge_qc(p.qc)["pressure_ctd_dbar"]

@@ -9,10 +9,10 @@ from pathlib import Path
 import pandas as pd
 import pytest
 
-from hadal.config import PipelineConfig
 from hadal.dive import load_dive
 from hadal.errors import HadalError
 from hadal.products import read_parquet_metadata
+from hadal.settings import PipelineConfig
 from hadal.stages import StageContext, ingest
 from hadal.store import ProductStore
 

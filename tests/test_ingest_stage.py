@@ -12,10 +12,10 @@ import pyarrow.parquet as pq
 import pytest
 import yaml
 
-from hadal.config import PipelineConfig
 from hadal.dive import load_dive
 from hadal.errors import InputError
 from hadal.products import read_parquet_metadata
+from hadal.settings import PipelineConfig
 from hadal.stages import StageContext, ingest
 from hadal.store import ProductStore, sha256_file
 
@@ -42,7 +42,7 @@ def runs(tmp_path_factory):
 
 def test_stage_contract(runs):
     (pv, df, meta, cols), raw = runs[0]["mcap"], runs[1]
-    assert ingest.PRODUCTS == ("sensors", "casts") and ingest.UPSTREAM == ()
+    assert ingest.STAGE.products == ("sensors", "casts") and ingest.STAGE.reads == ()
     expected = ["time", "conductivity_s_m", "temperature_its90_degc", "pressure_ctd_dbar", "pressure_gauge_dbar",
                 "altitude_m", "heading_deg", "pitch_deg", "roll_deg", "dr_east_m", "dr_north_m", "speed_m_s"]
     assert list(df.columns[:12]) == expected

@@ -111,7 +111,7 @@ def test_vehicle_rejects_positive_buoyancy(tmp_path):
         Vehicle(mass_kg=60.0, buoyancy_mass_kg=62.0)
     with pytest.raises(ValueError, match="no righting moment"):
         Vehicle(cg_height_m=2.0)
-    from hadal.config import load_config
+    from hadal.settings import load_config
 
     cfg = tmp_path / "pipeline.yaml"  # from YAML: one clean line naming the setting
     cfg.write_text("landing:\n  vehicle:\n    mass_kg: 60\n    buoyancy_mass_kg: 62\n")

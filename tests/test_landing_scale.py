@@ -21,6 +21,7 @@ from hadal.landing.exclusion import HeadingCorrelator, footprint_mask
 from hadal.landing.protrusion import protrusion_height_map
 from hadal.landing.sites import check_resources, estimate_resources, largest_aspect_rectangle_m2
 from hadal.landing.testing import resampled
+from hadal.settings import LandingParams
 
 V = Vehicle()
 HC = V.critical_height_m
@@ -133,8 +134,8 @@ def test_budget_estimate_and_one_line_refusals():
 
 
 def test_stage_refuses_over_budget(tmp_path):
-    from hadal.config import PipelineConfig
     from hadal.dive import Dive
+    from hadal.settings import PipelineConfig
     from hadal.stages import StageContext
     from hadal.stages import landing as stage
     from hadal.store import ProductStore
@@ -147,7 +148,7 @@ def test_stage_refuses_over_budget(tmp_path):
             ({"heading_step_deg": 1.0, "figures": False}, {"max_memory_gb": 0.005},
              "landing.heading_step_deg = 1 would need"),
             ({"heading_step_deg": 1.0, "figures": False, "max_cell_headings": 1e6}, None, "evaluations")):
-        cfg = PipelineConfig(landing=stage.Params(**params), **({"resources": resources} if resources else {}))
+        cfg = PipelineConfig(landing=LandingParams(**params), **({"resources": resources} if resources else {}))
         ctx = StageContext(dive=dive, raw_dir=tmp_path, store=ProductStore(tmp_path / "store"), config=cfg)
         if not ctx.store.has("budget", "laser_grids"):
             with ctx.store.publish("budget", "laser_grids") as draft:

@@ -11,10 +11,10 @@ import pytest
 import xarray as xr
 from pydantic import ValidationError
 
-from hadal.config import PipelineConfig
 from hadal.dive import Dive
 from hadal.errors import InputError, StageError
 from hadal.products.io import read_parquet_metadata
+from hadal.settings import LandingParams, PipelineConfig
 from hadal.stages import StageContext
 from hadal.stages import landing as stage
 from hadal.store import ProductStore
@@ -39,7 +39,7 @@ def _submap(ny: int, nx: int, cell: float, slope_deg: float, seed: int, x0: floa
 
 def _ctx(tmp_path, **params) -> StageContext:
     dive = Dive.model_validate({"dive_id": DIVE, "launch": {"latitude_deg": 30.0, "longitude_deg": 140.0}})
-    cfg = PipelineConfig(landing=stage.Params(**params))
+    cfg = PipelineConfig(landing=LandingParams(**params))
     return StageContext(dive=dive, raw_dir=tmp_path, store=ProductStore(tmp_path / "store"), config=cfg)
 
 
@@ -151,4 +151,4 @@ def test_params_bounded():
     for bad in ({"block_m": 0}, {"filter_order": 0}, {"local_slope_window_m": 0}, {"heading_step_deg": 0.1},
                 {"vehicle": {"length_m": 1e6}}, {"vehicle": {"water_density_kg_m3": 1.0}}, {"workers": -1}):
         with pytest.raises(ValidationError):
-            stage.Params(**bad)
+            LandingParams(**bad)

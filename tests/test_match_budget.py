@@ -148,7 +148,7 @@ def test_options_declared_once_and_read_by_the_stage_and_navigation():
 
     from hadal.matching import refine_tercom, tercom
     from hadal.matching.options import DeadReckoningOptions, TercomOptions
-    from hadal.stages.match import Params
+    from hadal.settings import MatchParams as Params
 
     assert issubclass(Params, TercomOptions) and issubclass(Params, DeadReckoningOptions)
     for opt in (TercomOptions, DeadReckoningOptions):

@@ -9,10 +9,11 @@ import pandas as pd
 import pytest
 import xarray as xr
 
-from hadal.config import PipelineConfig
 from hadal.dive import Dive, Launch, MapFrame
 from hadal.errors import InputError, StageError
 from hadal.geo import geodesic_distance_m, parse_degmin
+from hadal.matching.budget import MRF_MIN_COVERAGE, grid_track_patch
+from hadal.settings import MatchParams, PipelineConfig, SuitabilityParams
 from hadal.stages import StageContext
 from hadal.stages import match as match_stage
 from hadal.stages import suitability as suit_stage
@@ -79,9 +80,9 @@ def _wiggle(n, length):
 
 
 def _ctx(dive, store, tmp_path, **match_params):
-    cfg = PipelineConfig(suitability=suit_stage.Params(n_blocks_y=10, n_blocks_x=12, region_size_x_m=1500.0,
+    cfg = PipelineConfig(suitability=SuitabilityParams(n_blocks_y=10, n_blocks_x=12, region_size_x_m=1500.0,
                                                        region_size_y_m=1200.0),
-                         match=match_stage.Params(**match_params))
+                         match=MatchParams(**match_params))
     return StageContext(dive=dive, raw_dir=tmp_path, store=store, config=cfg)
 
 
@@ -170,7 +171,7 @@ def test_match_stage_does_not_claim_mrf_on_a_single_beam_track(tmp_path):
     ctx = _ctx(dive, store, tmp_path, mrf=True, heading_range_deg=0.0, refine=False, posterior=False)
     fix = json.loads(match_stage.run(ctx)["match"].file("fix.json").read_text())
     assert fix["mrf"]["applied"] is False and "single-beam" in fix["mrf"]["reason"]
-    assert fix["mrf"]["coverage"] < match_stage.MRF_MIN_COVERAGE and "start" not in fix["mrf"]
+    assert fix["mrf"]["coverage"] < MRF_MIN_COVERAGE and "start" not in fix["mrf"]
     assert any("MRF not run" in w for w in fix["warnings"])
     e_tercom = np.hypot(fix["start"]["x_east_m"] - truth["start"][0], fix["start"]["y_north_m"] - truth["start"][1])
     assert e_tercom <= 1.5 * H
@@ -206,14 +207,15 @@ def test_missing_upstream_and_truncated_dtm(tmp_path):
 
 
 def test_params_defaults_are_the_papers():
-    p = suit_stage.Params()
+    p = SuitabilityParams()
     assert (p.n_blocks_y, p.n_blocks_x, p.region_size_x_m, p.region_size_y_m) == (44, 60, 5800.0, 3700.0)
-    m = match_stage.Params()
+    m = MatchParams()
     assert m.criterion == "msd" and match_stage._headings(m).size == 37  # +-9 deg in 0.5 deg steps
-    assert match_stage._headings(match_stage.Params(heading_range_deg=0.0)).tolist() == [0.0]
+    assert match_stage._headings(MatchParams(heading_range_deg=0.0)).tolist() == [0.0]
     assert match_stage._scales(m).tolist() == [1.0]
-    assert match_stage._scales(match_stage.Params(scale_range=0.02)).tolist() == [0.98, 0.99, 1.0, 1.01, 1.02]
-    assert suit_stage.PRODUCTS == ("suitability",) and match_stage.UPSTREAM == ("dtm", "ctd")
+    assert match_stage._scales(MatchParams(scale_range=0.02)).tolist() == [0.98, 0.99, 1.0, 1.01, 1.02]
+    assert suit_stage.STAGE.products == ("suitability",)
+    assert match_stage.STAGE.reads == ("dtm", "ctd", "suitability")  # the fingerprint covers the optional region
 
 
 def test_resample_along_track_bins_and_hover():
@@ -236,7 +238,7 @@ def test_grid_track_patch_cell_means():
 
     g = MapGrid.from_any(np.zeros((10, 10)), np.arange(10) * H, np.arange(10) * H)
     xy = np.array([[40.0, 40.0], [44.0, 38.0], [60.0, 40.0]])
-    patch, x0, y0 = match_stage.grid_track_patch(xy, np.array([1.0, 3.0, 5.0]), g, margin_cells=1)
+    patch, x0, y0 = grid_track_patch(xy, np.array([1.0, 3.0, 5.0]), g, margin_cells=1)
     assert (x0, y0) == (20.0, 20.0) and patch.shape == (3, 4)
     assert patch[1, 1] == 2.0 and patch[1, 2] == 5.0 and np.isnan(patch[0, 0])
 

@@ -82,7 +82,7 @@ def test_unreferenced_time_counts_only_held_dead_reckoning():
 
 
 def test_navigation_defaults_are_the_match_stage_params():
-    from hadal.stages.match import Params
+    from hadal.settings import MatchParams as Params
 
     ctd = pd.DataFrame({"time": pd.date_range("2018-10-06", periods=4, freq="600s", tz="UTC"),
                         "dr_east_m": [0.0, 0.0, 0.0, 100.0], "dr_north_m": [0.0, 0.0, 0.0, 0.0]})

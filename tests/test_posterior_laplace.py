@@ -110,7 +110,8 @@ def test_a_bad_random_walk_is_a_one_line_input_error(bad):
 
 def test_the_default_random_walk_is_the_stage_default_declared_once():
     from hadal.matching.options import DeadReckoningOptions
-    from hadal.stages.match import Params, posterior_options
+    from hadal.settings import MatchParams as Params
+    from hadal.stages.match import posterior_options
 
     g, z, rel, start = _world()
     d = z(start[0] + rel[:, 0], start[1] + rel[:, 1])

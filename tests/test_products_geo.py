@@ -241,7 +241,8 @@ def test_suitability_cog_is_the_block_grid(tmp_path):
     from rio_cogeo.cogeo import cog_validate
 
     from hadal.products.geotiff import NODATA, write_grid_cog
-    from hadal.stages.suitability import COG_VARIABLES, Params, build_suitability
+    from hadal.settings import SuitabilityParams as Params
+    from hadal.stages.suitability import COG_VARIABLES, build_suitability
 
     x, y = np.arange(-6000.0, 6000.0, 50.0), np.arange(-4000.0, 4000.0, 50.0)
     X, Y = np.meshgrid(x, y)

@@ -50,8 +50,8 @@ def test_grid_stage_writes_zarr_in_manifest_and_stac(small_dive, tmp_path):
     pytest.importorskip("zarr")
     import warnings
 
-    from hadal.config import PipelineConfig
     from hadal.pipeline import make_context, run_stage
+    from hadal.settings import PipelineConfig
 
     # laser outlier removal and spike tests off: the Zarr plumbing is under test, not the gridding (fast)
     cfg = PipelineConfig.model_validate({"grid": {"zarr": True, "zarr_chunk": 64, "laser_sor_neighbors": 0,
@@ -88,7 +88,7 @@ def test_zarr_setting_without_zarr_is_a_one_line_config_error(monkeypatch, tmp_p
     import importlib.util
     import sys
 
-    from hadal.config import load_config
+    from hadal.settings import load_config
 
     real = importlib.util.find_spec
     monkeypatch.setattr(importlib.util, "find_spec", lambda name, *a: None if name == "zarr" else real(name, *a))

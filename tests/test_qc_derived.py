@@ -22,6 +22,7 @@ from hadal.qc_derived import (
     load_qc_config,
     qc_derived_table,
 )
+from hadal.settings import DeriveParams
 
 LAT, LON = 11.33, 142.2
 
@@ -123,12 +124,11 @@ def test_overrides_merge_and_bad_overrides_are_config_errors():
         load_qc_config({"depth_m": {"fail_span": [0, 100]}})
     from pydantic import ValidationError
 
-    from hadal.stages import derive
 
     with pytest.raises(ValidationError, match="unknown variable"):
-        derive.Params(qc_thresholds={"nope": {"fail_span": [0, 1]}})
+        DeriveParams(qc_thresholds={"nope": {"fail_span": [0, 1]}})
     with pytest.raises(ValidationError):
-        derive.Params(qc_thresholds={"depth_m": {"fail_span": [5, 1]}})
+        DeriveParams(qc_thresholds={"depth_m": {"fail_span": [5, 1]}})
 
 
 def test_apply_to_table_merges_input_flags_and_summarises():

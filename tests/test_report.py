@@ -14,11 +14,11 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from hadal.config import PipelineConfig
 from hadal.errors import StageError
 from hadal.pipeline import make_context, run_stage
 from hadal.products import write_parquet
 from hadal.report import FigureOptions, build_report, load_products, publish_report
+from hadal.settings import PipelineConfig
 from hadal.store import ProductStore
 from hadal.testing import ALL_FAKE, fake_ctd, publish_fake_products, write_fake_dive
 

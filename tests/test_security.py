@@ -321,9 +321,9 @@ def _yaml_cases() -> dict[str, str]:
 @pytest.mark.parametrize("case", list(_yaml_cases()))
 @pytest.mark.parametrize("kind", ["dive", "pipeline", "vehicle"])
 def test_hostile_yaml_is_a_quick_one_line_config_error(tmp_path, case, kind):
-    from hadal.config import load_config
     from hadal.dive import load_dive
     from hadal.ingest.vehicle import load_vehicle_config
+    from hadal.settings import load_config
 
     text = _yaml_cases()[case]
     f = tmp_path / {"dive": "dive.yaml", "pipeline": "pipeline.yaml", "vehicle": "vehicle.yaml"}[kind]

@@ -420,7 +420,8 @@ def test_describe_is_json(shared_data, tmp_path):
 
 def test_make_dtm_reads_every_format(shared_data, tmp_path):
     from hadal.geo import LocalFrame
-    from hadal.stages.grid import Params, make_dtm
+    from hadal.settings import GridParams as Params
+    from hadal.stages.grid import make_dtm
 
     readers: dict = {}
     ds = make_dtm([shared_data / ALL], None, Params(dtm_resolution_m=200.0), readers=readers)

@@ -296,7 +296,8 @@ def test_warm_imports_stop_when_told_and_every_declared_module_imports():
     import importlib
 
     from hadal.pipeline import warm_imports
-    from hadal.stages import STAGE_ORDER, stage_module, warm
+    from hadal.stages import STAGE_ORDER, warm
+    from hadal.stages.graph import stage
 
     assert warm_imports(["ingest", "derive"], stop=lambda: True) == []
     calls = []
@@ -305,9 +306,9 @@ def test_warm_imports_stop_when_told_and_every_declared_module_imports():
         calls.append(1)
         return len(calls) > 2
 
-    assert warm_imports(["derive"], stop=stop_after_two) == list(stage_module("derive").WARM_IMPORTS[:2])
+    assert warm_imports(["derive"], stop=stop_after_two) == list(stage("derive").warm_imports[:2])
     for name in STAGE_ORDER:
-        mods = getattr(stage_module(name), "WARM_IMPORTS", ())
+        mods = stage(name).warm_imports
         assert mods, f"stage {name} declares no WARM_IMPORTS"
         for m in mods:
             mod, _, func = m.partition(":")

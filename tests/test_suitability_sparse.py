@@ -111,7 +111,7 @@ def test_spot_soundings_dive_skips_suitability_in_one_line(shared_data, tmp_path
         dep = -ds["z"].interp(x=xr.DataArray(lo.ravel()), y=xr.DataArray(la.ravel())).values
     np.savetxt(raw / "raw" / "spots.xyz", np.column_stack([lo.ravel(), la.ravel(), dep]), fmt="%.6f %.6f %.2f")
     write_init(scan_dive_dir(raw))
-    from hadal.config import load_config
+    from hadal.settings import load_config
 
     cfg = load_config(None)
     cfg.grid.dtm_resolution_m = 500.0  # a user's fixed DTM resolution, finer than the spot spacing

@@ -244,7 +244,7 @@ def test_laser_auto_keeps_10mm_for_dense_clouds():
 def test_sample_dive_laser_submap_is_10mm(small_dive):
     from hadal.grid.laser import G_RES_M, auto_resolution_m, grid_laser
     from hadal.grid.readers import read_point_cloud
-    from hadal.stages.grid import Params
+    from hadal.settings import GridParams as Params
 
     assert Params().laser_resolution_m == "auto"
     pts = read_point_cloud(small_dive / "laser" / "submap_01.ply")

@@ -1,6 +1,6 @@
 """PEP 562 lazy public names of a package: a package's ``__getattr__`` imports the submodule that defines a
 name on first access and keeps the value in the package (later accesses do not come here). Standard library
-only, so that importing a package's light submodules (e.g. for ``hadal.config``) does not pull in NumPy/SciPy."""
+only, so that importing a package's light submodules (e.g. for ``hadal.settings``) does not pull in NumPy/SciPy."""
 
 from __future__ import annotations
 

@@ -8,10 +8,11 @@ one-line :class:`hadal.errors.ConfigError` naming the setting, the estimate and 
     derive.profile_bin_dbar = 0.0001 would need 12.3 GiB for the profile (limit 11.7 GiB): use a larger
     derive.profile_bin_dbar or raise resources.max_memory_gb
 
-The limits are the ``resources`` section of ``config/pipeline.yaml`` (:class:`Params`): by default
-``memory_fraction`` (0.5) of the memory this process can have (:func:`machine_memory_bytes`: physical memory,
-a cgroup limit, what ``RLIMIT_AS`` leaves), or an explicit ``max_memory_gb``. Readers check the same limit on the
-stream as they decode (:class:`DecodeBudget`, decoded bytes times their working copies).
+The limits are the ``resources`` section of ``config/pipeline.yaml``
+(:class:`hadal.settings.resources.ResourcesParams`): by default ``memory_fraction`` (0.5) of the memory this process
+can have (:func:`machine_memory_bytes`: physical memory, a cgroup limit, what ``RLIMIT_AS`` leaves), or an explicit
+``max_memory_gb``. Readers check the same limit on the stream as they decode (:class:`DecodeBudget`, decoded bytes
+times their working copies).
 """
 
 from __future__ import annotations
@@ -20,48 +21,11 @@ import math
 import os
 from typing import TYPE_CHECKING, Any
 
-from pydantic import BaseModel, ConfigDict, Field
-
 from hadal.errors import ConfigError
+from hadal.settings.resources import GIB, ResourcesParams
 
 if TYPE_CHECKING:
-    from hadal.config import PipelineConfig
-
-GIB = 1024 ** 3
-
-#: default share of the machine's physical memory one stage may plan to allocate
-DEFAULT_MEMORY_FRACTION = 0.5
-#: default limit on the pose x offset evaluations of the terrain-matching search (about 10 min on 2 cores)
-DEFAULT_MAX_MATCH_EVALUATIONS = 2e10
-
-
-class Params(BaseModel):
-    """Memory and work limits every stage checks its configuration against before allocating."""
-
-    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
-    max_memory_gb: float | None = Field(
-        None, gt=0, le=65_536,
-        description="memory (GiB) one stage may plan to allocate for its largest arrays; default: memory_fraction "
-                    "x the memory this process can have (physical memory, lowered to a cgroup limit or to what "
-                    "ulimit -v leaves)")
-    memory_fraction: float = Field(
-        DEFAULT_MEMORY_FRACTION, gt=0, le=1,
-        description="share (0-1] of the memory this process can have (physical, cgroup limit or ulimit -v) "
-                    "used when max_memory_gb is not set")
-    max_match_evaluations: float = Field(
-        DEFAULT_MAX_MATCH_EVALUATIONS, ge=1, le=1e15,
-        description="terrain matching: refuse searches with more (heading x scale poses) x (map offsets) "
-                    "evaluations than this (2e10: about 10 minutes on 2 cores)")
-    parallel_stages: int | None = Field(
-        None, ge=1, le=64,
-        description="stages of one dive's flow run that may run at once (those ready first in stage order go "
-                    "first); default: the machine's CPU cores, at least 2. Each running stage plans its memory "
-                    "against max_memory_gb on its own")
-    stage_processes: bool = Field(
-        True,
-        description="run the gridding stages (dtm, laser) of a dive's flow run in their own "
-                    "process while another stage can run beside them, so they do not share one Python GIL")
-
+    from hadal.settings import PipelineConfig
 
 def parallel_stages(config: Any) -> int:
     """How many stages of one dive may run at once: ``resources.parallel_stages``, else the CPU cores (>= 2).
@@ -113,22 +77,22 @@ def machine_memory_bytes() -> int:
     return min([total, *caps])
 
 
-def resources_of(config: Any) -> Params:
-    """The ``resources`` section of a :class:`hadal.config.PipelineConfig` (defaults when absent)."""
+def resources_of(config: Any) -> ResourcesParams:
+    """The ``resources`` section of a :class:`hadal.settings.PipelineConfig` (defaults when absent)."""
     r = getattr(config, "resources", None)
-    return r if isinstance(r, Params) else Params()
+    return r if isinstance(r, ResourcesParams) else ResourcesParams()
 
 
-def memory_limit_bytes(config: PipelineConfig | Params | None = None) -> int:
+def memory_limit_bytes(config: PipelineConfig | ResourcesParams | None = None) -> int:
     """The memory budget (bytes) of one stage under ``config`` (a PipelineConfig or its ``resources``)."""
-    r = config if isinstance(config, Params) else resources_of(config)
+    r = config if isinstance(config, ResourcesParams) else resources_of(config)
     if r.max_memory_gb is not None:
         return int(r.max_memory_gb * GIB)
     return int(r.memory_fraction * machine_memory_bytes())
 
 
-def work_limit(config: PipelineConfig | Params | None = None) -> float:
-    r = config if isinstance(config, Params) else resources_of(config)
+def work_limit(config: PipelineConfig | ResourcesParams | None = None) -> float:
+    r = config if isinstance(config, ResourcesParams) else resources_of(config)
     return float(r.max_match_evaluations)
 
 

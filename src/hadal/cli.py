@@ -438,8 +438,8 @@ def report(
     """Write the dive report (self-contained HTML with figures) from whichever products exist."""
     import shutil
 
-    from hadal.config import load_config
     from hadal.report import build_report, publish_report
+    from hadal.settings import load_config
     from hadal.stages.report import options
     from hadal.store import ProductStore, validate_name
 
@@ -492,9 +492,9 @@ def serve(
     config: ConfigOpt = None,
 ) -> None:
     """Deploy the post-cruise flow on a cron schedule against a Prefect server (needs PREFECT_API_URL); blocks."""
-    from hadal.config import load_config
     from hadal.errors import InputError
     from hadal.pipeline import make_context
+    from hadal.settings import load_config
 
     if (raw_dir / "dive.yaml").is_file():
         make_context(raw_dir, _store_root(store), config)
@@ -644,7 +644,7 @@ def config_cmd(
 ) -> None:
     """Print the default pipeline configuration (commented YAML), or validate a file or dive directory with --check."""
     if check is not None:
-        from hadal.config import load_config
+        from hadal.settings import load_config
 
         if check.is_dir():
             _check_dive_dir(check)
@@ -663,10 +663,9 @@ def _cache_dir() -> Path:
 
 
 def _default_yaml_cached() -> str:
-    """The default configuration (:func:`hadal.config.default_yaml`), cached per code version.
+    """The default configuration (:func:`hadal.settings.default_yaml`), cached per code version.
 
-    Generating it imports every stage's ``Params``, and the stage modules import their science (pandas, xarray,
-    numba, ...: seconds); the text depends only on hadal's source, so it is kept under :func:`_cache_dir` keyed
+    The text depends only on hadal's source (:mod:`hadal.settings`), so it is kept under :func:`_cache_dir` keyed
     by :func:`hadal.pipeline.code_digest` (any edit of any hadal source file makes a new key). Best effort: an
     unwritable cache only costs the import."""
     from hadal.pipeline import code_digest
@@ -676,7 +675,7 @@ def _default_yaml_cached() -> str:
         return f.read_text(encoding="utf-8")
     except (OSError, UnicodeError):
         pass
-    from hadal.config import default_yaml
+    from hadal.settings import default_yaml
 
     text = default_yaml()
     code_digest.cache_clear()
@@ -1077,7 +1076,7 @@ def _start_figure_helpers(ctx: Any, names: list[str]) -> None:
     forked just before the flow starts any other thread (:func:`_fork_ahead`). Each imports the drawing stages'
     modules first (on its own core: the flow's first stages do not draw)."""
     from hadal.forkpool import default_workers, start_helpers
-    from hadal.stages import stage_module
+    from hadal.stages.graph import stage
 
     cfg = ctx.config
     drawing = {"landing": cfg.landing.figure_processes if cfg.landing.figures else 1,
@@ -1086,7 +1085,7 @@ def _start_figure_helpers(ctx: Any, names: list[str]) -> None:
     if not drawing:
         return
     n = max((n or default_workers()) for n in drawing.values()) - 1
-    start_helpers(n, tuple(m for s in drawing for m in getattr(stage_module(s), "WARM_IMPORTS", ())))
+    start_helpers(n, tuple(m for s in drawing for m in stage(s).warm_imports))
 
 
 def _prefect_api_configured() -> bool:

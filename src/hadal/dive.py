@@ -111,7 +111,7 @@ class SourceFile(BaseModel):
     format: str | None = Field(None, description="file format, overriding detection (a hadal.formats kind, e.g. "
                                                  "'xyz', 'gsf', 'kmall', 'em_all', 'geotiff', 'netcdf_grid', 'ply')")
     # the same order as products.registry: typing caches Literal by its set of values, so the first order made wins
-    z_positive: Literal["up", "down"] | None = Field(
+    z_positive: Literal["down", "up"] | None = Field(
         None, description="vertical values are depths (down) or elevations (up); default: detected")
     z_units: str | None = Field(None, max_length=40,
                                 description="units of a grid's values when the file does not say (m, km, ft, "

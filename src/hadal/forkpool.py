@@ -224,7 +224,7 @@ _HELPERS: list[_Helpers] = []  # this process's helpers (at most one set; starte
 
 def start_helpers(n: int, modules: tuple[str, ...] = ()) -> bool:
     """Fork ``n`` helper processes now (module docstring), which first import ``modules`` (entries of a stage's
-    ``WARM_IMPORTS``); True if they run. Only from the main thread of a process whose only thread it is (a fork beside
+    ``warm_imports``); True if they run. Only from the main thread of a process whose only thread it is (a fork beside
     other threads may copy a lock one of them holds), on Linux, and not inside a daemonic process; otherwise, or when
     no process can be started, False and nothing changes. Stop them with :func:`stop_helpers`."""
     if n < 1 or _HELPERS or not can_fork() or threading.active_count() != 1:

@@ -1,5 +1,5 @@
 """matplotlib's first-figure costs, paid ahead: a stage that draws (``landing``, ``report``) lists
-``"hadal.mplwarm:first_draw"`` in its ``WARM_IMPORTS``, so the font cache, the font files and the layout and text
+``"hadal.mplwarm:first_draw"`` in its ``warm_imports``, so the font cache, the font files and the layout and text
 machinery are loaded while Prefect's server boots (or in the stage's process started ahead), not on the run's
 critical path; forked figure processes (:mod:`hadal.forkpool`) then inherit them instead of each paying them again.
 Measured on the sample dive's report: its figures took 3.4-3.5 s after a first draw against 4.0-5.1 s without.

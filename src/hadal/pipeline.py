@@ -23,13 +23,12 @@ from hadal.stages import (
     Progress,
     StageContext,
     available_stages,
-    producer_of,
-    stage_module,
 )
+from hadal.stages.graph import all_products, dependencies, producer_of, stage
 from hadal.store import ProductStore, ProductVersion
 
-if TYPE_CHECKING:  # hadal.config imports every stage (and their science): only where a run needs it
-    from hadal.config import PipelineConfig
+if TYPE_CHECKING:
+    from hadal.settings import PipelineConfig
 
 DIVE_CONFIG_FILE = "pipeline.yaml"
 
@@ -60,8 +59,8 @@ def make_context(
     progress: Progress | None = None,
 ) -> StageContext:
     """Load ``dive.yaml`` and the configuration (explicit file, else ``<raw_dir>/pipeline.yaml``, else defaults)."""
-    from hadal.config import PipelineConfig, load_config
     from hadal.dive import load_dive
+    from hadal.settings import PipelineConfig, load_config
 
     dive, raw = load_dive(raw_dir)
     if not isinstance(config, PipelineConfig):
@@ -107,9 +106,7 @@ def run_stage(name: str, ctx: StageContext, run_info: dict[str, Any] | None = No
                 out.update(run_stage(ps.name, ctx, run_info))
                 ctx.pins.update(out)
         return out
-    mod = stage_module(name)
-    if not callable(getattr(mod, "run", None)):
-        raise StageError(f"stage {name!r} is not implemented in this version of hadal")
+    rec = stage(name)
     # claim the dive id for this raw directory before any work, atomically: of two runs claiming one id for two
     # directories at once, one is refused here before it publishes; a new claim is undone if nothing is published
     created = claim_dive(ctx, update=False)
@@ -122,7 +119,7 @@ def run_stage(name: str, ctx: StageContext, run_info: dict[str, Any] | None = No
         from hadal.products.metadata import dive_context  # the writers take ACDD metadata/paths from the dive
 
         with dive_context(ctx.dive, ctx.raw_dir):
-            out = mod.run(ctx)
+            out = rec.run(ctx)
     finally:
         STAGE_RUN.reset(token)
         if created is not None and not out:
@@ -198,9 +195,7 @@ def should_run(name: str, ctx: StageContext) -> bool:
 def blocked_by_failure(name: str, failed: dict[str, str]) -> str | None:
     """Why stage ``name`` cannot run after the stages in ``failed`` (``{stage: error}``) failed in this run:
     one of its upstream products comes from a failed stage (its older versions would mix runs). ``None``: run."""
-    from hadal.plan import stage_inputs
-
-    for product in stage_inputs(name).upstream:
+    for product in stage(name).inputs.upstream:
         maker = producer_of(product)
         if maker in failed:
             return f"needs {product}, but stage {maker} failed in this run"
@@ -247,11 +242,6 @@ def raise_failures(failed: dict[str, str]) -> None:
                          "the other stages ran and the report lists the failures")
 
 
-def all_products() -> list[str]:
-    """Every product any stage publishes, in stage order."""
-    return [p for n in STAGE_ORDER for p in getattr(stage_module(n), "PRODUCTS", ())]
-
-
 def pin_paths(ctx: StageContext, pins: dict[str, str] | None) -> None:
     """Pin the versions named by ``{product: version directory}`` (a flow passes them between its tasks)."""
     for product, path in (pins or {}).items():
@@ -272,16 +262,15 @@ def result_storage(store_root: str | os.PathLike[str] | None) -> Path:
 def raw_inputs(name: str, ctx: StageContext) -> list[Path]:
     """Raw files stage ``name`` reads: ``dive.yaml`` always; those its module's ``raw_files(ctx)`` names (derive's
     ``overlying_profile``); the files of its ``INPUTS.raw_any`` source kinds when it reads raw data
-    (``INPUTS.reads_raw``), and the vehicle mapping for ``ingest``."""
+    (``Stage.inputs.reads_raw``), and the vehicle mapping for ``ingest``."""
     from hadal.confine import files_read
     from hadal.dive import resolve_source
-    from hadal.plan import stage_inputs
 
+    rec = stage(name)
     files = [ctx.raw_dir / "dive.yaml"]
-    extra = getattr(stage_module(name), "raw_files", None)  # files a stage's settings point at (derive)
-    if extra is not None:
-        files.extend(extra(ctx))
-    inp = stage_inputs(name)
+    if rec.raw_files is not None:  # files a stage's settings point at (derive's overlying_profile)
+        files.extend(rec.raw_files(ctx))
+    inp = rec.inputs
     if not inp.reads_raw:
         return files
     if name == "ingest" and ctx.dive.vehicle_config:
@@ -298,15 +287,15 @@ def stage_fingerprint(name: str, ctx: StageContext) -> dict[str, Any]:
 
     The stage, dive and store; hadal's code (:func:`code_digest`); the stage's parameters; the SHA-256 of the raw
     files it reads (:func:`raw_inputs`, cached by size/mtime/inode/ctime: :meth:`ProductStore.file_sha256`); the
-    manifests (SHA-256) of the pinned (else latest) versions of its ``UPSTREAM`` products."""
+    manifests (SHA-256) of the pinned (else latest) versions of every product it reads (:attr:`Stage.reads`:
+    required and optional; ``UPSTREAM`` used to leave out optional ones, e.g. the report's navigation)."""
     from hadal.store import sha256_file
 
-    mod = stage_module(name)
     raw = {}
     for f in raw_inputs(name, ctx):  # unchanged files are not re-read: ProductStore.file_sha256
         raw[str(f)] = ctx.store.file_sha256(f) if f.is_file() else "missing"
     upstream = {}
-    for product in getattr(mod, "UPSTREAM", ()):
+    for product in stage(name).reads:
         pv = ctx.pins.get(product) or (ctx.store.latest(ctx.dive_id, product)
                                        if ctx.store.has(ctx.dive_id, product) else None)
         upstream[product] = f"{pv.label}:{sha256_file(pv.manifest_path)}" if pv is not None else "missing"
@@ -425,13 +414,11 @@ def stage_cache_status(raw_dir: str | Path, store_root: str | Path | None, confi
     cached yet (a first run) or Prefect told to refresh every cache: every stage None."""
     import time
 
-    from hadal.plan import stage_dependencies
-
     storage = result_storage(store_root)
     if not names or not storage.is_dir() or \
             os.environ.get("PREFECT_TASKS_REFRESH_CACHE", "").lower() in ("1", "true", "yes"):
         return [(name, None, 0.0) for name in names]
-    deps = stage_dependencies(list(names))
+    deps = dependencies(list(names))
     ctx = make_context(raw_dir, store_root, config_path)
     ctx.pin_existing(all_products())
     pins = {p: str(pv.path) for p, pv in ctx.pins.items()}
@@ -457,7 +444,7 @@ def stage_cache_status(raw_dir: str | Path, store_root: str | Path | None, confi
 
 
 def warm_imports(names: Sequence[str], *, stop: Any = None) -> list[str]:
-    """Import the modules that the stages ``names`` import when they run (their ``WARM_IMPORTS``), in stage order,
+    """Import the modules that the stages ``names`` import when they run (their ``warm_imports``), in stage order,
     until ``stop()`` (checked before each module) says to stop; returns the modules imported.
 
     The CLI calls it while Prefect's temporary server boots (:func:`hadal.cli._run_flow`): the main process would
@@ -469,7 +456,7 @@ def warm_imports(names: Sequence[str], *, stop: Any = None) -> list[str]:
 
     done: list[str] = []
     for name in names:
-        for mod in getattr(stage_module(name), "WARM_IMPORTS", ()):
+        for mod in stage(name).warm_imports:
             if stop is not None and stop():
                 return done
             if warm(mod):

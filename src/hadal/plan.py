@@ -1,11 +1,11 @@
 """Which stages a dive's data supports: the run plan.
 
-Every stage declares its inputs (:class:`hadal.stages.StageInputs`, module-level ``INPUTS`` next to its
-``Params``). :func:`plan_stages` walks the stages in order and, from the raw source kinds the dive lists
+Every stage declares its inputs (:class:`hadal.stages.StageInputs`, in its record
+:class:`hadal.stages.Stage`). :func:`plan_stages` walks the stages in order and, from the raw source kinds the dive lists
 and the products earlier stages will publish (or that are already in the store), decides for each one
 whether it runs or is skipped, and why. ``report`` always runs and lists the skipped stages.
 
-A stage may also define ``skip_reason(ctx) -> str | None``, a check of its upstream products' *content*
+A stage's record may also give ``skip_reason(ctx) -> str | None``, a check of its upstream products' *content*
 made just before it would run (:func:`runtime_skip_reason`), e.g. ``match`` needs an altimeter and a
 dead-reckoned track in ``ctd``, which a CTD-only dive does not have.
 """
@@ -16,7 +16,8 @@ from collections.abc import Sequence
 from dataclasses import asdict, dataclass
 from typing import TYPE_CHECKING, Any
 
-from hadal.stages import STAGE_GROUPS, STAGE_ORDER, StageInputs, stage_module
+from hadal.stages import STAGE_GROUPS, StageInputs
+from hadal.stages.graph import all_products, dependencies, producer_of, stage
 
 if TYPE_CHECKING:
     from hadal.dive import Dive
@@ -44,8 +45,8 @@ class PlannedStage:
 
 
 def stage_inputs(name: str) -> StageInputs:
-    """The declared inputs of stage ``name`` (a stage without ``INPUTS`` needs nothing)."""
-    return getattr(stage_module(name), "INPUTS", StageInputs())
+    """The declared inputs of stage ``name``."""
+    return stage(name).inputs
 
 
 def _kinds_text(kinds: Sequence[str]) -> str:
@@ -65,12 +66,12 @@ def plan_stages(dive: Dive, stages: Sequence[str] | None = None, store: ProductS
     present = set(dive.sources.kinds())
     available: set[str] = set()
     if store is not None:
-        available |= {p for p in _all_products() if store.has(dive.dive_id, p)}
+        available |= {p for p in all_products() if store.has(dive.dive_id, p)}
     out: list[PlannedStage] = []
     for name in names:
-        inp = stage_inputs(name)
-        mod = stage_module(name)
-        produces = tuple(getattr(mod, "PRODUCTS", ()))
+        rec = stage(name)
+        inp = rec.inputs
+        produces = rec.products
         reason = ""
         if inp.raw_any and not present.intersection(inp.raw_any):
             reason = f"the dive lists no {_kinds_text(inp.raw_any)} in dive.yaml sources"
@@ -83,16 +84,15 @@ def plan_stages(dive: Dive, stages: Sequence[str] | None = None, store: ProductS
             continue
         made = tuple(p for p in produces if p not in inp.optional_products
                      and (p not in inp.product_sources or present.intersection(inp.product_sources[p])))
-        hook = getattr(mod, "planned_products", None)  # a stage whose products depend on dive.yaml hints (derive)
-        if callable(hook):
-            made = tuple(hook(dive, made))
+        if rec.planned_products is not None:  # a stage whose products depend on dive.yaml hints (derive)
+            made = tuple(rec.planned_products(dive, made))
         available.update(made)
         out.append(PlannedStage(name, True, "", made))
     return out
 
 
 def _why_missing(product: str, plan: list[PlannedStage]) -> str:
-    maker = _producer(product)
+    maker = producer_of(product)
     sources = stage_inputs(maker).product_sources.get(product) if maker != "?" else None
     if sources:
         return f"{product} (made by {maker} from {_kinds_text(sources)}, which the dive does not list)"
@@ -123,23 +123,10 @@ def check_plan(dive: Dive, plan: list[PlannedStage]) -> None:
             "'hadal init DIR --launch LAT,LON --force'")
 
 
-def _all_products() -> list[str]:
-    from hadal.pipeline import all_products
-
-    return all_products()
-
-
-def _producer(product: str) -> str:
-    for n in STAGE_ORDER:
-        if product in getattr(stage_module(n), "PRODUCTS", ()):
-            return n
-    return "?"
-
-
 def runtime_skip_reason(name: str, ctx: StageContext) -> str | None:
-    """The stage's own content check (``skip_reason(ctx)``) just before it runs; ``None`` = run it."""
-    fn = getattr(stage_module(name), "skip_reason", None)
-    return fn(ctx) if callable(fn) else None
+    """The stage's own content check (:attr:`Stage.skip_reason`) just before it runs; ``None`` = run it."""
+    check = stage(name).skip_reason
+    return check(ctx) if check is not None else None
 
 
 def skipped_stages(ctx: StageContext) -> list[dict[str, str]]:
@@ -177,17 +164,15 @@ def format_plan(plan: list[PlannedStage]) -> str:
 
 
 def stage_reads(name: str) -> set[str]:
-    """Every product stage ``name`` reads: its declared ``upstream``/``optional_upstream`` and module ``UPSTREAM``."""
-    inp = stage_inputs(name)
-    return set(inp.upstream) | set(inp.optional_upstream) | set(getattr(stage_module(name), "UPSTREAM", ()))
+    """Every product stage ``name`` reads: its declared ``upstream`` and ``optional_upstream``."""
+    return set(stage(name).reads)
 
 
 def stage_dependencies(names: Sequence[str]) -> dict[str, set[str]]:
     """For each stage of a run (``names``), the stages *of that run* it must wait for: those that make a product
     it reads. Stages with no path between them (``grid`` and ``ingest``/``derive``; ``landing`` and ``match``) run
     concurrently in the flow."""
-    made = {n: set(getattr(stage_module(n), "PRODUCTS", ())) for n in names}
-    return {n: {m for m in names if m != n and made[m] & stage_reads(n)} for n in names}
+    return dependencies(names)
 
 
 def downstream_stages(name: str, stages: Sequence[str] | None = None) -> list[str]:

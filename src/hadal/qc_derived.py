@@ -22,14 +22,10 @@ and :func:`qc_profile`.
 
 from __future__ import annotations
 
-import functools
 from collections.abc import Mapping
-from importlib import resources
 from typing import TYPE_CHECKING, Any
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
-
-from hadal.errors import ConfigError, first_validation_error
+from hadal.settings.qc import DerivedQCConfig, DerivedVariableQC, load_qc_config
 
 if TYPE_CHECKING:
     import numpy as np
@@ -42,79 +38,6 @@ GOOD, NOT_EVALUATED, SUSPECT, BAD, MISSING = 1, 2, 3, 4, 9
 FLAG_MEANINGS = {1: "pass", 2: "not_evaluated", 3: "suspect", 4: "fail", 9: "missing"}
 #: derived variables flagged (the ``<name>_qc`` columns derive adds)
 DERIVED = ("practical_salinity", "density_kg_m3", "sound_speed_m_s", "depth_m", "seafloor_depth_m")
-
-
-def _span(v: Any) -> tuple[float, float] | None:
-    import numpy as np
-
-    if v is None:
-        return None
-    lo, hi = (float(x) for x in v)
-    if not (np.isfinite(lo) and np.isfinite(hi) and lo < hi):
-        raise ValueError(f"a span must be [low, high] with finite low < high, not {list(v)}")
-    return lo, hi
-
-
-class DerivedVariableQC(BaseModel):
-    """QARTOD thresholds of one variable (units: the variable's)."""
-
-    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
-    fail_span: tuple[float, float] | None = Field(None, description="outside [low, high]: flag 4 (impossible)")
-    suspect_span: tuple[float, float] | None = Field(None, description="outside [low, high]: flag 3 (unusual)")
-    spike_suspect: float | None = Field(None, gt=0, le=1e6, description="spike test: flag 3 above this")
-    spike_fail: float | None = Field(None, gt=0, le=1e6, description="spike test: flag 4 above this")
-    depends_on: list[str] = Field(default_factory=list, description="inputs whose worst flag is inherited")
-
-    _v_spans = field_validator("fail_span", "suspect_span", mode="before")(classmethod(lambda cls, v: _span(v)))
-
-    @model_validator(mode="after")
-    def _nested(self) -> DerivedVariableQC:
-        if self.fail_span and self.suspect_span:
-            (lo, hi), (slo, shi) = self.fail_span, self.suspect_span
-            if slo < lo or shi > hi:
-                raise ValueError("suspect_span must lie inside fail_span")
-        if self.spike_suspect and self.spike_fail and self.spike_fail < self.spike_suspect:
-            raise ValueError("spike_fail must be >= spike_suspect")
-        return self
-
-
-class DerivedQCConfig(BaseModel):
-    """The thresholds of ``qc_derived.yaml``: ``inputs`` (range checks on what derive reads) and ``derived``."""
-
-    model_config = ConfigDict(extra="forbid")
-    inputs: dict[str, DerivedVariableQC] = Field(default_factory=dict)
-    derived: dict[str, DerivedVariableQC] = Field(default_factory=dict)
-
-    def merged(self, overrides: Mapping[str, Any] | None) -> DerivedQCConfig:
-        """A copy with ``overrides`` (``{variable: {field: value}}``, input or derived names) applied field by
-        field over the defaults; a name that is neither is a :class:`ConfigError`."""
-        if not overrides:
-            return self
-        inputs, derived = dict(self.inputs), dict(self.derived)
-        for name, ov in overrides.items():
-            ov = ov.model_dump(exclude_unset=True) if isinstance(ov, BaseModel) else dict(ov)
-            table = derived if name in derived else inputs if name in inputs else None
-            if table is None:
-                raise ConfigError(f"derive.qc_thresholds: unknown variable {name!r} (known: "
-                                  f"{', '.join(sorted(inputs) + sorted(derived))})")
-            try:
-                table[name] = DerivedVariableQC(**{**table[name].model_dump(), **ov})
-            except ValidationError as exc:
-                raise ConfigError(f"derive.qc_thresholds.{name}: {first_validation_error(exc)[1]}") from None
-        return DerivedQCConfig(inputs=inputs, derived=derived)
-
-
-@functools.lru_cache(maxsize=1)
-def _default_config() -> DerivedQCConfig:
-    import yaml
-
-    text = resources.files("hadal").joinpath("data/qc_derived.yaml").read_text(encoding="utf-8")
-    return DerivedQCConfig.model_validate(yaml.safe_load(text))
-
-
-def load_qc_config(overrides: Mapping[str, Any] | None = None) -> DerivedQCConfig:
-    """The shipped default thresholds (``hadal/data/qc_derived.yaml``) with ``overrides`` applied."""
-    return _default_config().merged(overrides)
 
 
 def flags_for(values: Any, cfg: DerivedVariableQC) -> np.ndarray:

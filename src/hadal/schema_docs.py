@@ -20,9 +20,9 @@ END = "<!-- END GENERATED FIELD REFERENCE -->"
 
 
 def models() -> dict[str, type[BaseModel]]:
-    from hadal.config import PipelineConfig
     from hadal.dive import Dive
     from hadal.ingest.vehicle import VehicleConfig
+    from hadal.settings import PipelineConfig
 
     return {"dive": Dive, "vehicle": VehicleConfig, "pipeline": PipelineConfig}
 

@@ -3,7 +3,7 @@
 Why: the flow runs stages whose inputs are ready concurrently (``flows/post_cruise.py``), but several of the heavy
 steps hold the GIL for seconds (open3d's ``remove_statistical_outlier`` was measured to hold it: a Python thread
 spinning beside it got 1/75 of its solo rate), so two threads gained little on a 2-core machine: the DTM stage took
-27–29 s beside the laser stage against 11 s alone. A stage module that declares ``PROCESS = True`` (dtm, laser)
+27–29 s beside the laser stage against 11 s alone. A stage whose record says ``process=True`` (dtm, laser)
 runs in its own process (forked ahead by the CLI, else a ``spawn``-ed interpreter) when it can overlap another
 stage of the run (match and landing too
 measured slower: a child pays ~1.5 s of imports, and their kernels already release the GIL;
@@ -149,7 +149,7 @@ _WARM_LOCK = threading.Lock()
 
 def _warm_child(q: Any, conn: Any, parent_pid: int, modules: tuple[str, ...],
                 parent_ends: tuple[int, ...] = ()) -> None:
-    """A stage process started ahead: warm ``modules`` (the stage's ``WARM_IMPORTS``, :func:`hadal.stages.warm`), then
+    """A stage process started ahead: warm ``modules`` (the stage's ``warm_imports``, :func:`hadal.stages.warm`), then
     wait for the job (the arguments of :func:`_child`) on ``conn`` and run it; EOF (the parent exits or no longer
     needs it): exit. ``parent_ends``: a forked child's copies of the parent's ends of the job pipes (its own and
     those of the processes started before it, :func:`warm_pipe_ends`), closed first, else the parent closing one
@@ -176,14 +176,14 @@ def can_fork_ahead() -> bool:
 
 
 def prestart(names: Any, *, fork: bool = False) -> list[str]:
-    """Start the processes of the stages ``names`` ahead of their turn (each importing its stage's ``WARM_IMPORTS``,
+    """Start the processes of the stages ``names`` ahead of their turn (each importing its stage's ``warm_imports``,
     :mod:`hadal.stages`), so that :func:`run_stage_in_process` hands a stage to a process that has already paid its
     start. ``fork`` (where :func:`can_fork_ahead`, else spawned): forked from this process, inheriting every module
     it has imported (the CLI forks them just before the flow starts, having imported the stages' modules while
     Prefect's temporary server booted); spawned, each pays about 1-1.5 s of imports (the CLI spawns them while the
     server boots where it cannot fork). A process not used by the time this one exits is told to stop (EOF on its
     job pipe) and joined. Returns the stages started (not those already started or running)."""
-    from hadal.stages import stage_module
+    from hadal.stages.graph import stage
 
     forked = fork and can_fork_ahead()
     ctx: Any = mp.get_context("fork" if forked else "spawn")  # a fork or spawn context (both have Process)
@@ -195,7 +195,7 @@ def prestart(names: Any, *, fork: bool = False) -> list[str]:
             _quiet_tracker()
             q = ctx.Queue()
             parent_end, child_end = ctx.Pipe()
-            mods = tuple(getattr(stage_module(name), "WARM_IMPORTS", ()))
+            mods = stage(name).warm_imports
             ends = (parent_end.fileno(), *_warm_pipe_ends_locked()) if forked else ()
             proc = ctx.Process(target=_warm_child, args=(q, child_end, os.getpid(), mods, ends),
                                name=f"hadal-stage-{name}", daemon=False)

@@ -181,10 +181,6 @@ class Draft:
     extra: dict[str, Any] = field(default_factory=dict)
     result: ProductVersion | None = None
 
-    def add_input(self, path: str | os.PathLike[str]) -> None:
-        """Record another input file (hashed at publish time)."""
-        self.inputs.append(Path(path))
-
 
 def _json_default(obj: Any) -> Any:
     if isinstance(obj, Path):

@@ -7,7 +7,7 @@ dive directory per defect) and prints the cases. Readers covered:
 * ``point_cloud`` laser PLY / PCD / LAS read by the ``grid`` stage (:func:`hadal.grid.read_point_cloud`);
 * ``raster``      GeoTIFF / NetCDF grids (:func:`hadal.grid.read_grid`, library API);
 * ``dive_yaml``   ``dive.yaml`` (:func:`hadal.dive.load_dive`, source paths, dive ids);
-* ``pipeline_yaml`` the dive's ``pipeline.yaml`` (:func:`hadal.config.load_config`);
+* ``pipeline_yaml`` the dive's ``pipeline.yaml`` (:func:`hadal.settings.load_config`);
 * ``vehicle_yaml`` the vehicle channel mapping (ingest);
 * ``upstream``    corrupt products in the store read by a downstream stage (derive, suitability, landing).
 

@@ -10,7 +10,8 @@ One small module per SBEDataProcessing module, in the order Sea-Bird recommends 
 * :mod:`hadal.ctd.casts` — split a record at its deepest good scan into descent and ascent casts;
 * :mod:`hadal.ctd.bin_average` — BinAvg: bins centred on multiples of the bin size, by pressure or depth.
 
-:mod:`hadal.ctd.chain` runs the enabled steps on a ``sensors`` table for the ``derive`` stage.
+:mod:`hadal.ctd.chain` runs the enabled steps on a ``sensors`` table; :mod:`hadal.ctd.derive` is the ``derive``
+stage's science (pressure fusion, seawater, depth, phases: :func:`hadal.ctd.derive.derive_table`).
 Reference: Sea-Bird Scientific, *SBE Data Processing* manual (SeaSoft V2, 7.26.8), sections
 "Data Processing Modules" (AlignCTD, BinAvg, CellTM, Filter, LoopEdit, WildEdit). Bad scans are boolean
 masks here (``True`` = bad) rather than SeaSoft's ``-9.990e-29`` flag value; bad values are NaN.

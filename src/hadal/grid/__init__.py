@@ -13,7 +13,7 @@ from typing import Any
 from hadal._lazy import lazy_attr
 
 #: public name -> submodule; imported on first access (PEP 562), so ``import hadal.grid.points`` (e.g. for a
-#: constant in :class:`hadal.stages.grid.Params`) does not import SciPy, open3d and the readers
+#: constant in :class:`hadal.settings.grid.GridParams`) does not import SciPy, open3d and the readers
 _LAZY = {
     "G_RES_M": "laser", "grid_laser": "laser",
     "add_geo": "multibeam", "apriori_sigma_m": "multibeam", "cell_uncertainty": "multibeam",

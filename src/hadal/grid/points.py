@@ -34,13 +34,12 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING, NamedTuple
 
 from hadal.errors import InputError
+from hadal.settings.grid import DEFAULT_MAX_CELLS
 
 if TYPE_CHECKING:
     import numpy as np
     import xarray as xr
 
-#: Largest grid (cells) built without an explicit ``max_cells``: 5e7 cells x ~5 float64 layers ~ 2 GB.
-DEFAULT_MAX_CELLS = 50_000_000
 STATISTICS = ("mean", "median", "count", "std", "min", "max")
 
 _STAT_ATTRS = {

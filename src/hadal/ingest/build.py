@@ -490,7 +490,7 @@ def _check_sensor_keys(vehicle: VehicleConfig, where: str, table: Mapping[str, A
     from hadal.errors import ConfigError
 
     try:
-        from hadal.stages.ingest import Params
+        from hadal.settings import IngestParams as Params
 
         defaults = set(Params.model_fields["max_gap_s"].default or {})
     except Exception:  # noqa: BLE001 - the stage module is optional here (library use)

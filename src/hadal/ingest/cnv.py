@@ -982,15 +982,6 @@ def cnv_time_ns(df: pd.DataFrame) -> tuple[np.ndarray, str]:
                      f"a pressure-binned cast cannot be put on a time base")
 
 
-def has_time(df: pd.DataFrame) -> bool:
-    """Whether :func:`cnv_time_ns` can put the cast on a time base."""
-    try:
-        cnv_time_ns(df)
-    except InputError:
-        return False
-    return True
-
-
 def cnv_sensor_samples(df: pd.DataFrame, name: str = "ctd", *, allow_no_time: bool = False) -> Any:
     """A :func:`read_cnv` frame as the CTD's :class:`~hadal.ingest.csv_reader.SensorSamples` (primary
     pressure/temperature/conductivity channels, converted to hadal units; conversions recorded).

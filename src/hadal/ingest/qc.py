@@ -27,7 +27,7 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING, Any
 
-from pydantic import BaseModel, ConfigDict, Field, model_validator
+from hadal.settings.qc import DEFAULT_QC, VariableQC
 
 if TYPE_CHECKING:
     import numpy as np
@@ -36,79 +36,6 @@ __all__ = ["VariableQC", "DEFAULT_QC", "merge_qc", "qc_flags", "qc_table", "flat
            "spike_test_flags", "FILL_VALUES_ANY", "FILL_ALWAYS", "fill_mask", "fail_fraction"]
 
 GOOD, NOT_EVALUATED, SUSPECT, BAD, MISSING = 1, 2, 3, 4, 9
-
-
-class VariableQC(BaseModel):
-    """QARTOD test configuration of one variable (units: the variable's)."""
-
-    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
-    fail_span: tuple[float, float] | None = Field(None, description="values outside (low, high) are flagged 4 (finite)")
-    suspect_span: tuple[float, float] | None = Field(None, description="values outside (low, high) are flagged 3 "
-                                                                        "(finite, inside fail_span)")
-    #: values at or above this are flagged 4 (sensor saturation, e.g. SBE49 10 500 dbar)
-    saturation: float | None = Field(None, description="values at or above this are flagged 4 (sensor saturation)")
-    spike_suspect: float | None = Field(None, gt=0, description="spike test: suspect above this (variable's units)")
-    spike_fail: float | None = Field(None, gt=0, description="spike test: fail above this (variable's units)")
-    flat_line_suspect_s: float | None = Field(None, gt=0, le=31_536_000,
-                                              description="flat line longer than this (s, up to a year): suspect")
-    flat_line_fail_s: float | None = Field(None, gt=0, le=31_536_000,
-                                           description="flat line longer than this (s, up to a year): fail")
-    flat_line_tolerance: float = Field(0.0, ge=0, description="flat line: changes up to this count as flat")
-    #: a channel with more than this fraction of its (non-fill) finite values outside the fail span is dead (a
-    #: failed sensor or a unit mistake, mS/cm logged as S/m): flagged 4 throughout and named in a warning, the
-    #: other channels are processed (degrade per channel, not per dive)
-    max_fail_fraction: float = Field(0.5, ge=0, le=1)
-    #: values that mean "no data" for this variable only, as logged (the source's units, before any conversion):
-    #: e.g. -1 "no bottom" of an altimeter. Missing (flag 9) when they also lie outside ``fail_span`` once
-    #: converted (a -1 temperature is a temperature). :data:`FILL_VALUES_ANY` apply to every variable.
-    fill_values: tuple[float, ...] = Field((), max_length=32, description="per-variable fill values, as logged "
-                                           "(source units): missing (flag 9) when outside fail_span")
-
-    @model_validator(mode="after")
-    def _spans(self) -> VariableQC:
-        if self.fail_span and self.suspect_span:
-            lo, hi = sorted(self.fail_span)
-            slo, shi = sorted(self.suspect_span)
-            if slo < lo or shi > hi:
-                raise ValueError("suspect_span must lie inside fail_span")
-        return self
-
-
-def _q(**kw: Any) -> VariableQC:
-    return VariableQC(**kw)
-
-
-#: default thresholds (hadal vehicle; full-ocean-depth, 16 Hz CTD)
-DEFAULT_QC: dict[str, VariableQC] = {
-    "conductivity_s_m": _q(fail_span=(0.0, 7.0), suspect_span=(2.0, 6.5), spike_suspect=0.05, spike_fail=0.2,
-                           flat_line_suspect_s=60, flat_line_fail_s=300, flat_line_tolerance=1e-6),
-    "temperature_its90_degc": _q(fail_span=(-2.5, 40.0), suspect_span=(-2.0, 35.0), spike_suspect=0.5,
-                                 spike_fail=2.0, flat_line_suspect_s=60, flat_line_fail_s=300,
-                                 flat_line_tolerance=1e-6),
-    "pressure_ctd_dbar": _q(fail_span=(-10.0, 11_000.0), saturation=10_500.0, spike_suspect=5.0, spike_fail=20.0,
-                            flat_line_suspect_s=60, flat_line_fail_s=300, flat_line_tolerance=1e-6),
-    "pressure_gauge_dbar": _q(fail_span=(-10.0, 12_000.0), spike_suspect=5.0, spike_fail=20.0),
-    "altitude_m": _q(fail_span=(0.0, 150.0), suspect_span=(0.0, 100.0), spike_suspect=10.0, spike_fail=50.0,
-                     fill_values=(-1.0,)),
-    "heading_deg": _q(fail_span=(0.0, 360.0)),
-    "pitch_deg": _q(fail_span=(-90.0, 90.0), suspect_span=(-45.0, 45.0), spike_suspect=10.0, spike_fail=30.0),
-    "roll_deg": _q(fail_span=(-180.0, 180.0), suspect_span=(-45.0, 45.0), spike_suspect=10.0, spike_fail=30.0),
-    "dr_east_m": _q(fail_span=(-100_000.0, 100_000.0)),
-    "dr_north_m": _q(fail_span=(-100_000.0, 100_000.0)),
-    "speed_m_s": _q(fail_span=(0.0, 10.0), suspect_span=(0.0, 3.0), spike_suspect=0.5, spike_fail=2.0),
-    # optional columns (schemas/sensors.yaml optional_columns): GNSS and USBL fixes
-    "gnss_latitude_deg": _q(fail_span=(-90.0, 90.0)),
-    "gnss_longitude_deg": _q(fail_span=(-180.0, 360.0)),
-    "gnss_east_variance_m2": _q(fail_span=(0.0, 1e8)),
-    "gnss_north_variance_m2": _q(fail_span=(0.0, 1e8)),
-    "usbl_latitude_deg": _q(fail_span=(-90.0, 90.0)),
-    "usbl_longitude_deg": _q(fail_span=(-180.0, 360.0)),
-    "usbl_east_variance_m2": _q(fail_span=(0.0, 1e8)),
-    "usbl_north_variance_m2": _q(fail_span=(0.0, 1e8)),
-    # optional column (schemas/sensors.yaml optional_columns): a Sea-Bird cast's own salinity (SeaSoft sal00)
-    "practical_salinity_vendor": _q(fail_span=(0.0, 42.0), suspect_span=(2.0, 41.0), spike_suspect=0.3,
-                                    spike_fail=1.0),
-}
 
 
 def merge_qc(overrides: Any = None) -> dict[str, VariableQC]:

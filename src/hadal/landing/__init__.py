@@ -8,7 +8,7 @@ from typing import Any
 from hadal._lazy import lazy_attr
 
 #: public name -> submodule, imported on first access (PEP 562): ``hadal.landing.vehicle``/``limits`` (used by
-#: :class:`hadal.stages.landing.Params`) load without the SciPy/numba analysis in ``sites``
+#: :class:`hadal.settings.landing.LandingParams`) load without the SciPy/numba analysis in ``sites``
 _LAZY = {"LandingResult": "sites", "analyse_submap": "sites", "Vehicle": "vehicle"}
 
 

@@ -115,11 +115,6 @@ class HeadingMaps:
     def slope_at(self, row: int, col: int) -> float:
         return float(np.degrees(np.arctan(float(self.tan_slope[row, col]))))
 
-    def steeper_than(self, slope_deg: float) -> np.ndarray:
-        """Bool map: footprint slope > ``slope_deg`` (compared as tangents: no arctan over the grid)."""
-        with np.errstate(invalid="ignore"):
-            return self.tan_slope > np.float32(math.tan(math.radians(slope_deg)))
-
 
 def footprint_row_intervals(rr: np.ndarray, cc: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Row offsets of the footprint and, per row, its column interval [lo, hi] (the rotated rectangle is

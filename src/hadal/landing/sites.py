@@ -584,6 +584,14 @@ def _options(**kw) -> AnalysisOptions:
         raise ConfigError(f"landing option {loc}={exc.errors()[0].get('input')!r}: {msg}") from None
 
 
+def _workers(workers: Any) -> int:
+    """The heading-thread count, 1-64 (a one-line ConfigError otherwise)."""
+    if isinstance(workers, bool) or not isinstance(workers, int) or not 1 <= workers <= 64:
+        raise ConfigError(f"landing option workers={workers!r}: headings analysed in parallel threads must be an "
+                          "integer from 1 to 64")
+    return workers
+
+
 def _to_world(xf: np.ndarray, yf: np.ndarray, phi_deg: float) -> tuple[np.ndarray, np.ndarray]:
     a = math.radians(phi_deg)
     return yf * math.sin(a) + xf * math.cos(a), yf * math.cos(a) - xf * math.sin(a)
@@ -763,8 +771,8 @@ def analyse_submap(
     keep_heading_exclusion: bool = True,
     memory_limit_bytes: float | None = None,
     work_limit: float | None = None,
-    rectangle_resolution_m: float | None = None,
     options: AnalysisOptions | None = None,
+    workers: int = 1,
     **option_values: Any,
 ) -> LandingResult:
     """Landing-site analysis of one bathymetry submap (Sangekar et al. §III-IV).
@@ -785,19 +793,20 @@ def analyse_submap(
     ``elevation_sigma_m``: per-cell 1-σ uncertainty of the elevation (m) on the grid's coordinates (e.g. the
     laser grid's ``elevation_std_m / sqrt(count)``; NaN -> ``default_sigma_m``): each site then gets
     ``p_landable``, the probability that its slope and protrusion tests hold (:func:`landability_probability`).
-    ``workers``: headings analysed in parallel threads. ``rectangle_resolution_m`` is ignored (A_r is exact).
+    ``workers``: headings analysed in parallel threads (1-64).
     ``memory_limit_bytes`` / ``work_limit``: refuse before allocating when :func:`estimate_resources` exceeds
     them (one-line ConfigError with the estimate and the limit). ``tile_cells``: size of the row tiles of the
     footprint-slope FFTs (:class:`HeadingCorrelator`; long strips are never transformed whole).
     Raises :class:`hadal.errors.InputError` on unusable grids, :class:`hadal.errors.ConfigError` on options
     out of bounds.
     """
-    vehicle = vehicle or Vehicle()
+    vehicle = vehicle if isinstance(vehicle, Vehicle) else Vehicle(**vehicle.model_dump()) if vehicle else Vehicle()
     opt = _options(**{**(options.model_dump() if options is not None else {}), **option_values})
+    workers = _workers(workers)
     t_all = time.perf_counter()
     timings: dict[str, float] = {}
     inp = _prepare_input(grid, vehicle, opt, headings_deg, frame, elevation_sigma_m, keep_heading_exclusion,
-                         memory_limit_bytes, work_limit)
+                         memory_limit_bytes, work_limit, workers)
     maps = _terrain_maps(inp.z, inp.cell, vehicle, opt, timings)
 
     t = time.perf_counter()
@@ -805,7 +814,7 @@ def analyse_submap(
     timings["prepare_headings"] = time.perf_counter() - t
 
     t = time.perf_counter()
-    results, first, cached = _run_headings(ctx, inp.heads, inp.phi, opt.workers, keep_heading_exclusion)
+    results, first, cached = _run_headings(ctx, inp.heads, inp.phi, workers, keep_heading_exclusion)
     timings["headings"] = time.perf_counter() - t
 
     t = time.perf_counter()
@@ -849,7 +858,7 @@ class _Input:
 
 def _prepare_input(grid: xr.DataArray, vehicle: Vehicle, opt: AnalysisOptions, headings_deg, frame: str,
                    elevation_sigma_m: xr.DataArray | None, keep_heading_exclusion: bool,
-                   memory_limit_bytes: float | None, work_limit: float | None) -> _Input:
+                   memory_limit_bytes: float | None, work_limit: float | None, workers: int) -> _Input:
     """Checked grid arrays, resource limits, σ, filled holes and the along-track frame of :func:`analyse_submap`
     (in that order, so the first problem found is the one reported)."""
     z, x, y, cell = _grid_arrays(grid, vehicle, opt.max_cell_fraction)
@@ -862,7 +871,7 @@ def _prepare_input(grid: xr.DataArray, vehicle: Vehicle, opt: AnalysisOptions, h
     if memory_limit_bytes is not None or work_limit is not None:
         check_resources(z.shape, n_heads, memory_limit_bytes=memory_limit_bytes, work_limit=work_limit,
                         keep_heading_exclusion=keep_heading_exclusion, exclusion_step_m=opt.exclusion_step_m,
-                        vehicle=vehicle, workers=opt.workers)
+                        vehicle=vehicle, workers=workers)
     sigma = _sigma_array(elevation_sigma_m, grid, z.shape, opt.default_sigma_m)
     z, filled = fill_small_holes(z, cell, opt.fill_holes_max_m2)
     phi = 0.0

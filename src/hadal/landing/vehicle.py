@@ -9,67 +9,13 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, model_validator
+
+from hadal.settings.landing import Vehicle as VehicleSettings
 
 
-class Vehicle(BaseModel):
-    """Physical properties of the landing vehicle (Table II of Sangekar et al.).
-
-    The forces are derived from the masses with ``gravity_m_s2`` (65 kg and 62 kg give the paper's
-    F_G = 637 N, F_B = 608 N, F_R = 29 N; with g = 9.81 m/s² Eq. 2 gives the paper's θc = 17.7°).
-    """
-
-    model_config = ConfigDict(extra="forbid", frozen=True)
-
-    length_m: float = Field(1.7, gt=0, le=20, description="l_u, length of the landing vehicle (m)")
-    width_m: float = Field(0.5, gt=0, le=10, description="b_u, width of the landing vehicle (m)")
-    height_m: float = Field(0.40, gt=0, le=10, description="h_u, height of the landing vehicle (m)")
-    mass_kg: float = Field(65.0, gt=0, le=1e5, description="mass; F_G = mass_kg * g (kg)")
-    buoyancy_mass_kg: float = Field(62.0, gt=0, le=1e5, description="displaced water mass; F_B = buoyancy_mass_kg * g (kg)")
-    cg_height_m: float = Field(0.25, ge=0, le=10, description="d_g, vertical distance from the skid to C_G (m)")
-    cg_cb_distance_m: float = Field(0.05, gt=0, le=10, description="d_m, vertical distance between C_G and C_B (m)")
-    gravity_m_s2: float = Field(9.81, ge=1.0, le=30.0, description="gravitational acceleration (m/s²)")
-    drag_coefficient: float = Field(1.2, gt=0, le=5.0, description="C_d for a rectangular shape (Eq. 6)")
-    water_density_kg_m3: float = Field(1025.0, ge=900.0, le=1300.0, description="ρ, sea-water density (Eq. 6)")
-
-    @model_validator(mode="after")
-    def _check(self) -> Vehicle:
-        # ValueError, as pydantic expects: construction raises a ValidationError (a ValueError); the configuration
-        # loaders turn it into a one-line ConfigError
-        if self.mass_kg <= self.buoyancy_mass_kg:
-            raise ValueError(
-                f"vehicle mass {self.mass_kg} kg must exceed its buoyancy mass {self.buoyancy_mass_kg} kg "
-                "(the landing concept needs negative buoyancy, F_R > 0)"
-            )
-        if self.righting_denominator_nm <= 0:
-            raise ValueError(
-                "vehicle has no righting moment: d_m*F_B - d_g*F_R must be > 0 "
-                f"(got {self.righting_denominator_nm:.3f} N m); check cg_height_m / cg_cb_distance_m"
-            )
-        if self.width_m > self.length_m:
-            raise ValueError(f"vehicle width {self.width_m} m exceeds its length {self.length_m} m")
-        return self
-
-    # ------------------------------------------------------------------ forces
-    @property
-    def force_gravity_n(self) -> float:
-        """F_G (N)."""
-        return self.mass_kg * self.gravity_m_s2
-
-    @property
-    def force_buoyancy_n(self) -> float:
-        """F_B (N)."""
-        return self.buoyancy_mass_kg * self.gravity_m_s2
-
-    @property
-    def net_force_n(self) -> float:
-        """F_R = F_G - F_B, the net downward force (N)."""
-        return self.force_gravity_n - self.force_buoyancy_n
-
-    @property
-    def righting_denominator_nm(self) -> float:
-        """d_m F_B - d_g F_R (N m), the denominator of [Landing Eqs. 1, 2 and 7]."""
-        return self.cg_cb_distance_m * self.force_buoyancy_n - self.cg_height_m * self.net_force_n
+class Vehicle(VehicleSettings):
+    """The landing vehicle of :class:`hadal.settings.landing.Vehicle` (its Table II numbers, validated there) with
+    the equations of Sangekar et al. §III-B1 that use them ([Landing Eqs. 1-9])."""
 
     @property
     def footprint_area_m2(self) -> float:

@@ -23,7 +23,7 @@ if TYPE_CHECKING:  # the names the type checker sees (at run time they are impor
     from hadal.matching.tercom import TercomResult, refine_tercom, tercom, tercom_direct
 
 #: public name -> submodule, imported on first access (PEP 562): ``hadal.matching.options`` (used by
-#: :class:`hadal.stages.match.Params` and the navigation product) loads without NumPy/SciPy
+#: :class:`hadal.settings.match.MatchParams` and the navigation product) loads without NumPy/SciPy
 _LAZY = {"MapGrid": "mapgrid", "MrfResult": "mrf", "mrf_refine": "mrf", "PosteriorFix": "posterior",
          "posterior_fix": "posterior", "TercomResult": "tercom", "refine_tercom": "tercom", "tercom": "tercom",
          "tercom_direct": "tercom"}

@@ -265,11 +265,6 @@ class GibbsFilter:
         return out
 
 
-def gibbs_restore(patch: np.ndarray, sigma_n_m: float, temperature: float) -> np.ndarray:
-    """The MAP real-time terrain of :class:`GibbsFilter` for one patch."""
-    return GibbsFilter(sigma_n_m, temperature)(np.asarray(patch, float))
-
-
 def _n_effective(resid: np.ndarray) -> float:
     """Independent cells in a residual window: ``n prod_axes (1 - rho) / (1 + rho)`` (lag-1 autocorrelation, AR(1))."""
     r = resid - np.nanmean(resid)

@@ -187,6 +187,14 @@ from hadal.matching.tercom import (
     pose_at_search_edge,
     search_edge_warning,
 )
+from hadal.settings.match import (
+    DRIFT_SEGMENT_S,
+    DRIFT_VELOCITY_SIGMA_M_S,
+    MAX_MASS_OUTSIDE,
+    MAX_MASS_OUTSIDE_HOLES,
+    MIN_SAMPLES,
+    MODE_RADIUS_CELLS,
+)
 
 N_PARAMS = 5  # x, y, heading, scale, bias
 GAUSS_1SIGMA_CONTENT = 1 - np.exp(-0.5)  # 2-D Gaussian mass inside the 1-sigma ellipse
@@ -1219,7 +1227,7 @@ def _drift_coordinate(pb: _Problem, time_s, drift_segment: float | None, drift_s
     segment length, the prior sigma of the rates and the unit."""
     tau = _tau_of(pb, time_s)
     if time_s is not None:
-        return tau, (drift_segment or 900.0), (drift_sigma or 0.003), "s"
+        return tau, (drift_segment or DRIFT_SEGMENT_S), (drift_sigma or DRIFT_VELOCITY_SIGMA_M_S), "s"
     return tau, (drift_segment or max(float(tau[-1]) / 3.0, pb.h)), (drift_sigma or 0.005), "m"
 
 
@@ -1566,12 +1574,12 @@ def posterior_fix(
     region: tuple[float, float, float, float] | None = None,
     uncertainty=None,
     min_valid_fraction: float = 0.3,
-    mode_radius_cells: float = 3.0,
+    mode_radius_cells: float = MODE_RADIUS_CELLS,
     fine_step_cells: float = 0.25,
     n_alt_modes: int = 3,
-    max_mass_outside: float = 0.2,
-    max_mass_outside_holes: float = 0.05,
-    min_samples: int = 10,
+    max_mass_outside: float = MAX_MASS_OUTSIDE,
+    max_mass_outside_holes: float = MAX_MASS_OUTSIDE_HOLES,
+    min_samples: int = MIN_SAMPLES,
     min_valid_at_fix: float = 0.9,
     min_relief_to_noise: float = 1.0,
     min_valid_for_fix: float = 0.5,

@@ -50,7 +50,7 @@ class VariableAttrs(BaseModel):
     units: Annotated[str, StringConstraints(max_length=40)] | None = None
     standard_name: _Short | None = None
     long_name: _Text | None = None
-    positive: Literal["up", "down"] | None = None
+    positive: Literal["down", "up"] | None = None
     axis: Literal["X", "Y", "Z", "T"] | None = None
     cell_methods: _Short | None = None
     coverage_content_type: _Coverage | None = None

@@ -1,18 +1,12 @@
 """Pipeline stages: Prefect-free functions that read inputs from the store and publish new versions.
 
-Each stage module ``hadal.stages.<name>`` defines
-
-* ``Params`` — a pydantic model, its section of :class:`hadal.config.PipelineConfig`;
-* ``PRODUCTS`` — the product names it publishes; ``UPSTREAM`` — the products it reads;
-* ``INPUTS`` — a :class:`StageInputs`: the raw source kinds and upstream products it needs, from which
-  :mod:`hadal.plan` decides whether it runs on a dive (stages without their inputs are skipped with a reason);
-* optionally ``skip_reason(ctx) -> str | None`` — a check of the upstream *content* made just before the
-  stage would run (e.g. ``match`` needs an altimeter and dead reckoning in ``ctd``);
-* ``run(ctx: StageContext) -> dict[str, ProductVersion]`` — do the work and publish.
-
-* optionally ``SECTION`` — the configuration section it reads when that is not named after it (``dtm`` and
-  ``laser`` share ``grid``) and ``PARAM_FIELDS`` — the fields of that section it uses (its cache fingerprint and
-  manifests record only those, so a laser setting does not re-run the DTM).
+Each stage module ``hadal.stages.<name>`` declares one :class:`Stage` record, ``STAGE``: its name, the products it
+publishes, its :class:`StageInputs` (raw source kinds and upstream products, from which :mod:`hadal.plan` decides
+whether it runs on a dive), its options model (``hadal.settings``), its ``run(ctx) -> {product: version}`` and the
+optional hooks (a content check ``skip_reason``, ``planned_products``, ``raw_files``, a shared configuration
+``section`` with the ``param_fields`` it uses, ``warm_imports``, ``process``). :mod:`hadal.stages.graph` collects
+them in :data:`~hadal.stages.graph.STAGES` and derives, once, the graph (who waits for whom), the producer of each
+product and every product; the plan, the cache fingerprint, the flow and the in-process runner use it.
 
 The Prefect tasks in ``tasks/`` are thin wrappers around ``run``; the flow in ``flows/`` runs each as soon as the
 stages it reads from are done. Data flows one way: raw → ingest → derive; raw → dtm → suitability → match;
@@ -23,17 +17,18 @@ from __future__ import annotations
 
 import importlib
 import logging
-from collections.abc import Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
-from types import ModuleType
 from typing import TYPE_CHECKING, Any, Protocol, TypeVar
 
 from hadal.errors import StageError
 
 if TYPE_CHECKING:
-    from hadal.config import PipelineConfig
+    from pydantic import BaseModel
+
     from hadal.dive import Dive
+    from hadal.settings import PipelineConfig
     from hadal.store import ProductStore, ProductVersion
 
 T = TypeVar("T")
@@ -74,6 +69,47 @@ class StageInputs:
     reads_raw: bool = False
     frame_for: tuple[str, ...] = ()
     optional_products: tuple[str, ...] = ()
+
+
+@dataclass(frozen=True)
+class Stage:
+    """One pipeline stage, declared once in its module (``STAGE``); everything else about the graph derives from it.
+
+    * ``name``, ``products`` (what it publishes), ``inputs`` (what it needs and reads: :class:`StageInputs`);
+    * ``options``: its options model (:mod:`hadal.settings`), read from the configuration ``section`` (default: the
+      stage's name); ``param_fields``: the fields of a shared section it uses (its cache fingerprint and manifests
+      record only those, so a laser setting does not re-run the DTM); ``None``: all;
+    * ``run(ctx) -> {product: ProductVersion}``: do the work and publish;
+    * ``skip_reason(ctx) -> str | None``: a check of the upstream *content* made just before it would run (e.g.
+      ``match`` needs an altimeter and dead reckoning in ``ctd``);
+    * ``planned_products(dive, made) -> made``: products that depend on dive.yaml hints (derive's ``trajectory``);
+    * ``raw_files(ctx) -> [Path]``: files its settings point at, part of its cache fingerprint;
+    * ``warm_imports``: modules its run imports, imported ahead (``"pkg.mod"`` or ``"pkg.mod:function"``, :func:`warm`);
+    * ``process``: a flow runs it in its own process when another stage can run beside it (CPU-bound gridding).
+    """
+
+    name: str
+    products: tuple[str, ...]
+    inputs: StageInputs
+    options: type[BaseModel]
+    run: Callable[[StageContext], dict[str, ProductVersion]]
+    section: str = ""
+    param_fields: tuple[str, ...] | None = None
+    skip_reason: Callable[[StageContext], str | None] | None = None
+    planned_products: Callable[[Any, tuple[str, ...]], tuple[str, ...]] | None = None
+    raw_files: Callable[[StageContext], list[Path]] | None = None
+    warm_imports: tuple[str, ...] = ()
+    process: bool = False
+
+    @property
+    def config_section(self) -> str:
+        """The configuration section it reads (``grid`` for ``dtm`` and ``laser``)."""
+        return self.section or self.name
+
+    @property
+    def reads(self) -> tuple[str, ...]:
+        """Every product it reads (required, then optional): its graph edges and its cache fingerprint's upstream."""
+        return tuple(dict.fromkeys((*self.inputs.upstream, *self.inputs.optional_upstream)))
 
 
 class Progress(Protocol):
@@ -139,25 +175,20 @@ class StageContext:
                 self.pins[product] = self.store.latest(self.dive_id, product)
 
     def params(self, stage: str) -> dict[str, Any]:
-        """Stage ``stage``'s parameters: its configuration section (``SECTION``, default the stage's name), only
-        the fields it uses (``PARAM_FIELDS``) when the section is shared; canonical for fingerprints/manifests."""
-        mod = stage_module(stage) if stage in STAGE_ORDER else None
-        section = self.config.section(getattr(mod, "SECTION", stage))
+        """Stage ``stage``'s parameters: its configuration section (:attr:`Stage.config_section`), only the fields it
+        uses (:attr:`Stage.param_fields`) when the section is shared; canonical for fingerprints/manifests."""
+        from hadal.stages.graph import stage as stage_record
+
+        rec = stage_record(stage) if stage in STAGE_ORDER else None
+        section = self.config.section(rec.config_section if rec is not None else stage)
         if section is None:
             return {}
-        fields = getattr(mod, "PARAM_FIELDS", None)
+        fields = rec.param_fields if rec is not None else None
         return section.model_dump(mode="json", include=set(fields) if fields is not None else None)
 
 
-def stage_module(name: str) -> ModuleType:
-    if name not in STAGE_ORDER:
-        group = f" ({name} stands for {', '.join(STAGE_GROUPS[name])})" if name in STAGE_GROUPS else ""
-        raise StageError(f"unknown stage {name!r}{group}; stages are: {', '.join(available_stages())}")
-    return importlib.import_module(f"hadal.stages.{name}")
-
-
 def warm(entry: str) -> bool:
-    """One entry of a stage's ``WARM_IMPORTS``, done ahead of the stage (while Prefect's server boots, or in a stage
+    """One entry of a stage's ``warm_imports``, done ahead of the stage (while Prefect's server boots, or in a stage
     process started ahead): ``"pkg.module"`` is imported; ``"pkg.module:function"`` is imported and the function
     called (a first-use cost that is not an import, e.g. matplotlib's first figure: :func:`hadal.mplwarm.first_draw`).
     False when it fails: the stage itself then reports the problem in its own words."""
@@ -172,20 +203,12 @@ def warm(entry: str) -> bool:
 
 
 def available_stages() -> list[str]:
-    """Stages that are implemented (define ``run``), in execution order."""
-    out = []
-    for n in STAGE_ORDER:
-        try:
-            mod = importlib.import_module(f"hadal.stages.{n}")
-        except ModuleNotFoundError:
-            continue
-        if callable(getattr(mod, "run", None)):
-            out.append(n)
-    return out
+    """The stages, in execution order (:data:`hadal.stages.graph.STAGES`)."""
+    return list(STAGE_ORDER)
 
 
 def producer_of(product: str) -> str:
-    for n in available_stages():
-        if product in getattr(stage_module(n), "PRODUCTS", ()):
-            return n
-    return "?"
+    """The stage that publishes ``product`` (``?`` for none)."""
+    from hadal.stages.graph import producer_of as _producer_of
+
+    return _producer_of(product)

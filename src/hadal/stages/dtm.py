@@ -6,22 +6,21 @@ Parameters in section ``grid`` (the fields of :data:`hadal.stages.grid.DTM_FIELD
 
 from __future__ import annotations
 
-from hadal.stages import StageInputs
-from hadal.stages.grid import DTM_FIELDS, Params
+from hadal.settings.grid import DTM_FIELDS
+from hadal.settings.grid import GridParams as Params
+from hadal.stages import Stage, StageInputs
 from hadal.stages.grid import run_dtm as run
 
-__all__ = ["Params", "run"]
+__all__ = ["STAGE", "Params", "run"]
 
-SECTION = "grid"
-PARAM_FIELDS = DTM_FIELDS
-#: CPU-bound for seconds: a flow runs it in its own process when another stage can run beside it
-#: (:func:`flows.post_cruise.process_stages`; measured faster than in the flow's threads, docs/operations.md)
-PROCESS = True
-#: modules its run imports (lazily), imported ahead while Prefect's server boots (:func:`hadal.pipeline.warm_imports`)
-WARM_IMPORTS = (
-    "hadal.grid.multibeam", "hadal.grid.sonar", "hadal.grid.readers", "hadal.products.io", "hadal.products.geotiff",
-    "hadal.numbawarm:first_call",
+
+#: one configuration section (``grid``) shared with ``laser``, split by field; CPU-bound for seconds, so a flow runs
+#: it in its own process when another stage can run beside it (:func:`flows.post_cruise.process_stages`; measured
+#: faster than in the flow's threads, docs/operations.md)
+STAGE = Stage(
+    name="dtm", products=("dtm",),
+    inputs=StageInputs(raw_any=("multibeam", "prior_grid"), reads_raw=True, frame_for=("dtm",)),
+    options=Params, run=run, section="grid", param_fields=DTM_FIELDS, process=True,
+    warm_imports=("hadal.grid.multibeam", "hadal.grid.sonar", "hadal.grid.readers", "hadal.products.io",
+                  "hadal.products.geotiff", "hadal.numbawarm:first_call"),
 )
-PRODUCTS = ("dtm",)
-UPSTREAM: tuple[str, ...] = ()
-INPUTS = StageInputs(raw_any=("multibeam", "prior_grid"), reads_raw=True, frame_for=("dtm",))

@@ -22,14 +22,12 @@ import json
 import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Annotated, Any, Literal
-
-from pydantic import BaseModel, ConfigDict, Field
+from typing import TYPE_CHECKING, Any
 
 from hadal.errors import InputError
-from hadal.ingest.qc import DEFAULT_QC, VariableQC
 from hadal.names import record_id as file_record_id
-from hadal.stages import StageInputs
+from hadal.settings.ingest import IngestParams as Params
+from hadal.stages import Stage, StageInputs
 from hadal.store import sha256_file
 
 if TYPE_CHECKING:
@@ -39,41 +37,6 @@ if TYPE_CHECKING:
     from hadal.ingest.vehicle import VehicleConfig
     from hadal.stages import StageContext
     from hadal.store import ProductVersion
-
-#: modules its run imports (lazily), imported ahead while Prefect's server boots (:func:`hadal.pipeline.warm_imports`)
-WARM_IMPORTS = ("hadal.ingest.build", "hadal.ingest.vehicle", "hadal.products.io", "hadal.numbawarm:first_call")
-PRODUCTS = ("sensors", "casts")
-UPSTREAM: tuple[str, ...] = ()
-INPUTS = StageInputs(raw_any=("mcap", "csv", "cnv"), product_sources={"casts": ("cnv",)}, reads_raw=True,
-                     optional_products=("casts",))
-
-
-class Params(BaseModel):
-    """Raw log ingest, time alignment and QARTOD QC (section ``ingest`` of config/pipeline.yaml)."""
-
-    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
-    source: Literal["auto", "mcap", "csv", "cnv"] = Field(
-        "auto", description="which raw logs make 'sensors': auto = MCAP when the dive lists one, else CSV, else "
-                            "the first Sea-Bird cast of sources.cnv (CTD only; the other sensors' columns stay "
-                            "empty, flag 9). Casts not used for 'sensors' are each ingested into the 'casts' "
-                            "product; vehicle logs not used are listed in the metadata (ignored_sources), warned")
-    merge_casts: bool = Field(
-        False, description="with source cnv: concatenate all casts of sources.cnv into one time series in 'sensors' "
-                           "(one instrument record split into files; every cast needs a time channel)")
-    vehicle_config: str | None = Field(
-        None, description="vehicle channel mapping (path relative to the dive directory); default: dive.yaml's "
-                          "vehicle_config, else the packaged haidou mapping")
-    max_gap_s: dict[str, Annotated[float, Field(gt=0, le=86_400)]] = Field(
-        {"gauge": 2.0, "altimeter": 1.5, "attitude": 2.0, "position": 5.0},
-        description="per sensor: no interpolation across gaps longer than this (s) -> NaN + flag 9 "
-                    "(finite, > 0 and at most 86 400 s; raised to 1.5 sampling intervals, with a warning, when "
-                    "shorter than that)")
-    default_max_gap_s: float = Field(2.0, gt=0, le=86_400,
-                                     description="gap limit (s, > 0, at most 1 day) of sensors not listed in max_gap_s")
-    qc: dict[str, VariableQC] = Field(
-        default_factory=lambda: {k: v.model_copy() for k, v in DEFAULT_QC.items()},
-        description="QARTOD thresholds per variable (ioos_qc gross range / spike / flat line; units of the "
-                    "variable); pressure_ctd_dbar.saturation flags the SBE49 saturation (10 500 dbar) as bad")
 
 
 def _gap_limits(p: Params) -> dict[str, float]:
@@ -97,7 +60,6 @@ def _vehicle_path(ctx: StageContext, p: Params) -> Path:
     if ctx.dive.sources.mcap or ctx.dive.sources.csv:  # a cast-only dive needs no vehicle channel mapping
         ctx.log.warning("dive %s names no vehicle_config; using the packaged haidou mapping", ctx.dive_id)
     return default_vehicle_config_path()
-
 
 
 def _cast_table(samples: SensorSamples, vehicle: VehicleConfig, p: Params, launch_ns: int | None = None
@@ -428,3 +390,12 @@ def run(ctx: StageContext) -> dict[str, ProductVersion]:
         ctx.log.info("ingest: %d external cast(s) in 'casts': %s", len(index),
                      ", ".join(c["source"] for c in index))
     return out
+
+
+STAGE = Stage(
+    name="ingest", products=("sensors", "casts"),
+    inputs=StageInputs(raw_any=("mcap", "csv", "cnv"), product_sources={"casts": ("cnv",)}, reads_raw=True,
+                       optional_products=("casts",)),
+    options=Params, run=run,
+    warm_imports=("hadal.ingest.build", "hadal.ingest.vehicle", "hadal.products.io", "hadal.numbawarm:first_call"),
+)

@@ -17,53 +17,17 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from pydantic import ConfigDict, Field
-
 from hadal.budget import memory_limit_bytes
 from hadal.errors import InputError, StageError
 from hadal.forkpool import ForkPool, default_workers
-from hadal.landing.limits import COARSE_CELL_LIMIT
-from hadal.landing.options import AnalysisOptions
-from hadal.landing.vehicle import Vehicle
-from hadal.stages import StageInputs
+from hadal.settings.landing import COARSE_CELL_LIMIT, AnalysisOptions
+from hadal.settings.landing import LandingParams as Params
+from hadal.stages import Stage, StageInputs
 
 if TYPE_CHECKING:
     import numpy as np
     import pandas as pd
     import xarray as xr
-
-#: modules its run imports (lazily), imported ahead while Prefect's server boots (:func:`hadal.pipeline.warm_imports`)
-WARM_IMPORTS = ("hadal.landing.sites", "hadal.landing.figures", "hadal.products.geo_landing", "hadal.products.io",
-                "hadal.mplwarm:first_draw", "hadal.numbawarm:first_call")
-PRODUCTS = ("landing",)
-UPSTREAM = ("laser_grids",)
-INPUTS = StageInputs(upstream=("laser_grids",))
-DEFAULT_MAX_CELL_HEADINGS = 1e10
-
-
-class Params(AnalysisOptions):
-    """Landing-site analysis parameters (defaults = Sangekar et al. where the paper is safe; every number bounded).
-
-    The analysis options are :class:`hadal.landing.options.AnalysisOptions` (declared there, once); this model
-    adds the stage's own (vehicle, headings, work budget, thread count with 'auto', figures)."""
-
-    model_config = ConfigDict(extra="forbid")
-    vehicle: Vehicle = Field(default_factory=Vehicle, description="vehicle geometry and forces (Table II)")
-    heading_step_deg: float = Field(5.0, ge=1.0, le=90, description="landing headings -90..90° in these steps")
-    rectangle_resolution_m: float = Field(0.02, gt=0, le=1.0, description="ignored: A_r (Eq. 12) is now exact")
-    max_cell_headings: float = Field(
-        DEFAULT_MAX_CELL_HEADINGS, ge=1e3, le=1e13,
-        description="refuse a submap whose cells x headings exceed this (work budget, checked before allocating; "
-                    "1e10 is about 10 minutes single-threaded)")
-    # the stage's thread count has an 'auto' the library function does not (it is given a resolved count)
-    workers: int = Field(0, ge=0, le=64, description="headings analysed in parallel threads (0 = auto: "  # type: ignore[assignment]
-                         "min(4, CPU cores); each thread beyond the first needs ~24 bytes per cell)")
-    figures: bool = Field(True, description="write PNG figures into the product")
-    figure_processes: int | None = Field(
-        None, ge=1, le=64,
-        description="processes drawing the figures while the next submap is analysed (forked children beside the "
-                    "stage's own, or in a flow the helpers hadal forks before it starts; null: 2 on a machine with 2 "
-                    "or more cores where processes can be forked (Linux), else 1)")
 
 
 def _read_submap(path: Path) -> tuple[xr.DataArray, xr.DataArray | None]:
@@ -162,6 +126,13 @@ class _DiveSites:
                 self.best_overall = (float(res.best["c_s"]), name)
 
 
+def vehicle(p: Params):
+    """The vehicle of ``landing.vehicle`` with the equations of :class:`hadal.landing.vehicle.Vehicle`."""
+    from hadal.landing.vehicle import Vehicle
+
+    return p.vehicle if isinstance(p.vehicle, Vehicle) else Vehicle(**p.vehicle.model_dump())
+
+
 def _analyse_file(ctx, p: Params, f: Path, headings: np.ndarray, mem_limit, threads: int):
     """Read one laser grid, check its memory and work budget, analyse it; None (logged) when it has no mapped cells."""
     import numpy as np
@@ -176,11 +147,11 @@ def _analyse_file(ctx, p: Params, f: Path, headings: np.ndarray, mem_limit, thre
     # memory and work before allocating anything of the analysis (issue 14): one-line ConfigError
     check_resources(tuple(grid.shape), len(headings), memory_limit_bytes=mem_limit,
                     work_limit=p.max_cell_headings, keep_heading_exclusion=True,
-                    exclusion_step_m=p.exclusion_step_m, vehicle=p.vehicle, what=f"landing submap {name}",
+                    exclusion_step_m=p.exclusion_step_m, vehicle=vehicle(p), what=f"landing submap {name}",
                     heading_setting=("landing.heading_step_deg", p.heading_step_deg),
                     step_setting=("landing.exclusion_step_m", p.exclusion_step_m), workers=threads)
-    opts = AnalysisOptions(**{**p.model_dump(include=set(AnalysisOptions.model_fields)), "workers": threads})
-    res = analyse_submap(grid, p.vehicle, headings_deg=headings, elevation_sigma_m=sigma, options=opts)
+    opts = AnalysisOptions(**p.model_dump(include=set(AnalysisOptions.model_fields)))
+    res = analyse_submap(grid, vehicle(p), headings_deg=headings, elevation_sigma_m=sigma, options=opts, workers=threads)
     ctx.log.info("landing: %s %d candidate sites in %.1f s", name, len(res.sites), res.timings_s["total"])
     for w in res.warnings:
         ctx.log.warning("landing: %s: %s", name, w)
@@ -206,8 +177,9 @@ def _write_dive_products(ctx, p: Params, acc: _DiveSites, out: Path) -> tuple[pd
 
     sites_df = pd.concat(acc.sites, ignore_index=True) if acc.sites else pd.DataFrame(columns=list(SITE_FIELDS))
     table = results_table(sites_df, acc.mapped_area, acc.transect)
-    meta = {"dive_id": ctx.dive_id, "critical_slope_deg": p.vehicle.critical_slope_deg,
-            "critical_height_m": p.vehicle.critical_height_m, "table_v": table,
+    v = vehicle(p)
+    meta = {"dive_id": ctx.dive_id, "critical_slope_deg": v.critical_slope_deg,
+            "critical_height_m": v.critical_height_m, "table_v": table,
             "method": "Sangekar et al., Autonomous landing of underwater vehicles using high resolution bathymetry"}
     if acc.warnings:
         meta["warnings"] = acc.warnings  # e.g. grids coarser than the 1/10-width cell rule (explicit override)
@@ -281,3 +253,11 @@ def run(ctx) -> dict:
             _write_dive_figures(ctx, acc, sites_df, finals_df, best_res, figdir, pool)
         pool.results()
     return {"landing": draft.result}
+
+
+STAGE = Stage(
+    name="landing", products=("landing",), inputs=StageInputs(upstream=("laser_grids",)),
+    options=Params, run=run, skip_reason=skip_reason,
+    warm_imports=("hadal.landing.sites", "hadal.landing.figures", "hadal.products.geo_landing", "hadal.products.io",
+                  "hadal.mplwarm:first_draw", "hadal.numbawarm:first_call"),
+)

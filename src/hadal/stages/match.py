@@ -54,19 +54,13 @@ On 10 generator seeds 75 % of the DR-only errors lie within the stated 1 sigma a
 from __future__ import annotations
 
 import json
-from typing import TYPE_CHECKING, Literal
-
-from pydantic import ConfigDict, Field, model_validator
+from typing import TYPE_CHECKING
 
 from hadal.budget import check_memory, check_work, memory_limit_bytes, work_limit
 from hadal.errors import ConfigError, InputError
-from hadal.matching.options import (
-    DeadReckoningOptions,
-    PosteriorNoiseOptions,
-    SearchEdgeOptions,
-    TercomOptions,
-)
-from hadal.stages import StageContext, StageInputs
+from hadal.settings.match import MatchParams as Params
+from hadal.settings.match import PosteriorNoiseOptions, SearchEdgeOptions
+from hadal.stages import Stage, StageContext, StageInputs
 from hadal.store import ProductVersion
 
 if TYPE_CHECKING:
@@ -75,88 +69,6 @@ if TYPE_CHECKING:
     import numpy as np
     import pandas as pd
     import xarray as xr
-
-#: modules its run imports (lazily), imported ahead while Prefect's server boots (:func:`hadal.pipeline.warm_imports`)
-WARM_IMPORTS = (
-    "hadal.matching.posterior", "hadal.matching.budget", "hadal.matching.fix", "hadal.products.readers",
-    "hadal.products.navigation", "hadal.products.geo_landing",
-)
-PRODUCTS = ("match", "navigation")
-UPSTREAM = ("dtm", "ctd")
-INPUTS = StageInputs(raw_any=("mcap", "csv"), upstream=("dtm", "ctd"), optional_upstream=("suitability",),
-                     needs_launch=True, frame_for=("match",))
-
-
-class Params(TercomOptions, DeadReckoningOptions, PosteriorNoiseOptions, SearchEdgeOptions):
-    """Terrain matching (TERCOM MSD search over the map, optional MRF fine matching).
-
-    The search options are :class:`hadal.matching.options.TercomOptions` and the dead-reckoning error model
-    :class:`hadal.matching.options.DeadReckoningOptions` (declared there, once); this model adds the stage's own
-    (search ranges, map smoothing, region, posterior, drift, MRF)."""
-
-    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
-    resample_spacing_m: float | None = Field(None, ge=0.001, le=100_000, description="along-track profile spacing in metres (1 mm to 100 km; default: map resolution)")
-    segment_m: float | None = Field(
-        None, gt=0, le=10_000_000,
-        description="match only the first segment_m metres of the bottom track (DR error grows along the track); null = the whole track, as in the paper",
-    )
-    heading_range_deg: float = Field(
-        9.0, ge=0, le=45, description="search DR heading errors in +-this range (0: translation only, as in the paper)"
-    )
-    heading_step_deg: float = Field(
-        0.5, ge=1e-4, le=45, description="heading search step in degrees (1e-4 to 45, at most heading_range_deg; the "
-                                         "search's work and memory are checked against the resources section)")
-    region: Literal["map", "suitability"] = Field("map", description="search the whole map or the suitability product's proposed region")
-    dtm_smooth_sigma_cells: float | None = Field(
-        None, ge=0, le=100,
-        description="normalised Gaussian convolution of the DTM before matching (fills holes, suppresses sounding noise); null = 2 cells when > 10 % of the DTM is empty, else 1; 0 = never",
-    )
-    refine: bool = Field(
-        True,
-        description="refine the MSD fix below the map resolution (bilinear map, continuous start/heading/scale; a deviation from the paper, see hadal.matching.refine_tercom)",
-    )
-    mrf: bool = Field(False, description="refine the fix with MRF fine matching of a 2-D real-time terrain patch (MRF paper): the vehicle's own swath soundings (dive.yaml sources.vehicle_swath) placed by the fix, else the bottom track; a single-beam bottom track (< 50 % of the cells under it sounded) or a swath too narrow for the map's cells (< 50 % of its cells with four sounded neighbours) is recorded as not matchable by MRF and MRF is not run")
-    mrf_patch_length_m: float | None = Field(
-        None, gt=0, le=1_000_000,
-        description="MRF on the vehicle's swath: the real-time terrain patch is the swath of the first this many metres of the bottom track (MRF moves the fix by one constant shift, which holds over a local patch, not over a track whose dead-reckoning error changes along it); null = 40 map cells, the MRF paper's patch (§4.3: 40 x 30 cells)",
-    )
-    mrf_swath_max_offset_m: float = Field(
-        1000.0, gt=0, le=50_000,
-        description="MRF on the vehicle's swath: soundings farther than this from every bottom-track sample (in the vehicle's dead-reckoned navigation) are not placed on the map (logged outside the bottom phase, or not positioned by the vehicle's navigation)",
-    )
-    scale_range: float = Field(0.0, ge=0, lt=0.5, description="search DR scale errors 1 +- this range (0: none)")
-    scale_step: float = Field(0.01, ge=1e-5, le=0.5, description="scale search step (1e-5 to 0.5, at most scale_range)")
-    mrf_max_shift_cells: float = Field(1.5, gt=0, le=100, description="MRF fine stage (linearised MRF paper Eqs. 7-13): shift search range per iteration, in map cells")
-    mrf_max_total_shift_cells: float = Field(
-        25.0, gt=0, le=100,
-        description="MRF coarse stage: the exact data term is searched over shifts up to this many map cells from the TERCOM fix (25: the largest initial error the MRF paper reports results from, §4.3 Simulation 1; divergent at 30); a minimum beyond it is flagged",
-    )
-    mrf_prior: Literal["gibbs", "none"] = Field(
-        "gibbs",
-        description="MRF Gibbs neighbourhood prior (paper Eqs. 3-4): 'gibbs' matches the MAP real-time terrain with T from the soundings' noise (hadal.matching.mrf, deviation 3); 'none' the soundings as measured",
-    )
-    posterior: bool = Field(
-        True,
-        description="report the point-mass posterior fix (MAP, covariance, ellipses, mass outside the main mode; hadal.matching.posterior); false: the refined score minimum with the jackknife + dead-reckoning uncertainty",
-    )
-    max_mass_outside: float = Field(0.2, gt=0, lt=1, description="posterior: flag a mismatch (ambiguous) when more than this posterior mass lies outside the main mode (0.2: chosen on the real-terrain calibration bench, see hadal.matching.posterior)")
-    max_mass_outside_holes: float = Field(0.05, gt=0, lt=1, description="posterior: flag a mismatch (over_holes) when, were the map under its interior holes to fit the track as well as its valid part does, more than this posterior mass would lie outside the main mode")
-    mode_radius_cells: float = Field(3.0, gt=0, le=1000, description="posterior: radius of the main mode in map cells")
-    min_samples: int = Field(10, ge=3, le=10_000_000, description="posterior: flag profiles with fewer samples as too short")
-    drift: bool = Field(True, description="posterior: estimate the dead-reckoning drift (a velocity bias, piecewise constant in time) jointly with the start, heading and scale")
-    drift_segment_s: float = Field(900.0, ge=10, le=1_000_000, description="posterior: duration of each constant-velocity-bias segment of the drift, seconds")
-    drift_velocity_sigma_m_s: float = Field(0.003, gt=0, le=10, description="posterior: prior standard deviation of the DR velocity bias in each segment, m/s")
-
-    @model_validator(mode="after")
-    def _steps(self) -> Params:
-        if self.heading_range_deg > 0 and self.heading_step_deg > self.heading_range_deg:
-            raise ValueError(f"heading_step_deg ({self.heading_step_deg:g}) is larger than heading_range_deg "
-                             f"({self.heading_range_deg:g}): the search would try only 0 deg; use a smaller step "
-                             "or heading_range_deg: 0")
-        if self.scale_range > 0 and self.scale_step > self.scale_range:
-            raise ValueError(f"scale_step ({self.scale_step:g}) is larger than scale_range ({self.scale_range:g}): "
-                             "the search would try only scale 1; use a smaller step or scale_range: 0")
-        return self
 
 
 def _symmetric_steps(centre: float, half_range: float, step: float, keys: tuple[str, str], what: str) -> np.ndarray:
@@ -299,18 +211,6 @@ def surface_dataset(res, frame, criterion: str, post=None) -> xr.Dataset:
 
 #: ``ctd`` columns the bottom track is made of (seafloor depth = depth + altitude, on the dead-reckoned track)
 TRACK_COLUMNS = ("seafloor_depth_m", "dr_east_m", "dr_north_m")
-
-#: science that moved to :mod:`hadal.matching.budget`, still importable from here (loaded on first access)
-_MOVED = ("MRF_MIN_COVERAGE", "grid_track_patch", "information_distance_m")
-
-
-def __getattr__(name: str):
-    if name in _MOVED:
-        from hadal.matching import budget
-
-        return getattr(budget, name)
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-
 
 def skip_reason(ctx: StageContext) -> str | None:
     """Why ``match`` cannot run on this dive's ``ctd`` (no altimeter or no dead-reckoned track), or ``None``."""
@@ -513,3 +413,13 @@ def run(ctx: StageContext) -> dict[str, ProductVersion]:
     nav = publish_navigation(ctx, ctd, track, fix, [ctd_pv, draft.result], p.dr_error_fraction,
                              unreferenced_drift_m_per_sqrt_s=p.dr_unreferenced_drift_m_per_sqrt_s)
     return {"match": draft.result, "navigation": nav}
+
+
+STAGE = Stage(
+    name="match", products=("match", "navigation"),
+    inputs=StageInputs(raw_any=("mcap", "csv"), upstream=("dtm", "ctd"), optional_upstream=("suitability",),
+                       needs_launch=True, frame_for=("match",)),
+    options=Params, run=run, skip_reason=skip_reason, raw_files=raw_files,
+    warm_imports=("hadal.matching.posterior", "hadal.matching.budget", "hadal.matching.fix", "hadal.products.readers",
+                  "hadal.products.navigation", "hadal.products.geo_landing"),
+)

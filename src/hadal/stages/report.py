@@ -8,37 +8,12 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING
 
-from pydantic import BaseModel, ConfigDict, Field
-
-from hadal.stages import StageContext, StageInputs
+from hadal.settings.report import ReportParams as Params
+from hadal.stages import Stage, StageContext, StageInputs
 
 if TYPE_CHECKING:
     from hadal.report import FigureOptions
     from hadal.store import ProductVersion
-
-#: modules its run imports (lazily), imported ahead while Prefect's server boots (:func:`hadal.pipeline.warm_imports`)
-WARM_IMPORTS = ("hadal.report", "hadal.report.figures", "hadal.report.ctd_figures", "hadal.report.geo_figures", "hadal.plan",
-                "hadal.forkpool", "hadal.mplwarm:first_draw")
-PRODUCTS = ("report",)
-#: every product the report can use; all optional (hadal.report.load.REPORT_INPUTS)
-UPSTREAM = ("sensors", "ctd", "profile", "dtm", "laser_grids", "suitability", "match", "landing")
-INPUTS = StageInputs(optional_upstream=UPSTREAM, always=True)
-
-
-class Params(BaseModel):
-    """Dive report (HTML with embedded figures, also published as Prefect artifacts inside a flow)."""
-
-    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
-    dpi: int = Field(110, ge=50, le=400, description="figure resolution (dots per inch)")
-    figure_width_in: float = Field(10.0, gt=2, le=30, description="figure width in inches")
-    max_points: int = Field(20000, ge=100, le=10_000_000, description="time series are thinned to at most this many points per figure")
-    best_sites: int = Field(5, ge=1, le=100, description="number of best landing sites listed")
-    figure_processes: int | None = Field(
-        None, ge=1, le=64,
-        description="processes drawing the figures (forked children beside the stage's own, or in a flow the helpers "
-                    "hadal forks before it starts; null: 2 on a machine with 2 or more cores where processes can be "
-                    "forked (Linux), else 1)")
-    title: str | None = Field(None, description="report title (default: 'Dive report — <dive id>')")
 
 
 def options(p: Params) -> FigureOptions:
@@ -76,3 +51,16 @@ def run(ctx: StageContext) -> dict[str, ProductVersion]:
     for note in rep.summary.get("notes", []):
         ctx.log.info("report: %s", note)
     return {"report": publish_report(ctx.store, rep, parameters=ctx.params("report"))}
+
+
+#: every product the report can use, all optional (hadal.report.load.REPORT_INPUTS and REPORT_OPTIONAL): its cache
+#: fingerprint covers each of them (casts, cast_profiles, navigation and trajectory were left out before)
+STAGE = Stage(
+    name="report", products=("report",),
+    inputs=StageInputs(optional_upstream=("sensors", "ctd", "profile", "dtm", "laser_grids", "suitability", "match",
+                                          "landing", "casts", "cast_profiles", "navigation", "trajectory"),
+                       always=True),
+    options=Params, run=run,
+    warm_imports=("hadal.report", "hadal.report.figures", "hadal.report.ctd_figures", "hadal.report.geo_figures",
+                  "hadal.plan", "hadal.forkpool", "hadal.mplwarm:first_draw"),
+)

@@ -10,33 +10,12 @@ from __future__ import annotations
 import json
 from typing import TYPE_CHECKING
 
-from pydantic import BaseModel, ConfigDict, Field
-
-from hadal.stages import StageContext, StageInputs
+from hadal.settings.suitability import SuitabilityParams as Params
+from hadal.stages import Stage, StageContext, StageInputs
 from hadal.store import ProductVersion
 
 if TYPE_CHECKING:
     import xarray as xr
-
-#: modules its run imports (lazily), imported ahead while Prefect's server boots (:func:`hadal.pipeline.warm_imports`)
-WARM_IMPORTS = ("hadal.suitability", "hadal.matching.mapgrid", "hadal.products.readers", "hadal.products.geotiff",)
-PRODUCTS = ("suitability",)
-UPSTREAM = ("dtm",)
-INPUTS = StageInputs(upstream=("dtm",), frame_for=("suitability",))
-
-
-class Params(BaseModel):
-    """Terrain suitability (TERCOM paper §3.1, §4.1.2): block std/entropy and the matching region."""
-
-    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
-    n_blocks_y: int = Field(44, ge=1, le=10_000, description="blocks south-north (paper: 44); reduced if the DTM is too small")
-    n_blocks_x: int = Field(60, ge=1, le=10_000, description="blocks west-east (paper: 60); reduced if the DTM is too small")
-    min_valid_fraction: float = Field(0.5, gt=0, le=1, description="minimum fraction of valid cells for a block to be evaluated")
-    region_size_x_m: float = Field(5800.0, gt=0, le=10_000_000, description="matching-region width west-east in metres (paper: 5.8 km)")
-    region_size_y_m: float = Field(3700.0, gt=0, le=10_000_000, description="matching-region height south-north in metres (paper: 3.7 km)")
-    region_search_radius_m: float = Field(
-        0.0, ge=0, le=10_000_000, description="(m) 0: region centred on the launch point; >0: best-scoring window centred within this radius"
-    )
 
 
 def skip_reason(ctx) -> str | None:
@@ -164,3 +143,10 @@ def run(ctx: StageContext) -> dict[str, ProductVersion]:
 
 #: suitability layers also written as Cloud-Optimized GeoTIFF (``suitability_<name>.tif``)
 COG_VARIABLES = ("std_m", "entropy")
+
+
+STAGE = Stage(
+    name="suitability", products=("suitability",), inputs=StageInputs(upstream=("dtm",), frame_for=("suitability",)),
+    options=Params, run=run,
+    warm_imports=("hadal.suitability", "hadal.matching.mapgrid", "hadal.products.readers", "hadal.products.geotiff"),
+)

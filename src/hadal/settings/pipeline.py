@@ -2,7 +2,8 @@
 
 ``config/pipeline.yaml`` in the repository holds the defaults with comments; a dive directory may
 carry its own ``pipeline.yaml`` that overrides them, and the CLI accepts ``--config FILE``.
-Every section is a pydantic model owned by its stage module (``hadal.stages.<stage>.Params``).
+Every section is a pydantic model declared in :mod:`hadal.settings` (``hadal.settings.<stage>``), below the
+stages that read it.
 """
 
 from __future__ import annotations
@@ -13,15 +14,16 @@ from typing import Any
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
-from hadal.budget import Params as ResourcesParams
 from hadal.errors import ConfigError, first_validation_error
-from hadal.stages.derive import Params as DeriveParams
-from hadal.stages.grid import Params as GridParams
-from hadal.stages.ingest import Params as IngestParams
-from hadal.stages.landing import Params as LandingParams
-from hadal.stages.match import Params as MatchParams
-from hadal.stages.report import Params as ReportParams
-from hadal.stages.suitability import Params as SuitabilityParams
+from hadal.settings.derive import DeriveParams
+from hadal.settings.grid import GridParams
+from hadal.settings.ingest import IngestParams
+from hadal.settings.landing import LandingParams
+from hadal.settings.match import MatchParams
+from hadal.settings.report import ReportParams
+from hadal.settings.resources import ResourcesParams
+from hadal.settings.suitability import SuitabilityParams
+from hadal.yamlfile import load_yaml_mapping
 
 
 class PipelineConfig(BaseModel):
@@ -52,8 +54,6 @@ def load_config(*paths: str | Path | None) -> PipelineConfig:
     for p in paths:
         if p is None:
             continue
-        from hadal.yamlfile import load_yaml_mapping
-
         data = load_yaml_mapping(p, "configuration file", empty_ok=True)
         merged = _deep_merge(merged, data)
     try:
