@@ -1,7 +1,9 @@
 """Memory bombs, one per reader format (issue 45): each ends in a one-line error or a correct product, with the
 peak RSS of the process that read it under a bound. Every read runs in a fresh interpreter under
 ``RLIMIT_AS`` = 4 GiB (the red team's cap), so the budget (:class:`hadal.budget.DecodeBudget`, from what the cap
-leaves) is the one a capped run sees; the child reports ``ru_maxrss`` (the oracle: the kernel's count).
+leaves) is the one a capped run sees; the child reports its
+``VmHWM`` (the oracle: the kernel's count; not ``ru_maxrss``, which Linux carries over fork + exec from the
+parent, a test worker of gigabytes).
 
 Bombs are written streaming (a compressor fed a repeated block), so the test never holds their content."""
 
@@ -50,14 +52,17 @@ def _run_capped(code: str) -> dict:
         resource.setrlimit(resource.RLIMIT_AS, (%d, %d))
         warnings.simplefilter("ignore")
         %s
-        base = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
+        def hwm():  # this image's peak RSS: ru_maxrss would carry the forking parent's over exec
+            with open("/proc/self/status") as f:
+                return next(int(l.split()[1]) * 1024 for l in f if l.startswith("VmHWM:"))
+        base = hwm()
         out = {}
         try:
             out["result"] = run()
         except Exception as exc:
             out["error"] = type(exc).__name__
             out["message"] = str(exc)
-        out["peak"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
+        out["peak"] = hwm()
         out["base"] = base
         print(json.dumps(out))
     """) % (CAP, CAP, textwrap.dedent(code).strip())

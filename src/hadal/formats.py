@@ -39,6 +39,7 @@ import lzma
 import re
 import struct
 import zlib
+from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
@@ -76,7 +77,7 @@ SOURCE_OF: dict[str, str | None] = {
 
 _HEAD_BYTES = 65536
 _COMPRESSION = ((b"\x1f\x8b", "gzip"), (b"BZh", "bz2"), (b"\xfd7zXZ\x00", "xz"))
-_OPENERS = {"gzip": gzip.open, "bz2": bz2.open, "xz": lzma.open}
+_OPENERS: dict[str, Callable[..., Any]] = {"gzip": gzip.open, "bz2": bz2.open, "xz": lzma.open}
 #: what a damaged gzip/bz2/xz stream raises (``gzip.BadGzipFile`` is an ``OSError``)
 DECOMPRESS_ERRORS = (OSError, EOFError, lzma.LZMAError, zlib.error, ValueError)
 #: the multibeam kinds :func:`detect` recognises in binary content (xyz soundings are text)
