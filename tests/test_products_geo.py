@@ -302,3 +302,27 @@ def test_laser_grid_cog_from_the_georeferenced_laser_frame(tmp_path):
     rel = np.radians(np.asarray(az) - lf.heading_deg)  # azimuth from the frame's +y axis, clockwise
     fx, fy = dist * np.sin(rel), dist * np.cos(rel)
     assert np.allclose(fx, x[cols.ravel()], atol=1e-4) and np.allclose(fy, y[::-1][rows.ravel()], atol=1e-4)
+
+
+def test_a_flagged_terrain_fix_is_not_a_smoother_measurement():
+    """A terrain fix flagged as a possible mismatch (ambiguous, over holes, at the search edge) is refused by the
+    navigation smoother by name: the smoothed track equals the one without a terrain fix, and an unflagged fix of
+    the same position does pull the track (so the refusal is what changed it)."""
+    from hadal.products.navigation import smoothed_navigation
+
+    ctd = _dive_table()
+    lx, ly = (float(v) for v in FRAME.to_xy(LAUNCH[1], LAUNCH[0]))
+    bot = ctd[ctd.phase == "bottom"]
+    matched = pd.DataFrame({"time": bot["time"], "x_east_m": lx + bot["dr_east_m"], "y_north_m": ly + 20.0})
+    first = bot.index[0]
+    fix = {"start": {"x_east_m": lx + float(bot["dr_east_m"].iloc[0]), "y_north_m": ly + 20.0},
+           "uncertainty_m": {"covariance_m2": [[25.0, 0.0], [0.0, 25.0]]}, "mismatch": False}
+    used, _, notes_used = smoothed_navigation(ctd, FRAME, *LAUNCH, matched=matched, fix=fix)
+    flagged, _, notes_flagged = smoothed_navigation(ctd, FRAME, *LAUNCH, matched=matched,
+                                                    fix={**fix, "mismatch": True})
+    none, _, _ = smoothed_navigation(ctd, FRAME, *LAUNCH, matched=matched,
+                                     fix={k: v for k, v in fix.items() if k != "uncertainty_m"})
+    assert notes_used["terrain"].startswith("match fix.json")
+    assert notes_flagged["terrain"].startswith("refused") and "mismatch" in notes_flagged["terrain"]
+    assert np.allclose(flagged["y_north_m"], none["y_north_m"]) and np.allclose(flagged["x_east_m"], none["x_east_m"])
+    assert abs(used["y_north_m"].iloc[first] - (ly + 20.0)) < abs(flagged["y_north_m"].iloc[first] - (ly + 20.0))

@@ -10,7 +10,9 @@
 * USBL/LBL fixes (``usbl_latitude_deg``/``usbl_longitude_deg``, ``usbl_east_variance_m2``/
   ``usbl_north_variance_m2`` else ``usbl_sigma_m``), at any depth;
 * the terrain fix (``match``'s ``fix.json``: the matched position of the first bottom sample with the
-  posterior's full 2x2 covariance ``uncertainty_m.covariance_m2``, else the east/north 1-sigma);
+  posterior's full 2x2 covariance ``uncertainty_m.covariance_m2``, else the east/north 1-sigma); refused, with a
+  note, when ``fix.json`` flags a possible mismatch (ambiguous, over holes, at the search edge: its covariance is
+  not a confident fix's);
 * dead reckoning (``dr_east_m``/``dr_north_m``) and, on the bottom, the terrain-matched track (the DR with the
   match's heading, scale and drift corrections) as the process increments.
 

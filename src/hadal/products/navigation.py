@@ -228,12 +228,16 @@ def smoothed_navigation(ctd: pd.DataFrame, frame: LocalFrame, launch_lat: float,
         lt = lt.tz_localize("UTC") if lt.tzinfo is None else lt.tz_convert("UTC")
         i0 = int(min(np.searchsorted(tns, lt.as_unit("ns").value), n - 1))
     fixes = [Fix(i0, lx, ly, np.eye(2) * opt.launch_sigma_m ** 2, "launch", None if times is None else times[i0])]
+    flagged = bool(fix and fix.get("mismatch"))  # ambiguous, over holes, at the search edge: not a confident fix
     tf = terrain_fix(fix, int(np.argmax(is_m)), times[int(np.argmax(is_m))] if times is not None else None) \
-        if is_m.any() else None
+        if is_m.any() and not flagged else None
     notes = {"launch": f"dive.yaml launch position, 1-sigma {opt.launch_sigma_m:g} m per axis"}
     if tf is not None:
         fixes.append(tf)
         notes["terrain"] = "match fix.json start with its posterior covariance"
+    elif flagged:
+        notes["terrain"] = ("refused: the terrain fix is flagged as a possible mismatch (its covariance is not a "
+                            "confident fix's); the smoother uses the other sources")
     elif is_m.any():
         notes["terrain"] = "refused: fix.json has no usable uncertainty"
     tab, tnotes = table_fixes(ctd, frame, ts, opt, times)
