@@ -40,7 +40,8 @@ def _cgroup_limit_bytes() -> int | None:
     """The memory limit of this process's cgroup (v2 ``memory.max``, v1 ``memory.limit_in_bytes``), if any."""
     for f in ("/sys/fs/cgroup/memory.max", "/sys/fs/cgroup/memory/memory.limit_in_bytes"):
         try:
-            text = open(f).read().strip()
+            with open(f) as fh:
+                text = fh.read().strip()
         except OSError:
             continue
         if text.isdigit() and int(text) < (1 << 60):

@@ -236,11 +236,15 @@ def write_grid_cog(ds: Any, path: str | Path, variable: str = "depth_m", *, fram
                 tmp.update_tags(i, **{k: v for k, v in b.tags.items() if v},
                                 **{f"STATISTICS_{k.upper()}": f"{v:.10g}" for k, v in stats.items()})
             tmp.units = tuple(b.units for b in bands)
-        with mem.open() as tmp:
+        with mem.open() as tmp, MemoryFile() as cog:
             # GDAL's COG driver (through rasterio) keeps band units, descriptions and metadata, which rio-cogeo's
-            # cog_translate drops; rio-cogeo validates the layout
-            rio_copy(tmp, str(path), driver="COG", COMPRESS="DEFLATE", PREDICTOR="YES", OVERVIEWS="AUTO",
+            # cog_translate drops; rio-cogeo validates the layout. Built in memory and written with plain
+            # os.write: a full disk is then one OSError (ENOSPC), not a GDAL error about a half-written overview
+            rio_copy(tmp, cog.name, driver="COG", COMPRESS="DEFLATE", PREDICTOR="YES", OVERVIEWS="AUTO",
                      RESAMPLING="AVERAGE", BLOCKSIZE=512)
+            from hadal.store import write_bytes_checked
+
+            write_bytes_checked(path, cog.read(), Path(path).name)
     ok, errors, _ = cog_validate(str(path), quiet=True)
     if not ok:  # pragma: no cover - GDAL's COG driver writes valid COGs
         raise RuntimeError(f"{path.name}: not a valid COG ({'; '.join(errors)})")
