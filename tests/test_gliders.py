@@ -12,13 +12,13 @@ import csv
 import datetime as dt
 import math
 import shutil
-import warnings
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 import pytest
 import yaml
+from dive_runs import run_quiet  # noqa: E402
 
 from hadal.dive_init import scan_dive_dir, write_init
 
@@ -66,16 +66,6 @@ def _dbd_table(path: Path) -> tuple[dict[str, str], list[str], list[str], np.nda
     names, units = lines[n].split(), lines[n + 1].split()
     data = np.array([[float(v) for v in ln.split()] for ln in lines[n + k:] if ln.strip()])
     return tags, names, units, data
-
-
-def _run(raw: Path, store: Path):
-    from hadal.pipeline import make_context, run_pipeline
-
-    ctx = make_context(raw, store)
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        run_pipeline(ctx)
-    return ctx
 
 
 def _table(ctx, product: str) -> pd.DataFrame:
@@ -135,7 +125,7 @@ def seaexplorer(shared_data, tmp_path_factory):
         shutil.copy(shared_data / rel, raw / Path(rel).name)
     res = scan_dive_dir(raw)
     write_init(res)
-    return res, raw, _run(raw, tmp / "store")
+    return res, raw, run_quiet(raw, tmp / "store")
 
 
 def test_seaexplorer_mapping_written_by_init(seaexplorer, shared_data):
@@ -225,7 +215,7 @@ def slocum(shared_data, tmp_path_factory):
     shutil.copy(shared_data / SBD, raw / Path(SBD).name)
     res = scan_dive_dir(raw)
     write_init(res)
-    return res, raw, _run(raw, tmp / "store")
+    return res, raw, run_quiet(raw, tmp / "store")
 
 
 def test_slocum_mapping_uses_the_units_line(slocum, shared_data):

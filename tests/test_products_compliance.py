@@ -7,13 +7,14 @@ the NCAS cf-checker (``cfchecks``) with no error. Slow (full pipeline runs): ``m
 from __future__ import annotations
 
 import shutil
-import warnings
 from pathlib import Path
 
 import pytest
 import yaml
 
 pytest.importorskip("compliance_checker")
+
+from dive_runs import init_dive, run_quiet  # noqa: E402
 
 from hadal.errors import InputError  # noqa: E402
 from hadal.products.compliance import IOOS_CHECKERS, check_compliance, run_cfchecks  # noqa: E402
@@ -56,16 +57,6 @@ def _check_files(files: list[Path], tmp_path: Path, complete: bool) -> list[str]
     return bad
 
 
-def _run(raw: Path, store: Path):
-    from hadal.pipeline import make_context, run_pipeline
-
-    ctx = make_context(raw, store)
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        run_pipeline(ctx)
-    return ctx
-
-
 def test_sample_dive_with_complete_metadata_passes_cf_acdd_ioos_and_cfchecks(small_dive, tmp_path):
     raw = tmp_path / "haidou-small"
     shutil.copytree(small_dive, raw)
@@ -74,7 +65,7 @@ def test_sample_dive_with_complete_metadata_passes_cf_acdd_ioos_and_cfchecks(sma
     (raw / "dive.yaml").write_text(yaml.safe_dump(spec, sort_keys=False))
     from hadal.products import missing_acdd_fields
 
-    ctx = _run(raw, tmp_path / "store")
+    ctx = run_quiet(raw, tmp_path / "store")
     assert missing_acdd_fields(ctx.dive) == []  # hadal config --check: nothing missing
     files = sorted((tmp_path / "store").rglob("v*/*.nc"))
     assert {f.name for f in files} >= {"dtm.nc", "profile.nc", "navigation.nc", "suitability.nc", "msd_surface.nc"}
@@ -84,16 +75,8 @@ def test_sample_dive_with_complete_metadata_passes_cf_acdd_ioos_and_cfchecks(sma
 
 @pytest.mark.parametrize("rel", sorted(REAL))
 def test_real_dive_products_pass_cf_acdd_ioos_and_cfchecks(shared_data, tmp_path, rel):
-    from hadal.dive_init import scan_dive_dir, write_init
-
-    src = shared_data / rel
-    if not src.is_file():
-        pytest.skip(f"{rel} not in this copy of the shared data")
-    raw = tmp_path / "dive"
-    (raw / "raw").mkdir(parents=True)
-    shutil.copy(src, raw / "raw" / src.name)
-    write_init(scan_dive_dir(raw))
-    _run(raw, tmp_path / "store")
+    raw, _ = init_dive(shared_data, tmp_path, rel)
+    run_quiet(raw, tmp_path / "store")
     files = sorted((tmp_path / "store").rglob("v*/*.nc"))
     assert files and REAL[rel] <= {f.name for f in files}, (rel, files)
     bad = _check_files(files, tmp_path, complete=False)  # dive.yaml from init: operator metadata missing (listed)

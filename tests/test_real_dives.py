@@ -15,6 +15,7 @@ from typing import Any
 import numpy as np
 import pytest
 import yaml
+from dive_runs import init_dive, run_quiet  # noqa: E402
 
 from hadal.dive_init import scan_dive_dir, write_init
 from hadal.errors import InputError
@@ -216,20 +217,8 @@ def test_report_lists_every_cast(shared_data, tmp_path):
 
 def _run_alone(shared: Path, tmp_path: Path, rel: str):
     """The dive made of ``rel`` alone (init + every stage); returns the run context."""
-    from hadal.pipeline import make_context, run_pipeline
-
-    src = shared / rel
-    if not src.is_file():
-        pytest.skip(f"{rel} not in this copy of the shared data")
-    raw = tmp_path / "dive"
-    (raw / "raw").mkdir(parents=True)
-    shutil.copy(src, raw / "raw" / src.name)
-    write_init(scan_dive_dir(raw))
-    ctx = make_context(raw, tmp_path / "store")
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        run_pipeline(ctx)
-    return ctx
+    raw, _ = init_dive(shared, tmp_path, rel)
+    return run_quiet(raw, tmp_path / "store")
 
 
 def _cnv_body(path: Path, opener=open) -> np.ndarray:
@@ -389,19 +378,8 @@ def _seasoft_columns(path: Path) -> tuple[dict[str, Any], str]:
 
 
 def _run_dive(tmp_path: Path, shared: Path, *rels: str):
-    from hadal.pipeline import make_context, run_pipeline
-
-    raw = tmp_path / "dive"
-    (raw / "raw").mkdir(parents=True)
-    for rel in rels:
-        shutil.copy(shared / rel, raw / "raw" / Path(rel).name)
-    res = scan_dive_dir(raw)
-    write_init(res)
-    ctx = make_context(raw, tmp_path / "store")
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        run_pipeline(ctx)
-    return raw, res, ctx
+    raw, res = init_dive(shared, tmp_path, *rels)
+    return raw, res, run_quiet(raw, tmp_path / "store")
 
 
 def test_underway_tsg_is_a_trajectory_with_its_own_positions(shared_data, tmp_path):
