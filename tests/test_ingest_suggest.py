@@ -302,6 +302,26 @@ def test_csv_without_units_uses_magnitude_and_asks_to_check(tmp_path):
     assert m["temperature_its90_degc"]["units"] == "degC_its90"
     assert any("cond" in c and "check the unit" in c for c in s.checks)
     assert "CHECK THE UNIT" in render_vehicle_yaml(s)
+    # the variables a dive needs and lacks are named; the optional ones (GNSS/USBL fixes, vendor salinity) are not
+    missing = next(c for c in s.checks if c.startswith("not found in the logs"))
+    assert "altitude_m" in missing and "heading_deg" in missing
+    assert "gnss" not in missing and "usbl" not in missing and "vendor" not in missing
+
+
+def test_gnss_channel_named_by_its_topic_gives_fixes_not_dead_reckoning(tmp_path):
+    """A CSV key saying gps with latitude/longitude columns and their variances: GNSS fixes (gnss_*), in a sensor
+    named gnss; the same columns under another name stay a dead-reckoned track (metres from the first fix)."""
+    rows = "".join(f"2018-10-06T23:00:{i:02d}Z,11.3{i:02d},142.2,4.0,9.0\n" for i in range(20))
+    gps = _write(tmp_path / "gps.csv", "time,latitude,longitude,east_variance,north_variance\n" + rows)
+    cfg = suggest_vehicle([], {"gps": gps}).config()
+    fx = cfg.sensors["gnss"].csv.fields
+    assert (fx["gnss_latitude_deg"].field, fx["gnss_longitude_deg"].field) == ("latitude", "longitude")
+    assert (fx["gnss_east_variance_m2"].field, fx["gnss_north_variance_m2"].field) == ("east_variance", "north_variance")
+    assert "dr_east_m" not in cfg.variables()
+    nav = _write(tmp_path / "nav.csv", "time,latitude,longitude\n" + "".join(r.rsplit(",", 2)[0] + "\n" for r in rows.splitlines()))
+    cfg = suggest_vehicle([], {"nav": nav}).config()
+    assert cfg.sensors[cfg.sensor_of("dr_east_m")].csv.fields["dr_east_m"].transform == "latlon_to_east_m"
+    assert "gnss_latitude_deg" not in cfg.variables()
 
 
 def test_csv_with_no_time_or_no_variables(tmp_path):

@@ -719,7 +719,7 @@ def _resolve(srcs: list[_Src], unmapped: list[dict[str, Any]]) -> dict[str, dict
         w = best[c.variable]
         if w is not c:
             unmapped.append({"source": _key_of(c), "file": c.file, "field": _label(c.fm),
-                             "reason": f"{c.variable} is taken from {w.source} ({_label(w.fm)}) instead"})
+                             "reason": f"{c.variable} is taken from {_key_of(w)} ({_label(w.fm)}) instead"})
     out: dict[str, dict[str, _Cand]] = {}
     for var in CANONICAL_UNITS:
         if var in best:
@@ -886,7 +886,11 @@ def suggest_vehicle(mcap_paths: Iterable[str | Path] = (), csv_files: Mapping[st
     vehicle = {"vehicle": vehicle_name or vname or "unknown", "time_base": base,
                "sensors": {n: sensors[n] for n in order}}
     VehicleConfig.model_validate(vehicle)  # a bug here, not a user error: let it raise
-    missing = [v for v in CANONICAL_UNITS if v not in _all_vars(vehicle)]
+    from hadal.ingest.build import (
+        SENSOR_VARIABLES,  # the optional columns (GNSS, USBL, vendor salinity) may be absent
+    )
+
+    missing = [v for v in SENSOR_VARIABLES if v not in _all_vars(vehicle)]
     if missing:
         checks.append(f"not found in the logs (columns stay empty, flag 9): {', '.join(missing)}")
     checks.insert(0, f"time base: {base!r}, {why}")
