@@ -190,6 +190,11 @@ def fig_ctd_profiles(dp: DiveProducts, opt: FigureOptions) -> FigureResult:
         ax.tick_params(labelsize=8)
         ax.ticklabel_format(axis="x", useOffset=False)  # an offset label would overlap the axis label
         ax.xaxis.set_major_locator(MaxNLocator(3))
+        # a narrow range (gravity over a shallow cast: 9.809758-9.809775) has long labels: slanted, they do not
+        # run into each other in a narrow panel
+        ax.tick_params(axis="x", labelrotation=30)
+        for lbl in ax.get_xticklabels():
+            lbl.set_horizontalalignment("right")
     axes[0].set_ylabel(axis_label(zcol, "depth" if zcol == "depth_m" else "pressure"))
     zmax = float(np.nanmax(pd.to_numeric(d[zcol], errors="coerce")))
     if np.isfinite(zmax) and zmax > 0:
