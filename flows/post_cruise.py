@@ -33,6 +33,7 @@ from hadal.pipeline import (
     all_products,
     blocked_by_failure,
     make_context,
+    pin_paths,
     raise_failures,
     stage_plan,
 )
@@ -88,6 +89,21 @@ def process_stages(names: list[str]) -> set[str]:
     down = {n: set(downstream_stages(n, names)) for n in names}
     return {n for n in names if stage(n).process
             and any(o != n and o not in down[n] and n not in down[o] for o in names)}
+
+
+def skipped_reason(d: DiveRun, name: str, store_root: str | None, config_path: str | None) -> str:
+    """Why stage ``name`` published nothing: its content check (:func:`hadal.plan.runtime_skip_reason`, e.g.
+    landing's laser cells coarser than the vehicle allows) on the products this run pinned; the table shows it,
+    not just "see the log"."""
+    from hadal.plan import runtime_skip_reason
+
+    try:
+        ctx = make_context(d.raw_dir, store_root, config_path)
+        pin_paths(ctx, d.pins)
+        why = runtime_skip_reason(name, ctx)
+    except (HadalError, OSError):
+        why = None
+    return why or "nothing to do (see the log)"
 
 
 def run_stage_graph(dives: list[DiveRun], store_root: str | None, config_path: str | None, force: bool,
@@ -149,7 +165,7 @@ def run_stage_graph(dives: list[DiveRun], store_root: str | None, config_path: s
             d.pins.update(out)
             d.published.update(out)
             d.rows.append({"stage": name, "status": status, "seconds": round(seconds, 2), "versions": versions,
-                           "reason": "" if out or reused else "nothing to do (see the log)"})
+                           "reason": "" if out or reused else skipped_reason(d, name, store_root, config_path)})
         else:
             exc = state.result(raise_on_failure=False)
             msg = str(exc).splitlines()[0] if isinstance(exc, BaseException) and str(exc) else state.name

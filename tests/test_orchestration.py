@@ -571,3 +571,19 @@ def test_stage_grid_runs_the_group_and_names_only_what_its_fresh_members_made_st
     assert rc == 0, err
     assert st.latest("g1", "landing").label == "v002" and st.latest("g1", "suitability").label == "v001"
     assert "still use" not in err
+
+
+def test_a_stage_skipped_by_its_content_check_names_the_reason_in_the_run_table(shared_data, tmp_path):
+    """A laser-only dive of a coarse airborne lidar cloud (dives-real LAS, 31.6 m cells): landing publishes nothing;
+    the flow's table row says why (landing's own content check), not just "see the log"."""
+    from dive_runs import init_dive, run_quiet
+
+    from hadal.flows.post_cruise import DiveRun, skipped_reason
+
+    raw, _ = init_dive(shared_data, tmp_path, "dives-real/pdal_autzen-utm.las")
+    run_quiet(raw, tmp_path / "store")
+    why = skipped_reason(DiveRun(str(raw), ["laser", "landing", "report"], {}), "landing", str(tmp_path / "store"),
+                         None)
+    assert "coarser than landing.max_cell_fraction" in why and "\n" not in why
+    assert skipped_reason(DiveRun(str(raw), ["report"], {}), "report", str(tmp_path / "store"), None) == \
+        "nothing to do (see the log)"
