@@ -577,7 +577,6 @@ def test_a_stage_skipped_by_its_content_check_names_the_reason_in_the_run_table(
     """A laser-only dive of a coarse airborne lidar cloud (dives-real LAS, 31.6 m cells): landing publishes nothing;
     the flow's table row says why (landing's own content check), not just "see the log"."""
     from dive_runs import init_dive, run_quiet
-
     from hadal.flows.post_cruise import DiveRun, skipped_reason
 
     raw, _ = init_dive(shared_data, tmp_path, "dives-real/pdal_autzen-utm.las")
