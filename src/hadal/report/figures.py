@@ -584,10 +584,12 @@ def fig_laser_grids(dp: DiveProducts, opt: FigureOptions) -> FigureResult:
         rng = f"{fin.min():.2f} .. {fin.max():.2f} m" if fin.size else "no data"
         res = ds.attrs.get("resolution_m")
         ax.set_title(f"{name}\n{'cell ' + format(float(res), 'g') + ' m, ' if res else ''}elevation {rng}", fontsize=9)
-        frame = "local frame" if ds.attrs.get("source_crs_kind") in (None, "local_metric") else "grid CRS"
+        frame = ("local frame" if ds.attrs.get("source_crs_kind") in (None, "local_metric")
+                 else str(ds.attrs.get("source_crs_name") or "grid CRS"))  # the grid's own CRS, by name
         ax.set_xlabel(f"x (m, {frame})", fontsize=8)
         ax.set_ylabel(f"y (m, {frame})", fontsize=8)
         ax.tick_params(labelsize=7)
+        ax.ticklabel_format(useOffset=False, style="plain")  # projected coordinates in full (494 200, not 1e6 +)
         if int(ds.attrs.get("thinned_by", 1)) > 1:
             thinned.append(f"{name} every {int(ds.attrs['thinned_by'])}th cell")
     for ax in axes[n:]:

@@ -189,8 +189,8 @@ def _read_laser_grids(pv: ProductVersion, dp: DiveProducts) -> None:
                     continue
                 k = max(1, int(np.ceil(max(ds.sizes["x"], ds.sizes["y"]) / LASER_FIGURE_CELLS)))
                 small = ds[["elevation_m"]].isel(x=slice(None, None, k), y=slice(None, None, k)).load()
-                small.attrs = {a: ds.attrs[a] for a in ("resolution_m", "source_file", "source_crs_kind", "submap")
-                               if a in ds.attrs}
+                small.attrs = {a: ds.attrs[a] for a in ("resolution_m", "source_file", "source_crs_kind",
+                                                        "source_crs_name", "submap") if a in ds.attrs}
                 small.attrs["thinned_by"] = k
                 info = _laser_grid_info(name, ds)  # the full grid's extent and range, not the thinned copy's
                 if k > 1:
