@@ -361,9 +361,10 @@ def dtm_lonlat(ds, k: int = 1) -> tuple[np.ndarray, np.ndarray]:
     return np.asarray(lon, float), np.asarray(lat, float)
 
 
-def _geo_axes(ax, lon: np.ndarray, lat: np.ndarray) -> float:
+def _geo_axes(ax, lon: np.ndarray, lat: np.ndarray, *, narrow: bool = False) -> float:
     """Limits at the cells' lon/lat bounds, equal ground distances (aspect 1/cos(latitude)), graticule labels in
-    degrees and minutes; returns the mean latitude."""
+    degrees and minutes; returns the mean latitude. ``narrow``: a panel of a multi-panel figure, whose longitude
+    labels (up to 12 characters at a small survey's 4 decimals of a minute) get fewer ticks, slanted."""
     lo0, lo1, la0, la1 = (float(np.nanmin(lon)), float(np.nanmax(lon)), float(np.nanmin(lat)), float(np.nanmax(lat)))
     lat0 = 0.5 * (la0 + la1)
     ax.set_xlim(lo0, lo1)
@@ -373,8 +374,12 @@ def _geo_axes(ax, lon: np.ndarray, lat: np.ndarray) -> float:
     ax.yaxis.set_major_formatter(degmin_formatter("lat", la1 - la0))
     from matplotlib.ticker import MaxNLocator
 
-    ax.xaxis.set_major_locator(MaxNLocator(4))
+    ax.xaxis.set_major_locator(MaxNLocator(3 if narrow else 4))
     ax.yaxis.set_major_locator(MaxNLocator(5))
+    if narrow:
+        ax.tick_params(axis="x", labelrotation=20)
+        for lbl in ax.get_xticklabels():
+            lbl.set_horizontalalignment("right")
     ax.set_xlabel("longitude (WGS 84)")
     ax.set_ylabel("latitude (WGS 84)")
     ax.grid(color="w", alpha=0.35, lw=0.6)
@@ -486,7 +491,7 @@ def fig_dtm_quality(dp: DiveProducts, opt: FigureOptions) -> FigureResult:
             fig.colorbar(im, ax=ax, orientation="horizontal", shrink=0.8, label="standard uncertainty of depth (m)",
                          extend="max")
             ax.set_title("(b) depth uncertainty" + (f" (median {np.nanmedian(fin):.2f} m)" if fin.size else ""))
-        _geo_axes(ax, full_lon, full_lat)
+        _geo_axes(ax, full_lon, full_lat, narrow=True)
     if cov is not None:
         r.caption += f" {100 * cov:.1f} % of the {ds.sizes['x'] * ds.sizes['y']:,} cells hold at least one sounding."
     if k > 1:
@@ -674,7 +679,7 @@ def fig_suitability_geo(dp: DiveProducts, opt: FigureOptions) -> FigureResult:
             ax.plot(rlon, rlat, "--", color="k", lw=1.2)
         if launch and launch.get("lon") is not None:
             ax.plot(float(launch["lon"]), float(launch["lat"]), "x", color="#D55E00", ms=10, mew=2.5)
-        _geo_axes(ax, lon, lat)
+        _geo_axes(ax, lon, lat, narrow=len(panels) > 1)
     if not (launch and launch.get("lon") is not None):
         r.caption = r.caption.replace(", x: launch point.", ".")
     return _render(r, fig, opt)
