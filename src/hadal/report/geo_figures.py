@@ -153,12 +153,7 @@ def fig_overview(dp: DiveProducts, opt: FigureOptions) -> FigureResult:
     if isinstance(deep, dict) and deep.get("lon") is not None:
         handles += ax.plot(deep["lon"], deep["lat"], "*", color="gold", mec="k", ms=15, ls="none",
                            label="deepest point")
-    ax.set_xlim(float(np.nanmin(LON)), float(np.nanmax(LON)))
-    ax.set_ylim(float(np.nanmin(LAT)), float(np.nanmax(LAT)))
-    ax.set_aspect(1.0 / math.cos(math.radians(lat0)))
-    ax.set_xlabel("longitude (°E)")
-    ax.set_ylabel("latitude (°N)")
-    ax.ticklabel_format(useOffset=False)
+    _geo_axes(ax, LON, LAT)  # the same graticule as the DTM map: degrees and minutes, 4-5 ticks
     ax.tick_params(labelsize=8)
     _scale_bar(ax, lat0, inset_box)
     if handles:
