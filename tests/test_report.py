@@ -256,7 +256,7 @@ def test_new_figures_are_drawn(full_store, full_report):
     track = dp.track
     # overview: the matched track in lon/lat, the launch, and (no posterior ellipse) the radial 1σ circle
     ax = figs["overview_map"].figure.axes[0]
-    assert (ax.get_xlabel(), ax.get_ylabel()) == ("longitude (°E)", "latitude (°N)")
+    assert (ax.get_xlabel(), ax.get_ylabel()) == ("longitude (WGS 84)", "latitude (WGS 84)")
     tr = _line(ax, "matched bottom track")
     assert_points_of(tr.get_xdata(), tr.get_ydata(), track, "lon", "lat", FAST.max_points)
     la = _line(ax, "launch")
