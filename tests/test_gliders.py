@@ -249,6 +249,28 @@ def test_slocum_sensors_match_the_file(slocum, shared_data):
     assert {"ctd", "profile", "report"} <= set(ctx.store.products(ctx.dive_id))
 
 
+def test_slocum_gps_fixes_are_gnss_fixes(slocum, shared_data):
+    """The log's own GPS fixes (m_gps_lat/m_gps_lon, NMEA, at the surface) become gnss_latitude/longitude_deg
+    beside the dead-reckoned m_lat/m_lon track; oracle: the file's values parsed here (pyglider's nmea2deg), every
+    valid fix inside the range of the logged fixes (the sensor table interpolates them onto the CTD's times)."""
+    _, raw, ctx = slocum
+    v = yaml.safe_load((raw / "vehicle.yaml").read_text())
+    g = v["sensors"]["gnss"]["csv"]["fields"]
+    assert g["gnss_latitude_deg"] == {"field": "m_gps_lat", "units": "deg", "transform": "nmea_to_deg",
+                                      "fill_values": [69696969.0]}
+    assert g["gnss_longitude_deg"]["field"] == "m_gps_lon"
+    _, names, _, data = _dbd_table(shared_data / SBD)
+    col = {n: data[:, i] for i, n in enumerate(names)}
+    ok = np.isfinite(col["m_gps_lat"]) & (np.abs(col["m_gps_lat"]) < 9000)
+    lat = np.array([_nmea(x) for x in col["m_gps_lat"][ok]])
+    lon = np.array([_nmea(x) for x in col["m_gps_lon"][ok]])
+    s = _table(ctx, "sensors")
+    got = s[["gnss_latitude_deg", "gnss_longitude_deg"]].dropna()
+    assert len(got) >= 5
+    assert lat.min() - 1e-9 <= got["gnss_latitude_deg"].min() and got["gnss_latitude_deg"].max() <= lat.max() + 1e-9
+    assert lon.min() - 1e-9 <= got["gnss_longitude_deg"].min() and got["gnss_longitude_deg"].max() <= lon.max() + 1e-9
+
+
 def test_slocum_units_come_from_the_file(shared_data, tmp_path):
     """The same file with its units line saying dbar for sci_water_pressure (and the heading in degrees written
     as such): init maps what the file says, and the values are read unscaled."""

@@ -271,6 +271,8 @@ def _slocum_fields(columns: list[str], units: dict[str, str]) -> tuple[dict[str,
                 skipped.append((lat, f"units line says {ul!r}/{uo!r}, not NMEA lat/lon"))
                 continue
             out += _positions(lat, lon, score, f"Slocum {why}", "navigation")
+            if lat == "m_lat":  # the track is dead reckoned: its GPS fixes are measurements of their own
+                out += _gps_fixes(cols, units)
             break
     if "m_depth" in cols:
         depth_field = _slocum_depth_as_pressure(cols, units, out)
@@ -291,6 +293,23 @@ def _slocum_depth_as_pressure(cols: set[str], units: dict[str, str], out: list[G
     if lat is None or units.get("m_depth", "m").strip().lower() != "m":
         return None
     return _depth_pressure_field("m_depth", lat, "Slocum glider depth 'm_depth' (units line 'm')")
+
+
+#: Slocum's "no fix" value of ``m_gps_lat``/``m_gps_lon`` (masterdata default; NMEA-impossible, also NaN by
+#: :func:`nmea_to_deg`)
+SLOCUM_GPS_FILL = 69696969.0
+
+
+def _gps_fixes(cols: set[str], units: dict[str, str]) -> list[GliderField]:
+    """Slocum ``m_gps_lat``/``m_gps_lon`` (NMEA, logged at the surface) as GNSS fixes ``gnss_latitude_deg``/
+    ``gnss_longitude_deg`` for the navigation smoother, beside the dead-reckoned ``m_lat``/``m_lon`` track; none
+    when the log lacks them or its units line does not say lat/lon."""
+    if not {"m_gps_lat", "m_gps_lon"} <= cols or (units.get("m_gps_lat", "lat"), units.get("m_gps_lon", "lon")) != (
+            "lat", "lon"):
+        return []
+    return [GliderField(var, name, "deg", 2, f"Slocum GPS fix {name!r} (NMEA DDMM.mmm -> degrees), at the surface",
+                        fill_values=(SLOCUM_GPS_FILL,), transform="nmea_to_deg", group="gnss")
+            for var, name in (("gnss_latitude_deg", "m_gps_lat"), ("gnss_longitude_deg", "m_gps_lon"))]
 
 
 def _positions(lat: str, lon: str, score: int, why: str, group: str | None = None) -> list[GliderField]:

@@ -261,6 +261,12 @@ def _latlon(which: int, nmea: bool = False):
     return f
 
 
+def _nmea_deg(inputs, **_):
+    from hadal.ingest.glider import nmea_to_deg
+
+    return nmea_to_deg(inputs[0])
+
+
 def _depth_to_pressure(inputs, **_):
     """TEOS-10 sea pressure (dbar) of a depth (m, positive down) at a latitude logged as NMEA [-]DDMM.mmm:
     ``gsw.p_from_z(-depth, lat)`` (IOC et al. 2010, TEOS-10 manual; hydrostatic, standard ocean). A row without
@@ -311,6 +317,9 @@ TRANSFORMS: dict[str, tuple[Transform, Any]] = {
         (Transform("latlon_ddmm_to_north_m", 2, "m", "length",
                    "latlon_to_north_m of [latitude, longitude] logged as NMEA [-]DDMM.mmm (glider logs; "
                    "origin in decimal degrees)"), _latlon(1, nmea=True)),
+        (Transform("nmea_to_deg", 1, "deg", "angle",
+                   "decimal degrees of a latitude or longitude logged as NMEA [-]DDMM.mmm (glider GPS fixes); "
+                   "impossible values (minutes >= 60, masterdata defaults) missing"), _nmea_deg),
         (Transform("depth_ddmm_lat_to_pressure_dbar", 2, "dbar", "pressure",
                    "TEOS-10 sea pressure gsw.p_from_z(-depth, lat) of [depth (m, positive down), latitude logged as "
                    "NMEA [-]DDMM.mmm] (a glider's on-board depth when its log has no pressure channel)"),
