@@ -23,6 +23,7 @@ sys.path.insert(0, str(HERE))
 sys.path.insert(0, str(HERE / "malformed"))
 import make_corpus  # noqa: E402
 import make_corpus_readers  # noqa: E402
+import process_cases  # noqa: E402
 import security_cases  # noqa: E402
 from reliability_report import (  # noqa: E402
     Outcome,
@@ -36,8 +37,8 @@ from reliability_report import (  # noqa: E402
 
 FAMILIES = ("mcap", "csv", "cnv", "soundings", "point_cloud", "raster", "dive_yaml", "pipeline_yaml",
             "vehicle_yaml", "upstream")
-#: case classes beyond the reader families (tests/malformed/security_cases.py)
-CLASSES = (*FAMILIES, "security")
+#: case classes beyond the reader families (tests/malformed/security_cases.py, tests/malformed/process_cases.py)
+CLASSES = (*FAMILIES, "security", "process")
 _OUTCOMES: dict[str, Outcome] = {}  # each case runs once per session; the report reuses the outcomes
 
 
@@ -84,6 +85,18 @@ def test_security_case(items, work, name):
     assert not o.lost, o.lost
 
 
+@pytest.mark.parametrize("name", [c.name for c in process_cases.CASES])
+def test_process_case(items, work, name):
+    """Issue 45's process class: the ``hadal`` command under Prefect API faults ends in one ``error:`` line (exit
+    2, no traceback, store unchanged) or completes with the store verified by the case's oracle; kill -9 mid-publish
+    and concurrent runs leave only intact versions; no process outlives its case."""
+    o = _outcome(items[name], work)
+    assert o.traceback is None, o.traceback
+    assert o.handled, o.detail
+    assert not o.lost, o.lost
+    assert not o.orphans, o.orphans
+
+
 def test_reliability_report(items, work, capsys):
     """Every case of both corpora: handled == tried, 0 tracebacks, 0 products lost."""
     outcomes = [_outcome(it, work) for it in items.values()]
@@ -91,7 +104,8 @@ def test_reliability_report(items, work, capsys):
     with capsys.disabled():
         print("\n" + text)
     assert {o.reader for o in outcomes} == set(CLASSES)
-    assert tot["tried"] == len(make_corpus.CASES) + len(make_corpus_readers.CASES) + len(security_cases.CASES) >= 50
+    assert tot["tried"] == (len(make_corpus.CASES) + len(make_corpus_readers.CASES) + len(security_cases.CASES)
+                            + len(process_cases.CASES)) >= 50
     assert tot["tracebacks"] == 0, [o.detail for o in outcomes if o.traceback]
     assert tot["lost"] == 0, [(o.name, o.lost) for o in outcomes if o.lost]
     assert tot["handled"] == tot["tried"], [(o.name, o.detail) for o in outcomes if not o.handled]
