@@ -564,3 +564,28 @@ def test_gzip_xyz_soundings_expanding_past_the_budget(tmp_path, reader):
     out = _run_capped(code)
     _one_line_error(out, "decoding this multibeam file needs more than")
     assert out["peak"] < 2 * GIB, out
+
+
+def test_compressed_gsf_decompressed_past_the_free_disk_space(tmp_path):
+    """A gzip GSF (the real file's pings repeated, 200 MB) is decompressed to a temporary file for libgsf: the copy
+    stops in one line once it would leave less than the reserve free (the reserve set here so that 64 MiB are left:
+    a disk-filling bomb without writing one), and the temporary file is gone."""
+    import tempfile
+
+    data = _real(GSF)
+    recs = _gsf_records(data)
+    first = next(o for r, o, s in recs if r == 2)
+    ping = next(data[o:o + s] for r, o, s in recs if r == 2)
+    p = _compressed(tmp_path / "big.gsf", data[:first], ping, 200_000_000)
+    tmp = tmp_path / "tmp"
+    tmp.mkdir()
+    out = _run_capped(f"""
+        import shutil, tempfile
+        import hadal.grid.sonar as sonar
+        def run():
+            tempfile.tempdir = {str(tmp)!r}
+            sonar._GSF_TMP_RESERVE = shutil.disk_usage({str(tmp)!r}).free - (64 << 20)
+            return len(sonar.read_multibeam({str(p)!r}))
+    """)
+    _one_line_error(out, "decompressing this gzip GSF file needs more than")
+    assert not any(tmp.iterdir()) and tempfile.gettempdir() != str(tmp)

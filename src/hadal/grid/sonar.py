@@ -658,10 +658,15 @@ def _check_lonlat(p: Path, lon: np.ndarray, lat: np.ndarray) -> None:
 
 
 # ------------------------------------------------------------------ GSF
+#: free space left in the temporary directory when a compressed GSF is decompressed there (bytes)
+_GSF_TMP_RESERVE = 1 << 30
+
+
 def _iter_gsf(p: Path, comp: str | None, chunk_points: int, info: dict,
               budget: SoundingBudget | None = None) -> Iterator[pd.DataFrame]:
     """GSF via :func:`hadal.grid.readers.read_gsf` (gsfpy/libgsf needs a real file: compressed GSF is
-    decompressed to a temporary file first). ``budget``: the child process holds its soundings against its own
+    decompressed to a temporary file first, refused in one line before it would leave less than
+    :data:`_GSF_TMP_RESERVE` free there). ``budget``: the child process holds its soundings against its own
     budget as it decodes; this process counts them (from the child's attributes) before loading the table."""
     from hadal.grid.readers import read_gsf
 
@@ -673,8 +678,19 @@ def _iter_gsf(p: Path, comp: str | None, chunk_points: int, info: dict,
 
         with tempfile.TemporaryDirectory(prefix="hadal-gsf-") as td:
             tmp = Path(td) / (p.stem + ".gsf")
+            room = shutil.disk_usage(td).free - _GSF_TMP_RESERVE
             with _reading(p, comp) as src, open(tmp, "wb") as dst:
-                shutil.copyfileobj(src, dst, 1 << 20)
+                written = 0
+                while block := src.read(1 << 20):
+                    written += len(block)
+                    if written > room:  # a compressed file's size says nothing of what it decompresses to
+                        from hadal.budget import format_bytes
+
+                        raise InputError(f"{p}: decompressing this {comp} GSF file needs more than "
+                                         f"{format_bytes(written)} of free space in {Path(td).parent} (GSF is read "
+                                         f"from a plain file; {format_bytes(_GSF_TMP_RESERVE)} are kept free): "
+                                         "decompress it where there is room, or set TMPDIR")
+                    dst.write(block)
             try:
                 df = read_gsf(tmp, budget=budget)
             except InputError as exc:
@@ -938,7 +954,7 @@ def _iter_em_all(p: Path, comp: str | None, chunk_points: int, info: dict,
                 if body[-3] != 0x03:
                     raise InputError(f"{p}: corrupt .all file (datagram {chr(typ)} at byte {off} has no ETX)")
                 cs = struct.unpack(order + "H", body[-2:])[0]
-                if cs != (sum(body[1:-3]) & 0xFFFF):
+                if cs != (_byte_sum(body, 1, len(body) - 3) & 0xFFFF):
                     raise InputError(f"{p}: corrupt .all file (checksum mismatch in {chr(typ)} datagram at byte {off})")
                 model, date, ms = struct.unpack_from(order + "HII", body, 2)
                 if model not in EM_ALL_MODELS:
@@ -1073,6 +1089,12 @@ def _em_xyz88(body: bytes, order: str, t: float):
             beams["x"][ok].astype(np.float32), int(nb))
 
 
+def _byte_sum(b: bytes, start: int, end: int) -> int:
+    """The sum of the unsigned bytes ``b[start:end]`` (the .all and .s7k checksums), without a copy and at C speed
+    (a 7k record may declare 256 MiB: Python's ``sum`` over it took seconds per record)."""
+    return int(np.frombuffer(b, np.uint8, count=max(end - start, 0), offset=start).sum(dtype=np.uint64))
+
+
 # ------------------------------------------------------------------ Reson 7k .s7k
 _S7K_DRF = struct.Struct("<HHIIII10sHIIHHIHHIII")  # 64 bytes
 
@@ -1108,7 +1130,7 @@ def _iter_s7k(p: Path, comp: str | None, chunk_points: int, info: dict) -> Itera
                                  f"{len(rest) + 64} remain)")
             rec = drf + rest
             if flags & 1:
-                if struct.unpack_from("<I", rec, size - 4)[0] != (sum(rec[:size - 4]) & 0xFFFFFFFF):
+                if struct.unpack_from("<I", rec, size - 4)[0] != (_byte_sum(rec, 0, size - 4) & 0xFFFFFFFF):
                     raise InputError(f"{p}: corrupt .s7k file (checksum mismatch in record {rtype} at byte {off})")
             types[rtype] += 1
             if rtype == 7027 and opt_off:
