@@ -4,7 +4,10 @@ Cases: ``tests/malformed/make_corpus.py`` (ingest logs; also tested stage-level 
 ``tests/malformed/make_corpus_readers.py`` (soundings, point clouds, rasters, dive.yaml, pipeline.yaml,
 vehicle.yaml, corrupt upstream products). Each case runs the way ``hadal stage`` runs it (minus Prefect) against
 a fresh store: a one-line HadalError of the expected class and message with the store byte-for-byte unchanged,
-or data that flag the defect. A sample also goes through the real ``hadal`` command line.
+or data that flag the defect. A sample also goes through the real ``hadal`` command line. Issue 45's classes:
+``security`` (``tests/malformed/security_cases.py``) and ``process`` (``tests/malformed/process_cases.py``: the
+``hadal`` command and stage processes under Prefect API faults, a closed stdout, kill -9 mid-publish, concurrent
+runs).
 """
 
 from __future__ import annotations
@@ -251,3 +254,24 @@ def test_cli_error_inside_the_flow_is_one_line_and_leaves_products_alone(items, 
     assert products_only(snapshot(store)) == before
     assert not list(store.glob("*/landing"))  # no landing product, not even an empty one
     shutil.rmtree(store)
+
+
+def test_process_class_counts_an_orphan_that_left_the_process_tree(tmp_path):
+    """A process a case started that outlives it after its parent exited (reparented away from this process, so
+    not among its children) is found by the case tag, counted as an orphan, and killed."""
+    import time
+
+    from reliability_report import Item
+
+    def run(store: Path):
+        code = ("import subprocess, sys; subprocess.Popen([sys.executable, '-c', 'import time; time.sleep(60)'], "
+                "start_new_session=True)")
+        subprocess.run([sys.executable, "-c", code], env=process_cases.env(), check=True)
+        time.sleep(0.5)  # the grandchild has started and its parent is gone
+        from hadal.errors import InputError
+        raise InputError("bad input")
+
+    o = run_item(Item("stray", "process", tmp_path, run, "InputError", "bad input", None,
+                      leftover=process_cases.leftover), tmp_path / "s")
+    assert len(o.orphans) == 1 and not o.handled, o
+    assert process_cases.leftover() == []  # killed when counted
