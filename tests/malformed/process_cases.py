@@ -91,15 +91,16 @@ def leftover() -> list[int]:
         try:
             if proc.pid != os.getpid() and proc.environ().get("HADAL_CASE_TAG") == _TAG \
                     and proc.status() != psutil.STATUS_ZOMBIE:
-                found.append(proc.pid)
+                found.append(proc)
         except (psutil.Error, OSError):
             continue
-    for pid in found:
+    for proc in found:
         try:
-            os.kill(pid, signal.SIGKILL)
-        except OSError:
+            proc.kill()
+        except psutil.Error:
             pass
-    return sorted(found)
+    psutil.wait_procs(found, timeout=10)  # gone (or a zombie its parent reaps) before the next case looks
+    return sorted(p.pid for p in found)
 
 
 def _kill_group(proc: subprocess.Popen) -> None:
