@@ -7,7 +7,10 @@ Usage::
 builds both corpora (``tests/malformed/make_corpus.py``: ingest logs; ``tests/malformed/make_corpus_readers.py``:
 soundings, point clouds, rasters, dive.yaml, pipeline.yaml, vehicle.yaml, corrupt upstream products), runs each
 case as ``hadal stage <stage> DIR --store S`` does (dive + config validation, then the stage; Prefect left out)
-against a fresh store, and prints per reader family:
+against a fresh store, adds the ``security`` class (``tests/malformed/security_cases.py``) and the ``process``
+class (``tests/malformed/process_cases.py``: the ``hadal`` command and stage processes under a Prefect API that
+refuses, never answers or never becomes ready, a closed stdout pipe, ``kill -9`` mid-publish, two concurrent runs;
+real child processes, their orphans found by an environment tag), and prints per reader family or class:
 
 * ``tried``        cases run;
 * ``clean error``  a one-line :class:`hadal.errors.HadalError` of the expected class and message with the store
@@ -16,10 +19,12 @@ against a fresh store, and prints per reader family:
 * ``traceback``    any other exception (goal 0);
 * ``silent-wrong`` a result where an error was due, or whose content fails the case's check (goal 0);
 * ``wrong error``  a HadalError of the wrong class or message, or one that changed the store (goal 0);
-* ``hang``         still running after :data:`CASE_TIMEOUT_S` (a watchdog alarm; goal 0);
+* ``hang``         still running after :data:`CASE_TIMEOUT_S` (a watchdog alarm), or a case's child process
+                   still running after its own timeout (``subprocess.TimeoutExpired``; goal 0);
 * ``over-memory``  a ``MemoryError`` under an address-space cap of :data:`CASE_MEMORY_BYTES` above the
                    process's size at the start of the case (goal 0);
-* ``orphan``       child processes the case left running (goal 0);
+* ``orphan``       child processes the case left running, and processes it started (tagged) that outlive it
+                   (goal 0);
 * ``lost``         product versions that no longer verify (:meth:`ProductStore.verify`) or vanished, new versions
                    that do not verify, and leftover staging directories (goal 0).
 
@@ -34,6 +39,7 @@ import hashlib
 import logging
 import re
 import shutil
+import subprocess
 import sys
 import tempfile
 import threading
@@ -49,6 +55,7 @@ sys.path.insert(0, str(HERE / "malformed"))
 
 import make_corpus  # noqa: E402
 import make_corpus_readers  # noqa: E402
+import process_cases  # noqa: E402
 import security_cases  # noqa: E402
 
 
@@ -102,6 +109,8 @@ class Item:
     match: str
     check: Callable[[Any], bool] | None
     prepare: Callable[[Path], None] = lambda store: None
+    #: processes the case started that are still running after it (pids), beyond this process's children
+    leftover: Callable[[], list[int]] = lambda: []
 
 
 def ingest_items(dest: Path) -> list[Item]:
@@ -153,9 +162,22 @@ def security_items(dest: Path) -> list[Item]:
     return out
 
 
+def process_items(dest: Path) -> list[Item]:
+    """The ``process`` class (``tests/malformed/process_cases.py``): the ``hadal`` command and stage processes
+    under Prefect API faults, a closed stdout, kill -9 mid-publish and concurrent runs."""
+    out = []
+    for c in process_cases.CASES:
+        d = Path(dest) / c.name
+        d.mkdir(parents=True, exist_ok=True)
+        out.append(Item(c.name, "process", d, (lambda store, c=c, d=d: c.run(d, store)), c.error, c.match,
+                        (lambda res, c=c, d=d: c.check(d, res)) if c.check else None,
+                        (lambda store, c=c, d=d: c.prepare(d, store)), process_cases.leftover))
+    return out
+
+
 def all_items(dest: Path) -> list[Item]:
     return (ingest_items(Path(dest) / "ingest") + reader_items(Path(dest) / "readers")
-            + security_items(Path(dest) / "security"))
+            + security_items(Path(dest) / "security") + process_items(Path(dest) / "process"))
 
 
 # ---------------------------------------------------------------------------------------------- running
@@ -257,6 +279,9 @@ def run_item(item: Item, store: Path, *, timeout_s: float = CASE_TIMEOUT_S,
     except _Hang:
         out.status = "hang"
         out.detail = f"HANG: still running after {timeout_s:g} s"
+    except subprocess.TimeoutExpired as exc:  # a case's child process, killed by the case at its own timeout
+        out.status = "hang"
+        out.detail = f"HANG: {exc}"
     except MemoryError:
         out.status = "over_memory"
         out.detail = f"OVER MEMORY: needed more than {memory_bytes / 2**30:g} GiB"
@@ -291,7 +316,7 @@ def run_item(item: Item, store: Path, *, timeout_s: float = CASE_TIMEOUT_S,
         out.status = "flagged" if ok else "silent_wrong"
         out.detail = out.detail or ("published, flagged" if ok else f"expected {item.error}, got a result")
     out.lost = lost_products(before, intact_versions(store), store)
-    out.orphans = sorted(_children() - children_before)
+    out.orphans = sorted((_children() - children_before) | set(item.leftover()))
     if out.orphans:
         out.handled = False
     return out

@@ -46,7 +46,8 @@ def _compressed(path: Path, head: bytes, block: bytes, total_bytes: int, how: st
 
 def _run_capped(code: str) -> dict:
     """Run ``code`` (defining ``run()``; its top level imports what it needs) in a new interpreter under RLIMIT_AS =
-    4 GiB: the result or the error of ``run()``, its peak RSS and the RSS before it (after the imports), in bytes."""
+    4 GiB: the result or the error of ``run()``, its peak RSS and the RSS before it (after the imports), and the
+    peak of its child processes, in bytes."""
     prog = textwrap.dedent("""
         import json, resource, sys, warnings
         resource.setrlimit(resource.RLIMIT_AS, (%d, %d))
@@ -64,6 +65,9 @@ def _run_capped(code: str) -> dict:
             out["message"] = str(exc)
         out["peak"] = hwm()
         out["base"] = base
+        # child processes' peak (the GSF reader's libgsf child): an upper bound, Linux starts a child's count at
+        # its parent's at the fork (this small interpreter's)
+        out["children_peak"] = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss * 1024
         print(json.dumps(out))
     """) % (CAP, CAP, textwrap.dedent(code).strip())
     r = subprocess.run([sys.executable, "-c", prog], capture_output=True, text=True, timeout=600)
@@ -267,3 +271,321 @@ def test_mcap_chunk_bomb(tmp_path, how):
     """)
     _one_line_error(out, "decoding this MCAP chunk needs more than")
     assert out["peak"] - out["base"] < 0.5 * GIB, out
+
+
+def _mcap_many_chunks(path: Path, n_chunks: int, per_chunk: int, *, same: bool = True) -> Path:
+    """An MCAP file (spec: magic, Header, a JSON Schema and Channel ``/ctd``, ``n_chunks`` zstd Chunks of
+    ``per_chunk`` Message records each, Footer, magic): every chunk small and within the budget on its own.
+    ``same``: one chunk written ``n_chunks`` times (a few MB for millions of messages); else consecutive log times
+    (``k`` ms for message ``k``) with ``p`` = 1.5, ``t`` = 10.25, ``c`` = 3.5 in every message."""
+    import struct
+    import zlib
+
+    import zstandard
+
+    def string(s: bytes) -> bytes:
+        return struct.pack("<I", len(s)) + s
+
+    def record(op: int, body: bytes) -> bytes:
+        return struct.pack("<BQ", op, len(body)) + body
+
+    schema = record(0x03, struct.pack("<H", 1) + string(b"ctd") + string(b"jsonschema") + string(b'{"type":"object"}'))
+    channel = record(0x04, struct.pack("<HH", 1, 1) + string(b"/ctd") + string(b"json") + struct.pack("<I", 0))
+    magic = b"\x89MCAP0\r\n"
+    cctx = zstandard.ZstdCompressor(level=3)
+    body = b""
+    with open(path, "wb") as f:
+        f.write(magic + record(0x01, string(b"") + string(b"bomb")) + schema + channel)
+        for k in range(n_chunks):
+            if not body or not same:
+                t0 = 0 if same else k * per_chunk
+                msgs = b"".join(record(0x05, struct.pack("<HIQQ", 1, i, (t0 + i) * 1_000_000, (t0 + i) * 1_000_000)
+                                       + b'{"p": 1.5, "t": 10.25, "c": 3.5}') for i in range(per_chunk))
+                data = cctx.compress(msgs)
+                body = (struct.pack("<QQQI", t0 * 1_000_000, (t0 + per_chunk) * 1_000_000, len(msgs),
+                                    zlib.crc32(msgs)) + string(b"zstd") + struct.pack("<Q", len(data)) + data)
+            f.write(record(0x06, body))
+        f.write(record(0x02, struct.pack("<QQI", 0, 0, 0)) + magic)
+    return path
+
+
+def test_mcap_many_small_chunks_past_the_budget(tmp_path):
+    """2,000 chunks of 10,000 JSON messages each (0.6 MB decoded a chunk, 1.2 GB and 2e7 messages in all, 5 GB
+    as decoded objects; a few MB on disk): each chunk passes on its own, their sum is counted against one budget
+    for the file and refused in one line naming the file and the limit, peak far under the cap."""
+    p = _mcap_many_chunks(tmp_path / "chunks.mcap", 2000, 10_000)
+    out = _run_capped(f"""
+        from hadal.ingest.mcap_reader import read_mcap
+        def run():
+            return len(read_mcap({str(p)!r})[0]["/ctd"].messages)
+    """)
+    _one_line_error(out, "decoding this MCAP file needs more than")
+    assert str(p) in out["message"] and "limit" in out["message"], out
+    assert out["peak"] - out["base"] < 0.75 * GIB, out
+
+
+def test_mcap_many_small_chunks_under_the_budget_are_read_whole(tmp_path):
+    """The file budget refuses nothing ordinary: 1e6 messages in 100 chunks are all read through the sensors
+    reader under the cap, values and times as written (the oracle)."""
+    p = _mcap_many_chunks(tmp_path / "ok.mcap", 100, 10_000, same=False)
+    out = _run_capped(f"""
+        import warnings
+        from hadal.ingest.build import read_mcap_sensors
+        from hadal.ingest.vehicle import VehicleConfig
+        def run():
+            v = VehicleConfig.model_validate({{"time_base": "ctd", "sensors": {{"ctd": {{"mcap": {{"topic": "/ctd",
+                "fields": {{"pressure_ctd_dbar": {{"field": "p", "units": "dbar"}},
+                           "temperature_its90_degc": {{"field": "t", "units": "degC"}}}}}}}}}}}})
+            s = read_mcap_sensors([{str(p)!r}], v)[0]["ctd"]
+            steps = set((s.time_ns[1:] - s.time_ns[:-1]).tolist())
+            return [len(s), sorted(steps), float(s.values["pressure_ctd_dbar"].mean()),
+                    float(s.values["temperature_its90_degc"].max())]
+    """)
+    assert "error" not in out, out
+    n, steps, pm, tmax = out["result"]
+    assert n == 1_000_000 and steps == [1_000_000] and pm == 1.5 and tmax == 10.25
+
+
+# ---------------------------------------------------------------------------------------------- swath formats
+def _real(name: str) -> bytes:
+    """A real file of a swath format (``$HADAL_SHARED_DATA/formats-real`` or ``bathy-real``, provenance in their
+    PROVENANCE.md), the seed of the bombs below: a header field of a copy is changed, or its records repeated."""
+    import os
+
+    root = Path(os.environ.get("HADAL_SHARED_DATA", "/work/shared/data"))
+    for sub in ("formats-real", "bathy-real"):
+        if (root / sub / name).is_file():
+            return (root / sub / name).read_bytes()
+    pytest.skip(f"real file {name} not here (HADAL_SHARED_DATA)")
+
+
+EM_ALL = "mbsys_nbp1403-filtered-em120.all"
+KMALL = "kongsberg_em_driver_MRZ_versionF.kmall"
+S7K = "mbsys_TN136HS.309.snipped.s7k"
+GSF = "0029_20160323_185603_EX1604_MB.gsf.mb121"
+
+
+def _em_datagrams(data: bytes) -> list[tuple[str, int, int]]:
+    """(type, offset, length) of each datagram of a little-endian .all file (u32 length excluding itself)."""
+    import struct
+
+    out, off = [], 0
+    while off < len(data):
+        n = struct.unpack_from("<I", data, off)[0]
+        out.append((chr(data[off + 5]), off, n))
+        off += 4 + n
+    return out
+
+
+def _em_depths(data: bytes) -> bytes:
+    """The real file's Depth (D) datagrams, one after the other: 3 pings, 572 valid soundings."""
+    return b"".join(data[o:o + 4 + n] for t, o, n in _em_datagrams(data) if t == "D")
+
+
+def _read_swath(p: Path) -> str:
+    """The DTM stage's read of a multibeam file (hadal.grid.soundings.read_soundings_xy): soundings, depth range."""
+    return f"""
+        from hadal.grid.soundings import read_soundings_xy
+        def run():
+            x, y, dep, frame, used = read_soundings_xy([{str(p)!r}], None)
+            return [int(dep.size), float(dep.min()), float(dep.max())]
+    """
+
+
+def test_em_all_of_many_depth_datagrams_past_the_budget(tmp_path):
+    """The real EM 120 .all with its 3 Depth datagrams repeated 260,000 times (1.5e8 soundings, 2.4 GB, a gzip of a
+    few MB): each ping is valid, their sum is refused in one line as they decode, peak under 2 GiB (0.5 GiB measured;
+    before, the reader kept every ping until the navigation was read: MemoryError at 2.8 GiB)."""
+    data = _real(EM_ALL)
+    p = _compressed(tmp_path / "bomb.all", data, _em_depths(data), 2_400_000_000)
+    out = _run_capped(_read_swath(p))
+    _one_line_error(out, "decoding this em_all multibeam file needs more than")
+    assert "limit" in out["message"], out
+    assert out["peak"] < 2 * GIB, out
+
+
+def test_em_all_of_many_depth_datagrams_under_the_budget_is_read_whole(tmp_path):
+    """1,000 repeats (5.7e5 soundings): all read, the soundings and depths those of the real file (the oracle:
+    572 valid beams, 2581.32-3051.72 m as mbinfo reports), 1,001 times."""
+    import gzip
+
+    data = _real(EM_ALL)
+    p = tmp_path / "ok.all"
+    with gzip.open(p, "wb", compresslevel=1) as f:
+        f.write(data + _em_depths(data) * 1000)
+    out = _run_capped(_read_swath(p))
+    assert "error" not in out, out
+    n, lo, hi = out["result"]
+    assert n == 572 * 1001 and abs(lo - 2581.32) < 0.01 and abs(hi - 3051.72) < 0.01, out
+
+
+def _kmall_mrz(data: bytes, *, time_s: int | None = None, parts: tuple[int, int] | None = None,
+               size: int | None = None) -> bytes:
+    """The real #MRZ datagram with its time (u32 s at byte 12), partition (u16 numOfDgms, dgmNum at byte 20) or
+    length (u32 at 0 and at the end, zeros before the trailing length) changed."""
+    import struct
+
+    d = bytearray(data)
+    if time_s is not None:
+        struct.pack_into("<I", d, 12, time_s)
+    if parts is not None:
+        struct.pack_into("<HH", d, 20, *parts)
+    if size is not None:
+        d = d[:-4] + bytes(size - len(d)) + d[-4:]
+        struct.pack_into("<I", d, 0, size)
+        struct.pack_into("<I", d, size - 4, size)
+    return bytes(d)
+
+
+def test_kmall_partitions_that_never_complete(tmp_path):
+    """400 #MRZ partitions (1 of 2, each of another ping, 8 MiB: 3.2 GiB, a gzip of 4 MB) wait for their second
+    parts: held against the budget, refused in one line, peak under 2 GiB (1.1 GiB measured; they were held without
+    bound before: 3.4 GiB, then "no #MRZ datagrams")."""
+    import gzip
+
+    data = _real(KMALL)
+    p = tmp_path / "parts.kmall"
+    with gzip.open(p, "wb", compresslevel=1) as f:
+        for k in range(400):
+            f.write(_kmall_mrz(data, time_s=1_557_607_590 + k, parts=(2, 1), size=8 << 20))
+    out = _run_capped(_read_swath(p))
+    _one_line_error(out, "decoding this kmall multibeam file needs more than")
+    assert "pending" in out["message"], out
+    assert out["peak"] < 2 * GIB, out
+
+
+def test_kmall_of_many_pings_is_read_whole(tmp_path):
+    """The real #MRZ ping 200 times (one ping a second): all read under the cap, 200 x its 393 valid soundings,
+    depths as the single ping's (the oracle: the real file read alone)."""
+    data = _real(KMALL)
+    one = tmp_path / "one.kmall"
+    one.write_bytes(data)
+    p = tmp_path / "many.kmall"
+    p.write_bytes(b"".join(_kmall_mrz(data, time_s=1_557_607_590 + k) for k in range(200)))
+    ref = _run_capped(_read_swath(one))["result"]
+    out = _run_capped(_read_swath(p))
+    assert "error" not in out, out
+    assert ref[0] == 393 and out["result"] == [200 * 393, ref[1], ref[2]], (ref, out)
+    assert out["peak"] < GIB, out
+
+
+@pytest.mark.parametrize("fmt", ["em_all_length", "em_all_beams", "kmall_length", "s7k_size", "gsf_beams"])
+def test_swath_header_claiming_a_huge_count(tmp_path, fmt):
+    """A header field of a real file claiming far more than the file holds (a datagram/record length of 16 MiB -
+    256 MiB, a Depth datagram of 255 beams in 191 beams' bytes, a GSF ping of 65,535 beams): a one-line error,
+    nothing allocated for the claim (peak under 0.5 GiB above the start)."""
+    import struct
+
+    if fmt.startswith("em_all"):
+        d = bytearray(_real(EM_ALL))
+        t, o, n = next(x for x in _em_datagrams(bytes(d)) if x[0] == "D")
+        if fmt == "em_all_length":
+            struct.pack_into("<I", d, o, (1 << 24) - 4)
+            match = "truncated .all file"
+        else:
+            d[o + 4 + 23] = 255  # N beams (u8 after the 16-byte header, heading, sound speed, transducer depth, max)
+            struct.pack_into("<H", d, o + 4 + n - 2, sum(d[o + 5:o + 4 + n - 3]) & 0xFFFF)  # checksum kept right
+            match = "too short for its beam count"
+        name = "claim.all"
+    elif fmt == "kmall_length":
+        d = bytearray(_real(KMALL))
+        struct.pack_into("<I", d, 0, (1 << 26) - 4)
+        match, name = "truncated .kmall file", "claim.kmall"
+    elif fmt == "s7k_size":
+        d = bytearray(_real(S7K))
+        struct.pack_into("<I", d, 8, (1 << 28) - 64)  # DRF: u16 version, u16 offset, u32 sync, u32 size
+        match, name = "truncated .s7k file", "claim.s7k"
+    else:
+        d = bytearray(_real(GSF))
+        struct.pack_into(">H", d, 7340 + 8 + 16, 65535)  # number_beams of the first ping (after time, lat, lon)
+        match, name = "invalid number of beams", "claim.gsf"
+    p = tmp_path / name
+    p.write_bytes(bytes(d))
+    out = _run_capped(_read_swath(p))
+    _one_line_error(out, match)
+    assert out["peak"] - out["base"] < 0.5 * GIB, out
+
+
+def test_s7k_records_of_a_declared_huge_size_in_a_gzip(tmp_path):
+    """The real .s7k's file-header record declaring 255 MiB, zeros to fill it, then its 17 records repeated for
+    1 GiB (a gzip of a few MB): read record by record and refused in one line (no bathymetry records), peak
+    about one record."""
+    import struct
+
+    d = bytearray(_real(S7K))
+    first = struct.unpack_from("<I", d, 8)[0]
+    head = bytes(d[:first])
+    big = bytearray(head)
+    struct.pack_into("<I", big, 8, 255 << 20)
+    p = _compressed(tmp_path / "big.s7k", bytes(big) + bytes((255 << 20) - len(big)), bytes(d[first:]), GIB)
+    out = _run_capped(_read_swath(p))
+    _one_line_error(out, "contains no bathymetry pings")
+    assert out["peak"] - out["base"] < GIB, out
+
+
+def _gsf_records(data: bytes) -> list[tuple[int, int, int]]:
+    """(record id, offset, record bytes with the 8-byte header and padding) of a GSF file (big-endian)."""
+    import struct
+
+    out, off = [], 0
+    while off < len(data):
+        n, rid = struct.unpack_from(">II", data, off)
+        size = 8 + n + (-n % 4)
+        out.append((rid & 0x7FFFFFFF, off, size))
+        off += size
+    return out
+
+
+def test_gsf_of_many_pings_past_the_budget(tmp_path):
+    """The real EX1604 GSF's first ping record repeated 200,000 times (6e7 soundings, 1.2 GB, a gzip of a few MB):
+    the child process that reads it with libgsf refuses as it decodes, in one line (its limits are this
+    process's, RLIMIT_AS included), peak of either process under 2 GiB (the child's 0.8 GiB measured; it reached
+    the cap before, a numpy MemoryError at 2.5 GiB)."""
+    data = _real(GSF)
+    recs = _gsf_records(data)
+    first = next(o for r, o, s in recs if r == 2)
+    ping = next(data[o:o + s] for r, o, s in recs if r == 2)
+    p = _compressed(tmp_path / "bomb.gsf", data[:first], ping, first + 200_000 * len(ping))
+    out = _run_capped(_read_swath(p))
+    _one_line_error(out, "decoding this gsf multibeam file needs more than")
+    assert out["peak"] < 2 * GIB and out["children_peak"] < 2 * GIB, out
+
+
+@pytest.mark.parametrize("reader", ["dtm", "read_soundings"])
+def test_gzip_xyz_soundings_expanding_past_the_budget(tmp_path, reader):
+    """xyz soundings, 2 GiB of text (1.1e8 soundings) in a gzip, read by the DTM stage's reader or the public
+    ``read_soundings``: refused in one line as the soundings decode, peak under 2 GiB."""
+    p = _compressed(tmp_path / "bomb.xyz", b"", b"142.1 11.3 5000.0\n", 2 * GIB)
+    code = _read_swath(p) if reader == "dtm" else f"""
+        from hadal.grid.readers import read_soundings
+        def run():
+            return len(read_soundings({str(p)!r}))
+    """
+    out = _run_capped(code)
+    _one_line_error(out, "decoding this multibeam file needs more than")
+    assert out["peak"] < 2 * GIB, out
+
+
+def test_compressed_gsf_decompressed_past_the_free_disk_space(tmp_path):
+    """A gzip GSF (the real file's pings repeated, 200 MB) is decompressed to a temporary file for libgsf: the copy
+    stops in one line once it would leave less than the reserve free (the reserve set here so that 64 MiB are left:
+    a disk-filling bomb without writing one), and the temporary file is gone."""
+    import tempfile
+
+    data = _real(GSF)
+    recs = _gsf_records(data)
+    first = next(o for r, o, s in recs if r == 2)
+    ping = next(data[o:o + s] for r, o, s in recs if r == 2)
+    p = _compressed(tmp_path / "big.gsf", data[:first], ping, 200_000_000)
+    tmp = tmp_path / "tmp"
+    tmp.mkdir()
+    out = _run_capped(f"""
+        import shutil, tempfile
+        import hadal.grid.sonar as sonar
+        def run():
+            tempfile.tempdir = {str(tmp)!r}
+            sonar._GSF_TMP_RESERVE = shutil.disk_usage({str(tmp)!r}).free - (64 << 20)
+            return len(sonar.read_multibeam({str(p)!r}))
+    """)
+    _one_line_error(out, "decompressing this gzip GSF file needs more than")
+    assert not any(tmp.iterdir()) and tempfile.gettempdir() != str(tmp)

@@ -4,7 +4,10 @@ Cases: ``tests/malformed/make_corpus.py`` (ingest logs; also tested stage-level 
 ``tests/malformed/make_corpus_readers.py`` (soundings, point clouds, rasters, dive.yaml, pipeline.yaml,
 vehicle.yaml, corrupt upstream products). Each case runs the way ``hadal stage`` runs it (minus Prefect) against
 a fresh store: a one-line HadalError of the expected class and message with the store byte-for-byte unchanged,
-or data that flag the defect. A sample also goes through the real ``hadal`` command line.
+or data that flag the defect. A sample also goes through the real ``hadal`` command line. Issue 45's classes:
+``security`` (``tests/malformed/security_cases.py``) and ``process`` (``tests/malformed/process_cases.py``: the
+``hadal`` command and stage processes under Prefect API faults, a closed stdout, kill -9 mid-publish, concurrent
+runs).
 """
 
 from __future__ import annotations
@@ -23,6 +26,7 @@ sys.path.insert(0, str(HERE))
 sys.path.insert(0, str(HERE / "malformed"))
 import make_corpus  # noqa: E402
 import make_corpus_readers  # noqa: E402
+import process_cases  # noqa: E402
 import security_cases  # noqa: E402
 from reliability_report import (  # noqa: E402
     Outcome,
@@ -36,8 +40,8 @@ from reliability_report import (  # noqa: E402
 
 FAMILIES = ("mcap", "csv", "cnv", "soundings", "point_cloud", "raster", "dive_yaml", "pipeline_yaml",
             "vehicle_yaml", "upstream")
-#: case classes beyond the reader families (tests/malformed/security_cases.py)
-CLASSES = (*FAMILIES, "security")
+#: case classes beyond the reader families (tests/malformed/security_cases.py, tests/malformed/process_cases.py)
+CLASSES = (*FAMILIES, "security", "process")
 _OUTCOMES: dict[str, Outcome] = {}  # each case runs once per session; the report reuses the outcomes
 
 
@@ -84,6 +88,18 @@ def test_security_case(items, work, name):
     assert not o.lost, o.lost
 
 
+@pytest.mark.parametrize("name", [c.name for c in process_cases.CASES])
+def test_process_case(items, work, name):
+    """Issue 45's process class: the ``hadal`` command under Prefect API faults ends in one ``error:`` line (exit
+    2, no traceback, store unchanged) or completes with the store verified by the case's oracle; kill -9 mid-publish
+    and concurrent runs leave only intact versions; no process outlives its case."""
+    o = _outcome(items[name], work)
+    assert o.traceback is None, o.traceback
+    assert o.handled, o.detail
+    assert not o.lost, o.lost
+    assert not o.orphans, o.orphans
+
+
 def test_reliability_report(items, work, capsys):
     """Every case of both corpora: handled == tried, 0 tracebacks, 0 products lost."""
     outcomes = [_outcome(it, work) for it in items.values()]
@@ -91,7 +107,8 @@ def test_reliability_report(items, work, capsys):
     with capsys.disabled():
         print("\n" + text)
     assert {o.reader for o in outcomes} == set(CLASSES)
-    assert tot["tried"] == len(make_corpus.CASES) + len(make_corpus_readers.CASES) + len(security_cases.CASES) >= 50
+    assert tot["tried"] == (len(make_corpus.CASES) + len(make_corpus_readers.CASES) + len(security_cases.CASES)
+                            + len(process_cases.CASES)) >= 50
     assert tot["tracebacks"] == 0, [o.detail for o in outcomes if o.traceback]
     assert tot["lost"] == 0, [(o.name, o.lost) for o in outcomes if o.lost]
     assert tot["handled"] == tot["tried"], [(o.name, o.detail) for o in outcomes if not o.handled]
@@ -237,3 +254,24 @@ def test_cli_error_inside_the_flow_is_one_line_and_leaves_products_alone(items, 
     assert products_only(snapshot(store)) == before
     assert not list(store.glob("*/landing"))  # no landing product, not even an empty one
     shutil.rmtree(store)
+
+
+def test_process_class_counts_an_orphan_that_left_the_process_tree(tmp_path):
+    """A process a case started that outlives it after its parent exited (reparented away from this process, so
+    not among its children) is found by the case tag, counted as an orphan, and killed."""
+    import time
+
+    from reliability_report import Item
+
+    def run(store: Path):
+        code = ("import subprocess, sys; subprocess.Popen([sys.executable, '-c', 'import time; time.sleep(60)'], "
+                "start_new_session=True)")
+        subprocess.run([sys.executable, "-c", code], env=process_cases.env(), check=True)
+        time.sleep(0.5)  # the grandchild has started and its parent is gone
+        from hadal.errors import InputError
+        raise InputError("bad input")
+
+    o = run_item(Item("stray", "process", tmp_path, run, "InputError", "bad input", None,
+                      leftover=process_cases.leftover), tmp_path / "s")
+    assert len(o.orphans) == 1 and not o.handled, o
+    assert process_cases.leftover() == []  # killed when counted

@@ -434,3 +434,32 @@ def test_make_dtm_reads_every_format(shared_data, tmp_path):
     assert 7700 < float(ds["depth_m"].min()) and float(ds["depth_m"].max()) < 8300
     with pytest.raises(InputError, match="no CRS"):
         make_dtm([xyz], LocalFrame(11.3, 139.2), Params())
+
+
+@pytest.mark.parametrize("right", [True, False])
+def test_s7k_record_checksums_are_verified(tmp_path, right):
+    """The real TN136 .s7k with every record's checksum flag set and its u32 checksum (the sum of the record's bytes
+    before it, DRF v5) appended: right sums read through to the file's own verdict (no bathymetry records), a wrong
+    one is a one-line corrupt-file error naming the record."""
+    import os
+    from pathlib import Path
+
+    src = Path(os.environ.get("HADAL_SHARED_DATA", "/work/shared/data")) / "formats-real" / \
+        "mbsys_TN136HS.309.snipped.s7k"
+    if not src.is_file():
+        pytest.skip("real .s7k not here (HADAL_SHARED_DATA)")
+    data, out, off = src.read_bytes(), bytearray(), 0
+    while off < len(data):
+        size = struct.unpack_from("<I", data, off + 8)[0]
+        rec = bytearray(data[off:off + size])
+        struct.pack_into("<I", rec, 8, size + 4)
+        struct.pack_into("<H", rec, 48, struct.unpack_from("<H", rec, 48)[0] | 1)  # flags: checksum present
+        total = sum(rec) + (0 if right or out else 1)
+        out += rec + struct.pack("<I", total & 0xFFFFFFFF)
+        off += size
+    p = tmp_path / "sums.s7k"
+    p.write_bytes(bytes(out))
+    with pytest.raises(InputError) as exc:
+        read_multibeam(p)
+    msg = _one_line(exc)
+    assert ("contains no bathymetry pings" in msg) if right else ("checksum mismatch in record 7200 at byte 0" in msg)

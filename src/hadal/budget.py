@@ -171,9 +171,11 @@ class DecodeBudget:
         self.path, self.what, self.copies = path, what, float(copies)
         self.limit = float(memory_limit_bytes(None) if limit_bytes is None else limit_bytes)
 
-    def hold(self, nbytes: float, so_far: str = "") -> None:
-        """Refuse when ``nbytes`` of decoded arrays (x ``copies``) exceed the limit; ``so_far`` says what they are."""
-        need = float(nbytes) * self.copies
+    def hold(self, nbytes: float, so_far: str = "", *, held: float = 0.0) -> None:
+        """Refuse when ``nbytes`` of decoded arrays (x ``copies``) exceed the limit; ``so_far`` says what they are.
+        ``held`` is memory already held by the same read and counted elsewhere (bytes, its copies included: what a
+        reader keeps across records while it decodes the next one), added to the need."""
+        need = float(nbytes) * self.copies + float(held)
         if need <= self.limit and math.isfinite(need):
             return
         from hadal.errors import InputError

@@ -1,6 +1,7 @@
 """Security cases of the reliability report (issue 45): a forged provenance, a hand-edited store, hostile names and
 YAML, a symlinked file offered to the report, AlignCTD's edge, grid files reaching outside the dive or to the network
-(a VRT, HDF5 external storage) and compression bombs against the decode budget.
+(a VRT, HDF5 external storage) and compression bombs against the decode budget (a file of many small MCAP chunks
+among them).
 
 Each case is ``(name, prepare(case_dir, store), run(case_dir, store), error, match, check)`` in the shape of
 ``tests/reliability_report.py``'s ``Item``: a one-line :class:`hadal.errors.HadalError` of class ``error`` whose
@@ -316,6 +317,37 @@ def _prep_cnv_xz(d: Path, store: Path) -> None:
             f.write(block)
 
 
+def _prep_mcap_chunks(d: Path, store: Path) -> None:
+    """An MCAP file (spec: magic, Header, JSON Schema and Channel ``/ctd``, Chunks, Footer, magic) of 2,000 zstd
+    chunks of 10,000 messages each (one chunk written 2,000 times: 4 MB on disk), each chunk within the budget,
+    2e7 messages in all (about 5 GB as decoded objects)."""
+    import struct
+    import zlib
+
+    import zstandard
+
+    def string(b: bytes) -> bytes:
+        return struct.pack("<I", len(b)) + b
+
+    def record(op: int, body: bytes) -> bytes:
+        return struct.pack("<BQ", op, len(body)) + body
+
+    d.mkdir(parents=True, exist_ok=True)
+    msgs = b"".join(record(0x05, struct.pack("<HIQQ", 1, i, i * 1_000_000, i * 1_000_000)
+                           + b'{"p": 1.5, "t": 10.25, "c": 3.5}') for i in range(10_000))
+    data = zstandard.ZstdCompressor(level=3).compress(msgs)
+    chunk = record(0x06, struct.pack("<QQQI", 0, 10_000 * 1_000_000, len(msgs), zlib.crc32(msgs)) + string(b"zstd")
+                   + struct.pack("<Q", len(data)) + data)
+    magic = b"\x89MCAP0\r\n"
+    with open(d / "chunks.mcap", "wb") as f:
+        f.write(magic + record(0x01, string(b"") + string(b"bomb"))
+                + record(0x03, struct.pack("<H", 1) + string(b"ctd") + string(b"jsonschema") + string(b"{}"))
+                + record(0x04, struct.pack("<HH", 1, 1) + string(b"/ctd") + string(b"json") + struct.pack("<I", 0)))
+        for _ in range(2000):
+            f.write(chunk)
+        f.write(record(0x02, struct.pack("<QQI", 0, 0, 0)) + magic)
+
+
 def _run_file(fn: str, name: str, **kw: Any) -> Callable[[Path, Path], Any]:
     def run(d: Path, store: Path) -> Any:
         import importlib
@@ -372,6 +404,9 @@ CASES: tuple[SecurityCase, ...] = (
     SecurityCase("sec_xz_cnv_rows_past_the_budget", _prep_cnv_xz,
                  _run_file("hadal.ingest.cnv.read_cnv", "rows.cnv", max_bytes=256 << 20), "InputError",
                  r"decoding this CNV file needs more than"),
+    SecurityCase("sec_mcap_many_small_chunks_past_the_budget", _prep_mcap_chunks,
+                 _run_file("hadal.ingest.mcap_reader.read_mcap", "chunks.mcap"), "InputError",
+                 r"chunks\.mcap: decoding this MCAP file needs more than .*limit"),
     SecurityCase("sec_align_ctd_advance_longer_than_record", lambda d, s: None, _run_align, "InputError",
                  r"not shorter than the record"),
 )

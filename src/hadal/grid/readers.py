@@ -16,6 +16,7 @@ import math
 import re
 import warnings
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pandas as pd
@@ -49,17 +50,22 @@ def read_soundings(path: str | Path, *, columns=SOUNDING_COLUMNS, check_ranges: 
     elevations (header name, declared ``hints.z_positive='up'``, or a negative median) are converted to depth
     positive down; projected x/y come back as ``x_m, y_m, depth_m``. ``columns`` renames the three output
     columns. Truncated or corrupt files, non-numeric values and longitudes/latitudes out of range raise
-    :class:`InputError`; NaN values are kept (the gridder drops and counts them). ``attrs`` records the reader.
+    :class:`InputError`; NaN values are kept (the gridder drops and counts them), and so is a file whose soundings
+    pass the memory budget as they decode (:class:`hadal.grid.sonar.SoundingBudget`). ``attrs`` records the reader.
     For binary swath formats use :func:`hadal.grid.sonar.read_multibeam`.
     """
-    from hadal.grid.sonar import _iter_xyz, _require, sniff_multibeam
+    from hadal.grid.sonar import SoundingBudget, _iter_xyz, _require, sniff_multibeam
 
     p = _require(path)
     sn = sniff_multibeam(p)
     if sn["format"] not in ("xyz", "unknown"):
         raise InputError(f"{p}: is a {sn['format']} file, not xyz text (read it with hadal.grid.sonar.read_multibeam)")
     info: dict = {"path": str(p), "compression": sn["compression"]}
-    parts = [c for c in _iter_xyz(p, sn["compression"], hints, 1_000_000, info, check_ranges=check_ranges)]
+    budget = SoundingBudget(p, "multibeam file")  # counted as they decode (a compressed file's size says nothing)
+    parts = []
+    for c in _iter_xyz(p, sn["compression"], hints, 1_000_000, info, check_ranges=check_ranges):
+        budget.add(len(c))
+        parts.append(c)
     df = parts[0] if len(parts) == 1 else pd.concat(parts, ignore_index=True)
     del parts
     if columns != SOUNDING_COLUMNS and df.columns[0] == SOUNDING_COLUMNS[0]:
@@ -1174,16 +1180,26 @@ def _read_old_gmt(p: Path, ds: xr.Dataset) -> xr.DataArray:
 
 
 # ------------------------------------------------------------------ GSF
-def read_gsf(path: str | Path, *, include_flagged: bool = False, isolate: bool = True) -> pd.DataFrame:
+def read_gsf(path: str | Path, *, include_flagged: bool = False, isolate: bool = True,
+             budget: Any = None) -> pd.DataFrame:
     """Soundings of a GSF file as ``longitude_deg, latitude_deg, depth_m, ping`` (one row per beam).
 
     libgsf is C code that can crash the process on a corrupt file (a fuzzed EX1604 file segfaults inside
     ``gsfRead``), so by default it runs in a child interpreter (``python -m hadal.grid._gsf_child``, a plain
     subprocess, so it also works inside daemonic Dask workers) and a crash becomes a one-line
     :class:`InputError`; ``isolate=False`` reads in this process (:func:`_read_gsf_here`).
+
+    Memory: the reading process holds the soundings against its budget as it decodes them
+    (:class:`hadal.grid.sonar.SoundingBudget`; the child inherits this process's limits, ``RLIMIT_AS`` included);
+    this process counts the child's soundings against ``budget`` (a ``SoundingBudget``, default a new one) before it
+    loads them.
     """
+    from hadal.grid.sonar import SoundingBudget
+
+    if budget is None:
+        budget = SoundingBudget(Path(str(path)), "gsf multibeam file")
     if not isolate:
-        return _read_gsf_here(path, include_flagged=include_flagged)
+        return _read_gsf_here(path, include_flagged=include_flagged, budget=budget)
     import json
     import subprocess
     import sys
@@ -1196,8 +1212,10 @@ def read_gsf(path: str | Path, *, include_flagged: bool = False, isolate: bool =
             proc = subprocess.run([sys.executable, "-m", "hadal.grid._gsf_child", str(p), str(out),
                                    "1" if include_flagged else "0"], capture_output=True, text=True)
             if proc.returncode == 0:
+                attrs = json.loads(out.with_suffix(".json").read_text(encoding="utf-8"))
+                budget.add(int(attrs.get("soundings") or 0))
                 df = pd.read_parquet(out)
-                df.attrs.update(json.loads(out.with_suffix(".json").read_text(encoding="utf-8")))
+                df.attrs.update(attrs)
                 return df
     except OSError as exc:
         raise InputError(f"{p}: cannot run the GSF reader ({exc.strerror or exc})") from None
@@ -1240,7 +1258,7 @@ def _gsf_ping_position(ping) -> tuple[float, float]:
     return float(getattr(ping, first)), float(getattr(ping, second))
 
 
-def _read_gsf_here(path: str | Path, *, include_flagged: bool = False) -> pd.DataFrame:
+def _read_gsf_here(path: str | Path, *, include_flagged: bool = False, budget: Any = None) -> pd.DataFrame:
     """Soundings of a GSF file as ``longitude_deg, latitude_deg, depth_m, ping`` (one row per beam).
 
     Uses UKHO's ``gsfpy`` (ctypes bindings of libgsf). Beam positions: the ping's position plus the
@@ -1261,9 +1279,13 @@ def _read_gsf_here(path: str | Path, *, include_flagged: bool = False) -> pd.Dat
 
     ``attrs``: ``reader`` ("gsfpy <version>"), ``format``, ``pings``, ``beams_per_ping``, ``soundings``,
     ``dropped`` (flagged or null beams), ``time_start``/``time_end`` (ISO 8601 UTC). A file with no swath
-    bathymetry ping, or one libgsf cannot read (truncated, corrupt), is a one-line :class:`InputError`.
+    bathymetry ping, or one libgsf cannot read (truncated, corrupt), is a one-line :class:`InputError`; so is one
+    whose soundings pass the memory budget as they decode (``budget``, a :class:`hadal.grid.sonar.SoundingBudget`).
     """
+    from hadal.grid.sonar import SoundingBudget
+
     p = _require_file(path, "GSF")
+    budget = budget if budget is not None else SoundingBudget(p, "gsf multibeam file")
     try:
         from gsfpy import GsfException, open_gsf
         from gsfpy.enums import RecordType
@@ -1314,6 +1336,7 @@ def _read_gsf_here(path: str | Path, *, include_flagged: bool = False) -> pd.Dat
             lats.append(la[keep])
             deps.append(depth[keep])
             pings.append(np.full(int(keep.sum()), k, dtype=np.int32))
+            budget.add(int(keep.sum()))
             dropped += n - int(keep.sum())
             k += 1
     if k == 0:

@@ -36,6 +36,12 @@ Formats (spec each reader follows in brackets):
 
 Every failure (missing, empty, truncated, corrupt, wrong format, no pings) is a one-line
 :class:`hadal.errors.InputError` naming the file.
+
+Memory (issue 45): a file's size says little about its soundings (a compressed file of repeated pings, a header's
+counts are claims), so every reader is held against one :class:`hadal.budget.DecodeBudget` per file as it decodes
+(:class:`SoundingBudget`): the soundings decoded so far x :data:`SOUNDING_BYTES` x :data:`SOUNDING_WORKING_COPIES`,
+plus what a reader holds undecoded (KMALL partitions waiting for their other parts); past it, a one-line
+``InputError`` naming the file and the limit.
 """
 
 from __future__ import annotations
@@ -62,6 +68,35 @@ DEFAULT_CHUNK_POINTS = 250_000
 FORMATS = ("xyz", *SWATH_KINDS)
 
 _HEAD_BYTES = 65536
+
+#: bytes one sounding holds as the readers give it and their consumers keep it: longitude, latitude, depth (float64)
+#: and the ping number (int32)
+SOUNDING_BYTES = 28
+#: working copies of the soundings counted by :class:`SoundingBudget`: the consumer's accumulated columns
+#: (:class:`ColumnAccumulator`, then its final block), the reader's decoded pings (EM .all keeps every ping until
+#: the navigation is known; GSF's child process hands the whole file over as a table)
+SOUNDING_WORKING_COPIES = 3.0
+
+
+class SoundingBudget:
+    """The memory budget of one multibeam read (:class:`hadal.budget.DecodeBudget`): soundings decoded so far
+    (plus ``held_soundings`` a caller already keeps from earlier files) x :data:`SOUNDING_BYTES` x
+    :data:`SOUNDING_WORKING_COPIES`, and undecoded bytes a reader holds; refused in one line naming the file."""
+
+    def __init__(self, p: Path, what: str, held_soundings: int = 0):
+        from hadal.budget import DecodeBudget
+
+        self.budget = DecodeBudget(p, what, copies=SOUNDING_WORKING_COPIES)
+        self.held = int(held_soundings)
+        self.n = 0
+
+    def add(self, soundings: int, pending_bytes: float = 0.0) -> None:
+        """Count ``soundings`` more decoded; ``pending_bytes``: raw bytes the reader holds besides them."""
+        self.n += int(soundings)
+        more = f", {pending_bytes:,.0f} bytes of datagrams pending" if pending_bytes else ""
+        before = f", {self.held:,} kept from earlier files" if self.held else ""
+        self.budget.hold((self.n + self.held) * SOUNDING_BYTES + pending_bytes / SOUNDING_WORKING_COPIES,
+                         f"{self.n:,} soundings so far{before}{more}")
 
 
 # ------------------------------------------------------------------ hints, opening, sniffing
@@ -110,7 +145,7 @@ def sniff_multibeam(path) -> dict:
 
 # ------------------------------------------------------------------ public API
 def iter_multibeam(path, hints=None, chunk_points: int = DEFAULT_CHUNK_POINTS,
-                   info: dict | None = None) -> Iterator[pd.DataFrame]:
+                   info: dict | None = None, *, held_soundings: int = 0) -> Iterator[pd.DataFrame]:
     """Yield the soundings of ``path`` as DataFrame chunks (depth positive down, metres).
 
     Columns are ``longitude_deg, latitude_deg, depth_m`` (plus ``ping`` for swath formats), or ``x_m, y_m,
@@ -118,7 +153,8 @@ def iter_multibeam(path, hints=None, chunk_points: int = DEFAULT_CHUNK_POINTS,
     ``z_positive``, ``crs``, ``columns``; each defaults to detection). ``info``, when given, is filled with
     the reader's metadata (``reader``, ``format``, ``compression``, ``crs_kind``, counts ...); the counts are
     final once the iterator is exhausted. Text chunks hold at most ``chunk_points`` rows; swath chunks hold
-    whole pings (about ``chunk_points`` soundings).
+    whole pings (about ``chunk_points`` soundings). The soundings are held against the memory budget as they
+    decode (:class:`SoundingBudget`; ``held_soundings``: what the caller already keeps from earlier files).
     """
     if chunk_points < 1:
         raise ValueError("chunk_points must be >= 1")
@@ -137,16 +173,22 @@ def iter_multibeam(path, hints=None, chunk_points: int = DEFAULT_CHUNK_POINTS,
     info.update({"path": str(p), "format": fmt, "compression": sn["compression"]})
     if fmt == "unknown":
         raise InputError(f"{p}: cannot parse soundings (binary content that is not GSF, KMALL, EM .all or .s7k)")
+    budget = SoundingBudget(p, "multibeam file" if fmt == "xyz" else f"{fmt} multibeam file", held_soundings)
     if fmt == "xyz":
-        yield from _iter_xyz(p, sn["compression"], hints, chunk_points, info)
+        gen = _iter_xyz(p, sn["compression"], hints, chunk_points, info)
     elif fmt == "gsf":
-        yield from _iter_gsf(p, sn["compression"], chunk_points, info)
+        gen = _iter_gsf(p, sn["compression"], chunk_points, info, budget)
     elif fmt == "kmall":
-        yield from _iter_kmall(p, sn["compression"], chunk_points, info)
+        gen = _iter_kmall(p, sn["compression"], chunk_points, info, budget)
     elif fmt == "em_all":
-        yield from _iter_em_all(p, sn["compression"], chunk_points, info)
-    elif fmt == "s7k":
-        yield from _iter_s7k(p, sn["compression"], chunk_points, info)
+        gen = _iter_em_all(p, sn["compression"], chunk_points, info, budget)
+    else:
+        gen = _iter_s7k(p, sn["compression"], chunk_points, info)
+    counted = fmt in ("gsf", "em_all")  # these count their soundings as they decode them
+    for chunk in gen:
+        if not counted:
+            budget.add(len(chunk))
+        yield chunk
 
 
 def read_multibeam(path, hints=None) -> pd.DataFrame:
@@ -616,23 +658,41 @@ def _check_lonlat(p: Path, lon: np.ndarray, lat: np.ndarray) -> None:
 
 
 # ------------------------------------------------------------------ GSF
-def _iter_gsf(p: Path, comp: str | None, chunk_points: int, info: dict) -> Iterator[pd.DataFrame]:
+#: free space left in the temporary directory when a compressed GSF is decompressed there (bytes)
+_GSF_TMP_RESERVE = 1 << 30
+
+
+def _iter_gsf(p: Path, comp: str | None, chunk_points: int, info: dict,
+              budget: SoundingBudget | None = None) -> Iterator[pd.DataFrame]:
     """GSF via :func:`hadal.grid.readers.read_gsf` (gsfpy/libgsf needs a real file: compressed GSF is
-    decompressed to a temporary file first)."""
+    decompressed to a temporary file first, refused in one line before it would leave less than
+    :data:`_GSF_TMP_RESERVE` free there). ``budget``: the child process holds its soundings against its own
+    budget as it decodes; this process counts them (from the child's attributes) before loading the table."""
     from hadal.grid.readers import read_gsf
 
     if comp is None:
-        df = read_gsf(p)
+        df = read_gsf(p, budget=budget)
     else:
         import shutil
         import tempfile
 
         with tempfile.TemporaryDirectory(prefix="hadal-gsf-") as td:
             tmp = Path(td) / (p.stem + ".gsf")
+            room = shutil.disk_usage(td).free - _GSF_TMP_RESERVE
             with _reading(p, comp) as src, open(tmp, "wb") as dst:
-                shutil.copyfileobj(src, dst, 1 << 20)
+                written = 0
+                while block := src.read(1 << 20):
+                    written += len(block)
+                    if written > room:  # a compressed file's size says nothing of what it decompresses to
+                        from hadal.budget import format_bytes
+
+                        raise InputError(f"{p}: decompressing this {comp} GSF file needs more than "
+                                         f"{format_bytes(written)} of free space in {Path(td).parent} (GSF is read "
+                                         f"from a plain file; {format_bytes(_GSF_TMP_RESERVE)} are kept free): "
+                                         "decompress it where there is room, or set TMPDIR")
+                    dst.write(block)
             try:
-                df = read_gsf(tmp)
+                df = read_gsf(tmp, budget=budget)
             except InputError as exc:
                 raise InputError(str(exc).replace(str(tmp), str(p))) from None
     info.update({k: v for k, v in df.attrs.items() if k != "path"})
@@ -680,8 +740,11 @@ def _datagrams(p: Path, fh, ext: str, order_of, limits: tuple[int, int], *,
         k += 1
 
 
-def _iter_kmall(p: Path, comp: str | None, chunk_points: int, info: dict) -> Iterator[pd.DataFrame]:
-    """Kongsberg KMALL: datagrams walked here, ``#MRZ`` decoded by pykmall (see the module docstring)."""
+def _iter_kmall(p: Path, comp: str | None, chunk_points: int, info: dict,
+                budget: SoundingBudget | None = None) -> Iterator[pd.DataFrame]:
+    """Kongsberg KMALL: datagrams walked here, ``#MRZ`` decoded by pykmall (see the module docstring). Partitions
+    of a datagram waiting for their other parts are held against ``budget`` (a file of partitions that never
+    complete, or one datagram split into 65,535 parts, would otherwise grow without bound)."""
     try:
         import importlib.metadata as md
 
@@ -717,6 +780,8 @@ def _iter_kmall(p: Path, comp: str | None, chunk_points: int, info: dict) -> Ite
                     pending.setdefault(struct.unpack_from("<Q", dgm, 12)[0], []).append(dgm)
                     parts = pending[struct.unpack_from("<Q", dgm, 12)[0]]
                     if len(parts) < num:
+                        if budget is not None:
+                            budget.add(0, 2.0 * sum(len(d) for ps in pending.values() for d in ps))  # + the join
                         continue
                     dgm = _join_partitions(parts)
                     pending.pop(struct.unpack_from("<Q", parts[0], 12)[0], None)
@@ -830,7 +895,8 @@ def _em_time(date: int, ms: int) -> float:
     return base + ms / 1000.0
 
 
-def _iter_em_all(p: Path, comp: str | None, chunk_points: int, info: dict) -> Iterator[pd.DataFrame]:
+def _iter_em_all(p: Path, comp: str | None, chunk_points: int, info: dict,
+                 budget: SoundingBudget | None = None) -> Iterator[pd.DataFrame]:
     """Kongsberg EM ``.all`` soundings from Depth (0x44) or XYZ 88 (0x58) and Position (0x50) datagrams.
 
     Why not a library: no maintained Python reader of ``.all`` exists on PyPI (``pyall`` there is an unrelated
@@ -888,12 +954,13 @@ def _iter_em_all(p: Path, comp: str | None, chunk_points: int, info: dict) -> It
                 if body[-3] != 0x03:
                     raise InputError(f"{p}: corrupt .all file (datagram {chr(typ)} at byte {off} has no ETX)")
                 cs = struct.unpack(order + "H", body[-2:])[0]
-                if cs != (sum(body[1:-3]) & 0xFFFF):
+                if cs != (_byte_sum(body, 1, len(body) - 3) & 0xFFFF):
                     raise InputError(f"{p}: corrupt .all file (checksum mismatch in {chr(typ)} datagram at byte {off})")
                 model, date, ms = struct.unpack_from(order + "HII", body, 2)
                 if model not in EM_ALL_MODELS:
                     raise InputError(f"{p}: {chr(typ)} datagram at byte {off} of an unknown EM model number {model}")
                 t = _em_time(date, ms)
+                n_pings = len(pings)
                 try:
                     if typ == 0x50:
                         lat_i, lon_i, _q, spd = struct.unpack_from(order + "iiHH", body, 16)
@@ -907,9 +974,11 @@ def _iter_em_all(p: Path, comp: str | None, chunk_points: int, info: dict) -> It
                             pings.append(ping)
                     else:
                         pings.append(_em_xyz88(body, order, t))
-                except struct.error:
+                except (struct.error, ValueError):  # ValueError: np.frombuffer past the datagram's end
                     raise InputError(f"{p}: corrupt .all file ({chr(typ)} datagram at byte {off} is too short "
                                      "for its beam count)") from None
+                if budget is not None and len(pings) > n_pings:  # every ping is kept until the navigation is known
+                    budget.add(len(pings[-1][2]))
     if not types:
         raise InputError(f"{p}: no datagrams in the .all file")
     listed = ", ".join(f"{t} x{c}" for t, c in types.items())
@@ -1020,6 +1089,12 @@ def _em_xyz88(body: bytes, order: str, t: float):
             beams["x"][ok].astype(np.float32), int(nb))
 
 
+def _byte_sum(b: bytes, start: int, end: int) -> int:
+    """The sum of the unsigned bytes ``b[start:end]`` (the .all and .s7k checksums), without a copy and at C speed
+    (a 7k record may declare 256 MiB: Python's ``sum`` over it took seconds per record)."""
+    return int(np.frombuffer(b, np.uint8, count=max(end - start, 0), offset=start).sum(dtype=np.uint64))
+
+
 # ------------------------------------------------------------------ Reson 7k .s7k
 _S7K_DRF = struct.Struct("<HHIIII10sHIIHHIHHIII")  # 64 bytes
 
@@ -1055,7 +1130,7 @@ def _iter_s7k(p: Path, comp: str | None, chunk_points: int, info: dict) -> Itera
                                  f"{len(rest) + 64} remain)")
             rec = drf + rest
             if flags & 1:
-                if struct.unpack_from("<I", rec, size - 4)[0] != (sum(rec[:size - 4]) & 0xFFFFFFFF):
+                if struct.unpack_from("<I", rec, size - 4)[0] != (_byte_sum(rec, 0, size - 4) & 0xFFFFFFFF):
                     raise InputError(f"{p}: corrupt .s7k file (checksum mismatch in record {rtype} at byte {off})")
             types[rtype] += 1
             if rtype == 7027 and opt_off:

@@ -83,7 +83,8 @@ def read_soundings_xy(files: list, frame, hints: list | None = None, *, chunk_po
     for i, (f, h) in enumerate(zip(files, hints, strict=True)):
         info: dict = {}
         to_ll = None
-        for chunk in tracked(progress, iter_multibeam(f, h, chunk_points=chunk_points, info=info),
+        for chunk in tracked(progress, iter_multibeam(f, h, chunk_points=chunk_points, info=info,
+                                                           held_soundings=acc.n),
                              f"dtm: reading multibeam file {i + 1}/{len(files)} {Path(f).name} "
                              f"(chunks of {chunk_points:,} soundings; {acc.n:,} read before it)"):
             z = chunk["depth_m"].to_numpy(np.float64)

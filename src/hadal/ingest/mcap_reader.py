@@ -141,6 +141,14 @@ _OP_SCHEMA, _OP_CHANNEL, _OP_MESSAGE = 0x03, 0x04, 0x05
 #: working copies of a decompressed MCAP chunk its memory budget counts (the payload, its parsed records, the
 #: channel buffers they are copied into)
 MCAP_CHUNK_COPIES = 4.0
+#: bytes of bookkeeping per kept message (its log time and length in the channel buffer, the list slots and object
+#: headers of its decoded form) added to its payload in the file's cumulative count
+MCAP_MESSAGE_OVERHEAD = 32
+#: working copies of the messages kept across the whole file (payload + :data:`MCAP_MESSAGE_OVERHEAD`): the raw
+#: buffers, the decoded objects (a dict per message), the per-topic tables. Measured: 1e6 JSON messages of 33 B
+#: peak at 510 MB above the start through :func:`hadal.ingest.build.read_mcap_sensors` (x 7.8 of what is counted);
+#: 10 leaves a margin for smaller messages, whose objects cost more than their bytes
+MCAP_KEPT_COPIES = 10.0
 
 
 def _chunk_bytes(chunk: Any, budget: Any = None) -> bytes:
@@ -229,7 +237,13 @@ class _Walk:
     """One sequential pass over an MCAP stream: its records in file order (chunks whole, see
     :func:`_stream_reader`) until damaged framing ends the pass (``problem`` says where: what came before is
     kept); :meth:`chunk` unpacks a chunk's records, or gives ``None`` for a damaged chunk (counted in
-    ``corrupt``) so that only that chunk is skipped."""
+    ``corrupt``) so that only that chunk is skipped.
+
+    Memory (issue 45) is held against one budget for the whole file: each chunk by its declared size x
+    :data:`MCAP_CHUNK_COPIES` before it is decompressed, on top of what the read keeps; the messages the caller
+    keeps (:meth:`keep`) are counted cumulatively x :data:`MCAP_KEPT_COPIES`, so that a file of many small chunks,
+    each within the budget, is refused once their sum is not (a one-line :class:`InputError` naming the file and
+    the limit)."""
 
     def __init__(self, fh: Any, keep: frozenset[int] = frozenset()):
         self._fh, self._records = fh, _stream_reader(fh, keep).records
@@ -237,7 +251,29 @@ class _Walk:
         self.corrupt = 0
         from hadal.budget import DecodeBudget
 
-        self.budget = DecodeBudget(getattr(fh, "name", "MCAP file"), "MCAP chunk", copies=MCAP_CHUNK_COPIES)
+        name = getattr(fh, "name", "MCAP file")
+        self.budget = DecodeBudget(name, "MCAP chunk", copies=MCAP_CHUNK_COPIES)
+        self.file_budget = DecodeBudget(name, "MCAP file", copies=MCAP_KEPT_COPIES, limit_bytes=self.budget.limit)
+        self.chunks = 0
+        self.kept_messages = 0
+        self.kept_bytes = 0.0
+
+    def _admit(self, rec: Any) -> None:
+        """Hold the next chunk against the budget before it is decompressed: on its own (its declared size x
+        :data:`MCAP_CHUNK_COPIES`: "this MCAP chunk" in the refusal), then on top of the messages kept so far
+        ("this MCAP file")."""
+        size = float(rec.uncompressed_size)
+        self.budget.hold(size, f"one chunk declaring {rec.uncompressed_size:,} bytes")
+        self.file_budget.hold(self.kept_bytes, f"{self.kept_messages:,} messages kept from {self.chunks:,} chunks "
+                                               f"so far and the next chunk", held=size * MCAP_CHUNK_COPIES)
+        self.chunks += 1
+
+    def keep(self, payload_bytes: int, messages: int) -> None:
+        """Count ``messages`` kept (``payload_bytes`` of payload) against the file's budget; refuses past it."""
+        self.kept_messages += int(messages)
+        self.kept_bytes += float(payload_bytes) + MCAP_MESSAGE_OVERHEAD * int(messages)
+        self.file_budget.hold(self.kept_bytes, f"{self.kept_messages:,} messages kept from {self.chunks:,} "
+                                               "chunks so far")
 
     def __iter__(self) -> Iterator[Any]:
         while True:
@@ -252,6 +288,7 @@ class _Walk:
 
     def chunk(self, rec: Any) -> list[tuple[int, Any]] | None:
         try:
+            self._admit(rec)
             return _parse_chunk(_chunk_bytes(rec, self.budget))
         except InputError:
             raise
@@ -262,6 +299,7 @@ class _Walk:
     def chunk_channels(self, rec: Any, kern: Any) -> Any:
         """:func:`_chunk_channels` of a chunk, or ``None`` for a damaged chunk (counted)."""
         try:
+            self._admit(rec)
             return _chunk_channels(_chunk_bytes(rec, self.budget), kern)
         except InputError:
             raise
@@ -439,11 +477,13 @@ def _scan(path: Path, topics: set[str] | None) -> tuple[dict, dict, dict[int, _C
                 for cid, (t, blob, lens) in per.items():
                     if want(cid):
                         bufs[cid].add(t, blob, lens)
+                        walk.keep(len(blob), len(lens))
                     elif cid not in channels:
                         report.decode_errors += len(lens)  # messages of an unknown channel
             elif isinstance(rec, Message):
                 if want(rec.channel_id):
                     bufs[rec.channel_id].add_one(rec.log_time, rec.data)
+                    walk.keep(len(rec.data), 1)
                 elif rec.channel_id not in channels:
                     report.decode_errors += 1
             elif isinstance(rec, Schema):
