@@ -30,6 +30,8 @@ $(VENV)/.installed: pyproject.toml | sysdeps
 	@test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
 	@$(BIN)/python -m pip install -q --upgrade uv
 	$(BIN)/uv pip install --python $(BIN)/python -q --compile-bytecode -e '.[test,zarr]'
+	@# the numba kernels compiled into their cache now, not by the first run (issue 48: 2.4x its CPU otherwise)
+	$(BIN)/hadal compile
 	@touch $@
 
 $(DIVE)/dive.yaml: | setup

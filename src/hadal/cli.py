@@ -8,6 +8,7 @@
     hadal products DIVE            list product versions in the store
     hadal server start             a long-running local Prefect server (then export PREFECT_API_URL=...)
     hadal synth DEST               write the seeded sample dive (Challenger Deep, Haidou-like)
+    hadal compile                  compile the numba kernels into numba's cache (once after installing)
     hadal inspect FILE...          what each file is (by content) and what is in it (--json)
     hadal init RAW_DIR             write a commented dive.yaml (+ vehicle.yaml) from the files found
     hadal schema dive|vehicle|pipeline   JSON Schema of a configuration file (for editors)
@@ -636,6 +637,19 @@ def synth(
     console.print(f"sample dive written to {out}")
 
 
+@app.command("compile")
+def compile_cmd() -> None:
+    """Compile the pipeline's numba kernels into numba's cache (once after installing; make setup runs it)."""
+    import time
+
+    from hadal.numbacompile import compile_kernels
+
+    t0 = time.process_time()
+    counts = compile_kernels()
+    console.print(f"numba kernels: {counts['compiled']} compiled, {counts['loaded']} already cached "
+                  f"({time.process_time() - t0:.1f} CPU-s)")
+
+
 @app.command("config")
 def config_cmd(
     check: Annotated[Path | None, typer.Option(
@@ -1229,7 +1243,7 @@ def entry() -> None:
 
 
 #: commands that publish or write something: a closed stdout is said on stderr (:class:`_StdoutGuard`)
-_WORKING_COMMANDS = frozenset({"run", "stage", "report", "serve", "synth", "init"})
+_WORKING_COMMANDS = frozenset({"run", "stage", "report", "serve", "synth", "init", "compile"})
 
 
 class _StdoutGuard:
