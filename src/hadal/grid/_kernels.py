@@ -438,3 +438,58 @@ def segment_median_mad(order, z, starts, counts, med, mad, dev, block):  # pragm
                 tmp[q] = d
             _sort_small(tmp[:m])
             mad[s] = 0.5 * (tmp[(m - 1) // 2] + tmp[m // 2])
+
+
+# --- Out-of-core gridding (hadal.grid.tiles): one chunk of points -> per-tile runs of (cell in tile, value) -------
+
+
+@njit(cache=True, nogil=True)
+def tile_partition_chunk(x, y, z, x0, y0, inv_h, nx, ny, check_inside, tile_cells, ntx, n_tiles):  # pragma: no cover
+    """One chunk of points grouped by tile of ``tile_cells x tile_cells`` whole cells (``ntx`` tiles a row).
+
+    The cell of a point is :func:`_cell_of`'s (the in-memory kernels' own rule, NaN/inf and, with
+    ``check_inside``, outside points skipped and counted by :func:`_keep`); its tile and its index inside the
+    tile (row-major over the tile's own width, the last column/row of tiles being narrower) follow by integer
+    arithmetic, so a point on a seam lands in exactly the cell the in-memory grid gives it. A stable counting
+    sort by tile: tile ``t``'s points are ``local[starts[t]:starts[t + 1]]`` (int32) and ``zs[...]``, in chunk
+    order. Returns ``(starts, local, zs, n_nonfinite, n_outside)``."""
+    n = x.size
+    tile = np.empty(n, np.int32)
+    loc = np.empty(n, np.int32)
+    starts = np.zeros(n_tiles + 1, np.int64)
+    nb = 0
+    no = 0
+    for i in range(n):
+        xi = x[i]
+        yi = y[i]
+        why = _keep(xi, yi, z[i], x0, y0, inv_h, nx, ny, check_inside)
+        if why != 0:
+            tile[i] = -1
+            if why == 1:
+                nb += 1
+            else:
+                no += 1
+            continue
+        k = _cell_of(xi, yi, x0, y0, inv_h, nx, ny)
+        r = k // nx
+        c = k - r * nx
+        ty = r // tile_cells
+        tx = c // tile_cells
+        tw = min(tile_cells, nx - tx * tile_cells)
+        t = ty * ntx + tx
+        tile[i] = t
+        loc[i] = (r - ty * tile_cells) * tw + (c - tx * tile_cells)
+        starts[t + 1] += 1
+    for t in range(n_tiles):
+        starts[t + 1] += starts[t]
+    pos = starts[:-1].copy()
+    local = np.empty(starts[n_tiles], np.int32)
+    zs = np.empty(starts[n_tiles], np.float64)
+    for i in range(n):
+        t = tile[i]
+        if t >= 0:
+            p = pos[t]
+            local[p] = loc[i]
+            zs[p] = z[i]
+            pos[t] = p + 1
+    return starts, local, zs, nb, no
