@@ -8,7 +8,8 @@ own; CPU is the child's user+system time over all its threads):
    5.5-6.5 km plus 0.5 m noise, one sounding in 10 000 NaN) written in chunks as three raw float64 files
    ``x.f8 y.f8 z.f8``; about ``--points-per-cell`` soundings a ``--resolution`` cell;
 2. **tiled**: :func:`hadal.grid.tiles.grid_tiled` of all the soundings, read back in chunks of ``--chunk`` points
-   (mean, median, count, std: the DTM's statistics): soundings per CPU-second, peak RSS;
+   (mean, median, count, std: the DTM's statistics): soundings per CPU-second, peak RSS; **tiled_moments**: the
+   same for count/mean/std alone;
 3. **equal**: the first ``--subset`` soundings gridded in memory (:func:`hadal.grid.points.grid_points`, same grid)
    and tiled: every layer compared bit for bit (count/mean/std alone: count bit for bit, mean/std to rounding);
 4. **moments memory** (``--moments-points``, default 3e7): count/mean/std tiled against a streaming NumPy
@@ -199,7 +200,7 @@ def main(argv=None) -> int:
     ap.add_argument("--tile-cells", type=int, default=None)
     ap.add_argument("--data", default=None, help="directory of the generated cruise (kept; reused when present)")
     ap.add_argument("--scratch", default=None, help="scratch directory of the tiles (default: the data directory)")
-    ap.add_argument("--steps", default="tiled,equal,moments")
+    ap.add_argument("--steps", default="tiled,tiled_moments,equal,moments")
     ap.add_argument("--child", default=None, help=argparse.SUPPRESS)
     ap.add_argument("--n", type=int, default=0, help=argparse.SUPPRESS)
     a = ap.parse_args(argv)
@@ -241,6 +242,11 @@ def main(argv=None) -> int:
                   f"{r['n_tiles']} tiles of {r['tile_cells']} cells, {r['used']:,} used, {r['nonfinite']:,} NaN")
             print(f"  goal >= 25 M soundings per CPU-second: {'MET' if r['n'] / r['cpu_s'] >= 25e6 else 'NOT met'}; "
                   f"peak RSS <= 4 GB: {'MET' if r['peak_rss'] <= 4e9 else 'NOT met'} (at {r['n']:,} soundings)")
+        if "tiled_moments" in steps:
+            r = run_child(script, "moments_tiled", d, a.points, a)
+            print(f"tiled grid (count/mean/std) of {r['n']:,} soundings: {r['cpu_s']:.1f} CPU-s, {r['wall_s']:.1f} s "
+                  f"wall, {r['n'] / r['cpu_s'] / 1e6:.1f} M soundings per CPU-second, peak RSS "
+                  f"{r['peak_rss'] / 2**30:.2f} GiB; {r['n_tiles']} tiles of {r['tile_cells']} cells")
         if "equal" in steps:
             n = min(a.subset, a.points)
             r = run_child(script, "equal", d, n, a)
