@@ -287,6 +287,13 @@ def block_stats_kernel(kb, zb, seg, shift, m, want_m2, want_sorted, nthreads):  
 def _cell_of(xi, yi, x0, y0, inv_h, nx, ny):  # pragma: no cover - compiled
     """Cell index of a finite point, clamped into the grid: floor and clamp in floating point before the integer
     conversion (any finite value is safe); a point on the upper/right edge joins the last cell."""
+    r, c = _cell_rc(xi, yi, x0, y0, inv_h, nx, ny)
+    return r * nx + c
+
+
+@njit(inline="always")
+def _cell_rc(xi, yi, x0, y0, inv_h, nx, ny):  # pragma: no cover - compiled
+    """``(row, column)`` of :func:`_cell_of`'s cell."""
     fx = (xi - x0) * inv_h
     fy = (yi - y0) * inv_h
     if fx >= nx:
@@ -301,7 +308,7 @@ def _cell_of(xi, yi, x0, y0, inv_h, nx, ny):  # pragma: no cover - compiled
         r = 0
     else:
         r = int(fy)
-    return r * nx + c
+    return r, c
 
 
 @njit(inline="always")
@@ -438,3 +445,67 @@ def segment_median_mad(order, z, starts, counts, med, mad, dev, block):  # pragm
                 tmp[q] = d
             _sort_small(tmp[:m])
             mad[s] = 0.5 * (tmp[(m - 1) // 2] + tmp[m // 2])
+
+
+# --- Out-of-core gridding (hadal.grid.tiles): one chunk of points -> per-tile runs of (cell in tile, value) -------
+
+
+@njit(cache=True, nogil=True)
+def tile_partition_chunk(x, y, z, x0, y0, inv_h, nx, ny, check_inside, tile_cells, ntx, n_tiles):  # pragma: no cover
+    """One chunk of points grouped by tile of ``tile_cells x tile_cells`` whole cells (``ntx`` tiles a row).
+
+    The cell of a point is :func:`_cell_of`'s (the in-memory kernels' own rule, NaN/inf and, with
+    ``check_inside``, outside points skipped and counted by :func:`_keep`); its tile and its index inside the
+    tile (row-major over the tile's own width, the last column/row of tiles being narrower) follow from the cell's
+    row and column by integer tables (no division a point), so a point on a seam lands in exactly the cell the
+    in-memory grid gives it. A stable counting sort by tile: tile ``t``'s points are ``local[starts[t]:starts[t +
+    1]]`` (int32) and ``zs[...]``, in chunk order. Returns ``(starts, local, zs, n_nonfinite, n_outside)``."""
+    n = x.size
+    col_tile = np.empty(nx, np.int64)
+    col_in = np.empty(nx, np.int64)
+    width = np.empty(nx, np.int64)
+    for c in range(nx):
+        tx = c // tile_cells
+        col_tile[c] = tx
+        col_in[c] = c - tx * tile_cells
+        width[c] = min(tile_cells, nx - tx * tile_cells)
+    row_tile = np.empty(ny, np.int64)
+    row_in = np.empty(ny, np.int64)
+    for r in range(ny):
+        ty = r // tile_cells
+        row_tile[r] = ty * ntx
+        row_in[r] = r - ty * tile_cells
+    tile = np.empty(n, np.int32)
+    loc = np.empty(n, np.int32)
+    starts = np.zeros(n_tiles + 1, np.int64)
+    nb = 0
+    no = 0
+    for i in range(n):
+        xi = x[i]
+        yi = y[i]
+        why = _keep(xi, yi, z[i], x0, y0, inv_h, nx, ny, check_inside)
+        if why != 0:
+            tile[i] = -1
+            if why == 1:
+                nb += 1
+            else:
+                no += 1
+            continue
+        r, c = _cell_rc(xi, yi, x0, y0, inv_h, nx, ny)
+        t = row_tile[r] + col_tile[c]
+        tile[i] = t
+        loc[i] = row_in[r] * width[c] + col_in[c]
+        starts[t + 1] += 1
+    for t in range(n_tiles):
+        starts[t + 1] += starts[t]
+    pos = starts[:-1].copy()
+    local = np.empty(starts[n_tiles], np.int32)
+    zs = np.empty(starts[n_tiles], np.float64)
+    for i in range(n):
+        t = tile[i]
+        if t >= 0:
+            p = pos[t]
+            local[p] = loc[i]
+            zs[p] = z[i]
+            pos[t] = p + 1
+    return starts, local, zs, nb, no

@@ -409,25 +409,48 @@ def _soundings_in_grid(spec, x: np.ndarray, y: np.ndarray, z: np.ndarray, bounds
     return x, y, z, idx, n_bad, n_out
 
 
-def _dtm_layers(spec, idx: np.ndarray, z: np.ndarray, fill_max_cells: int, apriori_a_m: float, apriori_b: float,
-                prior_weight: float) -> tuple[dict, np.ndarray]:
-    """Per-cell mean/median/count/std/uncertainty of the kept soundings, small holes filled.
+#: the per-cell DTM layers of :func:`dtm_cell_layers`
+DTM_CELL_LAYERS = ("mean", "median", "count", "std", "uncertainty")
 
-    Returns the flat layers for :func:`to_dataset` and the 2-D mask of filled cells.
-    """
-    flat = reduce_cells(idx, z, spec.n_cells, ("mean", "median", "count", "std"))
-    unc = cell_uncertainty(flat["count"], flat["std"], flat["median"], a_m=apriori_a_m, b=apriori_b,
-                           prior_weight=prior_weight)
+
+def dtm_cell_layers(idx: np.ndarray, z: np.ndarray, n_cells: int, *, apriori_a_m: float = 0.5, apriori_b: float = 0.001,
+                    prior_weight: float = 3.0, compiled: bool | None = None) -> dict[str, np.ndarray]:
+    """Per-cell mean/median/count/std (:func:`hadal.grid.points.reduce_cells`) and uncertainty
+    (:func:`cell_uncertainty`) of the soundings ``z`` in cells ``idx`` of ``n_cells``: the whole grid in memory
+    (:func:`grid_multibeam`) or one tile of it (:func:`hadal.grid.tiles.dtm_layers_tiled`; ``compiled``: the
+    kernel choice of all the soundings, so both give the same bits)."""
+    flat = reduce_cells(idx, z, n_cells, ("mean", "median", "count", "std"), compiled=compiled)
+    flat["uncertainty"] = cell_uncertainty(flat["count"], flat["std"], flat["median"], a_m=apriori_a_m, b=apriori_b,
+                                           prior_weight=prior_weight)
+    return flat
+
+
+def fill_dtm_holes(spec, flat: dict, fill_max_cells: int, apriori_a_m: float, apriori_b: float
+                   ) -> tuple[dict, np.ndarray]:
+    """The DTM layers from the assembled per-cell layers of :func:`dtm_cell_layers`: small holes of the mean and
+    the median filled (:func:`fill_small_holes`), their uncertainty the a-priori sigma of the filled depth, and the
+    ``filled`` flag. Returns the flat layers for :func:`to_dataset` and the 2-D mask of filled cells."""
     shape = (spec.ny, spec.nx)
     mean_f, filled = fill_small_holes(flat["mean"].reshape(shape), fill_max_cells)
     med_f, _ = fill_small_holes(flat["median"].reshape(shape), fill_max_cells)
-    unc = unc.reshape(shape)
+    unc = flat["uncertainty"].reshape(shape)
     unc[filled] = apriori_sigma_m(mean_f[filled], apriori_a_m, apriori_b)
     layers = {
         "mean": mean_f.ravel(), "median": med_f.ravel(), "count": flat["count"].astype(np.int32),
         "std": flat["std"], "uncertainty": unc.ravel(), "filled": filled.ravel().astype(np.int8),
     }
     return layers, filled
+
+
+def _dtm_layers(spec, idx: np.ndarray, z: np.ndarray, fill_max_cells: int, apriori_a_m: float, apriori_b: float,
+                prior_weight: float) -> tuple[dict, np.ndarray]:
+    """Per-cell mean/median/count/std/uncertainty of the kept soundings, small holes filled: the grid as one
+    tile (:func:`dtm_cell_layers`, then :func:`fill_dtm_holes`; :mod:`hadal.grid.tiles` runs the same two
+    functions tile by tile). Returns the flat layers for :func:`to_dataset` and the 2-D mask of filled cells.
+    """
+    flat = dtm_cell_layers(idx, z, spec.n_cells, apriori_a_m=apriori_a_m, apriori_b=apriori_b,
+                           prior_weight=prior_weight)
+    return fill_dtm_holes(spec, flat, fill_max_cells, apriori_a_m, apriori_b)
 
 
 def _method_attrs(*, spike_k, spike_k_neighbourhood, spike_neighbours, spike_min_count, spike_floor_m,

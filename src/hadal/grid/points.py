@@ -705,13 +705,17 @@ def reduce_cells(
     statistics: Sequence[str] = ("mean", "median", "count", "std"),
     *,
     ddof: int = 1,
+    compiled: bool | None = None,
 ) -> dict[str, np.ndarray]:
     """Per-cell statistics of ``z`` grouped by flat cell index ``idx`` (0 <= idx < n_cells), as flat arrays.
 
     Float statistics are NaN in empty cells (and ``std`` where ``count <= ddof``); ``count`` is int64.
     With numba: the block-partitioned kernels of :func:`cell_stats`; otherwise (and as the reference,
     :func:`_reduce_cells_numpy`) a two-pass ``bincount`` for mean/std and the (cell, z) ``lexsort``
-    for median/min/max.
+    for median/min/max. Both give a cell's statistics from that cell's own values in input order only, so a
+    subset of the cells (a tile, :mod:`hadal.grid.tiles`) reduced alone gives the same bits, provided it takes
+    the same path: ``compiled`` (None: compiled from :data:`_COMPILED_MIN_POINTS` points on) forces the choice
+    the whole point set would have made (the compiled path still needs numba and fewer than 2**31 cells).
     """
     import numpy as np
 
@@ -722,7 +726,9 @@ def reduce_cells(
     if len(idx) and (idx.min() < 0 or idx.max() >= n_cells):
         raise InputError(f"cell indices must lie in [0, {n_cells}) (got {idx.min()}..{idx.max()})")
     kern = _partition_kernels()
-    if kern is None or n_cells >= 2**31 - 1 or len(idx) < _COMPILED_MIN_POINTS:
+    if compiled is None:
+        compiled = len(idx) >= _COMPILED_MIN_POINTS
+    if kern is None or n_cells >= 2**31 - 1 or not compiled:
         return _reduce_cells_numpy(idx, z, n_cells, stats, ddof=ddof)
     z = _as_f64(z)
     nthreads = max(1, min(2, len(idx) // 65536))

@@ -1,0 +1,182 @@
+"""Out-of-core gridding (hadal.grid.tiles, issue 48): the tiled grid equals the in-memory grid bit for bit.
+
+Oracles: the in-memory functions (:func:`hadal.grid.points.grid_points`, :func:`hadal.grid.multibeam._dtm_layers`)
+and an independent pandas groupby of the points by cell for count/mean/std/median/min/max.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from hadal.errors import InputError
+from hadal.grid import points as P
+from hadal.grid.multibeam import _dtm_layers
+from hadal.grid.tiles import (
+    TilePartition,
+    TileScheme,
+    choose_tile_cells,
+    dtm_layers_tiled,
+    grid_tiled,
+    iter_array_chunks,
+    partition_chunks,
+)
+
+ALL = ("mean", "median", "count", "std", "min", "max")
+MOMENTS = ("count", "mean", "std")
+
+
+def _points(n: int, seed: int = 0, *, res: float = 2.0, ext=(100.0, 70.0)):
+    """Points over ``(0, 0, *ext)`` with a share exactly on cell edges (so on tile seams too), on the grid's
+    upper/right edge, NaN/inf and outside, deep values with mm spread (a hard case for the moments)."""
+    rng = np.random.default_rng(seed)
+    x, y = rng.uniform(0, ext[0], n), rng.uniform(0, ext[1], n)
+    e = rng.random(n) < 0.05
+    x[e] = res * rng.integers(0, int(ext[0] / res) + 1, e.sum())  # on vertical cell edges, incl. x = xmax
+    e = rng.random(n) < 0.05
+    y[e] = res * rng.integers(0, int(ext[1] / res) + 1, e.sum())
+    z = 10_000.0 + 0.001 * rng.normal(size=n) + 0.01 * x
+    z[rng.random(n) < 0.01] = 10_000.5  # ties for the median
+    x[3], y[5], z[7], x[11] = np.nan, np.inf, -np.inf, ext[0] + 1.0  # non-finite and one outside
+    return x, y, z
+
+
+def _assert_same(a, b, stats):
+    for s in stats:
+        np.testing.assert_array_equal(a[s].values, b[s].values, err_msg=s)  # NaN == NaN here
+
+
+@pytest.mark.parametrize("tile_cells", [1, 7, 16, 50, 1000])  # 1000: a single tile
+@pytest.mark.parametrize("n", [5000, 60_000])  # below and above the compiled path's threshold
+def test_tiled_equals_in_memory_grid_bit_for_bit(tile_cells, n):
+    x, y, z = _points(n)
+    bounds = (0.0, 0.0, 100.0, 70.0)
+    ref = P.grid_points(x, y, z, 2.0, bounds=bounds, statistics=ALL)
+    got = grid_tiled(iter_array_chunks(x, y, z, 777), P.make_grid_spec(2.0, bounds), ALL, tile_cells=tile_cells)
+    _assert_same(ref, got, ALL)
+    for k in ("n_points_used", "n_points_nonfinite", "n_points_outside"):
+        assert got.attrs[k] == ref.attrs[k], k
+    assert got.attrs["n_points_outside"] == 1 and got.attrs["n_points_nonfinite"] == 3
+    np.testing.assert_array_equal(ref.x, got.x)
+    np.testing.assert_array_equal(ref.y, got.y)
+
+
+def test_tiled_moments_count_identical_mean_std_to_rounding():
+    x, y, z = _points(60_000, 1)
+    bounds = (0.0, 0.0, 100.0, 70.0)
+    ref = P.grid_points(x, y, z, 2.0, bounds=bounds, statistics=MOMENTS)
+    got = grid_tiled(iter_array_chunks(x, y, z, 5000), P.make_grid_spec(2.0, bounds), MOMENTS, tile_cells=9)
+    np.testing.assert_array_equal(ref["count"].values, got["count"].values)
+    np.testing.assert_allclose(got["mean"].values, ref["mean"].values, rtol=1e-15, equal_nan=True)
+    # cell_moments' own bound: 1e-8 relative or 1 micrometre absolute (hadal.grid.points.M2_RTOL / STD_ATOL)
+    np.testing.assert_allclose(got["std"].values, ref["std"].values, rtol=1e-8, atol=1e-6, equal_nan=True)
+
+
+def test_tiled_matches_pandas_groupby():
+    x, y, z = _points(40_000, 2)
+    spec = P.make_grid_spec(2.0, (0.0, 0.0, 100.0, 70.0))
+    got = grid_tiled(iter_array_chunks(x, y, z, 3000), spec, ALL, tile_cells=8)
+    ok = np.isfinite(x) & np.isfinite(y) & np.isfinite(z) & (x <= 100.0)
+    ix = np.minimum(np.floor(x[ok] / 2.0), spec.nx - 1).astype(int)  # the upper edge joins the last cell
+    iy = np.minimum(np.floor(y[ok] / 2.0), spec.ny - 1).astype(int)
+    g = pd.DataFrame({"c": iy * spec.nx + ix, "z": z[ok]}).groupby("c")["z"]
+    ref = {"count": g.count(), "mean": g.mean(), "std": g.std(ddof=1), "median": g.median(), "min": g.min(),
+           "max": g.max()}
+    for s, v in ref.items():  # pandas' std is one-pass (~1e-12 m off at 10 km depths with mm spread)
+        full = np.full(spec.n_cells, 0 if s == "count" else np.nan)
+        full[v.index.to_numpy()] = v.to_numpy()
+        np.testing.assert_allclose(got[s].values.ravel(), full, rtol=1e-12, atol=1e-10 if s == "std" else 0,
+                                   equal_nan=True, err_msg=s)
+    for s in ("count", "median", "min", "max"):  # order statistics: exact
+        full = np.full(spec.n_cells, 0 if s == "count" else np.nan)
+        full[ref[s].index.to_numpy()] = ref[s].to_numpy()
+        np.testing.assert_array_equal(got[s].values.ravel(), full, err_msg=s)
+
+
+def test_without_numba_same_bits(monkeypatch):
+    monkeypatch.setenv("HADAL_NO_NUMBA", "1")
+    x, y, z = _points(40_000, 3)
+    bounds = (0.0, 0.0, 100.0, 70.0)
+    ref = P.grid_points(x, y, z, 2.0, bounds=bounds, statistics=ALL)
+    got = grid_tiled(iter_array_chunks(x, y, z, 4096), P.make_grid_spec(2.0, bounds), ALL, tile_cells=11)
+    _assert_same(ref, got, ALL)
+
+
+def test_empty_tiles_and_clamped_extent_grid():
+    """Points in two far corners: most tiles empty; a grid from the points' extent (no bounds): clamped, as
+    grid_points without bounds."""
+    rng = np.random.default_rng(4)
+    x = np.concatenate([rng.uniform(0, 3, 40_000), rng.uniform(95, 100, 40_000)])
+    y = np.concatenate([rng.uniform(0, 3, 40_000), rng.uniform(60, 70, 40_000)])
+    z = rng.normal(5000, 1, len(x))
+    ref = P.grid_points(x, y, z, 1.0, statistics=ALL)
+    ext, _ = P.point_extent(x, y, z)
+    spec = P.make_grid_spec(1.0, ext, snap=True)
+    with partition_chunks(iter_array_chunks(x, y, z, 10_000), spec, tile_cells=10, check_inside=False) as part:
+        assert sum(1 for c in part.tile_points if c == 0) > part.scheme.n_tiles // 2
+    got = grid_tiled(iter_array_chunks(x, y, z, 10_000), spec, ALL, tile_cells=10, check_inside=False)
+    _assert_same(ref, got, ALL)
+
+
+def test_dtm_layers_tiled_equal_in_memory_dtm_layers(tmp_path):
+    x, y, z = _points(80_000, 5)
+    ok = np.isfinite(x) & np.isfinite(y) & np.isfinite(z) & (x <= 100.0)
+    x, y, z = x[ok], y[ok], z[ok]
+    x[np.abs(x - 50) < 1.5] = np.nan  # an empty band: holes of 1-2 cells get filled, others not
+    spec = P.make_grid_spec(2.0, (0.0, 0.0, 100.0, 70.0))
+    keep = np.isfinite(x)
+    idx, _ = spec.cell_index(x[keep], y[keep], check_inside=False)
+    ref, ref_filled = _dtm_layers(spec, idx, z[keep], 4, 0.5, 0.001, 3.0)
+    with partition_chunks(iter_array_chunks(x[keep], y[keep], z[keep], 9000), spec, tile_cells=13,
+                          scratch_dir=tmp_path) as part:
+        got, filled = dtm_layers_tiled(part, fill_max_cells=4)
+    np.testing.assert_array_equal(ref_filled, filled)
+    assert set(ref) == set(got)
+    for k in ref:
+        assert ref[k].dtype == got[k].dtype, k
+        np.testing.assert_array_equal(ref[k], got[k], err_msg=k)
+    assert list(tmp_path.iterdir()) == []  # the scratch directory is removed
+
+
+def test_tile_scheme_windows_cover_the_grid_once():
+    spec = P.make_grid_spec(1.0, (0.0, 0.0, 23.0, 10.0))
+    sc = TileScheme(spec, 7)
+    assert (sc.ntx, sc.nty) == (4, 2)
+    cover = np.zeros((spec.ny, spec.nx), int)
+    for t in range(sc.n_tiles):
+        r0, r1, c0, c1 = sc.window(t)
+        cover[r0:r1, c0:c1] += 1
+        ts = sc.tile_spec(t)
+        np.testing.assert_array_equal(ts.x, spec.x[c0:c1])
+        np.testing.assert_array_equal(ts.y, spec.y[r0:r1])
+    assert (cover == 1).all()
+    assert choose_tile_cells(spec) == 23  # a grid smaller than a default tile: one tile
+    big = P.make_grid_spec(1.0, (0.0, 0.0, 10_000.0, 10_000.0), max_cells=10**9)
+    assert choose_tile_cells(big, expected_points=10**9) == int((2**21 / 10) ** 0.5)
+
+
+def test_bad_input_one_line_errors(tmp_path):
+    spec = P.make_grid_spec(1.0, (0.0, 0.0, 10.0, 10.0))
+    with pytest.raises(InputError, match="NaN/inf"):
+        grid_tiled([(np.full(5, np.nan), np.ones(5), np.ones(5))], spec, scratch_dir=tmp_path)
+    with pytest.raises(InputError, match="no points"):
+        grid_tiled([], spec, scratch_dir=tmp_path)
+    with pytest.raises(InputError, match="same length"):
+        grid_tiled([(np.ones(3), np.ones(2), np.ones(3))], spec, scratch_dir=tmp_path)
+    with pytest.raises(InputError, match="scratch directory"):
+        TilePartition(TileScheme(spec, 4), scratch_dir=tmp_path / "missing")
+    with pytest.raises(InputError, match="tile_cells"):
+        TileScheme(spec, 0)
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_full_disk_is_a_one_line_error(tmp_path, monkeypatch):
+    from hadal.grid import tiles
+
+    monkeypatch.setattr(tiles, "_free_bytes", lambda p: 1000)
+    spec = P.make_grid_spec(1.0, (0.0, 0.0, 10.0, 10.0))
+    with pytest.raises(InputError, match="GiB free") as e:
+        grid_tiled([(np.ones(5), np.ones(5), np.ones(5))], spec, scratch_dir=tmp_path)
+    assert "\n" not in str(e.value)
+    assert list(tmp_path.iterdir()) == []
