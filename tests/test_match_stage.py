@@ -219,7 +219,8 @@ def test_params_defaults_are_the_papers():
 
 
 def test_resample_along_track_bins_and_hover():
-    from hadal.matching.fix import json_clean, resample_along_track
+    from hadal.matching.fix import resample_along_track
+    from hadal.products.io import json_clean
 
     x = np.r_[np.zeros(50), np.linspace(0, 100, 101)]  # 50 s hovering at the start, then 100 m east at 1 m/s
     y = np.zeros_like(x)

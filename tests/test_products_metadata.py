@@ -18,7 +18,8 @@ from hadal.dive import Dive
 from hadal.products import dive_attributes, dive_context, missing_acdd_fields, write_netcdf
 from hadal.products.geo_landing import iso_utc, strict_json
 from hadal.products.io import provenance
-from hadal.products.metadata import ACDD_REQUIRED, REQUIRED_FIELDS, software_provenance
+from hadal.products.metadata import ACDD_REQUIRED, REQUIRED_FIELDS
+from hadal.provenance import software_provenance
 from hadal.store import ProductStore
 
 FULL_METADATA = {

@@ -25,7 +25,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_valida
 
 from hadal.errors import ConfigError, HadalError, InputError, first_validation_error
 from hadal.geo import LocalFrame
-from hadal.store import validate_name
+from hadal.names import check_component
 
 DIVE_FILE = "dive.yaml"
 
@@ -217,7 +217,7 @@ class Dive(BaseModel):
         from hadal.errors import StoreError
 
         try:
-            return validate_name(v, "dive id")
+            return check_component(v, "dive id")
         except StoreError as exc:
             raise ValueError(str(exc)) from None
 

@@ -15,7 +15,7 @@ import time
 from collections.abc import Iterable, Iterator
 from typing import TypeVar
 
-from hadal.stages import NullProgress, Progress
+from hadal.steps import NullProgress, Progress
 
 T = TypeVar("T")
 log = logging.getLogger("hadal.progress")

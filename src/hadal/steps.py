@@ -1,13 +1,24 @@
-"""One long step of a computation reported through a progress object (:class:`hadal.stages.Progress` protocol:
+"""One long step of a computation reported through a progress object (the :class:`Progress` protocol:
 ``.track(iterable, description, total)``), without the science importing the stages or the progress module."""
 
 from __future__ import annotations
 
 from collections.abc import Iterable, Iterator
 from contextlib import contextmanager
-from typing import Any, TypeVar
+from typing import Any, Protocol, TypeVar
 
 T = TypeVar("T")
+
+
+class Progress(Protocol):
+    def track(self, it: Iterable[T], description: str, total: int | None = None) -> Iterator[T]: ...
+
+
+class NullProgress:
+    """Progress reporter that reports nothing (library default)."""
+
+    def track(self, it: Iterable[T], description: str, total: int | None = None) -> Iterator[T]:
+        yield from it
 
 
 @contextmanager

@@ -37,7 +37,6 @@ import os
 import re
 import shutil
 import stat
-import subprocess
 import threading
 import time
 import uuid
@@ -46,9 +45,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from hadal import __version__
 from hadal.errors import StoreError
 from hadal.names import check_component, check_relative_path
+from hadal.provenance import code_version, software_provenance
 from hadal.yamlfile import load_json_bounded
 
 NAME_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]{0,63}$")
@@ -100,23 +99,6 @@ def _file_key(path: Path) -> tuple:
     from user space, so an in-place edit with the old size and mtime restored still changes the key."""
     st = path.stat()
     return (str(path), st.st_dev, st.st_ino, st.st_size, st.st_mtime_ns, st.st_ctime_ns)
-
-
-def code_version() -> str:
-    """hadal's version plus the git commit of the source tree when it is a checkout (``+g<sha>[.dirty]``)."""
-    src = Path(__file__).resolve().parent
-    try:
-        sha = subprocess.run(
-            ["git", "-C", str(src), "rev-parse", "--short=12", "HEAD"],
-            capture_output=True, text=True, timeout=5, check=True,
-        ).stdout.strip()
-        dirty = subprocess.run(
-            ["git", "-C", str(src), "status", "--porcelain", "--untracked-files=no", "--", "."],
-            capture_output=True, text=True, timeout=5, check=True,
-        ).stdout.strip()
-    except (OSError, subprocess.SubprocessError):
-        return __version__
-    return f"{__version__}+g{sha}{'.dirty' if dirty else ''}" if sha else __version__
 
 
 @dataclass(frozen=True)
@@ -500,8 +482,6 @@ class ProductStore:
             "files": files,
             **draft.extra,
         }
-        from hadal.products.metadata import software_provenance  # command, hadal commit, library versions
-
         manifest.setdefault("software", software_provenance())
         run = STAGE_RUN.get()
         if run:

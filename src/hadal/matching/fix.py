@@ -16,7 +16,6 @@ import pandas as pd
 from hadal.errors import InputError
 from hadal.geo import LocalFrame, format_position, geodesic_distance_m
 from hadal.matching.tercom import TercomResult
-from hadal.products.io import json_clean  # noqa: F401  (re-exported: fix.json writer)
 
 REQUIRED_CTD_COLUMNS = ("time", "seafloor_depth_m", "dr_east_m", "dr_north_m", "phase", "depth_m")
 

@@ -23,7 +23,6 @@ attributes are written as NC_CHAR (fixed-length), which every netCDF reader (old
 from __future__ import annotations
 
 import datetime as _dt
-import functools
 import json
 import re
 from collections.abc import Mapping
@@ -53,19 +52,11 @@ from hadal.products.metadata import (
     store_relative,
 )
 from hadal.products.registry import registry, storage_dtype, variable_attrs
+from hadal.provenance import code_version
 
 #: Attributes of every NetCDF product that are facts about hadal (no operator placeholders: who made the data
 #: comes from dive.yaml ``metadata`` or ``HADAL_<NAME>``, see :mod:`hadal.products.metadata`).
 GLOBAL_DEFAULTS: dict[str, str] = dict(HADAL_FACTS)
-
-
-@functools.lru_cache(maxsize=1)
-def code_version() -> str:
-    """hadal's code version (``store.code_version``: version + git commit), computed once per process:
-    the code a process runs is the code it imported."""
-    from hadal.store import code_version as _cv
-
-    return _cv()
 
 
 def _now() -> str:

@@ -99,7 +99,7 @@ def navigation_table(ctd: pd.DataFrame, frame: LocalFrame, launch_lat: float, la
     ``dr_error_fraction``, ``unreferenced_drift_m_per_sqrt_s``: default :class:`DeadReckoningOptions`' (the ``match``
     stage's ``Params`` extends it)."""
     if dr_error_fraction is None or unreferenced_drift_m_per_sqrt_s is None:
-        from hadal.matching.options import DeadReckoningOptions  # the defaults are declared once, there
+        from hadal.settings.match import DeadReckoningOptions  # the defaults are declared once, there
 
         f = DeadReckoningOptions.model_fields
         dr_error_fraction = f["dr_error_fraction"].default if dr_error_fraction is None else dr_error_fraction

@@ -17,12 +17,13 @@ from __future__ import annotations
 
 import importlib
 import logging
-from collections.abc import Callable, Iterable, Iterator
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Protocol, TypeVar
+from typing import TYPE_CHECKING, Any
 
 from hadal.errors import StageError
+from hadal.steps import NullProgress, Progress
 
 if TYPE_CHECKING:
     from pydantic import BaseModel
@@ -31,7 +32,6 @@ if TYPE_CHECKING:
     from hadal.settings import PipelineConfig
     from hadal.store import ProductStore, ProductVersion
 
-T = TypeVar("T")
 
 #: Stages in execution order (also the flow's priority among ready stages). Only stages whose module defines
 #: ``run`` are part of the pipeline.
@@ -110,17 +110,6 @@ class Stage:
     def reads(self) -> tuple[str, ...]:
         """Every product it reads (required, then optional): its graph edges and its cache fingerprint's upstream."""
         return tuple(dict.fromkeys((*self.inputs.upstream, *self.inputs.optional_upstream)))
-
-
-class Progress(Protocol):
-    def track(self, it: Iterable[T], description: str, total: int | None = None) -> Iterator[T]: ...
-
-
-class NullProgress:
-    """Progress reporter that reports nothing (library default)."""
-
-    def track(self, it: Iterable[T], description: str, total: int | None = None) -> Iterator[T]:
-        yield from it
 
 
 @dataclass
