@@ -30,13 +30,14 @@ import argparse
 import time
 from pathlib import Path
 
+import _tests_path  # noqa: F401  (tests/ on sys.path)
 import numpy as np
 import pandas as pd
+from factories import AnalyticTerrain, wiggly_track
 
 from hadal.matching import MapGrid, tercom
 from hadal.matching.mrf import mrf_refine
 from hadal.suitability import block_std_entropy
-from hadal.testing import AnalyticTerrain, wiggly_track
 
 H = 20.0
 NX, NY = 200, 160

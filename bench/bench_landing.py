@@ -32,12 +32,13 @@ from pathlib import Path
 
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 
+import _tests_path  # noqa: F401  (tests/ on sys.path)
 import numpy as np  # noqa: E402
 import xarray as xr  # noqa: E402
+from landing_fixtures import TAKUYO_RASTER  # noqa: E402
 from scipy import ndimage as ndi  # noqa: E402
 
 from hadal.landing import Vehicle, analyse_submap  # noqa: E402
-from hadal.landing.testing import TAKUYO_RASTER  # noqa: E402
 
 V = Vehicle()
 RASTER = Path(__file__).resolve().parents[2] / "shared" / "data" / TAKUYO_RASTER
@@ -255,7 +256,7 @@ def bench_pf() -> None:
 
 
 def bench_noise() -> None:
-    from hadal.landing.testing import read_takuyo, resampled
+    from landing_fixtures import read_takuyo, resampled
 
     if not RASTER.is_file():
         print(f"[noise] {RASTER} not present")

@@ -21,7 +21,7 @@ Measured in the same run (so the ratios are meaningful on a shared machine):
    idle cores you actually have: see the load average printed with it).
 
 Without the sample generator (``hadal.synth``) it falls back to a fake dive whose products are
-published by :mod:`hadal.testing` and times only the stages that can run on it (report).
+published by :mod:`factories` (tests/) and times only the stages that can run on it (report).
 """
 
 from __future__ import annotations
@@ -54,7 +54,8 @@ def make_dive(dest: Path, small: bool, dive_id: str | None = None) -> tuple[Path
     try:
         from hadal.synth import generate_dive
     except ImportError:
-        from hadal.testing import write_fake_dive
+        import _tests_path  # noqa: F401  (tests/ on sys.path)
+        from factories import write_fake_dive
 
         raw = write_fake_dive(dest, dive_id or "fake-dive")
         return raw, ["report"], False
@@ -69,9 +70,11 @@ def make_dive(dest: Path, small: bool, dive_id: str | None = None) -> tuple[Path
 
 def prepare_store(store: Path, raw: Path, real: bool) -> None:
     if not real:
+        import _tests_path  # noqa: F401  (tests/ on sys.path)
+        from factories import publish_fake_products
+
         from hadal.dive import load_dive
         from hadal.store import ProductStore
-        from hadal.testing import publish_fake_products
 
         publish_fake_products(ProductStore(store), load_dive(raw)[0].dive_id)
 

@@ -18,10 +18,11 @@ from __future__ import annotations
 import argparse
 import time
 
+import _tests_path  # noqa: F401  (tests/ on sys.path)
 import numpy as np
+from factories import AnalyticTerrain, wiggly_track
 
 from hadal.matching import MapGrid, tercom, tercom_direct
-from hadal.testing import AnalyticTerrain, wiggly_track
 
 
 def main() -> None:

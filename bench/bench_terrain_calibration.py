@@ -2,13 +2,13 @@
 
 Terrain: the real grids of :mod:`bench.calibration_tercom` (``bathy-real/tut_bathy.nc``, ETOPO5 near Bermuda, and
 ``formats-real/gmt_depth_pixel.nc``, GMT/ETOPO2, a random 150 x 150 window a trial), projected
-(:func:`hadal.testing.real_terrain`); the seafloor the vehicle measures is the bicubic interpolant of the nodes, the
-map the nodes (:func:`hadal.testing.simulate_case`: heading error +-4 deg, scale 1 +- 3 %, depth bias, DR random walk
+(:func:`factories.real_terrain`); the seafloor the vehicle measures is the bicubic interpolant of the nodes, the
+map the nodes (:func:`factories.simulate_case`: heading error +-4 deg, scale 1 +- 3 %, depth bias, DR random walk
 and velocity bias; kinds clean / drift / holes / off_map / flat / short).
 
 Noise (``--noise real``, the default): instead of white Gaussian noise the profile gets a segment of a REAL roughness
 series, one value a profile sample, scaled to ``noise_frac`` (0.3-2 %) of the map relief (the amplitude of
-:func:`hadal.testing.simulate_case`); the series are, drawn at random per trial:
+:func:`factories.simulate_case`); the series are, drawn at random per trial:
 
 * ``ship_soundings``: the 8 pings of NOAA Okeanos Explorer EM302 soundings
   (``bathy-real/0029_20160323_185603_EX1604_MB.gsf.mb121``, read by :func:`hadal.grid.sonar.read_multibeam`), each
@@ -75,11 +75,12 @@ import pandas as pd
 from scipy import ndimage
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+import _tests_path  # noqa: F401  (tests/ on sys.path)
 from calibration_tercom import CROP, HEADINGS, SCALES, load_worlds  # noqa: E402
+from factories import crop, simulate_case  # noqa: E402
 
 from hadal.matching.options import PosteriorNoiseOptions, SearchEdgeOptions  # noqa: E402
 from hadal.matching.posterior import posterior_fix  # noqa: E402
-from hadal.testing import crop, simulate_case  # noqa: E402
 
 SHARED = Path(os.environ.get("HADAL_SHARED_DATA", Path(__file__).resolve().parents[2] / "shared" / "data"))
 GRIDS = {"tut_bathy": SHARED / "bathy-real" / "tut_bathy.nc", "gmt_depth_pixel": SHARED / "formats-real" / "gmt_depth_pixel.nc"}

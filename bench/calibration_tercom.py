@@ -3,11 +3,11 @@
 Real grids: ``../shared/data/bathy-real/tut_bathy.nc`` (ETOPO5, 5', near Bermuda; 71 x 74 cells of
 7.83 km after projection) and ``../shared/data/formats-real/gmt_depth_pixel.nc`` (GMT/ETOPO2 rough
 seafloor, 566 x 566 cells of 3.54 km; each trial uses a random 150 x 150 window). Both are projected
-onto a transverse-Mercator frame (:func:`hadal.testing.real_terrain`); the "true" seafloor is
+onto a transverse-Mercator frame (:func:`factories.real_terrain`); the "true" seafloor is
 a bicubic interpolant of the nodes, the map the nodes themselves (bilinear between them), so the map
 error between nodes is real-terrain-sized.
 
-Each trial (:func:`hadal.testing.simulate_case`) draws a track of 20-100 samples (one per cell
+Each trial (:func:`factories.simulate_case`) draws a track of 20-100 samples (one per cell
 of travel; 3-8 for ``short``), noise 0-2 % of the map relief, a depth bias (+-50 m), heading error
 (+-4 deg), scale error (+-3 %), a random-walk + velocity-bias drift, and a kind: ``clean``, ``drift``
 (velocity bias up to 2 %), ``holes`` (40-50 % of samples over NaN blobs), ``off_map`` (25-35 % off
@@ -72,12 +72,13 @@ import time
 import warnings
 from pathlib import Path
 
+import _tests_path  # noqa: F401  (tests/ on sys.path)
 import numpy as np
 import pandas as pd
+from factories import crop, real_terrain, simulate_case
 
 from hadal.matching import tercom
 from hadal.matching.posterior import posterior_fix
-from hadal.testing import crop, real_terrain, simulate_case
 
 SHARED = Path(__file__).resolve().parents[2] / "shared" / "data"
 GRIDS = {"tut_bathy": SHARED / "bathy-real" / "tut_bathy.nc", "gmt_depth_pixel": SHARED / "formats-real" / "gmt_depth_pixel.nc"}
@@ -104,7 +105,7 @@ def load_worlds(grids=GRIDS):
 def run_trials(worlds: dict, trials: int, seed: int, kinds=None, baseline: bool = True,
                walk_cells: float = 0.03, walk_given: float = 1.0) -> pd.DataFrame:
     """``trials`` simulated fixes alternating over ``worlds``; one row per trial (errors in cells); ``walk_cells``:
-    the dead-reckoning random walk of :func:`hadal.testing.simulate_case` (0: none, a diagnostic), given to the fix
+    the dead-reckoning random walk of :func:`factories.simulate_case` (0: none, a diagnostic), given to the fix
     times ``walk_given`` (1: the navigation's specification known, as a user gives it; 0: not modelled)."""
     rng = np.random.default_rng(seed)
     names = list(worlds)

@@ -25,7 +25,8 @@ import json, resource, sys, time
 import numpy as np
 from hadal.matching import MapGrid
 from hadal.matching.posterior import posterior_fix
-from hadal.testing import AnalyticTerrain, wiggly_track
+import _tests_path  # noqa: F401  (tests/ on sys.path)
+from factories import AnalyticTerrain, wiggly_track
 ny, nx, use_region = int(sys.argv[1]), int(sys.argv[2]), sys.argv[3] == "1"
 h = 20.0
 t = AnalyticTerrain.random(11, extent_m=nx * h, n_bumps=6 * max(1, nx * ny // 1_000_000))

@@ -2,7 +2,7 @@
 
 Grids nobody here wrote: ``../shared/data/bathy-real/tut_bathy.nc`` (71 x 74 cells of 7.83 km after
 projection) and ``../shared/data/formats-real/gmt_depth_pixel.nc`` (GMT/ETOPO2, 566 x 566 cells of 3.54 km),
-projected by :func:`hadal.testing.real_terrain`: the map is the grid nodes (bilinear between them),
+projected by :func:`factories.real_terrain`: the map is the grid nodes (bilinear between them),
 the "true" seafloor a bicubic interpolant of the nodes, so the patch is off-node real terrain, not the map.
 
 Each trial cuts a 40 x 30-cell real-time terrain patch (the paper's Simulation 1 size) at a random
@@ -30,10 +30,11 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+import _tests_path  # noqa: F401  (tests/ on sys.path)
 import numpy as np
+from factories import cut_patch, real_terrain
 
 from hadal.matching.mrf import mrf_refine
-from hadal.testing import cut_patch, real_terrain
 
 SHARED = Path(__file__).resolve().parents[2] / "shared" / "data"
 GRIDS = {"tut_bathy": SHARED / "bathy-real" / "tut_bathy.nc", "gmt_depth_pixel": SHARED / "formats-real" / "gmt_depth_pixel.nc"}

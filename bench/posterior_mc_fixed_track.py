@@ -5,7 +5,7 @@ smaller than reported while the tail was heavy, two effects that cannot be told 
 track geometry is fixed on a real grid and only the noise is redrawn, so the Monte-Carlo spread of the fixed
 start is the oracle the reported covariance should match (trace ratio ~1):
 
-* track: :func:`hadal.testing.simulate_case` (``clean``, ``--n`` samples, noise ``--noise`` x the map relief,
+* track: :func:`factories.simulate_case` (``clean``, ``--n`` samples, noise ``--noise`` x the map relief,
   no dead-reckoning random walk), placed without drift (true track = start + f R(a) (dr - dr0));
 * seafloor: the map itself (bilinear: the measurement model holds exactly) and the real terrain's bicubic
   interpolant (map error as on the calibration bench);
@@ -41,11 +41,12 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
+import _tests_path  # noqa: F401  (tests/ on sys.path)
 from calibration_tercom import CROP, GRIDS, HEADINGS, SCALES, load_worlds  # noqa: E402
+from factories import crop, simulate_case  # noqa: E402
 
 from hadal.matching.posterior import posterior_fix  # noqa: E402
 from hadal.matching.tercom import _rotate  # noqa: E402
-from hadal.testing import crop, simulate_case  # noqa: E402
 
 
 def fixed_track(grid: str, seed: int, n: int, noise: float):

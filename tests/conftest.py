@@ -117,8 +117,8 @@ def small_run(small_dive, tmp_path_factory):
 
 @pytest.fixture(scope="session")
 def takuyo(shared_data):
-    """The real Takuyo laser raster (0.10 m) as a local metric depth grid (:func:`hadal.landing.testing.read_takuyo`)."""
-    from hadal.landing.testing import TAKUYO_RASTER, read_takuyo
+    """The real Takuyo laser raster (0.10 m) as a local metric depth grid (:func:`landing_fixtures.read_takuyo`)."""
+    from landing_fixtures import TAKUYO_RASTER, read_takuyo
 
     path = shared_data / TAKUYO_RASTER
     if not path.is_file():

@@ -201,8 +201,9 @@ def _closed_stdout(*args: str) -> tuple[int, str]:
 def test_a_closed_stdout_pipe_is_said_on_stderr_and_changes_nothing_else(tmp_path):
     """Was exit 1 and no word (click's own EPIPE handling). ``hadal report`` publishes, then prints the path: the
     version stays published, exit 0, one note on stderr; a listing (``hadal products | head``) stops silently."""
+    from factories import publish_fake_products
+
     from hadal.store import ProductStore
-    from hadal.testing import publish_fake_products
 
     store = tmp_path / "store"
     publish_fake_products(ProductStore(store), "dive-a", products=("ctd",))

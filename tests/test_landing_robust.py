@@ -11,6 +11,7 @@ import math
 import numpy as np
 import pytest
 import xarray as xr
+from landing_fixtures import resampled
 from scipy import ndimage as ndi
 
 from hadal.errors import ConfigError, InputError
@@ -18,7 +19,6 @@ from hadal.landing import Vehicle, analyse_submap
 from hadal.landing.exclusion import UNMAPPED, footprint_mask
 from hadal.landing.protrusion import _octagon_filter, octagon_offsets, protrusion_height_map
 from hadal.landing.sites import largest_aspect_rectangle_m2, slope_window_px
-from hadal.landing.testing import resampled
 
 V = Vehicle()
 HC = V.critical_height_m

@@ -12,6 +12,7 @@ import math
 import numpy as np
 import pytest
 import xarray as xr
+from landing_fixtures import resampled
 from scipy import ndimage as ndi
 
 from hadal.errors import ConfigError, InputError
@@ -20,7 +21,6 @@ from hadal.landing._kernels import outer_border, squared_edt
 from hadal.landing.exclusion import HeadingCorrelator, footprint_mask
 from hadal.landing.protrusion import protrusion_height_map
 from hadal.landing.sites import check_resources, estimate_resources, largest_aspect_rectangle_m2
-from hadal.landing.testing import resampled
 from hadal.settings import LandingParams
 
 V = Vehicle()

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from factories import AnalyticTerrain
 
 from hadal.geo import LocalFrame
 from hadal.matching import MapGrid
@@ -16,7 +17,6 @@ from hadal.matching.budget import (
     uncertainty_budget,
 )
 from hadal.matching.tercom import TercomResult
-from hadal.testing import AnalyticTerrain
 
 H = 20.0
 

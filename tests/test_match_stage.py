@@ -8,6 +8,7 @@ import numpy as np
 import pandas as pd
 import pytest
 import xarray as xr
+from factories import AnalyticTerrain, lawnmower
 
 from hadal.dive import Dive, Launch, MapFrame
 from hadal.errors import InputError, StageError
@@ -18,7 +19,6 @@ from hadal.stages import StageContext
 from hadal.stages import match as match_stage
 from hadal.stages import suitability as suit_stage
 from hadal.store import ProductStore
-from hadal.testing import AnalyticTerrain, lawnmower
 
 H = 20.0
 DRIFT = np.array([430.0, -260.0])  # true bottom start minus launch point, metres
@@ -74,7 +74,7 @@ def _world(tmp_path, *, track="wiggle", ctd_mutator=None, nan_hole=False):
 
 
 def _wiggle(n, length):
-    from hadal.testing import wiggly_track
+    from factories import wiggly_track
 
     return wiggly_track(n, length, seed=4)
 

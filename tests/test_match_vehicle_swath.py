@@ -145,9 +145,10 @@ def test_swath_placed_by_a_wrong_fix_is_corrected_by_mrf_on_real_terrain(shared_
     bias, scale error and a drift growing with time) is placed by a fix whose start is wrong by a known offset and
     whose pose and drift are right (:func:`swath_on_map`), gridded and matched by MRF (:func:`mrf_step`): the MRF
     start must recover the true start (oracle: the offset the test put in) to a small fraction of a cell."""
+    from factories import real_terrain
+
     from hadal.matching.budget import mrf_step, swath_on_map
     from hadal.matching.tercom import TercomResult, _rotate
-    from hadal.testing import real_terrain
 
     path = shared_data / "bathy-real" / "tut_bathy.nc"
     if not path.is_file():

@@ -11,10 +11,10 @@ import warnings
 
 import numpy as np
 import pytest
+from factories import AnalyticTerrain, wiggly_track
 
 from hadal.matching import MapGrid
 from hadal.matching.posterior import _drift_basis, posterior_fix
-from hadal.testing import AnalyticTerrain, wiggly_track
 
 H = 20.0
 

@@ -11,10 +11,10 @@ import warnings
 
 import numpy as np
 import pytest
+from factories import AnalyticTerrain, crop, real_terrain, simulate_case, wiggly_track
 
 from hadal.matching import MapGrid, tercom, tercom_direct
 from hadal.matching.posterior import posterior_fix
-from hadal.testing import AnalyticTerrain, crop, real_terrain, simulate_case, wiggly_track
 
 HEADINGS = np.arange(-5, 5.01, 1.0)
 SCALES = (0.97, 1.0, 1.03)

@@ -7,12 +7,12 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from factories import AnalyticTerrain, cut_patch
 
 from hadal.errors import InputError
 from hadal.matching import MapGrid, tercom
 from hadal.matching.mrf import GibbsFilter, _gibbs, _shift_axis, gibbs_temperature, mrf_refine
 from hadal.matching.options import SearchEdgeOptions
-from hadal.testing import AnalyticTerrain, cut_patch
 
 H = 20.0
 SHARED = Path(__file__).resolve().parents[2] / "shared" / "data"
@@ -31,7 +31,7 @@ def world():
 def real():
     if not all(p.exists() for p in REAL.values()):
         pytest.skip("real grids under ../shared/data absent")
-    from hadal.testing import real_terrain
+    from factories import real_terrain
 
     return {k: real_terrain(p) for k, p in REAL.items()}
 

@@ -12,11 +12,11 @@ import time
 from pathlib import Path
 
 import pytest
+from factories import publish_fake_products, write_fake_dive
 
 from hadal.errors import InputError
 from hadal.pipeline import make_context
 from hadal.store import ProductStore
-from hadal.testing import publish_fake_products, write_fake_dive
 
 REPO = Path(__file__).resolve().parents[1]
 if str(REPO) not in sys.path:  # flows/ and tasks/ live at the repository root

@@ -178,9 +178,10 @@ def test_netcdf_profile_and_store_identity(tmp_path):
 
 
 def test_dive_attributes_give_position_and_time(tmp_path):
+    from factories import write_fake_dive
+
     from hadal.dive import load_dive
     from hadal.products import dive_attributes
-    from hadal.testing import write_fake_dive
 
     dive, _ = load_dive(write_fake_dive(tmp_path / "raw", "dive-9"))
     attrs = dive_attributes(dive)

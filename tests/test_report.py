@@ -13,6 +13,7 @@ from html import escape as html_escape
 import numpy as np
 import pandas as pd
 import pytest
+from factories import ALL_FAKE, fake_ctd, publish_fake_products, write_fake_dive
 
 from hadal.errors import StageError
 from hadal.pipeline import make_context, run_stage
@@ -20,7 +21,6 @@ from hadal.products import write_parquet
 from hadal.report import FigureOptions, build_report, load_products, publish_report
 from hadal.settings import PipelineConfig
 from hadal.store import ProductStore
-from hadal.testing import ALL_FAKE, fake_ctd, publish_fake_products, write_fake_dive
 
 FAST = FigureOptions(dpi=40, width_in=6, max_points=500, keep_figure=True)  # keep_figure: the artists are tested
 
@@ -262,8 +262,9 @@ def test_new_figures_are_drawn(full_store, full_report):
     la = _line(ax, "launch")
     assert (la.get_xdata()[0], la.get_ydata()[0]) == (dp.fix["launch"]["lon"], dp.fix["launch"]["lat"])
     circle = _line(ax, "radial 1σ uncertainty (19 m)")
+    from factories import ORIGIN
+
     from hadal.geo import LocalFrame
-    from hadal.testing import ORIGIN
 
     cx, cy = LocalFrame(*ORIGIN).to_xy(np.asarray(circle.get_xdata()), np.asarray(circle.get_ydata()))
     r = np.hypot(cx - dp.fix["start"]["x_east_m"], cy - dp.fix["start"]["y_north_m"])
@@ -386,9 +387,10 @@ def test_landing_map_png_is_the_figure_canvas_with_everything_on_it(full_store, 
 def test_overview_draws_the_fix_ellipses_from_the_summary(full_store):
     """The 1σ/2σ outlines on the overview map have the semi-axes and azimuth of fix.json's ellipses (metres on
     the ground, about profile_start), and the zoom inset shows the same outlines."""
+    from factories import ORIGIN
+
     from hadal.geo import LocalFrame
     from hadal.report.geo_figures import fig_overview
-    from hadal.testing import ORIGIN
 
     dp = load_products(ProductStore(full_store), "dive-a")
     centre = {"x_east_m": dp.fix["start"]["x_east_m"] + 40.0, "y_north_m": dp.fix["start"]["y_north_m"] - 25.0}
@@ -500,7 +502,7 @@ def full_store_path(report) -> str:
 
 def test_report_html_in_headless_chromium(full_report, tmp_path):
     """Every embedded figure decodes and the page logs no error, in a real browser (skipped without one)."""
-    from hadal.testing import browser_check, chromium
+    from factories import browser_check, chromium
 
     if chromium() is None:
         pytest.skip("no chromium installed")
@@ -520,7 +522,7 @@ def test_report_html_in_headless_chromium(full_report, tmp_path):
         scale = f["shown_w"] / f["natural_w"]
         assert f["min_font_pt"] * f["dpi"] / 72 * scale >= 12.0 - 0.3, f  # 0.3 px: the img's 1 px border
         assert f["shown_w"] / f["shown_h"] <= 4.0 and f["shown_h"] >= 250, f
-    from hadal.testing import browser_screenshot
+    from factories import browser_screenshot
 
     shot = browser_screenshot(default.html, tmp_path / "report.png", 1280, 2400)
     assert shot is not None and _image(shot.read_bytes())[..., :3].std() > 0.05  # the page drew something

@@ -356,8 +356,9 @@ def test_yaml_bounds_keep_ordinary_files(tmp_path):
 def test_report_embeds_no_symlinked_store_file(tmp_path):
     """A landing figure replaced by a symbolic link to a file outside the store: its bytes never reach
     report.html (the landing version is left out with a note naming the link)."""
+    from factories import publish_fake_products
+
     from hadal.report import FigureOptions, build_report
-    from hadal.testing import publish_fake_products
 
     st = ProductStore(tmp_path / "store")
     pvs = publish_fake_products(st, "dive-r", products=("ctd", "landing"))

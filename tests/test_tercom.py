@@ -8,10 +8,10 @@ import numpy as np
 import pandas as pd
 import pytest
 import xarray as xr
+from factories import AnalyticTerrain, wiggly_track
 
 from hadal.errors import InputError
 from hadal.matching import MapGrid, refine_tercom, tercom, tercom_direct
-from hadal.testing import AnalyticTerrain, wiggly_track
 
 H = 20.0
 

@@ -11,6 +11,7 @@ import warnings
 
 import numpy as np
 import pytest
+from factories import AnalyticTerrain, wiggly_track
 from scipy.signal import lfilter
 
 from hadal.matching import MapGrid, tercom
@@ -18,7 +19,6 @@ from hadal.matching.mrf import mrf_refine
 from hadal.matching.options import PosteriorNoiseOptions, SearchEdgeOptions
 from hadal.matching.posterior import effective_sample_size, posterior_fix, residual_autocorrelation
 from hadal.matching.tercom import _rotate
-from hadal.testing import AnalyticTerrain, wiggly_track
 
 H = 20.0
 

@@ -19,10 +19,10 @@ import time
 from pathlib import Path
 
 import pytest
+from factories import publish_fake_products, write_fake_dive
 
 from hadal.pipeline import code_digest
 from hadal.store import ProductStore
-from hadal.testing import publish_fake_products, write_fake_dive
 
 REPO = Path(__file__).resolve().parents[1]
 PREFECT = str(Path(sys.executable).with_name("prefect"))

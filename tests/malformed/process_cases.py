@@ -205,8 +205,9 @@ def _run_unreachable(kind: str) -> Callable[[Path, Path], Any]:
 
 # ------------------------------------------------------------------------------------ a closed stdout pipe
 def _prep_fake_products(d: Path, store: Path) -> None:
+    from factories import publish_fake_products
+
     from hadal.store import ProductStore
-    from hadal.testing import publish_fake_products
 
     publish_fake_products(ProductStore(store), "dive-a", products=("ctd",))
 

@@ -166,8 +166,9 @@ def _run_twin(d: Path, store: Path) -> Any:
 
 
 def _prep_report_link(d: Path, store: Path) -> None:
+    from factories import publish_fake_products
+
     from hadal.store import ProductStore
-    from hadal.testing import publish_fake_products
 
     pvs = publish_fake_products(ProductStore(store), DIVE, products=("ctd", "landing"))
     (d / "secret.png").parent.mkdir(parents=True, exist_ok=True)
