@@ -20,7 +20,7 @@ from pydantic import ValidationError
 from hadal.ctd import derive
 from hadal.errors import ConfigError
 from hadal.products.dsg import orthogonal_profile
-from hadal.products.registry import registry
+from hadal.registry import registry
 from hadal.settings import DeriveParams
 
 gsw = pytest.importorskip("gsw")

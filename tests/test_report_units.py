@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from hadal.products.registry import variable_attrs
+from hadal.registry import variable_attrs
 from hadal.report import summary_rows
 from hadal.report import units as report_units
 

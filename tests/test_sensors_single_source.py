@@ -4,8 +4,7 @@
 from __future__ import annotations
 
 from hadal.ingest.build import SENSOR_VARIABLES, field_metadata, qc_flag_values, sensors_schema
-from hadal.products.io import column_attrs
-from hadal.products.registry import registry
+from hadal.registry import column_attrs, registry
 
 
 def test_sensors_yaml_declares_no_attributes():

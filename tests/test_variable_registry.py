@@ -1,4 +1,4 @@
-"""The variable registry (``schemas/variables.yaml``, :mod:`hadal.products.registry`): every variable of every
+"""The variable registry (``schemas/variables.yaml``, :mod:`hadal.registry`): every variable of every
 product is declared once, the writers take their CF attributes from it and refuse an undeclared variable; the
 declared units are UDUNITS and agree with the CF standard names; the MCAP JSON Schemas are declared once."""
 
@@ -20,7 +20,7 @@ import yaml
 
 from hadal.errors import HadalError
 from hadal.products import write_netcdf, write_parquet
-from hadal.products.registry import REGISTRY_FILE, UndeclaredVariableError, parse_registry, registry
+from hadal.registry import REGISTRY_FILE, UndeclaredVariableError, parse_registry, registry
 
 REPO = Path(__file__).resolve().parents[1]
 REG = registry()

@@ -67,8 +67,8 @@ def sensors_schema() -> dict[str, Any]:
 def field_metadata() -> dict[str, dict[str, str]]:
     """Per-column Parquet field metadata of ``sensors`` (units, standard_name, long_name; flag attributes of the
     ``<var>_qc`` columns), QC columns included: the variable registry's (``schemas/variables.yaml``), the single
-    source of the attributes (:func:`hadal.products.io.column_attrs`, which :func:`write_parquet` applies too)."""
-    from hadal.products.io import column_attrs
+    source of the attributes (:func:`hadal.registry.column_attrs`, which :func:`write_parquet` applies too)."""
+    from hadal.registry import column_attrs
 
     out: dict[str, dict[str, str]] = {}
     for name in sensors_schema()["columns"]:
@@ -81,7 +81,7 @@ def field_metadata() -> dict[str, dict[str, str]]:
 
 def qc_flag_values() -> list[int]:
     """The QARTOD flag values a ``<var>_qc`` column may hold (the registry's ``*_qc`` pattern)."""
-    from hadal.products.registry import registry
+    from hadal.registry import registry
 
     spec = registry().spec(f"{SENSOR_VARIABLES[0]}_qc", "sensors.yaml")
     return [int(v) for v in spec.flag_values or ()]

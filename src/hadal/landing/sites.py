@@ -173,16 +173,12 @@ class LandingResult:
             b = np.full(a.shape[:-2] + inside.shape, fill, dtype=a.dtype)
             b[..., inside] = a[..., fr[inside], fc[inside]]
             out[name] = (da.dims, b, da.attrs)
-            out[name].encoding.update(da.encoding)
         return out
 
     def _frame_dataset(self) -> xr.Dataset:
         y = xr.Variable("y", self.y_m, {"units": "m", "long_name": "y (north) in the laser frame", "axis": "Y"})
         x = xr.Variable("x", self.x_m, {"units": "m", "long_name": "x (east) in the laser frame", "axis": "X"})
         hd = xr.Variable("heading", self.headings_deg, {"units": "degree", "long_name": "landing heading, clockwise from +y"})
-        from hadal.products.compression import gzip_encoding
-
-        enc = gzip_encoding()
         ds = xr.Dataset(
             {
                 "elevation_m": (("y", "x"), self.elevation_m.astype(np.float32), {"units": "m", "positive": "up", "long_name": "elevation"}),
@@ -208,8 +204,6 @@ class LandingResult:
             },
             coords={"y": y, "x": x, "heading": hd},
         )
-        for name in ds.data_vars:
-            ds[name].encoding.update(enc)
         best = self.best or {}
         ds.attrs.update({
             "critical_slope_deg": self.vehicle.critical_slope_deg,

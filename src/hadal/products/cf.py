@@ -1,7 +1,7 @@
 """CF conventions shared by the product writers.
 
 The CF attributes of every product variable (units, standard name, long name, flags, ...) are declared once in
-``schemas/variables.yaml`` (:mod:`hadal.products.registry`); nothing here derives them from a variable's name.
+``schemas/variables.yaml`` (:mod:`hadal.registry`); nothing here derives them from a variable's name.
 What remains are CF constants (the QARTOD flag convention, the standard-name vocabulary) and two lookups the
 writers and the compliance report share. Standard names are from the CF Standard Name Table v79.
 """
@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import re
 
-from hadal.products.registry import has_no_cf_standard_name, registry
+from hadal.registry import has_no_cf_standard_name, registry
 
 __all__ = ["EDGE_RE", "QARTOD_FLAG_MEANINGS", "QARTOD_FLAG_VALUES", "STANDARD_NAME_VOCABULARY",
            "has_no_cf_standard_name", "is_axis_edge", "units_from_name"]

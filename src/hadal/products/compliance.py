@@ -11,7 +11,7 @@ Two findings are *documented exceptions* (``Finding.allowed``), not defects of t
 
 * ACDD "variable missing standard_name" for quantities the CF Standard Name Table has no entry for
   (declared with ``no_cf_standard_name: true`` in the variable registry, ``schemas/variables.yaml``, see
-  :func:`hadal.products.registry.has_no_cf_standard_name`: gravity, topographic entropy, MSD, scores, ...).
+  :func:`hadal.registry.has_no_cf_standard_name`: gravity, topographic entropy, MSD, scores, ...).
   Inventing a standard name would instead fail CF §3.3.
 * ACDD "<attribute> not present" for operator metadata (creator, institution, licence, ...) that the dive's
   ``dive.yaml`` does not give: hadal never invents it, and the file lists exactly those attributes in its

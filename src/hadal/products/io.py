@@ -5,7 +5,7 @@
   global discovery attributes (``id``, ``naming_authority``, ``keywords``, ``license``, ``creator_*``,
   ``institution``, ``standard_name_vocabulary``, ``product_version``, ``processing_level``, ...),
   ``geospatial_*`` / ``time_coverage_*`` computed from the data, and per variable the attributes declared in
-  ``schemas/variables.yaml`` (:mod:`hadal.products.registry`: ``units``, ``standard_name``, ``long_name``,
+  ``schemas/variables.yaml`` (:mod:`hadal.registry`: ``units``, ``standard_name``, ``long_name``,
   ``coverage_content_type``, flags; a variable not declared there is refused), ``actual_range``, ``_FillValue``,
   ``coordinates`` (2-D lat/lon are promoted to coordinates), ``grid_mapping`` (any variable holding a
   ``grid_mapping_name``/``crs_wkt``), CF flag attributes for QARTOD ``*_qc`` and boolean flags.
@@ -51,8 +51,8 @@ from hadal.products.metadata import (
     relative_to_raw,
     store_relative,
 )
-from hadal.products.registry import registry, storage_dtype, variable_attrs
 from hadal.provenance import code_version
+from hadal.registry import column_attrs, registry, storage_dtype, variable_attrs
 
 #: Attributes of every NetCDF product that are facts about hadal (no operator placeholders: who made the data
 #: comes from dive.yaml ``metadata`` or ``HADAL_<NAME>``, see :mod:`hadal.products.metadata`).
@@ -94,22 +94,6 @@ def provenance(source: Any = None) -> dict[str, Any]:
 
 
 # ---------------------------------------------------------------------------------------------- Parquet
-#: registry attributes that describe NetCDF variables only (not written into Parquet field metadata)
-_NETCDF_ONLY = ("coverage_content_type", "axis")
-
-
-def _field_text(v: Any) -> str:
-    return " ".join(map(str, v)) if isinstance(v, (list, tuple)) else str(v)
-
-
-def column_attrs(name: str, given: Mapping[str, Any] | None = None, *, where: str = "") -> dict[str, str]:
-    """CF attributes of a column: the ones ``schemas/variables.yaml`` declares, the caller's winning. A column
-    the registry does not declare raises :class:`hadal.products.registry.UndeclaredVariableError`."""
-    out = {k: _field_text(v) for k, v in variable_attrs(name, where=where).items() if k not in _NETCDF_ONLY}
-    out.update({k: str(v) for k, v in (given or {}).items() if v is not None})
-    return out
-
-
 def write_parquet(
     df: pd.DataFrame,
     path: str | Path,
@@ -290,7 +274,7 @@ def _prepare_variable(name: str, var: xr.Variable, *, is_coord: bool, is_dim_coo
     """``var`` with its CF attributes and encoding: the attributes ``schemas/variables.yaml`` declares for
     ``name`` (as a y/x map-grid layer when it lies on one), the caller's winning, plus the structural CF rules
     (time encoding, boolean flags, integer narrowing, ``_FillValue``, ``actual_range``, ``grid_mapping``). An
-    undeclared variable raises :class:`hadal.products.registry.UndeclaredVariableError`."""
+    undeclared variable raises :class:`hadal.registry.UndeclaredVariableError`."""
     on_grid = yx_dims is not None and set(yx_dims) <= set(var.dims)
     declared = variable_attrs(name, on_grid, where)
     declared_coverage = declared.pop("coverage_content_type", None)

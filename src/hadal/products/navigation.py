@@ -345,7 +345,7 @@ def trajectory_dataset(nav: pd.DataFrame, ctd: pd.DataFrame | None, dive_id: str
 
     from hadal.products.compression import gzip_encoding
     from hadal.products.dsg import char_id
-    from hadal.products.registry import variable_attrs
+    from hadal.registry import variable_attrs
 
     obs = np.arange(len(nav), dtype="i4")
     t = pd.to_datetime(nav["time"], utc=True).dt.tz_convert(None).to_numpy(dtype="datetime64[ns]")

@@ -31,7 +31,7 @@ def open_dtm(pv: ProductVersion) -> xr.Dataset:
         raise InputError(f"{path}: cannot read the DTM ({str(exc).splitlines()[0] if str(exc) else type(exc).__name__})") from None
     if "depth_m" not in ds or set(ds["depth_m"].dims) != {"y", "x"}:
         raise InputError(f"{path}: not a DTM (no depth_m(y, x); have {', '.join(map(str, ds.data_vars))})")
-    # layers stored as float32 (their declared precision, hadal.products.registry.storage_dtype) are computed on
+    # layers stored as float32 (their declared precision, hadal.registry.storage_dtype) are computed on
     # in float64, as they were before storage: squared depth differences of ~11 km in float32 lose the centimetres
     for name, var in ds.data_vars.items():
         if var.dtype == "float32":

@@ -32,7 +32,7 @@ def trajectory_dataset(df: pd.DataFrame, record_id: str) -> Any:
     import xarray as xr
 
     from hadal.products.dsg import char_id
-    from hadal.products.registry import variable_attrs
+    from hadal.registry import variable_attrs
 
     obs = np.arange(len(df), dtype="i4")
     t = pd.to_datetime(df["time"], utc=True).dt.tz_convert(None).to_numpy(dtype="datetime64[ns]")

@@ -6,7 +6,7 @@ The registry declares each variable's UDUNITS string (``degree_C``, ``kg m-3``);
 
 from __future__ import annotations
 
-from hadal.products.registry import variable_attrs
+from hadal.registry import variable_attrs
 
 #: UDUNITS string -> how the report prints it (others are printed as declared)
 _DISPLAY = {

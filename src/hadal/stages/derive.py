@@ -355,7 +355,7 @@ _PROFILE_LONG_NAMES: dict[str, str] = {
 def _profile_var_attrs(name: str) -> dict[str, str]:
     """Attributes of a binned ``profile`` variable: the registry's standard_name/units/positive, the bin mean's
     long_name (:data:`_PROFILE_LONG_NAMES`)."""
-    from hadal.products.registry import variable_attrs
+    from hadal.registry import variable_attrs
 
     reg = variable_attrs(name, where="profile")
     out: dict[str, str] = {k: str(reg[k]) for k in ("standard_name", "units", "positive") if k in reg}
@@ -615,5 +615,5 @@ STAGE = Stage(
     options=Params, run=run, raw_files=raw_files, planned_products=planned_products,
     warm_imports=("hadal.ctd.chain", "hadal.ctd.teos10", "hadal.depth", "hadal.seawater", "hadal.profile",
                   "hadal.qc_derived", "hadal.ingest.cnv", "hadal.products.io", "hadal.products.navigation",
-                  "hadal.products.registry"),
+                  "hadal.registry"),
 )

@@ -161,8 +161,12 @@ def _analyse_file(ctx, p: Params, f: Path, headings: np.ndarray, mem_limit, thre
 def _write_submap_maps(ctx, res, path: Path, name: str) -> None:
     """``<name>_maps.nc``: slope, protrusion height, exclusion per heading and the selected site of one submap."""
     from hadal.products import dive_attributes, write_netcdf
+    from hadal.products.compression import gzip_encoding
 
-    write_netcdf(res.to_dataset(), path, title=f"Landing-site maps, {ctx.dive_id} {name}",
+    ds = res.to_dataset()
+    for v in ds.data_vars:
+        ds[v].encoding.update(gzip_encoding())
+    write_netcdf(ds, path, title=f"Landing-site maps, {ctx.dive_id} {name}",
                  summary="Slope, protrusion height, C_G exclusion per landing heading and the selected landing "
                          "site (Sangekar et al.).", submap=name, **dive_attributes(ctx.dive))
 

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import fnmatch
 import functools
+from collections.abc import Mapping
 from importlib.resources import files
 from typing import Annotated, Any, Literal
 
@@ -199,3 +200,19 @@ def has_no_cf_standard_name(name: str) -> bool:
     """The registry declares ``name`` with ``no_cf_standard_name: true`` (the CF table has no entry for it)."""
     spec = registry().find(name)
     return bool(spec is not None and spec.no_cf_standard_name)
+
+
+#: registry attributes that describe NetCDF variables only (not written into Parquet field metadata)
+_NETCDF_ONLY = ("coverage_content_type", "axis")
+
+
+def _field_text(v: Any) -> str:
+    return " ".join(map(str, v)) if isinstance(v, (list, tuple)) else str(v)
+
+
+def column_attrs(name: str, given: Mapping[str, Any] | None = None, *, where: str = "") -> dict[str, str]:
+    """CF attributes of a column: the ones ``schemas/variables.yaml`` declares, the caller's winning. A column
+    the registry does not declare raises :class:`hadal.registry.UndeclaredVariableError`."""
+    out = {k: _field_text(v) for k, v in variable_attrs(name, where=where).items() if k not in _NETCDF_ONLY}
+    out.update({k: str(v) for k, v in (given or {}).items() if v is not None})
+    return out
