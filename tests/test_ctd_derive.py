@@ -91,7 +91,7 @@ def test_teos10_theta_and_sigma0_close_to_seasoft_eos80(rel, t_col, c_col, c_sca
 def test_profile_n_squared_against_gsw(example, example_derived):
     out, meta = example_derived
     out = out.assign(phase=ctd.cast_labels(out["pressure_dbar"].to_numpy()))
-    from hadal.profile import N_SQUARED, make_profile, n_squared_per_sample
+    from hadal.ctd.profile import N_SQUARED, make_profile, n_squared_per_sample
 
     prof = make_profile(out, 1.0, latitude_deg=LAT)
     k = 0  # descent

@@ -20,12 +20,12 @@ import pytest
 import xarray as xr
 from pyproj import Geod
 
+from hadal.ctd.profile import make_profile
 from hadal.dive import Dive, LaserFrame
 from hadal.geo import LocalFrame
 from hadal.products import dive_attributes, missing_acdd_fields, write_netcdf
 from hadal.products.dsg import id_values, orthogonal_profile, place_casts
 from hadal.products.navigation import dead_reckoned_lonlat, navigation_table, trajectory_dataset
-from hadal.profile import make_profile
 
 FRAME = LocalFrame(11.33, 142.20)
 LAUNCH = (11.3371, 142.2097)

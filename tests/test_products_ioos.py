@@ -104,10 +104,10 @@ def test_navigation_trajectory_passes_ioos_1_2(tmp_path):
 
 @pytest.mark.parametrize("axis", ["pressure", "depth"])
 def test_profile_passes_ioos_1_2(tmp_path, axis):
-    """profile.nc as derive builds it (hadal.profile.make_profile): a ragged trajectoryProfile with depth as its Z
+    """profile.nc as derive builds it (hadal.ctd.profile.make_profile): a ragged trajectoryProfile with depth as its Z
     axis passes every high-priority IOOS-1.2 check but the GTS listing, on either binning axis; depth is the
     stage's own binned depth (0.993 x pressure here), not a relabelled pressure."""
-    from hadal.profile import make_profile
+    from hadal.ctd.profile import make_profile
 
     prof = make_profile(_ctd(), 10.0, latitude_deg=LAUNCH[0], axis=axis)
     path = write_netcdf(prof, _path(tmp_path, "profile", "profile.nc"), title="t", summary="s",

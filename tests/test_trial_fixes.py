@@ -327,8 +327,8 @@ def _raw_cnv(path: Path) -> np.ndarray:
 
 
 def test_loopedit_flags_become_qartod_4(shared_data, tmp_path):
+    from hadal.ctd.profile import bin_edges
     from hadal.products.io import read_parquet_metadata
-    from hadal.profile import bin_edges
 
     src = shared_data / LOOPEDIT
     raw = _raw_cnv(src)  # columns: timeS, c0mS/cm, prdM, tv290C, flag

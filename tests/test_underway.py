@@ -1,4 +1,4 @@
-"""Underway records (hadal.ctd.underway: the rule, positions by time) and SeaSoft-binned casts (hadal.profile:
+"""Underway records (hadal.ctd.underway: the rule, positions by time) and SeaSoft-binned casts (hadal.ctd.profile:
 source_bins, prebinned_phases, prebinned_profile), on constructed records whose answer is known by construction.
 The real files are tested in tests/test_real_dives.py (the file's own columns as the oracle)."""
 
@@ -9,8 +9,8 @@ import pandas as pd
 import pytest
 import yaml
 
+from hadal.ctd.profile import prebinned_phases, prebinned_profile, source_bins
 from hadal.ctd.underway import MIN_TRACK_M, distance_m, positions_at, underway_evidence
-from hadal.profile import prebinned_phases, prebinned_profile, source_bins
 
 
 def _record(lat, lon, pressure=None, instrument="* Sea-Bird SBE 21 Data File:") -> pd.DataFrame:

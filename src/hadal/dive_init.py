@@ -34,14 +34,17 @@ import yaml
 from hadal.dive import DIVE_FILE, Dive
 from hadal.errors import ConfigError, InputError
 from hadal.inspect import inspect_file
+from hadal.roles import (
+    all_finite,
+    crs_kind,
+    grid_role,
+    lonlat_centre,
+    xyz_role,
+)
 
 VEHICLE_FILE = "vehicle.yaml"
 #: hadal's own files in a dive directory (never sources)
 OWN_FILES = {DIVE_FILE, VEHICLE_FILE, "pipeline.yaml"}
-#: rasters with cells at most this size (m) are laser (micro-)bathymetry, coarser ones prior maps
-LASER_MAX_CELL_M = 0.5
-#: metric xyz point sets spanning less than this (m) are laser scans, wider ones ship soundings
-LASER_MAX_EXTENT_M = 200.0
 
 
 @dataclass
@@ -109,15 +112,6 @@ def _candidate_files(raw: Path) -> list[Path]:
     return out
 
 
-def xyz_role(info: dict[str, Any]) -> str:
-    """``multibeam`` or ``laser`` for an xyz text file: geographic coordinates or a wide extent are soundings;
-    a metric point set narrower than :data:`LASER_MAX_EXTENT_M` is a laser scan."""
-    if _crs_kind(info) == "geographic" or _lonlat_centre(info) is not None:
-        return "multibeam"
-    ext = _extent_m(info)
-    return "laser" if ext is not None and ext < LASER_MAX_EXTENT_M else "multibeam"
-
-
 def xyz_hints(rel: str, info: dict[str, Any]) -> tuple[str | dict[str, Any], str]:
     """The ``dive.yaml`` entry of an xyz soundings file and why: what the reader could only guess from the values
     (lon/lat by their ranges, depth or elevation by the sign of the median; :func:`hadal.grid.sonar._iter_xyz`) is
@@ -128,7 +122,7 @@ def xyz_hints(rel: str, info: dict[str, Any]) -> tuple[str | dict[str, Any], str
     if info.get("crs_from") == "values" and info.get("crs_kind") == "geographic":
         lo, la = info.get("longitude_deg") or [None, None], info.get("latitude_deg") or [None, None]
         hints["crs"] = "EPSG:4326"
-        span = (f" (x {lo[0]:.4g}..{lo[1]:.4g}, y {la[0]:.4g}..{la[1]:.4g})" if _finite(*lo, *la) else "")
+        span = (f" (x {lo[0]:.4g}..{lo[1]:.4g}, y {la[0]:.4g}..{la[1]:.4g})" if all_finite(*lo, *la) else "")
         why.append(f"x/y taken as longitude/latitude from their value ranges{span}: crs EPSG:4326")
     if info.get("z_positive_from") == "values" and info.get("z_positive") in ("up", "down"):
         hints["z_positive"] = info["z_positive"]
@@ -137,36 +131,6 @@ def xyz_hints(rel: str, info: dict[str, Any]) -> tuple[str | dict[str, Any], str
     if not hints:
         return rel, ""
     return {"path": rel, **hints}, "guessed by hadal init, change if wrong: " + "; ".join(why)
-
-
-def _extent_m(info: dict[str, Any]) -> float | None:
-    for key in ("x_range", "x_range_m"):
-        xr_, yr_ = info.get(key), info.get(key.replace("x_", "y_"))
-        if xr_ and yr_:
-            return max(abs(xr_[1] - xr_[0]), abs(yr_[1] - yr_[0]))
-    ext = info.get("extent")
-    for a, b, c, d in (("x_min", "x_max", "y_min", "y_max"), ("xmin", "xmax", "ymin", "ymax")):
-        if isinstance(ext, dict) and {a, b, c, d} <= set(ext) and _finite(ext[a], ext[b], ext[c], ext[d]):
-            return max(ext[b] - ext[a], ext[d] - ext[c])
-    return None
-
-
-def _crs_kind(info: dict[str, Any]) -> str | None:
-    crs = info.get("crs")
-    return crs.get("kind") if isinstance(crs, dict) else info.get("crs_kind")
-
-
-def grid_role(info: dict[str, Any]) -> str:
-    """``laser`` for a metric raster with cells ≤ :data:`LASER_MAX_CELL_M`, else ``prior_grid``."""
-    if _crs_kind(info) == "geographic":
-        return "prior_grid"
-    res = info.get("resolution_m", info.get("resolution"))
-    if isinstance(res, (list, tuple)):
-        res = max(abs(float(r)) for r in res)
-    try:
-        return "laser" if res is not None and 0 < float(res) <= LASER_MAX_CELL_M else "prior_grid"
-    except (TypeError, ValueError):
-        return "prior_grid"
 
 
 #: casts whose header positions are within this distance (km) share one launch position
@@ -189,49 +153,11 @@ def _lon_in(lon: float, lo: float, hi: float) -> bool:
 def _lonlat_box(info: dict[str, Any]) -> tuple[float, float, float, float] | None:
     """(lon0, lon1, lat0, lat1) of a file's geographic extent, when its describer gives lon/lat ranges."""
     lo, la = info.get("longitude_deg"), info.get("latitude_deg")
-    if isinstance(lo, (list, tuple)) and isinstance(la, (list, tuple)) and len(lo) == len(la) == 2 and _finite(*lo, *la):
+    if isinstance(lo, (list, tuple)) and isinstance(la, (list, tuple)) and len(lo) == len(la) == 2 and all_finite(*lo, *la):
         return float(lo[0]), float(lo[1]), float(la[0]), float(la[1])
     ext = info.get("extent")
-    if _crs_kind(info) == "geographic" and isinstance(ext, dict) and {"xmin", "xmax", "ymin", "ymax"} <= set(ext):
+    if crs_kind(info) == "geographic" and isinstance(ext, dict) and {"xmin", "xmax", "ymin", "ymax"} <= set(ext):
         return float(ext["xmin"]), float(ext["xmax"]), float(ext["ymin"]), float(ext["ymax"])
-    return None
-
-
-def _finite(*v: Any) -> bool:
-    return all(isinstance(x, (int, float)) and math.isfinite(x) for x in v)
-
-
-def _lonlat_centre(info: dict[str, Any]) -> tuple[float, float] | None:
-    """Centre (lon, lat) of a file's geographic extent, from whichever form its describer reports."""
-    for lo_key, la_key in (("longitude_deg", "latitude_deg"), ("lon_range", "lat_range"),
-                           ("longitude_range", "latitude_range")):
-        lo, la = info.get(lo_key), info.get(la_key)
-        if isinstance(lo, (list, tuple)) and isinstance(la, (list, tuple)) and len(lo) == len(la) == 2 \
-                and _finite(*lo, *la):
-            return (lo[0] + lo[1]) / 2, (la[0] + la[1]) / 2
-    ext = info.get("extent") or {}
-    if not isinstance(ext, dict):
-        return None
-    for keys in (("lon_min", "lon_max", "lat_min", "lat_max"), ("longitude_min", "longitude_max", "latitude_min",
-                                                                 "latitude_max")):
-        if set(keys) <= set(ext) and _finite(*(ext[k] for k in keys)):
-            return (ext[keys[0]] + ext[keys[1]]) / 2, (ext[keys[2]] + ext[keys[3]]) / 2
-    if not {"xmin", "xmax", "ymin", "ymax"} <= set(ext) or not _finite(*(ext[k] for k in ("xmin", "xmax", "ymin", "ymax"))):
-        return None
-    cx, cy = (ext["xmin"] + ext["xmax"]) / 2, (ext["ymin"] + ext["ymax"]) / 2
-    kind = _crs_kind(info)
-    if kind == "geographic":
-        return cx, cy
-    crs: dict[str, Any] = info["crs"] if isinstance(info.get("crs"), dict) else {}
-    if kind == "projected" and (crs.get("wkt") or crs.get("name")):
-        try:
-            from pyproj import CRS, Transformer
-
-            src = CRS.from_user_input(crs.get("wkt") or crs.get("name"))
-            lon, lat = Transformer.from_crs(src, "EPSG:4326", always_xy=True).transform(cx, cy)
-            return (float(lon), float(lat)) if _finite(lon, lat) else None
-        except Exception:  # noqa: BLE001 - an unusable CRS just gives no position
-            return None
     return None
 
 
@@ -340,10 +266,10 @@ def _scan_files(res: InitResult, scan: _Scan, raw: Path) -> None:
             res.not_used.append(f"{rel}: {info.get('description') or kind} (not a dive source)")
             continue
         # a projected point cloud keeps its own CRS (its laser grid is not in the map frame): no say in the frame
-        projected_cloud = kind in ("ply", "pcd", "las") and _crs_kind(info) != "geographic"
+        projected_cloud = kind in ("ply", "pcd", "las") and crs_kind(info) != "geographic"
         if not projected_cloud:
             _add_footprint(scan, rel, kind, info)
-        c = None if projected_cloud else _lonlat_centre(info)
+        c = None if projected_cloud else lonlat_centre(info)
         if c is not None:
             scan.centres.append(c)
             if (box := _lonlat_box(info)) is not None:
@@ -518,15 +444,15 @@ def _add_footprint(scan: _Scan, rel: str, kind: str, info: dict[str, Any]) -> No
         role = "cast"
         box = _lonlat_box(info)
         lat, lon = info.get("latitude_deg"), info.get("longitude_deg")
-        if box is None and _finite(lat, lon):
+        if box is None and all_finite(lat, lon):
             box = (float(lon), float(lon), float(lat), float(lat))
     else:
         role = next((k for k, v in scan.sources.items() if isinstance(v, list) and rel in v), "multibeam")
         box = _lonlat_box(info)
-        c = _lonlat_centre(info) if box is None else None
+        c = lonlat_centre(info) if box is None else None
         if c is not None:
             box = (c[0], c[0], c[1], c[1])
-    if box is not None and _finite(*box):
+    if box is not None and all_finite(*box):
         scan.footprints.append(_Footprint(rel, role, box, t0, t1, first))
 
 

@@ -73,11 +73,11 @@ def inspect_file(path: str | Path) -> dict[str, Any]:
         out["error"] = f"{p}: cannot be read ({type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''})"
     else:
         if fk.kind in ("geotiff", "netcdf"):  # a raster is a prior map or laser bathymetry by its cell size
-            from hadal.dive_init import grid_role
+            from hadal.roles import grid_role
 
             out["source"] = grid_role(info or {})
         elif fk.kind == "xyz":
-            from hadal.dive_init import xyz_role
+            from hadal.roles import xyz_role
 
             out["source"] = xyz_role(info or {})
         for k, v in (info or {}).items():  # the detector's fields stay; a describer's own "kind" becomes "format"

@@ -55,14 +55,14 @@ DEPTH_PER_DBAR_MAX = 1.04
 
 def profile_memory_bytes(pressure_dbar: Any, bin_dbar: float, n_variables: int | None = None,
                          n_casts: int = 2) -> float:
-    """Bytes :func:`hadal.profile.make_profile` allocates for ``pressure_dbar`` in ``bin_dbar`` bins: per bin the
+    """Bytes :func:`hadal.ctd.profile.make_profile` allocates for ``pressure_dbar`` in ``bin_dbar`` bins: per bin the
     edges and per cast a count plus, per variable, a sum, a count, a mean and the product array (8 bytes each).
-    ``n_variables``: default ``len(hadal.profile.PROFILE_VARIABLES)`` (looked up here: hadal.profile imports xarray).
+    ``n_variables``: default ``len(hadal.ctd.profile.PROFILE_VARIABLES)`` (looked up here: hadal.ctd.profile imports xarray).
     The same holds on the depth axis with depths (m) and a bin size in m (as many variables)."""
     import numpy as np
 
     if n_variables is None:
-        from hadal.profile import PROFILE_VARIABLES
+        from hadal.ctd.profile import PROFILE_VARIABLES
 
         n_variables = len(PROFILE_VARIABLES)
 
@@ -286,7 +286,7 @@ def _standard_ocean_depth(pres: np.ndarray, latitude_deg: float) -> tuple[np.nda
 def _phases(df: pd.DataFrame, p: Params, pres: np.ndarray, depth: np.ndarray, no_time: bool,
             prebinned: bool = False) -> None:
     """``phase``: descent/bottom/ascent from the depth record; a cast SeaSoft already binned: its casts in file
-    order (:func:`hadal.profile.prebinned_phases`); else a record without time is one profile (descent when
+    order (:func:`hadal.ctd.profile.prebinned_phases`); else a record without time is one profile (descent when
     pressure increases down the file, else ascent)."""
     import numpy as np
     import pandas as pd
@@ -294,7 +294,7 @@ def _phases(df: pd.DataFrame, p: Params, pres: np.ndarray, depth: np.ndarray, no
     from hadal.depth import segment_phases
 
     if prebinned:
-        from hadal.profile import prebinned_phases
+        from hadal.ctd.profile import prebinned_phases
 
         phase = prebinned_phases(pres)
     elif no_time:
@@ -310,8 +310,8 @@ def _phases(df: pd.DataFrame, p: Params, pres: np.ndarray, depth: np.ndarray, no
 def _teos10_depth(df: pd.DataFrame, p: Params, pres: np.ndarray, temp: np.ndarray, latitude_deg: float,
                   longitude_deg: float) -> str:
     """``depth_teos10_m`` with the dynamic height anomaly of the binned descent profile; returns how it was made."""
+    from hadal.ctd.profile import make_profile
     from hadal.depth import depth_teos10, dynamic_height_anomaly
-    from hadal.profile import make_profile
 
     teos_note = "dynamic height anomaly of the binned descent profile"
     p_psi: np.ndarray | None
@@ -395,7 +395,7 @@ def derive_ctd(sensors: pd.DataFrame, latitude_deg: float, longitude_deg: float,
     """Pure science of the stage: the ``ctd`` table and its metadata from a ``sensors`` table.
 
     ``prebinned``: the table is a cast SeaSoft's BinAvg already binned (one row per bin; its descent and ascent
-    are the rows up to and after the deepest, :func:`hadal.profile.prebinned_phases`).
+    are the rows up to and after the deepest, :func:`hadal.ctd.profile.prebinned_phases`).
 
     ``frame`` (a :class:`hadal.geo.LocalFrame`) and ``launch_xy`` (the launch point in it) turn the
     dead-reckoned offsets of the deepest point into longitude/latitude when given. ``overlying_profile`` (a
@@ -598,8 +598,14 @@ def derive_table(table: pd.DataFrame, sensors_meta: dict[str, Any], p: Params, d
     """``derive_ctd`` + position choice + profile for one sensors-schema table (the dive's or a cast's)."""
     import numpy as np
 
+    from hadal.ctd.profile import (
+        N_SQUARED,
+        make_profile,
+        n_squared_per_sample,
+        prebinned_profile,
+        source_bins,
+    )
     from hadal.ingest.cnv import NO_TIME_BASE
-    from hadal.profile import N_SQUARED, make_profile, n_squared_per_sample, prebinned_profile, source_bins
     from hadal.qc_derived import load_qc_config, qc_profile
 
     pos = choose_position(p, dive, sensors_meta, header_first=external_cast)

@@ -27,7 +27,7 @@ import numpy as np
 import pandas as pd
 import xarray as xr
 
-#: instance dimensions of binned casts as ``hadal.profile.make_profile`` builds them
+#: instance dimensions of binned casts as ``hadal.ctd.profile.make_profile`` builds them
 CAST_DIMS = ("cast", "profile")
 #: the vertical coordinate of the ragged profiles (CF ``depth``, positive down, m)
 Z_NAME = "depth_m"
@@ -273,7 +273,7 @@ def dsg_global_attributes(ds: xr.Dataset) -> dict[str, str]:
 
 def orthogonal_profile(ds: xr.Dataset) -> xr.Dataset:
     """A ragged profile file (:func:`ragged_profiles`) back in the ``(cast, level)`` layout of
-    ``hadal.profile.make_profile`` (the report's figures read that): ``cast`` labels from the ``cast`` flags,
+    ``hadal.ctd.profile.make_profile`` (the report's figures read that): ``cast`` labels from the ``cast`` flags,
     levels on the union of the casts' bins of the binning axis (``pressure_dbar`` when present, else
     ``depth_m``), NaN where a cast has no bin. A dataset without ``row_size`` is returned unchanged."""
     if "row_size" not in ds.variables or "obs" not in ds.dims:

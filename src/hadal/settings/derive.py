@@ -1,5 +1,5 @@
 """Options of the ``derive`` stage (section ``derive`` of config/pipeline.yaml): pressure fusion, seawater, depth,
-phases, the Sea-Bird processing chain and the binned profile (:mod:`hadal.ctd`, :mod:`hadal.depth`, :mod:`hadal.profile`)."""
+phases, the Sea-Bird processing chain and the binned profile (:mod:`hadal.ctd`, :mod:`hadal.depth`, :mod:`hadal.ctd.profile`)."""
 
 from __future__ import annotations
 

@@ -17,7 +17,7 @@ CTD time base) and computes, per sample:
 
 Publishes ``ctd`` (``ctd.parquet``) and ``profile`` (``profile.nc``, descent and ascent casts binned by pressure,
 or by depth with ``profile_axis: depth``; a cast SeaSoft's BinAvg already binned keeps its own bins and only the
-casts it holds: :func:`hadal.profile.prebinned_profile`, ``profile_source_bins``).
+casts it holds: :func:`hadal.ctd.profile.prebinned_profile`, ``profile_source_bins``).
 
 Underway records (a ``sources.cnv`` entry with ``kind: underway``: a thermosalinograph, :mod:`hadal.ctd.underway`)
 are not casts: each is published in ``trajectory`` (one CF trajectory NetCDF per record, positions from the
@@ -366,7 +366,7 @@ def _profile_var_attrs(name: str) -> dict[str, str]:
 def _profile_attrs(ds: Any, meta: dict[str, Any]) -> None:
     import numpy as np
 
-    from hadal.profile import N_SQUARED
+    from hadal.ctd.profile import N_SQUARED
 
     axis = "depth_m" if "depth_m" in ds.dims else "pressure_dbar"
     for name in _PROFILE_LONG_NAMES:
@@ -613,7 +613,7 @@ STAGE = Stage(
     inputs=StageInputs(upstream=("sensors",), optional_upstream=("casts",),
                        optional_products=("cast_profiles", "trajectory")),
     options=Params, run=run, raw_files=raw_files, planned_products=planned_products,
-    warm_imports=("hadal.ctd.chain", "hadal.ctd.teos10", "hadal.depth", "hadal.seawater", "hadal.profile",
+    warm_imports=("hadal.ctd.chain", "hadal.ctd.teos10", "hadal.depth", "hadal.seawater", "hadal.ctd.profile",
                   "hadal.qc_derived", "hadal.ingest.cnv", "hadal.products.io", "hadal.products.navigation",
                   "hadal.registry"),
 )
