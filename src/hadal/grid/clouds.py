@@ -48,11 +48,13 @@ def metric_crs(crs):
     from pyproj import CRS
 
     d = crs.to_json_dict()
-    cs = d.get("coordinate_system", {})
+    # a BoundCRS (a WKT1 PROJCS with TOWGS84, as LAS writers emit) keeps its datum shift: its source CRS changes
+    proj = d["source_crs"] if d.get("type") == "BoundCRS" else d
+    cs = proj.get("coordinate_system", {})
     for ax in cs.get("axis", []):
         ax["unit"] = "metre"
-    d.pop("id", None)  # no longer the registry's CRS
-    d["name"] = f"{d.get('name', 'CRS')} (axes in metres)"
+    proj.pop("id", None)  # no longer the registry's CRS
+    proj["name"] = f"{proj.get('name', 'CRS')} (axes in metres)"
     return CRS.from_json_dict(d)
 
 
