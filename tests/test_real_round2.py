@@ -44,3 +44,27 @@ def test_las_in_us_survey_feet_with_towgs84_stays_georeferenced():
     ref = Transformer.from_crs(file_crs, "EPSG:4326", always_xy=True).transform(np.asarray(las.x), np.asarray(las.y))
     np.testing.assert_allclose(got, ref, rtol=0, atol=1e-9)  # degrees: well under a millimetre
     assert 35.99 < ref[1].min() and ref[0].max() < -106.0  # New Mexico, as the CRS says
+
+
+def test_cnv_latitude_from_seasoft_channel_note_when_the_header_has_none(tmp_path):
+    """castelao/seabird Hotin.cnv (SBE 19plus): no NMEA/user position, but SeaSoft wrote the latitude it used into
+    the depth channel's name ('depSM: Depth [salt water, m], lat = 48.38'). That latitude is the cast's (before:
+    45°). Oracle: SeaSoft's own depSM column, which UNESCO 44 reproduces at 48.38° and not at 45°."""
+    import shutil
+
+    from hadal.dive_init import scan_dive_dir
+    from hadal.ingest.cnv import read_cnv
+    from hadal.seawater import depth_fofonoff_millard
+
+    p = _real("seabird_Hotin_sbe19plus.cnv")
+    df = read_cnv(p)
+    assert df.attrs["latitude_deg"] == pytest.approx(48.38)
+    assert df.attrs["longitude_deg"] is None
+    assert "depSM" in df.attrs["position_source"]["latitude"]
+    pres, dep = df["prdM"].to_numpy(), df["depSM"].to_numpy()
+    np.testing.assert_allclose(depth_fofonoff_millard(pres, df.attrs["latitude_deg"]), dep, rtol=0, atol=1.5e-3)
+    assert np.abs(depth_fofonoff_millard(pres, 45.0) - dep).max() > 2e-3
+    shutil.copy(p, tmp_path / p.name)
+    res = scan_dive_dir(tmp_path)
+    assert res.dive["sources"]["cnv"] == [p.name]
+    assert not [t for t in res.todo if "latitude" in t]  # the cast carries its latitude: nothing to ask

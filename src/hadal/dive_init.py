@@ -266,6 +266,8 @@ class _Scan:
     sources: dict[str, Any]
     centres: list[tuple[float, float]] = field(default_factory=list)
     cast_positions: list[tuple[float, float, str | None]] = field(default_factory=list)
+    #: casts (not underway records) whose header gives no latitude at all (no NMEA/user line, no SeaSoft note)
+    casts_without_latitude: list[str] = field(default_factory=list)
     logs_mcap: list[Path] = field(default_factory=list)
     logs_csv: dict[str, Path] = field(default_factory=dict)
     casts_seen: dict[tuple[Any, Any], tuple[str, str]] = field(default_factory=dict)
@@ -300,7 +302,7 @@ def scan_dive_dir(raw_dir: str | Path, *, dive_id: str | None = None,
     _check_overlap(res, scan.footprints)
     dive["sources"] = {k: v for k, v in sources.items() if v}
     res.dive = dive
-    _todo(res)
+    _todo(res, scan.casts_without_latitude)
     return res
 
 
@@ -428,6 +430,8 @@ def _map_cast(res: InitResult, scan: _Scan, rel: str, kind: str, info: dict[str,
     lat, lon = info.get("latitude_deg"), info.get("longitude_deg")
     if isinstance(lat, (int, float)) and isinstance(lon, (int, float)):
         scan.cast_positions.append((float(lat), float(lon), info.get("start_time_utc")))
+    if not isinstance(lat, (int, float)):
+        scan.casts_without_latitude.append(rel)
     return True
 
 
@@ -667,8 +671,9 @@ def _map_vehicle_logs(res: InitResult, sources: dict[str, Any], mcaps: list[Path
         res.vehicle_yaml = render_vehicle_yaml(sug)
 
 
-def _todo(res: InitResult) -> None:
-    """What the user must still provide, from the plan of the stages the data supports."""
+def _todo(res: InitResult, casts_without_latitude: list[str]) -> None:
+    """What the user must still provide, from the plan of the stages the data supports; the casts named in
+    ``casts_without_latitude`` carry no latitude in their headers."""
     from hadal.plan import plan_stages, stage_inputs
 
     try:
@@ -682,9 +687,9 @@ def _todo(res: InitResult) -> None:
         if need:
             res.todo.append(f"launch position: stage(s) {', '.join(need)} need it (hadal init DIR --launch LAT,LON "
                             "--force, or edit dive.yaml)")
-        if any(e.kind != "underway" for e in dive.sources.files("cnv")):
-            res.todo.append("the casts' headers carry no position: gravity and depth will use 45° latitude unless "
-                            "dive.yaml gets a launch position (--launch LAT,LON)")
+        if casts_without_latitude:
+            res.todo.append(f"the header of {', '.join(casts_without_latitude)} carries no latitude: gravity and "
+                            "depth will use 45° unless dive.yaml gets a launch position (--launch LAT,LON)")
     if dive.map_frame is None and dive.launch is None and ({"multibeam", "prior_grid"} & set(dive.sources.kinds())):
         res.todo.append("map_frame: no geographic position found in the data; add map_frame or --launch")
     if not dive.sources.kinds():
