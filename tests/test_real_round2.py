@@ -68,3 +68,47 @@ def test_cnv_latitude_from_seasoft_channel_note_when_the_header_has_none(tmp_pat
     res = scan_dive_dir(tmp_path)
     assert res.dive["sources"]["cnv"] == [p.name]
     assert not [t for t in res.todo if "latitude" in t]  # the cast carries its latitude: nothing to ask
+
+
+
+def test_map_frame_at_the_cast_on_a_prior_grid_not_at_the_grid_centre(tmp_path):
+    """A cast beside a coarse grid (castelao/seabird SK287_CTD05.cnv, SBE 9 with NMEA 02 26.71 S 080 28.68 E, on
+    a 15° x 15° grid of the eastern Indian Ocean): the DTM and the suitability analysis are wanted at the cast,
+    not at the grid's centre 850 km away. Oracle: the cast's NMEA header lines."""
+    import shutil
+
+    import xarray as xr
+
+    from hadal.dive_init import scan_dive_dir
+
+    cast = _real("seabird_SK287_CTD05.cnv")
+    shutil.copy(cast, tmp_path / cast.name)
+    lon, lat = np.arange(75.0, 90.01, 0.25), np.arange(-10.0, 5.01, 0.25)
+    z = -4000.0 - 100.0 * np.sin(lon)[None, :] * np.cos(lat)[:, None]
+    xr.Dataset({"z": (("lat", "lon"), z, {"units": "m", "long_name": "elevation"})},
+               coords={"lon": ("lon", lon, {"units": "degrees_east"}),
+                       "lat": ("lat", lat, {"units": "degrees_north"})}).to_netcdf(tmp_path / "bay_of_bengal.nc")
+    res = scan_dive_dir(tmp_path)
+    grids = [g if isinstance(g, str) else g["path"] for g in res.dive["sources"]["prior_grid"]]
+    assert grids == ["bay_of_bengal.nc"] and res.dive["sources"]["cnv"] == [cast.name]
+    mf = res.dive["map_frame"]
+    assert mf["origin_latitude_deg"] == pytest.approx(-(2 + 26.71 / 60), abs=1e-3)
+    assert mf["origin_longitude_deg"] == pytest.approx(80 + 28.68 / 60, abs=1e-3)
+    assert any(m.startswith("map_frame: the position of the cast(s)") for m in res.mapped)
+
+
+def test_hex_upload_is_raw_hex_whatever_the_real_time_output_format_says():
+    """seabirdscientific's 16plus_digiquartz.hex: its header's <OutputFormat> (the real-time setting) says
+    'converted decimal' but its 17 scans are 30-character raw hex (seabirdscientific's own test decodes them
+    as such). The reader judges the scans, so the one-line refusal names what it really cannot do: the
+    Digiquartz pressure sensor (before: 'not raw HEX')."""
+    from hadal.errors import InputError
+    from hadal.ingest.seabird_hex import read_hex
+
+    p = _real("sbs_16plus_digiquartz.hex")
+    scans = [ln.strip() for ln in p.read_text("latin-1").split("*END*")[1].splitlines() if ln.strip()]
+    assert len(scans) == 17 and {len(s) for s in scans} == {30}
+    with pytest.raises(InputError) as ei:
+        read_hex(p)
+    msg = str(ei.value)
+    assert "Digiquartz" in msg and "not raw HEX" not in msg and "\n" not in msg

@@ -473,7 +473,8 @@ def _set_map_frame(res: InitResult, dive: dict[str, Any], scan: _Scan) -> None:
     sources that are apart. The sources that need a frame (soundings, grids, point clouds; the vehicle track the
     match follows) are grouped by :data:`SOURCES_APART_KM`; the group is the one holding the vehicle track and a
     grid, else the one with the soundings, else the largest. The origin is the centre of the vehicle track in that
-    group, else the mean centre of its soundings, else of its grids."""
+    group, else the mean centre of its soundings, else the position of the casts on its grids (the dive's site: a
+    cast beside a 1' grid is where the DTM and the suitability analysis are wanted), else the centre of its grids."""
     grids = [f for f in scan.footprints if f.role in _FRAME_ROLES]
     if not grids:
         if scan.centres:  # a position without an extent (no footprint): as before, the mean centre
@@ -489,8 +490,17 @@ def _set_map_frame(res: InitResult, dive: dict[str, Any], scan: _Scan) -> None:
         ("the vehicle track", [f for f in pick if f.role == "track"]),
         ("the soundings", [f for f in pick if f.role == "multibeam"]),
         ("the grids", [f for f in pick if f.role in _FRAME_ROLES])) if c)
-    _frame_at(dive, [f.centre() for f in chosen])
+    # prior grids only (no track, no soundings): the dive's site is its casts on them, not the grids' centre
+    casts = [f for f in scan.footprints if f.role == "cast" and what == "the grids"
+             and any(_box_km(f.box, g.box) <= SOURCES_APART_KM for g in chosen)]
     left = [f.rel for g in groups if g is not pick for f in g if f.role in _FRAME_ROLES]
+    if casts:
+        _frame_at(dive, [f.centre() for f in casts])
+        res.mapped.append(f"map_frame: the position of the cast(s) ({_names(casts)}), the dive's site on the "
+                          f"grids ({_names(chosen)}), not the grids' centre"
+                          + (f"; not of {', '.join(left[:3])}, which lie(s) apart" if left else ""))
+        return
+    _frame_at(dive, [f.centre() for f in chosen])
     res.mapped.append(f"map_frame: the centre of {what} ({', '.join(f.rel for f in chosen[:3])}"
                       f"{', ...' if len(chosen) > 3 else ''})"
                       + (f"; not of {', '.join(left[:3])}, which lie(s) apart" if left else ""))
