@@ -112,3 +112,52 @@ def test_hex_upload_is_raw_hex_whatever_the_real_time_output_format_says():
         read_hex(p)
     msg = str(ei.value)
     assert "Digiquartz" in msg and "not raw HEX" not in msg and "\n" not in msg
+
+
+def test_cloud_without_crs_gets_an_explicit_commented_crs_local_from_init(tmp_path):
+    """laspy's simple.laz has no VLR at all (no CRS). init lists it with ``crs: local`` and a comment saying it
+    is init's choice (rule 1: a fallback is written down where the user can change it); a LAS with a CRS gets
+    no hint. Reading it with that hint gives laspy's own coordinates unchanged (metres, z up)."""
+    import shutil
+
+    import laspy
+    import yaml
+
+    from hadal.dive_init import scan_dive_dir, write_init
+    from hadal.grid.clouds import read_las
+
+    p = _real("laspy_simple_nocrs.laz")
+    assert laspy.read(str(p)).header.parse_crs() is None
+    shutil.copy(p, tmp_path / p.name)
+    shutil.copy(_real("laspy_test1_4_nm_ftus.las"), tmp_path / "with_crs.las")
+    res = scan_dive_dir(tmp_path)
+    write_init(res)
+    text = (tmp_path / "dive.yaml").read_text()
+    laser = yaml.safe_load(text)["sources"]["laser"]
+    assert {"path": p.name, "crs": "local"} in laser and "with_crs.las" in laser
+    line = next(ln for ln in text.splitlines() if "crs: local" in ln)
+    assert "hadal init's choice" in line and "no CRS" in line
+    pts, meta = read_las(tmp_path / p.name, {"crs": "local"})
+    las = laspy.read(str(p))
+    np.testing.assert_array_equal(pts, np.column_stack([las.x, las.y, las.z]))
+    assert meta["crs_from"] == "dive.yaml" and meta["z_positive"] == "up"
+
+
+@pytest.mark.parametrize("name, sep", [("pdal_utm17_tab.pcd", "\t"), ("pdal_utm17_comma.pcd", ",")])
+def test_ascii_pcd_with_tab_or_comma_separators(name, sep):
+    """PDAL's utm17_tab.pcd / utm17_comma.pcd (PCD v0.7 ascii, F 4): pypcd4 splits on spaces only and read no
+    point (before: "not a readable PCD point cloud"). Oracles: numpy's parse of the data block with the file's
+    own separator (as float32, the file's TYPE F SIZE 4), and PDAL's utm17.las of the same 10 points (laspy)."""
+    import laspy
+
+    from hadal.grid.clouds import read_pcd
+
+    p = _real(name)
+    text = p.read_text()
+    body = text.split("DATA ascii", 1)[1].strip()
+    ref = np.loadtxt(body.splitlines(), delimiter=sep, dtype=np.float32).astype(np.float64)
+    pts, meta = read_pcd(p)
+    assert meta["fields"] == "X Y Z" and meta["z_positive"] == "up"
+    np.testing.assert_array_equal(pts, ref)
+    las = laspy.read(str(_real("pdal_utm17.las")))
+    np.testing.assert_allclose(pts, np.column_stack([las.x, las.y, las.z]), rtol=0, atol=0.5)  # float32 at 4.3e6 m

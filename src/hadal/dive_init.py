@@ -336,8 +336,7 @@ def _scan_files(res: InitResult, scan: _Scan, raw: Path) -> None:
             if not _map_grid(res, sources, rel, kind, info):
                 continue
         elif kind in ("ply", "pcd", "las"):
-            sources["laser"].append(rel)
-            res.mapped.append(f"{rel}: {kind} point cloud -> sources.laser")
+            _map_cloud(res, sources, rel, kind, info)
         else:
             res.not_used.append(f"{rel}: {info.get('description') or kind} (not a dive source)")
             continue
@@ -380,8 +379,26 @@ def _map_grid(res: InitResult, sources: dict[str, Any], rel: str, kind: str, inf
     else:
         sources[role].append(rel)
     how = "; ".join(f"{k}: {v} ({c})" for k, (v, c) in hints.items())
-    res.mapped.append(f"{rel}: {kind} grid -> sources.{role}" + (f" [{how}]" if how else ""))
+    # no square brackets: the CLI prints these lines through rich, which takes '[...]' for markup
+    res.mapped.append(f"{rel}: {kind} grid -> sources.{role}" + (f"; hints: {how}" if how else ""))
     return True
+
+
+def _map_cloud(res: InitResult, sources: dict[str, Any], rel: str, kind: str, info: dict[str, Any]) -> None:
+    """Map a point cloud to ``sources.laser``. A cloud whose file carries no CRS (a LAS without GeoTIFF/WKT VLRs;
+    PCD and PLY never carry one) is listed with ``crs: local`` and a comment: the reader's fallback (x/y/z in
+    metres in the laser survey's local frame) written down as init's choice, for the user to replace with the
+    survey's CRS (whose units then scale the cloud, e.g. US survey feet)."""
+    if isinstance(info.get("crs"), dict):
+        sources["laser"].append(rel)
+        res.mapped.append(f"{rel}: {kind} point cloud -> sources.laser")
+        return
+    why = ("PCD/PLY carry no CRS" if kind in ("pcd", "ply") else "the file has no CRS (no GeoTIFF or WKT VLR)")
+    comment = (f"hadal init's choice: {why}, so x/y/z are read as metres in the laser survey's local frame; "
+               "set the survey's CRS (e.g. EPSG:2994) if you know it: its units then scale the cloud")
+    sources["laser"].append({"path": rel, "crs": "local"})
+    res.source_comments[rel] = {"crs": comment}
+    res.mapped.append(f"{rel}: {kind} point cloud -> sources.laser; hints: crs: local ({comment})")
 
 
 def _underway(path: Path) -> Any:
