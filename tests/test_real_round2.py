@@ -161,3 +161,18 @@ def test_ascii_pcd_with_tab_or_comma_separators(name, sep):
     np.testing.assert_array_equal(pts, ref)
     las = laspy.read(str(_real("pdal_utm17.las")))
     np.testing.assert_allclose(pts, np.column_stack([las.x, las.y, las.z]), rtol=0, atol=0.5)  # float32 at 4.3e6 m
+
+
+def test_sonar_file_with_every_sounding_at_one_position_is_refused_by_init(tmp_path):
+    """gsfpy's GSF 3.09 test file: 3 pings, every one at the same fix. Nothing can be gridded, so init lists it
+    as not used in one line, with the position (before: listed, then the dtm stage failed at run time)."""
+    import shutil
+
+    from hadal.dive_init import scan_dive_dir
+
+    p = _real("gsfpy_GSF3_09_test_file.gsf")
+    shutil.copy(p, tmp_path / p.name)
+    res = scan_dive_dir(tmp_path)
+    assert not res.dive["sources"]
+    (line,) = [n for n in res.not_used if n.startswith(p.name)]
+    assert "one position (17.847152, -64.597074)" in line and "\n" not in line

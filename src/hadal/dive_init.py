@@ -326,6 +326,10 @@ def _scan_files(res: InitResult, scan: _Scan, raw: Path) -> None:
             if not _map_cast(res, scan, rel, kind, info, p):
                 continue
         elif kind in ("xyz", "gsf", "kmall", "em_all", "s7k"):
+            if (point := _single_position(info)) is not None:  # e.g. libgsf's 3.09 test file: 3 pings at one fix
+                res.not_used.append(f"{rel}: every sounding is at one position ({point}): no extent, nothing to "
+                                    "grid")
+                continue
             role = xyz_role(info) if kind == "xyz" else "multibeam"
             entry, note = xyz_hints(rel, info) if kind == "xyz" and role == "multibeam" else (rel, "")
             sources[role].append(entry)
@@ -382,6 +386,19 @@ def _map_grid(res: InitResult, sources: dict[str, Any], rel: str, kind: str, inf
     # no square brackets: the CLI prints these lines through rich, which takes '[...]' for markup
     res.mapped.append(f"{rel}: {kind} grid -> sources.{role}" + (f"; hints: {how}" if how else ""))
     return True
+
+
+def _single_position(info: dict[str, Any]) -> str | None:
+    """``"LAT, LON"`` when a sonar file's soundings all lie at one position (its describer's longitude/latitude
+    ranges have no width), else ``None``."""
+    lon, lat = info.get("longitude_deg"), info.get("latitude_deg")
+    if not (isinstance(lon, (list, tuple)) and isinstance(lat, (list, tuple)) and len(lon) == 2 and len(lat) == 2):
+        return None
+    if not (_finite(*lon, *lat) and int(info.get("soundings") or 0) > 0):
+        return None
+    if lon[0] != lon[1] or lat[0] != lat[1]:
+        return None
+    return f"{float(lat[0]):.6f}, {float(lon[0]):.6f}"
 
 
 def _map_cloud(res: InitResult, sources: dict[str, Any], rel: str, kind: str, info: dict[str, Any]) -> None:
