@@ -192,6 +192,8 @@ class _Scan:
     sources: dict[str, Any]
     centres: list[tuple[float, float]] = field(default_factory=list)
     cast_positions: list[tuple[float, float, str | None]] = field(default_factory=list)
+    #: casts (not underway records) whose header gives no latitude at all (no NMEA/user line, no SeaSoft note)
+    casts_without_latitude: list[str] = field(default_factory=list)
     logs_mcap: list[Path] = field(default_factory=list)
     logs_csv: dict[str, Path] = field(default_factory=dict)
     casts_seen: dict[tuple[Any, Any], tuple[str, str]] = field(default_factory=dict)
@@ -226,7 +228,7 @@ def scan_dive_dir(raw_dir: str | Path, *, dive_id: str | None = None,
     _check_overlap(res, scan.footprints)
     dive["sources"] = {k: v for k, v in sources.items() if v}
     res.dive = dive
-    _todo(res)
+    _todo(res, scan.casts_without_latitude)
     return res
 
 
@@ -250,6 +252,10 @@ def _scan_files(res: InitResult, scan: _Scan, raw: Path) -> None:
             if not _map_cast(res, scan, rel, kind, info, p):
                 continue
         elif kind in ("xyz", "gsf", "kmall", "em_all", "s7k"):
+            if (point := _single_position(info)) is not None:  # e.g. libgsf's 3.09 test file: 3 pings at one fix
+                res.not_used.append(f"{rel}: every sounding is at one position ({point}): no extent, nothing to "
+                                    "grid")
+                continue
             role = xyz_role(info) if kind == "xyz" else "multibeam"
             entry, note = xyz_hints(rel, info) if kind == "xyz" and role == "multibeam" else (rel, "")
             sources[role].append(entry)
@@ -260,8 +266,7 @@ def _scan_files(res: InitResult, scan: _Scan, raw: Path) -> None:
             if not _map_grid(res, sources, rel, kind, info):
                 continue
         elif kind in ("ply", "pcd", "las"):
-            sources["laser"].append(rel)
-            res.mapped.append(f"{rel}: {kind} point cloud -> sources.laser")
+            _map_cloud(res, sources, rel, kind, info)
         else:
             res.not_used.append(f"{rel}: {info.get('description') or kind} (not a dive source)")
             continue
@@ -304,8 +309,39 @@ def _map_grid(res: InitResult, sources: dict[str, Any], rel: str, kind: str, inf
     else:
         sources[role].append(rel)
     how = "; ".join(f"{k}: {v} ({c})" for k, (v, c) in hints.items())
-    res.mapped.append(f"{rel}: {kind} grid -> sources.{role}" + (f" [{how}]" if how else ""))
+    # no square brackets: the CLI prints these lines through rich, which takes '[...]' for markup
+    res.mapped.append(f"{rel}: {kind} grid -> sources.{role}" + (f"; hints: {how}" if how else ""))
     return True
+
+
+def _single_position(info: dict[str, Any]) -> str | None:
+    """``"LAT, LON"`` when a sonar file's soundings all lie at one position (its describer's longitude/latitude
+    ranges have no width), else ``None``."""
+    lon, lat = info.get("longitude_deg"), info.get("latitude_deg")
+    if not (isinstance(lon, (list, tuple)) and isinstance(lat, (list, tuple)) and len(lon) == 2 and len(lat) == 2):
+        return None
+    if not (_finite(*lon, *lat) and int(info.get("soundings") or 0) > 0):
+        return None
+    if lon[0] != lon[1] or lat[0] != lat[1]:
+        return None
+    return f"{float(lat[0]):.6f}, {float(lon[0]):.6f}"
+
+
+def _map_cloud(res: InitResult, sources: dict[str, Any], rel: str, kind: str, info: dict[str, Any]) -> None:
+    """Map a point cloud to ``sources.laser``. A cloud whose file carries no CRS (a LAS without GeoTIFF/WKT VLRs;
+    PCD and PLY never carry one) is listed with ``crs: local`` and a comment: the reader's fallback (x/y/z in
+    metres in the laser survey's local frame) written down as init's choice, for the user to replace with the
+    survey's CRS (whose units then scale the cloud, e.g. US survey feet)."""
+    if isinstance(info.get("crs"), dict):
+        sources["laser"].append(rel)
+        res.mapped.append(f"{rel}: {kind} point cloud -> sources.laser")
+        return
+    why = ("PCD/PLY carry no CRS" if kind in ("pcd", "ply") else "the file has no CRS (no GeoTIFF or WKT VLR)")
+    comment = (f"hadal init's choice: {why}, so x/y/z are read as metres in the laser survey's local frame; "
+               "set the survey's CRS (e.g. EPSG:2994) if you know it: its units then scale the cloud")
+    sources["laser"].append({"path": rel, "crs": "local"})
+    res.source_comments[rel] = {"crs": comment}
+    res.mapped.append(f"{rel}: {kind} point cloud -> sources.laser; hints: crs: local ({comment})")
 
 
 def _underway(path: Path) -> Any:
@@ -354,6 +390,8 @@ def _map_cast(res: InitResult, scan: _Scan, rel: str, kind: str, info: dict[str,
     lat, lon = info.get("latitude_deg"), info.get("longitude_deg")
     if isinstance(lat, (int, float)) and isinstance(lon, (int, float)):
         scan.cast_positions.append((float(lat), float(lon), info.get("start_time_utc")))
+    if not isinstance(lat, (int, float)):
+        scan.casts_without_latitude.append(rel)
     return True
 
 
@@ -395,7 +433,8 @@ def _set_map_frame(res: InitResult, dive: dict[str, Any], scan: _Scan) -> None:
     sources that are apart. The sources that need a frame (soundings, grids, point clouds; the vehicle track the
     match follows) are grouped by :data:`SOURCES_APART_KM`; the group is the one holding the vehicle track and a
     grid, else the one with the soundings, else the largest. The origin is the centre of the vehicle track in that
-    group, else the mean centre of its soundings, else of its grids."""
+    group, else the mean centre of its soundings, else the position of the casts on its grids (the dive's site: a
+    cast beside a 1' grid is where the DTM and the suitability analysis are wanted), else the centre of its grids."""
     grids = [f for f in scan.footprints if f.role in _FRAME_ROLES]
     if not grids:
         if scan.centres:  # a position without an extent (no footprint): as before, the mean centre
@@ -411,8 +450,17 @@ def _set_map_frame(res: InitResult, dive: dict[str, Any], scan: _Scan) -> None:
         ("the vehicle track", [f for f in pick if f.role == "track"]),
         ("the soundings", [f for f in pick if f.role == "multibeam"]),
         ("the grids", [f for f in pick if f.role in _FRAME_ROLES])) if c)
-    _frame_at(dive, [f.centre() for f in chosen])
+    # prior grids only (no track, no soundings): the dive's site is its casts on them, not the grids' centre
+    casts = [f for f in scan.footprints if f.role == "cast" and what == "the grids"
+             and any(_box_km(f.box, g.box) <= SOURCES_APART_KM for g in chosen)]
     left = [f.rel for g in groups if g is not pick for f in g if f.role in _FRAME_ROLES]
+    if casts:
+        _frame_at(dive, [f.centre() for f in casts])
+        res.mapped.append(f"map_frame: the position of the cast(s) ({_names(casts)}), the dive's site on the "
+                          f"grids ({_names(chosen)}), not the grids' centre"
+                          + (f"; not of {', '.join(left[:3])}, which lie(s) apart" if left else ""))
+        return
+    _frame_at(dive, [f.centre() for f in chosen])
     res.mapped.append(f"map_frame: the centre of {what} ({', '.join(f.rel for f in chosen[:3])}"
                       f"{', ...' if len(chosen) > 3 else ''})"
                       + (f"; not of {', '.join(left[:3])}, which lie(s) apart" if left else ""))
@@ -593,8 +641,9 @@ def _map_vehicle_logs(res: InitResult, sources: dict[str, Any], mcaps: list[Path
         res.vehicle_yaml = render_vehicle_yaml(sug)
 
 
-def _todo(res: InitResult) -> None:
-    """What the user must still provide, from the plan of the stages the data supports."""
+def _todo(res: InitResult, casts_without_latitude: list[str]) -> None:
+    """What the user must still provide, from the plan of the stages the data supports; the casts named in
+    ``casts_without_latitude`` carry no latitude in their headers."""
     from hadal.plan import plan_stages, stage_inputs
 
     try:
@@ -608,9 +657,9 @@ def _todo(res: InitResult) -> None:
         if need:
             res.todo.append(f"launch position: stage(s) {', '.join(need)} need it (hadal init DIR --launch LAT,LON "
                             "--force, or edit dive.yaml)")
-        if any(e.kind != "underway" for e in dive.sources.files("cnv")):
-            res.todo.append("the casts' headers carry no position: gravity and depth will use 45° latitude unless "
-                            "dive.yaml gets a launch position (--launch LAT,LON)")
+        if casts_without_latitude:
+            res.todo.append(f"the header of {', '.join(casts_without_latitude)} carries no latitude: gravity and "
+                            "depth will use 45° unless dive.yaml gets a launch position (--launch LAT,LON)")
     if dive.map_frame is None and dive.launch is None and ({"multibeam", "prior_grid"} & set(dive.sources.kinds())):
         res.todo.append("map_frame: no geographic position found in the data; add map_frame or --launch")
     if not dive.sources.kinds():

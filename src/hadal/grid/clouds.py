@@ -48,11 +48,13 @@ def metric_crs(crs):
     from pyproj import CRS
 
     d = crs.to_json_dict()
-    cs = d.get("coordinate_system", {})
+    # a BoundCRS (a WKT1 PROJCS with TOWGS84, as LAS writers emit) keeps its datum shift: its source CRS changes
+    proj = d["source_crs"] if d.get("type") == "BoundCRS" else d
+    cs = proj.get("coordinate_system", {})
     for ax in cs.get("axis", []):
         ax["unit"] = "metre"
-    d.pop("id", None)  # no longer the registry's CRS
-    d["name"] = f"{d.get('name', 'CRS')} (axes in metres)"
+    proj.pop("id", None)  # no longer the registry's CRS
+    proj["name"] = f"{proj.get('name', 'CRS')} (axes in metres)"
     return CRS.from_json_dict(d)
 
 
@@ -327,20 +329,30 @@ _PCD_OLD_VERSIONS = (b".6", b"0.6", b".5", b"0.5")
 
 
 def _pcd_open(p: Path, PointCloud) -> tuple[Any, str | None]:
-    """pypcd4's reader and the file's own VERSION when it was not ``.7``; a v0.5/v0.6 header (which pypcd4 refuses by its VERSION only) is read with the VERSION
-    line set to ``.7`` and the PCL default VIEWPOINT, the data block untouched."""
+    """pypcd4's reader and the file's own VERSION when it was not ``.7``; a v0.5/v0.6 header (which pypcd4 refuses
+    by its VERSION only) is read with the VERSION line set to ``.7`` and the PCL default VIEWPOINT. An ascii data
+    block whose values are separated by tabs or commas (PDAL's readers.pcd accepts both; its test data has
+    ``utm17_tab.pcd``/``utm17_comma.pcd``) is read with those separators as spaces, pypcd4's only separator."""
     with open(p, "rb") as fh:
         head = fh.read(4096)
     m = re.search(rb"^VERSION\s+(\S+)[ \t]*\r?$", head, re.M)
-    if m is None or m.group(1) not in _PCD_OLD_VERSIONS:
+    old = m is not None and m.group(1) in _PCD_OLD_VERSIONS
+    d = re.search(rb"^DATA[ \t]+ascii[ \t]*\r?\n", head, re.M)
+    first = head[d.end():].split(b"\n", 1)[0] if d is not None else b""  # the separator of the first scan
+    odd_sep = re.search(rb"[\t,]", first) is not None
+    if not (old or odd_sep):
         return PointCloud.from_path(p), None
     raw = p.read_bytes()
-    fixed = raw[:m.start()] + b"VERSION .7" + raw[m.end():]
-    if not re.search(rb"^VIEWPOINT", fixed[:4096], re.M):
-        d = re.search(rb"^DATA\s", fixed[:4096], re.M)
-        if d is not None:
-            fixed = fixed[:d.start()] + b"VIEWPOINT 0 0 0 1 0 0 0\n" + fixed[d.start():]
-    return PointCloud.from_fileobj(io.BytesIO(fixed)), m.group(1).decode()
+    fixed = raw
+    if odd_sep and d is not None:
+        fixed = raw[:d.end()] + re.sub(rb"[ \t]*[\t,][ \t]*", b" ", raw[d.end():])
+    if old and m is not None:
+        fixed = fixed[:m.start()] + b"VERSION .7" + fixed[m.end():]
+        if not re.search(rb"^VIEWPOINT", fixed[:4096], re.M):
+            dd = re.search(rb"^DATA\s", fixed[:4096], re.M)
+            if dd is not None:
+                fixed = fixed[:dd.start()] + b"VIEWPOINT 0 0 0 1 0 0 0\n" + fixed[dd.start():]
+    return PointCloud.from_fileobj(io.BytesIO(fixed)), (m.group(1).decode() if old and m is not None else None)
 
 
 # ------------------------------------------------------------------ into the laser grid

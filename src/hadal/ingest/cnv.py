@@ -795,6 +795,12 @@ def _cnv_attrs(path: Path, compression: str | None, h: dict[str, Any], channels:
     channel_lat = {c["column"]: c["latitude_deg"] for c in channels if c["latitude_deg"] is not None}
     time_cols = [c for c in ("timeS", "timeJ", "timeY", "timeK", "timeM", "timeH", "timeN", "timeQ")
                  if c in columns]
+    lat, lat_src = h["lat"], h["lat_src"]
+    if lat is None and len(set(channel_lat.values())) == 1:
+        # no NMEA/user latitude, but SeaSoft wrote the one it used into a channel name ('depSM: Depth [salt water,
+        # m], lat = 48.38'): the operator's latitude for this cast, recorded by the vendor's software
+        col, lat = next(iter(channel_lat.items()))
+        lat_src = f"channel {col} note 'lat = {lat:g}' (the latitude SeaSoft used)"
     return {
         "source": str(path),
         "compression": compression,
@@ -802,9 +808,9 @@ def _cnv_attrs(path: Path, compression: str | None, h: dict[str, Any], channels:
         "instrument": instr[0] if instr else None,
         "channels": channels,
         "units": {c["column"]: c["units"] for c in channels},
-        "latitude_deg": h["lat"],
+        "latitude_deg": lat,
         "longitude_deg": h["lon"],
-        "position_source": {"latitude": h["lat_src"], "longitude": h["lon_src"]},
+        "position_source": {"latitude": lat_src, "longitude": h["lon_src"]},
         "start_time_utc": start_iso,
         "start_time_note": start_note,
         "start_time_file": start_file,

@@ -449,7 +449,14 @@ def parse_hex_header(path: str | Path, header: list[str]) -> HexHeader:
     return h
 
 
-def _check_supported(h: HexHeader, path: Path) -> None:
+def _raw_hex_lines(data_lines: list[str]) -> bool:
+    """True when the first scans are raw hex (hex digits only, one length): an upload, whatever the header's
+    real-time ``<OutputFormat>`` says."""
+    rows = [ln.strip() for ln in data_lines[:50] if ln.strip()]
+    return bool(rows) and len({len(r) for r in rows}) == 1 and all(re.fullmatch(r"[0-9A-Fa-f]+", r) for r in rows)
+
+
+def _check_supported(h: HexHeader, path: Path, data_lines: list[str]) -> None:
     first = (h.instrument or "").lower()
     if not first.startswith("sea-bird") or "data file" not in first:
         raise InputError(f"{path}: not a Sea-Bird .hex file (first header line is {h.instrument!r}); "
@@ -468,7 +475,10 @@ def _check_supported(h: HexHeader, path: Path) -> None:
             raise InputError(f"{path}: SBE {fam} with firmware {h.firmware} (not V2) is not supported; "
                              f"{_SUPPORTED_TXT}")
         h.model = f"SBE {fam} V2"  # XML header: DeviceType 'SBE19plus' + FirmwareVersion 2.x
-    if h.output_format and "hex" not in h.output_format.lower() and h.output_format.strip() != "0":
+    if (h.output_format and "hex" not in h.output_format.lower() and h.output_format.strip() != "0"
+            and not _raw_hex_lines(data_lines)):
+        # <OutputFormat> is the instrument's real-time setting; the scans of an upload are raw hex whatever it says
+        # (SBE 16plus_digiquartz.hex: 'converted decimal' above 30-character hex scans), so the lines decide
         raise InputError(f"{path}: output format is {h.output_format!r}, not raw HEX; cannot convert")
     if h.pressure_type == "quartz":
         raise InputError(f"{path}: Digiquartz pressure sensors are not supported yet (only strain gauge); "
@@ -872,7 +882,7 @@ def read_hex(path: str | Path, *, raw: bool = False) -> pd.DataFrame:
     text, comp = _read_text(path)
     header, data_lines, first_no = _split(path, text)
     h = parse_hex_header(path, header)
-    _check_supported(h, path)
+    _check_supported(h, path, data_lines)
     ints, layout, moored = _decode(path, h, data_lines, first_no)
     n = len(ints["temperature"])
     with np.errstate(all="ignore"):
@@ -908,7 +918,7 @@ def describe_hex(path: str | Path) -> dict[str, Any]:
     text, comp = _read_text(path)
     header, data_lines, first_no = _split(path, text)
     h = parse_hex_header(path, header)
-    _check_supported(h, path)
+    _check_supported(h, path, data_lines)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         ints, layout, moored = _decode(path, h, data_lines, first_no)
