@@ -320,7 +320,7 @@ def _single_position(info: dict[str, Any]) -> str | None:
     lon, lat = info.get("longitude_deg"), info.get("latitude_deg")
     if not (isinstance(lon, (list, tuple)) and isinstance(lat, (list, tuple)) and len(lon) == 2 and len(lat) == 2):
         return None
-    if not (_finite(*lon, *lat) and int(info.get("soundings") or 0) > 0):
+    if not (all_finite(*lon, *lat) and int(info.get("soundings") or 0) > 0):
         return None
     if lon[0] != lon[1] or lat[0] != lat[1]:
         return None
