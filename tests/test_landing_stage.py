@@ -152,3 +152,27 @@ def test_params_bounded():
                 {"vehicle": {"length_m": 1e6}}, {"vehicle": {"water_density_kg_m3": 1.0}}, {"workers": -1}):
         with pytest.raises(ValidationError):
             LandingParams(**bad)
+
+
+def test_a_grid_too_narrow_to_analyse_is_a_skip_reason_not_a_failure(tmp_path):
+    """A laser grid one cell wide (a lon/lat LAS whose own scale rounds positions: 1 x 867 cells) is no
+    landing surface: the stage is skipped with the shape named; beside a usable grid it is skipped by name
+    and the usable one analysed (degrade per input, not per dive)."""
+    ctx = _ctx(tmp_path, heading_step_deg=30.0, figures=False)
+    strip = xr.Dataset({"elevation_m": (("y", "x"), np.full((1, 867), -1400.0), {"units": "m", "positive": "up"})},
+                       coords={"y": [0.0], "x": np.arange(867) * 0.02})
+    _publish_laser(ctx, {"strip": strip})
+    why = stage.skip_reason(ctx)
+    assert why is not None and "strip 1 x 867" in why and "fewer than 3 cells" in why
+
+
+def test_a_narrow_grid_beside_a_usable_one_is_skipped_by_name(tmp_path, caplog):
+    ctx = _ctx(tmp_path, heading_step_deg=30.0, figures=False)
+    strip = xr.Dataset({"elevation_m": (("y", "x"), np.full((2, 300), -1400.0), {"units": "m", "positive": "up"})},
+                       coords={"y": [0.0, 0.02], "x": np.arange(300) * 0.02})
+    _publish_laser(ctx, {"good": _submap(200, 120, 0.02, 8.0, 3), "strip": strip})
+    assert stage.skip_reason(ctx) is None
+    with caplog.at_level("WARNING", logger="hadal"):
+        pv = stage.run(ctx)["landing"]
+    assert set(pd.read_parquet(pv.file("landing_sites.parquet"))["submap"]) == {"good"}
+    assert any("strip is 2 x 300 cells, too narrow" in r.getMessage() for r in caplog.records)

@@ -83,6 +83,8 @@ from hadal.landing.protrusion import protrusion_height_map
 from hadal.landing.slope import local_slope_deg
 from hadal.landing.vehicle import Vehicle
 
+#: fewest cells along each axis of a grid the analysis accepts (the slope/curvature windows need neighbours)
+MIN_GRID_CELLS = 3
 #: the cell-size rule CELL_FRACTION_RULE and the hard limit COARSE_CELL_LIMIT (issue 15): see hadal.landing.limits
 ROUGHNESS_WINDOW_M = 0.3  # heights are averaged over this before R ([Landing Eq. 13]): 3 cells of the coarsest allowed grid
 
@@ -526,8 +528,9 @@ def _grid_arrays(grid: xr.DataArray, vehicle: Vehicle, max_cell_fraction: float
             g = g.sortby(ax)
     x = np.asarray(g["x"].values, float)
     y = np.asarray(g["y"].values, float)
-    if x.size < 3 or y.size < 3:
-        raise InputError(f"elevation grid is too small ({y.size} x {x.size} cells)")
+    if x.size < MIN_GRID_CELLS or y.size < MIN_GRID_CELLS:
+        raise InputError(f"elevation grid is too small ({y.size} x {x.size} cells; at least {MIN_GRID_CELLS} along "
+                         "each axis)")
     if not (np.all(np.isfinite(x)) and np.all(np.isfinite(y))):
         raise InputError("elevation grid has non-finite x/y coordinates")
     for ax in ("x", "y"):

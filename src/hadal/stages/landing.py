@@ -54,17 +54,25 @@ def _read_submap(path: Path) -> tuple[xr.DataArray, xr.DataArray | None]:
     return da, sigma
 
 
-def _cell_size_m(path: Path) -> float | None:
-    """The cell size (m) of one laser grid from its coordinates, without loading the data; None if unreadable."""
+def _grid_geometry(path: Path) -> tuple[float | None, int, int] | None:
+    """(cell size in m or None, cells along x, cells along y) of one laser grid from its coordinates, without
+    loading the data; None if unreadable."""
     import numpy as np
     import xarray as xr
 
     try:
         with xr.open_dataset(path, engine="h5netcdf") as ds:
             x = np.asarray(ds["x"].values, dtype=np.float64)
-            return float(np.median(np.abs(np.diff(x)))) if x.size > 1 else None
+            ny = int(ds.sizes.get("y", 0))
     except Exception:  # noqa: BLE001 - unreadable grids are run()'s one-line error
         return None
+    return (float(np.median(np.abs(np.diff(x)))) if x.size > 1 else None), int(x.size), ny
+
+
+def _too_small(nx: int, ny: int) -> bool:
+    from hadal.landing.sites import MIN_GRID_CELLS
+
+    return nx < MIN_GRID_CELLS or ny < MIN_GRID_CELLS
 
 
 def _laser_files(pv) -> list[Path]:
@@ -83,7 +91,14 @@ def skip_reason(ctx) -> str | None:
     if pv is None:
         return None
     files = _laser_files(pv)
-    cells = [_cell_size_m(f) for f in files]
+    geo = [_grid_geometry(f) for f in files]
+    if geo and all(g is not None and _too_small(g[1], g[2]) for g in geo):
+        from hadal.landing.sites import MIN_GRID_CELLS
+
+        shapes = ", ".join(f"{f.stem} {g[2]} x {g[1]}" for f, g in zip(files, geo, strict=True) if g is not None)
+        return (f"every laser grid has fewer than {MIN_GRID_CELLS} cells along an axis ({shapes} cells): too "
+                "narrow to seek a landing site")
+    cells = [g[0] if g is not None else None for g in geo]
     limit = p.max_cell_fraction * p.vehicle.width_m
     if not cells or any(c is None or c <= limit * (1 + 1e-6) for c in cells):
         return None
@@ -143,6 +158,10 @@ def _analyse_file(ctx, p: Params, f: Path, headings: np.ndarray, mem_limit, thre
     grid, sigma = _read_submap(f)
     if not np.isfinite(grid.values).any():
         ctx.log.warning("landing: %s has no mapped cells; skipped", name)
+        return None
+    if _too_small(grid.sizes["x"], grid.sizes["y"]):
+        ctx.log.warning("landing: %s is %d x %d cells, too narrow to seek a landing site; skipped", name,
+                        grid.sizes["y"], grid.sizes["x"])
         return None
     # memory and work before allocating anything of the analysis (issue 14): one-line ConfigError
     check_resources(tuple(grid.shape), len(headings), memory_limit_bytes=mem_limit,
