@@ -68,6 +68,14 @@ def test_cnv_latitude_from_seasoft_channel_note_when_the_header_has_none(tmp_pat
     res = scan_dive_dir(tmp_path)
     assert res.dive["sources"]["cnv"] == [p.name]
     assert not [t for t in res.todo if "latitude" in t]  # the cast carries its latitude: nothing to ask
+    from hadal.ctd.derive import choose_position
+    from hadal.dive import Dive
+    from hadal.settings import DeriveParams
+
+    meta = {"cast_latitude_deg": df.attrs["latitude_deg"], "cast": {"position_source": df.attrs["position_source"]}}
+    pos = choose_position(DeriveParams(), Dive.model_validate({"dive_id": "hotin"}), meta)
+    assert pos["latitude_deg"] == pytest.approx(48.38)
+    assert "depSM" in pos["latitude_source"] and "NMEA" not in pos["latitude_source"]  # says where it came from
 
 
 

@@ -570,7 +570,10 @@ def choose_position(p: Params, dive: Any, sensors_meta: dict[str, Any], *, heade
         if getattr(p, key) is not None:
             return getattr(p, key), f"derive.{key} parameter"
         if cast is not None and (header_first or launch is None):
-            return float(cast), f"cast header (NMEA/user {axis})"
+            # the cast reader's own account of where the header position came from (NMEA, user line, or SeaSoft's
+            # depSM 'lat =' note), when it gives one
+            said = ((sensors_meta.get("cast") or {}).get("position_source") or {}).get(axis)
+            return float(cast), f"cast header ({said})" if said else f"cast header (NMEA/user {axis})"
         if launch is not None:
             return getattr(launch, key), "dive launch"
         return fallback
