@@ -181,3 +181,51 @@ def test_laser_only_dive_has_its_laser_figure(shared_data, tmp_path):
     np.testing.assert_allclose(g["x_range_m"], [b.left, b.right], atol=1e-6)
     np.testing.assert_allclose(g["y_range_m"], [b.bottom, b.top], atol=1e-6)
     np.testing.assert_allclose(g["elevation_range_m"], [-float(z.max()), -float(z.min())], atol=1e-4)
+
+
+def test_a_channel_constant_through_the_record_is_a_stuck_sensor():
+    """An altimeter writing 0.00 throughout a binned cast (no time: the flat-line test is not evaluated there) is
+    dead by name, flagged 4; a channel that varies, or a constant one too short to judge, is not."""
+    from hadal.ingest.build import channel_health
+
+    meta: dict = {}
+    with warnings.catch_warnings(record=True) as w:
+        warnings.simplefilter("always")
+        channel_health(np.zeros(200), "altitude_m", DEFAULT_QC["altitude_m"], meta, source="aer205.cnv",
+                       sensor="ctd")
+    dead = meta["dead_channels"]["altitude_m"]
+    assert dead["reason"] == "constant" and dead["qartod_flag"] == 4 and dead["constant_value"] == 0.0
+    assert any("altitude_m is dead" in str(x.message) and "exactly 0 m" in str(x.message) for x in w)
+    for v in (np.linspace(10.0, 5.0, 200), np.zeros(10)):
+        meta = {}
+        channel_health(v, "altitude_m", DEFAULT_QC["altitude_m"], meta, source="x.cnv", sensor="ctd")
+        assert "dead_channels" not in meta
+
+
+@pytest.mark.parametrize("name", ["ctd-real/seabird_sta0860.cnv", "ctd-real/seabird_dPIRX010.cnv",
+                                  "ctd-real/oceissues644_02dk.cnv", "ctd-real/pyctd_CTD_with_sigma_e00.cnv",
+                                  "ctd-real/sbs_19plus_V2_CTD-processing_example.cnv",
+                                  "dives-real/oce_SBE25_ctd.cnv", "dives-real/seabird_SBE21_TSG_PIR_010.cnv"])
+def test_no_real_channel_is_taken_for_a_stuck_sensor(shared_data, name):
+    """False-positive guard on other people's real casts (binned, raw, an underway TSG with constant pressure):
+    the constant-record rule names none of their channels."""
+    from hadal.ingest.build import read_cast
+
+    path = shared_data / name
+    if not path.exists():
+        pytest.skip(f"{name} not in ../shared/data")
+    samples, _ = read_cast(path)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        meta = _health_only(samples)
+    assert not [v for v, d in (meta.get("dead_channels") or {}).items() if d["reason"] == "constant"]
+
+
+def _health_only(samples) -> dict:
+    from hadal.ingest.build import channel_health
+
+    meta: dict = {}
+    for var, v in samples.values.items():
+        if var in DEFAULT_QC:
+            channel_health(np.asarray(v, float), var, DEFAULT_QC[var], meta, source="x", sensor=samples.name)
+    return meta

@@ -690,7 +690,8 @@ def channel_health(v: np.ndarray, var: str, cfg: VariableQC | None, meta: dict[s
       records by :func:`hadal.ingest.units.raw_values`: 9.9e5 uS/cm, -9.99e-29, -1 "no bottom" of an altitude)
       are missing data (NaN, flag 9), counted in ``meta["fill_values"][var]`` and warned about.
     * A channel whose values are all fill values, or with more than ``cfg.max_fail_fraction`` of its remaining
-      values outside ``cfg.fail_span`` (a failed sensor or a unit mistake), is dead: recorded in
+      values outside ``cfg.fail_span`` (a failed sensor or a unit mistake), or whose every value is the same number
+      (at least ``cfg.constant_record_min_samples`` of them: a stuck sensor), is dead: recorded in
       ``meta["dead_channels"][var]`` (reason, QARTOD flag 9 or 4, unit hint), named in a warning and in
       ``meta["notes"]`` for the report. :func:`flag_dead_channels` flags it 4 throughout after the QC tests.
     """
@@ -726,6 +727,11 @@ def channel_health(v: np.ndarray, var: str, cfg: VariableQC | None, meta: dict[s
                                                      " (a failed sensor, or wrong units)")}
         if hint:
             dead["hint"] = hint
+    elif cfg is not None and cfg.constant_record_min_samples is not None \
+            and (fin := v[np.isfinite(v)]).size >= cfg.constant_record_min_samples and fin.min() == fin.max():
+        dead = {"reason": "constant", "qartod_flag": 4, "constant_value": float(fin[0]),
+                "text": f"every one of its {fin.size} values is exactly {fin[0]:g} {CANONICAL_UNITS[var]} "
+                        "(a stuck or disconnected sensor)"}
     if dead is not None:
         dead.update({"sensor": sensor, "source": source, "fill_values": n_fill, "values": int(v.size)})
         meta.setdefault("dead_channels", {})[var] = dead

@@ -42,6 +42,14 @@ class VariableQC(BaseModel):
     #: converted (a -1 temperature is a temperature). :data:`FILL_VALUES_ANY` apply to every variable.
     fill_values: tuple[float, ...] = Field((), max_length=32, description="per-variable fill values, as logged "
                                            "(source units): missing (flag 9) when outside fail_span")
+    #: a record in which every one of at least this many finite values is the same number is a stuck or
+    #: disconnected sensor (an altimeter writing 0.00 throughout, a temperature channel left at its last value):
+    #: the channel is dead, flagged 4 throughout and named. This catches what the flat-line test cannot where it
+    #: is not evaluated (binned casts have no time). None: not checked (pressure of an underway record is constant
+    #: by design; positions of a stationary cast may be)
+    constant_record_min_samples: int | None = Field(None, ge=3, le=1_000_000, description="a record whose every "
+                                                    "one of at least this many values is identical is a stuck "
+                                                    "sensor: dead channel, flagged 4 (null: not checked)")
 
     @model_validator(mode="after")
     def _spans(self) -> VariableQC:
@@ -60,15 +68,16 @@ def _q(**kw: Any) -> VariableQC:
 #: default thresholds (hadal vehicle; full-ocean-depth, 16 Hz CTD)
 DEFAULT_QC: dict[str, VariableQC] = {
     "conductivity_s_m": _q(fail_span=(0.0, 7.0), suspect_span=(2.0, 6.5), spike_suspect=0.05, spike_fail=0.2,
-                           flat_line_suspect_s=60, flat_line_fail_s=300, flat_line_tolerance=1e-6),
+                           flat_line_suspect_s=60, flat_line_fail_s=300, flat_line_tolerance=1e-6,
+                           constant_record_min_samples=30),
     "temperature_its90_degc": _q(fail_span=(-2.5, 40.0), suspect_span=(-2.0, 35.0), spike_suspect=0.5,
                                  spike_fail=2.0, flat_line_suspect_s=60, flat_line_fail_s=300,
-                                 flat_line_tolerance=1e-6),
+                                 flat_line_tolerance=1e-6, constant_record_min_samples=30),
     "pressure_ctd_dbar": _q(fail_span=(-10.0, 11_000.0), saturation=10_500.0, spike_suspect=5.0, spike_fail=20.0,
                             flat_line_suspect_s=60, flat_line_fail_s=300, flat_line_tolerance=1e-6),
     "pressure_gauge_dbar": _q(fail_span=(-10.0, 12_000.0), spike_suspect=5.0, spike_fail=20.0),
     "altitude_m": _q(fail_span=(0.0, 150.0), suspect_span=(0.0, 100.0), spike_suspect=10.0, spike_fail=50.0,
-                     fill_values=(-1.0,)),
+                     fill_values=(-1.0,), constant_record_min_samples=30),
     "heading_deg": _q(fail_span=(0.0, 360.0)),
     "pitch_deg": _q(fail_span=(-90.0, 90.0), suspect_span=(-45.0, 45.0), spike_suspect=10.0, spike_fail=30.0),
     "roll_deg": _q(fail_span=(-180.0, 180.0), suspect_span=(-45.0, 45.0), spike_suspect=10.0, spike_fail=30.0),
