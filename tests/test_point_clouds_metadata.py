@@ -258,7 +258,8 @@ def test_lonlat_las_is_gridded_in_the_dive_map_frame(tmp_path):
     d = yaml.safe_load((raw / "dive.yaml").read_text())
     assert d["sources"]["laser"] == ["geo.las"] and abs(d["map_frame"]["origin_latitude_deg"] - 11.3302) < 1e-3
     (raw / "pipeline.yaml").write_text("grid: {laser_resolution_m: 2.0, laser_sor_neighbors: 0}\n")
-    ds = _open(run_stage("laser", make_context(raw, tmp_path / "store"))["laser_grids"], "geo.nc")
+    lg = run_stage("laser", make_context(raw, tmp_path / "store"))["laser_grids"]
+    ds = _open(lg, "geo.nc")
     mf = d["map_frame"]
     tm = CRS.from_proj4(f"+proj=tmerc +lat_0={mf['origin_latitude_deg']} +lon_0={mf['origin_longitude_deg']} +k=1 "
                         "+x_0=0 +y_0=0 +datum=WGS84 +units=m +no_defs")
@@ -268,6 +269,18 @@ def test_lonlat_las_is_gridded_in_the_dive_map_frame(tmp_path):
     assert abs(ds["y"].values[0] - y.min()) < r and abs(ds["y"].values[-1] - y.max()) < r
     assert ds.attrs["source_crs_kind"] == "geographic" and "map frame" in ds["x"].attrs["long_name"]
     assert -10901 < float(np.nanmean(ds["elevation_m"])) < -10899
+    # georeferenced by that frame: a grid mapping and the ACDD extent of the cloud's own lon/lat (not the launch point)
+    assert ds["elevation_m"].attrs.get("grid_mapping") == "crs" and ds["crs"].attrs["grid_mapping_name"] == \
+        "transverse_mercator"
+    assert "hadal_georeference" not in ds.attrs
+    tol = 2 * r / 111_000  # two cells, in degrees
+    assert abs(ds.attrs["geospatial_lon_min"] - lon.min()) < tol and abs(ds.attrs["geospatial_lon_max"] - lon.max()) < tol
+    assert abs(ds.attrs["geospatial_lat_min"] - lat.min()) < tol and abs(ds.attrs["geospatial_lat_max"] - lat.max()) < tol
+    import rasterio
+
+    with rasterio.open(lg.file("geo.tif")) as cog:  # the COG in the same frame, cell for cell
+        assert cog.crs is not None and cog.width == ds.sizes["x"] and cog.height == ds.sizes["y"]
+        assert abs(cog.bounds.left - (float(ds["x"][0]) - r / 2)) < 1e-6
 
 
 def test_laz_in_us_survey_feet(tmp_path):

@@ -334,6 +334,12 @@ def _laser_grid(ctx: StageContext, f: Path, sf, p: Params, limit_bytes: float | 
         ds.attrs.update({"laser_input": "point cloud", "source_format": kind, "source_reader": reader_of(kind),
                          "z_positive_source": pos, "z_sign_detection": reason, "z_sign_flipped": int(pos == "down")})
         cloud_metadata(ds, meta)
+        if meta.get("crs_kind") == "geographic":  # gridded in the dive's map frame: georeferenced by it
+            from hadal.grid.multibeam import add_geo
+
+            long_names = (ds["x"].attrs.get("long_name"), ds["y"].attrs.get("long_name"))
+            ds = add_geo(ds, ctx.dive.frame("grid"), latlon=False)
+            ds["x"].attrs["long_name"], ds["y"].attrs["long_name"] = long_names
         if meta.get("crs_note"):
             ctx.log.warning("laser %s: %s", f.name, meta["crs_note"])
         return ds, reader_of(kind), "point cloud"
@@ -576,7 +582,8 @@ def _publish_laser_grids(ctx: StageContext, p: Params, params: dict, laser: list
 
                 write_zarr(draft.path / f"{stem}.nc", draft.path / f"{stem}.zarr", chunk=p.zarr_chunk)
             lf = None if p.laser_frame == "map" else getattr(ctx.dive, "laser_frame", None)
-            if p.laser_frame == "map" or lf is not None or ds.attrs.get("source_crs_wkt"):  # georeferenced: a COG
+            if p.laser_frame == "map" or lf is not None or ds.attrs.get("source_crs_wkt") \
+                    or ds.attrs.get("source_crs_kind") == "geographic":  # georeferenced: a COG
                 from hadal.products.geotiff import write_grid_cog
 
                 write_grid_cog(ds, draft.path / f"{stem}.tif", "elevation_m", laser_frame=lf)
