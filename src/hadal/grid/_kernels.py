@@ -509,3 +509,59 @@ def tile_partition_chunk(x, y, z, x0, y0, inv_h, nx, ny, check_inside, tile_cell
             zs[p] = z[i]
             pos[t] = p + 1
     return starts, local, zs, nb, no
+
+
+@njit(cache=True, nogil=True)
+def tile_partition_order(x, y, z, x0, y0, inv_h, nx, ny, check_inside, tile_cells, ntx, n_tiles):  # pragma: no cover
+    """:func:`tile_partition_chunk` returning the chunk positions of the grouped points instead of their values
+    (the DTM's tiles keep x, y, depth and the input index of each sounding: the caller gathers them by ``src``).
+    Returns ``(starts, local, src, n_nonfinite, n_outside)``, ``src`` int64 in chunk order within each tile."""
+    n = x.size
+    col_tile = np.empty(nx, np.int64)
+    col_in = np.empty(nx, np.int64)
+    width = np.empty(nx, np.int64)
+    for c in range(nx):
+        tx = c // tile_cells
+        col_tile[c] = tx
+        col_in[c] = c - tx * tile_cells
+        width[c] = min(tile_cells, nx - tx * tile_cells)
+    row_tile = np.empty(ny, np.int64)
+    row_in = np.empty(ny, np.int64)
+    for r in range(ny):
+        ty = r // tile_cells
+        row_tile[r] = ty * ntx
+        row_in[r] = r - ty * tile_cells
+    tile = np.empty(n, np.int32)
+    loc = np.empty(n, np.int32)
+    starts = np.zeros(n_tiles + 1, np.int64)
+    nb = 0
+    no = 0
+    for i in range(n):
+        xi = x[i]
+        yi = y[i]
+        why = _keep(xi, yi, z[i], x0, y0, inv_h, nx, ny, check_inside)
+        if why != 0:
+            tile[i] = -1
+            if why == 1:
+                nb += 1
+            else:
+                no += 1
+            continue
+        r, c = _cell_rc(xi, yi, x0, y0, inv_h, nx, ny)
+        t = row_tile[r] + col_tile[c]
+        tile[i] = t
+        loc[i] = row_in[r] * width[c] + col_in[c]
+        starts[t + 1] += 1
+    for t in range(n_tiles):
+        starts[t + 1] += starts[t]
+    pos = starts[:-1].copy()
+    local = np.empty(starts[n_tiles], np.int32)
+    src = np.empty(starts[n_tiles], np.int64)
+    for i in range(n):
+        t = tile[i]
+        if t >= 0:
+            p = pos[t]
+            local[p] = loc[i]
+            src[p] = i
+            pos[t] = p + 1
+    return starts, local, src, nb, no
