@@ -304,3 +304,52 @@ def test_tiled_spike_flags_sparse_halo_grows(tmp_path, monkeypatch):
                 got[part.tile_xy_of(t)[2]] = ~part.kept_of(t)
         assert len(calls) > 2 * sum(1 for c in part.tile_points if c)
     np.testing.assert_array_equal(got, ref)
+
+
+def test_dtm_stage_out_of_core_above_the_budget_same_dtm(small_dive, tmp_path, monkeypatch):
+    """The dtm stage's gridding (make_dtm) on the small sample dive: under a memory budget its soundings exceed
+    it grids out of core (tiles recorded) and gives the in-memory DTM's arrays and counts."""
+    import tempfile
+
+    from hadal.dive import load_dive, resolve_source
+    from hadal.settings import GridParams as Params
+    from hadal.stages.grid import DTM_BYTES_PER_SOUNDING, make_dtm
+
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))  # the tiles' scratch directory
+    dive, raw = load_dive(small_dive)
+    files = [resolve_source(raw, f) for f in dive.sources.multibeam]
+    ref = make_dtm(files, dive.frame(), Params(dtm_resolution_m=20.0))
+    assert "n_tiles" not in ref.attrs
+    n = ref.attrs["n_soundings_input"]
+    got = make_dtm(files, dive.frame(), Params(dtm_resolution_m=20.0),
+                   memory_limit_bytes=0.5 * DTM_BYTES_PER_SOUNDING * n)
+    assert got.attrs["n_tiles"] >= 1
+    for v in ref.data_vars:
+        np.testing.assert_array_equal(ref[v].values, got[v].values, err_msg=v)
+    for k in ("n_soundings_input", "n_soundings_spikes", "n_soundings_used", "n_cells_filled"):
+        assert ref.attrs[k] == got.attrs[k], k
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_partition_with_positions_numpy_reference(tmp_path, monkeypatch):
+    """The partition with positions (x, y, input index) by the compiled kernel equals the NumPy reference's,
+    and every tile's points are in their tile's cells, in input order."""
+    x, y, z = _points(20_000, 11)
+    spec = P.make_grid_spec(2.0, (0.0, 0.0, 100.0, 70.0))
+    got = []
+    for no_numba in (False, True):
+        if no_numba:
+            monkeypatch.setenv("HADAL_NO_NUMBA", "1")
+        with TilePartition(TileScheme(spec, 7), scratch_dir=tmp_path, with_xy=True) as part:
+            for c in iter_array_chunks(x, y, z, 3333):
+                part.add(*c)
+            got.append([(*part.tile_points_of(t), *part.tile_xy_of(t)) for t in range(part.scheme.n_tiles)])
+            for t, (cells, zt, xt, yt, gi) in enumerate(got[-1]):
+                r0, _, c0, c1 = part.scheme.window(t)
+                idx, _ = spec.cell_index(xt, yt)
+                np.testing.assert_array_equal(idx, (r0 + cells // (c1 - c0)) * spec.nx + c0 + cells % (c1 - c0))
+                np.testing.assert_array_equal(zt, z[gi])
+                assert (np.diff(gi) > 0).all()
+    for a, b in zip(*got, strict=True):
+        for u, v in zip(a, b, strict=True):
+            np.testing.assert_array_equal(u, v)

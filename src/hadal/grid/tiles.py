@@ -254,11 +254,10 @@ class TilePartition:
         tw = np.minimum(tc, s.nx - tx * tc)
         tile = ty * sc.ntx + tx
         local = ((r - ty * tc) * tw + (c - tx * tc)).astype(np.int32)
-        order_out = order
-        order = np.argsort(tile, kind="stable")
+        by_tile = np.argsort(tile, kind="stable")
         starts = np.zeros(sc.n_tiles + 1, np.int64)
         np.cumsum(np.bincount(tile, minlength=sc.n_tiles), out=starts[1:])
-        return starts, local[order], (keep[order] if order_out else zz[order]), nb, no
+        return starts, local[by_tile], (keep[by_tile] if order else zz[by_tile]), nb, no
 
     def tile_points_of(self, t: int) -> tuple[np.ndarray, np.ndarray]:
         """Tile ``t``'s points: ``(cell within the tile int32, value)``, in input order."""
