@@ -353,3 +353,19 @@ def test_partition_with_positions_numpy_reference(tmp_path, monkeypatch):
     for a, b in zip(*got, strict=True):
         for u, v in zip(a, b, strict=True):
             np.testing.assert_array_equal(u, v)
+
+
+@pytest.mark.parametrize("per_cell", [3, 40, 300])  # insertion sort, selection, NumPy sort sizes
+def test_block_median_by_selection_equals_pandas(per_cell):
+    """The compiled per-cell median (selection of the middle values, no sort) against pandas' group median,
+    with ties and even and odd counts; min/max too."""
+    rng = np.random.default_rng(per_cell)
+    m = 4000 // per_cell + 7
+    idx = rng.integers(0, m, 40_000 + per_cell * 50)
+    z = np.round(rng.normal(1000, 1, len(idx)), 2)  # many ties
+    got = P.reduce_cells(idx, z, m, ("median", "min", "max", "count"), compiled=True)
+    g = pd.DataFrame({"c": idx, "z": z}).groupby("c")["z"]
+    for s, ref in (("median", g.median()), ("min", g.min()), ("max", g.max())):
+        full = np.full(m, np.nan)
+        full[ref.index.to_numpy()] = ref.to_numpy()
+        np.testing.assert_array_equal(got[s], full, err_msg=s)

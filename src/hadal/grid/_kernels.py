@@ -152,6 +152,54 @@ def _sort_small(a):  # pragma: no cover - compiled
         a[j + 1] = v
 
 
+#: cells of more values than this take their median by selection (:func:`_select`), fewer by insertion sort
+_SELECT_MIN = 16
+
+
+@njit(cache=True, nogil=True)
+def _select(a, k):  # pragma: no cover - compiled
+    """Partially order ``a`` in place so that ``a[k]`` is its ``k``-th smallest value, every value before it
+    ``<=`` and every value after it ``>=`` (Hoare's FIND / quickselect, C. A. R. Hoare, CACM 4(7) 321, 1961;
+    median-of-three pivot); no allocation. ``a`` must hold no NaN."""
+    lo = 0
+    hi = a.size - 1
+    while hi > lo:
+        if hi - lo < 16:  # insertion sort of the small remainder
+            for i in range(lo + 1, hi + 1):
+                v = a[i]
+                q = i - 1
+                while q >= lo and a[q] > v:
+                    a[q + 1] = a[q]
+                    q -= 1
+                a[q + 1] = v
+            return
+        mid = (lo + hi) >> 1
+        if a[mid] < a[lo]:
+            a[mid], a[lo] = a[lo], a[mid]
+        if a[hi] < a[lo]:
+            a[hi], a[lo] = a[lo], a[hi]
+        if a[hi] < a[mid]:
+            a[hi], a[mid] = a[mid], a[hi]
+        pivot = a[mid]
+        i = lo
+        q = hi
+        while i <= q:
+            while a[i] < pivot:
+                i += 1
+            while a[q] > pivot:
+                q -= 1
+            if i <= q:
+                a[i], a[q] = a[q], a[i]
+                i += 1
+                q -= 1
+        if k <= q:
+            hi = q
+        elif k >= i:
+            lo = i
+        else:
+            return
+
+
 @njit(inline="always")
 def _block_shifted_sums(kb, zb, seg, b, sz, cnt, ref, s1, s2):  # pragma: no cover - compiled
     """Block ``b``'s per-cell count and sums shifted by each cell's first value (``ref``) into ``cnt``/``s1``/
@@ -230,10 +278,39 @@ def _block_sorted_stats(buf, start, sz, base, cnt, mean, want_m2, m2, med, zmin,
                 d = cs[q] - mu
                 q2 += d * d
             m2[base + j] = q2
-        _sort_small(cs)
-        med[base + j] = 0.5 * (cs[(c - 1) // 2] + cs[c // 2])
-        zmin[base + j] = cs[0]
-        zmax[base + j] = cs[c - 1]
+        if c <= _SELECT_MIN:
+            _sort_small(cs)
+            med[base + j] = 0.5 * (cs[(c - 1) // 2] + cs[c // 2])
+            zmin[base + j] = cs[0]
+            zmax[base + j] = cs[c - 1]
+            continue
+        lo = hi = cs[0]
+        finite = True
+        for q in range(c):
+            v = cs[q]
+            if v < lo:
+                lo = v
+            if v > hi:
+                hi = v
+            finite &= v == v
+        zmin[base + j] = lo
+        zmax[base + j] = hi
+        if not finite:  # NaN: the sort's order (NaN last), as before
+            _sort_small(cs)
+            med[base + j] = 0.5 * (cs[(c - 1) // 2] + cs[c // 2])
+            zmin[base + j] = cs[0]
+            zmax[base + j] = cs[c - 1]
+            continue
+        h = (c - 1) // 2
+        _select(cs, h)
+        if c % 2 == 1:
+            med[base + j] = cs[h]
+        else:  # the upper middle value: the smallest of the values after the lower one
+            u = cs[h + 1]
+            for q in range(h + 2, c):
+                if cs[q] < u:
+                    u = cs[q]
+            med[base + j] = 0.5 * (cs[h] + u)
 
 
 @njit(parallel=True, cache=True, nogil=True)
