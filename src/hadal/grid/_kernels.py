@@ -262,17 +262,24 @@ def _block_grouped_values(kb, zb, seg, b, sz, cnt, total):  # pragma: no cover -
 
 
 @njit(inline="always")
-def _block_sorted_stats(buf, start, sz, base, cnt, mean, want_m2, m2, med, zmin, zmax):  # pragma: no cover
-    """Per cell of a block grouped by :func:`_block_grouped_values`: (with ``want_m2``) the two-pass M2 about
-    the cell's ``mean`` over its values in file order, then median, min and max of the sorted values."""
+def _block_sorted_stats(buf, start, sz, base, cnt, count, mean, want_m2, m2, med, zmin, zmax):  # pragma: no cover
+    """Per cell of a block grouped by :func:`_block_grouped_values`: count, the mean (the bits of
+    :func:`_block_shifted_sums`: the same sums in the same order), (with ``want_m2``) the two-pass M2 about it over
+    the cell's values in file order, then median (by selection, :func:`_select`), min and max."""
     for j in range(sz):
         c = cnt[j]
         if c == 0:
             continue
         a = start[j]
         cs = buf[a:a + c]
+        ref = cs[0]  # the mean as _block_shifted_sums makes it: sums shifted by the first value, in file order
+        s1 = 0.0
+        for q in range(c):
+            s1 += cs[q] - ref
+        mu = ref + s1 / c
+        count[base + j] = c
+        mean[base + j] = mu
         if want_m2:  # two-pass about the mean over the cell's values (in file order), in cache
-            mu = mean[j]
             q2 = 0.0
             for q in range(c):
                 d = cs[q] - mu
@@ -343,20 +350,25 @@ def block_stats_kernel(kb, zb, seg, shift, m, want_m2, want_sorted, nthreads):  
                 continue
             base = b << shift
             sz = min(bs, m - base)
+            if want_sorted:  # count, group by cell, then every statistic from the cell's own values
+                cnt[:sz] = 0
+                for ci in range(nseg):
+                    for p in range(seg[ci, b], seg[ci, b + 1]):
+                        cnt[kb[p]] += 1
+                buf, start = _block_grouped_values(kb, zb, seg, b, sz, cnt, total)
+                _block_sorted_stats(buf, start, sz, base, cnt, count, mean, want_m2, m2, med, zmin, zmax)
+                continue
             ill = _block_shifted_sums(kb, zb, seg, b, sz, cnt, ref, s1, s2)  # s1: the means
             for j in range(sz):
                 if cnt[j] > 0:
                     count[base + j] = cnt[j]
                     mean[base + j] = s1[j]
-            if want_m2 and not want_sorted:
+            if want_m2:
                 if ill:  # recompute the block two-pass about the means (mean unchanged)
                     _block_two_pass_m2(kb, zb, seg, b, sz, s1, s2)
                 for j in range(sz):
                     if cnt[j] > 0:
                         m2[base + j] = s2[j]
-            if want_sorted:
-                buf, start = _block_grouped_values(kb, zb, seg, b, sz, cnt, total)
-                _block_sorted_stats(buf, start, sz, base, cnt, s1, want_m2, m2, med, zmin, zmax)
     return count, mean, m2, med, zmin, zmax
 
 
@@ -642,3 +654,4 @@ def tile_partition_order(x, y, z, x0, y0, inv_h, nx, ny, check_inside, tile_cell
             src[p] = i
             pos[t] = p + 1
     return starts, local, src, nb, no
+
