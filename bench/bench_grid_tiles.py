@@ -8,7 +8,8 @@ own; CPU is the child's user+system time over all its threads):
    5.5-6.5 km plus 0.5 m noise, one sounding in 10 000 NaN) written in chunks as three raw float64 files
    ``x.f8 y.f8 z.f8``; about ``--points-per-cell`` soundings a ``--resolution`` cell;
 2. **tiled**: :func:`hadal.grid.tiles.grid_tiled` of all the soundings, read back in chunks of ``--chunk`` points
-   (mean, median, count, std: the DTM's statistics): soundings per CPU-second, peak RSS; **tiled_moments**: the
+   (mean, median, count, std: the DTM's statistics): soundings per CPU-second, peak RSS, and the CPU ratio to a
+   streaming ``np.bincount`` count/mean/std of the same soundings in the same run; **tiled_moments**: the
    same for count/mean/std alone;
 3. **equal**: the first ``--subset`` soundings gridded in memory (:func:`hadal.grid.points.grid_points`, same grid)
    and tiled: every layer compared bit for bit (count/mean/std alone: count bit for bit, mean/std to rounding);
@@ -242,6 +243,10 @@ def main(argv=None) -> int:
                   f"{r['n_tiles']} tiles of {r['tile_cells']} cells, {r['used']:,} used, {r['nonfinite']:,} NaN")
             print(f"  goal >= 25 M soundings per CPU-second: {'MET' if r['n'] / r['cpu_s'] >= 25e6 else 'NOT met'}; "
                   f"peak RSS <= 4 GB: {'MET' if r['peak_rss'] <= 4e9 else 'NOT met'} (at {r['n']:,} soundings)")
+            ref = run_child(script, "moments_bincount", d, a.points, a)  # the peer, same soundings, same run
+            print(f"  reference in the same run: streaming np.bincount count/mean/std of the same soundings "
+                  f"{ref['cpu_s']:.1f} CPU-s ({ref['n'] / ref['cpu_s'] / 1e6:.1f} M/CPU-s); tiled with median / "
+                  f"reference: {r['cpu_s'] / ref['cpu_s']:.2f}x CPU")
         if "tiled_moments" in steps:
             r = run_child(script, "moments_tiled", d, a.points, a)
             print(f"tiled grid (count/mean/std) of {r['n']:,} soundings: {r['cpu_s']:.1f} CPU-s, {r['wall_s']:.1f} s "

@@ -180,3 +180,192 @@ def test_full_disk_is_a_one_line_error(tmp_path, monkeypatch):
         grid_tiled([(np.ones(5), np.ones(5), np.ones(5))], spec, scratch_dir=tmp_path)
     assert "\n" not in str(e.value)
     assert list(tmp_path.iterdir()) == []
+
+
+def _seam_soundings(n: int, seed: int, *, res: float = 20.0, tile_cells: int = 16, ext=(2000.0, 1500.0)):
+    """A sloping, wavy seafloor with spikes a share of which sit within a few metres of tile seams (every
+    ``res * tile_cells`` metres, both axes), and a patch of soundings on a lattice (equal neighbour distances:
+    the tie rule matters)."""
+    rng = np.random.default_rng(seed)
+    x, y = rng.uniform(0, ext[0], n), rng.uniform(0, ext[1], n)
+    lat = rng.random(n) < 0.05
+    x[lat] = 600.0 + 2.0 * rng.integers(0, 40, lat.sum())  # a lattice across the seam at x = 640
+    y[lat] = 620.0 + 2.0 * rng.integers(0, 40, lat.sum())
+    z = 3000 + 0.05 * x + 5 * np.sin(y / 100) + rng.normal(0, 0.3, n)
+    sp = rng.choice(n, n // 400, replace=False)
+    seam = res * tile_cells
+    h = len(sp) // 2
+    x[sp[:h]] = seam * rng.integers(1, int(ext[0] // seam), h) + rng.uniform(-3, 3, h)
+    y[sp[h:]] = seam * rng.integers(1, int(ext[1] // seam), len(sp) - h) + rng.uniform(-3, 3, len(sp) - h)
+    z[sp] += rng.choice([-1, 1], len(sp)) * rng.uniform(5, 50, len(sp))
+    return x, y, z, sp
+
+
+@pytest.mark.parametrize(("tile_cells", "halo_cells"), [(16, None), (5, 1), (3, None)])
+def test_tiled_spike_flags_equal_in_memory_on_seams(tmp_path, tile_cells, halo_cells):
+    """Spikes on tile seams: the tiled spike test (halo; halo 1 cell forces the halo to grow for some soundings)
+    flags exactly the soundings the in-memory test of the whole set flags."""
+    from hadal.grid.multibeam import spike_mask
+    from hadal.grid.tiles import spike_flags_tiled
+
+    x, y, z, sp = _seam_soundings(60_000, 7, tile_cells=tile_cells)
+    ext, _ = P.point_extent(x, y, z)
+    spec = P.make_grid_spec(20.0, ext, snap=True)
+    idx, _ = spec.cell_index(x, y, check_inside=False)
+    ref, ref_sigma0 = spike_mask(idx, x, y, z)
+    assert ref[sp].mean() > 0.9  # the seam spikes are caught
+    part = TilePartition(TileScheme(spec, tile_cells), scratch_dir=tmp_path, check_inside=False, with_xy=True)
+    with part:
+        for c in iter_array_chunks(x, y, z, 7000):
+            part.add(*c)
+        n_sp, sigma0 = spike_flags_tiled(part, halo_cells=halo_cells)
+        got = np.zeros(len(z), bool)
+        for t in range(part.scheme.n_tiles):
+            if part.tile_points[t]:
+                got[part.tile_xy_of(t)[2]] = ~part.kept_of(t)
+    assert sigma0 == ref_sigma0
+    np.testing.assert_array_equal(got, ref)
+    assert n_sp == int(ref.sum())
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_tiled_neighbour_test_equals_brute_force_reference(tmp_path):
+    """Independent oracle: the NumPy reference of the neighbour test on brute-force neighbours (all pairwise
+    distances, ties by input index), on a lattice (many equal distances) cut by seams every 3 cells."""
+    from hadal.grid.multibeam import knn_spike_mask_reference
+    from hadal.grid.tiles import knn_spike_flags_tile
+
+    rng = np.random.default_rng(8)
+    g = np.arange(0.0, 60.0, 1.5)
+    x, y = (a.ravel() for a in np.meshgrid(g, g))
+    extra = rng.uniform(0, 59, (2, 800))
+    x, y = np.concatenate([x, extra[0]]), np.concatenate([y, extra[1]])
+    z = 100 + 0.1 * x + rng.normal(0, 0.2, len(x))
+    z[rng.choice(len(z), 30, replace=False)] += 8.0
+    d2 = (x[:, None] - x[None]) ** 2 + (y[:, None] - y[None]) ** 2
+    np.fill_diagonal(d2, np.inf)
+    nbr = np.lexsort((np.broadcast_to(np.arange(len(x)), d2.shape), d2), axis=1)[:, :16]
+    ref = knn_spike_mask_reference(x, y, z, k=4.0, neighbours=16, floor=0.5, neighbour_index=nbr)
+    spec = P.make_grid_spec(5.0, P.point_extent(x, y, z)[0], snap=True)
+    with TilePartition(TileScheme(spec, 3), scratch_dir=tmp_path, check_inside=False, with_xy=True) as part:
+        part.add(x, y, z)
+        got = np.zeros(len(z), bool)
+        for t in range(part.scheme.n_tiles):
+            if part.tile_points[t]:
+                got[part.tile_xy_of(t)[2]] = knn_spike_flags_tile(part, t, neighbours=16, k=4.0, floor=0.5)
+    assert ref.sum() >= 25
+    np.testing.assert_array_equal(got, ref)
+
+
+@pytest.mark.parametrize("bounds", [None, (100.0, 200.0, 1900.0, 1400.0)])
+def test_grid_multibeam_tiled_equals_grid_multibeam(tmp_path, bounds):
+    """The whole tiled DTM (spike test with halos, layers, hole filling, counts) equals grid_multibeam's."""
+    from hadal.grid.multibeam import grid_multibeam
+    from hadal.grid.tiles import grid_multibeam_tiled
+
+    x, y, z, _ = _seam_soundings(80_000, 9)
+    x[:3] = np.nan
+    ref = grid_multibeam(x, y, z, 20.0, bounds=bounds)
+    if bounds is None:
+        ok = np.isfinite(x)
+        spec = P.make_grid_spec(20.0, P.point_extent(x[ok], y[ok], z[ok])[0], snap=True)
+    else:
+        spec = P.make_grid_spec(20.0, bounds)
+    got = grid_multibeam_tiled(iter_array_chunks(x, y, z, 9999), spec, check_inside=bounds is not None,
+                               tile_cells=16, scratch_dir=tmp_path)
+    assert set(ref.data_vars) == set(got.data_vars)
+    for v in ref.data_vars:
+        np.testing.assert_array_equal(ref[v].values, got[v].values, err_msg=v)
+    for k, v in ref.attrs.items():
+        assert got.attrs[k] == v or (v != v and got.attrs[k] != got.attrs[k]), k
+    assert got.attrs["n_soundings_spikes"] > 100
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_tiled_spike_flags_sparse_halo_grows(tmp_path, monkeypatch):
+    """Sparse soundings (a few a tile): a 1-cell halo cannot hold 16 neighbours, so it grows (more halo reads
+    than tiles) and the flags still equal the in-memory ones."""
+    from hadal.grid import tiles
+    from hadal.grid.multibeam import spike_mask
+
+    x, y, z, _ = _seam_soundings(4000, 10, tile_cells=5)
+    spec = P.make_grid_spec(20.0, P.point_extent(x, y, z)[0], snap=True)
+    idx, _ = spec.cell_index(x, y, check_inside=False)
+    ref, _ = spike_mask(idx, x, y, z)
+    calls = []
+    real = tiles._halo_points
+    monkeypatch.setattr(tiles, "_halo_points", lambda *a: calls.append(a[1]) or real(*a))
+    with TilePartition(TileScheme(spec, 5), scratch_dir=tmp_path, check_inside=False, with_xy=True) as part:
+        part.add(x, y, z)
+        tiles.spike_flags_tiled(part, halo_cells=1)
+        got = np.zeros(len(z), bool)
+        for t in range(part.scheme.n_tiles):
+            if part.tile_points[t]:
+                got[part.tile_xy_of(t)[2]] = ~part.kept_of(t)
+        assert len(calls) > 2 * sum(1 for c in part.tile_points if c)
+    np.testing.assert_array_equal(got, ref)
+
+
+def test_dtm_stage_out_of_core_above_the_budget_same_dtm(small_dive, tmp_path, monkeypatch):
+    """The dtm stage's gridding (make_dtm) on the small sample dive: under a memory budget its soundings exceed
+    it grids out of core (tiles recorded) and gives the in-memory DTM's arrays and counts."""
+    import tempfile
+
+    from hadal.dive import load_dive, resolve_source
+    from hadal.settings import GridParams as Params
+    from hadal.stages.grid import DTM_BYTES_PER_SOUNDING, make_dtm
+
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))  # the tiles' scratch directory
+    dive, raw = load_dive(small_dive)
+    files = [resolve_source(raw, f) for f in dive.sources.multibeam]
+    ref = make_dtm(files, dive.frame(), Params(dtm_resolution_m=20.0))
+    assert "n_tiles" not in ref.attrs
+    n = ref.attrs["n_soundings_input"]
+    got = make_dtm(files, dive.frame(), Params(dtm_resolution_m=20.0),
+                   memory_limit_bytes=0.5 * DTM_BYTES_PER_SOUNDING * n)
+    assert got.attrs["n_tiles"] >= 1
+    for v in ref.data_vars:
+        np.testing.assert_array_equal(ref[v].values, got[v].values, err_msg=v)
+    for k in ("n_soundings_input", "n_soundings_spikes", "n_soundings_used", "n_cells_filled"):
+        assert ref.attrs[k] == got.attrs[k], k
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_partition_with_positions_numpy_reference(tmp_path, monkeypatch):
+    """The partition with positions (x, y, input index) by the compiled kernel equals the NumPy reference's,
+    and every tile's points are in their tile's cells, in input order."""
+    x, y, z = _points(20_000, 11)
+    spec = P.make_grid_spec(2.0, (0.0, 0.0, 100.0, 70.0))
+    got = []
+    for no_numba in (False, True):
+        if no_numba:
+            monkeypatch.setenv("HADAL_NO_NUMBA", "1")
+        with TilePartition(TileScheme(spec, 7), scratch_dir=tmp_path, with_xy=True) as part:
+            for c in iter_array_chunks(x, y, z, 3333):
+                part.add(*c)
+            got.append([(*part.tile_points_of(t), *part.tile_xy_of(t)) for t in range(part.scheme.n_tiles)])
+            for t, (cells, zt, xt, yt, gi) in enumerate(got[-1]):
+                r0, _, c0, c1 = part.scheme.window(t)
+                idx, _ = spec.cell_index(xt, yt)
+                np.testing.assert_array_equal(idx, (r0 + cells // (c1 - c0)) * spec.nx + c0 + cells % (c1 - c0))
+                np.testing.assert_array_equal(zt, z[gi])
+                assert (np.diff(gi) > 0).all()
+    for a, b in zip(*got, strict=True):
+        for u, v in zip(a, b, strict=True):
+            np.testing.assert_array_equal(u, v)
+
+
+@pytest.mark.parametrize("per_cell", [3, 40, 300])  # insertion sort, selection, NumPy sort sizes
+def test_block_median_by_selection_equals_pandas(per_cell):
+    """The compiled per-cell median (selection of the middle values, no sort) against pandas' group median,
+    with ties and even and odd counts; min/max too."""
+    rng = np.random.default_rng(per_cell)
+    m = 4000 // per_cell + 7
+    idx = rng.integers(0, m, 40_000 + per_cell * 50)
+    z = np.round(rng.normal(1000, 1, len(idx)), 2)  # many ties
+    got = P.reduce_cells(idx, z, m, ("median", "min", "max", "count"), compiled=True)
+    g = pd.DataFrame({"c": idx, "z": z}).groupby("c")["z"]
+    for s, ref in (("median", g.median()), ("min", g.min()), ("max", g.max())):
+        full = np.full(m, np.nan)
+        full[ref.index.to_numpy()] = ref.to_numpy()
+        np.testing.assert_array_equal(got[s], full, err_msg=s)

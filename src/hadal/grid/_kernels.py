@@ -152,6 +152,54 @@ def _sort_small(a):  # pragma: no cover - compiled
         a[j + 1] = v
 
 
+#: cells of more values than this take their median by selection (:func:`_select`), fewer by insertion sort
+_SELECT_MIN = 16
+
+
+@njit(cache=True, nogil=True)
+def _select(a, k):  # pragma: no cover - compiled
+    """Partially order ``a`` in place so that ``a[k]`` is its ``k``-th smallest value, every value before it
+    ``<=`` and every value after it ``>=`` (Hoare's FIND / quickselect, C. A. R. Hoare, CACM 4(7) 321, 1961;
+    median-of-three pivot); no allocation. ``a`` must hold no NaN."""
+    lo = 0
+    hi = a.size - 1
+    while hi > lo:
+        if hi - lo < 16:  # insertion sort of the small remainder
+            for i in range(lo + 1, hi + 1):
+                v = a[i]
+                q = i - 1
+                while q >= lo and a[q] > v:
+                    a[q + 1] = a[q]
+                    q -= 1
+                a[q + 1] = v
+            return
+        mid = (lo + hi) >> 1
+        if a[mid] < a[lo]:
+            a[mid], a[lo] = a[lo], a[mid]
+        if a[hi] < a[lo]:
+            a[hi], a[lo] = a[lo], a[hi]
+        if a[hi] < a[mid]:
+            a[hi], a[mid] = a[mid], a[hi]
+        pivot = a[mid]
+        i = lo
+        q = hi
+        while i <= q:
+            while a[i] < pivot:
+                i += 1
+            while a[q] > pivot:
+                q -= 1
+            if i <= q:
+                a[i], a[q] = a[q], a[i]
+                i += 1
+                q -= 1
+        if k <= q:
+            hi = q
+        elif k >= i:
+            lo = i
+        else:
+            return
+
+
 @njit(inline="always")
 def _block_shifted_sums(kb, zb, seg, b, sz, cnt, ref, s1, s2):  # pragma: no cover - compiled
     """Block ``b``'s per-cell count and sums shifted by each cell's first value (``ref``) into ``cnt``/``s1``/
@@ -214,26 +262,62 @@ def _block_grouped_values(kb, zb, seg, b, sz, cnt, total):  # pragma: no cover -
 
 
 @njit(inline="always")
-def _block_sorted_stats(buf, start, sz, base, cnt, mean, want_m2, m2, med, zmin, zmax):  # pragma: no cover
-    """Per cell of a block grouped by :func:`_block_grouped_values`: (with ``want_m2``) the two-pass M2 about
-    the cell's ``mean`` over its values in file order, then median, min and max of the sorted values."""
+def _block_sorted_stats(buf, start, sz, base, cnt, count, mean, want_m2, m2, med, zmin, zmax):  # pragma: no cover
+    """Per cell of a block grouped by :func:`_block_grouped_values`: count, the mean (the bits of
+    :func:`_block_shifted_sums`: the same sums in the same order), (with ``want_m2``) the two-pass M2 about it over
+    the cell's values in file order, then median (by selection, :func:`_select`), min and max."""
     for j in range(sz):
         c = cnt[j]
         if c == 0:
             continue
         a = start[j]
         cs = buf[a:a + c]
+        ref = cs[0]  # the mean as _block_shifted_sums makes it: sums shifted by the first value, in file order
+        s1 = 0.0
+        for q in range(c):
+            s1 += cs[q] - ref
+        mu = ref + s1 / c
+        count[base + j] = c
+        mean[base + j] = mu
         if want_m2:  # two-pass about the mean over the cell's values (in file order), in cache
-            mu = mean[j]
             q2 = 0.0
             for q in range(c):
                 d = cs[q] - mu
                 q2 += d * d
             m2[base + j] = q2
-        _sort_small(cs)
-        med[base + j] = 0.5 * (cs[(c - 1) // 2] + cs[c // 2])
-        zmin[base + j] = cs[0]
-        zmax[base + j] = cs[c - 1]
+        if c <= _SELECT_MIN:
+            _sort_small(cs)
+            med[base + j] = 0.5 * (cs[(c - 1) // 2] + cs[c // 2])
+            zmin[base + j] = cs[0]
+            zmax[base + j] = cs[c - 1]
+            continue
+        lo = hi = cs[0]
+        finite = True
+        for q in range(c):
+            v = cs[q]
+            if v < lo:
+                lo = v
+            if v > hi:
+                hi = v
+            finite &= v == v
+        zmin[base + j] = lo
+        zmax[base + j] = hi
+        if not finite:  # NaN: the sort's order (NaN last), as before
+            _sort_small(cs)
+            med[base + j] = 0.5 * (cs[(c - 1) // 2] + cs[c // 2])
+            zmin[base + j] = cs[0]
+            zmax[base + j] = cs[c - 1]
+            continue
+        h = (c - 1) // 2
+        _select(cs, h)
+        if c % 2 == 1:
+            med[base + j] = cs[h]
+        else:  # the upper middle value: the smallest of the values after the lower one
+            u = cs[h + 1]
+            for q in range(h + 2, c):
+                if cs[q] < u:
+                    u = cs[q]
+            med[base + j] = 0.5 * (cs[h] + u)
 
 
 @njit(parallel=True, cache=True, nogil=True)
@@ -266,20 +350,25 @@ def block_stats_kernel(kb, zb, seg, shift, m, want_m2, want_sorted, nthreads):  
                 continue
             base = b << shift
             sz = min(bs, m - base)
+            if want_sorted:  # count, group by cell, then every statistic from the cell's own values
+                cnt[:sz] = 0
+                for ci in range(nseg):
+                    for p in range(seg[ci, b], seg[ci, b + 1]):
+                        cnt[kb[p]] += 1
+                buf, start = _block_grouped_values(kb, zb, seg, b, sz, cnt, total)
+                _block_sorted_stats(buf, start, sz, base, cnt, count, mean, want_m2, m2, med, zmin, zmax)
+                continue
             ill = _block_shifted_sums(kb, zb, seg, b, sz, cnt, ref, s1, s2)  # s1: the means
             for j in range(sz):
                 if cnt[j] > 0:
                     count[base + j] = cnt[j]
                     mean[base + j] = s1[j]
-            if want_m2 and not want_sorted:
+            if want_m2:
                 if ill:  # recompute the block two-pass about the means (mean unchanged)
                     _block_two_pass_m2(kb, zb, seg, b, sz, s1, s2)
                 for j in range(sz):
                     if cnt[j] > 0:
                         m2[base + j] = s2[j]
-            if want_sorted:
-                buf, start = _block_grouped_values(kb, zb, seg, b, sz, cnt, total)
-                _block_sorted_stats(buf, start, sz, base, cnt, s1, want_m2, m2, med, zmin, zmax)
     return count, mean, m2, med, zmin, zmax
 
 
@@ -509,3 +598,60 @@ def tile_partition_chunk(x, y, z, x0, y0, inv_h, nx, ny, check_inside, tile_cell
             zs[p] = z[i]
             pos[t] = p + 1
     return starts, local, zs, nb, no
+
+
+@njit(cache=True, nogil=True)
+def tile_partition_order(x, y, z, x0, y0, inv_h, nx, ny, check_inside, tile_cells, ntx, n_tiles):  # pragma: no cover
+    """:func:`tile_partition_chunk` returning the chunk positions of the grouped points instead of their values
+    (the DTM's tiles keep x, y, depth and the input index of each sounding: the caller gathers them by ``src``).
+    Returns ``(starts, local, src, n_nonfinite, n_outside)``, ``src`` int64 in chunk order within each tile."""
+    n = x.size
+    col_tile = np.empty(nx, np.int64)
+    col_in = np.empty(nx, np.int64)
+    width = np.empty(nx, np.int64)
+    for c in range(nx):
+        tx = c // tile_cells
+        col_tile[c] = tx
+        col_in[c] = c - tx * tile_cells
+        width[c] = min(tile_cells, nx - tx * tile_cells)
+    row_tile = np.empty(ny, np.int64)
+    row_in = np.empty(ny, np.int64)
+    for r in range(ny):
+        ty = r // tile_cells
+        row_tile[r] = ty * ntx
+        row_in[r] = r - ty * tile_cells
+    tile = np.empty(n, np.int32)
+    loc = np.empty(n, np.int32)
+    starts = np.zeros(n_tiles + 1, np.int64)
+    nb = 0
+    no = 0
+    for i in range(n):
+        xi = x[i]
+        yi = y[i]
+        why = _keep(xi, yi, z[i], x0, y0, inv_h, nx, ny, check_inside)
+        if why != 0:
+            tile[i] = -1
+            if why == 1:
+                nb += 1
+            else:
+                no += 1
+            continue
+        r, c = _cell_rc(xi, yi, x0, y0, inv_h, nx, ny)
+        t = row_tile[r] + col_tile[c]
+        tile[i] = t
+        loc[i] = row_in[r] * width[c] + col_in[c]
+        starts[t + 1] += 1
+    for t in range(n_tiles):
+        starts[t + 1] += starts[t]
+    pos = starts[:-1].copy()
+    local = np.empty(starts[n_tiles], np.int32)
+    src = np.empty(starts[n_tiles], np.int64)
+    for i in range(n):
+        t = tile[i]
+        if t >= 0:
+            p = pos[t]
+            local[p] = loc[i]
+            src[p] = i
+            pos[t] = p + 1
+    return starts, local, src, nb, no
+

@@ -193,3 +193,23 @@ def knn_spike_flags_cells(x, y, z, orig, starts, ncu, ncv, u0, v0, cs, nb, k, fl
         for i in range(b * block, min(n, (b + 1) * block)):
             _knn_cells(x, y, orig, i, starts, ncu, ncv, u0, v0, cs, nb, bd, bi)
             out[i] = _spike_one(x, y, z, i, bi, nb, k, floor, mad_to_sigma, dx, dy, v, w, res, tmp)
+
+
+@njit(parallel=True, cache=True, nogil=True)
+def knn_spike_flags_targets(x, y, z, orig, starts, ncu, ncv, u0, v0, cs, nb, k, floor, mad_to_sigma, targets, out,
+                            kd2, block):  # pragma: no cover - compiled
+    """:func:`knn_spike_flags_cells` for the soundings ``targets`` only (indices in cell order; the others are
+    searched as neighbours but not tested): ``out[t]`` the flag of sounding ``targets[t]`` and ``kd2[t]`` the
+    squared distance of its ``nb``-th neighbour (a tile's soundings tested among the tile and its halo,
+    :func:`hadal.grid.tiles.spike_flags_tiled`, which checks with ``kd2`` that no sounding beyond the halo could
+    have been a neighbour)."""
+    n = targets.size
+    for b in prange((n + block - 1) // block):
+        bd = np.empty(nb)
+        bi = np.empty(nb, np.int64)
+        dx, dy, v, w, res, tmp = _scratch(nb)
+        for t in range(b * block, min(n, (b + 1) * block)):
+            i = targets[t]
+            _knn_cells(x, y, orig, i, starts, ncu, ncv, u0, v0, cs, nb, bd, bi)
+            out[t] = _spike_one(x, y, z, i, bi, nb, k, floor, mad_to_sigma, dx, dy, v, w, res, tmp)
+            kd2[t] = bd[nb - 1]

@@ -626,8 +626,9 @@ def cell_stats(x, y, z, spec: GridSpec, statistics: Sequence[str] = ("mean", "me
     sort by cell (the histograms stay in L2) and per cell the mean and M2 (sums shifted by the cell's first
     value: exact at 10 km depths with mm spread, no cancellation; count/mean/std in one pass, the block
     recomputed two-pass where a cell's rounding bound is not negligible; two-pass with median/min/max), and,
-    for median/min/max, the sorted segment (median = mean of the two middle values for an even count, as
-    :func:`segment_median`). Every pass streams through memory; none does random access into a grid-sized
+    for median/min/max, the cell's values grouped in cache and the middle values selected (Hoare's
+    quickselect; median = mean of the two middle values for an even count, as :func:`segment_median`), min and
+    max scanned. Every pass streams through memory; none does random access into a grid-sized
     array, so random point order costs about as much as survey order. Memory: 10 bytes a point (uint16
     in-block cell index, float64 value) plus the chunks' block offsets.
     """

@@ -68,6 +68,8 @@ DEFAULT_MAX_TILE_POINTS = 1 << 21
 PARTITION_CHUNK_POINTS = 1 << 21
 #: bytes a partitioned point takes on disk (int32 cell in the tile, float64 value)
 BYTES_PER_POINT = 12
+#: bytes a partitioned point takes besides with ``with_xy`` (x, y float64, int64 input index)
+BYTES_PER_POINT_XY = 24
 #: free disk kept in reserve beyond a chunk's own bytes before it is written
 _DISK_RESERVE_BYTES = 256 << 20
 
@@ -139,7 +141,7 @@ class TilePartition:
     """
 
     def __init__(self, scheme: TileScheme, *, scratch_dir: str | os.PathLike | None = None,
-                 check_inside: bool = True) -> None:
+                 check_inside: bool = True, with_xy: bool = False) -> None:
         base = Path(scratch_dir) if scratch_dir is not None else Path(tempfile.gettempdir())
         if not base.is_dir():
             raise InputError(f"scratch directory {base} does not exist (or is not a directory)")
@@ -149,6 +151,8 @@ class TilePartition:
             raise InputError(f"cannot create a scratch directory in {base}: {e.strerror or e}") from None
         self.scheme = scheme
         self.check_inside = bool(check_inside)
+        self.with_xy = bool(with_xy)
+        self.has_spikes = False  # spike flags written beside the tiles (spike_flags_tiled)
         self.tile_points = [0] * scheme.n_tiles
         self.n_input = 0
         self.n_nonfinite = 0
@@ -169,8 +173,16 @@ class TilePartition:
         """Points written to the tiles (finite, inside)."""
         return sum(self.tile_points)
 
+    @property
+    def bytes_per_point(self) -> int:
+        """Disk a partitioned point takes: 12 bytes, 36 with ``with_xy`` (x, y float64 and the input index)."""
+        return BYTES_PER_POINT + (BYTES_PER_POINT_XY if self.with_xy else 0)
+
     def _paths(self, t: int) -> tuple[Path, Path]:
         return self.dir / f"t{t}.cell.i4", self.dir / f"t{t}.z.f8"
+
+    def _xy_paths(self, t: int) -> tuple[Path, Path, Path]:
+        return self.dir / f"t{t}.x.f8", self.dir / f"t{t}.y.f8", self.dir / f"t{t}.i.i8"
 
     def add(self, x, y, z) -> None:
         """Append one chunk's points to their tiles (in input order; arrays of one length)."""
@@ -188,36 +200,43 @@ class TilePartition:
                 sl = slice(a, a + PARTITION_CHUNK_POINTS)
                 self.add(x[sl], y[sl], z[sl])
             return
-        need = BYTES_PER_POINT * len(x) + _DISK_RESERVE_BYTES
+        bpp = self.bytes_per_point
+        need = bpp * len(x) + _DISK_RESERVE_BYTES
         free = _free_bytes(self.dir)
         if free < need:
             raise InputError(f"scratch directory {self.dir.parent} has {free / 2**30:.2f} GiB free; the tiles need "
-                             f"{need / 2**30:.2f} GiB more for the next {len(x):,} points (12 bytes a point): "
+                             f"{need / 2**30:.2f} GiB more for the next {len(x):,} points ({bpp} bytes a point): "
                              "free disk or give another scratch_dir")
-        starts, local, zs, nb, no = self._partition(x, y, z)
+        if self.with_xy:
+            starts, local, src, nb, no = self._partition(x, y, z, order=True)
+            cols = [(self._paths, (local, z[src])), (self._xy_paths, (x[src], y[src], src + self.n_input))]
+        else:
+            starts, local, zs, nb, no = self._partition(x, y, z)
+            cols = [(self._paths, (local, zs))]
         self.n_input += len(x)
         self.n_nonfinite += int(nb)
         self.n_outside += int(no)
         for t in np.flatnonzero(np.diff(starts)):
             a, b = int(starts[t]), int(starts[t + 1])
-            pc, pz = self._paths(int(t))
             try:
-                with open(pc, "ab") as fh:
-                    local[a:b].tofile(fh)
-                with open(pz, "ab") as fh:
-                    zs[a:b].tofile(fh)
+                for paths, arrays in cols:
+                    for path, arr in zip(paths(int(t)), arrays, strict=True):
+                        with open(path, "ab") as fh:
+                            arr[a:b].tofile(fh)
             except OSError as e:
                 raise InputError(f"cannot write tile files in {self.dir}: {e.strerror or e}") from None
             self.tile_points[int(t)] += b - a
 
-    def _partition(self, x, y, z):
-        """``(starts, local, zs, n_nonfinite, n_outside)`` of one chunk: compiled, or the NumPy reference."""
+    def _partition(self, x, y, z, order: bool = False):
+        """``(starts, local, zs, n_nonfinite, n_outside)`` of one chunk (``order``: the chunk positions ``src``
+        in place of ``zs``): compiled, or the NumPy reference."""
         import numpy as np
 
         sc, s = self.scheme, self.scheme.spec
         kern = _partition_kernels()
         if kern is not None:
-            return kern.tile_partition_chunk(x, y, z, float(s.x0), float(s.y0), 1.0 / s.resolution, int(s.nx),
+            fn = kern.tile_partition_order if order else kern.tile_partition_chunk
+            return fn(x, y, z, float(s.x0), float(s.y0), 1.0 / s.resolution, int(s.nx),
                                              int(s.ny), self.check_inside, int(sc.tile_cells), int(sc.ntx),
                                              int(sc.n_tiles))
         ok = np.isfinite(x) & np.isfinite(y) & np.isfinite(z)
@@ -227,6 +246,7 @@ class TilePartition:
         if inside is not None:
             no = int((ok & ~inside).sum())
             ok &= inside
+        keep = np.flatnonzero(ok)
         idx, zz = idx[ok], z[ok]
         r, c = np.divmod(idx, s.nx)
         tc = sc.tile_cells
@@ -234,10 +254,10 @@ class TilePartition:
         tw = np.minimum(tc, s.nx - tx * tc)
         tile = ty * sc.ntx + tx
         local = ((r - ty * tc) * tw + (c - tx * tc)).astype(np.int32)
-        order = np.argsort(tile, kind="stable")
+        by_tile = np.argsort(tile, kind="stable")
         starts = np.zeros(sc.n_tiles + 1, np.int64)
         np.cumsum(np.bincount(tile, minlength=sc.n_tiles), out=starts[1:])
-        return starts, local[order], zz[order], nb, no
+        return starts, local[by_tile], (keep[by_tile] if order else zz[by_tile]), nb, no
 
     def tile_points_of(self, t: int) -> tuple[np.ndarray, np.ndarray]:
         """Tile ``t``'s points: ``(cell within the tile int32, value)``, in input order."""
@@ -248,11 +268,35 @@ class TilePartition:
         pc, pz = self._paths(t)
         return np.fromfile(pc, dtype=np.int32), np.fromfile(pz, dtype=np.float64)
 
+    def kept_of(self, t: int) -> np.ndarray:
+        """Tile ``t``'s points not flagged as spikes (:func:`spike_flags_tiled`), a boolean mask."""
+        import numpy as np
+
+        return np.fromfile(self.dir / f"t{t}.spike.u1", dtype=np.uint8) == 0
+
+    def n_spikes(self) -> int:
+        """Points flagged as spikes over all tiles (:func:`spike_flags_tiled`)."""
+        return sum(self.tile_points[t] - int(self.kept_of(t).sum()) for t in range(self.scheme.n_tiles)
+                   if self.tile_points[t])
+
+    def tile_xy_of(self, t: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Tile ``t``'s ``(x, y, input index int64)`` in input order (a partition ``with_xy``)."""
+        import numpy as np
+
+        if not self.with_xy:
+            raise ValueError("tile_xy_of needs a partition made with_xy")
+        if self.tile_points[t] == 0:
+            return np.empty(0), np.empty(0), np.empty(0, np.int64)
+        px, py, pi = self._xy_paths(t)
+        return np.fromfile(px), np.fromfile(py), np.fromfile(pi, dtype=np.int64)
+
     def reduce(self, fn: Callable[[np.ndarray, np.ndarray, int], dict[str, np.ndarray]],
-               empty: dict[str, tuple[object, object]]) -> dict[str, np.ndarray]:
+               empty: dict[str, tuple[object, object]],
+               select: Callable[[int], np.ndarray] | None = None) -> dict[str, np.ndarray]:
         """Assemble the full flat layers ``{name: array}`` from ``fn(cells, values, tile_n_cells)`` of every
         non-empty tile (each a dict of flat per-cell arrays over the tile); ``empty`` gives each layer's
-        ``(dtype, fill value)`` (the value of the cells of empty tiles). One tile's points in memory at a time."""
+        ``(dtype, fill value)`` (the value of the cells of empty tiles). ``select(t)``: a boolean mask of the
+        tile's points to reduce (e.g. those not flagged as spikes). One tile's points in memory at a time."""
         import numpy as np
 
         sc, s = self.scheme, self.scheme.spec
@@ -263,6 +307,9 @@ class TilePartition:
                 continue
             r0, r1, c0, c1 = sc.window(t)
             cells, values = self.tile_points_of(t)
+            if select is not None:
+                keep = select(t)
+                cells, values = cells[keep], values[keep]
             layers = fn(cells, values, (r1 - r0) * (c1 - c0))
             del cells, values
             for k, v in layers.items():
@@ -334,11 +381,255 @@ def dtm_layers_tiled(part: TilePartition, *, fill_max_cells: int = 4, apriori_a_
     two functions, so the layers are identical). Returns ``(flat layers, 2-D filled mask)``."""
     from hadal.grid.multibeam import DTM_CELL_LAYERS, dtm_cell_layers, fill_dtm_holes
 
-    compiled = part.n_points >= _COMPILED_MIN_POINTS  # reduce_cells' choice on all kept soundings
+    select = part.kept_of if part.has_spikes else None
+    n_kept = part.n_points - (part.n_spikes() if part.has_spikes else 0)
+    compiled = n_kept >= _COMPILED_MIN_POINTS  # reduce_cells' choice on all kept soundings
     flat = part.reduce(lambda c, v, m: dtm_cell_layers(c, v, m, apriori_a_m=apriori_a_m, apriori_b=apriori_b,
                                                        prior_weight=prior_weight, compiled=compiled),
-                       _empty_layers(DTM_CELL_LAYERS))
+                       _empty_layers(DTM_CELL_LAYERS), select=select)
     return fill_dtm_holes(part.scheme.spec, flat, fill_max_cells, apriori_a_m, apriori_b)
+
+
+def typical_cell_sigma_tiled(part: TilePartition, min_count: int) -> float:
+    """:func:`hadal.grid.points.typical_cell_sigma` of all the partition's points: every cell's MAD is its own
+    points' (:func:`hadal.grid.points.cell_robust_stats` per tile), and the median of the same multiset of MADs
+    is the same number, so the result is identical to the in-memory one."""
+    import numpy as np
+
+    from hadal.grid.points import cell_robust_stats
+
+    mads = []
+    for t in range(part.scheme.n_tiles):
+        if part.tile_points[t]:
+            cells, z = part.tile_points_of(t)
+            st = cell_robust_stats(cells, z)
+            mads.append(st.mad[st.counts >= min_count])
+    allm = np.concatenate(mads) if mads else np.empty(0)
+    return float(1.4826 * np.median(allm)) if allm.size else float("nan")
+
+
+def _halo_window(sc: TileScheme, t: int, h: int) -> tuple[int, int, int, int]:
+    r0, r1, c0, c1 = sc.window(t)
+    return max(0, r0 - h), min(sc.spec.ny, r1 + h), max(0, c0 - h), min(sc.spec.nx, c1 + h)
+
+
+def _halo_points(part: TilePartition, t: int, win: tuple[int, int, int, int]):
+    """``(x, y, z, input index)`` of the points of the cells in ``win`` (rows/cols, half-open), tile ``t``'s own
+    points first, then the other tiles' points in those cells; and the number of tile ``t``'s points."""
+    import numpy as np
+
+    sc = part.scheme
+    wr0, wr1, wc0, wc1 = win
+    tiles = [t] + [ty * sc.ntx + tx for ty in range(wr0 // sc.tile_cells, (wr1 - 1) // sc.tile_cells + 1)
+                   for tx in range(wc0 // sc.tile_cells, (wc1 - 1) // sc.tile_cells + 1)
+                   if ty * sc.ntx + tx != t]
+    cols: list[list[np.ndarray]] = [[], [], [], []]
+    n_core = part.tile_points[t]
+    for u in tiles:
+        if not part.tile_points[u]:
+            continue
+        cells, z = part.tile_points_of(u)
+        x, y, gi = part.tile_xy_of(u)
+        if u != t:
+            r0, _, c0, c1 = sc.window(u)
+            rr, cc = np.divmod(cells, c1 - c0)
+            rr += r0
+            cc += c0
+            sel = (rr >= wr0) & (rr < wr1) & (cc >= wc0) & (cc < wc1)
+            x, y, z, gi = x[sel], y[sel], z[sel], gi[sel]
+        for c, a in zip(cols, (x, y, z, gi), strict=True):
+            c.append(a)
+    return (*(np.concatenate(c) for c in cols), n_core)
+
+
+def _knn_flags_local(x, y, z, gi, targets, neighbours: int, k: float, floor: float):
+    """Flags and ``nb``-th neighbour squared distances of the soundings ``targets`` (indices into ``x``...)
+    among all of ``x``, ``y``, ``z`` by the exact ``(distance, input index)`` search of
+    :func:`hadal.grid._spike_kernels.knn_spike_flags_targets` (the in-memory search's neighbours and tie rule);
+    a set with no lateral extent (collinear) uses scipy's k-d tree."""
+    import numpy as np
+
+    from hadal.grid._spike_kernels import knn_spike_flags, knn_spike_flags_targets
+    from hadal.grid.knn_cells import sorted_by_cell, uniform_cells
+    from hadal.grid.multibeam import MAD_TO_SIGMA
+
+    pts = np.column_stack([x, y])
+    lo = pts.min(axis=0)
+    binned = uniform_cells(pts, lo, 0, 1, neighbours)
+    out = np.empty(len(targets), bool)
+    kd2 = np.empty(len(targets))
+    if binned is None:  # the targets first, then scipy's neighbours in that order
+        from scipy.spatial import cKDTree
+
+        m = len(targets)
+        rest = np.ones(len(x), bool)
+        rest[targets] = False
+        perm = np.concatenate([targets, np.flatnonzero(rest)])
+        xp, yp, zp = x[perm], y[perm], z[perm]
+        d, j = cKDTree(pts[perm]).query(pts[targets], k=neighbours + 1)
+        flags = np.zeros(len(x), bool)
+        knn_spike_flags(xp, yp, zp, 0, np.ascontiguousarray(j[:, 1:], np.int64), float(k), float(floor),
+                        MAD_TO_SIGMA, flags)
+        out[:] = flags[:m]
+        kd2[:] = d[:, -1] ** 2
+        return out, kd2
+    co = sorted_by_cell(binned, float(lo[0]), float(lo[1]))
+    inv = np.empty(len(x), np.int64)
+    inv[co.order] = np.arange(len(x))
+    knn_spike_flags_targets(x[co.order], y[co.order], z[co.order], np.ascontiguousarray(gi[co.order]), co.starts,
+                            co.ncu, co.ncv, co.u0, co.v0, co.cs, int(neighbours), float(k), float(floor),
+                            MAD_TO_SIGMA, np.ascontiguousarray(inv[targets]), out, kd2, 1024)
+    return out, kd2
+
+
+def _seam_bound(sc: TileScheme, win: tuple[int, int, int, int], x, y):
+    """Per point a lower bound of its distance to any point of a cell outside ``win`` (the halo window): the
+    distance to the window's inner sides (a side on the grid's edge has no cell beyond it), less a rounding
+    margin (a point within rounding of a cell edge may have been binned on either side)."""
+    import numpy as np
+
+    s = sc.spec
+    wr0, wr1, wc0, wc1 = win
+    b = np.full(len(x), np.inf)
+    if wc0 > 0:
+        np.minimum(b, x - (s.x0 + wc0 * s.resolution), out=b)
+    if wc1 < s.nx:
+        np.minimum(b, (s.x0 + wc1 * s.resolution) - x, out=b)
+    if wr0 > 0:
+        np.minimum(b, y - (s.y0 + wr0 * s.resolution), out=b)
+    if wr1 < s.ny:
+        np.minimum(b, (s.y0 + wr1 * s.resolution) - y, out=b)
+    margin = 1e-6 * s.resolution + 1e-12 * (abs(s.x0) + abs(s.y0) + (s.nx + s.ny) * s.resolution)
+    return b - margin
+
+
+def knn_spike_flags_tile(part: TilePartition, t: int, *, neighbours: int, k: float, floor: float,
+                         halo_cells: int | None = None) -> np.ndarray:
+    """The neighbour spike test (:func:`hadal.grid.multibeam.knn_spike_mask`) of tile ``t``'s soundings, in the
+    tile's order, among the soundings of the tile and a **halo** of ``h`` cells around it: each sounding's
+    ``neighbours`` nearest are searched in that set with the in-memory tie rule (input index), and kept only when
+    the ``neighbours``-th is nearer than the halo's inner edge (no sounding beyond the halo can be nearer, nor
+    tie); the others are searched again with the halo doubled, until the window covers the grid. ``h`` starts at
+    ``halo_cells``, else at twice the radius holding ``neighbours`` soundings at the tile's mean density.
+    So the flags equal those of the whole point set, seams included (where the in-memory search is the exact
+    cell search, i.e. not the k-d tree fallback of a dense blob)."""
+    import numpy as np
+
+    sc = part.scheme
+    n_core = part.tile_points[t]
+    flags = np.zeros(n_core, bool)
+    if n_core == 0:
+        return flags
+    r0, r1, c0, c1 = sc.window(t)
+    if halo_cells is None:
+        per_cell = n_core / ((r1 - r0) * (c1 - c0))
+        h = max(1, int(np.ceil(2.0 * np.sqrt(neighbours / (np.pi * per_cell)))))
+    else:
+        h = max(1, int(halo_cells))
+    pending = np.arange(n_core)
+    while True:
+        win = _halo_window(sc, t, h)
+        whole = win == (0, sc.spec.ny, 0, sc.spec.nx)
+        x, y, z, gi, _ = _halo_points(part, t, win)
+        if len(x) > neighbours:
+            out, kd2 = _knn_flags_local(x, y, z, gi, pending, neighbours, k, floor)
+            if whole:
+                flags[pending] = out
+                return flags
+            b = _seam_bound(sc, win, x[pending], y[pending])
+            ok = kd2 < np.where(b > 0, b, 0.0) ** 2
+            flags[pending[ok]] = out[ok]
+            pending = pending[~ok]
+            if pending.size == 0:
+                return flags
+        elif whole:  # the whole grid holds no more than `neighbours` soundings: none is tested (in-memory rule)
+            return flags
+        h *= 2
+
+
+def spike_flags_tiled(part: TilePartition, *, k: float = 3.5, k_neighbourhood: float = 4.0, neighbours: int = 16,
+                      min_count: int = 5, floor_m: float = 0.5, halo_cells: int | None = None,
+                      progress=None) -> tuple[int, float]:
+    """:func:`hadal.grid.multibeam.spike_mask` of all the points of a partition ``with_xy``, tile by tile: the
+    noise floor ``sigma_0`` over all tiles (:func:`typical_cell_sigma_tiled`), then per tile the per-cell test
+    (cells lie in one tile) and the neighbour test with a halo (:func:`knn_spike_flags_tile`); the flags are
+    written beside the tile's points (:meth:`TilePartition.spikes_of`). Returns ``(spikes, sigma_0)``."""
+    import numpy as np
+
+    from hadal.grid.points import cell_robust_stats, robust_outlier_mask
+
+    sigma0 = typical_cell_sigma_tiled(part, min_count)
+    sigma0 = max(sigma0, floor_m) if np.isfinite(sigma0) else floor_m
+    knn = part.n_points > neighbours  # the in-memory test skips point sets of at most `neighbours` soundings
+    n_spikes = 0
+    for t in range(part.scheme.n_tiles):
+        if not part.tile_points[t]:
+            continue
+        cells, z = part.tile_points_of(t)
+        bad = robust_outlier_mask(cells, z, k, floor=sigma0, min_count=min_count, stats=cell_robust_stats(cells, z))
+        del cells, z
+        if knn:
+            bad |= knn_spike_flags_tile(part, t, neighbours=neighbours, k=k_neighbourhood, floor=sigma0,
+                                        halo_cells=halo_cells)
+        bad.astype(np.uint8).tofile(part.dir / f"t{t}.spike.u1")
+        n_spikes += int(bad.sum())
+    part.has_spikes = True
+    return n_spikes, sigma0
+
+
+def grid_multibeam_tiled(chunks: Iterable[tuple[object, object, object]], spec: GridSpec, *,
+                         check_inside: bool = False, spike_k: float = 3.5, spike_k_neighbourhood: float = 4.0,
+                         spike_neighbours: int = 16, spike_min_count: int = 5, spike_floor_m: float = 0.5,
+                         remove_spikes: bool = True, fill_max_cells: int = 4, apriori_a_m: float = 0.5,
+                         apriori_b: float = 0.001, prior_weight: float = 3.0, tile_cells: int | None = None,
+                         expected_points: int | None = None, halo_cells: int | None = None,
+                         scratch_dir: str | os.PathLike | None = None, progress=None) -> xr.Dataset:
+    """:func:`hadal.grid.multibeam.grid_multibeam` out of core: soundings streamed as ``(x, y, depth)`` chunks
+    onto ``spec`` (``check_inside`` False: the grid was made from their extent, as ``grid_multibeam`` without
+    ``bounds``; True: its explicit ``bounds``), partitioned by tile with their positions, spike-tested tile by
+    tile with a halo (:func:`spike_flags_tiled`), reduced tile by tile (:func:`dtm_layers_tiled`). The same
+    Dataset as the in-memory DTM, layers and counts (module doc); no SOR (a whole-cloud statistic)."""
+    from hadal.grid.multibeam import _dtm_attrs, _method_attrs
+    from hadal.steps import step
+
+    tc = choose_tile_cells(spec, expected_points, tile_cells=tile_cells)
+    with TilePartition(TileScheme(spec, tc), scratch_dir=scratch_dir, check_inside=check_inside,
+                       with_xy=True) as part:
+        with step(progress, "dtm: partitioning soundings into tiles"):
+            for x, y, z in chunks:
+                part.add(x, y, z)
+        if part.n_input == 0:
+            raise InputError("no soundings to grid (empty input)")
+        if part.n_points == 0:
+            if part.n_nonfinite == part.n_input:
+                raise InputError(f"all {part.n_input} soundings have NaN/inf coordinates; nothing to grid")
+            raise InputError(f"none of the soundings fall inside the grid bounds {spec.bounds}")
+        n_in = part.n_points
+        n_spikes, sigma0 = 0, float("nan")
+        if remove_spikes:
+            with step(progress, f"dtm: spike test of {n_in:,} soundings in {part.scheme.n_tiles} tiles"):
+                n_spikes, sigma0 = spike_flags_tiled(
+                    part, k=spike_k, k_neighbourhood=spike_k_neighbourhood, neighbours=spike_neighbours,
+                    min_count=spike_min_count, floor_m=spike_floor_m, halo_cells=halo_cells)
+        with step(progress, f"dtm: gridding {n_in - n_spikes:,} soundings into {spec.nx} x {spec.ny} cells"):
+            flat, filled = dtm_layers_tiled(part, fill_max_cells=fill_max_cells, apriori_a_m=apriori_a_m,
+                                            apriori_b=apriori_b, prior_weight=prior_weight)
+        attrs = {
+            "n_soundings_input": int(part.n_input), "n_soundings_nonfinite": int(part.n_nonfinite),
+            "n_soundings_outside": int(part.n_outside), "n_soundings_spikes": int(n_spikes),
+            "n_soundings_sor": 0, "n_soundings_used": int(n_in - n_spikes), "n_cells_filled": int(filled.sum()),
+            "spike_noise_floor_m": sigma0,
+            **_method_attrs(spike_k=spike_k, spike_k_neighbourhood=spike_k_neighbourhood,
+                            spike_neighbours=spike_neighbours, spike_min_count=spike_min_count,
+                            spike_floor_m=spike_floor_m, remove_spikes=remove_spikes, sor=False, sor_neighbors=16,
+                            sor_std_ratio=3.0, fill_max_cells=fill_max_cells, apriori_a_m=apriori_a_m,
+                            apriori_b=apriori_b, prior_weight=prior_weight),
+            "tile_cells": part.scheme.tile_cells, "n_tiles": part.scheme.n_tiles,
+        }
+    names = {"mean": "depth_m", "median": "depth_median_m", "std": "depth_std_m", "uncertainty": "uncertainty_m"}
+    ds = to_dataset(spec, flat, names=names, attrs=attrs)
+    _dtm_attrs(ds)
+    return ds
 
 
 def scratch_need_bytes(n_points: int) -> int:
@@ -347,4 +638,5 @@ def scratch_need_bytes(n_points: int) -> int:
 
 
 __all__ = ["DEFAULT_TILE_CELLS", "TilePartition", "TileScheme", "choose_tile_cells", "dtm_layers_tiled",
-           "grid_tiled", "iter_array_chunks", "partition_chunks", "scratch_need_bytes"]
+           "grid_multibeam_tiled", "grid_tiled", "knn_spike_flags_tile", "spike_flags_tiled",
+           "typical_cell_sigma_tiled", "iter_array_chunks", "partition_chunks", "scratch_need_bytes"]

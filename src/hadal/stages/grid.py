@@ -39,6 +39,12 @@ if TYPE_CHECKING:
 #: float64 (y, x) layers a multibeam DTM holds at its peak (mean, median, count, std, uncertainty, filled and the
 #: gridding/hole-filling intermediates)
 DTM_LAYERS = 10
+#: bytes a sounding takes at the in-memory DTM's peak, its x, y, depth included (reading, cell index, the per-cell
+#: sort and deviations, the neighbour search's sorted copies, flags): the sample dive's 3.45 M soundings peak at
+#: 776 MiB of which 210 MiB imports (bench/bench_dtm_tiled.py). Above the memory budget the DTM is made out of core
+#: (:func:`hadal.grid.tiles.grid_multibeam_tiled`: the same arrays; one chunk, one tile with its halo and the
+#: layers held), below it in memory (out of core costs 1.15x the CPU there, same bench)
+DTM_BYTES_PER_SOUNDING = 170
 #: float64 (y, x) layers of a laser grid at its peak (mean, std, count, second moment, the SOR pass's moments)
 LASER_LAYERS = 8
 
@@ -118,8 +124,45 @@ def _dtm_resolution(p: Params, x: np.ndarray, y: np.ndarray) -> tuple[float | st
     return res_m, how
 
 
+def _use_tiles(p: Params, n_soundings: int, limit_bytes: float | None, out_of_core: bool | None) -> bool:
+    """Grid out of core when the in-memory DTM's soundings (:data:`DTM_BYTES_PER_SOUNDING`) would exceed the memory
+    budget (``out_of_core`` forces the choice); never with ``grid.sor`` (a whole-cloud statistic)."""
+    if p.sor:
+        return False
+    if out_of_core is not None:
+        return bool(out_of_core)
+    limit = memory_limit_bytes() if limit_bytes is None else limit_bytes
+    return DTM_BYTES_PER_SOUNDING * float(n_soundings) > limit
+
+
+def _grid_dtm_tiled(cols: list, p: Params, res_m: float, progress):
+    """The DTM of the soundings ``cols`` = [x, y, depth] out of core (:func:`hadal.grid.tiles.grid_multibeam_tiled`,
+    the same Dataset as :func:`hadal.grid.multibeam.grid_multibeam`); ``cols`` is emptied as the soundings are
+    partitioned into tiles, so their memory is released before the tiles are reduced."""
+    from hadal.grid.points import make_grid_spec, point_extent
+    from hadal.grid.tiles import grid_multibeam_tiled
+
+    ext, _ = point_extent(*cols)
+    spec = make_grid_spec(res_m, ext, max_cells=p.max_cells, snap=True)
+    n = len(cols[2])
+
+    def chunks():
+        step = 1 << 21
+        for a in range(0, n, step):
+            yield (cols[0][a:a + step].copy(), cols[1][a:a + step].copy(),  # copies: no view keeps the columns alive
+                   cols[2][a:a + step].copy())
+        cols.clear()
+
+    return grid_multibeam_tiled(
+        chunks(), spec, check_inside=False, spike_k=p.spike_k, spike_k_neighbourhood=p.spike_k_neighbourhood,
+        spike_neighbours=p.spike_neighbours, spike_min_count=p.spike_min_count, spike_floor_m=p.spike_floor_m,
+        remove_spikes=p.spike_removal, fill_max_cells=p.fill_max_cells, apriori_a_m=p.apriori_a_m,
+        apriori_b=p.apriori_b, prior_weight=p.prior_weight, expected_points=n, progress=progress)
+
+
 def make_dtm(files: list[Path], frame, p: Params, hints: list | None = None, readers: dict | None = None,
-             chunk_points: int = 1_000_000, *, memory_limit_bytes: float | None = None, progress=None):
+             chunk_points: int = 1_000_000, *, memory_limit_bytes: float | None = None, progress=None,
+             out_of_core: bool | None = None):
     """Read multibeam sounding files, project them into ``frame`` and grid them (returns the DTM Dataset).
 
     Each file is streamed through :func:`hadal.grid.sonar.iter_multibeam` (xyz text in any compression,
@@ -130,7 +173,8 @@ def make_dtm(files: list[Path], frame, p: Params, hints: list | None = None, rea
     converted from their declared CRS (``crs:``) to the map frame; ``crs: local`` means they already are
     in the dive's map frame. ``frame`` None: a frame centred on the first file's first soundings.
     ``readers``, when given, receives ``{str(file): "reader (format ...)"}`` for the manifest; the same text
-    is in ``ds.attrs["multibeam_readers"]``.
+    is in ``ds.attrs["multibeam_readers"]``. When the in-memory gridding of the soundings would exceed the memory
+    budget (or ``out_of_core``), they are gridded tile by tile on disk (:func:`_grid_dtm_tiled`; the same DTM).
     """
 
     from hadal.grid.multibeam import add_geo, grid_multibeam
@@ -145,14 +189,19 @@ def make_dtm(files: list[Path], frame, p: Params, hints: list | None = None, rea
     check_grid_memory("the DTM", x, y, float(res_m), DTM_LAYERS + (2 if p.prior_fill else 0), memory_limit_bytes,
                       "grid.dtm_resolution_m",
                       f"auto ({float(res_m):g} m)" if p.dtm_resolution_m == "auto" else float(res_m), p.max_cells)
-    ds = grid_multibeam(
-        x, y, dep, float(res_m), remove_spikes=p.spike_removal, spike_k=p.spike_k,
-        spike_k_neighbourhood=p.spike_k_neighbourhood, spike_neighbours=p.spike_neighbours, spike_min_count=p.spike_min_count,
-        spike_floor_m=p.spike_floor_m, sor=p.sor,
-        sor_neighbors=p.sor_neighbors, sor_std_ratio=p.sor_std_ratio, fill_max_cells=p.fill_max_cells,
-        apriori_a_m=p.apriori_a_m, apriori_b=p.apriori_b, prior_weight=p.prior_weight, max_cells=p.max_cells,
-        progress=progress,
-    )
+    if _use_tiles(p, len(dep), memory_limit_bytes, out_of_core):
+        cols = [x, y, dep]
+        del x, y, dep
+        ds = _grid_dtm_tiled(cols, p, float(res_m), progress)
+    else:
+        ds = grid_multibeam(
+            x, y, dep, float(res_m), remove_spikes=p.spike_removal, spike_k=p.spike_k,
+            spike_k_neighbourhood=p.spike_k_neighbourhood, spike_neighbours=p.spike_neighbours, spike_min_count=p.spike_min_count,
+            spike_floor_m=p.spike_floor_m, sor=p.sor,
+            sor_neighbors=p.sor_neighbors, sor_std_ratio=p.sor_std_ratio, fill_max_cells=p.fill_max_cells,
+            apriori_a_m=p.apriori_a_m, apriori_b=p.apriori_b, prior_weight=p.prior_weight, max_cells=p.max_cells,
+            progress=progress,
+        )
     ds = add_geo(ds, frame)
     ds.attrs["multibeam_readers"] = "; ".join(used)
     ds.attrs["n_soundings_implausible"] = n_implausible
