@@ -44,7 +44,11 @@ SIGNATURES: dict[str, dict[str, tuple[tuple[Any, ...], ...]]] = {
     },
     "hadal.grid._kernels": {
         "shifted_cell_sums": ((_F8, _F8, _F8, _f8, _f8, _f8, _i8, _i8, _f8, _b1, _i8),),
-        "partition_kernel": ((_I8, _F8, _i8, _i8, _i8, _i8),),
+        "partition_kernel": ((_I8, _F8, _i8, _i8, _i8, _i8), (_a(_i4), _F8, _i8, _i8, _i8, _i8)),
+        "partition_points": ((_F8, _F8, _F8, _f8, _f8, _f8, _i8, _i8, _b1, _i8, _i8, _i8, _i8),),
+        # out-of-core gridding (hadal.grid.tiles): a chunk's points by tile
+        "tile_partition_chunk": ((_F8, _F8, _F8, _f8, _f8, _f8, _i8, _i8, _b1, _i8, _i8, _i8),),
+        "tile_partition_order": ((_F8, _F8, _F8, _f8, _f8, _f8, _i8, _i8, _b1, _i8, _i8, _i8),),
         "_sort_small": ((_F8,),),
         "block_stats_kernel": ((_a(_u2), _F8, _a(_i8, 2), _i8, _i8, _b1, _b1, _i8),),
         "cell_counting_order": ((_I8, _i8),),
@@ -56,6 +60,9 @@ SIGNATURES: dict[str, dict[str, tuple[tuple[Any, ...], ...]]] = {
     },
     "hadal.grid._spike_kernels": {
         "knn_spike_flags_cells": ((_F8, _F8, _F8, _I8, _I8, _i8, _i8, _f8, _f8, _f8, _i8, _f8, _f8, _f8, _B1, _i8),),
+        # the tiled spike test (hadal.grid.tiles): a tile's soundings against the tile and its margin
+        "knn_spike_flags_targets": ((_F8, _F8, _F8, _I8, _I8, _i8, _i8, _f8, _f8, _f8, _i8, _f8, _f8, _f8, _I8, _B1, _F8,
+                                     _i8),),
     },
     "hadal.navigation.smoother": {
         "_transition": ((_f8, _b1, _f8, _f8),),
