@@ -1,4 +1,4 @@
-"""Stage ``derive``: sensors → seawater properties, depth and seafloor depth (``ctd``) and binned profiles (``profile``).
+"""Stage ``derive``: sensors → seawater properties, depth and seafloor depth (``ctd``).
 
 Method: Ma et al. (2023) §3.2 ([TERCOM Eqs. 6-14]) and §4.1.3. Reads the ``sensors`` product (``sensors.parquet``,
 CTD time base) and computes, per sample:
@@ -15,9 +15,12 @@ CTD time base) and computes, per sample:
 * ``gravity_m_s2`` at the sample's depth; ``altitude_corrected_m`` (sound-speed corrected altimeter range);
   ``seafloor_depth_m`` = depth + corrected altitude (Fig. 10); ``phase`` (descent/bottom/ascent).
 
-Publishes ``ctd`` (``ctd.parquet``) and ``profile`` (``profile.nc``, descent and ascent casts binned by pressure,
-or by depth with ``profile_axis: depth``; a cast SeaSoft's BinAvg already binned keeps its own bins and only the
-casts it holds: :func:`hadal.profile.prebinned_profile`, ``profile_source_bins``).
+Publishes ``ctd`` (``ctd.parquet``; its per-sample N2 from the binned casts). The binned casts themselves
+(``profile.nc``: descent and ascent binned by pressure, or by depth with ``profile_axis: depth``; a cast SeaSoft's
+BinAvg already binned keeps its own bins and only the casts it holds: :func:`hadal.profile.prebinned_profile`,
+``profile_source_bins``) are published by the ``profile`` stage (:mod:`hadal.stages.profile`) after ``match``, each
+cast placed from the navigation product; the binning (:func:`hadal.ctd.derive.bin_casts`) is the same. External
+casts' binned profiles (``cast_profiles``) stay here: they are placed by their own header position.
 
 Underway records (a ``sources.cnv`` entry with ``kind: underway``: a thermosalinograph, :mod:`hadal.ctd.underway`)
 are not casts: each is published in ``trajectory`` (one CF trajectory NetCDF per record, positions from the
@@ -198,7 +201,8 @@ def _profile_summary(p: Params, profile: Any, is_prof: bool, meta: dict[str, Any
 
 def _publish_profile(ctx: StageContext, p: Params, params: dict, upstream: list, profile: Any,
                      meta: dict[str, Any]) -> Any:
-    """Publish ``profile`` (``profile.nc``: the binned descent and ascent casts)."""
+    """Publish ``profile`` (``profile.nc``: the binned descent and ascent casts; the ``profile`` stage calls it);
+    the casts' positions and their sources go into the manifest summary (``cast_positions``)."""
     from hadal.ingest.cnv import NO_TIME_BASE
     from hadal.products.io import write_netcdf
 
@@ -212,6 +216,8 @@ def _publish_profile(ctx: StageContext, p: Params, params: dict, upstream: list,
         psummary = {"axis": ax["axis"], ("bin_m" if ax["axis"] == "depth" else "bin_dbar"): ax["bin_size"],
                     "levels": int(profile.sizes[zdim]), "binning": "source", "source_bins": ax["source_bins"],
                     "casts": [str(c) for c in profile["cast"].values]}
+    if "position_source" in profile:
+        psummary["cast_positions"] = _cast_positions_summary(profile)
     with ctx.store.publish(ctx.dive_id, "profile", parameters=params, upstream=upstream,
                            extra={"summary": psummary}) as draft:
         write_netcdf(
@@ -224,6 +230,26 @@ def _publish_profile(ctx: StageContext, p: Params, params: dict, upstream: list,
             gauge_bias_dbar=meta["gauge_bias_dbar"],
         )
     return draft.result
+
+
+def _cast_positions_summary(profile: Any) -> list[dict[str, Any]]:
+    """Per cast: its time, position, position source and 1-sigma radial uncertainty (``profile`` manifest)."""
+    import numpy as np
+    import pandas as pd
+
+    from hadal.products.dsg import POSITION_SOURCES
+
+    out = []
+    for i, cast in enumerate(profile["cast"].values):
+        src = int(profile["position_source"].values[i])
+        unc = float(profile["position_uncertainty_m"].values[i])
+        t = profile["time"].values[i] if "time" in profile.variables else None
+        out.append({"cast": str(cast), "time": None if t is None or pd.isna(t) else pd.Timestamp(t).isoformat() + "Z",
+                    "latitude_deg": round(float(profile["lat"].values[i]), 7),
+                    "longitude_deg": round(float(profile["lon"].values[i]), 7),
+                    "position_source": POSITION_SOURCES[src] if src >= 0 else None,
+                    "position_uncertainty_m": round(unc, 2) if np.isfinite(unc) else None})
+    return out
 
 
 def _publish_cast_profiles(ctx: StageContext, p: Params, params: dict, upstream: list,
@@ -276,7 +302,7 @@ def run(ctx: StageContext) -> dict[str, ProductVersion]:
     user_profile = _read_user_profile(ctx, p)
     try:
         with step(ctx.progress, f"derive: {len(table):,} samples -> depth, TEOS-10, QC, profiles"):
-            df, meta, profile = derive_table(table, sensors_meta, p, ctx.dive, ctx.log, f"dive {ctx.dive_id}",
+            df, meta, _ = derive_table(table, sensors_meta, p, ctx.dive, ctx.log, f"dive {ctx.dive_id}",
                                              memory_limit_bytes=limit, overlying_profile=user_profile)
     except InputError as exc:
         if user_profile is not None and str(exc).startswith(user_profile.source):
@@ -292,10 +318,8 @@ def run(ctx: StageContext) -> dict[str, ProductVersion]:
     with step(ctx.progress, "derive: writing ctd"), ctx.store.publish(
             ctx.dive_id, "ctd", parameters=params, upstream=[sensors], extra={"summary": _ctd_summary(meta)}) as draft:
         write_parquet(df, draft.path / "ctd.parquet", fields=fields, metadata=meta, provenance_from=draft)
-    ctd = draft.result
-    from hadal.products.dsg import place_casts  # each cast at its time on the dive's (dead-reckoned) track
-
-    out = {"ctd": ctd, "profile": _publish_profile(ctx, p, params, [sensors, ctd], place_casts(profile, df), meta)}
+    # the binned casts (profile.nc) are the profile stage's, after match: placed from the navigation product
+    out = {"ctd": draft.result}
     if cast_results:
         out["cast_profiles"], index = _publish_cast_profiles(ctx, p, params, [sensors, casts_pv], cast_results,
                                                              fields)
@@ -609,7 +633,7 @@ def planned_products(dive: Any, made: tuple[str, ...]) -> tuple[str, ...]:
 
 #: ``trajectory`` (underway records) is promised by :func:`planned_products` when dive.yaml lists one
 STAGE = Stage(
-    name="derive", products=("ctd", "profile", "cast_profiles", "trajectory"),
+    name="derive", products=("ctd", "cast_profiles", "trajectory"),
     inputs=StageInputs(upstream=("sensors",), optional_upstream=("casts",),
                        optional_products=("cast_profiles", "trajectory")),
     options=Params, run=run, raw_files=raw_files, planned_products=planned_products,
