@@ -24,6 +24,14 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING, Any
 
+from hadal.products.binned import (
+    cast_positions_summary,
+    is_depth_axis,
+    profile_attrs,
+    profile_summary,
+    source_binned,
+    title_axis,
+)
 from hadal.settings.derive import DeriveParams as Params
 from hadal.stages import Stage, StageInputs
 
@@ -36,9 +44,6 @@ if TYPE_CHECKING:
 #: the navigation columns the placement reads
 NAV_COLUMNS = ("time", "lat", "lon", "position_uncertainty_m", "position_covariance_east_m2",
                "position_covariance_north_m2")
-#: derive settings that make the bins (the stage's cache fingerprint and manifest record only these)
-PARAM_FIELDS = ("accept_flags", "qc_thresholds", "profile_bin_dbar", "profile_axis", "profile_bin_m",
-                "profile_binning", "profile_source_bins")
 
 
 def _navigation(ctx: StageContext) -> tuple[Any, pd.DataFrame | None]:
@@ -78,19 +83,63 @@ def _header_position(sensors_meta: dict[str, Any]) -> tuple[float, float] | None
     return (float(lat), float(lon)) if lat is not None and lon is not None else None
 
 
+def publish_profile(ctx: StageContext, p: Params, params: dict, upstream: list, profile: Any,
+                     meta: dict[str, Any]) -> Any:
+    """Publish ``profile`` (``profile.nc``: the binned descent and ascent casts; the ``profile`` stage calls it);
+    the casts' positions and their sources go into the manifest (``cast_positions``)."""
+    from hadal.ingest.cnv import NO_TIME_BASE
+    from hadal.products.io import write_netcdf
+
+    is_prof = meta.get("time_base") == NO_TIME_BASE
+    profile_attrs(profile, meta)
+    zdim = "depth_m" if is_depth_axis(p, meta) else "pressure_dbar"
+    psummary: dict[str, Any] = {"bin_dbar": p.profile_bin_dbar, "levels": int(profile.sizes[zdim])}
+    if p.profile_axis == "depth":  # the pressure-axis summary stays as it was
+        psummary = {"axis": "depth", "bin_m": p.profile_bin_m, "levels": int(profile.sizes[zdim])}
+    if (ax := source_binned(meta)) is not None:  # a SeaSoft-binned cast: its own bins
+        psummary = {"axis": ax["axis"], ("bin_m" if ax["axis"] == "depth" else "bin_dbar"): ax["bin_size"],
+                    "levels": int(profile.sizes[zdim]), "binning": "source", "source_bins": ax["source_bins"],
+                    "casts": [str(c) for c in profile["cast"].values]}
+    extra: dict[str, Any] = {}  # global attributes of profile.nc
+    manifest: dict[str, Any] = {"summary": psummary}
+    if "position_source" in profile:
+        manifest["cast_positions"] = cast_positions_summary(profile)
+        extra["cast_position_source"] = "; ".join(f"{c['cast']}: {c['position_source']}"
+                                                  for c in manifest["cast_positions"])
+    with ctx.store.publish(ctx.dive_id, "profile", parameters=params, upstream=upstream,
+                           extra=manifest) as draft:
+        write_netcdf(
+            profile, draft.path / "profile.nc",
+            title=f"{title_axis(p, meta)} CTD profiles (descent and ascent) of dive {ctx.dive_id}",
+            summary=profile_summary(p, profile, is_prof, meta),
+            keywords="CTD, salinity, density, depth, pressure, profile",
+            processing_level="L2 binned profile", provenance_from=draft,
+            dive_id=ctx.dive_id, latitude_used_deg=meta["latitude_deg"], latitude_source=meta["latitude_source"],
+            gauge_bias_dbar=meta["gauge_bias_dbar"], **extra,
+        )
+    return draft.result
+
+
 def run(ctx: StageContext) -> dict[str, ProductVersion]:
+    import pandas as pd
+
     from hadal.ctd.derive import bin_casts
+    from hadal.errors import InputError
     from hadal.products.dsg import POSITION_SOURCES, place_casts
     from hadal.products.io import read_parquet_metadata
     from hadal.profile import source_bins
-    from hadal.stages.derive import _publish_profile, _read_table
     from hadal.steps import step
 
     p: Params = ctx.config.derive
     ctd_pv, sensors_pv = ctx.upstream("ctd"), ctx.upstream("sensors")
     with step(ctx.progress, "profile: reading ctd"):
-        df, meta, _ = _read_table(ctd_pv.file("ctd.parquet"), "ctd")
-        sensors_meta, _ = read_parquet_metadata(sensors_pv.file("sensors.parquet"))
+        path = ctd_pv.file("ctd.parquet")
+        try:
+            df = pd.read_parquet(path)
+            meta, _ = read_parquet_metadata(path)
+            sensors_meta, _ = read_parquet_metadata(sensors_pv.file("sensors.parquet"))
+        except Exception as exc:  # unreadable upstream file: one-line error, not a traceback
+            raise InputError(f"{path}: cannot read the ctd table ({type(exc).__name__}: {exc})") from None
     nav_pv, nav = _navigation(ctx)
     bins = source_bins(sensors_meta.get("cast")) if p.profile_source_bins == "keep" else None
     with step(ctx.progress, f"profile: {len(df):,} samples -> binned casts"):
@@ -103,13 +152,13 @@ def run(ctx: StageContext) -> dict[str, ProductVersion]:
         used = [POSITION_SOURCES[int(i)] if i >= 0 else "none" for i in placed["position_source"].values]
         ctx.log.info("profile: casts %s placed from %s", ", ".join(map(str, placed["cast"].values)), ", ".join(used))
     upstream = [sensors_pv, ctd_pv] + ([nav_pv] if nav_pv is not None else [])
-    return {"profile": _publish_profile(ctx, p, ctx.params("profile"), upstream, placed, meta)}
+    return {"profile": publish_profile(ctx, p, ctx.params("profile"), upstream, placed, meta)}
 
 
 STAGE = Stage(
     name="profile", products=("profile",),
     inputs=StageInputs(upstream=("sensors", "ctd"), optional_upstream=("navigation",)),
-    options=Params, run=run, section="derive", param_fields=PARAM_FIELDS,
+    options=Params, run=run, section="derive",  # derive's settings, all of them: they make the ctd it bins
     warm_imports=("hadal.profile", "hadal.qc_derived", "hadal.products.io", "hadal.products.dsg",
                   "hadal.products.registry"),
 )
