@@ -155,3 +155,14 @@ def test_unreadable_navigation_is_a_warning_and_a_fallback(tmp_path, caplog):
     assert any("navigation.parquet unreadable" in r.getMessage() for r in caplog.records)
     ds = xr.open_dataset(out["profile"].file("profile.nc"))
     assert [POSITION_SOURCES[int(v)] for v in ds["position_source"].values] == ["ctd_dead_reckoning"] * 2
+
+
+def test_ctd_position_without_dead_reckoning_is_not_claimed():
+    """A table whose lat/lon are only the launch's (no DR offset known yet: a Sea-Bird cast, the descent's first
+    samples) is not the vehicle's own position: the cast goes to the header (here), then the launch."""
+    prof, ctd, _ = _synthetic()
+    ctd["dr_east_m"] = np.where(np.arange(len(ctd)) < 450, np.nan, 1.0)  # DR from the 450th sample (in the ascent)
+    ctd["dr_north_m"] = ctd["dr_east_m"]
+    out = place_casts(prof, ctd, header=(12.5, 143.5), launch=(13.0, 144.0))
+    assert [POSITION_SOURCES[int(v)] for v in out["position_source"].values] == ["cast_header", "ctd_dead_reckoning"]
+    assert out["lat"].values[1] == ctd["lat"].iloc[-1] and out["lat"].values[0] == 12.5

@@ -70,7 +70,8 @@ def cast_positions(ctd: pd.DataFrame, casts: Sequence[str], phase_column: str = 
     vehicle surfaced); another cast at its shallowest sample. The time is the same instant ``derive`` gives the
     cast (:func:`hadal.ctd.derive._cast_times`). Columns: ``cast``, ``index`` (row of ``ctd``, -1 for a cast
     without samples), ``time`` (NaT without a time channel), ``lat``/``lon`` (the table's own per-sample
-    position there, NaN without one), ``position_note``."""
+    position there, NaN without one or when no dead-reckoned offset is known up to that sample: then the table's
+    position is only the launch's, ``dead_reckoned`` False), ``position_note``."""
     rows = []
     phase = ctd[phase_column].astype(str).to_numpy() if phase_column in ctd else np.full(len(ctd), "")
     have = {"lat", "lon"} <= set(ctd.columns)
@@ -78,6 +79,11 @@ def cast_positions(ctd: pd.DataFrame, casts: Sequence[str], phase_column: str = 
     lon = ctd["lon"].to_numpy(float) if have else np.full(len(ctd), np.nan)
     t = pd.to_datetime(ctd["time"], utc=True) if "time" in ctd else None
     p = ctd["pressure_dbar"].to_numpy(float) if "pressure_dbar" in ctd else None
+    # a dead-reckoned offset known at or before each sample (without one the table's lat/lon is the launch's)
+    dr = np.ones(len(ctd), bool)
+    if {"dr_east_m", "dr_north_m"} <= set(ctd.columns):
+        dr = np.maximum.accumulate(np.isfinite(ctd["dr_east_m"].to_numpy(float))
+                                   & np.isfinite(ctd["dr_north_m"].to_numpy(float)))
     for cast in casts:
         idx = np.flatnonzero(phase == str(cast))
         if idx.size == 0:
@@ -92,8 +98,9 @@ def cast_positions(ctd: pd.DataFrame, casts: Sequence[str], phase_column: str = 
             k, where = idx[int(np.nanargmin(p[idx]))], "shallowest sample of the cast"
         else:
             k, where = idx[0], "first sample of the cast"
+        own = bool(dr[k])
         rows.append({"cast": str(cast), "index": int(k), "time": t.iloc[k] if t is not None else pd.NaT,
-                     "lat": lat[k], "lon": lon[k], "position_note": where})
+                     "lat": lat[k] if own else np.nan, "lon": lon[k] if own else np.nan, "position_note": where})
     return pd.DataFrame(rows)
 
 
@@ -174,8 +181,8 @@ def place_casts(profile: xr.Dataset, ctd: pd.DataFrame, phase_column: str = "pha
         "lat": ("cast", lat, {"long_name": "latitude of the cast", "comment": comment}),
         "lon": ("cast", lon, {"long_name": "longitude of the cast", "comment": comment})}
     t = pd.to_datetime(pos["time"], utc=True).dt.tz_convert(None).to_numpy(dtype="datetime64[ns]")
-    if not np.isnat(t).any():  # else the profile keeps its own times (e.g. a timeless cast's header start time)
-        coords["time"] = ("cast", t, {"long_name": "time of the cast (at its position)"})
+    if "time" not in profile.variables and not np.isnat(t).any():  # binned casts have theirs: the same instant
+        coords["time"] = ("cast", t, {"standard_name": "time", "long_name": "time of the cast (at its position)"})
     out = profile.drop_vars([c for c in coords if c in profile.variables])
     out = out.assign_coords(coords)
     out["position_source"] = ("cast", src, {
