@@ -59,17 +59,17 @@ def test_cast_at_the_navigation_position_at_its_time():
         t = rows["time"].iloc[0] if cast == "descent" else rows["time"].iloc[-1]  # the cast's surface end
         assert pd.Timestamp(out["time"].values[i]).tz_localize("UTC") == t
         if t < ref.index[0]:  # before the navigation's first sample: the next source (the ctd's own position)
-            assert POSITION_SOURCES[int(out["position_source"].values[i])] == "ctd_dead_reckoning"
+            assert POSITION_SOURCES[int(out["cast_position_source"].values[i])] == "ctd_dead_reckoning"
             assert out["lat"].values[i] == rows["lat"].iloc[0] and np.isnan(out["position_uncertainty_m"].values[i])
             continue
         want = _nav_at(ref, t, ["lat", "lon", "position_covariance_east_m2", "position_covariance_north_m2"])
-        assert POSITION_SOURCES[int(out["position_source"].values[i])] == "navigation"
+        assert POSITION_SOURCES[int(out["cast_position_source"].values[i])] == "navigation"
         assert out["lat"].values[i] == pytest.approx(want["lat"], abs=1e-9)
         assert out["lon"].values[i] == pytest.approx(want["lon"], abs=1e-9)
         assert out["position_uncertainty_m"].values[i] == pytest.approx(
             np.sqrt(want["position_covariance_east_m2"] + want["position_covariance_north_m2"]), rel=1e-9)
     # the descent starts 3 s before the navigation: it degrades alone, the ascent is placed from the navigation
-    assert [POSITION_SOURCES[int(v)] for v in out["position_source"].values] == ["ctd_dead_reckoning", "navigation"]
+    assert [POSITION_SOURCES[int(v)] for v in out["cast_position_source"].values] == ["ctd_dead_reckoning", "navigation"]
     assert "navigation product" in out["lat"].attrs["comment"]
     assert np.array_equal(out["temperature_its90_degc"].values, prof["temperature_its90_degc"].values)
 
@@ -85,7 +85,7 @@ def test_position_falls_back_in_order(drop, expected):
     for k in drop:
         given.pop(k, None)
     out = place_casts(prof, ctd, navigation=None, **given)
-    assert [POSITION_SOURCES[int(v)] for v in out["position_source"].values] == [expected, expected]
+    assert [POSITION_SOURCES[int(v)] for v in out["cast_position_source"].values] == [expected, expected]
     want = {"ctd_dead_reckoning": (ctd.get("lat", pd.Series([np.nan])).iloc[-1], None), "cast_header": (12.5, 143.5),
             "launch": (13.0, 144.0), "nominal": (14.0, 145.0)}[expected]
     assert out["lat"].values[1] == want[0]
@@ -108,7 +108,7 @@ def test_sample_dive_casts_at_navigation_position(small_run):
     launch = truth["launch"]
     for i in range(len(casts)):
         want = _nav_at(nav, pd.Timestamp(ds["time"].values[i]), ["lat", "lon", "var"])
-        assert ds["position_source"].attrs["flag_meanings"].split()[int(ds["position_source"].values[i])] == \
+        assert ds["cast_position_source"].attrs["flag_meanings"].split()[int(ds["cast_position_source"].values[i])] == \
             "navigation"
         assert _geod_m(ds["lat"].values[i], ds["lon"].values[i], want["lat"], want["lon"]) < 0.05
         assert ds["position_uncertainty_m"].values[i] == pytest.approx(np.sqrt(want["var"]), rel=1e-3)
@@ -120,7 +120,13 @@ def test_sample_dive_casts_at_navigation_position(small_run):
     man = versions["profile"].manifest()
     assert [c["position_source"] for c in man["cast_positions"]] == ["navigation", "navigation"]
     assert "navigation" in {u["product"] for u in man["upstream"]}
-    assert ds.attrs["cast_position_source"] == "descent: navigation; ascent: navigation"
+    assert ds.attrs["cast_positions"] == "descent: navigation; ascent: navigation"
+    # the report says where each cast is and from what, at the precision of its uncertainty
+    rep = json.loads(versions["report"].file("summary.json").read_text())
+    asc = rep["cast_positions"][1]
+    assert asc["cast"] == "ascent" and asc["source"] == "navigation"
+    assert asc["lat"] == pytest.approx(float(ds["lat"].values[1])) and asc["uncertainty_m"] > 0
+    assert "ascent cast position (profile.nc)" in versions["report"].file("report.html").read_text()
 
 
 # ---------------------------------------------------------------- without match: degrade, never fail
@@ -141,7 +147,7 @@ def test_without_navigation_the_ctd_position_is_used(tmp_path):
     ds = xr.open_dataset(out["profile"].file("profile.nc"))
     ctd = pd.read_parquet(ctx.store.latest(ctx.dive_id, "ctd").file("ctd.parquet"))
     asc = ctd[ctd["phase"] == "ascent"].iloc[-1]
-    assert [POSITION_SOURCES[int(v)] for v in ds["position_source"].values] == ["ctd_dead_reckoning"] * 2
+    assert [POSITION_SOURCES[int(v)] for v in ds["cast_position_source"].values] == ["ctd_dead_reckoning"] * 2
     assert ds["lat"].values[1] == pytest.approx(asc["lat"]) and ds["lon"].values[1] == pytest.approx(asc["lon"])
     assert out["profile"].manifest()["cast_positions"][1]["position_uncertainty_m"] is None
 
@@ -154,7 +160,7 @@ def test_unreadable_navigation_is_a_warning_and_a_fallback(tmp_path, caplog):
         out = run_stage("profile", ctx)
     assert any("navigation.parquet unreadable" in r.getMessage() for r in caplog.records)
     ds = xr.open_dataset(out["profile"].file("profile.nc"))
-    assert [POSITION_SOURCES[int(v)] for v in ds["position_source"].values] == ["ctd_dead_reckoning"] * 2
+    assert [POSITION_SOURCES[int(v)] for v in ds["cast_position_source"].values] == ["ctd_dead_reckoning"] * 2
 
 
 def test_ctd_position_without_dead_reckoning_is_not_claimed():
@@ -164,5 +170,5 @@ def test_ctd_position_without_dead_reckoning_is_not_claimed():
     ctd["dr_east_m"] = np.where(np.arange(len(ctd)) < 450, np.nan, 1.0)  # DR from the 450th sample (in the ascent)
     ctd["dr_north_m"] = ctd["dr_east_m"]
     out = place_casts(prof, ctd, header=(12.5, 143.5), launch=(13.0, 144.0))
-    assert [POSITION_SOURCES[int(v)] for v in out["position_source"].values] == ["cast_header", "ctd_dead_reckoning"]
+    assert [POSITION_SOURCES[int(v)] for v in out["cast_position_source"].values] == ["cast_header", "ctd_dead_reckoning"]
     assert out["lat"].values[1] == ctd["lat"].iloc[-1] and out["lat"].values[0] == 12.5

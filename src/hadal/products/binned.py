@@ -63,7 +63,7 @@ def cast_positions_summary(profile: Any) -> list[dict[str, Any]]:
 
     out = []
     for i, cast in enumerate(profile["cast"].values):
-        src = int(profile["position_source"].values[i])
+        src = int(profile["cast_position_source"].values[i])
         unc = float(profile["position_uncertainty_m"].values[i])
         t = profile["time"].values[i] if "time" in profile.variables else None
         out.append({"cast": str(cast), "time": None if t is None or pd.isna(t) else pd.Timestamp(t).isoformat() + "Z",

@@ -50,15 +50,15 @@ def id_values(var: xr.DataArray | xr.Variable) -> list[str]:
     return [v.decode("utf-8") if isinstance(v, bytes) else str(v) for v in np.asarray(var.values).ravel()]
 
 
-#: where a cast's position came from, best first (:func:`place_casts`; ``position_source`` flag meanings)
+#: where a cast's position came from, best first (:func:`place_casts`; ``cast_position_source`` flag meanings)
 POSITION_SOURCES = ("navigation", "ctd_dead_reckoning", "cast_header", "launch", "nominal")
 _SOURCE_TEXT = {
     "navigation": "the navigation product (Kalman filter + RTS smoother over every position source, match stage) "
                   "interpolated to the cast's time",
     "ctd_dead_reckoning": "the vehicle's own position channels in ctd (launch + dead-reckoned offsets) at the "
                           "cast's time (no navigation product: match skipped or failed)",
-    "cast_header": "the cast header's NMEA/user position (no navigation product, no per-sample position)",
-    "launch": "the dive.yaml launch position (no navigation product, no per-sample position, no header position)",
+    "cast_header": "the cast header position (NMEA/user; no navigation product, no dead-reckoned position)",
+    "launch": "the dive.yaml launch position (no navigation product, no dead-reckoned or header position)",
     "nominal": "the latitude/longitude derive used for gravity and depth (no other position)",
 }
 
@@ -135,7 +135,7 @@ def place_casts(profile: xr.Dataset, ctd: pd.DataFrame, phase_column: str = "pha
                 launch: tuple[float, float] | None = None, nominal: tuple[float, float] | None = None
                 ) -> xr.Dataset:
     """``profile`` (``make_profile``'s ``(cast, level)`` dataset) with per-cast ``lat``/``lon`` (and ``time`` when
-    the casts have times) at each cast's surface end (:func:`cast_positions`), its ``position_source`` (flag,
+    the casts have none) at each cast's surface end (:func:`cast_positions`), its ``cast_position_source`` (flag,
     :data:`POSITION_SOURCES`) and ``position_uncertainty_m``. The position is, best first and per cast:
 
     1. ``navigation``: the navigation product's table (``time``, ``lat``, ``lon`` and its 2x2 covariance)
@@ -185,7 +185,7 @@ def place_casts(profile: xr.Dataset, ctd: pd.DataFrame, phase_column: str = "pha
         coords["time"] = ("cast", t, {"standard_name": "time", "long_name": "time of the cast (at its position)"})
     out = profile.drop_vars([c for c in coords if c in profile.variables])
     out = out.assign_coords(coords)
-    out["position_source"] = ("cast", src, {
+    out["cast_position_source"] = ("cast", src, {
         "long_name": "source of the cast's position", "flag_values": np.arange(len(POSITION_SOURCES), dtype="i1"),
         "flag_meanings": " ".join(POSITION_SOURCES)})
     out["position_uncertainty_m"] = ("cast", unc, {
@@ -393,5 +393,8 @@ def orthogonal_profile(ds: xr.Dataset) -> xr.Dataset:
     for name in ("time", "lat", "lon"):
         if name in ds.variables and ds[name].dims == ("profile",):
             out = out.assign_coords({name: ("cast", ds[name].values, dict(ds[name].attrs))})
+    for name in ("cast_position_source", "position_uncertainty_m"):  # where each cast is placed, and how well
+        if name in ds.variables and ds[name].dims == ("profile",):
+            out[name] = ("cast", ds[name].values, dict(ds[name].attrs))
     out.attrs = dict(ds.attrs)
     return out

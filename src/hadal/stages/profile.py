@@ -8,7 +8,7 @@ covariance per sample); this stage bins ``ctd`` into the descent and ascent cast
 ``cdm_profile_variables`` carry one ``lat``/``lon`` per profile and where CTD casts are located by convention (a
 ship's station at the start of the cast, an Argo float's profile at its surface fix).
 
-The position source is recorded per cast (``position_source``, :data:`hadal.products.dsg.POSITION_SOURCES`) and
+The position source is recorded per cast (``cast_position_source``, :data:`hadal.products.dsg.POSITION_SOURCES`) and
 falls back, per cast, from the ``navigation`` product (an optional upstream: ``match`` skipped or failed leaves
 it absent, or an older version stays in use) to ``ctd``'s own per-sample position (launch + dead reckoning), the
 cast header's NMEA position, the dive.yaml launch, and the latitude used for gravity and depth
@@ -102,9 +102,9 @@ def publish_profile(ctx: StageContext, p: Params, params: dict, upstream: list, 
                     "casts": [str(c) for c in profile["cast"].values]}
     extra: dict[str, Any] = {}  # global attributes of profile.nc
     manifest: dict[str, Any] = {"summary": psummary}
-    if "position_source" in profile:
+    if "cast_position_source" in profile:
         manifest["cast_positions"] = cast_positions_summary(profile)
-        extra["cast_position_source"] = "; ".join(f"{c['cast']}: {c['position_source']}"
+        extra["cast_positions"] = "; ".join(f"{c['cast']}: {c['position_source']}"
                                                   for c in manifest["cast_positions"])
     with ctx.store.publish(ctx.dive_id, "profile", parameters=params, upstream=upstream,
                            extra=manifest) as draft:
@@ -148,8 +148,8 @@ def run(ctx: StageContext) -> dict[str, ProductVersion]:
     placed = place_casts(prof, df, navigation=nav, header=_header_position(sensors_meta),
                          launch=None if launch is None else (launch.latitude_deg, launch.longitude_deg),
                          nominal=(meta["latitude_deg"], meta["longitude_deg"]))
-    if "position_source" in placed:
-        used = [POSITION_SOURCES[int(i)] if i >= 0 else "none" for i in placed["position_source"].values]
+    if "cast_position_source" in placed:
+        used = [POSITION_SOURCES[int(i)] if i >= 0 else "none" for i in placed["cast_position_source"].values]
         ctx.log.info("profile: casts %s placed from %s", ", ".join(map(str, placed["cast"].values)), ", ".join(used))
     upstream = [sensors_pv, ctd_pv] + ([nav_pv] if nav_pv is not None else [])
     return {"profile": publish_profile(ctx, p, ctx.params("profile"), upstream, placed, meta)}
