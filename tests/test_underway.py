@@ -105,7 +105,9 @@ def test_plan_promises_a_trajectory_instead_of_a_profile_for_an_underway_only_di
     plan = plan_stages(_dive([{"path": "tsg.cnv", "kind": "underway"}]))
     made = {ps.name: set(ps.products) for ps in plan}
     assert made["derive"] == {"trajectory"}
-    assert not next(ps for ps in plan if ps.name == "profile").run  # no ctd to bin (the profile stage)
+    prof = next(ps for ps in plan if ps.name == "profile")
+    assert not prof.run  # no ctd to bin (the profile stage), and the reason says why, not "run derive first"
+    assert "stage derive makes trajectory for this dive, not ctd" in prof.reason and "first" not in prof.reason
     mixed = {ps.name: set(ps.products) for ps in plan_stages(_dive([{"path": "tsg.cnv", "kind": "underway"},
                                                                      "cast.cnv"]))}
     assert {"ctd", "trajectory"} <= mixed["derive"] and mixed["profile"] == {"profile"}
