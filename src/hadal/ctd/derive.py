@@ -641,6 +641,28 @@ def derive_table(table: pd.DataFrame, sensors_meta: dict[str, Any], p: Params, d
     return df, meta, prof
 
 
+def empty_cast_reasons(prof: Any, df: pd.DataFrame) -> dict[str, str]:
+    """``{cast: why}`` for every cast of the binned ``prof`` without a single binned value: which phases the
+    record's samples are in and the pressure they span (a surface soak, a record of a few scans at one depth), so an
+    empty profile says why instead of being published silently empty."""
+    import numpy as np
+
+    binned_vars = [v for v in prof.data_vars if prof[v].dims[:1] == ("cast",) and prof[v].ndim == 2
+                   and not v.endswith("_qc") and v != "count"]
+    out: dict[str, str] = {}
+    pres = df["pressure_dbar"].to_numpy(np.float64) if "pressure_dbar" in df else np.empty(0)
+    phases = df["phase"].astype(str).value_counts().to_dict() if "phase" in df else {}
+    for i, cast in enumerate(prof["cast"].values):
+        if any(np.isfinite(prof[v].values[i]).any() for v in binned_vars):
+            continue
+        n = int(phases.get(str(cast), 0))
+        where = ", ".join(f"{k} {c}" for k, c in phases.items()) or "no phase"
+        span = (f"{np.nanmin(pres):.1f}-{np.nanmax(pres):.1f} dbar" if np.isfinite(pres).any() else "no pressure")
+        out[str(cast)] = (f"{n} of the record's {len(df)} accepted samples are in its {cast} (samples by phase: "
+                          f"{where}; pressure {span})")
+    return out
+
+
 def bin_casts(df: pd.DataFrame, meta: dict[str, Any], sensors_meta: dict[str, Any], p: Params, log: Any, what: str,
               *, bins: dict[str, Any] | None = None) -> Any:
     """The binned casts (``(cast, level)`` dataset of :func:`hadal.ctd.profile.make_profile`, or a SeaSoft-binned cast's
@@ -695,6 +717,10 @@ def bin_casts(df: pd.DataFrame, meta: dict[str, Any], sensors_meta: dict[str, An
             prof = prof.drop_vars("depth_m_qc")
             prof["depth_m"].attrs.pop("ancillary_variables", None)
             meta["qc_derived"]["profile"].pop("depth_m", None)
+    if empty := empty_cast_reasons(prof, binned):
+        meta["profile_empty_casts"] = empty
+        for cast, why in empty.items():
+            log.warning("derive: %s: the %s profile has no binned values: %s", what, cast, why)
     df[N_SQUARED] = n_squared_per_sample(df, prof)
     if meta.get("time_base") != NO_TIME_BASE:
         _cast_times(prof, df)

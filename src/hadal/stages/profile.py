@@ -106,6 +106,9 @@ def publish_profile(ctx: StageContext, p: Params, params: dict, upstream: list, 
         manifest["cast_positions"] = cast_positions_summary(profile)
         extra["cast_positions"] = "; ".join(f"{c['cast']}: {c['position_source']}"
                                                   for c in manifest["cast_positions"])
+    if meta.get("profile_empty_casts"):  # a cast without a binned value says why (surface soak, a few scans)
+        manifest["empty_casts"] = meta["profile_empty_casts"]
+        extra["profile_empty_casts"] = "; ".join(f"{c}: {w}" for c, w in meta["profile_empty_casts"].items())
     with ctx.store.publish(ctx.dive_id, "profile", parameters=params, upstream=upstream,
                            extra=manifest) as draft:
         write_netcdf(
