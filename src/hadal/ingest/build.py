@@ -135,19 +135,21 @@ def _missing_channel(msg: str, required: bool) -> None:
     warnings.warn(msg + "; its columns will be empty (flag 9)", stacklevel=3)
 
 
-def read_mcap_sensors(paths: Sequence[str | Path], vehicle: VehicleConfig
+def read_mcap_sensors(paths: Sequence[str | Path], vehicle: VehicleConfig, *, memory_limit_bytes: float | None = None
                       ) -> tuple[dict[str, SensorSamples], list[dict[str, Any]]]:
     """Read every sensor with an ``mcap`` mapping from the MCAP files (their messages are concatenated).
 
     Returns the samples and one :class:`McapReport` dict per file. A required sensor whose topic is in
     none of the files is an :class:`InputError`; an optional one is left out with a warning. Files holding
-    no message on any mapped topic are a one-line :class:`InputError` ("nothing to ingest").
+    no message on any mapped topic are a one-line :class:`InputError` ("nothing to ingest"). Each file is read
+    against the memory budget ``memory_limit_bytes`` (the stage's ``resources.max_memory_gb``;
+    :func:`hadal.ingest.mcap_reader.read_mcap`).
     """
     topics = {s.mcap.topic: name for name, s in vehicle.sensors.items() if s.mcap is not None}
     per_topic: dict[str, list[tuple[np.ndarray, list[dict[str, Any]], str]]] = {}
     reports = []
     for p in paths:
-        data, report = read_mcap(p, topics, warn=True)
+        data, report = read_mcap(p, topics, warn=True, memory_limit_bytes=memory_limit_bytes)
         reports.append(report.as_dict())
         for topic, tp in data.items():
             check_ros2_mapping(Path(p).name, tp, vehicle.sensors[topics[topic]].mcap, topics[topic])

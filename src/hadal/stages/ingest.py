@@ -143,6 +143,7 @@ def _source_kind(p: Params, src) -> str:
 
 
 def _read_mcap(ctx: StageContext, p: Params, vehicle: VehicleConfig) -> _Read:
+    from hadal.budget import memory_limit_bytes
     from hadal.dive import resolve_source
     from hadal.ingest.build import read_mcap_sensors
 
@@ -158,7 +159,7 @@ def _read_mcap(ctx: StageContext, p: Params, vehicle: VehicleConfig) -> _Read:
         ignored.append({"kind": "csv", "files": ", ".join(sorted(src.csv.values())),
                         "why": f"ingest.source is {p.source!r}: the MCAP logs make sensors "
                                "(set ingest.source: csv to use the CSV logs instead)"})
-    sensors, mcap_reports = read_mcap_sensors(paths, vehicle)
+    sensors, mcap_reports = read_mcap_sensors(paths, vehicle, memory_limit_bytes=memory_limit_bytes(ctx.config))
     return _Read(sensors, paths, mcap_reports, ignored)
 
 
