@@ -640,7 +640,7 @@ def _swath_file(tmp_path: Path, fmt: str, soundings: int) -> tuple[Path, Path, i
     if fmt == "em_all":
         data = _real(EM_ALL)
         k = soundings // 572
-        one, body, total = data, _em_depths(data) * k, 572 * (k + 1)
+        one, body, total = data, data + _em_depths(data) * k, 572 * (k + 1)
     elif fmt == "kmall":
         data = _real(KMALL)
         k = soundings // 393
