@@ -696,10 +696,14 @@ def test_swath_file_just_under_and_over_the_sounding_budget(tmp_path, fmt, margi
 
 def test_stage_budgets_honour_resources_max_memory_gb(tmp_path):
     """``resources.max_memory_gb`` is the budget of the readers a stage calls (it was the machine's before): a tiny
-    MCAP dive's ingest and an xyz dive's DTM stage, fine under the default budget, are refused in one line naming the
-    configured limit when it is set below what their reads need (the MCAP budget: the chunks and the kept messages;
-    the soundings': the xyz reader's measured cost)."""
+    dive's ingest (from its MCAP, its CSV logs, or a real .cnv cast) and an xyz dive's DTM stage, fine under the
+    default budget, are refused in one line naming the configured limit when it is set below what their reads need
+    (the MCAP budget: the chunks and the kept messages; CSV/.cnv: the decoded columns; the soundings': the xyz
+    reader's measured cost)."""
+    import os
+    import shutil
     import sys
+    import warnings
 
     import yaml
 
@@ -715,18 +719,28 @@ def test_stage_budgets_honour_resources_max_memory_gb(tmp_path):
     from tiny_dive import write_dive
 
     raw = write_dive(tmp_path / "raw", 30.0)
-    dive, rdir = load_dive(raw)
-    for limit_gb in (None, 1e-4):
-        res = {} if limit_gb is None else {"resources": {"max_memory_gb": limit_gb}}
-        ctx = StageContext(dive=dive, raw_dir=rdir, store=ProductStore(tmp_path / f"store{limit_gb}"),
-                           config=PipelineConfig.model_validate({"ingest": {"source": "mcap"}, **res}))
-        if limit_gb is None:
-            assert len(ingest.run(ctx)["sensors"].file("sensors.parquet").read_bytes()) > 0
-        else:
-            with pytest.raises(InputError) as ei:
-                ingest.run(ctx)
-            msg = str(ei.value)
-            assert "\n" not in msg and "decoding this MCAP" in msg and "limit 105 KiB)" in msg, msg
+    cnv = tmp_path / "cnv" / "raw"
+    write_dive(cnv, 5.0)
+    shutil.copy(Path(os.environ.get("HADAL_SHARED_DATA", "/work/shared/data")) / "formats-real"
+                / "sbs_SBE19plus_01906398_2019_07_15_0033_cropped.cnv", cnv / "cast.cnv")
+    y = yaml.safe_load((cnv / "dive.yaml").read_text())
+    y["sources"] = {"cnv": ["cast.cnv"]}
+    (cnv / "dive.yaml").write_text(yaml.safe_dump(y))
+    for source, d, what in (("mcap", raw, "MCAP"), ("csv", raw, "CSV file"), ("cnv", cnv, "CNV file")):
+        dive, rdir = load_dive(d)
+        for limit_gb in (None, 1e-6):
+            res = {} if limit_gb is None else {"resources": {"max_memory_gb": limit_gb}}
+            ctx = StageContext(dive=dive, raw_dir=rdir, store=ProductStore(tmp_path / f"store-{source}{limit_gb}"),
+                               config=PipelineConfig.model_validate({"ingest": {"source": source}, **res}))
+            if limit_gb is None:
+                with warnings.catch_warnings():
+                    warnings.simplefilter("ignore")
+                    assert len(ingest.run(ctx)["sensors"].file("sensors.parquet").read_bytes()) > 0
+            else:
+                with pytest.raises(InputError) as ei:
+                    ingest.run(ctx)
+                msg = str(ei.value)
+                assert "\n" not in msg and f"decoding this {what}" in msg and "limit 1.05 KiB)" in msg, msg
 
     frame = LocalFrame(11.33, 142.2)
     rng = np.random.default_rng(0)
