@@ -628,6 +628,7 @@ def test_s7k_soundings_past_the_budget(tmp_path):
     out = _run_capped(_read_swath(p))
     _one_line_error(out, "decoding this s7k multibeam file needs more than")
     assert "limit" in out["message"], out
+    print(f"s7k bomb: peak {out['peak'] / 2**20:.0f} MiB; {out['message'].split(': ', 1)[1]}")
     assert out["peak"] < 2 * GIB, out
 
 
