@@ -272,7 +272,8 @@ def post_cruise(
     # the dive/cruise tags are the flow run's; the stage task runs are left untagged: Prefect acquires a tag
     # concurrency slot for every tagged task run, whose service restarts took ~2 s before each stage on a busy
     # 2-core machine (the wait before derive, suitability and report: 6 s of a 67 s cold dive)
-    with TagsContext(current_tags=set()), ThreadPoolTaskRunner(max_workers=parallel_stages(ctx.config)) as runner:
+    runner: ThreadPoolTaskRunner[Any] = ThreadPoolTaskRunner(max_workers=parallel_stages(ctx.config))
+    with TagsContext(current_tags=set()), runner:
         submit_dive(runner, d, store_root, config_path, force)
         collect_dives([d], store_root, config_path)
     d.rows = rows + d.rows
