@@ -275,11 +275,10 @@ _FAKE_MAKES = {"ingest": "sensors", "derive": "ctd", "dtm": "dtm", "laser": "las
 def _fake_stage(name: str, log: dict, lock, seconds: float, fail: bool = False):
     """A Prefect task standing in for stage ``name``: sleeps, logs its start/end/pins/isolate flag, then publishes
     an empty version of the product it makes (or raises InputError if ``fail``)."""
+    from hadal.tasks.stage import upstream_state
     from prefect import task
 
     from hadal.errors import InputError
-
-    from hadal.tasks.stage import upstream_state
 
     def run(raw_dir, store_root=None, config_path=None, pins=None, upstream=None, isolate=False):
         t0 = time.monotonic()
@@ -593,3 +592,28 @@ def test_a_stage_skipped_by_its_content_check_names_the_reason_in_the_run_table(
     why = skipped_reason(str(raw), {}, "landing", str(tmp_path / "store"), None)
     assert "coarser than landing.max_cell_fraction" in why and "\n" not in why
     assert skipped_reason(str(raw), {}, "report", str(tmp_path / "store"), None) == "nothing to do (see the log)"
+
+
+def test_a_stage_task_whose_upstream_failed_skips_itself_uncached_and_the_report_lists_both(fake):
+    """What Prefect hands a stage task through ``allow_failure`` when an upstream stage failed is that stage's
+    exception: suitability (which needs dtm, docs/operations.md) then publishes nothing and is not cached (its cache
+    key is None, so a later run retries it); the report sees the failure and the skip it caused, with the reasons.
+    Oracle: the stage dependency table (suitability needs dtm; the report needs nothing, reads everything)."""
+    from hadal.tasks.report import report
+    from hadal.tasks.stage import upstream_state
+    from hadal.tasks.suitability import suitability
+
+    raw, store = fake
+    broke = InputError("dtm.tif: not a grid\nsecond line")
+    params = {"raw_dir": str(raw), "store_root": str(store), "config_path": None, "pins": {},
+              "upstream": {"dtm": broke}, "isolate": False}
+    assert suitability.fn(**params) == {}
+    assert suitability.cache_key_fn(None, params) is None
+    assert not (store / "dive-a" / "suitability").exists()
+    pins, failed, skips = upstream_state("report", {"ctd": "old"}, {"dtm": broke, "suitability": {}, "ingest":
+                                                                    {"sensors": "new"}})
+    assert pins == {"ctd": "old", "sensors": "new"}
+    assert failed == {"dtm": "dtm.tif: not a grid"}
+    assert skips == {"suitability": "needs dtm, but stage dtm failed in this run"}
+    key = report.cache_key_fn(None, {**params, "upstream": {"dtm": broke, "suitability": {}}})
+    assert key is not None and key.startswith("hadal-report-")
