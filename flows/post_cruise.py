@@ -127,22 +127,22 @@ def collect_dives(dives: list[DiveRun], store_root: str | None, config_path: str
                   on_dive_done: Callable[[DiveRun], None] | None = None) -> None:
     """Wait for the stage tasks of every dive (:func:`submit_dive`) and record, when a dive's are all done, its run
     table (:func:`record_dive`); then ``on_dive_done(dive)`` (the batch's progress line)."""
-    owner = {f: d for d in dives for f in d.futures.values()}
-    names = {f: n for d in dives for n, f in d.futures.items()}
+    def finish(d: DiveRun) -> None:
+        record_dive(d, store_root, config_path)
+        if on_dive_done is not None:
+            on_dive_done(d)
+
+    owner = {f: (d, n) for d in dives for n, f in d.futures.items()}
     left = {id(d): len(d.futures) for d in dives}
     for d in dives:
         if not d.futures:
-            record_dive(d, store_root, config_path)
-            if on_dive_done is not None:
-                on_dive_done(d)
+            finish(d)
     for fut in as_completed(list(owner)):
-        d = owner[fut]
-        d.done_at[names[fut]] = time.monotonic()
+        d, name = owner[fut]
+        d.done_at[name] = time.monotonic()
         left[id(d)] -= 1
         if left[id(d)] == 0:
-            record_dive(d, store_root, config_path)
-            if on_dive_done is not None:
-                on_dive_done(d)
+            finish(d)
 
 
 def record_dive(d: DiveRun, store_root: str | None, config_path: str | None) -> None:
