@@ -619,6 +619,7 @@ def _s7k_ping(nb: int = 400) -> bytes:
     return _s7k_record(7027, rth + dets, opt)
 
 
+@pytest.mark.integration  # ~2 min: the 1.6e8 soundings are decoded up to the budget
 def test_s7k_soundings_past_the_budget(tmp_path):
     """The real TN136 .s7k's records, then a 7027 ping of 4,000 georeferenced soundings repeated 40,000 times (1.6e8
     soundings, 3.2 GB, a gzip of a few MB): each ping valid, their sum refused in one line as they decode, peak under
