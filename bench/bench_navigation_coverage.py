@@ -220,7 +220,7 @@ def sim_dive(rng, usbl: bool, options: SmootherOptions) -> dict:
     return {"in1": float(np.mean(d2 <= CHI2_2DOF_1SIGMA)), "in2": float(np.mean(d2 <= CHI2_2DOF_2SIGMA)),
             "d2_surf": float(d2[-1]), "d2_deep": float(d2[deep]), "rms": float(np.sqrt(np.mean(err ** 2))),
             "rms_old": float(np.sqrt(np.mean(err_old ** 2))), "usbl": usbl, "rejected": len(sm.rejected),
-            "d2_all": d2}
+            "d2_all": d2, "phase_all": sim["phase"], "err_all": err.to_numpy()}
 
 
 def main() -> None:
@@ -263,6 +263,13 @@ def _totals(rows: list[dict]) -> None:
     print(f"samples within 1σ: {in1:.3f} (goal 0.55-0.75); within 2σ: {in2:.3f} (goal >= 0.93); per dive 1σ "
           f"{min(r['in1'] for r in rows):.2f}-{max(r['in1'] for r in rows):.2f}, 2σ "
           f"{min(r['in2'] for r in rows):.2f}-{max(r['in2'] for r in rows):.2f}")
+    if "phase_all" in rows[0]:
+        ph = np.concatenate([r["phase_all"] for r in rows])
+        err = np.concatenate([r["err_all"] for r in rows])
+        print("per phase: " + "; ".join(
+            f"{name} 1σ {np.mean(d2[ph == k] <= CHI2_2DOF_1SIGMA):.3f} 2σ {np.mean(d2[ph == k] <= CHI2_2DOF_2SIGMA):.3f} "
+            f"RMS {np.sqrt(np.mean(err[ph == k] ** 2)):.0f} m"
+            for k, name in enumerate(("descent", "bottom", "ascent"))))
     print(f"surfacing within 2σ: {sum(r['d2_surf'] <= CHI2_2DOF_2SIGMA for r in rows)}/{len(rows)}; deepest point "
           f"within 2σ: {sum(r['d2_deep'] <= CHI2_2DOF_2SIGMA for r in rows)}/{len(rows)}")
     print(f"RMS error: smoothed {np.sqrt(np.mean([r['rms'] ** 2 for r in rows])):.1f} m, today's product "

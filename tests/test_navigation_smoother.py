@@ -8,15 +8,29 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from hadal.navigation.smoother import Fix, SmootherOptions, process_variances, smooth_positions
+from hadal.navigation.smoother import Fix, SmootherOptions, smooth_positions
 
 
-def _batch_oracle(t, d, ref, fixes, opt):
+def _van_loan(beta, dt, s2, coupled):
+    """Exact discretisation of one axis of dx/dt = c (if ``coupled``), dc/dt = -beta c + white noise of spectral
+    density 2 beta s2 (stationary variance s2), by Van Loan's matrix exponential (Van Loan 1978, IEEE TAC 23(3))."""
+    from scipy.linalg import expm
+
+    A = np.array([[0.0, 1.0 if coupled else 0.0], [0.0, -beta]])
+    Qc = np.diag([0.0, 2 * beta * s2])
+    M = expm(np.block([[-A, Qc], [np.zeros((2, 2)), A.T]]) * dt)
+    F = M[2:, 2:].T
+    return F, F @ M[:2, 2:]
+
+
+def _batch_oracle(t, d, ref, fixes, opt, depth=None, inc_cov=None):
     """Stack prior, process and fix equations of all states [x, y, cx, cy] x n, whitened; solve by lstsq."""
     n = t.size
     dt = np.diff(t, prepend=t[0])
-    qpos = process_variances(dt, d, ref, opt)
-    qc2 = opt.current_random_walk_m_s_per_sqrt_s ** 2
+    step = np.hypot(d[:, 0], d[:, 1])  # the process model's DR / random-walk variance per axis (independent)
+    qpos = np.where(ref, opt.dr_variance_m2_per_m * step, opt.position_random_walk_m_per_sqrt_s ** 2 * dt) + 1e-6
+    s2 = opt.current_sigma_m_s ** 2
+    dz = np.zeros(n) if depth is None else np.abs(np.diff(depth, prepend=depth[0]))
     rows, rhs = [], []
 
     def add(block_cols, mats, r, cov):
@@ -28,19 +42,18 @@ def _batch_oracle(t, d, ref, fixes, opt):
         rhs.append(L.T @ r)
 
     x0 = np.array([fixes[0].x_m, fixes[0].y_m, 0, 0]) if fixes else np.zeros(4)
-    add([0], [np.eye(4)], x0, np.diag([1e8, 1e8, opt.current_sigma_m_s ** 2, opt.current_sigma_m_s ** 2]))
+    add([0], [np.eye(4)], x0, np.diag([1e8, 1e8, s2, s2]))
     for k in range(1, n):
-        F = np.eye(4)
+        beta = dz[k] / opt.current_vertical_correlation_m / dt[k] + 1 / opt.current_correlation_time_s
+        f1, q1 = _van_loan(beta, dt[k], s2, not ref[k])
+        F = np.zeros((4, 4))
         Q = np.zeros((4, 4))
         for a in range(2):
-            if ref[k]:
-                Q[a, a] = qpos[k]
-                Q[a + 2, a + 2] = qc2 * dt[k]
-            else:
-                F[a, a + 2] = dt[k]
-                Q[a, a] = qpos[k] + qc2 * dt[k] ** 3 / 3
-                Q[a, a + 2] = Q[a + 2, a] = qc2 * dt[k] ** 2 / 2
-                Q[a + 2, a + 2] = qc2 * dt[k]
+            F[np.ix_([a, a + 2], [a, a + 2])] = f1
+            Q[np.ix_([a, a + 2], [a, a + 2])] = q1
+            Q[a, a] += qpos[k]
+        if inc_cov is not None:
+            Q[:2, :2] += inc_cov[k]
         u = np.array([d[k, 0], d[k, 1], 0, 0])
         add([k, k - 1], [np.eye(4), -F], u, Q)
     for f in fixes:
@@ -70,13 +83,19 @@ def _problem(seed=3, n=40):
     return t, d, ref, fixes
 
 
-def test_rts_equals_batch_least_squares():
+@pytest.mark.parametrize(("with_depth", "corr_time_s"), [(True, 21600.0), (True, 3600.0), (False, 1e6)])
+def test_rts_equals_batch_least_squares(with_depth, corr_time_s):
+    # with depth: the current decorrelates over the 2-3 km descent and ascent (a up to ~0.5 a step); without
+    # depth and a 1e6 s correlation time every step's decorrelation is < 1e-4 (the series branch)
     t, d, ref, fixes = _problem()
-    opt = SmootherOptions(current_sigma_m_s=0.1, current_random_walk_m_s_per_sqrt_s=0.002,
-                          position_random_walk_m_per_sqrt_s=0.8, dr_variance_m2_per_m=0.3, gate_probability=0.99999999)
-    out = smooth_positions(t, d, ref, fixes, opt)
+    n = t.size
+    depth = np.concatenate([np.linspace(0, 2500, 12), np.full(16, 2500.0) + np.arange(16.0), np.linspace(2515, 0, n - 28)])
+    opt = SmootherOptions(current_sigma_m_s=0.1, current_vertical_correlation_m=800.0,
+                          current_correlation_time_s=corr_time_s, position_random_walk_m_per_sqrt_s=0.8,
+                          dr_variance_m2_per_m=0.3, gate_probability=0.99999999)
+    out = smooth_positions(t, d, ref, fixes, opt, depth_m=depth if with_depth else None)
     assert (out.fixes["status"] == "used").all()
-    sol, P = _batch_oracle(t, d, ref, fixes, opt)
+    sol, P = _batch_oracle(t, d, ref, fixes, opt, depth if with_depth else None)
     np.testing.assert_allclose(out.x_m, sol[:, 0], atol=1e-5 * 1000)
     np.testing.assert_allclose(out.y_m, sol[:, 1], atol=1e-5 * 1000)
     np.testing.assert_allclose(out.current_m_s, sol[:, 2:], atol=1e-6)
@@ -90,7 +109,7 @@ def test_two_gnss_fixes_on_a_still_vehicle_give_the_information_weighted_mean():
     ref = np.ones(5, bool)
     R1, R2 = np.array([[4.0, 1.0], [1.0, 9.0]]), np.array([[16.0, -2.0], [-2.0, 1.0]])
     z1, z2 = np.array([3.0, -1.0]), np.array([-2.0, 4.0])
-    opt = SmootherOptions(dr_variance_m2_per_m=0.0, current_random_walk_m_s_per_sqrt_s=0.0, gate_probability=0.9999)
+    opt = SmootherOptions(dr_variance_m2_per_m=0.0, gate_probability=0.9999)
     out = smooth_positions(t, d, ref, [Fix(0, *z1, R1, "gnss"), Fix(4, *z2, R2, "gnss")], opt)
     I1, I2 = np.linalg.inv(R1), np.linalg.inv(R2)
     P = np.linalg.inv(I1 + I2)
@@ -102,7 +121,7 @@ def test_two_gnss_fixes_on_a_still_vehicle_give_the_information_weighted_mean():
 
 def test_gate_statistic_equals_leave_one_out_innovation_and_names_the_bad_fix():
     t, d, ref, fixes = _problem()
-    opt = SmootherOptions(current_random_walk_m_s_per_sqrt_s=0.002, dr_variance_m2_per_m=0.3)
+    opt = SmootherOptions(current_sigma_m_s=0.05, dr_variance_m2_per_m=0.3)
     good = smooth_positions(t, d, ref, fixes, opt.model_copy(update={"gate_probability": 0.99999999}))
     # oracle: re-run without fix i; its innovation against that track, covariance R + P_loo
     for i, f in enumerate(fixes):

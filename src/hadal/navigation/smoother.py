@@ -5,16 +5,34 @@ State (map frame, metres; per sample ``k``)::
     s_k = [x_east_m, y_north_m, c_east_m_s, c_north_m_s]
 
 ``c`` is the drift velocity the dead reckoning does not see: the current that carries an unpowered vehicle
-while its DR has no velocity reference (descent, ascent, DR held), and any slow DR velocity bias. It is a
-random walk (``current_random_walk_m_s_per_sqrt_s``) started from ``N(0, current_sigma_m_s^2)``.
+while its DR has no velocity reference (descent, ascent, DR held), and any slow DR velocity bias.
 
-Process, from sample ``k-1`` to ``k`` (``dt`` s, DR increment ``d``, per axis independent)::
+Current model: a first-order Gauss-Markov (Ornstein-Uhlenbeck) process per axis with the stationary 1-sigma
+``current_sigma_m_s`` (also its prior at the first sample), decorrelating with the depth the vehicle traverses
+(vertical correlation length ``current_vertical_correlation_m``: a sinking vehicle crosses water layers whose
+currents differ) and with time (``current_correlation_time_s``: tides, inertial motion). Over a step of ``dt`` s
+in which the depth changes by ``dz`` m the dimensionless decorrelation is
 
+    a = |dz| / current_vertical_correlation_m + dt / current_correlation_time_s,   phi = exp(-a)
+
+(the rate ``beta = a / dt`` is taken constant over the step). This is the integrated Ornstein-Uhlenbeck
+("Singer") model of target tracking (Singer 1970, IEEE Trans. AES-6(4); Bar-Shalom, Li & Kirubarajan 2001,
+*Estimation with Applications to Tracking and Navigation*, §8.2.3) with its exact discretisation. Unlike a
+random walk with a small prior, the current's variability is as large as its mean, so a drift concentrated in
+part of the descent (strong upper-ocean currents) is covered, and the position uncertainty between two fixes
+grows like a random walk of diffusivity ``2 sigma^2 tau`` (``tau`` the correlation time of the traversal)
+rather than a hand-set rate.
+
+Process, from sample ``k-1`` to ``k`` (DR increment ``d``, per axis independent)::
+
+    c_k = phi c_{k-1} + w_c,        var(w_c) = sigma^2 (1 - phi^2)
     referenced step (DR moving: DVL/INS velocity reference, or the terrain-matched track)
         x_k = x_{k-1} + d + w_x,   var(w_x) = dr_variance_m2_per_m * |d| + floor
     unreferenced step (DR held: the vehicle drifts with the water)
-        x_k = x_{k-1} + d + c_{k-1} dt + w_x,   var(w_x) = position_random_walk_m_per_sqrt_s^2 * dt + floor
-    c_k = c_{k-1} + w_c  (integrated random walk: the exact discretisation's dt^3/3, dt^2/2, dt terms)
+        x_k = x_{k-1} + d + dt (1 - phi) / a  c_{k-1} + w_x,
+        var(w_x) = sigma^2 dt^2 (2a - 3 + 4 phi - phi^2) / a^2
+                   + position_random_walk_m_per_sqrt_s^2 dt + floor,
+        cov(w_x, w_c) = sigma^2 dt (1 - phi)^2 / a
 
 Measurements: absolute position fixes ``z = [x, y] + v``, ``v ~ N(0, R)`` with their full 2x2 covariance ``R``
 (launch and recovery GNSS, USBL/LBL, the terrain fix's posterior covariance).
@@ -56,19 +74,24 @@ class SmootherOptions(BaseModel):
 
     model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
     current_sigma_m_s: float = Field(
-        0.05, gt=0, le=5,
-        description="prior 1-sigma per axis of the drift velocity (current) at the first sample, m/s")
-    current_random_walk_m_s_per_sqrt_s: float = Field(
-        0.0005, ge=0, le=1,
-        description="random walk of the drift velocity, 1-sigma per axis per sqrt(s) (currents change with depth "
-                    "and time)")
+        0.1, gt=0, le=5,
+        description="stationary 1-sigma per axis of the drift velocity (current) the dead reckoning does not see, "
+                    "m/s (also its prior at the first sample); 0.1: open-ocean upper-layer currents of 0.1-0.3 m/s "
+                    "(e.g. the North Equatorial Current over the Mariana Trench) and weaker deep currents")
+    current_vertical_correlation_m: float = Field(
+        500.0, gt=0, le=100000,
+        description="vertical correlation length of the current (m): the drift velocity decorrelates as "
+                    "exp(-|dz| / this) while the vehicle sinks or rises (the thermocline/first baroclinic mode "
+                    "scale of the upper ocean, 500-1000 m)")
+    current_correlation_time_s: float = Field(
+        21600.0, gt=0, le=1e7,
+        description="correlation time of the current at a fixed depth (s): exp(-dt / this); 6 h, half the "
+                    "semidiurnal tidal period")
     position_random_walk_m_per_sqrt_s: float = Field(
-        1.4, ge=0, le=100,
-        description="unreferenced steps (DR held): position random walk beyond the drift velocity, 1-sigma per "
-                    "axis per sqrt(s). With the drift-velocity terms, calibrated on the sample dive's 10 generator "
-                    "seeds (bench/bench_navigation_coverage.py --sample: 72 % of the samples within the 1-sigma "
-                    "ellipse, 99.6 % within 2-sigma); dives whose descent drift is larger or more front-loaded than "
-                    "the TERCOM paper's 533 m need more (bench --sim)")
+        0.1, ge=0, le=100,
+        description="unreferenced steps (DR held): position random walk beyond the current, 1-sigma per axis per "
+                    "sqrt(s): the vehicle's own glide through the water while sinking/rising (0.1 m/sqrt(s): "
+                    "about 12 m per axis over a 4 h descent)")
     dr_variance_m2_per_m: float = Field(
         0.1, ge=0, le=1000,
         description="referenced steps: dead-reckoning position variance per axis added per metre travelled "
@@ -143,32 +166,69 @@ def ellipse(cov_m2: np.ndarray, d2: float = CHI2_2DOF_1SIGMA) -> dict[str, float
 
 
 def process_variances(dt_s: np.ndarray, d_m: np.ndarray, referenced: np.ndarray,
-                      options: SmootherOptions) -> np.ndarray:
-    """Per-step position variance per axis (m^2) of the process model (module docstring)."""
+                      options: SmootherOptions, increment_cov_m2: np.ndarray | None = None) -> np.ndarray:
+    """Per-step 2x2 position covariance (m^2, shape (n, 2, 2)) of the process model (module docstring) beyond the
+    current's: the DR/random-walk variance per axis plus ``increment_cov_m2`` (n, 2, 2), the measured increments'
+    own covariance (a DVL velocity's covariance x dt^2, :func:`hadal.navigation.sources.velocity_increments`)."""
     step = np.hypot(d_m[:, 0], d_m[:, 1])
     q = np.where(referenced, options.dr_variance_m2_per_m * step,
                  options.position_random_walk_m_per_sqrt_s ** 2 * dt_s)
-    return q + 1e-6  # floor: keeps every step's covariance positive definite
+    out = (q + 1e-6)[:, None, None] * np.eye(2)  # floor: keeps every step's covariance positive definite
+    if increment_cov_m2 is not None:
+        c = np.asarray(increment_cov_m2, float).reshape(-1, 2, 2)
+        out = out + np.where(np.isfinite(c), c, 0.0)
+    return out
+
+
+def decorrelation(dt_s: np.ndarray, depth_m: np.ndarray | None, options: SmootherOptions) -> np.ndarray:
+    """Per-step dimensionless decorrelation ``a`` of the current (module docstring): traversed depth over the
+    vertical correlation length plus elapsed time over the correlation time. Missing depths: no vertical term."""
+    a = np.asarray(dt_s, float) / options.current_correlation_time_s
+    if depth_m is not None:
+        z = pd.Series(np.asarray(depth_m, float)).ffill().bfill().to_numpy()
+        dz = np.abs(np.diff(z, prepend=z[:1]))
+        a = a + np.where(np.isfinite(dz), dz, 0.0) / options.current_vertical_correlation_m
+    return a
 
 
 @njit(cache=True, nogil=True)
-def _transition(dt, ref, qpos, qc2):  # pragma: no cover - compiled
+def _ou_terms(dt, a, s2):  # pragma: no cover - compiled
+    """Exact integrated Ornstein-Uhlenbeck step (rate a/dt over dt): phi, gain G of the position on the current,
+    and the noise covariances Qcc, Qxc, Qxx of one axis (series for small ``a``: no cancellation)."""
+    if a < 1e-4:
+        phi = 1.0 - a + a * a / 2.0
+        G = dt * (1.0 - a / 2.0 + a * a / 6.0)
+        Qcc = s2 * (2.0 * a - 2.0 * a * a + 4.0 * a ** 3 / 3.0)
+        Qxc = s2 * dt * (a - a * a + 7.0 * a ** 3 / 12.0)
+        Qxx = s2 * dt * dt * (2.0 * a / 3.0 - a * a / 2.0)
+    else:
+        e = np.expm1(-a)
+        phi = 1.0 + e
+        G = -dt * e / a
+        Qcc = s2 * (1.0 - phi * phi)
+        Qxc = s2 * dt * e * e / a
+        Qxx = s2 * dt * dt * (2.0 * a + 2.0 * e - e * e) / (a * a)
+    return phi, G, Qcc, Qxc, Qxx
+
+
+@njit(cache=True, nogil=True)
+def _transition(dt, a, ref, qpos, s2):  # pragma: no cover - compiled
     F = np.eye(4)
     Q = np.zeros((4, 4))
-    for a in range(2):
-        if ref:
-            Q[a, a] = qpos
-            Q[a + 2, a + 2] = qc2 * dt
-        else:
-            F[a, a + 2] = dt
-            Q[a, a] = qpos + qc2 * dt ** 3 / 3.0
-            Q[a, a + 2] = Q[a + 2, a] = qc2 * dt ** 2 / 2.0
-            Q[a + 2, a + 2] = qc2 * dt
+    phi, G, Qcc, Qxc, Qxx = _ou_terms(dt, a, s2)
+    Q[:2, :2] = qpos
+    for i in range(2):
+        F[i + 2, i + 2] = phi
+        Q[i + 2, i + 2] = Qcc
+        if not ref:
+            F[i, i + 2] = G
+            Q[i, i] += Qxx
+            Q[i, i + 2] = Q[i + 2, i] = Qxc
     return F, Q
 
 
 @njit(cache=True, nogil=True)
-def _rts(dt, d, ref, qpos, qc2, x0, P0, fidx, fz, fR):  # pragma: no cover - compiled
+def _rts(dt, a, d, ref, qpos, s2, x0, P0, fidx, fz, fR):  # pragma: no cover - compiled
     """Kalman filter + RTS smoother (module docstring). Fixes sorted by sample index ``fidx``."""
     n = dt.shape[0]
     xf = np.empty((n, 4))
@@ -179,7 +239,7 @@ def _rts(dt, d, ref, qpos, qc2, x0, P0, fidx, fz, fR):  # pragma: no cover - com
     m = fidx.shape[0]
     for k in range(n):
         if k > 0:
-            F, Q = _transition(dt[k], ref[k], qpos[k], qc2)
+            F, Q = _transition(dt[k], a[k], ref[k], qpos[k], s2)
             x = F @ x
             x[0] += d[k, 0]
             x[1] += d[k, 1]
@@ -200,7 +260,7 @@ def _rts(dt, d, ref, qpos, qc2, x0, P0, fidx, fz, fR):  # pragma: no cover - com
     Ps = Pf[n - 1].copy()
     Ps2[n - 1] = Ps[:2, :2]
     for k in range(n - 2, -1, -1):
-        F, Q = _transition(dt[k + 1], ref[k + 1], qpos[k + 1], qc2)
+        F, Q = _transition(dt[k + 1], a[k + 1], ref[k + 1], qpos[k + 1], s2)
         Pp = F @ Pf[k] @ F.T + Q
         xp = F @ xf[k]
         xp[0] += d[k + 1, 0]
@@ -213,23 +273,24 @@ def _rts(dt, d, ref, qpos, qc2, x0, P0, fidx, fz, fR):  # pragma: no cover - com
     return xs, Ps2
 
 
-def _run(t_s, d_m, referenced, fixes: list[Fix], use: np.ndarray, options: SmootherOptions):
+def _run(t_s, d_m, referenced, fixes: list[Fix], use: np.ndarray, options: SmootherOptions, a: np.ndarray,
+         increment_cov_m2: np.ndarray | None = None):
     dt = np.diff(np.asarray(t_s, float), prepend=float(t_s[0]))
     dt = np.clip(dt, 0.0, None)
-    qpos = process_variances(dt, d_m, referenced, options)
+    qpos = process_variances(dt, d_m, referenced, options, increment_cov_m2)
     sel = [f for f, u in zip(fixes, use, strict=True) if u]
     order = np.argsort([f.index for f in sel], kind="stable")
     sel = [sel[i] for i in order]
     fidx = np.array([f.index for f in sel], np.int64)
     fz = np.array([[f.x_m, f.y_m] for f in sel], float).reshape(-1, 2)
     fR = np.array([f.cov_m2 for f in sel], float).reshape(-1, 2, 2)
-    # prior: diffuse position about the first fix (the fixes carry the information), drift velocity N(0, sc^2)
+    # prior: diffuse position about the first fix (the fixes carry the information), current N(0, sigma^2)
     x0 = np.zeros(4)
     if len(sel):
         x0[:2] = fz[0]
     P0 = np.diag([1e8, 1e8, options.current_sigma_m_s ** 2, options.current_sigma_m_s ** 2])
-    return _rts(dt, np.ascontiguousarray(d_m, float), np.asarray(referenced, np.bool_), qpos,
-                options.current_random_walk_m_s_per_sqrt_s ** 2, x0, P0, fidx, fz, fR)
+    return _rts(dt, np.ascontiguousarray(a, float), np.ascontiguousarray(d_m, float),
+                np.asarray(referenced, np.bool_), qpos, options.current_sigma_m_s ** 2, x0, P0, fidx, fz, fR)
 
 
 def _fix_tests(xs: np.ndarray, Ps: np.ndarray, fixes: list[Fix], use: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -248,12 +309,15 @@ def _fix_tests(xs: np.ndarray, Ps: np.ndarray, fixes: list[Fix], use: np.ndarray
 
 
 def smooth_positions(t_s, dr_increment_m, referenced, fixes: list[Fix],
-                     options: SmootherOptions | None = None) -> SmoothedTrack:
+                     options: SmootherOptions | None = None, depth_m=None,
+                     increment_cov_m2=None) -> SmoothedTrack:
     """Smoothed position and 2x2 covariance of every sample (module docstring).
 
     ``t_s`` (n,) sample times (s, non-decreasing); ``dr_increment_m`` (n, 2) east/north dead-reckoned
     displacement from sample ``k-1`` to ``k`` (row 0 unused); ``referenced`` (n,) bool, the step to ``k`` had a
-    velocity reference (DR moving); ``fixes``: absolute fixes (at least one). Inconsistent fixes are rejected by
+    velocity reference (DR moving); ``fixes``: absolute fixes (at least one); ``depth_m`` (n,) the vehicle's depth
+    (m, positive down; the current decorrelates with the depth traversed; None: time only);
+    ``increment_cov_m2`` (n, 2, 2) the increments' own covariance (measured velocities, e.g. DVL). Inconsistent fixes are rejected by
     the chi-square gate, one at a time, worst first (``fixes`` table: ``status`` used / rejected, ``d2``)."""
     from hadal.errors import InputError
 
@@ -268,7 +332,8 @@ def smooth_positions(t_s, dr_increment_m, referenced, fixes: list[Fix],
     d_m = np.where(np.isfinite(d_m), d_m, 0.0)
     gate = chi2_2dof_quantile(options.gate_probability)
     use = np.ones(len(fixes), bool)
-    xs, Ps = _run(t_s, d_m, referenced, fixes, use, options)
+    a = decorrelation(np.clip(np.diff(t_s, prepend=t_s[:1]), 0.0, None), depth_m, options)
+    xs, Ps = _run(t_s, d_m, referenced, fixes, use, options, a, increment_cov_m2)
     res, d2 = _fix_tests(xs, Ps, fixes, use)
     while (~use).sum() < options.max_rejections and use.sum() > 1:
         failing = np.flatnonzero(use & np.isfinite(d2) & (d2 > gate))
@@ -281,7 +346,7 @@ def smooth_positions(t_s, dr_increment_m, referenced, fixes: list[Fix],
         for i in failing[np.argsort(-d2[failing])][:20]:
             u = use.copy()
             u[i] = False
-            xs_i, Ps_i = _run(t_s, d_m, referenced, fixes, u, options)
+            xs_i, Ps_i = _run(t_s, d_m, referenced, fixes, u, options, a, increment_cov_m2)
             res_i, d2_i = _fix_tests(xs_i, Ps_i, fixes, u)
             score = float(np.nansum(np.where(u, d2_i, 0.0)))
             if best is None or score < best[0]:
