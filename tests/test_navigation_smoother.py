@@ -11,16 +11,18 @@ import pytest
 from hadal.navigation.smoother import Fix, SmootherOptions, smooth_positions
 
 
-def _van_loan(beta, dt, s2, coupled):
-    """Exact discretisation of one axis of dx/dt = c (if ``coupled``), dc/dt = -beta c + white noise of spectral
-    density 2 beta s2 (stationary variance s2), by Van Loan's matrix exponential (Van Loan 1978, IEEE TAC 23(3))."""
+def _van_loan(beta_bc, beta_bt, dt, s2_bc, s2_bt, coupled):
+    """Exact discretisation of one axis of dx/dt = c_bc + c_bt (if ``coupled``), dc/dt = -beta c + white noise of
+    spectral density 2 beta s2 (stationary variance s2) for each current component, by Van Loan's matrix
+    exponential (Van Loan 1978, IEEE TAC 23(3)); state [x, c_bc, c_bt]."""
     from scipy.linalg import expm
 
-    A = np.array([[0.0, 1.0 if coupled else 0.0], [0.0, -beta]])
-    Qc = np.diag([0.0, 2 * beta * s2])
-    M = expm(np.block([[-A, Qc], [np.zeros((2, 2)), A.T]]) * dt)
-    F = M[2:, 2:].T
-    return F, F @ M[:2, 2:]
+    k = 1.0 if coupled else 0.0
+    A = np.array([[0.0, k, k], [0.0, -beta_bc, 0.0], [0.0, 0.0, -beta_bt]])
+    Qc = np.diag([0.0, 2 * beta_bc * s2_bc, 2 * beta_bt * s2_bt])
+    M = expm(np.block([[-A, Qc], [np.zeros((3, 3)), A.T]]) * dt)
+    F = M[3:, 3:].T
+    return F, F @ M[:3, 3:]
 
 
 def _batch_oracle(t, d, ref, fixes, opt, depth=None, inc_cov=None):
@@ -29,41 +31,41 @@ def _batch_oracle(t, d, ref, fixes, opt, depth=None, inc_cov=None):
     dt = np.diff(t, prepend=t[0])
     step = np.hypot(d[:, 0], d[:, 1])  # the process model's DR / random-walk variance per axis (independent)
     qpos = np.where(ref, opt.dr_variance_m2_per_m * step, opt.position_random_walk_m_per_sqrt_s ** 2 * dt) + 1e-6
-    s2 = opt.current_sigma_m_s ** 2
+    s2, s2t = opt.current_sigma_m_s ** 2, opt.barotropic_current_sigma_m_s ** 2
     dz = np.zeros(n) if depth is None else np.abs(np.diff(depth, prepend=depth[0]))
     rows, rhs = [], []
 
     def add(block_cols, mats, r, cov):
         L = np.linalg.cholesky(np.linalg.inv(cov))  # whitening: W = L', W'W = cov^-1
-        A = np.zeros((len(r), 4 * n))
+        A = np.zeros((len(r), 6 * n))
         for c, M in zip(block_cols, mats, strict=True):
-            A[:, 4 * c:4 * c + 4] = M
+            A[:, 6 * c:6 * c + 6] = M
         rows.append(L.T @ A)
         rhs.append(L.T @ r)
 
-    x0 = np.array([fixes[0].x_m, fixes[0].y_m, 0, 0]) if fixes else np.zeros(4)
-    add([0], [np.eye(4)], x0, np.diag([1e8, 1e8, s2, s2]))
+    x0 = np.array([fixes[0].x_m, fixes[0].y_m, 0, 0, 0, 0]) if fixes else np.zeros(6)
+    add([0], [np.eye(6)], x0, np.diag([1e8, 1e8, s2, s2, s2t, s2t]))
     for k in range(1, n):
         beta = dz[k] / opt.current_vertical_correlation_m / dt[k] + 1 / opt.current_correlation_time_s
-        f1, q1 = _van_loan(beta, dt[k], s2, not ref[k])
-        F = np.zeros((4, 4))
-        Q = np.zeros((4, 4))
+        f1, q1 = _van_loan(beta, 1 / opt.current_correlation_time_s, dt[k], s2, s2t, not ref[k])
+        F = np.zeros((6, 6))
+        Q = np.zeros((6, 6))
         for a in range(2):
-            F[np.ix_([a, a + 2], [a, a + 2])] = f1
-            Q[np.ix_([a, a + 2], [a, a + 2])] = q1
+            F[np.ix_([a, a + 2, a + 4], [a, a + 2, a + 4])] = f1
+            Q[np.ix_([a, a + 2, a + 4], [a, a + 2, a + 4])] = q1
             Q[a, a] += qpos[k]
         if inc_cov is not None:
             Q[:2, :2] += inc_cov[k]
-        u = np.array([d[k, 0], d[k, 1], 0, 0])
-        add([k, k - 1], [np.eye(4), -F], u, Q)
+        u = np.array([d[k, 0], d[k, 1], 0, 0, 0, 0])
+        add([k, k - 1], [np.eye(6), -F], u, Q)
     for f in fixes:
-        H = np.zeros((2, 4))
+        H = np.zeros((2, 6))
         H[0, 0] = H[1, 1] = 1
         add([f.index], [H], np.array([f.x_m, f.y_m]), f.cov_m2)
     A, b = np.vstack(rows), np.concatenate(rhs)
-    sol = np.linalg.lstsq(A, b, rcond=None)[0].reshape(n, 4)
+    sol = np.linalg.lstsq(A, b, rcond=None)[0].reshape(n, 6)
     cov = np.linalg.inv(A.T @ A)
-    P = np.array([cov[4 * k:4 * k + 2, 4 * k:4 * k + 2] for k in range(n)])
+    P = np.array([cov[6 * k:6 * k + 2, 6 * k:6 * k + 2] for k in range(n)])
     return sol, P
 
 
@@ -90,7 +92,7 @@ def test_rts_equals_batch_least_squares(with_depth, corr_time_s):
     t, d, ref, fixes = _problem()
     n = t.size
     depth = np.concatenate([np.linspace(0, 2500, 12), np.full(16, 2500.0) + np.arange(16.0), np.linspace(2515, 0, n - 28)])
-    opt = SmootherOptions(current_sigma_m_s=0.1, current_vertical_correlation_m=800.0,
+    opt = SmootherOptions(current_sigma_m_s=0.1, barotropic_current_sigma_m_s=0.04, current_vertical_correlation_m=800.0,
                           current_correlation_time_s=corr_time_s, position_random_walk_m_per_sqrt_s=0.8,
                           dr_variance_m2_per_m=0.3, gate_probability=0.99999999)
     out = smooth_positions(t, d, ref, fixes, opt, depth_m=depth if with_depth else None)
@@ -98,7 +100,7 @@ def test_rts_equals_batch_least_squares(with_depth, corr_time_s):
     sol, P = _batch_oracle(t, d, ref, fixes, opt, depth if with_depth else None)
     np.testing.assert_allclose(out.x_m, sol[:, 0], atol=1e-5 * 1000)
     np.testing.assert_allclose(out.y_m, sol[:, 1], atol=1e-5 * 1000)
-    np.testing.assert_allclose(out.current_m_s, sol[:, 2:], atol=1e-6)
+    np.testing.assert_allclose(out.current_m_s, sol[:, 2:4] + sol[:, 4:6], atol=1e-6)
     np.testing.assert_allclose(out.cov_m2, P, rtol=1e-6, atol=1e-6)
 
 

@@ -2,28 +2,39 @@
 
 State (map frame, metres; per sample ``k``)::
 
-    s_k = [x_east_m, y_north_m, c_east_m_s, c_north_m_s]
+    s_k = [x_east_m, y_north_m, cbc_east_m_s, cbc_north_m_s, cbt_east_m_s, cbt_north_m_s]
 
-``c`` is the drift velocity the dead reckoning does not see: the current that carries an unpowered vehicle
-while its DR has no velocity reference (descent, ascent, DR held), and any slow DR velocity bias.
+``c = cbc + cbt`` is the drift velocity the dead reckoning does not see: the current that carries an unpowered
+vehicle while its DR has no velocity reference (descent, ascent, DR held, water-track DVL), and any slow DR
+velocity bias. It is split as the ocean's currents are (their kinetic energy sits mostly in the barotropic and
+first baroclinic modes, Wunsch 1997, J. Phys. Oceanogr. 27(8)):
 
-Current model: a first-order Gauss-Markov (Ornstein-Uhlenbeck) process per axis with the stationary 1-sigma
-``current_sigma_m_s`` (also its prior at the first sample), decorrelating with the depth the vehicle traverses
-(vertical correlation length ``current_vertical_correlation_m``: a sinking vehicle crosses water layers whose
-currents differ) and with time (``current_correlation_time_s``: tides, inertial motion). Over a step of ``dt`` s
-in which the depth changes by ``dz`` m the dimensionless decorrelation is
+* ``cbc``, the depth-varying (baroclinic) part: a first-order Gauss-Markov (Ornstein-Uhlenbeck) process per
+  axis with the stationary 1-sigma ``current_sigma_m_s`` that decorrelates with the depth the vehicle traverses
+  (vertical correlation length ``current_vertical_correlation_m``: a sinking vehicle crosses water layers whose
+  currents differ) and with time (``current_correlation_time_s``: tides, inertial motion);
+* ``cbt``, the depth-coherent (barotropic) part: the same process with ``barotropic_current_sigma_m_s``,
+  decorrelating with time only (the same drift at every depth; shared by the descent and the ascent as far as
+  the time between them allows).
 
-    a = |dz| / current_vertical_correlation_m + dt / current_correlation_time_s,   phi = exp(-a)
+Both start from their stationary distribution ``N(0, sigma^2)``. Over a step of ``dt`` s in which the depth
+changes by ``dz`` m the dimensionless decorrelation is
 
-(the rate ``beta = a / dt`` is taken constant over the step). This is the integrated Ornstein-Uhlenbeck
-("Singer") model of target tracking (Singer 1970, IEEE Trans. AES-6(4); Bar-Shalom, Li & Kirubarajan 2001,
-*Estimation with Applications to Tracking and Navigation*, §8.2.3) with its exact discretisation. Unlike a
+    a_bc = |dz| / current_vertical_correlation_m + dt / current_correlation_time_s,
+    a_bt = dt / current_correlation_time_s,   phi = exp(-a)
+
+(the rate ``beta = a / dt`` is taken constant over the step). Each component is the integrated
+Ornstein-Uhlenbeck ("Singer") model of target tracking (Singer 1970, IEEE Trans. AES-6(4); Bar-Shalom, Li &
+Kirubarajan 2001, *Estimation with Applications to Tracking and Navigation*, §8.2.3) with its exact
+discretisation (checked against Van Loan's matrix exponential, tests/test_navigation_smoother.py). Unlike a
 random walk with a small prior, the current's variability is as large as its mean, so a drift concentrated in
 part of the descent (strong upper-ocean currents) is covered, and the position uncertainty between two fixes
-grows like a random walk of diffusivity ``2 sigma^2 tau`` (``tau`` the correlation time of the traversal)
-rather than a hand-set rate.
+grows like a random walk of diffusivity ``2 sigma^2 tau`` (``tau`` the correlation time of the traversal) plus
+the barotropic drift, rather than at a hand-set rate. The defaults are the ocean's, not fitted to a bench
+(bench/bench_navigation_coverage.py reports the coverage they give).
 
-Process, from sample ``k-1`` to ``k`` (DR increment ``d``, per axis independent)::
+Process, from sample ``k-1`` to ``k`` (DR increment ``d``, per axis independent; written for one current
+component, the position integrates both, whose noises are independent)::
 
     c_k = phi c_{k-1} + w_c,        var(w_c) = sigma^2 (1 - phi^2)
     referenced step (DR moving: DVL/INS velocity reference, or the terrain-matched track)
@@ -67,6 +78,8 @@ from pydantic import BaseModel, ConfigDict, Field
 #: chi-square 2 dof quantiles of the 1-sigma and 2-sigma contents (68.27 %, 95.45 %): the 2-D ellipses
 CHI2_2DOF_1SIGMA = 2.2957489
 CHI2_2DOF_2SIGMA = 6.1800743
+#: state size: position east/north, baroclinic current east/north, barotropic current east/north
+N_STATE = 6
 
 
 class SmootherOptions(BaseModel):
@@ -75,9 +88,15 @@ class SmootherOptions(BaseModel):
     model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
     current_sigma_m_s: float = Field(
         0.1, gt=0, le=5,
-        description="stationary 1-sigma per axis of the drift velocity (current) the dead reckoning does not see, "
-                    "m/s (also its prior at the first sample); 0.1: open-ocean upper-layer currents of 0.1-0.3 m/s "
-                    "(e.g. the North Equatorial Current over the Mariana Trench) and weaker deep currents")
+        description="stationary 1-sigma per axis of the depth-varying (baroclinic) part of the current the dead "
+                    "reckoning does not see, m/s (also its prior at the first sample); 0.1: open-ocean upper-layer "
+                    "currents of 0.1-0.3 m/s (e.g. the North Equatorial Current over the Mariana Trench) and "
+                    "weaker deep currents")
+    barotropic_current_sigma_m_s: float = Field(
+        0.05, gt=0, le=5,
+        description="stationary 1-sigma per axis of the depth-coherent (barotropic) part of the current, m/s: "
+                    "the same drift at every depth, decorrelating only with time (deep-ocean mean currents of a "
+                    "few cm/s)")
     current_vertical_correlation_m: float = Field(
         500.0, gt=0, le=100000,
         description="vertical correlation length of the current (m): the drift velocity decorrelates as "
@@ -212,34 +231,38 @@ def _ou_terms(dt, a, s2):  # pragma: no cover - compiled
 
 
 @njit(cache=True, nogil=True)
-def _transition(dt, a, ref, qpos, s2):  # pragma: no cover - compiled
-    F = np.eye(4)
-    Q = np.zeros((4, 4))
-    phi, G, Qcc, Qxc, Qxx = _ou_terms(dt, a, s2)
+def _transition(dt, a_bc, a_bt, ref, qpos, s2_bc, s2_bt):  # pragma: no cover - compiled
+    """F, Q of one step, state [x, y, c_bc east/north, c_bt east/north] (module docstring): the two current
+    components are independent Ornstein-Uhlenbeck processes; the position integrates their sum when unreferenced."""
+    F = np.eye(N_STATE)
+    Q = np.zeros((N_STATE, N_STATE))
     Q[:2, :2] = qpos
-    for i in range(2):
-        F[i + 2, i + 2] = phi
-        Q[i + 2, i + 2] = Qcc
-        if not ref:
-            F[i, i + 2] = G
-            Q[i, i] += Qxx
-            Q[i, i + 2] = Q[i + 2, i] = Qxc
+    for c, a, s2 in ((2, a_bc, s2_bc), (4, a_bt, s2_bt)):
+        phi, G, Qcc, Qxc, Qxx = _ou_terms(dt, a, s2)
+        for i in range(2):
+            F[c + i, c + i] = phi
+            Q[c + i, c + i] = Qcc
+            if not ref:
+                F[i, c + i] = G
+                Q[i, i] += Qxx
+                Q[i, c + i] = Q[c + i, i] = Qxc
     return F, Q
 
 
 @njit(cache=True, nogil=True)
-def _rts(dt, a, d, ref, qpos, s2, x0, P0, fidx, fz, fR):  # pragma: no cover - compiled
-    """Kalman filter + RTS smoother (module docstring). Fixes sorted by sample index ``fidx``."""
+def _rts(dt, a_bc, a_bt, d, ref, qpos, s2_bc, s2_bt, x0, P0, fidx, fz, fR):  # pragma: no cover - compiled
+    """Kalman filter + RTS smoother (module docstring). Fixes sorted by sample index ``fidx``. Returns the
+    smoothed states (n, N_STATE) and position covariances (n, 2, 2)."""
     n = dt.shape[0]
-    xf = np.empty((n, 4))
-    Pf = np.empty((n, 4, 4))
+    xf = np.empty((n, N_STATE))
+    Pf = np.empty((n, N_STATE, N_STATE))
     x = x0.copy()
     P = P0.copy()
     j = 0
     m = fidx.shape[0]
     for k in range(n):
         if k > 0:
-            F, Q = _transition(dt[k], a[k], ref[k], qpos[k], s2)
+            F, Q = _transition(dt[k], a_bc[k], a_bt[k], ref[k], qpos[k], s2_bc, s2_bt)
             x = F @ x
             x[0] += d[k, 0]
             x[1] += d[k, 1]
@@ -248,19 +271,19 @@ def _rts(dt, a, d, ref, qpos, s2, x0, P0, fidx, fz, fR):  # pragma: no cover - c
             S = P[:2, :2] + fR[j]
             K = np.ascontiguousarray(P[:, :2]) @ np.linalg.inv(S)
             x = x + K @ (fz[j] - x[:2])
-            IKH = np.eye(4)
+            IKH = np.eye(N_STATE)
             IKH[:, :2] -= K
             P = IKH @ P @ IKH.T + K @ fR[j] @ K.T  # Joseph form
             j += 1
         xf[k] = x
         Pf[k] = 0.5 * (P + P.T)
-    xs = np.empty((n, 4))
+    xs = np.empty((n, N_STATE))
     Ps2 = np.empty((n, 2, 2))
     xs[n - 1] = xf[n - 1]
     Ps = Pf[n - 1].copy()
     Ps2[n - 1] = Ps[:2, :2]
     for k in range(n - 2, -1, -1):
-        F, Q = _transition(dt[k + 1], a[k + 1], ref[k + 1], qpos[k + 1], s2)
+        F, Q = _transition(dt[k + 1], a_bc[k + 1], a_bt[k + 1], ref[k + 1], qpos[k + 1], s2_bc, s2_bt)
         Pp = F @ Pf[k] @ F.T + Q
         xp = F @ xf[k]
         xp[0] += d[k + 1, 0]
@@ -284,13 +307,16 @@ def _run(t_s, d_m, referenced, fixes: list[Fix], use: np.ndarray, options: Smoot
     fidx = np.array([f.index for f in sel], np.int64)
     fz = np.array([[f.x_m, f.y_m] for f in sel], float).reshape(-1, 2)
     fR = np.array([f.cov_m2 for f in sel], float).reshape(-1, 2, 2)
-    # prior: diffuse position about the first fix (the fixes carry the information), current N(0, sigma^2)
-    x0 = np.zeros(4)
+    # prior: diffuse position about the first fix (the fixes carry the information), currents at their
+    # stationary distributions N(0, sigma^2)
+    x0 = np.zeros(N_STATE)
     if len(sel):
         x0[:2] = fz[0]
-    P0 = np.diag([1e8, 1e8, options.current_sigma_m_s ** 2, options.current_sigma_m_s ** 2])
-    return _rts(dt, np.ascontiguousarray(a, float), np.ascontiguousarray(d_m, float),
-                np.asarray(referenced, np.bool_), qpos, options.current_sigma_m_s ** 2, x0, P0, fidx, fz, fR)
+    s2_bc, s2_bt = options.current_sigma_m_s ** 2, options.barotropic_current_sigma_m_s ** 2
+    P0 = np.diag([1e8, 1e8, s2_bc, s2_bc, s2_bt, s2_bt])
+    a_bt = dt / options.current_correlation_time_s
+    return _rts(dt, np.ascontiguousarray(a, float), a_bt, np.ascontiguousarray(d_m, float),
+                np.asarray(referenced, np.bool_), qpos, s2_bc, s2_bt, x0, P0, fidx, fz, fR)
 
 
 def _fix_tests(xs: np.ndarray, Ps: np.ndarray, fixes: list[Fix], use: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -359,4 +385,4 @@ def smooth_positions(t_s, dr_increment_m, referenced, fixes: list[Fix],
         "x_east_m": [f.x_m for f in fixes], "y_north_m": [f.y_m for f in fixes],
         "residual_east_m": res[:, 0], "residual_north_m": res[:, 1], "d2": d2,
         "status": np.where(use, "used", "rejected")})
-    return SmoothedTrack(xs[:, 0].copy(), xs[:, 1].copy(), Ps, xs[:, 2:].copy(), fx, gate)
+    return SmoothedTrack(xs[:, 0].copy(), xs[:, 1].copy(), Ps, xs[:, 2:4] + xs[:, 4:6], fx, gate)
