@@ -147,3 +147,17 @@ def test_no_fix_is_a_clear_error():
 
     with pytest.raises(InputError, match="no position fix"):
         smooth_positions(np.arange(3.0), np.zeros((3, 2)), np.zeros(3, bool), [])
+
+
+def test_rts_with_increment_covariance_equals_batch_least_squares():
+    # measured increments (DVL velocities x dt) with their own full 2x2 covariance per step
+    t, d, ref, fixes = _problem(seed=8)
+    rng = np.random.default_rng(8)
+    L = rng.normal(0, 2.0, (t.size, 2, 2))
+    inc = L @ np.swapaxes(L, 1, 2)
+    opt = SmootherOptions(gate_probability=0.99999999)
+    out = smooth_positions(t, d, ref, fixes, opt, increment_cov_m2=inc)
+    sol, P = _batch_oracle(t, d, ref, fixes, opt, inc_cov=inc)
+    np.testing.assert_allclose(out.x_m, sol[:, 0], atol=1e-2)
+    np.testing.assert_allclose(out.y_m, sol[:, 1], atol=1e-2)
+    np.testing.assert_allclose(out.cov_m2, P, rtol=1e-6, atol=1e-6)
