@@ -22,15 +22,20 @@ Same coverage figures per sample, and the RMS error against today's rule (comput
 Run: ``PYTHONPATH=src .venv/bin/python bench/bench_navigation_coverage.py --sample [--work DIR]`` and
 ``... --sim 200 --usbl``.
 
-Results (2026-12-05, default :class:`~hadal.navigation.smoother.SmootherOptions`):
+Results (2026-12-06, default :class:`~hadal.navigation.smoother.SmootherOptions`; "before" = the smoother with
+the current as a random walk (prior 0.05 m/s, 0.0005 m/s/sqrt(s), position random walk 1.4 m/sqrt(s)), "after" =
+the current as baroclinic (0.1 m/s, 500 m vertical correlation) + barotropic (0.05 m/s) Ornstein-Uhlenbeck
+components, 6 h correlation time, position random walk 0.1 m/sqrt(s); the same dives in the same run order):
 
-* sample dive, 10 seeds (the generator's own launch/recovery GNSS through ingest/derive/match): 71.6 % of the
-  samples within the 1-sigma ellipse (per seed 0.56-0.79), 99.6 % within 2-sigma (0.96-1.00); surfacing within
-  2-sigma 10/10, deepest point 10/10; RMS error 104 m against 203.5 m for today's rule;
-* 200 simulated dives (100 with USBL): without USBL 45.9 % / 80.8 % (under-covered: this simulator's descent
-  drifts, 300-900 m and more front-loaded than the sample's 533 m, exceed the default random walks), surfacing
-  99/100, deepest 96/100, RMS 153 m against 304 m; with USBL 79.7 % / 98.3 % (over-covered), surfacing 95/100
-  (the 2-sigma content is 95.4 %), deepest 98/100, RMS 33 m against 303 m (today's rule ignores USBL).
+* ``--sim 400 --usbl`` (200 dives without USBL, 200 with): without USBL 1σ/2σ 0.458/0.815 -> 0.747/0.970
+  (descent 0.764/0.974, bottom 0.740/0.972, ascent 0.732/0.964), surfacing within 2σ 196 -> 196/200, deepest
+  194 -> 195/200, RMS 154.6 -> 142.9 m (today's rule 301.3 m), fixes rejected 1 -> 0 (an OU current without the
+  barotropic part rejected 8 true terrain/recovery fixes on coherent 900 m drifts); with USBL 0.796/0.983 ->
+  0.773/0.979 (still over-covered), RMS 32.7 -> 35.7 m (today's rule 311.5 m), 7 -> 6 USBL fixes rejected of ~9000;
+* ``--sample`` (10 seeds): 1σ/2σ 0.700/0.962 -> 0.910/0.960 (over-covered at 1σ: this generator's 533 m,
+  front-loaded descent drift is smaller than the default currents' prior), surfacing 10/10 -> 10/10, deepest
+  9/10 -> 9/10 (seed 5's deepest point, d² 7.4, is the terrain fix's, unchanged), RMS 103.9 -> 97.2 m (today's
+  rule 203.5 m).
 """
 
 from __future__ import annotations
