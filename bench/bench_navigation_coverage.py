@@ -22,20 +22,31 @@ Same coverage figures per sample, and the RMS error against today's rule (comput
 Run: ``PYTHONPATH=src .venv/bin/python bench/bench_navigation_coverage.py --sample [--work DIR]`` and
 ``... --sim 200 --usbl``.
 
-Results (2026-12-06, default :class:`~hadal.navigation.smoother.SmootherOptions`; "before" = the smoother with
-the current as a random walk (prior 0.05 m/s, 0.0005 m/s/sqrt(s), position random walk 1.4 m/sqrt(s)), "after" =
-the current as baroclinic (0.1 m/s, 500 m vertical correlation) + barotropic (0.05 m/s) Ornstein-Uhlenbeck
-components, 6 h correlation time, position random walk 0.1 m/sqrt(s); the same dives in the same run order):
+Results (2026-12-06, default :class:`~hadal.navigation.smoother.SmootherOptions`, the same dives in the same run
+order). Models: "before" = the current as a random walk (prior 0.05 m/s, 0.0005 m/s/sqrt(s), position random walk
+1.4 m/sqrt(s)); "OU" = the current as baroclinic (0.1 m/s, 500 m vertical correlation) + barotropic (0.05 m/s)
+Ornstein-Uhlenbeck components, 6 h correlation time, position random walk 0.1 m/sqrt(s)
+(``current_scale_points=1``); "after" (default) = OU with the currents' strength marginalised over x0.25-x4
+(9 points, weighted by the fixes' likelihood). 1σ / 2σ = fraction of samples within the 1-/2-sigma ellipse:
 
-* ``--sim 400 --usbl`` (200 dives without USBL, 200 with): without USBL 1σ/2σ 0.458/0.815 -> 0.747/0.970
-  (descent 0.764/0.974, bottom 0.740/0.972, ascent 0.732/0.964), surfacing within 2σ 196 -> 196/200, deepest
-  194 -> 195/200, RMS 154.6 -> 142.9 m (today's rule 301.3 m), fixes rejected 1 -> 0 (an OU current without the
-  barotropic part rejected 8 true terrain/recovery fixes on coherent 900 m drifts); with USBL 0.796/0.983 ->
-  0.773/0.979 (still over-covered), RMS 32.7 -> 35.7 m (today's rule 311.5 m), 7 -> 6 USBL fixes rejected of ~9000;
-* ``--sample`` (10 seeds): 1σ/2σ 0.700/0.962 -> 0.910/0.960 (over-covered at 1σ: this generator's 533 m,
-  front-loaded descent drift is smaller than the default currents' prior), surfacing 10/10 -> 10/10, deepest
-  9/10 -> 9/10 (seed 5's deepest point, d² 7.4, is the terrain fix's, unchanged), RMS 103.9 -> 97.2 m (today's
-  rule 203.5 m).
+=====================  ===============  ===============  ===============
+bench                  before           OU               after
+=====================  ===============  ===============  ===============
+sim, no USBL (200)     0.458 / 0.815    0.747 / 0.970    0.812 / 0.985
+  RMS, m               154.6            142.9            142.9
+sim, USBL (200)        0.796 / 0.983    0.773 / 0.979    0.738 / 0.969
+  RMS, m               32.7             35.7             33.6
+sample dive, 10 seeds  0.700 / 0.962    0.910 / 0.960    0.746 / 0.958
+  RMS, m               103.9            97.2             97.2
+=====================  ===============  ===============  ===============
+
+Today's rule on the same dives: RMS 301.3 m (sim without USBL), 311.5 m (with), 203.5 m (sample). Surfacing
+within 2σ: sim 196/200 and 190/200 in every model, sample 10/10; deepest point: sim without USBL 194 -> 195 -> 195,
+with USBL 194 -> 194 -> 191, sample 9/10 (seed 5's, d² 7.4, is the terrain fix's). Fixes rejected (sim, 400
+dives): 8 -> 6 -> 6 (all USBL, of ~9000: the 99.9 % gate's false alarms); the OU model without its barotropic part
+rejected 8 true terrain/recovery fixes on this simulator's coherent 900 m drifts. Remaining misfit: the simulated
+dives without USBL are over-covered after the marginalisation (the posterior over the strength from two
+unobserved legs is wide, so the mixture is conservative), the sample dive is over-covered at 1σ without it.
 """
 
 from __future__ import annotations

@@ -25,7 +25,7 @@ def _van_loan(beta_bc, beta_bt, dt, s2_bc, s2_bt, coupled):
     return F, F @ M[:3, 3:]
 
 
-def _batch_oracle(t, d, ref, fixes, opt, depth=None, inc_cov=None):
+def _batch_oracle(t, d, ref, fixes, opt, depth=None, inc_cov=None, prior_only=False):
     """Stack prior, process and fix equations of all states [x, y, cx, cy] x n, whitened; solve by lstsq."""
     n = t.size
     dt = np.diff(t, prepend=t[0])
@@ -58,15 +58,33 @@ def _batch_oracle(t, d, ref, fixes, opt, depth=None, inc_cov=None):
             Q[:2, :2] += inc_cov[k]
         u = np.array([d[k, 0], d[k, 1], 0, 0, 0, 0])
         add([k, k - 1], [np.eye(6), -F], u, Q)
-    for f in fixes:
+    for f in [] if prior_only else fixes:
         H = np.zeros((2, 6))
         H[0, 0] = H[1, 1] = 1
         add([f.index], [H], np.array([f.x_m, f.y_m]), f.cov_m2)
     A, b = np.vstack(rows), np.concatenate(rhs)
     sol = np.linalg.lstsq(A, b, rcond=None)[0].reshape(n, 6)
     cov = np.linalg.inv(A.T @ A)
+    if prior_only:
+        return sol, cov
     P = np.array([cov[6 * k:6 * k + 2, 6 * k:6 * k + 2] for k in range(n)])
     return sol, P
+
+
+def _fix_loglik(t, d, ref, fixes, opt, depth):
+    """log p(z_2..z_m | z_1) of the fixes from the dense Gaussian of the process model (prior mean and full
+    covariance of every state by the batch oracle, no Kalman recursion)."""
+    from scipy.stats import multivariate_normal
+
+    mu, cov = _batch_oracle(t, d, ref, fixes, opt, depth, prior_only=True)
+    fs = sorted(fixes, key=lambda f: f.index)
+    idx = np.concatenate([[6 * f.index, 6 * f.index + 1] for f in fs])
+    z = np.concatenate([[f.x_m, f.y_m] for f in fs])
+    C = cov[np.ix_(idx, idx)]
+    for j, f in enumerate(fs):
+        C[2 * j:2 * j + 2, 2 * j:2 * j + 2] += f.cov_m2
+    m = mu.reshape(-1)[idx]
+    return multivariate_normal(m, C).logpdf(z) - multivariate_normal(m[:2], C[:2, :2]).logpdf(z[:2])
 
 
 def _problem(seed=3, n=40):
@@ -94,7 +112,7 @@ def test_rts_equals_batch_least_squares(with_depth, corr_time_s):
     depth = np.concatenate([np.linspace(0, 2500, 12), np.full(16, 2500.0) + np.arange(16.0), np.linspace(2515, 0, n - 28)])
     opt = SmootherOptions(current_sigma_m_s=0.1, barotropic_current_sigma_m_s=0.04, current_vertical_correlation_m=800.0,
                           current_correlation_time_s=corr_time_s, position_random_walk_m_per_sqrt_s=0.8,
-                          dr_variance_m2_per_m=0.3, gate_probability=0.99999999)
+                          dr_variance_m2_per_m=0.3, gate_probability=0.99999999, current_scale_points=1)
     out = smooth_positions(t, d, ref, fixes, opt, depth_m=depth if with_depth else None)
     assert (out.fixes["status"] == "used").all()
     sol, P = _batch_oracle(t, d, ref, fixes, opt, depth if with_depth else None)
@@ -111,7 +129,7 @@ def test_two_gnss_fixes_on_a_still_vehicle_give_the_information_weighted_mean():
     ref = np.ones(5, bool)
     R1, R2 = np.array([[4.0, 1.0], [1.0, 9.0]]), np.array([[16.0, -2.0], [-2.0, 1.0]])
     z1, z2 = np.array([3.0, -1.0]), np.array([-2.0, 4.0])
-    opt = SmootherOptions(dr_variance_m2_per_m=0.0, gate_probability=0.9999)
+    opt = SmootherOptions(dr_variance_m2_per_m=0.0, gate_probability=0.9999, current_scale_points=1)
     out = smooth_positions(t, d, ref, [Fix(0, *z1, R1, "gnss"), Fix(4, *z2, R2, "gnss")], opt)
     I1, I2 = np.linalg.inv(R1), np.linalg.inv(R2)
     P = np.linalg.inv(I1 + I2)
@@ -123,7 +141,7 @@ def test_two_gnss_fixes_on_a_still_vehicle_give_the_information_weighted_mean():
 
 def test_gate_statistic_equals_leave_one_out_innovation_and_names_the_bad_fix():
     t, d, ref, fixes = _problem()
-    opt = SmootherOptions(current_sigma_m_s=0.05, dr_variance_m2_per_m=0.3)
+    opt = SmootherOptions(current_sigma_m_s=0.05, dr_variance_m2_per_m=0.3, current_scale_points=1)
     good = smooth_positions(t, d, ref, fixes, opt.model_copy(update={"gate_probability": 0.99999999}))
     # oracle: re-run without fix i; its innovation against that track, covariance R + P_loo
     for i, f in enumerate(fixes):
@@ -155,9 +173,47 @@ def test_rts_with_increment_covariance_equals_batch_least_squares():
     rng = np.random.default_rng(8)
     L = rng.normal(0, 2.0, (t.size, 2, 2))
     inc = L @ np.swapaxes(L, 1, 2)
-    opt = SmootherOptions(gate_probability=0.99999999)
+    opt = SmootherOptions(gate_probability=0.99999999, current_scale_points=1)
     out = smooth_positions(t, d, ref, fixes, opt, increment_cov_m2=inc)
     sol, P = _batch_oracle(t, d, ref, fixes, opt, inc_cov=inc)
     np.testing.assert_allclose(out.x_m, sol[:, 0], atol=1e-2)
     np.testing.assert_allclose(out.y_m, sol[:, 1], atol=1e-2)
     np.testing.assert_allclose(out.cov_m2, P, rtol=1e-6, atol=1e-6)
+
+
+def test_current_scale_marginalised_by_the_fixes_likelihood():
+    # oracle: per scale the batch least-squares track and the fixes' likelihood from the dense Gaussian of the
+    # process model; the published track is their likelihood-weighted mixture (log-uniform prior on the grid)
+    t, d, ref, fixes = _problem(seed=4)
+    depth = np.concatenate([np.linspace(0, 2500, 12), np.full(16, 2500.0), np.linspace(2500, 0, t.size - 28)])
+    opt = SmootherOptions(gate_probability=0.99999999, current_scale_range=(0.5, 2.0), current_scale_points=3,
+                          current_vertical_correlation_m=800.0)
+    out = smooth_positions(t, d, ref, fixes, opt, depth_m=depth)
+    sols, Ps, lls = [], [], []
+    for sc in (0.5, 1.0, 2.0):
+        o = opt.model_copy(update={"current_sigma_m_s": sc * opt.current_sigma_m_s,
+                                   "barotropic_current_sigma_m_s": sc * opt.barotropic_current_sigma_m_s})
+        sol, P = _batch_oracle(t, d, ref, fixes, o, depth)
+        sols.append(sol)
+        Ps.append(P)
+        lls.append(_fix_loglik(t, d, ref, fixes, o, depth))
+    w = np.exp(np.array(lls) - max(lls))
+    w /= w.sum()
+    assert w.min() > 1e-3  # the test exercises a real mixture
+    x = sum(wi * s[:, :2] for wi, s in zip(w, sols, strict=True))
+    P = sum(wi * (Pi + np.einsum("ki,kj->kij", s[:, :2] - x, s[:, :2] - x)) for wi, s, Pi in zip(w, sols, Ps, strict=True))
+    np.testing.assert_allclose(np.column_stack([out.x_m, out.y_m]), x, atol=1e-2)
+    np.testing.assert_allclose(out.cov_m2, P, rtol=1e-5, atol=1e-4)
+
+
+def test_bad_fix_rejected_before_the_mixture():
+    # default options (current strength marginalised): the 400 m-off USBL fix is still rejected by name and
+    # the published track is the one computed without it
+    t, d, ref, fixes = _problem()
+    bad = [*fixes[:2], Fix(33, fixes[2].x_m + 400.0, fixes[2].y_m, fixes[2].cov_m2, "usbl"), fixes[3]]
+    opt = SmootherOptions(current_sigma_m_s=0.05, dr_variance_m2_per_m=0.3)
+    out = smooth_positions(t, d, ref, bad, opt)
+    assert out.rejected == ["usbl at sample 33"]
+    without = smooth_positions(t, d, ref, [fixes[0], fixes[1], fixes[3]], opt)
+    np.testing.assert_allclose(out.x_m, without.x_m, atol=1e-6)
+    np.testing.assert_allclose(out.cov_m2, without.cov_m2, atol=1e-6)

@@ -33,6 +33,16 @@ grows like a random walk of diffusivity ``2 sigma^2 tau`` (``tau`` the correlati
 the barotropic drift, rather than at a hand-set rate. The defaults are the ocean's, not fitted to a bench
 (bench/bench_navigation_coverage.py reports the coverage they give).
 
+The currents' strength on a given dive is not known beforehand, but the fixes reveal it (a drift of 900 m
+between the launch and the terrain fix is unlikely under weak currents): both 1-sigmas are multiplied by a factor
+``s`` with a log-uniform prior over ``current_scale_range`` (a grid of ``current_scale_points``), the smoother
+runs for every ``s``, and the published track is the posterior mixture, weighted by the fixes' likelihood
+``p(z | s)`` (the Kalman filter's prediction-error decomposition, Schweppe 1965, IEEE Trans. IT-11(1); the
+first fix, met by the diffuse position prior, excluded): mean ``sum w_s x_s``, covariance
+``sum w_s (P_s + (x_s - x)(x_s - x)')`` (Bayesian marginalisation of a hyperparameter over a grid; tested
+against the dense Gaussian likelihood and batch least squares). The gate and the fixes' residuals/chi-squares
+use the model at ``s = 1``, where the chi-square is exactly the leave-one-out statistic.
+
 Process, from sample ``k-1`` to ``k`` (DR increment ``d``, per axis independent; written for one current
 component, the position integrates both, whose noises are independent)::
 
@@ -73,7 +83,7 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 from numba import njit
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, field_validator
 
 #: chi-square 2 dof quantiles of the 1-sigma and 2-sigma contents (68.27 %, 95.45 %): the 2-D ellipses
 CHI2_2DOF_1SIGMA = 2.2957489
@@ -115,6 +125,14 @@ class SmootherOptions(BaseModel):
         0.1, ge=0, le=1000,
         description="referenced steps: dead-reckoning position variance per axis added per metre travelled "
                     "(m^2/m); 0.1: 14 m per axis after 2 km (the matched track's residual heading/scale error)")
+    current_scale_range: tuple[float, float] = Field(
+        (0.25, 4.0),
+        description="the currents' strength is not known before the dive: their 1-sigma (current_sigma_m_s, "
+                    "barotropic_current_sigma_m_s) is multiplied by a factor with a log-uniform prior over this "
+                    "range, and the track is the mixture over the factor weighted by the fixes' likelihood "
+                    "(currents known within a factor of 4 either way)")
+    current_scale_points: int = Field(
+        9, ge=1, le=33, description="grid points of that factor (1: no marginalisation, the factor is 1)")
     gate_probability: float = Field(
         0.999, gt=0.5, lt=1,
         description="chi-square gate (2 dof) of the fixes' leave-one-out residuals: a fix beyond it is rejected and named")
@@ -135,6 +153,14 @@ class SmootherOptions(BaseModel):
                     "not independent)")
     launch_sigma_m: float = Field(
         7.0, gt=0, le=10000, description="1-sigma per axis (m) of the launch position (dive.yaml launch, a GNSS fix)")
+
+
+    @field_validator("current_scale_range")
+    @classmethod
+    def _scale_range(cls, v: tuple[float, float]) -> tuple[float, float]:
+        if not (0.01 <= v[0] <= 1.0 <= v[1] <= 100.0):
+            raise ValueError("current_scale_range must be (low, high) with 0.01 <= low <= 1 <= high <= 100")
+        return v
 
 
 @dataclass(frozen=True)
@@ -260,6 +286,7 @@ def _rts(dt, a_bc, a_bt, d, ref, qpos, s2_bc, s2_bt, x0, P0, fidx, fz, fR):  # p
     P = P0.copy()
     j = 0
     m = fidx.shape[0]
+    ll = 0.0
     for k in range(n):
         if k > 0:
             F, Q = _transition(dt[k], a_bc[k], a_bt[k], ref[k], qpos[k], s2_bc, s2_bt)
@@ -269,8 +296,12 @@ def _rts(dt, a_bc, a_bt, d, ref, qpos, s2_bc, s2_bt, x0, P0, fidx, fz, fR):  # p
             P = F @ P @ F.T + Q
         while j < m and fidx[j] == k:
             S = P[:2, :2] + fR[j]
-            K = np.ascontiguousarray(P[:, :2]) @ np.linalg.inv(S)
-            x = x + K @ (fz[j] - x[:2])
+            Si = np.linalg.inv(S)
+            r = fz[j] - x[:2]
+            if j > 0:  # the first fix meets the diffuse position prior: no information on the process
+                ll -= 0.5 * (np.log(np.linalg.det(S)) + r @ Si @ r + 2.0 * np.log(2.0 * np.pi))
+            K = np.ascontiguousarray(P[:, :2]) @ Si
+            x = x + K @ r
             IKH = np.eye(N_STATE)
             IKH[:, :2] -= K
             P = IKH @ P @ IKH.T + K @ fR[j] @ K.T  # Joseph form
@@ -293,11 +324,13 @@ def _rts(dt, a_bc, a_bt, d, ref, qpos, s2_bc, s2_bt, x0, P0, fidx, fz, fR):  # p
         Ps = Pf[k] + G @ (Ps - Pp) @ G.T
         Ps = 0.5 * (Ps + Ps.T)
         Ps2[k] = Ps[:2, :2]
-    return xs, Ps2
+    return xs, Ps2, ll
 
 
 def _run(t_s, d_m, referenced, fixes: list[Fix], use: np.ndarray, options: SmootherOptions, a: np.ndarray,
-         increment_cov_m2: np.ndarray | None = None):
+         increment_cov_m2: np.ndarray | None = None, scale: float = 1.0):
+    """Smoothed states, position covariances and the fixes' log-likelihood (prediction-error decomposition,
+    the first fix excluded) with the currents' 1-sigma multiplied by ``scale``."""
     dt = np.diff(np.asarray(t_s, float), prepend=float(t_s[0]))
     dt = np.clip(dt, 0.0, None)
     qpos = process_variances(dt, d_m, referenced, options, increment_cov_m2)
@@ -312,7 +345,8 @@ def _run(t_s, d_m, referenced, fixes: list[Fix], use: np.ndarray, options: Smoot
     x0 = np.zeros(N_STATE)
     if len(sel):
         x0[:2] = fz[0]
-    s2_bc, s2_bt = options.current_sigma_m_s ** 2, options.barotropic_current_sigma_m_s ** 2
+    s2_bc = (scale * options.current_sigma_m_s) ** 2
+    s2_bt = (scale * options.barotropic_current_sigma_m_s) ** 2
     P0 = np.diag([1e8, 1e8, s2_bc, s2_bc, s2_bt, s2_bt])
     a_bt = dt / options.current_correlation_time_s
     return _rts(dt, np.ascontiguousarray(a, float), a_bt, np.ascontiguousarray(d_m, float),
@@ -332,6 +366,31 @@ def _fix_tests(xs: np.ndarray, Ps: np.ndarray, fixes: list[Fix], use: np.ndarray
         if w[0] > 1e-6 * max(float(np.trace(R)), 1e-12):
             d2[i] = float(r @ np.linalg.solve(C, r))
     return res, d2
+
+
+def current_scales(options: SmootherOptions) -> np.ndarray:
+    """The grid of current 1-sigma multipliers (log-spaced over ``current_scale_range``, ``current_scale_points``)."""
+    lo, hi = options.current_scale_range
+    return np.geomspace(lo, hi, options.current_scale_points) if options.current_scale_points > 1 else np.ones(1)
+
+
+def marginal_over_current_scale(t_s, d_m, referenced, fixes: list[Fix], use: np.ndarray, options: SmootherOptions,
+                                a: np.ndarray, increment_cov_m2: np.ndarray | None = None):
+    """The smoothed track with the currents' strength marginalised (module docstring): one smoother per scale
+    ``s`` of :func:`current_scales` (log-uniform prior), weighted by the fixes' likelihood ``p(z | s)``; the
+    mixture's mean and covariance (``sum w_i (P_i + (x_i - x)(x_i - x)')``). Returns (states, position
+    covariances, weights)."""
+    scales = current_scales(options)
+    runs = [_run(t_s, d_m, referenced, fixes, use, options, a, increment_cov_m2, float(s)) for s in scales]
+    ll = np.array([r[2] for r in runs])
+    w = np.exp(ll - ll.max())
+    w /= w.sum()
+    xs = sum(wi * r[0] for wi, r in zip(w, runs, strict=True))
+    Ps = np.zeros_like(runs[0][1])
+    for wi, r in zip(w, runs, strict=True):
+        dx = r[0][:, :2] - xs[:, :2]
+        Ps += wi * (r[1] + dx[:, :, None] * dx[:, None, :])
+    return xs, Ps, w
 
 
 def smooth_positions(t_s, dr_increment_m, referenced, fixes: list[Fix],
@@ -359,7 +418,7 @@ def smooth_positions(t_s, dr_increment_m, referenced, fixes: list[Fix],
     gate = chi2_2dof_quantile(options.gate_probability)
     use = np.ones(len(fixes), bool)
     a = decorrelation(np.clip(np.diff(t_s, prepend=t_s[:1]), 0.0, None), depth_m, options)
-    xs, Ps = _run(t_s, d_m, referenced, fixes, use, options, a, increment_cov_m2)
+    xs, Ps, _ = _run(t_s, d_m, referenced, fixes, use, options, a, increment_cov_m2)
     res, d2 = _fix_tests(xs, Ps, fixes, use)
     while (~use).sum() < options.max_rejections and use.sum() > 1:
         failing = np.flatnonzero(use & np.isfinite(d2) & (d2 > gate))
@@ -372,7 +431,7 @@ def smooth_positions(t_s, dr_increment_m, referenced, fixes: list[Fix],
         for i in failing[np.argsort(-d2[failing])][:20]:
             u = use.copy()
             u[i] = False
-            xs_i, Ps_i = _run(t_s, d_m, referenced, fixes, u, options, a, increment_cov_m2)
+            xs_i, Ps_i, _ = _run(t_s, d_m, referenced, fixes, u, options, a, increment_cov_m2)
             res_i, d2_i = _fix_tests(xs_i, Ps_i, fixes, u)
             score = float(np.nansum(np.where(u, d2_i, 0.0)))
             if best is None or score < best[0]:
@@ -380,6 +439,10 @@ def smooth_positions(t_s, dr_increment_m, referenced, fixes: list[Fix],
         assert best is not None  # failing is not empty
         _, i, xs, Ps, res, d2 = best
         use[i] = False
+    if options.current_scale_points > 1 and use.sum() > 1:
+        # the published track: the currents' strength marginalised; the fixes' residuals and chi-squares stay
+        # those of the gate's Gaussian model (scale 1), where d2 is exactly the leave-one-out statistic
+        xs, Ps, _ = marginal_over_current_scale(t_s, d_m, referenced, fixes, use, options, a, increment_cov_m2)
     fx = pd.DataFrame({
         "source": [f.source for f in fixes], "index": [f.index for f in fixes], "time": [f.time for f in fixes],
         "x_east_m": [f.x_m for f in fixes], "y_north_m": [f.y_m for f in fixes],
