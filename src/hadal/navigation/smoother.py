@@ -276,7 +276,7 @@ def _transition(dt, a_bc, a_bt, ref, qpos, s2_bc, s2_bt):  # pragma: no cover - 
 
 
 @njit(cache=True, nogil=True)
-def _rts(dt, a_bc, a_bt, d, ref, qpos, s2_bc, s2_bt, x0, P0, fidx, fz, fR):  # pragma: no cover - compiled
+def _rts(dt, a_bc, a_bt, d, ref, qpos, s2_bc, s2_bt, x0, P0, fidx, fz, fR, smooth):  # pragma: no cover - compiled
     """Kalman filter + RTS smoother (module docstring). Fixes sorted by sample index ``fidx``. Returns the
     smoothed states (n, N_STATE) and position covariances (n, 2, 2)."""
     n = dt.shape[0]
@@ -308,6 +308,8 @@ def _rts(dt, a_bc, a_bt, d, ref, qpos, s2_bc, s2_bt, x0, P0, fidx, fz, fR):  # p
             j += 1
         xf[k] = x
         Pf[k] = 0.5 * (P + P.T)
+    if not smooth:  # the fixes' likelihood only
+        return xf[:0], np.empty((0, 2, 2)), ll
     xs = np.empty((n, N_STATE))
     Ps2 = np.empty((n, 2, 2))
     xs[n - 1] = xf[n - 1]
@@ -328,7 +330,7 @@ def _rts(dt, a_bc, a_bt, d, ref, qpos, s2_bc, s2_bt, x0, P0, fidx, fz, fR):  # p
 
 
 def _run(t_s, d_m, referenced, fixes: list[Fix], use: np.ndarray, options: SmootherOptions, a: np.ndarray,
-         increment_cov_m2: np.ndarray | None = None, scale: float = 1.0):
+         increment_cov_m2: np.ndarray | None = None, scale: float = 1.0, smooth: bool = True):
     """Smoothed states, position covariances and the fixes' log-likelihood (prediction-error decomposition,
     the first fix excluded) with the currents' 1-sigma multiplied by ``scale``."""
     dt = np.diff(np.asarray(t_s, float), prepend=float(t_s[0]))
@@ -350,7 +352,7 @@ def _run(t_s, d_m, referenced, fixes: list[Fix], use: np.ndarray, options: Smoot
     P0 = np.diag([1e8, 1e8, s2_bc, s2_bc, s2_bt, s2_bt])
     a_bt = dt / options.current_correlation_time_s
     return _rts(dt, np.ascontiguousarray(a, float), a_bt, np.ascontiguousarray(d_m, float),
-                np.asarray(referenced, np.bool_), qpos, s2_bc, s2_bt, x0, P0, fidx, fz, fR)
+                np.asarray(referenced, np.bool_), qpos, s2_bc, s2_bt, x0, P0, fidx, fz, fR, smooth)
 
 
 def _fix_tests(xs: np.ndarray, Ps: np.ndarray, fixes: list[Fix], use: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -378,16 +380,23 @@ def marginal_over_current_scale(t_s, d_m, referenced, fixes: list[Fix], use: np.
                                 a: np.ndarray, increment_cov_m2: np.ndarray | None = None):
     """The smoothed track with the currents' strength marginalised (module docstring): one smoother per scale
     ``s`` of :func:`current_scales` (log-uniform prior), weighted by the fixes' likelihood ``p(z | s)``; the
-    mixture's mean and covariance (``sum w_i (P_i + (x_i - x)(x_i - x)')``). Returns (states, position
-    covariances, weights)."""
+    mixture's mean and covariance (``sum w_i (P_i + (x_i - x)(x_i - x)')``); the weights from forward passes,
+    the backward pass only for scales of weight >= 1e-6 x the largest. Returns (states, position covariances,
+    weights)."""
     scales = current_scales(options)
-    runs = [_run(t_s, d_m, referenced, fixes, use, options, a, increment_cov_m2, float(s)) for s in scales]
-    ll = np.array([r[2] for r in runs])
+    ll = np.array([_run(t_s, d_m, referenced, fixes, use, options, a, increment_cov_m2, float(s), smooth=False)[2]
+                   for s in scales])
     w = np.exp(ll - ll.max())
     w /= w.sum()
-    xs = sum(wi * r[0] for wi, r in zip(w, runs, strict=True))
-    Ps = np.zeros_like(runs[0][1])
+    keep = w >= 1e-6 * w.max()  # scales the fixes exclude are not smoothed (their weight is below 1e-6)
+    w = np.where(keep, w, 0.0) / w[keep].sum()
+    runs = [_run(t_s, d_m, referenced, fixes, use, options, a, increment_cov_m2, float(s)) if k else None
+            for s, k in zip(scales, keep, strict=True)]
+    xs = sum(wi * r[0] for wi, r in zip(w, runs, strict=True) if r is not None)
+    Ps = np.zeros((len(t_s), 2, 2))
     for wi, r in zip(w, runs, strict=True):
+        if r is None:
+            continue
         dx = r[0][:, :2] - xs[:, :2]
         Ps += wi * (r[1] + dx[:, :, None] * dx[:, None, :])
     return xs, Ps, w
