@@ -276,6 +276,29 @@ def _transition(dt, a_bc, a_bt, ref, qpos, s2_bc, s2_bt):  # pragma: no cover - 
 
 
 @njit(cache=True, nogil=True)
+def _mm(A, B):  # pragma: no cover - compiled
+    """A @ B for small matrices (plain loops: no BLAS call per 6x6 product)."""
+    n, m, q = A.shape[0], A.shape[1], B.shape[1]
+    C = np.zeros((n, q))
+    for i in range(n):
+        for k in range(m):
+            a = A[i, k]
+            if a != 0.0:
+                for j in range(q):
+                    C[i, j] += a * B[k, j]
+    return C
+
+
+@njit(cache=True, nogil=True)
+def _mv(A, x):  # pragma: no cover - compiled
+    out = np.zeros(A.shape[0])
+    for i in range(A.shape[0]):
+        for k in range(A.shape[1]):
+            out[i] += A[i, k] * x[k]
+    return out
+
+
+@njit(cache=True, nogil=True)
 def _rts(dt, a_bc, a_bt, d, ref, qpos, s2_bc, s2_bt, x0, P0, fidx, fz, fR, smooth):  # pragma: no cover - compiled
     """Kalman filter + RTS smoother (module docstring). Fixes sorted by sample index ``fidx``. Returns the
     smoothed states (n, N_STATE) and position covariances (n, 2, 2)."""
@@ -290,10 +313,10 @@ def _rts(dt, a_bc, a_bt, d, ref, qpos, s2_bc, s2_bt, x0, P0, fidx, fz, fR, smoot
     for k in range(n):
         if k > 0:
             F, Q = _transition(dt[k], a_bc[k], a_bt[k], ref[k], qpos[k], s2_bc, s2_bt)
-            x = F @ x
+            x = _mv(F, x)
             x[0] += d[k, 0]
             x[1] += d[k, 1]
-            P = F @ P @ F.T + Q
+            P = _mm(_mm(F, P), F.T) + Q
         while j < m and fidx[j] == k:
             S = P[:2, :2] + fR[j]
             Si = np.linalg.inv(S)
@@ -317,13 +340,14 @@ def _rts(dt, a_bc, a_bt, d, ref, qpos, s2_bc, s2_bt, x0, P0, fidx, fz, fR, smoot
     Ps2[n - 1] = Ps[:2, :2]
     for k in range(n - 2, -1, -1):
         F, Q = _transition(dt[k + 1], a_bc[k + 1], a_bt[k + 1], ref[k + 1], qpos[k + 1], s2_bc, s2_bt)
-        Pp = F @ Pf[k] @ F.T + Q
-        xp = F @ xf[k]
+        PfFt = _mm(Pf[k], F.T)
+        Pp = _mm(F, PfFt) + Q
+        xp = _mv(F, xf[k])
         xp[0] += d[k + 1, 0]
         xp[1] += d[k + 1, 1]
-        G = Pf[k] @ F.T @ np.linalg.inv(Pp)
-        xs[k] = xf[k] + G @ (xs[k + 1] - xp)
-        Ps = Pf[k] + G @ (Ps - Pp) @ G.T
+        G = _mm(PfFt, np.linalg.inv(Pp))
+        xs[k] = xf[k] + _mv(G, xs[k + 1] - xp)
+        Ps = Pf[k] + _mm(_mm(G, Ps - Pp), G.T)
         Ps = 0.5 * (Ps + Ps.T)
         Ps2[k] = Ps[:2, :2]
     return xs, Ps2, ll
