@@ -78,7 +78,7 @@ until every remaining fix passes; a fix no other source checks (``R - P_s`` ~ 0,
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 import pandas as pd
@@ -153,6 +153,16 @@ class SmootherOptions(BaseModel):
                     "not independent)")
     launch_sigma_m: float = Field(
         7.0, gt=0, le=10000, description="1-sigma per axis (m) of the launch position (dive.yaml launch, a GNSS fix)")
+    epoch_interval_s: float = Field(
+        1.0, ge=0, le=600,
+        description="the smoother's state is kept at epochs, at most one per this interval (s) of sample time "
+                    "(plus every fix's sample, the first and the last sample); the steps between two epochs are "
+                    "composed exactly and the samples between them interpolated (module docstring). 0: an epoch "
+                    "at every sample (the full-rate smoother)")
+    epoch_max_travel_m: float = Field(
+        5.0, gt=0, le=10000,
+        description="and at most this much dead-reckoned travel (m) between two epochs (a fast track keeps its "
+                    "interpolation error small)")
 
 
     @field_validator("current_scale_range")
@@ -257,21 +267,67 @@ def _ou_terms(dt, a, s2):  # pragma: no cover - compiled
 
 
 @njit(cache=True, nogil=True)
-def _transition(dt, a_bc, a_bt, ref, qpos, s2_bc, s2_bt):  # pragma: no cover - compiled
-    """F, Q of one step, state [x, y, c_bc east/north, c_bt east/north] (module docstring): the two current
-    components are independent Ornstein-Uhlenbeck processes; the position integrates their sum when unreferenced."""
+def _compose(dt, a_bc, a_bt, ref, eidx):  # pragma: no cover - compiled
+    """The steps between two epochs composed exactly, per current component (0 baroclinic, 1 barotropic) and
+    axis at unit variance (``s2 = 1``; module docstring, "Epochs"): for epoch ``e`` (steps ``eidx[e-1]+1 ..
+    eidx[e]``) ``comp[e, c] = [G, phi, Qxx, Qxc, Qcc]``, the position's gain on the current, the current's decay and
+    the noise covariance of (position, current) accrued over the steps (``F_m ... F_1``, ``sum F Q F'``); and per
+    sample ``acc[k, c]``, the position noise ``Qxx`` accrued from its epoch's start to ``k``."""
+    n = dt.shape[0]
+    m = eidx.shape[0]
+    comp = np.zeros((m, 2, 5))
+    acc = np.zeros((n, 2))
+    Gt = np.zeros(2)
+    Pt = np.ones(2)
+    qxx = np.zeros(2)
+    qxc = np.zeros(2)
+    qcc = np.zeros(2)
+    comp[0, 0, 1] = comp[0, 1, 1] = 1.0
+    e = 0
+    for k in range(1, n):
+        for c in range(2):
+            phi, G, Qcc, Qxc, Qxx = _ou_terms(dt[k], a_bc[k] if c == 0 else a_bt[k], 1.0)
+            if ref[k]:  # referenced step: the position does not integrate the current
+                G = Qxc = Qxx = 0.0
+            xx = qxx[c] + 2.0 * G * qxc[c] + G * G * qcc[c] + Qxx
+            xc = phi * (qxc[c] + G * qcc[c]) + Qxc
+            qcc[c] = phi * phi * qcc[c] + Qcc
+            qxx[c] = xx
+            qxc[c] = xc
+            Gt[c] += G * Pt[c]
+            Pt[c] *= phi
+            acc[k, c] = xx
+        if e + 1 < m and k == eidx[e + 1]:
+            e += 1
+            for c in range(2):
+                comp[e, c, 0] = Gt[c]
+                comp[e, c, 1] = Pt[c]
+                comp[e, c, 2] = qxx[c]
+                comp[e, c, 3] = qxc[c]
+                comp[e, c, 4] = qcc[c]
+                Gt[c] = qxx[c] = qxc[c] = qcc[c] = 0.0
+                Pt[c] = 1.0
+    return comp, acc
+
+
+@njit(cache=True, nogil=True)
+def _transition(comp, qpos, s2_bc, s2_bt):  # pragma: no cover - compiled
+    """F, Q from one epoch to the next, state [x, y, c_bc east/north, c_bt east/north] (module docstring): the
+    two current components are independent Ornstein-Uhlenbeck processes (``comp`` of :func:`_compose`, scaled by
+    their variances), the position integrates their sum where the steps are unreferenced; ``qpos`` the 2x2
+    position noise beyond the currents' accrued over the steps."""
     F = np.eye(N_STATE)
     Q = np.zeros((N_STATE, N_STATE))
     Q[:2, :2] = qpos
-    for c, a, s2 in ((2, a_bc, s2_bc), (4, a_bt, s2_bt)):
-        phi, G, Qcc, Qxc, Qxx = _ou_terms(dt, a, s2)
+    for ci in range(2):
+        col = 2 + 2 * ci
+        s2 = s2_bc if ci == 0 else s2_bt
         for i in range(2):
-            F[c + i, c + i] = phi
-            Q[c + i, c + i] = Qcc
-            if not ref:
-                F[i, c + i] = G
-                Q[i, i] += Qxx
-                Q[i, c + i] = Q[c + i, i] = Qxc
+            F[col + i, col + i] = comp[ci, 1]
+            F[i, col + i] = comp[ci, 0]
+            Q[i, i] += s2 * comp[ci, 2]
+            Q[i, col + i] = Q[col + i, i] = s2 * comp[ci, 3]
+            Q[col + i, col + i] = s2 * comp[ci, 4]
     return F, Q
 
 
@@ -299,10 +355,12 @@ def _mv(A, x):  # pragma: no cover - compiled
 
 
 @njit(cache=True, nogil=True)
-def _rts(dt, a_bc, a_bt, d, ref, qpos, s2_bc, s2_bt, x0, P0, fidx, fz, fR, smooth):  # pragma: no cover - compiled
-    """Kalman filter + RTS smoother (module docstring). Fixes sorted by sample index ``fidx``. Returns the
-    smoothed states (n, N_STATE) and position covariances (n, 2, 2)."""
-    n = dt.shape[0]
+def _rts(comp, d, qpos, s2_bc, s2_bt, x0, P0, fidx, fz, fR, smooth):  # pragma: no cover - compiled
+    """Kalman filter + RTS smoother over the epochs (module docstring): ``comp`` (:func:`_compose`), ``d`` the
+    DR increments and ``qpos`` the position noise summed from one epoch to the next. Fixes sorted by epoch index
+    ``fidx``. Returns the smoothed states (n, N_STATE), position covariances (n, 2, 2) and the fixes'
+    log-likelihood."""
+    n = comp.shape[0]
     xf = np.empty((n, N_STATE))
     Pf = np.empty((n, N_STATE, N_STATE))
     x = x0.copy()
@@ -312,7 +370,7 @@ def _rts(dt, a_bc, a_bt, d, ref, qpos, s2_bc, s2_bt, x0, P0, fidx, fz, fR, smoot
     ll = 0.0
     for k in range(n):
         if k > 0:
-            F, Q = _transition(dt[k], a_bc[k], a_bt[k], ref[k], qpos[k], s2_bc, s2_bt)
+            F, Q = _transition(comp[k], qpos[k], s2_bc, s2_bt)
             x = _mv(F, x)
             x[0] += d[k, 0]
             x[1] += d[k, 1]
@@ -339,7 +397,7 @@ def _rts(dt, a_bc, a_bt, d, ref, qpos, s2_bc, s2_bt, x0, P0, fidx, fz, fR, smoot
     Ps = Pf[n - 1].copy()
     Ps2[n - 1] = Ps[:2, :2]
     for k in range(n - 2, -1, -1):
-        F, Q = _transition(dt[k + 1], a_bc[k + 1], a_bt[k + 1], ref[k + 1], qpos[k + 1], s2_bc, s2_bt)
+        F, Q = _transition(comp[k + 1], qpos[k + 1], s2_bc, s2_bt)
         PfFt = _mm(Pf[k], F.T)
         Pp = _mm(F, PfFt) + Q
         xp = _mv(F, xf[k])
@@ -353,13 +411,62 @@ def _rts(dt, a_bc, a_bt, d, ref, qpos, s2_bc, s2_bt, x0, P0, fidx, fz, fR, smoot
     return xs, Ps2, ll
 
 
-def _run(t_s, d_m, referenced, fixes: list[Fix], use: np.ndarray, options: SmootherOptions, a: np.ndarray,
-         increment_cov_m2: np.ndarray | None = None, scale: float = 1.0, smooth: bool = True):
-    """Smoothed states, position covariances and the fixes' log-likelihood (prediction-error decomposition,
-    the first fix excluded) with the currents' 1-sigma multiplied by ``scale``."""
-    dt = np.diff(np.asarray(t_s, float), prepend=float(t_s[0]))
-    dt = np.clip(dt, 0.0, None)
+@dataclass(frozen=True)
+class _Epochs:
+    """The smoother's problem on its epochs (module docstring, "Epochs"): sample index of every epoch, the steps
+    between epochs composed (``comp``, :func:`_compose`), the DR increments ``d`` and position noise ``qpos``
+    summed from the previous epoch; per sample the position noise accrued since its epoch's start (``acc`` per
+    current component at unit variance, ``qcum`` the 2x2 beyond the currents') for the interpolation."""
+
+    eidx: np.ndarray
+    comp: np.ndarray
+    d: np.ndarray
+    qpos: np.ndarray
+    acc: np.ndarray
+    qcum: np.ndarray
+    dcum: np.ndarray
+
+
+def epoch_indices(t_s: np.ndarray, d_m: np.ndarray, fix_index: np.ndarray, options: SmootherOptions) -> np.ndarray:
+    """Sample indices of the smoother's epochs: the first and the last sample, every fix's sample, and the first
+    sample of every new ``epoch_interval_s`` of time or ``epoch_max_travel_m`` of dead-reckoned travel (every
+    sample when ``epoch_interval_s`` is 0)."""
+    n = t_s.size
+    if options.epoch_interval_s == 0 or n < 3:
+        return np.arange(n, dtype=np.int64)
+    tb = np.floor((t_s - t_s[0]) / options.epoch_interval_s)
+    step = np.hypot(d_m[:, 0], d_m[:, 1])
+    step[0] = 0.0
+    db = np.floor(np.cumsum(step) / options.epoch_max_travel_m)
+    new = np.zeros(n, bool)
+    new[0] = new[-1] = True
+    new[1:] |= (tb[1:] != tb[:-1]) | (db[1:] != db[:-1])
+    new[np.asarray(fix_index, np.int64)] = True
+    return np.flatnonzero(new).astype(np.int64)
+
+
+def _epochs(t_s, d_m, referenced, fix_index, options: SmootherOptions, a: np.ndarray,
+            increment_cov_m2: np.ndarray | None) -> _Epochs:
+    dt = np.clip(np.diff(np.asarray(t_s, float), prepend=float(t_s[0])), 0.0, None)
     qpos = process_variances(dt, d_m, referenced, options, increment_cov_m2)
+    qpos[0] = 0.0
+    d = np.array(d_m, float)
+    d[0] = 0.0
+    eidx = epoch_indices(np.asarray(t_s, float), d, fix_index, options)
+    comp, acc = _compose(dt, np.ascontiguousarray(a, float), dt / options.current_correlation_time_s,
+                         np.ascontiguousarray(referenced, np.bool_), eidx)
+    dcum = np.cumsum(d, axis=0)
+    qcum = np.cumsum(qpos, axis=0)
+    de = np.diff(dcum[eidx], axis=0, prepend=np.zeros((1, 2)))
+    qe = np.diff(qcum[eidx], axis=0, prepend=np.zeros((1, 2, 2)))
+    return _Epochs(eidx, comp, np.ascontiguousarray(de), np.ascontiguousarray(qe), acc, qcum, dcum)
+
+
+def _run(ep: _Epochs, fixes: list[Fix], use: np.ndarray, options: SmootherOptions, scale: float = 1.0,
+         smooth: bool = True):
+    """Smoothed states, position covariances (on the epochs) and the fixes' log-likelihood (prediction-error
+    decomposition, the first fix excluded) with the currents' 1-sigma multiplied by ``scale``; ``fixes`` indexed
+    by epoch."""
     sel = [f for f, u in zip(fixes, use, strict=True) if u]
     order = np.argsort([f.index for f in sel], kind="stable")
     sel = [sel[i] for i in order]
@@ -374,9 +481,37 @@ def _run(t_s, d_m, referenced, fixes: list[Fix], use: np.ndarray, options: Smoot
     s2_bc = (scale * options.current_sigma_m_s) ** 2
     s2_bt = (scale * options.barotropic_current_sigma_m_s) ** 2
     P0 = np.diag([1e8, 1e8, s2_bc, s2_bc, s2_bt, s2_bt])
-    a_bt = dt / options.current_correlation_time_s
-    return _rts(dt, np.ascontiguousarray(a, float), a_bt, np.ascontiguousarray(d_m, float),
-                np.asarray(referenced, np.bool_), qpos, s2_bc, s2_bt, x0, P0, fidx, fz, fR, smooth)
+    return _rts(ep.comp, ep.d, ep.qpos, s2_bc, s2_bt, x0, P0, fidx, fz, fR, smooth)
+
+
+def interpolate_epochs(ep: _Epochs, xs: np.ndarray, Ps: np.ndarray, s2_bc: float, s2_bt: float
+                       ) -> tuple[np.ndarray, np.ndarray]:
+    """Every sample's state and 2x2 position covariance from the smoothed epochs (module docstring, "Epochs"):
+    between epochs ``e`` and ``e+1``, with ``f`` the fraction of the interval's position noise accrued by the
+    sample, the mean is the epoch's plus the DR increment since it plus ``f`` times the smoothed correction of
+    the interval, and the covariance ``(1 - f) P_e + f P_e+1 + f (1 - f) Q`` (a Brownian bridge over the
+    interval's accrued noise ``Q``; ``s2_*`` the currents' variances it is evaluated with)."""
+    n = ep.acc.shape[0]
+    eidx = ep.eidx
+    if eidx.size == n:
+        return xs, Ps
+    j = np.searchsorted(eidx, np.arange(n), side="left")  # the epoch ending the interval of each sample
+    j0 = np.maximum(j - 1, 0)
+    cur = s2_bc * ep.acc[:, 0] + s2_bt * ep.acc[:, 1]
+    # position noise accrued since the interval's start epoch (per axis, trace / 2), at the sample and at its end
+    qs = ep.qcum - ep.qcum[eidx[j0]]
+    vk = cur + 0.5 * (qs[:, 0, 0] + qs[:, 1, 1])
+    vend = vk[eidx[j]]
+    f = np.where(vend > 0, vk / np.where(vend > 0, vend, 1.0), 1.0)
+    f = np.where(j == 0, 1.0, np.clip(f, 0.0, 1.0))  # the first sample is an epoch
+    du = ep.dcum - ep.dcum[eidx[j0]]
+    corr = xs[j, :2] - xs[j0, :2] - du[eidx[j]]
+    out = (1.0 - f)[:, None] * xs[j0] + f[:, None] * xs[j]  # the currents: linear
+    out[:, :2] = xs[j0, :2] + du + f[:, None] * corr
+    Qend = qs[eidx[j]] + (s2_bc * ep.comp[j, 0, 2] + s2_bt * ep.comp[j, 1, 2])[:, None, None] * np.eye(2)
+    P = ((1.0 - f)[:, None, None] * Ps[j0] + f[:, None, None] * Ps[j]
+         + (f * (1.0 - f))[:, None, None] * Qend)
+    return out, P
 
 
 def _fix_tests(xs: np.ndarray, Ps: np.ndarray, fixes: list[Fix], use: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -400,24 +535,21 @@ def current_scales(options: SmootherOptions) -> np.ndarray:
     return np.geomspace(lo, hi, options.current_scale_points) if options.current_scale_points > 1 else np.ones(1)
 
 
-def marginal_over_current_scale(t_s, d_m, referenced, fixes: list[Fix], use: np.ndarray, options: SmootherOptions,
-                                a: np.ndarray, increment_cov_m2: np.ndarray | None = None):
+def marginal_over_current_scale(ep: _Epochs, fixes: list[Fix], use: np.ndarray, options: SmootherOptions):
     """The smoothed track with the currents' strength marginalised (module docstring): one smoother per scale
     ``s`` of :func:`current_scales` (log-uniform prior), weighted by the fixes' likelihood ``p(z | s)``; the
     mixture's mean and covariance (``sum w_i (P_i + (x_i - x)(x_i - x)')``); the weights from forward passes,
-    the backward pass only for scales of weight >= 1e-6 x the largest. Returns (states, position covariances,
-    weights)."""
+    the backward pass only for scales of weight >= 1e-6 x the largest. On the epochs (``fixes`` indexed by
+    epoch); returns (states, position covariances, weights)."""
     scales = current_scales(options)
-    ll = np.array([_run(t_s, d_m, referenced, fixes, use, options, a, increment_cov_m2, float(s), smooth=False)[2]
-                   for s in scales])
+    ll = np.array([_run(ep, fixes, use, options, float(s), smooth=False)[2] for s in scales])
     w = np.exp(ll - ll.max())
     w /= w.sum()
     keep = w >= 1e-6 * w.max()  # scales the fixes exclude are not smoothed (their weight is below 1e-6)
     w = np.where(keep, w, 0.0) / w[keep].sum()
-    runs = [_run(t_s, d_m, referenced, fixes, use, options, a, increment_cov_m2, float(s)) if k else None
-            for s, k in zip(scales, keep, strict=True)]
+    runs = [_run(ep, fixes, use, options, float(s)) if k else None for s, k in zip(scales, keep, strict=True)]
     xs = sum(wi * r[0] for wi, r in zip(w, runs, strict=True) if r is not None)
-    Ps = np.zeros((len(t_s), 2, 2))
+    Ps = np.zeros((ep.eidx.size, 2, 2))
     for wi, r in zip(w, runs, strict=True):
         if r is None:
             continue
@@ -448,11 +580,16 @@ def smooth_positions(t_s, dr_increment_m, referenced, fixes: list[Fix],
     if not fixes:
         raise InputError("navigation smoother: no position fix (launch, GNSS, USBL or terrain); nothing anchors the track")
     d_m = np.where(np.isfinite(d_m), d_m, 0.0)
+    idx = np.array([f.index for f in fixes], np.int64)
+    if idx.min() < 0 or idx.max() >= n:
+        raise InputError(f"navigation smoother: a fix's sample index is outside 0..{n - 1}")
     gate = chi2_2dof_quantile(options.gate_probability)
     use = np.ones(len(fixes), bool)
     a = decorrelation(np.clip(np.diff(t_s, prepend=t_s[:1]), 0.0, None), depth_m, options)
-    xs, Ps, _ = _run(t_s, d_m, referenced, fixes, use, options, a, increment_cov_m2)
-    res, d2 = _fix_tests(xs, Ps, fixes, use)
+    ep = _epochs(t_s, d_m, referenced, idx, options, a, increment_cov_m2)
+    efix = [replace(f, index=int(e)) for f, e in zip(fixes, np.searchsorted(ep.eidx, idx), strict=True)]
+    xs, Ps, _ = _run(ep, efix, use, options)
+    res, d2 = _fix_tests(xs, Ps, efix, use)
     while (~use).sum() < options.max_rejections and use.sum() > 1:
         failing = np.flatnonzero(use & np.isfinite(d2) & (d2 > gate))
         if failing.size == 0:
@@ -464,18 +601,22 @@ def smooth_positions(t_s, dr_increment_m, referenced, fixes: list[Fix],
         for i in failing[np.argsort(-d2[failing])][:20]:
             u = use.copy()
             u[i] = False
-            xs_i, Ps_i, _ = _run(t_s, d_m, referenced, fixes, u, options, a, increment_cov_m2)
-            res_i, d2_i = _fix_tests(xs_i, Ps_i, fixes, u)
+            xs_i, Ps_i, _ = _run(ep, efix, u, options)
+            res_i, d2_i = _fix_tests(xs_i, Ps_i, efix, u)
             score = float(np.nansum(np.where(u, d2_i, 0.0)))
             if best is None or score < best[0]:
                 best = (score, i, xs_i, Ps_i, res_i, d2_i)
         assert best is not None  # failing is not empty
         _, i, xs, Ps, res, d2 = best
         use[i] = False
+    s2 = (options.current_sigma_m_s ** 2, options.barotropic_current_sigma_m_s ** 2)
     if options.current_scale_points > 1 and use.sum() > 1:
         # the published track: the currents' strength marginalised; the fixes' residuals and chi-squares stay
         # those of the gate's Gaussian model (scale 1), where d2 is exactly the leave-one-out statistic
-        xs, Ps, _ = marginal_over_current_scale(t_s, d_m, referenced, fixes, use, options, a, increment_cov_m2)
+        xs, Ps, w = marginal_over_current_scale(ep, efix, use, options)
+        m2 = float(np.sum(w * current_scales(options) ** 2))  # the mixture's mean current variance factor
+        s2 = (s2[0] * m2, s2[1] * m2)
+    xs, Ps = interpolate_epochs(ep, xs, Ps, *s2)
     fx = pd.DataFrame({
         "source": [f.source for f in fixes], "index": [f.index for f in fixes], "time": [f.time for f in fixes],
         "x_east_m": [f.x_m for f in fixes], "y_north_m": [f.y_m for f in fixes],
