@@ -67,6 +67,22 @@ forward Mahalanobis gate on the innovations and an RTS pass over the stored stat
 least-squares solution (tests/test_navigation_smoother.py); and the gate tests every fix against the smoothed
 track of all the *other* fixes, not only the past ones.
 
+Epochs: the state is not kept per sample (16 Hz over a 10 h dive is ~570 000 states, nine times over for the
+scale mixture) but on epochs: the first and the last sample, every fix's sample, and the first sample of every
+new ``epoch_interval_s`` (1 s) of time or ``epoch_max_travel_m`` (5 m) of DR travel. The steps between two epochs
+are composed exactly (the model is linear: ``F = F_m ... F_1``, ``Q = sum F_m..j+1 Q_j F_m..j+1'``, the DR
+increments and the position noise beyond the currents' summed, since the position's transition is the identity),
+so the filter/smoother on the epochs gives exactly the full-rate smoother's estimates at the epochs (tested against
+batch least squares over every sample). A sample between epochs ``e`` and ``e+1`` is interpolated: its mean is
+the epoch's plus the DR increment and the drift of the epoch's current since it (exact propagation) plus the
+fraction ``f`` (the interval's position noise accrued by the sample) of the rest of the interval's smoothed
+correction; its covariance ``(1 - f) P_e + f P_e+1 + f (1 - f) Q`` (the Brownian bridge of a random walk of
+accrued noise ``Q`` between its two smoothed ends, e.g. Karatzas & Shreve 1991, §5.6.B, with the ends' cross-
+covariance replaced by its upper bound: conservative by at most ``f (1 - f) Q``). Measured errors (tests): on a
+16 Hz dive with the defaults, mean within 1e-4 of the 1-sigma and covariance within 0.15 % of the full-rate
+smoother; on a hard case (2 s epochs, 0.3 m/s currents, 1-sigma ~2.5 m), mean within 0.4 % of the 1-sigma and
+the covariance's trace 0 to +3.7 % over the exact one.
+
 Consistency of the fixes (the "w-test" of geodesy generalised to 2-D, Baarda 1968; Teunissen 2006,
 *Testing theory*): for a fix used in the solution the residual ``r = z - x_s`` has covariance ``R - P_s``
 and ``d^2 = r' (R - P_s)^-1 r`` is exactly the squared Mahalanobis distance of the fix from the smoothed
@@ -272,11 +288,12 @@ def _compose(dt, a_bc, a_bt, ref, eidx):  # pragma: no cover - compiled
     axis at unit variance (``s2 = 1``; module docstring, "Epochs"): for epoch ``e`` (steps ``eidx[e-1]+1 ..
     eidx[e]``) ``comp[e, c] = [G, phi, Qxx, Qxc, Qcc]``, the position's gain on the current, the current's decay and
     the noise covariance of (position, current) accrued over the steps (``F_m ... F_1``, ``sum F Q F'``); and per
-    sample ``acc[k, c]``, the position noise ``Qxx`` accrued from its epoch's start to ``k``."""
+    sample, from its epoch's start to ``k``, the position noise ``Qxx`` accrued (``acc[k, c]``) and the position's
+    gain on the current (``acc[k, 2 + c]``)."""
     n = dt.shape[0]
     m = eidx.shape[0]
     comp = np.zeros((m, 2, 5))
-    acc = np.zeros((n, 2))
+    acc = np.zeros((n, 4))
     Gt = np.zeros(2)
     Pt = np.ones(2)
     qxx = np.zeros(2)
@@ -297,6 +314,7 @@ def _compose(dt, a_bc, a_bt, ref, eidx):  # pragma: no cover - compiled
             Gt[c] += G * Pt[c]
             Pt[c] *= phi
             acc[k, c] = xx
+            acc[k, 2 + c] = Gt[c]
         if e + 1 < m and k == eidx[e + 1]:
             e += 1
             for c in range(2):
@@ -504,7 +522,9 @@ def interpolate_epochs(ep: _Epochs, xs: np.ndarray, Ps: np.ndarray, s2_bc: float
     vend = vk[eidx[j]]
     f = np.where(vend > 0, vk / np.where(vend > 0, vend, 1.0), 1.0)
     f = np.where(j == 0, 1.0, np.clip(f, 0.0, 1.0))  # the first sample is an epoch
-    du = ep.dcum - ep.dcum[eidx[j0]]
+    # the DR increment and the drift of the start epoch's current since the start epoch, exactly; the rest of
+    # the interval's smoothed correction in proportion to the noise accrued
+    du = ep.dcum - ep.dcum[eidx[j0]] + ep.acc[:, 2:3] * xs[j0, 2:4] + ep.acc[:, 3:4] * xs[j0, 4:6]
     corr = xs[j, :2] - xs[j0, :2] - du[eidx[j]]
     out = (1.0 - f)[:, None] * xs[j0] + f[:, None] * xs[j]  # the currents: linear
     out[:, :2] = xs[j0, :2] + du + f[:, None] * corr
