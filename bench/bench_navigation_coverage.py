@@ -247,8 +247,10 @@ def main() -> None:
     ap.add_argument("--sim", type=int, default=0)
     ap.add_argument("--usbl", action="store_true", help="--sim: every other dive with USBL fixes")
     ap.add_argument("--seed", type=int, default=47)
+    ap.add_argument("--full-rate", action="store_true",
+                    help="the smoother's state at every sample (epoch_interval_s=0), not on 1 s / 5 m epochs")
     args = ap.parse_args()
-    opt = SmootherOptions()
+    opt = SmootherOptions(epoch_interval_s=0) if args.full_rate else SmootherOptions()
     if args.sample:
         rows = []
         print("| seed | within 1σ | within 2σ | surfacing d² | deepest d² | RMS smoothed m | RMS today m | rejected |")
