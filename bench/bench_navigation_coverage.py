@@ -40,6 +40,11 @@ sample dive, 10 seeds  0.700 / 0.962    0.910 / 0.960    0.746 / 0.958
   RMS, m               103.9            97.2             97.2
 =====================  ===============  ===============  ===============
 
+With the smoother's state on epochs (1 s / 5 m of DR travel, every fix; the defaults since then) the figures
+of "after" are unchanged to the printed digits: the simulated dives (5 s samples: an epoch at every sample) identical
+(--sim 400 --usbl), the sample dive's 10 seeds identical per seed to the full-rate smoother (``--full-rate``) and to
+the smoother before the epochs (67092fb), on both prepared sets of the seeds.
+
 Today's rule on the same dives: RMS 301.3 m (sim without USBL), 311.5 m (with), 203.5 m (sample). Surfacing
 within 2σ: sim 196/200 and 190/200 in every model, sample 10/10; deepest point: sim without USBL 194 -> 195 -> 195,
 with USBL 194 -> 194 -> 191, sample 9/10 (seed 5's, d² 7.4, is the terrain fix's). Fixes rejected (sim, 400

@@ -12,9 +12,21 @@ wandering heading, an ascent; fixes: launch, terrain (start of the bottom track)
 Run: ``PYTHONPATH=src .venv/bin/python bench/bench_navigation_smoother_speed.py [--sizes 200000 570000]
 [--baseline 67092fb]``.
 
-Results (2026-12-06, 2 shared cores, baseline 67092fb = the smoother before the epochs):
+Results (2026-12-06, 2 shared cores busy with other jobs, ``--baseline 67092fb`` = the smoother before the epochs;
+CPU seconds):
 
-see the report of issue 47's epoch commit (filled in below by the run of that day).
+=========  =========  ==========  =========  ==========  ==============  =============
+samples    epochs     full rate   ratio      67092fb     ratio           max |dx| / 1σ
+=========  =========  ==========  =========  ==========  ==============  =============
+200 000    0.32       4.13        12.9       4.19        13.1            2.8e-6
+570 000    0.87       12.34       14.1       12.09       13.8            1.3e-6
+=========  =========  ==========  =========  ==========  ==============  =============
+
+(largest covariance difference from the full-rate smoother: 8.7e-4 of the trace). On the full sample dive
+(``hadal synth`` seed 20181006, 567 361 samples at 16 Hz, prepared by bench/sample_seeds_tercom.py ``prepare``):
+:func:`hadal.products.navigation.smoothed_navigation` 16.0-16.4 s CPU before, 1.4-1.8 s after (3 runs each);
+the whole ``match`` stage (which publishes the ``navigation`` product) 25.7 / 25.9 s CPU before, 11.0 / 9.7 s
+after (alternating runs).
 """
 
 from __future__ import annotations
@@ -63,9 +75,9 @@ def _baseline(rev: str):
     return mod
 
 
-def _cpu(fn):
+def _cpu(fn, *args, **kwargs):
     c0 = time.process_time()
-    out = fn()
+    out = fn(*args, **kwargs)
     return time.process_time() - c0, out
 
 
@@ -84,11 +96,11 @@ def main() -> None:
           f"{'max dx/sig':>10} {'max dP/tr':>10}")
     for n in args.sizes:
         t, d, ref, fixes, depth = dive(n)
-        te, ep = _cpu(lambda: smooth_positions(t, d, ref, fixes, SmootherOptions(), depth_m=depth))
-        tf, full = _cpu(lambda: smooth_positions(t, d, ref, fixes, SmootherOptions(epoch_interval_s=0), depth_m=depth))
+        te, ep = _cpu(smooth_positions, t, d, ref, fixes, SmootherOptions(), depth_m=depth)
+        tf, full = _cpu(smooth_positions, t, d, ref, fixes, SmootherOptions(epoch_interval_s=0), depth_m=depth)
         tb = np.nan
         if base is not None:
-            tb, _ = _cpu(lambda: base.smooth_positions(t, d, ref, fixes, base.SmootherOptions(), depth_m=depth))
+            tb, _ = _cpu(base.smooth_positions, t, d, ref, fixes, base.SmootherOptions(), depth_m=depth)
         tr = np.trace(full.cov_m2, axis1=1, axis2=2)
         dx = np.hypot(ep.x_m - full.x_m, ep.y_m - full.y_m) / np.sqrt(tr)
         dp = np.abs(ep.cov_m2 - full.cov_m2).max(axis=(1, 2)) / tr
