@@ -87,11 +87,11 @@ def main() -> None:
     ap.add_argument("--baseline", default=None, help="git revision of the smoother to compare with")
     args = ap.parse_args()
     base = _baseline(args.baseline) if args.baseline else None
-    warm = dive(2000)
-    smooth_positions(*warm[:4], SmootherOptions(), depth_m=warm[4])
-    smooth_positions(*warm[:4], SmootherOptions(epoch_interval_s=0), depth_m=warm[4])
+    wt, wd, wref, wfix, wdepth = dive(2000)  # warm-up: the kernels compiled (or loaded) before timing
+    smooth_positions(wt, wd, wref, wfix, SmootherOptions(), depth_m=wdepth)
+    smooth_positions(wt, wd, wref, wfix, SmootherOptions(epoch_interval_s=0), depth_m=wdepth)
     if base is not None:
-        base.smooth_positions(*warm[:4], base.SmootherOptions(), depth_m=warm[4])
+        base.smooth_positions(wt, wd, wref, wfix, base.SmootherOptions(), depth_m=wdepth)
     print(f"{'samples':>8} {'epoch s':>8} {'full s':>8} {'full/ep':>8} {'base s':>8} {'base/ep':>8} "
           f"{'max dx/sig':>10} {'max dP/tr':>10}")
     for n in args.sizes:

@@ -165,6 +165,8 @@ def test_no_fix_is_a_clear_error():
 
     with pytest.raises(InputError, match="no position fix"):
         smooth_positions(np.arange(3.0), np.zeros((3, 2)), np.zeros(3, bool), [])
+    with pytest.raises(InputError, match="outside 0..2"):
+        smooth_positions(np.arange(3.0), np.zeros((3, 2)), np.zeros(3, bool), [Fix(3, 0.0, 0.0, np.eye(2), "gnss")])
 
 
 def test_rts_with_increment_covariance_equals_batch_least_squares():

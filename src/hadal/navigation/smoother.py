@@ -79,7 +79,7 @@ fraction ``f`` (the interval's position noise accrued by the sample) of the rest
 correction; its covariance ``(1 - f) P_e + f P_e+1 + f (1 - f) Q`` (the Brownian bridge of a random walk of
 accrued noise ``Q`` between its two smoothed ends, e.g. Karatzas & Shreve 1991, §5.6.B, with the ends' cross-
 covariance replaced by its upper bound: conservative by at most ``f (1 - f) Q``). Measured errors (tests): on a
-16 Hz dive with the defaults, mean within 1e-4 of the 1-sigma and covariance within 0.15 % of the full-rate
+16 Hz dive with the defaults, mean within 1e-4 of the 1-sigma and covariance within 0.2 % of the full-rate
 smoother; on a hard case (2 s epochs, 0.3 m/s currents, 1-sigma ~2.5 m), mean within 0.4 % of the 1-sigma and
 the covariance's trace 0 to +3.7 % over the exact one.
 
