@@ -58,7 +58,8 @@ def dive(n: int, hz: float = 16.0, seed: int = 0):
                       + rng.normal(0, 0.02, (n, 2)), axis=0)
     spec = [(0, np.eye(2) * 25.0, "launch"), (n1, np.array([[400.0, 100.0], [100.0, 300.0]]), "terrain"),
             ((n1 + n2) // 2, np.eye(2) * 400.0, "usbl"), (n - 1, np.eye(2) * 9.0, "gnss")]
-    fixes = [Fix(i, *(truth[i] + rng.multivariate_normal([0, 0], R)), R, s) for i, R, s in spec]
+    z = [truth[i] + rng.multivariate_normal([0, 0], R) for i, R, _ in spec]
+    fixes = [Fix(i, float(zi[0]), float(zi[1]), R, s) for (i, R, s), zi in zip(spec, z, strict=True)]
     return t, d, ref, fixes, depth
 
 
