@@ -65,8 +65,8 @@ SIGNATURES: dict[str, dict[str, tuple[tuple[Any, ...], ...]]] = {
                                      _i8),),
     },
     "hadal.navigation.smoother": {
-        "_transition": ((_f8, _b1, _f8, _f8),),
-        "_rts": ((_F8, _a(_f8, 2), _B1, _F8, _f8, _F8, _a(_f8, 2), _I8, _a(_f8, 2), _a(_f8, 3)),),
+        "_compose": ((_F8, _F8, _F8, _B1, _I8),),
+        "_rts": ((_a(_f8, 3), _a(_f8, 2), _a(_f8, 3), _f8, _f8, _F8, _a(_f8, 2), _I8, _a(_f8, 2), _a(_f8, 3), _b1),),
     },
     "hadal.landing._kernels": {
         "row_runs": ((_B1_2,),),

@@ -125,3 +125,77 @@ def increments(e: np.ndarray, n: np.ndarray, matched_xy: np.ndarray | None, is_m
         ref |= both
     d[~np.isfinite(d)] = 0.0
     return d, ref
+
+
+def body_to_enu(forward_m_s: np.ndarray, left_m_s: np.ndarray, heading_deg: np.ndarray,
+                cov_body_m2_s2: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray | None]:
+    """Horizontal velocities of the vehicle frame (ROS REP 103 body axes: x forward, y left; e.g. a DVL's
+    ``TwistWithCovarianceStamped`` in ``base_link``) to east/north with the heading (deg clockwise from true
+    north): ``v_e = f sin h - l cos h``, ``v_n = f cos h + l sin h``; the 2x2 covariance (n, 2, 2) rotated as
+    ``R C R'``. Returns ((n, 2) east/north m/s, covariance or None). Pitch and roll are neglected (the horizontal
+    projection of a level vehicle's velocity)."""
+    h = np.radians(np.asarray(heading_deg, float))
+    sh, ch = np.sin(h), np.cos(h)
+    f, left = np.asarray(forward_m_s, float), np.asarray(left_m_s, float)
+    v = np.column_stack([f * sh - left * ch, f * ch + left * sh])
+    if cov_body_m2_s2 is None:
+        return v, None
+    R = np.stack([np.stack([sh, -ch], -1), np.stack([ch, sh], -1)], -2)  # (n, 2, 2)
+    C = np.asarray(cov_body_m2_s2, float).reshape(-1, 2, 2)
+    return v, R @ C @ np.swapaxes(R, -1, -2)
+
+
+def velocity_increments(t_s: np.ndarray, v_enu_m_s: np.ndarray, cov_m2_s2: np.ndarray | None,
+                        over_ground: np.ndarray | bool, sigma_m_s: float
+                        ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Process increments of :func:`~hadal.navigation.smoother.smooth_positions` from measured east/north
+    velocities ``v_enu_m_s`` (n, 2; DVL bottom- or water-track): the step to sample ``k`` is
+    ``v_{k-1} dt_k`` (the velocity at the step's start: with white velocity noise the steps' errors are then
+    independent, as the smoother's process model assumes) with covariance ``C_{k-1} dt_k^2`` (``cov_m2_s2``
+    (n, 2, 2), a ``TwistWithCovarianceStamped``'s linear x/y block rotated to east/north; NaN or missing:
+    ``sigma_m_s`` per axis).
+
+    ``over_ground`` (bool or (n,) bool): bottom track, the velocity over ground, a referenced step (the current
+    is not added); water track (False), the velocity through the water, an unreferenced step (the smoother adds
+    the current state, so the same drift model as the DR-held descent applies). Returns ``(d (n, 2),
+    referenced (n,), cov (n, 2, 2), valid (n,))``; ``valid`` False where the step has no finite velocity (the
+    caller keeps its DR increment there)."""
+    t_s = np.asarray(t_s, float)
+    n = t_s.size
+    v = np.asarray(v_enu_m_s, float).reshape(n, 2)
+    dt = np.clip(np.diff(t_s, prepend=t_s[:1]), 0.0, None)
+    v0 = np.vstack([np.full((1, 2), np.nan), v[:-1]]) if n else v
+    valid = np.isfinite(v0).all(axis=1)
+    d = np.where(valid[:, None], np.nan_to_num(v0) * dt[:, None], 0.0)
+    if cov_m2_s2 is None:
+        C = np.full((n, 2, 2), np.nan)
+    else:
+        C = np.asarray(cov_m2_s2, float).reshape(n, 2, 2)
+    C0 = np.concatenate([np.full((1, 2, 2), np.nan), C[:-1]]) if n else C
+    bad = ~np.isfinite(C0).all(axis=(1, 2)) | (C0[:, 0, 0] <= 0) | (C0[:, 1, 1] <= 0)
+    C0 = np.where(bad[:, None, None], np.eye(2) * sigma_m_s ** 2, C0)
+    cov = np.where(valid[:, None, None], C0 * (dt ** 2)[:, None, None], 0.0)
+    og = np.broadcast_to(np.asarray(over_ground, bool), (n,))
+    og0 = np.concatenate([[True], og[:-1]]) if n else og
+    return d, valid & og0, cov, valid
+
+
+def pose_fixes(t_s: np.ndarray, x_east_m: np.ndarray, y_north_m: np.ndarray, cov_m2: np.ndarray | None,
+               sigma_m: float, min_interval_s: float, source: str = "pose", times: Any = None) -> list[Fix]:
+    """Absolute positions in the map frame (a ``PoseWithCovarianceStamped`` of an INS/LBL/acoustic positioning
+    solution, its position x/y east/north of the map-frame origin, REP 103) as fixes with their 2x2 covariance
+    (``cov_m2`` (n, 2, 2): the pose covariance's x/y block; non-finite or not positive definite: ``sigma_m`` per
+    axis), at most one per ``min_interval_s`` (a fix repeated at a higher rate is not a new measurement)."""
+    t_s = np.asarray(t_s, float)
+    x, y = np.asarray(x_east_m, float), np.asarray(y_north_m, float)
+    idx = np.flatnonzero(np.isfinite(x) & np.isfinite(y))
+    idx = idx[thin_times(t_s[idx], min_interval_s)] if idx.size else idx
+    out = []
+    for i in idx:
+        c = np.eye(2) * sigma_m ** 2
+        if cov_m2 is not None:
+            ci = np.asarray(cov_m2[i], float).reshape(2, 2)
+            if np.isfinite(ci).all() and np.linalg.eigvalsh(0.5 * (ci + ci.T))[0] > 0:
+                c = 0.5 * (ci + ci.T)
+        out.append(Fix(int(i), float(x[i]), float(y[i]), c, source, None if times is None else times[int(i)]))
+    return out

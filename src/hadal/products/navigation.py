@@ -245,7 +245,8 @@ def smoothed_navigation(ctd: pd.DataFrame, frame: LocalFrame, launch_lat: float,
     notes.update(tnotes)
     for f in extra_fixes or []:
         fixes.append(f)
-    sm = smooth_positions(ts, d, ref, fixes, opt)
+    sm = smooth_positions(ts, d, ref, fixes, opt,
+                          depth_m=ctd["depth_m"].to_numpy(float) if "depth_m" in ctd else None)
     lon, lat = frame.to_lonlat(sm.x_m, sm.y_m)
     out = base.copy()
     out["lat"], out["lon"] = np.asarray(lat, float), np.asarray(lon, float)
