@@ -122,7 +122,7 @@ def dive_sources(raw_dirs: Sequence[str | os.PathLike]) -> tuple[list[DiveSource
     seen: set[str] = set()
     for raw in raw_dirs:
         try:
-            dive, rdir = load_dive(raw)
+            dive, rdir = load_dive(Path(raw))
             frame = dive.frame("cruise_dtm")
         except (HadalError, OSError, ValueError) as exc:
             refused[str(raw)] = str(exc).splitlines()[0]
