@@ -23,6 +23,7 @@ from prefect import flow, task
 from prefect.cache_policies import NO_CACHE
 
 from hadal.grid.cruise import cruise_dtm_dataset, partition_dive, read_dive, reduce_tile
+from hadal.settings.grid import GridParams
 
 # one Prefect task per unit of work; no Prefect cache (the scratch files are the state, and the inputs are
 # arrays/frames Prefect would hash); Dask re-runs a task whose worker died
@@ -61,10 +62,12 @@ def publish_cruise_dtm(store_root: str, cruise_id: str, ds, provenance: dict[str
 
 @flow(name="cruise-dtm")
 def cruise_dtm_flow(raw_dirs: list[str], store_root: str, cruise_id: str, resolution_m: float,
-                    tile_cells: int | None = None, scratch_dir: str | None = None) -> dict[str, Any]:
+                    tile_cells: int | None = None, scratch_dir: str | None = None,
+                    params: GridParams | None = None) -> dict[str, Any]:
     """The cruise DTM on the flow's task runner, published; returns ``{"path": version dir, "dives": {...},
     "refused_raw_dirs": {...}}``. ``scratch_dir`` (default a fresh ``.scratch/cruise-*`` directory in the store,
-    which every worker sees) is removed at the end."""
+    which every worker sees) is removed at the end; ``params``: the ``grid`` settings (hole filling, a-priori
+    uncertainty, cell-count limit; default their defaults)."""
     from hadal.store import validate_name
 
     validate_name(cruise_id, "cruise id")
@@ -72,7 +75,8 @@ def cruise_dtm_flow(raw_dirs: list[str], store_root: str, cruise_id: str, resolu
     scratch = Path(scratch_dir) if scratch_dir else Path(store_root) / ".scratch" / f"cruise-{uuid.uuid4().hex[:12]}"
     scratch.mkdir(parents=True, exist_ok=True)
     try:
-        ds, prov = cruise_dtm_dataset(raw_dirs, resolution_m, scratch, map=_task_map, tile_cells=tile_cells)
+        ds, prov = cruise_dtm_dataset(raw_dirs, resolution_m, scratch, map=_task_map, tile_cells=tile_cells,
+                                      params=params)
         path = publish_cruise_dtm(store_root, cruise_id, ds, prov,
                                   {"resolution_m": float(resolution_m), "tile_cells": ds.attrs["tile_cells"],
                                    "raw_dirs": [str(r) for r in raw_dirs]})
@@ -99,8 +103,9 @@ def dask_runner(workers: int = 2, scheduler: str | None = None):
 
 def cruise_dtm(raw_dirs: list[str], store_root: str, cruise_id: str, resolution_m: float, workers: int = 2,
                scheduler: str | None = None, *, tile_cells: int | None = None,
-               scratch_dir: str | None = None) -> dict[str, Any]:
+               scratch_dir: str | None = None, params: GridParams | None = None) -> dict[str, Any]:
     """Run :func:`cruise_dtm_flow` on Dask: a LocalCluster of ``workers`` processes, or the cluster at
     ``scheduler``. The entry point of ``hadal cruise-dtm``."""
     return cruise_dtm_flow.with_options(task_runner=dask_runner(workers, scheduler))(
-        [str(r) for r in raw_dirs], str(store_root), cruise_id, float(resolution_m), tile_cells, scratch_dir)
+        [str(r) for r in raw_dirs], str(store_root), cruise_id, float(resolution_m), tile_cells, scratch_dir,
+        params)

@@ -54,6 +54,7 @@ if TYPE_CHECKING:
     from hadal.geo import LocalFrame
     from hadal.grid.points import GridSpec
     from hadal.grid.tiles import TileScheme
+    from hadal.settings.grid import GridParams
 
 #: the ``map`` callable: ``map(fn, [args tuple, ...])`` -> results in the same order
 MapFn = Callable[[Callable[..., Any], Sequence[tuple]], list]
@@ -309,14 +310,21 @@ def assemble(scheme: TileScheme, tiles: Sequence[dict[str, np.ndarray] | None], 
 
 
 def cruise_dtm_dataset(raw_dirs: Sequence[str | os.PathLike], resolution_m: float, scratch_dir: str | os.PathLike,
-                       *, map: MapFn = serial_map, tile_cells: int | None = None, fill_max_cells: int = 4,
-                       apriori_a_m: float = 0.5, apriori_b: float = 0.001, prior_weight: float = 3.0,
-                       max_cells: int | None = None) -> tuple[xr.Dataset, dict[str, Any]]:
+                       *, map: MapFn = serial_map, tile_cells: int | None = None,
+                       params: GridParams | None = None) -> tuple[xr.Dataset, dict[str, Any]]:
     """The cruise DTM of the dives in ``raw_dirs`` (module doc), its phases fanned out by ``map`` on
-    ``scratch_dir`` (a directory every worker sees). Returns ``(Dataset, provenance)``: provenance names every
-    dive and file used (with its reader) or refused (with the reason). No dive usable: one-line InputError."""
+    ``scratch_dir`` (a directory every worker sees); hole filling, a-priori uncertainty and the cell-count limit
+    from ``params`` (the ``grid`` settings, :class:`hadal.settings.grid.GridParams`; default its defaults).
+    Returns ``(Dataset, provenance)``: provenance names every dive and file used (with its reader) or refused
+    (with the reason). No dive usable: one-line InputError."""
     from hadal.grid.points import _COMPILED_MIN_POINTS
     from hadal.grid.tiles import TileScheme, choose_tile_cells
+    from hadal.settings.grid import GridParams
+
+    p = params if params is not None else GridParams()
+    fill_max_cells, apriori_a_m, apriori_b, prior_weight = (p.fill_max_cells, p.apriori_a_m, p.apriori_b,
+                                                            p.prior_weight)
+    max_cells = p.max_cells
 
     scratch = str(scratch_dir)
     if not Path(scratch).is_dir():
