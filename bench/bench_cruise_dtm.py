@@ -8,7 +8,8 @@ lon/lat/depth soundings each) are written once; then, alternated ``--repeat`` ti
 started by the bench (its address passed as ``scheduler``, so cluster start-up is not timed; one temporary Prefect
 API for the whole bench), and the serial
 science. Wall time of the call; CPU = this process's user+system time plus the worker processes' (psutil, read
-before the cluster is closed), each as a delta over the call (the Prefect API server's own CPU is not counted).
+before the cluster is closed; reaped children included), the workers warmed up untimed (imports, kernels: a
+long-lived cluster's state), each as a delta over the call (the Prefect API server's own CPU is not counted).
 Prints one JSON line per measure and the ratios (wall 1 worker / 2 workers: the speed-up;
 CPU 2 workers / serial: the distribution's overhead).
 
@@ -45,8 +46,9 @@ def _cruise_flow():
 
 
 def _cpu_self() -> float:
+    """This process's CPU seconds, its reaped children's included (readers may work in forked children)."""
     t = os.times()
-    return t.user + t.system
+    return t.user + t.system + t.children_user + t.children_system
 
 
 def _workers_cpu(client) -> float:
@@ -54,9 +56,20 @@ def _workers_cpu(client) -> float:
         import psutil
 
         c = psutil.Process().cpu_times()
-        return c.user + c.system
+        return c.user + c.system + c.children_user + c.children_system
 
     return float(sum(client.run(cpu).values()))
+
+
+def _warm(raw: str, scratch: str, resolution_m: float) -> None:
+    """The serial science on one dive in a worker (imports, numba kernels), in its own scratch directory."""
+    import uuid
+
+    from hadal.grid.cruise import cruise_dtm_dataset
+
+    d = Path(scratch) / uuid.uuid4().hex[:8]
+    d.mkdir(parents=True)
+    cruise_dtm_dataset([raw], resolution_m, d)
 
 
 def run_flow(raws: list[str], root: Path, workers: int, resolution_m: float, k: int, tile_cells: int) -> dict:
@@ -64,6 +77,8 @@ def run_flow(raws: list[str], root: Path, workers: int, resolution_m: float, k: 
 
     with LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=":0") as cl, \
             Client(cl) as client:
+        # a long-lived cluster's workers have imported hadal and compiled its kernels: warm them up untimed
+        client.run(_warm, raws[0], str(root / f"warm-{workers}-{k}"), resolution_m)
         w0, c0, t0 = _workers_cpu(client), _cpu_self(), time.perf_counter()
         _cruise_flow()(raws, str(root / f"store-{workers}-{k}"), "BENCH", resolution_m, scheduler=cl.scheduler_address,
                        tile_cells=tile_cells)
