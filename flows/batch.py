@@ -14,9 +14,10 @@ import logging
 import time
 from typing import Any
 
-from hadal.flows.post_cruise import DiveRun, run_stage_graph
+from hadal.flows.post_cruise import DiveRun, collect_dives, submit_dive
 from hadal.tasks.stage import route_hadal_logs
 from prefect import flow
+from prefect.context import FlowRunContext
 
 from hadal.errors import HadalError
 from hadal.pipeline import all_products, make_context, stage_plan
@@ -46,8 +47,8 @@ def post_cruise_batch(
     """Run the selected stages on every dive; returns ``{raw_dir: {"ok": bool, "published"|"error": ...,
     "stages": [...]}}``.
 
-    Like the single-dive flow (:func:`hadal.flows.post_cruise.run_stage_graph`, shared): a stage starts when the
-    stages it reads from are done, and every stage of a dive reads the upstream versions the batch found at its
+    Every dive's stage graph is handed to the flow's (Dask) task runner as the single-dive flow does
+    (:func:`hadal.flows.post_cruise.submit_dive`, shared): a stage starts when the stages it reads from are done, and every stage of a dive reads the upstream versions the batch found at its
     start or published itself for that dive (pins), never a concurrent run's newer ones (issue 14, class 9).
     One line per finished dive (progress); a failing dive does not stop the others."""
     route_hadal_logs()
@@ -77,7 +78,11 @@ def post_cruise_batch(
               f"({counts['published']} published, {counts['reused']} reused, {counts['failed']} failed; "
               f"{time.monotonic() - d.t0:.0f} s)")
 
-    run_stage_graph(runs, store_root, config_path, force, on_dive_done=done)
+    run_ctx = FlowRunContext.get()
+    runner = run_ctx.task_runner if run_ctx is not None else None
+    for d in runs:
+        submit_dive(runner, d, store_root, config_path, force)
+    collect_dives(runs, store_root, config_path, on_dive_done=done)
     return {raw: results[raw] for raw in raw_dirs if raw in results}
 
 

@@ -1,12 +1,18 @@
 """The post-cruise flow: raw dive → ingest ‖ dtm ‖ laser → derive ‖ suitability ‖ landing → match → report.
 
-Stages run as soon as the stages whose products they read are done (:func:`hadal.plan.stage_dependencies`), on
-Prefect's thread-pool task runner: ``dtm`` and ``laser`` do not wait for ``ingest``/``derive``, ``landing`` not
-for ``match``, ``match`` not for ``laser``. At most ``resources.parallel_stages`` run at once (default the CPU
-cores, at least 2: :func:`hadal.budget.parallel_stages`), the ready ones first in stage order, so on a small
-machine the DTM chain (dtm → suitability → match, the longest) is not slowed by the laser clouds.
-Every stage reads the upstream versions the run found at its start or published itself (pins), never a concurrent
-run's newer ones. :func:`run_stage_graph` is shared with the Dask batch flow (``flows/batch.py``).
+The flow hands the stage graph to Prefect (issue 44): :func:`submit_dive` walks it once
+(:func:`hadal.pipeline.walk_stage_graph`, the walk the in-process runner :func:`hadal.pipeline.run_pipeline` and the
+Prefect-free cache check :func:`hadal.pipeline.stage_cache_status` share) and submits each stage task once, with its
+upstream stages' futures as a parameter wrapped in ``allow_failure``: Prefect starts a stage when the stages whose
+products it reads (:func:`hadal.plan.stage_dependencies`) are done, ``dtm`` and ``laser`` do not wait for
+``ingest``/``derive``, ``landing`` not for ``match``, ``match`` not for ``laser``. The upstream results carry the
+pins: every stage reads the upstream versions the run found at its start or its upstream stages published, never
+a concurrent run's newer ones. A stage whose upstream failed skips itself with the reason, and the report still
+runs and lists the failures. At most ``resources.parallel_stages`` stages run at once: the max_workers of the
+Prefect thread-pool task runner (default the CPU cores, at least 2: :func:`hadal.budget.parallel_stages`), filled
+ready ones first (:func:`hadal.pipeline.graph_order`), so on a small machine the DTM chain (dtm → suitability →
+match, the longest) is not slowed by the laser clouds. The Dask batch flow (``flows/batch.py``) uses the same
+:func:`submit_dive` and :func:`collect_dives`.
 """
 
 from __future__ import annotations
@@ -25,6 +31,7 @@ from prefect import flow
 from prefect.context import TagsContext
 from prefect.futures import as_completed
 from prefect.task_runners import ThreadPoolTaskRunner
+from prefect.utilities.annotations import allow_failure
 
 from hadal.budget import parallel_stages, resources_of
 from hadal.errors import HadalError
@@ -36,13 +43,11 @@ from hadal.pipeline import (
     pin_paths,
     raise_failures,
     stage_plan,
+    walk_stage_graph,
 )
 from hadal.plan import stage_dependencies
 
 log = logging.getLogger("hadal.flow")
-
-#: threads of the single-dive flow's task runner (one per stage: the scheduler, not the pool, limits how many run)
-STAGE_THREADS = 8
 
 
 def stage_tasks(names: list[str]):
@@ -51,28 +56,21 @@ def stage_tasks(names: list[str]):
 
 @dataclass
 class DiveRun:
-    """The bookkeeping of one dive inside :func:`run_stage_graph`."""
+    """One dive of a flow run: the stages to run (plan order), the versions found at the start (pins), the stage
+    tasks' futures (:func:`submit_dive`) and, once they are done (:func:`collect_dives`), the run table's rows."""
 
     raw_dir: str
     names: list[str]
     pins: dict[str, str]
-    deps: dict[str, set[str]] = field(default_factory=dict)
-    waiting: list[str] = field(default_factory=list)
-    running: set[str] = field(default_factory=set)
+    isolate: set[str] = field(default_factory=set)
+    futures: dict[str, Any] = field(default_factory=dict)
+    done_at: dict[str, float] = field(default_factory=dict)
     published: dict[str, str] = field(default_factory=dict)
     failed: dict[str, str] = field(default_factory=dict)
     skips: dict[str, str] = field(default_factory=dict)
     rows: list[dict[str, Any]] = field(default_factory=list)
     unexpected: BaseException | None = None
     t0: float = field(default_factory=time.monotonic)
-
-    def __post_init__(self) -> None:
-        self.deps = stage_dependencies(self.names)
-        self.waiting = list(self.names)
-
-    @property
-    def done(self) -> bool:
-        return not self.waiting and not self.running
 
     def outcome(self) -> RunOutcome:
         return RunOutcome(self.published, self.rows)
@@ -91,91 +89,108 @@ def process_stages(names: list[str]) -> set[str]:
             and any(o != n and o not in down[n] and n not in down[o] for o in names)}
 
 
-def skipped_reason(d: DiveRun, name: str, store_root: str | None, config_path: str | None) -> str:
+def skipped_reason(raw_dir: str, pins: dict[str, str], name: str, store_root: str | None,
+                   config_path: str | None) -> str:
     """Why stage ``name`` published nothing: its content check (:func:`hadal.plan.runtime_skip_reason`, e.g.
-    landing's laser cells coarser than the vehicle allows) on the products this run pinned; the table shows it,
-    not just "see the log"."""
+    landing's laser cells coarser than the vehicle allows) on the products this run pinned (``pins``); the table
+    shows it, not just "see the log"."""
     from hadal.plan import runtime_skip_reason
 
     try:
-        ctx = make_context(d.raw_dir, store_root, config_path)
-        pin_paths(ctx, d.pins)
+        ctx = make_context(raw_dir, store_root, config_path)
+        pin_paths(ctx, pins)
         why = runtime_skip_reason(name, ctx)
     except (HadalError, OSError):
         why = None
     return why or "nothing to do (see the log)"
 
 
-def run_stage_graph(dives: list[DiveRun], store_root: str | None, config_path: str | None, force: bool,
-                    on_dive_done: Callable[[DiveRun], None] | None = None, max_running: int | None = None,
-                    isolate: bool = False) -> None:
-    """Submit every dive's stages to the flow's task runner as soon as their upstream stages are done (at most
-    ``max_running`` at once, None: no limit; ready stages in plan order); record each stage's outcome in its
-    :class:`DiveRun`. A stage whose upstream failed in this run is skipped with the reason; the report still runs
-    (and lists the failures). ``isolate``: stages in :func:`process_stages` run in their own processes."""
-    tasks = {n: t for d in dives for n, t in zip(d.names, stage_tasks(d.names), strict=True)}
-    running: dict[Any, tuple[DiveRun, str, float, bool]] = {}
-    in_process = {id(d): process_stages(d.names) if isolate else set() for d in dives}
+def submit_dive(runner: Any, d: DiveRun, store_root: str | None, config_path: str | None, force: bool) -> None:
+    """Hand dive ``d``'s stage graph to the Prefect task ``runner`` (the flow's thread pool, or the batch's Dask
+    runner): each stage task submitted once (:func:`hadal.pipeline.walk_stage_graph`), its upstream stages' futures
+    passed as its ``upstream`` parameter and in ``wait_for``, both through ``allow_failure`` so a stage whose
+    upstream failed still starts, skips itself with the reason (and the report lists the failure). ``force``: every
+    task bypasses its cache."""
+    tasks = dict(zip(d.names, stage_tasks(d.names), strict=True))
 
-    def submit(d: DiveRun, name: str, forced: bool) -> None:
-        notes: dict[str, Any] = {"isolate": True} if name in in_process[id(d)] else {}
-        if name == "report" and d.failed:
-            notes.update(failed=dict(d.failed), failed_skips=dict(d.skips))
-        fut = configured(tasks[name], store_root, forced).submit(d.raw_dir, store_root, config_path, dict(d.pins),
-                                                                 **notes)
-        running[fut] = (d, name, time.monotonic(), forced)
-        d.running.add(name)
+    def step(name: str, upstream: dict[str, Any]) -> Any:
+        params = {"raw_dir": d.raw_dir, "store_root": store_root, "config_path": config_path, "pins": dict(d.pins),
+                  "upstream": {u: allow_failure(f) for u, f in upstream.items()}, "isolate": name in d.isolate}
+        return runner.submit(configured(tasks[name], store_root, force), params,
+                             wait_for=[allow_failure(f) for f in upstream.values()])
 
-    while True:
-        for d in dives:  # submit every stage whose upstream stages are done (in plan order, while slots are free)
-            for name in list(d.waiting):
-                if d.deps[name] & (set(d.waiting) | d.running):
-                    continue
-                if max_running is not None and len(running) >= max_running \
-                        and blocked_by_failure(name, d.failed) is None:
-                    break
-                d.waiting.remove(name)
-                if (why := blocked_by_failure(name, d.failed)) is not None:
-                    print(f"stage {name} skipped: {why}")
-                    d.skips[name] = why
-                    d.rows.append({"stage": name, "status": "skipped", "seconds": 0.0, "versions": {},
-                                   "reason": why})
-                    continue
-                submit(d, name, force)
-        if not running:
-            break
-        fut = next(as_completed(list(running)))
-        d, name, t_submit, forced = running.pop(fut)
-        d.running.discard(name)
-        fut.wait()  # sets the future's final state (the done callback alone may leave it PENDING)
-        state = fut.state
-        seconds = time.monotonic() - t_submit
-        if state.is_completed():
-            out = fut.result()
-            if not forced and not published_exist(out):  # a cached result whose versions were removed: re-run
-                log.info("stage %s: cached versions are gone, re-running", name)
-                submit(d, name, True)
-                continue
-            reused = state.name == "Cached"
-            status = "reused" if reused else ("published" if out else "skipped")
-            versions = {p: Path(v).name for p, v in out.items()}
-            if reused:
-                log.info("stage %s: cache hit (inputs, parameters and code unchanged): reusing %s", name,
-                         ", ".join(f"{p}/{v}" for p, v in versions.items()) or "nothing")
-            d.pins.update(out)
-            d.published.update(out)
-            d.rows.append({"stage": name, "status": status, "seconds": round(seconds, 2), "versions": versions,
-                           "reason": "" if out or reused else skipped_reason(d, name, store_root, config_path)})
-        else:
-            exc = state.result(raise_on_failure=False)
-            msg = str(exc).splitlines()[0] if isinstance(exc, BaseException) and str(exc) else state.name
-            d.failed[name] = msg
-            if isinstance(exc, BaseException) and not isinstance(exc, HadalError) and d.unexpected is None:
-                d.unexpected = exc
-            d.rows.append({"stage": name, "status": "failed", "seconds": round(seconds, 2), "versions": {},
-                           "reason": msg})
-        if d.done and on_dive_done is not None:
+    d.t0 = time.monotonic()
+    d.futures = walk_stage_graph(d.names, step)
+
+
+def collect_dives(dives: list[DiveRun], store_root: str | None, config_path: str | None,
+                  on_dive_done: Callable[[DiveRun], None] | None = None) -> None:
+    """Wait for the stage tasks of every dive (:func:`submit_dive`) and record, when a dive's are all done, its run
+    table (:func:`record_dive`); then ``on_dive_done(dive)`` (the batch's progress line)."""
+    def finish(d: DiveRun) -> None:
+        record_dive(d, store_root, config_path)
+        if on_dive_done is not None:
             on_dive_done(d)
+
+    owner = {f: (d, n) for d in dives for n, f in d.futures.items()}
+    left = {id(d): len(d.futures) for d in dives}
+    for d in dives:
+        if not d.futures:
+            finish(d)
+    for fut in as_completed(list(owner)):
+        d, name = owner[fut]
+        d.done_at[name] = time.monotonic()
+        left[id(d)] -= 1
+        if left[id(d)] == 0:
+            finish(d)
+
+
+def record_dive(d: DiveRun, store_root: str | None, config_path: str | None) -> None:
+    """Dive ``d``'s rows (published / reused / skipped / failed, with the reason) from its stage tasks' final states.
+    A stage's seconds run from when its last upstream stage finished (or the submission) to its own end."""
+    deps = stage_dependencies(d.names)
+    states = {}
+    for name, fut in d.futures.items():
+        fut.wait()  # sets the future's final state (the done callback alone may leave it PENDING)
+        states[name] = fut.state
+    for name in d.names:
+        state = states[name]
+        if state.is_completed():
+            continue
+        exc = state.result(raise_on_failure=False) if state.is_failed() else None
+        msg = str(exc).splitlines()[0] if isinstance(exc, BaseException) and str(exc) else state.name
+        d.failed[name] = msg
+        if isinstance(exc, BaseException) and not isinstance(exc, HadalError) and d.unexpected is None:
+            d.unexpected = exc
+    for name in d.names:
+        state = states[name]
+        ready = max([d.t0, *(d.done_at.get(u, d.t0) for u in deps[name])])
+        seconds = round(max(0.0, d.done_at.get(name, ready) - ready), 2)
+        if name in d.failed:
+            d.rows.append({"stage": name, "status": "failed", "seconds": seconds, "versions": {},
+                           "reason": d.failed[name]})
+            continue
+        if (why := blocked_by_failure(name, d.failed)) is not None:
+            print(f"stage {name} skipped: {why}")
+            d.skips[name] = why
+            d.rows.append({"stage": name, "status": "skipped", "seconds": 0.0, "versions": {}, "reason": why})
+            continue
+        out = state.result()
+        if not published_exist(out):  # a cache record the task could not check (:func:`hadal.pipeline.drop_gone_result`)
+            d.failed[name] = "its cached versions are gone; run it again with --force"
+            d.rows.append({"stage": name, "status": "failed", "seconds": seconds, "versions": {},
+                           "reason": d.failed[name]})
+            continue
+        reused = state.name == "Cached"
+        versions = {p: Path(v).name for p, v in out.items()}
+        if reused:
+            log.info("stage %s: cache hit (inputs, parameters and code unchanged): reusing %s", name,
+                     ", ".join(f"{p}/{v}" for p, v in versions.items()) or "nothing")
+        d.published.update(out)
+        d.rows.append({"stage": name, "status": "reused" if reused else ("published" if out else "skipped"),
+                       "seconds": seconds, "versions": versions,
+                       "reason": "" if out or reused else skipped_reason(d.raw_dir, {**d.pins, **d.published}, name,
+                                                                          store_root, config_path)})
 
 
 def dive_tags(raw_dir: str | Path, dive_id: str, cruise: str | None = None) -> list[str]:
@@ -221,8 +236,7 @@ def tag_flow_run(extra: list[str]) -> None:
         log.debug("could not tag the flow run: %s", exc)
 
 
-@flow(name="post-cruise", log_prints=True, flow_run_name=flow_run_name,
-      task_runner=ThreadPoolTaskRunner(max_workers=STAGE_THREADS))
+@flow(name="post-cruise", log_prints=True, flow_run_name=flow_run_name)
 def post_cruise(
     raw_dir: str,
     store_root: str | None = None,
@@ -252,14 +266,17 @@ def post_cruise(
         if not ps.run:
             print(f"stage {ps.name} skipped: {ps.reason}")
             rows.append({"stage": ps.name, "status": "skipped", "seconds": 0.0, "versions": {}, "reason": ps.reason})
-    d = DiveRun(raw_dir, [ps.name for ps in plan if ps.run], {p: str(pv.path) for p, pv in ctx.pins.items()})
-    d.rows = rows
+    names = [ps.name for ps in plan if ps.run]
+    isolate = process_stages(names) if resources_of(ctx.config).stage_processes else set()
+    d = DiveRun(raw_dir, names, {p: str(pv.path) for p, pv in ctx.pins.items()}, isolate)
     # the dive/cruise tags are the flow run's; the stage task runs are left untagged: Prefect acquires a tag
     # concurrency slot for every tagged task run, whose service restarts took ~2 s before each stage on a busy
     # 2-core machine (the wait before derive, suitability and report: 6 s of a 67 s cold dive)
-    with TagsContext(current_tags=set()):
-        run_stage_graph([d], store_root, config_path, force, max_running=parallel_stages(ctx.config),
-                        isolate=resources_of(ctx.config).stage_processes)
+    runner: ThreadPoolTaskRunner[Any] = ThreadPoolTaskRunner(max_workers=parallel_stages(ctx.config))
+    with TagsContext(current_tags=set()), runner:
+        submit_dive(runner, d, store_root, config_path, force)
+        collect_dives([d], store_root, config_path)
+    d.rows = rows + d.rows
     order = {ps.name: i for i, ps in enumerate(plan)}
     d.rows.sort(key=lambda r: order.get(r["stage"], 99))
     if d.unexpected is not None:

@@ -41,7 +41,9 @@ from prefect import task
 from hadal.errors import HadalError
 from hadal.pipeline import (  # noqa: F401 - the fingerprint functions are re-exported (Prefect-free in pipeline)
     RESULTS_DIR,
+    blocked_by_failure,
     code_digest,
+    drop_gone_result,
     fingerprint_key,
     make_context,
     pin_paths,
@@ -159,16 +161,41 @@ def _run_ids() -> dict[str, str]:
     return {"flow_run": str(trc.task_run.flow_run_id), "task_run": str(trc.task_run.id)}
 
 
+def upstream_state(name: str, pins: dict[str, str] | None, upstream: dict[str, Any] | None
+                   ) -> tuple[dict[str, str], dict[str, str], dict[str, str]]:
+    """What stage ``name``'s task knows from the stages it reads from (``upstream``: ``{stage: its result, or the
+    exception it failed with}``, as Prefect hands them over through ``allow_failure``): the pins (the run's ``pins``
+    updated with what the upstream stages published or reused), the upstream stages that failed (``{stage: the
+    first line of the error}``) and those skipped because of such a failure (:func:`hadal.pipeline.
+    blocked_by_failure`); the report lists both."""
+    merged = dict(pins or {})
+    failed: dict[str, str] = {}
+    for up, value in (upstream or {}).items():
+        if isinstance(value, BaseException):
+            failed[up] = str(value).splitlines()[0] if str(value) else type(value).__name__
+        elif isinstance(value, dict):
+            merged.update(value)
+    skips = {up: why for up in (upstream or {}) if up not in failed
+             and (why := blocked_by_failure(up, failed)) is not None}
+    return merged, failed, skips
+
+
 def cache_key(name: str) -> Callable[[Any, dict[str, Any]], str | None]:
-    """A Prefect ``cache_key_fn`` for stage ``name`` (task parameters: raw_dir, store_root, config_path)."""
+    """A Prefect ``cache_key_fn`` for stage ``name`` (task parameters: raw_dir, store_root, config_path, pins,
+    upstream). A stage that an upstream failure blocks is not cached; a record whose versions are gone is removed
+    first (:func:`hadal.pipeline.drop_gone_result`), so the stage runs again."""
 
     def _key(context: Any, parameters: dict[str, Any]) -> str | None:
+        pins, failed, skips = upstream_state(name, parameters.get("pins"), parameters.get("upstream"))
+        if blocked_by_failure(name, failed) is not None:
+            return None
         try:
-            return stage_cache_key(name, parameters["raw_dir"], parameters.get("store_root"),
-                                   parameters.get("config_path"), parameters.get("pins"), parameters.get("failed"),
-                                   parameters.get("failed_skips"))
+            key = stage_cache_key(name, parameters["raw_dir"], parameters.get("store_root"),
+                                  parameters.get("config_path"), pins, failed, skips)
         except (HadalError, OSError):
             return None  # the task itself will report the problem; never cache it
+        drop_gone_result(result_storage(parameters.get("store_root")), key)
+        return key
 
     _key.__name__ = f"{name}_cache_key"
     return _key
@@ -188,9 +215,12 @@ def retry_on_io_error(task_: Any, task_run: Any, state: Any) -> bool:
 def stage_task(name: str, *, retries: int = 0, after: Callable[[str, dict[str, str]], None] | None = None):
     """A Prefect task running stage ``name`` on a raw dive; returns ``{product: version directory}``.
 
-    ``pins`` (``{product: version directory}``) are the upstream versions the flow run found at its start or
-    published itself: the task reads those, never a concurrent run's newer ones. ``failed``/``failed_skips``:
-    stages that failed earlier in the run and those skipped because of them (the report lists them). ``isolate``:
+    ``pins`` (``{product: version directory}``) are the versions the flow run found at its start; ``upstream``
+    (``{stage: result}``, Prefect futures wrapped in ``allow_failure`` when submitted: ``flows/post_cruise.py``) adds
+    what the stages it reads from published or reused in this run: the task reads those, never a concurrent run's
+    newer ones. An upstream stage that failed makes the task skip (returning nothing) when it needs that stage's
+    product (:func:`hadal.pipeline.blocked_by_failure`); the failures and those skips reach the report, which
+    lists them (:func:`upstream_state`). ``isolate``:
     run the stage in its own process (:mod:`hadal.stage_process`; not part of the cache key).
 
     ``after(name, published)`` runs inside the task after a fresh (non-cached) run, e.g. to publish
@@ -198,12 +228,16 @@ def stage_task(name: str, *, retries: int = 0, after: Callable[[str, dict[str, s
     """
 
     def _run(raw_dir: str, store_root: str | None = None, config_path: str | None = None,
-             pins: dict[str, str] | None = None, failed: dict[str, str] | None = None,
-             failed_skips: dict[str, str] | None = None, isolate: bool = False) -> dict[str, str]:
+             pins: dict[str, str] | None = None, upstream: dict[str, Any] | None = None,
+             isolate: bool = False) -> dict[str, str]:
         route_hadal_logs()
         ctx = make_context(raw_dir, store_root, config_path, progress=default_progress())
+        pins, failed, failed_skips = upstream_state(name, pins, upstream)
+        if (why := blocked_by_failure(name, failed)) is not None:
+            ctx.log.warning("stage %s skipped: %s", name, why)
+            return {}
         pin_paths(ctx, pins)
-        ctx.failed, ctx.failed_skips = dict(failed or {}), dict(failed_skips or {})
+        ctx.failed, ctx.failed_skips = failed, failed_skips
         if not should_run(name, ctx):  # the upstream content cannot support it (logged with the reason)
             return {}
         collect = _ThreadWarnings()

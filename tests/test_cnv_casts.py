@@ -46,7 +46,7 @@ def _cast_dive(tmp: Path, shared: Path, name: str, **extra) -> Path:
     return raw
 
 
-def _run(raw: Path, store: Path, stages=("ingest", "derive", "report")):
+def _run(raw: Path, store: Path, stages=("ingest", "derive", "profile", "report")):
     from hadal.pipeline import make_context, run_stage
 
     ctx = make_context(raw, store)
@@ -216,7 +216,7 @@ def _seasoft(cast: pd.DataFrame, prefix: str) -> str | None:
 def test_binned_casts_against_seasoft(shared_data, tmp_path, name):
     """derive's salinity / density / depth vs SeaSoft's sal00, sigma-t00 / sigma-theta (sigma-é00), depSM."""
     raw = _cast_dive(tmp_path, shared_data, name)
-    _, out = _run(raw, tmp_path / "store", ("ingest", "derive"))
+    _, out = _run(raw, tmp_path / "store", ("ingest", "derive", "profile"))
     ctd = pd.read_parquet(out["ctd"].file("ctd.parquet"))
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")

@@ -172,3 +172,16 @@ def test_killed_worker_mid_run_completes_on_the_rest(tmp_path, prefect_harness, 
     assert "name: w0" in (cl.logs / "scheduler.log").read_text()
     _check_product(store, "CRUISE-K", raws, 20.0)
     assert np.isfinite(_read_nc(Path(res["path"]) / "cruise_dtm.nc")["depth_m"].values).any()
+
+
+def test_cruise_on_default_local_cluster(tmp_path, prefect_harness):
+    """No scheduler given: the flow starts its own LocalCluster of ``workers`` processes; a bad raw directory is
+    refused by name, the product made of the rest."""
+    raws = make_cruise(tmp_path / "raw", n=2000)
+    (tmp_path / "raw" / "junk").mkdir()
+    store = tmp_path / "store"
+    res = _cruise_flow()([*map(str, raws), str(tmp_path / "raw" / "junk")], str(store), "CRUISE-L", 20.0,
+                         workers=2, tile_cells=16)
+    assert str(tmp_path / "raw" / "junk") in res["refused_raw_dirs"]
+    _check_product(store, "CRUISE-L", raws, 20.0)
+    assert not (store / ".scratch").exists() or not any((store / ".scratch").iterdir())  # scratch removed

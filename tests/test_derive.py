@@ -103,11 +103,12 @@ def derived(synth, tmp_path_factory):
     ctx = make_context(_raw_dive(tmp), tmp / "store")
     _publish_sensors(ctx, synth[0])
     out = run_stage("derive", ctx)
+    out |= run_stage("profile", ctx)  # the binned casts: the profile stage (after match when the dive has one)
     return ctx, out
 
 
 def test_stage_contract():
-    assert derive.STAGE.products == ("ctd", "profile", "cast_profiles", "trajectory")
+    assert derive.STAGE.products == ("ctd", "cast_profiles", "trajectory")
     assert derive.STAGE.reads == ("sensors", "casts")
     p = DeriveParams()
     assert p.profile_bin_dbar == 10.0 and p.nominal_sound_speed_m_s == 1500.0 and p.latitude_deg is None
@@ -299,6 +300,7 @@ def test_chain_parameters_in_manifest(tmp_path, synth):
     ctx = make_context(raw, tmp_path / "store")
     _publish_sensors(ctx, synth[0].iloc[::4].reset_index(drop=True))
     out = run_stage("derive", ctx)
+    out |= run_stage("profile", ctx)
     for prod in ("ctd", "profile"):
         params = json.dumps(out[prod].manifest())
         for k in chain:

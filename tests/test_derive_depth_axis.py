@@ -152,7 +152,7 @@ def _stage(tmp_path, sensors, axis):
     ctx = make_context(raw, tmp_path / "store", cfg)
     with ctx.store.publish(ctx.dive_id, "sensors", parameters={}) as draft:
         write_parquet(sensors, draft.path / "sensors.parquet", metadata={"dive_id": ctx.dive_id})
-    return run_stage("derive", ctx)
+    return run_stage("derive", ctx) | run_stage("profile", ctx)
 
 
 @pytest.mark.parametrize("axis", ["depth", "pressure"])

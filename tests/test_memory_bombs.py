@@ -589,3 +589,175 @@ def test_compressed_gsf_decompressed_past_the_free_disk_space(tmp_path):
     """)
     _one_line_error(out, "decompressing this gzip GSF file needs more than")
     assert not any(tmp.iterdir()) and tempfile.gettempdir() != str(tmp)
+
+
+# ----------------------------------------------------------------- measured cost per reader, the stage's budget
+def _s7k_record(rtype: int, data: bytes, opt: bytes = b"") -> bytes:
+    """One 7k record [Teledyne RESON DFD, DRF v5]: 64-byte frame, ``data``, optional data, u32 checksum (flag 1)."""
+    import struct
+
+    size = 64 + len(data) + len(opt) + 4
+    t7k = struct.pack("<HHfBB", 2019, 131, 30.5, 20, 46)
+    drf = struct.pack("<HHIIII10sHIIHHIHHIII", 5, 60, 0x0000FFFF, size, 64 + len(data) if opt else 0, 0, t7k, 1,
+                      rtype, 7125, 0, 0, 0, 1, 0, 0, 0, 0)
+    body = drf + data + opt
+    return body + struct.pack("<I", sum(body) & 0xFFFFFFFF)
+
+
+def _s7k_ping(nb: int = 400) -> bytes:
+    """A 7027 raw-detection record of ``nb`` detections with the optional bathymetry block (DFD layout: f32
+    frequency, f64 latitude, f64 longitude, f32 heading (rad), u8, 5 x f32; per detection f32 depth, along, across,
+    pointing, azimuth): depths 5000 + (i % 97) m, across-track -4 .. 4 km, at 11.3 N 142.2 E heading north."""
+    import math
+    import struct
+
+    rth = struct.pack("<QIHIIBIfff60x", 1, 42, 0, nb, 34, 2, 0, 34000.0, 0.0, 0.0)
+    dets = b"".join(struct.pack("<HffIIffff", i, 100.0 + i, 0.1 * i, 1, 3, 0, 0, 0, 0) for i in range(nb))
+    opt = struct.pack("<fddfBfffff", 400e3, math.radians(11.3), math.radians(142.2), 0.0, 0, 0, 0, 0, 0, 0)
+    opt += b"".join(struct.pack("<fffff", 5000.0 + (i % 97), 0.0, -4000.0 + 8000.0 * i / (nb - 1), 0, 0)
+                    for i in range(nb))
+    return _s7k_record(7027, rth + dets, opt)
+
+
+@pytest.mark.integration  # ~2 min: the 1.6e8 soundings are decoded up to the budget
+def test_s7k_soundings_past_the_budget(tmp_path):
+    """The real TN136 .s7k's records, then a 7027 ping of 4,000 georeferenced soundings repeated 40,000 times (1.6e8
+    soundings, 3.2 GB, a gzip of a few MB): each ping valid, their sum refused in one line as they decode, peak under
+    2 GiB (the 4 GiB cap of the red team)."""
+    ping = _s7k_ping(4000)
+    p = _compressed(tmp_path / "bomb.s7k", _real(S7K), ping, 40_000 * len(ping))
+    out = _run_capped(_read_swath(p))
+    _one_line_error(out, "decoding this s7k multibeam file needs more than")
+    assert "limit" in out["message"], out
+    print(f"s7k bomb: peak {out['peak'] / 2**20:.0f} MiB; {out['message'].split(': ', 1)[1]}")
+    assert out["peak"] < 2 * GIB, out
+
+
+def _swath_file(tmp_path: Path, fmt: str, soundings: int) -> tuple[Path, Path, int]:
+    """A file of ``fmt`` with about ``soundings`` soundings made by repeating a real file's ping (the .s7k: the
+    ping of :func:`_s7k_ping` after the real file's records), gzip-compressed; the file of one unit (the oracle's);
+    the soundings it holds."""
+    import gzip
+
+    if fmt == "em_all":
+        data = _real(EM_ALL)
+        k = soundings // 572
+        one, body, total = data, data + _em_depths(data) * k, 572 * (k + 1)
+    elif fmt == "kmall":
+        data = _real(KMALL)
+        k = soundings // 393
+        one, body, total = data, b"".join(_kmall_mrz(data, time_s=1_557_607_590 + i) for i in range(k)), 393 * k
+    elif fmt == "s7k":
+        k = soundings // 400
+        one, body, total = _real(S7K) + _s7k_ping(), _real(S7K) + _s7k_ping() * k, 400 * k
+    else:  # xyz text
+        lines = "".join(f"{142.2 + 1e-5 * (i % 1000):.5f} {11.3 + 1e-5 * (i // 1000 % 1000):.5f} {5000 + i % 97}\n"
+                        for i in range(10_000)).encode()
+        k = soundings // 10_000
+        one, body, total = lines, lines * k, 10_000 * k
+    ref = tmp_path / f"one.{fmt}"
+    ref.write_bytes(one)
+    p = tmp_path / f"many.{fmt}"
+    with gzip.open(p, "wb", compresslevel=1) as f:
+        f.write(body)
+    return p, ref, total
+
+
+@pytest.mark.parametrize("margin", [1.03, 0.97])
+@pytest.mark.parametrize("fmt", ["em_all", "kmall", "s7k", "xyz"])
+def test_swath_file_just_under_and_over_the_sounding_budget(tmp_path, fmt, margin):
+    """A file whose measured read cost (SOUNDING_READ_COST: fixed + soundings x bytes per sounding of its reader) is
+    3 % under (over) the stage's budget (``memory_limit_bytes`` of the DTM stage's read): read whole, every sounding
+    and the depths of the one-ping file (the oracle), with a peak RSS above the start under the budget; else refused
+    in one line as it decodes. The budget counted 84 B a sounding for every reader before (30-90 B measured)."""
+    from hadal.grid.sonar import SOUNDING_READ_COST
+
+    n = {"em_all": 1_500_000, "kmall": 400_000, "s7k": 1_500_000, "xyz": 1_500_000}[fmt]
+    p, one, total = _swath_file(tmp_path, fmt, n)
+    fixed, per = SOUNDING_READ_COST[fmt]
+    limit = (fixed + total * per) * margin
+    code = """
+        import numpy, pandas  # before the baseline, as in the bench that measured SOUNDING_READ_COST
+        import hadal.grid.sonar
+        from hadal.grid.soundings import read_soundings_xy
+        def run():
+            x, y, dep, frame, used = read_soundings_xy([%r], None, memory_limit_bytes=%r)
+            return [int(dep.size), float(dep.min()), float(dep.max())]
+    """
+    ref = _run_capped(code % (str(one), None))["result"]
+    out = _run_capped(code % (str(p), limit))
+    if margin > 1:
+        assert "error" not in out, out
+        assert out["result"] == [total, ref[1], ref[2]], (ref, out)
+    else:
+        _one_line_error(out, "multibeam file needs more than")
+        assert "limit" in out["message"], out
+    print(fmt, margin, f"peak - base {(out['peak'] - out['base']) / 2**20:.0f} MiB, limit {limit / 2**20:.0f} MiB")
+    assert out["peak"] - out["base"] < limit, (out, limit)
+
+
+def test_stage_budgets_honour_resources_max_memory_gb(tmp_path):
+    """``resources.max_memory_gb`` is the budget of the readers a stage calls (it was the machine's before): a tiny
+    dive's ingest (from its MCAP, its CSV logs, or a real .cnv cast) and an xyz dive's DTM stage, fine under the
+    default budget, are refused in one line naming the configured limit when it is set below what their reads need
+    (the MCAP budget: the chunks and the kept messages; CSV/.cnv: the decoded columns; the soundings': the xyz
+    reader's measured cost)."""
+    import os
+    import shutil
+    import sys
+    import warnings
+
+    import yaml
+
+    from hadal.dive import load_dive
+    from hadal.errors import InputError
+    from hadal.geo import LocalFrame
+    from hadal.pipeline import make_context, run_stage
+    from hadal.settings import PipelineConfig
+    from hadal.stages import StageContext, ingest
+    from hadal.store import ProductStore
+
+    sys.path.insert(0, str(Path(__file__).parent / "malformed"))
+    from tiny_dive import write_dive
+
+    raw = write_dive(tmp_path / "raw", 30.0)
+    cnv = tmp_path / "cnv" / "raw"
+    write_dive(cnv, 5.0)
+    shutil.copy(Path(os.environ.get("HADAL_SHARED_DATA", "/work/shared/data")) / "formats-real"
+                / "sbs_SBE19plus_01906398_2019_07_15_0033_cropped.cnv", cnv / "cast.cnv")
+    y = yaml.safe_load((cnv / "dive.yaml").read_text())
+    y["sources"] = {"cnv": ["cast.cnv"]}
+    (cnv / "dive.yaml").write_text(yaml.safe_dump(y))
+    for source, d, what in (("mcap", raw, "MCAP"), ("csv", raw, "CSV file"), ("cnv", cnv, "CNV file")):
+        dive, rdir = load_dive(d)
+        for limit_gb in (None, 1e-6):
+            res = {} if limit_gb is None else {"resources": {"max_memory_gb": limit_gb}}
+            ctx = StageContext(dive=dive, raw_dir=rdir, store=ProductStore(tmp_path / f"store-{source}{limit_gb}"),
+                               config=PipelineConfig.model_validate({"ingest": {"source": source}, **res}))
+            if limit_gb is None:
+                with warnings.catch_warnings():
+                    warnings.simplefilter("ignore")
+                    assert len(ingest.run(ctx)["sensors"].file("sensors.parquet").read_bytes()) > 0
+            else:
+                with pytest.raises(InputError) as ei:
+                    ingest.run(ctx)
+                msg = str(ei.value)
+                assert "\n" not in msg and f"decoding this {what}" in msg and "limit 1.05 KiB)" in msg, msg
+
+    frame = LocalFrame(11.33, 142.2)
+    rng = np.random.default_rng(0)
+    mb = tmp_path / "mb" / "raw"
+    (mb / "mb").mkdir(parents=True)
+    x, y = rng.uniform(-1000, 1000, 3000), rng.uniform(-800, 800, 3000)
+    lon, lat = frame.to_lonlat(x, y)
+    np.savetxt(mb / "mb" / "line.xyz", np.column_stack([lon, lat, 8000 + 0.02 * x]), fmt="%.8f %.8f %.3f")
+    dive_yaml = {"dive_id": "B001", "platform": "test", "launch": {"latitude_deg": 11.33, "longitude_deg": 142.2},
+                 "map_frame": {"origin_latitude_deg": 11.33, "origin_longitude_deg": 142.2},
+                 "sources": {"multibeam": ["mb/line.xyz"]}}
+    (mb / "dive.yaml").write_text(yaml.safe_dump(dive_yaml))
+    (mb / "pipeline.yaml").write_text(yaml.safe_dump({"grid": {"dtm_resolution_m": 50.0},
+                                                      "resources": {"max_memory_gb": 0.01}}))
+    with pytest.raises(InputError) as ei:
+        run_stage("grid", make_context(mb, tmp_path / "mb" / "store"))
+    msg = str(ei.value)
+    assert "\n" not in msg and "decoding this multibeam file needs more than" in msg and "limit 10.2 MiB)" in msg, msg

@@ -275,16 +275,17 @@ _FAKE_MAKES = {"ingest": "sensors", "derive": "ctd", "dtm": "dtm", "laser": "las
 def _fake_stage(name: str, log: dict, lock, seconds: float, fail: bool = False):
     """A Prefect task standing in for stage ``name``: sleeps, logs its start/end/pins/isolate flag, then publishes
     an empty version of the product it makes (or raises InputError if ``fail``)."""
+    from hadal.tasks.stage import upstream_state
     from prefect import task
 
     from hadal.errors import InputError
 
-    def run(raw_dir, store_root=None, config_path=None, pins=None, failed=None, failed_skips=None, isolate=False):
+    def run(raw_dir, store_root=None, config_path=None, pins=None, upstream=None, isolate=False):
         t0 = time.monotonic()
+        pins, failed, _ = upstream_state(name, pins, upstream)  # what the real stage task reads from upstream
         time.sleep(seconds)
         with lock:
-            log[name] = {"t0": t0, "t1": time.monotonic(), "pins": dict(pins or {}), "failed": failed,
-                         "isolate": isolate}
+            log[name] = {"t0": t0, "t1": time.monotonic(), "pins": pins, "failed": failed, "isolate": isolate}
         if fail:
             raise InputError(f"{name} broke")
         v = Path(store_root, "d", _FAKE_MAKES[name], "v001")
@@ -297,8 +298,8 @@ def _fake_stage(name: str, log: dict, lock, seconds: float, fail: bool = False):
 
 @pytest.mark.prefect
 def test_stage_graph_runs_independent_stages_concurrently_with_pins(tmp_path, prefect_harness, monkeypatch):
-    """The flow's scheduler (run_stage_graph) starts a stage as soon as the stages it reads from are done:
-    ingest and laser overlap, derive waits for ingest, landing for laser (not for match); each stage gets the pins of
+    """The stage graph handed to Prefect (submit_dive: each task submitted once with its upstream futures) starts a
+    stage as soon as the stages it reads from are done: ingest and laser overlap, derive waits for ingest, landing for laser (not for match); each stage gets the pins of
     what its upstream published; a failed stage skips its dependents, the others and the report still run.
     Oracle: the dependency table of the stage docs (derive reads sensors, landing reads laser_grids)."""
     import threading
@@ -316,8 +317,11 @@ def test_stage_graph_runs_independent_stages_concurrently_with_pins(tmp_path, pr
 
     @flow(task_runner=ThreadPoolTaskRunner(max_workers=4))
     def graph():
+        from prefect.context import FlowRunContext
+
         d = pc.DiveRun("raw", names, {"dtm": "old-dtm"})
-        pc.run_stage_graph([d], str(tmp_path), None, False)
+        pc.submit_dive(FlowRunContext.get().task_runner, d, str(tmp_path), None, False)
+        pc.collect_dives([d], str(tmp_path), None)
         return d
 
     d = graph()
@@ -331,14 +335,16 @@ def test_stage_graph_runs_independent_stages_concurrently_with_pins(tmp_path, pr
     assert status == {"ingest": "published", "derive": "failed", "laser": "published", "landing": "published",
                       "report": "published"}
     assert d.failed == {"derive": "derive broke"}
+    assert [r["stage"] for r in d.rows] == names  # the run table in plan order
 
 
 @pytest.mark.prefect
 def test_stage_graph_runs_at_most_max_running_stages_ready_ones_in_plan_order(tmp_path, prefect_harness,
                                                                               monkeypatch):
-    """With ``max_running=2`` no more than two stages overlap although ingest, dtm and laser are ready together;
-    the first two in stage order (ingest, dtm) start first, laser takes the first free slot; stages the graph
-    marks for a process get ``isolate=True`` (dtm and laser overlap ingest/derive), the others not.
+    """With a task runner of two workers no more than two stages overlap although ingest, dtm and laser are ready
+    together; the first two in stage order (ingest, dtm) start first, laser takes the first free slot (derive, not
+    ready, does not hold a worker before them); stages the graph marks for a process get ``isolate=True`` (dtm and
+    laser overlap ingest/derive), the others not.
     Oracle: the start/end times each fake stage logged."""
     import threading
 
@@ -352,10 +358,12 @@ def test_stage_graph_runs_at_most_max_running_stages_ready_ones_in_plan_order(tm
     names = ["ingest", "derive", "dtm", "laser", "report"]
     monkeypatch.setattr(pc, "stage_tasks", lambda ns: [_fake_stage(n, log, lock, 0.8) for n in ns])
 
-    @flow(task_runner=ThreadPoolTaskRunner(max_workers=8))
+    @flow
     def graph():
-        d = pc.DiveRun("raw", names, {})
-        pc.run_stage_graph([d], str(tmp_path), None, False, max_running=2, isolate=True)
+        d = pc.DiveRun("raw", names, {}, pc.process_stages(names))
+        with ThreadPoolTaskRunner(max_workers=2) as runner:
+            pc.submit_dive(runner, d, str(tmp_path), None, False)
+            pc.collect_dives([d], str(tmp_path), None)
         return d
 
     d = graph()
@@ -577,12 +585,35 @@ def test_a_stage_skipped_by_its_content_check_names_the_reason_in_the_run_table(
     """A laser-only dive of a coarse airborne lidar cloud (dives-real LAS, 31.6 m cells): landing publishes nothing;
     the flow's table row says why (landing's own content check), not just "see the log"."""
     from dive_runs import init_dive, run_quiet
-    from hadal.flows.post_cruise import DiveRun, skipped_reason
+    from hadal.flows.post_cruise import skipped_reason
 
     raw, _ = init_dive(shared_data, tmp_path, "dives-real/pdal_autzen-utm.las")
     run_quiet(raw, tmp_path / "store")
-    why = skipped_reason(DiveRun(str(raw), ["laser", "landing", "report"], {}), "landing", str(tmp_path / "store"),
-                         None)
+    why = skipped_reason(str(raw), {}, "landing", str(tmp_path / "store"), None)
     assert "coarser than landing.max_cell_fraction" in why and "\n" not in why
-    assert skipped_reason(DiveRun(str(raw), ["report"], {}), "report", str(tmp_path / "store"), None) == \
-        "nothing to do (see the log)"
+    assert skipped_reason(str(raw), {}, "report", str(tmp_path / "store"), None) == "nothing to do (see the log)"
+
+
+def test_a_stage_task_whose_upstream_failed_skips_itself_uncached_and_the_report_lists_both(fake):
+    """What Prefect hands a stage task through ``allow_failure`` when an upstream stage failed is that stage's
+    exception: suitability (which needs dtm, docs/operations.md) then publishes nothing and is not cached (its cache
+    key is None, so a later run retries it); the report sees the failure and the skip it caused, with the reasons.
+    Oracle: the stage dependency table (suitability needs dtm; the report needs nothing, reads everything)."""
+    from hadal.tasks.report import report
+    from hadal.tasks.stage import upstream_state
+    from hadal.tasks.suitability import suitability
+
+    raw, store = fake
+    broke = InputError("dtm.tif: not a grid\nsecond line")
+    params = {"raw_dir": str(raw), "store_root": str(store), "config_path": None, "pins": {},
+              "upstream": {"dtm": broke}, "isolate": False}
+    assert suitability.fn(**params) == {}
+    assert suitability.cache_key_fn(None, params) is None
+    assert not (store / "dive-a" / "suitability").exists()
+    pins, failed, skips = upstream_state("report", {"ctd": "old"}, {"dtm": broke, "suitability": {}, "ingest":
+                                                                    {"sensors": "new"}})
+    assert pins == {"ctd": "old", "sensors": "new"}
+    assert failed == {"dtm": "dtm.tif: not a grid"}
+    assert skips == {"suitability": "needs dtm, but stage dtm failed in this run"}
+    key = report.cache_key_fn(None, {**params, "upstream": {"dtm": broke, "suitability": {}}})
+    assert key is not None and key.startswith("hadal-report-")

@@ -29,13 +29,14 @@ def _runs(plan) -> list[str]:
 
 # ---------------------------------------------------------------- plan
 @pytest.mark.parametrize("sources, expected", [
-    ({"cnv": ["a.cnv"]}, ["ingest", "derive", "report"]),
+    ({"cnv": ["a.cnv"]}, ["ingest", "derive", "profile", "report"]),
     ({"multibeam": ["a.xyz"]}, ["dtm", "suitability", "report"]),
     ({"laser": ["a.ply"]}, ["laser", "landing", "report"]),
-    ({"prior_grid": ["g.nc"], "mcap": ["log.mcap"]}, ["ingest", "derive", "dtm", "suitability", "match", "report"]),
-    ({"prior_grid": ["g.nc"], "cnv": ["a.cnv"]}, ["ingest", "derive", "dtm", "suitability", "report"]),
+    ({"prior_grid": ["g.nc"], "mcap": ["log.mcap"]},
+     ["ingest", "derive", "dtm", "suitability", "match", "profile", "report"]),
+    ({"prior_grid": ["g.nc"], "cnv": ["a.cnv"]}, ["ingest", "derive", "dtm", "suitability", "profile", "report"]),
     ({"mcap": ["a.mcap"], "multibeam": ["m.xyz"], "laser": ["l.ply"]},
-     ["ingest", "derive", "dtm", "laser", "suitability", "match", "landing", "report"]),
+     ["ingest", "derive", "dtm", "laser", "suitability", "match", "profile", "landing", "report"]),
     ({}, ["report"]),
 ])
 def test_plan_runs_the_stages_the_data_supports(sources, expected):
@@ -74,7 +75,7 @@ def test_explicit_stage_that_cannot_run_says_why(tmp_path):
     ctx = make_context(tmp_path, tmp_path / "store")
     with pytest.raises(StageError, match="stage landing cannot run.*laser_grids"):
         stage_plan(ctx, ["landing"])
-    assert [p.name for p in stage_plan(ctx) if p.run] == ["ingest", "derive", "report"]
+    assert [p.name for p in stage_plan(ctx) if p.run] == ["ingest", "derive", "profile", "report"]
 
 
 # ---------------------------------------------------------------- dive identity
@@ -229,16 +230,19 @@ def test_stage_dependencies_follow_the_products_each_stage_reads():
     the grid's products; match also ctd and suitability; report everything)."""
     from hadal.plan import downstream_stages, stage_dependencies
 
-    deps = stage_dependencies(["ingest", "derive", "dtm", "laser", "suitability", "match", "landing", "report"])
+    deps = stage_dependencies(["ingest", "derive", "dtm", "laser", "suitability", "match", "profile", "landing",
+                               "report"])
     assert deps["ingest"] == deps["dtm"] == deps["laser"] == set()  # the three raw readers run side by side
     assert deps["derive"] == {"ingest"}
     assert deps["suitability"] == {"dtm"}
     assert deps["landing"] == {"laser"}  # landing waits neither for match nor for the DTM
     assert deps["match"] == {"derive", "dtm", "suitability"}  # nor match for the laser grids
-    assert deps["report"] == {"ingest", "derive", "dtm", "laser", "suitability", "match", "landing"}
+    # the binned casts wait for the navigation product (issue 46): placed at its position at the cast's time
+    assert deps["profile"] == {"ingest", "derive", "match"}
+    assert deps["report"] == {"ingest", "derive", "dtm", "laser", "suitability", "match", "profile", "landing"}
     assert stage_dependencies(["derive", "landing"]) == {"derive": set(), "landing": set()}  # only the run's stages
-    assert downstream_stages("grid") == ["suitability", "match", "landing", "report"]  # the group: dtm + laser
-    assert downstream_stages("dtm") == ["suitability", "match", "report"]
+    assert downstream_stages("grid") == ["suitability", "match", "profile", "landing", "report"]  # dtm + laser
+    assert downstream_stages("dtm") == ["suitability", "match", "profile", "report"]
     assert downstream_stages("laser") == ["landing", "report"]
-    assert downstream_stages("derive") == ["match", "report"]
+    assert downstream_stages("derive") == ["match", "profile", "report"]
     assert downstream_stages("report") == []

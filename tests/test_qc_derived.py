@@ -159,7 +159,7 @@ def test_derive_stage_writes_flags_metadata_and_ancillary_variables(tmp_path):
     df.loc[100, "temperature_its90_degc"] = 99.0  # no ingest flag for it: only derive's range check sees it
     ctx = make_context(_raw_dive(tmp_path), tmp_path / "store")
     _publish_sensors(ctx, df)
-    out = run_stage("derive", ctx)
+    out = run_stage("derive", ctx) | run_stage("profile", ctx)
     path = out["ctd"].file("ctd.parquet")
     ctd = pd.read_parquet(path)
     meta, fields = read_parquet_metadata(path)

@@ -6,6 +6,7 @@ Each test reads a real file another tool or instrument wrote and checks the cont
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import numpy as np
@@ -184,3 +185,34 @@ def test_sonar_file_with_every_sounding_at_one_position_is_refused_by_init(tmp_p
     assert not res.dive["sources"]
     (line,) = [n for n in res.not_used if n.startswith(p.name)]
     assert "one position (17.847152, -64.597074)" in line and "\n" not in line
+
+
+def test_a_cast_without_descent_or_ascent_says_why_its_profiles_are_empty(tmp_path):
+    """castelao/seabird SK287_CTD05.cnv holds 10 scans at 0.8-4.2 dbar (a surface soak): its descent and ascent
+    profiles have no binned value. They say so, with the record's phases and pressure span, instead of being
+    published silently empty. Oracle: the file's own prDM column (its range)."""
+    import shutil
+
+    import xarray as xr
+
+    from hadal.dive_init import scan_dive_dir, write_init
+    from hadal.ingest.cnv import read_cnv
+    from hadal.pipeline import make_context, run_stage
+
+    src = _real("seabird_SK287_CTD05.cnv")
+    raw = tmp_path / "sk287"
+    raw.mkdir()
+    shutil.copy(src, raw / src.name)
+    write_init(scan_dive_dir(raw))
+    ctx = make_context(raw, tmp_path / "store")
+    for name in ("ingest", "derive"):
+        run_stage(name, ctx)
+    pv = run_stage("profile", ctx)["profile"]
+    pres = read_cnv(src)["prDM"].to_numpy()
+    with xr.open_dataset(pv.file("profile.nc"), engine="h5netcdf") as ds:
+        assert int(ds["row_size"].sum()) == 0
+        note = ds.attrs["profile_empty_casts"]
+    assert "descent:" in note and "ascent:" in note
+    assert f"{pres.min():.1f}-{pres.max():.1f} dbar" in note and "bottom 10" in note
+    manifest = json.loads((pv.path / "manifest.json").read_text())
+    assert set(manifest["empty_casts"]) == {"descent", "ascent"}

@@ -274,7 +274,7 @@ def test_takuyo_points_grid_like_the_raster(shared_data):
 
 
 # ---------------------------------------------------------------------------------------------- 4 cast time
-def _cast_run(tmp_path, src: Path, stages=("ingest", "derive")):
+def _cast_run(tmp_path, src: Path, stages=("ingest", "derive", "profile")):
     sys.path.insert(0, str(Path(__file__).parent))
     from test_cnv_casts import _run
 

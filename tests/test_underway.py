@@ -102,13 +102,17 @@ def _dive(cnv):
 def test_plan_promises_a_trajectory_instead_of_a_profile_for_an_underway_only_dive():
     from hadal.plan import plan_stages
 
-    made = {ps.name: set(ps.products) for ps in plan_stages(_dive([{"path": "tsg.cnv", "kind": "underway"}]))}
+    plan = plan_stages(_dive([{"path": "tsg.cnv", "kind": "underway"}]))
+    made = {ps.name: set(ps.products) for ps in plan}
     assert made["derive"] == {"trajectory"}
+    prof = next(ps for ps in plan if ps.name == "profile")
+    assert not prof.run  # no ctd to bin (the profile stage), and the reason says why, not "run derive first"
+    assert "stage derive makes trajectory for this dive, not ctd" in prof.reason and "first" not in prof.reason
     mixed = {ps.name: set(ps.products) for ps in plan_stages(_dive([{"path": "tsg.cnv", "kind": "underway"},
                                                                      "cast.cnv"]))}
-    assert {"ctd", "profile", "trajectory"} <= mixed["derive"]
+    assert {"ctd", "trajectory"} <= mixed["derive"] and mixed["profile"] == {"profile"}
     plain = {ps.name: set(ps.products) for ps in plan_stages(_dive(["cast.cnv"]))}
-    assert plain["derive"] == {"ctd", "profile"}
+    assert plain["derive"] == {"ctd"} and plain["profile"] == {"profile"}
 
 
 def test_init_writes_the_choice_as_an_explicit_commented_entry(tmp_path):

@@ -10,9 +10,9 @@ import functools
 import hashlib
 import logging
 import os
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, TypeVar
 
 from hadal.errors import HadalError, InputError, StageError
 from hadal.plan import PlannedStage, check_plan, plan_stages, runtime_skip_reason
@@ -31,6 +31,7 @@ if TYPE_CHECKING:
     from hadal.settings import PipelineConfig
 
 DIVE_CONFIG_FILE = "pipeline.yaml"
+T = TypeVar("T")
 
 
 def default_store_root() -> Path:
@@ -202,8 +203,39 @@ def blocked_by_failure(name: str, failed: dict[str, str]) -> str | None:
     return None
 
 
+def graph_order(names: Sequence[str]) -> list[str]:
+    """The stages of a run (``names``, in plan order) in the order the graph is walked and handed to a task runner:
+    by depth in the graph (the longest chain of stages of the run above it), then plan order. Every stage comes
+    after the stages it reads from, and a first-in-first-out pool of N workers starts the stages that are ready
+    first (``ingest``, ``dtm`` and ``laser`` before ``derive``), as a scheduler "ready ones first, in stage order"
+    would: a stage taken from the pool while its upstream still runs holds a worker, so one that is ready must
+    not queue behind it."""
+    deps = dependencies(list(names))
+    depth: dict[str, int] = {}
+    for name in names:  # plan order is a topological order
+        depth[name] = 1 + max((depth[u] for u in deps[name]), default=-1)
+    plan = {n: i for i, n in enumerate(names)}
+    return sorted(names, key=lambda n: (depth[n], plan[n]))
+
+
+def walk_stage_graph(names: Sequence[str], step: Callable[[str, dict[str, T]], T]) -> dict[str, T]:
+    """The one walk of a run's stage graph (issue 44): ``step(stage, {upstream stage: its handle})`` for each stage
+    of ``names`` once, in :func:`graph_order`, given the handles ``step`` returned for the stages of the run it reads
+    from (:func:`hadal.stages.graph.dependencies`); returns ``{stage: handle}``.
+
+    The flow's handle is a Prefect future (each stage task submitted once with its upstream futures:
+    ``flows/post_cruise.submit_dive``); :func:`run_pipeline`'s is the stage's outcome, run in this process;
+    :func:`stage_cache_status`'s is the cached result the task would reuse."""
+    deps = dependencies(list(names))
+    handles: dict[str, T] = {}
+    for name in graph_order(names):
+        handles[name] = step(name, {u: handles[u] for u in names if u in deps[name]})
+    return handles
+
+
 def run_pipeline(ctx: StageContext, stages: Sequence[str] | None = None) -> dict[str, ProductVersion]:
-    """Run the stages the dive's data supports (of ``stages``, default all) in order; see :func:`stage_plan`.
+    """Run the stages the dive's data supports (of ``stages``, default all) in this process, one after the other in
+    :func:`graph_order` (the walk the flow hands to Prefect: :func:`walk_stage_graph`); see :func:`stage_plan`.
 
     A stage that fails with a :class:`HadalError` does not stop the stages that do not depend on it; the report
     still runs and lists the failure (:attr:`StageContext.failed`), and the run then raises one
@@ -216,21 +248,24 @@ def run_pipeline(ctx: StageContext, stages: Sequence[str] | None = None) -> dict
     for ps in plan:
         if not ps.run:
             ctx.log.info("stage %s skipped: %s", ps.name, ps.reason)
-            continue
-        if (why := blocked_by_failure(ps.name, ctx.failed)) is not None:
-            ctx.log.warning("stage %s skipped: %s", ps.name, why)
-            ctx.failed_skips[ps.name] = why
-            continue
-        if not should_run(ps.name, ctx):
-            continue
+
+    def step(name: str, upstream: dict[str, None]) -> None:
+        if (why := blocked_by_failure(name, ctx.failed)) is not None:
+            ctx.log.warning("stage %s skipped: %s", name, why)
+            ctx.failed_skips[name] = why
+            return
+        if not should_run(name, ctx):
+            return
         try:
-            out = run_stage(ps.name, ctx)
+            out = run_stage(name, ctx)
         except HadalError as exc:
-            ctx.log.error("stage %s failed: %s", ps.name, exc)
-            ctx.failed[ps.name] = str(exc)
-            continue
+            ctx.log.error("stage %s failed: %s", name, exc)
+            ctx.failed[name] = str(exc)
+            return
         ctx.pins.update(out)
         results.update(out)
+
+    walk_stage_graph([ps.name for ps in plan if ps.run], step)
     raise_failures(ctx.failed)
     return results
 
@@ -405,42 +440,60 @@ def stale_stages(raw_dir: str | Path, store_root: str | Path | None, config_path
     return [name for name, out, _ in status if out is None]
 
 
+def current_result(storage: Path, key: str) -> dict[str, str] | None:
+    """The cached result of cache key ``key`` (:func:`cached_result`) if every version directory it names still
+    exists, else ``None``."""
+    out = cached_result(storage, key)
+    if out is None or not all(Path(p, "manifest.json").is_file() for p in out.values()):
+        return None
+    return out
+
+
+def drop_gone_result(storage: Path, key: str) -> None:
+    """Remove the cache record of ``key`` when it names a version directory that is gone (deleted by hand, or
+    pruned), so the stage task runs again instead of returning versions that no longer exist; a record that is
+    current, absent or unreadable here is left alone."""
+    out = cached_result(storage, key)
+    if out is not None and current_result(storage, key) is None:
+        (storage / key).unlink(missing_ok=True)
+
+
 def stage_cache_status(raw_dir: str | Path, store_root: str | Path | None, config_path: str | Path | None,
                        names: Sequence[str]) -> CacheStatus:
-    """The stage graph's walk (``flows/post_cruise.py``) replayed without Prefect: for each stage of ``names`` in plan
-    order, its cache key (:func:`stage_cache_key`) with the pins of the run so far, and its persisted result
-    (:func:`cached_result`), whose versions must all still exist. None for a stage whose key cannot be told or has
-    no result, and for every stage downstream of such a one (its upstream will publish new versions). Nothing
-    cached yet (a first run) or Prefect told to refresh every cache: every stage None."""
+    """The flow's stage graph (:func:`walk_stage_graph`) walked without Prefect: for each stage of ``names`` (returned
+    in plan order), its cache key (:func:`stage_cache_key`) with the run's pins and what its upstream stages would
+    reuse, and its persisted result (:func:`current_result`: its versions must all still exist). None for a stage
+    whose key cannot be told or has no result, and for every stage downstream of such a one (its upstream will
+    publish new versions). Nothing cached yet (a first run) or Prefect told to refresh every cache: every stage
+    None."""
     import time
 
     storage = result_storage(store_root)
     if not names or not storage.is_dir() or \
             os.environ.get("PREFECT_TASKS_REFRESH_CACHE", "").lower() in ("1", "true", "yes"):
         return [(name, None, 0.0) for name in names]
-    deps = dependencies(list(names))
     ctx = make_context(raw_dir, store_root, config_path)
     ctx.pin_existing(all_products())
-    pins = {p: str(pv.path) for p, pv in ctx.pins.items()}
-    missed: set[str] = set()
-    status: CacheStatus = []
-    for name in names:
+    start = {p: str(pv.path) for p, pv in ctx.pins.items()}
+    seconds: dict[str, float] = {}
+
+    def step(name: str, upstream: dict[str, dict[str, str] | None]) -> dict[str, str] | None:
         t0 = time.monotonic()
         out = None
-        if not deps.get(name, set()) & missed:
+        if all(v is not None for v in upstream.values()):
+            pins = dict(start)
+            for v in upstream.values():
+                pins.update(v or {})
             try:
-                key = stage_cache_key(name, raw_dir, store_root, config_path, pins)
+                key: str | None = stage_cache_key(name, raw_dir, store_root, config_path, pins)
             except (HadalError, OSError):
                 key = None  # the task would not cache it either
-            out = cached_result(storage, key) if key is not None else None
-            if out is not None and not all(Path(p, "manifest.json").is_file() for p in out.values()):
-                out = None
-        if out is None:
-            missed.add(name)
-        else:
-            pins.update(out)
-        status.append((name, out, round(time.monotonic() - t0, 2)))
-    return status
+            out = current_result(storage, key) if key is not None else None
+        seconds[name] = round(time.monotonic() - t0, 2)
+        return out
+
+    found = walk_stage_graph(names, step)
+    return [(name, found[name], seconds[name]) for name in names]
 
 
 def warm_imports(names: Sequence[str], *, stop: Any = None) -> list[str]:

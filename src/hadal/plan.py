@@ -98,6 +98,10 @@ def _why_missing(product: str, plan: list[PlannedStage]) -> str:
         return f"{product} (made by {maker} from {_kinds_text(sources)}, which the dive does not list)"
     if any(p.name == maker and not p.run for p in plan):
         return f"{product} (stage {maker} is skipped)"
+    ran = next((p for p in plan if p.name == maker and p.run), None)
+    if ran is not None:  # the maker runs but does not make it for this dive (derive of an underway-only record)
+        made = ", ".join(ran.products) or "nothing"
+        return f"{product} (stage {maker} makes {made} for this dive, not {product})"
     return f"{product} (run stage {maker} first)"
 
 

@@ -598,18 +598,12 @@ def _frame(dive: Any) -> tuple[Any, tuple[float, float]]:
 def derive_table(table: pd.DataFrame, sensors_meta: dict[str, Any], p: Params, dive: Any, log: Any,
                  what: str, *, external_cast: bool = False, memory_limit_bytes: float | None = None,
                  overlying_profile: Any = None) -> tuple[pd.DataFrame, dict[str, Any], Any]:
-    """``derive_ctd`` + position choice + profile for one sensors-schema table (the dive's or a cast's)."""
+    """``derive_ctd`` + position choice + profile (:func:`bin_casts`) for one sensors-schema table (the dive's or a
+    cast's)."""
     import numpy as np
 
-    from hadal.ctd.profile import (
-        N_SQUARED,
-        make_profile,
-        n_squared_per_sample,
-        prebinned_profile,
-        source_bins,
-    )
+    from hadal.ctd.profile import source_bins
     from hadal.ingest.cnv import NO_TIME_BASE
-    from hadal.qc_derived import load_qc_config, qc_profile
 
     pos = choose_position(p, dive, sensors_meta, header_first=external_cast)
     frame, launch_xy = (None, (0.0, 0.0)) if external_cast else _frame(dive)
@@ -643,6 +637,47 @@ def derive_table(table: pd.DataFrame, sensors_meta: dict[str, Any], p: Params, d
         log.warning("derive: %s: %s", what, meta["overlying_column"]["warning"])
     if sensors_meta.get("time_base") == NO_TIME_BASE:
         meta["time_base"] = NO_TIME_BASE
+    prof = bin_casts(df, meta, sensors_meta, p, log, what, bins=bins)
+    return df, meta, prof
+
+
+def empty_cast_reasons(prof: Any, df: pd.DataFrame) -> dict[str, str]:
+    """``{cast: why}`` for every cast of the binned ``prof`` without a single binned value: which phases the
+    record's samples are in and the pressure they span (a surface soak, a record of a few scans at one depth), so an
+    empty profile says why instead of being published silently empty."""
+    import numpy as np
+
+    binned_vars = [v for v in prof.data_vars if prof[v].dims[:1] == ("cast",) and prof[v].ndim == 2
+                   and not v.endswith("_qc") and v != "count"]
+    out: dict[str, str] = {}
+    pres = df["pressure_dbar"].to_numpy(np.float64) if "pressure_dbar" in df else np.empty(0)
+    phases = df["phase"].astype(str).value_counts().to_dict() if "phase" in df else {}
+    for i, cast in enumerate(prof["cast"].values):
+        if any(np.isfinite(prof[v].values[i]).any() for v in binned_vars):
+            continue
+        n = int(phases.get(str(cast), 0))
+        where = ", ".join(f"{k} {c}" for k, c in phases.items()) or "no phase"
+        span = (f"{np.nanmin(pres):.1f}-{np.nanmax(pres):.1f} dbar" if np.isfinite(pres).any() else "no pressure")
+        out[str(cast)] = (f"{n} of the record's {len(df)} accepted samples are in its {cast} (samples by phase: "
+                          f"{where}; pressure {span})")
+    return out
+
+
+def bin_casts(df: pd.DataFrame, meta: dict[str, Any], sensors_meta: dict[str, Any], p: Params, log: Any, what: str,
+              *, bins: dict[str, Any] | None = None) -> Any:
+    """The binned casts (``(cast, level)`` dataset of :func:`hadal.ctd.profile.make_profile`, or a SeaSoft-binned cast's
+    own bins ``bins``: :func:`hadal.ctd.profile.prebinned_profile`) of a derived table ``df`` (:func:`derive_ctd` with
+    ``meta``), with per-cast times; sets ``df``'s per-sample N2 and the profile's entries of ``meta``
+    (``profile_axis``, ``qc_derived.profile``, ``profile_values_excluded_by_flag``, the cast time's source).
+    Only accepted samples are binned (``accept_flags``; LoopEdit's bad scans left out, as SeaSoft's BinAvg).
+    Pure: the ``derive`` stage calls it for the per-sample N2 of ``ctd``, the ``profile`` stage on ``ctd`` again
+    for the published profiles (both get the same bins from the same table)."""
+    import numpy as np
+
+    from hadal.ctd.profile import N_SQUARED, make_profile, n_squared_per_sample, prebinned_profile
+    from hadal.ingest.cnv import NO_TIME_BASE
+    from hadal.qc_derived import load_qc_config, qc_profile
+
     # the binned profile uses only accepted samples: a flag-4 value (QARTOD fail, SeaSoft-flagged scan) is no mean's
     masked = {c: np.where(_flag_ok(df, c, list(p.accept_flags)), df[c].to_numpy(np.float64), np.nan)
               for c in ("temperature_its90_degc", "conductivity_s_m") if c in df}
@@ -682,12 +717,16 @@ def derive_table(table: pd.DataFrame, sensors_meta: dict[str, Any], p: Params, d
             prof = prof.drop_vars("depth_m_qc")
             prof["depth_m"].attrs.pop("ancillary_variables", None)
             meta["qc_derived"]["profile"].pop("depth_m", None)
+    if empty := empty_cast_reasons(prof, binned):
+        meta["profile_empty_casts"] = empty
+        for cast, why in empty.items():
+            log.warning("derive: %s: the %s profile has no binned values: %s", what, cast, why)
     df[N_SQUARED] = n_squared_per_sample(df, prof)
     if meta.get("time_base") != NO_TIME_BASE:
         _cast_times(prof, df)
     else:
         _header_cast_time(prof, sensors_meta, meta)
-    return df, meta, prof
+    return prof
 
 
 def _header_cast_time(ds: Any, sensors_meta: dict[str, Any], meta: dict[str, Any]) -> None:

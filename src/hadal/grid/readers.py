@@ -42,7 +42,7 @@ def _require_file(path: str | Path, what: str) -> Path:
 
 
 def read_soundings(path: str | Path, *, columns=SOUNDING_COLUMNS, check_ranges: bool = True,
-                   hints=None) -> pd.DataFrame:
+                   hints=None, memory_limit_bytes: float | None = None) -> pd.DataFrame:
     """Read an xyz text soundings file into a DataFrame (default columns lon, lat, depth positive down).
 
     A thin wrapper of the streaming xyz reader :func:`hadal.grid.sonar.iter_multibeam` (whitespace-, comma- or
@@ -51,7 +51,8 @@ def read_soundings(path: str | Path, *, columns=SOUNDING_COLUMNS, check_ranges: 
     positive down; projected x/y come back as ``x_m, y_m, depth_m``. ``columns`` renames the three output
     columns. Truncated or corrupt files, non-numeric values and longitudes/latitudes out of range raise
     :class:`InputError`; NaN values are kept (the gridder drops and counts them), and so is a file whose soundings
-    pass the memory budget as they decode (:class:`hadal.grid.sonar.SoundingBudget`). ``attrs`` records the reader.
+    pass the memory budget as they decode (:class:`hadal.grid.sonar.SoundingBudget`, limit ``memory_limit_bytes``
+    or the default of :func:`hadal.budget.memory_limit_bytes`). ``attrs`` records the reader.
     For binary swath formats use :func:`hadal.grid.sonar.read_multibeam`.
     """
     from hadal.grid.sonar import SoundingBudget, _iter_xyz, _require, sniff_multibeam
@@ -61,7 +62,8 @@ def read_soundings(path: str | Path, *, columns=SOUNDING_COLUMNS, check_ranges: 
     if sn["format"] not in ("xyz", "unknown"):
         raise InputError(f"{p}: is a {sn['format']} file, not xyz text (read it with hadal.grid.sonar.read_multibeam)")
     info: dict = {"path": str(p), "compression": sn["compression"]}
-    budget = SoundingBudget(p, "multibeam file")  # counted as they decode (a compressed file's size says nothing)
+    # counted as they decode (a compressed file's size says nothing)
+    budget = SoundingBudget(p, "multibeam file", limit_bytes=memory_limit_bytes)
     parts = []
     for c in _iter_xyz(p, sn["compression"], hints, 1_000_000, info, check_ranges=check_ranges):
         budget.add(len(c))
@@ -1190,9 +1192,9 @@ def read_gsf(path: str | Path, *, include_flagged: bool = False, isolate: bool =
     :class:`InputError`; ``isolate=False`` reads in this process (:func:`_read_gsf_here`).
 
     Memory: the reading process holds the soundings against its budget as it decodes them
-    (:class:`hadal.grid.sonar.SoundingBudget`; the child inherits this process's limits, ``RLIMIT_AS`` included);
-    this process counts the child's soundings against ``budget`` (a ``SoundingBudget``, default a new one) before it
-    loads them.
+    (:class:`hadal.grid.sonar.SoundingBudget`; the child inherits this process's limits, ``RLIMIT_AS`` included, and
+    is given the limit of ``budget``); this process counts the child's soundings against ``budget`` (a
+    ``SoundingBudget``, default a new one) before it loads them.
     """
     from hadal.grid.sonar import SoundingBudget
 
@@ -1210,7 +1212,8 @@ def read_gsf(path: str | Path, *, include_flagged: bool = False, isolate: bool =
         with tempfile.TemporaryDirectory(prefix="hadal-gsf-") as td:
             out = Path(td) / "soundings.parquet"
             proc = subprocess.run([sys.executable, "-m", "hadal.grid._gsf_child", str(p), str(out),
-                                   "1" if include_flagged else "0"], capture_output=True, text=True)
+                                   "1" if include_flagged else "0", repr(float(budget.limit))],
+                                  capture_output=True, text=True)
             if proc.returncode == 0:
                 attrs = json.loads(out.with_suffix(".json").read_text(encoding="utf-8"))
                 budget.add(int(attrs.get("soundings") or 0))
@@ -1285,7 +1288,7 @@ def _read_gsf_here(path: str | Path, *, include_flagged: bool = False, budget: A
     from hadal.grid.sonar import SoundingBudget
 
     p = _require_file(path, "GSF")
-    budget = budget if budget is not None else SoundingBudget(p, "gsf multibeam file")
+    budget = budget if budget is not None else SoundingBudget(p, "gsf multibeam file", reader="gsf_child")
     try:
         from gsfpy import GsfException, open_gsf
         from gsfpy.enums import RecordType

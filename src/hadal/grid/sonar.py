@@ -39,9 +39,10 @@ Every failure (missing, empty, truncated, corrupt, wrong format, no pings) is a 
 
 Memory (issue 45): a file's size says little about its soundings (a compressed file of repeated pings, a header's
 counts are claims), so every reader is held against one :class:`hadal.budget.DecodeBudget` per file as it decodes
-(:class:`SoundingBudget`): the soundings decoded so far x :data:`SOUNDING_BYTES` x :data:`SOUNDING_WORKING_COPIES`,
-plus what a reader holds undecoded (KMALL partitions waiting for their other parts); past it, a one-line
-``InputError`` naming the file and the limit.
+(:class:`SoundingBudget`): the measured cost of its reader (:data:`SOUNDING_READ_COST`: a fixed part plus bytes per
+sounding decoded so far, working copies included), plus what a reader holds undecoded (KMALL partitions waiting
+for their other parts); past it, a one-line ``InputError`` naming the file and the limit. The limit is the stage's
+(``memory_limit_bytes``: ``resources.max_memory_gb`` when set), else the machine's, cgroup's or ``RLIMIT_AS``'s.
 """
 
 from __future__ import annotations
@@ -69,33 +70,52 @@ FORMATS = ("xyz", *SWATH_KINDS)
 
 _HEAD_BYTES = 65536
 
-#: bytes one sounding holds as the readers give it and their consumers keep it: longitude, latitude, depth (float64)
-#: and the ping number (int32)
-SOUNDING_BYTES = 28
-#: working copies of the soundings counted by :class:`SoundingBudget`: the consumer's accumulated columns
-#: (:class:`ColumnAccumulator`, then its final block), the reader's decoded pings (EM .all keeps every ping until
-#: the navigation is known; GSF's child process hands the whole file over as a table)
-SOUNDING_WORKING_COPIES = 3.0
+#: Peak memory of reading one multibeam file, per reader: ``(fixed bytes, bytes per sounding)``, working copies
+#: included (the reader's decoded pings, its consumer's accumulated columns and final block; EM .all keeps every ping
+#: until the navigation is known; GSF's parent loads the child's Parquet table). Measured with
+#: ``bench/bench_soundings_memory.py --points 1250000,5000000`` (files made of a real file's pings, gzip; a fresh
+#: interpreter per read, ``VmHWM`` above the after-imports ``VmHWM``; the slope between the two sizes, the intercept
+#: at the larger), the larger of the DTM stage's read (:func:`hadal.grid.soundings.read_soundings_xy`) and
+#: :func:`read_multibeam`; slope x 1.1 rounded up to a byte, intercept x 1.1 rounded up to 8 MiB. Measured (B per
+#: sounding, fixed MB): xyz 29.9, 77; s7k 34.4, 93; EM .all 52.0, 83; KMALL 40.0, 147; GSF 90.0, 107; the GSF child
+#: (``gsf_child``: the libgsf child process of :func:`hadal.grid.readers.read_gsf`, which holds its own budget) 88.1,
+#: 38. Counted before: 84 B a sounding for every reader.
+SOUNDING_READ_COST: dict[str, tuple[float, float]] = {
+    "xyz": (88 << 20, 33.0), "s7k": (104 << 20, 38.0), "em_all": (88 << 20, 58.0), "kmall": (160 << 20, 44.0),
+    "gsf": (120 << 20, 99.0), "gsf_child": (40 << 20, 97.0),
+}
+#: bytes one sounding kept from earlier files holds while the next file is read: x, y, depth as float64 in the
+#: consumer's :class:`ColumnAccumulator` (counted, not measured: 3 x 8 bytes)
+HELD_SOUNDING_BYTES = 24
 
 
 class SoundingBudget:
-    """The memory budget of one multibeam read (:class:`hadal.budget.DecodeBudget`): soundings decoded so far
-    (plus ``held_soundings`` a caller already keeps from earlier files) x :data:`SOUNDING_BYTES` x
-    :data:`SOUNDING_WORKING_COPIES`, and undecoded bytes a reader holds; refused in one line naming the file."""
+    """The memory budget of one multibeam read (:class:`hadal.budget.DecodeBudget`): the measured cost of its reader
+    (:data:`SOUNDING_READ_COST`: fixed + soundings decoded so far x bytes per sounding), the ``held_soundings`` a
+    caller already keeps from earlier files (x :data:`HELD_SOUNDING_BYTES`) and undecoded bytes a reader holds;
+    refused in one line naming the file. ``limit_bytes``: the stage's budget (``resources.max_memory_gb``, see
+    :func:`hadal.budget.memory_limit_bytes`); default the machine's, cgroup's or ``RLIMIT_AS``'s."""
 
-    def __init__(self, p: Path, what: str, held_soundings: int = 0):
+    def __init__(self, p: Path, what: str, held_soundings: int = 0, *, reader: str = "xyz",
+                 limit_bytes: float | None = None):
         from hadal.budget import DecodeBudget
 
-        self.budget = DecodeBudget(p, what, copies=SOUNDING_WORKING_COPIES)
+        self.fixed, self.per_sounding = SOUNDING_READ_COST[reader]
+        self.budget = DecodeBudget(p, what, limit_bytes=limit_bytes)
         self.held = int(held_soundings)
         self.n = 0
+
+    @property
+    def limit(self) -> float:
+        """The limit (bytes) this budget holds the read against."""
+        return self.budget.limit
 
     def add(self, soundings: int, pending_bytes: float = 0.0) -> None:
         """Count ``soundings`` more decoded; ``pending_bytes``: raw bytes the reader holds besides them."""
         self.n += int(soundings)
         more = f", {pending_bytes:,.0f} bytes of datagrams pending" if pending_bytes else ""
         before = f", {self.held:,} kept from earlier files" if self.held else ""
-        self.budget.hold((self.n + self.held) * SOUNDING_BYTES + pending_bytes / SOUNDING_WORKING_COPIES,
+        self.budget.hold(self.fixed + self.n * self.per_sounding + self.held * HELD_SOUNDING_BYTES + pending_bytes,
                          f"{self.n:,} soundings so far{before}{more}")
 
 
@@ -145,7 +165,8 @@ def sniff_multibeam(path) -> dict:
 
 # ------------------------------------------------------------------ public API
 def iter_multibeam(path, hints=None, chunk_points: int = DEFAULT_CHUNK_POINTS,
-                   info: dict | None = None, *, held_soundings: int = 0) -> Iterator[pd.DataFrame]:
+                   info: dict | None = None, *, held_soundings: int = 0,
+                   memory_limit_bytes: float | None = None) -> Iterator[pd.DataFrame]:
     """Yield the soundings of ``path`` as DataFrame chunks (depth positive down, metres).
 
     Columns are ``longitude_deg, latitude_deg, depth_m`` (plus ``ping`` for swath formats), or ``x_m, y_m,
@@ -154,7 +175,8 @@ def iter_multibeam(path, hints=None, chunk_points: int = DEFAULT_CHUNK_POINTS,
     the reader's metadata (``reader``, ``format``, ``compression``, ``crs_kind``, counts ...); the counts are
     final once the iterator is exhausted. Text chunks hold at most ``chunk_points`` rows; swath chunks hold
     whole pings (about ``chunk_points`` soundings). The soundings are held against the memory budget as they
-    decode (:class:`SoundingBudget`; ``held_soundings``: what the caller already keeps from earlier files).
+    decode (:class:`SoundingBudget`; ``held_soundings``: what the caller already keeps from earlier files;
+    ``memory_limit_bytes``: the limit, default :func:`hadal.budget.memory_limit_bytes` of the defaults).
     """
     if chunk_points < 1:
         raise ValueError("chunk_points must be >= 1")
@@ -173,7 +195,8 @@ def iter_multibeam(path, hints=None, chunk_points: int = DEFAULT_CHUNK_POINTS,
     info.update({"path": str(p), "format": fmt, "compression": sn["compression"]})
     if fmt == "unknown":
         raise InputError(f"{p}: cannot parse soundings (binary content that is not GSF, KMALL, EM .all or .s7k)")
-    budget = SoundingBudget(p, "multibeam file" if fmt == "xyz" else f"{fmt} multibeam file", held_soundings)
+    budget = SoundingBudget(p, "multibeam file" if fmt == "xyz" else f"{fmt} multibeam file", held_soundings,
+                            reader=fmt, limit_bytes=memory_limit_bytes)
     if fmt == "xyz":
         gen = _iter_xyz(p, sn["compression"], hints, chunk_points, info)
     elif fmt == "gsf":
@@ -191,8 +214,9 @@ def iter_multibeam(path, hints=None, chunk_points: int = DEFAULT_CHUNK_POINTS,
         yield chunk
 
 
-def read_multibeam(path, hints=None) -> pd.DataFrame:
-    """All soundings of ``path`` as one DataFrame (see :func:`iter_multibeam`), ``attrs`` = the reader's info.
+def read_multibeam(path, hints=None, *, memory_limit_bytes: float | None = None) -> pd.DataFrame:
+    """All soundings of ``path`` as one DataFrame (see :func:`iter_multibeam`, ``memory_limit_bytes`` its memory
+    budget), ``attrs`` = the reader's info.
 
     Chunks are gathered by :class:`ColumnAccumulator`, so the peak is about 1x the decoded points plus one
     segment and one parser chunk (``bench/bench_soundings_memory.py``).
@@ -201,7 +225,7 @@ def read_multibeam(path, hints=None) -> pd.DataFrame:
     acc: ColumnAccumulator | None = None
     fcols: list[str] = []
     other: dict[str, list[np.ndarray]] = {}
-    for ch in iter_multibeam(path, hints, info=info):
+    for ch in iter_multibeam(path, hints, info=info, memory_limit_bytes=memory_limit_bytes):
         if acc is None:
             fcols = [c for c in ch.columns if ch[c].dtype.kind == "f"]
             other = {c: [] for c in ch.columns if c not in fcols}

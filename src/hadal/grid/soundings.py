@@ -66,14 +66,16 @@ def reader_description(info: dict) -> str:
 
 
 def read_soundings_xy(files: list, frame, hints: list | None = None, *, chunk_points: int = 1_000_000,
-                      readers: dict | None = None, progress=None):
+                      readers: dict | None = None, progress=None, memory_limit_bytes: float | None = None):
     """``(x, y, depth_m, frame, used)``: the soundings of ``files`` (any format :func:`hadal.grid.sonar.iter_multibeam`
     reads, with the reading hints ``hints[i]`` of their ``dive.yaml`` entries) in ``frame`` (None: a frame centred on
     the first positioned soundings, returned), streamed chunk by chunk (:class:`hadal.grid.sonar.ColumnAccumulator`);
     ``used`` the per-file reader texts, also put in ``readers`` ``{str(file): text}`` when given. Projected soundings
     are converted from their declared CRS; ``crs: local`` means they already are in the map frame. No positioned
     sounding at all: a one-line :class:`InputError`. ``progress`` (optional, ``.track``): lines per file read (start,
-    end, and every few seconds the chunks of ``chunk_points`` soundings read) (:func:`hadal.steps.tracked`)."""
+    end, and every few seconds the chunks of ``chunk_points`` soundings read) (:func:`hadal.steps.tracked`).
+    ``memory_limit_bytes``: the stage's memory budget (``resources.max_memory_gb``), which every file's soundings are
+    held against as they decode, with those of the files before it (:class:`hadal.grid.sonar.SoundingBudget`)."""
     from hadal.grid.sonar import ColumnAccumulator, iter_multibeam
     from hadal.steps import tracked
 
@@ -84,7 +86,8 @@ def read_soundings_xy(files: list, frame, hints: list | None = None, *, chunk_po
         info: dict = {}
         to_ll = None
         for chunk in tracked(progress, iter_multibeam(f, h, chunk_points=chunk_points, info=info,
-                                                           held_soundings=acc.n),
+                                                           held_soundings=acc.n,
+                                                           memory_limit_bytes=memory_limit_bytes),
                              f"dtm: reading multibeam file {i + 1}/{len(files)} {Path(f).name} "
                              f"(chunks of {chunk_points:,} soundings; {acc.n:,} read before it)"):
             z = chunk["depth_m"].to_numpy(np.float64)

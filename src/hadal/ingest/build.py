@@ -135,19 +135,21 @@ def _missing_channel(msg: str, required: bool) -> None:
     warnings.warn(msg + "; its columns will be empty (flag 9)", stacklevel=3)
 
 
-def read_mcap_sensors(paths: Sequence[str | Path], vehicle: VehicleConfig
+def read_mcap_sensors(paths: Sequence[str | Path], vehicle: VehicleConfig, *, memory_limit_bytes: float | None = None
                       ) -> tuple[dict[str, SensorSamples], list[dict[str, Any]]]:
     """Read every sensor with an ``mcap`` mapping from the MCAP files (their messages are concatenated).
 
     Returns the samples and one :class:`McapReport` dict per file. A required sensor whose topic is in
     none of the files is an :class:`InputError`; an optional one is left out with a warning. Files holding
-    no message on any mapped topic are a one-line :class:`InputError` ("nothing to ingest").
+    no message on any mapped topic are a one-line :class:`InputError` ("nothing to ingest"). Each file is read
+    against the memory budget ``memory_limit_bytes`` (the stage's ``resources.max_memory_gb``;
+    :func:`hadal.ingest.mcap_reader.read_mcap`).
     """
     topics = {s.mcap.topic: name for name, s in vehicle.sensors.items() if s.mcap is not None}
     per_topic: dict[str, list[tuple[np.ndarray, list[dict[str, Any]], str]]] = {}
     reports = []
     for p in paths:
-        data, report = read_mcap(p, topics, warn=True)
+        data, report = read_mcap(p, topics, warn=True, memory_limit_bytes=memory_limit_bytes)
         reports.append(report.as_dict())
         for topic, tp in data.items():
             check_ros2_mapping(Path(p).name, tp, vehicle.sensors[topics[topic]].mcap, topics[topic])
@@ -222,15 +224,17 @@ def _time_fields(msg: dict[str, Any]) -> list[str]:
     return out[:4]
 
 
-def read_csv_sensors(files: Mapping[str, Path], vehicle: VehicleConfig) -> dict[str, SensorSamples]:
-    """Read every sensor with a ``csv`` mapping; ``files`` maps the dive's ``sources.csv`` keys to paths."""
+def read_csv_sensors(files: Mapping[str, Path], vehicle: VehicleConfig, *, memory_limit_bytes: float | None = None
+                     ) -> dict[str, SensorSamples]:
+    """Read every sensor with a ``csv`` mapping; ``files`` maps the dive's ``sources.csv`` keys to paths; each file
+    against the memory budget ``memory_limit_bytes`` (:func:`hadal.ingest.csv_reader.read_sensor_csv`)."""
     out: dict[str, SensorSamples] = {}
     for name, s in _mapped_sensors(vehicle, "csv", "CSV mapping"):
         path = files.get(s.csv.source)
         if path is None:
             _missing_channel(f"dive.yaml sources.csv has no {s.csv.source!r} file (sensor {name!r})", s.required)
             continue
-        out[name] = read_sensor_csv(path, s.csv, name)
+        out[name] = read_sensor_csv(path, s.csv, name, memory_limit_bytes=memory_limit_bytes)
     return out
 
 
@@ -247,12 +251,14 @@ def cast_metadata(attrs: Mapping[str, Any]) -> dict[str, Any]:
     return {k: attrs.get(k) for k in CAST_ATTRS if k in attrs}
 
 
-def read_cast(path: str | Path, name: str = "ctd") -> tuple[SensorSamples, dict[str, Any]]:
-    """One Sea-Bird cast (.cnv, compressed or not, or raw .hex: :func:`hadal.ingest.cnv.read_seabird`) as the
-    CTD's samples and its header metadata. A cast without a time channel gives NaT times (a profile)."""
+def read_cast(path: str | Path, name: str = "ctd", *, memory_limit_bytes: float | None = None
+              ) -> tuple[SensorSamples, dict[str, Any]]:
+    """One Sea-Bird cast (.cnv, compressed or not, or raw .hex: :func:`hadal.ingest.cnv.read_seabird`, against the
+    memory budget ``memory_limit_bytes``) as the CTD's samples and its header metadata. A cast without a time
+    channel gives NaT times (a profile)."""
     from hadal.ingest.cnv import cnv_sensor_samples, read_seabird
 
-    df = read_seabird(path)
+    df = read_seabird(path, max_bytes=memory_limit_bytes)
     try:
         s = cnv_sensor_samples(df, name, allow_no_time=True)
     except InputError as exc:
@@ -266,13 +272,14 @@ def is_profile(s: SensorSamples) -> bool:
     return bool(len(s)) and bool(np.all(s.time_ns == np.iinfo(np.int64).min))
 
 
-def read_cnv_sensors(paths: Sequence[str | Path], vehicle: VehicleConfig) -> dict[str, SensorSamples]:
+def read_cnv_sensors(paths: Sequence[str | Path], vehicle: VehicleConfig, *, memory_limit_bytes: float | None = None
+                     ) -> dict[str, SensorSamples]:
     """CTD casts from Sea-Bird ``.cnv`` files as the time-base sensor (the other sensors stay empty, flag 9).
     Several files are concatenated (their times must not overlap; duplicates are dropped by alignment);
     casts without a time channel cannot be concatenated (ingest puts each in ``casts``)."""
     if not paths:
         raise InputError("no .cnv files to read")
-    parts = [read_cast(p, vehicle.time_base)[0] for p in paths]
+    parts = [read_cast(p, vehicle.time_base, memory_limit_bytes=memory_limit_bytes)[0] for p in paths]
     if len(parts) == 1:
         return {vehicle.time_base: parts[0]}
     if any(is_profile(x) for x in parts):

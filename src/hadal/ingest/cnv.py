@@ -1238,22 +1238,24 @@ def seabird_kind(path: str | Path) -> str:
                      "hex scan lines after '*END*')")
 
 
-def read_seabird(path: str | Path) -> pd.DataFrame:
-    """Read a Sea-Bird cast, .cnv or raw .hex, whatever its extension or compression (dispatch on content).
+def read_seabird(path: str | Path, *, max_bytes: float | None = None) -> pd.DataFrame:
+    """Read a Sea-Bird cast, .cnv or raw .hex, whatever its extension or compression (dispatch on content),
+    against the memory budget ``max_bytes`` (the stage's ``resources.max_memory_gb``; default
+    :func:`hadal.budget.memory_limit_bytes` of the defaults).
 
     A .hex is converted by :func:`hadal.ingest.seabird_hex.read_hex` (imported only when needed) into a
     frame shaped like :func:`read_cnv`'s (same column names and attrs)."""
     path = Path(path)
     kind = seabird_kind(path)
     if kind == "cnv":
-        return read_cnv(path)
+        return read_cnv(path, max_bytes=max_bytes)
     try:
         from hadal.ingest.seabird_hex import read_hex  # type: ignore[import-not-found]
     except ImportError:
         raise InputError(f"{path}: raw Sea-Bird .hex file, but this hadal has no .hex converter "
                          "(hadal.ingest.seabird_hex); convert it with SeaSoft DatCnv to .cnv") from None
     try:
-        df = read_hex(path)
+        df = read_hex(path, max_bytes=max_bytes)
     except InputError:
         raise
     except Exception as exc:  # a converter bug or an unreadable file: one line naming the file

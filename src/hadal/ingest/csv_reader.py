@@ -312,7 +312,8 @@ def _mapped_values(path: Path, mapping: CsvSource, rows: _CsvRows, sensor: str
     return values, conversions
 
 
-def read_sensor_csv(path: str | Path, mapping: CsvSource, sensor: str = "sensor") -> SensorSamples:
+def read_sensor_csv(path: str | Path, mapping: CsvSource, sensor: str = "sensor", *,
+                    memory_limit_bytes: float | None = None) -> SensorSamples:
     """Read one sensor CSV file with ``mapping`` (columns, units, time format, delimiter).
 
     Raises :class:`InputError` when the file is missing/empty, has no header, lacks a mapped column, or
@@ -339,7 +340,7 @@ def read_sensor_csv(path: str | Path, mapping: CsvSource, sensor: str = "sensor"
     if layout.dbd is not None:
         _check_file_units(path, mapping, layout.dbd.units_of())
     rows = _CsvRows(path, mapping)
-    budget = DecodeBudget(path, "CSV file", copies=CSV_WORKING_COPIES)
+    budget = DecodeBudget(path, "CSV file", copies=CSV_WORKING_COPIES, limit_bytes=memory_limit_bytes)
     # numbers are parsed by pandas' C parser (a column with any other cell comes back as text and is checked
     # cell by cell); the time column stays text unless it is a plain number, the validity column always.
     # Every column is parsed (``usecols`` would hide rows with too many fields from ``on_bad_lines``); a

@@ -144,11 +144,30 @@ MCAP_CHUNK_COPIES = 4.0
 #: bytes of bookkeeping per kept message (its log time and length in the channel buffer, the list slots and object
 #: headers of its decoded form) added to its payload in the file's cumulative count
 MCAP_MESSAGE_OVERHEAD = 32
-#: working copies of the messages kept across the whole file (payload + :data:`MCAP_MESSAGE_OVERHEAD`): the raw
-#: buffers, the decoded objects (a dict per message), the per-topic tables. Measured: 1e6 JSON messages of 33 B
-#: peak at 510 MB above the start through :func:`hadal.ingest.build.read_mcap_sensors` (x 7.8 of what is counted);
-#: 10 leaves a margin for smaller messages, whose objects cost more than their bytes
-MCAP_KEPT_COPIES = 10.0
+#: working copies of the messages kept across the whole file (payload + :data:`MCAP_MESSAGE_OVERHEAD`), per message
+#: encoding: the raw buffers, the decoded objects (a dict per message), the per-topic tables. Measured with
+#: ``bench/bench_reader_memory.py --mcap`` (1e6 messages of ~36 B through :func:`hadal.ingest.build.read_mcap_sensors`,
+#: fresh interpreter, VmHWM above the after-imports VmHWM, over payload + overhead): JSON 7.95, ROS 2 CDR of a
+#: fixed-size type (hadal's vectorised decoder) 11.97, ROS 2 CDR with a string (``sensor_msgs/FluidPressure``,
+#: mcap-ros2-support's decoder) 14.70; each x 1.25, rounded. The x10 of every encoding before was measured on JSON only
+MCAP_KEPT_COPIES_BY_ENCODING: dict[str, float] = {"json": 10.0, "cdr_fixed": 15.0, "cdr": 18.0}
+#: the factor of an encoding not in :data:`MCAP_KEPT_COPIES_BY_ENCODING` (its topics are refused when decoded; until
+#: then their payloads are held as the largest known encoding's)
+MCAP_KEPT_COPIES = max(MCAP_KEPT_COPIES_BY_ENCODING.values())
+
+
+def kept_copies(channel: Any, schema: Any) -> float:
+    """The decode factor (:data:`MCAP_KEPT_COPIES_BY_ENCODING`) of the messages of ``channel`` (an MCAP Channel
+    record; ``schema`` its Schema record or None): ``cdr_fixed`` for ROS 2 CDR of a fixed-size type (hadal's
+    vectorised decoder, :func:`_fixed_cdr_layout`), ``cdr`` for other ROS 2 CDR, ``json``."""
+    enc = getattr(channel, "message_encoding", None)
+    if enc == "cdr" and schema is not None and schema.encoding == "ros2msg":
+        try:
+            if _fixed_cdr_layout(schema.name or "", bytes(schema.data).decode("utf-8")) is not None:
+                return MCAP_KEPT_COPIES_BY_ENCODING["cdr_fixed"]
+        except (UnicodeDecodeError, ValueError):
+            pass
+    return MCAP_KEPT_COPIES_BY_ENCODING.get(str(enc), MCAP_KEPT_COPIES)
 
 
 def _chunk_bytes(chunk: Any, budget: Any = None) -> bytes:
@@ -241,19 +260,20 @@ class _Walk:
 
     Memory (issue 45) is held against one budget for the whole file: each chunk by its declared size x
     :data:`MCAP_CHUNK_COPIES` before it is decompressed, on top of what the read keeps; the messages the caller
-    keeps (:meth:`keep`) are counted cumulatively x :data:`MCAP_KEPT_COPIES`, so that a file of many small chunks,
-    each within the budget, is refused once their sum is not (a one-line :class:`InputError` naming the file and
-    the limit)."""
+    keeps (:meth:`keep`) are counted cumulatively x their encoding's factor (:func:`kept_copies`), so that a file of
+    many small chunks, each within the budget, is refused once their sum is not (a one-line :class:`InputError`
+    naming the file and the limit). ``limit_bytes``: the stage's budget (``resources.max_memory_gb``); default
+    :func:`hadal.budget.memory_limit_bytes` of the defaults (the machine's, cgroup's or ``RLIMIT_AS``'s)."""
 
-    def __init__(self, fh: Any, keep: frozenset[int] = frozenset()):
+    def __init__(self, fh: Any, keep: frozenset[int] = frozenset(), *, limit_bytes: float | None = None):
         self._fh, self._records = fh, _stream_reader(fh, keep).records
         self.problem: str | None = None
         self.corrupt = 0
         from hadal.budget import DecodeBudget
 
         name = getattr(fh, "name", "MCAP file")
-        self.budget = DecodeBudget(name, "MCAP chunk", copies=MCAP_CHUNK_COPIES)
-        self.file_budget = DecodeBudget(name, "MCAP file", copies=MCAP_KEPT_COPIES, limit_bytes=self.budget.limit)
+        self.budget = DecodeBudget(name, "MCAP chunk", copies=MCAP_CHUNK_COPIES, limit_bytes=limit_bytes)
+        self.file_budget = DecodeBudget(name, "MCAP file", limit_bytes=self.budget.limit)
         self.chunks = 0
         self.kept_messages = 0
         self.kept_bytes = 0.0
@@ -268,10 +288,11 @@ class _Walk:
                                                f"so far and the next chunk", held=size * MCAP_CHUNK_COPIES)
         self.chunks += 1
 
-    def keep(self, payload_bytes: int, messages: int) -> None:
-        """Count ``messages`` kept (``payload_bytes`` of payload) against the file's budget; refuses past it."""
+    def keep(self, payload_bytes: int, messages: int, copies: float = MCAP_KEPT_COPIES) -> None:
+        """Count ``messages`` kept (``payload_bytes`` of payload, decoded at ``copies`` times: :func:`kept_copies`)
+        against the file's budget; refuses past it."""
         self.kept_messages += int(messages)
-        self.kept_bytes += float(payload_bytes) + MCAP_MESSAGE_OVERHEAD * int(messages)
+        self.kept_bytes += (float(payload_bytes) + MCAP_MESSAGE_OVERHEAD * int(messages)) * float(copies)
         self.file_budget.hold(self.kept_bytes, f"{self.kept_messages:,} messages kept from {self.chunks:,} "
                                                "chunks so far")
 
@@ -434,8 +455,10 @@ def _chunk_channels(data: bytes, kern: Any) -> tuple[list[tuple[int, Any]], dict
     return others, per
 
 
-def _scan(path: Path, topics: set[str] | None) -> tuple[dict, dict, dict[int, _ChanBuf], McapReport, Any]:
-    """One sequential pass: schemas, channels, raw messages per channel id, and the damage report."""
+def _scan(path: Path, topics: set[str] | None, limit_bytes: float | None = None
+          ) -> tuple[dict, dict, dict[int, _ChanBuf], McapReport, Any]:
+    """One sequential pass: schemas, channels, raw messages per channel id, and the damage report. The messages
+    kept are held against the memory budget ``limit_bytes`` (:class:`_Walk`) by their channel's decode factor."""
     from mcap.records import Channel, Chunk, Message, Schema, Statistics
 
     report = McapReport(path=str(path))
@@ -444,6 +467,7 @@ def _scan(path: Path, topics: set[str] | None) -> tuple[dict, dict, dict[int, _C
     bufs: dict[int, _ChanBuf] = {}
     stats = None
     wanted: dict[int, bool] = {}
+    copies: dict[int, float] = {}
     kern = _chunk_kernels() if path.stat().st_size >= _COMPILED_MIN_BYTES else None
 
     def want(cid: int) -> bool:
@@ -455,6 +479,7 @@ def _scan(path: Path, topics: set[str] | None) -> tuple[dict, dict, dict[int, _C
             ok = wanted[cid] = topics is None or ch.topic in topics
             if ok:
                 bufs.setdefault(cid, _ChanBuf())
+                copies[cid] = kept_copies(ch, schemas.get(ch.schema_id))
         return ok
 
     def add_record(op: int, r: Any) -> None:
@@ -465,7 +490,7 @@ def _scan(path: Path, topics: set[str] | None) -> tuple[dict, dict, dict[int, _C
             wanted.pop(r.id, None)
 
     with open(path, "rb") as fh:
-        walk = _Walk(fh)
+        walk = _Walk(fh, limit_bytes=limit_bytes)
         for rec in walk:
             if isinstance(rec, Chunk):
                 inner = walk.chunk_channels(rec, kern)
@@ -477,13 +502,13 @@ def _scan(path: Path, topics: set[str] | None) -> tuple[dict, dict, dict[int, _C
                 for cid, (t, blob, lens) in per.items():
                     if want(cid):
                         bufs[cid].add(t, blob, lens)
-                        walk.keep(len(blob), len(lens))
+                        walk.keep(len(blob), len(lens), copies[cid])
                     elif cid not in channels:
                         report.decode_errors += len(lens)  # messages of an unknown channel
             elif isinstance(rec, Message):
                 if want(rec.channel_id):
                     bufs[rec.channel_id].add_one(rec.log_time, rec.data)
-                    walk.keep(len(rec.data), 1)
+                    walk.keep(len(rec.data), 1, copies[rec.channel_id])
                 elif rec.channel_id not in channels:
                     report.decode_errors += 1
             elif isinstance(rec, Schema):
@@ -825,20 +850,22 @@ def _warn_lost(path: Path, report: McapReport) -> None:
                   f"recovered {report.messages_read}", stacklevel=3)
 
 
-def read_mcap(path: str | Path, topics: Iterable[str] | None = None, *, warn: bool = True
-              ) -> tuple[dict[str, McapTopic], McapReport]:
+def read_mcap(path: str | Path, topics: Iterable[str] | None = None, *, warn: bool = True,
+              memory_limit_bytes: float | None = None) -> tuple[dict[str, McapTopic], McapReport]:
     """Read (and decode) the messages of ``topics`` (all when ``None``) from an MCAP file.
 
     JSON channels are decoded with :mod:`json`; ``ros2msg``/CDR channels with mcap-ros2-support's
     ``DecoderFactory`` and converted to plain dicts. Messages that cannot be decoded are dropped and
     counted (``report.decode_errors``). Damaged files are read as far as possible (module docstring);
     a :class:`UserWarning` reports lost messages. Raises :class:`InputError` when the file is missing,
-    empty or not MCAP, or a requested topic uses an encoding hadal cannot decode.
+    empty or not MCAP, or a requested topic uses an encoding hadal cannot decode, or when its chunks and kept
+    messages need more than ``memory_limit_bytes`` (the stage's ``resources.max_memory_gb``; default
+    :func:`hadal.budget.memory_limit_bytes` of the defaults; :class:`_Walk`).
     """
     path = Path(path)
     _open_check(path)
     tset = set(topics) if topics is not None else None
-    schemas, channels, bufs, report, stats = _scan(path, tset)
+    schemas, channels, bufs, report, stats = _scan(path, tset, memory_limit_bytes)
     if stats is not None:
         per_chan, total = dict(stats.channel_message_counts), int(stats.message_count)
     else:

@@ -124,9 +124,10 @@ class HexHeader:
 
 
 # ------------------------------------------------------------------------------------------------ file reading
-def _read_text(path: Path) -> tuple[str, str | None]:
-    """File text (Latin-1) and the compression found by magic bytes (gzip / bz2 / xz / None)."""
-    raw, comp = read_bytes(path, "Sea-Bird .hex", text=True)
+def _read_text(path: Path, max_bytes: float | None = None) -> tuple[str, str | None]:
+    """File text (Latin-1) and the compression found by magic bytes (gzip / bz2 / xz / None); held against the
+    memory budget ``max_bytes`` as it decompresses (:func:`hadal.formats.read_bytes`)."""
+    raw, comp = read_bytes(path, "Sea-Bird .hex", text=True, max_bytes=max_bytes)
     return raw.decode("latin-1"), comp
 
 
@@ -855,7 +856,7 @@ def _hex_attrs(path: Path, h: HexHeader, comp: str | None, df: pd.DataFrame, cha
     }
 
 
-def read_hex(path: str | Path, *, raw: bool = False) -> pd.DataFrame:
+def read_hex(path: str | Path, *, raw: bool = False, max_bytes: float | None = None) -> pd.DataFrame:
     """Read a Sea-Bird SBE 19plus V2 / 16plus V2 ``.hex`` file and convert it with its header calibration.
 
     Returns a DataFrame shaped like :func:`hadal.ingest.cnv.read_cnv`'s, with SeaSoft's column names:
@@ -879,7 +880,7 @@ def read_hex(path: str | Path, *, raw: bool = False) -> pd.DataFrame:
     scan line, or a non-hexadecimal character.
     """
     path = Path(path)
-    text, comp = _read_text(path)
+    text, comp = _read_text(path, max_bytes)  # max_bytes: the memory budget (default hadal.budget's)
     header, data_lines, first_no = _split(path, text)
     h = parse_hex_header(path, header)
     _check_supported(h, path, data_lines)

@@ -50,24 +50,45 @@ def id_values(var: xr.DataArray | xr.Variable) -> list[str]:
     return [v.decode("utf-8") if isinstance(v, bytes) else str(v) for v in np.asarray(var.values).ravel()]
 
 
-def cast_positions(ctd: pd.DataFrame, casts: Sequence[str], phase_column: str = "phase") -> pd.DataFrame | None:
-    """Time and position of every cast, from the ``ctd`` table's per-sample ``time``/``lat``/``lon`` (the dive's
-    navigation as ``derive`` knows it: launch + dead reckoning, :func:`hadal.products.navigation.navigation_table`
-    without a terrain match): at the cast's surface end, where a CTD cast is located by convention - the first
-    sample of a descent (the launch), the last of an ascent (where the vehicle surfaced); another cast at its
-    shallowest sample. ``None`` when the table has no positions (then the writer keeps the header/launch position
-    and says so). Columns: ``cast``, ``time``, ``lat``, ``lon``, ``position_note``."""
-    if not {"lat", "lon", phase_column} <= set(ctd.columns):
-        return None
+#: where a cast's position came from, best first (:func:`place_casts`; ``cast_position_source`` flag meanings)
+POSITION_SOURCES = ("navigation", "ctd_dead_reckoning", "cast_header", "launch", "nominal")
+_SOURCE_TEXT = {
+    "navigation": "the navigation product (Kalman filter + RTS smoother over every position source, match stage) "
+                  "interpolated to the cast's time",
+    "ctd_dead_reckoning": "the vehicle's own position channels in ctd (launch + dead-reckoned offsets) at the "
+                          "cast's time (no navigation product: match skipped or failed)",
+    "cast_header": "the cast header position (NMEA/user; no navigation product, no dead-reckoned position)",
+    "launch": "the dive.yaml launch position (no navigation product, no dead-reckoned or header position)",
+    "nominal": "the latitude/longitude derive used for gravity and depth (no other position)",
+}
+
+
+def cast_positions(ctd: pd.DataFrame, casts: Sequence[str], phase_column: str = "phase") -> pd.DataFrame:
+    """Time and reference sample of every cast in the ``ctd`` table (rows in time order): its **surface end**,
+    where a CTD profile is located by convention (a ship's station at the start of the cast, an Argo float's
+    profile at its surface fix): the first sample of a descent (the launch), the last of an ascent (where the
+    vehicle surfaced); another cast at its shallowest sample. The time is the same instant ``derive`` gives the
+    cast (:func:`hadal.ctd.derive._cast_times`). Columns: ``cast``, ``index`` (row of ``ctd``, -1 for a cast
+    without samples), ``time`` (NaT without a time channel), ``lat``/``lon`` (the table's own per-sample
+    position there, NaN without one or when no dead-reckoned offset is known up to that sample: then the table's
+    position is only the launch's, ``dead_reckoned`` False), ``position_note``."""
     rows = []
-    phase = ctd[phase_column].astype(str).to_numpy()
-    lat, lon = ctd["lat"].to_numpy(float), ctd["lon"].to_numpy(float)
+    phase = ctd[phase_column].astype(str).to_numpy() if phase_column in ctd else np.full(len(ctd), "")
+    have = {"lat", "lon"} <= set(ctd.columns)
+    lat = ctd["lat"].to_numpy(float) if have else np.full(len(ctd), np.nan)
+    lon = ctd["lon"].to_numpy(float) if have else np.full(len(ctd), np.nan)
     t = pd.to_datetime(ctd["time"], utc=True) if "time" in ctd else None
     p = ctd["pressure_dbar"].to_numpy(float) if "pressure_dbar" in ctd else None
+    # a dead-reckoned offset known at or before each sample (without one the table's lat/lon is the launch's)
+    dr = np.ones(len(ctd), bool)
+    if {"dr_east_m", "dr_north_m"} <= set(ctd.columns):
+        dr = np.maximum.accumulate(np.isfinite(ctd["dr_east_m"].to_numpy(float))
+                                   & np.isfinite(ctd["dr_north_m"].to_numpy(float)))
     for cast in casts:
-        idx = np.flatnonzero((phase == str(cast)) & np.isfinite(lat) & np.isfinite(lon))
+        idx = np.flatnonzero(phase == str(cast))
         if idx.size == 0:
-            rows.append({"cast": str(cast), "time": pd.NaT, "lat": np.nan, "lon": np.nan, "position_note": None})
+            rows.append({"cast": str(cast), "index": -1, "time": pd.NaT, "lat": np.nan, "lon": np.nan,
+                         "position_note": None})
             continue
         if str(cast) == "descent":
             k, where = idx[0], "first sample of the descent (launch)"
@@ -77,31 +98,101 @@ def cast_positions(ctd: pd.DataFrame, casts: Sequence[str], phase_column: str = 
             k, where = idx[int(np.nanargmin(p[idx]))], "shallowest sample of the cast"
         else:
             k, where = idx[0], "first sample of the cast"
-        if "dr_east_m" in ctd and not np.isfinite(ctd["dr_east_m"].to_numpy(float)[: k + 1]).any():
-            where += ", at the launch/header position (no dead-reckoned offset yet)"
-        rows.append({"cast": str(cast), "time": t.iloc[k] if t is not None else pd.NaT, "lat": lat[k], "lon": lon[k],
-                     "position_note": where})
+        own = bool(dr[k])
+        rows.append({"cast": str(cast), "index": int(k), "time": t.iloc[k] if t is not None else pd.NaT,
+                     "lat": lat[k] if own else np.nan, "lon": lon[k] if own else np.nan, "position_note": where})
     return pd.DataFrame(rows)
 
 
-def place_casts(profile: xr.Dataset, ctd: pd.DataFrame, phase_column: str = "phase") -> xr.Dataset:
-    """``profile`` (``make_profile``'s ``(cast, level)`` dataset) with per-cast ``time``/``lat``/``lon``
-    coordinates from :func:`cast_positions` (unchanged when the table has no positions)."""
+def _interp_navigation(nav: pd.DataFrame, t: pd.Timestamp) -> tuple[float, float, float] | None:
+    """(lat, lon, DRMS m) of the navigation table ``nav`` at time ``t``, linear in time between its two samples
+    around ``t`` (its covariance likewise: ``position_uncertainty_m`` = sqrt(trace), the 1-sigma radial DRMS);
+    ``None`` outside its time span or without positions."""
+    tn = pd.to_datetime(nav["time"], utc=True).dt.tz_convert(None).to_numpy("datetime64[ns]").astype(np.int64)
+    lat, lon = nav["lat"].to_numpy(float), nav["lon"].to_numpy(float)
+    ok = np.isfinite(lat) & np.isfinite(lon) & (tn != np.iinfo(np.int64).min)
+    if not ok.any() or pd.isna(t):
+        return None
+    tn, lat, lon = tn[ok], lat[ok], lon[ok]
+    x = pd.Timestamp(t)
+    x = (x.tz_convert("UTC").tz_localize(None) if x.tzinfo else x).as_unit("ns").value
+    if x < tn[0] or x > tn[-1]:
+        return None
+    var = np.full(tn.size, np.nan)
+    if {"position_covariance_east_m2", "position_covariance_north_m2"} <= set(nav.columns):
+        var = (nav["position_covariance_east_m2"].to_numpy(float) + nav["position_covariance_north_m2"]
+               .to_numpy(float))[ok]
+    elif "position_uncertainty_m" in nav:
+        var = nav["position_uncertainty_m"].to_numpy(float)[ok] ** 2
+    xs = (tn - tn[0]).astype(float)
+    at = float(x - tn[0])
+    return (float(np.interp(at, xs, lat)), float(np.interp(at, xs, lon)),
+            float(np.sqrt(np.interp(at, xs, var))) if np.isfinite(var).all() else float("nan"))
+
+
+def place_casts(profile: xr.Dataset, ctd: pd.DataFrame, phase_column: str = "phase", *,
+                navigation: pd.DataFrame | None = None, header: tuple[float, float] | None = None,
+                launch: tuple[float, float] | None = None, nominal: tuple[float, float] | None = None
+                ) -> xr.Dataset:
+    """``profile`` (``make_profile``'s ``(cast, level)`` dataset) with per-cast ``lat``/``lon`` (and ``time`` when
+    the casts have none) at each cast's surface end (:func:`cast_positions`), its ``cast_position_source`` (flag,
+    :data:`POSITION_SOURCES`) and ``position_uncertainty_m``. The position is, best first and per cast:
+
+    1. ``navigation``: the navigation product's table (``time``, ``lat``, ``lon`` and its 2x2 covariance)
+       interpolated to the cast's time (:func:`_interp_navigation`); the uncertainty its DRMS there;
+    2. the ``ctd`` table's own per-sample ``lat``/``lon`` (launch + dead reckoning) at the cast's sample;
+    3. ``header``: the cast header's NMEA/user (lat, lon);
+    4. ``launch``: the dive.yaml launch (lat, lon);
+    5. ``nominal``: the (lat, lon) used for gravity and depth.
+
+    Only the navigation carries an uncertainty (NaN otherwise: none is invented). CF-1.8 §9 gives a profile one
+    horizontal position (the instance variables ``lat``/``lon``, ERDDAP's ``cdm_profile_variables``)."""
     if "cast" not in profile.dims:
         return profile
-    pos = cast_positions(ctd, [str(c) for c in profile["cast"].values], phase_column)
-    if pos is None or not np.isfinite(pos["lat"].to_numpy(float)).any():
+    names = [str(c) for c in profile["cast"].values]
+    pos = cast_positions(ctd, names, phase_column)
+    n = len(names)
+    lat, lon, unc = np.full(n, np.nan), np.full(n, np.nan), np.full(n, np.nan)
+    src = np.full(n, -1, dtype="i1")
+    notes = []
+    for i, r in enumerate(pos.itertuples()):
+        got: tuple[str, float, float, float] | None = None
+        if navigation is not None and len(navigation) and not pd.isna(r.time):
+            at = _interp_navigation(navigation, r.time)
+            if at is not None:
+                got = ("navigation", *at)
+        if got is None and np.isfinite(r.lat) and np.isfinite(r.lon):
+            got = ("ctd_dead_reckoning", float(r.lat), float(r.lon), np.nan)
+        for name, value in (("cast_header", header), ("launch", launch), ("nominal", nominal)):
+            if got is None and value is not None and all(v is not None and np.isfinite(v) for v in value):
+                got = (name, float(value[0]), float(value[1]), np.nan)
+        if got is None:
+            notes.append(f"{r.cast}: no position")
+            continue
+        src[i], lat[i], lon[i], unc[i] = POSITION_SOURCES.index(got[0]), got[1], got[2], got[3]
+        where = f" at the {r.position_note}" if isinstance(r.position_note, str) and got[0] in (
+            "navigation", "ctd_dead_reckoning") else ""
+        notes.append(f"{r.cast}: {_SOURCE_TEXT[got[0]]}{where}")
+    if (src < 0).all():
         return profile
-    note = "; ".join(f"{r.cast}: {r.position_note}" for r in pos.itertuples() if isinstance(r.position_note, str))
-    src = ("the dive's navigation at the cast's time, as derive knows it (launch + dead reckoning; the "
-           f"terrain-matched track is the navigation product): {note}")
+    comment = ("the cast's position at its surface end (descent: its first sample, ascent: its last), from "
+               + "; ".join(notes))
+    coords: dict[str, Any] = {
+        "lat": ("cast", lat, {"long_name": "latitude of the cast", "comment": comment}),
+        "lon": ("cast", lon, {"long_name": "longitude of the cast", "comment": comment})}
     t = pd.to_datetime(pos["time"], utc=True).dt.tz_convert(None).to_numpy(dtype="datetime64[ns]")
-    coords = {"lat": ("cast", pos["lat"].to_numpy(float), {"long_name": "latitude of the cast", "comment": src}),
-              "lon": ("cast", pos["lon"].to_numpy(float), {"long_name": "longitude of the cast", "comment": src})}
-    if not np.isnat(t).any():  # else the profile keeps its own times (e.g. a timeless cast's header start time)
-        coords["time"] = ("cast", t, {"long_name": "time of the cast (at its position)"})
-    out = profile.drop_vars([n for n in coords if n in profile.variables])
-    return out.assign_coords(coords)
+    if "time" not in profile.variables and not np.isnat(t).any():  # binned casts have theirs: the same instant
+        coords["time"] = ("cast", t, {"standard_name": "time", "long_name": "time of the cast (at its position)"})
+    out = profile.drop_vars([c for c in coords if c in profile.variables])
+    out = out.assign_coords(coords)
+    out["cast_position_source"] = ("cast", src, {
+        "long_name": "source of the cast's position", "flag_values": np.arange(len(POSITION_SOURCES), dtype="i1"),
+        "flag_meanings": " ".join(POSITION_SOURCES)})
+    out["position_uncertainty_m"] = ("cast", unc, {
+        "units": "m", "long_name": "1-sigma radial (DRMS) horizontal uncertainty of the cast's position",
+        "comment": "sqrt of the trace of the navigation product's 2x2 position covariance at the cast's time; "
+                   "NaN when the position is not from the navigation product", "coordinates": "time lat lon"})
+    return out
 
 
 def _cast_labels(ds: xr.Dataset, dim: str) -> list[str]:
@@ -302,5 +393,8 @@ def orthogonal_profile(ds: xr.Dataset) -> xr.Dataset:
     for name in ("time", "lat", "lon"):
         if name in ds.variables and ds[name].dims == ("profile",):
             out = out.assign_coords({name: ("cast", ds[name].values, dict(ds[name].attrs))})
+    for name in ("cast_position_source", "position_uncertainty_m"):  # where each cast is placed, and how well
+        if name in ds.variables and ds[name].dims == ("profile",):
+            out[name] = ("cast", ds[name].values, dict(ds[name].attrs))
     out.attrs = dict(ds.attrs)
     return out

@@ -74,7 +74,8 @@ def build_report(store: ProductStore, dive: str, *, launch: dict[str, float] | N
 
 #: what a figure's "skipped" reason names when it lacks a stage's products (report figures' own wording)
 _STAGE_TOKENS = {"dtm": ("dtm", "reference terrain"), "laser": ("laser_grids",), "suitability": ("suitability",),
-                 "match": ("match", "matched track", "navigation"), "landing": ("landing",), "derive": ("ctd", "profile"),
+                 "match": ("match", "matched track", "navigation"), "landing": ("landing",), "derive": ("ctd",),
+                 "profile": ("profile",),
                  "ingest": ("sensors",)}
 
 

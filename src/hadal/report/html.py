@@ -120,6 +120,10 @@ def summary_rows(s: Mapping[str, Any]) -> list[tuple[str, str]]:
         unc = f" ±{sf['uncertainty_m']:,.0f} m (1σ)" if sf.get("uncertainty_m") else ""
         rows.append(("surfacing position (end of the ascent)", f"{sf['position_degmin']}{unc}"
                      + (f" at {sf['time_utc']}" if sf.get("time_utc") else "")))
+    for c in s.get("cast_positions") or []:  # where profile.nc places each cast, and from what
+        unc = f" ±{c['uncertainty_m']:,.0f} m (1σ)" if c.get("uncertainty_m") else ""
+        rows.append((f"{c['cast']} cast position (profile.nc)", f"{c['position_degmin']}{unc}, from "
+                     f"{c['source'].replace('_', ' ')}"))
     if "matched_start" in s:
         rows.append(("matched start of the bottom track", s["matched_start"]["position_degmin"]))
     if s.get("drift_m") is not None:

@@ -26,7 +26,7 @@ from hadal.store import ProductStore, ProductVersion
 
 #: (product, stage that makes it) in pipeline order; the report reads all of them when present.
 REPORT_INPUTS: tuple[tuple[str, str], ...] = (
-    ("sensors", "ingest"), ("ctd", "derive"), ("profile", "derive"), ("dtm", "dtm"),
+    ("sensors", "ingest"), ("ctd", "derive"), ("profile", "profile"), ("dtm", "dtm"),
     ("laser_grids", "laser"), ("suitability", "suitability"), ("match", "match"), ("landing", "landing"),
 )
 #: products made only when the data calls for them (external Sea-Bird casts): read when present, never "missing"

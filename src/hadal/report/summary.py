@@ -179,6 +179,8 @@ def _position_summary(s: dict[str, Any], dp: DiveProducts, fix: dict[str, Any],
         dec = dec if dec is not None else coordinate_decimals(float(surf["uncertainty_m"]), "min")
         s["surfacing"] = {**surf, "position_degmin": format_position(surf["lat"], surf["lon"], decimals=dec),
                           "source": "navigation (last sample of the ascent)"}
+    if (casts := cast_positions(dp.profile)):
+        s["cast_positions"] = casts
     start = fix.get("start") if isinstance(fix.get("start"), dict) else None
     if start and _f(start.get("lat")) is not None:
         s["matched_start"] = {"lat": _f(start["lat"]), "lon": _f(start["lon"]),
@@ -227,3 +229,34 @@ def _landing_summary(s: dict[str, Any], dp: DiveProducts, best_sites: int) -> No
         s["n_candidate_sites"] = int(len(sites))
     if dp.landing_summary and isinstance(dp.landing_summary.get("table_v"), dict):
         s["landing_table_v"] = dp.landing_summary["table_v"]
+
+
+def cast_positions(profile: Any) -> list[dict[str, Any]]:
+    """Per cast of ``profile.nc`` (CF ragged, ``cast_position_source`` flags of :func:`hadal.products.dsg.place_casts`):
+    its name, lat/lon, position source and 1-sigma radial uncertainty, the position at the precision of that
+    uncertainty (:func:`hadal.report.units.coordinate_decimals`; 3 decimal minutes without one). Empty without
+    placed casts."""
+    from hadal.report.units import coordinate_decimals
+
+    if profile is None or "cast_position_source" not in profile.variables or "lat" not in profile.variables:
+        return []
+    dim = profile["cast_position_source"].dims[0]
+    if profile["lat"].dims != (dim,):
+        return []
+    sources = str(profile["cast_position_source"].attrs.get("flag_meanings", "")).split()
+    names = str(profile["cast"].attrs.get("flag_meanings", "")).split() if "cast" in profile.variables else []
+    out = []
+    for i in range(profile.sizes[dim]):
+        lat, lon = _f(profile["lat"].values[i]), _f(profile["lon"].values[i])
+        if lat is None or lon is None:
+            continue
+        k = int(profile["cast_position_source"].values[i])
+        unc = _f(profile["position_uncertainty_m"].values[i]) if "position_uncertainty_m" in profile else None
+        label = profile["cast"].values[i] if "cast" in profile.variables else f"cast {i}"
+        if isinstance(label, (int, np.integer)):  # the ragged file's CF flags
+            label = names[int(label)] if 0 <= int(label) < len(names) else f"cast {i}"
+        dec = coordinate_decimals(unc, "min") if unc is not None else 3
+        out.append({"cast": str(label), "lat": lat, "lon": lon,
+                    "source": sources[k] if 0 <= k < len(sources) else "unknown", "uncertainty_m": unc,
+                    "position_degmin": format_position(lat, lon, decimals=dec)})
+    return out

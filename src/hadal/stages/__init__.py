@@ -35,7 +35,8 @@ if TYPE_CHECKING:
 
 #: Stages in execution order (also the flow's priority among ready stages). Only stages whose module defines
 #: ``run`` are part of the pipeline.
-STAGE_ORDER: tuple[str, ...] = ("ingest", "derive", "dtm", "laser", "suitability", "match", "landing", "report")
+STAGE_ORDER: tuple[str, ...] = ("ingest", "derive", "dtm", "laser", "suitability", "match", "profile", "landing",
+                                 "report")
 
 #: Names that stand for several stages wherever a stage is named (``hadal stage grid``, ``run_stage("grid")``):
 #: ``grid`` is the DTM and the laser grids, one stage before they were split so that each runs (and re-runs)

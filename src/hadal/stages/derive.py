@@ -1,4 +1,4 @@
-"""Stage ``derive``: sensors → seawater properties, depth and seafloor depth (``ctd``) and binned profiles (``profile``).
+"""Stage ``derive``: sensors → seawater properties, depth and seafloor depth (``ctd``).
 
 Method: Ma et al. (2023) §3.2 ([TERCOM Eqs. 6-14]) and §4.1.3. Reads the ``sensors`` product (``sensors.parquet``,
 CTD time base) and computes, per sample:
@@ -15,9 +15,12 @@ CTD time base) and computes, per sample:
 * ``gravity_m_s2`` at the sample's depth; ``altitude_corrected_m`` (sound-speed corrected altimeter range);
   ``seafloor_depth_m`` = depth + corrected altitude (Fig. 10); ``phase`` (descent/bottom/ascent).
 
-Publishes ``ctd`` (``ctd.parquet``) and ``profile`` (``profile.nc``, descent and ascent casts binned by pressure,
-or by depth with ``profile_axis: depth``; a cast SeaSoft's BinAvg already binned keeps its own bins and only the
-casts it holds: :func:`hadal.ctd.profile.prebinned_profile`, ``profile_source_bins``).
+Publishes ``ctd`` (``ctd.parquet``; its per-sample N2 from the binned casts). The binned casts themselves
+(``profile.nc``: descent and ascent binned by pressure, or by depth with ``profile_axis: depth``; a cast SeaSoft's
+BinAvg already binned keeps its own bins and only the casts it holds: :func:`hadal.ctd.profile.prebinned_profile`,
+``profile_source_bins``) are published by the ``profile`` stage (:mod:`hadal.stages.profile`) after ``match``, each
+cast placed from the navigation product; the binning (:func:`hadal.ctd.derive.bin_casts`) is the same. External
+casts' binned profiles (``cast_profiles``) stay here: they are placed by their own header position.
 
 Underway records (a ``sources.cnv`` entry with ``kind: underway``: a thermosalinograph, :mod:`hadal.ctd.underway`)
 are not casts: each is published in ``trajectory`` (one CF trajectory NetCDF per record, positions from the
@@ -40,10 +43,10 @@ from hadal.ctd.derive import (
     _flag_ok,
     comparison_table,
     derive_table,
-    profile_axis_text,
 )
 from hadal.errors import InputError
 from hadal.names import record_id as file_record_id
+from hadal.products.binned import bins_text, is_depth_axis, profile_attrs, source_binned, title_axis
 from hadal.products.underway import trajectory_dataset
 from hadal.settings.derive import DeriveParams as Params
 from hadal.stages import Stage, StageInputs
@@ -155,77 +158,6 @@ def _ctd_summary(meta: dict[str, Any]) -> dict[str, Any]:
     return summary
 
 
-def _source_binned(meta: dict[str, Any]) -> dict[str, Any] | None:
-    """The profile's axis record when the cast kept SeaSoft's own bins (``binning: source``), else ``None``."""
-    ax = meta.get("profile_axis") or {}
-    return ax if ax.get("binning") == "source" else None
-
-
-def _bins_text(p: Params, meta: dict[str, Any]) -> str:
-    """The bins of a profile in words: the configured ones, or a SeaSoft-binned cast's own."""
-    ax = _source_binned(meta)
-    if ax is None:
-        return f"Means in {profile_axis_text(p)} bins"
-    return (f"The source file's own {ax['bin_size']:g} {ax['units']} {ax['axis']} bins (binned by SeaSoft BinAvg, "
-            f"not re-binned; {ax['source_bins']})")
-
-
-def _title_axis(p: Params, meta: dict[str, Any]) -> str:
-    ax = _source_binned(meta)
-    return _axis_title(p) if ax is None else ("Depth-binned" if ax["axis"] == "depth" else "Pressure-binned")
-
-
-def _is_depth_axis(p: Params, meta: dict[str, Any]) -> bool:
-    ax = _source_binned(meta)
-    return p.profile_axis == "depth" if ax is None else ax["axis"] == "depth"
-
-
-def _profile_summary(p: Params, profile: Any, is_prof: bool, meta: dict[str, Any] | None = None) -> str:
-    """The ``summary`` attribute of ``profile.nc``."""
-    meta = meta or {}
-    casts = " and ".join(str(c) for c in profile["cast"].values) if _source_binned(meta) else "descent and ascent"
-    return (f"{_bins_text(p, meta)} of the dive's CTD samples, separately for "
-            f"the {casts} casts: temperature, conductivity, PSS-78 salinity, EOS-80 density, "
-            "gravity, Chen-Millero sound speed, and "
-            + ("hydrostatic / Fofonoff-Millard / TEOS-10 depths." if not _is_depth_axis(p, meta) else
-               "pressure and Fofonoff-Millard / TEOS-10 depths; the depth axis is the hydrostatic depth "
-               "(depth_m, Eqs. 11-12).")
-            + ((" The cast has no time channel (pressure-binned): its time is the header start time."
-                if "time" in profile.variables else
-                " The cast has no time channel (pressure-binned) and no header start time: no times.")
-               if is_prof else ""))
-
-
-def _publish_profile(ctx: StageContext, p: Params, params: dict, upstream: list, profile: Any,
-                     meta: dict[str, Any]) -> Any:
-    """Publish ``profile`` (``profile.nc``: the binned descent and ascent casts)."""
-    from hadal.ingest.cnv import NO_TIME_BASE
-    from hadal.products.io import write_netcdf
-
-    is_prof = meta.get("time_base") == NO_TIME_BASE
-    _profile_attrs(profile, meta)
-    zdim = "depth_m" if _is_depth_axis(p, meta) else "pressure_dbar"
-    psummary: dict[str, Any] = {"bin_dbar": p.profile_bin_dbar, "levels": int(profile.sizes[zdim])}
-    if p.profile_axis == "depth":  # the pressure-axis summary stays as it was
-        psummary = {"axis": "depth", "bin_m": p.profile_bin_m, "levels": int(profile.sizes[zdim])}
-    if (ax := _source_binned(meta)) is not None:  # a SeaSoft-binned cast: its own bins
-        psummary = {"axis": ax["axis"], ("bin_m" if ax["axis"] == "depth" else "bin_dbar"): ax["bin_size"],
-                    "levels": int(profile.sizes[zdim]), "binning": "source", "source_bins": ax["source_bins"],
-                    "casts": [str(c) for c in profile["cast"].values]}
-    with ctx.store.publish(ctx.dive_id, "profile", parameters=params, upstream=upstream,
-                           extra={"summary": psummary}) as draft:
-        write_netcdf(
-            profile, draft.path / "profile.nc",
-            title=f"{_title_axis(p, meta)} CTD profiles (descent and ascent) of dive {ctx.dive_id}",
-            summary=_profile_summary(p, profile, is_prof, meta),
-            keywords="CTD, salinity, density, depth, pressure, profile",
-            processing_level="L2 binned profile", provenance_from=draft,
-            dive_id=ctx.dive_id, latitude_used_deg=meta["latitude_deg"], latitude_source=meta["latitude_source"],
-            gauge_bias_dbar=meta["gauge_bias_dbar"],
-        )
-    return draft.result
-
-
 def _publish_cast_profiles(ctx: StageContext, p: Params, params: dict, upstream: list,
                            cast_results: list[tuple[str, pd.DataFrame, dict[str, Any], Any]],
                            fields: dict[str, Any]) -> tuple[Any, list[dict[str, Any]]]:
@@ -237,12 +169,12 @@ def _publish_cast_profiles(ctx: StageContext, p: Params, params: dict, upstream:
                            extra={"casts": [c[0] for c in cast_results]}) as draft:
         for cid, cdf, cm, cprof in cast_results:
             write_parquet(cdf, draft.path / f"{cid}.parquet", fields=fields, metadata=cm, provenance_from=draft)
-            _profile_attrs(cprof, cm)
+            profile_attrs(cprof, cm)
             write_netcdf(cprof, draft.path / f"{cid}.nc",
-                         title=f"{_title_axis(p, cm)} CTD profile of cast {cid} (dive {ctx.dive_id})",
-                         summary=(f"{_bins_text(p, cm)} of an external Sea-Bird "
+                         title=f"{title_axis(p, cm)} CTD profile of cast {cid} (dive {ctx.dive_id})",
+                         summary=(f"{bins_text(p, cm)} of an external Sea-Bird "
                                   "cast of the dive: temperature, conductivity, PSS-78 salinity, EOS-80 density, "
-                                  "gravity, sound speed and " + ("depths." if not _is_depth_axis(p, cm)
+                                  "gravity, sound speed and " + ("depths." if not is_depth_axis(p, cm)
                                                                  else "pressure and depths.")),
                          keywords="CTD, salinity, density, depth, pressure, profile",
                          processing_level="L2 binned profile", provenance_from=draft, dive_id=ctx.dive_id,
@@ -253,7 +185,7 @@ def _publish_cast_profiles(ctx: StageContext, p: Params, params: dict, upstream:
                           "latitude_deg": cm["latitude_deg"], "latitude_source": cm["latitude_source"],
                           "latitude_warning": cm.get("latitude_warning"),
                           "deepest_point": cm["deepest_point"],
-                          **({"bins": cm["profile_axis"]} if _source_binned(cm) else {})})
+                          **({"bins": cm["profile_axis"]} if source_binned(cm) else {})})
         (draft.path / "cast_profiles.json").write_text(json.dumps(json_clean({"casts": index}), indent=2),
                                                        encoding="utf-8")
     return draft.result, index
@@ -276,7 +208,7 @@ def run(ctx: StageContext) -> dict[str, ProductVersion]:
     user_profile = _read_user_profile(ctx, p)
     try:
         with step(ctx.progress, f"derive: {len(table):,} samples -> depth, TEOS-10, QC, profiles"):
-            df, meta, profile = derive_table(table, sensors_meta, p, ctx.dive, ctx.log, f"dive {ctx.dive_id}",
+            df, meta, _ = derive_table(table, sensors_meta, p, ctx.dive, ctx.log, f"dive {ctx.dive_id}",
                                              memory_limit_bytes=limit, overlying_profile=user_profile)
     except InputError as exc:
         if user_profile is not None and str(exc).startswith(user_profile.source):
@@ -292,10 +224,8 @@ def run(ctx: StageContext) -> dict[str, ProductVersion]:
     with step(ctx.progress, "derive: writing ctd"), ctx.store.publish(
             ctx.dive_id, "ctd", parameters=params, upstream=[sensors], extra={"summary": _ctd_summary(meta)}) as draft:
         write_parquet(df, draft.path / "ctd.parquet", fields=fields, metadata=meta, provenance_from=draft)
-    ctd = draft.result
-    from hadal.products.dsg import place_casts  # each cast at its time on the dive's (dead-reckoned) track
-
-    out = {"ctd": ctd, "profile": _publish_profile(ctx, p, params, [sensors, ctd], place_casts(profile, df), meta)}
+    # the binned casts (profile.nc) are the profile stage's, after match: placed from the navigation product
+    out: dict[str, Any] = {"ctd": draft.result}
     if cast_results:
         out["cast_profiles"], index = _publish_cast_profiles(ctx, p, params, [sensors, casts_pv], cast_results,
                                                              fields)
@@ -303,10 +233,6 @@ def run(ctx: StageContext) -> dict[str, ProductVersion]:
     if underway:
         out["trajectory"] = _publish_trajectories(ctx, params, [sensors, casts_pv], underway)
     return out
-
-
-def _axis_title(p: Params) -> str:
-    return "Depth-binned" if p.profile_axis == "depth" else "Pressure-binned"
 
 
 def overlying_profile_path(p: Params, raw_dir: Any) -> Path:
@@ -331,62 +257,6 @@ def raw_files(ctx: StageContext) -> list[Path]:
 
 def sensors_columns(table: pd.DataFrame) -> list[str]:
     return [str(c) for c in table.columns]
-
-
-#: long_name of each binned variable of ``profile`` (the bins' means); units, standard_name and positive are the
-#: variable registry's (``schemas/variables.yaml``, :func:`_profile_var_attrs`)
-_PROFILE_LONG_NAMES: dict[str, str] = {
-    "temperature_its90_degc": "mean CTD temperature (ITS-90)",
-    "conductivity_s_m": "mean CTD conductivity",
-    "practical_salinity": "mean practical salinity (PSS-78)",
-    "density_kg_m3": "mean in situ density (EOS-80, Eq. 13)",
-    "gravity_m_s2": "mean gravitational acceleration (Eq. 14)",
-    "sound_speed_m_s": "mean sound speed (Chen-Millero)",
-    "depth_m": "mean depth, hydrostatic integral (Eqs. 11-12)",
-    "depth_fofonoff_millard_m": "mean depth, Fofonoff-Millard (Eqs. 8-10)",
-    "depth_teos10_m": "mean depth, TEOS-10 with dynamic height anomaly",
-    "absolute_salinity_g_kg": "mean Absolute Salinity (TEOS-10, gsw.SA_from_SP)",
-    "conservative_temperature_degc": "mean Conservative Temperature (TEOS-10, gsw.CT_from_t)",
-    "potential_temperature_degc": "mean potential temperature, 0 dbar (TEOS-10, gsw.pt0_from_t)",
-    "sigma0_kg_m3": "mean potential density anomaly, 0 dbar (TEOS-10, gsw.sigma0)",
-}
-
-
-def _profile_var_attrs(name: str) -> dict[str, str]:
-    """Attributes of a binned ``profile`` variable: the registry's standard_name/units/positive, the bin mean's
-    long_name (:data:`_PROFILE_LONG_NAMES`)."""
-    from hadal.registry import variable_attrs
-
-    reg = variable_attrs(name, where="profile")
-    out: dict[str, str] = {k: str(reg[k]) for k in ("standard_name", "units", "positive") if k in reg}
-    out["long_name"] = _PROFILE_LONG_NAMES[name]
-    return out
-
-
-def _profile_attrs(ds: Any, meta: dict[str, Any]) -> None:
-    import numpy as np
-
-    from hadal.ctd.profile import N_SQUARED
-
-    axis = "depth_m" if "depth_m" in ds.dims else "pressure_dbar"
-    for name in _PROFILE_LONG_NAMES:
-        if name in ds and name not in ds.dims:
-            ds[name].attrs.update(_profile_var_attrs(name))
-            ds[name].attrs["cell_methods"] = f"{axis}: mean"
-    if axis == "depth_m" and "pressure_dbar" in ds:  # the depth axis: the bins' mean pressure is a variable
-        ds["pressure_dbar"].attrs.update({"standard_name": "sea_water_pressure", "units": "dbar",
-                                          "long_name": "mean sea water pressure of the depth bin",
-                                          "cell_methods": "depth_m: mean"})
-    if N_SQUARED in ds:
-        ds[N_SQUARED].attrs.update({"standard_name": "square_of_brunt_vaisala_frequency_in_sea_water",
-                                    "units": "s-2", "long_name": "buoyancy frequency squared N2 of the binned cast",
-                                    "comment": "gsw.Nsquared on the binned Absolute Salinity and Conservative "
-                                               "Temperature, at the mid-points between levels, linearly "
-                                               "interpolated to the bin centres"})
-    # the profile's nominal position (the latitude used for gravity/depth, the launch longitude) unless placed
-    if "lat" not in ds.variables:
-        ds.coords["lat"] = np.float64(meta["latitude_deg"])
-        ds.coords["lon"] = np.float64(meta["longitude_deg"])
 
 
 # ------------------------------------------------------------------------------ underway records: trajectory
@@ -609,7 +479,7 @@ def planned_products(dive: Any, made: tuple[str, ...]) -> tuple[str, ...]:
 
 #: ``trajectory`` (underway records) is promised by :func:`planned_products` when dive.yaml lists one
 STAGE = Stage(
-    name="derive", products=("ctd", "profile", "cast_profiles", "trajectory"),
+    name="derive", products=("ctd", "cast_profiles", "trajectory"),
     inputs=StageInputs(upstream=("sensors",), optional_upstream=("casts",),
                        optional_products=("cast_profiles", "trajectory")),
     options=Params, run=run, raw_files=raw_files, planned_products=planned_products,

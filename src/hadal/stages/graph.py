@@ -21,13 +21,14 @@ from hadal.stages import (
     landing,
     laser,
     match,
+    profile,
     report,
     suitability,
 )
 
 #: every stage, in execution order
 STAGES: tuple[Stage, ...] = (ingest.STAGE, derive.STAGE, dtm.STAGE, laser.STAGE, suitability.STAGE, match.STAGE,
-                             landing.STAGE, report.STAGE)
+                             profile.STAGE, landing.STAGE, report.STAGE)
 assert tuple(s.name for s in STAGES) == STAGE_ORDER, "STAGES must follow STAGE_ORDER"
 
 _BY_NAME: dict[str, Stage] = {s.name: s for s in STAGES}

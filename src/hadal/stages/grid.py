@@ -183,7 +183,7 @@ def make_dtm(files: list[Path], frame, p: Params, hints: list | None = None, rea
     if hints is not None and len(hints) != len(files):
         raise ValueError("make_dtm: hints must have one entry per file")
     x, y, dep, frame, used = read_soundings_xy(files, frame, hints, chunk_points=chunk_points, readers=readers,
-                                               progress=progress)
+                                               progress=progress, memory_limit_bytes=memory_limit_bytes)
     x, y, dep, n_implausible = _drop_implausible(files, x, y, dep)
     res_m, how = _dtm_resolution(p, x, y)
     check_grid_memory("the DTM", x, y, float(res_m), DTM_LAYERS + (2 if p.prior_fill else 0), memory_limit_bytes,

@@ -24,6 +24,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from hadal.budget import memory_limit_bytes
 from hadal.errors import InputError
 from hadal.names import record_id as file_record_id
 from hadal.settings.ingest import IngestParams as Params
@@ -158,7 +159,7 @@ def _read_mcap(ctx: StageContext, p: Params, vehicle: VehicleConfig) -> _Read:
         ignored.append({"kind": "csv", "files": ", ".join(sorted(src.csv.values())),
                         "why": f"ingest.source is {p.source!r}: the MCAP logs make sensors "
                                "(set ingest.source: csv to use the CSV logs instead)"})
-    sensors, mcap_reports = read_mcap_sensors(paths, vehicle)
+    sensors, mcap_reports = read_mcap_sensors(paths, vehicle, memory_limit_bytes=memory_limit_bytes(ctx.config))
     return _Read(sensors, paths, mcap_reports, ignored)
 
 
@@ -170,12 +171,13 @@ def _read_record(ctx: StageContext, path: Path, name: str) -> tuple[Any, dict[st
     from hadal.ingest.build import cast_metadata, read_cast
     from hadal.ingest.cnv import CNV_PRESSURE, cnv_sensor_samples, read_seabird
 
+    limit = memory_limit_bytes(ctx.config)
     underway = any(e.kind == "underway" and resolve_source(ctx.raw_dir, e) == path for e in ctx.dive.sources.cnv)
     if not underway:
-        return read_cast(path, name)
-    df = read_seabird(path)
+        return read_cast(path, name, memory_limit_bytes=limit)
+    df = read_seabird(path, max_bytes=limit)
     if any(c in df.columns for c, _ in CNV_PRESSURE):
-        return read_cast(path, name)
+        return read_cast(path, name, memory_limit_bytes=limit)
     df["prM"] = 0.0  # the seawater line is at the sea surface
     s = cnv_sensor_samples(df, name, allow_no_time=True)
     note = "underway record without a pressure channel: 0 dbar (the sea surface) assumed for every scan"
@@ -201,7 +203,8 @@ def _read_cnv(ctx: StageContext, p: Params, vehicle: VehicleConfig, cast_paths: 
             ignored.append({"kind": k_, "files": ", ".join(files),
                             "why": "ingest.source is 'cnv': the Sea-Bird cast makes sensors"})
     if p.merge_casts and len(cast_paths) > 1:
-        return _Read(read_cnv_sensors(cast_paths, vehicle), cast_paths, ignored=ignored)
+        return _Read(read_cnv_sensors(cast_paths, vehicle, memory_limit_bytes=memory_limit_bytes(ctx.config)),
+                     cast_paths, ignored=ignored)
     s0, cast_meta = _read_record(ctx, cast_paths[0], vehicle.time_base)
     return _Read({vehicle.time_base: s0}, cast_paths[:1], ignored=ignored, cast_meta=cast_meta)
 
@@ -224,7 +227,8 @@ def _read_csv(ctx: StageContext, vehicle: VehicleConfig) -> _Read:
     if src.mcap:
         ignored.append({"kind": "mcap", "files": ", ".join(src.mcap),
                         "why": "ingest.source is 'csv': the CSV logs make sensors"})
-    return _Read(read_csv_sensors(files, vehicle), list(files.values()), ignored=ignored)
+    return _Read(read_csv_sensors(files, vehicle, memory_limit_bytes=memory_limit_bytes(ctx.config)),
+                 list(files.values()), ignored=ignored)
 
 
 def _sensor_table(ctx: StageContext, p: Params, vehicle: VehicleConfig, kind: str, read: _Read

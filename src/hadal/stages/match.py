@@ -303,7 +303,7 @@ def _mrf_soundings(ctx: StageContext, p: Params, bottom, track, res, frame, cell
 
     hints = ctx.dive.sources.files("vehicle_swath")
     launch = ctx.dive.require_launch("match", "the vehicle's swath soundings are logged in its navigation from the launch point")
-    x, y, dep, _, used = read_soundings_xy(files, frame, hints)
+    x, y, dep, _, used = read_soundings_xy(files, frame, hints, memory_limit_bytes=memory_limit_bytes(ctx.config))
     lx, ly = (float(v) for v in frame.to_xy(launch.longitude_deg, launch.latitude_deg))
     dr = bottom[["dr_east_m", "dr_north_m"]].to_numpy(float)
     xy, placed, row = swath_on_map(np.column_stack([x - lx, y - ly]), dr, track[["x_east_m", "y_north_m"]].to_numpy(float),
