@@ -83,8 +83,9 @@ def run_flow(raws: list[str], root: Path, workers: int, resolution_m: float, k: 
         _cruise_flow()(raws, str(root / f"store-{workers}-{k}"), "BENCH", resolution_m, scheduler=cl.scheduler_address,
                        tile_cells=tile_cells)
         wall = time.perf_counter() - t0
-        cpu = _cpu_self() - c0 + _workers_cpu(client) - w0
-    return {"measure": f"flow_{workers}_workers", "wall_s": round(wall, 3), "cpu_s": round(cpu, 3)}
+        main_cpu, workers_cpu = _cpu_self() - c0, _workers_cpu(client) - w0
+    return {"measure": f"flow_{workers}_workers", "wall_s": round(wall, 3), "cpu_s": round(main_cpu + workers_cpu, 3),
+            "cpu_main_s": round(main_cpu, 3), "cpu_workers_s": round(workers_cpu, 3)}
 
 
 def run_serial(raws: list[str], root: Path, resolution_m: float, k: int, tile_cells: int) -> dict:

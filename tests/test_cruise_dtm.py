@@ -81,12 +81,15 @@ def assert_same_dtm(ds, ref) -> None:
 
 
 def test_cruise_dtm_equals_in_memory_grid_of_all_soundings(tmp_path):
-    from hadal.grid.cruise import cruise_dtm_dataset
+    from hadal.grid.cruise import cruise_dtm_dataset, group_tiles
 
+    assert group_tiles([0, 1, 2, 5], [3, 3, 9, 1], 5) == [[0, 1], [2], [5]]  # by hand
+    assert group_tiles([0, 1], [3, 3], 1) == [[0], [1]]
     raws = make_cruise(tmp_path / "raw")
     scratch = tmp_path / "scratch"
     scratch.mkdir()
-    ds, prov = cruise_dtm_dataset([str(r) for r in raws], 20.0, scratch, tile_cells=16)
+    # small tiles, grouped by about 5000 soundings a task: many units of work, seams between tiles and dives
+    ds, prov = cruise_dtm_dataset([str(r) for r in raws], 20.0, scratch, tile_cells=16, min_task_points=5000)
     ref, (lat0, lon0) = oracle_dtm(raws, 20.0)
     assert ds.attrs["n_tiles"] > 4  # seams between tiles and between dives
     assert_same_dtm(ds, ref)

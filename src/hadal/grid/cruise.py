@@ -23,7 +23,8 @@ task writes its files atomically (a temporary name, then ``os.replace``), so a t
    make_grid_spec` ``snap=True``, as :func:`hadal.grid.multibeam.grid_multibeam` makes it from all the soundings).
 4. **partition** (:func:`partition_dive`, one task a dive): the dive's soundings cut by tile
    (:class:`hadal.grid.tiles.TilePartition`: the in-memory kernels' cell rule) into per-tile files of its own.
-5. **reduce** (:func:`reduce_tile`, one task a tile): the tile's points of every dive, in dive order, reduced by
+5. **reduce** (:func:`reduce_tile`; one task a group of consecutive tiles holding >= :data:`MIN_TASK_POINTS`
+   soundings, :func:`group_tiles`): the tile's points of every dive, in dive order, reduced by
    :func:`hadal.grid.multibeam.dtm_cell_layers`, the per-tile function of the in-memory DTM.
 6. **assemble** (:func:`assemble`): the tiles' layers in their windows, small holes filled
    (:func:`hadal.grid.multibeam.fill_dtm_holes`), georeferenced (:func:`hadal.grid.multibeam.add_geo`).
@@ -55,6 +56,10 @@ if TYPE_CHECKING:
     from hadal.grid.points import GridSpec
     from hadal.grid.tiles import TileScheme
     from hadal.settings.grid import GridParams
+
+#: soundings a reduce task holds at least (small tiles grouped): a Prefect task costs ~0.15 CPU-s of its own
+#: (API calls, states) in a worker, about the reduction of 1e6 soundings (bench/bench_cruise_dtm.py)
+MIN_TASK_POINTS = 1_000_000
 
 #: the ``map`` callable: ``map(fn, [args tuple, ...])`` -> results in the same order
 MapFn = Callable[[Callable[..., Any], Sequence[tuple]], list]
@@ -276,6 +281,30 @@ def reduce_tile(t: int, scheme: TileScheme, parts: Sequence[DivePartition], comp
                            compiled=compiled)
 
 
+def reduce_tiles(ts: Sequence[int], scheme: TileScheme, parts: Sequence[DivePartition], compiled: bool,
+                 apriori_a_m: float, apriori_b: float, prior_weight: float) -> list[dict[str, np.ndarray] | None]:
+    """:func:`reduce_tile` of each tile of ``ts`` (a group of small tiles as one task: the orchestrator's fixed
+    cost per task is paid once for the group)."""
+    return [reduce_tile(t, scheme, parts, compiled, apriori_a_m, apriori_b, prior_weight) for t in ts]
+
+
+def group_tiles(tiles: Sequence[int], points: Sequence[int], min_points: int) -> list[list[int]]:
+    """Consecutive tiles grouped until a group holds at least ``min_points`` points (the last group may hold
+    fewer); ``min_points`` <= 1: one tile a group."""
+    groups: list[list[int]] = []
+    cur: list[int] = []
+    n = 0
+    for t, k in zip(tiles, points, strict=True):
+        cur.append(t)
+        n += k
+        if n >= min_points:
+            groups.append(cur)
+            cur, n = [], 0
+    if cur:
+        groups.append(cur)
+    return groups
+
+
 def assemble(scheme: TileScheme, tiles: Sequence[dict[str, np.ndarray] | None], frame: LocalFrame, *,
              fill_max_cells: int, apriori_a_m: float, apriori_b: float, prior_weight: float,
              attrs: dict[str, Any]) -> xr.Dataset:
@@ -311,10 +340,12 @@ def assemble(scheme: TileScheme, tiles: Sequence[dict[str, np.ndarray] | None], 
 
 def cruise_dtm_dataset(raw_dirs: Sequence[str | os.PathLike], resolution_m: float, scratch_dir: str | os.PathLike,
                        *, map: MapFn = serial_map, tile_cells: int | None = None,
-                       params: GridParams | None = None) -> tuple[xr.Dataset, dict[str, Any]]:
+                       params: GridParams | None = None,
+                       min_task_points: int = MIN_TASK_POINTS) -> tuple[xr.Dataset, dict[str, Any]]:
     """The cruise DTM of the dives in ``raw_dirs`` (module doc), its phases fanned out by ``map`` on
     ``scratch_dir`` (a directory every worker sees); hole filling, a-priori uncertainty and the cell-count limit
     from ``params`` (the ``grid`` settings, :class:`hadal.settings.grid.GridParams`; default its defaults).
+    Tiles are reduced in groups of at least ``min_task_points`` soundings (:func:`group_tiles`; 1: a task a tile).
     Returns ``(Dataset, provenance)``: provenance names every dive and file used (with its reader) or refused
     (with the reason). No dive usable: one-line InputError."""
     from hadal.grid.points import _COMPILED_MIN_POINTS
@@ -344,11 +375,12 @@ def cruise_dtm_dataset(raw_dirs: Sequence[str | os.PathLike], resolution_m: floa
     n_points = sum(sum(p.tile_points) for p in good)
     compiled = n_points >= _COMPILED_MIN_POINTS  # reduce_cells' choice on all the soundings (in-memory rule)
     nonempty = [t for t in range(scheme.n_tiles) if any(p.tile_points[t] for p in good)]
-    reduced = map(reduce_tile, [(t, scheme, good, compiled, apriori_a_m, apriori_b, prior_weight)
-                                for t in nonempty])
+    groups = group_tiles(nonempty, [sum(p.tile_points[t] for p in good) for t in nonempty], min_task_points)
+    reduced = map(reduce_tiles, [(g, scheme, good, compiled, apriori_a_m, apriori_b, prior_weight) for g in groups])
     tiles: list[dict | None] = [None] * scheme.n_tiles
-    for t, layers in zip(nonempty, reduced, strict=True):
-        tiles[t] = layers
+    for g, layers_of in zip(groups, reduced, strict=True):
+        for t, layers in zip(g, layers_of, strict=True):
+            tiles[t] = layers
     part_err = {p.dive_id: p.error for p in parts if p.error is not None}
     prov: dict[str, Any] = {
         "cruise_frame": {"origin_latitude_deg": frame.origin_latitude_deg,
@@ -381,4 +413,5 @@ def cruise_dtm_dataset(raw_dirs: Sequence[str | os.PathLike], resolution_m: floa
 
 
 __all__ = ["DivePartition", "DiveRead", "DiveSource", "assemble", "cruise_dtm_dataset", "cruise_frame",
-           "cruise_grid_spec", "dive_sources", "partition_dive", "read_dive", "reduce_tile", "serial_map"]
+           "cruise_grid_spec", "dive_sources", "partition_dive", "read_dive", "reduce_tile",
+           "reduce_tiles", "group_tiles", "serial_map"]
