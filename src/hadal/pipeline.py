@@ -394,15 +394,6 @@ def current_stages(raw_dir: str | Path, store_root: str | Path | None, config_pa
                                   for name, out, seconds in status])
 
 
-def stale_stages(raw_dir: str | Path, store_root: str | Path | None, config_path: str | Path | None,
-                 names: Sequence[str], *, status: CacheStatus | None = None) -> list[str]:
-    """The stages of ``names`` (in plan order) a flow run would run rather than reuse (:func:`stage_cache_status`,
-    or its ``status`` already walked): those without a current cached result and every stage downstream of one."""
-    if status is None:
-        status = stage_cache_status(raw_dir, store_root, config_path, names)
-    return [name for name, out, _ in status if out is None]
-
-
 def stage_cache_status(raw_dir: str | Path, store_root: str | Path | None, config_path: str | Path | None,
                        names: Sequence[str]) -> CacheStatus:
     """The stage graph's walk (``flows/post_cruise.py``) replayed without Prefect: for each stage of ``names`` in plan
