@@ -40,7 +40,7 @@ print(json.dumps(compile_kernels(sys.argv[1:])))
 
 def test_compile_fills_the_cache_and_the_next_process_loads_it(tmp_path):
     env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path), "PYTHONPATH": str(SRC)}
-    mods = ["hadal.ingest._mcap_kernels"]
+    mods = ["hadal.numbawarm", "hadal.ingest._mcap_kernels"]
     n = sum(len(s) for m in mods for s in SIGNATURES[m].values())
 
     def run() -> dict[str, int]:

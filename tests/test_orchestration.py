@@ -421,7 +421,7 @@ def test_unchanged_dive_is_told_without_a_flow_run_and_changes_still_rerun(fake,
     from prefect.results import ResultRecord
 
     from hadal.cli import run as hcli_run
-    from hadal.pipeline import cached_result, current_stages, result_storage
+    from hadal.pipeline import cached_result, current_stages, result_storage, stale_stages
 
     raw, store = fake
     st = ProductStore(store)
@@ -431,6 +431,7 @@ def test_unchanged_dive_is_told_without_a_flow_run_and_changes_still_rerun(fake,
     again = post_cruise(str(raw), str(store), None, ["report"])  # Prefect's own cache decision
     assert cur is not None and dict(cur) == dict(again) == dict(out1)
     assert [r["status"] for r in cur.stages] == [r["status"] for r in again.stages] == ["reused"]
+    assert stale_stages(str(raw), str(store), None, ["report"]) == []  # what the CLI starts processes for
     storage = result_storage(store)
     for rec in storage.iterdir():  # the Prefect-free reader agrees with Prefect's
         assert cached_result(storage, rec.name) == ResultRecord.deserialize(rec.read_bytes()).result
@@ -458,6 +459,7 @@ def test_unchanged_dive_is_told_without_a_flow_run_and_changes_still_rerun(fake,
     cfg = tmp_path / "cfg.yaml"
     cfg.write_text("report: {dpi: 60}\n")
     assert current_stages(str(raw), str(store), str(cfg), ["report"]) is None  # a parameter changed
+    assert stale_stages(str(raw), str(store), str(cfg), ["report"]) == ["report"]
     rc, _, err = cli(monkeypatch, capsys, "stage", "report", str(raw), "--store", str(store), "--config", str(cfg))
     assert rc == 0 and [v.label for v in st.versions("dive-a", "report")] == ["v001", "v002"], err
     assert current_stages(str(raw), str(store), str(cfg), ["report"]) is not None
@@ -465,6 +467,31 @@ def test_unchanged_dive_is_told_without_a_flow_run_and_changes_still_rerun(fake,
     assert current_stages(str(raw), str(store), str(cfg), ["report"]) is None
     (raw / "dive.yaml").write_text((raw / "dive.yaml").read_text() + "# edited\n")  # a raw input changed
     assert current_stages(str(raw), str(store), None, ["report"]) is None  # (the flow then re-runs: cache key test)
+
+
+@pytest.mark.parametrize("changed", ["ingest", "dtm", "laser", "match", "report"])
+def test_stale_stages_are_the_changed_stage_and_everything_downstream(changed, tmp_path, monkeypatch):
+    """A stage without a current cached result runs, and so does every stage that reads what it publishes (oracle:
+    :func:`hadal.plan.downstream_stages`, what ``hadal stage NAME --downstream`` re-runs); the others are reused.
+    Nothing cached yet: every stage runs."""
+    from hadal import pipeline
+    from hadal.plan import downstream_stages
+    from hadal.stages import STAGE_ORDER
+
+    names = list(STAGE_ORDER)
+    raw = write_fake_dive(tmp_path / "raw", "dive-a")
+    store = tmp_path / "store"
+    assert pipeline.stale_stages(str(raw), str(store), None, names) == names  # a first run
+    pipeline.result_storage(store).mkdir(parents=True)
+    version = tmp_path / "v"
+    version.mkdir()
+    (version / "manifest.json").write_text("{}")
+    monkeypatch.setattr(pipeline, "stage_cache_key", lambda name, *a, **k: name)
+    monkeypatch.setattr(pipeline, "cached_result",
+                        lambda storage, key: None if key == changed else {f"{key}-product": str(version)})
+    expected = [n for n in names if n == changed or n in downstream_stages(changed, names)]
+    assert pipeline.stale_stages(str(raw), str(store), None, names) == expected
+    assert pipeline.current_stages(str(raw), str(store), None, names) is None
 
 
 def test_cached_result_reads_prefect_records_and_refuses_what_it_cannot_trust(tmp_path):

@@ -153,8 +153,9 @@ def test_unwritable_prefect_home_is_one_line_exit_2(small_dive, tmp_path):
 
 
 def test_a_finished_run_exits_at_once_and_leaves_no_process(small_dive, tmp_path):
-    """``hadal run`` ends as a normal exit would: the flow's thread pool stopped, the temporary server and the stage
-    processes stopped, status 0, the closing table printed, nothing left in its session."""
+    """``hadal run`` ends without the interpreter's teardown (:func:`hadal.cli.entry`) but as a normal exit would:
+    the flow's thread pool stopped (joining its threads without threading's exit hooks hung here), the temporary
+    server and the stage processes stopped, status 0, the closing table printed, nothing left in its session."""
     store = tmp_path / "store"
     proc = subprocess.Popen([*HADAL, "run", str(small_dive), "--store", str(store)], start_new_session=True,
                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,

@@ -192,3 +192,142 @@ def test_the_child_ignores_a_terminal_ctrl_c_the_parent_decides(tmp_path):
         hlog.setLevel(old)
     t.join()
     assert sent and out["dtm"].endswith("dtm/v001")
+
+
+def test_a_stage_process_started_ahead_runs_the_job_and_an_unused_one_exits_with_the_parent(tmp_path):
+    """``prestart`` (what the CLI does while Prefect's server boots): the dtm job goes to the process started ahead
+    (it then exits, the pool no longer holds it) and publishes what the stage publishes in a thread (oracle: the
+    thread run on a second store); the laser process started ahead and never used exits when its parent does,
+    without delaying the parent's exit."""
+    psutil = pytest.importorskip("psutil")
+    raw = _dive(tmp_path / "raw")
+    script = textwrap.dedent(f"""
+        import os, sys
+        from hadal import stage_process as sp
+        assert sp.prestart(["dtm", "laser"]) == ["dtm", "laser"] and sp.prestart(["dtm"]) == []
+        warm_dtm = sp._WARM["dtm"].proc
+        out = sp.run_stage_in_process("dtm", raw_dir={str(raw)!r}, store_root={str(tmp_path / "a")!r}, progress=False)
+        import time
+        deadline = time.monotonic() + 30  # reaped by run_stage_in_process's thread (its join and ours would race)
+        while warm_dtm.is_alive() and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert "dtm" not in sp._WARM and warm_dtm.exitcode == 0, warm_dtm.exitcode
+        print(out["dtm"])
+        print(sp._WARM["laser"].proc.pid, flush=True)
+    """)
+    t0 = time.monotonic()
+    r = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=180)
+    assert r.returncode == 0, r.stderr[-2000:]
+    exited_after = time.monotonic() - t0
+    version_dir, laser_pid = r.stdout.split()
+    ref = run_stage("dtm", make_context(raw, tmp_path / "b"))
+    with xr.open_dataset(os.path.join(version_dir, "dtm.nc")) as a, xr.open_dataset(ref["dtm"].file("dtm.nc")) as b:
+        np.testing.assert_array_equal(a["depth_m"].values, b["depth_m"].values)
+    deadline = time.monotonic() + 10
+    while psutil.pid_exists(int(laser_pid)) and time.monotonic() < deadline:
+        time.sleep(0.1)
+    gone = not psutil.pid_exists(int(laser_pid)) or psutil.Process(int(laser_pid)).status() == psutil.STATUS_ZOMBIE
+    assert gone and exited_after < 120
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="stage processes are forked ahead on Linux only")
+def test_stage_processes_forked_ahead_run_the_job_and_an_unused_one_stops_at_once(tmp_path):
+    """``prestart(fork=True)`` (what the CLI does just before the flow starts, the main thread alone): the processes
+    are forked (they inherit the modules imported here), the dtm job publishes what the stage publishes in a thread
+    (oracle: the thread run on a second store), and the laser process never used stops as soon as it is told (EOF on
+    its job pipe reaches it: the fork's copy of the parent's end is closed in the child), not after the 5 s timeout.
+    Beside another thread nothing is forked (spawned instead)."""
+    raw = _dive(tmp_path / "raw")
+    script = textwrap.dedent(f"""
+        import threading, time
+        from hadal import stage_process as sp
+        assert sp.prestart(["dtm", "laser"], fork=True) == ["dtm", "laser"]
+        methods = {{n: w.proc._popen.method for n, w in sp._WARM.items()}}
+        out = sp.run_stage_in_process("dtm", raw_dir={str(raw)!r}, store_root={str(tmp_path / "a")!r}, progress=False)
+        laser = sp._WARM["laser"].proc
+        t0 = time.monotonic()
+        sp._stop_warm()
+        stop_s = time.monotonic() - t0
+        ev = threading.Event()
+        t = threading.Thread(target=ev.wait)
+        t.start()
+        beside = sp.prestart(["laser"], fork=True)
+        method_beside = sp._WARM["laser"].proc._popen.method
+        ev.set()
+        t.join()
+        sp._stop_warm()
+        print(out["dtm"], methods["dtm"], methods["laser"], laser.exitcode, round(stop_s, 2), method_beside)
+    """)
+    r = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=180)
+    assert r.returncode == 0, r.stderr[-2000:]
+    version_dir, m_dtm, m_laser, laser_exit, stop_s, m_beside = r.stdout.split()
+    assert (m_dtm, m_laser, m_beside) == ("fork", "fork", "spawn")
+    assert laser_exit == "0" and float(stop_s) < 4.0
+    ref = run_stage("dtm", make_context(raw, tmp_path / "b"))
+    with xr.open_dataset(os.path.join(version_dir, "dtm.nc")) as a, xr.open_dataset(ref["dtm"].file("dtm.nc")) as b:
+        np.testing.assert_array_equal(a["depth_m"].values, b["depth_m"].values)
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="stage processes are forked ahead on Linux only")
+def test_no_fork_ahead_once_a_parallel_kernel_ran_here():
+    """After a numba parallel kernel ran in this process its OpenMP pool would hang a forked child's own parallel
+    kernel: the stage processes are then spawned, not forked."""
+    script = textwrap.dedent("""
+        from numba import njit, prange
+        from hadal import stage_process as sp
+        before = sp.can_fork_ahead()
+        @njit(parallel=True)
+        def total(n):
+            s = 0
+            for i in prange(n):
+                s += i
+            return s
+        assert total(1000) == 499500
+        print(before, sp.can_fork_ahead())
+    """)
+    r = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=180)
+    assert r.returncode == 0, r.stderr[-2000:]
+    assert r.stdout.split() == ["True", "False"]
+
+
+def test_warm_imports_stop_when_told_and_every_declared_module_imports():
+    """``warm_imports`` imports a stage's ``WARM_IMPORTS`` in order and stops as soon as ``stop()`` says so (the CLI:
+    once the server answers); every module a stage declares exists (a renamed module would silently warm nothing)."""
+    import importlib
+
+    from hadal.pipeline import warm_imports
+    from hadal.stages import STAGE_ORDER, warm
+    from hadal.stages.graph import stage
+
+    assert warm_imports(["ingest", "derive"], stop=lambda: True) == []
+    calls = []
+
+    def stop_after_two():
+        calls.append(1)
+        return len(calls) > 2
+
+    assert warm_imports(["derive"], stop=stop_after_two) == list(stage("derive").warm_imports[:2])
+    for name in STAGE_ORDER:
+        mods = stage(name).warm_imports
+        assert mods, f"stage {name} declares no WARM_IMPORTS"
+        for m in mods:
+            mod, _, func = m.partition(":")
+            module = importlib.import_module(mod)
+            assert not func or callable(getattr(module, func, None)), f"{name}: {m} names no function"
+            assert warm(m), m
+
+
+def test_numba_first_call_starts_no_parallel_region():
+    """The stages' ``hadal.numbawarm:first_call`` entry (run in the process that then forks the stage processes)
+    initialises numba without starting its thread pool, which would forbid those forks (can_fork_ahead)."""
+    import subprocess
+    import sys
+
+    code = ("import sys\nfrom hadal.stages import warm\n"
+            "assert warm('hadal.numbawarm:first_call')\n"
+            "par = sys.modules.get('numba.np.ufunc.parallel')\n"
+            "from hadal.stage_process import can_fork_ahead\n"
+            "print('numba' in sys.modules, getattr(par, '_is_initialized', False), can_fork_ahead())\n")
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0, r.stderr
+    assert r.stdout.split() == ["True", "False", "True"]

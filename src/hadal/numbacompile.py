@@ -36,6 +36,7 @@ _RO_U1 = _a(_u1, readonly=True)  # an MCAP chunk's bytes (np.frombuffer of bytes
 
 #: module -> kernel -> the argument type signatures the pipeline's stages call it with
 SIGNATURES: dict[str, dict[str, tuple[tuple[Any, ...], ...]]] = {
+    "hadal.numbawarm": {"_total": ((_F8,),)},
     "hadal.ingest._mcap_kernels": {
         "_u64": ((_RO_U1, _i8),),
         "walk_chunk": ((_RO_U1,),),

@@ -394,6 +394,17 @@ def current_stages(raw_dir: str | Path, store_root: str | Path | None, config_pa
                                   for name, out, seconds in status])
 
 
+def stale_stages(raw_dir: str | Path, store_root: str | Path | None, config_path: str | Path | None,
+                 names: Sequence[str], *, status: CacheStatus | None = None) -> list[str]:
+    """The stages of ``names`` (in plan order) a flow run would run rather than reuse (:func:`stage_cache_status`,
+    or its ``status`` already walked): those without a current cached result and every stage downstream of one.
+    The CLI starts processes and figure helpers for these only; a stage it judges current that runs after all
+    simply starts its own process."""
+    if status is None:
+        status = stage_cache_status(raw_dir, store_root, config_path, names)
+    return [name for name, out, _ in status if out is None]
+
+
 def stage_cache_status(raw_dir: str | Path, store_root: str | Path | None, config_path: str | Path | None,
                        names: Sequence[str]) -> CacheStatus:
     """The stage graph's walk (``flows/post_cruise.py``) replayed without Prefect: for each stage of ``names`` in plan
@@ -430,3 +441,24 @@ def stage_cache_status(raw_dir: str | Path, store_root: str | Path | None, confi
             pins.update(out)
         status.append((name, out, round(time.monotonic() - t0, 2)))
     return status
+
+
+def warm_imports(names: Sequence[str], *, stop: Any = None) -> list[str]:
+    """Import the modules that the stages ``names`` import when they run (their ``warm_imports``), in stage order,
+    until ``stop()`` (checked before each module) says to stop; returns the modules imported.
+
+    The CLI calls it while Prefect's temporary server boots (:func:`hadal.cli._run_flow`): the main process would
+    otherwise sit idle for those seconds, and each stage thread would then pay for its imports (about 2 s for the
+    sample dive's thread stages) on the run's critical path. A module that fails to import is left to its stage,
+    which reports the failure in its own words. Imports run in the calling thread only: importing beside other
+    threads can deadlock on circular imports."""
+    from hadal.stages import warm
+
+    done: list[str] = []
+    for name in names:
+        for mod in stage(name).warm_imports:
+            if stop is not None and stop():
+                return done
+            if warm(mod):
+                done.append(mod)
+    return done

@@ -4,7 +4,7 @@ Why: the flow runs stages whose inputs are ready concurrently (``flows/post_crui
 steps hold the GIL for seconds (open3d's ``remove_statistical_outlier`` was measured to hold it: a Python thread
 spinning beside it got 1/75 of its solo rate), so two threads gained little on a 2-core machine: the DTM stage took
 27–29 s beside the laser stage against 11 s alone. A stage whose record says ``process=True`` (dtm, laser)
-runs in its own (``spawn``-ed) process when it can overlap another
+runs in its own process (forked ahead by the CLI, else a ``spawn``-ed interpreter) when it can overlap another
 stage of the run (match and landing too
 measured slower: a child pays ~1.5 s of imports, and their kernels already release the GIL;
 ``docs/operations.md``).
@@ -69,14 +69,31 @@ def _portable(exc: BaseException) -> BaseException:
 
 
 def guard_child(parent_pid: int) -> None:
-    """A stage process's first step: ignore a terminal's Ctrl-C, stop by itself when its parent is gone, and take
-    SIGTERM/SIGHUP plainly."""
+    """A stage process's (or a figure helper's, :mod:`hadal.forkpool`) first step: ignore a terminal's Ctrl-C, stop
+    by itself when its parent is gone, and take SIGTERM/SIGHUP plainly (a forked child would otherwise run the
+    CLI's handlers, which end a whole run and say so)."""
     # Ctrl-C in a terminal reaches the whole process group: the parent decides (the CLI stops its children with
     # SIGTERM and says what was left unpublished), so the child does not die half-way with its own traceback
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     for sig in (signal.SIGTERM, signal.SIGHUP):
         signal.signal(sig, signal.SIG_DFL)
     threading.Thread(target=_watch_parent, args=(parent_pid,), daemon=True, name="parent-watchdog").start()
+
+
+def start_child(parent_pid: int, inherited: tuple[int, ...], modules: tuple[str, ...]) -> None:
+    """The first steps of a child started ahead (a stage process, a figure helper): close the ``inherited`` pipe
+    ends a fork copied (the parent's ends of other children's pipes, else the parent closing one would never reach
+    its child as EOF), :func:`guard_child`, then import ``modules`` (:func:`hadal.stages.warm`)."""
+    from hadal.stages import warm
+
+    for fd in inherited:
+        try:
+            os.close(fd)
+        except OSError:
+            pass
+    guard_child(parent_pid)
+    for mod in modules:
+        warm(mod)
 
 
 def _child(q: Any, name: str, kwargs: dict[str, Any], log_level: int, progress: bool, parent_pid: int,
@@ -115,6 +132,121 @@ def _run_job(q: Any, name: str, kwargs: dict[str, Any], log_level: int, progress
     finally:
         q.close()
         q.join_thread()
+
+
+class _Warm:
+    """A child started ahead by :func:`prestart`: its process, its log/answer queue and the parent's end of its job
+    pipe."""
+
+    def __init__(self, proc: Any, q: Any, conn: Any):
+        self.proc, self.q, self.conn = proc, q, conn
+
+
+#: children started ahead, by stage name (this process's own; taken by :func:`run_stage_in_process`)
+_WARM: dict[str, _Warm] = {}
+_WARM_LOCK = threading.Lock()
+
+
+def _warm_child(q: Any, conn: Any, parent_pid: int, modules: tuple[str, ...],
+                parent_ends: tuple[int, ...] = ()) -> None:
+    """A stage process started ahead: warm ``modules`` (the stage's ``warm_imports``, :func:`hadal.stages.warm`), then
+    wait for the job (the arguments of :func:`_child`) on ``conn`` and run it; EOF (the parent exits or no longer
+    needs it): exit. ``parent_ends``: a forked child's copies of the parent's ends of the job pipes (its own and
+    those of the processes started before it, :func:`warm_pipe_ends`), closed first, else the parent closing one
+    would never reach its child as EOF."""
+    start_child(parent_pid, parent_ends, modules)
+    try:
+        name, kwargs, log_level, progress, _, warning_filters = conn.recv()  # the arguments of _child
+    except (EOFError, OSError):
+        return
+    finally:
+        conn.close()
+    _run_job(q, name, kwargs, log_level, progress, warning_filters)
+
+
+def can_fork_ahead() -> bool:
+    """Whether :func:`prestart` can fork the stage processes here now: Linux, the main thread, no other thread (a
+    fork beside other threads may copy a lock one of them holds; :mod:`hadal.forkpool`), and no parallel region of
+    numba's kernels launched yet (its OpenMP threading layer hangs a forked child's first parallel kernel once the
+    parent has started its thread pool; the gridding stages run such kernels)."""
+    from hadal.forkpool import can_fork
+
+    par = sys.modules.get("numba.np.ufunc.parallel")
+    return can_fork() and threading.active_count() == 1 and not getattr(par, "_is_initialized", False)
+
+
+def prestart(names: Any, *, fork: bool = False) -> list[str]:
+    """Start the processes of the stages ``names`` ahead of their turn (each importing its stage's ``warm_imports``,
+    :mod:`hadal.stages`), so that :func:`run_stage_in_process` hands a stage to a process that has already paid its
+    start. ``fork`` (where :func:`can_fork_ahead`, else spawned): forked from this process, inheriting every module
+    it has imported (the CLI forks them just before the flow starts, having imported the stages' modules while
+    Prefect's temporary server booted); spawned, each pays about 1-1.5 s of imports (the CLI spawns them while the
+    server boots where it cannot fork). A process not used by the time this one exits is told to stop (EOF on its
+    job pipe) and joined. Returns the stages started (not those already started or running)."""
+    from hadal.stages.graph import stage
+
+    forked = fork and can_fork_ahead()
+    ctx: Any = mp.get_context("fork" if forked else "spawn")  # a fork or spawn context (both have Process)
+    started = []
+    for name in names:
+        with _WARM_LOCK:
+            if name in _WARM:
+                continue
+            _quiet_tracker()
+            q = ctx.Queue()
+            parent_end, child_end = ctx.Pipe()
+            mods = stage(name).warm_imports
+            ends = (parent_end.fileno(), *_warm_pipe_ends_locked()) if forked else ()
+            proc = ctx.Process(target=_warm_child, args=(q, child_end, os.getpid(), mods, ends),
+                               name=f"hadal-stage-{name}", daemon=False)
+            proc.start()
+            child_end.close()
+            if not _WARM:
+                import atexit
+
+                atexit.register(_stop_warm)  # after multiprocessing's own exit hook was registered: runs before it
+            _WARM[name] = _Warm(proc, q, parent_end)
+            started.append(name)
+    return started
+
+
+def _warm_pipe_ends_locked() -> list[int]:
+    return [w.conn.fileno() for w in _WARM.values() if not w.conn.closed]
+
+
+def warm_pipe_ends() -> list[int]:
+    """This process's ends of the job pipes of the stage processes started ahead and not yet given their job: a
+    child forked later closes its copies of them (:mod:`hadal.forkpool`'s helpers), so that EOF reaches them."""
+    with _WARM_LOCK:
+        return _warm_pipe_ends_locked()
+
+
+def _stop_warm() -> None:
+    """Stop the children started ahead and never used (EOF on their job pipes; terminated after 5 s)."""
+    with _WARM_LOCK:
+        left = list(_WARM.values())
+        _WARM.clear()
+    for w in left:
+        w.conn.close()
+    for w in left:
+        w.proc.join(timeout=5)
+        if w.proc.is_alive():
+            w.proc.terminate()
+            w.proc.join(timeout=5)
+        w.q.close()
+
+
+def _take_warm(name: str) -> _Warm | None:
+    """The live child started ahead for stage ``name`` (removed from the pool), or None."""
+    with _WARM_LOCK:
+        w = _WARM.pop(name, None)
+    if w is None:
+        return None
+    if w.proc.is_alive():
+        return w
+    w.conn.close()
+    w.q.close()
+    return None
 
 
 def _quiet_tracker() -> None:
@@ -168,7 +300,8 @@ def run_stage_in_process(name: str, *, raw_dir: str, store_root: str | None = No
                          pins: dict[str, str] | None = None, failed: dict[str, str] | None = None,
                          failed_skips: dict[str, str] | None = None, run_info: dict[str, Any] | None = None,
                          progress: bool = True) -> dict[str, str]:
-    """Run stage ``name`` (:func:`hadal.pipeline.run_stage`) in a fresh ``spawn`` child process; returns ``{product: version directory}``. Blocks the calling thread, which
+    """Run stage ``name`` (:func:`hadal.pipeline.run_stage`) in a ``spawn`` child process (the one :func:`prestart`
+    started for it, else a fresh one); returns ``{product: version directory}``. Blocks the calling thread, which
     re-emits the child's log records."""
     _quiet_tracker()
     spawn = mp.get_context("spawn")
@@ -177,9 +310,19 @@ def run_stage_in_process(name: str, *, raw_dir: str, store_root: str | None = No
               "failed": dict(failed or {}), "failed_skips": dict(failed_skips or {}), "run_info": dict(run_info or {})}
     level = logging.getLogger("hadal").getEffectiveLevel()
     job = (name, kwargs, level, progress, os.getpid(), _warning_filters())
-    q = spawn.Queue()
-    proc = spawn.Process(target=_child, args=(q, *job), name=f"hadal-stage-{name}", daemon=False)
-    proc.start()
+    warm = _take_warm(name)
+    if warm is not None:
+        proc, q = warm.proc, warm.q
+        try:
+            warm.conn.send(job)
+        except (OSError, ValueError):  # it died between the check and the send: the answer loop below reports it
+            pass
+        finally:
+            warm.conn.close()
+    else:
+        q = spawn.Queue()
+        proc = spawn.Process(target=_child, args=(q, *job), name=f"hadal-stage-{name}", daemon=False)
+        proc.start()
     answer: tuple[str, Any] | None = None
     try:
         while answer is None:

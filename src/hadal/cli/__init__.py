@@ -21,6 +21,7 @@ from __future__ import annotations
 import logging
 import os
 import sys
+import threading
 from typing import Annotated, Any
 
 import typer
@@ -78,10 +79,23 @@ app.command("init")(_init.init)
 app.command("schema")(_schema.schema)
 
 def entry() -> None:
-    """The ``hadal`` command (and ``python -m hadal.cli``): :func:`main` with standard output guarded
-    (:class:`_StdoutGuard`); :func:`main` raises ``SystemExit`` (tests call it in-process)."""
+    """The ``hadal`` command (and ``python -m hadal.cli``): :func:`main`, then the process ends without the
+    interpreter's teardown. After a full dive the teardown (freeing every object and module of a process that held
+    gigabytes) took 1.2-1.4 s after the last line was printed; what a normal exit must do is done first: the threads
+    that are not daemons are joined (as the interpreter's own shutdown does), the atexit handlers run (the temporary
+    Prefect server and the stage processes are stopped, logging is flushed) and the standard streams are flushed.
+    An exception other than :class:`SystemExit` propagates as usual. :func:`main` itself raises ``SystemExit`` (tests
+    call it in-process)."""
     sys.stdout = _StdoutGuard(sys.stdout, say=len(sys.argv) > 1 and sys.argv[1] in _WORKING_COMMANDS)
-    main()
+    try:
+        main()
+        code: Any = 0
+    except SystemExit as exc:
+        code = exc.code
+    if code is not None and not isinstance(code, int):  # sys.exit("message"): printed, status 1 (as Python does)
+        print(code, file=sys.stderr)
+        code = 1
+    _exit_now(code or 0)
 
 
 #: commands that publish or write something: a closed stdout is said on stderr (:class:`_StdoutGuard`)
@@ -139,6 +153,26 @@ class _StdoutGuard:
 
     def __getattr__(self, name: str) -> Any:
         return getattr(self._stream, name)
+
+
+def _exit_now(code: int) -> None:
+    """Exit with ``code`` as the interpreter would, in its order, but without its final teardown: threading's shutdown
+    (its exit hooks stop the thread pools, then the threads that are not daemons are joined), the atexit handlers,
+    the standard streams flushed, then ``os._exit``. Where that sequence is not available, the normal exit."""
+    import atexit
+
+    shutdown_threads = getattr(threading, "_shutdown", None)
+    run_exit_handlers = getattr(atexit, "_run_exitfuncs", None)
+    if shutdown_threads is None or run_exit_handlers is None:  # not CPython's: the normal (slower) exit
+        sys.exit(code)
+    shutdown_threads()
+    run_exit_handlers()
+    for stream in (sys.stdout, sys.stderr):
+        try:
+            stream.flush()
+        except Exception:  # noqa: BLE001 - a closed or broken stream: nothing left to save
+            pass
+    os._exit(code)
 
 
 def main() -> None:

@@ -300,6 +300,76 @@ def _server_answers(srv: _TemporaryServer, timeout_s: float) -> bool:
         return False
 
 
+def _temporary_server_ready() -> bool:
+    """Whether hadal's temporary server answers ``/health`` now (True without one: nothing to wait for)."""
+    return not _SERVERS or _server_answers(_SERVERS[0], 0.2)
+
+
+def _prepare_while_server_boots(ctx: Any, names: list[str], running: list[str]) -> list[str]:
+    """Use the seconds Prefect's temporary server takes to boot (a core is idle meanwhile) for the imports the
+    stages ``running`` (of the run's ``names``: those that will run, not be reused) need
+    (:func:`hadal.pipeline.warm_imports`, in stage order, until the server answers); returns those of them that
+    will run in their own process (:func:`hadal.flows.post_cruise.process_stages`, judged on the whole run as the
+    flow judges it).
+
+    Where processes can be forked (:func:`hadal.stage_process.can_fork_ahead`) those are forked just before the flow
+    starts (:func:`_fork_ahead`) and inherit these imports, so the modules are imported once; elsewhere they are
+    spawned now (:func:`hadal.stage_process.prestart`), each importing its own, and only the thread stages' modules
+    are imported here. Without a temporary server (a running one is configured) nothing is imported ahead."""
+    from hadal.budget import resources_of
+    from hadal.flows.post_cruise import process_stages
+    from hadal.pipeline import warm_imports
+    from hadal.stage_process import can_fork_ahead, can_isolate, prestart
+
+    isolated = process_stages(names) if resources_of(ctx.config).stage_processes and can_isolate() else set()
+    ahead = [n for n in running if n in isolated]
+    forking = can_fork_ahead()
+    if not forking:
+        try:
+            prestart(ahead)
+        except OSError:  # no process to spare now (e.g. a process limit): the flow starts the stage's own when it runs
+            pass
+    if _SERVERS:
+        warm_imports([n for n in running if forking or n not in isolated], stop=_temporary_server_ready)
+    return ahead
+
+
+def _fork_ahead(ctx: Any, names: list[str], isolated: list[str]) -> None:
+    """Just before the flow starts, while the main thread is still the only thread: fork the processes of the stages
+    that run in their own (:func:`hadal.stage_process.prestart` with ``fork``; each imports what the boot left
+    undone) and the figure helpers (:func:`_start_figure_helpers`). A fork no longer possible: the stage processes
+    are spawned (if not already, during the boot) and the figures are drawn in the stages' threads."""
+    from hadal.stage_process import can_fork_ahead, prestart
+
+    forking = can_fork_ahead()
+    try:  # spawned now if the fork became unsafe since the boot (another thread): not left to a cold start
+        prestart(isolated, fork=forking)
+    except OSError:
+        pass
+    if forking:
+        _start_figure_helpers(ctx, names)
+
+
+def _start_figure_helpers(ctx: Any, names: list[str]) -> None:
+    """Fork the figure helpers (:func:`hadal.forkpool.start_helpers`) for the stages of the run that draw in a pool
+    (landing with figures, report): in the flow they run in task threads, where a pool cannot fork itself, so they
+    drew one figure after the other at the end of the run while a core idled. As many as those stages draw with
+    (their ``figure_processes``, default :func:`hadal.forkpool.default_workers`), less the stage's own thread;
+    forked just before the flow starts any other thread (:func:`_fork_ahead`). Each imports the drawing stages'
+    modules first (on its own core: the flow's first stages do not draw)."""
+    from hadal.forkpool import default_workers, start_helpers
+    from hadal.stages.graph import stage
+
+    cfg = ctx.config
+    drawing = {"landing": cfg.landing.figure_processes if cfg.landing.figures else 1,
+               "report": cfg.report.figure_processes}
+    drawing = {s: n for s, n in drawing.items() if s in names}
+    if not drawing:
+        return
+    n = max((n or default_workers()) for n in drawing.values()) - 1
+    start_helpers(n, tuple(m for s in drawing for m in stage(s).warm_imports))
+
+
 def _prefect_api_configured() -> bool:
     """Whether Prefect will talk to a running server (``PREFECT_API_URL`` set, in the environment or the active
     profile: Prefect's settings read both) rather than start a temporary one."""

@@ -25,7 +25,9 @@ from hadal.cli._common import (
 )
 from hadal.cli._process import (
     _api_lost_error,
+    _fork_ahead,
     _prefect_environment,
+    _prepare_while_server_boots,
     _server_text,
     _wait_for_api,
     _watch_api,
@@ -47,6 +49,7 @@ def _run_flow(raw_dir: Path, store: Path | None, config: Path | None, stages: li
         make_context,
         stage_cache_status,
         stage_plan,
+        stale_stages,
     )
 
     t0 = time.monotonic()
@@ -77,7 +80,13 @@ def _run_flow(raw_dir: Path, store: Path | None, config: Path | None, stages: li
 
     _quiet_prefect_tracebacks()
     console.print(f"[bold]hadal[/] {raw_dir} → stages: {', '.join(names)} (on {_server_text()})", highlight=False)
+    # cache hits need no process, helper or imports ahead
+    running = names if force else stale_stages(raw_dir, _store_root(store), cfg_path, names, status=status)
+    isolated = _prepare_while_server_boots(ctx, names, running)
     _wait_for_api()
+    from hadal.forkpool import stop_helpers
+
+    _fork_ahead(ctx, running, isolated)
     meta = getattr(ctx.dive, "metadata", None)
     before = _store_versions(ctx.store, ctx.dive_id)
     watch = _watch_api(lambda: _published_since(ctx.store, ctx.dive_id, before))
@@ -93,6 +102,7 @@ def _run_flow(raw_dir: Path, store: Path | None, config: Path | None, stages: li
     finally:
         if watch is not None:
             watch.stop()
+        stop_helpers()
     _print_stage_table(out, time.monotonic() - t0)
     return out
 

@@ -825,6 +825,7 @@ def make_figures(dp: DiveProducts, opt: FigureOptions | None = None) -> list[Fig
 
     opt = opt or FigureOptions()
     with ForkPool(1 if opt.keep_figure else opt.workers) as pool:
+        products = pool.share(dp)  # every figure reads them: sent to a helper process once
         for fn in all_figures(dp):
-            pool.submit(_figure_or_skip, fn, dp, opt)
+            pool.submit(_figure_or_skip, fn, products, opt)
         return pool.results()

@@ -135,5 +135,5 @@ class LandingParams(AnalysisOptions):
     figure_processes: int | None = Field(
         None, ge=1, le=64,
         description="processes drawing the figures while the next submap is analysed (forked children beside the "
-                    "stage's own, from a main thread only: in a flow's task threads they are drawn in turn; null: 2 on "
-                    "a machine with 2 or more cores where processes can be forked (Linux), else 1)")
+                    "stage's own, or in a flow the helpers hadal forks before it starts; null: 2 on a machine with 2 "
+                    "or more cores where processes can be forked (Linux), else 1)")

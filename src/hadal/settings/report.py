@@ -15,7 +15,7 @@ class ReportParams(BaseModel):
     best_sites: int = Field(5, ge=1, le=100, description="number of best landing sites listed")
     figure_processes: int | None = Field(
         None, ge=1, le=64,
-        description="processes drawing the figures (forked children beside the stage's own, from a main thread "
-                    "only: in a flow's task threads they are drawn in turn; null: 2 on a machine with 2 or more cores "
-                    "where processes can be forked (Linux), else 1)")
+        description="processes drawing the figures (forked children beside the stage's own, or in a flow the helpers "
+                    "hadal forks before it starts; null: 2 on a machine with 2 or more cores where processes can be "
+                    "forked (Linux), else 1)")
     title: str | None = Field(None, description="report title (default: 'Dive report — <dive id>')")

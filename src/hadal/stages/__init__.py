@@ -4,7 +4,7 @@ Each stage module ``hadal.stages.<name>`` declares one :class:`Stage` record, ``
 publishes, its :class:`StageInputs` (raw source kinds and upstream products, from which :mod:`hadal.plan` decides
 whether it runs on a dive), its options model (``hadal.settings``), its ``run(ctx) -> {product: version}`` and the
 optional hooks (a content check ``skip_reason``, ``planned_products``, ``raw_files``, a shared configuration
-``section`` with the ``param_fields`` it uses, ``process``). :mod:`hadal.stages.graph` collects
+``section`` with the ``param_fields`` it uses, ``warm_imports``, ``process``). :mod:`hadal.stages.graph` collects
 them in :data:`~hadal.stages.graph.STAGES` and derives, once, the graph (who waits for whom), the producer of each
 product and every product; the plan, the cache fingerprint, the flow and the in-process runner use it.
 
@@ -15,6 +15,7 @@ raw → laser → landing; all → report. ``grid`` names the two gridding stage
 
 from __future__ import annotations
 
+import importlib
 import logging
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
@@ -83,6 +84,7 @@ class Stage:
       ``match`` needs an altimeter and dead reckoning in ``ctd``);
     * ``planned_products(dive, made) -> made``: products that depend on dive.yaml hints (derive's ``trajectory``);
     * ``raw_files(ctx) -> [Path]``: files its settings point at, part of its cache fingerprint;
+    * ``warm_imports``: modules its run imports, imported ahead (``"pkg.mod"`` or ``"pkg.mod:function"``, :func:`warm`);
     * ``process``: a flow runs it in its own process when another stage can run beside it (CPU-bound gridding).
     """
 
@@ -96,6 +98,7 @@ class Stage:
     skip_reason: Callable[[StageContext], str | None] | None = None
     planned_products: Callable[[Any, tuple[str, ...]], tuple[str, ...]] | None = None
     raw_files: Callable[[StageContext], list[Path]] | None = None
+    warm_imports: tuple[str, ...] = ()
     process: bool = False
 
     @property
@@ -182,6 +185,21 @@ class StageContext:
             return {}
         fields = rec.param_fields if rec is not None else None
         return section.model_dump(mode="json", include=set(fields) if fields is not None else None)
+
+
+def warm(entry: str) -> bool:
+    """One entry of a stage's ``warm_imports``, done ahead of the stage (while Prefect's server boots, or in a stage
+    process started ahead): ``"pkg.module"`` is imported; ``"pkg.module:function"`` is imported and the function
+    called (a first-use cost that is not an import, e.g. matplotlib's first figure: :func:`hadal.mplwarm.first_draw`).
+    False when it fails: the stage itself then reports the problem in its own words."""
+    mod, _, func = entry.partition(":")
+    try:
+        m = importlib.import_module(mod)
+        if func:
+            getattr(m, func)()
+    except Exception:  # noqa: BLE001 - the stage itself reports a broken import
+        return False
+    return True
 
 
 def available_stages() -> list[str]:

@@ -613,4 +613,7 @@ STAGE = Stage(
     inputs=StageInputs(upstream=("sensors",), optional_upstream=("casts",),
                        optional_products=("cast_profiles", "trajectory")),
     options=Params, run=run, raw_files=raw_files, planned_products=planned_products,
+    warm_imports=("hadal.ctd.chain", "hadal.ctd.teos10", "hadal.depth", "hadal.seawater", "hadal.profile",
+                  "hadal.qc_derived", "hadal.ingest.cnv", "hadal.products.io", "hadal.products.navigation",
+                  "hadal.products.registry"),
 )

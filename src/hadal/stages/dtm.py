@@ -21,4 +21,6 @@ STAGE = Stage(
     name="dtm", products=("dtm",),
     inputs=StageInputs(raw_any=("multibeam", "prior_grid"), reads_raw=True, frame_for=("dtm",)),
     options=Params, run=run, section="grid", param_fields=DTM_FIELDS, process=True,
+    warm_imports=("hadal.grid.multibeam", "hadal.grid.sonar", "hadal.grid.readers", "hadal.products.io",
+                  "hadal.products.geotiff", "hadal.numbawarm:first_call"),
 )

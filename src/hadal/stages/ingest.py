@@ -397,4 +397,5 @@ STAGE = Stage(
     inputs=StageInputs(raw_any=("mcap", "csv", "cnv"), product_sources={"casts": ("cnv",)}, reads_raw=True,
                        optional_products=("casts",)),
     options=Params, run=run,
+    warm_imports=("hadal.ingest.build", "hadal.ingest.vehicle", "hadal.products.io", "hadal.numbawarm:first_call"),
 )

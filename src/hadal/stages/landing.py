@@ -211,8 +211,9 @@ def _write_dive_figures(ctx, acc: _DiveSites, sites_df: pd.DataFrame, finals_df:
     pool.submit(fg.figure_transect, finals_df, acc.outlines, figdir / "fig25_transect.png")
     pool.submit(fg.figure_costs_vs_heading, sites_df, figdir / "fig21_costs_vs_heading.png", f"{ctx.dive_id}: all submaps")
     if best_res is not None and acc.best_overall is not None:
-        pool.submit(fg.figure_slope_exclusion, best_res, figdir / f"fig13_slope_{acc.best_overall[1]}.png")
-        pool.submit(fg.figure_protrusion_exclusion, best_res, figdir / f"fig18_protrusions_{acc.best_overall[1]}.png")
+        best = pool.share(best_res)  # two figures of it: sent to a helper process once
+        pool.submit(fg.figure_slope_exclusion, best, figdir / f"fig13_slope_{acc.best_overall[1]}.png")
+        pool.submit(fg.figure_protrusion_exclusion, best, figdir / f"fig18_protrusions_{acc.best_overall[1]}.png")
 
 
 def run(ctx) -> dict:
@@ -257,4 +258,6 @@ def run(ctx) -> dict:
 STAGE = Stage(
     name="landing", products=("landing",), inputs=StageInputs(upstream=("laser_grids",)),
     options=Params, run=run, skip_reason=skip_reason,
+    warm_imports=("hadal.landing.sites", "hadal.landing.figures", "hadal.products.geo_landing", "hadal.products.io",
+                  "hadal.mplwarm:first_draw", "hadal.numbawarm:first_call"),
 )

@@ -19,4 +19,6 @@ __all__ = ["STAGE", "Params", "run"]
 STAGE = Stage(
     name="laser", products=("laser_grids",), inputs=StageInputs(raw_any=("laser",), reads_raw=True),
     options=Params, run=run, section="grid", param_fields=LASER_FIELDS, process=True,
+    warm_imports=("open3d", "hadal.grid.laser", "hadal.grid.readers", "hadal.products.io", "hadal.products.geotiff",
+                  "hadal.numbawarm:first_call"),
 )

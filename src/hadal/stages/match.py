@@ -420,4 +420,6 @@ STAGE = Stage(
     inputs=StageInputs(raw_any=("mcap", "csv"), upstream=("dtm", "ctd"), optional_upstream=("suitability",),
                        needs_launch=True, frame_for=("match",)),
     options=Params, run=run, skip_reason=skip_reason, raw_files=raw_files,
+    warm_imports=("hadal.matching.posterior", "hadal.matching.budget", "hadal.matching.fix", "hadal.products.readers",
+                  "hadal.products.navigation", "hadal.products.geo_landing"),
 )

@@ -61,4 +61,6 @@ STAGE = Stage(
                                           "landing", "casts", "cast_profiles", "navigation", "trajectory"),
                        always=True),
     options=Params, run=run,
+    warm_imports=("hadal.report", "hadal.report.figures", "hadal.report.ctd_figures", "hadal.report.geo_figures",
+                  "hadal.plan", "hadal.forkpool", "hadal.mplwarm:first_draw"),
 )

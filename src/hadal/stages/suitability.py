@@ -148,4 +148,5 @@ COG_VARIABLES = ("std_m", "entropy")
 STAGE = Stage(
     name="suitability", products=("suitability",), inputs=StageInputs(upstream=("dtm",), frame_for=("suitability",)),
     options=Params, run=run, skip_reason=skip_reason,
+    warm_imports=("hadal.suitability", "hadal.matching.mapgrid", "hadal.products.readers", "hadal.products.geotiff"),
 )
