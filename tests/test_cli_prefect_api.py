@@ -149,7 +149,7 @@ def test_watch_calls_lost_once_when_the_server_stops_answering():
 
 
 def test_server_start_sets_the_ui_api_url_unless_the_user_did(monkeypatch):
-    from hadal import cli
+    from hadal.cli import server as cli
 
     for name in ("PREFECT_SERVER_UI_API_URL", "PREFECT_UI_API_URL"):
         monkeypatch.delenv(name, raising=False)

@@ -13,7 +13,7 @@ import pytest
 
 _PROBE = """
 import json, sys, urllib.request
-from hadal import cli
+from hadal.cli import _process as cli
 cli._prefect_environment()
 from prefect.settings import get_current_settings
 out = {"server_code_loaded": "prefect.server.api.server" in sys.modules, "started": bool(cli._SERVERS),
@@ -80,7 +80,7 @@ def test_a_server_that_does_not_come_up_is_one_line(monkeypatch, code, timeout, 
     """A temporary server that dies or never answers /health: a one-line ConfigError naming the way out."""
     import time
 
-    from hadal import cli
+    from hadal.cli import _process as cli
     from hadal.errors import ConfigError
 
     proc = subprocess.Popen([sys.executable, "-c", code])
@@ -102,7 +102,7 @@ def test_a_slow_temporary_server_start_says_so(monkeypatch, capsys):
     """A start longer than 10 s (a new database on a busy machine) gets a progress line, then the bounded error."""
     import time
 
-    from hadal import cli
+    from hadal.cli import _process as cli
     from hadal.errors import ConfigError
 
     proc = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(30)"])

@@ -428,7 +428,7 @@ def test_unchanged_dive_is_told_without_a_flow_run_and_changes_still_rerun(fake,
     from prefect.client.orchestration import get_client
     from prefect.results import ResultRecord
 
-    from hadal import cli as hcli
+    from hadal.cli import run as hcli_run
     from hadal.pipeline import cached_result, current_stages, result_storage, stale_stages
 
     raw, store = fake
@@ -454,7 +454,7 @@ def test_unchanged_dive_is_told_without_a_flow_run_and_changes_still_rerun(fake,
             return len(client.read_flow_runs())
 
     before, n_runs = _tree(store), flow_runs()
-    monkeypatch.setattr(hcli, "_prefect_environment", no_prefect)
+    monkeypatch.setattr(hcli_run, "_prefect_environment", no_prefect)
     rc, _, err = cli(monkeypatch, capsys, "stage", "report", str(raw), "--store", str(store))
     assert rc == 0 and "1 stage(s) current" in err and "Traceback" not in err, err
     assert _tree(store) == before and flow_runs() == n_runs  # nothing written, no flow run

@@ -1,0 +1,5 @@
+"""``python -m hadal.cli``: the ``hadal`` command."""
+
+from hadal.cli import entry
+
+entry()
