@@ -135,3 +135,17 @@ def test_init_writes_a_commented_acdd_metadata_stub(tmp_path):
     assert missing_acdd_fields(dive) == []
     res.dive["metadata"] = {"creator_name": "A"}  # a dive that has metadata gets no stub
     assert "# metadata:" not in res.dive_yaml()
+
+
+def test_init_lines_keep_square_brackets(tmp_path):
+    """What init prints is text, not rich markup: a file named ``cast[bold].cnv`` (and any ``[...]`` in a line,
+    e.g. a guess explained as ``[elevation]``) is printed as it is."""
+    import shutil
+
+    src = Path(__file__).parent / "data" / "real" / "seabird_Hotin_sbe19plus.cnv"
+    raw = tmp_path / "d"
+    raw.mkdir()
+    shutil.copy(src, raw / "cast[bold].cnv")
+    r = run_cli("init", str(raw))
+    assert r.returncode == 0, r.stderr
+    assert "cast[bold].cnv" in r.stdout + r.stderr

@@ -134,3 +134,29 @@ def test_no_usable_dive_is_one_line_error(tmp_path):
     (tmp_path / "empty").mkdir()
     with pytest.raises(InputError, match="no dive with multibeam soundings"):
         cruise_dtm_dataset([str(tmp_path / "empty")], 20.0, tmp_path)
+
+
+@pytest.mark.integration
+def test_cli_cruise_dtm_on_a_local_cluster(tmp_path):
+    """``hadal cruise-dtm DIVES --cruise ID --resolution-m R`` (a LocalCluster of one worker, a temporary Prefect
+    server): prints the published file, which equals the oracle of all the dives' soundings."""
+    import os
+    import subprocess
+    import sys
+
+    import xarray as xr
+
+    raws = make_cruise(tmp_path / "raw", n=4000)
+    env = {**os.environ, "PREFECT_SERVER_ANALYTICS_ENABLED": "false", "HADAL_PROGRESS": "none"}
+    r = subprocess.run([sys.executable, "-m", "hadal.cli", "cruise-dtm", *map(str, raws), "--cruise", "C1",
+                        "--resolution-m", "20", "--workers", "1", "--store", str(tmp_path / "store")],
+                       capture_output=True, text=True, timeout=600, env=env)
+    assert r.returncode == 0, r.stderr[-2000:]
+    line = next(ln for ln in r.stdout.splitlines() if ln.startswith("cruise DTM: "))
+    path = Path(line.removeprefix("cruise DTM: ").split(" (")[0])
+    assert path.is_file() and path.parent.parent.parent.name == "C1" and "(3 dive(s))" in line
+    ref, _ = oracle_dtm(raws, 20.0)
+    with xr.open_dataset(path, engine="h5netcdf") as ds:
+        np.testing.assert_array_equal(ds["count"].values, ref["count"].values)
+        np.testing.assert_allclose(ds["depth_m"].values, ref["depth_m"].values.astype(np.float32), rtol=0,
+                                   atol=1e-3, equal_nan=True)

@@ -2,6 +2,7 @@
 
     hadal run RAW_DIR              run the whole post-cruise flow on a raw dive
     hadal run --dives DIR...       several dives in parallel on Dask (--workers N, --scheduler ADDRESS)
+    hadal cruise-dtm DIR... --cruise ID --resolution-m R   one DTM of every dive's soundings, on Dask
     hadal stage NAME RAW_DIR       re-run one stage, reusing the latest upstream products (--force, --downstream)
     hadal report DIVE              write the dive report (HTML) from the products in the store
     hadal serve RAW_DIR --cron ..  deploy the post-cruise flow on a schedule (Prefect server)
@@ -52,6 +53,7 @@ def _root(
 
 from hadal.cli import compile as _compile  # noqa: E402 - the commands, registered below (each imports lazily)
 from hadal.cli import config as _config  # noqa: E402
+from hadal.cli import cruise as _cruise  # noqa: E402
 from hadal.cli import init as _init  # noqa: E402
 from hadal.cli import inspect as _inspect  # noqa: E402
 from hadal.cli import products as _products  # noqa: E402
@@ -67,6 +69,7 @@ from hadal.cli._process import _SIGNALLED, _install_signal_handlers, _interrupte
 
 app.command("run")(_run.run)
 app.command("stage")(_stage.stage)
+app.command("cruise-dtm")(_cruise.cruise_dtm)
 app.command("report")(_report.report)
 app.command("serve")(_serve.serve)
 app.add_typer(_server.server_app, name="server")

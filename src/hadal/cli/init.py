@@ -6,6 +6,7 @@ from pathlib import Path
 from typing import Annotated
 
 import typer
+from rich.markup import escape
 
 from hadal.cli._common import console
 
@@ -33,11 +34,11 @@ def init(
                           "(or --dry-run to see what init would write)")
     res = scan_dive_dir(raw_dir, dive_id=dive_id, launch=pos)
     for line in res.mapped:
-        console.print(f"[green]mapped[/]   {line}", highlight=False)
+        console.print(f"[green]mapped[/]   {escape(line)}", highlight=False)
     for line in res.not_used:
-        console.print(f"[yellow]not used[/] {line}", highlight=False)
+        console.print(f"[yellow]not used[/] {escape(line)}", highlight=False)
     for line in res.todo:
-        console.print(f"[red]to do[/]    {line}", highlight=False)
+        console.print(f"[red]to do[/]    {escape(line)}", highlight=False)
     if res.plan:
         console.print("plan:", highlight=False)
         console.print(format_plan(res.plan), highlight=False, markup=False)
@@ -47,4 +48,4 @@ def init(
             print("# ---- vehicle.yaml\n" + res.vehicle_yaml, end="")
         return
     for p in write_init(res, force=force):
-        console.print(f"wrote {p}", highlight=False)
+        console.print(f"wrote {escape(str(p))}", highlight=False)
