@@ -1,4 +1,4 @@
-"""The post-cruise flow: raw dive → ingest ‖ dtm ‖ laser → derive ‖ suitability ‖ landing → match → report.
+"""The post-cruise flow: raw dive → ingest ‖ dtm ‖ laser → derive ‖ suitability ‖ landing → match → profile → report.
 
 The flow hands the stage graph to Prefect (issue 44): :func:`submit_dive` walks it once
 (:func:`hadal.pipeline.walk_stage_graph`, the walk the in-process runner :func:`hadal.pipeline.run_pipeline` and the

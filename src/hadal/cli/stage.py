@@ -21,8 +21,8 @@ from hadal.cli.run import _run_flow
 
 
 def stage(
-    name: Annotated[str, typer.Argument(help="stage name (ingest, derive, dtm, laser, suitability, match, landing, "
-                                             "report; grid = dtm + laser)")],
+    name: Annotated[str, typer.Argument(help="stage name (ingest, derive, dtm, laser, suitability, match, profile, "
+                                             "landing, report; grid = dtm + laser)")],
     raw_dir: Annotated[Path, typer.Argument(help="raw dive directory containing dive.yaml")],
     store: StoreOpt = None,
     config: ConfigOpt = None,
