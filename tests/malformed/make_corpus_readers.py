@@ -48,7 +48,7 @@ class RCase:
     reader: str                                   # reader family (see module docstring)
     description: str
     make: Callable[[Path], None]                  # mutates a copy of the base dive directory
-    stage: str | None = "grid"                    # stage run on the dive (None: only load dive + config)
+    stage: str | tuple[str, ...] | None = "grid"  # stage(s) run on the dive in turn (None: only load dive + config)
     call: Callable[[Path], Any] | None = None     # library reader call instead of a stage
     error: str | None = None                      # expected HadalError subclass (None: must succeed, flagged)
     match: str = ""                               # regex the one-line message must contain
@@ -539,7 +539,7 @@ CASES: list[RCase] = [
           stage="derive", check=lambda r: int(_ctd(r)[0]["practical_salinity"].isna().sum()) == 7
           and bool(np.isfinite(_ctd(r)[0]["depth_m"]).all())),
     RCase("up_sensors_bottom_only", U, "a log that starts and ends on the bottom (no descent/ascent): profile times missing",
-          _sensors(lambda df: df), stage="derive", check=lambda r: _profile_time_missing(r)),
+          _sensors(lambda df: df), stage=("derive", "profile"), check=lambda r: _profile_time_missing(r)),
     RCase("up_laser_all_nan", U, "laser grid with no mapped cell: skipped with a warning, empty site table",
           _up("laser_grids", "submap_01.nc", _dataset("submap_01.nc", lambda ds: ds.assign(elevation_m=ds["elevation_m"] * np.nan))),
           stage="landing", check=lambda r: len(__import__("pandas").read_parquet(r["landing"].file("landing_sites.parquet"))) == 0),
@@ -593,11 +593,14 @@ def run_user_path(case: RCase, d: Path, store_root: Path, config=None) -> Any:
     ctx = make_context(d, store_root, config)  # the CLI's fail-fast validation: dive.yaml + pipeline.yaml
     if case.stage is None:
         return ctx
-    names = resolve_stages([case.stage])
-    name = names[0] if len(names) == 1 else case.stage  # a group (grid = dtm + laser) runs what the dive supports
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        return run_stage(name, ctx)
+    out: dict[str, Any] = {}
+    for stage in (case.stage if isinstance(case.stage, tuple) else (case.stage,)):  # a tuple: stages in turn
+        names = resolve_stages([stage])
+        name = names[0] if len(names) == 1 else stage  # a group (grid = dtm + laser) runs what the dive supports
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            out.update(run_stage(name, ctx))
+    return out
 
 
 def _make_templates(dest: Path, base: Path) -> None:
