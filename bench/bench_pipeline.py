@@ -115,7 +115,7 @@ def main() -> None:
     try:
         raw, stages, real = make_dive(work / "raw" / "sample", args.small)
         if real and args.small:
-            from hadal.pipeline import resolve_stages
+            from hadal.stages.plan import resolve_stages
 
             stages = [s for s in resolve_stages(None) if s not in args.batch_skip.split(",")]
             print(f"stages (small dive): {', '.join(stages)}")
@@ -149,7 +149,7 @@ def main() -> None:
                 r, bstages, breal = make_dive(work / "raw" / f"batch-{i}", True, f"batch-dive-{i}")
                 raws.append(str(r))
             if breal:
-                from hadal.pipeline import resolve_stages
+                from hadal.stages.plan import resolve_stages
 
                 # the small sample's bottom track does not fit its thinned multibeam map: TERCOM has no
                 # feasible offset there, so the batch runs every other stage (the report notes the gap)

@@ -4,7 +4,7 @@ The flow hands the stage graph to Prefect (issue 44): :func:`submit_dive` walks 
 (:func:`hadal.pipeline.walk_stage_graph`, the walk the in-process runner :func:`hadal.pipeline.run_pipeline` and the
 Prefect-free cache check :func:`hadal.pipeline.stage_cache_status` share) and submits each stage task once, with its
 upstream stages' futures as a parameter wrapped in ``allow_failure``: Prefect starts a stage when the stages whose
-products it reads (:func:`hadal.plan.stage_dependencies`) are done, ``dtm`` and ``laser`` do not wait for
+products it reads (:func:`hadal.stages.plan.stage_dependencies`) are done, ``dtm`` and ``laser`` do not wait for
 ``ingest``/``derive``, ``landing`` not for ``match``, ``match`` not for ``laser``. The upstream results carry the
 pins: every stage reads the upstream versions the run found at its start or its upstream stages published, never
 a concurrent run's newer ones. A stage whose upstream failed skips itself with the reason, and the report still
@@ -45,7 +45,7 @@ from hadal.pipeline import (
     stage_plan,
     walk_stage_graph,
 )
-from hadal.plan import stage_dependencies
+from hadal.stages.plan import stage_dependencies
 
 log = logging.getLogger("hadal.flow")
 
@@ -79,10 +79,10 @@ class DiveRun:
 def process_stages(names: list[str]) -> set[str]:
     """The stages of ``names`` to run in their own process (:mod:`hadal.stage_process`): those whose record says
     ``process=True`` (:class:`hadal.stages.Stage`) and that may run at the same time as another stage of the run (neither upstream nor
-    downstream of it: :func:`hadal.plan.downstream_stages`); a stage that always runs alone gains nothing from a
+    downstream of it: :func:`hadal.stages.plan.downstream_stages`); a stage that always runs alone gains nothing from a
     process but pays its start (about 1.5 s of imports)."""
-    from hadal.plan import downstream_stages
     from hadal.stages.graph import stage
+    from hadal.stages.plan import downstream_stages
 
     down = {n: set(downstream_stages(n, names)) for n in names}
     return {n for n in names if stage(n).process
@@ -91,10 +91,10 @@ def process_stages(names: list[str]) -> set[str]:
 
 def skipped_reason(raw_dir: str, pins: dict[str, str], name: str, store_root: str | None,
                    config_path: str | None) -> str:
-    """Why stage ``name`` published nothing: its content check (:func:`hadal.plan.runtime_skip_reason`, e.g.
+    """Why stage ``name`` published nothing: its content check (:func:`hadal.stages.plan.runtime_skip_reason`, e.g.
     landing's laser cells coarser than the vehicle allows) on the products this run pinned (``pins``); the table
     shows it, not just "see the log"."""
-    from hadal.plan import runtime_skip_reason
+    from hadal.stages.plan import runtime_skip_reason
 
     try:
         ctx = make_context(raw_dir, store_root, config_path)
@@ -244,7 +244,7 @@ def post_cruise(
     stages: list[str] | None = None,
     force: bool = False,
 ) -> RunOutcome:
-    """Process one dive: run the selected stages (default: all the dive's data supports, :mod:`hadal.plan`), each
+    """Process one dive: run the selected stages (default: all the dive's data supports, :mod:`hadal.stages.plan`), each
     as soon as the stages it reads from are done, each publishing new product versions; skipped stages are
     logged with the reason (and listed by the report).
 

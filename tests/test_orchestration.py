@@ -356,7 +356,7 @@ def test_stage_graph_runs_at_most_max_running_stages_ready_ones_in_plan_order(tm
     lock = threading.Lock()
 
     names = ["ingest", "derive", "dtm", "laser", "report"]
-    monkeypatch.setattr(pc, "stage_tasks", lambda ns: [_fake_stage(n, log, lock, 0.8) for n in ns])
+    monkeypatch.setattr(pc, "stage_tasks", lambda ns: [_fake_stage(n, log, lock, 2.0) for n in ns])
 
     @flow
     def graph():
@@ -480,11 +480,11 @@ def test_unchanged_dive_is_told_without_a_flow_run_and_changes_still_rerun(fake,
 @pytest.mark.parametrize("changed", ["ingest", "dtm", "laser", "match", "report"])
 def test_stale_stages_are_the_changed_stage_and_everything_downstream(changed, tmp_path, monkeypatch):
     """A stage without a current cached result runs, and so does every stage that reads what it publishes (oracle:
-    :func:`hadal.plan.downstream_stages`, what ``hadal stage NAME --downstream`` re-runs); the others are reused.
+    :func:`hadal.stages.plan.downstream_stages`, what ``hadal stage NAME --downstream`` re-runs); the others are reused.
     Nothing cached yet: every stage runs."""
     from hadal import pipeline
-    from hadal.plan import downstream_stages
     from hadal.stages import STAGE_ORDER
+    from hadal.stages.plan import downstream_stages
 
     names = list(STAGE_ORDER)
     raw = write_fake_dive(tmp_path / "raw", "dive-a")

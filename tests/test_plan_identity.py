@@ -15,7 +15,7 @@ import yaml
 from hadal.dive import Dive, dive_fingerprint
 from hadal.errors import ConfigError, StageError, StoreError
 from hadal.formats import detect
-from hadal.plan import check_plan, plan_stages
+from hadal.stages.plan import check_plan, plan_stages
 from hadal.store import ProductStore, validate_name
 
 
@@ -228,7 +228,7 @@ def test_odd_source_files_are_one_line_errors_not_hangs(tmp_path, make, match):
 def test_stage_dependencies_follow_the_products_each_stage_reads():
     """Oracle: the data flow of docs/architecture.md (derive reads sensors; suitability, match and landing read
     the grid's products; match also ctd and suitability; report everything)."""
-    from hadal.plan import downstream_stages, stage_dependencies
+    from hadal.stages.plan import downstream_stages, stage_dependencies
 
     deps = stage_dependencies(["ingest", "derive", "dtm", "laser", "suitability", "match", "profile", "landing",
                                "report"])

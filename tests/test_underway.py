@@ -100,7 +100,7 @@ def _dive(cnv):
 
 
 def test_plan_promises_a_trajectory_instead_of_a_profile_for_an_underway_only_dive():
-    from hadal.plan import plan_stages
+    from hadal.stages.plan import plan_stages
 
     plan = plan_stages(_dive([{"path": "tsg.cnv", "kind": "underway"}]))
     made = {ps.name: set(ps.products) for ps in plan}

@@ -58,7 +58,7 @@ class InitResult:
     mapped: list[str] = field(default_factory=list)
     not_used: list[str] = field(default_factory=list)
     todo: list[str] = field(default_factory=list)
-    #: the stages the data supports (:func:`hadal.plan.plan_stages`), filled by :func:`scan_dive_dir`
+    #: the stages the data supports (:func:`hadal.stages.plan.plan_stages`), filled by :func:`scan_dive_dir`
     plan: list[Any] = field(default_factory=list)
     #: source path -> why its reading hints were written (a heuristic's choice): a comment above its entry
     source_notes: dict[str, str] = field(default_factory=dict)
@@ -644,7 +644,7 @@ def _map_vehicle_logs(res: InitResult, sources: dict[str, Any], mcaps: list[Path
 def _todo(res: InitResult, casts_without_latitude: list[str]) -> None:
     """What the user must still provide, from the plan of the stages the data supports; the casts named in
     ``casts_without_latitude`` carry no latitude in their headers."""
-    from hadal.plan import plan_stages, stage_inputs
+    from hadal.stages.plan import plan_stages, stage_inputs
 
     try:
         dive = Dive.model_validate(res.dive)

@@ -15,16 +15,14 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any, TypeVar
 
 from hadal.errors import HadalError, InputError, StageError
-from hadal.plan import PlannedStage, check_plan, plan_stages, runtime_skip_reason
 from hadal.stages import (
     STAGE_GROUPS,
-    STAGE_ORDER,
     NullProgress,
     Progress,
     StageContext,
-    available_stages,
 )
 from hadal.stages.graph import all_products, dependencies, producer_of, stage
+from hadal.stages.plan import PlannedStage, check_plan, plan_stages, runtime_skip_reason
 from hadal.store import ProductStore, ProductVersion
 
 if TYPE_CHECKING:
@@ -144,26 +142,8 @@ class RunOutcome(dict):
         return (RunOutcome, (dict(self), self.stages))
 
 
-def resolve_stages(stages: Sequence[str] | None = None) -> list[str]:
-    """Validate a stage selection (group names such as ``grid`` expanded: :data:`hadal.stages.STAGE_GROUPS`) and
-    return it in execution order (all implemented stages by default)."""
-    avail = available_stages()
-    if not stages:
-        return avail
-    named = {m for s in stages for m in STAGE_GROUPS.get(s, (s,))}
-    unknown = [s for s in named if s not in STAGE_ORDER]
-    if unknown:
-        groups = "; ".join(f"{g} = {' + '.join(m)}" for g, m in STAGE_GROUPS.items())
-        raise StageError(f"unknown stage(s) {', '.join(sorted(unknown))}; stages are: {', '.join(avail)} "
-                         f"({groups})")
-    missing = [s for s in named if s not in avail]
-    if missing:
-        raise StageError(f"stage(s) {', '.join(sorted(missing))} not implemented; available: {', '.join(avail)}")
-    return [s for s in STAGE_ORDER if s in named]
-
-
 def stage_plan(ctx: StageContext, stages: Sequence[str] | None = None) -> list[PlannedStage]:
-    """The run plan (:func:`hadal.plan.plan_stages`) for ``ctx``'s dive, checked (:func:`hadal.plan.check_plan`).
+    """The run plan (:func:`hadal.stages.plan.plan_stages`) for ``ctx``'s dive, checked (:func:`hadal.stages.plan.check_plan`).
 
     A stage named explicitly in ``stages`` that the data cannot support is an error (saying why); in a
     whole-dive run (``stages`` empty), and for a group name (``grid``) while another of its stages runs, such

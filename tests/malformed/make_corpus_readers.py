@@ -586,7 +586,8 @@ def publish_upstream(d: Path, store_root: Path) -> None:
 
 def run_user_path(case: RCase, d: Path, store_root: Path, config=None) -> Any:
     """What ``hadal stage <case.stage> d --store store_root`` runs, without Prefect (``case.call`` for library readers)."""
-    from hadal.pipeline import make_context, resolve_stages, run_stage
+    from hadal.pipeline import make_context, run_stage
+    from hadal.stages.plan import resolve_stages
 
     if case.call is not None:
         return case.call(d)

@@ -68,7 +68,7 @@ def _default_yaml_cached() -> str:
 def _check_dive_dir(raw_dir: Path) -> None:
     from hadal.ingest.vehicle import load_vehicle_config
     from hadal.pipeline import make_context
-    from hadal.plan import check_plan, format_plan
+    from hadal.stages.plan import check_plan, format_plan
 
     ctx = make_context(raw_dir, None)
     if ctx.dive.vehicle_config:

@@ -20,7 +20,7 @@ def init(
 ) -> None:
     """Scan RAW_DIR, write a commented dive.yaml (and vehicle.yaml) and say what is still to be filled in."""
     from hadal.dive_init import parse_latlon_pair, scan_dive_dir, write_init
-    from hadal.plan import format_plan
+    from hadal.stages.plan import format_plan
     from hadal.store import validate_name
 
     if dive_id is not None:

@@ -36,8 +36,7 @@ def stage(
     ``grid`` re-runs both gridding stages (dtm and laser) that the dive's data supports. The report is refreshed
     after it (a cache hit when nothing changed). Without --downstream, the stages that depend on NAME keep their
     products made from its previous version: the command says which ones are stale."""
-    from hadal.pipeline import resolve_stages
-    from hadal.plan import downstream_stages
+    from hadal.stages.plan import downstream_stages, resolve_stages
 
     names = resolve_stages([name])  # unknown or unimplemented: one line; a group (grid): its stages
     dependents = downstream_stages(name)
@@ -58,7 +57,7 @@ def stage(
 def _runnable_with(stages: list[str], raw_dir: Path, store: Path | None, config: Path | None) -> list[str]:
     """``stages`` less a trailing ``report`` the dive's plan would refuse (never the stage the user named)."""
     from hadal.pipeline import make_context
-    from hadal.plan import plan_stages
+    from hadal.stages.plan import plan_stages
 
     ctx = make_context(raw_dir, _store_root(store), config)
     ok = {ps.name for ps in plan_stages(ctx.dive, stages, store=ctx.store) if ps.run}

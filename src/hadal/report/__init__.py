@@ -48,7 +48,7 @@ def build_report(store: ProductStore, dive: str, *, launch: dict[str, float] | N
                  expected: set[str] | None = None, sources: dict[str, list[str]] | None = None) -> Report:
     """Load the dive's products, compute the summary and figures, render the HTML (nothing is written).
 
-    ``skipped``: stages the dive's data does not support, ``[{"stage", "reason"}]`` (:func:`hadal.plan.skipped_stages`),
+    ``skipped``: stages the dive's data does not support, ``[{"stage", "reason"}]`` (:func:`hadal.stages.plan.skipped_stages`),
     listed in the summary and the HTML (a failed stage with its one-line error). ``pins``: the versions a pipeline run
     used (default: the latest). ``sources``: the dive's raw files by kind (dive.yaml ``sources``), listed as what was
     found. With no product at all (every stage failed or skipped) the report still renders: sources, stages and

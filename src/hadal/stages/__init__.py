@@ -1,7 +1,7 @@
 """Pipeline stages: Prefect-free functions that read inputs from the store and publish new versions.
 
 Each stage module ``hadal.stages.<name>`` declares one :class:`Stage` record, ``STAGE``: its name, the products it
-publishes, its :class:`StageInputs` (raw source kinds and upstream products, from which :mod:`hadal.plan` decides
+publishes, its :class:`StageInputs` (raw source kinds and upstream products, from which :mod:`hadal.stages.plan` decides
 whether it runs on a dive), its options model (``hadal.settings``), its ``run(ctx) -> {product: version}`` and the
 optional hooks (a content check ``skip_reason``, ``planned_products``, ``raw_files``, a shared configuration
 ``section`` with the ``param_fields`` it uses, ``warm_imports``, ``process``). :mod:`hadal.stages.graph` collects
@@ -46,7 +46,7 @@ STAGE_GROUPS: dict[str, tuple[str, ...]] = {"grid": ("dtm", "laser")}
 
 @dataclass(frozen=True)
 class StageInputs:
-    """What a stage needs to run on a dive (declared next to its ``Params``; used by :mod:`hadal.plan`).
+    """What a stage needs to run on a dive (declared next to its ``Params``; used by :mod:`hadal.stages.plan`).
 
     * ``raw_any``: at least one of these ``dive.yaml`` source kinds must list a file (empty: no raw input);
     * ``upstream``: products that must be published by an earlier stage (or already be in the store);

@@ -465,7 +465,7 @@ def _run_underway(ctx: StageContext, p: Params, limit: float | None, sensors: An
 
 
 def planned_products(dive: Any, made: tuple[str, ...]) -> tuple[str, ...]:
-    """What derive promises for ``dive`` (:func:`hadal.plan.plan_stages`): ``trajectory`` when a ``sources.cnv``
+    """What derive promises for ``dive`` (:func:`hadal.stages.plan.plan_stages`): ``trajectory`` when a ``sources.cnv``
     entry says ``kind: underway``; without ``ctd``/``profile`` when such a record is the dive's sensor record (no
     MCAP/CSV log and no Sea-Bird cast: ingest takes casts before underway records)."""
     entries = dive.sources.files("cnv")

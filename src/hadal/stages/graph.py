@@ -1,7 +1,7 @@
 """The stage graph, derived once from the stages' records (:class:`hadal.stages.Stage`, each module's ``STAGE``).
 
 :data:`STAGES` (in :data:`hadal.stages.STAGE_ORDER`, the flow's priority among ready stages) is the one list; the
-plan (:mod:`hadal.plan`), the cache fingerprint (:func:`hadal.pipeline.stage_fingerprint`), the in-process runner
+plan (:mod:`hadal.stages.plan`), the cache fingerprint (:func:`hadal.pipeline.stage_fingerprint`), the in-process runner
 (:func:`hadal.pipeline.run_pipeline`) and the flow (``flows/post_cruise.py``) all read it through the functions
 here: :func:`stage`, :func:`producer_of`, :func:`all_products` and :func:`dependencies`.
 """

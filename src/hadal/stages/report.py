@@ -36,12 +36,12 @@ def run(ctx: StageContext) -> dict[str, ProductVersion]:
     p: Params = ctx.config.report
     lp = ctx.dive.launch
     launch = {"lat": lp.latitude_deg, "lon": lp.longitude_deg} if lp is not None else None
-    from hadal.plan import skipped_stages
+    from hadal.stages.plan import skipped_stages
 
     skipped = skipped_stages(ctx)
     for pv in ctx.pins.values():
         ctx.store.check_intact(pv)
-    from hadal.plan import plan_stages
+    from hadal.stages.plan import plan_stages
 
     expected = {prod for ps in plan_stages(ctx.dive) if ps.run for prod in ps.products}
     rep = build_report(ctx.store, ctx.dive_id, launch=launch, options=options(p), best_sites=p.best_sites, title=p.title,
@@ -62,5 +62,5 @@ STAGE = Stage(
                        always=True),
     options=Params, run=run,
     warm_imports=("hadal.report", "hadal.report.figures", "hadal.report.ctd_figures", "hadal.report.geo_figures",
-                  "hadal.plan", "hadal.forkpool", "hadal.mplwarm:first_draw"),
+                  "hadal.stages.plan", "hadal.forkpool", "hadal.mplwarm:first_draw"),
 )

@@ -16,7 +16,8 @@ from collections.abc import Sequence
 from dataclasses import asdict, dataclass
 from typing import TYPE_CHECKING, Any
 
-from hadal.stages import STAGE_GROUPS, StageInputs
+from hadal.errors import StageError
+from hadal.stages import STAGE_GROUPS, STAGE_ORDER, StageInputs, available_stages
 from hadal.stages.graph import all_products, dependencies, producer_of, stage
 
 if TYPE_CHECKING:
@@ -60,8 +61,6 @@ def plan_stages(dive: Dive, stages: Sequence[str] | None = None, store: ProductS
     Products count as available when an earlier planned stage makes them or, with ``store``, when the
     dive already has a published version (so ``hadal stage derive DIR`` runs on an earlier ingest).
     """
-    from hadal.pipeline import resolve_stages
-
     names = resolve_stages(stages)
     present = set(dive.sources.kinds())
     available: set[str] = set()
@@ -183,8 +182,6 @@ def downstream_stages(name: str, stages: Sequence[str] | None = None) -> list[st
     """The stages (of ``stages``, default all, in :data:`STAGE_ORDER`) that depend on ``name`` (a stage or a group
     such as ``grid``) directly or through other stages (``hadal stage NAME --downstream``); ``name`` itself (the
     group's stages) not included."""
-    from hadal.pipeline import resolve_stages
-
     names = resolve_stages(stages)
     deps = stage_dependencies(names)
     start = set(STAGE_GROUPS.get(name, (name,)))
@@ -194,3 +191,21 @@ def downstream_stages(name: str, stages: Sequence[str] | None = None) -> list[st
         frontier = {n for n in names if n not in out and n not in start and deps[n] & frontier}
         out |= frontier
     return [n for n in names if n in out]
+
+
+def resolve_stages(stages: Sequence[str] | None = None) -> list[str]:
+    """Validate a stage selection (group names such as ``grid`` expanded: :data:`hadal.stages.STAGE_GROUPS`) and
+    return it in execution order (all implemented stages by default)."""
+    avail = available_stages()
+    if not stages:
+        return avail
+    named = {m for s in stages for m in STAGE_GROUPS.get(s, (s,))}
+    unknown = [s for s in named if s not in STAGE_ORDER]
+    if unknown:
+        groups = "; ".join(f"{g} = {' + '.join(m)}" for g, m in STAGE_GROUPS.items())
+        raise StageError(f"unknown stage(s) {', '.join(sorted(unknown))}; stages are: {', '.join(avail)} "
+                         f"({groups})")
+    missing = [s for s in named if s not in avail]
+    if missing:
+        raise StageError(f"stage(s) {', '.join(sorted(missing))} not implemented; available: {', '.join(avail)}")
+    return [s for s in STAGE_ORDER if s in named]
