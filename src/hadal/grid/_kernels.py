@@ -540,15 +540,10 @@ def segment_median_mad(order, z, starts, counts, med, mad, dev, block):  # pragm
 
 
 @njit(cache=True, nogil=True)
-def tile_partition_chunk(x, y, z, x0, y0, inv_h, nx, ny, check_inside, tile_cells, ntx, n_tiles):  # pragma: no cover
-    """One chunk of points grouped by tile of ``tile_cells x tile_cells`` whole cells (``ntx`` tiles a row).
-
-    The cell of a point is :func:`_cell_of`'s (the in-memory kernels' own rule, NaN/inf and, with
-    ``check_inside``, outside points skipped and counted by :func:`_keep`); its tile and its index inside the
-    tile (row-major over the tile's own width, the last column/row of tiles being narrower) follow from the cell's
-    row and column by integer tables (no division a point), so a point on a seam lands in exactly the cell the
-    in-memory grid gives it. A stable counting sort by tile: tile ``t``'s points are ``local[starts[t]:starts[t +
-    1]]`` (int32) and ``zs[...]``, in chunk order. Returns ``(starts, local, zs, n_nonfinite, n_outside)``."""
+def _tile_of_points(x, y, z, x0, y0, inv_h, nx, ny, check_inside, tile_cells, ntx, n_tiles):  # pragma: no cover
+    """Per point of a chunk: its tile (-1: skipped) and its cell index inside the tile, the tiles' start offsets
+    of a counting sort, and the NaN/inf and outside counts (the shared first pass of :func:`tile_partition_chunk`
+    and :func:`tile_partition_order`)."""
     n = x.size
     col_tile = np.empty(nx, np.int64)
     col_in = np.empty(nx, np.int64)
@@ -587,10 +582,25 @@ def tile_partition_chunk(x, y, z, x0, y0, inv_h, nx, ny, check_inside, tile_cell
         starts[t + 1] += 1
     for t in range(n_tiles):
         starts[t + 1] += starts[t]
+    return tile, loc, starts, nb, no
+
+
+@njit(cache=True, nogil=True)
+def tile_partition_chunk(x, y, z, x0, y0, inv_h, nx, ny, check_inside, tile_cells, ntx, n_tiles):  # pragma: no cover
+    """One chunk of points grouped by tile of ``tile_cells x tile_cells`` whole cells (``ntx`` tiles a row).
+
+    The cell of a point is :func:`_cell_of`'s (the in-memory kernels' own rule, NaN/inf and, with
+    ``check_inside``, outside points skipped and counted by :func:`_keep`); its tile and its index inside the
+    tile (row-major over the tile's own width, the last column/row of tiles being narrower) follow from the cell's
+    row and column by integer tables (no division a point), so a point on a seam lands in exactly the cell the
+    in-memory grid gives it. A stable counting sort by tile: tile ``t``'s points are ``local[starts[t]:starts[t +
+    1]]`` (int32) and ``zs[...]``, in chunk order. Returns ``(starts, local, zs, n_nonfinite, n_outside)``."""
+    tile, loc, starts, nb, no = _tile_of_points(x, y, z, x0, y0, inv_h, nx, ny, check_inside, tile_cells, ntx,
+                                                n_tiles)
     pos = starts[:-1].copy()
     local = np.empty(starts[n_tiles], np.int32)
     zs = np.empty(starts[n_tiles], np.float64)
-    for i in range(n):
+    for i in range(x.size):
         t = tile[i]
         if t >= 0:
             p = pos[t]
@@ -605,48 +615,12 @@ def tile_partition_order(x, y, z, x0, y0, inv_h, nx, ny, check_inside, tile_cell
     """:func:`tile_partition_chunk` returning the chunk positions of the grouped points instead of their values
     (the DTM's tiles keep x, y, depth and the input index of each sounding: the caller gathers them by ``src``).
     Returns ``(starts, local, src, n_nonfinite, n_outside)``, ``src`` int64 in chunk order within each tile."""
-    n = x.size
-    col_tile = np.empty(nx, np.int64)
-    col_in = np.empty(nx, np.int64)
-    width = np.empty(nx, np.int64)
-    for c in range(nx):
-        tx = c // tile_cells
-        col_tile[c] = tx
-        col_in[c] = c - tx * tile_cells
-        width[c] = min(tile_cells, nx - tx * tile_cells)
-    row_tile = np.empty(ny, np.int64)
-    row_in = np.empty(ny, np.int64)
-    for r in range(ny):
-        ty = r // tile_cells
-        row_tile[r] = ty * ntx
-        row_in[r] = r - ty * tile_cells
-    tile = np.empty(n, np.int32)
-    loc = np.empty(n, np.int32)
-    starts = np.zeros(n_tiles + 1, np.int64)
-    nb = 0
-    no = 0
-    for i in range(n):
-        xi = x[i]
-        yi = y[i]
-        why = _keep(xi, yi, z[i], x0, y0, inv_h, nx, ny, check_inside)
-        if why != 0:
-            tile[i] = -1
-            if why == 1:
-                nb += 1
-            else:
-                no += 1
-            continue
-        r, c = _cell_rc(xi, yi, x0, y0, inv_h, nx, ny)
-        t = row_tile[r] + col_tile[c]
-        tile[i] = t
-        loc[i] = row_in[r] * width[c] + col_in[c]
-        starts[t + 1] += 1
-    for t in range(n_tiles):
-        starts[t + 1] += starts[t]
+    tile, loc, starts, nb, no = _tile_of_points(x, y, z, x0, y0, inv_h, nx, ny, check_inside, tile_cells, ntx,
+                                                n_tiles)
     pos = starts[:-1].copy()
     local = np.empty(starts[n_tiles], np.int32)
     src = np.empty(starts[n_tiles], np.int64)
-    for i in range(n):
+    for i in range(x.size):
         t = tile[i]
         if t >= 0:
             p = pos[t]

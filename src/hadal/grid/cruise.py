@@ -13,7 +13,7 @@ task writes its files atomically (a temporary name, then ``os.replace``), so a t
    54 and 55 meet at 144 E, in the Mariana Trench) and the dives' products already use the same projection (one code path, exact conversion to lon/lat with pyproj). The frame is known before any
    sounding is read (no second read). Over a cruise's extent of tens of km the transverse Mercator scale error
    stays below ~1e-5 (k = 1 + x^2 / 2R^2: 3e-5 at 50 km from the centre; Snyder, *Map Projections - A Working
-   Manual*, USGS PP 1395, 1987, eq. 8-7), well below a DTM cell.
+   Manual*, USGS PP 1395, 1987, formula 8-7), well below a DTM cell.
 2. **read** (:func:`read_dive`, one task a dive): the dive's ``sources.multibeam`` files read with their
    ``dive.yaml`` reading hints (:func:`hadal.grid.soundings.read_soundings_xy`, one file at a time so a bad file is
    refused by name and the others kept) into the cruise frame; soundings beyond any ocean depth dropped (as the
