@@ -277,6 +277,7 @@ def _fake_stage(name: str, log: dict, lock, seconds: float, fail: bool = False):
     an empty version of the product it makes (or raises InputError if ``fail``)."""
     from hadal.tasks.stage import upstream_state
     from prefect import task
+    from prefect.cache_policies import NO_CACHE
 
     from hadal.errors import InputError
 
@@ -293,7 +294,9 @@ def _fake_stage(name: str, log: dict, lock, seconds: float, fail: bool = False):
         (v / "manifest.json").write_text("{}")
         return {_FAKE_MAKES[name]: str(v)}
 
-    return task(name=name)(run)
+    # never a cache hit: these tests look at scheduling (an earlier test's fake stage of the same name and source
+    # could otherwise be taken for this one's result)
+    return task(name=name, cache_policy=NO_CACHE)(run)
 
 
 @pytest.mark.prefect
