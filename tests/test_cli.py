@@ -123,3 +123,18 @@ def test_config_output_is_cached_per_code_version(tmp_path):
     assert len(cached) == 1 and cached[0].read_text() == oracle
     second = hadal("config", env={"HADAL_CACHE_DIR": str(tmp_path)})
     assert second.stdout == first.stdout
+
+
+def test_every_command_of_the_module_doc_answers_help():
+    """Every command the CLI's own docstring lists (``hadal server start`` included, a sub-command) is
+    registered: ``hadal <command> --help`` exits 0 and shows that command's usage."""
+    import re
+
+    from hadal import cli
+
+    listed = {m.group(1) for m in re.finditer(r"^\s+hadal ((?:server start)|[a-z-]+)", cli.__doc__ or "", re.M)}
+    assert {"run", "stage", "server start", "cruise-dtm", "inspect", "init"} <= listed
+    for command in sorted(listed):
+        r = run_cli(*command.split(), "--help")
+        assert r.returncode == 0, (command, r.stdout, r.stderr)
+        assert f"hadal {command}" in r.stdout, command
