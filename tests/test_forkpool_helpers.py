@@ -214,3 +214,26 @@ def test_calls_do_not_pile_up_behind_a_helper_busy_with_another_pool():
     """)
     assert out["pids"] == [out["me"]] and out["values"] == [0, 1, 4]
     assert out["quick_s"] < 1.5  # not held up behind the helper's 2 s call
+
+
+def test_a_stage_process_started_ahead_still_gets_eof_when_helpers_were_forked_after_it():
+    """The stage processes' job pipe ends reach the helpers through hadal.childproc (the helpers import no
+    orchestration): a helper forked after them closes its copies, so the parent closing a job pipe is EOF for the
+    stage process, which then exits by itself (exit code 0) instead of waiting for a job forever."""
+    out = _run("""
+        from hadal import childproc, stage_process as sp
+        assert sp.prestart(["dtm"], fork=True) == ["dtm"]
+        job_end = sp._WARM["dtm"].conn.fileno()
+        registered = job_end in childproc.inherited_ends()
+        started = forkpool.start_helpers(1)
+        w = sp._WARM.pop("dtm")
+        w.conn.close()  # EOF, unless a helper still holds a copy of this end
+        w.proc.join(timeout=90)  # its warm imports first (seconds on a loaded machine), then the EOF
+        exitcode = w.proc.exitcode
+        if exitcode is None:
+            w.proc.kill()
+        forkpool.stop_helpers()
+        print(json.dumps({"registered": registered, "started": started, "exitcode": exitcode}))
+    """)
+    assert out["registered"] and out["started"]
+    assert out["exitcode"] == 0  # it returned on EOF by itself (None: it never saw EOF and was killed)

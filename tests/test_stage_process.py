@@ -295,8 +295,9 @@ def test_warm_imports_stop_when_told_and_every_declared_module_imports():
     once the server answers); every module a stage declares exists (a renamed module would silently warm nothing)."""
     import importlib
 
+    from hadal.childproc import warm
     from hadal.pipeline import warm_imports
-    from hadal.stages import STAGE_ORDER, warm
+    from hadal.stages import STAGE_ORDER
     from hadal.stages.graph import stage
 
     assert warm_imports(["ingest", "derive"], stop=lambda: True) == []
@@ -323,7 +324,7 @@ def test_numba_first_call_starts_no_parallel_region():
     import subprocess
     import sys
 
-    code = ("import sys\nfrom hadal.stages import warm\n"
+    code = ("import sys\nfrom hadal.childproc import warm\n"
             "assert warm('hadal.numbawarm:first_call')\n"
             "par = sys.modules.get('numba.np.ufunc.parallel')\n"
             "from hadal.stage_process import can_fork_ahead\n"

@@ -62,7 +62,7 @@ def _helper_main(conn: Any, parent_pid: int, modules: tuple[str, ...], parent_en
     child as EOF."""
     import pickle
 
-    from hadal.stage_process import start_child
+    from hadal.childproc import start_child
 
     start_child(parent_pid, parent_ends, modules)
     shared: dict[int, Any] = {}
@@ -140,9 +140,9 @@ class _Helper:
     def __init__(self, modules: tuple[str, ...], others: list[_Helper]):
         ctx = mp.get_context("fork")
         self.conn, child = ctx.Pipe(duplex=True)
-        from hadal.stage_process import warm_pipe_ends
+        from hadal.childproc import inherited_ends
 
-        ends = (self.conn.fileno(), *(o.conn.fileno() for o in others), *warm_pipe_ends())
+        ends = (self.conn.fileno(), *(o.conn.fileno() for o in others), *inherited_ends())
         self.proc = ctx.Process(target=_helper_main, args=(child, os.getpid(), modules, ends), daemon=True,
                                 name="hadal-figure-helper")
         self.proc.start()

@@ -3,7 +3,7 @@
 The first call of any compiled (numba) kernel in a process initialises numba's CPU target (its LLVM context and
 registries): about 0.35 s of CPU (measured, 2-core machine), paid again by every stage process that calls a kernel
 first. :func:`first_call` pays it once in the process that forks the stage processes (a stage's ``warm_imports``
-entry ``"hadal.numbawarm:first_call"``, run while Prefect's server boots: :func:`hadal.stages.warm`), so the forked
+entry ``"hadal.numbawarm:first_call"``, run while Prefect's server boots: :func:`hadal.childproc.warm`), so the forked
 ones inherit an initialised numba. Its kernel is serial: no parallel region starts, which would forbid the later
 forks (:func:`hadal.stage_process.can_fork_ahead`).
 """

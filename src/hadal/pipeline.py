@@ -485,7 +485,7 @@ def warm_imports(names: Sequence[str], *, stop: Any = None) -> list[str]:
     sample dive's thread stages) on the run's critical path. A module that fails to import is left to its stage,
     which reports the failure in its own words. Imports run in the calling thread only: importing beside other
     threads can deadlock on circular imports."""
-    from hadal.stages import warm
+    from hadal.childproc import warm
 
     done: list[str] = []
     for name in names:

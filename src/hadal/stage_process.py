@@ -27,18 +27,16 @@ import multiprocessing as mp
 import os
 import pickle
 import queue as _queue
-import signal
 import sys
 import threading
-import time
 import traceback
 import warnings
 from typing import Any
 
+from hadal.childproc import add_inherited_ends, guard_child, start_child
 from hadal.errors import HadalError, StageError
+from hadal.forkpool import can_fork
 
-#: seconds between the child's checks that its parent is still alive
-WATCHDOG_INTERVAL_S = 1.0
 #: -W option of the resource tracker: no "leaked semaphore objects to clean up" warning after an interrupt
 _QUIET_TRACKER = "ignore:resource_tracker:UserWarning"
 
@@ -46,13 +44,6 @@ _QUIET_TRACKER = "ignore:resource_tracker:UserWarning"
 def can_isolate() -> bool:
     """False where a child process cannot be started (inside a daemonic process, e.g. a multiprocessing pool)."""
     return not mp.current_process().daemon
-
-
-def _watch_parent(parent_pid: int) -> None:
-    while True:
-        time.sleep(WATCHDOG_INTERVAL_S)
-        if os.getppid() != parent_pid:
-            os._exit(3)  # the parent is gone: never keep computing (or publishing) for nobody
 
 
 def _portable(exc: BaseException) -> BaseException:
@@ -66,34 +57,6 @@ def _portable(exc: BaseException) -> BaseException:
         out: BaseException = StageError(text) if isinstance(exc, HadalError) else RuntimeError(
             f"{type(exc).__name__}: {text}")
         return out
-
-
-def guard_child(parent_pid: int) -> None:
-    """A stage process's (or a figure helper's, :mod:`hadal.forkpool`) first step: ignore a terminal's Ctrl-C, stop
-    by itself when its parent is gone, and take SIGTERM/SIGHUP plainly (a forked child would otherwise run the
-    CLI's handlers, which end a whole run and say so)."""
-    # Ctrl-C in a terminal reaches the whole process group: the parent decides (the CLI stops its children with
-    # SIGTERM and says what was left unpublished), so the child does not die half-way with its own traceback
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
-    for sig in (signal.SIGTERM, signal.SIGHUP):
-        signal.signal(sig, signal.SIG_DFL)
-    threading.Thread(target=_watch_parent, args=(parent_pid,), daemon=True, name="parent-watchdog").start()
-
-
-def start_child(parent_pid: int, inherited: tuple[int, ...], modules: tuple[str, ...]) -> None:
-    """The first steps of a child started ahead (a stage process, a figure helper): close the ``inherited`` pipe
-    ends a fork copied (the parent's ends of other children's pipes, else the parent closing one would never reach
-    its child as EOF), :func:`guard_child`, then import ``modules`` (:func:`hadal.stages.warm`)."""
-    from hadal.stages import warm
-
-    for fd in inherited:
-        try:
-            os.close(fd)
-        except OSError:
-            pass
-    guard_child(parent_pid)
-    for mod in modules:
-        warm(mod)
 
 
 def _child(q: Any, name: str, kwargs: dict[str, Any], log_level: int, progress: bool, parent_pid: int,
@@ -149,7 +112,7 @@ _WARM_LOCK = threading.Lock()
 
 def _warm_child(q: Any, conn: Any, parent_pid: int, modules: tuple[str, ...],
                 parent_ends: tuple[int, ...] = ()) -> None:
-    """A stage process started ahead: warm ``modules`` (the stage's ``warm_imports``, :func:`hadal.stages.warm`), then
+    """A stage process started ahead: warm ``modules`` (the stage's ``warm_imports``, :func:`hadal.childproc.warm`), then
     wait for the job (the arguments of :func:`_child`) on ``conn`` and run it; EOF (the parent exits or no longer
     needs it): exit. ``parent_ends``: a forked child's copies of the parent's ends of the job pipes (its own and
     those of the processes started before it, :func:`warm_pipe_ends`), closed first, else the parent closing one
@@ -169,8 +132,6 @@ def can_fork_ahead() -> bool:
     fork beside other threads may copy a lock one of them holds; :mod:`hadal.forkpool`), and no parallel region of
     numba's kernels launched yet (its OpenMP threading layer hangs a forked child's first parallel kernel once the
     parent has started its thread pool; the gridding stages run such kernels)."""
-    from hadal.forkpool import can_fork
-
     par = sys.modules.get("numba.np.ufunc.parallel")
     return can_fork() and threading.active_count() == 1 and not getattr(par, "_is_initialized", False)
 
@@ -219,6 +180,9 @@ def warm_pipe_ends() -> list[int]:
     child forked later closes its copies of them (:mod:`hadal.forkpool`'s helpers), so that EOF reaches them."""
     with _WARM_LOCK:
         return _warm_pipe_ends_locked()
+
+
+add_inherited_ends(warm_pipe_ends)  # the figure helpers forked later close them (hadal.childproc)
 
 
 def _stop_warm() -> None:

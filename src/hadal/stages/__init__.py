@@ -15,7 +15,6 @@ raw → laser → landing; all → report. ``grid`` names the two gridding stage
 
 from __future__ import annotations
 
-import importlib
 import logging
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
@@ -85,7 +84,8 @@ class Stage:
       ``match`` needs an altimeter and dead reckoning in ``ctd``);
     * ``planned_products(dive, made) -> made``: products that depend on dive.yaml hints (derive's ``trajectory``);
     * ``raw_files(ctx) -> [Path]``: files its settings point at, part of its cache fingerprint;
-    * ``warm_imports``: modules its run imports, imported ahead (``"pkg.mod"`` or ``"pkg.mod:function"``, :func:`warm`);
+    * ``warm_imports``: modules its run imports, imported ahead (``"pkg.mod"`` or ``"pkg.mod:function"``,
+      :func:`hadal.childproc.warm`);
     * ``process``: a flow runs it in its own process when another stage can run beside it (CPU-bound gridding).
     """
 
@@ -175,21 +175,6 @@ class StageContext:
             return {}
         fields = rec.param_fields if rec is not None else None
         return section.model_dump(mode="json", include=set(fields) if fields is not None else None)
-
-
-def warm(entry: str) -> bool:
-    """One entry of a stage's ``warm_imports``, done ahead of the stage (while Prefect's server boots, or in a stage
-    process started ahead): ``"pkg.module"`` is imported; ``"pkg.module:function"`` is imported and the function
-    called (a first-use cost that is not an import, e.g. matplotlib's first figure: :func:`hadal.mplwarm.first_draw`).
-    False when it fails: the stage itself then reports the problem in its own words."""
-    mod, _, func = entry.partition(":")
-    try:
-        m = importlib.import_module(mod)
-        if func:
-            getattr(m, func)()
-    except Exception:  # noqa: BLE001 - the stage itself reports a broken import
-        return False
-    return True
 
 
 def available_stages() -> list[str]:
