@@ -113,6 +113,12 @@ def test_grid_stage_publishes_dtm_and_laser_grids(raw_dive, tmp_path):
     # default: the laser survey's own frame - no projection; the position attributes are the dive's
     assert "crs" not in lg.variables and "local frame" in lg["x"].attrs["long_name"]
     assert lg.attrs["dive_id"] == "T001"
+    # each grid's geometry in the manifest (landing's skip check reads it there): as the written file has it
+    geometry = out["laser_grids"].manifest()["laser_grid_geometry"]
+    for name in names:
+        with xr.open_dataset(out["laser_grids"].file(name), engine="h5netcdf") as g:
+            assert geometry[name] == {"cell_m": pytest.approx(float(g.attrs["resolution"])), "nx": g.sizes["x"],
+                                      "ny": g.sizes["y"]}
 
 
 def test_products_pass_cf_acdd_compliance(raw_dive, tmp_path):

@@ -176,3 +176,22 @@ def test_a_narrow_grid_beside_a_usable_one_is_skipped_by_name(tmp_path, caplog):
         pv = stage.run(ctx)["landing"]
     assert set(pd.read_parquet(pv.file("landing_sites.parquet"))["submap"]) == {"good"}
     assert any("strip is 2 x 300 cells, too narrow" in r.getMessage() for r in caplog.records)
+
+
+def test_skip_check_reads_the_laser_grids_geometry_from_the_manifest_without_opening_them(tmp_path, monkeypatch):
+    """The laser stage records each grid's cell size and shape in the manifest: landing's skip check reads them
+    there and opens no grid (``run`` opens each once); the reason equals the one read from the grids themselves."""
+    ctx = _ctx(tmp_path, heading_step_deg=30.0, figures=False)
+    coarse = _submap(40, 30, 0.5, 5.0, 1)  # 0.5 m cells: coarser than 1/10 of the default vehicle's width
+    _publish_laser(ctx, {"coarse": coarse})
+    from_files = stage.skip_reason(ctx)
+    assert from_files is not None and "coarser than landing.max_cell_fraction" in from_files
+    with ctx.store.publish(DIVE, "laser_grids",
+                           extra={"laser_grid_geometry": {"coarse.nc": {"cell_m": 0.5, "nx": 30, "ny": 40}}}) as draft:
+        coarse.to_netcdf(draft.path / "coarse.nc", engine="h5netcdf")
+
+    def no_open(*args, **kwargs):
+        raise AssertionError("a laser grid was opened by the skip check")
+
+    monkeypatch.setattr(xr, "open_dataset", no_open)
+    assert stage.skip_reason(ctx) == from_files

@@ -610,13 +610,24 @@ def _laser_summary(f: Path, ds, what: str) -> str:
             "elevation, count and std; NaN = unmapped.")
 
 
+def _grid_geometry(ds: Any) -> dict[str, Any]:
+    """A laser grid's cell size (median x step, m; None for one column) and cells along x and y, for the manifest:
+    landing's skip check reads them there instead of opening every grid before it reads them."""
+    import numpy as np
+
+    x = np.asarray(ds["x"].values, dtype=np.float64)
+    return {"cell_m": float(np.median(np.abs(np.diff(x)))) if x.size > 1 else None, "nx": int(x.size),
+            "ny": int(ds.sizes.get("y", 0))}
+
+
 def _publish_laser_grids(ctx: StageContext, p: Params, params: dict, laser: list[tuple[Path, object]],
                          grids: list[tuple[Path, str, Any, str]], readers: dict[str, str]):
     """Publish ``laser_grids``: ``<stem>.nc`` per input, a Zarr store with ``grid.zarr``, a COG when georeferenced."""
     from hadal.products.io import write_netcdf
 
     extra = {"readers": {f.name: readers[str(f)] for f, *_ in grids},
-             "laser_grid_files": {f.name: f"{stem}.nc" for f, stem, *_ in grids}}
+             "laser_grid_files": {f.name: f"{stem}.nc" for f, stem, *_ in grids},
+             "laser_grid_geometry": {f"{stem}.nc": _grid_geometry(ds) for _, stem, ds, _ in grids}}
     with ctx.store.publish(ctx.dive_id, "laser_grids", parameters=params, inputs=[f for f, _ in laser],
                            extra=extra) as draft:
         for f, stem, ds, what in grids:

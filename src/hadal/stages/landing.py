@@ -54,19 +54,32 @@ def _read_submap(path: Path) -> tuple[xr.DataArray, xr.DataArray | None]:
     return da, sigma
 
 
-def _grid_geometry(path: Path) -> tuple[float | None, int, int] | None:
-    """(cell size in m or None, cells along x, cells along y) of one laser grid from its coordinates, without
-    loading the data; None if unreadable."""
+def _grid_geometry(pv, files: list[Path]) -> list[tuple[float | None, int, int] | None]:
+    """(cell size in m or None, cells along x, cells along y) of each laser grid ``files`` of ``pv``, as the laser
+    stage recorded it in the manifest (``laser_grid_geometry``), so that no grid is opened here and again by
+    :func:`run`; a version published without it: from the grid's coordinates (None if unreadable)."""
     import numpy as np
     import xarray as xr
 
     try:
-        with xr.open_dataset(path, engine="h5netcdf") as ds:
-            x = np.asarray(ds["x"].values, dtype=np.float64)
-            ny = int(ds.sizes.get("y", 0))
-    except Exception:  # noqa: BLE001 - unreadable grids are run()'s one-line error
-        return None
-    return (float(np.median(np.abs(np.diff(x)))) if x.size > 1 else None), int(x.size), ny
+        recorded = pv.manifest().get("laser_grid_geometry") or {}
+    except (OSError, ValueError):
+        recorded = {}
+    out: list[tuple[float | None, int, int] | None] = []
+    for f in files:
+        g = recorded.get(f.name)
+        if isinstance(g, dict):
+            out.append((g.get("cell_m"), int(g.get("nx", 0)), int(g.get("ny", 0))))
+            continue
+        try:
+            with xr.open_dataset(f, engine="h5netcdf") as ds:
+                x = np.asarray(ds["x"].values, dtype=np.float64)
+                ny = int(ds.sizes.get("y", 0))
+        except Exception:  # noqa: BLE001 - unreadable grids are run()'s one-line error
+            out.append(None)
+            continue
+        out.append(((float(np.median(np.abs(np.diff(x)))) if x.size > 1 else None), int(x.size), ny))
+    return out
 
 
 def _too_small(nx: int, ny: int) -> bool:
@@ -91,7 +104,7 @@ def skip_reason(ctx) -> str | None:
     if pv is None:
         return None
     files = _laser_files(pv)
-    geo = [_grid_geometry(f) for f in files]
+    geo = _grid_geometry(pv, files)
     if geo and all(g is not None and _too_small(g[1], g[2]) for g in geo):
         from hadal.landing.sites import MIN_GRID_CELLS
 
