@@ -188,7 +188,9 @@ def bench_strip(threads: int | None = None) -> None:
 
 
 def bench_rocks() -> None:
-    from hadal.landing.protrusion import disc_mean_height_map, protrusion_height_map
+    from landing_reference import disc_mean_height_map
+
+    from hadal.landing.protrusion import protrusion_height_map
 
     cell = 0.01
     hc = V.critical_height_m
@@ -289,8 +291,9 @@ def _noise_row(label: str, t: xr.DataArray, win: float) -> None:
 
 
 def bench_reference() -> None:
+    from landing_reference import footprint_slope_reference_deg
+
     from hadal.landing.exclusion import HIGH_PROTRUSION, UNMAPPED, footprint_mask
-    from hadal.landing.slope import footprint_slope_reference_deg
 
     g = synthetic_submap()
     r1 = analyse_submap(g)

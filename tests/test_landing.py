@@ -7,6 +7,7 @@ import math
 import numpy as np
 import pytest
 import xarray as xr
+from landing_reference import footprint_slope_reference_deg, small_protrusion_exclusion_reference
 from scipy import ndimage as ndi
 
 from hadal.errors import ConfigError, InputError
@@ -20,11 +21,10 @@ from hadal.landing.exclusion import (
     footprint_mask,
     footprint_offsets,
     small_protrusion_exclusion,
-    small_protrusion_exclusion_reference,
 )
 from hadal.landing.protrusion import butterworth_lowpass, protrusion_height_map
 from hadal.landing.sites import largest_aspect_rectangle_m2, roughness_max_m
-from hadal.landing.slope import footprint_slope_reference_deg, local_slope_deg
+from hadal.landing.slope import local_slope_deg
 
 V = Vehicle()
 

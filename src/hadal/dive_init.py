@@ -591,11 +591,6 @@ def _day(t: float | None) -> str:
     return "?" if t is None else _dt.datetime.fromtimestamp(t, _dt.UTC).strftime("%Y-%m-%d %H:%M")
 
 
-def _wrap180(lon: float) -> float:
-    """A longitude in [-180, 180) (a 0-360 file's 245 is -115)."""
-    return (float(lon) + 180.0) % 360.0 - 180.0
-
-
 def _csv_key(p: Path, taken: dict[str, Path]) -> str:
     key = re.sub(r"[^A-Za-z0-9_]+", "_", p.name.split(".")[0]).strip("_") or "log"
     k, n = key, 2

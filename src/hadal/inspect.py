@@ -91,10 +91,6 @@ def inspect_file(path: str | Path) -> dict[str, Any]:
     return out
 
 
-#: metres per degree of latitude (mean; only to choose how many decimals a coordinate needs)
-_M_PER_DEG = 111_195.0
-
-
 def _decimals(step: float, *, lo: int = 0, hi: int = 9) -> int:
     """Decimals that resolve a tenth of ``step`` (a cell size, or the precision of a sounding), within [lo, hi]."""
     if not (isinstance(step, (int, float)) and math.isfinite(step) and step > 0):

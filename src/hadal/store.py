@@ -50,7 +50,6 @@ from hadal.names import check_component, check_relative_path
 from hadal.provenance import code_version, software_provenance
 from hadal.yamlfile import load_json_bounded
 
-NAME_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]{0,63}$")
 VERSION_RE = re.compile(r"^v(\d{3,})$")
 MANIFEST = "manifest.json"
 #: per-dive record of the raw directory a dive id belongs to (``<root>/<dive>/dive.json``)

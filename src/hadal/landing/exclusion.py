@@ -87,16 +87,6 @@ def small_protrusion_exclusion(radius_px: np.ndarray) -> np.ndarray:
     return disc_union(ri.astype(np.int64), ci.astype(np.int64), r[ri, ci], r.shape[0], r.shape[1])
 
 
-def small_protrusion_exclusion_reference(radius_px: np.ndarray) -> np.ndarray:
-    """Naive reference for :func:`small_protrusion_exclusion` (loop over protrusion cells)."""
-    r = np.asarray(radius_px, dtype=float)
-    out = np.zeros(r.shape, bool)
-    Y, X = np.mgrid[0 : r.shape[0], 0 : r.shape[1]]
-    for i, j in zip(*np.nonzero(np.isfinite(r)), strict=False):
-        out |= (Y - i) ** 2 + (X - j) ** 2 <= r[i, j] ** 2 + 1e-9
-    return out
-
-
 @dataclass
 class HeadingMaps:
     """Per-heading results of :meth:`HeadingCorrelator.compute` (all on the input grid)."""

@@ -316,20 +316,3 @@ def protrusion_height_map(
             h = _block_heights_fft(z[R0:R1, C0:C1], cell_m, fc, order, edge_correction, filters)
             out[r0:r1, c0:c1] = h[r0 - R0 : r1 - R0, c0 - C0 : c1 - C0]
     return out
-
-
-def disc_mean_height_map(z: np.ndarray, cell_m: float, diagonal_m: float) -> np.ndarray:
-    """The reference C++ implementation's height (for comparison only): z minus the mean of the mapped
-    cells over a disc of diameter ``diagonal_m``."""
-    from scipy.signal import fftconvolve
-
-    z = np.asarray(z, float)
-    v = np.isfinite(z)
-    r = int(round(0.5 * diagonal_m / cell_m))
-    yy, xx = np.mgrid[-r : r + 1, -r : r + 1]
-    disc = (yy**2 + xx**2 <= r * r).astype(float)
-    z0 = np.where(v, z - np.nanmean(z), 0.0)
-    s = fftconvolve(z0, disc, mode="same")
-    n = fftconvolve(v.astype(float), disc, mode="same")
-    with np.errstate(invalid="ignore", divide="ignore"):
-        return np.where(v, z0 - s / np.maximum(n, 1e-9), np.nan)

@@ -3,10 +3,10 @@
 * :func:`local_slope_deg` — per-cell slope of the plane fitted over a small square window, with the
   x, y, z moments summed by box filters (NaN-aware: each window uses only its mapped cells). This is the
   slope map used to find protrusion candidates (slope > θc, Fig. 16b).
-* :func:`plane_gradient_from_sums` — the footprint-mean slope (Fig. 13c) from window sums computed
-  elsewhere (FFT correlation with the rotated vehicle footprint, see :mod:`hadal.landing.exclusion`).
-* :func:`footprint_slope_reference_deg` — a direct per-cell plane fit (np.linalg.lstsq) over the
-  footprint, used by tests and the benchmark as the straightforward reference implementation.
+
+The footprint-mean slope (Fig. 13c) comes from window sums by FFT correlation with the rotated vehicle
+footprint (:mod:`hadal.landing.exclusion`); its direct per-cell plane fit, the tests' reference, is in
+``tests/landing_reference.py``.
 """
 
 from __future__ import annotations
@@ -107,40 +107,3 @@ def _local_slope_block(z: np.ndarray, cell_m: float, window_px: int = 3, min_fra
         slope = np.degrees(np.arctan(np.hypot(a, b) / cell_m))
     ok = valid & (n >= min_fraction * w * w) & (det > 1e-9)
     return np.where(ok, slope, np.nan)
-
-
-def plane_gradient_from_sums(
-    s_uz: np.ndarray, s_vz: np.ndarray, s_uu: float, s_vv: float, s_uv: float
-) -> tuple[np.ndarray, np.ndarray]:
-    """Gradient (a, b) of the least-squares plane z = c + a u + b v over a *fully mapped*, point-symmetric
-    window (Σu = Σv = 0), from the window sums Σuz, Σvz and the window constants Σuu, Σvv, Σuv
-    (u = column offset, v = row offset, in cells; a, b in metres per cell)."""
-    det = s_uu * s_vv - s_uv * s_uv
-    a = (s_vv * s_uz - s_uv * s_vz) / det
-    b = (s_uu * s_vz - s_uv * s_uz) / det
-    return a, b
-
-
-def footprint_slope_reference_deg(
-    z: np.ndarray, cell_m: float, footprint: np.ndarray, cells: np.ndarray
-) -> np.ndarray:
-    """Straightforward reference: for each (row, col) in ``cells`` fit z = c + a x + b y by
-    ``np.linalg.lstsq`` over the mapped cells under the boolean ``footprint`` (odd-sized, centred)
-    and return the slope in degrees (NaN where fewer than 3 mapped cells)."""
-    z = np.asarray(z, dtype=float)
-    ky, kx = footprint.shape
-    oy, ox = np.nonzero(footprint)
-    oy = oy - ky // 2
-    ox = ox - kx // 2
-    out = np.full(len(cells), np.nan)
-    for k, (r, c) in enumerate(np.asarray(cells)):
-        rr, cc = r + oy, c + ox
-        inside = (rr >= 0) & (rr < z.shape[0]) & (cc >= 0) & (cc < z.shape[1])
-        zz = z[rr[inside], cc[inside]]
-        ok = np.isfinite(zz)
-        if ok.sum() < 3:
-            continue
-        A = np.column_stack([np.ones(ok.sum()), ox[inside][ok] * cell_m, oy[inside][ok] * cell_m])
-        coef = np.linalg.lstsq(A, zz[ok], rcond=None)[0]
-        out[k] = np.degrees(np.arctan(np.hypot(coef[1], coef[2])))
-    return out

@@ -77,10 +77,6 @@ def _all_versions(store: Any, dive: str) -> dict[str, list[tuple[Any, list[tuple
     return out
 
 
-def _latest_versions(store: Any, dive: str) -> dict[str, Any]:
-    return {p: vs[-1][0] for p, vs in _all_versions(store, dive).items()}
-
-
 def multihash_sha256(hex_digest: str) -> str:
     """A SHA-256 hex digest as a multihash (https://multiformats.io/multihash/: code 0x12 sha2-256, length 0x20),
     the form of the STAC ``file:checksum`` field."""

@@ -166,11 +166,6 @@ def format_plan(plan: list[PlannedStage]) -> str:
     return "\n".join(lines)
 
 
-def stage_reads(name: str) -> set[str]:
-    """Every product stage ``name`` reads: its declared ``upstream`` and ``optional_upstream``."""
-    return set(stage(name).reads)
-
-
 def stage_dependencies(names: Sequence[str]) -> dict[str, set[str]]:
     """For each stage of a run (``names``), the stages *of that run* it must wait for: those that make a product
     it reads. Stages with no path between them (``grid`` and ``ingest``/``derive``; ``landing`` and ``match``) run
