@@ -2,7 +2,7 @@
 same run), and the serial in-process science (:func:`hadal.grid.cruise.cruise_dtm_dataset` with ``serial_map``)
 as the floor of the cost.
 
-``--dives`` synthetic dives (tests/test_cruise_dtm.py ``write_cruise_dive``: two gzip xyz lines of ``--soundings``
+``--dives`` synthetic dives (tests/unit/grid/test_cruise_dtm.py ``write_cruise_dive``: two gzip xyz lines of ``--soundings``
 lon/lat/depth soundings each) are written once; then, alternated ``--repeat`` times: the cruise flow
 (:func:`hadal.flows.cruise.cruise_dtm`) on a ``LocalCluster`` of 1 and of 2 single-threaded worker processes
 started by the bench (its address passed as ``scheduler``, so cluster start-up is not timed; one temporary Prefect

@@ -4,7 +4,7 @@ For each seed, ``hadal synth --small --seed S`` (``--full``: ``hadal synth --see
 that ``make demo`` runs) is written to ``--work`` (kept and reused between runs), the stages
 ingest/derive/grid run once, then ``match`` runs with ``posterior: false`` (the refined score minimum) and with
 the default parameters (``posterior: true``: point-mass posterior + joint dead-reckoning drift). The error is
-the matched track at the true bottom-start time minus the truth (``truth.json``), as in tests/test_e2e.py; one
+the matched track at the true bottom-start time minus the truth (``truth.json``), as in tests/unit/orchestration/test_e2e.py; one
 map cell is 20 m (issue 16 goal: within one cell on every one of 10 seeds). Also printed: the reported radial
 1-sigma and the flag.
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import sys
 import tempfile
 from pathlib import Path
 
@@ -19,6 +20,11 @@ os.environ.setdefault("PREFECT_LOGGING_LEVEL", "WARNING")
 os.environ.setdefault("MPLBACKEND", "Agg")
 
 REPO = Path(__file__).resolve().parents[1]
+# tests mirror src/ in folders without __init__.py (unit/<package>, robustness, realdata, integration): each folder
+# on sys.path (after this one), so a test module reuses another's helpers by its unique name from any folder
+for _folder in sorted({str(t.parent) for t in Path(__file__).resolve().parent.glob("*/**/test_*.py")}):
+    if _folder not in sys.path:
+        sys.path.append(_folder)
 SHARED_DATA = Path(os.environ.get("HADAL_SHARED_DATA", REPO.parent / "shared" / "data"))
 
 

@@ -1,7 +1,7 @@
 """Variants of the dives-real kinds that other users' files take (issue 43, held-back kinds), generated from the
 real files with independent libraries (laspy, pypcd4, netCDF4, rasterio) or by rewriting the Sea-Bird/Slocum text
 the way SeaSoft / dbd2asc write it. Each builder: ``(shared_data, out_dir) -> Path`` of the new file; nothing is
-committed as a binary. Used by tests/test_real_variants.py (and by a probe over every variant)."""
+committed as a binary. Used by tests/realdata/test_real_variants.py (and by a probe over every variant)."""
 
 from __future__ import annotations
 

@@ -28,7 +28,7 @@ real child processes, their orphans found by an environment tag), and prints per
 * ``lost``         product versions that no longer verify (:meth:`ProductStore.verify`) or vanished, new versions
                    that do not verify, and leftover staging directories (goal 0).
 
-Exit status 1 when there is a traceback, a lost product or an unhandled case. ``tests/test_reliability.py``
+Exit status 1 when there is a traceback, a lost product or an unhandled case. ``tests/robustness/test_reliability.py``
 runs it.
 """
 

@@ -164,13 +164,13 @@ def hydrostatic_depth(
       ``H_{k-1}``); ``"trapezoid"`` (default) averages ``1/(ρ g)`` of the two ends of each interval, i.e.
       second-order accurate in Δp. The rectangle rule is biased shallow by ½ Σ Δp Δ(1/ρg), which grows with
       the step: at 11 000 dbar ≈ 1.5 mm for a 16 Hz CTD at 1 m/s (Δp ≈ 0.06 dbar), 1 cm at 0.5 dbar steps
-      and 0.24 m at 10 dbar steps (binned casts); the trapezoid removes it (``tests/test_depth.py``).
+      and 0.24 m at 10 dbar steps (binned casts); the trapezoid removes it (``tests/unit/ctd/test_depth.py``).
 
     ``g`` depends on the depth being computed, so the sum is solved by fixed-point iteration
     (``H ← H_0 + cumsum(h(g(H)))``, vectorised) started from the Fofonoff-Millard depth, block by block
     (:data:`DEPTH_BLOCK` samples, the last depth carried into the next block); the error shrinks by a factor
     ~C3·H ≈ 2.5e-3 per iteration, so 3-4 iterations reach ``tolerance_m``. The sequential recursion of
-    [TERCOM Eq. 12] is the fixed point (``tests/test_depth.py`` checks both agree to 1e-8 m). With the trapezoid rule
+    [TERCOM Eq. 12] is the fixed point (``tests/unit/ctd/test_depth.py`` checks both agree to 1e-8 m). With the trapezoid rule
     the first interval (surface to ``p_0``) also averages ``g`` over its ends. Memory: the output, the
     density when it is not passed (and a filled copy when it has gaps), and per-block temporaries
     (``bench/bench_depth_memory.py``: <= 3x the output).
@@ -370,7 +370,7 @@ def overlying_column(
     error) — the water above may have changed between the profile and the record, which it does not include.
     Using the first sample's in-situ density for the whole column instead (the compressed deep water for the
     whole column) is ~1 % of the depth too shallow: -55 m at 10 950 m for a record starting at 5000 dbar
-    (``tests/test_depth_fusion.py``).
+    (``tests/unit/ctd/test_depth_fusion.py``).
     """
     import gsw
 
@@ -978,7 +978,7 @@ def fuse_pressure(
        and the CTD reads inside ``bias_window_dbar`` (the whole overlap when fewer than ``min_bias_samples``);
        ``fit="offset"``: ``b = 1`` and ``a`` the median difference (the previous behaviour). A CTD gain error
        of 5e-4 costs 5 dbar at 10 000 dbar, which a median offset turns into ~4 dbar at the surface and a
-       jump where the source switches (``tests/test_depth_fusion.py``).
+       jump where the source switches (``tests/unit/ctd/test_depth_fusion.py``).
     3. **Saturation from the data**, not only ``ctd_saturation_dbar``: a *flat line* at the CTD's top
        (``>= min_flat_samples`` samples within ``flat_tolerance_dbar`` of its maximum while the gauge moves
        by more than 1 dbar) or *divergence* from the gauge at the top of the CTD's range (residual of the fit

@@ -14,7 +14,7 @@ Conventions (as SeaSoft): temperatures passed in are ITS-90 (°C) and converted 
 ``T68 = 1.00024 * T90`` because the UNESCO 44 formulas are fitted on IPTS-68; pressure is sea pressure in
 dbar (0 at the sea surface); conductivity in S/m. Every function is NumPy-vectorised and broadcasts its
 arguments; NaN in → NaN out. The check values of UNESCO 44 and SeaSoft's own columns are tested in
-``tests/test_seawater.py``.
+``tests/unit/ctd/test_seawater.py``.
 """
 
 from __future__ import annotations
@@ -389,7 +389,7 @@ def gravity(latitude_deg: ArrayLike, depth_m: ArrayLike = 0.0) -> np.ndarray:
     depth ``H``: gravity **increases** with depth in the ocean (moving towards the Earth's centre gains more
     than the attraction of the overlying water shell takes away). Using the printed sign would put a
     sample at 10 900 dbar ~13 m too deep after the hydrostatic integration.
-    Verified against ``gsw.grav`` (``tests/test_seawater.py``): ``gravity(lat, -gsw.z_from_p(p, lat))``
+    Verified against ``gsw.grav`` (``tests/unit/ctd/test_seawater.py``): ``gravity(lat, -gsw.z_from_p(p, lat))``
     equals ``gsw.grav(lat, p)`` to 1e-12, and the GSW check-cast values.
     """
     x = np.sin(np.deg2rad(_f(latitude_deg))) ** 2

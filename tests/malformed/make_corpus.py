@@ -1,7 +1,7 @@
 """Generate the malformed-input corpus for the ingest stage: one raw dive directory per defect.
 
 Usage: ``PYTHONPATH=src python tests/malformed/make_corpus.py DEST`` writes ``DEST/<case>/`` and prints the
-cases. ``tests/test_ingest_malformed.py`` runs the ingest stage on every case and asserts the outcome:
+cases. ``tests/robustness/test_ingest_malformed.py`` runs the ingest stage on every case and asserts the outcome:
 either a one-line :class:`hadal.errors.HadalError` of the expected class with nothing published, or a
 published product whose data/metadata flag the defect (``check``).
 """

@@ -8,7 +8,7 @@ Usage: ``PYTHONPATH=src python tests/malformed/stage_worker.py STAGE RAW_DIR STO
 * ``rename``: inside the lock, just before the staging directory is renamed to ``vNNN``.
 
 At the pause the worker creates ``--marker`` and waits until ``--go`` exists (without ``--go``: forever, to be
-killed). Used by ``tests/test_fault_injection.py`` (kill -9 mid-publish, concurrent runs).
+killed). Used by ``tests/robustness/test_fault_injection.py`` (kill -9 mid-publish, concurrent runs).
 """
 
 from __future__ import annotations

@@ -16,7 +16,7 @@ and open3d's statistical outlier removal rule (mean distance to the k nearest ne
 water column or multipath), confirmed by a vertical test against the cell's other points so that
 good points on swath and hole edges (which SOR also flags) stay. The SOR neighbour search runs in
 a compiled cell-grid search (:func:`sor_outlier_mask`) instead of open3d's k-d tree: the same flags
-(tests/test_laser_sor.py, open3d as the oracle) at about half of open3d's CPU time on the sample's
+(tests/unit/grid/test_laser_sor.py, open3d as the oracle) at about half of open3d's CPU time on the sample's
 2.2 M-point submaps (bench/bench_laser_sor.py); open3d itself where a cloud does not suit the grid.
 Cell statistics use the exact chunked sort-and-reduce of :mod:`hadal.grid.points`.
 """
@@ -168,7 +168,7 @@ def sor_outlier_mask(points: np.ndarray, nb_neighbors: int, std_ratio: float) ->
 
     Same arithmetic as open3d (:mod:`hadal.grid._sor_kernels`), with the neighbour search of
     :func:`knn_mean_distance_m` instead of a k-d tree: on a laser submap of even density it takes about half open3d's
-    CPU time, its searches in parallel blocks (bench/bench_laser_sor.py; ``tests/test_laser_sor.py`` checks the
+    CPU time, its searches in parallel blocks (bench/bench_laser_sor.py; ``tests/unit/grid/test_laser_sor.py`` checks the
     flags against open3d). A cloud the grid does not suit goes to open3d itself."""
     from hadal.grid._sor_kernels import sor_keep
 

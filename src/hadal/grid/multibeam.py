@@ -157,7 +157,7 @@ def knn_spike_mask(x, y, z, *, k: float = 4.0, neighbours: int = 16, floor: floa
     (:mod:`hadal.grid.knn_cells`), ties between equally distant neighbours broken by the lower index, a
     sounding never its own neighbour. It flags exactly what the NumPy reference
     :func:`knn_spike_mask_reference` (scipy cKDTree neighbours) flags where no two neighbour distances tie
-    (tests/test_grid_multibeam.py, also on real EX1604 soundings), at 0.55x its CPU time on the sample dive's
+    (tests/unit/grid/test_grid_multibeam.py, also on real EX1604 soundings), at 0.55x its CPU time on the sample dive's
     3.45 M soundings (bench/bench_spike_test.py). Soundings the grid does not suit (no extent, a dense blob) use the
     cKDTree neighbours (``chunk`` soundings at a time). The inputs must be finite (the gridder drops
     non-finite soundings first).
@@ -249,7 +249,7 @@ def sor_mask(x, y, z, nb_neighbors: int = 16, std_ratio: float = 3.0) -> np.ndar
     """True for points open3d's statistical outlier removal rejects (mean distance to the
     ``nb_neighbors`` nearest neighbours above ``mean + std_ratio * std`` over the cloud): the laser stage's
     :func:`hadal.grid.laser.sor_outlier_mask`, which flags exactly what open3d flags (real EX1604 soundings
-    included, tests/test_laser_sor.py); none of at most ``nb_neighbors`` soundings."""
+    included, tests/unit/grid/test_laser_sor.py); none of at most ``nb_neighbors`` soundings."""
     from hadal.grid.laser import sor_outlier_mask
 
     n = len(x)

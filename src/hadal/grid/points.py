@@ -216,7 +216,7 @@ def cell_robust_stats(idx: np.ndarray, z: np.ndarray) -> CellRobustStats:
     sort by cell and a per-cell sort (:func:`hadal.grid._kernels.segment_median_mad`): the same ``order`` as
     ``np.lexsort((z, idx))`` and the same medians, MADs and deviations as the NumPy path (two lexsorts, no Python
     loop) at 1/8-1/14 of its time (the sample dive's 3.45 M soundings in 1.0 M cells: 0.10-0.18 s against 1.45-1.48 s,
-    identical results, measured; tests/test_grid_points.py compares both and pandas' group medians)."""
+    identical results, measured; tests/unit/grid/test_grid_points.py compares both and pandas' group medians)."""
     import numpy as np
 
     kernels = _partition_kernels()

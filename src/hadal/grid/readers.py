@@ -1278,7 +1278,7 @@ def _read_gsf_here(path: str | Path, *, include_flagged: bool = False, budget: A
     GSF versions: libgsf reads every 3.x file version (its record layouts are decoded by the version in the file's
     header record; newer sensor-specific subrecords are skipped by their size); the EX1604 file (GSF-v03.06) gives
     the same soundings through gsfpy's libgsf 3.08 and 3.09 (``DEFAULT_GSF_VERSION``), also relabelled v03.01 ..
-    v03.11 (tests/test_gsf_versions.py). ``attrs`` record the file's ``gsf_version`` and the ``libgsf`` used.
+    v03.11 (tests/unit/grid/test_gsf_versions.py). ``attrs`` record the file's ``gsf_version`` and the ``libgsf`` used.
 
     ``attrs``: ``reader`` ("gsfpy <version>"), ``format``, ``pings``, ``beams_per_ping``, ``soundings``,
     ``dropped`` (flagged or null beams), ``time_start``/``time_end`` (ISO 8601 UTC). A file with no swath

@@ -11,7 +11,7 @@ the saturation value (``ioos_qc`` flags values strictly outside the span).
 
 The spike test is ``ioos_qc.qartod.spike_test`` (method "average") re-expressed without its per-sample Python
 loop over the masks (:func:`spike_test_flags`: 0.21 s -> 0.012 s a variable on 567 k samples, 17x);
-``tests/test_qc_spike.py`` checks it flag for flag against the library on series with NaN/inf runs, huge values
+``tests/unit/ingest/test_qc_spike.py`` checks it flag for flag against the library on series with NaN/inf runs, huge values
 and every threshold form.
 
 Deviation from ``ioos_qc.qartod.flat_line_test`` (flat line only; gross range is the library's):
@@ -20,7 +20,7 @@ to whole seconds, which is 0 s for a 16 Hz CTD, and (b) materialises an ``n x wi
 (a 16 Hz dive of 10 h with a 300 s window would need ~22 GB). :func:`flat_line_flags` implements the same
 definition - point ``j`` is flagged when the range of the ``count + 1`` samples ending at ``j`` (NaN ignored)
 is below ``tolerance``, ``count = threshold_s / median_dt``, no flag before the first full window - with
-O(n) rolling max/min. ``tests/test_ingest_units_align_qc.py`` checks it against ``ioos_qc`` flag for flag.
+O(n) rolling max/min. ``tests/unit/ingest/test_ingest_units_align_qc.py`` checks it against ``ioos_qc`` flag for flag.
 """
 
 from __future__ import annotations

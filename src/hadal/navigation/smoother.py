@@ -26,7 +26,7 @@ changes by ``dz`` m the dimensionless decorrelation is
 (the rate ``beta = a / dt`` is taken constant over the step). Each component is the integrated
 Ornstein-Uhlenbeck ("Singer") model of target tracking (Singer 1970, IEEE Trans. AES-6(4); Bar-Shalom, Li &
 Kirubarajan 2001, *Estimation with Applications to Tracking and Navigation*, §8.2.3) with its exact
-discretisation (checked against Van Loan's matrix exponential, tests/test_navigation_smoother.py). Unlike a
+discretisation (checked against Van Loan's matrix exponential, tests/unit/navigation/test_navigation_smoother.py). Unlike a
 random walk with a small prior, the current's variability is as large as its mean, so a drift concentrated in
 part of the descent (strong upper-ocean currents) is covered, and the position uncertainty between two fixes
 grows like a random walk of diffusivity ``2 sigma^2 tau`` (``tau`` the correlation time of the traversal) plus
@@ -64,7 +64,7 @@ navigation (``src/auv_nav/localisation/ekf.py``: a 12-state EKF over position, a
 fed by DVL, depth, orientation and USBL fixes, whose USBL sigma defaults to offset + factor x slant range, with a
 forward Mahalanobis gate on the innovations and an RTS pass over the stored states). Here the state is linear
 (the DR/DVL integration is done upstream), so the smoother is exact: its mean and covariance equal the batch
-least-squares solution (tests/test_navigation_smoother.py); and the gate tests every fix against the smoothed
+least-squares solution (tests/unit/navigation/test_navigation_smoother.py); and the gate tests every fix against the smoothed
 track of all the *other* fixes, not only the past ones.
 
 Epochs: the state is not kept per sample (16 Hz over a 10 h dive is ~570 000 states, nine times over for the

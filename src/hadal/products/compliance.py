@@ -23,7 +23,7 @@ Two findings are *documented exceptions* (``Finding.allowed``), not defects of t
   MSD surface over candidate horizontal positions); :func:`hadal.products.io.write_netcdf` writes the
   vertical attributes whenever the data have a vertical coordinate or a depth field.
 
-IOOS-1.2 (``checkers=IOOS_CHECKERS``; high-priority checks, see ``tests/test_products_ioos.py``). Every product
+IOOS-1.2 (``checkers=IOOS_CHECKERS``; high-priority checks, see ``tests/unit/products/test_products_ioos.py``). Every product
 carries the IOOS attribution attributes, a ``platform`` container variable and ``Conventions`` with IOOS-1.2;
 these high-priority findings are documented exceptions (not applicable, or not the writer's to fix):
 

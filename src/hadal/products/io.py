@@ -829,7 +829,7 @@ def write_netcdf(ds: xr.Dataset, path: str | Path, *, title: str, summary: str, 
 
 def netcdf_bytes(ds: xr.Dataset) -> memoryview:
     """The NetCDF-4 file of ``ds`` in memory, byte for byte what ``ds.to_netcdf(engine="h5netcdf")`` returns
-    (tests/test_products.py checks it), written through xarray's h5netcdf store with a plain lock.
+    (tests/unit/products/test_products.py checks it), written through xarray's h5netcdf store with a plain lock.
 
     Why not ``to_netcdf`` itself: with dask installed it asks dask which scheduler is active, and that imports
     ``dask.distributed`` (~1.2 s of CPU, measured) in every process that writes a NetCDF file, the stage processes

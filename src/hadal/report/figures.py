@@ -85,7 +85,7 @@ class FigureOptions:
     keep_figure: bool = False  # keep the Figure on the result (FigureResult.figure); off: freed after rendering
     #: smallest text (points) on a figure: every smaller label, tick label and legend entry is raised to it. At the
     #: default dpi and width the PNG is shown at ~97 % of its size in the page (1100 px wide at most), so 9 pt stays
-    #: >= 9 pt (12 CSS px) on screen (checked in headless Chromium, tests/test_report.py)
+    #: >= 9 pt (12 CSS px) on screen (checked in headless Chromium, tests/unit/report/test_report.py)
     min_font_pt: float = 9.0
     #: processes drawing the figures (:class:`hadal.forkpool.ForkPool`; 1 with ``keep_figure``: a Figure stays here)
     workers: int = 1

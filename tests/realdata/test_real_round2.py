@@ -1,0 +1,218 @@
+"""Real files of the kinds in issue #43, round 2 (tests/data/real/README.md: provenance and licences).
+
+Each test reads a real file another tool or instrument wrote and checks the content against an independent oracle
+(laspy's own scaled coordinates with pyproj's transform of the file's own CRS, the file's header text, ...).
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+REAL = Path(__file__).parents[1] / "data" / "real"
+
+
+def _real(name: str) -> Path:
+    p = REAL / name
+    if not p.is_file():
+        pytest.skip(f"{name} not vendored")
+    return p
+
+
+def test_las_in_us_survey_feet_with_towgs84_stays_georeferenced():
+    """laspy's test1_4.las: a WKT1 PROJCS with TOWGS84 (a pyproj BoundCRS) in US survey feet. The cloud is scaled
+    to metres, and the CRS it is returned in must put those metres where the file's own CRS puts its feet
+    (before: the metre axes were applied only to plain projected CRSs, so the grid was 400 km off)."""
+    import laspy
+    from pyproj import CRS, Transformer
+
+    from hadal.grid.clouds import read_las
+
+    p = _real("laspy_test1_4_nm_ftus.las")
+    pts, meta = read_las(p)
+    las = laspy.read(str(p))
+    file_crs = las.header.parse_crs()
+    assert meta["crs_kind"] == "projected" and meta["horizontal_units"] == "US survey foot"
+    ftus = 1200 / 3937
+    np.testing.assert_allclose(pts[:, 2], np.asarray(las.z) * ftus, rtol=1e-12)
+    assert pts[:, 2].min() > 0  # elevation, up: not negated
+    xy_crs = CRS.from_wkt(meta["xy_crs_wkt"])
+    assert {ax.unit_name for ax in xy_crs.axis_info} == {"metre"}
+    got = Transformer.from_crs(xy_crs, "EPSG:4326", always_xy=True).transform(pts[:, 0], pts[:, 1])
+    ref = Transformer.from_crs(file_crs, "EPSG:4326", always_xy=True).transform(np.asarray(las.x), np.asarray(las.y))
+    np.testing.assert_allclose(got, ref, rtol=0, atol=1e-9)  # degrees: well under a millimetre
+    assert 35.99 < ref[1].min() and ref[0].max() < -106.0  # New Mexico, as the CRS says
+
+
+def test_cnv_latitude_from_seasoft_channel_note_when_the_header_has_none(tmp_path):
+    """castelao/seabird Hotin.cnv (SBE 19plus): no NMEA/user position, but SeaSoft wrote the latitude it used into
+    the depth channel's name ('depSM: Depth [salt water, m], lat = 48.38'). That latitude is the cast's (before:
+    45°). Oracle: SeaSoft's own depSM column, which UNESCO 44 reproduces at 48.38° and not at 45°."""
+    import shutil
+
+    from hadal.dive_init import scan_dive_dir
+    from hadal.ingest.cnv import read_cnv
+    from hadal.seawater import depth_fofonoff_millard
+
+    p = _real("seabird_Hotin_sbe19plus.cnv")
+    df = read_cnv(p)
+    assert df.attrs["latitude_deg"] == pytest.approx(48.38)
+    assert df.attrs["longitude_deg"] is None
+    assert "depSM" in df.attrs["position_source"]["latitude"]
+    pres, dep = df["prdM"].to_numpy(), df["depSM"].to_numpy()
+    np.testing.assert_allclose(depth_fofonoff_millard(pres, df.attrs["latitude_deg"]), dep, rtol=0, atol=1.5e-3)
+    assert np.abs(depth_fofonoff_millard(pres, 45.0) - dep).max() > 2e-3
+    shutil.copy(p, tmp_path / p.name)
+    res = scan_dive_dir(tmp_path)
+    assert res.dive["sources"]["cnv"] == [p.name]
+    assert not [t for t in res.todo if "latitude" in t]  # the cast carries its latitude: nothing to ask
+    from hadal.ctd.derive import choose_position
+    from hadal.dive import Dive
+    from hadal.settings import DeriveParams
+
+    meta = {"cast_latitude_deg": df.attrs["latitude_deg"], "cast": {"position_source": df.attrs["position_source"]}}
+    pos = choose_position(DeriveParams(), Dive.model_validate({"dive_id": "hotin"}), meta)
+    assert pos["latitude_deg"] == pytest.approx(48.38)
+    assert "depSM" in pos["latitude_source"] and "NMEA" not in pos["latitude_source"]  # says where it came from
+
+
+
+def test_map_frame_at_the_cast_on_a_prior_grid_not_at_the_grid_centre(tmp_path):
+    """A cast beside a coarse grid (castelao/seabird SK287_CTD05.cnv, SBE 9 with NMEA 02 26.71 S 080 28.68 E, on
+    a 15° x 15° grid of the eastern Indian Ocean): the DTM and the suitability analysis are wanted at the cast,
+    not at the grid's centre 850 km away. Oracle: the cast's NMEA header lines."""
+    import shutil
+
+    import xarray as xr
+
+    from hadal.dive_init import scan_dive_dir
+
+    cast = _real("seabird_SK287_CTD05.cnv")
+    shutil.copy(cast, tmp_path / cast.name)
+    lon, lat = np.arange(75.0, 90.01, 0.25), np.arange(-10.0, 5.01, 0.25)
+    z = -4000.0 - 100.0 * np.sin(lon)[None, :] * np.cos(lat)[:, None]
+    xr.Dataset({"z": (("lat", "lon"), z, {"units": "m", "long_name": "elevation"})},
+               coords={"lon": ("lon", lon, {"units": "degrees_east"}),
+                       "lat": ("lat", lat, {"units": "degrees_north"})}).to_netcdf(tmp_path / "bay_of_bengal.nc")
+    res = scan_dive_dir(tmp_path)
+    grids = [g if isinstance(g, str) else g["path"] for g in res.dive["sources"]["prior_grid"]]
+    assert grids == ["bay_of_bengal.nc"] and res.dive["sources"]["cnv"] == [cast.name]
+    mf = res.dive["map_frame"]
+    assert mf["origin_latitude_deg"] == pytest.approx(-(2 + 26.71 / 60), abs=1e-3)
+    assert mf["origin_longitude_deg"] == pytest.approx(80 + 28.68 / 60, abs=1e-3)
+    assert any(m.startswith("map_frame: the position of the cast(s)") for m in res.mapped)
+
+
+def test_hex_upload_is_raw_hex_whatever_the_real_time_output_format_says():
+    """seabirdscientific's 16plus_digiquartz.hex: its header's <OutputFormat> (the real-time setting) says
+    'converted decimal' but its 17 scans are 30-character raw hex (seabirdscientific's own test decodes them
+    as such). The reader judges the scans, so the one-line refusal names what it really cannot do: the
+    Digiquartz pressure sensor (before: 'not raw HEX')."""
+    from hadal.errors import InputError
+    from hadal.ingest.seabird_hex import read_hex
+
+    p = _real("sbs_16plus_digiquartz.hex")
+    scans = [ln.strip() for ln in p.read_text("latin-1").split("*END*")[1].splitlines() if ln.strip()]
+    assert len(scans) == 17 and {len(s) for s in scans} == {30}
+    with pytest.raises(InputError) as ei:
+        read_hex(p)
+    msg = str(ei.value)
+    assert "Digiquartz" in msg and "not raw HEX" not in msg and "\n" not in msg
+
+
+def test_cloud_without_crs_gets_an_explicit_commented_crs_local_from_init(tmp_path):
+    """laspy's simple.laz has no VLR at all (no CRS). init lists it with ``crs: local`` and a comment saying it
+    is init's choice (rule 1: a fallback is written down where the user can change it); a LAS with a CRS gets
+    no hint. Reading it with that hint gives laspy's own coordinates unchanged (metres, z up)."""
+    import shutil
+
+    import laspy
+    import yaml
+
+    from hadal.dive_init import scan_dive_dir, write_init
+    from hadal.grid.clouds import read_las
+
+    p = _real("laspy_simple_nocrs.laz")
+    assert laspy.read(str(p)).header.parse_crs() is None
+    shutil.copy(p, tmp_path / p.name)
+    shutil.copy(_real("laspy_test1_4_nm_ftus.las"), tmp_path / "with_crs.las")
+    res = scan_dive_dir(tmp_path)
+    write_init(res)
+    text = (tmp_path / "dive.yaml").read_text()
+    laser = yaml.safe_load(text)["sources"]["laser"]
+    assert {"path": p.name, "crs": "local"} in laser and "with_crs.las" in laser
+    line = next(ln for ln in text.splitlines() if "crs: local" in ln)
+    assert "hadal init's choice" in line and "no CRS" in line
+    pts, meta = read_las(tmp_path / p.name, {"crs": "local"})
+    las = laspy.read(str(p))
+    np.testing.assert_array_equal(pts, np.column_stack([las.x, las.y, las.z]))
+    assert meta["crs_from"] == "dive.yaml" and meta["z_positive"] == "up"
+
+
+@pytest.mark.parametrize("name, sep", [("pdal_utm17_tab.pcd", "\t"), ("pdal_utm17_comma.pcd", ",")])
+def test_ascii_pcd_with_tab_or_comma_separators(name, sep):
+    """PDAL's utm17_tab.pcd / utm17_comma.pcd (PCD v0.7 ascii, F 4): pypcd4 splits on spaces only and read no
+    point (before: "not a readable PCD point cloud"). Oracles: numpy's parse of the data block with the file's
+    own separator (as float32, the file's TYPE F SIZE 4), and PDAL's utm17.las of the same 10 points (laspy)."""
+    import laspy
+
+    from hadal.grid.clouds import read_pcd
+
+    p = _real(name)
+    text = p.read_text()
+    body = text.split("DATA ascii", 1)[1].strip()
+    ref = np.loadtxt(body.splitlines(), delimiter=sep, dtype=np.float32).astype(np.float64)
+    pts, meta = read_pcd(p)
+    assert meta["fields"] == "X Y Z" and meta["z_positive"] == "up"
+    np.testing.assert_array_equal(pts, ref)
+    las = laspy.read(str(_real("pdal_utm17.las")))
+    np.testing.assert_allclose(pts, np.column_stack([las.x, las.y, las.z]), rtol=0, atol=0.5)  # float32 at 4.3e6 m
+
+
+def test_sonar_file_with_every_sounding_at_one_position_is_refused_by_init(tmp_path):
+    """gsfpy's GSF 3.09 test file: 3 pings, every one at the same fix. Nothing can be gridded, so init lists it
+    as not used in one line, with the position (before: listed, then the dtm stage failed at run time)."""
+    import shutil
+
+    from hadal.dive_init import scan_dive_dir
+
+    p = _real("gsfpy_GSF3_09_test_file.gsf")
+    shutil.copy(p, tmp_path / p.name)
+    res = scan_dive_dir(tmp_path)
+    assert not res.dive["sources"]
+    (line,) = [n for n in res.not_used if n.startswith(p.name)]
+    assert "one position (17.847152, -64.597074)" in line and "\n" not in line
+
+
+def test_a_cast_without_descent_or_ascent_says_why_its_profiles_are_empty(tmp_path):
+    """castelao/seabird SK287_CTD05.cnv holds 10 scans at 0.8-4.2 dbar (a surface soak): its descent and ascent
+    profiles have no binned value. They say so, with the record's phases and pressure span, instead of being
+    published silently empty. Oracle: the file's own prDM column (its range)."""
+    import shutil
+
+    import xarray as xr
+
+    from hadal.dive_init import scan_dive_dir, write_init
+    from hadal.ingest.cnv import read_cnv
+    from hadal.pipeline import make_context, run_stage
+
+    src = _real("seabird_SK287_CTD05.cnv")
+    raw = tmp_path / "sk287"
+    raw.mkdir()
+    shutil.copy(src, raw / src.name)
+    write_init(scan_dive_dir(raw))
+    ctx = make_context(raw, tmp_path / "store")
+    for name in ("ingest", "derive"):
+        run_stage(name, ctx)
+    pv = run_stage("profile", ctx)["profile"]
+    pres = read_cnv(src)["prDM"].to_numpy()
+    with xr.open_dataset(pv.file("profile.nc"), engine="h5netcdf") as ds:
+        assert int(ds["row_size"].sum()) == 0
+        note = ds.attrs["profile_empty_casts"]
+    assert "descent:" in note and "ascent:" in note
+    assert f"{pres.min():.1f}-{pres.max():.1f} dbar" in note and "bottom 10" in note
+    manifest = json.loads((pv.path / "manifest.json").read_text())
+    assert set(manifest["empty_casts"]) == {"descent", "ascent"}
