@@ -288,3 +288,56 @@ def test_a_cast_without_descent_or_ascent_says_why_its_profiles_are_empty(tmp_pa
     assert f"{pres.min():.1f}-{pres.max():.1f} dbar" in note and "bottom 10" in note
     manifest = json.loads((pv.path / "manifest.json").read_text())
     assert set(manifest["empty_casts"]) == {"descent", "ascent"}
+
+
+def test_slocum_all_zero_science_row_is_missing_data_not_zero_values(shared_data, tmp_path):
+    """GUTILS' usf_bass_2016_252_1_14_sbd.dat (dbd2asc): its first cycle has every science-bay value exactly 0
+    (sci_water_cond, sci_water_temp, sci_water_pressure, the optics and oxygen: the science computer's "no data"
+    row), which was read as a 0 degC / 0 S/m / 0 dbar sample. pyglider's convention (slocum.py applies
+    utils._zero_screen, ``val[val == 0] = nan``, to every science sensor) makes them missing: init writes the 0
+    as a fill value with its reason, the ingest counts them by name, and no CTD sample is 0. Oracle: the file's
+    own columns parsed here, screened as pyglider does."""
+    import shutil
+
+    import pandas as pd
+    import yaml
+
+    from hadal.dive_init import scan_dive_dir, write_init
+    from hadal.pipeline import make_context, run_stage
+
+    src = shared_data / "dives-real" / "gutils_usf_bass_2016_252_1_14_sbd.dat"
+    if not src.is_file():
+        pytest.skip("gutils_usf_bass_2016_252_1_14_sbd.dat not in this copy of the shared data")
+    lines = src.read_text().splitlines()
+    names = lines[14].split()
+    data = np.array([[float(v) for v in ln.split()] for ln in lines[17:] if ln.strip()])
+    col = {n: data[:, i] for i, n in enumerate(names)}
+    sci = [n for n in names if n.startswith("sci_") and n != "sci_m_present_time"]
+    zero_rows = np.all(np.stack([col[n] == 0 for n in sci]), axis=0)
+    assert zero_rows.sum() == 1  # the file's first data row
+    ctd = ("sci_water_cond", "sci_water_temp", "sci_water_pressure")
+    screened = {n: np.where(col[n] == 0, np.nan, col[n]) for n in ctd}
+    ctd_rows = np.any(np.stack([np.isfinite(screened[n]) for n in ctd]), axis=0)
+
+    raw = tmp_path / "bass"
+    raw.mkdir()
+    shutil.copy(src, raw / src.name)
+    write_init(scan_dive_dir(raw))
+    text = (raw / "vehicle.yaml").read_text()
+    fields = yaml.safe_load(text)["sensors"]["ctd"]["csv"]["fields"]
+    assert {f["field"]: f.get("fill_values") for f in fields.values()} == {n: [0.0] for n in ctd}
+    assert all("no-data value" in ln for ln in text.splitlines() if "fill_values: [0.0]" in ln)
+    ctx = make_context(raw, tmp_path / "store")
+    pv = run_stage("ingest", ctx)["sensors"]
+    s = pd.read_parquet(pv.file("sensors.parquet"))
+    assert len(s) == ctd_rows.sum()  # the all-zero cycle is no CTD sample
+    t0 = pd.Timestamp(col["m_present_time"][zero_rows][0], unit="s", tz="UTC")
+    assert (s["time"] - t0).abs().min() > pd.Timedelta(seconds=1)
+    for var, n, k in (("conductivity_s_m", "sci_water_cond", 1.0), ("temperature_its90_degc", "sci_water_temp", 1.0),
+                      ("pressure_ctd_dbar", "sci_water_pressure", 10.0)):
+        got = s[var].to_numpy()
+        assert not (got == 0).any()
+        np.testing.assert_allclose(got, k * screened[n][ctd_rows], rtol=0, atol=1e-9)
+    conv = json.loads((pv.path / "manifest.json").read_text())["ingest"]["unit_conversions"]
+    counted = {c["variable"]: c["count"] for c in conv if c["formula"] == "fill value(s) 0 -> missing"}
+    assert counted == {"conductivity_s_m": 1, "temperature_its90_degc": 1, "pressure_ctd_dbar": 1}
