@@ -341,3 +341,45 @@ def test_slocum_all_zero_science_row_is_missing_data_not_zero_values(shared_data
     conv = json.loads((pv.path / "manifest.json").read_text())["ingest"]["unit_conversions"]
     counted = {c["variable"]: c["count"] for c in conv if c["formula"] == "fill value(s) 0 -> missing"}
     assert counted == {"conductivity_s_m": 1, "temperature_its90_degc": 1, "pressure_ctd_dbar": 1}
+
+
+def test_sparse_glider_altimeter_is_not_held_for_a_minute(shared_data, tmp_path):
+    """The Slocum .dat logs m_altitude once every ~74 s while its CTD samples every ~3.5 s. The altimeter's
+    gap limit is widened to 1.5 of its intervals (111 s), and a nearest-sample value was then held on every CTD
+    sample up to 55 s from its reading: the seafloor came out 12.4 m deep where the glider's own m_water_depth
+    says 25-26 m, flagged good. A held reading now stands only within half the CTD's interval of its time.
+    Oracle: the file's m_depth + m_altitude at each reading (the flight computer's own depth and range)."""
+    import shutil
+
+    import pandas as pd
+
+    from hadal.dive_init import scan_dive_dir, write_init
+    from hadal.pipeline import make_context, run_stage
+
+    src = shared_data / "dives-real" / "gutils_usf_bass_2016_252_1_14_sbd.dat"
+    if not src.is_file():
+        pytest.skip("gutils_usf_bass_2016_252_1_14_sbd.dat not in this copy of the shared data")
+    lines = src.read_text().splitlines()
+    names = lines[14].split()
+    data = np.array([[float(v) for v in ln.split()] for ln in lines[17:] if ln.strip()])
+    col = {n: data[:, i] for i, n in enumerate(names)}
+    ok = np.isfinite(col["m_altitude"])
+    t_read = pd.to_datetime(col["m_present_time"][ok], unit="s", utc=True)
+    floor = (col["m_depth"] + col["m_altitude"])[ok]
+    raw = tmp_path / "bass"
+    raw.mkdir()
+    shutil.copy(src, raw / src.name)
+    write_init(scan_dive_dir(raw))
+    ctx = make_context(raw, tmp_path / "store")
+    run_stage("ingest", ctx)
+    ctd = pd.read_parquet(run_stage("derive", ctx)["ctd"].file("ctd.parquet"))
+    inside = (t_read >= ctd["time"].iloc[0]) & (t_read <= ctd["time"].iloc[-1])
+    got = ctd[ctd["altitude_m"].notna()]
+    assert inside.sum() - 1 <= len(got) <= 2 * inside.sum()  # each reading on its nearest CTD sample(s)
+    step_s = float(np.median(np.diff(ctd["time"].astype("int64")))) / 1e9
+    for _, r in got.iterrows():
+        k = int(np.argmin(np.abs((t_read - r["time"]).total_seconds())))
+        assert abs((t_read[k] - r["time"]).total_seconds()) <= 0.5 * step_s + 1e-6
+        assert r["altitude_m"] == col["m_altitude"][ok][k]
+        assert r["seafloor_depth_m"] == pytest.approx(floor[k], abs=0.6)
+    assert got["seafloor_depth_m"].min() > 20.0  # never the 12 m of a minute-old range
