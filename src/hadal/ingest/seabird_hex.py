@@ -17,7 +17,8 @@ needs, in one of two forms:
 
 Scan layout (SBE 19plus V2 / 16plus V2 manual, "OutputFormat=0 raw hex"; ``n`` = hex characters): temperature
 A/D counts (6), conductivity frequency x 256 (6), strain-gauge pressure A/D counts (6) + pressure temperature
-compensation counts (4, volts = counts / 13107), one 4-character word per enabled external voltage
+compensation counts (4, volts = counts / 13107) or Digiquartz frequency x 256 (6) + compensation (4, its first 3
+characters the count), one 4-character word per enabled external voltage
 (volts = counts / 13107), then, if enabled, SBE 38 temperature (6), WET Labs RS-232 (3 x 4), GTD pressure (8)
 + temperature (6) (twice for a dual GTD), Aanderaa optode oxygen (6), SBE 63 phase (6) + thermistor (6), and in
 moored mode the time (8, seconds since 2000-01-01 UTC).
