@@ -290,6 +290,18 @@ def test_a_cast_without_descent_or_ascent_says_why_its_profiles_are_empty(tmp_pa
     assert set(manifest["empty_casts"]) == {"descent", "ascent"}
 
 
+def _slocum_dat(shared: Path) -> tuple[Path, list[str], dict[str, np.ndarray]]:
+    """GUTILS' dbd2asc file (skips when absent): its path, sensor names and columns, parsed here by its own
+    14-line header and 3 label lines."""
+    src = shared / "dives-real" / "gutils_usf_bass_2016_252_1_14_sbd.dat"
+    if not src.is_file():
+        pytest.skip("gutils_usf_bass_2016_252_1_14_sbd.dat not in this copy of the shared data")
+    lines = src.read_text().splitlines()
+    names = lines[14].split()
+    data = np.array([[float(v) for v in ln.split()] for ln in lines[17:] if ln.strip()])
+    return src, names, {n: data[:, i] for i, n in enumerate(names)}
+
+
 def test_slocum_all_zero_science_row_is_missing_data_not_zero_values(shared_data, tmp_path):
     """GUTILS' usf_bass_2016_252_1_14_sbd.dat (dbd2asc): its first cycle has every science-bay value exactly 0
     (sci_water_cond, sci_water_temp, sci_water_pressure, the optics and oxygen: the science computer's "no data"
@@ -305,13 +317,7 @@ def test_slocum_all_zero_science_row_is_missing_data_not_zero_values(shared_data
     from hadal.dive_init import scan_dive_dir, write_init
     from hadal.pipeline import make_context, run_stage
 
-    src = shared_data / "dives-real" / "gutils_usf_bass_2016_252_1_14_sbd.dat"
-    if not src.is_file():
-        pytest.skip("gutils_usf_bass_2016_252_1_14_sbd.dat not in this copy of the shared data")
-    lines = src.read_text().splitlines()
-    names = lines[14].split()
-    data = np.array([[float(v) for v in ln.split()] for ln in lines[17:] if ln.strip()])
-    col = {n: data[:, i] for i, n in enumerate(names)}
+    src, names, col = _slocum_dat(shared_data)
     sci = [n for n in names if n.startswith("sci_") and n != "sci_m_present_time"]
     zero_rows = np.all(np.stack([col[n] == 0 for n in sci]), axis=0)
     assert zero_rows.sum() == 1  # the file's first data row
@@ -356,13 +362,7 @@ def test_sparse_glider_altimeter_is_not_held_for_a_minute(shared_data, tmp_path)
     from hadal.dive_init import scan_dive_dir, write_init
     from hadal.pipeline import make_context, run_stage
 
-    src = shared_data / "dives-real" / "gutils_usf_bass_2016_252_1_14_sbd.dat"
-    if not src.is_file():
-        pytest.skip("gutils_usf_bass_2016_252_1_14_sbd.dat not in this copy of the shared data")
-    lines = src.read_text().splitlines()
-    names = lines[14].split()
-    data = np.array([[float(v) for v in ln.split()] for ln in lines[17:] if ln.strip()])
-    col = {n: data[:, i] for i, n in enumerate(names)}
+    src, names, col = _slocum_dat(shared_data)
     ok = np.isfinite(col["m_altitude"])
     t_read = pd.to_datetime(col["m_present_time"][ok], unit="s", utc=True)
     floor = (col["m_depth"] + col["m_altitude"])[ok]
