@@ -194,18 +194,26 @@ DEFAULT_METHODS: dict[str, str] = {"altitude_m": "nearest", "heading_deg": "circ
 
 
 def align_sensor(base_ns: np.ndarray, t_ns: np.ndarray, values: dict[str, np.ndarray], max_gap_s: float,
-                 methods: dict[str, str] | None = None) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
+                 methods: dict[str, str] | None = None, nearest_max_gap_s: float | None = None
+                 ) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
     """Align all variables of one (cleaned) sensor stream onto ``base_ns``.
+
+    ``nearest_max_gap_s``: the tolerance of the variables aligned to their nearest sample (default
+    ``max_gap_s``); a held value is one reading, not an interpolation, so its tolerance is how far from that
+    reading it still stands for the vehicle (an altitude held for a minute of a glider's dive is metres wrong).
 
     Returns the aligned arrays and statistics: samples used, base samples left without data by gaps or
     outside the stream's span (``gap_filled_nan``) per variable.
     """
     methods = {**DEFAULT_METHODS, **(methods or {})}
+    near_gap = max_gap_s if nearest_max_gap_s is None else nearest_max_gap_s
     out, stats = {}, {"samples": int(np.asarray(t_ns).size), "max_gap_s": max_gap_s, "missing_after_alignment": {}}
     for var, v in values.items():
         m = methods.get(var, "linear")
         if m == "nearest":
-            a = align_nearest(base_ns, t_ns, v, max_gap_s)
+            if near_gap != max_gap_s:
+                stats.setdefault("nearest_max_gap_s", near_gap)
+            a = align_nearest(base_ns, t_ns, v, near_gap)
         else:
             a = align_linear(base_ns, t_ns, v, max_gap_s, circular=(m == "circular"))
         out[var] = a

@@ -17,7 +17,7 @@ import pandas as pd
 import yaml
 
 from hadal.errors import InputError
-from hadal.ingest.align import align_sensor, clean_times
+from hadal.ingest.align import DEFAULT_METHODS, align_sensor, clean_times
 from hadal.ingest.cnv import SEASOFT_BAD_SCAN
 from hadal.ingest.csv_reader import SensorSamples, read_sensor_csv, sensor_from_records
 from hadal.ingest.mcap_reader import mcap_info, read_mcap
@@ -774,15 +774,22 @@ def _aligned_columns(sensors: Mapping[str, SensorSamples], cleaned: dict[str, tu
                 columns[var] = v
             meta["alignment"][name].update({"samples": int(t.size), "method": "time base"})
             continue
-        gap = float(max_gap_s.get(name, default_max_gap_s))
+        gap = asked = float(max_gap_s.get(name, default_max_gap_s))
         # a limit shorter than the sensor's own sampling interval would blank almost every base sample
         # (a 1 Hz stream with jitter under a 1.0 s limit): widen it to 1.5 intervals and say so
         step = float(np.median(np.diff(t))) / 1e9 if t.size > 1 else 0.0
+        held = [v for v in vals if {**DEFAULT_METHODS, **dict(methods or {})}.get(v) == "nearest"]
+        # a held (nearest-sample) value is not widened with it: each reading goes to the base samples within the
+        # asked limit or half the base's own interval, not to every sample up to 0.75 readings away
+        base_step = float(np.median(np.diff(base_t))) / 1e9 if base_t.size > 1 else 0.0
+        near_gap = max(asked, 0.5 * base_step)
         if 1.5 * step > gap:
-            warnings.warn(f"{sensors[name].source}: max_gap_s for {name!r} ({gap:g} s) is shorter than 1.5 x its "
-                          f"sampling interval ({step:.3g} s); using {1.5 * step:.3g} s", stacklevel=3)
             gap = 1.5 * step
-        aligned, st = align_sensor(base_t, t, vals, gap, dict(methods or {}))
+            kept = f" ({', '.join(held)}: each reading held within {near_gap:.3g} s)" \
+                if held and near_gap < gap else ""
+            warnings.warn(f"{sensors[name].source}: max_gap_s for {name!r} ({asked:g} s) is shorter than 1.5 x its "
+                          f"sampling interval ({step:.3g} s); using {gap:.3g} s{kept}", stacklevel=3)
+        aligned, st = align_sensor(base_t, t, vals, gap, dict(methods or {}), nearest_max_gap_s=min(near_gap, gap))
         columns.update(aligned)
         meta["alignment"][name].update(st)
     return columns

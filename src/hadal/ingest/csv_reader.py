@@ -527,10 +527,17 @@ def map_variable(var: str, fm: FieldMap, columns: list[np.ndarray], sensor: str,
     records: list[dict[str, Any]] = []
     where = f"{source}:{fm.label()}"
     if fm.fill_values:
-        columns = [_fill_to_nan(c, fm.fill_values) for c in columns]
+        filled = [_fill_to_nan(c, fm.fill_values) for c in columns]
+        n_fill = int(sum(int((np.isnan(f) & ~np.isnan(np.asarray(c, dtype=np.float64))).sum())
+                         for f, c in zip(filled, columns, strict=True)))
+        columns = filled
+        fills = ", ".join(f"{v:g}" for v in fm.fill_values)
         records.append({"variable": var, "from": ", ".join(fm.inputs()), "to": "missing (NaN)",
-                        "formula": "fill value(s) " + ", ".join(f"{v:g}" for v in fm.fill_values) + " -> missing",
+                        "formula": f"fill value(s) {fills} -> missing", "count": n_fill,
                         "sensor": sensor, "source": where})
+        if n_fill:  # named: the mapping's fill values are missing data (flag 9), never values
+            warnings.warn(f"{where}: {n_fill} {var} value(s) are the mapping's fill value(s) {fills} "
+                          "(no data): missing (flag 9)", stacklevel=2)
     if fm.transform is not None:
         x = apply_transform(fm.transform, columns, fm.origin)
         t = TRANSFORMS[fm.transform][0]

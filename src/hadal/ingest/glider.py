@@ -11,7 +11,10 @@ What is read from the files themselves, and what is the kind's published convent
   position follows GUTILS (``gutils/slocum/__init__.py`` ``SlocumReader``: time ``m_present_time`` else
   ``sci_m_present_time``; pressure ``sci_water_pressure`` (bar -> dbar x 10); ``sci_water_temp``;
   ``sci_water_cond``; NMEA positions, latitudes above 9000 / longitudes of 18000 and above being the
-  masterdata's "no value" defaults). A ``NaN`` is a sensor not updated in that cycle: each sensor group (CTD,
+  masterdata's "no value" defaults). A science-bay value (``sci_*``) of exactly 0 is the science computer's
+  "no data" (the all-zero row it writes when a sensor has not reported, e.g. the file's first cycle): missing
+  data, as pyglider screens it (``pyglider/slocum.py`` applies ``utils._zero_screen``, ``val[val == 0] = nan``,
+  to every science sensor before its conversion). A ``NaN`` is a sensor not updated in that cycle: each sensor group (CTD,
   navigation, altimeter) is its own sensor of the vehicle mapping, and a row without any of its values is no
   sample of it.
 * **SeaExplorer** navigation (``*.gli.sub.*``: ``Timestamp`` ``DD/MM/YYYY HH:MM:SS``, ``Heading``/``Pitch``/``Roll`` in
@@ -33,12 +36,14 @@ from typing import Any
 import numpy as np
 
 __all__ = ["DbdAscHeader", "dbd_asc_header", "nmea_to_deg", "glider_kind", "glider_fields", "unit_of_label", "SEAEXPLORER_FILL",
-           "ALTITUDE_NO_BOTTOM"]
+           "ALTITUDE_NO_BOTTOM", "SLOCUM_SCIENCE_NO_DATA"]
 
 #: SeaExplorer payload fill value (pyglider ``seaexplorer._remove_fill_values``)
 SEAEXPLORER_FILL = 9999.0
 #: SeaExplorer altimeter value for "no bottom detected"
 ALTITUDE_NO_BOTTOM = -1.0
+#: Slocum science-bay (``sci_*``) "no data" value (pyglider ``utils._zero_screen`` on every science sensor)
+SLOCUM_SCIENCE_NO_DATA = 0.0
 #: Slocum masterdata "no value" defaults of NMEA positions are beyond these magnitudes (GUTILS ``standardize``)
 NMEA_LAT_MAX, NMEA_LON_MAX = 9000.0, 18000.0
 
@@ -263,7 +268,11 @@ def _slocum_fields(columns: list[str], units: dict[str, str]) -> tuple[dict[str,
         except ConfigError as exc:
             skipped.append((name, f"units line says {raw!r}: {exc}"))
             continue
-        out.append(GliderField(var, name, unit, score, f"Slocum {why} {name!r}, units line {raw!r}", group=group))
+        sci = name.startswith("sci_")
+        out.append(GliderField(var, name, unit, score,
+                               f"Slocum {why} {name!r}, units line {raw!r}"
+                               + ("; 0 = the science bay's no-data value (missing)" if sci else ""),
+                               fill_values=(SLOCUM_SCIENCE_NO_DATA,) if sci else (), group=group))
     for lat, lon, score, why in _SLOCUM_POS:
         if lat in cols and lon in cols:
             ul, uo = units.get(lat, "lat"), units.get(lon, "lon")

@@ -17,7 +17,8 @@ needs, in one of two forms:
 
 Scan layout (SBE 19plus V2 / 16plus V2 manual, "OutputFormat=0 raw hex"; ``n`` = hex characters): temperature
 A/D counts (6), conductivity frequency x 256 (6), strain-gauge pressure A/D counts (6) + pressure temperature
-compensation counts (4, volts = counts / 13107), one 4-character word per enabled external voltage
+compensation counts (4, volts = counts / 13107) or Digiquartz frequency x 256 (6) + compensation (4, its first 3
+characters the count), one 4-character word per enabled external voltage
 (volts = counts / 13107), then, if enabled, SBE 38 temperature (6), WET Labs RS-232 (3 x 4), GTD pressure (8)
 + temperature (6) (twice for a dual GTD), Aanderaa optode oxygen (6), SBE 63 phase (6) + thermistor (6), and in
 moored mode the time (8, seconds since 2000-01-01 UTC).
@@ -26,7 +27,10 @@ What is taken from ``seabirdscientific`` (Sea-Bird's community toolkit) and what
 
 * **Conversions** are seabirdscientific's: :func:`seabirdscientific.conversion.convert_temperature` (with
   ``use_mv_r=True``, the 19plus V2 / 16plus V2 MV-R thermistor equation), ``convert_pressure`` (strain gauge,
-  to dbar) and ``convert_conductivity`` (19plus: frequency / 1000 kHz), on the coefficient dataclasses of
+  to dbar), ``convert_pressure_digiquartz`` (Digiquartz, ``QUARTZ0`` coefficients PC1..PT4, PSLOPE, POFFSET;
+  the pressure frequency is counts / 256 Hz and the compensation the first 3 of its 4 hex characters, turned
+  into degC with Sea-Bird's 16plus V2 / 19plus V2 defaults AD590M = 0.028927, AD590B = -41.1733 unless the
+  header gives them; output ``prDM`` as SeaSoft names it) and ``convert_conductivity`` (19plus: frequency / 1000 kHz), on the coefficient dataclasses of
   :mod:`seabirdscientific.cal_coefficients`, which hadal fills from the header. Two coefficients those functions
   ignore are applied here: ``TOFFSET`` (added to temperature) and ``CSLOPE`` (multiplies conductivity).
 * **Byte decoding** is hadal's (a vectorised table of fields) instead of
@@ -46,7 +50,7 @@ checked against seabirdscientific's own ``read_hex_file`` decoder in the tests.
 
 Not supported (refused with a one-line :class:`~hadal.errors.InputError` naming the model): other instruments
 (SBE 9/911plus, SBE 19 / original 19plus "SeacatPlus" firmware, SBE 25plus, 39, 49 ...), SBE 37 with SBE 63
-oxygen (ODO), Digiquartz pressure sensors, and non raw-hex output formats. The voltage channels are output in volts (SeaSoft's ``v0``..``vN``, numbered in
+oxygen (ODO) or a Digiquartz, and non raw-hex output formats. The voltage channels are output in volts (SeaSoft's ``v0``..``vN``, numbered in
 scan order as SeaSoft numbers them; the physical ``Ext Volt`` number is kept in ``attrs['channels']``); the
 header's per-channel ``volt N: offset/slope`` (used by the instrument for its own engineering-unit output) are
 kept as metadata and not applied, as DatCnv does not apply them either. Auxiliary sensor conversions (oxygen,
@@ -74,7 +78,8 @@ __all__ = ["read_hex", "describe_hex", "parse_hex_header", "HexHeader", "SUPPORT
 
 SUPPORTED_INSTRUMENTS = ("SBE 19plus V2 (profile or moored mode)", "SBE 16plus V2",
                          "SBE 37 (SM, SMP, SI, SIP, IM, IMP; raw hex, no SBE 63 oxygen)")
-_SUPPORTED_TXT = "supported: " + ", ".join(SUPPORTED_INSTRUMENTS) + " with a strain-gauge pressure sensor"
+_SUPPORTED_TXT = ("supported: " + ", ".join(SUPPORTED_INSTRUMENTS)
+                  + " with a strain-gauge (or, 16plus V2 / 19plus V2, Digiquartz) pressure sensor")
 #: the SBE 37's calibration keys (its GetCC XML: Calibration id='Temperature' / 'Conductivity' / 'Pressure')
 _SBE37_TEMP_KEYS = ("A0", "A1", "A2", "A3")
 _SBE37_COND_KEYS = ("G", "H", "I", "J", "PCOR", "TCOR", "WBOTC")
@@ -87,6 +92,15 @@ _TEMP_KEYS = ("TA0", "TA1", "TA2", "TA3")
 _COND_KEYS = ("G", "H", "I", "J", "CPCOR", "CTCOR")
 _PRES_KEYS = ("PA0", "PA1", "PA2", "PTCA0", "PTCA1", "PTCA2", "PTCB0", "PTCB1", "PTCB2",
               "PTEMPA0", "PTEMPA1", "PTEMPA2")
+#: Digiquartz (``<Calibration format='QUARTZ0'>``): C1..C3, D1, D2, T1..T4 of the Paroscientific equation (PT5,
+#: AD590M, AD590B are optional: the 16plus V2 / 19plus V2 GetCC lists none of them)
+_QUARTZ_KEYS = ("PC1", "PC2", "PC3", "PD1", "PD2", "PT1", "PT2", "PT3", "PT4")
+#: the pressure-temperature compensation of a Digiquartz on an SBE 16plus V2 / 19plus V2: temperature (degC) =
+#: AD590M * N + AD590B, N = the first 3 hex characters of the 4-character word (seabirdscientific's
+#: ``PressureDigiquartzCoefficients`` defaults and ``read_hex_file`` decoding for these two instruments)
+_SEACAT_AD590M, _SEACAT_AD590B = 0.028927, -41.1733
+#: seabirdscientific averages the compensation over this window (SBE Data Processing's 30 s, "Digiquartz")
+_QUARTZ_TC_WINDOW_S = 30.0
 _NUM = r"[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?"
 _TIME_FORMATS = ("%d %b %Y %H:%M:%S", "%b %d %Y %H:%M:%S", "%d %b %Y %H:%M", "%Y-%m-%dT%H:%M:%S")
 
@@ -223,6 +237,9 @@ def _xml_configuration(h: HexHeader, el: ET.Element) -> None:
             h.scans_to_average = int(_float(sub.findtext("ScansToAverage")) or 1)
         if sub.findtext("SampleInterval") and sub is mm:
             h.sample_interval_s = _float(sub.findtext("SampleInterval"))
+    sp = el.find("SamplingParameters")  # SBE 16plus V2 GetCD: <SamplingParameters><SampleInterval>
+    if h.sample_interval_s is None and sp is not None and sp.findtext("SampleInterval"):
+        h.sample_interval_s = _float(sp.findtext("SampleInterval"))
     mode_txt = (el.findtext("SampleMode") or el.findtext("Mode") or "").strip().lower()
     if mode_txt.startswith(("profil", "moored")):
         h.mode = "profile" if mode_txt.startswith("profil") else "moored"
@@ -481,13 +498,11 @@ def _check_supported(h: HexHeader, path: Path, data_lines: list[str]) -> None:
         # <OutputFormat> is the instrument's real-time setting; the scans of an upload are raw hex whatever it says
         # (SBE 16plus_digiquartz.hex: 'converted decimal' above 30-character hex scans), so the lines decide
         raise InputError(f"{path}: output format is {h.output_format!r}, not raw HEX; cannot convert")
-    if h.pressure_type == "quartz":
-        raise InputError(f"{path}: Digiquartz pressure sensors are not supported yet (only strain gauge); "
-                         f"{_SUPPORTED_TXT}")
-    if h.pressure_type not in (None, "strain gauge"):
+    if h.pressure_type not in (None, "strain gauge", "quartz"):
         raise InputError(f"{path}: pressure sensor {h.pressure_type!r} is not supported; {_SUPPORTED_TXT}")
     missing = []
-    for kind, keys in (("temperature", _TEMP_KEYS), ("conductivity", _COND_KEYS), ("pressure", _PRES_KEYS)):
+    pres_keys = _QUARTZ_KEYS if h.pressure_type == "quartz" else _PRES_KEYS
+    for kind, keys in (("temperature", _TEMP_KEYS), ("conductivity", _COND_KEYS), ("pressure", pres_keys)):
         have = h.coefficients.get(kind, {})
         lack = [k for k in keys if have.get(k) is None]
         if lack:
@@ -629,13 +644,44 @@ def _convert(path: Path, h: HexHeader, raw: dict[str, np.ndarray]) -> dict[str, 
     tcoef = sbc.TemperatureCoefficients(ct["TA0"], ct["TA1"], ct["TA2"], ct["TA3"])
     t90 = sbconv.convert_temperature(raw["temperature"].astype(np.float64), tcoef, "ITS90", "C", use_mv_r=True)
     t90 = t90 + (ct.get("TOFFSET") or 0.0)  # seabirdscientific ignores TemperatureCoefficients.offset
-    pcoef = sbc.PressureCoefficients(*(cp[k] for k in _PRES_KEYS), offset=cp.get("POFFSET") or 0.0)
-    p = sbconv.convert_pressure(raw["pressure"].astype(np.float64), raw["ptc"] / COUNTS_TO_VOLTS, pcoef, "dbar")
+    if h.pressure_type == "quartz":
+        p = _convert_digiquartz(h, raw, sbc, sbconv)
+    else:
+        pcoef = sbc.PressureCoefficients(*(cp[k] for k in _PRES_KEYS), offset=cp.get("POFFSET") or 0.0)
+        p = sbconv.convert_pressure(raw["pressure"].astype(np.float64), raw["ptc"] / COUNTS_TO_VOLTS, pcoef, "dbar")
     ccoef = sbc.ConductivityCoefficients(cc["G"], cc["H"], cc["I"], cc["J"], cc["CPCOR"], cc["CTCOR"], 0.0)
     itype = sbid.InstrumentType.SBE16Plus if "16" in (h.model or "") else sbid.InstrumentType.SBE19Plus
     c = sbconv.convert_conductivity(raw["conductivity"] / 256.0, t90, p, ccoef, itype, "S/m")
     c = c * (cc.get("CSLOPE") or 1.0)  # seabirdscientific has no slope term
-    return {"tv290C": t90, "c0S/m": c, "prdM": p}
+    return {"tv290C": t90, "c0S/m": c, _pressure_column(h): p}
+
+
+def _pressure_column(h: HexHeader) -> str:
+    """SeaSoft's pressure column: ``prDM`` (Digiquartz) or ``prdM`` (strain gauge)."""
+    return "prDM" if h.pressure_type == "quartz" else "prdM"
+
+
+def _quartz_tc_counts(ptc: np.ndarray) -> np.ndarray:
+    """The 12-bit compensation count in the first 3 of the 4 hex characters of a 16plus V2 / 19plus V2
+    Digiquartz scan (seabirdscientific ``read_hex_file``)."""
+    return (ptc >> 4).astype(np.float64)
+
+
+def _convert_digiquartz(h: HexHeader, raw: dict[str, np.ndarray], sbc: Any, sbconv: Any) -> np.ndarray:
+    """Digiquartz frequency (counts / 256 Hz) and compensation to sea pressure (dbar) with seabirdscientific's
+    ``convert_pressure_digiquartz`` (the Paroscientific equation, P = C (1 - T0^2/T^2) (1 - D (1 - T0^2/T^2))
+    psia, minus 14.7 psi, times PSLOPE plus POFFSET dbar), the compensation averaged over 30 s of scans."""
+    cp = h.coefficients["pressure"]
+    coef = sbc.PressureDigiquartzCoefficients(
+        cp["PC1"], cp["PC2"], cp["PC3"], cp["PD1"], cp["PD2"], cp["PT1"], cp["PT2"], cp["PT3"], cp["PT4"],
+        cp.get("PT5") or 0.0, ad590m=cp.get("AD590M", _SEACAT_AD590M), ad590b=cp.get("AD590B", _SEACAT_AD590B),
+        slope=cp.get("PSLOPE") or 1.0, offset=cp.get("POFFSET") or 0.0)
+    interval = h.sample_interval_s if h.mode == "moored" and h.sample_interval_s else \
+        h.scans_to_average / PROFILE_SCAN_RATE_HZ
+    # a window shorter than one scan (moored, interval > 30 s) is that scan alone
+    interval = min(float(interval), _QUARTZ_TC_WINDOW_S)
+    return np.asarray(sbconv.convert_pressure_digiquartz(raw["pressure"] / 256.0, _quartz_tc_counts(raw["ptc"]),
+                                                         coef, "dbar", interval), dtype=np.float64)
 
 
 def _convert_sbe37(h: HexHeader, raw: dict[str, np.ndarray], sbc: Any, sbconv: Any, sbid: Any
@@ -695,6 +741,13 @@ def _add_channel(cols: dict[str, np.ndarray], channels: list[dict[str, Any]], na
                      "units": units, **extra})
 
 
+def _pressure_channel(h: HexHeader) -> tuple[str, str, str]:
+    """(name, long name, units) of the pressure channel, as SeaSoft writes it for this sensor."""
+    if h.pressure_type == "quartz":
+        return "prDM", "Pressure, Digiquartz", "db"
+    return "prdM", "Pressure, Strain Gauge", "db"
+
+
 def _add_sensor_channels(cols: dict[str, np.ndarray], channels: list[dict[str, Any]], h: HexHeader,
                          ints: dict[str, np.ndarray]) -> None:
     """Add the CTD channels, external voltages and enabled RS-232 sensors, in SeaSoft's column order."""
@@ -702,7 +755,7 @@ def _add_sensor_channels(cols: dict[str, np.ndarray], channels: list[dict[str, A
         _add_channel(cols, channels, name, values, long_name, units, **extra)
 
     for name, long_name, units in (("tv290C", "Temperature", "ITS-90, deg C"), ("c0S/m", "Conductivity", "S/m"),
-                                   ("prdM", "Pressure, Strain Gauge", "db")):
+                                   _pressure_channel(h)):
         add(name, cols[name], long_name, units)
     for i, k in enumerate(h.volts):
         add(f"v{i}", ints[f"volt{k}"] / COUNTS_TO_VOLTS, f"Voltage {i}", "V", physical_channel=f"Ext Volt {k}")
@@ -778,13 +831,19 @@ def _seabirdscientific_version() -> str:
 def _hex_sensors(h: HexHeader) -> list[dict[str, Any]]:
     """One dict per sensor, with the keys of read_cnv's ``attrs['sensors_xml']`` entries (SeaSoft .xmlcon names)."""
     sensors: list[dict[str, Any]] = []
+    quartz = h.pressure_type == "quartz"
+    pdesc = "Frequency, Pressure, Digiquartz with TC" if quartz else "Count, Pressure, Strain Gauge"
     for ch, kind, typ, desc in ((1, "temperature", "TemperatureSensor", "Count, Temperature"),
                                 (2, "conductivity", "ConductivitySensor", "Frequency 0, Conductivity"),
-                                (3, "pressure", "PressureSensor", "Count, Pressure, Strain Gauge")):
+                                (3, "pressure", "PressureSensor", pdesc)):
+        coefs = dict(h.coefficients.get(kind, {}))
+        if quartz and kind == "pressure":  # what the conversion applied where the header has none
+            coefs.setdefault("AD590M", _SEACAT_AD590M)
+            coefs.setdefault("AD590B", _SEACAT_AD590B)
         sensors.append({"channel": ch, "kind": kind, "type": typ, "sensor_id": None,
                         "serial_number": h.sensor_serials.get(kind, h.serial_number),
                         "calibration_date": h.calibration_dates.get(kind), "description": desc,
-                        "coefficients": dict(h.coefficients.get(kind, {}))})
+                        "coefficients": coefs})
     for i, k in enumerate(h.volts):
         sensors.append({"channel": 4 + i, "kind": "voltage", "type": "VoltageChannel", "sensor_id": None,
                         "serial_number": None, "calibration_date": None,
@@ -860,7 +919,8 @@ def read_hex(path: str | Path, *, raw: bool = False, max_bytes: float | None = N
     """Read a Sea-Bird SBE 19plus V2 / 16plus V2 ``.hex`` file and convert it with its header calibration.
 
     Returns a DataFrame shaped like :func:`hadal.ingest.cnv.read_cnv`'s, with SeaSoft's column names:
-    ``tv290C`` (temperature, ITS-90 degC), ``c0S/m`` (conductivity, S/m), ``prdM`` (strain-gauge pressure, dbar),
+    ``tv290C`` (temperature, ITS-90 degC), ``c0S/m`` (conductivity, S/m), ``prdM`` (strain-gauge pressure, dbar)
+    or ``prDM`` (Digiquartz pressure, dbar),
     ``v0``..``vN`` (external voltages, V, numbered in scan order), ``t3890C`` (SBE 38 temperature) and, in moored
     mode, ``timeS`` (seconds since the first scan). Other enabled RS-232 sensors are decoded as the instrument
     writes them (``wetlabs0..2`` counts, ``gtdP`` mbar / ``gtdT`` degC, ``optodeO2`` umol/L, ``sbe63phase`` /
@@ -900,7 +960,13 @@ def read_hex(path: str | Path, *, raw: bool = False, max_bytes: float | None = N
     if raw:
         _add_channel(cols, channels, "f0", ints["temperature"].astype(np.float64), "Temperature A/D counts", "counts")
         _add_channel(cols, channels, "f1", ints["conductivity"] / 256.0, "Conductivity frequency", "Hz")
-        _add_channel(cols, channels, "f2", ints["pressure"].astype(np.float64), "Pressure A/D counts", "counts")
+        if h.pressure_type == "quartz":
+            _add_channel(cols, channels, "f2", ints["pressure"] / 256.0, "Digiquartz pressure frequency", "Hz")
+            _add_channel(cols, channels, "f3", _quartz_tc_counts(ints["ptc"]), "Digiquartz compensation",
+                         "counts")
+        else:
+            _add_channel(cols, channels, "f2", ints["pressure"].astype(np.float64), "Pressure A/D counts",
+                         "counts")
     df = _channel_frame(cols, channels)
     df.attrs.update(_hex_attrs(path, h, comp, df, channels, times, moored, layout, n))
     return df
@@ -924,8 +990,7 @@ def describe_hex(path: str | Path) -> dict[str, Any]:
         warnings.simplefilter("ignore")
         ints, layout, moored = _decode(path, h, data_lines, first_no)
     n = len(ints["temperature"])
-    chans = [("tv290C", "Temperature", "ITS-90, deg C"), ("c0S/m", "Conductivity", "S/m"),
-             ("prdM", "Pressure, Strain Gauge", "db")]
+    chans = [("tv290C", "Temperature", "ITS-90, deg C"), ("c0S/m", "Conductivity", "S/m"), _pressure_channel(h)]
     chans += [(f"v{i}", f"Voltage {i} (Ext Volt {k})", "V") for i, k in enumerate(h.volts)]
     if h.aux.get("SBE38"):
         chans.append(("t3890C", "Temperature, SBE 38", "ITS-90, deg C"))

@@ -237,6 +237,8 @@ def test_slocum_sensors_match_the_file(slocum, shared_data):
     _, _, ctx = slocum
     _, names, _, data = _dbd_table(shared_data / SBD)
     col = {n: data[:, i] for i, n in enumerate(names)}
+    for n in ("sci_water_cond", "sci_water_temp", "sci_water_pressure"):  # pyglider utils._zero_screen: 0 = no data
+        col[n] = np.where(col[n] == 0, np.nan, col[n])
     ctd_rows = np.isfinite(col["sci_water_cond"]) | np.isfinite(col["sci_water_temp"]) | \
         np.isfinite(col["sci_water_pressure"])
     s = _table(ctx, "sensors")
@@ -287,7 +289,8 @@ def test_slocum_units_come_from_the_file(shared_data, tmp_path):
     assert v is not None and v.sensors["ctd"].csv.fields["pressure_ctd_dbar"].units == "dbar"
     ctd = read_sensor_csv(f, v.sensors["ctd"].csv, "ctd")
     p = data[:, names.index("sci_water_pressure")]
-    assert ctd.values["pressure_ctd_dbar"] == pytest.approx(p[np.isfinite(p)], abs=1e-12)
+    p = p[np.isfinite(p) & (p != 0)]  # 0 = the science bay's no data (pyglider utils._zero_screen)
+    assert ctd.values["pressure_ctd_dbar"] == pytest.approx(p, abs=1e-12)
     nav = read_sensor_csv(f, v.sensors["navigation"].csv, "navigation")
     h = data[:, names.index("m_heading")]
     assert np.sort(nav.values["heading_deg"][np.isfinite(nav.values["heading_deg"])]) == \

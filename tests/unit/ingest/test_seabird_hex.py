@@ -237,11 +237,11 @@ def test_original_19plus_firmware_refused(hex_path, tmp_path):
         read_hex(p)
 
 
-def test_quartz_pressure_refused(hex_path, tmp_path):
+def test_quartz_pressure_without_its_coefficients_refused(hex_path, tmp_path):
     header, data = _header_and_data(hex_path)
     hdr = [ln.replace("pressure sensor = strain gauge", "pressure sensor = quartz") for ln in header]
     p = _write(tmp_path / "quartz.hex", hdr, data)
-    with pytest.raises(InputError, match="Digiquartz pressure sensors are not supported"):
+    with pytest.raises(InputError, match=r"lacks calibration coefficients for pressure \(PC1, "):
         read_hex(p)
 
 
