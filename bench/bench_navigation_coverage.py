@@ -22,7 +22,7 @@ Same coverage figures per sample, and the RMS error against today's rule (comput
 Run: ``PYTHONPATH=src .venv/bin/python bench/bench_navigation_coverage.py --sample [--work DIR]`` and
 ``... --sim 200 --usbl``.
 
-Results (2026-12-06, default :class:`~hadal.navigation.smoother.SmootherOptions`, the same dives in the same run
+Results (2026-12-06, default :class:`~hadal.settings.navigation.SmootherOptions`, the same dives in the same run
 order). Models: "before" = the current as a random walk (prior 0.05 m/s, 0.0005 m/s/sqrt(s), position random walk
 1.4 m/sqrt(s)); "OU" = the current as baroclinic (0.1 m/s, 500 m vertical correlation) + barotropic (0.05 m/s)
 Ornstein-Uhlenbeck components, 6 h correlation time, position random walk 0.1 m/sqrt(s)
@@ -67,8 +67,9 @@ import numpy as np
 import pandas as pd
 
 from hadal.geo import LocalFrame
-from hadal.navigation.smoother import CHI2_2DOF_1SIGMA, CHI2_2DOF_2SIGMA, Fix, SmootherOptions
+from hadal.navigation.smoother import CHI2_2DOF_1SIGMA, CHI2_2DOF_2SIGMA, Fix
 from hadal.products.navigation import navigation_table, smoothed_navigation
+from hadal.settings.navigation import SmootherOptions
 
 GNSS_SIGMA_M = 3.0
 
