@@ -72,6 +72,8 @@ from hadal.products.navigation import navigation_table, smoothed_navigation
 from hadal.settings.navigation import SmootherOptions
 
 GNSS_SIGMA_M = 3.0
+#: the simulator before the correction (the ascent's drift front-loaded in time, i.e. strongest at depth)
+FRONT_LOADED_ASCENT = False
 
 
 def mahalanobis2(nav: pd.DataFrame, tx: np.ndarray, ty: np.ndarray) -> np.ndarray:
@@ -83,7 +85,24 @@ def mahalanobis2(nav: pd.DataFrame, tx: np.ndarray, ty: np.ndarray) -> np.ndarra
 
 
 # ----------------------------------------------------------------------------------------------- sample dive
-def _sample_inputs(work: Path, seed: int) -> dict:
+def _prepare_usbl(work: Path, seed: int, usbl_interval_s: float) -> Path:
+    """As sample_seeds_tercom.prepare, the generator logging USBL fixes every ``usbl_interval_s`` s."""
+    from hadal.pipeline import make_context, run_pipeline
+    from hadal.synth import generate_dive
+
+    d = work / f"s{seed}"
+    if not (d / "store").exists():
+        generate_dive(d / "dive", seed=seed, small=True, usbl_interval_s=usbl_interval_s)
+        ctx = make_context(d / "dive", d / "store")
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            run_pipeline(ctx, ["ingest", "derive", "grid"])
+    return d
+
+
+def _sample_inputs(work: Path, seed: int, usbl_interval_s: float | None = None) -> dict:
+    if usbl_interval_s is not None:
+        work = work / f"usbl{usbl_interval_s:g}"
     cache = work / f"s{seed}" / "nav_inputs.pkl"
     if cache.exists():
         return pickle.loads(cache.read_bytes())
@@ -93,7 +112,7 @@ def _sample_inputs(work: Path, seed: int) -> dict:
     from hadal.pipeline import make_context
     from hadal.stages import match as ms
 
-    d = prepare(work, seed, small=True)
+    d = prepare(work, seed, small=True) if usbl_interval_s is None else _prepare_usbl(work, seed, usbl_interval_s)
     ctx = make_context(d / "dive", d / "store")
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
@@ -112,8 +131,8 @@ def _seconds(s) -> np.ndarray:
     return pd.to_datetime(s, utc=True).dt.as_unit("ns").astype("int64").to_numpy() / 1e9
 
 
-def sample_seed(work: Path, seed: int, options: SmootherOptions) -> dict:
-    inp = _sample_inputs(work, seed)
+def sample_seed(work: Path, seed: int, options: SmootherOptions, usbl_interval_s: float | None = None) -> dict:
+    inp = _sample_inputs(work, seed, usbl_interval_s)
     frame = LocalFrame(*inp["frame"])
     ctd, tr = inp["ctd"], inp["track"]
     extra = []
@@ -137,7 +156,8 @@ def sample_seed(work: Path, seed: int, options: SmootherOptions) -> dict:
     return {"seed": seed, "in1": float(np.mean(d2 <= CHI2_2DOF_1SIGMA)), "in2": float(np.mean(d2 <= CHI2_2DOF_2SIGMA)),
             "d2_surf": float(d2[-1]), "d2_deep": float(d2[deep]), "rms": float(np.sqrt(np.mean(err ** 2))),
             "rms_old": float(np.sqrt(np.mean(err_old ** 2))), "surf_err": float(err.iloc[-1]),
-            "surf_sigma": float(nav["position_uncertainty_m"].iloc[-1]), "rejected": sm.rejected, "n": len(nav)}
+            "surf_sigma": float(nav["position_uncertainty_m"].iloc[-1]), "rejected": sm.rejected, "n": len(nav),
+            "usbl_fixes": int((sm.fixes["source"] == "usbl").sum())}
 
 
 # ------------------------------------------------------------------------------------------- simulated dives
@@ -162,18 +182,21 @@ def simulate_dive(rng: np.random.Generator, usbl: bool, dt: float = 5.0) -> dict
     leg = np.minimum((s // seg).astype(int), legs - 1)
     hd_s = np.radians(hd[leg])
     vx_b, vy_b = speed * np.sin(hd_s), speed * np.cos(hd_s)
-    # currents: descent front-loaded (stronger near the surface), random direction; ascent similar
-    def drift(nk, total):
+    # currents: stronger near the surface, random direction: the descent's drift front-loaded in time, the
+    # ascent's back-loaded (it reaches the upper ocean last)
+    def drift(nk, total, rising=False):
         tau = np.arange(1, nk + 1) / nk
         k = rng.uniform(0.2, 0.6)
         g = (1 - np.exp(-tau / k)) / (1 - np.exp(-1 / k))
+        if rising:  # the same profile met in reverse: g(tau) -> 1 - g(1 - tau)
+            g = 1 - np.interp(1 - tau, np.concatenate([[0.0], tau]), np.concatenate([[0.0], g]))
         ang = rng.uniform(0, 2 * np.pi)
         lat = rng.uniform(-0.25, 0.25) * total * np.sin(np.pi * tau) + 0.03 * total * _smooth(rng, nk, 60)
         ex, ey = np.cos(ang), np.sin(ang)
         return total * g * ex - lat * ey, total * g * ey + lat * ex
 
     dx_d, dy_d = drift(nd, rng.uniform(300, 900))
-    dx_a, dy_a = drift(na, rng.uniform(300, 900))
+    dx_a, dy_a = drift(na, rng.uniform(300, 900), rising=not FRONT_LOADED_ASCENT)
     bx, by = np.cumsum(vx_b * dt), np.cumsum(vy_b * dt)
     x = np.concatenate([[0.0], dx_d, dx_d[-1] + bx, dx_d[-1] + bx[-1] + dx_a])
     y = np.concatenate([[0.0], dy_d, dy_d[-1] + by, dy_d[-1] + by[-1] + dy_a])
@@ -250,6 +273,9 @@ def main() -> None:
     ap.add_argument("--sample", action="store_true")
     ap.add_argument("--seeds", type=int, nargs="+", default=[20181006, 1, 2, 3, 4, 5, 6, 7, 8, 9])
     ap.add_argument("--work", type=Path, default=Path("/tmp/hadal-sample-seeds"))
+    ap.add_argument("--usbl-interval-s", type=float, default=None,
+                    help="--sample: the generator also logs USBL fixes every this many seconds (hadal synth "
+                         "--usbl-interval-s; prepared under WORK/usbl<S>)")
     ap.add_argument("--sim", type=int, default=0)
     ap.add_argument("--usbl", action="store_true", help="--sim: every other dive with USBL fixes")
     ap.add_argument("--seed", type=int, default=47)
@@ -262,7 +288,7 @@ def main() -> None:
         print("| seed | within 1σ | within 2σ | surfacing d² | deepest d² | RMS smoothed m | RMS today m | rejected |")
         print("|---|---|---|---|---|---|---|---|")
         for s in args.seeds:
-            r = sample_seed(args.work, s, opt)
+            r = sample_seed(args.work, s, opt, args.usbl_interval_s)
             rows.append(r)
             print(f"| {s} | {r['in1']:.3f} | {r['in2']:.3f} | {r['d2_surf']:.2f} | {r['d2_deep']:.2f} | "
                   f"{r['rms']:.1f} | {r['rms_old']:.1f} | {', '.join(r['rejected']) or '-'} |", flush=True)
