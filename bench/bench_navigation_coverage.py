@@ -72,8 +72,9 @@ from hadal.products.navigation import navigation_table, smoothed_navigation
 from hadal.settings.navigation import SmootherOptions
 
 GNSS_SIGMA_M = 3.0
-#: the simulator before the correction (the ascent's drift front-loaded in time, i.e. strongest at depth)
-FRONT_LOADED_ASCENT = False
+#: the ascent's drift front-loaded in time (strongest at depth), as the sample generator's ascent
+#: (hadal.synth.track); ``--surface-ascent``: strongest near the surface, as the descent's (the same water column)
+FRONT_LOADED_ASCENT = True
 
 
 def mahalanobis2(nav: pd.DataFrame, tx: np.ndarray, ty: np.ndarray) -> np.ndarray:
@@ -182,8 +183,9 @@ def simulate_dive(rng: np.random.Generator, usbl: bool, dt: float = 5.0) -> dict
     leg = np.minimum((s // seg).astype(int), legs - 1)
     hd_s = np.radians(hd[leg])
     vx_b, vy_b = speed * np.sin(hd_s), speed * np.cos(hd_s)
-    # currents: stronger near the surface, random direction: the descent's drift front-loaded in time, the
-    # ascent's back-loaded (it reaches the upper ocean last)
+    # currents: random direction; the descent's drift front-loaded in time (stronger near the surface), the
+    # ascent's too (FRONT_LOADED_ASCENT, strongest at depth as the sample generator's) or back-loaded (it reaches
+    # the upper ocean last)
     def drift(nk, total, rising=False):
         tau = np.arange(1, nk + 1) / nk
         k = rng.uniform(0.2, 0.6)
@@ -281,7 +283,11 @@ def main() -> None:
     ap.add_argument("--seed", type=int, default=47)
     ap.add_argument("--full-rate", action="store_true",
                     help="the smoother's state at every sample (epoch_interval_s=0), not on 1 s / 5 m epochs")
+    ap.add_argument("--surface-ascent", action="store_true",
+                    help="--sim: the ascent's drift strongest near the surface (back-loaded in time), not at depth")
     args = ap.parse_args()
+    global FRONT_LOADED_ASCENT
+    FRONT_LOADED_ASCENT = not args.surface_ascent
     opt = SmootherOptions(epoch_interval_s=0) if args.full_rate else SmootherOptions()
     if args.sample:
         rows = []
