@@ -178,7 +178,7 @@ def _generate(out: Path, seed: int, small: bool, progress, dive_id: str, usbl_in
     _write_pipeline_yaml(out, rates, small)
     truth = _truth(seed, small, frame, ter, track, water, err, rates, counts, mb, n_sound, laser_truth,
                    terrain_info, launch_xy, start_xy, deep_xy)
-    if "usbl" in channels:
+    if usbl_interval_s is not None:
         u = channels["usbl"]
         truth["sensors"]["usbl"] = {
             "interval_s": float(usbl_interval_s), "ship_x_east_m": _r(launch_xy[0], 3),
