@@ -17,7 +17,7 @@ import pandas as pd
 import yaml
 
 from hadal.errors import InputError
-from hadal.ingest.align import FIX_VARIABLES, align_sensor, clean_times
+from hadal.ingest.align import align_sensor, clean_times
 from hadal.ingest.cnv import SEASOFT_BAD_SCAN
 from hadal.ingest.csv_reader import SensorSamples, read_sensor_csv, sensor_from_records
 from hadal.ingest.mcap_reader import mcap_info, read_mcap
@@ -778,7 +778,7 @@ def _aligned_columns(sensors: Mapping[str, SensorSamples], cleaned: dict[str, tu
         # a limit shorter than the sensor's own sampling interval would blank almost every base sample
         # (a 1 Hz stream with jitter under a 1.0 s limit): widen it to 1.5 intervals and say so
         step = float(np.median(np.diff(t))) / 1e9 if t.size > 1 else 0.0
-        if 1.5 * step > gap and not set(vals) <= set(FIX_VARIABLES):  # a fix stream is not interpolated
+        if 1.5 * step > gap:
             warnings.warn(f"{sensors[name].source}: max_gap_s for {name!r} ({gap:g} s) is shorter than 1.5 x its "
                           f"sampling interval ({step:.3g} s); using {1.5 * step:.3g} s", stacklevel=3)
             gap = 1.5 * step
