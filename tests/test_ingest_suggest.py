@@ -525,7 +525,10 @@ def test_ros2_standard_types_suggest_and_ingest(ros_mcap):
     table, meta = build_sensor_table(sensors, cfg, max_gap_s={})
     assert meta["time_base"] == "ctd" and table["pressure_gauge_dbar"].notna().mean() > 0.9
     assert table["heading_deg"].notna().mean() > 0.9
-    assert table["gnss_latitude_deg"].notna().mean() > 0.9  # an optional column, present with its source
+    # an optional column, present with its source: each 0.5 Hz fix at one CTD sample (its nearest), not interpolated
+    got = table["gnss_latitude_deg"].dropna().to_numpy()
+    assert got.size == fx.values["gnss_latitude_deg"].size
+    np.testing.assert_allclose(np.sort(got), np.sort(fx.values["gnss_latitude_deg"]))
 
 
 def test_ros2_gnss_positions_and_twist(tmp_path):
