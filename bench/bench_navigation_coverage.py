@@ -74,8 +74,10 @@ seed 1001, 200 dives, 0.07              0.737 / 0.962     0.703 / 0.960     144.
 ======================================  ================  ================  =========================
 
 Seed 47 with 0.07: surfacing within 2σ 99/100 (without USBL) and 95/100 (with), deepest point 96/100 and
-97/100; today's rule RMS 303.9 / 302.8 m. The sample dive's seeds: see the report of the session (prepared
-seeds, ``--sample``). ``--usbl-interval-s 600`` (sample dive with USBL fixes from ``hadal synth``), seed
+97/100; today's rule RMS 303.9 / 302.8 m. Sample dive (``--sample``, seeds 20181006 and 1-6; 7-9 not prepared in
+that run): 0.670 / 0.952 with 0.07 (0.744 / 0.953 with 0.1), per seed 1σ 0.45-0.77, 2σ below 0.93 on seeds 4
+(0.894) and 5 (0.827), RMS 97.2 m (today's rule ~205 m), surfacing within 2σ 7/7, deepest point 6/7 (seed 5,
+d² 7.5, the terrain fix's). ``--usbl-interval-s 600`` (sample dive with USBL fixes from ``hadal synth``), seed
 20181006: RMS 20.4 m (98.0 m without), 0.943 / 1.000 within 1σ / 2σ (over-covered, one seed).
 """
 
