@@ -41,7 +41,8 @@ from pathlib import Path
 
 import numpy as np
 
-from hadal.navigation.smoother import Fix, SmootherOptions, smooth_positions
+from hadal.navigation.smoother import Fix, smooth_positions
+from hadal.settings.navigation import SmootherOptions
 
 
 def dive(n: int, hz: float = 16.0, seed: int = 0):

@@ -15,6 +15,9 @@ def synth(
     seed: Annotated[int, typer.Option(help="random seed (same seed → identical files)")] = 20181006,
     small: Annotated[bool, typer.Option("--small", help="small, fast variant (tests)")] = False,
     dive_id: Annotated[str | None, typer.Option("--dive-id", help="dive id (default: the directory's name)")] = None,
+    usbl_interval_s: Annotated[float | None, typer.Option(
+        "--usbl-interval-s", min=1.0, max=86400.0,
+        help="also log USBL fixes from the ship every this many seconds (1 % of slant range, with known truth)")] = None,
 ) -> None:
     """Write the seeded sample dive (Haidou in the Challenger Deep) with ground truth."""
     from hadal.progress import default_progress
@@ -23,5 +26,6 @@ def synth(
 
     if dive_id is not None:
         validate_name(dive_id, "dive id")
-    out = generate_dive(dest, seed=seed, small=small, progress=default_progress(), dive_id=dive_id)
+    out = generate_dive(dest, seed=seed, small=small, progress=default_progress(), dive_id=dive_id,
+                        usbl_interval_s=usbl_interval_s)
     console.print(f"sample dive written to {out}")

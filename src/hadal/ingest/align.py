@@ -10,6 +10,7 @@
 * :func:`align_nearest` takes the nearest sample (``pandas.merge_asof(direction="nearest")``) within
   ``max_gap_s``; used for the altimeter whose range is quantised (0.3 m) and whose dropouts (NaN) must not
   be bridged by interpolation.
+* :func:`align_fix` puts each fix of a sparse GNSS/USBL stream at its nearest base sample only.
 """
 
 from __future__ import annotations
@@ -19,7 +20,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-__all__ = ["clean_times", "align_linear", "align_nearest", "align_sensor", "plausible_window", "time_unit_hint",
+__all__ = ["clean_times", "align_linear", "align_nearest", "align_fix", "align_sensor", "plausible_window", "time_unit_hint",
            "overlap_stats", "out_of_range", "describe_offset", "iso_ns"]
 
 
@@ -189,8 +190,31 @@ def align_nearest(base_ns: np.ndarray, t_ns: np.ndarray, v: np.ndarray, max_gap_
     return out
 
 
+def align_fix(base_ns: np.ndarray, t_ns: np.ndarray, v: np.ndarray, max_gap_s: float) -> np.ndarray:
+    """Each sample of a sparse fix stream (GNSS, USBL) at the one base sample nearest its time (within
+    ``max_gap_s``), NaN elsewhere: a fix is one measurement, not a series to interpolate or repeat (a USBL fix
+    every few minutes spread over the base samples between them would be taken for many independent fixes).
+    Two fixes nearest the same base sample: the later one."""
+    base = np.asarray(base_ns, np.int64)
+    out = np.full(base.size, np.nan)
+    t = np.asarray(t_ns, np.int64)
+    vv = np.asarray(v, float)
+    if base.size == 0 or t.size == 0:
+        return out
+    j = np.clip(np.searchsorted(base, t), 1, max(base.size - 1, 1)) if base.size > 1 else np.zeros(t.size, np.int64)
+    if base.size > 1:
+        j = np.where(np.abs(base[j - 1] - t) <= np.abs(base[j] - t), j - 1, j)
+    ok = (np.abs(base[j] - t) <= max_gap_s * 1e9) & np.isfinite(vv)
+    out[j[ok]] = vv[ok]
+    return out
+
+
+#: variables of fix streams: each fix at its nearest base sample (:func:`align_fix`)
+FIX_VARIABLES = tuple(f"{s}_{v}" for s in ("gnss", "usbl")
+                      for v in ("latitude_deg", "longitude_deg", "east_variance_m2", "north_variance_m2"))
 #: default method per variable (others: linear)
-DEFAULT_METHODS: dict[str, str] = {"altitude_m": "nearest", "heading_deg": "circular"}
+DEFAULT_METHODS: dict[str, str] = {"altitude_m": "nearest", "heading_deg": "circular",
+                                   **dict.fromkeys(FIX_VARIABLES, "fix")}
 
 
 def align_sensor(base_ns: np.ndarray, t_ns: np.ndarray, values: dict[str, np.ndarray], max_gap_s: float,
@@ -214,6 +238,8 @@ def align_sensor(base_ns: np.ndarray, t_ns: np.ndarray, values: dict[str, np.nda
             if near_gap != max_gap_s:
                 stats.setdefault("nearest_max_gap_s", near_gap)
             a = align_nearest(base_ns, t_ns, v, near_gap)
+        elif m == "fix":
+            a = align_fix(base_ns, t_ns, v, max_gap_s)
         else:
             a = align_linear(base_ns, t_ns, v, max_gap_s, circular=(m == "circular"))
         out[var] = a

@@ -400,7 +400,8 @@ def _by_names(src: _Src, leaves: Mapping[str, Any], docs: Mapping[str, str], wha
     """Candidates from field/column names; ``leaves``: name -> first value (None when unknown)."""
     found: dict[str, list[tuple[str, str | None]]] = {}
     unmapped: list[tuple[str, str]] = []
-    gnss = _is_gnss(src.source, leaves)
+    fix_kind = _fix_kind(src.source, leaves)  # "usbl" / "gnss": the channel's lat/lon are absolute fixes
+    gnss = fix_kind is not None
     variances: dict[str, str] = {}
     for name, value in leaves.items():
         if isinstance(value, (bool, str, list, tuple, dict)):
@@ -461,18 +462,19 @@ def _by_names(src: _Src, leaves: Mapping[str, Any], docs: Mapping[str, str], wha
             continue
         else:
             add(_KIND_VAR[kind], name, unit, 3 if is_ctd and kind == "cond" else 2, _KIND_WORD.get(kind, kind))
-    if "lat" in first and "lon" in first and gnss:
-        # a channel named as GNSS (topic/file/field says gnss, gps, fix): fixes for the navigation smoother, with
-        # their logged variances when the channel has them
+    if "lat" in first and "lon" in first and fix_kind is not None:
+        # a channel named as GNSS (topic/file/field says gnss, gps, fix) or as USBL/LBL acoustic positioning:
+        # fixes for the navigation smoother, with their logged variances when the channel has them
         lat, lon = first["lat"][0], first["lon"][0]
-        for var, name in (("gnss_latitude_deg", lat), ("gnss_longitude_deg", lon)):
+        label = fix_kind.upper()
+        for var, name in ((f"{fix_kind}_latitude_deg", lat), (f"{fix_kind}_longitude_deg", lon)):
             cands.append(_Cand(src.kind, src.source, src.file, var, _fm(name, "deg"), 2,
-                               f"{what} {name!r}: GNSS fix (the channel is named as GNSS), degrees", False,
+                               f"{what} {name!r}: {label} fix (the channel is named as {label}), degrees", False,
                                src.count))
         for axis, name in variances.items():
-            var = f"gnss_{axis}_variance_m2"
+            var = f"{fix_kind}_{axis}_variance_m2"
             cands.append(_Cand(src.kind, src.source, src.file, var, _fm(name, "m2"), 2,
-                               f"{what} {name!r}: {axis} variance of the GNSS fix (m^2)", False, src.count))
+                               f"{what} {name!r}: {axis} variance of the {label} fix (m^2)", False, src.count))
     elif "lat" in first and "lon" in first:
         lat, lon = first["lat"][0], first["lon"][0]
         for var, tr in (("dr_east_m", "latlon_to_east_m"), ("dr_north_m", "latlon_to_north_m")):
@@ -485,15 +487,20 @@ def _by_names(src: _Src, leaves: Mapping[str, Any], docs: Mapping[str, str], wha
 
 
 _GNSS_WORDS = {"gnss", "gps", "fix", "navsat", "navsatfix", "gpsfix"}
+#: acoustic positioning from the ship or a seafloor array: USBL/SBL/LBL fixes (valid at any depth)
+_USBL_WORDS = {"usbl", "sbl", "lbl", "hipap", "gaps", "posidonia"}
 
 
-def _is_gnss(source: str, leaves: Mapping[str, Any]) -> bool:
-    """Whether a channel is a GNSS receiver by its name: the topic / CSV key, or a field (``m_gps_lat``), says
-    gnss, gps or fix. Other latitude/longitude channels (a vehicle's own navigation estimate) stay dead reckoning."""
+def _fix_kind(source: str, leaves: Mapping[str, Any]) -> str | None:
+    """``usbl`` for a channel named as acoustic positioning (the topic / CSV key or a field says usbl, lbl, ...:
+    fixes at any depth), ``gnss`` for one named as a GNSS receiver (gnss, gps or fix, e.g. ``m_gps_lat``), else
+    None: other latitude/longitude channels (a vehicle's own navigation estimate) stay dead reckoning."""
     words = {t.lower() for t in _tokens(source)}
     for name in leaves:
         words |= {t.lower() for t in _tokens(name)}
-    return bool(words & _GNSS_WORDS)
+    if words & _USBL_WORDS:
+        return "usbl"
+    return "gnss" if words & _GNSS_WORDS else None
 
 
 def _variance_axis(name: str) -> str | None:

@@ -28,7 +28,8 @@ import numpy as np
 import pandas as pd
 
 from hadal.geo import LocalFrame
-from hadal.navigation.smoother import Fix, SmootherOptions
+from hadal.navigation.smoother import Fix
+from hadal.settings.navigation import SmootherOptions
 
 #: sensor-table columns of the fix sources: (latitude, longitude, east variance, north variance, hdop)
 FIX_COLUMNS = {

@@ -204,8 +204,9 @@ def smoothed_navigation(ctd: pd.DataFrame, frame: LocalFrame, launch_lat: float,
     the matched track as the process. ``position_source`` and the other columns as :func:`navigation_table`
     (today's adjusted dead reckoning, kept for comparison). Returns (table, :class:`SmoothedTrack`, notes per
     source)."""
-    from hadal.navigation.smoother import Fix, SmootherOptions, smooth_positions
+    from hadal.navigation.smoother import Fix, smooth_positions
     from hadal.navigation.sources import increments, table_fixes, terrain_fix
+    from hadal.settings.navigation import SmootherOptions
 
     opt = options or SmootherOptions()
     base = navigation_table(ctd, frame, launch_lat, launch_lon, matched=matched, fix=fix)
@@ -391,12 +392,13 @@ def publish_navigation(ctx: Any, ctd: pd.DataFrame, track: pd.DataFrame | None, 
     """Publish the ``navigation`` product (``navigation.parquet`` + CF trajectory ``navigation.nc`` + the track as
     GeoJSON, ``navigation_track.geojson``) of a stage context ``ctx`` (``match`` calls it after publishing
     ``match``): the smoothed positions and their covariances (:func:`smoothed_navigation`; ``smoother``: its
-    :class:`~hadal.navigation.smoother.SmootherOptions`). Returns the ProductVersion."""
-    from hadal.navigation.smoother import SmootherOptions
+    :class:`~hadal.settings.navigation.SmootherOptions`). Returns the ProductVersion."""
     from hadal.products.io import write_netcdf, write_parquet
 
     launch = ctx.dive.require_launch("navigation")
     frame = ctx.dive.frame()
+    from hadal.settings.navigation import SmootherOptions
+
     opt = smoother or SmootherOptions()
     nav, sm, notes = smoothed_navigation(ctd, frame, launch.latitude_deg, launch.longitude_deg, matched=track,
                                          fix=fix, launch_time=launch.time_utc, options=opt)

@@ -5,8 +5,8 @@ docs' field reference are generated from it: ``hadal config``, ``python -m hadal
 This package sits below everything else: it imports pydantic, PyYAML, :mod:`hadal.errors` and
 :mod:`hadal.yamlfile` only, never a stage, the store or the science; the science and the stages import their
 options from here. One module per section: :mod:`hadal.settings.ingest`, ``derive``, ``grid`` (the ``dtm`` and
-``laser`` stages), ``suitability``, ``match``, ``landing``, ``report``, ``resources``; the QARTOD threshold models
-are :mod:`hadal.settings.qc`.
+``laser`` stages), ``suitability``, ``match`` (with the navigation smoother's, :mod:`hadal.settings.navigation`),
+``landing``, ``report``, ``resources``; the QARTOD threshold models are :mod:`hadal.settings.qc`.
 """
 
 from hadal.settings.derive import DeriveParams

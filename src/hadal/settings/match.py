@@ -10,6 +10,8 @@ from typing import Literal
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
+from hadal.settings.navigation import SmootherOptions
+
 #: posterior fix (:func:`hadal.matching.posterior.posterior_fix`): flag a mismatch when more posterior mass than this
 #: lies outside the main mode (ambiguous), or would with the map's holes filled (over_holes)
 MAX_MASS_OUTSIDE = 0.2
@@ -164,6 +166,9 @@ class MatchParams(TercomOptions, DeadReckoningOptions, PosteriorNoiseOptions, Se
     drift: bool = Field(True, description="posterior: estimate the dead-reckoning drift (a velocity bias, piecewise constant in time) jointly with the start, heading and scale")
     drift_segment_s: float = Field(DRIFT_SEGMENT_S, ge=10, le=1_000_000, description="posterior: duration of each constant-velocity-bias segment of the drift, seconds")
     drift_velocity_sigma_m_s: float = Field(DRIFT_VELOCITY_SIGMA_M_S, gt=0, le=10, description="posterior: prior standard deviation of the DR velocity bias in each segment, m/s")
+    navigation: SmootherOptions = Field(
+        default_factory=SmootherOptions,
+        description="the navigation product's smoother over every position source (hadal.navigation.smoother)")
 
     @model_validator(mode="after")
     def _steps(self) -> MatchParams:

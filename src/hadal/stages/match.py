@@ -411,7 +411,7 @@ def run(ctx: StageContext) -> dict[str, ProductVersion]:
     from hadal.products.navigation import publish_navigation  # best position of every sample (products/)
 
     nav = publish_navigation(ctx, ctd, track, fix, [ctd_pv, draft.result], p.dr_error_fraction,
-                             unreferenced_drift_m_per_sqrt_s=p.dr_unreferenced_drift_m_per_sqrt_s)
+                             unreferenced_drift_m_per_sqrt_s=p.dr_unreferenced_drift_m_per_sqrt_s, smoother=p.navigation)
     return {"match": draft.result, "navigation": nav}
 
 

@@ -56,7 +56,7 @@ def default_dive_id(dest: str | Path) -> str:
 
 
 def generate_dive(dest: str | Path, *, seed: int = 20181006, small: bool = False, progress=None,
-                  dive_id: str | None = None) -> Path:
+                  dive_id: str | None = None, usbl_interval_s: float | None = None) -> Path:
     """Write the seeded sample dive into ``dest`` (created; a previous sample there is replaced) and return it.
 
     ``dive_id`` defaults to the destination directory's name (:func:`default_dive_id`), so two samples in two
@@ -65,7 +65,12 @@ def generate_dive(dest: str | Path, *, seed: int = 20181006, small: bool = False
     Same ``seed`` and ``small`` -> byte-identical files. ``small=True`` keeps the physics and the layout but
     decimates the sensors (CTD 2 Hz, others 1 Hz), thins the multibeam and writes one short laser submap.
     ``progress``: an object with ``.track(iterable, description, total)`` (hadal.stages.Progress).
+    ``usbl_interval_s``: also log USBL fixes from the ship every this many seconds (:func:`hadal.synth.sensors.
+    simulate_usbl`; channel ``/haidou/usbl``, ``csv/usbl.csv``, mapped in the dive's vehicle.yaml; truth in
+    truth.json ``sensors.usbl``); None (default): none, and the other files are unchanged.
     """
+    if usbl_interval_s is not None and not (1.0 <= float(usbl_interval_s) <= 86400.0):
+        raise InputError(f"USBL interval {usbl_interval_s} s: give 1 to 86400 s")
     dest = Path(dest)
     if dest.exists():
         if not dest.is_dir():
@@ -75,7 +80,8 @@ def generate_dive(dest: str | Path, *, seed: int = 20181006, small: bool = False
     dest.parent.mkdir(parents=True, exist_ok=True)
     staging = Path(tempfile.mkdtemp(prefix=f".{dest.name}.synth-", dir=dest.parent))
     try:
-        _generate(staging, int(seed), bool(small), progress or _NullProgress(), dive_id or default_dive_id(dest))
+        _generate(staging, int(seed), bool(small), progress or _NullProgress(), dive_id or default_dive_id(dest),
+                  usbl_interval_s)
         if dest.exists():
             shutil.rmtree(dest)
         staging.rename(dest)
@@ -101,7 +107,7 @@ def _steps(progress) -> Callable:
     return step
 
 
-def _generate(out: Path, seed: int, small: bool, progress, dive_id: str) -> None:
+def _generate(out: Path, seed: int, small: bool, progress, dive_id: str, usbl_interval_s: float | None = None) -> None:
     step = _steps(progress)
     r = _rngs(seed)
     r_terrain, r_track, r_track2, r_err, r_sens, r_mb, r_laser = (r[k] for k in RNG_STREAMS[:7])
@@ -118,6 +124,9 @@ def _generate(out: Path, seed: int, small: bool, progress, dive_id: str) -> None
     rates = _sensors.SMALL_RATES_HZ if small else _sensors.FULL_RATES_HZ
     channels = step("sensors", _sensors.simulate, track, ter, water, err, rates, r_sens)
     channels["gnss"] = _sensors.simulate_gnss(track, frame, r["gnss"])  # launch and recovery fixes
+    if usbl_interval_s is not None:  # the ship over the launch point
+        channels["usbl"] = _sensors.simulate_usbl(track, frame, r["usbl"], float(usbl_interval_s),
+                                                  (float(launch_xy[0]), float(launch_xy[1])))
 
     t0_ms = int(sc.LAUNCH_TIME_UTC.timestamp() * 1000)
     (out / "logs").mkdir()
@@ -164,15 +173,24 @@ def _generate(out: Path, seed: int, small: bool, progress, dive_id: str) -> None
     tdf = _track_frame(track, frame, water)
     _w.write_track(out / "truth" / "track.parquet", tdf)
 
-    vehicle_rel = _copy_vehicle(out)
+    vehicle_rel = _copy_vehicle(out, with_usbl="usbl" in channels)
     _write_dive_yaml(out, seed, small, vehicle_rel, csv_files, mb_files, laser_files, dive_id)
     _write_pipeline_yaml(out, rates, small)
     truth = _truth(seed, small, frame, ter, track, water, err, rates, counts, mb, n_sound, laser_truth,
                    terrain_info, launch_xy, start_xy, deep_xy)
+    if usbl_interval_s is not None:
+        u = channels["usbl"]
+        truth["sensors"]["usbl"] = {
+            "interval_s": float(usbl_interval_s), "ship_x_east_m": _r(launch_xy[0], 3),
+            "ship_y_north_m": _r(launch_xy[1], 3), "range_fraction": _sensors.USBL_RANGE_FRACTION,
+            "min_sigma_m": _sensors.USBL_MIN_SIGMA_M, "n_fixes": int(u["t_ms"].size),
+            "comment": "fixes = true position + white noise of sigma per axis = max(min_sigma_m, range_fraction x "
+                       "slant range from the ship over the launch point); that variance logged with each fix"}
     (out / "truth.json").write_text(json.dumps(truth, indent=2) + "\n", encoding="utf-8")
 
 
-RNG_STREAMS = ("terrain", "track", "track2", "errors", "sensors", "multibeam", "laser", "gnss")
+#: the generator's random streams (a new stream goes last: the earlier ones, spawned by index, stay unchanged)
+RNG_STREAMS = ("terrain", "track", "track2", "errors", "sensors", "multibeam", "laser", "gnss", "usbl")
 
 
 def _rngs(seed: int) -> dict[str, np.random.Generator]:
@@ -232,8 +250,30 @@ def _track_frame(track: Track, frame: LocalFrame, water: WaterColumn) -> pd.Data
     })
 
 
-def _copy_vehicle(out: Path) -> str | None:
-    """Copy the Haidou vehicle mapping (ingest's VehicleConfig) if the package or repo provides it."""
+#: the vehicle.yaml block of the optional USBL channel (appended to the dive's copy when the sample has USBL)
+_USBL_VEHICLE_BLOCK = """  usbl:                     # USBL fixes from the support ship (hadal synth --usbl-interval-s); the navigation smoother's fixes
+    mcap:
+      topic: /haidou/usbl
+      time: {field: log_time, format: unix_ns}
+      fields:
+        usbl_latitude_deg: {field: latitude, units: deg}
+        usbl_longitude_deg: {field: longitude, units: deg}
+        usbl_east_variance_m2: {field: east_variance, units: m2}
+        usbl_north_variance_m2: {field: north_variance, units: m2}
+    csv:
+      source: usbl
+      time: {field: time, format: iso8601}
+      fields:
+        usbl_latitude_deg: {field: latitude_deg, units: deg}
+        usbl_longitude_deg: {field: longitude_deg, units: deg}
+        usbl_east_variance_m2: {field: east_variance_m2, units: m2}
+        usbl_north_variance_m2: {field: north_variance_m2, units: m2}
+"""
+
+
+def _copy_vehicle(out: Path, with_usbl: bool = False) -> str | None:
+    """Copy the Haidou vehicle mapping (ingest's VehicleConfig) if the package or repo provides it (with the USBL
+    channel's mapping appended when ``with_usbl``)."""
     cands = []
     try:
         cands.append(importlib.resources.files("hadal") / "data" / "vehicles" / "haidou.yaml")
@@ -243,7 +283,10 @@ def _copy_vehicle(out: Path) -> str | None:
     for c in cands:
         try:
             if c.is_file():
-                (out / "vehicle.yaml").write_bytes(c.read_bytes())
+                text = c.read_bytes()
+                if with_usbl:
+                    text = text.rstrip(b"\n") + b"\n" + _USBL_VEHICLE_BLOCK.encode()
+                (out / "vehicle.yaml").write_bytes(text)
                 return "vehicle.yaml"
         except OSError:
             continue

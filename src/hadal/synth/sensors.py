@@ -17,6 +17,11 @@ written with, so the MCAP (JSON) and CSV files hold exactly the same numbers.
   seconds of the dive (launch and recovery), true position + white noise of ``GNSS_SIGMA_M`` per axis, with
   that variance logged as NavSatFix's position covariance; its own random stream, so the other channels are
   unchanged.
+* USBL (optional, ``hadal synth --usbl-interval-s``): one fix every ``interval_s`` seconds from launch to
+  recovery, the ship over the launch point; 1-sigma per axis ``USBL_RANGE_FRACTION`` x the slant range (at
+  least ``USBL_MIN_SIGMA_M``), the error model of deep-water USBL systems' accuracy specifications and of
+  oplab_pipeline's USBL sigma (offset + factor x range); that variance logged with the fix (east/north, m^2).
+  Its own random stream: the other channels are unchanged.
 * Dead reckoning: integrates the compass-rotated, scale-biased true velocity (+ correlated noise) from the
   start of the bottom track, where it believes it is at the launch point; 0 during the descent (no
   velocity reference), held during the ascent.
@@ -178,3 +183,30 @@ def simulate_gnss(track: Track, frame, rng: np.random.Generator, t0_phase_ms: in
     var = np.full(t_s.size, GNSS_SIGMA_M ** 2)
     return {"t_ms": t_ms, "latitude": np.round(np.asarray(lat, float), 8), "longitude": np.round(np.asarray(lon, float), 8),
             "east_variance": var, "north_variance": var.copy()}
+
+
+#: USBL 1-sigma per axis: this fraction of the slant range from the ship (1 %: a deep-water USBL with a
+#: heading/attitude-limited angular accuracy of ~0.5 deg), at least USBL_MIN_SIGMA_M
+USBL_RANGE_FRACTION = 0.01
+USBL_MIN_SIGMA_M = 2.0
+
+
+def simulate_usbl(track: Track, frame, rng: np.random.Generator, interval_s: float,
+                  ship_xy: tuple[float, float], t0_phase_ms: int = 0) -> dict[str, np.ndarray]:
+    """USBL fixes (module docstring) every ``interval_s`` s from ``interval_s`` after launch to the surfacing,
+    ship at ``ship_xy`` (map frame, m): ``{"t_ms", "latitude", "longitude", "east_variance", "north_variance",
+    "sigma_m"}``; positions in degrees (WGS 84) from the true map position through ``frame``."""
+    dur = float(track.t[-1])
+    t_s = np.arange(float(interval_s), dur, float(interval_s))
+    t_ms = np.round(t_s * 1000).astype(np.int64) + t0_phase_ms
+    tx, ty = np.interp(t_s, track.t, track.x), np.interp(t_s, track.t, track.y)
+    depth = np.interp(t_s, track.t, track.depth)
+    slant = np.sqrt((tx - ship_xy[0]) ** 2 + (ty - ship_xy[1]) ** 2 + depth ** 2)
+    sigma = np.round(np.maximum(USBL_RANGE_FRACTION * slant, USBL_MIN_SIGMA_M), 2)
+    x = tx + rng.normal(0.0, 1.0, t_s.size) * sigma
+    y = ty + rng.normal(0.0, 1.0, t_s.size) * sigma
+    lon, lat = frame.to_lonlat(x, y)
+    var = np.round(sigma ** 2, 2)
+    return {"t_ms": t_ms, "latitude": np.round(np.atleast_1d(np.asarray(lat, float)), 8),
+            "longitude": np.round(np.atleast_1d(np.asarray(lon, float)), 8),
+            "east_variance": var, "north_variance": var.copy(), "sigma_m": sigma}

@@ -29,6 +29,7 @@ _CHANNEL_FILES: dict[str, tuple[str, str]] = {
     "attitude": ("/haidou/attitude", "haidou_attitude.json"),
     "dr": ("/haidou/dr", "haidou_dr.json"),
     "gnss": ("/haidou/gnss", "haidou_gnss.json"),
+    "usbl": ("/haidou/usbl", "haidou_usbl.json"),
 }
 
 
@@ -50,9 +51,10 @@ def _channels() -> dict[str, dict]:
     return out
 
 
-#: MCAP topics, schema names and JSON Schemas of the six channels, read from ``schemas/mcap/*.json``
+#: MCAP topics, schema names and JSON Schemas of the channels, read from ``schemas/mcap/*.json``
 CHANNELS: dict[str, dict] = _channels()
-CHANNEL_ORDER = ("ctd", "keller", "altimeter", "attitude", "dr", "gnss")
+#: the channels in file order; ``usbl`` only when the sample has USBL fixes (``hadal synth --usbl-interval-s``)
+CHANNEL_ORDER = ("ctd", "keller", "altimeter", "attitude", "dr", "gnss", "usbl")
 
 
 def _stamps(t_unix_ms: np.ndarray) -> list[str]:
@@ -80,7 +82,7 @@ def payloads(name: str, ch: dict[str, np.ndarray], t0_unix_ms: int) -> list[byte
     if name == "dr":
         rows = zip(st, ch["east"].tolist(), ch["north"].tolist(), ch["speed"].tolist(), strict=True)
         return [f'{{"stamp":{s},"east":{e:.3f},"north":{n:.3f},"speed":{v:.3f}}}'.encode() for s, e, n, v in rows]
-    if name == "gnss":
+    if name in ("gnss", "usbl"):
         fixes = zip(st, ch["latitude"].tolist(), ch["longitude"].tolist(), ch["east_variance"].tolist(),
                     ch["north_variance"].tolist(), strict=True)
         return [f'{{"stamp":{s},"latitude":{a:.8f},"longitude":{o:.8f},"east_variance":{e:.2f},"north_variance":{n:.2f}}}'
@@ -89,23 +91,25 @@ def payloads(name: str, ch: dict[str, np.ndarray], t0_unix_ms: int) -> list[byte
 
 
 def write_mcap(path: Path, channels: dict[str, dict[str, np.ndarray]], t0_unix_ms: int, progress=None) -> dict:
-    """One MCAP file, JSON messages with jsonschema schemas, zstd chunks, messages in log_time order."""
+    """One MCAP file, JSON messages with jsonschema schemas, zstd chunks, messages in log_time order (the
+    channels of :data:`CHANNEL_ORDER` present in ``channels``)."""
+    order_names = [n for n in CHANNEL_ORDER if n in channels]
     times, chans, bodies = [], [], []
-    for k, name in enumerate(CHANNEL_ORDER):
+    for k, name in enumerate(order_names):
         ch = channels[name]
         times.append((ch["t_ms"] + t0_unix_ms) * 1_000_000)
         chans.append(np.full(len(ch["t_ms"]), k, dtype=np.int64))
         bodies.extend(payloads(name, ch, t0_unix_ms))
     t_ns = np.concatenate(times)
     c = np.concatenate(chans)
-    seq = np.concatenate([np.arange(len(ch["t_ms"])) for ch in (channels[n] for n in CHANNEL_ORDER)])
+    seq = np.concatenate([np.arange(len(ch["t_ms"])) for ch in (channels[n] for n in order_names)])
     order = np.lexsort((seq, c, t_ns))
     counts = {}
     with open(path, "wb") as fh:
         w = Writer(fh, chunk_size=4 * 1024 * 1024, compression=CompressionType.ZSTD)
         w.start(profile="", library="hadal.synth")
         ids = []
-        for name in CHANNEL_ORDER:
+        for name in order_names:
             spec = CHANNELS[name]
             sid = w.register_schema(name=spec["schema_name"], encoding="jsonschema",
                                     data=json.dumps(spec["schema"], indent=None, sort_keys=False).encode())
@@ -122,7 +126,7 @@ def write_mcap(path: Path, channels: dict[str, dict[str, np.ndarray]], t0_unix_m
         for i in it:
             add(channel_id=ids[c_l[i]], log_time=t_l[i], publish_time=t_l[i], sequence=s_l[i], data=bodies[o_l[i]])
         w.finish()
-    for name in CHANNEL_ORDER:
+    for name in order_names:
         counts[CHANNELS[name]["topic"]] = int(len(channels[name]["t_ms"]))
     return counts
 
@@ -158,6 +162,10 @@ def write_csvs(csv_dir: Path, channels: dict[str, dict[str, np.ndarray]], t0_uni
     emit("gnss", "gnss", "gnss.csv", "time,latitude_deg,longitude_deg,east_variance_m2,north_variance_m2",
          lambda a, la, lo, e, n: f"{a},{la:.8f},{lo:.8f},{e:.2f},{n:.2f}", "latitude", "longitude", "east_variance",
          "north_variance")
+    if "usbl" in channels:
+        emit("usbl", "usbl", "usbl.csv", "time,latitude_deg,longitude_deg,east_variance_m2,north_variance_m2",
+             lambda a, la, lo, e, n: f"{a},{la:.8f},{lo:.8f},{e:.2f},{n:.2f}", "latitude", "longitude",
+             "east_variance", "north_variance")
     return files
 
 

@@ -525,7 +525,10 @@ def test_ros2_standard_types_suggest_and_ingest(ros_mcap):
     table, meta = build_sensor_table(sensors, cfg, max_gap_s={})
     assert meta["time_base"] == "ctd" and table["pressure_gauge_dbar"].notna().mean() > 0.9
     assert table["heading_deg"].notna().mean() > 0.9
-    assert table["gnss_latitude_deg"].notna().mean() > 0.9  # an optional column, present with its source
+    # an optional column, present with its source: each 0.5 Hz fix at one CTD sample (its nearest), not interpolated
+    got = table["gnss_latitude_deg"].dropna().to_numpy()
+    assert got.size == fx.values["gnss_latitude_deg"].size
+    np.testing.assert_allclose(np.sort(got), np.sort(fx.values["gnss_latitude_deg"]))
 
 
 def test_ros2_gnss_positions_and_twist(tmp_path):
@@ -628,3 +631,17 @@ def test_unmapped_mcap_with_csv_sensors(shared_data, tmp_path):
     assert any("ingest.source: csv" in c for c in s.checks)
     why = {u.get("field"): u["reason"] for u in s.unmapped if u["source"] == "gauge"}
     assert "pressure" in why["depth_m"] and why["battery_v"] == "not recognised as a hadal variable"
+
+
+def test_usbl_channel_named_by_its_key_gives_usbl_fixes(tmp_path):
+    """A CSV key saying usbl with latitude/longitude and their variances (the sample generator's csv/usbl.csv
+    layout): USBL fixes (usbl_*, valid at any depth), not GNSS fixes nor a dead-reckoned track."""
+    rows = "".join(f"2018-10-07T00:{i:02d}:00.000Z,11.3{i:02d},142.2,100.00,100.00\n" for i in range(20))
+    usbl = _write(tmp_path / "usbl.csv", "time,latitude_deg,longitude_deg,east_variance_m2,north_variance_m2\n" + rows)
+    cfg = suggest_vehicle([], {"usbl": usbl}).config()
+    fx = cfg.sensors[cfg.sensor_of("usbl_latitude_deg")].csv.fields
+    assert (fx["usbl_latitude_deg"].field, fx["usbl_longitude_deg"].field) == ("latitude_deg", "longitude_deg")
+    assert (fx["usbl_east_variance_m2"].field, fx["usbl_north_variance_m2"].field) == ("east_variance_m2",
+                                                                                      "north_variance_m2")
+    assert cfg.sensor_of("usbl_latitude_deg") == "usbl"
+    assert not {"dr_east_m", "gnss_latitude_deg"} & set(cfg.variables())

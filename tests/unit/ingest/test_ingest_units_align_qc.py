@@ -230,3 +230,19 @@ def test_sensor_from_records_bad_values():
     with pytest.raises(InputError, match="has no field 'pressure'"):
         sensor_from_records("gauge", np.arange(2, dtype=np.int64), [{"p": 1.0}, {"p": 2.0}],
                             v.sensors["gauge"].mcap, "mcap:x")
+
+
+def test_fix_streams_are_placed_at_their_nearest_base_sample_not_interpolated():
+    """A USBL fix every 600 s on a 16 Hz base: each fix at exactly one base sample (the nearest, found here by
+    brute force), NaN elsewhere; a fix beyond max_gap_s of every base sample is dropped."""
+    from hadal.ingest.align import align_sensor
+
+    base = (np.arange(0, 3000 * 16) * (1e9 / 16)).astype(np.int64)
+    t = np.array([0.03e9, 600.01e9, 1200.5e9, 1800.97e9, 5000e9], np.int64)
+    lat = np.array([11.1, 11.2, 11.3, 11.4, 11.5])
+    out, _ = align_sensor(base, t, {"usbl_latitude_deg": lat, "usbl_east_variance_m2": lat * 10}, 900.0)
+    a = out["usbl_latitude_deg"]
+    near = [int(np.argmin(np.abs(base - ti))) for ti in t[:4]]
+    assert np.flatnonzero(np.isfinite(a)).tolist() == near
+    np.testing.assert_array_equal(a[near], lat[:4])
+    assert np.isfinite(out["usbl_east_variance_m2"]).sum() == 4

@@ -10,7 +10,7 @@ import pandas as pd
 import pytest
 
 from hadal.geo import LocalFrame
-from hadal.navigation.smoother import SmootherOptions
+from hadal.settings.navigation import SmootherOptions
 
 FRAME = LocalFrame(11.33, 142.2)
 LAUNCH = (11.33, 142.2)

@@ -8,7 +8,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from hadal.navigation.smoother import Fix, SmootherOptions, smooth_positions
+from hadal.navigation.smoother import Fix, smooth_positions
+from hadal.settings.navigation import SmootherOptions
 
 
 def _van_loan(beta_bc, beta_bt, dt, s2_bc, s2_bt, coupled):

@@ -7,8 +7,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from hadal.navigation.smoother import CHI2_2DOF_2SIGMA, Fix, SmootherOptions, smooth_positions
+from hadal.navigation.smoother import CHI2_2DOF_2SIGMA, Fix, smooth_positions
 from hadal.navigation.sources import body_to_enu, pose_fixes, velocity_increments
+from hadal.settings.navigation import SmootherOptions
 
 
 def test_body_to_enu_by_geometry():

@@ -426,3 +426,45 @@ def test_gnss_fixes_at_launch_and_recovery(sample):
         _, _, d = geod.inv(g["longitude_deg"][sel], g["latitude_deg"][sel], np.full(sel.sum(), ref["longitude_deg"]),
                            np.full(sel.sum(), ref["latitude_deg"]))
         assert sel.sum() == 5 and np.all(d < 5 * sigma + 1.0)  # the vehicle moves < 1 m in those seconds
+
+
+@pytest.fixture(scope="module")
+def usbl_sample(tmp_path_factory) -> Path:
+    return generate_dive(tmp_path_factory.mktemp("synth_usbl") / "dive", small=True, usbl_interval_s=300.0)
+
+
+def test_usbl_fixes_about_the_truth_within_their_stated_accuracy(usbl_sample, sample):
+    """``usbl_interval_s`` adds USBL fixes (csv/usbl.csv, /haidou/usbl, mapped in vehicle.yaml) every 300 s whose
+    errors against the true track (truth/track.parquet) are white with the logged variance: sum of squared
+    normalised errors within the chi-square 99.9 % interval; the sigma is 1 % of the slant range from the ship over
+    the launch point (recomputed from the truth), at least 2 m. Every other file is the no-USBL sample's."""
+    from mcap.reader import make_reader
+    from scipy.stats import chi2
+
+    truth = json.loads((usbl_sample / "truth.json").read_text())
+    u = pd.read_csv(usbl_sample / "csv" / "usbl.csv")
+    tr = pd.read_parquet(usbl_sample / "truth" / "track.parquet")
+    frame = LocalFrame(truth["map"]["origin_latitude_deg"], truth["map"]["origin_longitude_deg"])
+    t = pd.to_datetime(u["time"], utc=True).dt.as_unit("ns").astype("int64").to_numpy() / 1e9
+    tt = tr["time"].dt.as_unit("ns").astype("int64").to_numpy() / 1e9
+    assert len(u) == truth["sensors"]["usbl"]["n_fixes"] and np.allclose(np.diff(t), 300.0)
+    tx, ty, tz = (np.interp(t, tt, tr[c]) for c in ("x_east_m", "y_north_m", "depth_m"))
+    x, y = frame.to_xy(u["longitude_deg"].to_numpy(), u["latitude_deg"].to_numpy())
+    sx, sy = truth["launch"]["x_east_m"], truth["launch"]["y_north_m"]
+    sigma = np.maximum(0.01 * np.sqrt((tx - sx) ** 2 + (ty - sy) ** 2 + tz ** 2), 2.0)
+    np.testing.assert_allclose(np.sqrt(u["east_variance_m2"]), sigma, rtol=0.01)
+    np.testing.assert_allclose(u["north_variance_m2"], u["east_variance_m2"])
+    q = float(np.sum(((x - tx) ** 2 + (y - ty) ** 2) / u["east_variance_m2"]))
+    k = 2 * len(u)
+    assert chi2.ppf(0.0005, k) < q < chi2.ppf(0.9995, k)
+    with open(usbl_sample / "logs" / "haidou.mcap", "rb") as fh:
+        n = sum(1 for _s, ch, _m in make_reader(fh).iter_messages() if ch.topic == "/haidou/usbl")
+    assert n == len(u)
+    dive, _ = load_dive(usbl_sample)
+    assert dive.sources.csv["usbl"] == "csv/usbl.csv"
+    from hadal.ingest.vehicle import load_vehicle_config
+
+    v = load_vehicle_config(usbl_sample / "vehicle.yaml")
+    assert v.sensors["usbl"].mcap.topic == "/haidou/usbl"
+    for rel in ("csv/ctd.csv", "csv/dr.csv", "csv/gnss.csv", "truth/track.parquet", "truth/terrain.nc"):
+        assert _sha(usbl_sample / rel) == _sha(sample / rel), rel
