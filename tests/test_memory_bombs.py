@@ -761,3 +761,139 @@ def test_stage_budgets_honour_resources_max_memory_gb(tmp_path):
         run_stage("grid", make_context(mb, tmp_path / "mb" / "store"))
     msg = str(ei.value)
     assert "\n" not in msg and "decoding this multibeam file needs more than" in msg and "limit 10.2 MiB)" in msg, msg
+
+
+# ----------------------------------------------------------------- point clouds (LAS/LAZ, PCD, PLY, xyz)
+def _cloud(tmp_path: Path, fmt: str, n: int) -> Path:
+    """A cloud of ``n`` points (a 1 km square, z -5000 .. -4900 m) in ``fmt``, written by the format's own library
+    (laspy/lazrs, pypcd4, open3d) or as text, in chunks for LAS/LAZ."""
+    rng = np.random.default_rng(45)
+    if fmt in ("las", "laz"):
+        import laspy
+
+        header = laspy.LasHeader(point_format=0, version="1.2")
+        header.scales, header.offsets = [0.01, 0.01, 0.01], [0.0, 0.0, -5000.0]
+        p = tmp_path / f"cloud.{fmt}"
+        with laspy.open(str(p), mode="w", header=header,
+                        laz_backend=laspy.LazBackend.Lazrs if fmt == "laz" else None) as w:
+            for k in range(0, n, 1_000_000):
+                m = min(1_000_000, n - k)
+                rec = laspy.ScaleAwarePointRecord.zeros(m, header=header)
+                rec.x, rec.y, rec.z = rng.uniform(0, 1000, m), rng.uniform(0, 1000, m), rng.uniform(-5000, -4900, m)
+                w.write_points(rec)
+        return p
+    xyz = np.column_stack([rng.uniform(0, 1000, n), rng.uniform(0, 1000, n), rng.uniform(-5000, -4900, n)])
+    p = tmp_path / f"cloud.{fmt}"
+    if fmt == "pcd":
+        from pypcd4 import PointCloud
+
+        PointCloud.from_xyz_points(xyz.astype(np.float32)).save(str(p))
+    elif fmt == "ply":
+        import open3d as o3d
+
+        pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(xyz))
+        o3d.io.write_point_cloud(str(p), pc, write_ascii=False)
+    else:
+        np.savetxt(p, xyz, fmt="%.3f")
+    return p
+
+
+#: what each cloud reader holds per point against its budget (counted here from the formats, the oracle of the
+#: readers' own counting): the (n, 3) float64 points and their 3 working copies; PCD its record too (3 float32),
+#: PLY open3d's own float64 triple; xyz text 3 growable float64 columns x 3 copies (their capacity: up to twice)
+_CLOUD_BYTES = {"las": 24 * 3, "laz": 24 * 3, "pcd": 12 + 24 * 3, "ply": 24 * 4, "xyz": 24 * 3}
+
+
+@pytest.mark.parametrize("fmt", ["las", "laz", "pcd", "ply", "xyz"])
+def test_point_cloud_under_and_over_its_budget(tmp_path, fmt):
+    """A cloud of 2e6 points of each format: read whole under a budget 1.5x what its reader counts (every point as
+    the format's library reads it, the oracle: laspy, pypcd4, open3d, numpy.loadtxt), with a peak RSS above the
+    start under that budget; refused in one line naming the file and the limit under half of it (the readers were
+    held against the machine's memory, not ``resources.max_memory_gb``, and LAZ not at all as it decoded)."""
+    n = 2_000_000
+    p = _cloud(tmp_path, fmt, n)
+    need = n * _CLOUD_BYTES[fmt] * (2 if fmt == "xyz" else 1)
+    code = """
+        import numpy
+        from hadal.grid.readers import read_point_cloud_meta
+        def run():
+            pts, meta = read_point_cloud_meta(%r, memory_limit_bytes=%r)
+            return [len(pts), float(pts[:, 2].sum()), float(pts[:, 0].max())]
+    """
+    out = _run_capped(code % (str(p), 1.5 * need))
+    assert "error" not in out, out
+    if fmt in ("las", "laz"):
+        import laspy
+
+        las = laspy.read(str(p))
+        ref = [len(las.points), float(np.asarray(las.z).sum()), float(np.asarray(las.x).max())]
+    elif fmt == "pcd":
+        from pypcd4 import PointCloud
+
+        a = PointCloud.from_path(p).numpy(("x", "y", "z")).astype(np.float64)
+        ref = [len(a), float(a[:, 2].sum()), float(a[:, 0].max())]
+    elif fmt == "ply":
+        import open3d as o3d
+
+        a = np.asarray(o3d.io.read_point_cloud(str(p)).points)
+        ref = [len(a), float(a[:, 2].sum()), float(a[:, 0].max())]
+    else:
+        a = np.loadtxt(p)
+        ref = [len(a), float(a[:, 2].sum()), float(a[:, 0].max())]
+    assert out["result"][0] == ref[0] == n and out["result"][2] == ref[2], (out, ref)
+    assert out["result"][1] == pytest.approx(ref[1], rel=1e-12), (out, ref)
+    print(fmt, f"peak - base {(out['peak'] - out['base']) / 2**20:.0f} MiB, budget {1.5 * need / 2**20:.0f} MiB")
+    assert out["peak"] - out["base"] < 1.5 * need, out
+    out = _run_capped(code % (str(p), 0.5 * need))
+    _one_line_error(out, "point cloud needs more than")
+    assert str(p) in out["message"] and "limit" in out["message"], out
+
+
+def test_laz_whose_header_claims_many_points(tmp_path):
+    """A LAZ of 1,000 points whose header claims 2e9 (laspy would allocate for the claim; a LAZ's size says nothing
+    of its count): refused in one line before anything is allocated, peak under 0.25 GiB above the start; and a
+    LAZ holding 3e7 points (a few MB of compressed repeats) past a 0.5 GiB budget is refused as it decodes, its
+    peak under the budget."""
+    import struct
+
+    p = _cloud(tmp_path, "laz", 1000)
+    data = bytearray(p.read_bytes())
+    assert struct.unpack_from("<I", data, 107)[0] == 1000  # LAS 1.2 header: legacy point count at byte 107
+    struct.pack_into("<I", data, 107, 2_000_000_000)
+    lie = tmp_path / "lie.laz"
+    lie.write_bytes(bytes(data))
+    code = """
+        from hadal.grid.readers import read_point_cloud_meta
+        def run():
+            return len(read_point_cloud_meta(%r, memory_limit_bytes=%r)[0])
+    """
+    out = _run_capped(code % (str(lie), None))
+    _one_line_error(out, "its header declares 2,000,000,000 points")
+    assert out["peak"] - out["base"] < GIB / 4, out
+    import laspy
+
+    header = laspy.LasHeader(point_format=0, version="1.2")
+    big = tmp_path / "many.laz"
+    rec = laspy.ScaleAwarePointRecord.zeros(1_000_000, header=header)
+    with laspy.open(str(big), mode="w", header=header, laz_backend=laspy.LazBackend.Lazrs) as w:
+        for _ in range(30):
+            w.write_points(rec)
+    assert big.stat().st_size < 64 << 20
+    out = _run_capped(code % (str(big), GIB / 2))
+    _one_line_error(out, "decoding this LAS/LAZ point cloud needs more than")
+    assert out["peak"] - out["base"] < GIB / 2, out
+
+
+def test_ply_whose_header_claims_many_vertices(tmp_path):
+    """A binary PLY of 10 vertices whose header claims 2e9 (open3d sizes its arrays by the claim, 48 GB):
+    refused in one line before open3d reads it, peak under 0.25 GiB above the start."""
+    p = tmp_path / "lie.ply"
+    p.write_bytes(b"ply\nformat binary_little_endian 1.0\nelement vertex 2000000000\nproperty double x\n"
+                  b"property double y\nproperty double z\nend_header\n" + np.zeros(30).tobytes())
+    out = _run_capped(f"""
+        from hadal.grid.readers import read_point_cloud_meta
+        def run():
+            return len(read_point_cloud_meta({str(p)!r})[0])
+    """)
+    _one_line_error(out, "its header declares 2,000,000,000 vertices")
+    assert out["peak"] - out["base"] < GIB / 4, out

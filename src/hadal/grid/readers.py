@@ -148,7 +148,7 @@ def read_point_cloud(path: str | Path, *, format: str | None = None, columns: li
 
 
 def read_point_cloud_meta(path: str | Path, *, format: str | None = None, columns: list[str] | None = None,
-                          hints=None) -> tuple[np.ndarray, dict]:
+                          hints=None, memory_limit_bytes: float | None = None) -> tuple[np.ndarray, dict]:
     """Read a point cloud as an ``(N, 3)`` float64 array of x, y, z and what its metadata says.
 
     The format is detected from the content (:func:`sniff_kind`), not the name; ``format`` overrides
@@ -159,12 +159,19 @@ def read_point_cloud_meta(path: str | Path, *, format: str | None = None, column
     ``columns`` names the text columns (``x``/``lon``/``easting``, ``y``/``lat``/``northing``,
     ``z``/``depth``/``elevation``; default: the first three). PLY and xyz carry no vertical metadata: their z is
     returned as stored and the metadata has no ``z_positive`` (the caller decides).
+
+    Memory: every reader holds its points, counted with :data:`CLOUD_WORKING_COPIES`, against one
+    :class:`hadal.budget.DecodeBudget` of ``memory_limit_bytes`` (the stage's ``resources.max_memory_gb``; default
+    :func:`hadal.budget.memory_limit_bytes`): LAS/LAZ and xyz text as they decode (a LAZ or a gzip has no
+    trustworthy size), PLY and PCD before the library allocates what their header declares; past it, a one-line
+    :class:`InputError` naming the file and the limit.
     """
     p = _require_file(path, "point cloud")
     kind = _kind_of(p, format)
     if kind == "ply":
         import open3d as o3d
 
+        _check_ply_budget(p, memory_limit_bytes)
         with _quiet_open3d(o3d):
             pc = o3d.io.read_point_cloud(str(p), format=kind)
         pts = np.asarray(pc.points, dtype=np.float64)
@@ -175,13 +182,13 @@ def read_point_cloud_meta(path: str | Path, *, format: str | None = None, column
     if kind == "pcd":
         from hadal.grid.clouds import read_pcd
 
-        return read_pcd(p, hints)
+        return read_pcd(p, hints, memory_limit_bytes=memory_limit_bytes)
     if kind == "las":
         from hadal.grid.clouds import read_las
 
-        return read_las(p, hints)
+        return read_las(p, hints, memory_limit_bytes=memory_limit_bytes)
     if kind == "xyz":
-        return _read_xyz_cloud(p, columns), {"format": kind}
+        return _read_xyz_cloud(p, columns, memory_limit_bytes), {"format": kind}
     if kind in _GRID_KINDS:
         raise InputError(f"{p}: is a {kind} raster, not a point cloud")
     raise InputError(f"{p}: unsupported point cloud format (content is not PLY, PCD, LAS/LAZ or xyz text; "
@@ -200,9 +207,15 @@ XYZ_CHUNK_ROWS = 500_000
 #: working copies of an xyz point cloud's coordinates counted by its memory budget (:class:`hadal.budget.DecodeBudget`):
 #: the growable columns, their trimmed values and the stacked (n, 3) array
 XYZ_WORKING_COPIES = 3.0
+#: working copies of a LAS/LAZ, PCD or PLY cloud's (n, 3) float64 points counted by its memory budget: the points,
+#: the finite points their first consumer keeps (:func:`hadal.grid.describe.describe_point_cloud`, the laser grid's
+#: ``pts[ok]``) and that consumer's projected or cell-sorted copy
+CLOUD_WORKING_COPIES = 3.0
+#: bytes of one point's x, y, z as float64
+POINT_BYTES = 24
 
 
-def _read_xyz_cloud(p: Path, columns: list[str] | None) -> np.ndarray:
+def _read_xyz_cloud(p: Path, columns: list[str] | None, memory_limit_bytes: float | None = None) -> np.ndarray:
     """x y z (and more) numeric text columns, streamed: the (decompressed) file passes once through a
     :class:`~hadal.textstream.LineScan` (line-length bound) into pandas in chunks of :data:`XYZ_CHUNK_ROWS`,
     and only the three coordinate columns are kept, as float64. Peak memory: the points plus one chunk."""
@@ -219,7 +232,7 @@ def _read_xyz_cloud(p: Path, columns: list[str] | None) -> np.ndarray:
     sep = "," if "," in first else ";" if ";" in first else r"\s+"
     header = 0 if any(_not_number(t) for t in first.replace(",", " ").replace(";", " ").split()) else None
     out = [GrowableColumn(max(p.stat().st_size // 24, 1024), np.float64) for _ in range(3)]
-    budget = DecodeBudget(p, "point cloud", copies=XYZ_WORKING_COPIES)
+    budget = DecodeBudget(p, "point cloud", copies=XYZ_WORKING_COPIES, limit_bytes=memory_limit_bytes)
     idx: list[int] | None = None
     n_rows = 0
     with open_binary(p) as fh, decompress_errors(p, compression, "point cloud"):
@@ -269,25 +282,43 @@ def _xyz_columns(p: Path, df: pd.DataFrame, columns: list[str] | None, header: i
     return idx
 
 
-def _check_las_count(p: Path, laspy) -> None:
-    """Refuse a LAS file whose header declares more point records than the file holds (a truncated file or a
-    lying header, which would make laspy allocate for all of them), or, for LAZ, more than the memory budget
-    (points x 3 float64 + the record) allows."""
-    from hadal.budget import format_bytes, memory_limit_bytes
-
-    with laspy.open(str(p)) as f:
-        h = f.header
-        n, size = int(h.point_count), int(h.point_format.size)
-        offset = int(h.offset_to_point_data)
-        compressed = bool(getattr(h, "are_points_compressed", False))
+def _check_las_count(p: Path, h: Any, budget: Any) -> int:
+    """The point count of a LAS/LAZ header ``h``, refused when it declares more point records than the file holds
+    (a truncated file or a lying header; LAS only, a LAZ has no size to check it against) or, with the working
+    copies, more than ``budget`` (a :class:`hadal.budget.DecodeBudget`) allows: laspy decodes at most the declared
+    count, and the points are allocated for it."""
+    n, size = int(h.point_count), int(h.point_format.size)
+    offset = int(h.offset_to_point_data)
+    compressed = bool(getattr(h, "are_points_compressed", False))
     if not compressed and offset + n * size > p.stat().st_size:
         have = max(p.stat().st_size - offset, 0) // max(size, 1)
         raise InputError(f"{p}: LAS header declares {n:,} points but the file holds at most {have:,} "
                          "(truncated, or a wrong point count in the header)")
-    need = n * (size + 24)
-    if need > memory_limit_bytes(None):
-        raise InputError(f"{p}: LAS file declares {n:,} points; reading them needs about {format_bytes(need)} "
-                         f"(limit {format_bytes(memory_limit_bytes(None))}): thin or tile the cloud first")
+    budget.hold(n * POINT_BYTES, f"its header declares {n:,} points")
+    return n
+
+
+def _check_ply_budget(p: Path, limit_bytes: float | None) -> None:
+    """Refuse a PLY whose header declares more vertices than the memory budget allows, before open3d allocates
+    them (it sizes its arrays by the declared count: x/y/z, normals and colours as float64 triples) and the
+    points' working copies (:data:`CLOUD_WORKING_COPIES`)."""
+    from hadal.budget import DecodeBudget
+
+    with open(p, "rb") as fh:
+        head = fh.read(65536)
+    n, props = 0, set()
+    in_vertex = False
+    for line in head.split(b"end_header", 1)[0].decode("ascii", errors="replace").splitlines():
+        tok = line.split()
+        if len(tok) >= 3 and tok[0] == "element":
+            in_vertex = tok[1] == "vertex"
+            if in_vertex and tok[2].isdigit():
+                n = int(tok[2])
+        elif in_vertex and len(tok) >= 3 and tok[0] == "property":
+            props.add(tok[-1])
+    triples = 1 + bool(props & {"nx", "ny", "nz"}) + bool(props & {"red", "green", "blue"})
+    budget = DecodeBudget(p, "PLY point cloud", limit_bytes=limit_bytes)
+    budget.hold(n * POINT_BYTES * (triples + CLOUD_WORKING_COPIES), f"its header declares {n:,} vertices")
 
 
 def _quiet_open3d(o3d):
