@@ -897,3 +897,87 @@ def test_ply_whose_header_claims_many_vertices(tmp_path):
     """)
     _one_line_error(out, "its header declares 2,000,000,000 vertices")
     assert out["peak"] - out["base"] < GIB / 4, out
+
+
+# ----------------------------------------------------------------- derive's re-reads of raw Sea-Bird files
+def test_derive_rereads_of_an_xz_cnv_are_held_against_the_budget(tmp_path):
+    """derive re-reads raw Sea-Bird files after the ingest (the overlying profile ``derive.overlying_profile``, an
+    underway record's per-scan positions): an xz .cnv of 0.26 GB of scans (6e6) is refused in one line as it
+    decodes by either re-read given a 256 MiB budget, peak under 0.5 GiB above the start; and the derive stage gives them
+    ``resources.max_memory_gb`` (the machine's budget before): a .cnv overlying profile of 2e6 scans, which the
+    default budget reads, is refused naming the configured 64 MiB."""
+    import sys
+    import warnings
+
+    from hadal.dive import load_dive
+    from hadal.errors import InputError
+    from hadal.settings import PipelineConfig
+    from hadal.stages import StageContext, derive, ingest
+    from hadal.store import ProductStore
+
+    row = b"     1.000    10.0000   3.500000      0.000\n"
+    bomb = _compressed(tmp_path / "bomb.cnv", CNV_HEADER.encode(), row, 6_000_000 * 44, "xz")
+    for call in ("from hadal.depth import read_overlying_profile\n"
+                 "def run():\n    return str(read_overlying_profile(%r, max_bytes=1 << 28))",
+                 "import pandas\nfrom hadal.settings import PipelineConfig\n"
+                 "from hadal.stages.derive import underway_table\n"
+                 "def run():\n    return len(underway_table(pandas.DataFrame(), %r, PipelineConfig().derive,\n"
+                 "                              max_bytes=1 << 28)[0])"):
+        out = _run_capped(call % str(bomb))
+        _one_line_error(out, "decoding this CNV file needs more than")
+        assert "limit 256 MiB)" in out["message"] and out["peak"] - out["base"] < GIB / 2, out
+
+    sys.path.insert(0, str(Path(__file__).parent / "malformed"))
+    from tiny_dive import write_dive
+
+    raw = write_dive(tmp_path / "raw", 5.0)
+    prof = _compressed(raw / "top.cnv", CNV_HEADER.encode(), row, len(CNV_HEADER) + 2_000_000 * 44, "xz")
+    dive, rdir = load_dive(raw)
+    store = ProductStore(tmp_path / "store")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        ingest.run(StageContext(dive=dive, raw_dir=rdir, store=store, config=PipelineConfig()))
+    cfg = PipelineConfig.model_validate({"derive": {"overlying_profile": "top.cnv"},
+                                         "resources": {"max_memory_gb": 1 / 16}})
+    with pytest.raises(InputError) as ei:
+        derive.run(StageContext(dive=dive, raw_dir=rdir, store=store, config=cfg))
+    msg = str(ei.value)
+    assert "\n" not in msg and msg.startswith(str(prof)) and "limit 64 MiB)" in msg, msg
+
+
+# ----------------------------------------------------------------- hadal inspect
+@pytest.mark.parametrize("kind", ["cnv", "xyz", "mcap", "ply"])
+def test_inspect_refuses_a_bomb_in_one_line(tmp_path, kind):
+    """``hadal inspect --config`` reads within the configuration's ``resources.max_memory_gb`` (256 MiB here; it
+    read against the machine's memory before): a bomb of each kind (an xz .cnv of 6e6 scans, a gzip of 0.5 GiB of
+    xyz soundings, an MCAP chunk of 0.5 GiB of zeros, a PLY claiming 2e8 vertices) is one line in the table naming
+    the file and the configured limit, a one-line ``error:`` and exit status 2, peak RSS under 0.5 GiB above the
+    start; the readers' error text is the oracle of the same limit."""
+    if kind == "cnv":
+        p = _compressed(tmp_path / "bomb.cnv", CNV_HEADER.encode(), b"     1.000    10.0000   3.500000      0.000\n",
+                        6_000_000 * 44, "xz")
+    elif kind == "xyz":
+        p = _compressed(tmp_path / "bomb.xyz", b"", b"142.1 11.3 5000.0\n", GIB // 2)
+    elif kind == "mcap":
+        p = _mcap_bomb(tmp_path / "bomb.mcap", GIB // 2, "zstd")
+    else:
+        p = tmp_path / "bomb.ply"
+        p.write_bytes(b"ply\nformat ascii 1.0\nelement vertex 200000000\nproperty float x\nproperty float y\n"
+                      b"property float z\nend_header\n1 2 3\n")
+    cfg = tmp_path / "pipeline.yaml"
+    cfg.write_text("resources:\n  max_memory_gb: 0.25\n")
+    out = _run_capped(f"""
+        import sys
+        sys.path.insert(0, {str(Path(__file__).parent)!r})
+        from cli_runner import run_cli
+        def run():
+            res = run_cli("inspect", "--json", "--config", {str(cfg)!r}, {str(p)!r})
+            return [res.returncode, res.stdout, res.stderr]
+    """)
+    code, stdout, stderr = out["result"]
+    assert code == 2 and "Traceback" not in stdout + stderr, out
+    errs = [ln for ln in stderr.splitlines() if ln.startswith("error:")]
+    assert len(errs) == 1 and "1 of 1 file(s) cannot be read" in errs[0], stderr
+    msg = json.loads(stdout)[0]["error"]
+    assert "\n" not in msg and msg.startswith(str(p)) and "needs more than" in msg and "limit 256 MiB)" in msg, msg
+    assert out["peak"] - out["base"] < GIB / 2, out
