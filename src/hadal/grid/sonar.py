@@ -289,17 +289,18 @@ class ColumnAccumulator:
         return out
 
 
-def describe_multibeam(path, hints=None) -> dict:
+def describe_multibeam(path, hints=None, *, memory_limit_bytes: float | None = None) -> dict:
     """JSON-serialisable summary of a multibeam file (streamed; nothing kept but the statistics).
 
     Keys: ``path, format, compression, reader, crs_kind, soundings, pings, beams_per_ping, dropped,
     longitude_deg``/``latitude_deg`` (or ``x_m``/``y_m``) ``[min, max]``, ``depth_m [min, max]``,
     ``time_start``/``time_end`` (ISO 8601 UTC, swath formats) and the reader's other scalar attributes.
+    ``memory_limit_bytes``: the budget of the read (:func:`iter_multibeam`).
     """
     info: dict = {}
     n = 0
     ext: dict[str, list[float]] = {}
-    for chunk in iter_multibeam(path, hints, info=info):
+    for chunk in iter_multibeam(path, hints, info=info, memory_limit_bytes=memory_limit_bytes):
         n += len(chunk)
         for c in chunk.columns:
             if c == "ping":
