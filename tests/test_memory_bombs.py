@@ -650,6 +650,13 @@ def _swath_file(tmp_path: Path, fmt: str, soundings: int) -> tuple[Path, Path, i
     elif fmt == "s7k":
         k = soundings // 400
         one, body, total = _real(S7K) + _s7k_ping(), _real(S7K) + _s7k_ping() * k, 400 * k
+    elif fmt == "gsf":  # the real EX1604 file's first ping repeated: its soundings are counted by the oracle's read
+        data = _real(GSF)
+        recs = _gsf_records(data)
+        first = next(o for r, o, sz in recs if r == 2)
+        ping = next(data[o:o + sz] for r, o, sz in recs if r == 2)
+        k = soundings // 400
+        one, body, total = data[:first] + ping, data[:first] + ping * k, -k
     else:  # xyz text
         lines = "".join(f"{142.2 + 1e-5 * (i % 1000):.5f} {11.3 + 1e-5 * (i // 1000 % 1000):.5f} {5000 + i % 97}\n"
                         for i in range(10_000)).encode()
@@ -664,7 +671,7 @@ def _swath_file(tmp_path: Path, fmt: str, soundings: int) -> tuple[Path, Path, i
 
 
 @pytest.mark.parametrize("margin", [1.03, 0.97])
-@pytest.mark.parametrize("fmt", ["em_all", "kmall", "s7k", "xyz"])
+@pytest.mark.parametrize("fmt", ["em_all", "kmall", "s7k", "xyz", "gsf"])
 def test_swath_file_just_under_and_over_the_sounding_budget(tmp_path, fmt, margin):
     """A file whose measured read cost (SOUNDING_READ_COST: fixed + soundings x bytes per sounding of its reader) is
     3 % under (over) the stage's budget (``memory_limit_bytes`` of the DTM stage's read): read whole, every sounding
@@ -672,10 +679,9 @@ def test_swath_file_just_under_and_over_the_sounding_budget(tmp_path, fmt, margi
     in one line as it decodes. The budget counted 84 B a sounding for every reader before (30-90 B measured)."""
     from hadal.grid.sonar import SOUNDING_READ_COST
 
-    n = {"em_all": 1_500_000, "kmall": 400_000, "s7k": 1_500_000, "xyz": 1_500_000}[fmt]
+    n = {"em_all": 1_500_000, "kmall": 400_000, "s7k": 1_500_000, "xyz": 1_500_000, "gsf": 1_500_000}[fmt]
     p, one, total = _swath_file(tmp_path, fmt, n)
     fixed, per = SOUNDING_READ_COST[fmt]
-    limit = (fixed + total * per) * margin
     code = """
         import numpy, pandas  # before the baseline, as in the bench that measured SOUNDING_READ_COST
         import hadal.grid.sonar
@@ -685,6 +691,9 @@ def test_swath_file_just_under_and_over_the_sounding_budget(tmp_path, fmt, margi
             return [int(dep.size), float(dep.min()), float(dep.max())]
     """
     ref = _run_capped(code % (str(one), None))["result"]
+    if total < 0:  # -k: k copies of the one-ping file's soundings
+        total = -total * ref[0]
+    limit = (fixed + total * per) * margin
     out = _run_capped(code % (str(p), limit))
     if margin > 1:
         assert "error" not in out, out

@@ -15,6 +15,7 @@ import io
 import math
 import re
 import warnings
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -1233,24 +1234,55 @@ def read_gsf(path: str | Path, *, include_flagged: bool = False, isolate: bool =
         budget = SoundingBudget(Path(str(path)), "gsf multibeam file")
     if not isolate:
         return _read_gsf_here(path, include_flagged=include_flagged, budget=budget)
+    cols: dict[str, np.ndarray] = {}
+    k = 0
+    attrs: dict = {}
+    for chunk in iter_gsf(path, include_flagged=include_flagged, budget=budget):
+        if not cols:
+            attrs = dict(chunk.attrs)
+            n = int(attrs.get("soundings") or 0)
+            cols = {c: np.empty(n, chunk[c].dtype) for c in chunk.columns}
+        for c, a in cols.items():
+            a[k:k + len(chunk)] = chunk[c].to_numpy()
+        k += len(chunk)
+    df = pd.DataFrame(cols, copy=False)
+    df.attrs.update(attrs)
+    return df
+
+
+def iter_gsf(path: str | Path, *, include_flagged: bool = False, budget: Any = None,
+             chunk_points: int = 250_000) -> Iterator[pd.DataFrame]:
+    """The soundings of a GSF file read by libgsf in a child process (:func:`read_gsf`), as DataFrames of the
+    child's Parquet row groups (``chunk_points`` soundings each; ``attrs``: the reader's): this process never
+    holds the whole table (it held pyarrow's table and its pandas copy before, 99 B a sounding with its
+    consumer's columns). ``budget`` (a :class:`hadal.grid.sonar.SoundingBudget`) counts the child's soundings
+    before the first row group is read; the child holds its own as it decodes (same limit)."""
     import json
     import subprocess
     import sys
     import tempfile
 
+    import pyarrow.parquet as pq
+
+    from hadal.grid.sonar import SoundingBudget
+
     p = _require_file(path, "GSF")
+    budget = budget if budget is not None else SoundingBudget(p, "gsf multibeam file")
     try:
         with tempfile.TemporaryDirectory(prefix="hadal-gsf-") as td:
             out = Path(td) / "soundings.parquet"
             proc = subprocess.run([sys.executable, "-m", "hadal.grid._gsf_child", str(p), str(out),
-                                   "1" if include_flagged else "0", repr(float(budget.limit))],
-                                  capture_output=True, text=True)
+                                   "1" if include_flagged else "0", repr(float(budget.limit)),
+                                   str(int(chunk_points))], capture_output=True, text=True)
             if proc.returncode == 0:
                 attrs = json.loads(out.with_suffix(".json").read_text(encoding="utf-8"))
                 budget.add(int(attrs.get("soundings") or 0))
-                df = pd.read_parquet(out)
-                df.attrs.update(attrs)
-                return df
+                with pq.ParquetFile(out) as f:
+                    for i in range(f.num_row_groups):
+                        chunk = f.read_row_group(i).to_pandas()
+                        chunk.attrs.update(attrs)
+                        yield chunk
+                return
     except OSError as exc:
         raise InputError(f"{p}: cannot run the GSF reader ({exc.strerror or exc})") from None
     last = (proc.stderr.strip().splitlines() or [""])[-1]
@@ -1316,10 +1348,28 @@ def _read_gsf_here(path: str | Path, *, include_flagged: bool = False, budget: A
     bathymetry ping, or one libgsf cannot read (truncated, corrupt), is a one-line :class:`InputError`; so is one
     whose soundings pass the memory budget as they decode (``budget``, a :class:`hadal.grid.sonar.SoundingBudget`).
     """
+    attrs: dict[str, Any] = {}
+    blocks = list(gsf_blocks(path, include_flagged=include_flagged, budget=budget, attrs=attrs))
+    df = pd.DataFrame(blocks[0], copy=False)
+    df.attrs.update(attrs)
+    return df
+
+
+#: the columns of a GSF read (:func:`read_gsf`) and their dtypes
+GSF_COLUMNS = {"longitude_deg": np.float64, "latitude_deg": np.float64, "depth_m": np.float64, "ping": np.int32}
+
+
+def gsf_blocks(path: str | Path, *, include_flagged: bool = False, budget: Any = None,
+               block_points: int | None = None, attrs: dict | None = None) -> Iterator[dict[str, np.ndarray]]:
+    """The soundings of a GSF file read with libgsf in this process (:func:`_read_gsf_here` says how), as blocks of
+    :data:`GSF_COLUMNS` arrays of at least ``block_points`` soundings (the last one fewer; ``None``: one block of
+    them all); ``attrs`` (a dict) receives the read's attributes once the file is read. ``budget`` (a
+    :class:`hadal.grid.sonar.SoundingBudget`) counts every sounding decoded, so a reader that writes the blocks
+    out (the child process of :func:`read_gsf`) holds one block at a time."""
     from hadal.grid.sonar import SoundingBudget
 
     p = _require_file(path, "GSF")
-    budget = budget if budget is not None else SoundingBudget(p, "gsf multibeam file", reader="gsf_child")
+    budget = budget if budget is not None else SoundingBudget(p, "gsf multibeam file", reader="gsf")
     try:
         from gsfpy import GsfException, open_gsf
         from gsfpy.enums import RecordType
@@ -1329,6 +1379,14 @@ def _read_gsf_here(path: str | Path, *, include_flagged: bool = False, budget: A
 
     geod = Geod(ellps="WGS84")
     lons, lats, deps, pings = [], [], [], []
+    held = total = 0
+
+    def block() -> dict[str, np.ndarray]:
+        out = {c: np.concatenate(a) for c, a in zip(GSF_COLUMNS, (lons, lats, deps, pings), strict=True)}
+        for a in (lons, lats, deps, pings):
+            a.clear()
+        return out
+
     try:
         f = open_gsf(p)
     except GsfException as exc:
@@ -1366,26 +1424,31 @@ def _read_gsf_here(path: str | Path, *, include_flagged: bool = False, budget: A
             az = np.degrees(np.arctan2(east, north))
             dist = np.hypot(east, north)
             lo, la, _ = geod.fwd(np.full(n, lon0), np.full(n, lat0), az, dist)
+            m = int(keep.sum())
             lons.append(lo[keep])
             lats.append(la[keep])
             deps.append(depth[keep])
-            pings.append(np.full(int(keep.sum()), k, dtype=np.int32))
-            budget.add(int(keep.sum()))
-            dropped += n - int(keep.sum())
+            pings.append(np.full(m, k, dtype=np.int32))
+            budget.add(m)
+            held, total = held + m, total + m
+            dropped += n - m
             k += 1
+            if block_points is not None and held >= block_points:
+                yield block()
+                held = 0
     if k == 0:
         raise InputError(f"{p}: GSF file contains no bathymetry pings")
-    if not deps or sum(len(d) for d in deps) == 0:
+    if total == 0:
         raise InputError(f"{p}: no valid soundings in the GSF file")
-    df = pd.DataFrame({"longitude_deg": np.concatenate(lons), "latitude_deg": np.concatenate(lats),
-                       "depth_m": np.concatenate(deps), "ping": np.concatenate(pings)})
     import importlib.metadata as md
 
     from hadal.grid.sonar import _iso
 
-    df.attrs.update({"reader": f"gsfpy {md.version('gsfpy')}", "format": "gsf", "pings": k,
-                     "gsf_version": gsf_file_version(p), "libgsf": _libgsf_version(),
-                     "beams_per_ping": beams_max, "soundings": len(df), "dropped": dropped,
-                     "crs_kind": "geographic", "z_positive": "down",
-                     "time_start": _iso(min(times)), "time_end": _iso(max(times))})
-    return df
+    if attrs is not None:
+        attrs.update({"reader": f"gsfpy {md.version('gsfpy')}", "format": "gsf", "pings": k,
+                      "gsf_version": gsf_file_version(p), "libgsf": _libgsf_version(),
+                      "beams_per_ping": beams_max, "soundings": total, "dropped": dropped,
+                      "crs_kind": "geographic", "z_positive": "down",
+                      "time_start": _iso(min(times)), "time_end": _iso(max(times))})
+    if held or block_points is None:
+        yield block()
