@@ -1378,7 +1378,10 @@ def gsf_blocks(path: str | Path, *, include_flagged: bool = False, budget: Any =
     from pyproj import Geod
 
     geod = Geod(ellps="WGS84")
-    lons, lats, deps, pings = [], [], [], []
+    lons: list[np.ndarray] = []
+    lats: list[np.ndarray] = []
+    deps: list[np.ndarray] = []
+    pings: list[np.ndarray] = []
     held = total = 0
 
     def block() -> dict[str, np.ndarray]:
