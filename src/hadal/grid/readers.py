@@ -1226,7 +1226,8 @@ def read_gsf(path: str | Path, *, include_flagged: bool = False, isolate: bool =
     Memory: the reading process holds the soundings against its budget as it decodes them
     (:class:`hadal.grid.sonar.SoundingBudget`; the child inherits this process's limits, ``RLIMIT_AS`` included, and
     is given the limit of ``budget``); this process counts the child's soundings against ``budget`` (a
-    ``SoundingBudget``, default a new one) before it loads them.
+    ``SoundingBudget``, default a new one) before it reads them, row group by row group (:func:`iter_gsf`), into
+    the columns of the returned frame (no second copy of the table).
     """
     from hadal.grid.sonar import SoundingBudget
 
