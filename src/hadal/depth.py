@@ -486,13 +486,15 @@ def _csv_profile_columns(path: Path) -> tuple[dict[str, tuple[str, np.ndarray, s
     return found, "csv"
 
 
-def _cnv_profile_columns(path: Path) -> tuple[dict[str, tuple[str, np.ndarray, str]], str]:
-    """``{quantity: (column, values, unit)}`` of a Sea-Bird cast (:func:`hadal.ingest.cnv.read_seabird`):
-    pressure, temperature, salinity (``sal00``, else from conductivity) and density (``density00``)."""
+def _cnv_profile_columns(path: Path, max_bytes: float | None = None
+                         ) -> tuple[dict[str, tuple[str, np.ndarray, str]], str]:
+    """``{quantity: (column, values, unit)}`` of a Sea-Bird cast (:func:`hadal.ingest.cnv.read_seabird`, against the
+    memory budget ``max_bytes``): pressure, temperature, salinity (``sal00``, else from conductivity) and density
+    (``density00``)."""
     from hadal.ingest.cnv import CNV_CONDUCTIVITY, CNV_PRESSURE, CNV_TEMPERATURE, read_seabird
     from hadal.ingest.units import convert
 
-    df = read_seabird(path)
+    df = read_seabird(path, max_bytes=max_bytes)
     found: dict[str, tuple[str, np.ndarray, str]] = {}
     for qty, table in (("pressure", CNV_PRESSURE), ("temperature", CNV_TEMPERATURE)):
         col = next(((c, u) for c, u in table if c in df.columns), None)
@@ -516,7 +518,8 @@ def _cnv_profile_columns(path: Path) -> tuple[dict[str, tuple[str, np.ndarray, s
     return found, "cnv"
 
 
-def _profile_file_columns(path: Path) -> tuple[dict[str, tuple[str, np.ndarray, str]], str, bool]:
+def _profile_file_columns(path: Path, max_bytes: float | None = None
+                          ) -> tuple[dict[str, tuple[str, np.ndarray, str]], str, bool]:
     """``(found columns, format, use temperature + salinity)`` of a user's overlying profile file (steps of
     :func:`read_overlying_profile`: the file exists, is a CSV or a Sea-Bird cast, has pressure and either
     temperature + salinity or density)."""
@@ -528,7 +531,7 @@ def _profile_file_columns(path: Path) -> tuple[dict[str, tuple[str, np.ndarray, 
                           "directory, or absolute)")
     kind = detect(path, strict=False).kind
     if kind in ("cnv", "seabird_hex"):
-        found, fmt = _cnv_profile_columns(path)
+        found, fmt = _cnv_profile_columns(path, max_bytes)
     elif kind in ("csv", "xyz"):
         found, fmt = _csv_profile_columns(path)
     else:
@@ -613,7 +616,8 @@ def _file_sha256(path: Path) -> str:
     return h.hexdigest()
 
 
-def read_overlying_profile(path: str | Path, *, surface_dbar: float = 20.0) -> UserProfile:
+def read_overlying_profile(path: str | Path, *, surface_dbar: float = 20.0,
+                           max_bytes: float | None = None) -> UserProfile:
     """Read and check a user's profile of the water above a record (``derive.overlying_profile``): a CSV or a
     Sea-Bird .cnv (.hex) with pressure and temperature + practical salinity, or in situ density.
 
@@ -623,9 +627,10 @@ def read_overlying_profile(path: str | Path, *, surface_dbar: float = 20.0) -> U
     (or no unit), values outside :data:`PROFILE_VALUE_RANGES` (a wrong unit: sigma for density, kPa for dbar),
     a pressure that is not strictly monotonic (a record with loops, not one binned cast), or that starts deeper
     than ``surface_dbar`` (:class:`InputError`). Whether it reaches the record's first sample is checked by
-    :func:`overlying_column`."""
+    :func:`overlying_column`. A Sea-Bird file is read against the memory budget ``max_bytes`` (the derive stage's
+    ``resources.max_memory_gb``; default :func:`hadal.budget.memory_limit_bytes`); a CSV's first chunk only."""
     path = Path(path)
-    found, fmt, use_ts = _profile_file_columns(path)
+    found, fmt, use_ts = _profile_file_columns(path, max_bytes)
     values, conversions = _profile_values(path, found, use_ts)
     p, keep, sign = _monotonic_pressure(path, values["pressure"])
     if use_ts:

@@ -3,6 +3,11 @@
 Each kind has a describer in the module that reads it (MCAP topics and counts, CSV columns, .cnv channels
 and header position, multibeam pings/beams/extent, grid size/resolution/CRS, point-cloud extent); this
 module only dispatches and never raises for a bad file: the problem is reported in the ``error`` field.
+
+Memory: a describer that decodes a file's content (every one but the CSV's, which reads bounded chunks) takes
+``memory_limit_bytes`` and holds what it decodes against it as it decodes (:class:`hadal.budget.DecodeBudget`):
+``hadal inspect --config`` passes the configuration's ``resources.max_memory_gb``, so a compression bomb is a
+one-line ``error`` and a non-zero exit, not an exhausted machine.
 """
 
 from __future__ import annotations
@@ -51,9 +56,10 @@ def describer(kind: str) -> Callable[[Path], dict[str, Any]] | None:
     return None
 
 
-def inspect_file(path: str | Path) -> dict[str, Any]:
+def inspect_file(path: str | Path, *, memory_limit_bytes: float | None = None) -> dict[str, Any]:
     """Describe one file: ``path``, ``kind``, ``compression``, ``source`` (the dive.yaml list it belongs to),
-    ``description``, the kind's own fields, and ``error`` (one line) when the file cannot be read."""
+    ``description``, the kind's own fields, and ``error`` (one line) when the file cannot be read (its read
+    would pass ``memory_limit_bytes``, default :func:`hadal.budget.memory_limit_bytes`, included)."""
     p = Path(path)
     out: dict[str, Any] = {"path": str(p)}
     try:
@@ -65,8 +71,12 @@ def inspect_file(path: str | Path) -> dict[str, Any]:
     fn = describer(fk.kind)
     if fn is None:
         return out
+    import inspect as _signature
+
+    budget = {"memory_limit_bytes": memory_limit_bytes} if "memory_limit_bytes" in _signature.signature(
+        fn).parameters else {}
     try:
-        info = fn(p)
+        info = fn(p, **budget)
     except HadalError as exc:
         out["error"] = str(exc)
     except Exception as exc:  # noqa: BLE001 - inspect reports every file; an unexpected failure is one line too

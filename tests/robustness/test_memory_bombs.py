@@ -650,6 +650,13 @@ def _swath_file(tmp_path: Path, fmt: str, soundings: int) -> tuple[Path, Path, i
     elif fmt == "s7k":
         k = soundings // 400
         one, body, total = _real(S7K) + _s7k_ping(), _real(S7K) + _s7k_ping() * k, 400 * k
+    elif fmt == "gsf":  # the real EX1604 file's first ping repeated: its soundings are counted by the oracle's read
+        data = _real(GSF)
+        recs = _gsf_records(data)
+        first = next(o for r, o, sz in recs if r == 2)
+        ping = next(data[o:o + sz] for r, o, sz in recs if r == 2)
+        k = soundings // 400
+        one, body, total = data[:first] + ping, data[:first] + ping * k, -k
     else:  # xyz text
         lines = "".join(f"{142.2 + 1e-5 * (i % 1000):.5f} {11.3 + 1e-5 * (i // 1000 % 1000):.5f} {5000 + i % 97}\n"
                         for i in range(10_000)).encode()
@@ -664,7 +671,7 @@ def _swath_file(tmp_path: Path, fmt: str, soundings: int) -> tuple[Path, Path, i
 
 
 @pytest.mark.parametrize("margin", [1.03, 0.97])
-@pytest.mark.parametrize("fmt", ["em_all", "kmall", "s7k", "xyz"])
+@pytest.mark.parametrize("fmt", ["em_all", "kmall", "s7k", "xyz", "gsf"])
 def test_swath_file_just_under_and_over_the_sounding_budget(tmp_path, fmt, margin):
     """A file whose measured read cost (SOUNDING_READ_COST: fixed + soundings x bytes per sounding of its reader) is
     3 % under (over) the stage's budget (``memory_limit_bytes`` of the DTM stage's read): read whole, every sounding
@@ -672,10 +679,9 @@ def test_swath_file_just_under_and_over_the_sounding_budget(tmp_path, fmt, margi
     in one line as it decodes. The budget counted 84 B a sounding for every reader before (30-90 B measured)."""
     from hadal.grid.sonar import SOUNDING_READ_COST
 
-    n = {"em_all": 1_500_000, "kmall": 400_000, "s7k": 1_500_000, "xyz": 1_500_000}[fmt]
+    n = {"em_all": 1_500_000, "kmall": 400_000, "s7k": 1_500_000, "xyz": 1_500_000, "gsf": 1_500_000}[fmt]
     p, one, total = _swath_file(tmp_path, fmt, n)
     fixed, per = SOUNDING_READ_COST[fmt]
-    limit = (fixed + total * per) * margin
     code = """
         import numpy, pandas  # before the baseline, as in the bench that measured SOUNDING_READ_COST
         import hadal.grid.sonar
@@ -685,6 +691,9 @@ def test_swath_file_just_under_and_over_the_sounding_budget(tmp_path, fmt, margi
             return [int(dep.size), float(dep.min()), float(dep.max())]
     """
     ref = _run_capped(code % (str(one), None))["result"]
+    if total < 0:  # -k: k copies of the one-ping file's soundings
+        total = -total * ref[0]
+    limit = (fixed + total * per) * margin
     out = _run_capped(code % (str(p), limit))
     if margin > 1:
         assert "error" not in out, out
@@ -761,3 +770,223 @@ def test_stage_budgets_honour_resources_max_memory_gb(tmp_path):
         run_stage("grid", make_context(mb, tmp_path / "mb" / "store"))
     msg = str(ei.value)
     assert "\n" not in msg and "decoding this multibeam file needs more than" in msg and "limit 10.2 MiB)" in msg, msg
+
+
+# ----------------------------------------------------------------- point clouds (LAS/LAZ, PCD, PLY, xyz)
+def _cloud(tmp_path: Path, fmt: str, n: int) -> Path:
+    """A cloud of ``n`` points (a 1 km square, z -5000 .. -4900 m) in ``fmt``, written by the format's own library
+    (laspy/lazrs, pypcd4, open3d) or as text, in chunks for LAS/LAZ."""
+    rng = np.random.default_rng(45)
+    if fmt in ("las", "laz"):
+        import laspy
+
+        header = laspy.LasHeader(point_format=0, version="1.2")
+        header.scales, header.offsets = [0.01, 0.01, 0.01], [0.0, 0.0, -5000.0]
+        p = tmp_path / f"cloud.{fmt}"
+        with laspy.open(str(p), mode="w", header=header,
+                        laz_backend=laspy.LazBackend.Lazrs if fmt == "laz" else None) as w:
+            for k in range(0, n, 1_000_000):
+                m = min(1_000_000, n - k)
+                rec = laspy.ScaleAwarePointRecord.zeros(m, header=header)
+                rec.x, rec.y, rec.z = rng.uniform(0, 1000, m), rng.uniform(0, 1000, m), rng.uniform(-5000, -4900, m)
+                w.write_points(rec)
+        return p
+    xyz = np.column_stack([rng.uniform(0, 1000, n), rng.uniform(0, 1000, n), rng.uniform(-5000, -4900, n)])
+    p = tmp_path / f"cloud.{fmt}"
+    if fmt == "pcd":
+        from pypcd4 import PointCloud
+
+        PointCloud.from_xyz_points(xyz.astype(np.float32)).save(str(p))
+    elif fmt == "ply":
+        import open3d as o3d
+
+        pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(xyz))
+        o3d.io.write_point_cloud(str(p), pc, write_ascii=False)
+    else:
+        np.savetxt(p, xyz, fmt="%.3f")
+    return p
+
+
+#: what each cloud reader holds per point against its budget (counted here from the formats, the oracle of the
+#: readers' own counting): the (n, 3) float64 points and their 3 working copies; PCD its record too (3 float32),
+#: PLY open3d's own float64 triple; xyz text 3 growable float64 columns x 3 copies (their capacity: up to twice)
+_CLOUD_BYTES = {"las": 24 * 3, "laz": 24 * 3, "pcd": 12 + 24 * 3, "ply": 24 * 4, "xyz": 24 * 3}
+
+
+@pytest.mark.parametrize("fmt", ["las", "laz", "pcd", "ply", "xyz"])
+def test_point_cloud_under_and_over_its_budget(tmp_path, fmt):
+    """A cloud of 2e6 points of each format: read whole under a budget 1.5x what its reader counts (every point as
+    the format's library reads it, the oracle: laspy, pypcd4, open3d, numpy.loadtxt), with a peak RSS above the
+    start under that budget; refused in one line naming the file and the limit under half of it (the readers were
+    held against the machine's memory, not ``resources.max_memory_gb``, and LAZ not at all as it decoded)."""
+    n = 2_000_000
+    p = _cloud(tmp_path, fmt, n)
+    need = n * _CLOUD_BYTES[fmt] * (2 if fmt == "xyz" else 1)
+    code = """
+        import numpy
+        from hadal.grid.readers import read_point_cloud_meta
+        def run():
+            pts, meta = read_point_cloud_meta(%r, memory_limit_bytes=%r)
+            return [len(pts), float(pts[:, 2].sum()), float(pts[:, 0].max())]
+    """
+    out = _run_capped(code % (str(p), 1.5 * need))
+    assert "error" not in out, out
+    if fmt in ("las", "laz"):
+        import laspy
+
+        las = laspy.read(str(p))
+        ref = [len(las.points), float(np.asarray(las.z).sum()), float(np.asarray(las.x).max())]
+    elif fmt == "pcd":
+        from pypcd4 import PointCloud
+
+        a = PointCloud.from_path(p).numpy(("x", "y", "z")).astype(np.float64)
+        ref = [len(a), float(a[:, 2].sum()), float(a[:, 0].max())]
+    elif fmt == "ply":
+        import open3d as o3d
+
+        a = np.asarray(o3d.io.read_point_cloud(str(p)).points)
+        ref = [len(a), float(a[:, 2].sum()), float(a[:, 0].max())]
+    else:
+        a = np.loadtxt(p)
+        ref = [len(a), float(a[:, 2].sum()), float(a[:, 0].max())]
+    assert out["result"][0] == ref[0] == n and out["result"][2] == ref[2], (out, ref)
+    assert out["result"][1] == pytest.approx(ref[1], rel=1e-12), (out, ref)
+    print(fmt, f"peak - base {(out['peak'] - out['base']) / 2**20:.0f} MiB, budget {1.5 * need / 2**20:.0f} MiB")
+    assert out["peak"] - out["base"] < 1.5 * need, out
+    out = _run_capped(code % (str(p), 0.5 * need))
+    _one_line_error(out, "point cloud needs more than")
+    assert str(p) in out["message"] and "limit" in out["message"], out
+
+
+def test_laz_whose_header_claims_many_points(tmp_path):
+    """A LAZ of 1,000 points whose header claims 2e9 (laspy would allocate for the claim; a LAZ's size says nothing
+    of its count): refused in one line before anything is allocated, peak under 0.25 GiB above the start; and a
+    LAZ holding 3e7 points (a few MB of compressed repeats) past a 0.5 GiB budget is refused as it decodes, its
+    peak under the budget."""
+    import struct
+
+    p = _cloud(tmp_path, "laz", 1000)
+    data = bytearray(p.read_bytes())
+    assert struct.unpack_from("<I", data, 107)[0] == 1000  # LAS 1.2 header: legacy point count at byte 107
+    struct.pack_into("<I", data, 107, 2_000_000_000)
+    lie = tmp_path / "lie.laz"
+    lie.write_bytes(bytes(data))
+    code = """
+        from hadal.grid.readers import read_point_cloud_meta
+        def run():
+            return len(read_point_cloud_meta(%r, memory_limit_bytes=%r)[0])
+    """
+    out = _run_capped(code % (str(lie), None))
+    _one_line_error(out, "its header declares 2,000,000,000 points")
+    assert out["peak"] - out["base"] < GIB / 4, out
+    import laspy
+
+    header = laspy.LasHeader(point_format=0, version="1.2")
+    big = tmp_path / "many.laz"
+    rec = laspy.ScaleAwarePointRecord.zeros(1_000_000, header=header)
+    with laspy.open(str(big), mode="w", header=header, laz_backend=laspy.LazBackend.Lazrs) as w:
+        for _ in range(30):
+            w.write_points(rec)
+    assert big.stat().st_size < 64 << 20
+    out = _run_capped(code % (str(big), GIB / 2))
+    _one_line_error(out, "decoding this LAS/LAZ point cloud needs more than")
+    assert out["peak"] - out["base"] < GIB / 2, out
+
+
+def test_ply_whose_header_claims_many_vertices(tmp_path):
+    """A binary PLY of 10 vertices whose header claims 2e9 (open3d sizes its arrays by the claim, 48 GB):
+    refused in one line before open3d reads it, peak under 0.25 GiB above the start."""
+    p = tmp_path / "lie.ply"
+    p.write_bytes(b"ply\nformat binary_little_endian 1.0\nelement vertex 2000000000\nproperty double x\n"
+                  b"property double y\nproperty double z\nend_header\n" + np.zeros(30).tobytes())
+    out = _run_capped(f"""
+        from hadal.grid.readers import read_point_cloud_meta
+        def run():
+            return len(read_point_cloud_meta({str(p)!r})[0])
+    """)
+    _one_line_error(out, "its header declares 2,000,000,000 vertices")
+    assert out["peak"] - out["base"] < GIB / 4, out
+
+
+# ----------------------------------------------------------------- derive's re-reads of raw Sea-Bird files
+def test_derive_rereads_of_an_xz_cnv_are_held_against_the_budget(tmp_path):
+    """derive re-reads raw Sea-Bird files after the ingest (the overlying profile ``derive.overlying_profile``, an
+    underway record's per-scan positions): an xz .cnv of 0.26 GB of scans (6e6) is refused in one line as it
+    decodes by either re-read given a 256 MiB budget, peak under 0.5 GiB above the start; and the derive stage gives them
+    ``resources.max_memory_gb`` (the machine's budget before): a .cnv overlying profile of 2e6 scans, which the
+    default budget reads, is refused naming the configured 64 MiB."""
+    import sys
+    import warnings
+
+    from hadal.dive import load_dive
+    from hadal.errors import InputError
+    from hadal.settings import PipelineConfig
+    from hadal.stages import StageContext, derive, ingest
+    from hadal.store import ProductStore
+
+    row = b"     1.000    10.0000   3.500000      0.000\n"
+    bomb = _compressed(tmp_path / "bomb.cnv", CNV_HEADER.encode(), row, 6_000_000 * 44, "xz")
+    for call in ("from hadal.depth import read_overlying_profile\n"
+                 "def run():\n    return str(read_overlying_profile(%r, max_bytes=1 << 28))",
+                 "import pandas\nfrom hadal.settings import PipelineConfig\n"
+                 "from hadal.stages.derive import underway_table\n"
+                 "def run():\n    return len(underway_table(pandas.DataFrame(), %r, PipelineConfig().derive,\n"
+                 "                              max_bytes=1 << 28)[0])"):
+        out = _run_capped(call % str(bomb))
+        _one_line_error(out, "decoding this CNV file needs more than")
+        assert "limit 256 MiB)" in out["message"] and out["peak"] - out["base"] < GIB / 2, out
+
+    sys.path.insert(0, str(Path(__file__).parent / "malformed"))
+    from tiny_dive import write_dive
+
+    raw = write_dive(tmp_path / "raw", 5.0)
+    prof = _compressed(raw / "top.cnv", CNV_HEADER.encode(), row, len(CNV_HEADER) + 2_000_000 * 44, "xz")
+    dive, rdir = load_dive(raw)
+    store = ProductStore(tmp_path / "store")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        ingest.run(StageContext(dive=dive, raw_dir=rdir, store=store, config=PipelineConfig()))
+    cfg = PipelineConfig.model_validate({"derive": {"overlying_profile": "top.cnv"},
+                                         "resources": {"max_memory_gb": 1 / 16}})
+    with pytest.raises(InputError) as ei:
+        derive.run(StageContext(dive=dive, raw_dir=rdir, store=store, config=cfg))
+    msg = str(ei.value)
+    assert "\n" not in msg and msg.startswith(str(prof)) and "limit 64 MiB)" in msg, msg
+
+
+# ----------------------------------------------------------------- hadal inspect
+@pytest.mark.parametrize("kind", ["cnv", "xyz", "mcap", "ply"])
+def test_inspect_refuses_a_bomb_in_one_line(tmp_path, kind):
+    """``hadal inspect --config`` reads within the configuration's ``resources.max_memory_gb`` (256 MiB here; it
+    read against the machine's memory before): a bomb of each kind (an xz .cnv of 6e6 scans, a gzip of 0.5 GiB of
+    xyz soundings, an MCAP chunk of 0.5 GiB of zeros, a PLY claiming 2e8 vertices) is one line in the table naming
+    the file and the configured limit, a one-line ``error:`` and exit status 2, peak RSS under 0.5 GiB above the
+    start; the readers' error text is the oracle of the same limit."""
+    if kind == "cnv":
+        p = _compressed(tmp_path / "bomb.cnv", CNV_HEADER.encode(), b"     1.000    10.0000   3.500000      0.000\n",
+                        6_000_000 * 44, "xz")
+    elif kind == "xyz":
+        p = _compressed(tmp_path / "bomb.xyz", b"", b"142.1 11.3 5000.0\n", GIB // 2)
+    elif kind == "mcap":
+        p = _mcap_bomb(tmp_path / "bomb.mcap", GIB // 2, "zstd")
+    else:
+        p = tmp_path / "bomb.ply"
+        p.write_bytes(b"ply\nformat ascii 1.0\nelement vertex 200000000\nproperty float x\nproperty float y\n"
+                      b"property float z\nend_header\n1 2 3\n")
+    cfg = tmp_path / "pipeline.yaml"
+    cfg.write_text("resources:\n  max_memory_gb: 0.25\n")
+    out = _run_capped(f"""
+        import sys
+        sys.path.insert(0, {str(Path(__file__).parent)!r})
+        from cli_runner import run_cli
+        def run():
+            res = run_cli("inspect", "--json", "--config", {str(cfg)!r}, {str(p)!r})
+            return [res.returncode, res.stdout, res.stderr]
+    """)
+    code, stdout, stderr = out["result"]
+    assert code == 2 and "Traceback" not in stdout + stderr, out
+    errs = [ln for ln in stderr.splitlines() if ln.startswith("error:")]
+    assert len(errs) == 1 and "1 of 1 file(s) cannot be read" in errs[0], stderr
+    msg = json.loads(stdout)[0]["error"]
+    assert "\n" not in msg and msg.startswith(str(p)) and "needs more than" in msg and "limit 256 MiB)" in msg, msg
+    assert out["peak"] - out["base"] < GIB / 2, out

@@ -454,3 +454,20 @@ def test_init_and_synth_never_propose_a_reserved_dive_id():
         did = sanitise_dive_id(name)
         assert check_component(did) == did and did.lower() not in ("catalog.json", "dive.json", "x.lock")
     assert check_component(default_dive_id("/tmp/catalog.json"))
+
+
+def test_source_symlinked_out_of_the_dive_is_refused(tmp_path):
+    """A dive.yaml source that is a symbolic link inside the dive to a file outside it (resolved before it is
+    checked, as ``..`` is): a one-line ConfigError naming it, nothing opened; a link that stays inside is read."""
+    from hadal.dive import load_dive, resolve_source
+
+    raw = write_dive(tmp_path / "raw", 5.0, csv=False)
+    outside = tmp_path / "secret.mcap"
+    outside.write_bytes((raw / "logs" / "haidou.mcap").read_bytes())
+    (raw / "logs" / "out.mcap").symlink_to(outside)
+    (raw / "logs" / "in.mcap").symlink_to(raw / "logs" / "haidou.mcap")
+    dive, rd = load_dive(raw)
+    with pytest.raises(ConfigError, match="escapes the dive directory") as e:
+        resolve_source(rd, "logs/out.mcap")
+    _one_line(e.value)
+    assert resolve_source(rd, "logs/in.mcap") == (raw / "logs" / "haidou.mcap").resolve()

@@ -10,22 +10,27 @@ import typer
 from rich.console import Console
 from rich.table import Table
 
-from hadal.cli._common import console
+from hadal.cli._common import ConfigOpt, console
 
 
 def inspect(
     files: Annotated[list[Path], typer.Argument(help="files (or directories, searched recursively) to describe")],
     as_json: Annotated[bool, typer.Option("--json", help="machine-readable output")] = False,
+    config: ConfigOpt = None,
 ) -> None:
-    """What each file is (detected from its content) and what is in it."""
+    """What each file is (detected from its content) and what is in it (read within the memory budget of
+    --config's resources.max_memory_gb, else the defaults')."""
+    from hadal.budget import memory_limit_bytes
     from hadal.inspect import inspect_file, summary_line
+    from hadal.settings import load_config
 
     paths: list[Path] = []
     for f in files:
         paths += sorted(p for p in f.rglob("*") if p.is_file()) if f.is_dir() else [f]
         if f.is_dir() and not any(p.is_file() for p in f.rglob("*")):
             console.print(f"{f}: a directory with no files in it", highlight=False)
-    infos = [inspect_file(p) for p in paths]
+    limit = memory_limit_bytes(load_config(config) if config is not None else None)
+    infos = [inspect_file(p, memory_limit_bytes=limit) for p in paths]
     if as_json:
         from hadal.products.io import json_clean
 

@@ -127,40 +127,64 @@ def describe_crs(crs, geokeys: dict[int, int] | None = None) -> dict[str, Any]:
     return out
 
 
-def _las_points(p: Path):
-    """laspy's reading of a LAS/LAZ file (the header's point count checked against the file first)."""
+#: points laspy decodes per chunk of a LAS/LAZ file
+LAS_CHUNK_POINTS = 1_000_000
+
+
+def _las_errors(p: Path, laspy, exc: BaseException) -> InputError:
+    """A laspy failure as a one-line error naming the file."""
+    if isinstance(exc, MemoryError):
+        return InputError(f"{p}: cannot read LAS/LAZ (its point count does not fit in memory)")
+    msg = _first_line(exc)
+    if isinstance(exc, laspy.errors.LaspyException) and ("backend" in msg.lower() or "laz" in msg.lower()):
+        msg += " (LAZ needs a backend: pip install lazrs)"
+    return InputError(f"{p}: cannot read LAS/LAZ ({msg})")
+
+
+def _las_points(p: Path, limit_bytes: float | None = None) -> tuple[Any, np.ndarray]:
+    """The header and scaled x, y, z (``(N, 3)`` float64) of a LAS/LAZ file, decoded by laspy in chunks of
+    :data:`LAS_CHUNK_POINTS` straight into the points array. Memory (:class:`hadal.budget.DecodeBudget`, limit
+    ``limit_bytes``): the header's count (laspy decodes no more) with the points' working copies
+    (:data:`hadal.grid.readers.CLOUD_WORKING_COPIES`) before anything is allocated, then the points decoded so far
+    and the chunk's records as each chunk decodes (a LAZ has no size to check its count against)."""
     import laspy
 
-    from hadal.grid.readers import _check_las_count
+    from hadal.budget import DecodeBudget
+    from hadal.grid.readers import CLOUD_WORKING_COPIES, POINT_BYTES, _check_las_count
 
+    budget = DecodeBudget(p, "LAS/LAZ point cloud", copies=CLOUD_WORKING_COPIES, limit_bytes=limit_bytes)
     try:
-        _check_las_count(p, laspy)
-        return laspy.read(str(p))
+        with laspy.open(str(p)) as f:
+            h = f.header
+            n = _check_las_count(p, h, budget)
+            chunk_bytes = min(n, LAS_CHUNK_POINTS) * (int(h.point_format.size) + 2 * POINT_BYTES)
+            pts = np.empty((n, 3), np.float64)
+            k = 0
+            for chunk in f.chunk_iterator(LAS_CHUNK_POINTS):
+                m = min(len(chunk), n - k)
+                budget.hold((k + m) * POINT_BYTES, f"{k + m:,} points decoded", held=chunk_bytes)
+                pts[k:k + m, 0], pts[k:k + m, 1], pts[k:k + m, 2] = chunk.x[:m], chunk.y[:m], chunk.z[:m]
+                k += m
     except InputError:
         raise
-    except MemoryError:
-        raise InputError(f"{p}: cannot read LAS/LAZ (its point count does not fit in memory)") from None
-    except laspy.errors.LaspyException as exc:
-        msg = _first_line(exc)
-        if "backend" in msg.lower() or "laz" in msg.lower():
-            msg += " (LAZ needs a backend: pip install lazrs)"
-        raise InputError(f"{p}: cannot read LAS/LAZ ({msg})") from None
-    except (OSError, ValueError, EOFError) as exc:
-        raise InputError(f"{p}: cannot read LAS/LAZ ({_first_line(exc)})") from None
+    except (MemoryError, laspy.errors.LaspyException, OSError, ValueError, EOFError) as exc:
+        raise _las_errors(p, laspy, exc) from None
+    if k < n:
+        raise InputError(f"{p}: LAS header declares {n:,} points but {k:,} were read (truncated?)")
+    return h, pts
 
 
-def read_las(path: str | Path, hints=None) -> tuple[np.ndarray, dict[str, Any]]:
+def read_las(path: str | Path, hints=None, *, memory_limit_bytes: float | None = None
+             ) -> tuple[np.ndarray, dict[str, Any]]:
     """A LAS/LAZ cloud as ``(N, 3)`` float64 x, y, z **in metres** and its metadata (module docstring).
 
     Metadata: :func:`describe_crs`'s keys plus ``crs_from`` (``file``/``dive.yaml``/``none``), ``crs_wkt`` (the
     file's CRS), ``xy_crs_wkt`` (the CRS of the returned x/y: the file's with metre axes), ``z_positive`` and
-    ``z_positive_from``, ``las_version``, ``point_format``, ``scales``/``offsets``.
+    ``z_positive_from``, ``las_version``, ``point_format``, ``scales``/``offsets``. Read against the memory budget
+    ``memory_limit_bytes`` as it decodes (:func:`_las_points`).
     """
     p = Path(path)
-    las = _las_points(p)
-    h = las.header
-    pts = np.column_stack([np.asarray(las.x, np.float64), np.asarray(las.y, np.float64),
-                           np.asarray(las.z, np.float64)])
+    h, pts = _las_points(p, memory_limit_bytes)
     if len(pts) == 0:
         raise InputError(f"{p}: LAS file has no points")
     geokeys = _geokeys(h)
@@ -240,10 +264,17 @@ def _pcd_error(exc: BaseException) -> str:
     return _first_line(exc)
 
 
-def _check_pcd_size(p: Path) -> None:
-    """Refuse a PCD whose header declares more points than its binary data holds (truncated) or than the memory
-    budget allows (a compressed block decompresses to the declared size), before the data is read."""
-    from hadal.budget import format_bytes, memory_limit_bytes
+def _check_pcd_size(p: Path, limit_bytes: float | None = None) -> None:
+    """Refuse a PCD whose header declares more points than its binary data holds (truncated) or whose read needs
+    more than the memory budget (:class:`hadal.budget.DecodeBudget`, limit ``limit_bytes``), before the data is
+    read: pypcd4 allocates what the header declares (``binary``: points x record; ``binary_compressed``: the
+    LZF block's declared size, then a points x record table), and an ``ascii`` body as many records as it has
+    lines (at most one per two bytes a value); with the points as float64 and their working copies
+    (:data:`hadal.grid.readers.CLOUD_WORKING_COPIES`)."""
+    import struct
+
+    from hadal.budget import DecodeBudget
+    from hadal.grid.readers import CLOUD_WORKING_COPIES, POINT_BYTES
 
     with open(p, "rb") as fh:
         head = fh.read(1 << 16)
@@ -258,30 +289,39 @@ def _check_pcd_size(p: Path) -> None:
             break
     try:
         n = int(fields["POINTS"][0])
-        record = sum(int(s) * int(c) for s, c in zip(fields["SIZE"], fields.get("COUNT", ["1"] * len(fields["SIZE"])),
-                                                      strict=False))
+        counts = fields.get("COUNT", ["1"] * len(fields["SIZE"]))
+        record = sum(int(s) * int(c) for s, c in zip(fields["SIZE"], counts, strict=False))
+        n_values = sum(int(c) for c in counts)
     except (KeyError, IndexError, ValueError):
         return  # not a header this check understands: pypcd4 says what is wrong
-    need = n * (record + 24)
-    if need > memory_limit_bytes(None):
-        raise InputError(f"{p}: PCD declares {n:,} points; reading them needs about {format_bytes(need)} "
-                         f"(limit {format_bytes(memory_limit_bytes(None))}): thin or tile the cloud first")
-    if end > 0 and fields.get("DATA", [""])[0].lower() == "binary" and end + n * record > p.stat().st_size:
-        have = max(p.stat().st_size - end, 0) // max(record, 1)
+    data = fields.get("DATA", [""])[0].lower()
+    size = p.stat().st_size
+    rows, block = n, 0
+    if data == "ascii":
+        rows = max(n, (size - max(end, 0)) // max(2 * n_values, 1))
+    elif data == "binary_compressed" and end > 0 and len(head) >= end + 8:
+        block = struct.unpack_from("<II", head, end)[1]  # compressed size, uncompressed size
+    budget = DecodeBudget(p, "PCD point cloud", limit_bytes=limit_bytes)
+    budget.hold(rows * (record + POINT_BYTES * CLOUD_WORKING_COPIES) + block,
+                f"its header declares {n:,} points, {data or 'unknown'} data")
+    if end > 0 and data == "binary" and end + n * record > size:
+        have = max(size - end, 0) // max(record, 1)
         raise InputError(f"{p}: PCD header declares {n:,} points but the file holds at most {have:,} (truncated?)")
 
 
-def read_pcd(path: str | Path, hints=None) -> tuple[np.ndarray, dict[str, Any]]:
+def read_pcd(path: str | Path, hints=None, *, memory_limit_bytes: float | None = None
+             ) -> tuple[np.ndarray, dict[str, Any]]:
     """A PCD cloud (ascii, binary or binary_compressed; any field sizes/types; ``x y z`` in any case) as
     ``(N, 3)`` float64 x, y, z and its metadata (``format``, ``pcd_version``, ``pcd_data``, ``fields``,
     ``viewpoint``, ``crs_*``/units as :func:`describe_crs` (none: metres), ``z_positive``/``z_positive_from``).
-    NaN points (PCL's "no return") are kept (the gridder drops and counts them)."""
+    NaN points (PCL's "no return") are kept (the gridder drops and counts them). Held against the memory budget
+    ``memory_limit_bytes`` before pypcd4 allocates (:func:`_check_pcd_size`)."""
     p = Path(path)
     try:
         from pypcd4 import PointCloud
     except ImportError:  # pragma: no cover - a declared dependency
         raise InputError(f"{p}: reading PCD needs pypcd4 (pip install pypcd4)") from None
-    _check_pcd_size(p)
+    _check_pcd_size(p, memory_limit_bytes)
     try:
         pc, version = _pcd_open(p, PointCloud)
     except InputError:

@@ -30,8 +30,8 @@ def _f(v) -> float | None:
 
 
 def describe_grid(path: str | Path, *, variable: str | None = None, format: str | None = None,
-                  crs: str | None = None, z_positive: str | None = None, z_units: str | None = None
-                  ) -> dict[str, Any]:
+                  crs: str | None = None, z_positive: str | None = None, z_units: str | None = None,
+                  memory_limit_bytes: float | None = None) -> dict[str, Any]:
     """Format, reader and version, size, cell size, CRS (and ``looks_metric``: a geographic tag that only
     makes sense in metres), registration, extent (longitudes -180..180 for a 0-360 grid), z range in metres
     (``z.units_source``: from the file, converted, or assumed), sign (``z.positive``, ``z.sign_guessed`` when
@@ -43,7 +43,7 @@ def describe_grid(path: str | Path, *, variable: str | None = None, format: str 
     p = Path(path)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", GridCRSWarning)
-        da = read_grid(p, variable=variable, format=format, crs=crs, z_units=z_units)
+        da = read_grid(p, variable=variable, format=format, crs=crs, z_units=z_units, max_bytes=memory_limit_bytes)
     a = da.attrs
     z = da.values[np.isfinite(da.values)]
     dx, dy = float(a.get("cell_size_x", 0)), float(a.get("cell_size_y", 0))
@@ -86,8 +86,9 @@ def describe_grid(path: str | Path, *, variable: str | None = None, format: str 
 
 
 def describe_point_cloud(path: str | Path, *, format: str | None = None, columns: list[str] | None = None,
-                         z_positive: str | None = None) -> dict[str, Any]:
-    """Format, reader and version, point count, extent, z range and sign guess of a point cloud."""
+                         z_positive: str | None = None, memory_limit_bytes: float | None = None) -> dict[str, Any]:
+    """Format, reader and version, point count, extent, z range and sign guess of a point cloud (read against the
+    memory budget ``memory_limit_bytes``, :func:`hadal.grid.readers.read_point_cloud_meta`)."""
     import xarray as xr
 
     from hadal.grid.prior import z_positive as sign_of
@@ -96,7 +97,8 @@ def describe_point_cloud(path: str | Path, *, format: str | None = None, columns
     p = Path(path)
     kind = _kind_of(p, format)
     pts, meta = read_point_cloud_meta(p, format=format, columns=columns,
-                                      hints={"z_positive": z_positive} if z_positive else None)
+                                      hints={"z_positive": z_positive} if z_positive else None,
+                                      memory_limit_bytes=memory_limit_bytes)
     ok = np.isfinite(pts).all(axis=1)
     q = pts[ok]
     if meta.get("z_positive"):  # LAS/PCD: the format's convention (hadal.grid.clouds), not the values' sign

@@ -15,6 +15,7 @@ import io
 import math
 import re
 import warnings
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -148,7 +149,7 @@ def read_point_cloud(path: str | Path, *, format: str | None = None, columns: li
 
 
 def read_point_cloud_meta(path: str | Path, *, format: str | None = None, columns: list[str] | None = None,
-                          hints=None) -> tuple[np.ndarray, dict]:
+                          hints=None, memory_limit_bytes: float | None = None) -> tuple[np.ndarray, dict]:
     """Read a point cloud as an ``(N, 3)`` float64 array of x, y, z and what its metadata says.
 
     The format is detected from the content (:func:`sniff_kind`), not the name; ``format`` overrides
@@ -159,12 +160,19 @@ def read_point_cloud_meta(path: str | Path, *, format: str | None = None, column
     ``columns`` names the text columns (``x``/``lon``/``easting``, ``y``/``lat``/``northing``,
     ``z``/``depth``/``elevation``; default: the first three). PLY and xyz carry no vertical metadata: their z is
     returned as stored and the metadata has no ``z_positive`` (the caller decides).
+
+    Memory: every reader holds its points, counted with :data:`CLOUD_WORKING_COPIES`, against one
+    :class:`hadal.budget.DecodeBudget` of ``memory_limit_bytes`` (the stage's ``resources.max_memory_gb``; default
+    :func:`hadal.budget.memory_limit_bytes`): LAS/LAZ and xyz text as they decode (a LAZ or a gzip has no
+    trustworthy size), PLY and PCD before the library allocates what their header declares; past it, a one-line
+    :class:`InputError` naming the file and the limit.
     """
     p = _require_file(path, "point cloud")
     kind = _kind_of(p, format)
     if kind == "ply":
         import open3d as o3d
 
+        _check_ply_budget(p, memory_limit_bytes)
         with _quiet_open3d(o3d):
             pc = o3d.io.read_point_cloud(str(p), format=kind)
         pts = np.asarray(pc.points, dtype=np.float64)
@@ -175,13 +183,13 @@ def read_point_cloud_meta(path: str | Path, *, format: str | None = None, column
     if kind == "pcd":
         from hadal.grid.clouds import read_pcd
 
-        return read_pcd(p, hints)
+        return read_pcd(p, hints, memory_limit_bytes=memory_limit_bytes)
     if kind == "las":
         from hadal.grid.clouds import read_las
 
-        return read_las(p, hints)
+        return read_las(p, hints, memory_limit_bytes=memory_limit_bytes)
     if kind == "xyz":
-        return _read_xyz_cloud(p, columns), {"format": kind}
+        return _read_xyz_cloud(p, columns, memory_limit_bytes), {"format": kind}
     if kind in _GRID_KINDS:
         raise InputError(f"{p}: is a {kind} raster, not a point cloud")
     raise InputError(f"{p}: unsupported point cloud format (content is not PLY, PCD, LAS/LAZ or xyz text; "
@@ -200,9 +208,15 @@ XYZ_CHUNK_ROWS = 500_000
 #: working copies of an xyz point cloud's coordinates counted by its memory budget (:class:`hadal.budget.DecodeBudget`):
 #: the growable columns, their trimmed values and the stacked (n, 3) array
 XYZ_WORKING_COPIES = 3.0
+#: working copies of a LAS/LAZ, PCD or PLY cloud's (n, 3) float64 points counted by its memory budget: the points,
+#: the finite points their first consumer keeps (:func:`hadal.grid.describe.describe_point_cloud`, the laser grid's
+#: ``pts[ok]``) and that consumer's projected or cell-sorted copy
+CLOUD_WORKING_COPIES = 3.0
+#: bytes of one point's x, y, z as float64
+POINT_BYTES = 24
 
 
-def _read_xyz_cloud(p: Path, columns: list[str] | None) -> np.ndarray:
+def _read_xyz_cloud(p: Path, columns: list[str] | None, memory_limit_bytes: float | None = None) -> np.ndarray:
     """x y z (and more) numeric text columns, streamed: the (decompressed) file passes once through a
     :class:`~hadal.textstream.LineScan` (line-length bound) into pandas in chunks of :data:`XYZ_CHUNK_ROWS`,
     and only the three coordinate columns are kept, as float64. Peak memory: the points plus one chunk."""
@@ -219,7 +233,7 @@ def _read_xyz_cloud(p: Path, columns: list[str] | None) -> np.ndarray:
     sep = "," if "," in first else ";" if ";" in first else r"\s+"
     header = 0 if any(_not_number(t) for t in first.replace(",", " ").replace(";", " ").split()) else None
     out = [GrowableColumn(max(p.stat().st_size // 24, 1024), np.float64) for _ in range(3)]
-    budget = DecodeBudget(p, "point cloud", copies=XYZ_WORKING_COPIES)
+    budget = DecodeBudget(p, "point cloud", copies=XYZ_WORKING_COPIES, limit_bytes=memory_limit_bytes)
     idx: list[int] | None = None
     n_rows = 0
     with open_binary(p) as fh, decompress_errors(p, compression, "point cloud"):
@@ -269,25 +283,43 @@ def _xyz_columns(p: Path, df: pd.DataFrame, columns: list[str] | None, header: i
     return idx
 
 
-def _check_las_count(p: Path, laspy) -> None:
-    """Refuse a LAS file whose header declares more point records than the file holds (a truncated file or a
-    lying header, which would make laspy allocate for all of them), or, for LAZ, more than the memory budget
-    (points x 3 float64 + the record) allows."""
-    from hadal.budget import format_bytes, memory_limit_bytes
-
-    with laspy.open(str(p)) as f:
-        h = f.header
-        n, size = int(h.point_count), int(h.point_format.size)
-        offset = int(h.offset_to_point_data)
-        compressed = bool(getattr(h, "are_points_compressed", False))
+def _check_las_count(p: Path, h: Any, budget: Any) -> int:
+    """The point count of a LAS/LAZ header ``h``, refused when it declares more point records than the file holds
+    (a truncated file or a lying header; LAS only, a LAZ has no size to check it against) or, with the working
+    copies, more than ``budget`` (a :class:`hadal.budget.DecodeBudget`) allows: laspy decodes at most the declared
+    count, and the points are allocated for it."""
+    n, size = int(h.point_count), int(h.point_format.size)
+    offset = int(h.offset_to_point_data)
+    compressed = bool(getattr(h, "are_points_compressed", False))
     if not compressed and offset + n * size > p.stat().st_size:
         have = max(p.stat().st_size - offset, 0) // max(size, 1)
         raise InputError(f"{p}: LAS header declares {n:,} points but the file holds at most {have:,} "
                          "(truncated, or a wrong point count in the header)")
-    need = n * (size + 24)
-    if need > memory_limit_bytes(None):
-        raise InputError(f"{p}: LAS file declares {n:,} points; reading them needs about {format_bytes(need)} "
-                         f"(limit {format_bytes(memory_limit_bytes(None))}): thin or tile the cloud first")
+    budget.hold(n * POINT_BYTES, f"its header declares {n:,} points")
+    return n
+
+
+def _check_ply_budget(p: Path, limit_bytes: float | None) -> None:
+    """Refuse a PLY whose header declares more vertices than the memory budget allows, before open3d allocates
+    them (it sizes its arrays by the declared count: x/y/z, normals and colours as float64 triples) and the
+    points' working copies (:data:`CLOUD_WORKING_COPIES`)."""
+    from hadal.budget import DecodeBudget
+
+    with open(p, "rb") as fh:
+        head = fh.read(65536)
+    n, props = 0, set()
+    in_vertex = False
+    for line in head.split(b"end_header", 1)[0].decode("ascii", errors="replace").splitlines():
+        tok = line.split()
+        if len(tok) >= 3 and tok[0] == "element":
+            in_vertex = tok[1] == "vertex"
+            if in_vertex and tok[2].isdigit():
+                n = int(tok[2])
+        elif in_vertex and len(tok) >= 3 and tok[0] == "property":
+            props.add(tok[-1])
+    triples = 1 + bool(props & {"nx", "ny", "nz"}) + bool(props & {"red", "green", "blue"})
+    budget = DecodeBudget(p, "PLY point cloud", limit_bytes=limit_bytes)
+    budget.hold(n * POINT_BYTES * (triples + CLOUD_WORKING_COPIES), f"its header declares {n:,} vertices")
 
 
 def _quiet_open3d(o3d):
@@ -1194,7 +1226,8 @@ def read_gsf(path: str | Path, *, include_flagged: bool = False, isolate: bool =
     Memory: the reading process holds the soundings against its budget as it decodes them
     (:class:`hadal.grid.sonar.SoundingBudget`; the child inherits this process's limits, ``RLIMIT_AS`` included, and
     is given the limit of ``budget``); this process counts the child's soundings against ``budget`` (a
-    ``SoundingBudget``, default a new one) before it loads them.
+    ``SoundingBudget``, default a new one) before it reads them, row group by row group (:func:`iter_gsf`), into
+    the columns of the returned frame (no second copy of the table).
     """
     from hadal.grid.sonar import SoundingBudget
 
@@ -1202,24 +1235,55 @@ def read_gsf(path: str | Path, *, include_flagged: bool = False, isolate: bool =
         budget = SoundingBudget(Path(str(path)), "gsf multibeam file")
     if not isolate:
         return _read_gsf_here(path, include_flagged=include_flagged, budget=budget)
+    cols: dict[str, np.ndarray] = {}
+    k = 0
+    attrs: dict = {}
+    for chunk in iter_gsf(path, include_flagged=include_flagged, budget=budget):
+        if not cols:
+            attrs = dict(chunk.attrs)
+            n = int(attrs.get("soundings") or 0)
+            cols = {c: np.empty(n, chunk[c].dtype) for c in chunk.columns}
+        for c, a in cols.items():
+            a[k:k + len(chunk)] = chunk[c].to_numpy()
+        k += len(chunk)
+    df = pd.DataFrame(cols, copy=False)
+    df.attrs.update(attrs)
+    return df
+
+
+def iter_gsf(path: str | Path, *, include_flagged: bool = False, budget: Any = None,
+             chunk_points: int = 250_000) -> Iterator[pd.DataFrame]:
+    """The soundings of a GSF file read by libgsf in a child process (:func:`read_gsf`), as DataFrames of the
+    child's Parquet row groups (``chunk_points`` soundings each; ``attrs``: the reader's): this process never
+    holds the whole table (it held pyarrow's table and its pandas copy before, 99 B a sounding with its
+    consumer's columns). ``budget`` (a :class:`hadal.grid.sonar.SoundingBudget`) counts the child's soundings
+    before the first row group is read; the child holds its own as it decodes (same limit)."""
     import json
     import subprocess
     import sys
     import tempfile
 
+    import pyarrow.parquet as pq
+
+    from hadal.grid.sonar import SoundingBudget
+
     p = _require_file(path, "GSF")
+    budget = budget if budget is not None else SoundingBudget(p, "gsf multibeam file")
     try:
         with tempfile.TemporaryDirectory(prefix="hadal-gsf-") as td:
             out = Path(td) / "soundings.parquet"
             proc = subprocess.run([sys.executable, "-m", "hadal.grid._gsf_child", str(p), str(out),
-                                   "1" if include_flagged else "0", repr(float(budget.limit))],
-                                  capture_output=True, text=True)
+                                   "1" if include_flagged else "0", repr(float(budget.limit)),
+                                   str(int(chunk_points))], capture_output=True, text=True)
             if proc.returncode == 0:
                 attrs = json.loads(out.with_suffix(".json").read_text(encoding="utf-8"))
                 budget.add(int(attrs.get("soundings") or 0))
-                df = pd.read_parquet(out)
-                df.attrs.update(attrs)
-                return df
+                with pq.ParquetFile(out) as f:
+                    for i in range(f.num_row_groups):
+                        chunk = f.read_row_group(i).to_pandas()
+                        chunk.attrs.update(attrs)
+                        yield chunk
+                return
     except OSError as exc:
         raise InputError(f"{p}: cannot run the GSF reader ({exc.strerror or exc})") from None
     last = (proc.stderr.strip().splitlines() or [""])[-1]
@@ -1285,10 +1349,28 @@ def _read_gsf_here(path: str | Path, *, include_flagged: bool = False, budget: A
     bathymetry ping, or one libgsf cannot read (truncated, corrupt), is a one-line :class:`InputError`; so is one
     whose soundings pass the memory budget as they decode (``budget``, a :class:`hadal.grid.sonar.SoundingBudget`).
     """
+    attrs: dict[str, Any] = {}
+    blocks = list(gsf_blocks(path, include_flagged=include_flagged, budget=budget, attrs=attrs))
+    df = pd.DataFrame(blocks[0], copy=False)
+    df.attrs.update(attrs)
+    return df
+
+
+#: the columns of a GSF read (:func:`read_gsf`) and their dtypes
+GSF_COLUMNS = {"longitude_deg": np.float64, "latitude_deg": np.float64, "depth_m": np.float64, "ping": np.int32}
+
+
+def gsf_blocks(path: str | Path, *, include_flagged: bool = False, budget: Any = None,
+               block_points: int | None = None, attrs: dict | None = None) -> Iterator[dict[str, np.ndarray]]:
+    """The soundings of a GSF file read with libgsf in this process (:func:`_read_gsf_here` says how), as blocks of
+    :data:`GSF_COLUMNS` arrays of at least ``block_points`` soundings (the last one fewer; ``None``: one block of
+    them all); ``attrs`` (a dict) receives the read's attributes once the file is read. ``budget`` (a
+    :class:`hadal.grid.sonar.SoundingBudget`) counts every sounding decoded, so a reader that writes the blocks
+    out (the child process of :func:`read_gsf`) holds one block at a time."""
     from hadal.grid.sonar import SoundingBudget
 
     p = _require_file(path, "GSF")
-    budget = budget if budget is not None else SoundingBudget(p, "gsf multibeam file", reader="gsf_child")
+    budget = budget if budget is not None else SoundingBudget(p, "gsf multibeam file", reader="gsf")
     try:
         from gsfpy import GsfException, open_gsf
         from gsfpy.enums import RecordType
@@ -1297,7 +1379,18 @@ def _read_gsf_here(path: str | Path, *, include_flagged: bool = False, budget: A
     from pyproj import Geod
 
     geod = Geod(ellps="WGS84")
-    lons, lats, deps, pings = [], [], [], []
+    lons: list[np.ndarray] = []
+    lats: list[np.ndarray] = []
+    deps: list[np.ndarray] = []
+    pings: list[np.ndarray] = []
+    held = total = 0
+
+    def block() -> dict[str, np.ndarray]:
+        out = {c: np.concatenate(a) for c, a in zip(GSF_COLUMNS, (lons, lats, deps, pings), strict=True)}
+        for a in (lons, lats, deps, pings):
+            a.clear()
+        return out
+
     try:
         f = open_gsf(p)
     except GsfException as exc:
@@ -1335,26 +1428,31 @@ def _read_gsf_here(path: str | Path, *, include_flagged: bool = False, budget: A
             az = np.degrees(np.arctan2(east, north))
             dist = np.hypot(east, north)
             lo, la, _ = geod.fwd(np.full(n, lon0), np.full(n, lat0), az, dist)
+            m = int(keep.sum())
             lons.append(lo[keep])
             lats.append(la[keep])
             deps.append(depth[keep])
-            pings.append(np.full(int(keep.sum()), k, dtype=np.int32))
-            budget.add(int(keep.sum()))
-            dropped += n - int(keep.sum())
+            pings.append(np.full(m, k, dtype=np.int32))
+            budget.add(m)
+            held, total = held + m, total + m
+            dropped += n - m
             k += 1
+            if block_points is not None and held >= block_points:
+                yield block()
+                held = 0
     if k == 0:
         raise InputError(f"{p}: GSF file contains no bathymetry pings")
-    if not deps or sum(len(d) for d in deps) == 0:
+    if total == 0:
         raise InputError(f"{p}: no valid soundings in the GSF file")
-    df = pd.DataFrame({"longitude_deg": np.concatenate(lons), "latitude_deg": np.concatenate(lats),
-                       "depth_m": np.concatenate(deps), "ping": np.concatenate(pings)})
     import importlib.metadata as md
 
     from hadal.grid.sonar import _iso
 
-    df.attrs.update({"reader": f"gsfpy {md.version('gsfpy')}", "format": "gsf", "pings": k,
-                     "gsf_version": gsf_file_version(p), "libgsf": _libgsf_version(),
-                     "beams_per_ping": beams_max, "soundings": len(df), "dropped": dropped,
-                     "crs_kind": "geographic", "z_positive": "down",
-                     "time_start": _iso(min(times)), "time_end": _iso(max(times))})
-    return df
+    if attrs is not None:
+        attrs.update({"reader": f"gsfpy {md.version('gsfpy')}", "format": "gsf", "pings": k,
+                      "gsf_version": gsf_file_version(p), "libgsf": _libgsf_version(),
+                      "beams_per_ping": beams_max, "soundings": total, "dropped": dropped,
+                      "crs_kind": "geographic", "z_positive": "down",
+                      "time_start": _iso(min(times)), "time_end": _iso(max(times))})
+    if held or block_points is None:
+        yield block()

@@ -72,17 +72,19 @@ _HEAD_BYTES = 65536
 
 #: Peak memory of reading one multibeam file, per reader: ``(fixed bytes, bytes per sounding)``, working copies
 #: included (the reader's decoded pings, its consumer's accumulated columns and final block; EM .all keeps every ping
-#: until the navigation is known; GSF's parent loads the child's Parquet table). Measured with
+#: until the navigation is known; GSF's parent reads the child's Parquet one row group at a time). Measured with
 #: ``bench/bench_soundings_memory.py --points 1250000,5000000`` (files made of a real file's pings, gzip; a fresh
 #: interpreter per read, ``VmHWM`` above the after-imports ``VmHWM``; the slope between the two sizes, the intercept
 #: at the larger), the larger of the DTM stage's read (:func:`hadal.grid.soundings.read_soundings_xy`) and
 #: :func:`read_multibeam`; slope x 1.1 rounded up to a byte, intercept x 1.1 rounded up to 8 MiB. Measured (B per
-#: sounding, fixed MB): xyz 29.9, 77; s7k 34.4, 93; EM .all 52.0, 83; KMALL 40.0, 147; GSF 90.0, 107; the GSF child
-#: (``gsf_child``: the libgsf child process of :func:`hadal.grid.readers.read_gsf`, which holds its own budget) 88.1,
-#: 38. Counted before: 84 B a sounding for every reader.
+#: sounding, fixed MB): xyz 29.9, 77; s7k 34.4, 93; EM .all 52.0, 83; KMALL 40.0, 147; GSF 43.6, 122; the GSF child
+#: (``gsf_child``: the libgsf child process of :func:`hadal.grid.readers.read_gsf`, which holds its own budget and
+#: writes its soundings a row group at a time; it counts them at the parent's cost, which they will need) 10.2, 69.
+#: Counted before: 84 B a sounding for every reader; GSF 99
+#: (92.0 measured) and its child 97 (87.8) while the parent loaded the child's whole table and the child its own.
 SOUNDING_READ_COST: dict[str, tuple[float, float]] = {
     "xyz": (88 << 20, 33.0), "s7k": (104 << 20, 38.0), "em_all": (88 << 20, 58.0), "kmall": (160 << 20, 44.0),
-    "gsf": (120 << 20, 99.0), "gsf_child": (40 << 20, 97.0),
+    "gsf": (136 << 20, 48.0), "gsf_child": (80 << 20, 12.0),
 }
 #: bytes one sounding kept from earlier files holds while the next file is read: x, y, depth as float64 in the
 #: consumer's :class:`ColumnAccumulator` (counted, not measured: 3 x 8 bytes)
@@ -289,17 +291,18 @@ class ColumnAccumulator:
         return out
 
 
-def describe_multibeam(path, hints=None) -> dict:
+def describe_multibeam(path, hints=None, *, memory_limit_bytes: float | None = None) -> dict:
     """JSON-serialisable summary of a multibeam file (streamed; nothing kept but the statistics).
 
     Keys: ``path, format, compression, reader, crs_kind, soundings, pings, beams_per_ping, dropped,
     longitude_deg``/``latitude_deg`` (or ``x_m``/``y_m``) ``[min, max]``, ``depth_m [min, max]``,
     ``time_start``/``time_end`` (ISO 8601 UTC, swath formats) and the reader's other scalar attributes.
+    ``memory_limit_bytes``: the budget of the read (:func:`iter_multibeam`).
     """
     info: dict = {}
     n = 0
     ext: dict[str, list[float]] = {}
-    for chunk in iter_multibeam(path, hints, info=info):
+    for chunk in iter_multibeam(path, hints, info=info, memory_limit_bytes=memory_limit_bytes):
         n += len(chunk)
         for c in chunk.columns:
             if c == "ping":
@@ -688,14 +691,22 @@ _GSF_TMP_RESERVE = 1 << 30
 
 def _iter_gsf(p: Path, comp: str | None, chunk_points: int, info: dict,
               budget: SoundingBudget | None = None) -> Iterator[pd.DataFrame]:
-    """GSF via :func:`hadal.grid.readers.read_gsf` (gsfpy/libgsf needs a real file: compressed GSF is
-    decompressed to a temporary file first, refused in one line before it would leave less than
-    :data:`_GSF_TMP_RESERVE` free there). ``budget``: the child process holds its soundings against its own
-    budget as it decodes; this process counts them (from the child's attributes) before loading the table."""
-    from hadal.grid.readers import read_gsf
+    """GSF via :func:`hadal.grid.readers.iter_gsf` (libgsf in a child process; gsfpy/libgsf needs a real file:
+    compressed GSF is decompressed to a temporary file first, refused in one line before it would leave less than
+    :data:`_GSF_TMP_RESERVE` free there), its row groups of ``chunk_points`` soundings yielded as they are read.
+    ``budget``: the child process holds its soundings against its own budget as it decodes; this process counts
+    them (from the child's attributes) before reading the first row group."""
+    from hadal.grid.readers import iter_gsf
+
+    def chunks(src: Path) -> Iterator[pd.DataFrame]:
+        for i, ch in enumerate(iter_gsf(src, budget=budget, chunk_points=chunk_points)):
+            if i == 0:  # the reader's attributes, before the first chunk reaches the caller
+                info.update({k: v for k, v in ch.attrs.items() if k != "path"})
+                info.update({"format": "gsf", "compression": comp, "crs_kind": "geographic", "z_positive": "down"})
+            yield ch
 
     if comp is None:
-        df = read_gsf(p, budget=budget)
+        yield from chunks(p)
     else:
         import shutil
         import tempfile
@@ -716,13 +727,9 @@ def _iter_gsf(p: Path, comp: str | None, chunk_points: int, info: dict,
                                          "decompress it where there is room, or set TMPDIR")
                     dst.write(block)
             try:
-                df = read_gsf(tmp, budget=budget)
+                yield from chunks(tmp)
             except InputError as exc:
                 raise InputError(str(exc).replace(str(tmp), str(p))) from None
-    info.update({k: v for k, v in df.attrs.items() if k != "path"})
-    info.update({"format": "gsf", "compression": comp, "crs_kind": "geographic", "z_positive": "down"})
-    for s in range(0, len(df), chunk_points):
-        yield df.iloc[s:s + chunk_points].reset_index(drop=True)
 
 
 # ------------------------------------------------------------------ KMALL (pykmall)

@@ -1265,16 +1265,17 @@ def read_seabird(path: str | Path, *, max_bytes: float | None = None) -> pd.Data
     return df
 
 
-def describe_cnv(path: str | Path) -> dict[str, Any]:
+def describe_cnv(path: str | Path, *, memory_limit_bytes: float | None = None) -> dict[str, Any]:
     """What a Sea-Bird cast holds, for ``hadal inspect`` (JSON-serialisable): format, compression,
     instrument (and serial), channels with units, header position and start time, scans, pressure range,
     binned profile or time series (and the time channel), SeaSoft processing steps, sensors (serial numbers,
-    calibration dates). Raises :class:`InputError` like :func:`read_seabird`."""
+    calibration dates). Raises :class:`InputError` like :func:`read_seabird` (read against the memory budget
+    ``memory_limit_bytes``)."""
     import warnings as _w
 
     with _w.catch_warnings(record=True) as caught:
         _w.simplefilter("always")
-        df = read_seabird(path)
+        df = read_seabird(path, max_bytes=memory_limit_bytes)
     a = df.attrs
     p_col = next((c for c, _ in CNV_PRESSURE if c in df.columns), None)
     prange = None

@@ -1188,8 +1188,9 @@ class _McapTally:
             self.tmax[cid] = lt
 
 
-def _tally_mcap(path: Path) -> tuple[_McapTally, _Walk]:
-    """One sequential, damage-tolerant pass over ``path``; the walk keeps its ``problem`` / ``corrupt``."""
+def _tally_mcap(path: Path, limit_bytes: float | None = None) -> tuple[_McapTally, _Walk]:
+    """One sequential, damage-tolerant pass over ``path`` (chunks held against ``limit_bytes``); the walk keeps
+    its ``problem`` / ``corrupt``."""
     from mcap.opcode import Opcode
     from mcap.records import (
         Attachment,
@@ -1206,7 +1207,7 @@ def _tally_mcap(path: Path) -> tuple[_McapTally, _Walk]:
     t = _McapTally()
     keep = frozenset({Opcode.CHUNK_INDEX, Opcode.ATTACHMENT, Opcode.METADATA})
     with open(path, "rb") as fh:
-        walk = _Walk(fh, keep)
+        walk = _Walk(fh, keep, limit_bytes=limit_bytes)
         for rec in walk:
             if isinstance(rec, Chunk):
                 t.compression.add(rec.compression or "none")
@@ -1304,7 +1305,7 @@ def _describe_channel(cid: int, ch: Any, t: _McapTally, per_chan: dict[int, int]
     }
 
 
-def describe_mcap(path: str | Path) -> dict[str, Any]:
+def describe_mcap(path: str | Path, *, memory_limit_bytes: float | None = None) -> dict[str, Any]:
     """What is in an MCAP file, as a JSON-serialisable dict (``hadal inspect``, ``hadal init``).
 
     One sequential pass with the same damage recovery as :func:`read_mcap` (intact chunks of a truncated or
@@ -1317,11 +1318,12 @@ def describe_mcap(path: str | Path) -> dict[str, Any]:
     ``pkg/msg/Type`` or the schema name), ``metadata``, ``message_count`` (read), ``messages_expected``,
     ``first_log_time``/``last_log_time``, ``rate_hz``, ``fields`` (dotted names of the first decoded
     message), ``first_message`` (abridged), ``field_docs`` (units/comments from the schema) and
-    ``decode_error``. Raises :class:`InputError` only when the file is missing, empty or not MCAP.
+    ``decode_error``. Raises :class:`InputError` only when the file is missing, empty or not MCAP, or when its
+    chunks pass the memory budget ``memory_limit_bytes`` as they decompress (:class:`_Walk`).
     """
     path = Path(path)
     _open_check(path)
-    t, walk = _tally_mcap(path)
+    t, walk = _tally_mcap(path, memory_limit_bytes)
     truncated, problem, corrupt = walk.problem is not None, walk.problem, walk.corrupt
     summary_read = t.stats is not None
     if t.stats is None and (truncated or corrupt):

@@ -972,17 +972,18 @@ def read_hex(path: str | Path, *, raw: bool = False, max_bytes: float | None = N
     return df
 
 
-def describe_hex(path: str | Path) -> dict[str, Any]:
+def describe_hex(path: str | Path, *, memory_limit_bytes: float | None = None) -> dict[str, Any]:
     """What a ``.hex`` file is and holds, for ``hadal inspect`` (JSON-serialisable; no conversion done).
 
     Keys: ``format``, ``compression``, ``instrument``, ``model``, ``serial_number``, ``firmware``, ``mode``,
     ``scans``, ``sample_rate_hz``, ``interval_s``, ``scans_to_average``, ``pressure_sensor``, ``channels``
     (``[{name, long_name, units}]`` that :func:`read_hex` would produce), ``calibration_dates``,
     ``sensor_serials``, ``latitude_deg``, ``longitude_deg``, ``start_time_utc``, ``end_time_utc``,
-    ``upload_time_utc``, ``casts``, ``scan_layout``. Raises :class:`~hadal.errors.InputError` as read_hex does.
+    ``upload_time_utc``, ``casts``, ``scan_layout``. Raises :class:`~hadal.errors.InputError` as read_hex does
+    (its text held against the memory budget ``memory_limit_bytes`` as it decompresses).
     """
     path = Path(path)
-    text, comp = _read_text(path)
+    text, comp = _read_text(path, memory_limit_bytes)
     header, data_lines, first_no = _split(path, text)
     h = parse_hex_header(path, header)
     _check_supported(h, path, data_lines)

@@ -81,7 +81,8 @@ def _read_user_profile(ctx: StageContext, p: Params) -> Any:
         return None
     from hadal.depth import read_overlying_profile
 
-    return read_overlying_profile(overlying_profile_path(p, ctx.raw_dir), surface_dbar=p.surface_start_dbar)
+    return read_overlying_profile(overlying_profile_path(p, ctx.raw_dir), surface_dbar=p.surface_start_dbar,
+                                  max_bytes=memory_limit_bytes(ctx.config))
 
 
 def _derive_external_casts(ctx: StageContext, p: Params, sensors_meta: dict[str, Any], limit: float | None,
@@ -312,7 +313,7 @@ def underway_source(ctx: StageContext, meta: dict[str, Any], table: pd.DataFrame
         pr = table["pressure_ctd_dbar"].to_numpy(np.float64)
         pr = pr[np.isfinite(pr)]
         if pr.size and float(pr.max() - pr.min()) <= MAX_PRESSURE_RANGE_DBAR:
-            ev = _evidence(path)
+            ev = _evidence(path, memory_limit_bytes(ctx.config))
             if ev is not None and ev.underway:
                 ctx.log.warning("derive: %s: %s looks like an underway record (%s) but dive.yaml gives it no "
                                 "'kind': processed as a cast; add 'kind: underway' to its sources.cnv entry (hadal "
@@ -320,8 +321,9 @@ def underway_source(ctx: StageContext, meta: dict[str, Any], table: pd.DataFrame
     return None
 
 
-def _evidence(path: Path) -> Any:
-    """:func:`hadal.ctd.underway.underway_evidence` of a raw Sea-Bird file (``None`` when it cannot be read)."""
+def _evidence(path: Path, max_bytes: float | None) -> Any:
+    """:func:`hadal.ctd.underway.underway_evidence` of a raw Sea-Bird file (``None`` when it cannot be read, or its
+    read would pass the memory budget ``max_bytes``: the stage's ``resources.max_memory_gb``)."""
     import warnings
 
     from hadal.ctd.underway import underway_evidence
@@ -330,18 +332,20 @@ def _evidence(path: Path) -> Any:
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")  # the ingest stage has already warned about the file
-            return underway_evidence(read_seabird(path))
+            return underway_evidence(read_seabird(path, max_bytes=max_bytes))
     except InputError:
         return None
 
 
-def underway_table(table: pd.DataFrame, raw_path: Path, p: Params) -> tuple[pd.DataFrame, dict[str, Any]]:
+def underway_table(table: pd.DataFrame, raw_path: Path, p: Params, *, max_bytes: float | None = None
+                   ) -> tuple[pd.DataFrame, dict[str, Any]]:
     """The per-scan trajectory table of an underway record: the ingested (QC'd) samples in time order with the
     file's own per-scan positions (:func:`hadal.ctd.underway.positions_at`, matched by time), temperature and
     conductivity where their QC flags are accepted (``accept_flags``), the record's pressure (missing pressure:
     0 dbar, the sea surface, counted in the metadata) and the derived columns of
     :func:`hadal.ctd.underway.underway_columns`. A record without per-scan positions or times is a one-line
-    :class:`InputError`."""
+    :class:`InputError`. The raw file is re-read against the memory budget ``max_bytes`` (the stage's
+    ``resources.max_memory_gb``; :func:`hadal.ingest.cnv.read_seabird`)."""
     import warnings
 
     import numpy as np
@@ -358,7 +362,7 @@ def underway_table(table: pd.DataFrame, raw_path: Path, p: Params) -> tuple[pd.D
 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # the ingest stage has already warned about the file
-        raw = read_seabird(raw_path)
+        raw = read_seabird(raw_path, max_bytes=max_bytes)
     ev = underway_evidence(raw)
     try:
         lat, lon, where = record_positions(raw)
@@ -419,7 +423,7 @@ def _publish_trajectories(ctx: StageContext, params: dict, upstream: list,
     with ctx.store.publish(ctx.dive_id, "trajectory", parameters=params, upstream=[u for u in upstream if u],
                            extra={"records": [r[0] for r in records]}) as draft:
         for rid, table, tmeta, raw in records:
-            df, meta = underway_table(table, raw, p)
+            df, meta = underway_table(table, raw, p, max_bytes=memory_limit_bytes(ctx.config))
             instrument = (tmeta.get("cast") or {}).get("instrument")
             write_netcdf(trajectory_dataset(df, rid), draft.path / f"{rid}.nc",
                          title=f"Underway thermosalinograph record {rid} (dive {ctx.dive_id})",

@@ -362,7 +362,8 @@ def _laser_grid(ctx: StageContext, f: Path, sf, p: Params, limit_bytes: float | 
             frame = ctx.dive.frame("grid") if da.attrs["crs_kind"] == "geographic" else None
             ds = laser_grid_from_raster(da, z_positive=pos, z_reason=reason, frame=frame)
             return ds, da.attrs.get("reader", reader_of(kind)), "raster"
-        pts, meta = read_point_cloud_meta(f, format=_hint(sf, "format"), columns=_hint(sf, "columns"), hints=sf)
+        pts, meta = read_point_cloud_meta(f, format=_hint(sf, "format"), columns=_hint(sf, "columns"), hints=sf,
+                                          memory_limit_bytes=memory_limit_bytes(ctx.config))
         if meta.get("z_positive"):  # LAS/PCD: from the file's format (or dive.yaml), never from the values' sign
             pos, reason = meta["z_positive"], meta["z_positive_from"]
         else:

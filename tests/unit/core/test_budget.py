@@ -150,11 +150,21 @@ def test_grid_laser_cells_beyond_memory_are_refused(tmp_path):
     assert msg.startswith("grid.laser_resolution_m = 0.001 would need ") and "for the laser grid" in msg
     assert "(limit 4 GiB)" in msg
     assert _versions(tmp_path / "store", "laser_grids") == []
-    # 'auto' (>= 10 mm) with a tiny budget: the estimate is made with the automatic cell size
+    # a tiny budget reaches the cloud reader first (issue 45): its read is refused in one line, nothing published
     raw = _multibeam_dive(tmp_path / "b", {"laser_sor_neighbors": 0}, resources={"max_memory_gb": 1e-5}, laser=True)
-    with pytest.raises(ConfigError, match=r"^grid\.laser_resolution_m = auto \("):
+    from hadal.errors import InputError
+
+    with pytest.raises(InputError, match=r"decoding this PLY point cloud needs more than .*limit 10\.5 KiB\)"):
         run_stage("grid", make_context(raw, tmp_path / "b" / "store"))
     assert _versions(tmp_path / "b" / "store", "laser_grids") == []
+    # 'auto' (>= 10 mm) with a tiny budget: the estimate is made with the automatic cell size
+    from hadal.grid.readers import read_point_cloud
+    from hadal.settings import GridParams
+    from hadal.stages.grid import _check_laser_memory
+
+    pts = read_point_cloud(next((raw / "laser").glob("*.ply")))
+    with pytest.raises(ConfigError, match=r"^grid\.laser_resolution_m = auto \("):
+        _check_laser_memory(pts, GridParams(laser_sor_neighbors=0), 1e-5 * (1 << 30))
 
 
 def test_grid_over_max_cells_keeps_the_cell_count_refusal(tmp_path):
