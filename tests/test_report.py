@@ -759,3 +759,36 @@ def test_long_landing_transect_is_split_into_legible_panels(tmp_path):
                 assert x0 <= x <= x1
                 drawn.append((float(x), float(v)))
     assert sorted(drawn) == sorted(zip(best["x_m"], best["c_s"], strict=True))
+
+
+def test_msd_surface_figure_is_geographic_at_the_files_lon_lat(small_run):
+    """The TERCOM criterion surface drawn in lon/lat: its cells where msd_surface.nc's own CF grid mapping puts them
+    (the file's ``crs`` variable read by pyproj's ``CRS.from_cf``, x/y transformed to WGS 84: the oracle), the best
+    match among them, the dive's track, equal ground distances, a scale bar, a degrees-minutes graticule."""
+    import xarray as xr
+    from pyproj import CRS, Transformer
+
+    from hadal.report.geo_figures import fig_msd_geo
+
+    ctx, versions = small_run  # the sample dive's match product: its grid mapping as the match stage wrote it
+    with xr.open_dataset(versions["match"].file("msd_surface.nc"), decode_coords=False) as ds:
+        gm = ds[ds["score"].attrs["grid_mapping"]].attrs
+        X, Y = np.meshgrid(ds["x"].values.astype(float), ds["y"].values.astype(float))
+    lon, lat = Transformer.from_crs(CRS.from_cf(gm), CRS.from_epsg(4326), always_xy=True).transform(X, Y)
+    dp = load_products(ctx.store, ctx.dive_id)
+    fr = fig_msd_geo(dp, FAST)
+    assert_drawn(fr)
+    ax = fr.figure.axes[0]
+    assert (ax.get_xlabel(), ax.get_ylabel()) == ("longitude (WGS 84)", "latitude (WGS 84)")
+    mesh = next(c for c in ax.collections if c.__class__.__name__ == "QuadMesh")
+    c = mesh.get_coordinates()
+    got = 0.25 * (c[:-1, :-1] + c[1:, 1:] + c[:-1, 1:] + c[1:, :-1])
+    assert got.shape[:2] == lon.shape
+    assert np.abs(got[..., 0] - lon).max() < 1e-7 and np.abs(got[..., 1] - lat).max() < 1e-7
+    best = _line(ax, "best match")
+    assert lon.min() <= best.get_xdata()[0] <= lon.max() and lat.min() <= best.get_ydata()[0] <= lat.max()
+    track = [ln for ln in ax.get_lines() if "track" in ln.get_label()]
+    assert track and np.isfinite(np.asarray(track[0].get_xdata(), float)).any()
+    assert ax.get_aspect() == pytest.approx(1 / math.cos(math.radians(0.5 * sum(ax.get_ylim()))))
+    assert any(t.get_gid() == "scale_bar" for t in ax.texts)
+    assert "°" in ax.yaxis.get_major_formatter()(float(np.mean(ax.get_ylim())), 0)
