@@ -787,7 +787,8 @@ def all_figures(dp: DiveProducts | None = None) -> tuple[Callable[[DiveProducts,
         fig_suitability_geo,
     )
 
-    geographic = {fig_suitability: fig_suitability_geo, fig_msd_surface: fig_msd_geo,
+    geographic: dict[Callable[[DiveProducts, FigureOptions], FigureResult],
+                     Callable[[DiveProducts, FigureOptions], FigureResult]] = {fig_suitability: fig_suitability_geo, fig_msd_surface: fig_msd_geo,
                   fig_matched_track: fig_matched_track_geo, fig_matched_depth: fig_residuals}
 
     out: list[Callable[[DiveProducts, FigureOptions], FigureResult]] = [fig_overview]

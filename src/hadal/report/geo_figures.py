@@ -744,13 +744,15 @@ def fig_msd_geo(dp: DiveProducts, opt: FigureOptions) -> FigureResult:
     im = ax.pcolormesh(lon, lat, vals, shading="nearest", cmap=CMAPS["msd"], rasterized=True)
     fig.colorbar(im, ax=ax, shrink=0.85, label=label)
     handles = _track_on_map(ax, dp, opt)
-    bx, by = ds.attrs.get("best_x_m"), ds.attrs.get("best_y_m")
-    if bx is None and finite.size:
+    best: tuple[float, float] | None = None
+    if ds.attrs.get("best_x_m") is not None and ds.attrs.get("best_y_m") is not None:
+        best = (float(ds.attrs["best_x_m"]), float(ds.attrs["best_y_m"]))
+    elif finite.size:
         raw = np.asarray(ds[v].transpose("y", "x").values, float)
         iy, ix = np.unravel_index(np.nanargmin(raw) if crit != "COR" else np.nanargmax(raw), raw.shape)
-        bx, by = float(ds["x"][ix]), float(ds["y"][iy])
-    if bx is not None:
-        blon, blat = frame.to_lonlat(float(bx), float(by))
+        best = (float(ds["x"][ix]), float(ds["y"][iy]))
+    if best is not None:
+        blon, blat = frame.to_lonlat(*best)
         handles += ax.plot(blon, blat, "o", mfc="none", mec="w", ms=14, mew=2, ls="none", label="best match")
     sm = _second_mode(dp.fix or {})
     if sm is not None:
