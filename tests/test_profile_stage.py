@@ -245,3 +245,39 @@ def test_profile_of_a_ctd_version_without_binned_casts_is_a_one_line_error(tmp_p
     with pytest.raises(InputError, match="no binned casts.*re-run derive") as exc:
         run_stage("profile", ctx)
     assert "\n" not in str(exc.value) and draft.result.label in str(exc.value)
+
+
+def test_derive_and_profile_report_their_long_steps_through_the_progress(tmp_path):
+    """derive's and profile's steps reach the run's Progress (what the terminal and the Prefect log show), each
+    started and finished (hadal.progress.LogProgress's lines, read back from the log)."""
+    import logging
+
+    from hadal.progress import LogProgress
+
+    records: list[str] = []
+
+    class Keep(logging.Handler):
+        def emit(self, record):
+            records.append(record.getMessage())
+
+    handler = Keep(level=logging.INFO)
+    logging.getLogger("hadal").addHandler(handler)
+    old = logging.getLogger("hadal").level
+    logging.getLogger("hadal").setLevel(logging.INFO)
+    try:
+        from test_derive import _raw_dive, synth_sensors
+
+        ctx = make_context(_raw_dive(tmp_path), tmp_path / "store")
+        ctx.progress = LogProgress(interval_s=0.0, echo=False)
+        df, _, _ = synth_sensors(dt=20.0, max_depth=3000.0, bottom_s=600.0)
+        with ctx.store.publish(ctx.dive_id, "sensors", parameters={}) as draft:
+            write_parquet(df, draft.path / "sensors.parquet", metadata={"dive_id": ctx.dive_id})
+        run_stage("derive", ctx)
+        run_stage("profile", ctx)
+    finally:
+        logging.getLogger("hadal").removeHandler(handler)
+        logging.getLogger("hadal").setLevel(old)
+    text = "\n".join(records)
+    for what in ("derive: reading sensors.parquet", "derive: writing ctd", "profile: reading ctd and its binned casts"):
+        assert f"{what}: started" in text and f"{what}: done" in text, (what, text[-2000:])
+    assert sum("samples -> depth, TEOS-10, QC, profiles: done" in r for r in records) == 1
