@@ -670,8 +670,8 @@ def bin_casts(df: pd.DataFrame, meta: dict[str, Any], sensors_meta: dict[str, An
     ``meta``), with per-cast times; sets ``df``'s per-sample N2 and the profile's entries of ``meta``
     (``profile_axis``, ``qc_derived.profile``, ``profile_values_excluded_by_flag``, the cast time's source).
     Only accepted samples are binned (``accept_flags``; LoopEdit's bad scans left out, as SeaSoft's BinAvg).
-    Pure: the ``derive`` stage calls it for the per-sample N2 of ``ctd``, the ``profile`` stage on ``ctd`` again
-    for the published profiles (both get the same bins from the same table)."""
+    Pure: called once per record, by the ``derive`` stage (:func:`derive_table`), which publishes the per-sample N2
+    in ``ctd`` and keeps the binned casts in the ``ctd`` version for the ``profile`` stage to place."""
     import numpy as np
 
     from hadal.ctd.profile import N_SQUARED, make_profile, n_squared_per_sample, prebinned_profile

@@ -1,8 +1,10 @@
 """Titles, summaries and variable attributes of the binned-cast NetCDF products: ``profile`` (the dive's descent
 and ascent, :mod:`hadal.stages.profile`) and ``cast_profiles`` (external Sea-Bird casts, :mod:`hadal.stages.derive`).
 
-Shared by both stages (stages never import each other). The binning itself is :func:`hadal.ctd.derive.bin_casts`;
-the CF-1.8 ragged layout :mod:`hadal.products.dsg`.
+Shared by both stages (stages never import each other). The binning itself is :func:`hadal.ctd.derive.bin_casts`,
+run once, by ``derive``, which keeps the dive's binned casts in its ``ctd`` version (:data:`BINNED_CASTS`,
+:func:`write_binned_casts`) for the ``profile`` stage to place (:func:`read_binned_casts`); the CF-1.8 ragged layout
+:mod:`hadal.products.dsg`.
 """
 
 from __future__ import annotations
@@ -132,3 +134,34 @@ def profile_attrs(ds: Any, meta: dict[str, Any]) -> None:
     if "lat" not in ds.variables:
         ds.coords["lat"] = np.float64(meta["latitude_deg"])
         ds.coords["lon"] = np.float64(meta["longitude_deg"])
+
+
+#: the dive's binned casts inside its ``ctd`` version (derive's one binning, before placement): the ``profile``
+#: stage's input. xarray's own NetCDF encoding, read back exactly; an internal hand-over, not a user product (in a
+#: sub-directory: the product files, checked for CF/ACDD/IOOS, are the version's top-level ones)
+BINNED_CASTS = "internal/binned_casts.nc"
+
+
+def write_binned_casts(profile: Any, version_dir: Any) -> Any:
+    """Write the binned casts (:func:`hadal.ctd.derive.bin_casts`) into a ``ctd`` version being published."""
+    from pathlib import Path
+
+    from hadal.products.io import write_dataset_exact
+
+    return write_dataset_exact(profile, Path(version_dir) / BINNED_CASTS)
+
+
+def read_binned_casts(ctd_version: Any) -> Any:
+    """The binned casts ``derive`` kept in a ``ctd`` version (a ``ProductVersion``), exactly as it binned them; a
+    version without them (published before they were kept) is a one-line :class:`hadal.errors.InputError`."""
+    from hadal.errors import InputError
+    from hadal.products.io import read_dataset_exact
+
+    path = ctd_version.path / BINNED_CASTS
+    if not path.is_file():
+        raise InputError(f"{ctd_version.path}: this ctd version has no binned casts ({BINNED_CASTS}; published by "
+                         "an older hadal): re-run derive (hadal stage derive DIR --downstream)")
+    try:
+        return read_dataset_exact(path)
+    except Exception as exc:  # unreadable upstream file: one-line error, not a traceback
+        raise InputError(f"{path}: cannot read the binned casts ({type(exc).__name__}: {exc})") from None

@@ -25,7 +25,7 @@ from __future__ import annotations
 import datetime as _dt
 import json
 import re
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -165,6 +165,22 @@ def read_parquet_metadata(path: str | Path) -> tuple[dict[str, Any], dict[str, d
     table_meta = json.loads((schema.metadata or {}).get(b"hadal", b"{}"))
     cols = {f.name: {k.decode(): v.decode() for k, v in (f.metadata or {}).items()} for f in schema}
     return table_meta, cols
+
+
+def read_parquet_table(path: str | Path, columns: Sequence[str] | None = None
+                       ) -> tuple[pd.DataFrame, dict[str, Any], dict[str, dict[str, str]]]:
+    """A :func:`write_parquet` file opened once: (the table, or its ``columns`` that it has, as pandas; the table
+    metadata; the per-column field metadata), what ``pd.read_parquet`` and :func:`read_parquet_metadata` give."""
+    pf = pq.ParquetFile(path)
+    try:
+        schema = pf.schema_arrow
+        names = None if columns is None else [c for c in columns if c in schema.names]
+        df = pf.read(columns=names, use_pandas_metadata=True).to_pandas()
+    finally:
+        pf.close()
+    table_meta = json.loads((schema.metadata or {}).get(b"hadal", b"{}"))
+    cols = {f.name: {k.decode(): v.decode() for k, v in (f.metadata or {}).items()} for f in schema}
+    return df, table_meta, cols
 
 
 def json_clean(obj):
@@ -825,6 +841,28 @@ def write_netcdf(ds: xr.Dataset, path: str | Path, *, title: str, summary: str, 
     # close the file in __dealloc__ after a failed write: tracebacks, then a segfault), so it never does.
     _write_file(path, netcdf_bytes(as_nc_char(out)))
     return path
+
+
+def write_dataset_exact(ds: xr.Dataset, path: str | Path) -> Path:
+    """``ds`` as xarray's own NetCDF-4 encoding (:func:`netcdf_bytes`: values, dtypes and attributes read back
+    exactly by :func:`read_dataset_exact`), without the CF/ACDD completion of :func:`write_netcdf`: a stage's
+    internal hand-over to a later stage, not a user product. Written like every file of the store (free-space
+    check, no partial file)."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    _write_file(path, netcdf_bytes(ds))
+    return path
+
+
+def read_dataset_exact(path: str | Path) -> xr.Dataset:
+    """The dataset :func:`write_dataset_exact` wrote, loaded, with no encoding left on it (a later
+    :func:`write_netcdf` of it encodes it afresh, as it would the original)."""
+    with xr.open_dataset(path, engine="h5netcdf") as src:
+        ds = src.load()
+    ds.encoding = {}
+    for v in ds.variables.values():
+        v.encoding = {}
+    return ds
 
 
 def netcdf_bytes(ds: xr.Dataset) -> memoryview:

@@ -19,9 +19,10 @@ fig_matched_track      TERCOM Fig. 17: matched track on the reference map, launc
 fig_landing_map        landing paper Figs. 19/25: elevation of the best submap and the selected site
 =====================  =====================================================================
 
-In the report (:func:`all_figures`) ``fig_dtm`` and ``fig_suitability`` are drawn on geographic axes instead
-(:mod:`hadal.report.geo_figures`: ``fig_dtm_geo`` hillshaded with the track, ``fig_dtm_quality`` coverage, sounding
-density and uncertainty, ``fig_suitability_geo``), beside the overview and the position uncertainty along the dive
+In the report (:func:`all_figures`) every map is drawn on geographic axes instead (:mod:`hadal.report.geo_figures`:
+``fig_dtm_geo`` hillshaded with the track, ``fig_dtm_quality`` coverage, sounding density and uncertainty,
+``fig_suitability_geo``, ``fig_msd_geo``, ``fig_matched_track_geo``; the map-frame figures here remain for a
+product without a map frame), beside the overview and the position uncertainty along the dive
 (``fig_nav_uncertainty``). Text is at least :attr:`FigureOptions.min_font_pt` (9 pt) and categorical colours are
 Okabe-Ito's (:data:`OKABE_ITO`).
 """
@@ -778,11 +779,17 @@ def all_figures(dp: DiveProducts | None = None) -> tuple[Callable[[DiveProducts,
     from hadal.report.geo_figures import (
         fig_dtm_geo,
         fig_dtm_quality,
+        fig_matched_track_geo,
+        fig_msd_geo,
         fig_nav_uncertainty,
         fig_overview,
         fig_residuals,
         fig_suitability_geo,
     )
+
+    geographic: dict[Callable[[DiveProducts, FigureOptions], FigureResult],
+                     Callable[[DiveProducts, FigureOptions], FigureResult]] = {fig_suitability: fig_suitability_geo, fig_msd_surface: fig_msd_geo,
+                  fig_matched_track: fig_matched_track_geo, fig_matched_depth: fig_residuals}
 
     out: list[Callable[[DiveProducts, FigureOptions], FigureResult]] = [fig_overview]
     # a dive whose only CTD record is underway has a trajectory instead of ctd/profile: no cast figures for it
@@ -796,10 +803,7 @@ def all_figures(dp: DiveProducts | None = None) -> tuple[Callable[[DiveProducts,
         if fn is fig_dtm:  # the DTM on a geographic map, with its coverage, density and uncertainty
             out += [fig_dtm_geo, fig_dtm_quality]
             continue
-        if fn is fig_suitability:
-            out.append(fig_suitability_geo)
-            continue
-        out.append(fig_residuals if fn is fig_matched_depth else fn)
+        out.append(geographic.get(fn, fn))
         if fn is fig_depth_time:
             out.append(fig_nav_uncertainty)
         if fn is fig_ctd_profiles:

@@ -7,6 +7,10 @@
   more than 1 % of the mass, and the deepest point.
 * :func:`fig_residuals` - measured and reference seafloor depth along the matched track, with the residual
   (measured - (map - bias)) in a panel under it.
+* :func:`fig_dtm_geo`, :func:`fig_dtm_quality`, :func:`fig_suitability_geo`, :func:`fig_msd_geo` (TERCOM's criterion
+  surface) and :func:`fig_matched_track_geo` (TERCOM Fig. 17) - every map of the report on lon/lat axes from the
+  product's map frame (``map_frame_origin_*``), with the dive's track, a scale bar clear of insets and the
+  degrees-and-minutes graticule.
 """
 
 from __future__ import annotations
@@ -459,7 +463,7 @@ def fig_dtm_quality(dp: DiveProducts, opt: FigureOptions) -> FigureResult:
     full_lon, full_lat = dtm_lonlat(ds)
     fig = Figure(figsize=(opt.width_in, opt.width_in * 0.52), layout="constrained")
     axes = np.atleast_1d(fig.subplots(1, len(panels)))
-    cov = None
+    cov, tracked = None, []
     for ax, v in zip(axes, panels, strict=True):
         # block means of k x k cells (a density map must not skip cells): soundings per cell, uncertainty
         a = np.asarray(ds[v].transpose("y", "x").values, float)
@@ -486,7 +490,10 @@ def fig_dtm_quality(dp: DiveProducts, opt: FigureOptions) -> FigureResult:
             fig.colorbar(im, ax=ax, orientation="horizontal", shrink=0.8, label="standard uncertainty of depth (m)",
                          extend="max")
             ax.set_title("(b) depth uncertainty" + (f" (median {np.nanmedian(fin):.2f} m)" if fin.size else ""))
-        _geo_axes(ax, full_lon, full_lat, narrow=True)
+        tracked = _track_on_map(ax, dp, opt)
+        _scale_bar(ax, _geo_axes(ax, full_lon, full_lat, narrow=True))
+    if tracked:
+        r.caption += f" Line: the dive's {tracked[0].get_label()}."
     if cov is not None:
         r.caption += f" {100 * cov:.1f} % of the {ds.sizes['x'] * ds.sizes['y']:,} cells hold at least one sounding."
     if k > 1:
@@ -644,7 +651,8 @@ def fig_suitability_geo(dp: DiveProducts, opt: FigureOptions) -> FigureResult:
         return fig_suitability(dp, opt)
     r = FigureResult("fig05_06_suitability", "Terrain suitability for matching", "Terrain",
                      "(left) terrain elevation standard deviation and (right) topographic information entropy per "
-                     "block (cf. TERCOM paper Figs. 5-6) in longitude/latitude (WGS 84, equal ground distances); "
+                     "block (cf. TERCOM paper Figs. 5-6) in longitude/latitude (WGS 84, equal ground distances; "
+                     "scale bar in each panel); "
                      "dashed: proposed matching region, x: launch point.")
     panels = [(v, lab, cm) for v, lab, cm in (("std_m", "elevation std (m)", CMAPS["std"]),
                                               ("entropy", "information entropy", "viridis"))
@@ -672,9 +680,146 @@ def fig_suitability_geo(dp: DiveProducts, opt: FigureOptions) -> FigureResult:
             ys = np.concatenate([np.full(50, y0), y0 + (y1 - y0) * t, np.full(50, y1), y1 - (y1 - y0) * t])
             rlon, rlat = fr.to_lonlat(xs, ys)
             ax.plot(rlon, rlat, "--", color="k", lw=1.2)
+        tracked = _track_on_map(ax, dp, opt)
         if launch and launch.get("lon") is not None:
             ax.plot(float(launch["lon"]), float(launch["lat"]), "x", color="#D55E00", ms=10, mew=2.5)
-        _geo_axes(ax, lon, lat, narrow=len(panels) > 1)
+        _scale_bar(ax, _geo_axes(ax, lon, lat, narrow=len(panels) > 1))
     if not (launch and launch.get("lon") is not None):
         r.caption = r.caption.replace(", x: launch point.", ".")
+    if tracked:
+        r.caption += f" Line: the dive's {tracked[0].get_label()}."
+    return _render(r, fig, opt)
+
+
+# ------------------------------------------------------------------------------------------ terrain matching maps
+def _track_on_map(ax: Any, dp: DiveProducts, opt: FigureOptions) -> list[Any]:
+    """The dive's track on a lon/lat map (a black-edged line, seen on light and dark maps): the best track of the
+    whole dive (``navigation``), else the matched bottom track; its legend handle (none without either)."""
+    for df, label in ((dp.navigation, "best track (navigation)"), (dp.track, "matched bottom track")):
+        if df is not None and {"lon", "lat"} <= set(df.columns) and len(df):
+            t = _thin(df, opt.max_points)
+            ax.plot(t["lon"], t["lat"], "-", color="k", lw=2.8)
+            return ax.plot(t["lon"], t["lat"], "-", color="#CC79A7", lw=1.4, label=label)
+    return []
+
+
+def _frame_of(ds: Any, dp: DiveProducts) -> Any:
+    """The map frame of a local-frame product: its own ``map_frame_origin_*`` attributes, else the dive's
+    (:func:`_frame`); ``None`` without one."""
+    from hadal.geo import LocalFrame
+
+    if ds is not None and "map_frame_origin_latitude_deg" in ds.attrs:
+        return LocalFrame(float(ds.attrs["map_frame_origin_latitude_deg"]),
+                          float(ds.attrs["map_frame_origin_longitude_deg"]))
+    return _frame(dp)
+
+
+def fig_msd_geo(dp: DiveProducts, opt: FigureOptions) -> FigureResult:
+    """TERCOM's criterion surface ([TERCOM Eq. 17] over every start position of the track, the paper's Fig. 16) on a
+    geographic map: the ``msd_surface.nc`` cells (map-frame x/y of the track's start) placed in longitude/latitude
+    by the map frame, the best match and the posterior's second mode, the dive's track, the launch point, a scale
+    bar and the degrees-and-minutes graticule; the map-frame figure when the product cannot be placed."""
+    from hadal.report.figures import _score_var, fig_msd_surface
+
+    ds = dp.msd
+    frame = _frame_of(ds, dp)
+    v = _score_var(ds) if ds is not None else None
+    if ds is None or v is None or frame is None:
+        return fig_msd_surface(dp, opt)
+    r = FigureResult("fig16_msd_surface", "TERCOM criterion surface", "Terrain matching",
+                     "Matching criterion of the measured seafloor-depth profile for every start position of the "
+                     "track on the reference map (cf. TERCOM paper §4.2, Fig. 16), in longitude/latitude (WGS 84, "
+                     "equal ground distances on both axes): the minimum (white circle) is the TERCOM fix; the dive's "
+                     "track and the launch point (x) drawn over it.")
+    crit = str(ds.attrs.get("criterion", "msd")).upper()
+    vals = np.asarray(ds[v].transpose("y", "x").values, float)
+    finite = vals[np.isfinite(vals)]
+    label = f"{crit} ({ds[v].attrs.get('units', '')})"
+    if finite.size and crit != "COR" and finite.min() > 0:
+        vals, label = np.log10(vals), f"log10 {label}"
+    X, Y = np.meshgrid(ds["x"].values.astype(float), ds["y"].values.astype(float))
+    lon, lat = (np.asarray(a, float) for a in frame.to_lonlat(X, Y))
+    fig = Figure(figsize=(opt.width_in * 0.8, opt.width_in * 0.66), layout="constrained")
+    ax = fig.subplots()
+    im = ax.pcolormesh(lon, lat, vals, shading="nearest", cmap=CMAPS["msd"], rasterized=True)
+    fig.colorbar(im, ax=ax, shrink=0.85, label=label)
+    handles = _track_on_map(ax, dp, opt)
+    best: tuple[float, float] | None = None
+    if ds.attrs.get("best_x_m") is not None and ds.attrs.get("best_y_m") is not None:
+        best = (float(ds.attrs["best_x_m"]), float(ds.attrs["best_y_m"]))
+    elif finite.size:
+        raw = np.asarray(ds[v].transpose("y", "x").values, float)
+        iy, ix = np.unravel_index(np.nanargmin(raw) if crit != "COR" else np.nanargmax(raw), raw.shape)
+        best = (float(ds["x"][ix]), float(ds["y"][iy]))
+    if best is not None:
+        blon, blat = frame.to_lonlat(*best)
+        handles += ax.plot(blon, blat, "o", mfc="none", mec="w", ms=14, mew=2, ls="none", label="best match")
+    sm = _second_mode(dp.fix or {})
+    if sm is not None:
+        slon, slat = frame.to_lonlat(float(sm["x"]), float(sm["y"]))
+        handles += ax.plot(slon, slat, "D", mfc="none", mec="c", ms=11, mew=2, ls="none",
+                           label=f"second mode ({100 * float(sm['mass']):.0f} % of the posterior mass)")
+        r.caption += " Cyan diamond: the posterior's second mode."
+    handles += _launch_on_map(ax, dp)
+    lat0 = _geo_axes(ax, lon, lat)
+    _scale_bar(ax, lat0)
+    if handles:  # dark legend: the markers are white/cyan
+        ax.legend(handles=handles, loc="upper right", facecolor="0.3", labelcolor="w", framealpha=0.85)
+    return _render(r, fig, opt)
+
+
+def _launch_on_map(ax: Any, dp: DiveProducts) -> list[Any]:
+    """The launch point (fix.json's, else dive.yaml's) as an x on a lon/lat map; its handle."""
+    la = (dp.fix or {}).get("launch")
+    la = la if isinstance(la, dict) and la.get("lon") is not None else dp.launch
+    if not la or la.get("lon") is None:
+        return []
+    return ax.plot(float(la["lon"]), float(la["lat"]), "x", color="#D55E00", ms=11, mew=2.5, ls="none",
+                   label="launch")
+
+
+def fig_matched_track_geo(dp: DiveProducts, opt: FigureOptions) -> FigureResult:
+    """TERCOM Fig. 17 on a geographic map: the matched bottom track on the hillshaded reference DTM around it (depth
+    contours), the launch point and the deepest point, in longitude/latitude with a scale bar and the graticule;
+    the map-frame figure when the track has no lon/lat or the DTM cannot be placed."""
+    from hadal.report.figures import _deep_xy, _launch_xy, fig_matched_track
+
+    tr, ds = dp.track, dp.dtm
+    frame = _frame_of(ds, dp)
+    if (tr is None or not {"lon", "lat", "x_east_m", "y_north_m"} <= set(tr.columns) or frame is None
+            or ds is None or "depth_m" not in ds or not {"x", "y"} <= set(ds["depth_m"].dims)):
+        return fig_matched_track(dp, opt)
+    r = FigureResult("fig17_matched_track", "Matched track on the reference map", "Terrain matching",
+                     "Bottom track placed on the hillshaded reference terrain (depth contours) by the match, in "
+                     "longitude/latitude (WGS 84, equal ground distances on both axes); x: launch point, *: deepest "
+                     "point (cf. TERCOM paper Fig. 17).")
+    px = list(tr["x_east_m"].to_numpy(float))
+    py = list(tr["y_north_m"].to_numpy(float))
+    deep = (dp.fix or {}).get("deepest_point")
+    for p in (_launch_xy(dp), _deep_xy(dp)):  # the map holds the track, the launch and the deepest point
+        if p is not None:
+            px.append(p[0])
+            py.append(p[1])
+    x, y = ds["x"].values.astype(float), ds["y"].values.astype(float)
+    pad = 600.0
+    kx = (x >= np.nanmin(px) - pad) & (x <= np.nanmax(px) + pad)
+    ky = (y >= np.nanmin(py) - pad) & (y <= np.nanmax(py) + pad)
+    if kx.sum() < 2 or ky.sum() < 2:
+        return fig_matched_track(dp, opt)
+    z = np.asarray(ds["depth_m"].transpose("y", "x").values, float)[np.ix_(ky, kx)]
+    X, Y = np.meshgrid(x[kx], y[ky])
+    lon, lat = (np.asarray(a, float) for a in frame.to_lonlat(X, Y))
+    fig = Figure(figsize=(opt.width_in * 0.8, opt.width_in * 0.66), layout="constrained")
+    ax = fig.subplots()
+    _shaded_dtm(fig, ax, lon, lat, x[kx], z)
+    t = _thin(tr, opt.max_points)
+    ax.plot(t["lon"], t["lat"], "-", color="w", lw=2.6)
+    handles = ax.plot(t["lon"], t["lat"], "-", color="#CC79A7", lw=1.4, label="matched track")
+    handles += _launch_on_map(ax, dp)
+    if isinstance(deep, dict) and deep.get("lon") is not None:
+        handles += ax.plot(float(deep["lon"]), float(deep["lat"]), "*", color="gold", mec="k", ms=16, ls="none",
+                           label="deepest point")
+    lat0 = _geo_axes(ax, lon, lat)
+    _scale_bar(ax, lat0)
+    ax.legend(handles=handles, loc="upper right", framealpha=0.85)
     return _render(r, fig, opt)

@@ -15,12 +15,13 @@ CTD time base) and computes, per sample:
 * ``gravity_m_s2`` at the sample's depth; ``altitude_corrected_m`` (sound-speed corrected altimeter range);
   ``seafloor_depth_m`` = depth + corrected altitude (Fig. 10); ``phase`` (descent/bottom/ascent).
 
-Publishes ``ctd`` (``ctd.parquet``; its per-sample N2 from the binned casts). The binned casts themselves
-(``profile.nc``: descent and ascent binned by pressure, or by depth with ``profile_axis: depth``; a cast SeaSoft's
-BinAvg already binned keeps its own bins and only the casts it holds: :func:`hadal.ctd.profile.prebinned_profile`,
-``profile_source_bins``) are published by the ``profile`` stage (:mod:`hadal.stages.profile`) after ``match``, each
-cast placed from the navigation product; the binning (:func:`hadal.ctd.derive.bin_casts`) is the same. External
-casts' binned profiles (``cast_profiles``) stay here: they are placed by their own header position.
+Publishes ``ctd`` (``ctd.parquet``; its per-sample N2 from the binned casts). The casts are binned once, here
+(:func:`hadal.ctd.derive.bin_casts`: descent and ascent binned by pressure, or by depth with ``profile_axis:
+depth``; a cast SeaSoft's BinAvg already binned keeps its own bins and only the casts it holds:
+:func:`hadal.ctd.profile.prebinned_profile`, ``profile_source_bins``), and kept in the ``ctd`` version
+(:data:`hadal.products.binned.BINNED_CASTS`); the ``profile`` stage (:mod:`hadal.stages.profile`) places them from
+the navigation product after ``match`` and publishes ``profile.nc``. External casts' binned profiles
+(``cast_profiles``) stay here: they are placed by their own header position.
 
 Underway records (a ``sources.cnv`` entry with ``kind: underway``: a thermosalinograph, :mod:`hadal.ctd.underway`)
 are not casts: each is published in ``trajectory`` (one CF trajectory NetCDF per record, positions from the
@@ -46,7 +47,14 @@ from hadal.ctd.derive import (
 )
 from hadal.errors import InputError
 from hadal.names import record_id as file_record_id
-from hadal.products.binned import bins_text, is_depth_axis, profile_attrs, source_binned, title_axis
+from hadal.products.binned import (
+    bins_text,
+    is_depth_axis,
+    profile_attrs,
+    source_binned,
+    title_axis,
+    write_binned_casts,
+)
 from hadal.products.underway import trajectory_dataset
 from hadal.settings.derive import DeriveParams as Params
 from hadal.stages import Stage, StageInputs
@@ -209,8 +217,8 @@ def run(ctx: StageContext) -> dict[str, ProductVersion]:
     user_profile = _read_user_profile(ctx, p)
     try:
         with step(ctx.progress, f"derive: {len(table):,} samples -> depth, TEOS-10, QC, profiles"):
-            df, meta, _ = derive_table(table, sensors_meta, p, ctx.dive, ctx.log, f"dive {ctx.dive_id}",
-                                             memory_limit_bytes=limit, overlying_profile=user_profile)
+            df, meta, binned = derive_table(table, sensors_meta, p, ctx.dive, ctx.log, f"dive {ctx.dive_id}",
+                                            memory_limit_bytes=limit, overlying_profile=user_profile)
     except InputError as exc:
         if user_profile is not None and str(exc).startswith(user_profile.source):
             raise
@@ -225,7 +233,8 @@ def run(ctx: StageContext) -> dict[str, ProductVersion]:
     with step(ctx.progress, "derive: writing ctd"), ctx.store.publish(
             ctx.dive_id, "ctd", parameters=params, upstream=[sensors], extra={"summary": _ctd_summary(meta)}) as draft:
         write_parquet(df, draft.path / "ctd.parquet", fields=fields, metadata=meta, provenance_from=draft)
-    # the binned casts (profile.nc) are the profile stage's, after match: placed from the navigation product
+        # the casts binned once (ctd's per-sample N2 is theirs): the profile stage places them after match
+        write_binned_casts(binned, draft.path)
     out: dict[str, Any] = {"ctd": draft.result}
     if cast_results:
         out["cast_profiles"], index = _publish_cast_profiles(ctx, p, params, [sensors, casts_pv], cast_results,

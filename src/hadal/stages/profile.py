@@ -2,8 +2,9 @@
 
 It runs after ``match`` (issue 46): ``derive`` publishes the per-sample ``ctd`` table, ``match`` the ``navigation``
 product (Kalman filter + RTS smoother over the launch, GNSS/USBL, terrain fix and dead reckoning, with a 2x2
-covariance per sample); this stage bins ``ctd`` into the descent and ascent casts exactly as ``derive`` does
-(:func:`hadal.ctd.derive.bin_casts`, the same bins, QC and per-cast times) and places each cast at its surface end
+covariance per sample); ``derive`` bins the descent and ascent casts once (:func:`hadal.ctd.derive.bin_casts`: bins,
+QC, per-cast times, the per-sample N2 of ``ctd``) and keeps them in its ``ctd`` version
+(:data:`hadal.products.binned.BINNED_CASTS`); this stage reads them and places each cast at its surface end
 (descent: its first sample, the launch; ascent: its last, the surfacing), where CF-1.8 §9 profiles and ERDDAP's
 ``cdm_profile_variables`` carry one ``lat``/``lon`` per profile and where CTD casts are located by convention (a
 ship's station at the start of the cast, an Argo float's profile at its surface fix).
@@ -123,30 +124,28 @@ def publish_profile(ctx: StageContext, p: Params, params: dict, upstream: list, 
     return draft.result
 
 
-def run(ctx: StageContext) -> dict[str, ProductVersion]:
-    import pandas as pd
+#: the ``ctd`` columns the placement reads (:func:`hadal.products.dsg.cast_positions`)
+CTD_COLUMNS = ("time", "phase", "lat", "lon", "pressure_dbar", "dr_east_m", "dr_north_m")
 
-    from hadal.ctd.derive import bin_casts
-    from hadal.ctd.profile import source_bins
+
+def run(ctx: StageContext) -> dict[str, ProductVersion]:
     from hadal.errors import InputError
+    from hadal.products.binned import read_binned_casts
     from hadal.products.dsg import POSITION_SOURCES, place_casts
-    from hadal.products.io import read_parquet_metadata
+    from hadal.products.io import read_parquet_metadata, read_parquet_table
     from hadal.steps import step
 
     p: Params = ctx.config.derive
     ctd_pv, sensors_pv = ctx.upstream("ctd"), ctx.upstream("sensors")
-    with step(ctx.progress, "profile: reading ctd"):
+    with step(ctx.progress, "profile: reading ctd and its binned casts"):
         path = ctd_pv.file("ctd.parquet")
         try:
-            df = pd.read_parquet(path)
-            meta, _ = read_parquet_metadata(path)
+            df, meta, _ = read_parquet_table(path, CTD_COLUMNS)
             sensors_meta, _ = read_parquet_metadata(sensors_pv.file("sensors.parquet"))
         except Exception as exc:  # unreadable upstream file: one-line error, not a traceback
             raise InputError(f"{path}: cannot read the ctd table ({type(exc).__name__}: {exc})") from None
+        prof = read_binned_casts(ctd_pv)
     nav_pv, nav = _navigation(ctx)
-    bins = source_bins(sensors_meta.get("cast")) if p.profile_source_bins == "keep" else None
-    with step(ctx.progress, f"profile: {len(df):,} samples -> binned casts"):
-        prof = bin_casts(df, meta, sensors_meta, p, ctx.log, f"dive {ctx.dive_id}", bins=bins)
     launch = ctx.dive.launch
     placed = place_casts(prof, df, navigation=nav, header=_header_position(sensors_meta),
                          launch=None if launch is None else (launch.latitude_deg, launch.longitude_deg),
@@ -161,7 +160,6 @@ def run(ctx: StageContext) -> dict[str, ProductVersion]:
 STAGE = Stage(
     name="profile", products=("profile",),
     inputs=StageInputs(upstream=("sensors", "ctd"), optional_upstream=("navigation",)),
-    options=Params, run=run, section="derive",  # derive's settings, all of them: they make the ctd it bins
-    warm_imports=("hadal.ctd.profile", "hadal.qc_derived", "hadal.products.io", "hadal.products.dsg",
-                  "hadal.registry"),
+    options=Params, run=run, section="derive",  # derive's settings: they made the casts it places
+    warm_imports=("hadal.products.io", "hadal.products.dsg", "hadal.registry"),
 )

@@ -193,7 +193,7 @@ def _product_variables(store_dive: Path):
             df = pd.read_parquet(f)
             for field in pq.read_schema(f):
                 yield prod_dir.name, f.name, field.name, df[field.name]
-        for f in sorted(versions[-1].rglob("*.nc")):
+        for f in sorted(versions[-1].glob("*.nc")):  # published files (internal/: a stage's hand-over)
             with xr.open_dataset(f, decode_times=False, mask_and_scale=True) as ds:
                 for n, v in ds.variables.items():
                     n = str(n)

@@ -453,18 +453,40 @@ def test_overview_zoom_inset_does_not_hide_the_track(full_store):
     assert covered(x0, y0) == min(covered(*c) for c in _INSET_CORNERS)
 
 
-def test_matched_track_figure_plots_the_track_in_the_map_frame(full_report, full_store):
+def test_matched_track_figure_is_geographic_on_the_dtms_own_lon_lat(full_report, full_store):
+    """TERCOM Fig. 17 on lon/lat axes: the track's points are the matched track's lon/lat rows, the deepest point
+    fix.json's, the hillshaded DTM cells sit at dtm.nc's own lon/lat (read with xarray: the oracle of the map
+    frame's projection), equal ground distances (aspect 1/cos(latitude)), a scale bar and a degrees-minutes
+    graticule."""
+    import xarray as xr
+
     fr = {f.key: f for f in full_report.figures}["fig17_matched_track"]
     assert_drawn(fr)
-    dp = load_products(ProductStore(full_store), "dive-a")
+    st = ProductStore(full_store)
+    dp = load_products(st, "dive-a")
     ax = fr.figure.axes[0]
-    assert (ax.get_xlabel(), ax.get_ylabel()) == ("x east (m, map frame)", "y north (m, map frame)")
+    assert (ax.get_xlabel(), ax.get_ylabel()) == ("longitude (WGS 84)", "latitude (WGS 84)")
     line = _line(ax, "matched track")
-    assert_points_of(line.get_xdata(), line.get_ydata(), dp.track, "x_east_m", "y_north_m", FAST.max_points)
+    assert_points_of(line.get_xdata(), line.get_ydata(), dp.track, "lon", "lat", FAST.max_points)
     deep = _line(ax, "deepest point")
-    assert (deep.get_xdata()[0], deep.get_ydata()[0]) == (dp.fix["deepest_point"]["x_east_m"],
-                                                          dp.fix["deepest_point"]["y_north_m"])
-    assert ax.get_aspect() == 1.0  # equal metres on both axes
+    assert (deep.get_xdata()[0], deep.get_ydata()[0]) == (dp.fix["deepest_point"]["lon"],
+                                                          dp.fix["deepest_point"]["lat"])
+    lat0 = 0.5 * sum(ax.get_ylim())
+    assert ax.get_aspect() == pytest.approx(1 / math.cos(math.radians(lat0)))
+    assert any(t.get_gid() == "scale_bar" for t in ax.texts)
+    assert "°" in ax.xaxis.get_major_formatter()(float(np.mean(ax.get_xlim())), 0)
+    mesh = next(c for c in ax.collections if c.__class__.__name__ == "QuadMesh")
+    corners = mesh.get_coordinates()  # (ny, nx, 2) cell centres (shading "nearest": given as centres)
+    with xr.open_dataset(st.latest("dive-a", "dtm").file("dtm.nc")) as ds:
+        lon, lat = ds["lon"].values, ds["lat"].values
+        if lon.ndim == 1:
+            lon, lat = np.meshgrid(lon, lat)
+    # the drawn cell centres (mean of each cell's corners) are a block of dtm.nc's cells, at their lon/lat
+    got = 0.25 * (corners[:-1, :-1] + corners[1:, 1:] + corners[:-1, 1:] + corners[1:, :-1])
+    iy, ix = np.unravel_index(np.argmin((lon - got[0, 0, 0]) ** 2 + (lat - got[0, 0, 1]) ** 2), lon.shape)
+    ny, nx = got.shape[:2]
+    want_lon, want_lat = lon[iy:iy + ny, ix:ix + nx], lat[iy:iy + ny, ix:ix + nx]
+    assert np.abs(got[..., 0] - want_lon).max() < 1e-7 and np.abs(got[..., 1] - want_lat).max() < 1e-7
 
 
 def test_normal_refinement_is_a_note_and_real_problems_stay_warnings(full_store):
@@ -737,3 +759,36 @@ def test_long_landing_transect_is_split_into_legible_panels(tmp_path):
                 assert x0 <= x <= x1
                 drawn.append((float(x), float(v)))
     assert sorted(drawn) == sorted(zip(best["x_m"], best["c_s"], strict=True))
+
+
+def test_msd_surface_figure_is_geographic_at_the_files_lon_lat(small_run):
+    """The TERCOM criterion surface drawn in lon/lat: its cells where msd_surface.nc's own CF grid mapping puts them
+    (the file's ``crs`` variable read by pyproj's ``CRS.from_cf``, x/y transformed to WGS 84: the oracle), the best
+    match among them, the dive's track, equal ground distances, a scale bar, a degrees-minutes graticule."""
+    import xarray as xr
+    from pyproj import CRS, Transformer
+
+    from hadal.report.geo_figures import fig_msd_geo
+
+    ctx, versions = small_run  # the sample dive's match product: its grid mapping as the match stage wrote it
+    with xr.open_dataset(versions["match"].file("msd_surface.nc"), decode_coords=False) as ds:
+        gm = ds[ds["score"].attrs["grid_mapping"]].attrs
+        X, Y = np.meshgrid(ds["x"].values.astype(float), ds["y"].values.astype(float))
+    lon, lat = Transformer.from_crs(CRS.from_cf(gm), CRS.from_epsg(4326), always_xy=True).transform(X, Y)
+    dp = load_products(ctx.store, ctx.dive_id)
+    fr = fig_msd_geo(dp, FAST)
+    assert_drawn(fr)
+    ax = fr.figure.axes[0]
+    assert (ax.get_xlabel(), ax.get_ylabel()) == ("longitude (WGS 84)", "latitude (WGS 84)")
+    mesh = next(c for c in ax.collections if c.__class__.__name__ == "QuadMesh")
+    c = mesh.get_coordinates()
+    got = 0.25 * (c[:-1, :-1] + c[1:, 1:] + c[:-1, 1:] + c[1:, :-1])
+    assert got.shape[:2] == lon.shape
+    assert np.abs(got[..., 0] - lon).max() < 1e-7 and np.abs(got[..., 1] - lat).max() < 1e-7
+    best = _line(ax, "best match")
+    assert lon.min() <= best.get_xdata()[0] <= lon.max() and lat.min() <= best.get_ydata()[0] <= lat.max()
+    track = [ln for ln in ax.get_lines() if "track" in ln.get_label()]
+    assert track and np.isfinite(np.asarray(track[0].get_xdata(), float)).any()
+    assert ax.get_aspect() == pytest.approx(1 / math.cos(math.radians(0.5 * sum(ax.get_ylim()))))
+    assert any(t.get_gid() == "scale_bar" for t in ax.texts)
+    assert "°" in ax.yaxis.get_major_formatter()(float(np.mean(ax.get_ylim())), 0)

@@ -172,3 +172,112 @@ def test_ctd_position_without_dead_reckoning_is_not_claimed():
     out = place_casts(prof, ctd, header=(12.5, 143.5), launch=(13.0, 144.0))
     assert [POSITION_SOURCES[int(v)] for v in out["cast_position_source"].values] == ["cast_header", "ctd_dead_reckoning"]
     assert out["lat"].values[1] == ctd["lat"].iloc[-1] and out["lat"].values[0] == 12.5
+
+
+# ---------------------------------------------------------------- the casts are binned once, by derive
+def test_casts_are_binned_once_and_profile_nc_holds_their_bin_means(tmp_path, monkeypatch, caplog):
+    """derive bins the casts once (``bin_casts`` called once for derive + profile, its warnings logged once) and the
+    profile stage places those bins: profile.nc's bin means are pandas' group means of ctd.parquet's accepted
+    samples by phase and floor(pressure / 10 dbar) (the oracle, computed here from the published table)."""
+    import hadal.ctd.derive as ctd_derive
+
+    calls = []
+    real = ctd_derive.bin_casts
+
+    def counted(*args, **kwargs):
+        calls.append(args[-1])
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(ctd_derive, "bin_casts", counted)
+    with caplog.at_level("INFO", logger="hadal"):
+        ctx = _derived(tmp_path)
+        out = run_stage("profile", ctx)
+    assert len(calls) == 1
+    ctd = pd.read_parquet(ctx.store.latest(ctx.dive_id, "ctd").file("ctd.parquet"))
+    ok = ctd["temperature_its90_degc_qc"].isin([1, 2]) if "temperature_its90_degc_qc" in ctd else True
+    if "loop_edit_bad" in ctd:
+        ok &= ~ctd["loop_edit_bad"].astype(bool)
+    c = ctd[ok & ctd["phase"].isin(["descent", "ascent"])]
+    want = c.groupby([c["phase"], np.floor(c["pressure_dbar"] / 10.0)])["temperature_its90_degc"].mean()
+    ds = xr.open_dataset(out["profile"].file("profile.nc"))
+    casts = ds["cast"].attrs["flag_meanings"].split()
+    rows = np.repeat(np.arange(ds.sizes["profile"]), ds["row_size"].values)
+    got = pd.Series(ds["temperature_its90_degc"].values.astype(float),
+                    index=pd.MultiIndex.from_arrays([[casts[int(ds["cast"].values[r])] for r in rows],
+                                                     np.floor(ds["pressure_dbar"].values.astype(float) / 10.0)]))
+    got = got.dropna()
+    assert len(got) > 100
+    assert np.allclose(got.to_numpy(), want.reindex(got.index).to_numpy(), rtol=1e-6, atol=1e-5)
+
+
+def test_binned_casts_kept_by_derive_read_back_exactly(tmp_path):
+    """The hand-over file (xarray's own NetCDF encoding) gives back the dataset written: string casts, times with
+    NaT, int8 flags with array attributes, NaN (oracle: xarray.testing.assert_identical on the original)."""
+    from hadal.products.io import read_dataset_exact, write_dataset_exact
+
+    t = np.array(["2018-10-06T23:00:00.123456789", "NaT"], dtype="datetime64[ns]")
+    ds = xr.Dataset({"temperature_its90_degc": (("cast", "pressure_dbar"), [[1.5, np.nan], [2.25, 3.0]],
+                                                {"units": "degree_Celsius"}),
+                     "temperature_its90_degc_qc": (("cast", "pressure_dbar"), np.array([[1, 9], [1, 3]], "i1"),
+                                                   {"flag_values": np.array([1, 3, 9], "i1"), "flag_meanings": "a b c"}),
+                     "count": (("cast", "pressure_dbar"), np.array([[4, 0], [2, 7]], "i4")),
+                     "time": ("cast", t, {"standard_name": "time"})},
+                    coords={"cast": np.array(["descent", "ascent"], dtype=object), "pressure_dbar": [5.0, 15.0]},
+                    attrs={"bin_size_dbar": 10.0, "profile_axis": "pressure"})
+    back = read_dataset_exact(write_dataset_exact(ds, tmp_path / "internal" / "x.nc"))
+    xr.testing.assert_identical(back, ds)
+    assert back["count"].dtype == np.int32 and back["time"].dtype == ds["time"].dtype
+    assert back["temperature_its90_degc_qc"].attrs["flag_values"].dtype == np.int8
+    assert all(not v.encoding for v in back.variables.values())
+
+
+def test_profile_of_a_ctd_version_without_binned_casts_is_a_one_line_error(tmp_path):
+    """A ``ctd`` version published before derive kept its binned casts (only ctd.parquet) is named, with what to do."""
+    import shutil
+
+    from hadal.errors import InputError
+
+    ctx = _derived(tmp_path)
+    old = ctx.store.latest(ctx.dive_id, "ctd")
+    with ctx.store.publish(ctx.dive_id, "ctd", parameters={}) as draft:
+        shutil.copy(old.file("ctd.parquet"), draft.path / "ctd.parquet")
+    ctx.pins.clear()
+    with pytest.raises(InputError, match="no binned casts.*re-run derive") as exc:
+        run_stage("profile", ctx)
+    assert "\n" not in str(exc.value) and draft.result.label in str(exc.value)
+
+
+def test_derive_and_profile_report_their_long_steps_through_the_progress(tmp_path):
+    """derive's and profile's steps reach the run's Progress (what the terminal and the Prefect log show), each
+    started and finished (hadal.progress.LogProgress's lines, read back from the log)."""
+    import logging
+
+    from hadal.progress import LogProgress
+
+    records: list[str] = []
+
+    class Keep(logging.Handler):
+        def emit(self, record):
+            records.append(record.getMessage())
+
+    handler = Keep(level=logging.INFO)
+    logging.getLogger("hadal").addHandler(handler)
+    old = logging.getLogger("hadal").level
+    logging.getLogger("hadal").setLevel(logging.INFO)
+    try:
+        from test_derive import _raw_dive, synth_sensors
+
+        ctx = make_context(_raw_dive(tmp_path), tmp_path / "store")
+        ctx.progress = LogProgress(interval_s=0.0, echo=False)
+        df, _, _ = synth_sensors(dt=20.0, max_depth=3000.0, bottom_s=600.0)
+        with ctx.store.publish(ctx.dive_id, "sensors", parameters={}) as draft:
+            write_parquet(df, draft.path / "sensors.parquet", metadata={"dive_id": ctx.dive_id})
+        run_stage("derive", ctx)
+        run_stage("profile", ctx)
+    finally:
+        logging.getLogger("hadal").removeHandler(handler)
+        logging.getLogger("hadal").setLevel(old)
+    text = "\n".join(records)
+    for what in ("derive: reading sensors.parquet", "derive: writing ctd", "profile: reading ctd and its binned casts"):
+        assert f"{what}: started" in text and f"{what}: done" in text, (what, text[-2000:])
+    assert sum("samples -> depth, TEOS-10, QC, profiles: done" in r for r in records) == 1
