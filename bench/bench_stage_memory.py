@@ -85,6 +85,8 @@ def main() -> None:
                     "main) run on its own store, each stage alternating with this tree's: the before/after ratios")
     ap.add_argument("--no-warmup", action="store_true", help="skip the untimed first run of each stage and tree "
                     "(at the first scale: it compiles each tree's numba caches)")
+    ap.add_argument("--raw", type=Path, help="measure this raw dive directory as the (one) scale given by --scales "
+                    "(e.g. a scaled sample made earlier, or its MCAP log alone for ingest/derive)")
     ap.add_argument("--keep", type=Path, help="directory for the dives and stores (kept; dives reused)")
     args = ap.parse_args()
     sys.path.insert(0, str(REPO / "src"))
@@ -97,7 +99,7 @@ def main() -> None:
     rows: dict[str, dict[float, dict]] = {}
     try:
         for k in scales:
-            raw = sample_dive(work, k, multibeam=not args.sensors_only)
+            raw = args.raw if args.raw else sample_dive(work, k, multibeam=not args.sensors_only)
             mcap = raw / "logs" / "haidou.mcap"
             print(f"x{k:g}: {raw} (MCAP {mcap.stat().st_size / 2**20:.0f} MiB)", flush=True)
             trees = [("", REPO / "src")] + ([(" (peer)", args.peer)] if args.peer else [])

@@ -79,29 +79,28 @@ FIXED = "float64 pressure\nfloat64 temperature\nfloat64 conductivity\nbuiltin_in
 
 def test_ros2_cdr_streamed_over_chunks_equals_whole_read(tmp_path):
     """ROS 2 CDR in many small chunks: a fixed-size type (hadal's vectorised decoder) timed by its header stamp,
-    a variable-size one (mcap-ros2-support's decoder: a string field) by log time, with a null-free gap and a value
-    out of the fail span; the streamed samples equal the whole-topic read of the mcap library's messages."""
+    a variable-size one (mcap-ros2-support's decoder: a string field) by log time; the streamed samples equal the
+    whole-topic read of the mcap library's messages."""
     from mcap_ros2.writer import Writer
 
     rng = np.random.default_rng(48)
-    n = 3000
+    n, t0 = 3000, 1_538_866_800
+    ctd = [{"pressure": float(x), "temperature": float(y), "conductivity": float(z),
+            "stamp": {"sec": t0 + i, "nanosec": int(ns)}}
+           for i, (x, y, z, ns) in enumerate(zip(rng.normal(5000, 10, n), rng.normal(2, 0.1, n),
+                                                 rng.normal(3.2, 0.01, n), rng.integers(0, 10**9, n), strict=True))]
+    gauge = [{"frame_id": "g" * int(k), "pressure": float(x)}
+             for k, x in zip(rng.integers(0, 9, n // 4), rng.normal(5000, 10, n // 4), strict=True)]
     p = tmp_path / "cdr.mcap"
     with open(p, "wb") as fh:
         w = Writer(fh, chunk_size=2048)
-        fixed = w.register_msgdef("hadal_test/msg/Ctd", FIXED)
-        text = w.register_msgdef("hadal_test/msg/Gauge", "string frame_id\nfloat64 pressure\n")
-        t0 = 1_538_866_800
-        for i in range(n):
-            ns = int(rng.integers(0, 10**9))
-            w.write_message("/ctd", fixed, {"pressure": float(rng.normal(5000, 10)),
-                                            "temperature": float(rng.normal(2, 0.1)),
-                                            "conductivity": float(rng.normal(3.2, 0.01)),
-                                            "stamp": {"sec": t0 + i, "nanosec": ns}},
-                            log_time=(t0 + i) * 10**9 + 7, publish_time=0)
+        schemas = {"/ctd": w.register_msgdef("hadal_test/msg/Ctd", FIXED),
+                   "/gauge": w.register_msgdef("hadal_test/msg/Gauge", "string frame_id\nfloat64 pressure\n")}
+        for i, m in enumerate(ctd):
+            w.write_message("/ctd", schemas["/ctd"], m, log_time=(t0 + i) * 10**9 + 7, publish_time=0)
             if i % 4 == 0:
-                w.write_message("/gauge", text, {"frame_id": "g" * int(rng.integers(0, 9)),
-                                                 "pressure": float(rng.normal(5000, 10))},
-                                log_time=(t0 + i) * 10**9 + 11, publish_time=0)
+                w.write_message("/gauge", schemas["/gauge"], gauge[i // 4], log_time=(t0 + i) * 10**9 + 11,
+                                publish_time=0)
         w.finish()
     vehicle = _cdr_vehicle({
         "ctd": {"topic": "/ctd", "time": {"field": "stamp", "format": "ros_time"},

@@ -629,10 +629,10 @@ def build_sensor_table(
     flag_dead_channels(flags, counts, meta)
     meta["qc_counts"] = counts
     df = pd.DataFrame({"time": pd.to_datetime(base_t, unit="ns", utc=True)})
+    for var in table_vars:  # each column moved into the table, not copied next to the one it came from
+        df[var] = columns.pop(var).astype(np.float64, copy=False)
     for var in table_vars:
-        df[var] = columns[var].astype(np.float64)
-    for var in table_vars:
-        df[f"{var}_qc"] = flags[f"{var}_qc"].astype(np.uint8)
+        df[f"{var}_qc"] = flags.pop(f"{var}_qc").astype(np.uint8, copy=False)
     validate_sensor_table(df)
     return df, meta
 
