@@ -633,6 +633,7 @@ def build_sensor_table(
         df[var] = columns.pop(var).astype(np.float64, copy=False)
     for var in table_vars:
         df[f"{var}_qc"] = flags.pop(f"{var}_qc").astype(np.uint8, copy=False)
+    del cleaned, base_t, base_vals, columns, flags, dt  # the table holds the samples now
     validate_sensor_table(df)
     return df, meta
 
@@ -823,7 +824,7 @@ def validate_sensor_table(df: pd.DataFrame, *, profile: bool = False) -> None:
         cols[f"{name}_qc"] = pa.Column("uint8", checks=pa.Check.isin(flag_values), nullable=False, required=False)
     schema = pa.DataFrameSchema(cols, strict=True, ordered=False)
     try:
-        schema.validate(df, lazy=False)
+        schema.validate(df, lazy=False, inplace=True)  # checks only (nothing coerced): no copy of the table
     except (pa.errors.SchemaError, pa.errors.SchemaErrors) as exc:
         first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
         raise InputError(f"sensor table does not follow schemas/sensors.yaml: {first}") from None
