@@ -133,7 +133,9 @@ def _checked_samples(sensors: pd.DataFrame, p: Params, memory_limit_bytes: float
     if len(sensors) == 0:
         raise InputError("sensors table is empty")
     check_profile_memory(sensors, p, memory_limit_bytes)
-    df = sensors.copy()
+    # pandas >= 3 copies on write: a shallow copy is already independent of ``sensors``, without a second copy of
+    # every sample while the table is derived (issue 48)
+    df = sensors.copy(deep=int(pd.__version__.split(".")[0]) < 3)
     df["time"] = pd.to_datetime(df["time"], utc=True)
     no_time = bool(df["time"].isna().all())  # a pressure-binned cast: rows in pressure order, no times
     if no_time:

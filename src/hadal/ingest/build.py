@@ -19,7 +19,7 @@ import yaml
 from hadal.errors import InputError
 from hadal.ingest.align import DEFAULT_METHODS, align_sensor, clean_times
 from hadal.ingest.cnv import SEASOFT_BAD_SCAN
-from hadal.ingest.csv_reader import SensorSamples, read_sensor_csv, sensor_from_records
+from hadal.ingest.csv_reader import RecordParts, SensorSamples, read_sensor_csv
 from hadal.ingest.mcap_reader import mcap_info, read_mcap
 from hadal.ingest.qc import VariableQC, fail_fraction, qc_table
 from hadal.ingest.units import CANONICAL_UNITS
@@ -146,15 +146,25 @@ def read_mcap_sensors(paths: Sequence[str | Path], vehicle: VehicleConfig, *, me
     :func:`hadal.ingest.mcap_reader.read_mcap`).
     """
     topics = {s.mcap.topic: name for name, s in vehicle.sensors.items() if s.mcap is not None}
-    per_topic: dict[str, list[tuple[np.ndarray, list[dict[str, Any]], str]]] = {}
+    # each topic's messages are taken one MCAP chunk at a time into its sensor's columns (RecordParts), over
+    # every file: no topic's decoded messages are ever all in memory at once
+    columns = {name: RecordParts(s.mcap, "") for name, s in vehicle.sensors.items() if s.mcap is not None}
+
+    def consumer(topic: str) -> Any:
+        takers = [columns[name].add for name, s in vehicle.sensors.items() if s.mcap is not None
+                  and s.mcap.topic == topic]
+        return lambda t, msgs: [take(t, msgs) for take in takers]
+
+    consume = {topic: consumer(topic) for topic in topics}
+    per_topic: dict[str, list[str]] = {}
     reports = []
     for p in paths:
-        data, report = read_mcap(p, topics, warn=True, memory_limit_bytes=memory_limit_bytes)
+        data, report = read_mcap(p, topics, warn=True, memory_limit_bytes=memory_limit_bytes, consume=consume)
         reports.append(report.as_dict())
         for topic, tp in data.items():
             check_ros2_mapping(Path(p).name, tp, vehicle.sensors[topics[topic]].mcap, topics[topic])
-            if tp.messages:
-                per_topic.setdefault(topic, []).append((tp.log_time_ns, tp.messages, Path(p).name))
+            if tp.n_read:
+                per_topic.setdefault(topic, []).append(Path(p).name)
     out: dict[str, SensorSamples] = {}
     names = ", ".join(Path(p).name for p in paths)
     if topics and paths and not per_topic:
@@ -194,12 +204,11 @@ def read_mcap_sensors(paths: Sequence[str | Path], vehicle: VehicleConfig, *, me
                        f"{tr.get('message_encoding')!r}); first error: {tr.get('first_decode_error') or 'unknown'}")
             _missing_channel(msg, s.required)
             continue
-        t = np.concatenate([x[0] for x in parts])
-        msgs = [m for x in parts for m in x[1]]
-        out[name] = sensor_from_records(name, t, msgs, s.mcap, "mcap:" + "+".join(x[2] for x in parts))
-        if s.mcap.time.field == "log_time" and msgs and isinstance(msgs[0], dict) \
-                and isinstance(out[name].stats, dict):
-            out[name].stats["time_field_alternatives"] = _time_fields(msgs[0])
+        cols = columns[name]
+        cols.source = "mcap:" + "+".join(parts)
+        out[name] = cols.samples(name)
+        if s.mcap.time.field == "log_time" and isinstance(cols.first, dict) and isinstance(out[name].stats, dict):
+            out[name].stats["time_field_alternatives"] = _time_fields(cols.first)
     return out, reports
 
 
@@ -620,10 +629,11 @@ def build_sensor_table(
     flag_dead_channels(flags, counts, meta)
     meta["qc_counts"] = counts
     df = pd.DataFrame({"time": pd.to_datetime(base_t, unit="ns", utc=True)})
+    for var in table_vars:  # each column moved into the table, not copied next to the one it came from
+        df[var] = columns.pop(var).astype(np.float64, copy=False)
     for var in table_vars:
-        df[var] = columns[var].astype(np.float64)
-    for var in table_vars:
-        df[f"{var}_qc"] = flags[f"{var}_qc"].astype(np.uint8)
+        df[f"{var}_qc"] = flags.pop(f"{var}_qc").astype(np.uint8, copy=False)
+    del cleaned, base_t, base_vals, columns, flags, dt  # the table holds the samples now
     validate_sensor_table(df)
     return df, meta
 
@@ -821,7 +831,7 @@ def validate_sensor_table(df: pd.DataFrame, *, profile: bool = False) -> None:
         cols[f"{name}_qc"] = pa.Column("uint8", checks=pa.Check.isin(flag_values), nullable=False, required=False)
     schema = pa.DataFrameSchema(cols, strict=True, ordered=False)
     try:
-        schema.validate(df, lazy=False)
+        schema.validate(df, lazy=False, inplace=True)  # checks only (nothing coerced): no copy of the table
     except (pa.errors.SchemaError, pa.errors.SchemaErrors) as exc:
         first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
         raise InputError(f"sensor table does not follow schemas/sensors.yaml: {first}") from None

@@ -567,61 +567,149 @@ def sensor_from_records(name: str, log_time_ns: np.ndarray, messages: list[dict[
     rejected, counted per field and type in ``stats["rejected_values"]`` (``stats["rejected_samples"]`` in
     all) and warned about. A time field of the wrong type (or unparseable) rejects the sample too
     (``stats["bad_times"]``).
+
+    The messages of one call are one part of :class:`RecordParts` (the MCAP reader feeds it chunk by chunk,
+    so that a topic's decoded messages are never all held at once; same result).
     """
-    n = len(messages)
-    where = f"{source}:{mapping.topic}"
-    time_types: dict[str, int] = {}
-    if mapping.time.field == "log_time":
-        t = parse_time(np.asarray(log_time_ns, dtype=np.int64), mapping.time.format)
-    else:
-        if n and not any(_has_field(m, mapping.time.field) for m in messages[:1000]):
-            raise InputError(f"{source}: topic {mapping.topic} has no time field {mapping.time.field!r}")
-        if mapping.time.format == "ros_time":
-            t = _ros_time_ns(field_column(messages, mapping.time.field))
+    parts = RecordParts(mapping, source)
+    parts.add(log_time_ns, messages)
+    return parts.samples(name)
+
+
+#: a mapped field (or the time field) is looked for in the first this many messages before "has no field"
+_FIELD_PROBE_MESSAGES = 1000
+
+
+class RecordParts:
+    """Decoded MCAP messages of one sensor's topic taken part by part (:meth:`add`: each part's mapped fields
+    become NumPy columns and its message objects can be dropped), then one :class:`SensorSamples`
+    (:meth:`samples`) equal to what all the messages at once give: every step is per message (field lookup,
+    :func:`_numeric`, :func:`_time_values`, :func:`parse_time`) except the checks that look at the first
+    :data:`_FIELD_PROBE_MESSAGES` messages, which follow the parts' offsets, and the integer ``unix_ns`` time
+    path, which is taken only when every part's times are integers (as one ``pandas.Series`` of them all)."""
+
+    def __init__(self, mapping: McapSource, source: str) -> None:
+        self.mapping, self.source = mapping, source
+        self.n = 0
+        self.times: list[np.ndarray] = []  # int64 ns per part (log_time, ros_time, or unix_* / strings parsed)
+        self.time_num: list[np.ndarray] = []  # unix_ns: each part's times as float64 (pandas' to_numeric)
+        self.time_int = True  # unix_ns: every part's times were integers (the exact integer path)
+        self.time_types: dict[str, int] = {}
+        self.time_seen = False
+        # per (variable, input field): each part's float64 column (a field may feed two variables)
+        self.cols: dict[tuple[str, str], list[np.ndarray]] = {(var, f): [] for var, fm in mapping.fields.items()
+                                                              for f in fm.inputs()}
+        self.field_seen = {f: False for _, f in self.cols}  # a non-null value, or the field in a probed message
+        self.rejected: list[np.ndarray] = []
+        self.per_field: dict[str, dict[str, Any]] = {}
+        self.valid: list[np.ndarray] = []
+        self.first: dict[str, Any] | None = None
+
+    def add(self, log_time_ns: np.ndarray, messages: list[dict[str, Any]]) -> None:
+        """One part: the log times and decoded messages (dicts) of consecutive messages of the topic."""
+        m, n = self.mapping, len(messages)
+        probe = messages[:max(_FIELD_PROBE_MESSAGES - self.n, 0)]
+        if n and self.first is None:
+            self.first = messages[0]
+        if m.time.field == "log_time":
+            self.times.append(parse_time(np.asarray(log_time_ns, dtype=np.int64), m.time.format))
         else:
-            tv, time_types = _time_values(field_column(messages, mapping.time.field), mapping.time.format)
-            t = parse_time(tv, mapping.time.format)
-    values, conversions = {}, []
-    rejected = np.zeros(n, dtype=bool)
-    per_field: dict[str, dict[str, Any]] = {}
-    for var, fm in mapping.fields.items():
-        cols = []
-        for f in fm.inputs():
-            col = field_column(messages, f)
-            if n and all(c is None for c in col) and not any(_has_field(m, f) for m in messages[:1000]):
-                raise InputError(f"{source}: topic {mapping.topic} has no field {f!r} "
-                                 f"(vehicle config maps it to {var})")
-            arr, bad, types = _numeric(col)
-            if bad.any():
-                rejected |= bad
-                d = per_field.setdefault(f, {"variable": var, "count": 0, "types": {}})
-                d["count"] += int(bad.sum())
+            self.time_seen = self.time_seen or any(_has_field(x, m.time.field) for x in probe)
+            if m.time.format == "ros_time":
+                self.times.append(_ros_time_ns(field_column(messages, m.time.field)))
+            else:
+                tv, types = _time_values(field_column(messages, m.time.field), m.time.format)
                 for k, c in types.items():
-                    d["types"][k] = d["types"].get(k, 0) + c
-            cols.append(arr)
-        values[var], recs = map_variable(var, fm, cols, name, where)
-        conversions.extend(recs)
-    if mapping.valid_field:
-        ok = np.array([v is True or v == 1 for v in field_column(messages, mapping.valid_field)], dtype=bool)
-        for var in values:
-            values[var] = np.where(ok, values[var], np.nan)
-    bad_t = _nat_mask(t)
-    if per_field:
-        warnings.warn(f"{where}: rejected {int(rejected.sum())} of {n} {name} sample(s) holding a value that is not "
-                      f"a number ({_rejected_text(per_field)}); values are never coerced", stacklevel=2)
-    if bad_t.any():
-        why = (" (" + ", ".join(f"{k} {c}" for k, c in time_types.items()) + " where "
-               + ("a number" if mapping.time.format.startswith("unix_") else "a string") + " belongs)"
-               if time_types else "")
-        warnings.warn(f"{where}: dropped {int(bad_t.sum())} of {n} {name} sample(s) without a valid time in "
-                      f"{mapping.time.field!r} ({mapping.time.format}){why}", stacklevel=2)
-    keep = ~(bad_t | rejected)
-    stats = {"messages": n, "bad_values": int(sum(d["count"] for d in per_field.values())),
-             "bad_times": int(bad_t.sum()), "rejected_samples": int(rejected.sum()), "rejected_values": per_field,
-             "time_field": mapping.time.field, "time_format": mapping.time.format}
-    if time_types:
-        stats["bad_time_types"] = time_types
-    return SensorSamples(name, t[keep], {k: v[keep] for k, v in values.items()}, source, stats, conversions)
+                    self.time_types[k] = self.time_types.get(k, 0) + c
+                self._add_times(tv)
+        rejected = np.zeros(n, dtype=bool)
+        for var, fm in m.fields.items():
+            for f in fm.inputs():
+                col = field_column(messages, f)
+                if not self.field_seen[f] and (not all(c is None for c in col)
+                                               or any(_has_field(x, f) for x in probe)):
+                    self.field_seen[f] = True
+                arr, bad, types = _numeric(col)
+                del col
+                if bad.any():
+                    rejected |= bad
+                    d = self.per_field.setdefault(f, {"variable": var, "count": 0, "types": {}})
+                    d["count"] += int(bad.sum())
+                    for k, c in types.items():
+                        d["types"][k] = d["types"].get(k, 0) + c
+                self.cols[var, f].append(arr)
+        self.rejected.append(rejected)
+        if m.valid_field:
+            self.valid.append(np.array([v is True or v == 1 for v in field_column(messages, m.valid_field)],
+                                       dtype=bool))
+        self.n += n
+
+    def _add_times(self, tv: list[Any]) -> None:
+        fmt = self.mapping.time.format
+        if fmt != "unix_ns":
+            self.times.append(parse_time(tv, fmt))
+            return
+        if not tv:
+            return
+        s = pd.Series(tv)
+        self.time_num.append(pd.to_numeric(s, errors="coerce").to_numpy(dtype=np.float64))
+        self.time_int = self.time_int and s.dtype.kind in "iu"
+        self.times.append(s.to_numpy(dtype=np.int64) if s.dtype.kind in "iu" else np.zeros(0, dtype=np.int64))
+
+    def _time_ns(self) -> np.ndarray:
+        if self.mapping.time.field == "log_time" or self.mapping.time.format != "unix_ns":
+            return np.concatenate(self.times) if self.times else np.zeros(0, dtype=np.int64)
+        # parse_time's unix_ns on all the values at once: the integers as they are when all parts are integers
+        num = np.concatenate(self.time_num) if self.time_num else np.zeros(0)
+        out = np.full(num.shape, np.iinfo(np.int64).min, dtype=np.int64)
+        ok = np.isfinite(num) & (np.abs(num) < 9.2e18)
+        if self.time_int and self.times:
+            out[ok] = np.concatenate(self.times)[ok]
+        else:
+            out[ok] = np.round(num[ok]).astype(np.int64)
+        return out
+
+    def samples(self, name: str) -> SensorSamples:
+        """The :class:`SensorSamples` of every part added (see :func:`sensor_from_records`)."""
+        m, n, source = self.mapping, self.n, self.source
+        where = f"{source}:{m.topic}"
+        if m.time.field != "log_time" and n and not self.time_seen:
+            raise InputError(f"{source}: topic {m.topic} has no time field {m.time.field!r}")
+        t = self._time_ns()
+        self.times = self.time_num = []
+        values, conversions = {}, []
+        for var, fm in m.fields.items():
+            cols = []
+            for f in fm.inputs():
+                if n and not self.field_seen[f]:
+                    raise InputError(f"{source}: topic {m.topic} has no field {f!r} (vehicle config maps it to {var})")
+                cols.append(np.concatenate(self.cols[var, f]) if self.cols[var, f] else np.zeros(0))
+                self.cols[var, f] = []
+            values[var], recs = map_variable(var, fm, cols, name, where)
+            conversions.extend(recs)
+        if m.valid_field:
+            ok = np.concatenate(self.valid) if self.valid else np.zeros(0, dtype=bool)
+            for var in values:
+                values[var] = np.where(ok, values[var], np.nan)
+        rejected = np.concatenate(self.rejected) if self.rejected else np.zeros(0, dtype=bool)
+        per_field, time_types = self.per_field, self.time_types
+        bad_t = _nat_mask(t)
+        if per_field:
+            warnings.warn(f"{where}: rejected {int(rejected.sum())} of {n} {name} sample(s) holding a value that is "
+                          f"not a number ({_rejected_text(per_field)}); values are never coerced", stacklevel=2)
+        if bad_t.any():
+            why = (" (" + ", ".join(f"{k} {c}" for k, c in time_types.items()) + " where "
+                   + ("a number" if m.time.format.startswith("unix_") else "a string") + " belongs)"
+                   if time_types else "")
+            warnings.warn(f"{where}: dropped {int(bad_t.sum())} of {n} {name} sample(s) without a valid time in "
+                          f"{m.time.field!r} ({m.time.format}){why}", stacklevel=2)
+        keep = ~(bad_t | rejected)
+        stats = {"messages": n, "bad_values": int(sum(d["count"] for d in per_field.values())),
+                 "bad_times": int(bad_t.sum()), "rejected_samples": int(rejected.sum()), "rejected_values": per_field,
+                 "time_field": m.time.field, "time_format": m.time.format}
+        if time_types:
+            stats["bad_time_types"] = time_types
+        return SensorSamples(name, t[keep], {k: v[keep] for k, v in values.items()}, source, stats, conversions)
 
 
 # --------------------------------------------------------------------------------------------------------------

@@ -20,7 +20,7 @@ Speed (issue 19): files of 4 MiB or more walk their chunks with compiled kernels
 per message until decoding), each chunk's payloads of a channel become one JSON array text decoded by
 msgspec in one call (json.loads where msgspec refuses what json accepts, message by message where a
 payload is corrupt), and ROS 2 CDR types of fixed size are decoded column-wise with NumPy
-(:func:`_decode_cdr_fixed`); :func:`_parse_chunk` and mcap-ros2-support's decoder remain the reference
+(:func:`_decode_cdr_fixed_part`); :func:`_parse_chunk` and mcap-ros2-support's decoder remain the reference
 and the general path.
 """
 
@@ -32,7 +32,7 @@ import re
 import struct
 import warnings
 import zlib
-from collections.abc import Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
@@ -67,6 +67,10 @@ class McapTopic:
     channel_ids: list[int] = field(default_factory=list)
     #: exact duplicates (same log time and payload on two channels of the topic) dropped by the merge
     duplicates_dropped: int = 0
+    #: messages read (decoded to an object): ``len(messages)``, or all the parts' when a consumer took them
+    n_read: int = 0
+    #: what the consumer given to :func:`read_mcap` returned for each part (``messages`` is then empty)
+    parts: list[Any] = field(default_factory=list)
 
 
 @dataclass
@@ -601,19 +605,18 @@ def _fixed_cdr_layout(schema_name: str, text: str) -> tuple[list[tuple[tuple[str
     return fields, pos
 
 
-def _decode_cdr_fixed(buf: _ChanBuf, sch: Any) -> list[dict[str, Any]] | None:
-    """Vectorised decoding of a fixed-layout ROS 2 message type (:func:`_fixed_cdr_layout`): every payload
-    of a chunk viewed as a row of one ``(messages, bytes)`` array, each field one strided NumPy column;
-    None (use the general decoder) when the type is not fixed-size, a payload's size differs from the
-    layout's (beyond up to 3 bytes of end padding) or its encapsulation header is not little-endian CDR."""
+def _cdr_fixed_layout_of(buf: _ChanBuf, sch: Any) -> Any:
+    """The fixed layout (:func:`_fixed_cdr_layout`) when every payload of ``buf`` fits it (size, little-endian
+    CDR encapsulation), else None (use the general decoder: a type that is not fixed-size, a payload whose size
+    differs from the layout's beyond up to 3 bytes of end padding, an encapsulation header that is not
+    little-endian CDR); checked over the whole channel before any part is decoded."""
     try:
         layout = _fixed_cdr_layout(sch.name or "", bytes(sch.data).decode("utf-8"))
     except (UnicodeDecodeError, ValueError):
         return None
     if layout is None or buf.n == 0:
         return None
-    fields, size = layout
-    cols: list[list[Any]] = [[] for _ in fields]
+    size = layout[1]
     for blob, lens in zip(buf.blobs, buf.lens, strict=True):
         width = int(lens[0])
         if not (4 + size <= width <= 4 + size + 3) or (lens != width).any():
@@ -621,6 +624,18 @@ def _decode_cdr_fixed(buf: _ChanBuf, sch: Any) -> list[dict[str, Any]] | None:
         rows = np.frombuffer(blob, dtype=np.uint8)[1:].reshape(len(lens), width + 1)
         if (rows[:, 0] != 0).any() or (rows[:, 1] != 1).any():  # CDR_LE encapsulation
             return None
+    return layout
+
+
+def _decode_cdr_fixed_part(blobs: list[Any], lens_: list[np.ndarray], layout: Any) -> list[dict[str, Any]]:
+    """Vectorised decoding of a fixed-layout ROS 2 message type (:func:`_fixed_cdr_layout`) of ``blobs`` (checked
+    by :func:`_cdr_fixed_layout_of`): every payload of a chunk viewed as a row of one ``(messages, bytes)`` array,
+    each field one strided NumPy column."""
+    fields, _size = layout
+    cols: list[list[Any]] = [[] for _ in fields]
+    for blob, lens in zip(blobs, lens_, strict=True):
+        width = int(lens[0])
+        rows = np.frombuffer(blob, dtype=np.uint8)[1:].reshape(len(lens), width + 1)
         for col, (_path, dt, off, count) in zip(cols, fields, strict=True):
             itemsize = np.dtype(dt).itemsize
             raw = np.ascontiguousarray(rows[:, 4 + off:4 + off + itemsize * max(count, 1)])
@@ -693,41 +708,52 @@ def _merge_channels(parts: list[tuple[list[int], list[bytes]]]) -> tuple[list[by
     return [d_all[i] for i in order], t[order], n_raw, dups
 
 
-def _topic_payloads(path: Path, topic: str, cids: list[int], channels: dict[int, Any], schemas: dict[int, Any],
-                    bufs: dict[int, _ChanBuf]) -> tuple[np.ndarray, int, int, list[bytes] | None,
-                                                        dict[int, bytes] | None, list[Any] | None, Any]:
-    """Take one topic's buffered messages out of ``bufs`` (released once taken: peak is one topic's payloads
-    plus everything decoded). Returns (log times, messages before dropping duplicates, duplicates dropped,
-    payloads still to decode, the first unusable JSON payload by index, JSON already decoded, fixed-layout
-    CDR already decoded); several channels of the topic are merged (:func:`_merge_channels`)."""
+#: one part of a topic (:func:`_topic_parts`)
+_Part = tuple[np.ndarray, "list[bytes] | None", "list[Any] | None", Any, "dict[int, bytes] | None"]
+
+
+def _topic_parts(path: Path, topic: str, cids: list[int], channels: dict[int, Any], schemas: dict[int, Any],
+                 bufs: dict[int, _ChanBuf]) -> tuple[int, int, Iterator[_Part]]:
+    """Take one topic's buffered messages out of ``bufs`` (released once taken). Returns (messages before dropping
+    duplicates, duplicates dropped, its parts): each part is (log times, payloads still to decode, JSON already
+    decoded, fixed-layout CDR already decoded, the first unusable JSON payload by index) of one MCAP chunk's
+    messages, decoded only when the part is
+    taken, so that a reader that keeps only columns of each part never holds a whole topic's messages as
+    objects. Several channels of the topic are merged (:func:`_merge_channels`) into one part."""
     cid, ch = cids[0], channels[cids[0]]
     sch = schemas.get(ch.schema_id)
     enc = ch.message_encoding
-    dups = 0
-    raw: list[bytes] | None = None
-    raw_json: dict[int, bytes] | None = None
-    msgs: list[Any] | None = None
-    fixed = None
-    if len(cids) == 1:
-        buf = bufs.pop(cid, None) or _ChanBuf()
-        t = buf.log_times()
-        n_raw = buf.n
-        if enc == "json":
-            msgs, _bad = buf.decode_json()
-            if not set(map(type, msgs)) <= {dict}:  # keep the first unusable payload (for the error text)
-                i0 = next(i for i, m in enumerate(msgs) if not isinstance(m, dict))
-                raw_json = {i0: buf.payload(i0)}
-        else:
-            if enc == "cdr" and sch is not None and sch.encoding == "ros2msg":
-                fixed = _decode_cdr_fixed(buf, sch)
-            if fixed is None:
-                raw = buf.payloads()
-        del buf
-    else:
+    if len(cids) > 1:
         _check_same_schema(path, topic, [(c, channels[c], schemas.get(channels[c].schema_id)) for c in cids])
         parts = [(b.log_times().tolist(), b.payloads()) for b in (bufs.pop(c, None) or _ChanBuf() for c in cids)]
         raw, t, n_raw, dups = _merge_channels(parts)
-    return t, n_raw, dups, raw, raw_json, msgs, fixed
+        return n_raw, dups, iter([(t, raw, None, None, None)])
+    buf = bufs.pop(cid, None) or _ChanBuf()
+    layout = _cdr_fixed_layout_of(buf, sch) if enc == "cdr" and sch is not None and sch.encoding == "ros2msg" \
+        else None
+
+    def parts_of(buf: _ChanBuf) -> Iterator[_Part]:
+        if not buf.blobs:  # no message: still one (empty) part, so that an unreadable encoding is said
+            yield np.zeros(0, dtype=np.int64), [], None, None, None
+        for lst in (buf.times, buf.blobs, buf.lens):
+            lst.reverse()
+        while buf.blobs:  # each chunk's part released as it is handed over
+            t, blob, lens = buf.times.pop(), buf.blobs.pop(), buf.lens.pop()
+            if enc == "json":
+                msgs = _decode_json_text(blob, len(lens))
+                if msgs is None:
+                    msgs = _decode_json(_split(blob, lens))[0]
+                raw_json = None
+                if not set(map(type, msgs)) <= {dict}:  # keep the first unusable payload (for the error text)
+                    i0 = next(i for i, m in enumerate(msgs) if not isinstance(m, dict))
+                    raw_json = {i0: _split(blob, lens)[i0]}
+                yield t, None, msgs, None, raw_json
+            elif layout is not None:
+                yield t, None, None, _decode_cdr_fixed_part([blob], [lens], layout), None
+            else:
+                yield t, _split(blob, lens), None, None, None
+
+    return buf.n, 0, parts_of(buf)
 
 
 def _decode_topic(path: Path, ch: Any, sch: Any, raw: list[bytes] | None, msgs: list[Any] | None, fixed: Any,
@@ -787,20 +813,36 @@ def _keep_objects(msgs: list[Any], t: np.ndarray, raw: list[bytes] | None, raw_j
 
 def _read_topic(path: Path, topic: str, cids: list[int], channels: dict[int, Any], schemas: dict[int, Any],
                 bufs: dict[int, _ChanBuf], per_chan: dict[int, int] | None, report: McapReport, warn: bool,
-                factory: list[Any]) -> McapTopic:
-    """Decode one topic (all its channels) into a :class:`McapTopic`; records it in ``report.topics``."""
+                factory: list[Any], consume: Callable[[np.ndarray, list[Any]], Any] | None = None) -> McapTopic:
+    """Decode one topic (all its channels) into a :class:`McapTopic`; records it in ``report.topics``.
+
+    ``consume``: called with each part's log times and messages (one MCAP chunk's, in file order); its results
+    are the topic's ``parts`` and its ``messages`` stay empty (the decoded objects of one part at a time)."""
     cid, ch = cids[0], channels[cids[0]]
     sch = schemas.get(ch.schema_id)
     enc = ch.message_encoding
-    t, n_raw, dups, raw, raw_json, msgs, fixed = _topic_payloads(path, topic, cids, channels, schemas, bufs)
-    msgs, dec = _decode_topic(path, ch, sch, raw, msgs, fixed, factory)
-    msgs, t, bad, first_error = _keep_objects(msgs, t, raw, raw_json, enc, dec)
-    del raw_json
+    n_raw, dups, parts = _topic_parts(path, topic, cids, channels, schemas, bufs)
+    times: list[np.ndarray] = []
+    kept: list[Any] = []
+    bad = n_read = 0
+    first_error = None
+    for t, raw, msgs, fixed, raw_json in parts:
+        msgs, dec = _decode_topic(path, ch, sch, raw, msgs, fixed, factory)
+        msgs, t, b, err = _keep_objects(msgs, t, raw, raw_json, enc, dec)
+        bad += b
+        first_error = first_error or err
+        n_read += len(msgs)
+        if consume is None:
+            times.append(t)
+            kept.extend(msgs)
+        else:
+            kept.append(consume(t, msgs))
+        del msgs, raw, raw_json
     report.decode_errors += bad
     expected = sum(per_chan.get(c, 0) for c in cids) if per_chan is not None else None
     report.topics[topic] = {
         "channel_id": cid, "schema": getattr(sch, "name", None), "schema_encoding": getattr(sch, "encoding", None),
-        "message_encoding": enc, "read": len(msgs), "expected": expected,
+        "message_encoding": enc, "read": n_read, "expected": expected,
         "lost": (expected - n_raw) if expected is not None else None, "decode_errors": bad,
         "first_decode_error": first_error,
     }
@@ -812,14 +854,16 @@ def _read_topic(path: Path, topic: str, cids: list[int], channels: dict[int, Any
                           f"({', '.join(str(c) for c in cids)}) with the same schema "
                           f"{getattr(sch, 'name', None)!r}: merged in time order, {dups} exact duplicate "
                           "message(s) dropped", stacklevel=3)  # the caller of read_mcap
-    return McapTopic(topic, getattr(sch, "name", None), getattr(sch, "encoding", None), enc, t, msgs,
-                     getattr(sch, "data", None), list(cids), dups)
+    log_t = np.concatenate(times) if times else np.zeros(0, dtype=np.int64)
+    return McapTopic(topic, getattr(sch, "name", None), getattr(sch, "encoding", None), enc, log_t,
+                     kept if consume is None else [], getattr(sch, "data", None), list(cids), dups, n_read,
+                     kept if consume is not None else [])
 
 
 def _count_lost(report: McapReport, out: dict[str, McapTopic], total: int | None, per_chan: dict[int, int] | None,
                 channels: dict[int, Any], tset: set[str] | None) -> None:
     """Fill ``report.messages_read`` / ``messages_expected`` / ``messages_lost`` from what was read."""
-    report.messages_read = sum(len(v.messages) for v in out.values())
+    report.messages_read = sum(v.n_read for v in out.values())
     if total is not None and tset is None:
         report.messages_expected = total
     elif per_chan is not None:
@@ -851,7 +895,9 @@ def _warn_lost(path: Path, report: McapReport) -> None:
 
 
 def read_mcap(path: str | Path, topics: Iterable[str] | None = None, *, warn: bool = True,
-              memory_limit_bytes: float | None = None) -> tuple[dict[str, McapTopic], McapReport]:
+              memory_limit_bytes: float | None = None,
+              consume: dict[str, Callable[[np.ndarray, list[Any]], Any]] | None = None
+              ) -> tuple[dict[str, McapTopic], McapReport]:
     """Read (and decode) the messages of ``topics`` (all when ``None``) from an MCAP file.
 
     JSON channels are decoded with :mod:`json`; ``ros2msg``/CDR channels with mcap-ros2-support's
@@ -861,6 +907,11 @@ def read_mcap(path: str | Path, topics: Iterable[str] | None = None, *, warn: bo
     empty or not MCAP, or a requested topic uses an encoding hadal cannot decode, or when its chunks and kept
     messages need more than ``memory_limit_bytes`` (the stage's ``resources.max_memory_gb``; default
     :func:`hadal.budget.memory_limit_bytes` of the defaults; :class:`_Walk`).
+
+    ``consume`` (topic -> function): a topic named there is decoded part by part (one MCAP chunk's messages:
+    their log times and decoded objects, in file order) and each part handed to its function as it is decoded;
+    the results are the topic's ``parts``, its ``messages`` stay empty: a topic's decoded messages are never
+    all held at once (:func:`hadal.ingest.build.read_mcap_sensors`, issue 48).
     """
     path = Path(path)
     _open_check(path)
@@ -878,7 +929,8 @@ def read_mcap(path: str | Path, topics: Iterable[str] | None = None, *, warn: bo
         if tset is None or ch.topic in tset:
             by_topic.setdefault(ch.topic, []).append(cid)
     for topic, cids in by_topic.items():
-        out[topic] = _read_topic(path, topic, cids, channels, schemas, bufs, per_chan, report, warn, ros2_factory)
+        out[topic] = _read_topic(path, topic, cids, channels, schemas, bufs, per_chan, report, warn, ros2_factory,
+                                 (consume or {}).get(topic))
     _count_lost(report, out, total, per_chan, channels, tset)
     if warn and report.damaged:
         _warn_lost(path, report)

@@ -114,36 +114,63 @@ def write_parquet(
     A table with a latitude and a longitude column (by their metadata) also gets a WKB ``geometry`` column and
     the GeoParquet 1.1 ``geo`` metadata (:mod:`hadal.products.geoparquet`).
     """
-    from hadal.products.geoparquet import GEOMETRY_COLUMN, add_point_geometry
+    from hadal.products.geoparquet import GEOMETRY_COLUMN, add_point_geometry, geo_metadata, position_columns
 
     path = Path(path)
     if not isinstance(df, pd.DataFrame):
         raise InputError(f"write_parquet({path.name}): expected a pandas DataFrame, got {type(df).__name__}")
-    table = pa.Table.from_pandas(df, preserve_index=False)
+    schema = pa.Schema.from_pandas(df, preserve_index=False)
     fields = fields or {}
-    cols = {f.name: column_attrs(f.name, fields.get(f.name), where=path.name) for f in table.schema}
-    table, geo = add_point_geometry(table, cols)  # GeoParquet 1.1: WKB points from the position columns
-    if geo is not None:
+    cols = {f.name: column_attrs(f.name, fields.get(f.name), where=path.name) for f in schema}
+    # GeoParquet 1.1: WKB points from the position columns (add_point_geometry, per row group) and the ``geo``
+    # metadata of all of them
+    pos = position_columns({k: v for k, v in cols.items() if k != GEOMETRY_COLUMN})
+    geo = None
+    if pos is not None:
+        geo = geo_metadata(df[pos[0]].to_numpy(float), df[pos[1]].to_numpy(float), lon_column=pos[0],
+                           lat_column=pos[1])
         cols[GEOMETRY_COLUMN] = column_attrs(GEOMETRY_COLUMN, fields.get(GEOMETRY_COLUMN), where=path.name)
-    new_fields = [f.with_metadata(cols[f.name]) if cols[f.name] else f for f in table.schema]
     dive, product = _store_location(path)
     prov_src = provenance_from if provenance_from is not None else (
         {"dive": dive, "product": product} if dive else None)
     block = {**dict(metadata or {}), "columns": cols, "provenance": provenance(prov_src)}
     text = json.dumps(block, default=_json_default)
-    schema_meta = dict(table.schema.metadata or {})
+
+    def arrow_slice(a: int) -> pa.Table:
+        table = pa.Table.from_pandas(df.iloc[a:a + PARQUET_ROW_GROUP_ROWS], schema=schema, preserve_index=False)
+        return add_point_geometry(table, cols)[0]
+
+    first = arrow_slice(0)
+    new_fields = [f.with_metadata(cols[f.name]) if cols[f.name] else f for f in first.schema]
+    schema_meta = dict(first.schema.metadata or {})
     schema_meta.pop(b"PANDAS_ATTRS", None)
     schema_meta[b"hadal"] = text.encode()
     schema_meta[b"PANDAS_ATTRS"] = json.dumps({"hadal": block}, default=_json_default).encode()
     if geo is not None:
         schema_meta[b"geo"] = json.dumps(geo, allow_nan=False).encode()
-    table = table.cast(pa.schema(new_fields, metadata=schema_meta))
-    # encoded in memory (a few MiB: compressed), then written with a free-space check and plain os.write:
-    # a full disk is one OSError (ENOSPC) and no partial file
+    out_schema = pa.schema(new_fields, metadata=schema_meta)
+    # encoded in memory (compressed), then written with a free-space check and plain os.write: a full disk is one
+    # OSError (ENOSPC) and no partial file. Converted and encoded one row group at a time (issue 48): the Arrow
+    # copy of the table is one row group's, never the whole table's; the row groups are pq.write_table's
+    # (PARQUET_ROW_GROUP_ROWS), so the file is the one a whole-table write makes.
     sink = pa.BufferOutputStream()
-    pq.write_table(table, sink, compression="zstd", use_dictionary=dictionary_columns(table.schema))
+    with pq.ParquetWriter(sink, out_schema, compression="zstd",
+                          use_dictionary=dictionary_columns(out_schema)) as writer:
+        a = 0
+        while True:
+            writer.write_table(first.cast(out_schema), row_group_size=PARQUET_ROW_GROUP_ROWS)
+            a += PARQUET_ROW_GROUP_ROWS
+            if a >= len(df):
+                break
+            first = arrow_slice(a)
+    del first
     _write_file(path, sink.getvalue())
     return path
+
+
+#: rows of one Parquet row group: pyarrow's default maximum (``pq.write_table``), the unit :func:`write_parquet`
+#: converts and encodes at a time
+PARQUET_ROW_GROUP_ROWS = 1024 * 1024
 
 
 def dictionary_columns(schema: pa.Schema) -> list[str]:

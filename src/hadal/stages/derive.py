@@ -227,6 +227,7 @@ def run(ctx: StageContext) -> dict[str, ProductVersion]:
     underway: list[tuple[str, pd.DataFrame, dict[str, Any], Path]] = []
     casts_pv, cast_results = _derive_external_casts(ctx, p, sensors_meta, limit, underway)
     _log_dive(ctx, df, meta, user_profile)
+    table = table.iloc[:0]  # only its columns are needed from here: the samples are not held while writing
 
     fields = _ctd_fields(ctx, p, df, table, sensor_fields)
     params = ctx.params("derive")

@@ -373,6 +373,7 @@ def run(ctx: StageContext) -> dict[str, ProductVersion]:
         inputs: list[Path] = [vpath, *read.used]
         with step(ctx.progress, "ingest: aligning, converting and QC of the sensors table"):
             df, meta = _sensor_table(ctx, p, vehicle, kind, read)
+        read.sensors = {}  # in the table now: the samples as read are not held while writing
         external = _external_casts(ctx, p, vehicle, cast_paths, set(inputs))
     messages = [str(w.message) for w in caught]
     for m in messages:

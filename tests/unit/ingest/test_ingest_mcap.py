@@ -335,8 +335,9 @@ def test_fixed_layout_cdr_decoded_vectorised_equal_to_mcap_ros2(tmp_path, monkey
             w.write_message("/text", text, {"name": f"n{i}", "v": float(i)}, log_time=1000 + i, publish_time=0)
         w.finish()
     calls = []
-    orig = MR._decode_cdr_fixed
-    monkeypatch.setattr(MR, "_decode_cdr_fixed", lambda b, s: (lambda r: calls.append((s.name, r is not None)) or r)(orig(b, s)))
+    orig = MR._cdr_fixed_layout_of
+    monkeypatch.setattr(MR, "_cdr_fixed_layout_of",
+                        lambda b, s: (lambda r: calls.append((s.name, r is not None)) or r)(orig(b, s)))
     data, report = read_mcap(p)
     assert sorted(calls) == [("hadal_test/msg/Fixed", True), ("hadal_test/msg/Text", False)]
     assert report.decode_errors == 0 and report.messages_read == 2 * N
