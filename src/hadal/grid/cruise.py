@@ -15,9 +15,10 @@ task writes its files atomically (a temporary name, then ``os.replace``), so a t
    stays below ~1e-5 (k = 1 + x^2 / 2R^2: 3e-5 at 50 km from the centre; Snyder, *Map Projections - A Working
    Manual*, USGS PP 1395, 1987, formula 8-7), well below a DTM cell.
 2. **read** (:func:`read_dive`, one task a dive): the dive's ``sources.multibeam`` files read with their
-   ``dive.yaml`` reading hints (:func:`hadal.grid.soundings.read_soundings_xy`, one file at a time so a bad file is
-   refused by name and the others kept) into the cruise frame; soundings beyond any ocean depth dropped (as the
-   ``dtm`` stage); x, y, depth written to the scratch directory; returns the extent and count. A dive that cannot
+   ``dive.yaml`` reading hints (:func:`hadal.grid.soundings.read_soundings`, one file at a time so a bad file is
+   refused by name and the others kept) into the cruise frame, each chunk written to the scratch directory as it
+   is read (x, y, depth; never the dive whole in memory); soundings beyond any ocean depth dropped (as the
+   ``dtm`` stage); returns the extent and count. A dive that cannot
    be read is named and left out (:class:`DiveRead` ``error``), the others kept.
 3. **grid spec**: the union of the dives' extents, snapped to the resolution (:func:`hadal.grid.points.
    make_grid_spec` ``snap=True``, as :func:`hadal.grid.multibeam.grid_multibeam` makes it from all the soundings).
@@ -101,6 +102,7 @@ class DiveRead:
     used: dict[str, str] = field(default_factory=dict)
     refused: dict[str, str] = field(default_factory=dict)
     error: str | None = None
+    n_files: int = 0  # files read: their soundings in ``directory``/f0, f1, ...
 
 
 @dataclass(frozen=True)
@@ -175,47 +177,56 @@ def cruise_frame(dives: Sequence[DiveSource]) -> LocalFrame:
 
 
 def read_dive(dive: DiveSource, frame: LocalFrame, scratch_dir: str) -> DiveRead:
-    """Step 2 of the module doc for one dive: its files read into ``frame`` (a file that fails is refused by name,
-    the others kept), soundings deeper/higher than anywhere on Earth dropped, ``x``, ``y``, ``depth`` written to
-    ``<scratch_dir>/read/<dive_id>/`` (atomically: a re-run replaces them). Never raises for bad input: a dive
-    with nothing readable comes back with ``error`` (named, left out of the cruise)."""
-    import numpy as np
+    """Step 2 of the module doc for one dive: its files read into ``frame`` chunk by chunk, each chunk written to
+    disk as it arrives (:func:`hadal.grid.soundings.read_soundings` spilling from the first sounding: the dive's
+    soundings never sit whole in memory), one directory a file, ``<scratch_dir>/read/<dive_id>/f<k>/`` (x, y,
+    depth); a file that fails is refused by name, the others kept. Soundings deeper/higher than anywhere on Earth
+    are counted here and dropped as they are read back. The dive's directory is written under a fresh name, then
+    renamed into place (a re-run replaces it whole). Never raises for bad input: a dive with nothing readable comes
+    back with ``error`` (named, left out of the cruise)."""
+    from hadal.grid.soundings import SpilledSoundings, read_soundings
 
-    from hadal.grid.points import point_extent
-    from hadal.grid.prior import MAX_ABS_DEPTH_M
-    from hadal.grid.soundings import read_soundings_xy
-
-    cols: list[list[np.ndarray]] = [[], [], []]
+    base = Path(scratch_dir) / "read"
+    base.mkdir(parents=True, exist_ok=True)
+    tmp = base / f".{dive.dive_id}-{uuid.uuid4().hex[:8]}"
+    tmp.mkdir()
     used: dict[str, str] = {}
     refused = dict(dive.refused)
-    for f, h in zip(dive.files, dive.hints, strict=True):
-        readers: dict[str, str] = {}
-        try:
-            x, y, z, _, _ = read_soundings_xy([Path(f)], frame, [h], readers=readers)
-        except (HadalError, OSError, ValueError, RuntimeError, KeyError, TypeError) as exc:
-            refused[f] = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
-            continue
-        used[f] = readers.get(f, "?")
-        for c, a in zip(cols, (x, y, z), strict=True):
-            c.append(np.asarray(a, np.float64))
-    if not used:
-        return DiveRead(dive.dive_id, None, refused=refused,
-                        error=f"dive {dive.dive_id!r}: no multibeam file could be read ("
-                              + "; ".join(f"{Path(k).name}: {v}" for k, v in refused.items()) + ")")
-    x, y, z = (np.concatenate(c) for c in cols)
-    bad = np.isfinite(z) & (np.abs(z) > MAX_ABS_DEPTH_M)
-    n_implausible = int(bad.sum())
-    if n_implausible:
-        x, y, z = x[~bad], y[~bad], z[~bad]
+    n = n_implausible = 0
+    exts = []
     try:
-        ext, _ = point_extent(x, y, z)
-    except InputError as exc:
-        return DiveRead(dive.dive_id, None, used=used, refused=refused, error=f"dive {dive.dive_id!r}: {exc}")
-    out = Path(scratch_dir) / "read" / dive.dive_id
-    out.mkdir(parents=True, exist_ok=True)
-    for name, a in (("x", x), ("y", y), ("z", z)):
-        _atomic_write(out / f"{name}.f8", a)
-    return DiveRead(dive.dive_id, str(out), int(len(z)), n_implausible, ext, used, refused)
+        for f, h in zip(dive.files, dive.hints, strict=True):
+            readers: dict[str, str] = {}
+            try:
+                sp, _, _ = read_soundings([Path(f)], frame, [h], readers=readers, spill_above_points=0,
+                                          scratch_dir=tmp)
+            except (HadalError, OSError, ValueError, RuntimeError, KeyError, TypeError) as exc:
+                refused[f] = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+                continue
+            assert isinstance(sp, SpilledSoundings)
+            os.replace(sp.dir, tmp / f"f{len(used)}")
+            used[f] = readers.get(f, "?")
+            n += sp.n - sp.n_implausible
+            n_implausible += sp.n_implausible
+            if sp.extent is not None:
+                exts.append(sp.extent)
+        if not used:
+            return DiveRead(dive.dive_id, None, refused=refused,
+                            error=f"dive {dive.dive_id!r}: no multibeam file could be read ("
+                                  + "; ".join(f"{Path(k).name}: {v}" for k, v in refused.items()) + ")")
+        if not exts:
+            return DiveRead(dive.dive_id, None, used=used, refused=refused,
+                            error=f"dive {dive.dive_id!r}: all {n} soundings have NaN/inf coordinates or depths")
+        ext = (min(e[0] for e in exts), min(e[1] for e in exts), max(e[2] for e in exts), max(e[3] for e in exts))
+        out = base / dive.dive_id
+        old = base / f".old-{dive.dive_id}-{uuid.uuid4().hex[:8]}"
+        if out.exists():
+            os.replace(out, old)
+        os.replace(tmp, out)
+        shutil.rmtree(old, ignore_errors=True)
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+    return DiveRead(dive.dive_id, str(out), n, n_implausible, ext, used, refused, n_files=len(used))
 
 
 def cruise_grid_spec(reads: Sequence[DiveRead], resolution_m: float, *, max_cells: int | None = None) -> GridSpec:
@@ -235,22 +246,18 @@ def partition_dive(read: DiveRead, scheme: TileScheme, scratch_dir: str) -> Dive
     ``with_xy``, for the spike test; points
     clamped into the edge cells as the grid covers them all). Written in a fresh directory, then renamed into
     place: a re-run (the worker died) replaces the directory whole."""
-    import numpy as np
-
+    from hadal.grid.soundings import SpilledSoundings
     from hadal.grid.tiles import PARTITION_CHUNK_POINTS, TilePartition
 
     base = Path(scratch_dir) / "tiles"
     base.mkdir(parents=True, exist_ok=True)
     try:
         d = Path(read.directory or "")
-        x = np.fromfile(d / "x.f8")
-        y = np.fromfile(d / "y.f8")
-        z = np.fromfile(d / "z.f8")
         part = TilePartition(scheme, scratch_dir=base, check_inside=False, with_xy=True)
         try:
-            for a in range(0, len(z), PARTITION_CHUNK_POINTS):
-                sl = slice(a, a + PARTITION_CHUNK_POINTS)
-                part.add(x[sl], y[sl], z[sl])
+            for k in range(read.n_files):
+                for x, y, z in SpilledSoundings.open(d / f"f{k}").chunks(PARTITION_CHUNK_POINTS):
+                    part.add(x, y, z)
         except BaseException:
             part.close()
             raise

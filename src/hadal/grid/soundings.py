@@ -88,6 +88,18 @@ class SpilledSoundings:
         self._ext_xy = [np.inf, np.inf, -np.inf, -np.inf]
         self._ext = [np.inf, np.inf, -np.inf, -np.inf]
 
+    @classmethod
+    def open(cls, directory) -> SpilledSoundings:
+        """Soundings spilled before into ``directory`` (e.g. by another process), to read back
+        (:meth:`chunks`); the statistics are not kept."""
+        sp = cls.__new__(cls)
+        sp.dir = Path(directory)
+        sp.n = (sp.dir / "z.f8").stat().st_size // 8 if (sp.dir / "z.f8").exists() else 0
+        sp.n_implausible = sp.n_xy = 0
+        sp._ext_xy = [np.inf, np.inf, -np.inf, -np.inf]
+        sp._ext = [np.inf, np.inf, -np.inf, -np.inf]
+        return sp
+
     def __enter__(self) -> SpilledSoundings:
         return self
 
