@@ -372,6 +372,37 @@ def block_stats_kernel(kb, zb, seg, shift, m, want_m2, want_sorted, nthreads):  
     return count, mean, m2, med, zmin, zmax
 
 
+@njit(cache=True, nogil=True)
+def cell_grouped_stats(k, z, m, want_m2):  # pragma: no cover - compiled
+    """:func:`block_stats_kernel` with ``want_sorted`` for points already indexed ``k`` (``0 <= k < m``) over a
+    few cells (a tile): one counting sort of the values by cell (file order kept inside a cell), then every
+    cell's statistics in one pass over the grouped values (:func:`_block_sorted_stats`, so the same bits), no
+    block partition first. Single-threaded (CPU time, not latency, is what a tile costs)."""
+    count = np.zeros(m, np.int64)
+    mean = np.full(m, np.nan)
+    m2 = np.full(m if want_m2 else 0, np.nan)
+    med = np.full(m, np.nan)
+    zmin = np.full(m, np.nan)
+    zmax = np.full(m, np.nan)
+    cnt = np.zeros(m, np.int64)
+    for i in range(k.size):
+        cnt[k[i]] += 1
+    start = np.empty(m + 1, np.int64)
+    acc = 0
+    for j in range(m):
+        start[j] = acc
+        acc += cnt[j]
+    start[m] = acc
+    fill = start[:m].copy()
+    buf = np.empty(acc)
+    for i in range(k.size):
+        j = k[i]
+        buf[fill[j]] = z[i]
+        fill[j] += 1
+    _block_sorted_stats(buf, start, m, 0, cnt, count, mean, want_m2, m2, med, zmin, zmax)
+    return count, mean, m2, med, zmin, zmax
+
+
 @njit(inline="always")
 def _cell_of(xi, yi, x0, y0, inv_h, nx, ny):  # pragma: no cover - compiled
     """Cell index of a finite point, clamped into the grid: floor and clamp in floating point before the integer
