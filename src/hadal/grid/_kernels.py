@@ -242,16 +242,22 @@ def _block_two_pass_m2(kb, zb, seg, b, sz, mean, s2):  # pragma: no cover - comp
 
 
 @njit(inline="always")
-def _block_grouped_values(kb, zb, seg, b, sz, cnt, total):  # pragma: no cover - compiled
-    """Block ``b``'s ``total`` values grouped by cell (a counting sort, file order kept inside a cell):
-    ``(buf, start)``, cell ``j``'s values in ``buf[start[j]:start[j + 1]]``."""
+def _cell_starts(cnt, sz):  # pragma: no cover - compiled
+    """The counting sort's cell starts (``sz + 1``, the last the total) and write pointers of counts ``cnt``."""
     start = np.empty(sz + 1, np.int64)
     acc = 0
     for j in range(sz):
         start[j] = acc
         acc += cnt[j]
     start[sz] = acc
-    fill = start[:sz].copy()
+    return start, start[:sz].copy()
+
+
+@njit(inline="always")
+def _block_grouped_values(kb, zb, seg, b, sz, cnt, total):  # pragma: no cover - compiled
+    """Block ``b``'s ``total`` values grouped by cell (a counting sort, file order kept inside a cell):
+    ``(buf, start)``, cell ``j``'s values in ``buf[start[j]:start[j + 1]]``."""
+    start, fill = _cell_starts(cnt, sz)
     buf = np.empty(total)
     for ci in range(seg.shape[0]):
         for p in range(seg[ci, b], seg[ci, b + 1]):
@@ -387,14 +393,8 @@ def cell_grouped_stats(k, z, m, want_m2):  # pragma: no cover - compiled
     cnt = np.zeros(m, np.int64)
     for i in range(k.size):
         cnt[k[i]] += 1
-    start = np.empty(m + 1, np.int64)
-    acc = 0
-    for j in range(m):
-        start[j] = acc
-        acc += cnt[j]
-    start[m] = acc
-    fill = start[:m].copy()
-    buf = np.empty(acc)
+    start, fill = _cell_starts(cnt, m)
+    buf = np.empty(start[m])
     for i in range(k.size):
         j = k[i]
         buf[fill[j]] = z[i]

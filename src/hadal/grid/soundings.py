@@ -4,6 +4,7 @@ real-time terrain patch of MRF fine matching)."""
 
 from __future__ import annotations
 
+import contextlib
 from pathlib import Path
 
 import numpy as np
@@ -65,7 +66,7 @@ def reader_description(info: dict) -> str:
 
 
 
-class SpilledSoundings:
+class SpilledSoundings(contextlib.AbstractContextManager):
     """x, y, depth soundings appended chunk by chunk to three raw float64 files in a fresh scratch directory
     (``hadal-soundings-*`` under ``scratch_dir``, default the system temp dir), so a dive's soundings never sit
     whole in memory (issue 48); a context manager that removes the directory. While they are written, the
@@ -100,14 +101,12 @@ class SpilledSoundings:
         sp._ext = [np.inf, np.inf, -np.inf, -np.inf]
         return sp
 
-    def __enter__(self) -> SpilledSoundings:
-        return self
-
     def __exit__(self, *exc) -> None:
+        """Remove the scratch directory (:meth:`close`)."""
         self.close()
 
     def close(self) -> None:
-        """Remove the scratch directory."""
+        """Remove the scratch directory and the soundings in it."""
         import shutil
 
         shutil.rmtree(self.dir, ignore_errors=True)
