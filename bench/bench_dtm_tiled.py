@@ -6,6 +6,11 @@ threads around ``make_dtm`` (imports and numba's start-up, one warm-up call on a
 RSS its ``VmHWM``. The products' arrays are compared bit for bit (every data variable of the DTM).
 
     PYTHONPATH=src .venv/bin/python bench/bench_dtm_tiled.py DIVE_DIR   # e.g. `hadal synth /tmp/sample`
+    PYTHONPATH=src .venv/bin/python bench/bench_dtm_tiled.py DIVE_DIR --times 4   # a dive 4x denser
+
+Out of core the soundings go to disk chunk by chunk as they are read (:class:`hadal.grid.soundings.
+SpilledSoundings`), so the peak RSS of the two variants is the in-memory DTM's against the streamed one's.
+``--times K`` lists the dive's multibeam files K times over (a survey K times as dense: the same lines run again).
 
 Decides whether the stage grids out of core always (identical and no dearer) or only above the memory budget.
 """
@@ -30,15 +35,15 @@ def vm_hwm_bytes() -> int:
     return -1
 
 
-def child(dive_dir: Path, variant: str, out: Path) -> None:
+def child(dive_dir: Path, variant: str, out: Path, times: int = 1) -> None:
     from hadal.dive import load_dive, resolve_source
     from hadal.settings.pipeline import load_config
     from hadal.stages.grid import make_dtm
 
     dive, raw = load_dive(dive_dir)
     cfg = load_config(raw / "pipeline.yaml" if (raw / "pipeline.yaml").exists() else None)
-    files = [resolve_source(raw, sf) for sf in dive.sources.multibeam]
-    hints = list(dive.sources.multibeam)
+    files = [resolve_source(raw, sf) for sf in dive.sources.multibeam] * times
+    hints = list(dive.sources.multibeam) * times
     frame = dive.frame("grid")
     tiled = variant == "tiled"
     make_dtm(files[:1], frame, cfg.grid, hints[:1], out_of_core=tiled)  # warm-up: kernels loaded
@@ -55,18 +60,20 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("dive")
     ap.add_argument("--repeats", type=int, default=1, help="A B B A rounds")
+    ap.add_argument("--times", type=int, default=1, help="list the dive's multibeam files this many times over")
     ap.add_argument("--child", default=None, help=argparse.SUPPRESS)
     ap.add_argument("--out", default=None, help=argparse.SUPPRESS)
     a = ap.parse_args(argv)
     if a.child:
-        child(Path(a.dive), a.child, Path(a.out))
+        child(Path(a.dive), a.child, Path(a.out), a.times)
         return 0
     rows: dict[str, list[dict]] = {"memory": [], "tiled": []}
     with tempfile.TemporaryDirectory(prefix="hadal-bench-dtm-") as td:
         for _ in range(a.repeats):
             for v in ("memory", "tiled", "tiled", "memory"):
                 out = Path(td) / f"{v}.npz"
-                r = subprocess.run([sys.executable, __file__, a.dive, "--child", v, "--out", str(out)],
+                r = subprocess.run([sys.executable, __file__, a.dive, "--child", v, "--out", str(out),
+                                    "--times", str(a.times)],
                                    capture_output=True, text=True)
                 if r.returncode:
                     raise SystemExit(f"{v} failed:\n{r.stderr[-3000:]}")

@@ -242,16 +242,22 @@ def _block_two_pass_m2(kb, zb, seg, b, sz, mean, s2):  # pragma: no cover - comp
 
 
 @njit(inline="always")
-def _block_grouped_values(kb, zb, seg, b, sz, cnt, total):  # pragma: no cover - compiled
-    """Block ``b``'s ``total`` values grouped by cell (a counting sort, file order kept inside a cell):
-    ``(buf, start)``, cell ``j``'s values in ``buf[start[j]:start[j + 1]]``."""
+def _cell_starts(cnt, sz):  # pragma: no cover - compiled
+    """The counting sort's cell starts (``sz + 1``, the last the total) and write pointers of counts ``cnt``."""
     start = np.empty(sz + 1, np.int64)
     acc = 0
     for j in range(sz):
         start[j] = acc
         acc += cnt[j]
     start[sz] = acc
-    fill = start[:sz].copy()
+    return start, start[:sz].copy()
+
+
+@njit(inline="always")
+def _block_grouped_values(kb, zb, seg, b, sz, cnt, total):  # pragma: no cover - compiled
+    """Block ``b``'s ``total`` values grouped by cell (a counting sort, file order kept inside a cell):
+    ``(buf, start)``, cell ``j``'s values in ``buf[start[j]:start[j + 1]]``."""
+    start, fill = _cell_starts(cnt, sz)
     buf = np.empty(total)
     for ci in range(seg.shape[0]):
         for p in range(seg[ci, b], seg[ci, b + 1]):
@@ -369,6 +375,31 @@ def block_stats_kernel(kb, zb, seg, shift, m, want_m2, want_sorted, nthreads):  
                 for j in range(sz):
                     if cnt[j] > 0:
                         m2[base + j] = s2[j]
+    return count, mean, m2, med, zmin, zmax
+
+
+@njit(cache=True, nogil=True)
+def cell_grouped_stats(k, z, m, want_m2):  # pragma: no cover - compiled
+    """:func:`block_stats_kernel` with ``want_sorted`` for points already indexed ``k`` (``0 <= k < m``) over a
+    few cells (a tile): one counting sort of the values by cell (file order kept inside a cell), then every
+    cell's statistics in one pass over the grouped values (:func:`_block_sorted_stats`, so the same bits), no
+    block partition first. Single-threaded (CPU time, not latency, is what a tile costs)."""
+    count = np.zeros(m, np.int64)
+    mean = np.full(m, np.nan)
+    m2 = np.full(m if want_m2 else 0, np.nan)
+    med = np.full(m, np.nan)
+    zmin = np.full(m, np.nan)
+    zmax = np.full(m, np.nan)
+    cnt = np.zeros(m, np.int64)
+    for i in range(k.size):
+        cnt[k[i]] += 1
+    start, fill = _cell_starts(cnt, m)
+    buf = np.empty(start[m])
+    for i in range(k.size):
+        j = k[i]
+        buf[fill[j]] = z[i]
+        fill[j] += 1
+    _block_sorted_stats(buf, start, m, 0, cnt, count, mean, want_m2, m2, med, zmin, zmax)
     return count, mean, m2, med, zmin, zmax
 
 

@@ -15,25 +15,31 @@ task writes its files atomically (a temporary name, then ``os.replace``), so a t
    stays below ~1e-5 (k = 1 + x^2 / 2R^2: 3e-5 at 50 km from the centre; Snyder, *Map Projections - A Working
    Manual*, USGS PP 1395, 1987, formula 8-7), well below a DTM cell.
 2. **read** (:func:`read_dive`, one task a dive): the dive's ``sources.multibeam`` files read with their
-   ``dive.yaml`` reading hints (:func:`hadal.grid.soundings.read_soundings_xy`, one file at a time so a bad file is
-   refused by name and the others kept) into the cruise frame; soundings beyond any ocean depth dropped (as the
-   ``dtm`` stage); x, y, depth written to the scratch directory; returns the extent and count. A dive that cannot
+   ``dive.yaml`` reading hints (:func:`hadal.grid.soundings.read_soundings`, one file at a time so a bad file is
+   refused by name and the others kept) into the cruise frame, each chunk written to the scratch directory as it
+   is read (x, y, depth; never the dive whole in memory); soundings beyond any ocean depth dropped (as the
+   ``dtm`` stage); returns the extent and count. A dive that cannot
    be read is named and left out (:class:`DiveRead` ``error``), the others kept.
 3. **grid spec**: the union of the dives' extents, snapped to the resolution (:func:`hadal.grid.points.
    make_grid_spec` ``snap=True``, as :func:`hadal.grid.multibeam.grid_multibeam` makes it from all the soundings).
 4. **partition** (:func:`partition_dive`, one task a dive): the dive's soundings cut by tile
    (:class:`hadal.grid.tiles.TilePartition`: the in-memory kernels' cell rule) into per-tile files of its own.
-5. **reduce** (:func:`reduce_tile`; one task a group of consecutive tiles holding >= :data:`MIN_TASK_POINTS`
-   soundings, :func:`group_tiles`): the tile's points of every dive, in dive order, reduced by
+5. **spike test** (``grid.spike_removal``; the dive ``dtm``'s own, :func:`hadal.grid.tiles.spike_flags_of_tile`):
+   the dives' partitions read as one (:func:`dive_union`: a tile's points of every dive in dive order, input
+   indices offset by the dives before), the noise floor ``sigma_0`` from every tile's cell MADs
+   (:func:`hadal.grid.tiles.tile_cell_mads`, one task a group of tiles; their median in the driver), then
+   :func:`spike_tiles` per group: the per-cell test and the neighbour test whose halo reaches into the tiles
+   around, whichever dive their soundings come from; flags written per tile.
+6. **reduce** (:func:`reduce_tile`; one task a group of consecutive tiles holding >= :data:`MIN_TASK_POINTS`
+   soundings, :func:`group_tiles`): the tile's points of every dive, in dive order, less the spikes, reduced by
    :func:`hadal.grid.multibeam.dtm_cell_layers`, the per-tile function of the in-memory DTM.
-6. **assemble** (:func:`assemble`): the tiles' layers in their windows, small holes filled
+7. **assemble** (:func:`assemble`): the tiles' layers in their windows, small holes filled
    (:func:`hadal.grid.multibeam.fill_dtm_holes`), georeferenced (:func:`hadal.grid.multibeam.add_geo`).
 
 A cell's statistics depend only on its soundings in input order, which the partition keeps (dives in the given
-order, each dive's files and soundings in order), so the cruise DTM equals
-:func:`hadal.grid.multibeam.grid_multibeam` of all the soundings concatenated in the cruise frame with
-``remove_spikes=False`` (the spike test needs a cruise-wide noise floor and a halo across dives: not done here,
-``spike_filter = "none"``).
+order, each dive's files and soundings in order), and the spike test is exact across tile seams and dives
+(:mod:`hadal.grid.tiles`), so the cruise DTM equals :func:`hadal.grid.multibeam.grid_multibeam` of all the
+soundings concatenated in the cruise frame, spikes and counts included.
 """
 
 from __future__ import annotations
@@ -54,7 +60,7 @@ if TYPE_CHECKING:
 
     from hadal.geo import LocalFrame
     from hadal.grid.points import GridSpec
-    from hadal.grid.tiles import TileScheme
+    from hadal.grid.tiles import PartitionUnion, TileScheme
     from hadal.settings.grid import GridParams
 
 #: soundings a reduce task holds at least (small tiles grouped): a Prefect task costs ~0.15 CPU-s of its own
@@ -96,6 +102,7 @@ class DiveRead:
     used: dict[str, str] = field(default_factory=dict)
     refused: dict[str, str] = field(default_factory=dict)
     error: str | None = None
+    n_files: int = 0  # files read: their soundings in ``directory``/f0, f1, ...
 
 
 @dataclass(frozen=True)
@@ -170,47 +177,56 @@ def cruise_frame(dives: Sequence[DiveSource]) -> LocalFrame:
 
 
 def read_dive(dive: DiveSource, frame: LocalFrame, scratch_dir: str) -> DiveRead:
-    """Step 2 of the module doc for one dive: its files read into ``frame`` (a file that fails is refused by name,
-    the others kept), soundings deeper/higher than anywhere on Earth dropped, ``x``, ``y``, ``depth`` written to
-    ``<scratch_dir>/read/<dive_id>/`` (atomically: a re-run replaces them). Never raises for bad input: a dive
-    with nothing readable comes back with ``error`` (named, left out of the cruise)."""
-    import numpy as np
+    """Step 2 of the module doc for one dive: its files read into ``frame`` chunk by chunk, each chunk written to
+    disk as it arrives (:func:`hadal.grid.soundings.read_soundings` spilling from the first sounding: the dive's
+    soundings never sit whole in memory), one directory a file, ``<scratch_dir>/read/<dive_id>/f<k>/`` (x, y,
+    depth); a file that fails is refused by name, the others kept. Soundings deeper/higher than anywhere on Earth
+    are counted here and dropped as they are read back. The dive's directory is written under a fresh name, then
+    renamed into place (a re-run replaces it whole). Never raises for bad input: a dive with nothing readable comes
+    back with ``error`` (named, left out of the cruise)."""
+    from hadal.grid.soundings import SpilledSoundings, read_soundings
 
-    from hadal.grid.points import point_extent
-    from hadal.grid.prior import MAX_ABS_DEPTH_M
-    from hadal.grid.soundings import read_soundings_xy
-
-    cols: list[list[np.ndarray]] = [[], [], []]
+    base = Path(scratch_dir) / "read"
+    base.mkdir(parents=True, exist_ok=True)
+    tmp = base / f".{dive.dive_id}-{uuid.uuid4().hex[:8]}"
+    tmp.mkdir()
     used: dict[str, str] = {}
     refused = dict(dive.refused)
-    for f, h in zip(dive.files, dive.hints, strict=True):
-        readers: dict[str, str] = {}
-        try:
-            x, y, z, _, _ = read_soundings_xy([Path(f)], frame, [h], readers=readers)
-        except (HadalError, OSError, ValueError, RuntimeError, KeyError, TypeError) as exc:
-            refused[f] = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
-            continue
-        used[f] = readers.get(f, "?")
-        for c, a in zip(cols, (x, y, z), strict=True):
-            c.append(np.asarray(a, np.float64))
-    if not used:
-        return DiveRead(dive.dive_id, None, refused=refused,
-                        error=f"dive {dive.dive_id!r}: no multibeam file could be read ("
-                              + "; ".join(f"{Path(k).name}: {v}" for k, v in refused.items()) + ")")
-    x, y, z = (np.concatenate(c) for c in cols)
-    bad = np.isfinite(z) & (np.abs(z) > MAX_ABS_DEPTH_M)
-    n_implausible = int(bad.sum())
-    if n_implausible:
-        x, y, z = x[~bad], y[~bad], z[~bad]
+    n = n_implausible = 0
+    exts = []
     try:
-        ext, _ = point_extent(x, y, z)
-    except InputError as exc:
-        return DiveRead(dive.dive_id, None, used=used, refused=refused, error=f"dive {dive.dive_id!r}: {exc}")
-    out = Path(scratch_dir) / "read" / dive.dive_id
-    out.mkdir(parents=True, exist_ok=True)
-    for name, a in (("x", x), ("y", y), ("z", z)):
-        _atomic_write(out / f"{name}.f8", a)
-    return DiveRead(dive.dive_id, str(out), int(len(z)), n_implausible, ext, used, refused)
+        for f, h in zip(dive.files, dive.hints, strict=True):
+            readers: dict[str, str] = {}
+            try:
+                sp, _, _ = read_soundings([Path(f)], frame, [h], readers=readers, spill_above_points=0,
+                                          scratch_dir=tmp)
+            except (HadalError, OSError, ValueError, RuntimeError, KeyError, TypeError) as exc:
+                refused[f] = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+                continue
+            assert isinstance(sp, SpilledSoundings)
+            os.replace(sp.dir, tmp / f"f{len(used)}")
+            used[f] = readers.get(f, "?")
+            n += sp.n - sp.n_implausible
+            n_implausible += sp.n_implausible
+            if sp.extent is not None:
+                exts.append(sp.extent)
+        if not used:
+            return DiveRead(dive.dive_id, None, refused=refused,
+                            error=f"dive {dive.dive_id!r}: no multibeam file could be read ("
+                                  + "; ".join(f"{Path(k).name}: {v}" for k, v in refused.items()) + ")")
+        if not exts:
+            return DiveRead(dive.dive_id, None, used=used, refused=refused,
+                            error=f"dive {dive.dive_id!r}: all {n} soundings have NaN/inf coordinates or depths")
+        ext = (min(e[0] for e in exts), min(e[1] for e in exts), max(e[2] for e in exts), max(e[3] for e in exts))
+        out = base / dive.dive_id
+        old = base / f".old-{dive.dive_id}-{uuid.uuid4().hex[:8]}"
+        if out.exists():
+            os.replace(out, old)
+        os.replace(tmp, out)
+        shutil.rmtree(old, ignore_errors=True)
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+    return DiveRead(dive.dive_id, str(out), n, n_implausible, ext, used, refused, n_files=len(used))
 
 
 def cruise_grid_spec(reads: Sequence[DiveRead], resolution_m: float, *, max_cells: int | None = None) -> GridSpec:
@@ -226,25 +242,22 @@ def cruise_grid_spec(reads: Sequence[DiveRead], resolution_m: float, *, max_cell
 
 def partition_dive(read: DiveRead, scheme: TileScheme, scratch_dir: str) -> DivePartition:
     """Step 4 for one dive: its soundings (from :func:`read_dive`) cut by tile into
-    ``<scratch_dir>/tiles/<dive_id>/t<k>.cell.i4`` / ``.z.f8`` (:class:`hadal.grid.tiles.TilePartition`, points
+    ``<scratch_dir>/tiles/<dive_id>/t<k>.*`` with their positions (:class:`hadal.grid.tiles.TilePartition`
+    ``with_xy``, for the spike test; points
     clamped into the edge cells as the grid covers them all). Written in a fresh directory, then renamed into
     place: a re-run (the worker died) replaces the directory whole."""
-    import numpy as np
-
+    from hadal.grid.soundings import SpilledSoundings
     from hadal.grid.tiles import PARTITION_CHUNK_POINTS, TilePartition
 
     base = Path(scratch_dir) / "tiles"
     base.mkdir(parents=True, exist_ok=True)
     try:
         d = Path(read.directory or "")
-        x = np.fromfile(d / "x.f8")
-        y = np.fromfile(d / "y.f8")
-        z = np.fromfile(d / "z.f8")
-        part = TilePartition(scheme, scratch_dir=base, check_inside=False)
+        part = TilePartition(scheme, scratch_dir=base, check_inside=False, with_xy=True)
         try:
-            for a in range(0, len(z), PARTITION_CHUNK_POINTS):
-                sl = slice(a, a + PARTITION_CHUNK_POINTS)
-                part.add(x[sl], y[sl], z[sl])
+            for k in range(read.n_files):
+                for x, y, z in SpilledSoundings.open(d / f"f{k}").chunks(PARTITION_CHUNK_POINTS):
+                    part.add(x, y, z)
         except BaseException:
             part.close()
             raise
@@ -259,33 +272,65 @@ def partition_dive(read: DiveRead, scheme: TileScheme, scratch_dir: str) -> Dive
     return DivePartition(read.dive_id, str(target), tuple(part.tile_points), part.n_input, part.n_nonfinite)
 
 
-def reduce_tile(t: int, scheme: TileScheme, parts: Sequence[DivePartition], compiled: bool, apriori_a_m: float,
-                apriori_b: float, prior_weight: float) -> dict[str, np.ndarray] | None:
-    """Step 5 for tile ``t``: the tile's points of every dive, in the dives' order, reduced by
+def dive_union(scheme: TileScheme, parts: Sequence[DivePartition]) -> PartitionUnion:
+    """The dives' partitions as one (:class:`hadal.grid.tiles.PartitionUnion`): a tile's points of every dive in
+    the dives' order, a sounding's input index offset by the soundings of the dives before it (so the union is
+    the partition of all the soundings concatenated in dive order)."""
+    from hadal.grid.tiles import PartitionUnion
+
+    good = [p for p in parts if p.error is None]
+    offsets, n = [], 0
+    for p in good:
+        offsets.append(n)
+        n += p.n_input
+    return PartitionUnion(scheme, tuple(p.directory or "" for p in good), tuple(p.tile_points for p in good),
+                          tuple(offsets))
+
+
+def spike_tiles(ts: Sequence[int], union: PartitionUnion, sigma0: float, spikes_dir: str, k: float,
+                k_neighbourhood: float, neighbours: int, min_count: int) -> int:
+    """Step 5a for the tiles ``ts``: each tile's spike flags (:func:`hadal.grid.tiles.spike_flags_of_tile`: the
+    per-cell test and the neighbour test with a halo reaching into the tiles around it, of every dive) written to
+    ``<spikes_dir>/t<k>.spike.u1`` atomically; returns the spikes found."""
+    import numpy as np
+
+    from hadal.grid.tiles import spike_flags_of_tile
+
+    n = 0
+    for t in ts:
+        if union.tile_points[t]:
+            bad = spike_flags_of_tile(union, t, sigma0, k=k, k_neighbourhood=k_neighbourhood, neighbours=neighbours,
+                                      min_count=min_count)
+            _atomic_write(Path(spikes_dir) / f"t{t}.spike.u1", bad.astype(np.uint8))
+            n += int(bad.sum())
+    return n
+
+
+def reduce_tile(t: int, union: PartitionUnion, compiled: bool, apriori_a_m: float, apriori_b: float,
+                prior_weight: float, spikes_dir: str | None = None) -> dict[str, np.ndarray] | None:
+    """Step 5b for tile ``t``: the tile's points of every dive, in the dives' order, less the spikes flagged in
+    ``spikes_dir`` (:func:`spike_tiles`; None: no spike test), reduced by
     :func:`hadal.grid.multibeam.dtm_cell_layers` (flat layers over the tile's cells; None: no point)."""
     import numpy as np
 
     from hadal.grid.multibeam import dtm_cell_layers
 
-    cells, values = [], []
-    for p in parts:
-        if p.error is None and p.tile_points[t]:
-            d = Path(p.directory or "")
-            cells.append(np.fromfile(d / f"t{t}.cell.i4", dtype=np.int32))
-            values.append(np.fromfile(d / f"t{t}.z.f8"))
-    if not cells:
+    if not union.tile_points[t]:
         return None
-    r0, r1, c0, c1 = scheme.window(t)
-    return dtm_cell_layers(np.concatenate(cells), np.concatenate(values), (r1 - r0) * (c1 - c0),
-                           apriori_a_m=apriori_a_m, apriori_b=apriori_b, prior_weight=prior_weight,
-                           compiled=compiled)
+    cells, values = union.tile_points_of(t)
+    if spikes_dir is not None:
+        keep = np.fromfile(Path(spikes_dir) / f"t{t}.spike.u1", dtype=np.uint8) == 0
+        cells, values = cells[keep], values[keep]
+    r0, r1, c0, c1 = union.scheme.window(t)
+    return dtm_cell_layers(cells, values, (r1 - r0) * (c1 - c0), apriori_a_m=apriori_a_m, apriori_b=apriori_b,
+                           prior_weight=prior_weight, compiled=compiled)
 
 
-def reduce_tiles(ts: Sequence[int], scheme: TileScheme, parts: Sequence[DivePartition], compiled: bool,
-                 apriori_a_m: float, apriori_b: float, prior_weight: float) -> list[dict[str, np.ndarray] | None]:
+def reduce_tiles(ts: Sequence[int], union: PartitionUnion, compiled: bool, apriori_a_m: float, apriori_b: float,
+                 prior_weight: float, spikes_dir: str | None = None) -> list[dict[str, np.ndarray] | None]:
     """:func:`reduce_tile` of each tile of ``ts`` (a group of small tiles as one task: the orchestrator's fixed
     cost per task is paid once for the group)."""
-    return [reduce_tile(t, scheme, parts, compiled, apriori_a_m, apriori_b, prior_weight) for t in ts]
+    return [reduce_tile(t, union, compiled, apriori_a_m, apriori_b, prior_weight, spikes_dir) for t in ts]
 
 
 def group_tiles(tiles: Sequence[int], points: Sequence[int], min_points: int) -> list[list[int]]:
@@ -307,9 +352,9 @@ def group_tiles(tiles: Sequence[int], points: Sequence[int], min_points: int) ->
 
 def assemble(scheme: TileScheme, tiles: Sequence[dict[str, np.ndarray] | None], frame: LocalFrame, *,
              fill_max_cells: int, apriori_a_m: float, apriori_b: float, prior_weight: float,
-             attrs: dict[str, Any]) -> xr.Dataset:
+             attrs: dict[str, Any], method: dict[str, Any]) -> xr.Dataset:
     """Step 6: the tiles' layers written into their windows, small holes filled, the DTM Dataset georeferenced in
-    the cruise frame."""
+    the cruise frame (``method``: the arguments of :func:`hadal.grid.multibeam._method_attrs`)."""
     import numpy as np
 
     from hadal.grid.multibeam import DTM_CELL_LAYERS, _dtm_attrs, _method_attrs, add_geo, fill_dtm_holes
@@ -326,11 +371,7 @@ def assemble(scheme: TileScheme, tiles: Sequence[dict[str, np.ndarray] | None], 
         for k, v in layers.items():
             grids[k][r0:r1, c0:c1] = v.reshape(r1 - r0, c1 - c0)
     flat, filled = fill_dtm_holes(s, flat, fill_max_cells, apriori_a_m, apriori_b)
-    attrs = {**attrs, "n_cells_filled": int(filled.sum()),
-             **_method_attrs(spike_k=3.5, spike_k_neighbourhood=4.0, spike_neighbours=16, spike_min_count=5,
-                             spike_floor_m=0.5, remove_spikes=False, sor=False, sor_neighbors=16, sor_std_ratio=3.0,
-                             fill_max_cells=fill_max_cells, apriori_a_m=apriori_a_m, apriori_b=apriori_b,
-                             prior_weight=prior_weight),
+    attrs = {**attrs, "n_cells_filled": int(filled.sum()), **_method_attrs(**method),
              "tile_cells": scheme.tile_cells, "n_tiles": scheme.n_tiles}
     names = {"mean": "depth_m", "median": "depth_median_m", "std": "depth_std_m", "uncertainty": "uncertainty_m"}
     ds = to_dataset(s, flat, names=names, attrs=attrs)
@@ -349,7 +390,7 @@ def cruise_dtm_dataset(raw_dirs: Sequence[str | os.PathLike], resolution_m: floa
     Returns ``(Dataset, provenance)``: provenance names every dive and file used (with its reader) or refused
     (with the reason). No dive usable: one-line InputError."""
     from hadal.grid.points import _COMPILED_MIN_POINTS
-    from hadal.grid.tiles import TileScheme, choose_tile_cells
+    from hadal.grid.tiles import TileScheme, choose_tile_cells, sigma_of_mads, spike_floor, tile_cell_mads
     from hadal.settings.grid import GridParams
 
     p = params if params is not None else GridParams()
@@ -372,11 +413,23 @@ def cruise_dtm_dataset(raw_dirs: Sequence[str | os.PathLike], resolution_m: floa
     if not good:
         raise InputError("no dive of the cruise could be partitioned: "
                          + "; ".join(p.error or "" for p in parts))
-    n_points = sum(sum(p.tile_points) for p in good)
-    compiled = n_points >= _COMPILED_MIN_POINTS  # reduce_cells' choice on all the soundings (in-memory rule)
-    nonempty = [t for t in range(scheme.n_tiles) if any(p.tile_points[t] for p in good)]
-    groups = group_tiles(nonempty, [sum(p.tile_points[t] for p in good) for t in nonempty], min_task_points)
-    reduced = map(reduce_tiles, [(g, scheme, good, compiled, apriori_a_m, apriori_b, prior_weight) for g in groups])
+    union = dive_union(scheme, good)
+    n_points = union.n_points
+    tile_points = union.tile_points
+    nonempty = [t for t in range(scheme.n_tiles) if tile_points[t]]
+    groups = group_tiles(nonempty, [tile_points[t] for t in nonempty], min_task_points)
+    n_spikes, sigma0, spikes_dir = 0, float("nan"), None
+    if p.spike_removal:  # the dive dtm's spike test, cruise-wide: one noise floor, halos across tiles and dives
+        mads = map(tile_cell_mads, [(union, g, p.spike_min_count) for g in groups])
+        sigma0 = spike_floor(sigma_of_mads(mads), p.spike_floor_m)
+        spikes_dir = str(Path(scratch) / "spikes")
+        Path(spikes_dir).mkdir(parents=True, exist_ok=True)
+        n_spikes = sum(map(spike_tiles, [(g, union, sigma0, spikes_dir, p.spike_k, p.spike_k_neighbourhood,
+                                          p.spike_neighbours, p.spike_min_count) for g in groups]))
+    # reduce_cells' choice on all the kept soundings (the in-memory rule)
+    compiled = n_points - n_spikes >= _COMPILED_MIN_POINTS
+    reduced = map(reduce_tiles, [(g, union, compiled, apriori_a_m, apriori_b, prior_weight, spikes_dir)
+                                 for g in groups])
     tiles: list[dict | None] = [None] * scheme.n_tiles
     for g, layers_of in zip(groups, reduced, strict=True):
         for t, layers in zip(g, layers_of, strict=True):
@@ -397,8 +450,8 @@ def cruise_dtm_dataset(raw_dirs: Sequence[str | os.PathLike], resolution_m: floa
     attrs = {
         "n_soundings_input": int(sum(p.n_input for p in good)),
         "n_soundings_nonfinite": int(sum(p.n_nonfinite for p in good)), "n_soundings_outside": 0,
-        "n_soundings_spikes": 0, "n_soundings_sor": 0, "n_soundings_used": int(n_points),
-        "spike_noise_floor_m": float("nan"),
+        "n_soundings_spikes": int(n_spikes), "n_soundings_sor": 0, "n_soundings_used": int(n_points - n_spikes),
+        "spike_noise_floor_m": sigma0,
         "n_soundings_implausible": int(sum(r.n_implausible for r in ok_reads)),
         "resolution_m": float(resolution_m), "cruise_dives": ", ".join(used_ids),
         "cruise_dives_refused": "; ".join([f"{k}: {v}" for k, v in refused_dirs.items()]
@@ -407,8 +460,13 @@ def cruise_dtm_dataset(raw_dirs: Sequence[str | os.PathLike], resolution_m: floa
         "multibeam_readers": "; ".join(f"{r.dive_id}/{Path(f).name}: {t}" for r in ok_reads
                                        for f, t in r.used.items()),
     }
+    method = {"spike_k": p.spike_k, "spike_k_neighbourhood": p.spike_k_neighbourhood,
+              "spike_neighbours": p.spike_neighbours, "spike_min_count": p.spike_min_count,
+              "spike_floor_m": p.spike_floor_m, "remove_spikes": p.spike_removal, "sor": False, "sor_neighbors": 16,
+              "sor_std_ratio": 3.0, "fill_max_cells": fill_max_cells, "apriori_a_m": apriori_a_m,
+              "apriori_b": apriori_b, "prior_weight": prior_weight}
     ds = assemble(scheme, tiles, frame, fill_max_cells=fill_max_cells, apriori_a_m=apriori_a_m,
-                  apriori_b=apriori_b, prior_weight=prior_weight, attrs=attrs)
+                  apriori_b=apriori_b, prior_weight=prior_weight, attrs=attrs, method=method)
     return ds, prov
 
 

@@ -60,16 +60,25 @@ def auto_resolution_m(x_m: np.ndarray, y_m: np.ndarray, *, quantile: float = 0.9
     regular subsample is used and the distances scaled by sqrt(step) (2-D density scaling).
     Returns ``(size_m, {"nn_quantile_m": ..., "soundings": ...})``.
     """
-    from scipy.spatial import cKDTree
-
     x, y = np.asarray(x_m, np.float64), np.asarray(y_m, np.float64)
     ok = np.isfinite(x) & np.isfinite(y)
     x, y = x[ok], y[ok]
-    xy = distinct_xy(x, y) if x.size <= max_points else None
-    step = 1
-    if xy is None:
-        step = int(np.ceil(x.size / max_points))
-        xy = distinct_xy(x[::step], y[::step])
+    step = auto_resolution_step(x.size, max_points)
+    return auto_resolution_of_sample(x[::step], y[::step], step, x.size, quantile=quantile, factor=factor)
+
+
+def auto_resolution_step(n_xy: int, max_points: int = 1_000_000) -> int:
+    """The subsample step of :func:`auto_resolution_m` for ``n_xy`` soundings with finite x, y."""
+    return 1 if n_xy <= max_points else int(np.ceil(n_xy / max_points))
+
+
+def auto_resolution_of_sample(xs: np.ndarray, ys: np.ndarray, step: int, n_xy: int, *, quantile: float = 0.9,
+                              factor: float = 2.0) -> tuple[float, dict[str, float]]:
+    """:func:`auto_resolution_m` from its subsample ``xs, ys`` (every ``step``-th of the ``n_xy`` soundings with
+    finite x, y; :func:`auto_resolution_step`), e.g. read from soundings kept on disk."""
+    from scipy.spatial import cKDTree
+
+    xy = distinct_xy(xs, ys)
     if len(xy) < 3:
         raise InputError("too few soundings with distinct positions to choose a DTM resolution")
     d, _ = cKDTree(xy).query(xy, k=2)
@@ -77,7 +86,7 @@ def auto_resolution_m(x_m: np.ndarray, y_m: np.ndarray, *, quantile: float = 0.9
     target = max(factor * q, RESOLUTION_SERIES_M[0])
     series = np.asarray(RESOLUTION_SERIES_M)
     res = float(series[np.argmin(np.abs(np.log(series / target)))])
-    return res, {"nn_quantile_m": float(q), "soundings": float(ok.sum())}
+    return res, {"nn_quantile_m": float(q), "soundings": float(n_xy)}
 
 
 def apriori_sigma_m(depth_m, a_m: float = 0.5, b: float = 0.001):

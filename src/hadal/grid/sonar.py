@@ -168,7 +168,7 @@ def sniff_multibeam(path) -> dict:
 # ------------------------------------------------------------------ public API
 def iter_multibeam(path, hints=None, chunk_points: int = DEFAULT_CHUNK_POINTS,
                    info: dict | None = None, *, held_soundings: int = 0,
-                   memory_limit_bytes: float | None = None) -> Iterator[pd.DataFrame]:
+                   memory_limit_bytes: float | None = None, streamed: bool = False) -> Iterator[pd.DataFrame]:
     """Yield the soundings of ``path`` as DataFrame chunks (depth positive down, metres).
 
     Columns are ``longitude_deg, latitude_deg, depth_m`` (plus ``ping`` for swath formats), or ``x_m, y_m,
@@ -178,7 +178,10 @@ def iter_multibeam(path, hints=None, chunk_points: int = DEFAULT_CHUNK_POINTS,
     final once the iterator is exhausted. Text chunks hold at most ``chunk_points`` rows; swath chunks hold
     whole pings (about ``chunk_points`` soundings). The soundings are held against the memory budget as they
     decode (:class:`SoundingBudget`; ``held_soundings``: what the caller already keeps from earlier files;
-    ``memory_limit_bytes``: the limit, default :func:`hadal.budget.memory_limit_bytes` of the defaults).
+    ``memory_limit_bytes``: the limit, default :func:`hadal.budget.memory_limit_bytes` of the defaults);
+    ``streamed``: the caller keeps no chunk in memory (it writes them to disk), so a reader that yields as it
+    decodes (xyz, KMALL, s7k) holds only its current chunk; GSF and EM .all, which decode the whole file first,
+    are counted whole either way.
     """
     if chunk_points < 1:
         raise ValueError("chunk_points must be >= 1")
@@ -213,6 +216,8 @@ def iter_multibeam(path, hints=None, chunk_points: int = DEFAULT_CHUNK_POINTS,
     for chunk in gen:
         if not counted:
             budget.add(len(chunk))
+            if streamed:
+                budget.n = 0
         yield chunk
 
 

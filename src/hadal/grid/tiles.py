@@ -131,6 +131,16 @@ def _free_bytes(path: Path) -> int:
     return shutil.disk_usage(path).free
 
 
+def tile_paths(d: Path, t: int) -> tuple[Path, Path]:
+    """The files of tile ``t``'s points in a partition directory ``d``: cell within the tile (int32), value."""
+    return d / f"t{t}.cell.i4", d / f"t{t}.z.f8"
+
+
+def tile_xy_paths(d: Path, t: int) -> tuple[Path, Path, Path]:
+    """The files of tile ``t``'s positions in a partition ``with_xy``: x, y (float64), input index (int64)."""
+    return d / f"t{t}.x.f8", d / f"t{t}.y.f8", d / f"t{t}.i.i8"
+
+
 class TilePartition:
     """Points partitioned by tile into raw files in a scratch directory (module doc, step 2).
 
@@ -179,10 +189,10 @@ class TilePartition:
         return BYTES_PER_POINT + (BYTES_PER_POINT_XY if self.with_xy else 0)
 
     def _paths(self, t: int) -> tuple[Path, Path]:
-        return self.dir / f"t{t}.cell.i4", self.dir / f"t{t}.z.f8"
+        return tile_paths(self.dir, t)
 
     def _xy_paths(self, t: int) -> tuple[Path, Path, Path]:
-        return self.dir / f"t{t}.x.f8", self.dir / f"t{t}.y.f8", self.dir / f"t{t}.i.i8"
+        return tile_xy_paths(self.dir, t)
 
     def add(self, x, y, z) -> None:
         """Append one chunk's points to their tiles (in input order; arrays of one length)."""
@@ -317,6 +327,52 @@ class TilePartition:
         return out
 
 
+@dataclass(frozen=True)
+class PartitionUnion:
+    """Several partitions of one :class:`TileScheme` (their directories, e.g. a cruise's dives, each made
+    ``with_xy``) read as one: tile ``t``'s points are every partition's, in the given order, and a point's input
+    index is its partition's plus ``offsets[k]`` (the points of the partitions before it), so the union is the
+    partition of all the points concatenated. Read-only and picklable (a unit of work on another machine)."""
+
+    scheme: TileScheme
+    dirs: tuple[str, ...]
+    points: tuple[tuple[int, ...], ...]  # per partition, its points per tile
+    offsets: tuple[int, ...]
+
+    @property
+    def tile_points(self) -> list[int]:
+        return [sum(p[t] for p in self.points) for t in range(self.scheme.n_tiles)]
+
+    @property
+    def n_points(self) -> int:
+        return sum(sum(p) for p in self.points)
+
+    def _read(self, t: int, paths, dtypes, offset_col: int | None = None) -> list[np.ndarray]:
+        import numpy as np
+
+        cols: list[list[np.ndarray]] = [[] for _ in dtypes]
+        for d, pts, off in zip(self.dirs, self.points, self.offsets, strict=True):
+            if pts[t]:
+                for k, (path, dt) in enumerate(zip(paths(Path(d), t), dtypes, strict=True)):
+                    a = np.fromfile(path, dtype=dt)
+                    cols[k].append(a + off if k == offset_col else a)
+        return [np.concatenate(c) if c else np.empty(0, dt) for c, dt in zip(cols, dtypes, strict=True)]
+
+    def tile_points_of(self, t: int) -> tuple[np.ndarray, np.ndarray]:
+        """Tile ``t``'s ``(cell within the tile int32, value)`` of every partition, in order."""
+        import numpy as np
+
+        c, z = self._read(t, tile_paths, (np.int32, np.float64))
+        return c, z
+
+    def tile_xy_of(self, t: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Tile ``t``'s ``(x, y, input index int64)`` of every partition, in order, indices offset."""
+        import numpy as np
+
+        x, y, i = self._read(t, tile_xy_paths, (np.float64, np.float64, np.int64), offset_col=2)
+        return x, y, i
+
+
 def iter_array_chunks(x, y, z, chunk_points: int = 1 << 22) -> Iterator[tuple[np.ndarray, np.ndarray, np.ndarray]]:
     """``(x, y, z)`` slices of ``chunk_points`` points (in-memory or memory-mapped arrays)."""
     n = len(x)
@@ -390,22 +446,35 @@ def dtm_layers_tiled(part: TilePartition, *, fill_max_cells: int = 4, apriori_a_
     return fill_dtm_holes(part.scheme.spec, flat, fill_max_cells, apriori_a_m, apriori_b)
 
 
-def typical_cell_sigma_tiled(part: TilePartition, min_count: int) -> float:
-    """:func:`hadal.grid.points.typical_cell_sigma` of all the partition's points: every cell's MAD is its own
-    points' (:func:`hadal.grid.points.cell_robust_stats` per tile), and the median of the same multiset of MADs
-    is the same number, so the result is identical to the in-memory one."""
+def tile_cell_mads(part: TilePartition | PartitionUnion, ts: Sequence[int], min_count: int) -> np.ndarray:
+    """The MADs of the cells with >= ``min_count`` points of the tiles ``ts`` (each cell's own points,
+    :func:`hadal.grid.points.cell_robust_stats` per tile), concatenated."""
     import numpy as np
 
     from hadal.grid.points import cell_robust_stats
 
     mads = []
-    for t in range(part.scheme.n_tiles):
+    for t in ts:
         if part.tile_points[t]:
             cells, z = part.tile_points_of(t)
             st = cell_robust_stats(cells, z)
             mads.append(st.mad[st.counts >= min_count])
-    allm = np.concatenate(mads) if mads else np.empty(0)
+    return np.concatenate(mads) if mads else np.empty(0)
+
+
+def sigma_of_mads(mads: Sequence[np.ndarray]) -> float:
+    """``1.4826 x`` the median of all the cells' MADs (:func:`hadal.grid.points.typical_cell_sigma`; NaN: none)."""
+    import numpy as np
+
+    allm = np.concatenate(list(mads)) if len(mads) else np.empty(0)
     return float(1.4826 * np.median(allm)) if allm.size else float("nan")
+
+
+def typical_cell_sigma_tiled(part: TilePartition | PartitionUnion, min_count: int) -> float:
+    """:func:`hadal.grid.points.typical_cell_sigma` of all the partition's points: every cell's MAD is its own
+    points' (:func:`tile_cell_mads`), and the median of the same multiset of MADs is the same number, so the
+    result is identical to the in-memory one."""
+    return sigma_of_mads([tile_cell_mads(part, range(part.scheme.n_tiles), min_count)])
 
 
 def _halo_window(sc: TileScheme, t: int, h: int) -> tuple[int, int, int, int]:
@@ -413,7 +482,7 @@ def _halo_window(sc: TileScheme, t: int, h: int) -> tuple[int, int, int, int]:
     return max(0, r0 - h), min(sc.spec.ny, r1 + h), max(0, c0 - h), min(sc.spec.nx, c1 + h)
 
 
-def _halo_points(part: TilePartition, t: int, win: tuple[int, int, int, int]):
+def _halo_points(part: TilePartition | PartitionUnion, t: int, win: tuple[int, int, int, int]):
     """``(x, y, z, input index)`` of the points of the cells in ``win`` (rows/cols, half-open), tile ``t``'s own
     points first, then the other tiles' points in those cells; and the number of tile ``t``'s points."""
     import numpy as np
@@ -503,7 +572,7 @@ def _seam_bound(sc: TileScheme, win: tuple[int, int, int, int], x, y):
     return b - margin
 
 
-def knn_spike_flags_tile(part: TilePartition, t: int, *, neighbours: int, k: float, floor: float,
+def knn_spike_flags_tile(part: TilePartition | PartitionUnion, t: int, *, neighbours: int, k: float, floor: float,
                          halo_cells: int | None = None) -> np.ndarray:
     """The neighbour spike test (:func:`hadal.grid.multibeam.knn_spike_mask`) of tile ``t``'s soundings, in the
     tile's order, among the soundings of the tile and a **halo** of ``h`` cells around it: each sounding's
@@ -547,30 +616,47 @@ def knn_spike_flags_tile(part: TilePartition, t: int, *, neighbours: int, k: flo
         h *= 2
 
 
+def spike_floor(sigma0: float, floor_m: float) -> float:
+    """The spike tests' noise floor: ``sigma_0`` at least ``floor_m`` (``floor_m`` when NaN), as
+    :func:`hadal.grid.multibeam.spike_mask`."""
+    import math
+
+    return max(sigma0, floor_m) if math.isfinite(sigma0) else floor_m
+
+
+def spike_flags_of_tile(part: TilePartition | PartitionUnion, t: int, sigma0: float, *, k: float = 3.5,
+                        k_neighbourhood: float = 4.0, neighbours: int = 16, min_count: int = 5,
+                        halo_cells: int | None = None) -> np.ndarray:
+    """Spike flags of tile ``t``'s points (in the tile's order) with the noise floor ``sigma0``
+    (:func:`spike_floor`): the per-cell test (a cell lies in one tile) and, when the partition holds more than
+    ``neighbours`` points (the in-memory rule), the neighbour test with a halo (:func:`knn_spike_flags_tile`)."""
+    from hadal.grid.points import cell_robust_stats, robust_outlier_mask
+
+    cells, z = part.tile_points_of(t)
+    bad = robust_outlier_mask(cells, z, k, floor=sigma0, min_count=min_count, stats=cell_robust_stats(cells, z))
+    del cells, z
+    if part.n_points > neighbours:
+        bad |= knn_spike_flags_tile(part, t, neighbours=neighbours, k=k_neighbourhood, floor=sigma0,
+                                    halo_cells=halo_cells)
+    return bad
+
+
 def spike_flags_tiled(part: TilePartition, *, k: float = 3.5, k_neighbourhood: float = 4.0, neighbours: int = 16,
                       min_count: int = 5, floor_m: float = 0.5, halo_cells: int | None = None,
                       progress=None) -> tuple[int, float]:
     """:func:`hadal.grid.multibeam.spike_mask` of all the points of a partition ``with_xy``, tile by tile: the
-    noise floor ``sigma_0`` over all tiles (:func:`typical_cell_sigma_tiled`), then per tile the per-cell test
-    (cells lie in one tile) and the neighbour test with a halo (:func:`knn_spike_flags_tile`); the flags are
-    written beside the tile's points (:meth:`TilePartition.spikes_of`). Returns ``(spikes, sigma_0)``."""
+    noise floor ``sigma_0`` over all tiles (:func:`typical_cell_sigma_tiled`), then per tile
+    :func:`spike_flags_of_tile`; the flags are written beside the tile's points (:meth:`TilePartition.kept_of`).
+    Returns ``(spikes, sigma_0)``."""
     import numpy as np
 
-    from hadal.grid.points import cell_robust_stats, robust_outlier_mask
-
-    sigma0 = typical_cell_sigma_tiled(part, min_count)
-    sigma0 = max(sigma0, floor_m) if np.isfinite(sigma0) else floor_m
-    knn = part.n_points > neighbours  # the in-memory test skips point sets of at most `neighbours` soundings
+    sigma0 = spike_floor(typical_cell_sigma_tiled(part, min_count), floor_m)
     n_spikes = 0
     for t in range(part.scheme.n_tiles):
         if not part.tile_points[t]:
             continue
-        cells, z = part.tile_points_of(t)
-        bad = robust_outlier_mask(cells, z, k, floor=sigma0, min_count=min_count, stats=cell_robust_stats(cells, z))
-        del cells, z
-        if knn:
-            bad |= knn_spike_flags_tile(part, t, neighbours=neighbours, k=k_neighbourhood, floor=sigma0,
-                                        halo_cells=halo_cells)
+        bad = spike_flags_of_tile(part, t, sigma0, k=k, k_neighbourhood=k_neighbourhood, neighbours=neighbours,
+                                  min_count=min_count, halo_cells=halo_cells)
         bad.astype(np.uint8).tofile(part.dir / f"t{t}.spike.u1")
         n_spikes += int(bad.sum())
     part.has_spikes = True
@@ -637,6 +723,7 @@ def scratch_need_bytes(n_points: int) -> int:
     return BYTES_PER_POINT * int(n_points)
 
 
-__all__ = ["DEFAULT_TILE_CELLS", "TilePartition", "TileScheme", "choose_tile_cells", "dtm_layers_tiled",
-           "grid_multibeam_tiled", "grid_tiled", "knn_spike_flags_tile", "spike_flags_tiled",
+__all__ = ["DEFAULT_TILE_CELLS", "PartitionUnion", "TilePartition", "TileScheme", "choose_tile_cells",
+           "dtm_layers_tiled", "grid_multibeam_tiled", "grid_tiled", "knn_spike_flags_tile", "sigma_of_mads",
+           "spike_flags_of_tile", "spike_flags_tiled", "spike_floor", "tile_cell_mads", "tile_paths", "tile_xy_paths",
            "typical_cell_sigma_tiled", "iter_array_chunks", "partition_chunks", "scratch_need_bytes"]

@@ -41,34 +41,46 @@ if TYPE_CHECKING:
 DTM_LAYERS = 10
 #: bytes a sounding takes at the in-memory DTM's peak, its x, y, depth included (reading, cell index, the per-cell
 #: sort and deviations, the neighbour search's sorted copies, flags): the sample dive's 3.45 M soundings peak at
-#: 776 MiB of which 210 MiB imports (bench/bench_dtm_tiled.py). Above the memory budget the DTM is made out of core
-#: (:func:`hadal.grid.tiles.grid_multibeam_tiled`: the same arrays; one chunk, one tile with its halo and the
-#: layers held), below it in memory (out of core costs 1.15x the CPU there, same bench)
+#: 776 MiB of which 210 MiB imports (bench/bench_dtm_tiled.py). Above the memory budget the soundings go to disk as
+#: they are read and the DTM is made out of core (:func:`hadal.grid.tiles.grid_multibeam_tiled`: the same arrays;
+#: one chunk, one tile with its halo and the layers held), below it in memory (out of core costs 1.15x the CPU
+#: there, same bench)
 DTM_BYTES_PER_SOUNDING = 170
 #: float64 (y, x) layers of a laser grid at its peak (mean, std, count, second moment, the SOR pass's moments)
 LASER_LAYERS = 8
 
 
-def grid_memory_bytes(x: np.ndarray, y: np.ndarray, resolution_m: float, layers: int) -> tuple[float, int, int]:
-    """``(bytes, nx, ny)`` of a grid at ``resolution_m`` covering the finite points ``x``, ``y``."""
+def _xy_extent(x: np.ndarray, y: np.ndarray) -> tuple[float, float, float, float] | None:
+    """``(xmin, ymin, xmax, ymax)`` of the finite ``x``, ``y`` (None: none)."""
     import numpy as np
 
     ok = np.isfinite(x) & np.isfinite(y)
     if not ok.any():
+        return None
+    return float(np.min(x[ok])), float(np.min(y[ok])), float(np.max(x[ok])), float(np.max(y[ok]))
+
+
+def grid_memory_bytes(x: np.ndarray, y: np.ndarray, resolution_m: float, layers: int) -> tuple[float, int, int]:
+    """``(bytes, nx, ny)`` of a grid at ``resolution_m`` covering the finite points ``x``, ``y``."""
+    return _extent_memory_bytes(_xy_extent(x, y), resolution_m, layers)
+
+
+def _extent_memory_bytes(ext, resolution_m: float, layers: int) -> tuple[float, int, int]:
+    if ext is None:
         return 0.0, 0, 0
-    w = float(np.max(x[ok]) - np.min(x[ok]))
-    h = float(np.max(y[ok]) - np.min(y[ok]))
-    nx, ny = int(w // resolution_m) + 2, int(h // resolution_m) + 2
+    nx, ny = int((ext[2] - ext[0]) // resolution_m) + 2, int((ext[3] - ext[1]) // resolution_m) + 2
     return float(nx) * float(ny) * layers * 8.0, nx, ny
 
 
 def check_grid_memory(what: str, x: np.ndarray, y: np.ndarray, resolution_m: float, layers: int,
-                      limit_bytes: float | None, setting: str, value, max_cells: int | None = None) -> None:
-    """Refuse (one-line ConfigError) a grid whose cells x layers x 8 bytes exceed the memory budget.
+                      limit_bytes: float | None, setting: str, value, max_cells: int | None = None, *,
+                      extent: tuple[float, float, float, float] | None = None) -> None:
+    """Refuse (one-line ConfigError) a grid whose cells x layers x 8 bytes exceed the memory budget (the grid over
+    the finite ``x``, ``y``, or over ``extent`` when given; ``x``, ``y`` are then not used).
 
     A grid over ``max_cells`` is left to the gridder's own cell-count refusal (an InputError, before it allocates).
     """
-    need, nx, ny = grid_memory_bytes(x, y, resolution_m, layers)
+    need, nx, ny = _extent_memory_bytes(extent if extent is not None else _xy_extent(x, y), resolution_m, layers)
     if max_cells is not None and float(nx) * float(ny) > max_cells * 1.01:
         return
     check_memory(f"{what} ({nx:,} x {ny:,} cells x {layers} layers x 8 bytes)", need,
@@ -93,6 +105,18 @@ def _compress(ds) -> None:
             ds[v].encoding.update(gzip_encoding((min(ny, 512), min(nx, 512))))
 
 
+def _check_implausible(files: list[Path], n_implausible: int, n: int, abs_median) -> None:
+    """An error when most soundings are deeper/higher than anywhere on Earth (``abs_median()``: the median
+    ``|depth|`` of all, for the hint)."""
+    from hadal.grid.prior import MAX_ABS_DEPTH_M
+
+    if n_implausible > 0.5 * n:
+        med = float(abs_median())
+        hint = (f" (feet? x 0.3048 = {med * 0.3048:.0f} m)" if med * 0.3048 <= MAX_ABS_DEPTH_M else "")
+        raise InputError(f"{', '.join(str(f) for f in files)}: {n_implausible} of {n} soundings are beyond "
+                         f"+-{MAX_ABS_DEPTH_M:g} m (median |depth| {med:.0f}){hint}: check the depth units/column")
+
+
 def _drop_implausible(files: list[Path], x: np.ndarray, y: np.ndarray, dep: np.ndarray):
     """Drop soundings deeper/higher than anywhere on Earth (fill values or a unit error; NaN/inf are the gridder's
     'nonfinite'); an error when they are most of them. Returns x, y, depth and the number dropped."""
@@ -103,97 +127,108 @@ def _drop_implausible(files: list[Path], x: np.ndarray, y: np.ndarray, dep: np.n
     bad = np.isfinite(dep) & (np.abs(dep) > MAX_ABS_DEPTH_M)
     n_implausible = int(bad.sum())
     if n_implausible:
-        if n_implausible > 0.5 * dep.size:
-            med = float(np.median(np.abs(dep)))
-            hint = (f" (feet? x 0.3048 = {med * 0.3048:.0f} m)" if med * 0.3048 <= MAX_ABS_DEPTH_M else "")
-            raise InputError(f"{', '.join(str(f) for f in files)}: {n_implausible} of {dep.size} soundings are beyond "
-                             f"+-{MAX_ABS_DEPTH_M:g} m (median |depth| {med:.0f}){hint}: check the depth units/column")
+        _check_implausible(files, n_implausible, dep.size, lambda: np.median(np.abs(dep)))
         x, y, dep = x[~bad], y[~bad], dep[~bad]
     return x, y, dep, n_implausible
 
 
-def _dtm_resolution(p: Params, x: np.ndarray, y: np.ndarray) -> tuple[float | str, str]:
-    """The DTM cell size (``grid.dtm_resolution_m``, or the automatic one) and how it was chosen."""
-    from hadal.grid.multibeam import auto_resolution_m
-
+def _dtm_resolution(p: Params, auto) -> tuple[float | str, str]:
+    """The DTM cell size (``grid.dtm_resolution_m``, or the automatic one ``auto()`` = ``(size, stats)`` of
+    :func:`hadal.grid.multibeam.auto_resolution_m`) and how it was chosen."""
     res_m, how = p.dtm_resolution_m, "grid.dtm_resolution_m"
     if res_m == "auto":
-        res_m, stats = auto_resolution_m(x, y)
+        res_m, stats = auto()
         how = (f"auto: 2 x the 90th percentile ({stats['nn_quantile_m']:.3g} m) of the soundings' nearest-neighbour "
                "distances, on the 1-2-5 series")
     return res_m, how
 
 
-def _use_tiles(p: Params, n_soundings: int, limit_bytes: float | None, out_of_core: bool | None) -> bool:
-    """Grid out of core when the in-memory DTM's soundings (:data:`DTM_BYTES_PER_SOUNDING`) would exceed the memory
-    budget (``out_of_core`` forces the choice); never with ``grid.sor`` (a whole-cloud statistic)."""
-    if p.sor:
-        return False
-    if out_of_core is not None:
-        return bool(out_of_core)
+def _spill_above_points(p: Params, limit_bytes: float | None, out_of_core: bool | None) -> int | None:
+    """Soundings read above which they go to disk and the DTM is made out of core: those whose in-memory DTM
+    (:data:`DTM_BYTES_PER_SOUNDING`) would exceed the memory budget (``out_of_core`` forces the choice: 0 or None);
+    never with ``grid.sor`` (a whole-cloud statistic)."""
+    if p.sor or out_of_core is False:
+        return None
+    if out_of_core:
+        return 0
     limit = memory_limit_bytes() if limit_bytes is None else limit_bytes
-    return DTM_BYTES_PER_SOUNDING * float(n_soundings) > limit
+    return int(limit // DTM_BYTES_PER_SOUNDING)
 
 
-def _grid_dtm_tiled(cols: list, p: Params, res_m: float, progress):
-    """The DTM of the soundings ``cols`` = [x, y, depth] out of core (:func:`hadal.grid.tiles.grid_multibeam_tiled`,
-    the same Dataset as :func:`hadal.grid.multibeam.grid_multibeam`); ``cols`` is emptied as the soundings are
-    partitioned into tiles, so their memory is released before the tiles are reduced."""
-    from hadal.grid.points import make_grid_spec, point_extent
+def _grid_dtm_spilled(files: list[Path], sp, p: Params, limit_bytes: float | None, progress):
+    """The DTM of soundings kept on disk (:class:`hadal.grid.soundings.SpilledSoundings`) out of core
+    (:func:`hadal.grid.tiles.grid_multibeam_tiled`, the same Dataset as :func:`hadal.grid.multibeam.grid_multibeam`
+    of them in memory): the implausible ones counted and dropped, the resolution from a subsample read back, the
+    grid from their extent, the soundings streamed from disk into the tiles. Returns ``(ds, res_m, how,
+    n_implausible)``."""
+    import numpy as np
+
+    from hadal.grid.multibeam import auto_resolution_of_sample, auto_resolution_step
+    from hadal.grid.points import make_grid_spec
     from hadal.grid.tiles import grid_multibeam_tiled
 
-    ext, _ = point_extent(*cols)
-    spec = make_grid_spec(res_m, ext, max_cells=p.max_cells, snap=True)
-    n = len(cols[2])
+    _check_implausible(files, sp.n_implausible, sp.n, sp.abs_depth_median)
 
-    def chunks():
-        step = 1 << 21
-        for a in range(0, n, step):
-            yield (cols[0][a:a + step].copy(), cols[1][a:a + step].copy(),  # copies: no view keeps the columns alive
-                   cols[2][a:a + step].copy())
-        cols.clear()
+    def auto():
+        step = auto_resolution_step(sp.n_xy)
+        return auto_resolution_of_sample(*sp.xy_subsample(step), step, sp.n_xy)
 
-    return grid_multibeam_tiled(
-        chunks(), spec, check_inside=False, spike_k=p.spike_k, spike_k_neighbourhood=p.spike_k_neighbourhood,
+    res_m, how = _dtm_resolution(p, auto)
+    check_grid_memory("the DTM", np.empty(0), np.empty(0), float(res_m), DTM_LAYERS + (2 if p.prior_fill else 0), limit_bytes,
+                      "grid.dtm_resolution_m",
+                      f"auto ({float(res_m):g} m)" if p.dtm_resolution_m == "auto" else float(res_m), p.max_cells,
+                      extent=sp.extent_xy or (0.0, 0.0, 0.0, 0.0))
+    n = sp.n - sp.n_implausible
+    if sp.extent is None:
+        raise InputError(f"all {n} soundings have NaN/inf coordinates; nothing to grid")
+    spec = make_grid_spec(float(res_m), sp.extent, max_cells=p.max_cells, snap=True)
+    ds = grid_multibeam_tiled(
+        sp.chunks(), spec, check_inside=False, spike_k=p.spike_k, spike_k_neighbourhood=p.spike_k_neighbourhood,
         spike_neighbours=p.spike_neighbours, spike_min_count=p.spike_min_count, spike_floor_m=p.spike_floor_m,
         remove_spikes=p.spike_removal, fill_max_cells=p.fill_max_cells, apriori_a_m=p.apriori_a_m,
         apriori_b=p.apriori_b, prior_weight=p.prior_weight, expected_points=n, progress=progress)
+    return ds, res_m, how, sp.n_implausible
 
 
 def make_dtm(files: list[Path], frame, p: Params, hints: list | None = None, readers: dict | None = None,
              chunk_points: int = 1_000_000, *, memory_limit_bytes: float | None = None, progress=None,
-             out_of_core: bool | None = None):
+             out_of_core: bool | None = None, scratch_dir=None):
     """Read multibeam sounding files, project them into ``frame`` and grid them (returns the DTM Dataset).
 
     Each file is streamed through :func:`hadal.grid.sonar.iter_multibeam` (xyz text in any compression,
     GSF, Kongsberg .kmall/.all, Reson .s7k; format detected from the content) with the reading hints of
     its ``dive.yaml`` entry (``hints[i]``, a :class:`hadal.dive.SourceFile` or None; :func:`hadal.grid.soundings.
-    read_soundings_xy`). Chunks are projected
+    read_soundings`). Chunks are projected
     as they arrive and only x, y, depth are kept (:class:`hadal.grid.sonar.ColumnAccumulator`: ~1x). Projected soundings are
     converted from their declared CRS (``crs:``) to the map frame; ``crs: local`` means they already are
     in the dive's map frame. ``frame`` None: a frame centred on the first file's first soundings.
     ``readers``, when given, receives ``{str(file): "reader (format ...)"}`` for the manifest; the same text
-    is in ``ds.attrs["multibeam_readers"]``. When the in-memory gridding of the soundings would exceed the memory
-    budget (or ``out_of_core``), they are gridded tile by tile on disk (:func:`_grid_dtm_tiled`; the same DTM).
+    is in ``ds.attrs["multibeam_readers"]``. Once the soundings read are more than the in-memory gridding fits in
+    the memory budget (or from the first with ``out_of_core``), every chunk goes to disk as it is read (under
+    ``scratch_dir``, default the system temp dir) and they are gridded tile by tile (:func:`_grid_dtm_spilled`; the
+    same DTM).
     """
 
-    from hadal.grid.multibeam import add_geo, grid_multibeam
-    from hadal.grid.soundings import read_soundings_xy
+    from hadal.grid.multibeam import add_geo, auto_resolution_m, grid_multibeam
+    from hadal.grid.soundings import SpilledSoundings, read_soundings
 
     if hints is not None and len(hints) != len(files):
         raise ValueError("make_dtm: hints must have one entry per file")
-    x, y, dep, frame, used = read_soundings_xy(files, frame, hints, chunk_points=chunk_points, readers=readers,
-                                               progress=progress, memory_limit_bytes=memory_limit_bytes)
-    x, y, dep, n_implausible = _drop_implausible(files, x, y, dep)
-    res_m, how = _dtm_resolution(p, x, y)
-    check_grid_memory("the DTM", x, y, float(res_m), DTM_LAYERS + (2 if p.prior_fill else 0), memory_limit_bytes,
-                      "grid.dtm_resolution_m",
-                      f"auto ({float(res_m):g} m)" if p.dtm_resolution_m == "auto" else float(res_m), p.max_cells)
-    if _use_tiles(p, len(dep), memory_limit_bytes, out_of_core):
-        cols = [x, y, dep]
-        del x, y, dep
-        ds = _grid_dtm_tiled(cols, p, float(res_m), progress)
+    cols, frame, used = read_soundings(files, frame, hints, chunk_points=chunk_points, readers=readers,
+                                       progress=progress, memory_limit_bytes=memory_limit_bytes,
+                                       spill_above_points=_spill_above_points(p, memory_limit_bytes, out_of_core),
+                                       scratch_dir=scratch_dir)
+    if isinstance(cols, SpilledSoundings):
+        with cols:
+            ds, res_m, how, n_implausible = _grid_dtm_spilled(files, cols, p, memory_limit_bytes, progress)
     else:
+        x, y, dep = cols
+        del cols
+        x, y, dep, n_implausible = _drop_implausible(files, x, y, dep)
+        res_m, how = _dtm_resolution(p, lambda: auto_resolution_m(x, y))
+        check_grid_memory("the DTM", x, y, float(res_m), DTM_LAYERS + (2 if p.prior_fill else 0),
+                          memory_limit_bytes, "grid.dtm_resolution_m",
+                          f"auto ({float(res_m):g} m)" if p.dtm_resolution_m == "auto" else float(res_m), p.max_cells)
         ds = grid_multibeam(
             x, y, dep, float(res_m), remove_spikes=p.spike_removal, spike_k=p.spike_k,
             spike_k_neighbourhood=p.spike_k_neighbourhood, spike_neighbours=p.spike_neighbours, spike_min_count=p.spike_min_count,

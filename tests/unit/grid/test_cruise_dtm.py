@@ -17,9 +17,9 @@ LAUNCHES = [(11.330, 142.200), (11.345, 142.215), (11.322, 142.228)]
 
 
 def write_cruise_dive(raw: Path, dive_id: str, launch: tuple[float, float], seed: int, n: int = 15_000,
-                      lines: int = 2, extra_sources: list[str] | None = None) -> Path:
+                      lines: int = 2, extra_sources: list[str] | None = None, spikes: float = 0.0) -> Path:
     """A dive directory with ``lines`` gzip xyz multibeam files (lon lat depth) around ``launch``: a sloping
-    seafloor with ripples, noise 1 m."""
+    seafloor with ripples, noise 1 m; a share ``spikes`` of the soundings 30-200 m off."""
     from hadal.geo import LocalFrame
 
     rng = np.random.default_rng(seed)
@@ -31,6 +31,9 @@ def write_cruise_dive(raw: Path, dive_id: str, launch: tuple[float, float], seed
         y = rng.uniform(-700 + 500 * line, -200 + 500 * line, n)
         lon, lat = fr.to_lonlat(x, y)
         z = 10_800 + 0.02 * x + 5 * np.sin(x / 150) + rng.normal(0, 1.0, n)
+        if spikes:
+            sp = rng.random(n) < spikes
+            z[sp] += rng.choice([-1.0, 1.0], sp.sum()) * rng.uniform(30, 200, sp.sum())
         rel = f"multibeam/em124_{dive_id}_l{line}.xyz.gz"
         with gzip.open(raw / rel, "wt") as fh:
             np.savetxt(fh, np.column_stack([lon, lat, z]), fmt="%.8f %.8f %.3f")
@@ -46,15 +49,15 @@ def make_cruise(root: Path, n: int = 15_000) -> list[Path]:
     return [write_cruise_dive(root / f"dive-{k}", f"D{k:03d}", la, seed=k, n=n) for k, la in enumerate(LAUNCHES)]
 
 
-def oracle_dtm(raws: list[Path], resolution_m: float):
+def oracle_dtm(raws: list[Path], resolution_m: float, launches=LAUNCHES, **kw):
     """grid_multibeam of all the soundings (np.loadtxt of every listed existing file, pyproj into the frame centred
-    on the launch points' bounding box), remove_spikes=False."""
+    on the launch points' bounding box), with its default spike test (``kw``: its other arguments)."""
     from pyproj import Transformer
 
     from hadal.grid.multibeam import grid_multibeam
 
-    lats = [la for la, _ in LAUNCHES]
-    lons = [lo for _, lo in LAUNCHES]
+    lats = [la for la, _ in launches]
+    lons = [lo for _, lo in launches]
     lat0, lon0 = (min(lats) + max(lats)) / 2, (min(lons) + max(lons)) / 2
     tm = Transformer.from_crs("EPSG:4326", f"+proj=tmerc +lat_0={lat0!r} +lon_0={lon0!r} +k=1 +x_0=0 +y_0=0 "
                               "+datum=WGS84 +units=m +no_defs", always_xy=True)
@@ -65,7 +68,7 @@ def oracle_dtm(raws: list[Path], resolution_m: float):
                 cols.append(np.loadtxt(raw / rel))
     a = np.concatenate(cols)
     x, y = tm.transform(a[:, 0], a[:, 1])
-    return grid_multibeam(x, y, a[:, 2], resolution_m, remove_spikes=False), (lat0, lon0)
+    return grid_multibeam(x, y, a[:, 2], resolution_m, **kw), (lat0, lon0)
 
 
 def assert_same_dtm(ds, ref) -> None:
@@ -77,7 +80,8 @@ def assert_same_dtm(ds, ref) -> None:
     for v in ("depth_m", "depth_median_m", "depth_std_m", "uncertainty_m"):
         # the soundings are projected by the same pyproj transform: identical up to its last-bit reproducibility
         np.testing.assert_allclose(ds[v].values, ref[v].values, rtol=0, atol=1e-9, equal_nan=True)
-    assert ds.attrs["n_soundings_used"] == ref.attrs["n_soundings_used"]
+    for k in ("n_soundings_used", "n_soundings_spikes", "spike_noise_floor_m", "spike_filter"):
+        np.testing.assert_equal(ds.attrs[k], ref.attrs[k], err_msg=k)  # NaN == NaN here
 
 
 def test_cruise_dtm_equals_in_memory_grid_of_all_soundings(tmp_path):
@@ -98,6 +102,31 @@ def test_cruise_dtm_equals_in_memory_grid_of_all_soundings(tmp_path):
     assert all(d["used"] and len(d["files_used"]) == 2 for d in prov["dives"].values())
     assert ds.attrs["cruise_dives"] == "D000, D001, D002"
     assert "lat" in ds and "crs" in ds  # georeferenced in the cruise frame
+
+
+#: launch points of dives surveying the same ground (each dive's lines overlap the others')
+OVERLAPPING = [(11.330, 142.200), (11.333, 142.203), (11.328, 142.205)]
+
+
+@pytest.mark.parametrize("spike_removal", [True, False])
+def test_cruise_spike_test_equals_in_memory_across_tiles_and_dives(tmp_path, spike_removal):
+    """The cruise runs the dive dtm's spike test (one noise floor over all dives, the neighbour test with halos
+    across tile seams and across dives): with spikes in dives that overlap, small tiles (seams everywhere), the
+    spike count, noise floor and every layer equal the in-memory grid_multibeam of the union of the soundings
+    (oracle, spike test on or off as the ``grid`` settings say)."""
+    from hadal.grid.cruise import cruise_dtm_dataset
+    from hadal.settings.grid import GridParams
+
+    raws = [write_cruise_dive(tmp_path / "raw" / f"d{k}", f"S{k}", la, seed=10 + k, n=6000, spikes=0.01)
+            for k, la in enumerate(OVERLAPPING)]
+    scratch = tmp_path / "scratch"
+    scratch.mkdir()
+    ds, _ = cruise_dtm_dataset([str(r) for r in raws], 20.0, scratch, tile_cells=8, min_task_points=4000,
+                               params=GridParams(spike_removal=spike_removal))
+    ref, _ = oracle_dtm(raws, 20.0, OVERLAPPING, remove_spikes=spike_removal)
+    assert ds.attrs["n_tiles"] > 16
+    assert (ref.attrs["n_soundings_spikes"] > 300) == spike_removal  # ~1 % of 36 000, and the noisy tail
+    assert_same_dtm(ds, ref)
 
 
 def test_bad_dive_and_files_are_named_and_left_out(tmp_path):

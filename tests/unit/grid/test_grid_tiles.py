@@ -371,3 +371,123 @@ def test_block_median_by_selection_equals_pandas(per_cell):
         full = np.full(m, np.nan)
         full[ref.index.to_numpy()] = ref.to_numpy()
         np.testing.assert_array_equal(got[s], full, err_msg=s)
+
+
+def test_dtm_stage_streams_soundings_to_disk_same_dtm(tmp_path, monkeypatch):
+    """Soundings streamed to disk as they are read (hadal.grid.soundings.SpilledSoundings: issue 48, readers into
+    tiles): three xyz files read in chunks of 3 000, with NaN, implausible depths (a fill value) and automatic
+    resolution. Out of core from the first chunk, and spilled mid-read (above a budget the second file crosses),
+    the DTM equals the in-memory one (oracle: hadal.grid.multibeam.grid_multibeam through make_dtm) array for
+    array, resolution choice and counts included; no chunk larger than the reader's went to disk, the accumulator
+    never held more than the spill threshold, and the scratch directory is removed."""
+    import tempfile
+
+    from hadal.geo import LocalFrame
+    from hadal.grid import soundings as S
+    from hadal.grid.sonar import ColumnAccumulator
+    from hadal.settings import GridParams as Params
+    from hadal.stages import grid as G
+    from hadal.stages.grid import make_dtm
+
+    scratch = tmp_path / "scratch"
+    scratch.mkdir()
+    monkeypatch.setattr(tempfile, "tempdir", str(scratch))
+    rng = np.random.default_rng(48)
+    files, n_all = [], 0
+    for k, n in enumerate((7_000, 11_000, 5_000)):
+        x, y = rng.uniform(0, 900, n) + 300 * k, rng.uniform(0, 600, n)
+        z = 5000 + 0.05 * x - 0.03 * y + rng.normal(0, 0.4, n)
+        z[rng.random(n) < 0.002] += 80.0  # spikes
+        z[rng.random(n) < 0.001] = 99999.0  # a fill value: implausible, dropped and counted
+        x[rng.random(n) < 0.001] = np.nan
+        f = tmp_path / f"mb{k}.xyz"
+        np.savetxt(f, np.column_stack([x, y, z]), fmt="%.3f")
+        files.append(f)
+        n_all += n
+    from hadal.dive import SourceFile
+
+    hints = [SourceFile(path=f.name, crs="local", z_positive="down") for f in files]
+    frame = LocalFrame(11.3, 142.2)
+    p = Params(dtm_resolution_m="auto")
+    ref = make_dtm(files, frame, p, hints, chunk_points=3_000, out_of_core=False)
+    assert ref.attrs["n_soundings_implausible"] > 0 and "n_tiles" not in ref.attrs
+    assert ref.attrs["n_soundings_spikes"] > 0 and ref.attrs["n_soundings_nonfinite"] > 0
+
+    sizes: list[int] = []
+    add = S.SpilledSoundings.add
+    monkeypatch.setattr(S.SpilledSoundings, "add", lambda self, x, y, z: (sizes.append(len(z)), add(self, x, y, z)))
+    held: list[int] = []
+    acc_add = ColumnAccumulator.add
+    monkeypatch.setattr(ColumnAccumulator, "add", lambda self, *c: (acc_add(self, *c), held.append(self.n)))
+    # the in-memory threshold: 10 000 soundings, crossed in file 2 (a budget the readers' fixed cost fits in)
+    monkeypatch.setattr(G, "DTM_BYTES_PER_SOUNDING", 2**30 / 10_000.5)
+    for kw in ({"out_of_core": True}, {"memory_limit_bytes": 2**30}):
+        sizes.clear()
+        held.clear()
+        got = make_dtm(files, frame, p, hints, chunk_points=3_000, **kw)
+        assert got.attrs["n_tiles"] >= 1, kw
+        assert sum(sizes) == n_all and max(sizes) <= (3_000 if kw.get("out_of_core") else 10_000), kw
+        assert max(held, default=0) <= (0 if kw.get("out_of_core") else 10_000), kw
+        for v in ref.data_vars:
+            np.testing.assert_array_equal(ref[v].values, got[v].values, err_msg=f"{v} {kw}")
+        for k in ("n_soundings_input", "n_soundings_nonfinite", "n_soundings_implausible", "n_soundings_spikes",
+                  "n_soundings_used", "n_cells_filled", "resolution_m", "resolution_choice"):
+            assert ref.attrs[k] == got.attrs[k], (k, kw)
+        assert list(scratch.iterdir()) == [], kw
+
+
+def test_dtm_stage_streamed_most_soundings_implausible_one_line(tmp_path, monkeypatch):
+    """Out of core, soundings mostly beyond any ocean depth (feet) are refused in the in-memory path's one line."""
+    import tempfile
+
+    from hadal.dive import SourceFile
+    from hadal.geo import LocalFrame
+    from hadal.settings import GridParams as Params
+    from hadal.stages.grid import make_dtm
+
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))
+    rng = np.random.default_rng(1)
+    f = tmp_path / "feet.xyz"
+    np.savetxt(f, np.column_stack([rng.uniform(0, 500, 2000), rng.uniform(0, 500, 2000),
+                                   rng.uniform(30000, 36000, 2000)]), fmt="%.3f")
+    hint = [SourceFile(path=f.name, crs="local")]
+    msgs = []
+    for ooc in (False, True):
+        with pytest.raises(InputError, match=r"feet\?") as e:
+            make_dtm([f], LocalFrame(11.3, 142.2), Params(dtm_resolution_m=20.0), hint, out_of_core=ooc)
+        msgs.append(str(e.value))
+    assert msgs[0] == msgs[1] and "\n" not in msgs[1]
+    assert [p.name for p in tmp_path.iterdir()] == ["feet.xyz"]
+
+
+@pytest.mark.parametrize("step", [1, 3, 7, 1000])
+def test_spilled_soundings_read_back_and_subsample(tmp_path, step):
+    """SpilledSoundings: chunks read back equal what was written minus the implausible soundings, the statistics
+    equal NumPy's on the whole arrays, and the automatic resolution's subsample is ``x[ok][::step]`` whatever the
+    chunk boundaries (oracle: NumPy on the concatenated arrays)."""
+    from hadal.grid.prior import MAX_ABS_DEPTH_M
+    from hadal.grid.soundings import SpilledSoundings
+
+    rng = np.random.default_rng(step)
+    x, y, z = rng.uniform(-50, 50, 10_007), rng.uniform(0, 9, 10_007), rng.uniform(10, 11_000, 10_007)
+    x[rng.random(x.size) < 0.01] = np.nan
+    z[rng.random(x.size) < 0.01] = np.inf
+    z[rng.random(x.size) < 0.01] = -1e6
+    with SpilledSoundings(tmp_path) as sp:
+        for a in range(0, x.size, 997):
+            sp.add(x[a:a + 997], y[a:a + 997], z[a:a + 997])
+        keep = ~(np.isfinite(z) & (np.abs(z) > MAX_ABS_DEPTH_M))
+        got = [np.concatenate(c) for c in zip(*sp.chunks(1234), strict=True)]
+        for g, w in zip(got, (x[keep], y[keep], z[keep]), strict=True):
+            np.testing.assert_array_equal(g, w)
+        ok = keep & np.isfinite(x) & np.isfinite(y)
+        assert (sp.n, sp.n_implausible, sp.n_xy) == (x.size, int((~keep).sum()), int(ok.sum()))
+        assert sp.extent_xy == (x[ok].min(), y[ok].min(), x[ok].max(), y[ok].max())
+        ok3 = ok & np.isfinite(z)
+        assert sp.extent == (x[ok3].min(), y[ok3].min(), x[ok3].max(), y[ok3].max())
+        xs, ys = sp.xy_subsample(step, chunk_points=1111)
+        np.testing.assert_array_equal(xs, x[ok][::step])
+        np.testing.assert_array_equal(ys, y[ok][::step])
+        assert sp.abs_depth_median() == np.median(np.abs(z))
+        d = sp.dir
+    assert not d.exists()
