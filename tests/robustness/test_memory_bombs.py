@@ -936,7 +936,7 @@ def test_derive_rereads_of_an_xz_cnv_are_held_against_the_budget(tmp_path):
         _one_line_error(out, "decoding this CNV file needs more than")
         assert "limit 256 MiB)" in out["message"] and out["peak"] - out["base"] < GIB / 2, out
 
-    sys.path.insert(0, str(Path(__file__).parent / "malformed"))
+    sys.path.insert(0, str(Path(__file__).parents[1] / "malformed"))
     from tiny_dive import write_dive
 
     raw = write_dive(tmp_path / "raw", 5.0)
@@ -977,7 +977,7 @@ def test_inspect_refuses_a_bomb_in_one_line(tmp_path, kind):
     cfg.write_text("resources:\n  max_memory_gb: 0.25\n")
     out = _run_capped(f"""
         import sys
-        sys.path.insert(0, {str(Path(__file__).parent)!r})
+        sys.path.insert(0, {str(Path(__file__).resolve().parents[1])!r})
         from cli_runner import run_cli
         def run():
             res = run_cli("inspect", "--json", "--config", {str(cfg)!r}, {str(p)!r})

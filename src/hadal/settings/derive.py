@@ -69,7 +69,7 @@ class DeriveParams(BaseModel):
         description="profile of the water above a record that does not start at the surface: a CSV (columns "
                     "pressure_dbar and temperature_its90_degc + practical_salinity, or density_kg_m3; other "
                     "units as 'name [unit]') or Sea-Bird .cnv file, path relative to the dive's raw directory "
-                    "or absolute; monotonic pressure from within surface_start_dbar of the surface down to the "
+                    "(or absolute), inside the dive like every source; monotonic pressure from within surface_start_dbar of the surface down to the "
                     "record's first sample (null: the record's own shallower samples, else the standard ocean)")
     phase_smoothing_s: float = Field(60.0, gt=0, le=86_400,
                                      description="depth smoothing before the phase segmentation (s, up to 1 day)")

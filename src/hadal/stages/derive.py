@@ -247,11 +247,14 @@ def run(ctx: StageContext) -> dict[str, ProductVersion]:
 
 
 def overlying_profile_path(p: Params, raw_dir: Any) -> Path:
-    """``p.overlying_profile`` as a path: absolute, or relative to the dive's raw directory (``~`` expanded)."""
+    """``p.overlying_profile`` as a path, relative to the dive's raw directory (or absolute, ``~`` expanded) and,
+    like every source, inside it: a path that resolves outside the dive (``..``, a symbolic link) is a one-line
+    :class:`~hadal.errors.ConfigError` (:func:`hadal.dive.resolve_source`)."""
     from pathlib import Path
 
-    path = Path(str(p.overlying_profile)).expanduser()
-    return path if path.is_absolute() else Path(raw_dir) / path
+    from hadal.dive import resolve_source
+
+    return resolve_source(Path(raw_dir), str(Path(str(p.overlying_profile)).expanduser()))
 
 
 def raw_files(ctx: StageContext) -> list[Path]:

@@ -199,3 +199,22 @@ def test_params_validation():
         with pytest.raises(ValidationError):
             DeriveParams(overlying_profile=bad)
     assert DeriveParams(overlying_profile="/abs/top.csv").overlying_profile == "/abs/top.csv"
+
+
+def test_overlying_profile_outside_the_dive_is_refused_in_one_line(tmp_path):
+    """Like every source, the overlying profile resolves inside the dive directory (issue 45: confinement):
+    a ``..`` path, an absolute path elsewhere and a symbolic link out of the dive are one-line config errors;
+    a file inside the dive (relative or absolute) is accepted."""
+    raw = tmp_path / "dive"
+    raw.mkdir()
+    outside = tmp_path / "top.csv"
+    outside.write_text("pressure_dbar,density_kg_m3\n0,1025\n")
+    (raw / "link.csv").symlink_to(outside)
+    (raw / "inside.csv").write_text("pressure_dbar,density_kg_m3\n0,1025\n")
+    for rel in ("../top.csv", str(outside), "link.csv"):
+        with pytest.raises(ConfigError, match="escapes the dive directory") as exc:
+            derive.overlying_profile_path(DeriveParams(overlying_profile=rel), raw)
+        assert "\n" not in str(exc.value)
+    assert derive.overlying_profile_path(DeriveParams(overlying_profile="inside.csv"), raw) == (raw / "inside.csv").resolve()
+    assert derive.overlying_profile_path(DeriveParams(overlying_profile=str(raw / "inside.csv")), raw) \
+        == (raw / "inside.csv").resolve()
