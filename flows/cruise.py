@@ -2,7 +2,8 @@
 task runner (prefect-dask ``DaskTaskRunner``).
 
 The science is :func:`hadal.grid.cruise.cruise_dtm_dataset`; this flow only gives it a ``map`` that submits one
-Prefect task per dive (read, then partition) and per group of tiles (reduce; small tiles grouped to about a million soundings) to the task runner: a new
+Prefect task per dive (read, then partition) and per group of tiles (spike-test noise floor, spike flags, reduce;
+small tiles grouped to about a million soundings) to the task runner: a new
 ``dask.distributed.LocalCluster`` of ``workers`` single-threaded worker processes, or an existing cluster at
 ``scheduler`` (``tcp://host:8786``; every worker must see the raw directories, the store and the scratch
 directory, and have hadal installed). Each task writes its scratch files atomically and is a pure function of
@@ -22,7 +23,8 @@ from typing import Any
 from prefect import flow, task
 from prefect.cache_policies import NO_CACHE
 
-from hadal.grid.cruise import cruise_dtm_dataset, partition_dive, read_dive, reduce_tiles
+from hadal.grid.cruise import cruise_dtm_dataset, partition_dive, read_dive, reduce_tiles, spike_tiles
+from hadal.grid.tiles import tile_cell_mads
 from hadal.settings.grid import GridParams
 
 # one Prefect task per unit of work; no Prefect cache (the scratch files are the state, and the inputs are
@@ -30,6 +32,8 @@ from hadal.settings.grid import GridParams
 _TASKS: dict[str, Any] = {
     read_dive.__name__: task(name="cruise-read-dive", cache_policy=NO_CACHE)(read_dive),
     partition_dive.__name__: task(name="cruise-partition-dive", cache_policy=NO_CACHE)(partition_dive),
+    tile_cell_mads.__name__: task(name="cruise-tile-noise", cache_policy=NO_CACHE)(tile_cell_mads),
+    spike_tiles.__name__: task(name="cruise-spike-tiles", cache_policy=NO_CACHE)(spike_tiles),
     reduce_tiles.__name__: task(name="cruise-reduce-tiles", cache_policy=NO_CACHE)(reduce_tiles),
 }
 

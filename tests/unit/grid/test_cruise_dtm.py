@@ -121,8 +121,22 @@ def test_cruise_spike_test_equals_in_memory_across_tiles_and_dives(tmp_path, spi
             for k, la in enumerate(OVERLAPPING)]
     scratch = tmp_path / "scratch"
     scratch.mkdir()
+    from hadal.flows.cruise import _TASKS
+
+    from hadal.grid.cruise import serial_map
+
+    seen: set[str] = set()
+
+    def flow_map(fn, items):
+        """The cruise flow hands every unit of work to a Prefect task of its table: each phase must have one."""
+        assert fn.__name__ in _TASKS, f"{fn.__name__} has no task in flows/cruise.py"
+        seen.add(fn.__name__)
+        return serial_map(fn, items)
+
     ds, _ = cruise_dtm_dataset([str(r) for r in raws], 20.0, scratch, tile_cells=8, min_task_points=4000,
-                               params=GridParams(spike_removal=spike_removal))
+                               params=GridParams(spike_removal=spike_removal), map=flow_map)
+    assert {"read_dive", "partition_dive", "reduce_tiles"} <= seen
+    assert spike_removal == ({"tile_cell_mads", "spike_tiles"} <= seen)
     ref, _ = oracle_dtm(raws, 20.0, OVERLAPPING, remove_spikes=spike_removal)
     assert ds.attrs["n_tiles"] > 16
     assert (ref.attrs["n_soundings_spikes"] > 300) == spike_removal  # ~1 % of 36 000, and the noisy tail
